@@ -1,0 +1,108 @@
+"""Tagged triangle meshes: the hand-off from geometry/ to straylight/.
+
+A :class:`Part` is one named solid (or sheet) tessellated to triangles, in mm,
+carrying a material *name* (geometry never imports materials) and a role.
+A :class:`Scene` is an ordered tuple of parts; its flattened arrays give, for
+every triangle, the index of the part it belongs to.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+ROLES = ("surface", "mirror", "absorber", "detector")
+
+
+class GeometryError(ValueError):
+    """Bad geometry input; the message names the part or file."""
+
+
+@dataclass(frozen=True, eq=False)
+class Part:
+    """One named part.
+
+    vertices_mm : (v, 3) float64
+    faces : (m, 3) int64, counter-clockwise seen from outside (outward normals)
+    material : material name (a preset, a file path or a scene [material.*] key), or None
+    role : one of ROLES
+    """
+
+    name: str
+    vertices_mm: np.ndarray
+    faces: np.ndarray
+    material: str | None = None
+    role: str = "surface"
+    meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.role not in ROLES:
+            raise GeometryError(f"part {self.name!r}: unknown role {self.role!r}; expected one of {', '.join(ROLES)}")
+        v = np.asarray(self.vertices_mm, dtype=np.float64)
+        f = np.asarray(self.faces, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise GeometryError(f"part {self.name!r}: vertices must be (n, 3), got {v.shape}")
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise GeometryError(f"part {self.name!r}: faces must be a non-empty (m, 3) array, got {f.shape}")
+        if f.min() < 0 or f.max() >= len(v):
+            raise GeometryError(f"part {self.name!r}: face index out of range")
+        object.__setattr__(self, "vertices_mm", v)
+        object.__setattr__(self, "faces", f)
+
+    @property
+    def n_triangles(self) -> int:
+        return len(self.faces)
+
+    def to_trimesh(self):
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices_mm, self.faces, process=False)
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """Ordered parts. Flattened triangle arrays are cached (the scene is immutable)."""
+
+    parts: tuple[Part, ...]
+
+    def __post_init__(self):
+        object.__setattr__(self, "parts", tuple(self.parts))
+        names = [p.name for p in self.parts]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise GeometryError(f"duplicate part name(s): {', '.join(dup)}")
+
+    @property
+    def part_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parts)
+
+    def part(self, name: str) -> Part:
+        for p in self.parts:
+            if p.name == name:
+                return p
+        raise GeometryError(f"no part named {name!r}; parts: {', '.join(self.part_names)}")
+
+    @cached_property
+    def triangles_mm(self) -> np.ndarray:
+        """(m, 3, 3) float64: all triangles, parts in order."""
+        return np.concatenate([p.vertices_mm[p.faces] for p in self.parts], axis=0)
+
+    @cached_property
+    def triangle_part(self) -> np.ndarray:
+        """(m,) int32: index into ``parts`` of each triangle."""
+        return np.concatenate(
+            [np.full(p.n_triangles, i, dtype=np.int32) for i, p in enumerate(self.parts)]
+        )
+
+    @cached_property
+    def triangle_normals(self) -> np.ndarray:
+        t = self.triangles_mm
+        n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        return n / np.where(length > 0, length, 1.0)
+
+    @cached_property
+    def bounds_mm(self) -> np.ndarray:
+        t = self.triangles_mm.reshape(-1, 3)
+        return np.stack([t.min(axis=0), t.max(axis=0)])

@@ -1,0 +1,1 @@
+"""BRDF models for black coatings, importance sampling, fitting and measured scans."""

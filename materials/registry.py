@@ -1,0 +1,50 @@
+"""Component registry: ``@register("abg")`` on a model class; ``build(dict)`` makes one.
+
+A registered class must be a dataclass whose fields are the component keys of
+CONTRACTS §5 and which provides the :class:`materials.base.Brdf` protocol.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+from materials.base import MaterialError
+
+_REGISTRY: dict[str, type] = {}
+
+
+def register(type_name: str):
+    def decorate(cls):
+        if type_name in _REGISTRY and _REGISTRY[type_name] is not cls:
+            raise RuntimeError(f"component type {type_name!r} registered twice")
+        _REGISTRY[type_name] = cls
+        cls.type_name = type_name
+        return cls
+
+    return decorate
+
+
+def component_types() -> dict[str, type]:
+    return dict(_REGISTRY)
+
+
+def build_component(entry: dict, where: str = "component"):
+    """Build one component from its dict; unknown type or keys are a MaterialError naming ``where``."""
+    if not isinstance(entry, dict) or "type" not in entry:
+        raise MaterialError(f"{where}: a component needs a 'type' key")
+    type_name = entry["type"]
+    cls = _REGISTRY.get(type_name)
+    if cls is None:
+        raise MaterialError(
+            f"{where}: unknown component type {type_name!r}; known: {', '.join(sorted(_REGISTRY))}"
+        )
+    known = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {k: v for k, v in entry.items() if k != "type"}
+    unknown = sorted(set(kwargs) - known)
+    if unknown:
+        raise MaterialError(
+            f"{where}: unknown key(s) {', '.join(unknown)} for type {type_name!r}; allowed: {', '.join(sorted(known))}"
+        )
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise MaterialError(f"{where}: {exc}") from None

@@ -1,0 +1,1 @@
+"""The bidirectional reflectometer: instrument model, control, and sim-to-real diagnosis."""
