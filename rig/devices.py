@@ -1,0 +1,417 @@
+"""ophyd devices of the reflectometer, over a real (PyVISA) or simulated backend.
+
+| device | class | read fields | backend (real) |
+|---|---|---|---|
+| sample stage | :class:`RotaryStage` | ``<name>`` (readback, deg), ``<name>_setpoint`` | ESP301 axis 1 |
+| detector arm | :class:`RotaryStage` | same | ESP301 axis 2 |
+| half-wave plate | :class:`RotaryStage` | same (0 deg = s, 45 deg = p) | ESP301 axis 3 |
+| laser | :class:`Laser` | ``laser_power_w`` | SR830 AUX IN 1 x watts per volt |
+| chopper | :class:`Chopper` | ``chopper_frequency_hz`` | SR830 ``FREQ?`` (external reference) |
+| lock-in | :class:`LockIn` | ``lockin_mean_v``, ``lockin_std_v``, ``lockin_n`` | SR830 ``OUTP? 1`` |
+
+A backend is any object with the methods the device calls (see :class:`AxisBackend`,
+:class:`LockinBackend`); :mod:`rig.sim` provides simulated ones, :func:`real_backends` wraps the
+drivers. Backends with ``synchronous = True`` (the simulation) complete moves and readings in
+the calling thread, in simulated time; the others run in a worker thread.
+
+Soft limits are checked in ``set`` before any command is sent (:class:`SoftLimitError`); a
+move that does not finish within ``timeout_s`` fails its status with :class:`MoveTimeout`;
+a lock-in that does not answer fails the trigger with the driver's ``InstrumentTimeout``.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from ophyd import Component as Cpt
+from ophyd import Device, Kind, Signal
+from ophyd.status import DeviceStatus
+from ophyd.utils import LimitError
+
+from rig.drivers.sr830 import SENSITIVITY_V
+
+
+class SoftLimitError(LimitError):
+    """A requested position is outside a device's soft limits (nothing was moved)."""
+
+
+class MoveTimeout(TimeoutError):
+    """A move did not finish in time (stalled axis); the axis was told to stop."""
+
+
+class AxisBackend(Protocol):
+    def move(self, position_deg: float) -> None: ...
+    def position(self) -> float: ...
+    def done(self) -> bool: ...
+    def stop(self) -> None: ...
+    def sleep(self, seconds: float) -> None: ...
+
+
+class LockinBackend(Protocol):
+    sensitivity_v: float
+    time_constant_s: float
+    def output(self, which: str = "x") -> float: ...
+    def settle_time_s(self) -> float: ...
+    def overloads(self) -> list[str]: ...
+    def sleep(self, seconds: float) -> None: ...
+
+
+def _run(backend, device, work) -> DeviceStatus:
+    """Run ``work()`` (returns nothing, may raise) and return a status that reports it."""
+    status = DeviceStatus(device)
+
+    def target():
+        try:
+            work()
+        except Exception as exc:  # noqa: BLE001 - reported through the status
+            status.set_exception(exc)
+        else:
+            status.set_finished()
+
+    if getattr(backend, "synchronous", False):
+        target()
+    else:
+        threading.Thread(target=target, daemon=True, name=f"{device.name}-worker").start()
+    return status
+
+
+class RotaryStage(Device):
+    """A rotation axis as a bluesky Movable/Readable. Positions in degrees.
+
+    Parameters
+    ----------
+    backend : AxisBackend
+    limits_deg : (low, high) soft limits, checked before motion.
+    timeout_s : time allowed for one move; a stalled move fails with MoveTimeout.
+    poll_s : motion-done polling interval (real backends).
+    """
+
+    readback = Cpt(Signal, value=0.0, kind=Kind.hinted)
+    setpoint = Cpt(Signal, value=0.0, kind=Kind.normal)
+
+    def __init__(self, prefix="", *, backend, limits_deg=(-170.0, 170.0), timeout_s=30.0, poll_s=0.02, name, **kwargs):
+        super().__init__(prefix, name=name, **kwargs)
+        low, high = (float(v) for v in limits_deg)
+        if not low < high:
+            raise ValueError(f"{name}: limits_deg must be (low, high) with low < high, got {limits_deg}")
+        self._backend = backend
+        self._limits = (low, high)
+        self.timeout_s = float(timeout_s)
+        self.poll_s = float(poll_s)
+        self.readback.name = name
+        pos = backend.position()
+        self.readback.put(pos)
+        self.setpoint.put(pos)
+
+    @property
+    def limits(self):
+        return self._limits
+
+    @property
+    def position(self) -> float:
+        return self.readback.get()
+
+    def check_value(self, value):
+        low, high = self._limits
+        if not (np.isfinite(value) and low <= value <= high):
+            raise SoftLimitError(f"{self.name}: {value} deg is outside the soft limits [{low:g}, {high:g}] deg; not moved")
+
+    def set(self, value, **kwargs):
+        value = float(value)
+        self.check_value(value)  # before any command reaches the controller
+        self.setpoint.put(value)
+        backend = self._backend
+
+        def work():
+            backend.move(value)
+            deadline = time.monotonic() + self.timeout_s
+            while not backend.done():
+                if getattr(backend, "synchronous", False) or time.monotonic() > deadline:
+                    backend.stop()
+                    self.readback.put(backend.position())
+                    raise MoveTimeout(f"{self.name}: move to {value:g} deg not finished within "
+                                      f"{self.timeout_s:g} s (stalled at {backend.position():g} deg); stopped")
+                time.sleep(self.poll_s)
+            self.readback.put(backend.position())
+
+        return _run(backend, self, work)
+
+    def stop(self, *, success=False):
+        self._backend.stop()
+
+
+class _Backed(Signal):
+    """A configuration signal forwarded to an attribute of the parent's backend."""
+
+    def __init__(self, *args, attr, **kwargs):
+        self._attr = attr
+        super().__init__(*args, **kwargs)
+
+    def get(self, **kwargs):
+        parent = self.parent
+        if parent is not None and getattr(parent, "_backend", None) is not None:
+            self._readback = getattr(parent._backend, self._attr)
+        return super().get(**kwargs)
+
+    def put(self, value, **kwargs):
+        parent = self.parent
+        if parent is not None and getattr(parent, "_backend", None) is not None:
+            setattr(parent._backend, self._attr, value)
+            value = getattr(parent._backend, self._attr)
+        super().put(value, **kwargs)
+
+
+class LockIn(Device):
+    """Lock-in amplifier: one trigger takes ``n_readings`` readings, each after settling.
+
+    Read fields: ``mean_v``, ``std_v`` (sample standard deviation, ddof = 1), ``n``.
+    With ``autorange`` on, an overload moves to the next range up and a reading below 10 % of
+    full scale to the next range down (then settles and reads again), so one scan can span the
+    six decades of a black coating's BRDF.
+    """
+
+    mean_v = Cpt(Signal, value=np.nan, kind=Kind.hinted)
+    std_v = Cpt(Signal, value=np.nan, kind=Kind.normal)
+    n = Cpt(Signal, value=0, kind=Kind.normal)
+    sensitivity_v = Cpt(_Backed, attr="sensitivity_v", kind=Kind.config)
+    time_constant_s = Cpt(_Backed, attr="time_constant_s", kind=Kind.config)
+    n_readings = Cpt(Signal, value=3, kind=Kind.config)
+    settle_factor = Cpt(Signal, value=1.0, kind=Kind.config)
+    autorange = Cpt(Signal, value=True, kind=Kind.config)
+
+    def __init__(self, prefix="", *, backend, name, **kwargs):
+        self._backend = backend
+        super().__init__(prefix, name=name, **kwargs)
+
+    def _read_one(self) -> float:
+        b = self._backend
+        for _ in range(len(SENSITIVITY_V)):
+            b.sleep(self.settle_factor.get() * b.settle_time_s())
+            v = b.output("x")
+            over = b.overloads()
+            if not self.autorange.get():
+                return v
+            idx = int(np.searchsorted(np.asarray(SENSITIVITY_V), b.sensitivity_v * (1 - 1e-9)))
+            if over and idx < len(SENSITIVITY_V) - 1:
+                b.sensitivity_v = SENSITIVITY_V[idx + 1]
+            elif not over and abs(v) < 0.1 * SENSITIVITY_V[idx] and idx > 0 and abs(v) < 0.5 * SENSITIVITY_V[idx - 1]:
+                b.sensitivity_v = SENSITIVITY_V[idx - 1]
+            else:
+                return v
+        return v
+
+    def trigger(self):
+        n = int(self.n_readings.get())
+        if n < 1:
+            raise ValueError(f"{self.name}: n_readings must be >= 1, got {n}")
+
+        def work():
+            values = np.array([self._read_one() for _ in range(n)])
+            self.mean_v.put(float(values.mean()))
+            self.std_v.put(float(values.std(ddof=1)) if n > 1 else float("nan"))
+            self.n.put(n)
+
+        return _run(self._backend, self, work)
+
+
+class Laser(Device):
+    """Laser with a power monitor. ``power_w`` is refreshed on trigger and, for suspenders, by a
+    backend listener (simulation) or a polling thread started by :meth:`start_monitor` (real)."""
+
+    power_w = Cpt(Signal, value=np.nan, kind=Kind.hinted)
+
+    def __init__(self, prefix="", *, backend, name, **kwargs):
+        super().__init__(prefix, name=name, **kwargs)
+        self._backend = backend
+        self._monitor = None
+        self._stop_monitor = threading.Event()
+        self.power_w.put(backend.power_w())
+        if hasattr(backend, "add_listener"):
+            backend.add_listener(lambda p: self.power_w.put(float(p)))
+
+    def trigger(self):
+        return _run(self._backend, self, lambda: self.power_w.put(float(self._backend.power_w())))
+
+    def start_monitor(self, interval_s: float = 0.5) -> None:
+        if self._monitor is not None:
+            return
+        self._stop_monitor.clear()
+
+        def loop():
+            while not self._stop_monitor.wait(interval_s):
+                try:
+                    self.power_w.put(float(self._backend.power_w()))
+                except Exception:  # noqa: BLE001 - a failed poll is retried; reads report errors
+                    pass
+
+        self._monitor = threading.Thread(target=loop, daemon=True, name=f"{self.name}-monitor")
+        self._monitor.start()
+
+    def stop_monitor(self) -> None:
+        if self._monitor is not None:
+            self._stop_monitor.set()
+            self._monitor.join(timeout=2.0)
+            self._monitor = None
+
+
+class Chopper(Device):
+    """Optical chopper; its frequency is read from the lock-in's reference input."""
+
+    frequency_hz = Cpt(Signal, value=np.nan, kind=Kind.normal)
+
+    def __init__(self, prefix="", *, backend, name, **kwargs):
+        super().__init__(prefix, name=name, **kwargs)
+        self._backend = backend
+
+    def trigger(self):
+        return _run(self._backend, self, lambda: self.frequency_hz.put(float(self._backend.frequency_hz())))
+
+
+class ScanPoint(Device):
+    """The nominal point being measured (what the CSV row records), set by the plan."""
+
+    theta_i_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
+    theta_r_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
+    phi_r_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
+    polarization = Cpt(Signal, value="", kind=Kind.normal)
+
+
+@dataclass
+class RigDevices:
+    """Every device of one reflectometer."""
+
+    sample_stage: RotaryStage
+    arm: RotaryStage
+    hwp: RotaryStage
+    laser: Laser
+    chopper: Chopper
+    lockin: LockIn
+    point: ScanPoint
+    backend: object = None
+
+    @property
+    def detectors(self):
+        """What each point reads, besides the motors."""
+        return [self.lockin, self.laser, self.chopper, self.point]
+
+    def all(self):
+        return [self.sample_stage, self.arm, self.hwp, self.laser, self.chopper, self.lockin, self.point]
+
+
+#: Soft limits (deg). The arm cannot go within 5 deg of the incoming beam (its head would block
+#: the beam) nor past 175 deg (the stage base).
+SAMPLE_LIMITS_DEG = (-89.0, 89.0)
+ARM_LIMITS_DEG = (5.0, 175.0)
+HWP_LIMITS_DEG = (-360.0, 360.0)
+
+
+def make_devices(*, axes, laser, chopper, lockin, move_timeout_s=30.0, limits=None, backend=None) -> RigDevices:
+    """Build the devices over backends: ``axes`` maps 'sample', 'arm', 'hwp' to axis backends."""
+    limits = {"sample": SAMPLE_LIMITS_DEG, "arm": ARM_LIMITS_DEG, "hwp": HWP_LIMITS_DEG, **(limits or {})}
+    return RigDevices(
+        sample_stage=RotaryStage(backend=axes["sample"], limits_deg=limits["sample"], timeout_s=move_timeout_s, name="sample_stage"),
+        arm=RotaryStage(backend=axes["arm"], limits_deg=limits["arm"], timeout_s=move_timeout_s, name="arm"),
+        hwp=RotaryStage(backend=axes["hwp"], limits_deg=limits["hwp"], timeout_s=move_timeout_s, name="hwp"),
+        laser=Laser(backend=laser, name="laser"),
+        chopper=Chopper(backend=chopper, name="chopper"),
+        lockin=LockIn(backend=lockin, name="lockin"),
+        point=ScanPoint(name="point"),
+        backend=backend,
+    )
+
+
+def sim_devices(sim_rig, **kwargs) -> RigDevices:
+    """Devices over a :class:`rig.sim.SimRig`."""
+    return make_devices(axes=sim_rig.axes, laser=sim_rig.laser, chopper=sim_rig.chopper, lockin=sim_rig.lockin,
+                        backend=sim_rig, **kwargs)
+
+
+# --- real hardware ---------------------------------------------------------------------------
+class Esp301Axis:
+    """AxisBackend over one axis of an :class:`rig.drivers.esp301.Esp301`."""
+
+    synchronous = False
+
+    def __init__(self, driver, axis: int):
+        self.driver = driver
+        self.axis = axis
+
+    def move(self, position_deg):
+        self.driver.move_absolute(self.axis, position_deg)
+
+    def position(self):
+        return self.driver.position(self.axis)
+
+    def done(self):
+        return self.driver.motion_done(self.axis)
+
+    def stop(self):
+        self.driver.stop(self.axis)
+
+    def sleep(self, seconds):
+        time.sleep(seconds)
+
+
+class Sr830Lockin:
+    """LockinBackend over an :class:`rig.drivers.sr830.Sr830`."""
+
+    synchronous = False
+
+    def __init__(self, driver):
+        self.driver = driver
+
+    sensitivity_v = property(lambda self: self.driver.sensitivity_v,
+                             lambda self, v: setattr(self.driver, "sensitivity_v", v))
+    time_constant_s = property(lambda self: self.driver.time_constant_s,
+                               lambda self, v: setattr(self.driver, "time_constant_s", v))
+
+    def output(self, which="x"):
+        return self.driver.output(which)
+
+    def settle_time_s(self):
+        return self.driver.settle_time_s()
+
+    def overloads(self):
+        return self.driver.overloads()
+
+    def sleep(self, seconds):
+        time.sleep(seconds)
+
+
+class Sr830Laser:
+    """Laser power monitor on the lock-in's AUX IN ``channel``: P = V x watts_per_volt."""
+
+    synchronous = False
+
+    def __init__(self, driver, watts_per_volt: float, channel: int = 1):
+        self.driver = driver
+        self.watts_per_volt = float(watts_per_volt)
+        self.channel = channel
+
+    def power_w(self):
+        return self.driver.aux_in_v(self.channel) * self.watts_per_volt
+
+
+class Sr830Chopper:
+    synchronous = False
+
+    def __init__(self, driver):
+        self.driver = driver
+
+    def frequency_hz(self):
+        return self.driver.frequency_hz()
+
+
+def real_devices(motion, lockin, *, axes=(1, 2, 3), laser_watts_per_volt=0.002, move_timeout_s=30.0,
+                 limits=None) -> RigDevices:
+    """Devices over real drivers: ``motion`` an Esp301, ``lockin`` an Sr830."""
+    sample_axis, arm_axis, hwp_axis = axes
+    return make_devices(
+        axes={"sample": Esp301Axis(motion, sample_axis), "arm": Esp301Axis(motion, arm_axis),
+              "hwp": Esp301Axis(motion, hwp_axis)},
+        laser=Sr830Laser(lockin, laser_watts_per_volt), chopper=Sr830Chopper(lockin),
+        lockin=Sr830Lockin(lockin), move_timeout_s=move_timeout_s, limits=limits,
+    )
