@@ -1,0 +1,286 @@
+"""Forward model of the reflectometer: the BRDF a scan would read, given a material.
+
+What the rig reports at a set-point (theta_i, theta_r) is ``P_s / (P_i Omega cos theta_r)``
+(seed paper, PHYSICS §4), i.e. the material BRDF averaged over every (source point,
+slit point) pair that couples light into the detector:
+
+    measured = 1 / cos(theta_r) * E[ f(wi, wo) cos(theta_o) ]
+
+with the expectation over
+
+* the beam's transverse profile (Gaussian, sigma = 1/e^2 diameter / 4), whose footprint on
+  the sample is stretched by 1/cos(theta_i) and truncated by the sample width (overfill
+  loses that power: it is not renormalised);
+* the slit (uniform over width x height at ``arm_mm``);
+* the beam's in-plane angular spread (Gaussian, ``beam_divergence_mrad``).
+
+A ray from sample point x to slit point (s, h) leaves along ``n + u e_theta + v e_perp``
+(n: arm axis, e_theta: in-plane, e_perp: out of plane) with ``u = (s - x cos theta_r) / L``
+and ``v = (h - y) / L``. So the in-plane offset u has the density of a uniform slit
+convolved with the beam's footprint projected on the slit (its width is
+``k = cos theta_r / cos theta_i`` times the beam's), and v that of the slit height
+convolved with the beam's height. Both densities are written in closed form with
+``erf`` (:func:`_box_gauss_density`), and the integral over (u, v, alpha) is a fixed
+product Gauss-Legendre (Gauss-Hermite in alpha) rule, vectorised over all scan points.
+A mirror therefore reads the beam profile convolved with the slit: it is seen over
+~(beam + slit) / arm = 8.5 mrad on the nominal rig (PHYSICS §4), not over the slit's
+1 mrad.
+
+Alignment errors of :class:`rig.instrument.RigConfig` enter as rotations: a stage
+offset d rotates the sample (wi and wo in the sample frame turn by -d about the
+y axis, so the specular peak moves by 2d in arm angle), an arm offset rotates the
+arm axis only (the peak moves by d), a tilt rotates the sample about the x axis
+(the reflected beam leaves the plane by ~2 tilt cos theta_i).
+
+The footprint projection uses the in-plane component of the arm direction; for
+out-of-plane arms (phi_r not 0 or 180 deg) the footprint's out-of-plane
+projection is neglected.
+"""
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+from scipy.special import erf
+
+from rig.instrument import NOMINAL, RigConfig
+
+#: Quadrature orders: in-plane (u), out-of-plane (v), beam divergence (alpha).
+N_U = 24
+N_V = 16
+N_ALPHA = 5
+#: Angular scale (rad) of the node clustering about the specular ray: lobes at least this wide
+#: (K-correlation lc up to ~80 um at 532 nm) are integrated to ~1 %.
+CLUSTER_RAD = 1.0e-3
+
+_GL_U = np.polynomial.legendre.leggauss(N_U)
+_GL_V = np.polynomial.legendre.leggauss(N_V)
+_GH_A = np.polynomial.hermite_e.hermegauss(N_ALPHA)  # weight exp(-x^2/2)
+_GH_A = (_GH_A[0], _GH_A[1] / math.sqrt(2 * math.pi))
+
+POL_CODES = ("s", "p", "u")
+
+Forward = Callable[..., np.ndarray]
+"""``forward(theta_i, theta_r, phi_r, polarization, config, material) -> brdf_per_sr``:
+angles (n,) radians, polarization (n,) str array, config a RigConfig."""
+
+
+class ForwardError(ValueError):
+    """Bad input to the forward model; the message names the parameter."""
+
+
+def _phi(x):
+    """Standard normal CDF."""
+    return 0.5 * (1.0 + erf(x / math.sqrt(2.0)))
+
+
+def _box_gauss_density(y, half_width, scale, sigma, t_max):
+    """Density of ``y = s - scale * t`` with s ~ U(-half_width, half_width) and
+    t ~ N(0, sigma) restricted to |t| <= t_max (mass outside is lost, not renormalised).
+
+    All arguments broadcast; ``scale`` > 0. Returns density per unit y.
+    """
+    a = (-half_width - y) / scale
+    b = (half_width - y) / scale
+    lo = np.maximum(a, -t_max)
+    hi = np.minimum(b, t_max)
+    mass = np.where(hi > lo, _phi(hi / sigma) - _phi(lo / sigma), 0.0)
+    return mass / (2.0 * half_width)
+
+
+def _sinh_rule(rule, lo, hi, centre, scale):
+    """Gauss-Legendre ``rule`` on [lo, hi] (each (n,)) mapped by y = centre + scale sinh(xi):
+    nodes cluster within ~``scale`` of ``centre``. Returns nodes and weights, (n, m)."""
+    x, w = rule
+    a = np.arcsinh((lo - centre) / scale)
+    b = np.arcsinh((hi - centre) / scale)
+    half = 0.5 * (b - a)
+    xi = 0.5 * (a + b)[:, None] + half[:, None] * x
+    y = centre[:, None] + scale * np.sinh(xi)
+    return y, half[:, None] * w * scale * np.cosh(xi)
+
+
+def _as_pol_array(polarization, shape):
+    pol = np.asarray(polarization, dtype=str)
+    try:
+        pol = np.broadcast_to(pol, shape)
+    except ValueError:
+        raise ForwardError(f"polarization: shape {pol.shape} does not broadcast to {shape}") from None
+    bad = ~np.isin(pol, POL_CODES)
+    if bad.any():
+        raise ForwardError(f"polarization: unknown value {pol[bad].flat[0]!r}; expected s, p or u")
+    return pol
+
+
+def _rot_y(vec, angle):
+    """Rotate (..., 3) vectors about y so that (sin a, 0, cos a) -> (sin(a+angle), 0, cos(a+angle))."""
+    c, s = np.cos(angle), np.sin(angle)
+    x, y, z = vec[..., 0], vec[..., 1], vec[..., 2]
+    return np.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
+
+
+def _rot_x(vec, angle):
+    """Rotate (..., 3) vectors about x by ``angle`` (tilts the sample normal toward -y)."""
+    c, s = np.cos(angle), np.sin(angle)
+    x, y, z = vec[..., 0], vec[..., 1], vec[..., 2]
+    return np.stack([x, c * y - s * z, s * y + c * z], axis=-1)
+
+
+def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL):
+    """Quadrature nodes of the rig's angular response for n set-points.
+
+    Parameters
+    ----------
+    theta_i, theta_r, phi_r : (n,) float64, radians (set-points).
+    config : RigConfig
+
+    Returns
+    -------
+    wi : (n, A, 1, 1, 3), wo : (n, 1, U, V, 3)
+        Directions in the true sample frame (A divergence nodes, U x V slit/beam nodes).
+    weight : (n, A, U, V)
+        Quadrature weights including the 1/cos(theta_r) of the rig's BRDF definition and the
+        cos(theta_o) of the collected power; ``sum(weight * f)`` is the reading.
+    """
+    theta_i = np.asarray(theta_i, float)
+    theta_r = np.asarray(theta_r, float)
+    phi_r = np.asarray(phi_r, float)
+    n = theta_i.shape[0]
+    L = config.arm_mm
+    sigma = config.beam_sigma_mm
+    d_stage = math.radians(config.stage_offset_deg)
+    d_arm = math.radians(config.arm_offset_deg)
+    tilt = math.radians(config.sample_tilt_deg)
+
+    # Arm axis in the nominal sample frame (lab), rotated by the arm's zero offset.
+    st = np.sin(theta_r)
+    arm = np.stack([st * np.cos(phi_r), st * np.sin(phi_r), np.cos(theta_r)], axis=-1)
+    if d_arm:
+        arm = _rot_y(arm, d_arm)
+    y_hat = np.array([0.0, 1.0, 0.0])
+    e_perp = y_hat - arm[:, 1:2] * arm
+    norm = np.linalg.norm(e_perp, axis=-1, keepdims=True)
+    e_perp = np.where(norm > 1e-12, e_perp / np.maximum(norm, 1e-300), np.array([1.0, 0.0, 0.0]))
+    e_theta = np.cross(e_perp, arm)
+
+    # Footprint: true incidence, stretch 1/cos(theta_i), truncated by the sample width.
+    theta_i_true = theta_i + d_stage
+    cos_i = np.clip(np.cos(theta_i_true), 1e-9, None)
+    x_lab = np.array([math.cos(d_stage), 0.0, -math.sin(d_stage)])  # sample x axis in the lab
+    k = np.maximum(np.abs(e_theta @ x_lab) / cos_i, 1e-9)
+    t_max = 0.5 * config.sample_width_mm * cos_i  # beam coordinate where the footprint leaves the sample
+    half_w = 0.5 * config.slit_width_mm
+    half_h = 0.5 * config.slit_height_mm
+    # Quadrature ranges (mm at the slit); 6 sigma covers the Gaussian to 2e-9.
+    y_u = half_w + k * np.minimum(t_max, 6.0 * sigma)
+    y_v = np.full(n, half_h + 6.0 * sigma)
+    # Where the specular ray lands in (u, v): the nodes cluster there (sinh map), so lobes
+    # down to ~CLUSTER_RAD wide are resolved wherever offsets or a tilt put them.
+    spec = np.stack([np.sin(theta_i), np.zeros(n), np.cos(theta_i)], axis=-1)  # specular, nominal
+    if tilt or d_stage:
+        wi0 = np.stack([-np.sin(theta_i), np.zeros(n), np.cos(theta_i)], axis=-1)
+        wi_t = _rot_x(_rot_y(wi0, -d_stage), tilt)
+        spec_t = wi_t * np.array([-1.0, -1.0, 1.0])
+        spec = _rot_y(_rot_x(spec_t, -tilt), d_stage)
+    rel = spec - arm
+    u_c = np.clip(np.einsum("ij,ij->i", rel, e_theta) * L, -y_u, y_u)
+    v_c = np.clip(np.einsum("ij,ij->i", rel, e_perp) * L, -y_v, y_v)
+    yu, wu = _sinh_rule(_GL_U, -y_u, y_u, u_c, CLUSTER_RAD * L)
+    yv, wv = _sinh_rule(_GL_V, -y_v, y_v, v_c, CLUSTER_RAD * L)
+    pu = _box_gauss_density(yu, half_w, k[:, None], sigma, t_max[:, None]) * wu
+    # Renormalise to the analytic mass (fraction of the beam on the sample): removes the rule's
+    # error on the density's soft edges, so a Lambertian reads rd/pi.
+    mass_u = _phi(t_max / sigma) - _phi(-t_max / sigma)
+    pu *= (mass_u / np.maximum(pu.sum(axis=1), 1e-300))[:, None]
+    pv = _box_gauss_density(yv, half_h, 1.0, sigma, np.inf) * wv
+    pv /= np.maximum(pv.sum(axis=1), 1e-300)[:, None]
+    u = yu / L
+    v = yv / L
+
+    wo = arm[:, None, None, :] + u[:, :, None, None] * e_theta[:, None, None, :] + v[:, None, :, None] * e_perp[:, None, None, :]
+    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+
+    if config.beam_divergence_mrad > 0:
+        alpha = _GH_A[0] * (config.beam_divergence_mrad * 1e-3)
+        pa = _GH_A[1]
+    else:
+        alpha = np.zeros(1)
+        pa = np.ones(1)
+    ang = theta_i[:, None] + alpha[None, :]  # (n, A)
+    wi = np.stack([-np.sin(ang), np.zeros_like(ang), np.cos(ang)], axis=-1)
+
+    # Lab (nominal sample frame) -> true sample frame.
+    if d_stage:
+        wi = _rot_y(wi, -d_stage)
+        wo = _rot_y(wo, -d_stage)
+    if tilt:
+        wi = _rot_x(wi, tilt)
+        wo = _rot_x(wo, tilt)
+
+    cos_o = np.clip(wo[..., 2], 0.0, None)
+    cos_r_nominal = np.clip(np.cos(theta_r), 1e-9, None)
+    weight = (pa[None, :, None, None] * (pu[:, None, :, None] * pv[:, None, None, :])
+              * (cos_o[:, None, :, :] / cos_r_nominal[:, None, None, None]))
+    return wi[:, :, None, None, :], wo[:, None, :, :, :], weight
+
+
+def instrument_forward(theta_i, theta_r, phi_r, polarization, config: RigConfig, material) -> np.ndarray:
+    """The bare instrument: ``sum(weight * f)`` over :func:`instrument_nodes` (see module doc).
+
+    ``material.brdf(wi, wo, polarization)`` is called once per polarization present.
+    Angles (n,) radians; polarization (n,) str. Returns (n,) 1/sr.
+    """
+    out = np.zeros(theta_i.shape[0])
+    for code in POL_CODES:
+        sel = np.flatnonzero(polarization == code)
+        if sel.size == 0:
+            continue
+        wi, wo, weight = instrument_nodes(theta_i[sel], theta_r[sel], phi_r[sel], config)
+        wi_b, wo_b = np.broadcast_arrays(wi, wo)
+        f = np.asarray(material.brdf(wi_b.reshape(-1, 3), wo_b.reshape(-1, 3), code), float)
+        out[sel] = np.einsum("nauv,nauv->n", weight, f.reshape(weight.shape))
+    return out
+
+
+def compose(effects=(), base: Forward = instrument_forward) -> Forward:
+    """Wrap ``base`` with each effect in order (the first is innermost)."""
+    forward = base
+    for effect in effects:
+        forward = effect.wrap(forward)
+    return forward
+
+
+def predict_brdf(material, theta_i_deg, theta_r_deg, phi_r_deg=0.0, polarization="u",
+                 config: RigConfig = NOMINAL, effects=()) -> np.ndarray:
+    """The BRDF the reflectometer would read for ``material`` (1/sr).
+
+    Parameters
+    ----------
+    material : object with ``brdf(wi, wo, polarization)`` (materials.base.Brdf protocol).
+    theta_i_deg, theta_r_deg, phi_r_deg : array_like, degrees, broadcast together.
+        Set-points; a negative ``theta_r_deg`` means the backscatter side (phi_r + 180).
+    polarization : str or array_like of 's', 'p', 'u', broadcast with the angles.
+    config : RigConfig, the rig geometry (default: the nominal rig).
+    effects : sequence of instrument effects (``rig.effects``), applied in order.
+
+    Returns
+    -------
+    ndarray, broadcast shape of the inputs, 1/sr.
+    """
+    try:
+        ti, tr, pr = np.broadcast_arrays(np.asarray(theta_i_deg, float), np.asarray(theta_r_deg, float),
+                                         np.asarray(phi_r_deg, float))
+    except ValueError:
+        raise ForwardError("theta_i_deg, theta_r_deg, phi_r_deg: shapes do not broadcast") from None
+    shape = np.broadcast_shapes(ti.shape, np.shape(polarization))
+    ti, tr, pr = (np.broadcast_to(a, shape) for a in (ti, tr, pr))
+    pol = _as_pol_array(polarization, shape).ravel()
+    for name, arr in (("theta_i_deg", ti), ("theta_r_deg", tr)):
+        if not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > 90.0):
+            raise ForwardError(f"{name}: values must be finite and within [-90, 90] deg")
+    ti = np.radians(ti.ravel())
+    pr = np.radians(pr.ravel()) + np.where(tr.ravel() < 0, np.pi, 0.0)
+    tr = np.radians(np.abs(tr.ravel()))
+    forward = compose(effects)
+    return np.asarray(forward(ti, tr, pr, pol, config, material), float).reshape(shape)
