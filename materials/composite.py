@@ -1,0 +1,130 @@
+"""Sum of BRDF components (seed paper Eq. 2: Lambertian + one or two K-correlation lobes).
+
+``f = sum_k f_k``. Sampling is one-sample multiple importance sampling (PHYSICS §3):
+component k is chosen with probability ``p_k(theta_i)`` proportional to its
+directional-hemispherical reflectance (tabulated on a theta_i grid per polarization
+and interpolated; any p_k > 0 keeps the estimator unbiased, so a coarse table is
+enough), and the draw carries ``weight = f_total cos / sum_k p_k pdf_k``.
+``u[:, 0]`` chooses the component, ``u[:, 1:]`` the direction (materials.base).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from materials.albedo import directional_hemispherical_reflectance
+from materials.base import MaterialError, Sample, check_polarization
+
+_TABLE_THETA = np.deg2rad(np.linspace(0.0, 90.0, 37))
+_FLOOR = 1e-3  # mixing floor: every component keeps >= 0.1 % / K of the draws
+
+
+@dataclass(frozen=True, eq=False)
+class Composite:
+    """Sum of components; each provides the Brdf protocol (materials.base)."""
+
+    components: tuple
+
+    def __post_init__(self):
+        comps = tuple(self.components)
+        if not comps:
+            raise MaterialError("composite: needs at least one component")
+        object.__setattr__(self, "components", comps)
+
+    @property
+    def reciprocal(self) -> bool:
+        return all(getattr(c, "reciprocal", False) for c in self.components)
+
+    @classmethod
+    def example(cls) -> "Composite":
+        """Seed paper Eq. 2 three-component form: diffuse + narrow specular + glossy lobe."""
+        from materials.kcorrelation import KCorrelation
+        from materials.lambertian import Lambertian
+
+        return cls(
+            (
+                Lambertian(rd=0.02),
+                KCorrelation(sigma_nm=2.0, lc_um=40.0, s=2.4, n=1.55, wavelength_nm=532.0),
+                KCorrelation(sigma_nm=20.0, lc_um=3.0, s=3.0, n=1.55, weight=0.5, wavelength_nm=532.0),
+            )
+        )
+
+    # ------------------------------------------------------------ selection probabilities
+
+    @cached_property
+    def _albedo_tables(self) -> dict:
+        return {}
+
+    def _table(self, polarization: str) -> np.ndarray:
+        tables = self._albedo_tables
+        if polarization not in tables:
+            rows = [
+                directional_hemispherical_reflectance(c, _TABLE_THETA[:-1], polarization, 40, 64)
+                for c in self.components
+            ]
+            arr = np.array(rows)  # (K, T-1)
+            arr = np.concatenate([arr, arr[:, -1:]], axis=1)  # hold the 89.x value at 90 deg
+            tables[polarization] = np.maximum(arr, 0.0)
+        return tables[polarization]
+
+    def selection_probabilities(self, theta_i, polarization: str = "u") -> np.ndarray:
+        """p_k(theta_i), shape (n, K): proportional to each component's albedo, with a floor."""
+        table = self._table(polarization)
+        th = np.clip(np.asarray(theta_i, float), 0.0, np.pi / 2)
+        alb = np.stack([np.interp(th, _TABLE_THETA, row) for row in table], axis=-1)
+        k = len(self.components)
+        total = alb.sum(axis=1, keepdims=True)
+        safe = np.where(total > 0, total, 1.0)
+        p = np.where(total > 0, alb / safe, 1.0 / k)
+        p = (1.0 - _FLOOR) * p + _FLOOR / k
+        return p
+
+    # ------------------------------------------------------------ protocol
+
+    def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
+        """Sum of the components' BRDFs, 1/sr (no cos)."""
+        check_polarization(polarization)
+        out = self.components[0].brdf(wi, wo, polarization)
+        for c in self.components[1:]:
+            out = out + c.brdf(wi, wo, polarization)
+        return out
+
+    def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
+        """Mixture density sum_k p_k(theta_i) pdf_k, per sr."""
+        check_polarization(polarization)
+        wi = np.asarray(wi, float)
+        p = self.selection_probabilities(np.arccos(np.clip(wi[:, 2], -1, 1)), polarization)
+        out = np.zeros(len(wi))
+        for k, c in enumerate(self.components):
+            out += p[:, k] * c.pdf(wi, wo, polarization)
+        return out
+
+    def sample(self, wi, u, polarization: str = "u") -> Sample:
+        """One-sample MIS: u[:, 0] picks component k, u[:, 1:] its direction."""
+        check_polarization(polarization)
+        wi = np.asarray(wi, float)
+        u = np.asarray(u, float)
+        if u.ndim != 2 or u.shape[1] != 3:
+            raise ValueError(f"composite sampling needs uniforms of shape (n, 3), got {u.shape}")
+        n = len(wi)
+        p = self.selection_probabilities(np.arccos(np.clip(wi[:, 2], -1, 1)), polarization)
+        cdf = np.cumsum(p, axis=1)
+        choice = np.minimum((u[:, :1] >= cdf).sum(axis=1), len(self.components) - 1)
+        wo = np.zeros((n, 3))
+        for k, c in enumerate(self.components):
+            m = choice == k
+            if np.any(m):
+                wo[m] = c.sample(wi[m], u[m], polarization).wo  # components read u[:, 1:]
+        above = (wo[:, 2] > 0) & (wi[:, 2] > 0)
+        mix = np.zeros(n)
+        for k, c in enumerate(self.components):
+            mix += p[:, k] * c.pdf(wi, wo, polarization)
+        f = self.brdf(wi, wo, polarization)
+        good = above & (mix > 0)
+        weight = np.where(good, f * wo[:, 2] / np.where(good, mix, 1.0), 0.0)
+        return Sample(wo=wo, weight=weight, pdf_per_sr=np.where(good, mix, 0.0))
+
+    def to_dict(self) -> dict:
+        return {"components": [c.to_dict() for c in self.components]}

@@ -1,0 +1,116 @@
+"""Fresnel reflectance and the Rayleigh-Rice polarization factors Q.
+
+Substrate index ``n`` is real or complex (``n + i k``), eps = n^2, and
+``q = sqrt(eps - sin^2 theta)`` on the principal branch (Im q >= 0 for an absorbing
+substrate). The incident beam's polarization is s, p or u (the mean of s and p);
+the detector has no analyser (CONTRACTS §1).
+
+References
+----------
+Born & Wolf, *Principles of Optics*, §1.5 (Fresnel equations).
+T. A. Germer, "Angular dependence and polarization of out-of-plane optical
+scattering from particulate contamination, subsurface defects, and surface
+microroughness", Appl. Opt. 36, 8798 (1997); NIST SCATMECH ``urough.cpp``
+(first-order vector perturbation; formulas in PHYSICS §1).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from materials.base import MaterialError, check_polarization
+
+
+def complex_index(n) -> complex:
+    """``n`` as given in a material file (a number, or ``[n, k]``) -> complex n + i k."""
+    if isinstance(n, (list, tuple)):
+        if len(n) != 2:
+            raise MaterialError(f"refractive index must be a number or [n, k], got {n!r}")
+        return complex(float(n[0]), float(n[1]))
+    return complex(float(n), 0.0)
+
+
+def _q(eps, sin2):
+    return np.sqrt(eps - sin2 + 0j)
+
+
+def fresnel_reflectance(theta, n, polarization: str = "u") -> np.ndarray:
+    """Power reflectance R_s, R_p or (R_s + R_p) / 2 at incidence ``theta`` (radians).
+
+    ``r_s = (cos - q) / (cos + q)``, ``r_p = (eps cos - q) / (eps cos + q)``.
+    """
+    check_polarization(polarization)
+    n = complex(n) if not isinstance(n, (list, tuple)) else complex_index(n)
+    eps = n * n
+    c = np.cos(np.asarray(theta, float))
+    q = _q(eps, 1.0 - c * c)
+    rs = np.abs((c - q) / (c + q)) ** 2
+    rp = np.abs((eps * c - q) / (eps * c + q)) ** 2
+    return {"s": rs, "p": rp, "u": 0.5 * (rs + rp)}[polarization]
+
+
+def polarization_factor(cos_i, cos_r, cos_phi, sin_phi, n, polarization: str = "u") -> np.ndarray:
+    """Rayleigh-Rice polarization factor Q for an incident polarization, no analyser.
+
+    Germer (1997), PHYSICS §1, with phi_r measured from the specular half-plane::
+
+        ss = (eps-1) cos(phi) / ((cos_i + q_i)(cos_r + q_r))
+        ps = (eps-1) q_r sin(phi) / ((cos_i + q_i)(eps cos_r + q_r))
+        sp = (eps-1) q_i sin(phi) / ((eps cos_i + q_i)(cos_r + q_r))
+        pp = (eps-1)(q_i q_r cos(phi) - eps sin_i sin_r) / ((eps cos_i + q_i)(eps cos_r + q_r))
+
+    s: ``|ss|^2 + |ps|^2``; p: ``|pp|^2 + |sp|^2``; u: their mean.
+    At the specular direction Q_s = R_s and Q_p = R_p.
+
+    Parameters
+    ----------
+    cos_i, cos_r, cos_phi, sin_phi : (n,) float64
+    n : complex refractive index of the substrate
+    """
+    check_polarization(polarization)
+    eps = complex(n) ** 2
+    cos_i = np.asarray(cos_i, float)
+    cos_r = np.asarray(cos_r, float)
+    sin2_i = np.maximum(0.0, 1.0 - cos_i * cos_i)
+    sin2_r = np.maximum(0.0, 1.0 - cos_r * cos_r)
+    qi = _q(eps, sin2_i)
+    qr = _q(eps, sin2_r)
+    e1 = eps - 1.0
+    di_s = cos_i + qi
+    di_p = eps * cos_i + qi
+    dr_s = cos_r + qr
+    dr_p = eps * cos_r + qr
+    out = 0.0
+    if polarization in ("s", "u"):
+        ss = e1 * cos_phi / (di_s * dr_s)
+        ps = e1 * qr * sin_phi / (di_s * dr_p)
+        qs = np.abs(ss) ** 2 + np.abs(ps) ** 2
+        if polarization == "s":
+            return qs
+        out = 0.5 * qs
+    sp = e1 * qi * sin_phi / (di_p * dr_s)
+    pp = e1 * (qi * qr * cos_phi - eps * np.sqrt(sin2_i * sin2_r)) / (di_p * dr_p)
+    qp = np.abs(pp) ** 2 + np.abs(sp) ** 2
+    if polarization == "p":
+        return qp
+    return out + 0.5 * qp
+
+
+def scatter_azimuth(wi, wo) -> tuple[np.ndarray, np.ndarray]:
+    """cos(phi_r), sin(phi_r) of wo about the specular half-plane of wi, (n,) each.
+
+    phi_r = 0 is the specular half-plane (CONTRACTS §1). At normal incidence the
+    plane of incidence is taken as xz (phi_i = pi); at theta_r = 0, phi_r = 0.
+    """
+    wi = np.asarray(wi, float)
+    wo = np.asarray(wo, float)
+    tx, ty = -wi[:, 0], -wi[:, 1]
+    tn = np.hypot(tx, ty)
+    ok = tn > 1e-15
+    tx = np.where(ok, tx / np.where(ok, tn, 1.0), 1.0)
+    ty = np.where(ok, ty / np.where(ok, tn, 1.0), 0.0)
+    on = np.hypot(wo[:, 0], wo[:, 1])
+    ok_o = on > 1e-15
+    inv = 1.0 / np.where(ok_o, on, 1.0)
+    cos_phi = np.where(ok_o, (wo[:, 0] * tx + wo[:, 1] * ty) * inv, 1.0)
+    sin_phi = np.where(ok_o, (tx * wo[:, 1] - ty * wo[:, 0]) * inv, 0.0)
+    return cos_phi, sin_phi

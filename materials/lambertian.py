@@ -1,0 +1,73 @@
+"""Ideal diffuse reflector.
+
+``f = rd / pi`` (1/sr) for wi and wo above the horizon; its directional-
+hemispherical reflectance is ``rd`` at every incidence angle (seed paper Eq. 2,
+diffuse term; PHYSICS §2). Sampled exactly: uniform in the unit beta disk
+(cosine-weighted hemisphere), weight ``rd``.
+
+Parameters
+----------
+rd : float
+    Hemispherical (diffuse) reflectance, 0 <= rd < 1.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from materials.base import Sample, check_polarization
+from materials.registry import register
+from materials.sampling import (
+    check_real,
+    cosine_hemisphere_pdf,
+    direction_uniforms,
+    sample_cosine_hemisphere,
+    set_fields,
+)
+
+
+@register("lambertian")
+@dataclass(frozen=True)
+class Lambertian:
+    """Ideal diffuse reflector, f = rd / pi (CONTRACTS §5)."""
+
+    rd: float
+
+    reciprocal = True
+
+    def __post_init__(self):
+        set_fields(self, rd=check_real("lambertian", "rd", self.rd, lo=0.0, hi=1.0, hi_open=True))
+
+    @classmethod
+    def example(cls) -> "Lambertian":
+        return cls(rd=0.03)
+
+    def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
+        """BRDF in 1/sr (no cos). wi, wo : (n, 3) unit vectors, sample frame."""
+        check_polarization(polarization)
+        wi = np.asarray(wi, float)
+        wo = np.asarray(wo, float)
+        above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        return np.where(above, self.rd / np.pi, 0.0)
+
+    def sample(self, wi, u, polarization: str = "u") -> Sample:
+        """Cosine-weighted draw; weight f cos / pdf = rd."""
+        check_polarization(polarization)
+        wi = np.asarray(wi, float)
+        wo = sample_cosine_hemisphere(direction_uniforms(u))
+        above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+        return Sample(
+            wo=wo,
+            weight=np.where(above, self.rd, 0.0),
+            pdf_per_sr=np.where(above, wo[:, 2] / np.pi, 0.0),
+        )
+
+    def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
+        """cos(theta_r) / pi per sr above the horizon."""
+        wi = np.asarray(wi, float)
+        wo = np.asarray(wo, float)
+        return np.where(wi[:, 2] > 0, cosine_hemisphere_pdf(wo[:, 2]), 0.0)
+
+    def to_dict(self) -> dict:
+        return {"type": "lambertian", "rd": self.rd}

@@ -1,0 +1,250 @@
+"""Materials: a named sum of components at one wavelength, and material files (CONTRACTS §5).
+
+A material file is JSON::
+
+    {"name": "z302_sample_a", "wavelength_nm": 532.0,
+     "description": "free text (optional)", "provenance": "free text (optional)",
+     "components": [{"type": "lambertian", "rd": 0.03}, {"type": "k_correlation", ...}]}
+
+Unknown keys are an error. ``description`` and ``provenance`` are the only keys added
+to CONTRACTS §5 (free text, ignored by the physics). ``wavelength_nm`` is optional for
+materials whose components do not depend on wavelength (e.g. an inline Lambertian in a
+scene file); components with a ``wavelength_nm`` field left unset take the material's
+(the material passes it at build time).
+
+A material is refused when its directional-hemispherical reflectance reaches 1 at any
+integer theta_i in 0..89 deg, for s or p incidence (seed paper Eq. 3).
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from materials.albedo import directional_hemispherical_reflectance
+from materials.base import MaterialError, Sample, check_polarization
+from materials.composite import Composite
+from materials.registry import build_component
+from materials.sampling import check_real
+
+LIBRARY_DIR = Path(__file__).resolve().parent / "library"
+TOP_LEVEL_KEYS = ("name", "wavelength_nm", "components", "description", "provenance")
+ENERGY_CHECK_THETA_I_DEG = np.arange(0.0, 90.0, 1.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Material:
+    """A named sum of BRDF components (the Brdf protocol of materials.base).
+
+    Parameters
+    ----------
+    name : str
+    wavelength_nm : float or None
+        Passed to every component whose ``wavelength_nm`` is unset.
+    components : tuple of models
+    description, provenance : str, optional
+        Free text, kept in the file.
+    """
+
+    name: str
+    wavelength_nm: Optional[float]
+    components: tuple
+    description: Optional[str] = None
+    provenance: Optional[str] = None
+
+    def __post_init__(self):
+        where = f"material {self.name!r}"
+        if self.wavelength_nm is not None:
+            object.__setattr__(
+                self, "wavelength_nm", check_real(where, "wavelength_nm", self.wavelength_nm, lo=0.0, lo_open=True)
+            )
+        comps = []
+        for i, c in enumerate(tuple(self.components)):
+            fields = {f.name for f in dataclasses.fields(c)} if dataclasses.is_dataclass(c) else set()
+            if "wavelength_nm" in fields and getattr(c, "wavelength_nm") is None:
+                if self.wavelength_nm is None:
+                    raise MaterialError(
+                        f"{where}: components[{i}] ({getattr(c, 'type_name', type(c).__name__)}) "
+                        "needs wavelength_nm: give it in the material or the component"
+                    )
+                c = dataclasses.replace(c, wavelength_nm=self.wavelength_nm)
+            comps.append(c)
+        if not comps:
+            raise MaterialError(f"{where}: 'components' must be a non-empty list")
+        object.__setattr__(self, "components", tuple(comps))
+
+    @cached_property
+    def composite(self) -> Composite:
+        return Composite(self.components)
+
+    @property
+    def reciprocal(self) -> bool:
+        return self.composite.reciprocal
+
+    # ------------------------------------------------------------ Brdf protocol
+
+    def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
+        """Sum of the components' BRDFs in 1/sr (no cos). wi, wo : (n, 3)."""
+        return self.composite.brdf(wi, wo, polarization)
+
+    def sample(self, wi, u, polarization: str = "u") -> Sample:
+        """One-sample MIS over the components; u : (n, 3) uniforms."""
+        return self.composite.sample(wi, u, polarization)
+
+    def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
+        return self.composite.pdf(wi, wo, polarization)
+
+    def albedo(self, theta_i, polarization: str = "u") -> np.ndarray:
+        """Directional-hemispherical reflectance rho at incidence theta_i (radians)."""
+        return directional_hemispherical_reflectance(self.composite, theta_i, polarization)
+
+    def check_energy(self, where: Optional[str] = None) -> None:
+        """Raise MaterialError if rho(theta_i) >= 1 at any integer theta_i in 0..89 deg (s or p)."""
+        theta = np.deg2rad(ENERGY_CHECK_THETA_I_DEG)
+        for pol in ("s", "p"):
+            rho = directional_hemispherical_reflectance(self.composite, theta, pol, 64, 128)
+            k = int(np.argmax(rho))
+            if rho[k] >= 1.0:
+                raise MaterialError(
+                    f"{where or 'material ' + repr(self.name)}: not energy-conserving: directional-"
+                    f"hemispherical reflectance {rho[k]:.4f} >= 1 at theta_i = "
+                    f"{ENERGY_CHECK_THETA_I_DEG[k]:g} deg ({pol}-polarized)"
+                )
+
+    def to_dict(self) -> dict:
+        """The material-file dict (CONTRACTS §5); component wavelengths equal to the material's are omitted."""
+        out = {"name": self.name}
+        if self.wavelength_nm is not None:
+            out["wavelength_nm"] = self.wavelength_nm
+        if self.description is not None:
+            out["description"] = self.description
+        if self.provenance is not None:
+            out["provenance"] = self.provenance
+        comps = []
+        for c in self.components:
+            d = c.to_dict()
+            if d.get("wavelength_nm") is not None and d["wavelength_nm"] == self.wavelength_nm:
+                del d["wavelength_nm"]
+            comps.append(d)
+        out["components"] = comps
+        return out
+
+
+# ---------------------------------------------------------------- files
+
+
+def list_presets() -> list[str]:
+    """Names of the material presets shipped in materials/library/."""
+    return sorted(p.stem for p in LIBRARY_DIR.glob("*.json"))
+
+
+def material_from_dict(data, where: str = "material", name: Optional[str] = None, check_energy: bool = True) -> Material:
+    """Build a Material from a CONTRACTS §5 dict; errors name ``where`` and the component index/key."""
+    if not isinstance(data, dict):
+        raise MaterialError(f"{where}: a material must be a JSON object / table, got {type(data).__name__}")
+    unknown = sorted(set(data) - set(TOP_LEVEL_KEYS))
+    if unknown:
+        raise MaterialError(
+            f"{where}: unknown key(s) {', '.join(map(repr, unknown))}; allowed: {', '.join(TOP_LEVEL_KEYS)}"
+        )
+    comps_in = data.get("components")
+    if not isinstance(comps_in, list) or not comps_in:
+        raise MaterialError(f"{where}: 'components' must be a non-empty list")
+    mat_name = data.get("name", name if name is not None else "unnamed")
+    if not isinstance(mat_name, str):
+        raise MaterialError(f"{where}: 'name' must be a string")
+    for key in ("description", "provenance"):
+        if key in data and not isinstance(data[key], str):
+            raise MaterialError(f"{where}: {key!r} must be a string")
+    wavelength_nm = data.get("wavelength_nm")
+    if wavelength_nm is not None:
+        wavelength_nm = check_real(where, "wavelength_nm", wavelength_nm, lo=0.0, lo_open=True)
+    comps = []
+    for i, entry in enumerate(comps_in):
+        here = f"{where}: components[{i}]"
+        try:
+            comps.append(build_component(entry, where=here))
+        except MaterialError as exc:
+            msg = str(exc)
+            raise MaterialError(msg if msg.startswith(here) else f"{here}: {msg}") from None
+        except (TypeError, ValueError) as exc:
+            raise MaterialError(f"{here}: {exc}") from None
+    try:
+        mat = Material(
+            name=mat_name,
+            wavelength_nm=wavelength_nm,
+            components=tuple(comps),
+            description=data.get("description"),
+            provenance=data.get("provenance"),
+        )
+    except MaterialError as exc:
+        raise MaterialError(f"{where}: {exc}") from None
+    if check_energy:
+        mat.check_energy(where)
+    return mat
+
+
+def load_material(source, name: Optional[str] = None, check_energy: bool = True) -> Material:
+    """A Material from a preset name, a JSON file path, a dict, or a Material (returned as is).
+
+    Parameters
+    ----------
+    source : str, os.PathLike, dict or Material
+        A string that names an existing file (or ends in ``.json``) is read as a file;
+        otherwise it is a preset name (:func:`list_presets`). A dict is a material
+        as in CONTRACTS §5 or a scene file's inline ``[material.NAME]`` table.
+    name : str, optional
+        Name for a dict without ``name`` (the scene's material key).
+    check_energy : bool
+        Refuse materials with rho(theta_i) >= 1 (default True).
+    """
+    if isinstance(source, Material):
+        return source
+    if isinstance(source, dict):
+        where = f"material {name!r}" if name else "material"
+        return material_from_dict(source, where=where, name=name, check_energy=check_energy)
+    if not isinstance(source, (str, os.PathLike)):
+        raise MaterialError(f"load_material: expected a preset name, a path or a dict, got {type(source).__name__}")
+    path = Path(source)
+    if not path.exists() and not str(source).endswith(".json"):
+        preset = LIBRARY_DIR / f"{source}.json"
+        if not preset.exists():
+            raise MaterialError(
+                f"unknown material {str(source)!r}: not a file and not a preset ({', '.join(list_presets())})"
+            )
+        path = preset
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise MaterialError(f"{path}: cannot read material file ({exc.strerror or exc})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise MaterialError(f"{path}:{exc.lineno}:{exc.colno}: invalid JSON: {exc.msg}") from None
+    return material_from_dict(data, where=str(path), name=path.stem, check_energy=check_energy)
+
+
+def save_material(path, material: Material, check_energy: bool = True) -> Path:
+    """Write a material file atomically (temp file in the same directory + os.replace)."""
+    path = Path(path)
+    if check_energy:
+        material.check_energy(str(path))
+    text = json.dumps(material.to_dict(), indent=2) + "\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
