@@ -1,0 +1,203 @@
+"""Mesh checks with trimesh and manifold3d, and mesh booleans with manifold3d.
+
+A solid part must be watertight (every edge shared by exactly two triangles), consistently
+wound, enclose a positive volume (outward normals) and be a valid manifold for manifold3d.
+An open sheet (a detector, ``meta["kind"] == "sheet"``) must be consistently wound with no
+edge shared by more than two triangles; it is not expected to be closed. Solid parts should
+not interpenetrate: their pairwise intersection volumes are measured with manifold3d.
+
+A part that fails gives a :class:`GeometryWarning` (or, with ``strict=True``, a
+:class:`GeometryError`) whose message names the part.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geometry.mesh import GeometryError, Part, Scene
+
+
+class GeometryWarning(UserWarning):
+    """A mesh check failed; the message names the part."""
+
+
+@dataclass(frozen=True)
+class PartCheck:
+    """Result of :func:`check_part`. Volumes in mm^3 (signed: negative means inward normals)."""
+
+    name: str
+    kind: str
+    n_triangles: int
+    watertight: bool
+    winding_consistent: bool
+    n_open_edges: int
+    n_nonmanifold_edges: int
+    n_degenerate: int
+    volume_mm3: float
+    manifold_status: str
+    problems: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "kind": self.kind, "n_triangles": self.n_triangles, "watertight": self.watertight,
+                "winding_consistent": self.winding_consistent, "n_open_edges": self.n_open_edges,
+                "n_nonmanifold_edges": self.n_nonmanifold_edges, "n_degenerate": self.n_degenerate,
+                "volume_mm3": self.volume_mm3, "manifold_status": self.manifold_status,
+                "problems": list(self.problems), "ok": self.ok}
+
+
+@dataclass(frozen=True)
+class SceneCheck:
+    """Result of :func:`check_scene`: one :class:`PartCheck` per part and the overlapping solid pairs."""
+
+    parts: tuple[PartCheck, ...]
+    overlaps: tuple[tuple[str, str, float], ...] = ()
+    overlap_tolerance_mm3: float = 0.0
+    problems: tuple[str, ...] = field(default=())
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def as_dict(self) -> dict:
+        return {"ok": self.ok, "parts": [p.as_dict() for p in self.parts],
+                "overlaps": [{"a": a, "b": b, "volume_mm3": v} for a, b, v in self.overlaps],
+                "overlap_tolerance_mm3": self.overlap_tolerance_mm3, "problems": list(self.problems)}
+
+    def format(self) -> str:
+        """A plain-text table, one line per part, then the problems."""
+        lines = [f"{'part':<16} {'kind':<6} {'triangles':>9} {'watertight':>10} {'winding':>8} "
+                 f"{'volume_mm3':>12} manifold"]
+        for p in self.parts:
+            lines.append(f"{p.name:<16} {p.kind:<6} {p.n_triangles:>9d} {str(p.watertight):>10} "
+                         f"{str(p.winding_consistent):>8} {p.volume_mm3:>12.6g} {p.manifold_status}")
+        for a, b, v in self.overlaps:
+            lines.append(f"overlap {a} / {b}: {v:.3g} mm^3")
+        lines.extend(f"PROBLEM: {message}" for message in self.problems)
+        lines.append("checks: ok" if self.ok else f"checks: {len(self.problems)} problem(s)")
+        return "\n".join(lines)
+
+
+def part_kind(part: Part) -> str:
+    """"solid" or "sheet": from ``meta["kind"]`` if the part has one, else "sheet" only for open detectors."""
+    kind = part.meta.get("kind")
+    if kind in ("solid", "sheet"):
+        return kind
+    if part.role == "detector" and _edge_counts(part.faces)[1] > 0:
+        return "sheet"
+    return "solid"
+
+
+def _edge_counts(faces):
+    """(counts of each undirected edge, number of open edges, number of non-manifold edges)."""
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return counts, int((counts == 1).sum()), int((counts > 2).sum())
+
+
+def to_manifold(part: Part):
+    """manifold3d.Manifold of a part (float64 vertices)."""
+    import manifold3d
+
+    mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(part.vertices_mm, dtype=np.float64),
+                             tri_verts=np.ascontiguousarray(part.faces, dtype=np.uint64))
+    return manifold3d.Manifold(mesh)
+
+
+def from_manifold(manifold, *, name: str, material: str | None = None, role: str = "surface") -> Part:
+    """Part from a manifold3d.Manifold."""
+    mesh = manifold.to_mesh64()
+    vertices = np.ascontiguousarray(np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3])
+    return Part(name, vertices, np.asarray(mesh.tri_verts, dtype=np.int64), material, role, {"kind": "solid"})
+
+
+def check_part(part: Part) -> PartCheck:
+    """Check one part with trimesh (``process=False``) and, for solids, manifold3d."""
+    mesh = part.to_trimesh()
+    kind = part_kind(part)
+    _, n_open, n_nonmanifold = _edge_counts(part.faces)
+    area = np.linalg.norm(np.cross(*(part.vertices_mm[part.faces[:, 1:]] - part.vertices_mm[part.faces[:, :1]])
+                                   .transpose(1, 0, 2)), axis=1) / 2
+    scale = max(float(np.ptp(part.vertices_mm, axis=0).max()), 1e-300)
+    n_degenerate = int((area <= 1e-12 * scale**2).sum())
+    winding = bool(mesh.is_winding_consistent)
+    watertight = bool(mesh.is_watertight)
+    problems = []
+    if not winding:
+        problems.append(f"part {part.name!r}: inconsistent triangle winding")
+    if n_nonmanifold:
+        problems.append(f"part {part.name!r}: {n_nonmanifold} edge(s) shared by more than two triangles")
+    if n_degenerate:
+        problems.append(f"part {part.name!r}: {n_degenerate} degenerate (zero-area) triangle(s)")
+    if kind == "sheet":
+        volume, status = 0.0, "not checked (open sheet)"
+    else:
+        volume = float(mesh.volume) if watertight else float("nan")
+        if not watertight:
+            problems.append(f"part {part.name!r} is not watertight: {n_open} open edge(s)")
+        elif volume <= 0:
+            problems.append(f"part {part.name!r}: normals point inward (volume {volume:.6g} mm^3)")
+        status = str(to_manifold(part).status()).split(".")[-1]
+        if status != "NoError":
+            problems.append(f"part {part.name!r}: manifold3d says {status}")
+    return PartCheck(part.name, kind, part.n_triangles, watertight, winding, n_open, n_nonmanifold, n_degenerate,
+                     volume, status, tuple(problems))
+
+
+def overlap_volumes(scene: Scene, names=None) -> list[tuple[str, str, float]]:
+    """Intersection volume (mm^3) of every pair of valid solid parts whose bounding boxes overlap."""
+    solids = []
+    for part in scene.parts:
+        if names is not None and part.name not in names:
+            continue
+        manifold = to_manifold(part)
+        if str(manifold.status()).endswith("NoError") and not manifold.is_empty():
+            solids.append((part.name, manifold, part.vertices_mm.min(axis=0), part.vertices_mm.max(axis=0)))
+    out = []
+    for i, (name_a, a, lo_a, hi_a) in enumerate(solids):
+        for name_b, b, lo_b, hi_b in solids[i + 1:]:
+            if np.all(lo_a < hi_b) and np.all(lo_b < hi_a):
+                out.append((name_a, name_b, float((a ^ b).volume())))
+    return out
+
+
+def check_scene(scene: Scene, *, overlaps: bool = True, overlap_tolerance_mm3: float | None = None,
+                strict: bool = False) -> SceneCheck:
+    """Check every part; warn (or raise, ``strict=True``) naming each part that fails.
+
+    overlap_tolerance_mm3 : intersection volume above which two solids count as overlapping.
+        Default: 1e-3 mm^3, well below the volume of any real interference yet above the
+        slivers left where two tessellated cylinders of the same radius touch.
+    """
+    tolerance = 1e-3 if overlap_tolerance_mm3 is None else float(overlap_tolerance_mm3)
+    parts = tuple(check_part(p) for p in scene.parts)
+    problems = [m for p in parts for m in p.problems]
+    found = []
+    if overlaps:
+        valid = {p.name for p in parts if p.kind == "solid" and p.ok}
+        found = [o for o in overlap_volumes(scene, valid) if o[2] > tolerance]
+        problems += [f"parts {a!r} and {b!r} overlap by {v:.3g} mm^3" for a, b, v in found]
+    result = SceneCheck(parts, tuple(found), tolerance, tuple(problems))
+    if problems:
+        if strict:
+            raise GeometryError(problems[0] + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
+        for message in problems:
+            warnings.warn(message, GeometryWarning, stacklevel=2)
+    return result
+
+
+def union_parts(parts, *, name: str, material: str | None = None, role: str = "surface") -> Part:
+    """Boolean union (manifold3d) of solid parts into one watertight part."""
+    import manifold3d
+
+    manifolds = [to_manifold(p) for p in parts]
+    bad = [p.name for p, m in zip(parts, manifolds) if not str(m.status()).endswith("NoError")]
+    if bad:
+        raise GeometryError(f"union_parts: not a valid manifold: {', '.join(bad)}")
+    fused = manifold3d.Manifold.batch_boolean(manifolds, manifold3d.OpType.Add)
+    return from_manifold(fused, name=name, material=material, role=role)
