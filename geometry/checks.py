@@ -104,8 +104,8 @@ def to_manifold(part: Part):
     """manifold3d.Manifold of a part (float64 vertices)."""
     import manifold3d
 
-    mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(part.vertices_mm, dtype=np.float64),
-                             tri_verts=np.ascontiguousarray(part.faces, dtype=np.uint64))
+    mesh = manifold3d.Mesh64(vert_properties=np.array(part.vertices_mm, dtype=np.float64, order="C"),
+                             tri_verts=np.array(part.faces, dtype=np.uint64, order="C"))
     return manifold3d.Manifold(mesh)
 
 
