@@ -1,0 +1,113 @@
+"""Detector parts: area sampling for next-event estimation, and irradiance-map frames.
+
+A detector part is any set of triangles. Next-event estimation samples a point uniformly
+over its area (triangle by area, then uniform barycentrics), so the pdf per unit area is
+``1 / area_mm2``. Irradiance maps bin positions in the plane that best fits the part
+(area-weighted principal axes).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class DetectorGeometry:
+    """Sampling and binning data of one detector part.
+
+    triangles_mm : (m, 3, 3); normals : (m, 3) unit; area_mm2 : total area;
+    origin_mm, axis_u, axis_v, normal : plane frame of the map; extent_mm : (umin, umax, vmin, vmax).
+    """
+
+    triangles_mm: np.ndarray
+    normals: np.ndarray
+    cdf: np.ndarray
+    area_mm2: float
+    origin_mm: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    normal: np.ndarray
+    extent_mm: tuple
+
+    @classmethod
+    def from_triangles(cls, triangles_mm):
+        tri = np.asarray(triangles_mm, dtype=np.float64)
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        twice = np.linalg.norm(cross, axis=1)
+        areas = 0.5 * twice
+        total = float(areas.sum())
+        if total <= 0:
+            raise ValueError("detector part has zero area")
+        normals = cross / np.where(twice > 0, twice, 1.0)[:, None]
+        cdf = np.cumsum(areas) / total
+        cdf[-1] = 1.0
+        centroids = tri.mean(axis=1)
+        origin = (centroids * areas[:, None]).sum(axis=0) / total
+        mean_normal = (normals * areas[:, None]).sum(axis=0)
+        if np.linalg.norm(mean_normal) > 0.5 * total:
+            normal = mean_normal / np.linalg.norm(mean_normal)
+        else:  # closed or folded detector: the plane of least spread
+            pts = tri.reshape(-1, 3) - origin
+            normal = np.linalg.eigh(pts.T @ pts)[1][:, 0]
+        ref = np.array([1.0, 0.0, 0.0]) if abs(normal[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        axis_u = ref - normal * (ref @ normal)
+        axis_u /= np.linalg.norm(axis_u)
+        axis_v = np.cross(normal, axis_u)
+        pts = tri.reshape(-1, 3) - origin
+        pu, pv = pts @ axis_u, pts @ axis_v
+        pad = 1e-9 * max(1.0, float(np.ptp(pu)), float(np.ptp(pv)))
+        extent = (float(pu.min()) - pad, float(pu.max()) + pad, float(pv.min()) - pad, float(pv.max()) + pad)
+        return cls(tri, normals, cdf, total, origin, axis_u, axis_v, normal, extent)
+
+    def sample(self, u):
+        """Uniform points over the area. u : (n, 3) -> (points (n, 3), triangle normals (n, 3))."""
+        k = np.minimum(np.searchsorted(self.cdf, u[:, 0], side="right"), len(self.cdf) - 1)
+        su = np.sqrt(u[:, 1])
+        tri = self.triangles_mm[k]
+        b1 = (su * (1.0 - u[:, 2]))[:, None]
+        b2 = (su * u[:, 2])[:, None]
+        pts = (1.0 - su)[:, None] * tri[:, 0] + b1 * tri[:, 1] + b2 * tri[:, 2]
+        return pts, self.normals[k]
+
+    def bin_index(self, points, bins):
+        """Flat bin index (u-major) of points in the map grid of shape ``bins``."""
+        rel = points - self.origin_mm
+        umin, umax, vmin, vmax = self.extent_mm
+        iu = np.floor((rel @ self.axis_u - umin) / (umax - umin) * bins[0]).astype(np.int64)
+        iv = np.floor((rel @ self.axis_v - vmin) / (vmax - vmin) * bins[1]).astype(np.int64)
+        return np.clip(iu, 0, bins[0] - 1) * bins[1] + np.clip(iv, 0, bins[1] - 1)
+
+    def edges_mm(self, bins):
+        umin, umax, vmin, vmax = self.extent_mm
+        return np.linspace(umin, umax, bins[0] + 1), np.linspace(vmin, vmax, bins[1] + 1)
+
+
+@dataclass(frozen=True, eq=False)
+class IrradianceMap:
+    """Power per bin on a detector plane with per-bin Monte Carlo standard error.
+
+    power_w, stderr_w : (nu, nv); edges_u_mm (nu+1,), edges_v_mm (nv+1,);
+    irradiance_w_per_mm2 = power_w / bin area (bin area in the plane of the map).
+    """
+
+    edges_u_mm: np.ndarray
+    edges_v_mm: np.ndarray
+    power_w: np.ndarray
+    stderr_w: np.ndarray
+    origin_mm: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    normal: np.ndarray
+
+    @property
+    def bin_area_mm2(self) -> float:
+        return float(np.diff(self.edges_u_mm)[0] * np.diff(self.edges_v_mm)[0])
+
+    @property
+    def irradiance_w_per_mm2(self) -> np.ndarray:
+        return self.power_w / self.bin_area_mm2
+
+    @property
+    def irradiance_stderr_w_per_mm2(self) -> np.ndarray:
+        return self.stderr_w / self.bin_area_mm2

@@ -1,0 +1,9 @@
+"""Ray-triangle intersection: :class:`EmbreeIntersector` (fast) and
+:class:`ReferenceIntersector` (numpy, exact, slow) with the same interface.
+
+``intersect(origins, dirs) -> (tri, t)``: index of the first triangle hit (-1 = miss) and the
+distance along the unit direction (inf on a miss), float64, recomputed from the triangle's plane.
+``occluded(origins, dirs, tmax) -> bool``: is there any hit with ``0 < t < tmax``.
+"""
+from straylight.intersect.embree import EmbreeIntersector  # noqa: F401
+from straylight.intersect.reference import ReferenceIntersector  # noqa: F401

@@ -1,0 +1,195 @@
+"""Virtual light sources (they never block rays), lengths in mm, power in W.
+
+Every source maps uniforms ``u : (n, 4)`` to ray origins and unit directions with
+``emit(u) -> (origins (n, 3), dirs (n, 3))``; the tracer gives each ray the weight
+``total power / n_rays``. Keys of :func:`source_from_dict` follow CONTRACTS §6.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class SourceError(ValueError):
+    """A source definition that cannot be used; the message names the key."""
+
+
+def _vec(name, value, owner, unit=False) -> np.ndarray:
+    try:
+        v = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SourceError(f"{owner}: {name} must be 3 numbers, got {value!r}") from None
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise SourceError(f"{owner}: {name} must be 3 finite numbers, got {value!r}")
+    if unit:
+        length = np.linalg.norm(v)
+        if length == 0:
+            raise SourceError(f"{owner}: {name} must not be the zero vector")
+        v = v / length
+    return v
+
+
+def _positive(name, value, owner, allow_zero=False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise SourceError(f"{owner}: {name} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise SourceError(f"{owner}: {name} must be {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+    return v
+
+
+def orthonormal_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Tangents (t, b) with (t, b, n) right-handed, for unit n : (..., 3) (Duff et al. 2017)."""
+    n = np.asarray(n, dtype=np.float64)
+    x, y, z = n[..., 0], n[..., 1], n[..., 2]
+    sign = np.where(z >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    t = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=-1)
+    bb = np.stack([b, sign + y * y * a, -y], axis=-1)
+    return t, bb
+
+
+def _disk_points(center, normal, radius, u0, u1):
+    t, b = orthonormal_basis(normal)
+    r = radius * np.sqrt(u0)
+    phi = 2.0 * np.pi * u1
+    return center + (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b
+
+
+def _cone_dirs(axis, cos_max, u0, u1):
+    """Uniform in solid angle within angle acos(cos_max) of axis."""
+    t, b = orthonormal_basis(axis)
+    cos_t = 1.0 - u0 * (1.0 - cos_max)
+    sin_t = np.sqrt(np.maximum(0.0, 1.0 - cos_t * cos_t))
+    phi = 2.0 * np.pi * u1
+    return (sin_t * np.cos(phi))[:, None] * t + (sin_t * np.sin(phi))[:, None] * b + cos_t[:, None] * axis
+
+
+@dataclass(frozen=True, eq=False)
+class CollimatedDisk:
+    """Parallel rays along ``direction`` starting uniformly over a disk (centre, normal, radius).
+
+    ``power_w`` is the power carried by all rays leaving the disk.
+    """
+
+    center_mm: np.ndarray
+    normal: np.ndarray
+    direction: np.ndarray
+    radius_mm: float
+    power_w: float = 1.0
+
+    def __post_init__(self):
+        owner = "collimated_disk source"
+        object.__setattr__(self, "center_mm", _vec("center_mm", self.center_mm, owner))
+        object.__setattr__(self, "normal", _vec("normal", self.normal, owner, unit=True))
+        object.__setattr__(self, "direction", _vec("direction", self.direction, owner, unit=True))
+        object.__setattr__(self, "radius_mm", _positive("radius_mm", self.radius_mm, owner))
+        object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
+
+    def emit(self, u):
+        o = _disk_points(self.center_mm, self.normal, self.radius_mm, u[:, 0], u[:, 1])
+        return o, np.broadcast_to(self.direction, o.shape).copy()
+
+    def bounds_mm(self):
+        return np.stack([self.center_mm - self.radius_mm, self.center_mm + self.radius_mm])
+
+
+@dataclass(frozen=True, eq=False)
+class LambertianDisk:
+    """Uniform disk emitting a cosine (Lambertian) distribution into the ``normal`` hemisphere."""
+
+    center_mm: np.ndarray
+    normal: np.ndarray
+    radius_mm: float
+    power_w: float = 1.0
+
+    def __post_init__(self):
+        owner = "lambertian_disk source"
+        object.__setattr__(self, "center_mm", _vec("center_mm", self.center_mm, owner))
+        object.__setattr__(self, "normal", _vec("normal", self.normal, owner, unit=True))
+        object.__setattr__(self, "radius_mm", _positive("radius_mm", self.radius_mm, owner))
+        object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
+
+    def emit(self, u):
+        o = _disk_points(self.center_mm, self.normal, self.radius_mm, u[:, 0], u[:, 1])
+        t, b = orthonormal_basis(self.normal)
+        r = np.sqrt(u[:, 2])
+        phi = 2.0 * np.pi * u[:, 3]
+        z = np.sqrt(np.maximum(0.0, 1.0 - r * r))
+        d = (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b + z[:, None] * self.normal
+        return o, d
+
+    def bounds_mm(self):
+        return np.stack([self.center_mm - self.radius_mm, self.center_mm + self.radius_mm])
+
+
+@dataclass(frozen=True, eq=False)
+class PointSource:
+    """Point emitting uniformly per solid angle, into a cone of ``half_angle_deg`` about ``axis``
+    (the whole sphere by default). ``power_w`` is the power into that cone."""
+
+    position_mm: np.ndarray
+    power_w: float = 1.0
+    axis: np.ndarray | None = None
+    half_angle_deg: float = 180.0
+
+    def __post_init__(self):
+        owner = "point source"
+        object.__setattr__(self, "position_mm", _vec("position_mm", self.position_mm, owner))
+        axis = np.array([0.0, 0.0, 1.0]) if self.axis is None else _vec("axis", self.axis, owner, unit=True)
+        object.__setattr__(self, "axis", axis)
+        half = _positive("half_angle_deg", self.half_angle_deg, owner)
+        if half > 180.0:
+            raise SourceError(f"{owner}: half_angle_deg must be in (0, 180], got {half}")
+        object.__setattr__(self, "half_angle_deg", half)
+        object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
+
+    def emit(self, u):
+        cos_max = math.cos(math.radians(self.half_angle_deg))
+        d = _cone_dirs(self.axis, cos_max, u[:, 2], u[:, 3])
+        return np.broadcast_to(self.position_mm, d.shape).copy(), d
+
+    def bounds_mm(self):
+        return np.stack([self.position_mm, self.position_mm])
+
+
+_KEYS = {
+    "collimated_disk": ({"center_mm", "normal", "direction", "radius_mm"}, {"power_w"}),
+    "lambertian_disk": ({"center_mm", "normal", "radius_mm"}, {"power_w"}),
+    "point": ({"position_mm"}, {"power_w", "axis", "half_angle_deg"}),
+}
+
+
+def source_from_dict(entry: dict, where: str = "source"):
+    """Build a source from its CONTRACTS §6 table; unknown/missing keys are a SourceError naming ``where``.
+
+    A ``point`` source also accepts ``center_mm`` for its position.
+    """
+    if not isinstance(entry, dict) or "type" not in entry:
+        raise SourceError(f"{where}: a source needs a 'type' key ({', '.join(_KEYS)})")
+    kind = entry["type"]
+    if kind not in _KEYS:
+        raise SourceError(f"{where}: unknown source type {kind!r}; known: {', '.join(_KEYS)}")
+    args = {k: v for k, v in entry.items() if k != "type"}
+    if kind == "point" and "center_mm" in args and "position_mm" not in args:
+        args["position_mm"] = args.pop("center_mm")
+    if kind == "point" and "normal" in args and "axis" not in args:
+        args["axis"] = args.pop("normal")
+    required, optional = _KEYS[kind]
+    missing = sorted(required - set(args))
+    unknown = sorted(set(args) - required - optional)
+    if missing:
+        raise SourceError(f"{where}: {kind} source is missing key(s) {', '.join(missing)}")
+    if unknown:
+        raise SourceError(
+            f"{where}: unknown key(s) {', '.join(unknown)} for a {kind} source; allowed: "
+            f"{', '.join(sorted(required | optional))}"
+        )
+    cls = {"collimated_disk": CollimatedDisk, "lambertian_disk": LambertianDisk, "point": PointSource}[kind]
+    try:
+        return cls(**args)
+    except SourceError as exc:
+        raise SourceError(f"{where}: {exc}") from None

@@ -1,0 +1,660 @@
+"""Forward Monte Carlo trace: sources -> surfaces (BRDF / mirror / absorber) -> detectors.
+
+Estimators (every one reports a standard error from per-ray contributions):
+
+- A ray starts with weight ``w0 = total power / n_rays``. At a ``surface`` hit it is scattered
+  by the material's importance sampling, ``w <- w f cos / pdf`` (materials/base.py); at a
+  ``mirror`` it reflects specularly, ``w <- R w``; ``absorber`` and ``detector`` parts end it.
+- Next-event estimation (NEE) toward detector parts: at every BRDF scatter vertex x, one shadow
+  ray to a point y drawn uniformly over each detector's area A; if unoccluded it adds
+  ``w f(wi, wo) cos_x cos_y A / |y - x|^2`` (area form of the rendering equation, pdf 1/A).
+  The random walk then counts only detector hits whose previous event was the source or a
+  specular reflection, so nothing is counted twice.
+- Russian roulette: a weight below ``rr_threshold * w0`` survives with probability
+  ``w / (rr_threshold w0)`` and is raised to ``rr_threshold w0`` (unbiased).
+
+Ledger (exact per ray, so ``emitted = detected + absorbed + escaped`` to round-off):
+``absorbed[part] = absorbed_physical + roulette + nee_exchange + truncated`` where
+``roulette`` = weight roulette removed (zero in expectation), ``nee_exchange`` = walk hits
+covered by NEE minus the NEE contributions made from that part (zero in expectation) and
+``truncated`` = weight still in flight after ``max_events`` (a small bias, reported).
+
+Materials are two-sided: the local frame's z is the geometric normal flipped to face the
+incoming ray; light leaves on the incident side only. Self-intersection: new origins are
+offset by ``eps`` along that normal (see :func:`scene_epsilon`), shadow rays stop ``eps``
+short of their target.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from straylight.detectors import DetectorGeometry, IrradianceMap
+from straylight.paths import KIND_DETECTOR, KIND_SCATTER, KIND_SPECULAR, PathRecords, mix_key, stderr_from_sums
+from straylight.rng import CHUNK_RAYS, batches, check_seed, chunk_bounds, chunk_rng, n_chunks
+from straylight.sources import orthonormal_basis
+
+ROLE_CODES = {"surface": 0, "mirror": 1, "absorber": 2, "detector": 3}
+_SURFACE, _MIRROR, _ABSORBER, _DETECTOR = 0, 1, 2, 3
+
+
+class TraceError(ValueError):
+    """A trace request that cannot run; the message names the parameter or part."""
+
+
+@dataclass(frozen=True)
+class TraceOptions:
+    """Options of :func:`trace` (see docs/engine.md)."""
+
+    nee: bool = True
+    max_events: int = 1000
+    rr_threshold: float = 1e-3
+    batch_rays: int = 20_000
+    record_paths: bool = False
+    path_depth: int = 12
+    map_bins: tuple = (64, 64)
+    polarization: str = "u"
+    detector_sides: str = "both"
+    progress: bool = False
+    mirror_reflectance: float = 1.0
+
+    def __post_init__(self):
+        if int(self.max_events) < 1:
+            raise TraceError(f"max_events must be >= 1, got {self.max_events}")
+        if not (0.0 <= float(self.rr_threshold) < 1.0):
+            raise TraceError(f"rr_threshold must be in [0, 1), got {self.rr_threshold}")
+        if int(self.batch_rays) < 1:
+            raise TraceError(f"batch_rays must be >= 1, got {self.batch_rays}")
+        if self.detector_sides not in ("both", "front"):
+            raise TraceError(f"detector_sides must be 'both' or 'front', got {self.detector_sides!r}")
+        if len(tuple(self.map_bins)) != 2 or min(self.map_bins) < 1:
+            raise TraceError(f"map_bins must be two positive integers, got {self.map_bins!r}")
+        if not (0.0 <= float(self.mirror_reflectance) <= 1.0):
+            raise TraceError(f"mirror_reflectance must be in [0, 1], got {self.mirror_reflectance}")
+
+
+@dataclass(frozen=True)
+class Tally:
+    """A Monte Carlo estimate of a power and its standard error (1 sigma), in W."""
+
+    power_w: float
+    stderr_w: float
+
+    def to_dict(self) -> dict:
+        return {"power_w": self.power_w, "stderr_w": self.stderr_w}
+
+
+def scene_epsilon(triangles_mm) -> float:
+    """Scale-aware offset: max(1e-7 x bounding diagonal, 32 float32 ulps of the largest coordinate)."""
+    pts = np.asarray(triangles_mm).reshape(-1, 3)
+    diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    big = float(np.abs(pts).max())
+    return max(1e-7 * diag, 32.0 * float(np.spacing(np.float32(max(big, 1.0)))))
+
+
+@dataclass(frozen=True, eq=False)
+class TraceSpec:
+    """Everything a worker needs to trace chunks; picklable (no embree objects)."""
+
+    triangles_mm: np.ndarray
+    triangle_part: np.ndarray
+    part_names: tuple
+    part_roles: np.ndarray
+    part_material: np.ndarray
+    materials: tuple
+    sources: tuple
+    n_rays: int
+    seed: int
+    options: TraceOptions
+    eps: float
+    token: str = field(default="")
+
+    @property
+    def detector_parts(self) -> np.ndarray:
+        return np.flatnonzero(self.part_roles == _DETECTOR)
+
+    @property
+    def n_rows(self) -> int:
+        return _Layout(len(self.part_names), len(self.detector_parts)).n_ext
+
+
+class _Layout:
+    """Row indices of the per-ray tally matrix."""
+
+    def __init__(self, n_parts, n_det):
+        p, d = n_parts, n_det
+        self.P, self.D = p, d
+        self.INC, self.FIRST, self.ABS, self.RR, self.NEX, self.TRUNC = (k * p for k in range(6))
+        self.DET_NEE, self.DET_DIRECT, self.DET_WALK = 6 * p, 6 * p + d, 6 * p + 2 * d
+        self.ESC = 6 * p + 3 * d
+        self.n = self.ESC + 1
+        self.LEDGER_ABS = self.n  # derived rows: absorbed ledger (P), detector total (D)
+        self.DET_TOTAL = self.n + p
+        self.n_ext = self.n + p + d
+
+
+# ------------------------------------------------------------------ per-process compiled scene
+
+_COMPILED: dict = {}  # token -> _Compiled; one embree scene per process and scene (cache only)
+
+
+class _Compiled:
+    def __init__(self, spec: TraceSpec, intersector=None):
+        from straylight.intersect.embree import EmbreeIntersector
+
+        self.isect = intersector if intersector is not None else EmbreeIntersector(spec.triangles_mm)
+        tri = spec.triangles_mm
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        self.normals = n / np.where(length > 0, length, 1.0)
+        self.det_parts = spec.detector_parts
+        self.det_of_part = np.full(len(spec.part_names), -1, dtype=np.int64)
+        self.det_of_part[self.det_parts] = np.arange(len(self.det_parts))
+        self.detectors = [
+            DetectorGeometry.from_triangles(tri[spec.triangle_part == p]) for p in self.det_parts
+        ]
+
+
+def _compiled(spec: TraceSpec, intersector=None) -> _Compiled:
+    if intersector is not None:
+        return _Compiled(spec, intersector)
+    comp = _COMPILED.get(spec.token)
+    if comp is None:
+        _COMPILED.clear()  # keep one scene per process
+        comp = _COMPILED[spec.token] = _Compiled(spec)
+    return comp
+
+
+# ------------------------------------------------------------------ one batch of chunks
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
+    """Trace chunks ``first_chunk .. stop_chunk-1``; returns per-chunk sums (see :func:`trace`)."""
+    comp = _compiled(spec, intersector)
+    opt = spec.options
+    lay = _Layout(len(spec.part_names), len(comp.det_parts))
+    C = CHUNK_RAYS
+    start = first_chunk * C
+    stop = min(stop_chunk * C, spec.n_rays)
+    n = stop - start
+    nch = stop_chunk - first_chunk
+    gens = [chunk_rng(spec.seed, k) for k in range(first_chunk, stop_chunk)]
+    powers = np.array([s.power_w for s in spec.sources], dtype=np.float64)
+    total_power = float(powers.sum())
+    w0 = total_power / spec.n_rays
+    thr = opt.rr_threshold * w0
+    M = np.zeros((n, lay.n))
+    D = len(comp.det_parts)
+    K = int(opt.path_depth)
+    bins = tuple(int(b) for b in opt.map_bins)
+    both_sides = opt.detector_sides == "both"
+    map_rows, path_rows = [], []
+
+    # emission: chunk k draws (rays in chunk, 5) uniforms first
+    u = np.concatenate([gens[c].random((chunk_bounds(first_chunk + c, spec.n_rays)[1] - (first_chunk + c) * C, 5))
+                        for c in range(nch)])
+    o = np.empty((n, 3))
+    d = np.empty((n, 3))
+    if len(spec.sources) == 1:
+        which = np.zeros(n, dtype=np.int64)
+    else:
+        cum = np.cumsum(powers) / total_power
+        which = np.minimum(np.searchsorted(cum, u[:, 0], side="right"), len(powers) - 1)
+    for s, src in enumerate(spec.sources):
+        sel = which == s
+        if sel.any():
+            o[sel], d[sel] = src.emit(u[sel, 1:5])
+    idx = np.arange(n)
+    w = np.full(n, w0)
+    prev_kind = np.zeros(n, dtype=np.int8)
+    prev_part = np.full(n, -1, dtype=np.int64)
+    hkey = np.zeros(n, dtype=np.uint64)
+    depth = np.zeros(n, dtype=np.int64)
+    hist = np.full((n, K), -1, dtype=np.int16) if opt.record_paths else None
+    n_uniform = 4 + 3 * D
+    segments = 0
+    shadow_rays = 0
+
+    def record(det_j, ray_local, pts, power, keys, events, dep):
+        if len(ray_local) == 0:
+            return
+        b = comp.detectors[det_j].bin_index(pts, bins)
+        map_rows.append((ray_local, np.full(len(ray_local), det_j), b, power))
+        if opt.record_paths:
+            path_rows.append((ray_local, np.full(len(ray_local), comp.det_parts[det_j], dtype=np.int16), power,
+                              dep.astype(np.int16), keys, events))
+
+    for ev in range(int(opt.max_events)):
+        if len(idx) == 0:
+            break
+        counts = np.bincount(idx // C, minlength=nch)
+        U = np.concatenate([gens[c].random((counts[c], n_uniform)) for c in range(nch) if counts[c]])
+        tri, t = comp.isect.intersect(o, d)
+        segments += len(idx)
+        miss = tri < 0
+        M[idx[miss], lay.ESC] += w[miss]
+        hit = ~miss
+        idx, o, d, w, tri, t, U = idx[hit], o[hit], d[hit], w[hit], tri[hit], t[hit], U[hit]
+        prev_kind, prev_part, hkey, depth = prev_kind[hit], prev_part[hit], hkey[hit], depth[hit]
+        if hist is not None:
+            hist = hist[hit]
+        if len(idx) == 0:
+            break
+        part = spec.triangle_part[tri].astype(np.int64)
+        role = spec.part_roles[part]
+        p = o + t[:, None] * d
+        ng = comp.normals[tri]
+        cos_in = _dot(d, ng)
+        nf = np.where((cos_in < 0)[:, None], ng, -ng)
+        M[idx, lay.INC + part] += w
+        first = prev_kind == 0
+        M[idx[first], lay.FIRST + part[first]] += w[first]
+
+        # detectors: record (unless covered by NEE) and end the ray
+        isdet = role == _DETECTOR
+        if isdet.any():
+            sens = isdet & (both_sides | (cos_in < 0))
+            dead = isdet & ~sens
+            M[idx[dead], lay.ABS + part[dead]] += w[dead]
+            dj = comp.det_of_part[part]
+            M[idx[sens], lay.DET_WALK + dj[sens]] += w[sens]
+            covered = sens & (prev_kind == KIND_SCATTER) & opt.nee
+            M[idx[covered], lay.NEX + prev_part[covered]] += w[covered]
+            counted = sens & ~covered
+            M[idx[counted], lay.DET_DIRECT + dj[counted]] += w[counted]
+            for j in range(D):
+                cj = np.flatnonzero(counted & (dj == j))
+                if len(cj):
+                    keys = mix_key(hkey[cj], comp.det_parts[j] * 4 + KIND_DETECTOR)
+                    record(j, idx[cj], p[cj], w[cj], keys, None if hist is None else hist[cj].copy(), depth[cj])
+        isabs = role == _ABSORBER
+        M[idx[isabs], lay.ABS + part[isabs]] += w[isabs]
+
+        # continuing rays
+        cont = np.flatnonzero((role == _SURFACE) | (role == _MIRROR))
+        if len(cont) == 0:
+            idx = idx[:0]
+            break
+        idx, d, w, U, part, role, p, ng, nf = (a[cont] for a in (idx, d, w, U, part, role, p, ng, nf))
+        prev_kind, prev_part, hkey, depth = prev_kind[cont], prev_part[cont], hkey[cont], depth[cont]
+        if hist is not None:
+            hist = hist[cont]
+        w_new = np.zeros(len(idx))
+        d_new = d - 2.0 * _dot(d, nf)[:, None] * nf
+        kind = np.where(role == _SURFACE, KIND_SCATTER, KIND_SPECULAR).astype(np.int8)
+        mir = role == _MIRROR
+        w_new[mir] = w[mir] * float(opt.mirror_reflectance)
+        code = part * 4 + kind
+        surf = np.flatnonzero(role == _SURFACE)
+        if len(surf):
+            tb, bb = orthonormal_basis(nf[surf])
+            wi = -d[surf]
+            wi_loc = np.stack([_dot(wi, tb), _dot(wi, bb), _dot(wi, nf[surf])], axis=-1)
+            mat = spec.part_material[part[surf]]
+            o_off = p[surf] + spec.eps * nf[surf]
+            if opt.nee and D:
+                keys_v = mix_key(hkey[surf], code[surf])
+                for j, geo in enumerate(comp.detectors):
+                    y, ny = geo.sample(U[surf, 4 + 3 * j: 7 + 3 * j])
+                    v = y - p[surf]
+                    dist2 = _dot(v, v)
+                    dist = np.sqrt(dist2)
+                    wdir = v / np.where(dist > 0, dist, 1.0)[:, None]
+                    cos_s = _dot(wdir, nf[surf])
+                    cos_d = -_dot(wdir, ny)
+                    if both_sides:
+                        cos_d = np.abs(cos_d)
+                    ok = np.flatnonzero((cos_s > 0) & (cos_d > 0) & (dist > 2 * spec.eps))
+                    if len(ok) == 0:
+                        continue
+                    wo_loc = np.stack([_dot(wdir[ok], tb[ok]), _dot(wdir[ok], bb[ok]), cos_s[ok]], axis=-1)
+                    f = np.zeros(len(ok))
+                    for m in np.unique(mat[ok]):
+                        sel = mat[ok] == m
+                        f[sel] = spec.materials[m].brdf(wi_loc[ok][sel], wo_loc[sel], opt.polarization)
+                    c = w[surf][ok] * f * cos_s[ok] * cos_d[ok] * geo.area_mm2 / dist2[ok]
+                    pos = c > 0
+                    ok, c = ok[pos], c[pos]
+                    if len(ok) == 0:
+                        continue
+                    vo = y[ok] - o_off[ok]
+                    lo = np.sqrt(_dot(vo, vo))
+                    blocked = comp.isect.occluded(o_off[ok], vo / lo[:, None], lo - spec.eps)
+                    shadow_rays += len(ok)
+                    ok, c = ok[~blocked], c[~blocked]
+                    rows = idx[surf][ok]
+                    M[rows, lay.DET_NEE + j] += c
+                    M[rows, lay.NEX + part[surf][ok]] -= c
+                    ev_rows = None
+                    if hist is not None:
+                        ev_rows = hist[surf][ok].copy()
+                        dd = depth[surf][ok]
+                        inside = dd < K
+                        ev_rows[np.flatnonzero(inside), dd[inside]] = code[surf][ok][inside]
+                    keys = mix_key(keys_v[ok], comp.det_parts[j] * 4 + KIND_DETECTOR)
+                    record(j, rows, y[ok], c, keys, ev_rows, depth[surf][ok] + 1)
+            wo_world = np.zeros((len(surf), 3))
+            weight = np.zeros(len(surf))
+            for m in np.unique(mat):
+                sel = mat == m
+                smp = spec.materials[m].sample(wi_loc[sel], U[surf[sel], 0:3], opt.polarization)
+                wo = np.asarray(smp.wo, dtype=np.float64)
+                wgt = np.where(wo[:, 2] > 0, np.asarray(smp.weight, dtype=np.float64), 0.0)
+                weight[sel] = wgt
+                wo_world[sel] = wo[:, :1] * tb[sel] + wo[:, 1:2] * bb[sel] + wo[:, 2:3] * nf[surf[sel]]
+            norm = np.linalg.norm(wo_world, axis=1, keepdims=True)
+            d_new[surf] = wo_world / np.where(norm > 0, norm, 1.0)
+            w_new[surf] = w[surf] * weight
+        M[idx, lay.ABS + part] += w - w_new
+        # Russian roulette (unbiased): survive with probability w_new / thr at weight thr
+        low = (w_new < thr) & (w_new > 0)
+        w_after = w_new.copy()
+        if low.any():
+            survive = U[low, 3] * thr < w_new[low]
+            w_after[low] = np.where(survive, thr, 0.0)
+            M[idx[low], lay.RR + part[low]] += w_new[low] - w_after[low]
+        alive = w_after > 0
+        if ev == int(opt.max_events) - 1:
+            M[idx[alive], lay.TRUNC + part[alive]] += w_after[alive]
+            idx = idx[:0]
+            break
+        keep = np.flatnonzero(alive)
+        if hist is not None:
+            hist = hist[keep]
+            dk = depth[keep]
+            inside = dk < K
+            hist[np.flatnonzero(inside), dk[inside]] = code[keep][inside]
+        idx = idx[keep]
+        o = p[keep] + spec.eps * nf[keep]
+        d = d_new[keep]
+        w = w_after[keep]
+        prev_kind = kind[keep]
+        prev_part = part[keep]
+        hkey = mix_key(hkey[keep], code[keep])
+        depth = depth[keep] + 1
+
+    # per-chunk sums (chunk order, fixed chunk length: independent of the batch size)
+    ledger = (M[:, lay.ABS:lay.ABS + lay.P] + M[:, lay.RR:lay.RR + lay.P]
+              + M[:, lay.NEX:lay.NEX + lay.P] + M[:, lay.TRUNC:lay.TRUNC + lay.P])
+    det_total = M[:, lay.DET_NEE:lay.DET_NEE + D] + M[:, lay.DET_DIRECT:lay.DET_DIRECT + D]
+    ext = np.concatenate([M, ledger, det_total], axis=1)
+    s1 = np.empty((nch, lay.n_ext))
+    s2 = np.empty((nch, lay.n_ext))
+    for c in range(nch):
+        a = c * C
+        b = min(a + C, n)
+        s1[c] = ext[a:b].sum(axis=0)
+        s2[c] = (ext[a:b] ** 2).sum(axis=0)
+    maps = _chunk_maps(map_rows, nch, C, D, bins)
+    paths = None
+    if opt.record_paths and path_rows:
+        cols = [np.concatenate(x) for x in zip(*path_rows)]
+        order = np.lexsort((cols[1], cols[3], cols[0]))
+        paths = {
+            "ray": cols[0][order] + start, "detector": cols[1][order], "power_w": cols[2][order],
+            "depth": cols[3][order], "key": cols[4][order], "events": cols[5][order],
+        }
+    return {"first_chunk": first_chunk, "s1": s1, "s2": s2, "maps": maps, "paths": paths,
+            "segments": segments, "shadow_rays": shadow_rays}
+
+
+def _chunk_maps(map_rows, nch, C, D, bins):
+    """Per chunk and detector: (bin indices, sum of power, sum of per-ray power squared)."""
+    nb = bins[0] * bins[1]
+    out = [[None] * D for _ in range(nch)]
+    if not map_rows:
+        return out
+    ray, det, b, pw = (np.concatenate(x) for x in zip(*map_rows))
+    order = np.lexsort((b, det, ray))
+    ray, det, b, pw = ray[order], det[order], b[order], pw[order]
+    chunk = ray // C
+    for c in np.unique(chunk):
+        for j in range(D):
+            sel = (chunk == c) & (det == j)
+            if not sel.any():
+                continue
+            pair = ray[sel] * nb + b[sel]
+            upair, inv = np.unique(pair, return_inverse=True)
+            xr = np.bincount(inv.ravel(), weights=pw[sel])
+            ub, binv = np.unique(upair % nb, return_inverse=True)
+            out[c][j] = (ub, np.bincount(binv.ravel(), weights=xr), np.bincount(binv.ravel(), weights=xr * xr))
+    return out
+
+
+# ------------------------------------------------------------------ results
+
+
+@dataclass(frozen=True, eq=False)
+class TraceResult:
+    """Outcome of :func:`trace`; see docs/engine.md for each field."""
+
+    n_rays: int
+    seed: int
+    emitted_w: float
+    detectors: dict
+    maps: dict
+    absorbed: dict
+    escaped: Tally
+    incident: dict
+    first_hit: dict
+    ledger: dict
+    paths: PathRecords | None
+    segments: int
+    shadow_rays: int
+
+    def to_json_dict(self) -> dict:
+        """CONTRACTS §4.3 keys, plus the ledger breakdown (its terms are already inside ``absorbed``)."""
+        led = self.ledger
+        return {
+            "rays": self.n_rays,
+            "seed": self.seed,
+            "emitted_w": self.emitted_w,
+            "detectors": {k: v.to_dict() for k, v in self.detectors.items()},
+            "absorbed": {k: v.to_dict() for k, v in self.absorbed.items()},
+            "escaped_w": self.escaped.power_w,
+            "escaped_stderr_w": self.escaped.stderr_w,
+            "ledger": {
+                "note": "roulette, nee_exchange and truncated are already included in 'absorbed'; "
+                        "emitted_w = sum(detectors) + sum(absorbed) + escaped_w",
+                "roulette_w": led["roulette_w"].power_w,
+                "roulette_stderr_w": led["roulette_w"].stderr_w,
+                "nee_exchange_w": led["nee_exchange_w"].power_w,
+                "truncated_w": led["truncated_w"].power_w,
+                "balance_residual_w": led["balance_residual_w"],
+                "detector_walk": {k: v.to_dict() for k, v in led["detector_walk"].items()},
+                "absorbed_physical": {k: v.to_dict() for k, v in led["absorbed_physical"].items()},
+            },
+            "segments": self.segments,
+            "shadow_rays": self.shadow_rays,
+        }
+
+
+def _build_result(spec: TraceSpec, comp_dets, s1, s2, map_sums, paths_pieces, segments, shadow) -> TraceResult:
+    N = spec.n_rays
+    err = stderr_from_sums(s1, s2, N)
+    names = spec.part_names
+    P = len(names)
+    det_parts = spec.detector_parts
+    D = len(det_parts)
+    lay = _Layout(P, D)
+
+    def tally(row):
+        return Tally(float(s1[row]), float(err[row]))
+
+    def summed(base):
+        rows = slice(base, base + P)
+        tot = float(s1[rows].sum())
+        # per-ray sums of a whole block are not kept; the block's stderr adds per-part variances
+        return Tally(tot, float(np.sqrt(np.sum(err[rows] ** 2))))
+
+    detectors = {names[p]: tally(lay.DET_TOTAL + j) for j, p in enumerate(det_parts)}
+    show_abs = [i for i in range(P) if spec.part_roles[i] != _DETECTOR or spec.options.detector_sides == "front"]
+    absorbed = {names[i]: tally(lay.LEDGER_ABS + i) for i in show_abs}
+    escaped = tally(lay.ESC)
+    emitted = float(sum(s.power_w for s in spec.sources))
+    residual = emitted - (sum(t.power_w for t in detectors.values()) + sum(t.power_w for t in absorbed.values())
+                          + escaped.power_w)
+    ledger = {
+        "absorbed_physical": {names[i]: tally(lay.ABS + i) for i in range(P)},
+        "roulette": {names[i]: tally(lay.RR + i) for i in range(P)},
+        "nee_exchange": {names[i]: tally(lay.NEX + i) for i in range(P)},
+        "truncated": {names[i]: tally(lay.TRUNC + i) for i in range(P)},
+        "detector_walk": {names[p]: tally(lay.DET_WALK + j) for j, p in enumerate(det_parts)},
+        "detector_nee": {names[p]: tally(lay.DET_NEE + j) for j, p in enumerate(det_parts)},
+        "detector_direct": {names[p]: tally(lay.DET_DIRECT + j) for j, p in enumerate(det_parts)},
+        "roulette_w": summed(lay.RR),
+        "nee_exchange_w": summed(lay.NEX),
+        "truncated_w": summed(lay.TRUNC),
+        "balance_residual_w": float(residual),
+    }
+    maps = {}
+    bins = tuple(int(b) for b in spec.options.map_bins)
+    for j, p in enumerate(det_parts):
+        geo = comp_dets[j]
+        m1, m2 = map_sums[j]
+        eu, ev = geo.edges_mm(bins)
+        maps[names[p]] = IrradianceMap(eu, ev, m1.reshape(bins), stderr_from_sums(m1, m2, N).reshape(bins),
+                                       geo.origin_mm, geo.axis_u, geo.axis_v, geo.normal)
+    paths = None
+    if spec.options.record_paths:
+        paths = PathRecords.concatenate(paths_pieces, names, N, int(spec.options.path_depth))
+    return TraceResult(
+        n_rays=N, seed=spec.seed, emitted_w=emitted, detectors=detectors, maps=maps, absorbed=absorbed,
+        escaped=escaped,
+        incident={names[i]: tally(lay.INC + i) for i in range(P)},
+        first_hit={names[i]: tally(lay.FIRST + i) for i in range(P)},
+        ledger=ledger, paths=paths, segments=int(segments), shadow_rays=int(shadow),
+    )
+
+
+# ------------------------------------------------------------------ public entry point
+
+
+def _resolve_materials(scene, materials):
+    """Material name -> model, for parts that scatter; returns (part_material (P,), models tuple)."""
+    needed = sorted({p.material for p in scene.parts if p.role == "surface"}, key=str)
+    models = []
+    index = {}
+    for name in needed:
+        if name is None:
+            bad = [p.name for p in scene.parts if p.role == "surface" and p.material is None]
+            raise TraceError(f"surface part(s) {', '.join(bad)} have no material")
+        if materials is not None and name in materials:
+            model = materials[name]
+        else:
+            try:
+                from materials import load_material
+            except ImportError:
+                known = ", ".join(sorted(materials)) if materials else "none given"
+                raise TraceError(f"unknown material {name!r}; known: {known}") from None
+            model = load_material(name)
+        index[name] = len(models)
+        models.append(model)
+    part_material = np.array([index.get(p.material, -1) if p.role == "surface" else -1 for p in scene.parts],
+                             dtype=np.int64)
+    return part_material, tuple(models)
+
+
+def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> TraceSpec:
+    """Check inputs and build the picklable :class:`TraceSpec` used by :func:`run_batch`."""
+    options = options or TraceOptions()
+    seed = check_seed(seed)
+    if isinstance(n_rays, bool) or not isinstance(n_rays, (int, np.integer)) or int(n_rays) < 1:
+        raise TraceError(f"n_rays must be a positive integer, got {n_rays!r}")
+    if not isinstance(sources, (list, tuple)):
+        sources = (sources,)
+    if not sources:
+        raise TraceError("at least one source is needed")
+    if sum(s.power_w for s in sources) <= 0:
+        raise TraceError("total source power_w must be > 0")
+    part_material, models = _resolve_materials(scene, materials)
+    tri = np.ascontiguousarray(scene.triangles_mm, dtype=np.float64)
+    tri_part = np.ascontiguousarray(scene.triangle_part, dtype=np.int32)
+    roles = np.array([ROLE_CODES[p.role] for p in scene.parts], dtype=np.int64)
+    h = hashlib.sha1(tri.tobytes())
+    h.update(tri_part.tobytes())
+    return TraceSpec(
+        triangles_mm=tri, triangle_part=tri_part, part_names=scene.part_names, part_roles=roles,
+        part_material=part_material, materials=models, sources=tuple(sources), n_rays=int(n_rays), seed=seed,
+        options=options, eps=scene_epsilon(tri), token=h.hexdigest(),
+    )
+
+
+def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=None, client=None,
+          scheduler=None, intersector=None) -> TraceResult:
+    """Trace ``n_rays`` rays from ``sources`` through ``scene``; see docs/engine.md.
+
+    Parameters
+    ----------
+    scene : geometry.Scene
+    sources : a source or a list of sources (straylight.sources)
+    n_rays : int
+    seed : int, non-negative
+    materials : dict name -> Brdf, optional (else ``materials.load_material(name)``)
+    options : TraceOptions
+    workers, client, scheduler : run on dask (straylight.distribute); default in-process
+    intersector : an intersector object to use in-process (e.g. ReferenceIntersector)
+    """
+    spec = make_spec(scene, sources, n_rays, seed, materials, options)
+    opt = spec.options
+    ranges = batches(spec.n_rays, opt.batch_rays)
+    total_chunks = n_chunks(spec.n_rays)
+    if workers is not None or client is not None or scheduler is not None:
+        from straylight.distribute import run_distributed
+
+        results = run_distributed(spec, ranges, workers=workers, client=client, scheduler=scheduler)
+    else:
+        results = _run_local(spec, ranges, intersector)
+    comp_dets = _Compiled(spec, intersector=_NoIsect()).detectors
+    rows = spec.n_rows
+    s1 = np.zeros(rows)
+    s2 = np.zeros(rows)
+    bins = tuple(int(b) for b in opt.map_bins)
+    nb = bins[0] * bins[1]
+    D = len(spec.detector_parts)
+    map_sums = [(np.zeros(nb), np.zeros(nb)) for _ in range(D)]
+    pieces = []
+    segments = shadow = 0
+    bar = _progress(total_chunks, opt.progress)
+    for res in results:  # in chunk order
+        for c in range(len(res["s1"])):
+            s1 += res["s1"][c]
+            s2 += res["s2"][c]
+            for j in range(D):
+                entry = res["maps"][c][j]
+                if entry is not None:
+                    map_sums[j][0][entry[0]] += entry[1]
+                    map_sums[j][1][entry[0]] += entry[2]
+        pieces.append(res["paths"])
+        segments += res["segments"]
+        shadow += res["shadow_rays"]
+        if bar is not None:
+            bar.update(len(res["s1"]))
+    if bar is not None:
+        bar.close()
+    return _build_result(spec, comp_dets, s1, s2, map_sums, pieces, segments, shadow)
+
+
+class _NoIsect:
+    """Placeholder so that detector geometry can be built without an embree scene."""
+
+
+def _run_local(spec, ranges, intersector):
+    for a, b in ranges:
+        yield run_batch(spec, a, b, intersector)
+
+
+def _progress(total, enabled):
+    if not enabled:
+        return None
+    import sys
+
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="chunk", file=sys.stderr, disable=not sys.stderr.isatty())
