@@ -10,6 +10,7 @@ from materials.fresnel import fresnel_reflectance, polarization_factor
 from materials.harvey_shack import HarveyShack
 from materials.kcorrelation import KCorrelation
 from materials.lambertian import Lambertian
+from materials.tabulated import Tabulated
 from materials.material import Material, list_presets, load_material, material_from_dict, save_material
 
 __all__ = [
@@ -22,6 +23,7 @@ __all__ = [
     "Material",
     "MaterialError",
     "Sample",
+    "Tabulated",
     "directional_hemispherical_reflectance",
     "fresnel_reflectance",
     "list_presets",
