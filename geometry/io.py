@@ -207,3 +207,15 @@ def load_scene(path) -> Scene:
         return Scene(tuple(parts))
     except GeometryError as exc:
         raise GeometryError(f"{path}: {exc}") from exc
+
+
+def export_build(shape_parts: dict, scene: Scene, directory, *, mesh_format: str = "stl", step: bool = True,
+                 scene_file: str = "scene.toml") -> Path:
+    """Write ``<name>.step`` (from the CadQuery parts, if ``step``) and ``<name>.<mesh_format>`` for every part
+    of ``scene`` plus the scene TOML pointing at the meshes. Returns the TOML path."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    if step:
+        for name, shape_part in shape_parts.items():
+            export_step(shape_part, directory / f"{name}.step")
+    return save_scene(scene, directory, mesh_format=mesh_format, scene_file=scene_file)

@@ -343,3 +343,17 @@ def tessellate_parts(parts, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
 def scene_report(scene: Scene) -> list[TessellationReport]:
     """The tessellation reports of the parts of ``scene`` that have one."""
     return [p.meta["tessellation"] for p in scene.parts if "tessellation" in p.meta]
+
+
+def format_reports(reports) -> str:
+    """Plain-text table of tessellation reports, one line per part, and the totals."""
+    reports = list(reports)
+    lines = [f"{'part':<16} {'triangles':>9} {'tolerance_mm':>12} {'max_chord_error_mm':>18} method"]
+    for r in reports:
+        flag = "" if r.within_tolerance else "  ABOVE TOLERANCE"
+        lines.append(f"{r.name:<16} {r.n_triangles:>9d} {r.tolerance_mm:>12.4g} {r.max_chord_error_mm:>18.4g} "
+                     f"{r.method}{flag}")
+    if reports:
+        lines.append(f"{'total':<16} {sum(r.n_triangles for r in reports):>9d} {'':>12} "
+                     f"{max(r.max_chord_error_mm for r in reports):>18.4g}")
+    return "\n".join(lines)

@@ -1,0 +1,123 @@
+"""``straylight geometry``: build parametric parts to STEP + meshes + scene TOML; check a scene.
+
+    straylight geometry build tube [--vanes N] [--vane-bevel-deg B] ... [--tolerance-mm T] -o DIR
+    straylight geometry build reflectometer --theta-i-deg A --theta-r-deg B [--arm-mm L] ... -o DIR
+    straylight geometry check SCENE.toml [--strict] [--json OUT.json]
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import warnings
+
+TUBE_ALIASES = {"vane_count": "--vanes"}
+
+
+def _flag(name: str) -> str:
+    return TUBE_ALIASES.get(name, "--" + name.replace("_", "-"))
+
+
+def _add_dataclass_flags(parser, cls):
+    for f in dataclasses.fields(cls):
+        kind = {"int": int, "str": str}.get(str(f.type), float)
+        extra = {"nargs": "+"} if "tuple" in str(f.type) else {}
+        parser.add_argument(_flag(f.name), dest=f"param_{f.name}", type=kind, default=None,
+                            metavar=f.name.split("_")[-1].upper() if kind is float else "VALUE",
+                            help=f"{f.name} (default {f.default!r})", **extra)
+
+
+def _params(args) -> dict:
+    return {k[6:]: v for k, v in vars(args).items() if k.startswith("param_") and v is not None}
+
+
+def _common(parser, tolerance_mm):
+    parser.add_argument("-o", "--output", required=True, help="output directory")
+    parser.add_argument("--tolerance-mm", type=float, default=tolerance_mm, help="chord tolerance (mm)")
+    parser.add_argument("--angular-tolerance-deg", type=float, default=10.0, help="angular tolerance (deg)")
+    parser.add_argument("--mesh-format", choices=("stl", "ply", "obj"), default="stl")
+    parser.add_argument("--no-step", action="store_true", help="skip the STEP files")
+    parser.add_argument("--json", metavar="PATH", help="write the reports as JSON")
+
+
+def add_parser(subparsers):
+    from geometry.parts.reflectometer import ReflectometerParams
+    from geometry.parts.tube import TubeParams
+
+    group = subparsers.add_parser("geometry", help="build and check geometry").add_subparsers(dest="what",
+                                                                                             metavar="ACTION")
+    build = group.add_parser("build", help="build parts, write STEP + meshes + scene TOML").add_subparsers(
+        dest="model", metavar="MODEL")
+    tube = build.add_parser("tube", help="baffled tube (defaults: the BENCHMARK.md tube)")
+    _add_dataclass_flags(tube, TubeParams)
+    tube.add_argument("--material", default="benchmark_black", help="material name of every surface")
+    _common(tube, 0.05)
+    tube.set_defaults(func=_build_tube)
+    rig = build.add_parser("reflectometer", help="the seed paper's reflectometer at one set-point")
+    rig.add_argument("--theta-i-deg", type=float, required=True)
+    rig.add_argument("--theta-r-deg", type=float, required=True)
+    rig.add_argument("--phi-r-deg", type=float, default=0.0, help="0 (specular half-plane) or 180")
+    _add_dataclass_flags(rig, ReflectometerParams)
+    rig.add_argument("--sample-material", default=None)
+    rig.add_argument("--black-material", default=None)
+    _common(rig, 0.01)
+    rig.set_defaults(func=_build_reflectometer)
+    check = group.add_parser("check", help="check a scene's meshes (watertight, winding, overlaps)")
+    check.add_argument("scene", help="scene TOML")
+    check.add_argument("--strict", action="store_true", help="exit 1 if a check fails")
+    check.add_argument("--json", metavar="PATH")
+    check.set_defaults(func=_check)
+
+
+def _finish(args, shape_parts, scene) -> int:
+    from geometry.checks import check_scene
+    from geometry.io import export_build
+    from geometry.tessellate import format_reports, scene_report
+
+    path = export_build(shape_parts, scene, args.output, mesh_format=args.mesh_format, step=not args.no_step)
+    print(format_reports(scene_report(scene)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the problems are printed in the table below
+        checks = check_scene(scene)
+    print(checks.format())
+    print(f"scene: {path}")
+    if args.json:
+        with open(args.json, "w") as out:
+            json.dump({"scene": str(path), "tessellation": [r.as_dict() for r in scene_report(scene)],
+                       "checks": checks.as_dict()}, out, indent=2)
+    return 0 if checks.ok else 1
+
+
+def _build_tube(args) -> int:
+    from geometry.parts.tube import TubeParams, build_tube
+    from geometry.tessellate import tessellate_parts
+
+    shape_parts = build_tube(TubeParams(**_params(args)))
+    scene = tessellate_parts(shape_parts, tolerance_mm=args.tolerance_mm,
+                             angular_tolerance_deg=args.angular_tolerance_deg, material=args.material)
+    return _finish(args, shape_parts, scene)
+
+
+def _build_reflectometer(args) -> int:
+    from geometry.parts.reflectometer import ReflectometerParams, build_reflectometer
+    from geometry.tessellate import tessellate_parts
+
+    shape_parts = build_reflectometer(args.theta_i_deg, args.theta_r_deg, args.phi_r_deg,
+                                      ReflectometerParams(**_params(args)))
+    scene = tessellate_parts(shape_parts, tolerance_mm=args.tolerance_mm,
+                             angular_tolerance_deg=args.angular_tolerance_deg, material=args.black_material,
+                             materials={"sample": args.sample_material})
+    return _finish(args, shape_parts, scene)
+
+
+def _check(args) -> int:
+    from geometry.checks import check_scene
+    from geometry.io import load_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        checks = check_scene(load_scene(args.scene))
+    print(checks.format())
+    if args.json:
+        with open(args.json, "w") as out:
+            json.dump(checks.as_dict(), out, indent=2)
+    return 1 if (args.strict and not checks.ok) else 0
