@@ -1,0 +1,72 @@
+"""Effect registry: ``@register_effect("angle_offset")`` on a frozen dataclass.
+
+An instrument effect (CONTRACTS §3) is a frozen dataclass whose fields are its
+parameters (unit-suffixed names) and which provides ``wrap(forward) -> forward``
+with the forward-model signature of :data:`rig.forward.Forward`. At zero strength
+(the field defaults) ``wrap`` returns ``forward`` itself: exactly the identity.
+
+Each class also declares ``fit_space``: for each parameter, ``(lower, upper, scale,
+starts)``, with ``scale`` "lin" or "log" and ``starts`` a tuple of starting values
+(``None`` entries are filled from the data by :mod:`rig.diagnose`). ``region`` names
+the scan region where the effect mostly acts (used to flag confounded effects).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+
+class EffectError(ValueError):
+    """Unknown effect name or bad effect parameter; the message names it."""
+
+
+_EFFECTS: dict[str, type] = {}
+
+
+def register_effect(name: str):
+    def decorate(cls):
+        if name in _EFFECTS and _EFFECTS[name] is not cls:
+            raise RuntimeError(f"effect {name!r} registered twice")
+        _EFFECTS[name] = cls
+        cls.name = name
+        return cls
+
+    return decorate
+
+
+def effect_types() -> dict[str, type]:
+    """name -> class, in registration order."""
+    return dict(_EFFECTS)
+
+
+def effect_names() -> list[str]:
+    return list(_EFFECTS)
+
+
+def build_effect(name: str, **params):
+    """The effect ``name`` with ``params`` (unknown name or keys raise :class:`EffectError`)."""
+    cls = _EFFECTS.get(name)
+    if cls is None:
+        raise EffectError(f"unknown effect {name!r}; known: {', '.join(_EFFECTS)}")
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(params) - known)
+    if unknown:
+        raise EffectError(f"effect {name!r}: unknown parameter(s) {', '.join(unknown)}; allowed: {', '.join(sorted(known))}")
+    return cls(**params)
+
+
+def check_param(effect: str, name: str, value, lo=None, hi=None, allow_none=False, allow_inf=False):
+    """Validate one numeric parameter; returns it as float (or None)."""
+    import math
+
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise EffectError(f"effect {effect!r}: parameter {name} must be a number, got {value!r}")
+    value = float(value)
+    if math.isnan(value) or (math.isinf(value) and not allow_inf):
+        raise EffectError(f"effect {effect!r}: parameter {name} must be finite, got {value!r}")
+    if lo is not None and value < lo:
+        raise EffectError(f"effect {effect!r}: parameter {name} must be >= {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise EffectError(f"effect {effect!r}: parameter {name} must be <= {hi}, got {value!r}")
+    return value
