@@ -52,15 +52,19 @@ def test_narrow_lobe_area_is_conserved():
     """Integral over arm angle of reading * cos(theta_r) = rho * L / H for a lobe much
     narrower than the slit height: each direction is collected over W/L of arm angle and
     the reading divides by Omega = W H / L^2, so the integral is (L / H) * integral of
-    f cos dOmega. Independent of beam and slit width."""
-    rho = 0.7
+    f cos dOmega, times the fraction of the out-of-plane spread (beam height and lobe,
+    sigma = sqrt(sigma_b^2 + (L w)^2) at the slit) inside the slit height.
+    Independent of the slit width."""
+    rho, w = 0.7, 2e-3
     tr = np.linspace(28.0, 32.0, 801)
     for cfg in (NOMINAL, NOMINAL.replace(slit_width_mm=1.0, beam_diameter_mm=3.0)):
-        reading = predict_brdf(GaussLobe(2e-3, rho), 30.0, tr, 0.0, "s", config=cfg)
+        reading = predict_brdf(GaussLobe(w, rho), 30.0, tr, 0.0, "s", config=cfg)
         area, _, _ = _moments(tr, reading)
         assert area > 0
-        expected = rho * cfg.arm_mm / cfg.slit_height_mm
-        assert area == pytest.approx(expected, rel=0.003)
+        spread_mm = math.hypot(cfg.beam_sigma_mm, cfg.arm_mm * w)
+        inside = erf(cfg.slit_height_mm / 2 / (math.sqrt(2) * spread_mm))
+        expected = rho * cfg.arm_mm / cfg.slit_height_mm * inside
+        assert area == pytest.approx(expected, rel=0.002)
 
 
 def test_mirror_is_seen_over_beam_plus_slit():
