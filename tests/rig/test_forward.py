@@ -147,7 +147,7 @@ def test_paper_scan_is_fast():
     ti = np.repeat([10.0, 30.0, 40.0, 70.0, 80.0], 300)
     tr = np.tile(np.linspace(-85, 85, 150), 10)
     pol = np.tile(np.repeat(["s", "p"], 150), 5)
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time: robust to other jobs on the machine
     out = predict_brdf(Sum(), ti, tr, 0.0, pol)
     assert np.all(out > 0)
-    assert time.perf_counter() - t0 < 1.0
+    assert time.process_time() - t0 < 1.0
