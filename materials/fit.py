@@ -335,7 +335,7 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
         n_starts: int = 6, seed: int = 0, default_relative_std: float = 0.05,
         min_relative_std: float = 0.005, loss: str = "linear", predict=None,
         rho_theta_i_deg=RHO_THETA_I_DEG, max_nfev: int | None = None, reweight: bool = True,
-        std_of_mean: bool = False) -> FitResult:
+        std_of_mean: bool = False, progress=None) -> FitResult:
     """Fit the components of ``model`` to ``scan`` (see module docstring for the method).
 
     Parameters
@@ -364,6 +364,8 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
         Divide ``brdf_std_per_sr`` by sqrt(n_repeats) (when the column is the std of
         single readings and the readings are independent). Default False: the std
         is used as given, which is conservative for repeated readings.
+    progress : callable, optional
+        Called as ``progress(1)`` after each start (e.g. ``tqdm.update``).
 
     Returns
     -------
@@ -410,6 +412,8 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
         n_eval += res.nfev
         if best is None or res.cost < best.cost:
             best = res
+        if progress is not None:
+            progress(1)
     if best is not None and reweight:
         # Weights std / measured favour points that fluctuated up (Neyman chi-square bias,
         # ~1.5 rel^2 in the level); one pass with std / fitted model removes it.
@@ -467,3 +471,28 @@ class _Sum:
         for c in self.comps[1:]:
             out = out + c.brdf(wi, wo, polarization)
         return out
+
+
+def format_fit_report(result: FitResult) -> str:
+    """Human-readable fit report: parameters +- 1 sigma, rms log10 per incidence angle, rho table."""
+    lines = [f"model: {result.model}   wavelength: {result.wavelength_nm:g} nm",
+             f"points: {result.n_points} fitted, {result.n_excluded} excluded (NaN/<=0 BRDF or theta_r = 90 deg)",
+             f"success: {result.success} ({result.message}); {result.n_starts} starts, {result.n_eval} evaluations",
+             f"chi2 = {result.chi2:.4g}, chi2/dof = {result.chi2_reduced:.4g} "
+             "(stderr from (J^T J)^-1 with the scan's std as absolute; not rescaled)",
+             "", "parameters (1 sigma):"]
+    for name, value in result.params.items():
+        err = result.stderr[name]
+        tag = " (fixed)" if name not in result.free_names else ""
+        lines.append(f"  {name:28s} {value:12.6g} +- {err:.3g}{tag}")
+    lines += ["", "rms log10(model/measured) per incidence angle (dex):"]
+    for row in result.rms_table():
+        lines.append(f"  theta_i = {row['theta_i_deg']:5.1f} deg  {row['polarization']}  "
+                     f"{row['rms_log10']:.4f}  ({row['n_points']} points)")
+    lines.append(f"  all: {result.rms_log10_total:.4f}")
+    pols = [p for p in ("s", "p", "u") if p in result.rho]
+    lines += ["", "directional-hemispherical reflectance rho(theta_i):",
+              "  theta_i_deg " + " ".join(f"{p:>9s}" for p in pols)]
+    for k, t in enumerate(result.rho["theta_i_deg"]):
+        lines.append(f"  {t:11.1f} " + " ".join(f"{result.rho[p][k]:9.5f}" for p in pols))
+    return "\n".join(lines)

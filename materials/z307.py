@@ -128,3 +128,38 @@ def read_z307(path=None, wavelength_nm: float = DEFAULT_WAVELENGTH_NM,
         metadata=metadata,
         path=path,
     )
+
+
+#: Model used for the shipped preset ``materials/library/z307.json`` (docs/materials-fitting.md).
+Z307_PRESET_MODEL = "lambertian+microfacet"
+
+
+def fit_z307(model: str = Z307_PRESET_MODEL, wavelength_nm: float = DEFAULT_WAVELENGTH_NM,
+             dataset: str = "control", seed: int = 0, n_starts: int = 8, fixed=None, bounds=None,
+             progress=None):
+    """Fit ``model`` to the real Z307 data; returns ``(FitResult, Material)``.
+
+    The material is named ``z307`` and carries its provenance (data source, wavelength,
+    model, rms log10 residual per incidence angle) in its ``provenance`` text.
+    """
+    from materials.fit import fit  # fit imports the model modules; keep the reader light
+
+    scan = read_z307(wavelength_nm=wavelength_nm, dataset=dataset)
+    result = fit(scan, model, seed=seed, n_starts=n_starts, fixed=fixed, bounds=bounds, progress=progress)
+    rms = ", ".join(f"{t:g} deg: {v:.3f}" for (t, _), v in result.rms_log10.items())
+    provenance = (
+        f"Fit of {model} to the real in-plane BRF of Aeroglaze Z307 (BRDF = BRF/pi), data set "
+        f"'{dataset}' ({Z307_FILES[dataset]}), column {result.wavelength_nm:g} nm, from {Z307_SOURCE}. "
+        f"Unpolarized data; assumed std {DEFAULT_RELATIVE_STD:g} x BRDF. rms log10(model/measured) per "
+        f"incidence angle: {rms}; all {result.rms_log10_total:.3f} dex, chi2/dof {result.chi2_reduced:.3g}. "
+        f"Refit: `straylight material z307 -o materials/library/z307.json`."
+    )
+    material = result.material(
+        "z307",
+        description="Aeroglaze Z307 flat black polyurethane on Al 6061-T6; matte-paint grazing forward lobe "
+                    "(microfacet) over a diffuse floor. n is an effective index (unpolarized data do not "
+                    "separate it from the lobe weight). Valid for theta_i 10-70 deg, theta_r <= 75 deg; "
+                    "the retro-reflection rise near theta_r = -theta_i is not modelled.",
+        provenance=provenance,
+    )
+    return result, material
