@@ -1,0 +1,169 @@
+"""The built-in baffled tube set up for analyses: scene, materials, beam and entrance.
+
+The default is the reference tube of ``shared/BENCHMARK.md`` (wall r 50..51 mm, 300 mm
+long, 7 vanes with r = 35 mm holes, end plate, detector r < 35 mm at z = 0 facing +z),
+coated with the ``z302_sample_b`` preset. The beam is BENCHMARK.md's: a disk of radius
+60 mm, 10 mm above the entrance, perpendicular to the tube axis; tilted, it slides in its
+plane so that its central ray still passes through the entrance centre (BENCHMARK.md keeps
+it at the axis; both cover the entrance and the rim, and only they couple to the detector).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+DEFAULT_MATERIAL = "z302_sample_b"
+DEFAULT_TOLERANCE_MM = 0.05
+BEAM_STANDOFF_MM = 10.0
+BEAM_MARGIN = 1.2
+
+
+@dataclass(frozen=True, eq=False)
+class Beam:
+    """A collimated beam: rays start uniformly over a fixed disk.
+
+    center_mm : (3,) disk centre
+    axis : (3,) unit vector, disk normal and the beam direction at 0 deg off axis
+        (pointing into the instrument)
+    radius_mm : disk radius
+    power_w : power leaving the disk
+    pivot_mm : (3,) or None. None: the disk stays at ``center_mm`` for every tilt
+        (BENCHMARK.md). A point: the disk slides in its own plane so that the ray through
+        its centre passes through the pivot (keeps a tilted beam on the entrance).
+    """
+
+    center_mm: np.ndarray
+    axis: np.ndarray
+    radius_mm: float
+    power_w: float = 1.0
+    pivot_mm: np.ndarray | None = None
+
+    def __post_init__(self):
+        axis = np.asarray(self.axis, dtype=np.float64)
+        norm = np.linalg.norm(axis)
+        if axis.shape != (3,) or not np.isfinite(norm) or norm == 0:
+            raise ValueError(f"beam axis must be 3 finite numbers, not all zero, got {self.axis!r}")
+        object.__setattr__(self, "axis", axis / norm)
+        object.__setattr__(self, "center_mm", np.asarray(self.center_mm, dtype=np.float64).reshape(3))
+        if self.pivot_mm is not None:
+            object.__setattr__(self, "pivot_mm", np.asarray(self.pivot_mm, dtype=np.float64).reshape(3))
+        if not (np.isfinite(self.radius_mm) and self.radius_mm > 0):
+            raise ValueError(f"beam radius_mm must be > 0, got {self.radius_mm!r}")
+
+    @property
+    def basis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(e1, e2): unit vectors perpendicular to ``axis``; azimuth 0 tilts toward e1.
+
+        e1 is the world axis least aligned with ``axis``, made orthogonal to it, so a beam
+        along -z tilts toward +x at azimuth 0 (BENCHMARK.md's (sin a, 0, -cos a)).
+        """
+        k = int(np.argmin(np.abs(self.axis)))
+        e1 = np.eye(3)[k] - self.axis[k] * self.axis
+        e1 /= np.linalg.norm(e1)
+        return e1, np.cross(self.axis, e1)
+
+    def direction(self, off_axis: float, azimuth: float = 0.0) -> np.ndarray:
+        """Unit ray direction tilted by ``off_axis`` (rad) toward azimuth ``azimuth`` (rad)."""
+        e1, e2 = self.basis
+        tilt = np.cos(azimuth) * e1 + np.sin(azimuth) * e2
+        return np.cos(off_axis) * self.axis + np.sin(off_axis) * tilt
+
+    def center_for(self, off_axis: float, azimuth: float = 0.0) -> np.ndarray:
+        """Disk centre used at this tilt (see ``pivot_mm``)."""
+        if self.pivot_mm is None:
+            return self.center_mm
+        d = self.direction(off_axis, azimuth)
+        t = float(np.dot(self.pivot_mm - self.center_mm, self.axis) / np.dot(d, self.axis))
+        return self.pivot_mm - t * d
+
+    def source(self, off_axis: float, azimuth: float = 0.0):
+        """The engine's ``CollimatedDisk`` for this tilt."""
+        from straylight.sources import CollimatedDisk
+
+        return CollimatedDisk(center_mm=self.center_for(off_axis, azimuth), normal=self.axis,
+                              direction=self.direction(off_axis, azimuth), radius_mm=float(self.radius_mm),
+                              power_w=float(self.power_w))
+
+    def irradiance_w_per_mm2(self, off_axis: float) -> float:
+        """Irradiance on a plane normal to the rays: P / (pi R^2 cos a) (the disk is fixed)."""
+        return self.power_w / (np.pi * self.radius_mm**2 * np.cos(off_axis))
+
+
+@dataclass(frozen=True, eq=False)
+class Entrance:
+    """The instrument's entrance: a disk perpendicular to the beam axis.
+
+    The power crossing it, for a beam that covers it, is ``P (r_e / R)^2`` whatever the
+    tilt: the beam's projection along the rays onto the entrance plane is a translated copy
+    of the source disk.
+    """
+
+    center_mm: np.ndarray
+    radius_mm: float
+
+    def __post_init__(self):
+        object.__setattr__(self, "center_mm", np.asarray(self.center_mm, dtype=np.float64).reshape(3))
+        if not (np.isfinite(self.radius_mm) and self.radius_mm > 0):
+            raise ValueError(f"entrance radius_mm must be > 0, got {self.radius_mm!r}")
+
+    def power_w(self, beam: Beam, off_axis: float, azimuth: float = 0.0) -> float:
+        """Beam power crossing the entrance disk; ValueError if the beam does not cover it."""
+        d = beam.direction(off_axis, azimuth)
+        # walk back from the entrance centre along the rays to the source plane
+        t = float(np.dot(self.center_mm - beam.center_mm, beam.axis) / np.dot(d, beam.axis))
+        foot = self.center_mm - t * d
+        offset = float(np.linalg.norm(foot - beam.center_for(off_axis, azimuth)))
+        if offset + self.radius_mm > beam.radius_mm * (1 + 1e-12):
+            raise ValueError(
+                f"beam (radius_mm {beam.radius_mm:g}) does not cover the entrance (radius_mm {self.radius_mm:g}) "
+                f"at {np.degrees(off_axis):g} deg off axis: offset {offset:.3g} mm; use a larger beam"
+            )
+        return beam.power_w * (self.radius_mm / beam.radius_mm) ** 2
+
+
+@dataclass(frozen=True, eq=False)
+class Setup:
+    """What a PST analysis needs: scene, materials, beam, entrance (optional), detector name."""
+
+    scene: object
+    materials: dict | None
+    beam: Beam
+    entrance: Entrance | None
+    detector: str
+    description: str = ""
+    params: dict | None = None
+
+
+def resolve_materials(material) -> tuple[str, dict | None]:
+    """A material name (preset or file) or a Brdf object -> (tag, {tag: model})."""
+    if isinstance(material, str):
+        from materials import load_material
+
+        return material, {material: load_material(material)}
+    return "coating", {"coating": material}
+
+
+def tube_setup(material=DEFAULT_MATERIAL, tolerance_mm: float = DEFAULT_TOLERANCE_MM, **params) -> Setup:
+    """The built-in tube (``geometry.parts.tube.TubeParams`` keywords override the reference).
+
+    material : preset name, material file path, or a Brdf model, put on every non-detector part
+    """
+    from geometry.parts.tube import REFERENCE_TUBE, build_tube
+    from geometry.tessellate import tessellate_parts
+
+    p = replace(REFERENCE_TUBE, **params) if params else REFERENCE_TUBE
+    tag, mats = resolve_materials(material)
+    scene = tessellate_parts(build_tube(p), tolerance_mm=tolerance_mm, material=tag)
+    top = p.length_mm + (p.aperture_stop_thickness_mm if p.aperture_stop_radius_mm is not None else 0.0)
+    r_entrance = p.aperture_stop_radius_mm if p.aperture_stop_radius_mm is not None else p.inner_radius_mm
+    reference_like = np.isclose(p.outer_radius_mm, 51.0)
+    beam_radius = 60.0 if reference_like else BEAM_MARGIN * p.outer_radius_mm
+    # the disk slides with the tilt so that it always covers the entrance and the rim
+    beam = Beam(center_mm=(0.0, 0.0, top + BEAM_STANDOFF_MM), axis=(0.0, 0.0, -1.0), radius_mm=beam_radius,
+                pivot_mm=(0.0, 0.0, top))
+    entrance = Entrance(center_mm=(0.0, 0.0, top), radius_mm=r_entrance)
+    params_dict = {f: getattr(p, f) for f in p.names()}
+    desc = (f"baffled tube r={p.inner_radius_mm:g} mm, L={p.length_mm:g} mm, {p.vane_count} vanes "
+            f"(hole r={p.vane_inner_radius_mm:g} mm), coating {tag}")
+    return Setup(scene, mats, beam, entrance, "detector", desc, params_dict)

@@ -1,0 +1,275 @@
+"""Point source transmittance (PST) of an instrument over off-axis angles.
+
+A collimated beam (a point source at infinity) is tilted by ``a`` off the instrument
+axis (and turned by an azimuth ``phi`` about it) and traced; for each tilt two
+normalisations are reported, both with Monte Carlo standard errors:
+
+``pst``
+    detector irradiance / input irradiance: ``(P_det / A_det) / E_in``, with ``E_in``
+    the beam irradiance on a plane normal to the rays (Breault's definition; the
+    usual "PST" of stray-light literature).
+``entrance_ratio``
+    detector power / power crossing the entrance disk: ``P_det / P_ent``
+    (``shared/BENCHMARK.md``'s ``ratio(a)``). Needs an :class:`Entrance`.
+
+Both are linear in ``P_det``, so their relative errors are those of the detector
+tally. Each tilt is traced with its own seed, derived from ``seed`` and the tilt's
+index, so the points are independent and the sweep is reproducible.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from straylight.analyses.builtin import Beam, Entrance, Setup
+
+CSV_COLUMNS = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "entrance_ratio", "entrance_ratio_stderr",
+               "detector_w", "detector_stderr_w", "rays", "seconds")
+
+
+def point_seed(seed: int, index: int) -> int:
+    """Seed of the ``index``-th point of a sweep: independent streams from one user seed."""
+    return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1)[0])
+
+
+def part_area_mm2(scene, name: str) -> float:
+    """Total triangle area of part ``name``, mm^2."""
+    part = scene.part(name)
+    t = part.vertices_mm[part.faces]
+    return float(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum())
+
+
+def detector_name(scene, name: str | None = None) -> str:
+    """``name`` if it is a detector part, or the scene's only detector."""
+    detectors = [p.name for p in scene.parts if p.role == "detector"]
+    if name is not None:
+        if name not in detectors:
+            raise ValueError(f"detector {name!r} is not a detector part; detectors: {', '.join(detectors) or 'none'}")
+        return name
+    if len(detectors) != 1:
+        raise ValueError(f"the scene has {len(detectors)} detector parts ({', '.join(detectors) or 'none'}); "
+                         "name one with --detector")
+    return detectors[0]
+
+
+@contextmanager
+def dask_client(workers: int | None = None, scheduler: str | None = None):
+    """A dask client for a whole sweep (one LocalCluster, not one per trace), or None in-process."""
+    if scheduler:
+        from dask.distributed import Client
+
+        with Client(scheduler) as client:
+            yield client
+    elif workers and workers > 1:
+        from dask.distributed import Client, LocalCluster
+
+        with LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                          dashboard_address=None) as cluster, Client(cluster) as client:
+            yield client
+    else:
+        yield None
+
+
+@dataclass(frozen=True, eq=False)
+class PstResult:
+    """A PST sweep; arrays have one entry per (off-axis, azimuth) point, in sweep order.
+
+    off_axis_deg, azimuth_deg : (n,) the tilts
+    pst, pst_stderr : (n,) detector irradiance / input irradiance
+    entrance_ratio, entrance_ratio_stderr : (n,) detector power / entrance power (NaN without entrance)
+    detector_w, detector_stderr_w : (n,) detector power for a beam of ``beam_power_w``
+    seconds : (n,) wall time of each trace
+    """
+
+    off_axis_deg: np.ndarray
+    azimuth_deg: np.ndarray
+    pst: np.ndarray
+    pst_stderr: np.ndarray
+    entrance_ratio: np.ndarray
+    entrance_ratio_stderr: np.ndarray
+    detector_w: np.ndarray
+    detector_stderr_w: np.ndarray
+    seconds: np.ndarray
+    rays: int
+    seed: int
+    nee: bool
+    detector: str
+    detector_area_mm2: float
+    beam_power_w: float
+    description: str = ""
+    traces: list = field(default_factory=list, repr=False)
+
+    def rows(self) -> list[dict]:
+        """One dict per point, keys ``CSV_COLUMNS``."""
+        return [
+            {"off_axis_deg": float(self.off_axis_deg[i]), "azimuth_deg": float(self.azimuth_deg[i]),
+             "pst": float(self.pst[i]), "pst_stderr": float(self.pst_stderr[i]),
+             "entrance_ratio": float(self.entrance_ratio[i]),
+             "entrance_ratio_stderr": float(self.entrance_ratio_stderr[i]),
+             "detector_w": float(self.detector_w[i]), "detector_stderr_w": float(self.detector_stderr_w[i]),
+             "rays": int(self.rays), "seconds": float(self.seconds[i])}
+            for i in range(len(self.pst))
+        ]
+
+    def to_json_dict(self) -> dict:
+        clean = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
+                 for r in self.rows()]
+        return {"quantity": "point source transmittance",
+                "definitions": {"pst": "detector irradiance / beam irradiance normal to the rays",
+                                "entrance_ratio": "detector power / beam power crossing the entrance disk"},
+                "description": self.description, "detector": self.detector,
+                "detector_area_mm2": self.detector_area_mm2, "rays_per_point": self.rays, "seed": self.seed,
+                "nee": self.nee, "points": clean}
+
+    def write_json(self, path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps(self.to_json_dict(), indent=2))
+        return path
+
+    def write_csv(self, path) -> Path:
+        path = Path(path)
+        with path.open("w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS)
+            writer.writeheader()
+            writer.writerows(self.rows())
+        return path
+
+    def plot(self, path=None, quantity: str = "pst", ax=None, label_prefix: str = ""):
+        """Log-scale plot of ``quantity`` ("pst" or "entrance_ratio") vs off-axis angle, 1-sigma bars.
+
+        Zero values (no light reached the detector) cannot sit on a log axis: they are drawn
+        as open triangles on the bottom edge and named in the legend.
+        """
+        import matplotlib.pyplot as plt
+
+        if quantity not in ("pst", "entrance_ratio"):
+            raise ValueError(f"quantity must be 'pst' or 'entrance_ratio', got {quantity!r}")
+        y, e = getattr(self, quantity), getattr(self, quantity + "_stderr")
+        own = ax is None
+        if own:
+            fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
+        for phi in np.unique(self.azimuth_deg):
+            sel = self.azimuth_deg == phi
+            x, yy, ee = self.off_axis_deg[sel], y[sel], e[sel]
+            pos = yy > 0
+            label = label_prefix + (f"azimuth {phi:g} deg" if len(np.unique(self.azimuth_deg)) > 1 else "")
+            line = ax.errorbar(x[pos], yy[pos], yerr=np.minimum(ee[pos], 0.999 * yy[pos]), fmt="o-", ms=4,
+                               capsize=3, label=label or None)
+            zero = ~pos & np.isfinite(yy)
+            if np.any(zero):
+                # y in axes units (0 = bottom edge) for x in data units
+                ax.plot(x[zero], np.zeros(zero.sum()), "v", mfc="none", ms=7, color=line[0].get_color(),
+                        transform=ax.get_xaxis_transform(), clip_on=False,
+                        label=(label + ": " if label else "") + "zero (no detected power)")
+        ax.set_yscale("log")
+        ax.set_xlabel("off-axis angle (deg)")
+        ax.set_ylabel("PST = E_detector / E_input" if quantity == "pst"
+                      else "detector power / entrance power")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.set_title(f"{'Point source transmittance' if quantity == 'pst' else 'Entrance-normalised ratio'}"
+                     f" ({self.rays:.2g} rays/point, 1-sigma bars)", fontsize=10)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+        if own:
+            fig.tight_layout()
+            if path is not None:
+                fig.savefig(path)
+                plt.close(fig)
+        return ax
+
+
+def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, seed: int = 0, nee: bool = True,
+              options=None, workers: int | None = None, scheduler: str | None = None, client=None,
+              progress: bool = True, keep_traces: bool = False) -> PstResult:
+    """Trace a collimated beam at each (off-axis, azimuth) and return the PST with errors.
+
+    Parameters
+    ----------
+    setup : :class:`straylight.analyses.builtin.Setup` (scene, materials, beam, entrance, detector)
+    off_axis : (n,) float, radians; azimuth : (m,) float, radians (every pair is traced)
+    n_rays : rays per point; seed : user seed (each point gets :func:`point_seed`)
+    nee : next-event estimation toward the detector (the engine's target sampling);
+        False traces the plain random walk (same expectation, larger variance)
+    options : ``straylight.trace.TraceOptions`` to start from (``nee`` overrides its field)
+    workers, scheduler, client : distribution (one dask cluster for the whole sweep)
+    """
+    from dataclasses import replace as dc_replace
+
+    from tqdm.auto import tqdm
+
+    from straylight.trace import TraceOptions, trace
+
+    off_axis = np.atleast_1d(np.asarray(off_axis, dtype=np.float64))
+    azimuth = np.atleast_1d(np.asarray(azimuth, dtype=np.float64))
+    if np.any(~np.isfinite(off_axis)) or np.any(np.abs(off_axis) >= np.pi / 2):
+        raise ValueError("off-axis angles must be finite and below 90 deg")
+    if int(n_rays) < 1:
+        raise ValueError(f"rays must be >= 1, got {n_rays!r}")
+    det = detector_name(setup.scene, setup.detector)
+    area = part_area_mm2(setup.scene, det)
+    opts = dc_replace(options or TraceOptions(), nee=bool(nee))
+    pairs = [(a, phi) for phi in azimuth for a in off_axis]
+    n = len(pairs)
+    out = {k: np.full(n, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "p", "p_se", "sec")}
+    traces = []
+    with (dask_client(workers, scheduler) if client is None else _given(client)) as cl:
+        bar = tqdm(pairs, desc="PST sweep", unit="angle", disable=not progress, leave=False)
+        for i, (a, phi) in enumerate(bar):
+            bar.set_postfix_str(f"{math.degrees(a):g} deg")
+            beam: Beam = setup.beam
+            p_ent = setup.entrance.power_w(beam, a, phi) if setup.entrance is not None else math.nan
+            t0 = time.perf_counter()
+            res = trace(setup.scene, [beam.source(a, phi)], n_rays=int(n_rays), seed=point_seed(seed, i),
+                        materials=setup.materials, options=opts, client=cl)
+            out["sec"][i] = time.perf_counter() - t0
+            tally = res.detectors[det]
+            e_in = beam.irradiance_w_per_mm2(a)
+            out["p"][i], out["p_se"][i] = tally.power_w, tally.stderr_w
+            out["pst"][i] = tally.power_w / area / e_in
+            out["pst_se"][i] = tally.stderr_w / area / e_in
+            out["ratio"][i] = tally.power_w / p_ent
+            out["ratio_se"][i] = tally.stderr_w / p_ent
+            if keep_traces:
+                traces.append(res)
+    return PstResult(
+        off_axis_deg=np.degrees([a for a, _ in pairs]), azimuth_deg=np.degrees([phi for _, phi in pairs]),
+        pst=out["pst"], pst_stderr=out["pst_se"], entrance_ratio=out["ratio"], entrance_ratio_stderr=out["ratio_se"],
+        detector_w=out["p"], detector_stderr_w=out["p_se"], seconds=out["sec"], rays=int(n_rays), seed=int(seed),
+        nee=bool(nee), detector=det, detector_area_mm2=area, beam_power_w=float(setup.beam.power_w),
+        description=setup.description, traces=traces,
+    )
+
+
+@contextmanager
+def _given(client):
+    yield client
+
+
+def geometric_direct_ratio(off_axis, r_entrance_mm: float, r_stop_mm: float, height_mm: float) -> np.ndarray:
+    """Unvignetted direct transmission of a black tube: entrance disk -> stop disk.
+
+    Area of the lens where the entrance disk (radius R), projected along the rays onto the
+    stop plane (shifted by s = h tan a), overlaps the stop disk (radius r), divided by the
+    entrance area pi R^2 (circle-circle intersection area; e.g. Weisstein, "Circle-Circle
+    Intersection", MathWorld). Valid when the wall does not vignette (a straight cylinder
+    with R >= r never does: both ends of a ray lie inside it).
+    """
+    s = np.abs(height_mm * np.tan(np.atleast_1d(np.asarray(off_axis, dtype=np.float64))))
+    big, small = float(r_entrance_mm), float(r_stop_mm)
+    out = np.zeros_like(s)
+    inside = s <= abs(big - small)
+    out[inside] = np.pi * min(big, small) ** 2
+    part = (s > abs(big - small)) & (s < big + small)
+    d = s[part]
+    a1 = small**2 * np.arccos(np.clip((d**2 + small**2 - big**2) / (2 * d * small), -1, 1))
+    a2 = big**2 * np.arccos(np.clip((d**2 + big**2 - small**2) / (2 * d * big), -1, 1))
+    a3 = 0.5 * np.sqrt(np.maximum(0.0, (-d + small + big) * (d + small - big) * (d - small + big) * (d + small + big)))
+    out[part] = a1 + a2 - a3
+    return out / (np.pi * big**2)
