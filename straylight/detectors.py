@@ -64,10 +64,11 @@ class DetectorGeometry:
         """Uniform points over the area. u : (n, 3) -> (points (n, 3), triangle normals (n, 3))."""
         k = np.minimum(np.searchsorted(self.cdf, u[:, 0], side="right"), len(self.cdf) - 1)
         su = np.sqrt(u[:, 1])
-        tri = self.triangles_mm[k]
+        tri = self.triangles_mm
         b1 = (su * (1.0 - u[:, 2]))[:, None]
         b2 = (su * u[:, 2])[:, None]
-        pts = (1.0 - su)[:, None] * tri[:, 0] + b1 * tri[:, 1] + b2 * tri[:, 2]
+        # P = A + b1 (B - A) + b2 (C - A), uniform over the triangle (Turk 1990)
+        pts = tri[k, 0] + b1 * (tri[k, 1] - tri[k, 0]) + b2 * (tri[k, 2] - tri[k, 0])
         return pts, self.normals[k]
 
     def bin_index(self, points, bins):

@@ -149,6 +149,8 @@ class _Compiled:
         n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         length = np.linalg.norm(n, axis=1, keepdims=True)
         self.normals = n / np.where(length > 0, length, 1.0)
+        self.plane_d = np.einsum("ij,ij->i", self.normals, tri[:, 0])
+        self.centroids = tri.mean(axis=1)
         self.det_parts = spec.detector_parts
         self.det_of_part = np.full(len(spec.part_names), -1, dtype=np.int64)
         self.det_of_part[self.det_parts] = np.arange(len(self.det_parts))
@@ -202,14 +204,14 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     o = np.empty((n, 3))
     d = np.empty((n, 3))
     if len(spec.sources) == 1:
-        which = np.zeros(n, dtype=np.int64)
+        o, d = spec.sources[0].emit(u[:, 1:5])
     else:
         cum = np.cumsum(powers) / total_power
         which = np.minimum(np.searchsorted(cum, u[:, 0], side="right"), len(powers) - 1)
-    for s, src in enumerate(spec.sources):
-        sel = which == s
-        if sel.any():
-            o[sel], d[sel] = src.emit(u[sel, 1:5])
+        for s, src in enumerate(spec.sources):
+            sel = which == s
+            if sel.any():
+                o[sel], d[sel] = src.emit(u[sel, 1:5])
     idx = np.arange(n)
     w = np.full(n, w0)
     prev_kind = np.zeros(n, dtype=np.int8)
@@ -235,22 +237,28 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             break
         counts = np.bincount(idx // C, minlength=nch)
         U = np.concatenate([gens[c].random((counts[c], n_uniform)) for c in range(nch) if counts[c]])
-        tri, t = comp.isect.intersect(o, d)
+        tri = comp.isect.first_triangle(o, d)
         segments += len(idx)
         miss = tri < 0
-        M[idx[miss], lay.ESC] += w[miss]
-        hit = ~miss
-        idx, o, d, w, tri, t, U = idx[hit], o[hit], d[hit], w[hit], tri[hit], t[hit], U[hit]
-        prev_kind, prev_part, hkey, depth = prev_kind[hit], prev_part[hit], hkey[hit], depth[hit]
-        if hist is not None:
-            hist = hist[hit]
-        if len(idx) == 0:
-            break
+        if miss.any():
+            M[idx[miss], lay.ESC] += w[miss]
+            hit = ~miss
+            idx, o, d, w, tri, U = idx[hit], o[hit], d[hit], w[hit], tri[hit], U[hit]
+            prev_kind, prev_part, hkey, depth = prev_kind[hit], prev_part[hit], hkey[hit], depth[hit]
+            if hist is not None:
+                hist = hist[hit]
+            if len(idx) == 0:
+                break
         part = spec.triangle_part[tri].astype(np.int64)
         role = spec.part_roles[part]
-        p = o + t[:, None] * d
         ng = comp.normals[tri]
         cos_in = _dot(d, ng)
+        # hit distance in float64 from the triangle's plane (embree found the triangle in float32)
+        edge_on = np.abs(cos_in) < 1e-12
+        t = (comp.plane_d[tri] - _dot(ng, o)) / np.where(edge_on, 1.0, cos_in)
+        if edge_on.any():
+            t[edge_on] = _dot(comp.centroids[tri[edge_on]] - o[edge_on], d[edge_on])
+        p = o + np.maximum(t, 0.0)[:, None] * d
         nf = np.where((cos_in < 0)[:, None], ng, -ng)
         M[idx, lay.INC + part] += w
         first = prev_kind == 0
@@ -314,10 +322,13 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                     if len(ok) == 0:
                         continue
                     wo_loc = np.stack([_dot(wdir[ok], tb[ok]), _dot(wdir[ok], bb[ok]), cos_s[ok]], axis=-1)
-                    f = np.zeros(len(ok))
-                    for m in np.unique(mat[ok]):
-                        sel = mat[ok] == m
-                        f[sel] = spec.materials[m].brdf(wi_loc[ok][sel], wo_loc[sel], opt.polarization)
+                    if len(spec.materials) == 1:
+                        f = spec.materials[0].brdf(wi_loc[ok], wo_loc, opt.polarization)
+                    else:
+                        f = np.zeros(len(ok))
+                        for m in np.unique(mat[ok]):
+                            sel = mat[ok] == m
+                            f[sel] = spec.materials[m].brdf(wi_loc[ok][sel], wo_loc[sel], opt.polarization)
                     c = w[surf][ok] * f * cos_s[ok] * cos_d[ok] * geo.area_mm2 / dist2[ok]
                     pos = c > 0
                     ok, c = ok[pos], c[pos]
@@ -339,15 +350,18 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                         ev_rows[np.flatnonzero(inside), dd[inside]] = code[surf][ok][inside]
                     keys = mix_key(keys_v[ok], comp.det_parts[j] * 4 + KIND_DETECTOR)
                     record(j, rows, y[ok], c, keys, ev_rows, depth[surf][ok] + 1)
-            wo_world = np.zeros((len(surf), 3))
-            weight = np.zeros(len(surf))
-            for m in np.unique(mat):
-                sel = mat == m
+            if len(spec.materials) == 1:
+                groups = [(0, slice(None))]
+            else:
+                groups = [(m, mat == m) for m in np.unique(mat)]
+            wo_world = np.empty((len(surf), 3))
+            weight = np.empty(len(surf))
+            nfs = nf[surf]
+            for m, sel in groups:
                 smp = spec.materials[m].sample(wi_loc[sel], U[surf[sel], 0:3], opt.polarization)
                 wo = np.asarray(smp.wo, dtype=np.float64)
-                wgt = np.where(wo[:, 2] > 0, np.asarray(smp.weight, dtype=np.float64), 0.0)
-                weight[sel] = wgt
-                wo_world[sel] = wo[:, :1] * tb[sel] + wo[:, 1:2] * bb[sel] + wo[:, 2:3] * nf[surf[sel]]
+                weight[sel] = np.where(wo[:, 2] > 0, np.asarray(smp.weight, dtype=np.float64), 0.0)
+                wo_world[sel] = wo[:, :1] * tb[sel] + wo[:, 1:2] * bb[sel] + wo[:, 2:3] * nfs[sel]
             norm = np.linalg.norm(wo_world, axis=1, keepdims=True)
             d_new[surf] = wo_world / np.where(norm > 0, norm, 1.0)
             w_new[surf] = w[surf] * weight
@@ -405,25 +419,28 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
 
 
 def _chunk_maps(map_rows, nch, C, D, bins):
-    """Per chunk and detector: (bin indices, sum of power, sum of per-ray power squared)."""
+    """Per chunk and detector: (bin indices, sum of power, sum over rays of (ray's power in bin)^2)."""
     nb = bins[0] * bins[1]
     out = [[None] * D for _ in range(nch)]
     if not map_rows:
         return out
     ray, det, b, pw = (np.concatenate(x) for x in zip(*map_rows))
-    order = np.lexsort((b, det, ray))
-    ray, det, b, pw = ray[order], det[order], b[order], pw[order]
-    chunk = ray // C
-    for c in np.unique(chunk):
-        for j in range(D):
-            sel = (chunk == c) & (det == j)
-            if not sel.any():
-                continue
-            pair = ray[sel] * nb + b[sel]
-            upair, inv = np.unique(pair, return_inverse=True)
-            xr = np.bincount(inv.ravel(), weights=pw[sel])
-            ub, binv = np.unique(upair % nb, return_inverse=True)
-            out[c][j] = (ub, np.bincount(binv.ravel(), weights=xr), np.bincount(binv.ravel(), weights=xr * xr))
+    # one key per (ray, detector, bin); sorting makes the sums independent of record order
+    key = (ray.astype(np.int64) * D + det) * nb + b
+    order = np.argsort(key, kind="stable")
+    key, pw = key[order], pw[order]
+    ukey, start = np.unique(key, return_index=True)
+    xr = np.add.reduceat(pw, start)
+    cell = ((ukey // (nb * D)) // C * D + (ukey // nb) % D) * nb + ukey % nb  # (chunk, det, bin)
+    ucell, cinv = np.unique(cell, return_inverse=True)
+    cinv = cinv.ravel()
+    s1 = np.bincount(cinv, weights=xr)
+    s2 = np.bincount(cinv, weights=xr * xr)
+    cd = ucell // nb
+    bounds = np.flatnonzero(np.diff(cd)) + 1
+    for grp in np.split(np.arange(len(ucell)), bounds):
+        c, j = divmod(int(cd[grp[0]]), D)
+        out[c][j] = (ucell[grp] % nb, s1[grp], s2[grp])
     return out
 
 

@@ -32,6 +32,12 @@ class EmbreeIntersector:
         self._mesh = TriangleMesh(self._scene, np.ascontiguousarray(tri, dtype=np.float32))
         self._v0, self._normal, self._centroid = triangle_planes(tri)
 
+    def first_triangle(self, origins, dirs) -> np.ndarray:
+        """Index of the first triangle hit (int32, -1 = miss), without the distance."""
+        o32 = np.ascontiguousarray(origins, dtype=np.float32)
+        d32 = np.ascontiguousarray(dirs, dtype=np.float32)
+        return self._scene.run(o32, d32)
+
     def intersect(self, origins, dirs):
         """First hit. origins, dirs : (n, 3) float64 (dirs unit). Returns (tri int64, t float64)."""
         o32 = np.ascontiguousarray(origins, dtype=np.float32)

@@ -57,6 +57,9 @@ class ReferenceIntersector:
             t[hit] = plane_distance(self._v0, self._normal, self._centroid, tri[hit], o[hit], d[hit])
         return tri, t
 
+    def first_triangle(self, origins, dirs) -> np.ndarray:
+        return self.intersect(origins, dirs)[0].astype(np.int32)
+
     def occluded(self, origins, dirs, tmax):
         o = np.asarray(origins, dtype=np.float64)
         d = np.asarray(dirs, dtype=np.float64)
