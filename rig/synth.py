@@ -1,0 +1,280 @@
+"""Synthetic measured-like scans, for testing the diagnosis.
+
+The readings are computed by a *different code path* from :mod:`rig.forward`: a
+quasi-Monte Carlo integration (scrambled Sobol points) over the beam's transverse
+profile, its divergence, and the slit, with exact 3-D ray geometry: each beam ray is
+intersected with the (possibly offset and tilted) sample plane, dropped if it lands off
+the sample, and joined to a slit point; the reading is
+
+    mean over rays of f(wi, wo) cos(theta_o) (wo . a) L^2 / |S - P|^2 / cos(theta_r)
+
+(P the sample point, S the slit point, a the arm axis; the last factors are the slit
+element's solid angle over the nominal Omega = W H / L^2). So a test in which the
+diagnosis recovers an injected effect is not the forward model agreeing with itself.
+Instrument effects are read from their parameters (``rig.effects`` dataclasses) and
+applied here by this module's own code.
+
+Noise follows the seed paper: each point is the mean of ``n_repeats`` (3) readings
+whose relative standard deviation is 5 % at the scan's peak, rising linearly in
+log10(BRDF) to 30 % four decades below (and above that); ``brdf_std_per_sr`` is the
+sample standard deviation of those readings.
+
+Plans (incidence lists, viewing-angle grids) are plain arrays: :func:`paper_plan` is
+the seed paper's (0.05 / 0.2 / 0.5 deg steps near specular, 5 deg off it) and
+:func:`compact_plan` a ~60-point-per-curve version for fast diagnosis tests.
+
+``python -m rig.synth --score-table`` runs the catalogue sweep of docs/diagnose.md.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.stats import qmc
+
+from materials.scan import Scan, make_scan
+from rig.instrument import NOMINAL, RigConfig
+
+PAPER_INCIDENCES_DEG = (10.0, 30.0, 40.0, 70.0, 80.0)
+RETRO_GAP_DEG = 3.0  # the detector cannot view within this of the incident beam
+MAX_VIEW_DEG = 85.0
+
+
+def _viewing_grid(theta_i_deg, steps):
+    """Signed viewing angles: ``steps`` is a list of (half_range_deg, step_deg) around
+    specular, finest first, then the off-specular grid; retro and |theta| > 85 removed."""
+    pts = []
+    for half, step in steps[:-1]:
+        k = int(round(half / step))
+        pts.append(theta_i_deg + step * np.arange(-k, k + 1))
+    off_step = steps[-1][1]
+    pts.append(np.arange(-MAX_VIEW_DEG, MAX_VIEW_DEG + 1e-9, off_step))
+    tr = np.unique(np.round(np.concatenate(pts), 6))
+    keep = (np.abs(tr) <= MAX_VIEW_DEG) & (np.abs(tr + theta_i_deg) >= RETRO_GAP_DEG)
+    return tr[keep]
+
+
+def make_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p"), steps=None):
+    """(theta_i_deg, theta_r_deg (signed), polarization) arrays for a scan.
+
+    ``steps``: [(half_range_deg, step_deg), ..., (None, off_step_deg)], finest first.
+    """
+    if steps is None:
+        steps = [(0.5, 0.05), (2.0, 0.2), (5.0, 0.5), (None, 5.0)]
+    ti_all, tr_all, pol_all = [], [], []
+    for ti in np.atleast_1d(np.asarray(theta_i_deg, float)):
+        if not 0.0 <= ti < 90.0:
+            raise ValueError(f"theta_i_deg: {ti} outside [0, 90)")
+        tr = _viewing_grid(float(ti), steps)
+        for pol in polarizations:
+            if pol not in ("s", "p", "u"):
+                raise ValueError(f"polarizations: unknown {pol!r}")
+            ti_all.append(np.full(tr.shape, ti))
+            tr_all.append(tr)
+            pol_all.append(np.full(tr.shape, pol))
+    return np.concatenate(ti_all), np.concatenate(tr_all), np.concatenate(pol_all)
+
+
+def paper_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p")):
+    """The seed paper's plan: 0.05 deg steps within 0.5 deg of specular, 0.2 to 2 deg,
+    0.5 to 5 deg, then 5 deg steps (~150 points per curve)."""
+    return make_plan(theta_i_deg, polarizations)
+
+
+def compact_plan(theta_i_deg=(10.0, 25.0, 40.0, 55.0, 70.0, 80.0), polarizations=("s", "p")):
+    """~60 points per curve: 0.1 deg within 0.5 deg, 0.5 deg to 3 deg, 5 deg beyond."""
+    return make_plan(theta_i_deg, polarizations, steps=[(0.5, 0.1), (3.0, 0.5), (None, 5.0)])
+
+
+# ----------------------------------------------------------------------------- geometry
+
+def _rot_y(v, ang):
+    c, s = math.cos(ang), math.sin(ang)
+    return np.stack([c * v[..., 0] + s * v[..., 2], v[..., 1], -s * v[..., 0] + c * v[..., 2]], axis=-1)
+
+
+def _rot_x(v, ang):
+    c, s = math.cos(ang), math.sin(ang)
+    return np.stack([v[..., 0], c * v[..., 1] - s * v[..., 2], s * v[..., 1] + c * v[..., 2]], axis=-1)
+
+
+class _Ghost:
+    """Material plus the substrate's Gaussian ghost lobe (own implementation; see
+    rig.effects.substrate_reflection for the definition)."""
+
+    def __init__(self, material, attenuation, width_deg):
+        self.material, self.att, self.width = material, attenuation, math.radians(width_deg)
+
+    def brdf(self, wi, wo, pol="u"):
+        w = self.width * np.clip(wi[:, 2], 1e-6, None)
+        r2 = (wo[:, 0] + wi[:, 0]) ** 2 + (wo[:, 1] + wi[:, 1]) ** 2
+        g = self.att / (2 * math.pi * w**2) * np.exp(-r2 / (2 * w**2))
+        return self.material.brdf(wi, wo, pol) + np.where((wo[:, 2] > 0) & (wi[:, 2] > 0), g, 0.0)
+
+
+def _truth_config(config: RigConfig, effects):
+    cfg = config
+    material_wrap = []
+    post = []
+    for e in effects:
+        name = type(e).name
+        if name == "angle_offset":
+            cfg = cfg.replace(stage_offset_deg=cfg.stage_offset_deg + e.offset_deg)
+        elif name == "arm_offset":
+            cfg = cfg.replace(arm_offset_deg=cfg.arm_offset_deg + e.offset_deg)
+        elif name == "sample_tilt":
+            cfg = cfg.replace(sample_tilt_deg=cfg.sample_tilt_deg + e.tilt_deg)
+        elif name == "detector_aperture":
+            if e.width_mm is not None:
+                cfg = cfg.replace(slit_width_mm=e.width_mm)
+        elif name == "beam_divergence":
+            cfg = cfg.replace(beam_divergence_mrad=math.hypot(cfg.beam_divergence_mrad, e.sigma_mrad))
+        elif name == "footprint_overfill":
+            if e.sample_width_mm is not None:
+                cfg = cfg.replace(sample_width_mm=e.sample_width_mm)
+        elif name == "substrate_reflection":
+            if e.attenuation > 0:
+                material_wrap.append((e.attenuation, e.lobe_width_deg))
+        elif name in ("polarization_leakage", "stray_background", "detector_nonlinearity"):
+            post.append(e)
+        else:
+            raise ValueError(f"effects: synth does not know effect {name!r}")
+    return cfg, material_wrap, post
+
+
+def mc_reading(material, theta_i_deg, theta_r_deg, polarization, config: RigConfig = NOMINAL,
+               n_samples: int = 4096, seed: int = 0):
+    """Quasi-Monte Carlo reading of the bare instrument (no post-processing effects).
+
+    theta_r_deg is the signed in-plane arm angle (negative: backscatter side).
+    Returns (mean, standard error) arrays, 1/sr; the error is the spread over 8
+    independently scrambled Sobol sequences.
+    """
+    ti, tr, pol = np.broadcast_arrays(np.atleast_1d(np.asarray(theta_i_deg, float)),
+                                      np.atleast_1d(np.asarray(theta_r_deg, float)),
+                                      np.atleast_1d(np.asarray(polarization, str)))
+    ti, tr = np.radians(ti), np.radians(tr)
+    L = config.arm_mm
+    sig = config.beam_sigma_mm
+    d_stage = math.radians(config.stage_offset_deg)
+    d_arm = math.radians(config.arm_offset_deg)
+    tilt = math.radians(config.sample_tilt_deg)
+    n_rep = 8
+    m = max(1, n_samples // n_rep)
+    from scipy.special import ndtri
+
+    sums = np.zeros((n_rep, ti.size))
+    for r in range(n_rep):
+        u = qmc.Sobol(5, scramble=True, seed=np.random.default_rng([seed, r])).random(m)
+        u = np.clip(u, 1e-12, 1 - 1e-12)
+        t = sig * ndtri(u[:, 0])                     # beam, in plane
+        yb = sig * ndtri(u[:, 1])                    # beam, out of plane
+        alpha = config.beam_divergence_mrad * 1e-3 * ndtri(u[:, 2])
+        s = (u[:, 3] - 0.5) * config.slit_width_mm
+        h = (u[:, 4] - 0.5) * config.slit_height_mm
+        for code in ("s", "p", "u"):
+            sel = np.flatnonzero(pol == code)
+            if sel.size == 0:
+                continue
+            a_i = ti[sel][:, None]
+            # beam rays in the lab (= nominal sample frame): direction d, through Q
+            ang = a_i + alpha[None, :]
+            d = np.stack([np.sin(ang), np.zeros_like(ang), -np.cos(ang)], axis=-1)
+            e_t = np.stack([np.cos(a_i) + 0 * t, 0 * t + 0 * a_i, np.sin(a_i) + 0 * t], axis=-1)
+            q = e_t * t[None, :, None] + np.array([0.0, 1.0, 0.0]) * yb[None, :, None]
+            # true sample frame axes in the lab: nominal axes turned by the stage offset, then tilted
+            ex = _rot_y(_rot_x(np.array([1.0, 0.0, 0.0]), 0.0), d_stage)
+            nz = _rot_y(_rot_x(np.array([0.0, 0.0, 1.0]), -tilt), d_stage)
+            ey = np.cross(nz, ex)
+            lam = -(q @ nz) / (d @ nz)
+            p = q + lam[..., None] * d
+            on = np.abs(p @ ex) <= 0.5 * config.sample_width_mm
+            # arm and slit
+            a_arm = tr[sel] + d_arm
+            arm = np.stack([np.sin(a_arm), np.zeros_like(a_arm), np.cos(a_arm)], axis=-1)[:, None, :]
+            e_th = np.stack([np.cos(a_arm), np.zeros_like(a_arm), -np.sin(a_arm)], axis=-1)[:, None, :]
+            slit = L * arm + s[None, :, None] * e_th + h[None, :, None] * np.array([0.0, 1.0, 0.0])
+            ray = slit - p
+            dist = np.linalg.norm(ray, axis=-1)
+            wo_lab = ray / dist[..., None]
+            wi_lab = -d
+            to_true = np.stack([ex, ey, nz])  # rows: true axes
+            wi = wi_lab @ to_true.T
+            wo = wo_lab @ to_true.T
+            f = np.asarray(material.brdf(wi.reshape(-1, 3), wo.reshape(-1, 3), code)).reshape(wi.shape[:2])
+            cos_o = np.clip(wo[..., 2], 0.0, None)
+            obliq = np.einsum("nmk,nmk->nm", wo_lab, np.broadcast_to(arm, wo_lab.shape))
+            val = f * cos_o * obliq * (L / dist) ** 2 * on
+            sums[r, sel] = val.mean(axis=1) / np.clip(np.cos(tr[sel]), 1e-9, None)
+    mean = sums.mean(axis=0)
+    stderr = sums.std(axis=0, ddof=1) / math.sqrt(n_rep)
+    return mean, stderr
+
+
+def _post(effects, values, ti, tr, pol, clean_other):
+    out = values
+    for e in effects:
+        name = type(e).name
+        cos_r = np.clip(np.cos(np.radians(tr)), 1e-6, None)
+        if name == "polarization_leakage":
+            out = np.where(pol == "u", out, (1 - e.fraction) * out + e.fraction * clean_other)
+        elif name == "stray_background":
+            out = out + e.level_per_sr / cos_r
+        elif name == "detector_nonlinearity":
+            if math.isfinite(e.saturation_per_sr):
+                x = out * cos_r
+                out = x / (1 + x / e.saturation_per_sr) / cos_r
+    return out
+
+
+def relative_noise(brdf, peak):
+    """Relative std of one reading: 5 % at ``peak``, +25 % per 4 decades below it, max 30 %."""
+    decades = np.log10(np.maximum(peak, 1e-300) / np.maximum(brdf, 1e-300))
+    return np.clip(0.05 + 0.25 * decades / 4.0, 0.05, 0.30)
+
+
+def synth_scan(material, plan, effects=(), config: RigConfig = NOMINAL, seed: int = 0,
+               n_repeats: int = 3, noise: bool = True, n_samples: int = 4096,
+               wavelength_nm: float | None = None, sample: str = "synthetic") -> Scan:
+    """A measured-like :class:`materials.scan.Scan` of ``material`` on a rig with ``effects``.
+
+    Parameters
+    ----------
+    material : Brdf protocol object (the truth).
+    plan : (theta_i_deg, theta_r_deg signed, polarization) arrays, e.g. :func:`paper_plan`.
+    effects : rig.effects instances describing the *true* rig (their parameters are read
+        here; the effect code itself is not used).
+    config : the nominal rig written to the file's metadata (the truth is config + effects).
+    seed : the same seed gives the same scan.
+    noise : False gives the exact (QMC) readings with std 0.
+    """
+    ti, tr, pol = (np.asarray(a) for a in plan)
+    cfg, ghosts, post = _truth_config(config, effects)
+    mat = material
+    for att, width in ghosts:
+        mat = _Ghost(mat, att, width)
+    clean, _ = mc_reading(mat, ti, tr, pol, cfg, n_samples=n_samples, seed=seed)
+    other = None
+    if any(type(e).name == "polarization_leakage" for e in post):
+        swap = np.where(pol == "s", "p", np.where(pol == "p", "s", pol))
+        other, _ = mc_reading(mat, ti, tr, swap, cfg, n_samples=n_samples, seed=seed)
+    true = _post(post, clean, ti, tr, pol, other)
+    rng = np.random.default_rng([seed, 7])
+    if noise:
+        peak = np.zeros_like(true)
+        for t in np.unique(ti):
+            for p in np.unique(pol):
+                sel = (ti == t) & (pol == p)
+                if sel.any():
+                    peak[sel] = true[sel].max()
+        rel = relative_noise(true, peak)
+        readings = true[:, None] * (1.0 + rel[:, None] * rng.standard_normal((true.size, n_repeats)))
+        mean = readings.mean(axis=1)
+        std = readings.std(axis=1, ddof=1) if n_repeats > 1 else np.full(true.size, np.nan)
+    else:
+        mean, std = true, np.zeros_like(true)
+    lam = wavelength_nm if wavelength_nm is not None else getattr(material, "wavelength_nm", None) or config.wavelength_nm
+    metadata = {"sample": sample, **config.to_metadata(), "synthetic": "rig.synth (QMC over beam and slit)"}
+    return make_scan(wavelength_nm=lam, polarization=pol, theta_i_deg=ti, theta_r_deg=np.abs(tr),
+                     phi_r_deg=np.where(tr < 0, 180.0, 0.0), brdf_per_sr=mean, brdf_std_per_sr=std, n_repeats=n_repeats,
+                     metadata=metadata)
