@@ -271,12 +271,26 @@ class Chopper(Device):
 
 
 class ScanPoint(Device):
-    """The nominal point being measured (what the CSV row records), set by the plan."""
+    """The nominal point being measured (what the CSV row records).
+
+    ``set((theta_i_deg, polarization, theta_r_deg, phi_r_deg))`` records it (one message per
+    point in the plan); it moves nothing.
+    """
 
     theta_i_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
     theta_r_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
     phi_r_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
     polarization = Cpt(Signal, value="", kind=Kind.normal)
+
+    def set(self, value, **kwargs):
+        theta_i_deg, polarization, theta_r_deg, phi_r_deg = value
+        self.theta_i_deg.put(float(theta_i_deg))
+        self.polarization.put(str(polarization))
+        self.theta_r_deg.put(float(theta_r_deg))
+        self.phi_r_deg.put(float(phi_r_deg))
+        status = DeviceStatus(self)
+        status.set_finished()
+        return status
 
 
 @dataclass

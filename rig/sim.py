@@ -112,6 +112,8 @@ class SimLaser:
 
 
 class SimChopper:
+    synchronous = True
+
     def __init__(self, frequency_hz: float = 1000.0):
         self._frequency_hz = frequency_hz
 
@@ -237,6 +239,44 @@ class SimRig:
         self.lockin = SimLockin(self)
         self.faults = SimFaults()
         self._brdf_cache = {}
+
+    def prefetch(self, points) -> None:
+        """Evaluate the BRDF of many plan points in one vectorised forward-model call and cache
+        it by stage/arm/HWP position (speed only: the values are those :meth:`brdf_now` computes).
+
+        points : sequence of ``(theta_i_deg, polarization, theta_r_deg, phi_r_deg)``.
+        """
+        if self.material is None or not len(points):
+            return
+        from rig.plans import HWP_DEG, Point, arm_deg
+
+        pts = [Point(*p) for p in points]
+        keys = [tuple(int(round(v * 1e4)) for v in (p.theta_i_deg, arm_deg(p), HWP_DEG[p.polarization]))
+                for p in pts]
+        ti = np.array([p.theta_i_deg for p in pts])
+        # the state a point sets, seen back through geometry_now (stage, |arm - stage|, side)
+        rel = np.array([k[1] - k[0] for k in keys]) / 1e4
+        tr = np.abs(rel)
+        pr = np.where(rel >= 0, 0.0, 180.0)
+        pol = np.array([p.polarization for p in pts])
+        ok = (np.abs(ti) < 90) & (tr < 90)
+        f = np.zeros(len(pts))
+        if ok.any():
+            if self.ideal:
+                from materials.base import directions_from_angles
+
+                for code in ("s", "p"):
+                    sel = ok & (pol == code)
+                    if sel.any():
+                        wi, wo = directions_from_angles(np.radians(ti[sel]), np.radians(tr[sel]), np.radians(pr[sel]))
+                        f[sel] = np.asarray(self.material.brdf(wi, wo, code), float)
+            else:
+                from rig.forward import predict_brdf
+
+                f[ok] = np.asarray(predict_brdf(self.material, ti[ok], tr[ok], pr[ok], pol[ok], self.config,
+                                                effects=self.effects), float)
+        for key, value in zip(keys, f):
+            self._brdf_cache[key] = float(value) + self.stray_per_sr
 
     def state_key(self) -> tuple[int, int, int]:
         """Stage, arm and HWP positions in 1e-4 deg (the key of the noise stream)."""

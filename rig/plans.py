@@ -1,0 +1,298 @@
+"""bluesky plans for the reflectometer: generators of messages, no device calls.
+
+Points
+------
+A point is ``(theta_i_deg, polarization, theta_r_deg, phi_r_deg)``: the CSV row's key
+(CONTRACTS §2). The sample stage goes to ``theta_i``; the arm, measured from the reversed
+incoming beam, to ``theta_i + theta_r`` on the specular side (``phi_r = 0``) or
+``theta_i - theta_r`` on the backscatter side (``phi_r = 180``); the half-wave plate to
+``HWP_DEG[polarization]`` (0 deg = s, 45 deg = p).
+
+The paper plan (seed paper section 3)
+-------------------------------------
+Incidence 10, 30, 40, 70, 80 deg; s then p; 3 readings per point. Viewing angles, with
+``d = theta_r - theta_i`` (zones chosen here; the paper gives only the step sizes):
+
+| zone | |d| (deg) | step (deg) | points per incidence |
+|---|---|---|---|
+| core | 0 .. 0.5 | 0.05 | 21 |
+| shoulder | 0.5 .. 2.5 | 0.2 | 20 (0.7, 0.9, .. 2.5 each side) |
+| near | 2.5 .. 5 | 0.5 | 10 (3.0, 3.5, .. 5.0 each side) |
+| wing | > 5 | 5 | d = +-10, +-15, .. |
+
+all clipped to ``0 <= theta_r <= 85`` deg on the specular side (phi_r = 0).
+
+Custom plans (PLAN.json)
+------------------------
+::
+
+    {"name": "my-plan", "n_readings": 3, "polarizations": ["s", "p"], "signature": false,
+     "incidence": [
+        {"theta_i_deg": 20, "theta_r_deg": [0, 10, 19.5, 20, 20.5, 30]},
+        {"theta_i_deg": 45, "grid": "paper"},
+        {"theta_i_deg": 60, "theta_r_deg": [20, 40], "phi_r_deg": 180, "polarizations": ["s"]}]}
+
+Only ``incidence`` is required; each entry needs ``theta_i_deg`` and one of ``theta_r_deg``
+(a list) or ``grid: "paper"``. ``phi_r_deg`` is 0 (default) or 180 (in-plane rig). Unknown
+keys are errors. Points are measured polarization by polarization (fewer HWP moves), in the
+file's order within each.
+
+The signature plan is the same scan with no sample mounted (Cady 1989; PHYSICS §4): it
+measures the instrument's own stray light in BRDF units at every point of the grid.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+from bluesky import plan_stubs as bps
+from bluesky import preprocessors as bpp
+from bluesky.utils import Msg
+
+HWP_DEG = {"s": 0.0, "p": 45.0}
+PAPER_THETA_I_DEG = (10.0, 30.0, 40.0, 70.0, 80.0)
+PAPER_POLARIZATIONS = ("s", "p")
+PAPER_N_READINGS = 3
+THETA_R_MAX_DEG = 85.0
+#: (|d| upper edge, step) of the paper grid's zones around specular, deg
+PAPER_ZONES_DEG = ((0.5, 0.05), (2.5, 0.2), (5.0, 0.5))
+WING_STEP_DEG = 5.0
+
+
+class PlanError(ValueError):
+    """A plan file or point list is invalid; the message names the file and the entry."""
+
+
+class Point(NamedTuple):
+    theta_i_deg: float
+    polarization: str
+    theta_r_deg: float
+    phi_r_deg: float = 0.0
+
+
+def point_key(theta_i_deg, polarization, theta_r_deg, phi_r_deg) -> tuple:
+    """Hashable identity of a point, angles rounded to 1e-6 deg (resume matches on it)."""
+    return (round(float(theta_i_deg), 6), str(polarization), round(float(theta_r_deg), 6),
+            round(float(phi_r_deg) % 360.0, 6))
+
+
+def arm_deg(point: Point) -> float:
+    """Arm angle (deg from the reversed beam) that views ``point``."""
+    if point.phi_r_deg % 360.0 == 0.0:
+        return point.theta_i_deg + point.theta_r_deg
+    return point.theta_i_deg - point.theta_r_deg
+
+
+def paper_theta_r_deg(theta_i_deg: float, theta_r_max_deg: float = THETA_R_MAX_DEG) -> np.ndarray:
+    """The paper grid's viewing angles for one incidence (module table), ascending, deg."""
+    offsets = [0.0]
+    lo = 0.0
+    for hi, step in PAPER_ZONES_DEG:
+        n = int(round((hi - lo) / step))
+        offsets += [lo + step * k for k in range(1, n + 1)]
+        lo = hi
+    k = 2
+    while WING_STEP_DEG * k <= 90.0:
+        offsets.append(WING_STEP_DEG * k)
+        k += 1
+    d = np.round(np.array(offsets), 6)
+    theta_r = np.concatenate([theta_i_deg - d[1:], [theta_i_deg], theta_i_deg + d[1:]])
+    theta_r = np.round(theta_r, 6)
+    keep = (theta_r >= 0.0) & (theta_r <= theta_r_max_deg)
+    return np.unique(theta_r[keep])
+
+
+def paper_points(theta_i_deg=PAPER_THETA_I_DEG, polarizations=PAPER_POLARIZATIONS,
+                 theta_r_max_deg: float = THETA_R_MAX_DEG) -> list[Point]:
+    """The seed paper's scan as points, polarization-major."""
+    return [Point(float(ti), pol, float(tr), 0.0)
+            for pol in polarizations for ti in theta_i_deg
+            for tr in paper_theta_r_deg(float(ti), theta_r_max_deg)]
+
+
+@dataclass(frozen=True)
+class PlanSpec:
+    """A plan read from PLAN.json (or the built-in paper plan)."""
+
+    name: str
+    points: tuple
+    n_readings: int = PAPER_N_READINGS
+    signature: bool = False
+
+
+def paper_plan_spec() -> PlanSpec:
+    return PlanSpec(name="paper", points=tuple(paper_points()), n_readings=PAPER_N_READINGS)
+
+
+_TOP_KEYS = {"name", "n_readings", "polarizations", "signature", "incidence"}
+_ENTRY_KEYS = {"theta_i_deg", "theta_r_deg", "grid", "phi_r_deg", "polarizations"}
+
+
+def _num(value, where, lo=None, hi=None):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+        raise PlanError(f"{where}: expected a finite number, got {value!r}")
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise PlanError(f"{where}: {value!r} outside [{lo:g}, {hi:g}]")
+    return float(value)
+
+
+def _pols(value, where):
+    if not isinstance(value, list) or not value or any(p not in ("s", "p") for p in value):
+        raise PlanError(f"{where}: expected a non-empty list of 's'/'p', got {value!r}")
+    return tuple(value)
+
+
+def plan_spec_from_dict(data, where: str = "plan") -> PlanSpec:
+    """Validate a PLAN.json dict (module docstring) and expand it to points."""
+    if not isinstance(data, dict):
+        raise PlanError(f"{where}: a plan must be a JSON object")
+    unknown = sorted(set(data) - _TOP_KEYS)
+    if unknown:
+        raise PlanError(f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_TOP_KEYS))}")
+    name = data.get("name", "custom")
+    if not isinstance(name, str):
+        raise PlanError(f"{where}: 'name' must be a string")
+    n_readings = data.get("n_readings", PAPER_N_READINGS)
+    if isinstance(n_readings, bool) or not isinstance(n_readings, int) or n_readings < 1:
+        raise PlanError(f"{where}: 'n_readings' must be an integer >= 1, got {n_readings!r}")
+    signature = data.get("signature", False)
+    if not isinstance(signature, bool):
+        raise PlanError(f"{where}: 'signature' must be true or false")
+    pols = _pols(data.get("polarizations", list(PAPER_POLARIZATIONS)), f"{where}: polarizations")
+    entries = data.get("incidence")
+    if not isinstance(entries, list) or not entries:
+        raise PlanError(f"{where}: 'incidence' must be a non-empty list")
+    by_pol = {p: [] for p in ("s", "p")}
+    for i, entry in enumerate(entries):
+        here = f"{where}: incidence[{i}]"
+        if not isinstance(entry, dict):
+            raise PlanError(f"{here}: expected an object")
+        unknown = sorted(set(entry) - _ENTRY_KEYS)
+        if unknown:
+            raise PlanError(f"{here}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(_ENTRY_KEYS))}")
+        if "theta_i_deg" not in entry:
+            raise PlanError(f"{here}: missing 'theta_i_deg'")
+        ti = _num(entry["theta_i_deg"], f"{here}.theta_i_deg", 0.0, 89.0)
+        phi = _num(entry.get("phi_r_deg", 0.0), f"{here}.phi_r_deg")
+        if phi % 360.0 not in (0.0, 180.0):
+            raise PlanError(f"{here}.phi_r_deg: the rig scans in the plane of incidence: 0 or 180, got {phi:g}")
+        if ("theta_r_deg" in entry) == ("grid" in entry):
+            raise PlanError(f"{here}: give exactly one of 'theta_r_deg' (a list) or 'grid'")
+        if "grid" in entry:
+            if entry["grid"] != "paper":
+                raise PlanError(f"{here}.grid: only 'paper' is known, got {entry['grid']!r}")
+            trs = paper_theta_r_deg(ti)
+            if phi % 360.0 == 180.0:
+                raise PlanError(f"{here}: grid 'paper' is on the specular side (phi_r_deg 0)")
+        else:
+            raw = entry["theta_r_deg"]
+            if not isinstance(raw, list) or not raw:
+                raise PlanError(f"{here}.theta_r_deg: expected a non-empty list")
+            trs = [_num(v, f"{here}.theta_r_deg[{k}]", 0.0, 89.9) for k, v in enumerate(raw)]
+        for pol in _pols(entry.get("polarizations", list(pols)), f"{here}.polarizations"):
+            by_pol[pol] += [Point(ti, pol, float(tr), phi % 360.0) for tr in trs]
+    points = by_pol["s"] + by_pol["p"]
+    seen = set()
+    for p in points:
+        k = point_key(*p)
+        if k in seen:
+            raise PlanError(f"{where}: point {p.theta_i_deg:g}/{p.polarization}/{p.theta_r_deg:g}/{p.phi_r_deg:g} listed twice")
+        seen.add(k)
+    return PlanSpec(name=name, points=tuple(points), n_readings=n_readings, signature=signature)
+
+
+def load_plan(source) -> PlanSpec:
+    """``'paper'`` or the path of a PLAN.json file."""
+    if str(source) == "paper":
+        return paper_plan_spec()
+    path = Path(source)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise PlanError(f"{path}: no such plan file (use 'paper' or a PLAN.json)") from None
+    except json.JSONDecodeError as exc:
+        raise PlanError(f"{path}, line {exc.lineno}, column {exc.colno}: invalid JSON: {exc.msg}") from None
+    return plan_spec_from_dict(data, where=str(path))
+
+
+def check_points(points, devices) -> None:
+    """Raise the stage's SoftLimitError for the first point the rig cannot reach (nothing moves)."""
+    for p in points:
+        try:
+            devices.sample_stage.check_value(p.theta_i_deg)
+            devices.arm.check_value(arm_deg(p))
+            devices.hwp.check_value(HWP_DEG[p.polarization])
+        except ValueError as exc:
+            raise type(exc)(f"point theta_i {p.theta_i_deg:g} deg, {p.polarization}, theta_r {p.theta_r_deg:g} deg, "
+                            f"phi_r {p.phi_r_deg:g} deg: {exc}") from None
+
+
+def brdf_scan(devices, points, *, n_readings: int = PAPER_N_READINGS, md: dict | None = None, skip=()):
+    """Measure ``points`` (a sequence of :class:`Point`), one event per point.
+
+    Each point: ``checkpoint``; record the nominal point and move stage and arm together
+    (``set`` x 3, ``wait``); ``create``; trigger the lock-in (``n_readings`` readings -> mean,
+    std), laser and chopper; ``wait``; ``read`` those, the point and the three axes; ``save``. The HWP moves only when the polarization changes. Points whose
+    :func:`point_key` is in ``skip`` are left out (``--resume``).
+
+    Parameters
+    ----------
+    devices : rig.devices.RigDevices
+    md : extra start-document metadata (sample, rig, plan name, ...).
+    """
+    skip = set(skip)
+    todo = [Point(*p) for p in points if point_key(*p) not in skip]
+    d = devices
+    readables = [*d.detectors, d.sample_stage, d.arm, d.hwp]
+    _md = {"plan_name": "brdf_scan", "n_readings": int(n_readings), "n_points_total": len(points),
+           "n_points_todo": len(todo), "hints": {"dimensions": [(["point_theta_r_deg"], "primary")]}}
+    _md.update(md or {})
+
+    triggered = [d.lockin, d.laser, d.chopper]
+
+    @bpp.stage_decorator([d.lockin, d.laser, d.chopper, d.sample_stage, d.arm, d.hwp])
+    @bpp.run_decorator(md=_md)
+    def inner():
+        # Raw Msgs in the per-point loop: the same messages as bps.mv / bps.trigger_and_read
+        # (without no-op triggers), but without bluesky's per-stub stack capture, which costs
+        # more than the simulated instrument itself.
+        yield from bps.mv(d.lockin.n_readings, int(n_readings))
+        pol = None
+        for i, p in enumerate(todo):
+            if p.polarization != pol:
+                yield from bps.mv(d.hwp, HWP_DEG[p.polarization])
+                pol = p.polarization
+            yield Msg("checkpoint")
+            group = f"move-{i}"
+            yield Msg("set", d.point, tuple(p), group=group)
+            yield Msg("set", d.sample_stage, p.theta_i_deg, group=group)
+            yield Msg("set", d.arm, arm_deg(p), group=group)
+            yield Msg("wait", None, group=group)
+            yield Msg("create", None, name="primary")
+            group = f"trigger-{i}"
+            for obj in triggered:
+                yield Msg("trigger", obj, group=group)
+            yield Msg("wait", None, group=group)
+            for obj in readables:
+                yield Msg("read", obj)
+            yield Msg("save")
+
+    return (yield from inner())
+
+
+def paper_scan(devices, *, md=None, skip=()):
+    """The seed paper's scan (module docstring)."""
+    spec = paper_plan_spec()
+    return (yield from brdf_scan(devices, spec.points, n_readings=spec.n_readings,
+                                 md={"plan_name": "paper", **(md or {})}, skip=skip))
+
+
+def signature_scan(devices, points=None, *, n_readings=PAPER_N_READINGS, md=None, skip=()):
+    """Instrument-signature scan: the grid measured with no sample mounted."""
+    points = paper_points() if points is None else points
+    return (yield from brdf_scan(devices, points, n_readings=n_readings,
+                                 md={"plan_name": "signature", "sample": "none (instrument signature)", **(md or {})},
+                                 skip=skip))

@@ -1,0 +1,258 @@
+"""Run a reflectometer scan end to end: devices, plan, RunEngine, log, CSV, faults.
+
+:func:`run_scan` is what ``straylight rig scan`` calls. It
+
+1. refuses to overwrite an existing scan unless resuming, and on resume skips every point
+   already in the CSV (``rig.plans.point_key``);
+2. checks every point against the soft limits before anything moves;
+3. runs the plan in a bluesky ``RunEngine`` with the document log and the CSV writer
+   subscribed, a ``SuspendFloor`` on the laser power (the scan suspends when the power falls
+   below ``suspend_fraction`` of nominal and resumes, re-measuring the point, when it is back
+   above ``resume_fraction``), and SIGINT/SIGTERM turned into a pause then an abort, so an
+   interrupted run still ends with a stop document;
+4. reports a fault (stalled move, lock-in timeout, soft limit) as :class:`ScanFailed` naming
+   the cause and how many points are saved.
+"""
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+from rig.instrument import RigConfig
+from rig.plans import PlanSpec, brdf_scan, check_points
+from rig.writer import CsvScanWriter, DocumentLog, log_path_for
+
+DEFAULT_GAIN_V_PER_W = 1000.0
+
+
+class ScanFailed(RuntimeError):
+    """A scan stopped on a fault; the message names it and what was saved."""
+
+
+class HardwareConfigError(ValueError):
+    """Bad --hardware configuration file (names the file and key)."""
+
+
+@dataclass
+class ScanOutcome:
+    csv_path: Path
+    log_path: Path
+    exit_status: str  # 'success', 'abort' or 'fail'
+    n_points_plan: int
+    n_points_in_file: int
+    n_measured: int
+    reason: str = ""
+
+
+def _cause(exc: BaseException) -> BaseException:
+    """The device error behind a bluesky FailedStatus (or the exception itself)."""
+    from bluesky.utils import FailedStatus
+
+    seen = 0
+    while isinstance(exc, FailedStatus) and seen < 5:
+        status = exc.args[0] if exc.args else None
+        inner = status.exception() if hasattr(status, "exception") else None
+        if inner is None:
+            break
+        exc, seen = inner, seen + 1
+    return exc
+
+
+def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfig | None = None,
+             md: dict | None = None, resume: bool = False, progress: bool = False, log_path=None,
+             gain_v_per_w: float = DEFAULT_GAIN_V_PER_W, suspend_fraction: float = 0.5,
+             resume_fraction: float = 0.9, handle_signals: bool = True, fsync: bool = True,
+             run_engine=None) -> ScanOutcome:
+    """Measure ``spec`` with ``devices`` into ``csv_path`` (CONTRACTS §2) and its document log.
+
+    Returns a :class:`ScanOutcome` (``exit_status`` 'abort' after SIGINT/SIGTERM or
+    ``run_engine.request_pause``); raises :class:`ScanFailed` on a device fault and
+    ``rig.writer.ResumeError`` / ``SoftLimitError`` on bad requests, before anything moves.
+    """
+    from bluesky import RunEngine
+    from bluesky.suspenders import SuspendFloor
+    from bluesky.utils import RunEngineInterrupted
+
+    config = config or RigConfig()
+    csv_path = Path(csv_path)
+    log_path = Path(log_path) if log_path is not None else log_path_for(csv_path)
+    writer = CsvScanWriter(csv_path, resume=resume, fsync=fsync)
+    done = writer.completed_keys
+    check_points(spec.points, devices)
+    rig_md = {k.split(".", 1)[1]: v for k, v in config.to_metadata().items()}  # no dots in document keys
+    full_md = {"sample": sample, "rig": rig_md, "wavelength_nm": config.wavelength_nm,
+               "gain_v_per_w": float(gain_v_per_w), "plan_name": spec.name, "resumed": bool(resume and done),
+               **(md or {})}
+    plan = brdf_scan(devices, spec.points, n_readings=spec.n_readings, md=full_md, skip=done)
+    n_todo = sum(1 for p in spec.points if _key(p) not in done)
+    if hasattr(devices.backend, "prefetch"):
+        devices.backend.prefetch([p for p in spec.points if _key(p) not in done])
+
+    RE = run_engine or RunEngine({}, context_managers=[])
+    log = DocumentLog(log_path, fsync=fsync)
+    tokens = [RE.subscribe(log), RE.subscribe(writer)]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(spec.points), initial=len(spec.points) - n_todo, unit="pt", file=sys.stderr,
+                   desc=spec.name, disable=None)
+        tokens.append(RE.subscribe(lambda name, doc: bar.update(1), "event"))
+    nominal_w = devices.laser.power_w.get()
+    suspender = SuspendFloor(devices.laser.power_w, suspend_fraction * nominal_w,
+                             resume_thresh=resume_fraction * nominal_w, sleep=0.0)
+    RE.install_suspender(suspender)
+    real = not getattr(devices.backend, "synchronous", False) and devices.backend is None
+    if real:
+        devices.laser.start_monitor()
+    interrupted = {}
+    old_handlers = {}
+
+    def on_signal(signum, frame):
+        interrupted["signal"] = signal.Signals(signum).name
+        RE.loop.call_soon_threadsafe(RE.request_pause, False)
+
+    if handle_signals and threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            old_handlers[sig] = signal.signal(sig, on_signal)
+    status, reason = "success", ""
+    try:
+        try:
+            RE(plan)
+        except RunEngineInterrupted:
+            reason = f"interrupted ({interrupted.get('signal', 'pause requested')})"
+            RE.abort(reason)
+            status = "abort"
+        except Exception as exc:  # noqa: BLE001 - a fault; the run is closed with 'fail'
+            cause = _cause(exc)
+            status, reason = "fail", f"{type(cause).__name__}: {cause}"
+    finally:
+        for sig, handler in old_handlers.items():
+            signal.signal(sig, handler)
+        if real:
+            devices.laser.stop_monitor()
+        RE.remove_suspender(suspender)
+        for token in tokens:
+            RE.unsubscribe(token)
+        log.close()
+        if bar is not None:
+            bar.close()
+    outcome = ScanOutcome(csv_path=csv_path, log_path=log_path, exit_status=status,
+                          n_points_plan=len(spec.points), n_points_in_file=len(writer.completed_keys),
+                          n_measured=writer.n_written, reason=reason)
+    if status == "fail":
+        raise ScanFailed(f"{reason}; {outcome.n_points_in_file} of {outcome.n_points_plan} points saved in "
+                         f"{csv_path} (log {log_path.name}); fix the fault and rerun with --resume")
+    return outcome
+
+
+def _key(p):
+    from rig.plans import point_key
+
+    return point_key(*p)
+
+
+# --- building the instrument ---------------------------------------------------------------
+def load_sample(sample):
+    """A material from a preset name or a MODEL.json path; ``None``/'none' for no sample."""
+    if sample is None or str(sample).lower() == "none":
+        return None
+    from materials.material import load_material
+
+    return load_material(sample)
+
+
+def sim_instrument(sample, config: RigConfig | None = None, *, seed: int = 0, ideal: bool = False,
+                   effects=(), **kwargs):
+    """(SimRig, RigDevices) for a sample (material, preset name, path or None)."""
+    from rig.devices import sim_devices
+    from rig.sim import SimRig
+
+    material = load_sample(sample) if sample is None or isinstance(sample, (str, Path)) else sample
+    sim = SimRig(material, config or RigConfig(), seed=seed, ideal=ideal, effects=effects, **kwargs)
+    return sim, sim_devices(sim)
+
+
+def _resolve_library(lib: str, base: Path) -> str:
+    if not lib.endswith("@sim"):
+        return lib
+    path = Path(lib[: -len("@sim")])
+    if not path.is_absolute():
+        from rig.drivers import SIM_DIR
+
+        for candidate in (base / path, SIM_DIR / path):
+            if candidate.exists():
+                return f"{candidate}@sim"
+        raise HardwareConfigError(f"pyvisa-sim file {path} not found next to the config or in {SIM_DIR}")
+    return lib
+
+
+def load_hardware_config(path) -> dict:
+    """Read a --hardware TOML or JSON file (see docs/rig.md)."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise HardwareConfigError(f"{path}: no such hardware config") from None
+    try:
+        if path.suffix.lower() == ".json":
+            data = json.loads(raw.decode("utf-8"))
+        else:
+            import tomllib
+
+            data = tomllib.loads(raw.decode("utf-8"))
+    except json.JSONDecodeError as exc:
+        raise HardwareConfigError(f"{path}, line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
+    except Exception as exc:  # tomllib.TOMLDecodeError carries line/column in its message
+        raise HardwareConfigError(f"{path}: {exc}") from None
+    allowed = {"visa_library", "gain_v_per_w", "laser_watts_per_volt", "move_timeout_s", "motion", "lockin", "rig"}
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise HardwareConfigError(f"{path}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
+    for section in ("motion", "lockin"):
+        if not isinstance(data.get(section), dict) or "resource" not in data[section]:
+            raise HardwareConfigError(f"{path}: [{section}] needs a 'resource' (a VISA resource name)")
+    data["_base"] = path.parent
+    data["_path"] = str(path)
+    return data
+
+
+def hardware_instrument(hw: dict):
+    """(RigConfig, RigDevices, gain_v_per_w) from a loaded hardware config."""
+    from rig.devices import real_devices
+    from rig.drivers import open_resource
+    from rig.drivers.esp301 import Esp301
+    from rig.drivers.sr830 import Sr830
+
+    where = hw.get("_path", "hardware config")
+    base = Path(hw.get("_base", "."))
+    default_lib = hw.get("visa_library", "")
+    drivers = {}
+    for section, cls in (("motion", Esp301), ("lockin", Sr830)):
+        sec = hw[section]
+        allowed = {"resource", "visa_library", "timeout_s", "axes", "time_constant_s", "sensitivity_v"}
+        unknown = sorted(set(sec) - allowed)
+        if unknown:
+            raise HardwareConfigError(f"{where}: [{section}] unknown key(s) {', '.join(unknown)}")
+        lib = _resolve_library(str(sec.get("visa_library", default_lib)), base)
+        res = open_resource(sec["resource"], visa_library=lib, timeout_s=float(sec.get("timeout_s", 2.0)))
+        drivers[section] = cls(res)
+    lockin = drivers["lockin"]
+    if "time_constant_s" in hw["lockin"]:
+        lockin.time_constant_s = float(hw["lockin"]["time_constant_s"])
+    if "sensitivity_v" in hw["lockin"]:
+        lockin.sensitivity_v = float(hw["lockin"]["sensitivity_v"])
+    axes = hw["motion"].get("axes", {})
+    try:
+        config = RigConfig(**hw.get("rig", {}))
+    except TypeError as exc:
+        raise HardwareConfigError(f"{where}: [rig] {exc}") from None
+    devices = real_devices(drivers["motion"], lockin,
+                           axes=(int(axes.get("sample", 1)), int(axes.get("arm", 2)), int(axes.get("hwp", 3))),
+                           laser_watts_per_volt=float(hw.get("laser_watts_per_volt", 0.002)),
+                           move_timeout_s=float(hw.get("move_timeout_s", 30.0)))
+    return config, devices, float(hw.get("gain_v_per_w", DEFAULT_GAIN_V_PER_W))

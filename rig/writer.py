@@ -1,0 +1,204 @@
+"""Data never lost: the document log and the CONTRACTS §2 CSV, written as the scan runs.
+
+:class:`DocumentLog` appends every bluesky document to a JSON-lines file (one
+``{"name": ..., "doc": ...}`` per line), flushed and fsynced as it arrives, so the log is
+complete up to the last document even if the process dies.
+
+:class:`CsvScanWriter` turns each event of the ``primary`` stream into one CSV row and
+rewrites the whole file atomically (temp file, fsync, ``os.replace``) after every point:
+at every instant the file on disk is a complete, valid scan (``materials.scan.read_scan``
+reads it) holding every point measured so far. On resume it keeps the existing file's text
+and adds rows after it; a point already in the file is never written twice.
+
+Calibration (seed paper section 2, PHYSICS §4): ``BRDF = P_s / (P_i Omega cos theta_r)``
+with ``P_s = V / g`` (lock-in volts over the detector gain ``g`` in V/W), ``P_i`` the laser
+monitor power and ``Omega = slit_w slit_h / arm^2``; the same factor converts the standard
+deviation of the repeated readings.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from materials.scan import format_rows, header_text, read_scan
+from rig.instrument import RigConfig
+from rig.plans import point_key
+
+
+class ResumeError(ValueError):
+    """The existing CSV cannot be continued by this scan (names the file and the mismatch)."""
+
+
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (set, tuple)):
+        return list(obj)
+    return repr(obj)
+
+
+def atomic_write_text(path: Path, text: str, fsync: bool = True) -> None:
+    """Write ``text`` to ``path`` so that readers see the old or the new file, never a mix."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            if fsync:
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class DocumentLog:
+    """Append each ``(name, doc)`` to a JSON-lines file, flushed and fsynced per document."""
+
+    def __init__(self, path, fsync: bool = True):
+        self.path = Path(path)
+        self.fsync = fsync
+        self._fh = open(self.path, "a", encoding="utf-8")
+
+    def __call__(self, name, doc):
+        self._fh.write(json.dumps({"name": name, "doc": doc}, default=_json_default) + "\n")
+        self._fh.flush()
+        if self.fsync:
+            os.fsync(self._fh.fileno())
+
+    def close(self):
+        if not self._fh.closed:
+            self._fh.close()
+
+
+def read_log(path) -> list[tuple[str, dict]]:
+    """The ``(name, doc)`` pairs of a document log, in order."""
+    out = []
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            if line.strip():
+                rec = json.loads(line)
+                out.append((rec["name"], rec["doc"]))
+    return out
+
+
+def brdf_from_reading(mean_v, std_v, power_w, theta_r_deg, gain_v_per_w, solid_angle_sr):
+    """(brdf_per_sr, brdf_std_per_sr) = (V, sigma_V) / (g P_i Omega cos theta_r) (module doc)."""
+    scale = gain_v_per_w * power_w * solid_angle_sr * math.cos(math.radians(theta_r_deg))
+    if not scale > 0:
+        return float("nan"), float("nan")
+    return mean_v / scale, std_v / scale
+
+
+def csv_metadata(start: dict) -> dict:
+    """The ``# key: value`` lines of a scan from its start document (CONTRACTS §2 keys first)."""
+    md = {"sample": str(start.get("sample", "unknown"))}
+    md.update({f"rig.{k}": str(v) for k, v in (start.get("rig") or {}).items()})
+    md["date"] = _dt.datetime.fromtimestamp(start.get("time", 0), _dt.timezone.utc).isoformat(timespec="seconds")
+    for key in ("wavelength_nm", "plan_name", "backend", "seed", "n_readings"):
+        if key in start:
+            md[key] = str(start[key])
+    if "gain_v_per_w" in start:
+        md["calibration.gain_v_per_w"] = str(start["gain_v_per_w"])
+    md["run_uid"] = str(start.get("uid", ""))
+    return md
+
+
+class CsvScanWriter:
+    """bluesky callback writing the CONTRACTS §2 CSV incrementally and atomically.
+
+    Parameters
+    ----------
+    path : the CSV file.
+    resume : continue an existing file (its sample and plan must match the new run's);
+        without it an existing non-empty file is an error, so no data is ever overwritten.
+    fsync : fsync each rewrite (off only in tests of speed).
+    """
+
+    def __init__(self, path, *, resume: bool = False, fsync: bool = True):
+        self.path = Path(path)
+        self.resume = resume
+        self.fsync = fsync
+        self._text = None
+        self._keys = set()
+        self._descriptors = {}
+        self._start = None
+        self.n_written = 0
+        self.n_duplicates = 0
+        self._existing = None
+        if self.path.exists() and self.path.stat().st_size > 0:
+            if not resume:
+                raise ResumeError(f"{self.path}: already exists; use --resume to continue it or choose another file")
+            self._existing = read_scan(self.path)
+            self._text = self.path.read_text(encoding="utf-8")
+            if not self._text.endswith("\n"):
+                self._text += "\n"
+            e = self._existing
+            self._keys = {point_key(*k) for k in zip(e.theta_i_deg, e.polarization, e.theta_r_deg, e.phi_r_deg)}
+
+    @property
+    def completed_keys(self) -> set:
+        """Point keys already in the file (``rig.plans.point_key``)."""
+        return set(self._keys)
+
+    def __call__(self, name, doc):
+        getattr(self, name, lambda doc: None)(doc)
+
+    def start(self, doc):
+        self._start = doc
+        rig = RigConfig.from_metadata({f"rig.{k}": v for k, v in (doc.get("rig") or {}).items()},
+                                      where="start document")
+        self._omega = rig.solid_angle_sr
+        self._gain = float(doc.get("gain_v_per_w", 1.0))
+        self._wavelength_nm = float(doc.get("wavelength_nm", rig.wavelength_nm))
+        if self._existing is not None:
+            old = self._existing.metadata
+            for key in ("sample", "plan_name"):
+                new = str(doc.get(key, ""))
+                if key in old and old[key] != new:
+                    raise ResumeError(f"{self.path}: cannot resume: file has {key} {old[key]!r}, this scan {new!r}")
+        else:
+            self._text = header_text(csv_metadata(doc))
+            self._commit()
+
+    def descriptor(self, doc):
+        self._descriptors[doc["uid"]] = doc.get("name")
+
+    def event(self, doc):
+        if self._descriptors.get(doc["descriptor"]) != "primary":
+            return
+        d = doc["data"]
+        key = point_key(d["point_theta_i_deg"], d["point_polarization"], d["point_theta_r_deg"], d["point_phi_r_deg"])
+        if key in self._keys:
+            self.n_duplicates += 1  # re-measured after a rewind: the log has it, the CSV keeps the first
+            return
+        brdf, std = brdf_from_reading(d["lockin_mean_v"], d["lockin_std_v"], d["laser_power_w"],
+                                      d["point_theta_r_deg"], self._gain, self._omega)
+        row = format_rows(wavelength_nm=self._wavelength_nm, polarization=d["point_polarization"],
+                          theta_i_deg=d["point_theta_i_deg"], theta_r_deg=d["point_theta_r_deg"],
+                          phi_r_deg=d["point_phi_r_deg"], brdf_per_sr=brdf,
+                          brdf_std_per_sr=std if np.isfinite(std) else float("nan"),
+                          n_repeats=int(d["lockin_n"]))
+        self._text += row
+        self._commit()
+        self._keys.add(key)
+        self.n_written += 1
+
+    def _commit(self):
+        atomic_write_text(self.path, self._text, fsync=self.fsync)
+
+
+def log_path_for(csv_path) -> Path:
+    """The document log next to a scan: ``SCAN.csv`` -> ``SCAN.log.jsonl``."""
+    p = Path(csv_path)
+    return p.with_name(p.stem + ".log.jsonl")

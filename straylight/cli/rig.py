@@ -1,0 +1,81 @@
+"""``straylight rig``: scan (CONTRACTS §4.4) and, when present, diagnose (straylight.cli.rig_diagnose).
+
+Thin layer: parse, build the simulated or real instrument, call :func:`rig.run.run_scan`.
+``rig`` is imported lazily, inside the command, so ``import straylight`` never pulls in bluesky.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+
+def add_parser(subparsers) -> None:
+    rig = subparsers.add_parser("rig", help="bidirectional reflectometer: scans and sim-to-real diagnosis")
+    rig_sub = rig.add_subparsers(dest="rig_command", metavar="RIG_COMMAND")
+    rig.set_defaults(func=lambda args: (rig.print_help(), 2)[1])
+
+    scan = rig_sub.add_parser(
+        "scan", help="run a reflectometer scan and write the CSV as it goes",
+        description="Run a BRDF scan on the simulated (--sim) or real (--hardware CONFIG) reflectometer. "
+                    "Writes SCAN.csv (CONTRACTS §2) after every point and every bluesky document to "
+                    "SCAN.log.jsonl. Ctrl-C/SIGTERM stop cleanly; --resume continues the same file.")
+    backend = scan.add_mutually_exclusive_group(required=True)
+    backend.add_argument("--sim", action="store_true", help="simulated instrument (rig model + noise)")
+    backend.add_argument("--hardware", metavar="CONFIG", help="TOML/JSON naming the VISA resources (docs/rig.md)")
+    scan.add_argument("--sample", metavar="NAME|MODEL.json",
+                      help="material preset or file (--sim), or the sample's id (--hardware); "
+                           "not needed for a signature plan")
+    scan.add_argument("--plan", default="paper", metavar="paper|signature|PLAN.json",
+                      help="'paper' (seed paper's plan, default), 'signature' (paper grid, no sample) or a PLAN.json")
+    scan.add_argument("-o", "--output", required=True, metavar="SCAN.csv", help="scan CSV to write")
+    scan.add_argument("--seed", type=int, default=0, help="seed of the simulated noise (default 0)")
+    scan.add_argument("--resume", action="store_true", help="continue an interrupted scan in the same file")
+    scan.add_argument("--log", metavar="LOG.jsonl", help="document log (default: SCAN.log.jsonl next to the CSV)")
+    scan.add_argument("--fsync", action="store_true",
+                      help="--sim: fsync the CSV and log after every point (always on with --hardware)")
+    scan.add_argument("--ideal", action="store_true",
+                      help="--sim only: read the material BRDF itself (no slit/beam averaging)")
+    scan.set_defaults(func=run_scan_command)
+
+    try:
+        rig_diagnose = importlib.import_module("straylight.cli.rig_diagnose")
+    except ModuleNotFoundError as exc:
+        if exc.name != "straylight.cli.rig_diagnose":
+            raise
+    else:
+        rig_diagnose.add_parser(rig_sub)
+
+
+def run_scan_command(args) -> int:
+    from dataclasses import replace
+
+    from rig.plans import load_plan, paper_plan_spec
+    from rig.run import hardware_instrument, load_hardware_config, run_scan, sim_instrument
+
+    spec = replace(paper_plan_spec(), name="signature", signature=True) if args.plan == "signature" \
+        else load_plan(args.plan)
+    if spec.signature:
+        sample_label = "none (instrument signature)"
+    elif not args.sample:
+        raise ValueError("--sample is required (a preset name or MODEL.json) unless the plan is a signature scan")
+    else:
+        sample_label = args.sample
+    if args.sim:
+        sim, devices = sim_instrument(None if spec.signature else args.sample, seed=args.seed, ideal=args.ideal)
+        config, gain, md = sim.config, sim.gain_v_per_w, {"backend": "sim", "seed": args.seed, "ideal": args.ideal}
+        if not spec.signature:
+            sample_label = getattr(sim.material, "name", None) or args.sample
+    else:
+        if args.ideal:
+            raise ValueError("--ideal applies to --sim only")
+        config, devices, gain = hardware_instrument(load_hardware_config(args.hardware))
+        md = {"backend": "hardware", "hardware_config": str(args.hardware)}
+    outcome = run_scan(devices, spec, args.output, sample=sample_label, config=config, md=md,
+                       resume=args.resume, progress=True, log_path=args.log, gain_v_per_w=gain,
+                       fsync=bool(args.hardware) or args.fsync)
+    saved = f"{outcome.n_points_in_file} of {outcome.n_points_plan} points in {outcome.csv_path}"
+    if outcome.exit_status == "abort":
+        print(f"straylight: scan {outcome.reason}: {saved}; continue with --resume", file=sys.stderr)
+        return 130
+    print(f"scan complete: {saved} (log {outcome.log_path})", file=sys.stderr)
+    return 0
