@@ -209,6 +209,8 @@ class LockIn(Device):
             raise ValueError(f"{self.name}: n_readings must be >= 1, got {n}")
 
         def work():
+            if hasattr(self._backend, "start_acquisition"):
+                self._backend.start_acquisition()
             values = np.array([self._read_one() for _ in range(n)])
             self.mean_v.put(float(values.mean()))
             self.std_v.put(float(values.std(ddof=1)) if n > 1 else float("nan"))

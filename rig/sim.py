@@ -167,6 +167,11 @@ class SimLockin:
     def sleep(self, seconds: float) -> None:
         self.rig.clock.sleep(seconds)
 
+    def start_acquisition(self) -> None:
+        """A new point's readings begin: restart the per-position reading counter, so a point
+        re-measured after a suspension or a resume reads the same noise as the first time."""
+        self._key, self._k = None, 0
+
     def overloads(self) -> list[str]:
         out = ["output overload"] if self._overload else []
         self._overload = False
