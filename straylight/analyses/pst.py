@@ -220,7 +220,7 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     out = {k: np.full(n, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "p", "p_se", "sec")}
     traces = []
     with (dask_client(workers, scheduler) if client is None else _given(client)) as cl:
-        bar = tqdm(pairs, desc="PST sweep", unit="angle", disable=not progress, leave=False)
+        bar = tqdm(pairs, desc="PST sweep", unit="angle", disable=None if progress else True, leave=False)
         for i, (a, phi) in enumerate(bar):
             bar.set_postfix_str(f"{math.degrees(a):g} deg")
             beam: Beam = setup.beam
@@ -239,7 +239,8 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
             if keep_traces:
                 traces.append(res)
     return PstResult(
-        off_axis_deg=np.degrees([a for a, _ in pairs]), azimuth_deg=np.degrees([phi for _, phi in pairs]),
+        off_axis_deg=np.round(np.degrees([a for a, _ in pairs]), 9),
+        azimuth_deg=np.round(np.degrees([phi for _, phi in pairs]), 9),
         pst=out["pst"], pst_stderr=out["pst_se"], entrance_ratio=out["ratio"], entrance_ratio_stderr=out["ratio_se"],
         detector_w=out["p"], detector_stderr_w=out["p_se"], seconds=out["sec"], rays=int(n_rays), seed=int(seed),
         nee=bool(nee), detector=det, detector_area_mm2=area, beam_power_w=float(setup.beam.power_w),
