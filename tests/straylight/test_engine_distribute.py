@@ -1,0 +1,28 @@
+"""dask distribution: the same seed gives the same numbers in-process and on 1 or 2 workers."""
+import math
+
+import pytest
+
+from engine_helpers import baffled_tube_scene
+from materials import Lambertian
+from straylight.sources import CollimatedDisk
+from straylight.trace import TraceOptions, trace
+
+
+@pytest.fixture(scope="module")
+def setup():
+    scene = baffled_tube_scene()
+    src = CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(0.35), 0, -math.cos(0.35)], 60.0)
+    mats = {"black": Lambertian(0.05)}  # importable by worker processes (test helpers are not)
+    opts = TraceOptions(batch_rays=3000, record_paths=True)
+    local = trace(scene, src, 9000, seed=5, materials=mats, options=opts)
+    return scene, src, mats, opts, local
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_same_numbers_on_any_worker_count(setup, workers):
+    scene, src, mats, opts, local = setup
+    res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, workers=workers)
+    assert local.detectors["detector"].power_w > 0
+    assert res.to_json_dict() == local.to_json_dict()
+    assert (res.paths.key == local.paths.key).all()
