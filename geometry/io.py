@@ -12,6 +12,7 @@ Every error names the file.
 """
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 
@@ -149,6 +150,8 @@ def save_scene(scene: Scene, directory, *, mesh_format: str = "ply", scene_file:
         doc["material"] = dict(materials)
     entries = []
     for part in scene.parts:
+        if not re.fullmatch(r"[A-Za-z0-9_.\-]+", part.name) or part.name.startswith("."):
+            raise GeometryError(f"part {part.name!r}: name cannot be used as a file name (letters, digits, _ . - only)")
         mesh_name = f"{part.name}.{mesh_format}"
         export_mesh(part, directory / mesh_name)
         entry = {"name": part.name, "mesh": mesh_name}
