@@ -10,6 +10,7 @@ from materials.fresnel import fresnel_reflectance, polarization_factor
 from materials.harvey_shack import HarveyShack
 from materials.kcorrelation import KCorrelation
 from materials.lambertian import Lambertian
+from materials.microfacet import Microfacet
 from materials.tabulated import Tabulated
 from materials.material import Material, list_presets, load_material, material_from_dict, save_material
 
@@ -21,6 +22,7 @@ __all__ = [
     "KCorrelation",
     "Lambertian",
     "Material",
+    "Microfacet",
     "MaterialError",
     "Sample",
     "Tabulated",

@@ -6,7 +6,9 @@
 
 * radially, Gauss-Legendre in ``ln r`` from ``r_min`` to the disk edge
   ``r_edge(psi) = -b cos psi + sqrt(1 - b^2 sin^2 psi)`` (b = sin theta_i), so a lobe of
-  width 1e-4..1 in beta is resolved whatever its width, and the edge is exact;
+  width 1e-4..1 in beta is resolved whatever its width, and the edge is exact; the
+  nodes are squeezed quadratically toward the edge, which makes the sqrt(cos theta_r)
+  behaviour there (and 1/cos theta_r of microfacet lobes and densities) smooth;
 * in azimuth, the periodic trapezoid rule in t with ``psi = t - alpha sin t``, which
   clusters nodes near psi = 0 where the edge comes close to beta0 at grazing incidence.
 
@@ -42,11 +44,14 @@ def _grid(theta_i: np.ndarray, n_radial: int, n_azimuth: int):
     x, w = _gauss(n_radial)
     lo = np.log(R_MIN)
     hi = np.log(np.maximum(r_edge, R_MIN * 1.0001))
-    half = 0.5 * (hi - lo)  # (m, a)
-    lnr = lo + half[..., None] * (x + 1.0)  # (m, a, r)
+    span = (hi - lo)[..., None]  # (m, a, 1)
+    # ln r = lo + span y(t), y = 1 - (1 - t)^2, t = (x + 1) / 2: nodes cluster at the disk edge,
+    # where a density per beta may diverge as 1 / cos(theta_r) (integrable) and f cos has a sqrt
+    tt = 0.5 * (x + 1.0)
+    lnr = lo + span * (1.0 - (1.0 - tt) ** 2)  # (m, a, r)
     r = np.exp(lnr)
-    # d^2 beta = r dr dpsi = r^2 d(ln r) dpsi
-    wt = (r * r) * (half[..., None] * w) * dpsi[..., None]
+    # d^2 beta = r dr dpsi = r^2 d(ln r) dpsi, d(ln r) = span (1 - t) dx
+    wt = (r * r) * (span * (1.0 - tt) * w) * dpsi[..., None]
     bx = b[..., None] + r * cpsi[..., None]
     by = r * spsi[..., None]
     m = theta_i.size

@@ -109,7 +109,12 @@ class Material:
         """Raise MaterialError if rho(theta_i) >= 1 at any integer theta_i in 0..89 deg (s or p)."""
         theta = np.deg2rad(ENERGY_CHECK_THETA_I_DEG)
         for pol in ("s", "p"):
-            rho = directional_hemispherical_reflectance(self.composite, theta, pol, 32, 48)  # ~0.5 % at 89 deg
+            # a coarse grid (<~1 % for beta-centred lobes, ~10 % for grazing microfacet lobes
+            # at 89 deg), refined with the default grid wherever it comes within 20 % of 1
+            rho = directional_hemispherical_reflectance(self.composite, theta, pol, 32, 48)
+            near = rho > 0.8
+            if np.any(near):
+                rho[near] = directional_hemispherical_reflectance(self.composite, theta[near], pol)
             k = int(np.argmax(rho))
             if rho[k] >= 1.0:
                 raise MaterialError(
