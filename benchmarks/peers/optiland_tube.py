@@ -73,6 +73,7 @@ def main():
     args = parser.parse_args()
     a = math.radians(args.angle_deg)
     t0 = time.perf_counter()
+    c0 = time.process_time()
     scene = build_scene(a)
     entrance = (50.0 / R_BEAM) ** 2 * math.cos(a)
     values = []
@@ -84,10 +85,11 @@ def main():
         if time.perf_counter() - t0 > args.seconds and len(values) >= 4:
             break
     seconds = time.perf_counter() - t0
+    cpu_seconds = time.process_time() - c0
     v = np.array(values)
     print(json.dumps({"tracer": "optiland", "version": "0.6.3", "angle_deg": args.angle_deg,
                       "ratio": float(v.mean()), "stderr": float(v.std(ddof=1) / math.sqrt(len(v))),
-                      "rays": int(len(v) * args.rays_per_repeat), "seconds": seconds}))
+                      "rays": int(len(v) * args.rays_per_repeat), "seconds": seconds, "cpu_seconds": cpu_seconds}))
 
 
 if __name__ == "__main__":

@@ -67,7 +67,7 @@ def main():
     parser.add_argument("--pixels", type=int, default=16)
     args = parser.parse_args()
     a = math.radians(args.angle_deg)
-    t_build = time.perf_counter()
+    t_build, c_build = time.perf_counter(), time.process_time()
     world = build_world()
     d = Vector3D(math.sin(a), 0.0, -math.cos(a))
     # camera plane passes through z = 310 mm on the beam line through the entrance centre
@@ -89,6 +89,7 @@ def main():
     camera.pixel_samples = 50
     # the timing includes the first pass, which builds the accelerator and importance tables
     t0 = t_build
+    c0 = c_build
     passes = 0
     while True:
         camera.observe()
@@ -96,6 +97,7 @@ def main():
         if time.perf_counter() - t0 > args.seconds:
             break
     seconds = time.perf_counter() - t0
+    cpu_seconds = time.process_time() - c0
     frame = pipeline.frame
     a_pix = (width / args.pixels) ** 2
     denom = math.pi * R_IN**2 * math.cos(a)
@@ -103,7 +105,7 @@ def main():
     stderr = float(math.sqrt(np.sum(frame.errors() ** 2)) * a_pix / denom)
     rays = int(np.sum(frame.samples))
     print(json.dumps({"tracer": "raysect", "version": "0.9.1", "angle_deg": args.angle_deg,
-                      "ratio": ratio, "stderr": stderr, "rays": rays, "seconds": seconds}))
+                      "ratio": ratio, "stderr": stderr, "rays": rays, "seconds": seconds, "cpu_seconds": cpu_seconds}))
 
 
 if __name__ == "__main__":

@@ -165,5 +165,5 @@ def tube_setup(material=DEFAULT_MATERIAL, tolerance_mm: float = DEFAULT_TOLERANC
     entrance = Entrance(center_mm=(0.0, 0.0, top), radius_mm=r_entrance)
     params_dict = {f: getattr(p, f) for f in p.names()}
     desc = (f"baffled tube r={p.inner_radius_mm:g} mm, L={p.length_mm:g} mm, {p.vane_count} vanes "
-            f"(hole r={p.vane_inner_radius_mm:g} mm), coating {tag}")
+            f"(hole r={p.vane_inner_radius_mm:g} mm), coating {material if isinstance(material, str) else repr(material)}")
     return Setup(scene, mats, beam, entrance, "detector", desc, params_dict)
