@@ -201,6 +201,8 @@ class LockIn(Device):
                 b.sensitivity_v = SENSITIVITY_V[idx - 1]
             else:
                 return v
+            if hasattr(b, "discard_reading"):
+                b.discard_reading()
         return v
 
     def trigger(self):

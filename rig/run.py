@@ -66,12 +66,14 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
              md: dict | None = None, resume: bool = False, progress: bool = False, log_path=None,
              gain_v_per_w: float = DEFAULT_GAIN_V_PER_W, suspend_fraction: float = 0.5,
              resume_fraction: float = 0.9, handle_signals: bool = True, fsync: bool = True,
-             run_engine=None) -> ScanOutcome:
+             run_engine=None, callbacks=()) -> ScanOutcome:
     """Measure ``spec`` with ``devices`` into ``csv_path`` (CONTRACTS §2) and its document log.
 
     Returns a :class:`ScanOutcome` (``exit_status`` 'abort' after SIGINT/SIGTERM or
     ``run_engine.request_pause``); raises :class:`ScanFailed` on a device fault and
     ``rig.writer.ResumeError`` / ``SoftLimitError`` on bad requests, before anything moves.
+    ``callbacks`` are subscribed after the log and the CSV writer (they see the files as
+    written for each document).
     """
     from bluesky import RunEngine
     from bluesky.suspenders import SuspendFloor
@@ -82,6 +84,7 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     log_path = Path(log_path) if log_path is not None else log_path_for(csv_path)
     writer = CsvScanWriter(csv_path, resume=resume, fsync=fsync)
     done = writer.completed_keys
+    writer.check_resume(sample=sample, plan_name=spec.name)
     check_points(spec.points, devices)
     rig_md = {k.split(".", 1)[1]: v for k, v in config.to_metadata().items()}  # no dots in document keys
     full_md = {"sample": sample, "rig": rig_md, "wavelength_nm": config.wavelength_nm,
@@ -94,7 +97,7 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
 
     RE = run_engine or RunEngine({}, context_managers=[])
     log = DocumentLog(log_path, fsync=fsync)
-    tokens = [RE.subscribe(log), RE.subscribe(writer)]
+    tokens = [RE.subscribe(log), RE.subscribe(writer)] + [RE.subscribe(cb) for cb in callbacks]
     bar = None
     if progress:
         from tqdm import tqdm

@@ -172,6 +172,11 @@ class SimLockin:
         re-measured after a suspension or a resume reads the same noise as the first time."""
         self._key, self._k = None, 0
 
+    def discard_reading(self) -> None:
+        """The device rejected the last reading (autorange changed the range and reads again):
+        the retry reuses its noise draw, so the values do not depend on the range history."""
+        self._k = max(self._k - 1, 0)
+
     def overloads(self) -> list[str]:
         out = ["output overload"] if self._overload else []
         self._overload = False

@@ -70,6 +70,15 @@ class DocumentLog:
         self.fsync = fsync
         self._fh = open(self.path, "a", encoding="utf-8")
 
+    def check_resume(self, **expected) -> None:
+        """Raise ResumeError if the existing file's metadata differ (e.g. ``sample=``, ``plan_name=``)."""
+        if self._existing is None:
+            return
+        old = self._existing.metadata
+        for key, new in expected.items():
+            if key in old and old[key] != str(new):
+                raise ResumeError(f"{self.path}: cannot resume: file has {key} {old[key]!r}, this scan {str(new)!r}")
+
     def __call__(self, name, doc):
         self._fh.write(json.dumps({"name": name, "doc": doc}, default=_json_default) + "\n")
         self._fh.flush()
@@ -151,6 +160,15 @@ class CsvScanWriter:
         """Point keys already in the file (``rig.plans.point_key``)."""
         return set(self._keys)
 
+    def check_resume(self, **expected) -> None:
+        """Raise ResumeError if the existing file's metadata differ (e.g. ``sample=``, ``plan_name=``)."""
+        if self._existing is None:
+            return
+        old = self._existing.metadata
+        for key, new in expected.items():
+            if key in old and old[key] != str(new):
+                raise ResumeError(f"{self.path}: cannot resume: file has {key} {old[key]!r}, this scan {str(new)!r}")
+
     def __call__(self, name, doc):
         getattr(self, name, lambda doc: None)(doc)
 
@@ -162,11 +180,7 @@ class CsvScanWriter:
         self._gain = float(doc.get("gain_v_per_w", 1.0))
         self._wavelength_nm = float(doc.get("wavelength_nm", rig.wavelength_nm))
         if self._existing is not None:
-            old = self._existing.metadata
-            for key in ("sample", "plan_name"):
-                new = str(doc.get(key, ""))
-                if key in old and old[key] != new:
-                    raise ResumeError(f"{self.path}: cannot resume: file has {key} {old[key]!r}, this scan {new!r}")
+            self.check_resume(**{k: doc.get(k, "") for k in ("sample", "plan_name")})
         else:
             self._text = header_text(csv_metadata(doc))
             self._commit()

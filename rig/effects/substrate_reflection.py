@@ -31,6 +31,17 @@ class _WithSubstrate:
     attenuation: float
     width_rad: float
 
+    def brdf_geom(self, geom, polarization="u"):
+        """Same as :meth:`brdf` from cached node geometry (rig.diagnose.node_geometry)."""
+        base = self.material.brdf_geom(geom, polarization)
+        w = self.width_rad * np.clip(geom["cos_i"], 1e-6, None)
+        lobe = self.attenuation / (2 * math.pi * w**2) * np.exp(-0.5 * geom["r2"] / w**2)
+        return base + np.where(geom["above"], lobe, 0.0)
+
+    @property
+    def supports_geom(self) -> bool:
+        return getattr(self.material, "supports_geom", False)
+
     def brdf(self, wi, wo, polarization="u"):
         base = self.material.brdf(wi, wo, polarization)
         d = np.asarray(wo)[:, :2] + np.asarray(wi)[:, :2]
