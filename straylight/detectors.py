@@ -8,6 +8,7 @@ over its area (triangle by area, then uniform barycentrics), so the pdf per unit
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -64,12 +65,18 @@ class DetectorGeometry:
         """Uniform points over the area. u : (n, 3) -> (points (n, 3), triangle normals (n, 3))."""
         k = np.minimum(np.searchsorted(self.cdf, u[:, 0], side="right"), len(self.cdf) - 1)
         su = np.sqrt(u[:, 1])
-        tri = self.triangles_mm
         b1 = (su * (1.0 - u[:, 2]))[:, None]
         b2 = (su * u[:, 2])[:, None]
         # P = A + b1 (B - A) + b2 (C - A), uniform over the triangle (Turk 1990)
-        pts = tri[k, 0] + b1 * (tri[k, 1] - tri[k, 0]) + b2 * (tri[k, 2] - tri[k, 0])
+        v0, e1, e2 = self._edges
+        pts = v0[k] + b1 * e1[k] + b2 * e2[k]
         return pts, self.normals[k]
+
+    @cached_property
+    def _edges(self):
+        tri = self.triangles_mm
+        return (np.ascontiguousarray(tri[:, 0]), np.ascontiguousarray(tri[:, 1] - tri[:, 0]),
+                np.ascontiguousarray(tri[:, 2] - tri[:, 0]))
 
     def bin_index(self, points, bins):
         """Flat bin index (u-major) of points in the map grid of shape ``bins``."""

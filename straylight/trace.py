@@ -289,10 +289,11 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         if len(cont) == 0:
             idx = idx[:0]
             break
-        idx, d, w, U, part, role, p, ng, nf = (a[cont] for a in (idx, d, w, U, part, role, p, ng, nf))
-        prev_kind, prev_part, hkey, depth = prev_kind[cont], prev_part[cont], hkey[cont], depth[cont]
-        if hist is not None:
-            hist = hist[cont]
+        if len(cont) < len(idx):
+            idx, d, w, U, part, role, p, ng, nf = (a[cont] for a in (idx, d, w, U, part, role, p, ng, nf))
+            prev_kind, prev_part, hkey, depth = prev_kind[cont], prev_part[cont], hkey[cont], depth[cont]
+            if hist is not None:
+                hist = hist[cont]
         w_new = np.zeros(len(idx))
         d_new = d - 2.0 * _dot(d, nf)[:, None] * nf
         kind = np.where(role == _SURFACE, KIND_SCATTER, KIND_SPECULAR).astype(np.int8)
@@ -300,7 +301,10 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         w_new[mir] = w[mir] * float(opt.mirror_reflectance)
         code = part * 4 + kind
         surf = np.flatnonzero(role == _SURFACE)
-        if len(surf):
+        n_surf = len(surf)
+        if n_surf == len(idx):
+            surf = slice(None)  # every hit scatters: views instead of copies
+        if n_surf:
             tb, bb = orthonormal_basis(nf[surf])
             wi = -d[surf]
             wi_loc = np.stack([_dot(wi, tb), _dot(wi, bb), _dot(wi, nf[surf])], axis=-1)
@@ -354,11 +358,11 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                 groups = [(0, slice(None))]
             else:
                 groups = [(m, mat == m) for m in np.unique(mat)]
-            wo_world = np.empty((len(surf), 3))
-            weight = np.empty(len(surf))
+            wo_world = np.empty((n_surf, 3))
+            weight = np.empty(n_surf)
             nfs = nf[surf]
             for m, sel in groups:
-                smp = spec.materials[m].sample(wi_loc[sel], U[surf[sel], 0:3], opt.polarization)
+                smp = spec.materials[m].sample(wi_loc[sel], U[surf][sel, 0:3], opt.polarization)
                 wo = np.asarray(smp.wo, dtype=np.float64)
                 weight[sel] = np.where(wo[:, 2] > 0, np.asarray(smp.weight, dtype=np.float64), 0.0)
                 wo_world[sel] = wo[:, :1] * tb[sel] + wo[:, 1:2] * bb[sel] + wo[:, 2:3] * nfs[sel]
