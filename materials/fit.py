@@ -14,6 +14,12 @@ k_correlation      ``k_correlation.sigma_nm``  1e-3 .. 1e3   log
                    ``k_correlation.s``         0.5 .. 10     linear
 microfacet         ``microfacet.alpha``        1e-3 .. 2     log
                    ``microfacet.weight``       1e-6 .. 1e3   log
+abg                ``abg.a``                   1e-10 .. 1e4  log
+                   ``abg.b``                   1e-10 .. 1    log
+                   ``abg.g``                   0 .. 4        linear
+harvey_shack       ``harvey_shack.b0``         1e-6 .. 1e8   log
+                   ``harvey_shack.l``          1e-5 .. 1     log
+                   ``harvey_shack.s``          -8 .. 0       linear
 (shared)           ``n``                       1.05 .. 3     linear
 =================  ==========================  ============  =========
 
@@ -49,6 +55,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
+import materials.abg  # noqa: F401  (registers "abg")
+import materials.harvey_shack  # noqa: F401  (registers "harvey_shack")
 import materials.kcorrelation  # noqa: F401  (registers "k_correlation")
 import materials.lambertian  # noqa: F401  (registers "lambertian")
 import materials.microfacet  # noqa: F401  (registers "microfacet")
@@ -71,6 +79,16 @@ _PARAMS = {
     "microfacet": [
         ("alpha", 1e-3, 2.0, True, 0.3, (0.05, 1.0)),
         ("weight", 1e-6, 1e3, True, 1.0, (0.05, 20.0)),
+    ],
+    "abg": [
+        ("a", 1e-10, 1e4, True, 1e-3, (1e-5, 1e-1)),
+        ("b", 1e-10, 1.0, True, 1e-4, (1e-6, 1e-2)),
+        ("g", 0.0, 4.0, False, 2.0, (1.0, 3.0)),
+    ],
+    "harvey_shack": [
+        ("b0", 1e-6, 1e8, True, 10.0, (0.1, 1e4)),
+        ("l", 1e-5, 1.0, True, 0.01, (1e-4, 0.1)),
+        ("s", -8.0, 0.0, False, -2.0, (-4.0, -1.0)),
     ],
 }
 _USES_N = {"k_correlation", "microfacet"}

@@ -185,7 +185,7 @@ def add_parser(subparsers) -> None:
     f = sub.add_parser("fit", help="fit a model to a measured scan CSV (CONTRACTS 2)")
     f.add_argument("scan", metavar="SCAN.csv")
     f.add_argument("--model", default="lambertian+k_correlation",
-                   help="components joined by '+': lambertian, k_correlation, microfacet")
+                   help="components joined by '+': lambertian, k_correlation, microfacet, abg, harvey_shack")
     f.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="fitted material file")
     f.add_argument("--name", help="material name (default: output file stem)")
     f.add_argument("--fix", action="append", metavar="NAME=VALUE", help="hold a parameter, e.g. n=1.5")

@@ -115,3 +115,15 @@ def test_spec_names_fixed_and_errors():
     scan = _synthetic([Lambertian(rd=0.03)], theta_i_deg=(30,), pols="u", n_per=6)
     with pytest.raises(FitError, match="usable points"):
         fit(scan.select(np.arange(3)), "lambertian+k_correlation")
+
+
+def test_abg_lobe_recovers_its_parameters():
+    from materials.abg import Abg
+
+    truth = [Lambertian(rd=0.02), Abg(a=2e-3, b=1e-3, g=2.2)]
+    scan = _synthetic(truth, theta_i_deg=(20, 60), pols="u", seed=8, n_per=45)
+    res = fit(scan, "lambertian+abg", seed=0, n_starts=4)
+    assert "n" not in res.params  # no component with a refractive index
+    for name, true in {"lambertian.rd": 0.02, "abg.a": 2e-3, "abg.b": 1e-3, "abg.g": 2.2}.items():
+        assert 0 < res.stderr[name] < 0.3 * true
+        assert abs(res.params[name] - true) < 3 * res.stderr[name], name
