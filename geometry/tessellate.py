@@ -14,9 +14,9 @@ The chord error is then *measured*, face by face, against the analytic surface:
 - cylinder: exact, ``R - min |r_perp|`` over each triangle (the distance from the axis is
   convex, so its minimum over the triangle is the 2-D distance from the axis to the
   triangle projected along the axis);
-- cone, sphere: analytic distance at 15 points per triangle (vertices, edge thirds, centroid);
-- any other surface (B-splines from STEP files): ``GeomAPI_ProjectPointOnSurf`` at the
-  centroid and edge midpoints of each triangle;
+- cone, sphere: analytic distance at 28 points per triangle (a regular barycentric grid);
+- any other surface (B-splines from STEP files, tori): ``GeomAPI_ProjectPointOnSurf`` at the
+  centroid and edge midpoints of each triangle (of at most 5000 evenly strided triangles per face);
 - and the other way round, the boundary: the distance from the midpoint of every boundary
   segment of a face's mesh to its B-rep edge (circles analytically), so that the polygon
   of a flat disk (the detector) counts too.
@@ -35,6 +35,8 @@ from geometry.mesh import GeometryError, Part, Scene
 DEFAULT_TOLERANCE_MM = 0.05
 DEFAULT_ANGULAR_TOLERANCE_DEG = 10.0
 _MERGE_MM = 1e-7  # nodes closer than this are the same node (OCC shares edge nodes exactly)
+_MAX_REFINE = 5
+_MAX_PROJECTED = 5000  # triangles per face measured by point projection (slow path for B-spline faces)
 _METHOD_RANK = {"none": 0, "exact": 1, "sampled": 2, "projected": 3}
 
 
@@ -47,6 +49,8 @@ class TessellationReport:
     n_brep_faces : number of B-rep faces meshed
     max_chord_error_mm : largest measured distance between the triangles and the true surface
     method : how it was measured ("exact" for planes and cylinders only, else "sampled" or "projected")
+    deflection_mm : the linear deflection finally asked of OpenCascade (below ``tolerance_mm`` when the
+        first mesh overshot the tolerance and was refined)
     """
 
     name: str
@@ -57,6 +61,7 @@ class TessellationReport:
     n_brep_faces: int
     max_chord_error_mm: float
     method: str
+    deflection_mm: float = float("nan")
 
     @property
     def within_tolerance(self) -> bool:
@@ -67,6 +72,7 @@ class TessellationReport:
                 "angular_tolerance_deg": self.angular_tolerance_deg, "n_triangles": self.n_triangles,
                 "n_vertices": self.n_vertices, "n_brep_faces": self.n_brep_faces,
                 "max_chord_error_mm": self.max_chord_error_mm, "method": self.method,
+                "deflection_mm": self.deflection_mm,
                 "within_tolerance": self.within_tolerance}
 
 
@@ -242,7 +248,7 @@ def _face_chord_error(face, tri):
         cyl = surface.Cylinder()
         err = _cylinder_error(tri, xyz(cyl.Axis().Location()), xyz(cyl.Axis().Direction()), cyl.Radius())
         return float(err.max()), "exact"
-    points = np.einsum("kj,mjc->mkc", _barycentric(3), tri).reshape(-1, 3)
+    points = np.einsum("kj,mjc->mkc", _barycentric(6), tri).reshape(-1, 3)
     if kind == GeomAbs_Cone:
         cone = surface.Cone()
         pos = cone.Position()
@@ -262,6 +268,8 @@ def _face_chord_error(face, tri):
     from OCP.gp import gp_Pnt
 
     geom = BRep_Tool.Surface_s(face)
+    # One Python call per point: sample at most _MAX_PROJECTED triangles per face, evenly strided.
+    tri = tri[:: max(1, -(-len(tri) // _MAX_PROJECTED))]
     mids = np.concatenate([tri.mean(axis=1), (tri + np.roll(tri, -1, axis=1)).reshape(-1, 3) / 2])
     worst = 0.0
     for x, y, z in mids:
@@ -273,7 +281,7 @@ def _face_chord_error(face, tri):
 
 def tessellate(shape, *, name: str = "part", tolerance_mm: float = DEFAULT_TOLERANCE_MM,
                angular_tolerance_deg: float = DEFAULT_ANGULAR_TOLERANCE_DEG, material: str | None = None,
-               role: str = "surface", kind: str | None = None) -> Part:
+               role: str = "surface", kind: str | None = None, refine: bool = True) -> Part:
     """Tessellate a CadQuery shape into a :class:`Part`.
 
     Parameters
@@ -283,6 +291,8 @@ def tessellate(shape, *, name: str = "part", tolerance_mm: float = DEFAULT_TOLER
     angular_tolerance_deg : angular deflection between neighbouring facets, degrees
     material, role : tags for the part (material by name only)
     kind : "solid" or "sheet"; None: "solid" if the shape holds a solid, else "sheet"
+    refine : if the measured chord error exceeds ``tolerance_mm`` (OpenCascade overshoots on
+        spheres), re-mesh with a proportionally smaller deflection, up to 5 times
 
     Returns
     -------
@@ -298,23 +308,28 @@ def tessellate(shape, *, name: str = "part", tolerance_mm: float = DEFAULT_TOLER
     topo = _wrapped(shape)
     if kind is None:
         kind = "solid" if TopExp_Explorer(topo, TopAbs_SOLID).More() else "sheet"
-    meshed = _mesh_faces(topo, tolerance_mm, angular_tolerance_deg)
-    if not meshed:
-        raise GeometryError(f"part {name!r}: the shape has no faces to tessellate")
+    deflection_mm = float(tolerance_mm)
+    for _ in range(_MAX_REFINE + 1):
+        meshed = _mesh_faces(topo, deflection_mm, angular_tolerance_deg)
+        if not meshed:
+            raise GeometryError(f"part {name!r}: the shape has no faces to tessellate")
+        worst, method = 0.0, "none"
+        for face, v, t, edge_err in meshed:
+            err, how = _face_chord_error(face, v[t])
+            worst = max(worst, err, edge_err)
+            method = how if _METHOD_RANK[how] > _METHOD_RANK[method] else method
+        if worst <= tolerance_mm or not refine:
+            break
+        # OpenCascade overshot (it does on spheres): ask for a proportionally smaller deflection.
+        deflection_mm *= 0.8 * tolerance_mm / worst
     offsets = np.cumsum([0] + [len(v) for _, v, _, _ in meshed])
     vertices = np.concatenate([v for _, v, _, _ in meshed])
     faces = np.concatenate([t + o for (_, _, t, _), o in zip(meshed, offsets)])
     brep_face = np.concatenate([np.full(len(t), i) for i, (_, _, t, _) in enumerate(meshed)])
 
-    worst, method = 0.0, "none"
-    for face, v, t, edge_err in meshed:
-        err, how = _face_chord_error(face, v[t])
-        worst = max(worst, err, edge_err)
-        method = how if _METHOD_RANK[how] > _METHOD_RANK[method] else method
-
     vertices, faces, kept = merge_vertices(vertices, faces)
     report = TessellationReport(name, float(tolerance_mm), float(angular_tolerance_deg), len(faces), len(vertices),
-                                len(meshed), float(worst), method)
+                                len(meshed), float(worst), method, deflection_mm)
     meta = {"tessellation": report, "kind": kind, "brep_face": brep_face[kept]}
     return Part(name, vertices, faces, material, role, meta)
 
