@@ -63,7 +63,7 @@ class DetectorGeometry:
 
     def sample(self, u):
         """Uniform points over the area. u : (n, 3) -> (points (n, 3), triangle normals (n, 3))."""
-        k = np.minimum(np.searchsorted(self.cdf, u[:, 0], side="right"), len(self.cdf) - 1)
+        k = self._pick_triangle(u[:, 0])
         su = np.sqrt(u[:, 1])
         b1 = (su * (1.0 - u[:, 2]))[:, None]
         b2 = (su * u[:, 2])[:, None]
@@ -71,6 +71,29 @@ class DetectorGeometry:
         v0, e1, e2 = self._edges
         pts = v0[k] + b1 * e1[k] + b2 * e2[k]
         return pts, self.normals[k]
+
+    def _pick_triangle(self, u0):
+        """Triangle index with probability area / total (Walker's alias method, Vose's table)."""
+        prob, alias = self._alias
+        m = len(prob)
+        x = u0 * m
+        k = np.minimum(x.astype(np.int64), m - 1)
+        return np.where(x - k < prob[k], k, alias[k])
+
+    @cached_property
+    def _alias(self):
+        p = np.diff(np.concatenate([[0.0], self.cdf])) * len(self.cdf)
+        prob = np.ones(len(p))
+        alias = np.arange(len(p))
+        small = [i for i in range(len(p)) if p[i] < 1.0]
+        large = [i for i in range(len(p)) if p[i] >= 1.0]
+        p = p.copy()
+        while small and large:
+            s, g = small.pop(), large.pop()
+            prob[s], alias[s] = p[s], g
+            p[g] -= 1.0 - p[s]
+            (small if p[g] < 1.0 else large).append(g)
+        return prob, alias
 
     @cached_property
     def _edges(self):
