@@ -444,3 +444,49 @@ def twin_scan(material, theta_i_deg, theta_r_deg, polarization="u", config: RigC
         model_per_sr=model, estimator=np.array([p.estimator for p in points]), n_rays=int(n_rays), seed=int(seed),
         points=tuple(points),
     )
+
+
+def plot_twin_scan(scan: TwinScan, material, config: RigConfig, path, title: str | None = None):
+    """Seed paper Fig. 7 style: log10 BRDF vs theta_r, twin points with 1-sigma error bars over the
+    fast model's curve (:func:`rig.forward.predict_brdf` on a fine grid), one colour per
+    (theta_i, polarization). Writes ``path`` (PNG) and returns the matplotlib Figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5.0), dpi=120)
+    mirror = isinstance(material, Mirror)
+    groups = sorted({(float(a), str(p)) for a, p in zip(scan.theta_i_deg, scan.polarization)})
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, (ti, pol) in enumerate(groups):
+        c = colours[k % len(colours)]
+        sel = (scan.theta_i_deg == ti) & (scan.polarization == pol)
+        tr = scan.theta_r_deg[sel]
+        label = f"theta_i = {ti:g} deg, {pol}"
+        if not mirror:
+            lo, hi = max(tr.min() - 0.5, -89.9), min(tr.max() + 0.5, 89.9)
+            grid = np.union1d(np.linspace(lo, hi, 600), tr)
+            if lo < ti < hi:
+                grid = np.union1d(grid, ti + np.linspace(-0.6, 0.6, 121))
+            grid = grid[(grid >= lo) & (grid <= hi)]
+            from rig.forward import predict_brdf
+
+            curve = np.asarray(predict_brdf(material, ti, grid, scan.phi_r_deg[0], pol, config), float)
+            ax.plot(grid, curve, "-", color=c, lw=1.0, label=f"fast model, {label}")
+        y = scan.brdf_per_sr[sel]
+        e = scan.stderr_per_sr[sel]
+        pos = y > 0
+        lower = np.minimum(e[pos], 0.999 * y[pos])
+        ax.errorbar(tr[pos], y[pos], yerr=[lower, e[pos]], fmt="o", ms=4, color=c, mfc="none", capsize=2,
+                    label=f"twin, {label}")
+    ax.set_yscale("log")
+    ax.set_xlabel("theta_r (deg; negative: backscatter side)")
+    ax.set_ylabel("measured BRDF (1/sr)")
+    ax.set_title(title or "ray-traced twin vs fast model")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return fig
