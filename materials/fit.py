@@ -262,6 +262,11 @@ class FitResult:
     rms_log10 : dict[(theta_i_deg, polarization), float], unweighted RMS of
         log10(model / measured) over fitted points.
     rho : dict with "theta_i_deg" and one list per polarization: rho(theta_i) of the fit.
+    chi2, chi2_reduced : weighted sum of squares and its value per degree of freedom.
+    n_points, n_excluded : fitted points; points left out (flagged BRDF, theta_r = 90 deg).
+    components : the fitted component objects; ``material()`` wraps them.
+    fit_mask : (n,) bool over the scan rows: which were fitted.
+    log10_ratio : (m,) unweighted log10(model / measured) of the fitted points.
     """
 
     model: str
@@ -283,16 +288,13 @@ class FitResult:
     wavelength_nm: float
     components: tuple = field(repr=False, default=())
     fit_mask: np.ndarray = field(repr=False, default=None)
+    log10_ratio: np.ndarray = field(repr=False, default=None)
+    group_counts: dict = field(repr=False, default_factory=dict)
 
     @property
     def rms_log10_total(self) -> float:
         r = self.log10_ratio
         return float(np.sqrt(np.mean(r**2))) if r.size else float("nan")
-
-    @property
-    def log10_ratio(self) -> np.ndarray:
-        """Unweighted log10(model / measured) of the fitted points."""
-        return self._log10_ratio
 
     def material(self, name: str = "fitted", description=None, provenance=None) -> Material:
         """The fitted components as a :class:`materials.material.Material`."""
@@ -301,7 +303,7 @@ class FitResult:
 
     def rms_table(self) -> list[dict]:
         """rms_log10 as JSON-ready rows."""
-        return [{"theta_i_deg": t, "polarization": p, "rms_log10": v, "n_points": self._group_counts[(t, p)]}
+        return [{"theta_i_deg": t, "polarization": p, "rms_log10": v, "n_points": self.group_counts[(t, p)]}
                 for (t, p), v in self.rms_log10.items()]
 
     def to_json(self) -> dict:
@@ -472,9 +474,8 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
         success=success, message=message, n_eval=n_eval, residuals=r, rms_log10=rms, rho=rho,
         chi2=chi2, chi2_reduced=chi2 / dof, n_points=len(r), n_excluded=n_excluded,
         n_starts=len(starts), wavelength_nm=float(wavelengths[0]), components=tuple(comps), fit_mask=ok,
+        log10_ratio=ratio, group_counts=counts,
     )
-    object.__setattr__(result, "_log10_ratio", ratio)
-    object.__setattr__(result, "_group_counts", counts)
     return result
 
 
