@@ -43,10 +43,12 @@ def add_parser(subparsers):
     from geometry.parts.reflectometer import ReflectometerParams
     from geometry.parts.tube import TubeParams
 
-    group = subparsers.add_parser("geometry", help="build and check geometry").add_subparsers(dest="what",
-                                                                                             metavar="ACTION")
-    build = group.add_parser("build", help="build parts, write STEP + meshes + scene TOML").add_subparsers(
-        dest="model", metavar="MODEL")
+    geometry = subparsers.add_parser("geometry", help="build and check geometry")
+    geometry.set_defaults(func=_usage(geometry))
+    group = geometry.add_subparsers(dest="what", metavar="ACTION")
+    build_parser = group.add_parser("build", help="build parts, write STEP + meshes + scene TOML")
+    build_parser.set_defaults(func=_usage(build_parser))
+    build = build_parser.add_subparsers(dest="model", metavar="MODEL")
     tube = build.add_parser("tube", help="baffled tube (defaults: the BENCHMARK.md tube)")
     _add_dataclass_flags(tube, TubeParams)
     tube.add_argument("--material", default="benchmark_black", help="material name of every surface")
@@ -66,6 +68,14 @@ def add_parser(subparsers):
     check.add_argument("--strict", action="store_true", help="exit 1 if a check fails")
     check.add_argument("--json", metavar="PATH")
     check.set_defaults(func=_check)
+
+
+def _usage(parser):
+    def show(args) -> int:
+        parser.print_help()
+        return 2
+
+    return show
 
 
 def _finish(args, shape_parts, scene) -> int:
