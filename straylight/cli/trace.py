@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from pathlib import Path
 
 
@@ -27,14 +28,18 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
-    from straylight.scene import load_scene
+    from straylight.scene import SceneWarning, load_scene
     from straylight.trace import TraceOptions, trace
 
     if args.rays < 1:
         raise ValueError(f"--rays must be >= 1, got {args.rays}")
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    rs = load_scene(args.scene)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SceneWarning)
+        rs = load_scene(args.scene)
+    for w in caught:
+        print(f"straylight: warning: {w.message}", file=sys.stderr)
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
                            progress=sys.stderr.isatty())
     res = trace(rs.scene, rs.sources, args.rays, args.seed, materials=rs.materials, options=options,
