@@ -10,6 +10,7 @@ it at the axis; both cover the entrance and the rim, and only they couple to the
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -144,17 +145,25 @@ def resolve_materials(material) -> tuple[str, dict | None]:
     return "coating", {"coating": material}
 
 
+@lru_cache(maxsize=16)
+def _tube_scene(params, tag: str, tolerance_mm: float):
+    """Tessellated tube; cached because CadQuery takes seconds and scenes are immutable."""
+    from geometry.parts.tube import build_tube
+    from geometry.tessellate import tessellate_parts
+
+    return tessellate_parts(build_tube(params), tolerance_mm=tolerance_mm, material=tag)
+
+
 def tube_setup(material=DEFAULT_MATERIAL, tolerance_mm: float = DEFAULT_TOLERANCE_MM, **params) -> Setup:
     """The built-in tube (``geometry.parts.tube.TubeParams`` keywords override the reference).
 
     material : preset name, material file path, or a Brdf model, put on every non-detector part
     """
-    from geometry.parts.tube import REFERENCE_TUBE, build_tube
-    from geometry.tessellate import tessellate_parts
+    from geometry.parts.tube import REFERENCE_TUBE
 
     p = replace(REFERENCE_TUBE, **params) if params else REFERENCE_TUBE
     tag, mats = resolve_materials(material)
-    scene = tessellate_parts(build_tube(p), tolerance_mm=tolerance_mm, material=tag)
+    scene = _tube_scene(p, tag, float(tolerance_mm))
     top = p.length_mm + (p.aperture_stop_thickness_mm if p.aperture_stop_radius_mm is not None else 0.0)
     r_entrance = p.aperture_stop_radius_mm if p.aperture_stop_radius_mm is not None else p.inner_radius_mm
     reference_like = np.isclose(p.outer_radius_mm, 51.0)
