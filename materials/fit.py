@@ -238,13 +238,26 @@ class ModelSpec:
 
 def evaluate_components(components, scan: Scan) -> np.ndarray:
     """Sum of the components' BRDFs at the scan's angles and polarizations, (n,) 1/sr."""
-    wi, wo = directions_from_angles(scan.theta_i, scan.theta_r, scan.phi_r)
-    out = np.zeros(len(scan))
-    for pol in scan.polarizations:
-        m = scan.polarization == pol
-        for c in components:
-            out[m] += c.brdf(wi[m], wo[m], pol)
-    return out
+    return _ScanGeometry(scan).evaluate(components)
+
+
+class _ScanGeometry:
+    """Directions of a scan's rows, grouped by polarization, computed once per fit."""
+
+    def __init__(self, scan: Scan):
+        wi, wo = directions_from_angles(scan.theta_i, scan.theta_r, scan.phi_r)
+        self.n = len(scan)
+        self.groups = [(pol, np.flatnonzero(scan.polarization == pol)) for pol in scan.polarizations]
+        self.groups = [(pol, idx, wi[idx], wo[idx]) for pol, idx in self.groups]
+
+    def evaluate(self, components) -> np.ndarray:
+        out = np.zeros(self.n)
+        for pol, idx, wi, wo in self.groups:
+            total = components[0].brdf(wi, wo, pol)
+            for c in components[1:]:
+                total = total + c.brdf(wi, wo, pol)
+            out[idx] = total
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,7 +270,8 @@ class FitResult:
         Fitted values and 1-sigma standard errors by name (unit-suffixed, see module doc);
         fixed parameters have stderr 0; inf where the Jacobian is rank-deficient.
     cov : (k, k) covariance of the free parameters (order ``free_names``), physical units.
-    success, message, n_eval : from the best least-squares run (n_eval summed over starts).
+    success, message : from the best least-squares run.
+    n_eval : model evaluations over all starts, finite-difference Jacobians included.
     residuals : (m,) weighted log10 residuals of the fitted points.
     rms_log10 : dict[(theta_i_deg, polarization), float], unweighted RMS of
         log10(model / measured) over fitted points.
@@ -404,15 +418,22 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
     meas = data.brdf_per_sr
     std = data.brdf_std_per_sr / (np.sqrt(np.maximum(data.n_repeats, 1)) if std_of_mean else 1.0)
     log_meas = np.log10(meas)
-    predict = predict or evaluate_components
+    if predict is None:
+        geometry = _ScanGeometry(data)
+
+        def predict(components, _scan):
+            return geometry.evaluate(components)
 
     def sigma_log10_for(reference):
         rel = std / reference
         rel = np.where(np.isfinite(rel), rel, default_relative_std)
         return np.maximum(rel, min_relative_std) / LN10
 
+    calls = [0]  # model evaluations, including the finite-difference Jacobian's
+
     def make_residuals(sigma_log10):
         def residuals(x):
+            calls[0] += 1
             model_brdf = predict(spec.components(x), data)
             return (np.log10(np.maximum(model_brdf, 1e-300)) - log_meas) / sigma_log10
         return residuals
@@ -425,11 +446,9 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
     sigma_log10 = sigma_log10_for(meas)
     residuals = make_residuals(sigma_log10)
     best = None
-    n_eval = 0
     starts = spec.starts(_heuristic(scan, ok), n_starts, seed) if spec.free else []
     for x0 in starts:
         res = solve(residuals, x0)
-        n_eval += res.nfev
         if best is None or res.cost < best.cost:
             best = res
         if progress is not None:
@@ -440,7 +459,6 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
         sigma_log10 = sigma_log10_for(predict(spec.components(best.x), data))
         residuals = make_residuals(sigma_log10)
         best2 = solve(residuals, best.x)
-        n_eval += best2.nfev
         best = best2
     if best is None:  # everything fixed
         x_best = np.zeros(0)
@@ -471,7 +489,7 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
         rho[pol] = [float(v) for v in directional_hemispherical_reflectance(total, theta, pol)]
     result = FitResult(
         model=spec.spec, params=vals, stderr=stderr, cov=cov, free_names=spec.free_names,
-        success=success, message=message, n_eval=n_eval, residuals=r, rms_log10=rms, rho=rho,
+        success=success, message=message, n_eval=calls[0], residuals=r, rms_log10=rms, rho=rho,
         chi2=chi2, chi2_reduced=chi2 / dof, n_points=len(r), n_excluded=n_excluded,
         n_starts=len(starts), wavelength_nm=float(wavelengths[0]), components=tuple(comps), fit_mask=ok,
         log10_ratio=ratio, group_counts=counts,
