@@ -36,6 +36,18 @@ def export_step(shape, path) -> Path:
     return path
 
 
+def export_assembly_step(shape_parts: dict, path) -> Path:
+    """Write all CadQuery parts into one STEP file as a named assembly (for CAD tools)."""
+    import cadquery as cq
+
+    path = Path(path)
+    assembly = cq.Assembly(name=path.stem)
+    for name, part in shape_parts.items():
+        assembly.add(getattr(part, "shape", part), name=name)
+    assembly.export(str(path), exportType="STEP")
+    return path
+
+
 def _write_ply64(part: Part, path: Path):
     """Binary little-endian PLY with float64 vertices and int32 triangles (read back exactly by trimesh)."""
     header = ("ply\nformat binary_little_endian 1.0\ncomment straylight geometry part {name}\n"
@@ -214,11 +226,13 @@ def load_scene(path) -> Scene:
 
 def export_build(shape_parts: dict, scene: Scene, directory, *, mesh_format: str = "stl", step: bool = True,
                  scene_file: str = "scene.toml") -> Path:
-    """Write ``<name>.step`` (from the CadQuery parts, if ``step``) and ``<name>.<mesh_format>`` for every part
-    of ``scene`` plus the scene TOML pointing at the meshes. Returns the TOML path."""
+    """Write ``<name>.step`` per CadQuery part and ``assembly.step`` (all parts, named), if ``step``;
+    ``<name>.<mesh_format>`` for every part of ``scene``; and the scene TOML pointing at the meshes.
+    Returns the TOML path."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     if step:
         for name, shape_part in shape_parts.items():
             export_step(shape_part, directory / f"{name}.step")
+        export_assembly_step(shape_parts, directory / "assembly.step")
     return save_scene(scene, directory, mesh_format=mesh_format, scene_file=scene_file)

@@ -81,3 +81,15 @@ def test_touching_boxes_do_not_count_as_overlapping():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert check_scene(Scene((a, b))).ok
+
+
+def test_bevelled_tube_with_aperture_stop_passes_checks():
+    from geometry.scenes import tube_scene
+
+    scene = tube_scene(vane_count=4, vane_bevel_deg=35.0, vane_bevel_side="front", aperture_stop_radius_mm=45.0,
+                       tolerance_mm=0.1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        result = check_scene(scene)
+    assert result.ok, result.format()
+    assert "aperture_stop" in scene.part_names and len(result.parts) == 8

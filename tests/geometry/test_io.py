@@ -77,3 +77,16 @@ def test_bad_files_are_errors_naming_the_file(tmp_path):
     typo.write_text('[[part]]\nname = "a"\nmesh = "a.stl"\nmaterail = "black"\n')
     with pytest.raises(GeometryError, match="typo.toml.*materail"):
         load_scene(typo)
+
+
+def test_assembly_step_holds_every_solid(tmp_path):
+    import cadquery as cq
+
+    from geometry.io import export_assembly_step
+    from geometry.parts.tube import reference_tube
+
+    path = export_assembly_step(reference_tube(), tmp_path / "tube.step")
+    back = cq.importers.importStep(str(path))
+    assert len(back.solids().vals()) == 9  # wall, 7 vanes, end plate (the detector is a face)
+    # 9 solids x 4 faces each + the detector disk
+    assert len(back.faces().vals()) == 37

@@ -103,6 +103,12 @@ def test_bevelled_vane_volume_by_pappus():
     top, bottom = mesh[mesh[:, 2] > 280.4], mesh[mesh[:, 2] < 279.6]
     assert radius(top).min() == pytest.approx(35, abs=1e-9)
     assert radius(bottom).min() == pytest.approx(35 + run, abs=1e-9)
+    front = build_tube(TubeParams(vane_count=1, vane_bevel_deg=30.0, vane_bevel_side="front"))["vane_1"]
+    assert front.shape.Volume() == pytest.approx(vane.shape.Volume(), rel=1e-9)
+    mesh = tessellate(front.shape, name="vane", tolerance_mm=0.05).vertices_mm
+    top, bottom = mesh[mesh[:, 2] > 280.4], mesh[mesh[:, 2] < 279.6]
+    assert radius(top).min() == pytest.approx(35 + run, abs=1e-9)  # bevel faces the entrance
+    assert radius(bottom).min() == pytest.approx(35, abs=1e-9)
 
 
 @pytest.mark.parametrize("tolerance_mm", [0.2, 0.05, 0.01])
