@@ -127,3 +127,16 @@ def test_abg_lobe_recovers_its_parameters():
     for name, true in {"lambertian.rd": 0.02, "abg.a": 2e-3, "abg.b": 1e-3, "abg.g": 2.2}.items():
         assert 0 < res.stderr[name] < 0.3 * true
         assert abs(res.params[name] - true) < 3 * res.stderr[name], name
+
+
+def test_zero_and_unknown_std_use_the_documented_floor_and_default():
+    """std 0 -> relative floor 0.5 %; std NaN -> 5 % (module docstring). With a constant relative
+    sigma the Lambertian stderr is rd * rel / sqrt(N) (see the analytic test above)."""
+    scan = _synthetic([Lambertian(rd=0.04)], rel_noise=0.01, pols="u", seed=2, theta_i_deg=(30,), n_per=40)
+    n = len(scan)
+    for std, rel in ((0.0, 0.005), (np.nan, 0.05)):
+        s = make_scan(wavelength_nm=532.0, polarization="u", theta_i_deg=scan.theta_i_deg,
+                      theta_r_deg=scan.theta_r_deg, brdf_per_sr=scan.brdf_per_sr, brdf_std_per_sr=std)
+        res = fit(s, "lambertian", n_starts=1)
+        assert np.all(np.isfinite(res.residuals))
+        assert res.stderr["lambertian.rd"] == pytest.approx(res.params["lambertian.rd"] * rel / np.sqrt(n), rel=1e-3)
