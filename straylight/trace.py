@@ -59,6 +59,8 @@ class TraceOptions:
     detector_sides: str = "both"
     progress: bool = False
     mirror_reflectance: float = 1.0
+    target_parts: tuple = ()
+    target_fraction: float = 0.5
 
     def __post_init__(self):
         if int(self.max_events) < 1:
@@ -71,6 +73,11 @@ class TraceOptions:
             raise TraceError(f"detector_sides must be 'both' or 'front', got {self.detector_sides!r}")
         if len(tuple(self.map_bins)) != 2 or min(self.map_bins) < 1:
             raise TraceError(f"map_bins must be two positive integers, got {self.map_bins!r}")
+        if not (0.0 < float(self.target_fraction) < 1.0):
+            raise TraceError(f"target_fraction must be in (0, 1), got {self.target_fraction}")
+        if isinstance(self.target_parts, str):
+            object.__setattr__(self, "target_parts", (self.target_parts,))
+        object.__setattr__(self, "target_parts", tuple(self.target_parts))
         if not (0.0 <= float(self.mirror_reflectance) <= 1.0):
             raise TraceError(f"mirror_reflectance must be in [0, 1], got {self.mirror_reflectance}")
 
@@ -157,6 +164,17 @@ class _Compiled:
         self.detectors = [
             DetectorGeometry.from_triangles(tri[spec.triangle_part == p]) for p in self.det_parts
         ]
+        self.target = self.target_isect = None
+        if spec.options.target_parts:
+            idx = [spec.part_names.index(name) for name in spec.options.target_parts]
+            ttri = tri[np.isin(spec.triangle_part, idx)]
+            self.target = DetectorGeometry.from_triangles(ttri)
+            if intersector is None or isinstance(intersector, _NoIsect):
+                from straylight.intersect.embree import EmbreeIntersector as _Target
+            else:
+                from straylight.intersect.reference import ReferenceIntersector as _Target
+            self.target_isect = _Target(ttri) if not isinstance(intersector, _NoIsect) else None
+            self.target_plane_d = np.einsum("ij,ij->i", self.target.normals, ttri[:, 0])
 
 
 def _compiled(spec: TraceSpec, intersector=None) -> _Compiled:
@@ -219,7 +237,8 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     hkey = np.zeros(n, dtype=np.uint64)
     depth = np.zeros(n, dtype=np.int64)
     hist = np.full((n, K), -1, dtype=np.int16) if opt.record_paths else None
-    n_uniform = 4 + 3 * D
+    n_uniform = 4 + 3 * D + (4 if comp.target is not None else 0)
+    tcol = 4 + 3 * D
     segments = 0
     shadow_rays = 0
 
@@ -367,7 +386,11 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                 weight[sel] = np.where(wo[:, 2] > 0, np.asarray(smp.weight, dtype=np.float64), 0.0)
                 wo_world[sel] = wo[:, :1] * tb[sel] + wo[:, 1:2] * bb[sel] + wo[:, 2:3] * nfs[sel]
             norm = np.linalg.norm(wo_world, axis=1, keepdims=True)
-            d_new[surf] = wo_world / np.where(norm > 0, norm, 1.0)
+            wo_world = wo_world / np.where(norm > 0, norm, 1.0)
+            if comp.target is not None:
+                wo_world, weight = _target_mixture(spec, comp, opt, U[surf, tcol:tcol + 4], p[surf], nfs, tb, bb,
+                                                   wi_loc, wo_world, mat, groups)
+            d_new[surf] = wo_world
             w_new[surf] = w[surf] * weight
         M[idx, lay.ABS + part] += w - w_new
         # Russian roulette (unbiased): survive with probability w_new / thr at weight thr
@@ -420,6 +443,43 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         }
     return {"first_chunk": first_chunk, "s1": s1, "s2": s2, "maps": maps, "paths": paths,
             "segments": segments, "shadow_rays": shadow_rays}
+
+
+def _target_mixture(spec, comp, opt, ut, p, nf, tb, bb, wi_loc, wo_world, mat, groups):
+    """One-sample MIS between BRDF sampling and area sampling of the (flat) target parts.
+
+    With probability q = target_fraction the direction points at a uniform point of the target
+    (pdf per sr: d^2 / (A |cos_y|)), else it is the BRDF draw already in ``wo_world``. Either way
+    the weight is f cos / ((1 - q) pdf_brdf + q pdf_target) (balance heuristic; Veach 1997, ch. 9).
+    """
+    q = float(opt.target_fraction)
+    use_t = ut[:, 0] < q
+    wo_world = wo_world.copy()
+    if use_t.any():
+        y, _ = comp.target.sample(ut[use_t, 1:4])
+        v = y - p[use_t]
+        wo_world[use_t] = v / np.linalg.norm(v, axis=1, keepdims=True)
+    wo_loc = np.stack([_dot(wo_world, tb), _dot(wo_world, bb), _dot(wo_world, nf)], axis=-1)
+    f = np.zeros(len(p))
+    pdf_b = np.zeros(len(p))
+    for m, sel in groups:
+        f[sel] = spec.materials[m].brdf(wi_loc[sel], wo_loc[sel], opt.polarization)
+        pdf_b[sel] = spec.materials[m].pdf(wi_loc[sel], wo_loc[sel], opt.polarization)
+    o_t = p + spec.eps * nf
+    tri_t = comp.target_isect.first_triangle(o_t, wo_world)
+    hit = np.flatnonzero(tri_t >= 0)
+    pdf_t = np.zeros(len(p))
+    if len(hit):
+        nt = comp.target.normals[tri_t[hit]]
+        cos_y = _dot(wo_world[hit], nt)
+        ok = np.abs(cos_y) > 1e-12
+        dist = (comp.target_plane_d[tri_t[hit]] - _dot(nt, p[hit])) / np.where(ok, cos_y, 1.0)
+        pdf_t[hit] = np.where(ok, dist * dist / (comp.target.area_mm2 * np.abs(np.where(ok, cos_y, 1.0))), 0.0)
+    mix = (1.0 - q) * pdf_b + q * pdf_t
+    cos_o = wo_loc[:, 2]
+    good = (cos_o > 0) & (mix > 0)
+    weight = np.where(good, f * cos_o / np.where(good, mix, 1.0), 0.0)
+    return wo_world, weight
 
 
 def _chunk_maps(map_rows, nch, C, D, bins):
@@ -595,11 +655,24 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     if sum(s.power_w for s in sources) <= 0:
         raise TraceError("total source power_w must be > 0")
     part_material, models = _resolve_materials(scene, materials)
+    for name in options.target_parts:
+        if name not in scene.part_names:
+            raise TraceError(f"target part {name!r} not in the scene; parts: {', '.join(scene.part_names)}")
+    if options.target_parts:
+        ttri = np.concatenate([scene.part(n).vertices_mm[scene.part(n).faces] for n in options.target_parts])
+        geo = DetectorGeometry.from_triangles(ttri)
+        off = np.abs((ttri.reshape(-1, 3) - geo.origin_mm) @ geo.normal).max()
+        size = float(np.ptp(ttri.reshape(-1, 3), axis=0).max())
+        if off > 1e-6 * max(size, 1.0):
+            raise TraceError(f"target parts {', '.join(options.target_parts)} must be flat (coplanar): "
+                             f"vertices lie up to {off:.3g} mm off their plane")
     tri = np.ascontiguousarray(scene.triangles_mm, dtype=np.float64)
     tri_part = np.ascontiguousarray(scene.triangle_part, dtype=np.int32)
     roles = np.array([ROLE_CODES[p.role] for p in scene.parts], dtype=np.int64)
     h = hashlib.sha1(tri.tobytes())
     h.update(tri_part.tobytes())
+    h.update(roles.tobytes())  # detector geometry depends on the roles,
+    h.update(repr(options.target_parts).encode())  # and the target sampler on the targets
     return TraceSpec(
         triangles_mm=tri, triangle_part=tri_part, part_names=scene.part_names, part_roles=roles,
         part_material=part_material, materials=models, sources=tuple(sources), n_rays=int(n_rays), seed=seed,
