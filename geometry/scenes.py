@@ -7,6 +7,7 @@ caller cannot corrupt the cache; every call returns a new :class:`Scene` of the 
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 
 from geometry.mesh import GeometryError, Part, Scene
@@ -44,17 +45,16 @@ def tube_scene(*, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
     ----------
     tolerance_mm, angular_tolerance_deg : tessellation tolerances (see ``geometry.tessellate``)
     material : material name of every non-detector part; materials : {part name: material name} overrides
-    **params : fields of :class:`TubeParams` (e.g. ``vane_count=5, vane_bevel_deg=30``), or ``params=TubeParams(...)``
+    **params : fields of :class:`TubeParams` (e.g. ``vane_count=5, vane_bevel_deg=30``) overriding
+        ``params=TubeParams(...)`` (default: the reference tube)
     """
-    tube = params.pop("params", None)
-    if tube is None:
-        unknown = set(params) - set(TubeParams.names())
-        if unknown:
-            raise GeometryError(f"unknown tube parameter(s): {', '.join(sorted(unknown))}; "
-                                f"known: {', '.join(TubeParams.names())}")
-        tube = TubeParams(**params)
-    elif params:
-        raise GeometryError("give either params=TubeParams(...) or keyword parameters, not both")
+    tube = params.pop("params", None) or REFERENCE_TUBE
+    unknown = set(params) - set(TubeParams.names())
+    if unknown:
+        raise GeometryError(f"unknown tube parameter(s): {', '.join(sorted(unknown))}; "
+                            f"known: {', '.join(TubeParams.names())}")
+    if params:
+        tube = replace(tube, **params)
     key = tuple(sorted((materials or {}).items()))
     return Scene(_tube_parts(tube, float(tolerance_mm), float(angular_tolerance_deg), material, key))
 

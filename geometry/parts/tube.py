@@ -31,7 +31,7 @@ class TubeParams:
 
     inner_radius_mm, length_mm, wall_thickness_mm : wall annulus r = inner .. inner + thickness, z = 0 .. length
     vane_count : number of vanes (0 allowed)
-    vane_z_mm : centre z of each vane, or None for ``vane_count`` vanes evenly spaced from
+    vane_z_mm : centre z of each vane (when given, it sets ``vane_count``), or None for ``vane_count`` vanes evenly spaced from
         ``vane_first_z_mm`` to ``vane_last_z_mm`` (one vane sits at ``vane_last_z_mm``, nearest the entrance)
     vane_inner_radius_mm : radius of the vane hole; vanes run out to the wall's inner radius
     vane_thickness_mm : axial thickness of each vane

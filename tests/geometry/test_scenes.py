@@ -39,3 +39,12 @@ def test_building_the_default_tube_is_fast():
     scene = tessellate_parts(build_tube(TubeParams(vane_bevel_deg=np.float64(10.0))))
     assert len(scene.triangles_mm) > 1000
     assert time.perf_counter() - start < 6.0
+
+
+def test_keyword_overrides_apply_to_given_params():
+    from geometry.parts.tube import TubeParams
+
+    scene = tube_scene(params=TubeParams(vane_count=2), vane_inner_radius_mm=30.0, tolerance_mm=0.2)
+    assert scene.part_names[:3] == ("wall", "vane_1", "vane_2")
+    v = scene.part("vane_2").vertices_mm
+    assert np.hypot(v[:, 0], v[:, 1]).min() == pytest.approx(30.0, abs=1e-9)
