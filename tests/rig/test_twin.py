@@ -256,3 +256,19 @@ def test_alignment_errors_and_divergence_agree_with_the_fast_model(change):
     assert np.all(scan.brdf_per_sr > 0)
     ok = _close(scan, scan.model_per_sr, 0.003)
     assert ok.all(), np.c_[scan.theta_r_deg, scan.brdf_per_sr, scan.stderr_per_sr, scan.model_per_sr][~ok]
+
+
+def test_footprint_overfill_loses_the_gaussian_tails():
+    """A 4 mm sample at 70 deg: the footprint (1.5 mm / cos 70 = 4.4 mm, 1/e^2) overfills it and the beam
+    beyond the sample is absorbed by the holder, so a Lambertian reads rd/pi times the Gaussian mass
+    within +-(4 mm / 2) cos 70 of the beam axis: 2 Phi(t) - 1 with t = 2 cos 70 / (D / 4) (CONTRACTS §3
+    footprint_overfill; rig.forward applies the same truncation). Arm on the specular side only:
+    from the backscatter side the arm also sees the lit upstream edge of the 0.5 mm plate (docs/twin.md)."""
+    rd = 0.6
+    config = NOMINAL.replace(sample_width_mm=4.0)
+    expect = rd / math.pi * (2 * ndtr(2.0 * math.cos(math.radians(70.0)) / (D / 4)) - 1)
+    scan = twin_scan(Lambertian(rd), [70.0], [30.0, 50.0], "u", config=config, n_rays=20_000, seed=3)
+    assert np.all(scan.brdf_per_sr > 0)
+    assert np.all(np.abs(scan.brdf_per_sr - expect) < 3 * scan.stderr_per_sr), scan.brdf_per_sr
+    assert np.all(np.abs(scan.brdf_per_sr - rd / math.pi) > 3 * scan.stderr_per_sr)  # the loss is resolved
+    assert scan.model_per_sr == pytest.approx(expect, rel=1e-3)
