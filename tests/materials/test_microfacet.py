@@ -44,15 +44,40 @@ def test_visible_normals_are_normalised(alpha, theta_i_deg):
     assert total == pytest.approx(1.0, abs=3e-3)
 
 
+def _random_up(rng, n):
+    v = rng.normal(size=(n, 3))
+    v[:, 2] = np.abs(v[:, 2])
+    return v / np.linalg.norm(v, axis=1)[:, None]
+
+
 def test_reciprocity_and_non_negativity():
+    """Unpolarized: reciprocal for any directions. s and p: reciprocal in the plane of incidence
+    (out of it a polarized reading without analyser need not be, as for Rayleigh-Rice Q_s)."""
     rng = np.random.default_rng(1)
     m = Microfacet(alpha=0.35, n=[1.6, 0.2])
-    a = rng.normal(size=(2000, 3)); a[:, 2] = np.abs(a[:, 2]); a /= np.linalg.norm(a, axis=1)[:, None]
-    b = rng.normal(size=(2000, 3)); b[:, 2] = np.abs(b[:, 2]); b /= np.linalg.norm(b, axis=1)[:, None]
-    for pol in "spu":
-        f_ab, f_ba = m.brdf(a, b, pol), m.brdf(b, a, pol)
-        assert np.all(f_ab >= 0) and f_ab.max() > 0
-        np.testing.assert_allclose(f_ab, f_ba, rtol=1e-12)
+    a, b = _random_up(rng, 2000), _random_up(rng, 2000)
+    f_ab, f_ba = m.brdf(a, b, "u"), m.brdf(b, a, "u")
+    assert np.all(f_ab >= 0) and f_ab.max() > 0
+    np.testing.assert_allclose(f_ab, f_ba, rtol=1e-12)
+    t_i, t_r = rng.uniform(0, 1.5, 500), rng.uniform(0, 1.5, 500)
+    wi, wo = directions_from_angles(t_i, t_r, 0.0)
+    back_i, back_o = directions_from_angles(t_r, t_i, 0.0)
+    for pol in "sp":
+        f1, f2 = m.brdf(wi, wo, pol), m.brdf(back_i, back_o, pol)
+        assert np.all(f1 > 0)
+        np.testing.assert_allclose(f1, f2, rtol=1e-12)
+
+
+def test_polarization_in_plane_is_facet_fresnel_and_s_equals_p_at_normal_incidence():
+    m = Microfacet(alpha=0.3, n=1.5)
+    # in the plane of incidence the facet's s is the sample's s: f_s / f_u = 2 R_s / (R_s + R_p)
+    wi, wo = directions_from_angles(np.radians(60.0), np.radians(20.0), 0.0)
+    h = (wi + wo) / np.linalg.norm(wi + wo)
+    rs, rp = fresnel_rs_rp(np.sum(wi * h), 1.5)
+    assert m.brdf(wi, wo, "s")[0] / m.brdf(wi, wo, "u")[0] == pytest.approx(2 * rs / (rs + rp), rel=1e-12)
+    # at normal incidence the hemisphere has no preferred plane: rho_s = rho_p
+    rho_s, rho_p = _rho_quadrature(m, 0.0, "s"), _rho_quadrature(m, 0.0, "p")
+    assert rho_s > 0.01 and rho_s == pytest.approx(rho_p, rel=1e-6)
 
 
 @pytest.mark.parametrize("theta_i_deg", [0.0, 45.0, 80.0])
