@@ -209,7 +209,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     total_power = float(powers.sum())
     w0 = total_power / spec.n_rays
     thr = opt.rr_threshold * w0
-    M = np.zeros((n, lay.n))
+    M = np.zeros((lay.n, n))  # per-ray tallies, one row per tally
     D = len(comp.det_parts)
     K = int(opt.path_depth)
     bins = tuple(int(b) for b in opt.map_bins)
@@ -260,7 +260,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         segments += len(idx)
         miss = tri < 0
         if miss.any():
-            M[idx[miss], lay.ESC] += w[miss]
+            M[lay.ESC, idx[miss]] += w[miss]
             hit = ~miss
             idx, o, d, w, tri, U = idx[hit], o[hit], d[hit], w[hit], tri[hit], U[hit]
             prev_kind, prev_part, hkey, depth = prev_kind[hit], prev_part[hit], hkey[hit], depth[hit]
@@ -279,29 +279,29 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             t[edge_on] = _dot(comp.centroids[tri[edge_on]] - o[edge_on], d[edge_on])
         p = o + np.maximum(t, 0.0)[:, None] * d
         nf = np.where((cos_in < 0)[:, None], ng, -ng)
-        M[idx, lay.INC + part] += w
+        M[lay.INC + part, idx] += w
         first = prev_kind == 0
-        M[idx[first], lay.FIRST + part[first]] += w[first]
+        M[lay.FIRST + part[first], idx[first]] += w[first]
 
         # detectors: record (unless covered by NEE) and end the ray
         isdet = role == _DETECTOR
         if isdet.any():
             sens = isdet & (both_sides | (cos_in < 0))
             dead = isdet & ~sens
-            M[idx[dead], lay.ABS + part[dead]] += w[dead]
+            M[lay.ABS + part[dead], idx[dead]] += w[dead]
             dj = comp.det_of_part[part]
-            M[idx[sens], lay.DET_WALK + dj[sens]] += w[sens]
+            M[lay.DET_WALK + dj[sens], idx[sens]] += w[sens]
             covered = sens & (prev_kind == KIND_SCATTER) & opt.nee
-            M[idx[covered], lay.NEX + prev_part[covered]] += w[covered]
+            M[lay.NEX + prev_part[covered], idx[covered]] += w[covered]
             counted = sens & ~covered
-            M[idx[counted], lay.DET_DIRECT + dj[counted]] += w[counted]
+            M[lay.DET_DIRECT + dj[counted], idx[counted]] += w[counted]
             for j in range(D):
                 cj = np.flatnonzero(counted & (dj == j))
                 if len(cj):
-                    keys = mix_key(hkey[cj], comp.det_parts[j] * 4 + KIND_DETECTOR)
+                    keys = mix_key(hkey[cj], comp.det_parts[j] * 4 + KIND_DETECTOR) if opt.record_paths else None
                     record(j, idx[cj], p[cj], w[cj], keys, None if hist is None else hist[cj].copy(), depth[cj])
         isabs = role == _ABSORBER
-        M[idx[isabs], lay.ABS + part[isabs]] += w[isabs]
+        M[lay.ABS + part[isabs], idx[isabs]] += w[isabs]
 
         # continuing rays
         cont = np.flatnonzero((role == _SURFACE) | (role == _MIRROR))
@@ -330,7 +330,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             mat = spec.part_material[part[surf]]
             o_off = p[surf] + spec.eps * nf[surf]
             if opt.nee and D:
-                keys_v = mix_key(hkey[surf], code[surf])
+                keys_v = mix_key(hkey[surf], code[surf]) if opt.record_paths else None
                 for j, geo in enumerate(comp.detectors):
                     y, ny = geo.sample(U[surf, 4 + 3 * j: 7 + 3 * j])
                     v = y - p[surf]
@@ -363,15 +363,15 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                     shadow_rays += len(ok)
                     ok, c = ok[~blocked], c[~blocked]
                     rows = idx[surf][ok]
-                    M[rows, lay.DET_NEE + j] += c
-                    M[rows, lay.NEX + part[surf][ok]] -= c
+                    M[lay.DET_NEE + j, rows] += c
+                    M[lay.NEX + part[surf][ok], rows] -= c
                     ev_rows = None
                     if hist is not None:
                         ev_rows = hist[surf][ok].copy()
                         dd = depth[surf][ok]
                         inside = dd < K
                         ev_rows[np.flatnonzero(inside), dd[inside]] = code[surf][ok][inside]
-                    keys = mix_key(keys_v[ok], comp.det_parts[j] * 4 + KIND_DETECTOR)
+                    keys = mix_key(keys_v[ok], comp.det_parts[j] * 4 + KIND_DETECTOR) if opt.record_paths else None
                     record(j, rows, y[ok], c, keys, ev_rows, depth[surf][ok] + 1)
             if len(spec.materials) == 1:
                 groups = [(0, slice(None))]
@@ -392,17 +392,17 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                                                    wi_loc, wo_world, mat, groups)
             d_new[surf] = wo_world
             w_new[surf] = w[surf] * weight
-        M[idx, lay.ABS + part] += w - w_new
+        M[lay.ABS + part, idx] += w - w_new
         # Russian roulette (unbiased): survive with probability w_new / thr at weight thr
         low = (w_new < thr) & (w_new > 0)
         w_after = w_new.copy()
         if low.any():
             survive = U[low, 3] * thr < w_new[low]
             w_after[low] = np.where(survive, thr, 0.0)
-            M[idx[low], lay.RR + part[low]] += w_new[low] - w_after[low]
+            M[lay.RR + part[low], idx[low]] += w_new[low] - w_after[low]
         alive = w_after > 0
         if ev == int(opt.max_events) - 1:
-            M[idx[alive], lay.TRUNC + part[alive]] += w_after[alive]
+            M[lay.TRUNC + part[alive], idx[alive]] += w_after[alive]
             idx = idx[:0]
             break
         keep = np.flatnonzero(alive)
@@ -417,21 +417,20 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         w = w_after[keep]
         prev_kind = kind[keep]
         prev_part = part[keep]
-        hkey = mix_key(hkey[keep], code[keep])
+        if opt.record_paths:  # path hashes are only needed for path records
+            hkey = mix_key(hkey[keep], code[keep])
+        else:
+            hkey = hkey[keep]
         depth = depth[keep] + 1
 
     # per-chunk sums (chunk order, fixed chunk length: independent of the batch size)
-    ledger = (M[:, lay.ABS:lay.ABS + lay.P] + M[:, lay.RR:lay.RR + lay.P]
-              + M[:, lay.NEX:lay.NEX + lay.P] + M[:, lay.TRUNC:lay.TRUNC + lay.P])
-    det_total = M[:, lay.DET_NEE:lay.DET_NEE + D] + M[:, lay.DET_DIRECT:lay.DET_DIRECT + D]
-    ext = np.concatenate([M, ledger, det_total], axis=1)
-    s1 = np.empty((nch, lay.n_ext))
-    s2 = np.empty((nch, lay.n_ext))
-    for c in range(nch):
-        a = c * C
-        b = min(a + C, n)
-        s1[c] = ext[a:b].sum(axis=0)
-        s2[c] = (ext[a:b] ** 2).sum(axis=0)
+    ledger = (M[lay.ABS:lay.ABS + lay.P] + M[lay.RR:lay.RR + lay.P]
+              + M[lay.NEX:lay.NEX + lay.P] + M[lay.TRUNC:lay.TRUNC + lay.P])
+    det_total = M[lay.DET_NEE:lay.DET_NEE + D] + M[lay.DET_DIRECT:lay.DET_DIRECT + D]
+    ext = np.concatenate([M, ledger, det_total], axis=0)
+    starts = np.arange(0, n, C)
+    s1 = np.add.reduceat(ext, starts, axis=1).T.copy()
+    s2 = np.add.reduceat(ext * ext, starts, axis=1).T.copy()
     maps = _chunk_maps(map_rows, nch, C, D, bins)
     paths = None
     if opt.record_paths and path_rows:
