@@ -209,7 +209,8 @@ def load_scene(path) -> Scene:
         where = f"{path}: [[part]] {i}"
         unknown = set(entry) - set(PART_KEYS)
         if unknown:
-            raise GeometryError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; expected {', '.join(PART_KEYS)}")
+            raise GeometryError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; "
+                                f"expected {', '.join(PART_KEYS)}")
         for key in ("name", "mesh"):
             if not isinstance(entry.get(key), str):
                 raise GeometryError(f"{where}: missing or non-string {key!r}")

@@ -48,7 +48,8 @@ def frame_location(origin_mm, normal, x_dir):
     """cadquery Location mapping the local frame (x_dir, normal x x_dir, normal) at origin_mm to global."""
     import cadquery as cq
 
-    plane = cq.Plane(origin=tuple(map(float, origin_mm)), xDir=tuple(map(float, x_dir)), normal=tuple(map(float, normal)))
+    plane = cq.Plane(origin=tuple(map(float, origin_mm)), xDir=tuple(map(float, x_dir)),
+                     normal=tuple(map(float, normal)))
     return cq.Location(plane)
 
 

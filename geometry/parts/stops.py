@@ -16,7 +16,8 @@ def annular_plate(inner_radius_mm: float, outer_radius_mm: float, thickness_mm: 
 
     require_positive(inner_radius_mm=inner_radius_mm, thickness_mm=thickness_mm)
     if not outer_radius_mm > inner_radius_mm:
-        raise GeometryError(f"{name}: outer_radius_mm ({outer_radius_mm}) must exceed inner_radius_mm ({inner_radius_mm})")
+        raise GeometryError(f"{name}: outer_radius_mm ({outer_radius_mm}) must exceed "
+                            f"inner_radius_mm ({inner_radius_mm})")
     solid = (cq.Workplane("XY").workplane(offset=front_z_mm - thickness_mm)
              .circle(outer_radius_mm).circle(inner_radius_mm).extrude(thickness_mm).val())
     return ShapePart(name, solid, role, "solid")

@@ -31,8 +31,9 @@ class TubeParams:
 
     inner_radius_mm, length_mm, wall_thickness_mm : wall annulus r = inner .. inner + thickness, z = 0 .. length
     vane_count : number of vanes (0 allowed)
-    vane_z_mm : centre z of each vane (when given, it sets ``vane_count``), or None for ``vane_count`` vanes evenly spaced from
-        ``vane_first_z_mm`` to ``vane_last_z_mm`` (one vane sits at ``vane_last_z_mm``, nearest the entrance)
+    vane_z_mm : centre z of each vane (when given, it sets ``vane_count``), or None for ``vane_count``
+        vanes evenly spaced from ``vane_first_z_mm`` to ``vane_last_z_mm`` (a single vane sits at
+        ``vane_last_z_mm``, nearest the entrance)
     vane_inner_radius_mm : radius of the vane hole; vanes run out to the wall's inner radius
     vane_thickness_mm : axial thickness of each vane
     vane_bevel_deg : bevel on the vane's inner edge: the inner face is a cone at this angle to the
@@ -108,7 +109,8 @@ class TubeParams:
         if not (0.0 <= self.vane_bevel_deg < 90.0):
             raise GeometryError(f"vane_bevel_deg must be in [0, 90), got {self.vane_bevel_deg!r}")
         if self.vane_bevel_side not in BEVEL_SIDES:
-            raise GeometryError(f"vane_bevel_side must be one of {', '.join(BEVEL_SIDES)}, got {self.vane_bevel_side!r}")
+            raise GeometryError(f"vane_bevel_side must be one of {', '.join(BEVEL_SIDES)}, "
+                                f"got {self.vane_bevel_side!r}")
         run_mm = self.vane_thickness_mm * np.tan(np.deg2rad(self.vane_bevel_deg))
         if run_mm >= self.inner_radius_mm - self.vane_inner_radius_mm:
             raise GeometryError(f"vane_bevel_deg ({self.vane_bevel_deg}) too steep: the bevel runs {run_mm:.3g} mm, "

@@ -28,7 +28,8 @@ def test_reference_scene_extents_match_benchmark(reference):
         # mesh vertices lie on the true circles: the vane hole radius is exactly 35
         assert radius(v).min() == pytest.approx(35, abs=1e-9), k
         assert radius(v).max() == pytest.approx(50, abs=1e-9), k
-        assert v[:, 2].min() == pytest.approx(zc - 0.5, abs=1e-12) and v[:, 2].max() == pytest.approx(zc + 0.5, abs=1e-12)
+        assert v[:, 2].min() == pytest.approx(zc - 0.5, abs=1e-12)
+        assert v[:, 2].max() == pytest.approx(zc + 0.5, abs=1e-12)
     plate = reference.part("end_plate").vertices_mm
     assert radius(plate).min() == pytest.approx(35, abs=1e-9) and radius(plate).max() == pytest.approx(51, abs=1e-9)
     assert plate[:, 2].min() == pytest.approx(-1, abs=1e-12) and plate[:, 2].max() == pytest.approx(0, abs=1e-12)
@@ -233,7 +234,8 @@ def test_sphere_and_torus_chord_error_against_analytic_distance():
 
     n = 10
     w = np.array([(i, j, n - i - j) for i in range(n + 1) for j in range(n + 1 - i)]) / n
-    cases = [(cq.Solid.makeSphere(20.0, angleDegrees1=-90, angleDegrees2=90), "sampled", lambda p: np.abs(np.linalg.norm(p, axis=1) - 20.0)),
+    sphere = cq.Solid.makeSphere(20.0, angleDegrees1=-90, angleDegrees2=90)
+    cases = [(sphere, "sampled", lambda p: np.abs(np.linalg.norm(p, axis=1) - 20.0)),
              (cq.Solid.makeTorus(30.0, 5.0), "projected",
               lambda p: np.abs(np.hypot(radius(p) - 30.0, p[:, 2]) - 5.0))]
     for shape, method, distance in cases:
