@@ -60,3 +60,25 @@ def test_backscatter_half_plane_and_bad_phi():
         build_reflectometer(40.0, 10.0, 90.0)
     with pytest.raises(GeometryError, match="arm_mm"):
         ReflectometerParams(arm_mm=-5.0)
+
+
+def test_specular_ray_passes_the_slit_and_off_specular_rays_do_not(rig):
+    """theta_i = theta_r = 30 deg: the laser (along -z) hits the sample first; the mirror ray leaves
+    at 60 deg and reaches the detector through the slit; 0.1 deg off in the plane (0.35 mm at
+    200 mm, more than the 0.1 mm half-width) it stops on the slit plate."""
+    import embreex.mesh_construction as mc
+    import embreex.rtcore_scene as rtcs
+
+    emb = rtcs.EmbreeScene()
+    mc.TriangleMesh(emb, rig.triangles_mm.astype(np.float32))
+
+    def first(origins, dirs):
+        prim = emb.run(np.asarray(origins, np.float32), np.asarray(dirs, np.float32))
+        return [rig.part_names[rig.triangle_part[p]] if p >= 0 else None for p in prim]
+
+    assert first([[0.0, 0.0, 100.0]], [[0.0, 0.0, -1.0]]) == ["sample"]
+    n = np.array([np.sin(np.pi / 6), 0.0, np.cos(np.pi / 6)])
+    start = 1e-3 * n
+    angles = np.deg2rad([60.0, 60.1, 59.9])
+    dirs = np.stack([np.sin(angles), np.zeros(3), np.cos(angles)], axis=1)
+    assert first(np.tile(start, (3, 1)), dirs) == ["detector", "slit_plate", "slit_plate"]
