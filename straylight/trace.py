@@ -194,6 +194,17 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
+def _emit(source, u, eps):
+    """Emit and lift origins eps off the source's plane toward where each ray goes, so that a source
+    laid on a surface (e.g. a Lambertian disk on a detector, for a backward trace) does not hit it."""
+    o, d = source.emit(u)
+    normal = getattr(source, "normal", None)
+    if normal is None:
+        return o + eps * d, d
+    side = np.where(d @ np.asarray(normal, dtype=np.float64) >= 0, 1.0, -1.0)
+    return o + (eps * side)[:, None] * np.asarray(normal, dtype=np.float64), d
+
+
 def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
     """Trace chunks ``first_chunk .. stop_chunk-1``; returns per-chunk sums (see :func:`trace`)."""
     comp = _compiled(spec, intersector)
@@ -222,14 +233,14 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     o = np.empty((n, 3))
     d = np.empty((n, 3))
     if len(spec.sources) == 1:
-        o, d = spec.sources[0].emit(u[:, 1:5])
+        o, d = _emit(spec.sources[0], u[:, 1:5], spec.eps)
     else:
         cum = np.cumsum(powers) / total_power
         which = np.minimum(np.searchsorted(cum, u[:, 0], side="right"), len(powers) - 1)
         for s, src in enumerate(spec.sources):
             sel = which == s
             if sel.any():
-                o[sel], d[sel] = src.emit(u[sel, 1:5])
+                o[sel], d[sel] = _emit(src, u[sel, 1:5], spec.eps)
     idx = np.arange(n)
     w = np.full(n, w0)
     prev_kind = np.zeros(n, dtype=np.int8)

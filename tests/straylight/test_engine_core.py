@@ -232,3 +232,17 @@ def test_target_importance_sampling_is_unbiased_and_helps():
     assert abs(mis.emitted_w - _total(mis)) <= 1e-9 * mis.emitted_w
     with pytest.raises(TraceError, match="target part 'nope'"):
         trace(_plate_scene(), PLATE_SRC, 10, materials=PLATE_MATS, options=TraceOptions(target_parts=("nope",)))
+
+
+def test_source_on_a_detector_does_not_hit_it_backward_trace():
+    """A Lambertian disk laid on the detector (backward trace for critical objects): no ray may be
+    absorbed by the detector at t = 0; an absorbing disk above receives the view factor."""
+    det = disk_part("det", 0.0, 10.0, 256)
+    plate = disk_part("plate", 50.0, 20.0, 2048, role="absorber", facing=-1)
+    res = trace(Scene((det, plate)), LambertianDisk([0, 0, 0], [0, 0, 1], 10.0), 20000, seed=3)
+    assert res.detectors["det"].power_w == 0.0
+    R1, R2 = 10 / 50, 20 / 50
+    X = 1 + (1 + R2 ** 2) / R1 ** 2
+    f12 = (X - math.sqrt(X * X - 4 * (R2 / R1) ** 2)) / 2  # PHYSICS.md §5 coaxial disks
+    got = res.first_hit["plate"]
+    assert got.power_w > 0 and abs(got.power_w - f12) < 4 * got.stderr_w
