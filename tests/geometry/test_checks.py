@@ -93,3 +93,6 @@ def test_bevelled_tube_with_aperture_stop_passes_checks():
         result = check_scene(scene)
     assert result.ok, result.format()
     assert "aperture_stop" in scene.part_names and len(result.parts) == 8
+    # touching parts share their circle nodes at any tolerance: no interpenetration beyond round-off
+    touching = overlap_volumes(scene)
+    assert len(touching) >= 5 and max(abs(v) for _, _, v in touching) < 1e-6
