@@ -21,8 +21,8 @@ terms; PHYSICS §4 "diagnosis practice"):
    and scored by ``delta_bic`` (BIC = chi^2 + k ln N on the training points) and by
    the held-out gap before and after.
 5. **Forward selection.** The best candidate (lowest BIC) is kept if it lowers BIC by more
-   than :data:`BIC_THRESHOLD` *and* lowers the held-out gap by more than
-   :data:`HELDOUT_GAIN`; repeat with the rest on top (only candidates that helped alone
+   than :data:`BIC_THRESHOLD` *and* improves the prediction of the held-out angles: their
+   chi^2 falls by more than :data:`HELDOUT_CHI2_GAIN` and their gap falls; repeat with the rest on top (only candidates that helped alone
    are retried). Candidates that helped alone but add nothing once another was selected
    are reported as *confounded* with it (e.g. an offset and the slit width both act in
    the specular core).
@@ -47,14 +47,15 @@ from scipy.optimize import least_squares
 from materials.kcorrelation import KCorrelation
 from materials.scan import Scan
 from rig.effects import CATALOGUE, build_effect, effect_types
-from rig.forward import compose, instrument_nodes
+from rig.forward import compose, node_groups
 from rig.instrument import RigConfig
 
 GAP_METRIC = "rms_log10"
 #: BIC must drop by more than this to keep an effect ("very strong" evidence, Kass & Raftery 1995).
 BIC_THRESHOLD = 10.0
-#: ... and the held-out gap must fall by more than this fraction.
-HELDOUT_GAIN = 0.05
+#: ... and the held-out chi^2 (predictive fit on incidences the fit never saw) must fall by
+#: more than this, with the held-out gap falling too.
+HELDOUT_CHI2_GAIN = 10.0
 #: Relative error assumed when a scan has no usable std column.
 DEFAULT_RELATIVE_STD = 0.05
 #: Floor on sigma_log10 (model/quadrature error, ~0.5 %).
@@ -123,7 +124,23 @@ def node_geometry(wi, wo) -> dict:
     sin_phi = np.where(on > 1e-15, (tx * wo[:, 1] - ty * wo[:, 0]) * inv, 0.0)
     above = (cos_i > 0) & (cos_o > 0)
     return {"cos_i": cos_i, "cos_o": cos_o, "r2": dx * dx + dy * dy, "cos_phi": cos_phi,
-            "sin_phi": sin_phi, "above": above, "q_cache": {}}
+            "sin_phi": sin_phi, "above": above, "q_cache": {}, "int_cache": {}}
+
+
+def cached_integral(geom, weight, key, make):
+    """sum over nodes of weight * make() per point, cached in ``geom`` under ``key``.
+
+    ``weight`` is (n_points, n_nodes); ``make()`` returns the (n_points * n_nodes,) integrand.
+    Each component's integral is cached separately, so changing one lobe (or only an
+    amplitude) re-integrates only that lobe (or nothing)."""
+    cache = geom["int_cache"]
+    out = cache.get(key)
+    if out is None:
+        if len(cache) > 64:
+            cache.clear()
+        out = np.einsum("nk,nk->n", weight, make().reshape(weight.shape))
+        cache[key] = out
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,19 +166,33 @@ class FitMaterial:
     def brdf(self, wi, wo, polarization="u"):
         return self.brdf_geom(node_geometry(np.asarray(wi, float), np.asarray(wo, float)), polarization)
 
-    def brdf_geom(self, geom, polarization="u"):
+    def _q(self, geom, polarization):
         key = (self.n, polarization)
         q = geom["q_cache"].get(key)
         if q is None:
             if len(geom["q_cache"]) > 4:
                 geom["q_cache"].clear()
             q = q_factor_real(geom["cos_i"], geom["cos_o"], geom["cos_phi"], geom["sin_phi"], self.n, polarization)
+            q = np.where(geom["above"], q * geom["cos_i"] * geom["cos_o"], 0.0)
             geom["q_cache"][key] = q
-        out = np.full(geom["r2"].shape, self.rd / math.pi)
-        cc = q * geom["cos_i"] * geom["cos_o"]
+        return q
+
+    def brdf_geom(self, geom, polarization="u"):
+        """BRDF at cached node geometry (same values as :meth:`brdf`)."""
+        cc = self._q(geom, polarization)
+        out = np.where(geom["above"], self.rd / math.pi, 0.0)
         for kc in self._kc():
-            out += kc.prefactor * cc * np.exp(-0.5 * kc.s * np.log1p(geom["r2"] / kc.width**2))
-        return np.where(geom["above"], out, 0.0)
+            out = out + kc.prefactor * cc * np.exp(-0.5 * kc.s * np.log1p(geom["r2"] / kc.width**2))
+        return out
+
+    def reading_geom(self, geom, weight, polarization="u"):
+        """The instrument reading sum(weight * f) per point, with per-component caching."""
+        out = self.rd / math.pi * cached_integral(geom, weight, ("lambert",), lambda: geom["above"].astype(float))
+        for kc in self._kc():
+            def lobe(kc=kc):
+                return self._q(geom, polarization) * np.exp(-0.5 * kc.s * np.log1p(geom["r2"] / kc.width**2))
+            out = out + kc.prefactor * cached_integral(geom, weight, ("lobe", kc.width, kc.s, self.n, polarization), lobe)
+        return out
 
     def to_dict(self) -> dict:
         """Material file (CONTRACTS §5)."""
@@ -188,10 +219,10 @@ class NodeCache:
                 sel = np.flatnonzero(pol == code)
                 if sel.size == 0:
                     continue
-                wi, wo, weight = instrument_nodes(theta_i[sel], theta_r[sel], phi_r[sel], config)
-                wi_b, wo_b = np.broadcast_arrays(wi, wo)
-                wi_f, wo_f = wi_b.reshape(-1, 3), wo_b.reshape(-1, 3)
-                entry.append((code, sel, weight.reshape(len(sel), -1), node_geometry(wi_f, wo_f), wi_f, wo_f))
+                for idx, wi, wo, weight in node_groups(theta_i[sel], theta_r[sel], phi_r[sel], config):
+                    wi_b, wo_b = np.broadcast_arrays(wi, wo)
+                    wi_f, wo_f = wi_b.reshape(-1, 3), wo_b.reshape(-1, 3)
+                    entry.append((code, sel[idx], weight.reshape(len(idx), -1), node_geometry(wi_f, wo_f), wi_f, wo_f))
             if len(self._store) >= self.max_entries:
                 self._store.pop(next(iter(self._store)))
             self._store[key] = entry
@@ -201,10 +232,10 @@ class NodeCache:
         out = np.zeros(theta_i.shape[0])
         for code, sel, weight, geom, wi, wo in self._entry(theta_i, theta_r, phi_r, pol, config):
             if getattr(material, "supports_geom", False):
-                f = material.brdf_geom(geom, code)
+                out[sel] = material.reading_geom(geom, weight, code)
             else:
                 f = np.asarray(material.brdf(wi, wo, code), float)
-            out[sel] = np.einsum("nk,nk->n", weight, f.reshape(weight.shape))
+                out[sel] = np.einsum("nk,nk->n", weight, f.reshape(weight.shape))
         return out
 
 
@@ -344,6 +375,15 @@ class Problem:
         # contiguous copies so cache keys are stable
         self._sub = {}
 
+    def fork(self) -> "Problem":
+        """A shallow copy with its own (empty) caches, for use on another thread."""
+        import copy
+
+        twin = copy.copy(self)
+        twin.cache = NodeCache()
+        twin._sub = {}
+        return twin
+
     @staticmethod
     def _noise_model(y, sem, usable):
         """sigma of log10(mean): a line in (log10 y, log relative sem) through the scan's own stds."""
@@ -385,6 +425,13 @@ class Problem:
             return None
         r = self.log_residual(model, idx)
         return float(np.sqrt(np.mean(r * r)))
+
+    def chi2(self, model: Model, idx) -> float:
+        """Sum of squared normalised log residuals on points idx (0 when idx is empty)."""
+        if idx.size == 0:
+            return 0.0
+        r = self.log_residual(model, idx) / self.sigma_log[idx]
+        return float(np.sum(r * r))
 
     def noise_level(self, idx) -> float | None:
         v = self.noise_dex[idx]
@@ -490,7 +537,7 @@ def _effect_starts(problem: Problem, name: str):
                 values.append(0.5 * (lo + hi))
         values = [float(np.clip(v, lo, hi)) for v in values]
         combos = [dict(c, **{p: v}) for c in combos for v in values]
-    return combos[:4]
+    return combos[:3]
 
 
 # ----------------------------------------------------------------------------- driver
@@ -531,24 +578,39 @@ def fit_baseline(problem: Problem) -> Fit:
     return polished if polished.bic <= best.bic else best
 
 
-def fit_with_effect(problem: Problem, base: Fit, name: str, max_nfev=40) -> Fit:
-    """``base`` plus effect ``name``, fitted jointly with the material from a few starts."""
+def fit_with_effect(problem: Problem, base: Fit, name: str, max_nfev=25) -> Fit:
+    """``base`` plus effect ``name``: the effect's parameters alone from each start (material
+    fixed, cheap), then everything jointly from the best of those."""
     best = None
     for start in _effect_starts(problem, name):
         vals = dict(base.model.values)
         vals.update({(name, p): v for p, v in start.items()})
         model = Model(base.model.n_lobes, vals, base.model.effects + (name,))
-        # effect alone first (cheap, material fixed), then everything jointly
-        free_effect = {(name, p) for p in start}
-        f = problem.fit(model, free=free_effect, max_nfev=15)
-        f = problem.fit(f.model, max_nfev=max_nfev)
+        f = problem.fit(model, free={(name, p) for p in start}, max_nfev=12)
         if best is None or f.chi2 < best.chi2:
             best = f
-    return best
+    joint = problem.fit(best.model, max_nfev=max_nfev)
+    return joint if joint.chi2 <= best.chi2 else best
+
+
+def _fit_many(problem: Problem, base: Fit, names, workers: int, progress: bool, desc: str) -> dict:
+    """fit_with_effect for each name, on ``workers`` threads (numpy releases the GIL in its
+    array loops); each thread works on its own fork of the problem's caches."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    names = list(names)
+    if workers <= 1 or len(names) <= 1:
+        return {n: fit_with_effect(problem, base, n) for n in _progress(names, len(names), desc, progress)}
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = {n: pool.submit(fit_with_effect, problem.fork(), base, n) for n in names}
+        out = {}
+        for n in _progress(names, len(names), desc, progress):
+            out[n] = futures[n].result()
+    return out
 
 
 def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConfig | None = None,
-             progress: bool = False) -> Diagnosis:
+             progress: bool = False, workers: int = 2) -> Diagnosis:
     """Fit ``scan`` through the rig model and rank instrument effects (module doc)."""
     names = list(CATALOGUE if not effects else effects)
     for n in names:
@@ -561,9 +623,7 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
     held = problem.held_idx
     gap_before = problem.gap(baseline.model, held)
 
-    singles = {}
-    for name in _progress(names, len(names), "candidates", progress):
-        singles[name] = fit_with_effect(problem, baseline, name)
+    singles = _fit_many(problem, baseline, names, workers, progress, "candidates")
     t2 = time.perf_counter()
 
     candidates = []
@@ -576,6 +636,7 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
             "heldout_gap_before": gap_before,
             "heldout_gap_after": problem.gap(f.model, held),
             "train_gap_after": problem.gap(f.model, problem.train_idx),
+            "delta_heldout_chi2": problem.chi2(f.model, held) - problem.chi2(baseline.model, held),
             "region": effect_types()[name].region,
         })
     candidates.sort(key=lambda c: (c["delta_bic"], c["heldout_gap_after"] if c["heldout_gap_after"] is not None else 0.0))
@@ -596,7 +657,8 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
             gap_after = problem.gap(f.model, held)
             if dbic >= -BIC_THRESHOLD:
                 break
-            if held.size == 0 or (current_gap is not None and gap_after < (1.0 - HELDOUT_GAIN) * current_gap):
+            d_held = problem.chi2(f.model, held) - problem.chi2(current.model, held)
+            if held.size == 0 or (d_held < -HELDOUT_CHI2_GAIN and gap_after < current_gap):
                 chosen = n
                 break
         if chosen is None:
@@ -607,7 +669,7 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
         pool.remove(chosen)
         if not pool:
             break
-        round_fits = {n: fit_with_effect(problem, current, n) for n in pool}
+        round_fits = _fit_many(problem, current, pool, workers, progress, f"round {len(selected) + 1}")
         for n in list(pool):
             if round_fits[n].bic - current.bic >= -BIC_THRESHOLD:
                 confounded.append({
@@ -685,6 +747,6 @@ def to_json(d: Diagnosis) -> dict:
                   "bic": d.final.bic, "material": d.final.model.material(p.wavelength_nm).to_dict()},
         "noise_level": {"heldout_gap": noise_held, "train_gap": noise_train,
                         "meaning": "the gap a perfect model would leave: RMS of std/(sqrt(n) brdf ln 10) on the same points"},
-        "thresholds": {"bic": BIC_THRESHOLD, "heldout_gain": HELDOUT_GAIN},
+        "thresholds": {"delta_bic": -BIC_THRESHOLD, "delta_heldout_chi2": -HELDOUT_CHI2_GAIN},
         "timings_s": d.timings,
     }

@@ -54,8 +54,16 @@ N_ALPHA = 5
 #: Gaussian lobes 1 to 30 mrad wide (K-correlation lc up to ~80 um at 532 nm) read within 0.3 %.
 CLUSTER_RAD = 2.0e-3
 
+#: Orders for points far from specular (arm more than FAR_DEG from the specular ray), where
+#: the BRDF is smooth over the ~0.5 deg instrument response.
+N_U_FAR = 6
+N_V_FAR = 6
+FAR_DEG = 3.0
+
 _GL_U = np.polynomial.legendre.leggauss(N_U)
 _GL_V = np.polynomial.legendre.leggauss(N_V)
+_GL_U_FAR = np.polynomial.legendre.leggauss(N_U_FAR)
+_GL_V_FAR = np.polynomial.legendre.leggauss(N_V_FAR)
 _GH_A = np.polynomial.hermite_e.hermegauss(N_ALPHA)  # weight exp(-x^2/2)
 _GH_A = (_GH_A[0], _GH_A[1] / math.sqrt(2 * math.pi))
 
@@ -127,13 +135,47 @@ def _rot_x(vec, angle):
     return np.stack([x, c * y - s * z, s * y + c * z], axis=-1)
 
 
-def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL):
+def _arm_and_specular(theta_i, theta_r, phi_r, config):
+    """Arm axis (offset applied) and the true specular ray, both in the lab frame, (n, 3)."""
+    n = theta_i.shape[0]
+    d_stage = math.radians(config.stage_offset_deg)
+    d_arm = math.radians(config.arm_offset_deg)
+    tilt = math.radians(config.sample_tilt_deg)
+    st = np.sin(theta_r)
+    arm = np.stack([st * np.cos(phi_r), st * np.sin(phi_r), np.cos(theta_r)], axis=-1)
+    if d_arm:
+        arm = _rot_y(arm, d_arm)
+    spec = np.stack([np.sin(theta_i), np.zeros(n), np.cos(theta_i)], axis=-1)
+    if tilt or d_stage:
+        wi0 = np.stack([-np.sin(theta_i), np.zeros(n), np.cos(theta_i)], axis=-1)
+        wi_t = _rot_x(_rot_y(wi0, -d_stage), tilt)
+        spec = _rot_y(_rot_x(wi_t * np.array([-1.0, -1.0, 1.0]), -tilt), d_stage)
+    return arm, spec
+
+
+def node_groups(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL):
+    """Split n set-points into those near specular (full rule) and far from it (coarse rule).
+
+    Yields ``(indices, wi, wo, weight)`` per non-empty group, as :func:`instrument_nodes`.
+    """
+    arm, spec = _arm_and_specular(theta_i, theta_r, phi_r, config)
+    cos_sep = np.einsum("ij,ij->i", arm, spec)
+    near = cos_sep > math.cos(math.radians(FAR_DEG))
+    for mask, rules, far in ((near, (_GL_U, _GL_V), False), (~near, (_GL_U_FAR, _GL_V_FAR), True)):
+        idx = np.flatnonzero(mask)
+        if idx.size:
+            yield (idx, *instrument_nodes(theta_i[idx], theta_r[idx], phi_r[idx], config, rules, far))
+
+
+def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, rules=None, far=False):
     """Quadrature nodes of the rig's angular response for n set-points.
 
     Parameters
     ----------
     theta_i, theta_r, phi_r : (n,) float64, radians (set-points).
     config : RigConfig
+    rules : (u_rule, v_rule) Gauss-Legendre (nodes, weights); default the fine rule.
+    far : True for set-points far from specular: plain (unclustered) rules over +-3.5 sigma.
 
     Returns
     -------
@@ -153,11 +195,11 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL):
     d_arm = math.radians(config.arm_offset_deg)
     tilt = math.radians(config.sample_tilt_deg)
 
-    # Arm axis in the nominal sample frame (lab), rotated by the arm's zero offset.
-    st = np.sin(theta_r)
-    arm = np.stack([st * np.cos(phi_r), st * np.sin(phi_r), np.cos(theta_r)], axis=-1)
-    if d_arm:
-        arm = _rot_y(arm, d_arm)
+    # Arm axis in the nominal sample frame (lab), rotated by the arm's zero offset, and
+    # where the specular ray goes: the nodes cluster there (sinh map), so lobes down to
+    # ~CLUSTER_RAD wide are resolved wherever offsets or a tilt put them.
+    arm, spec = _arm_and_specular(theta_i, theta_r, phi_r, config)
+    rule_u, rule_v = rules if rules is not None else (_GL_U, _GL_V)
     y_hat = np.array([0.0, 1.0, 0.0])
     e_perp = y_hat - arm[:, 1:2] * arm
     norm = np.linalg.norm(e_perp, axis=-1, keepdims=True)
@@ -173,21 +215,18 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL):
     half_w = 0.5 * config.slit_width_mm
     half_h = 0.5 * config.slit_height_mm
     # Quadrature ranges (mm at the slit); 6 sigma covers the Gaussian to 2e-9.
-    y_u = half_w + k * np.minimum(t_max, 6.0 * sigma)
-    y_v = np.full(n, half_h + 6.0 * sigma)
-    # Where the specular ray lands in (u, v): the nodes cluster there (sinh map), so lobes
-    # down to ~CLUSTER_RAD wide are resolved wherever offsets or a tilt put them.
-    spec = np.stack([np.sin(theta_i), np.zeros(n), np.cos(theta_i)], axis=-1)  # specular, nominal
-    if tilt or d_stage:
-        wi0 = np.stack([-np.sin(theta_i), np.zeros(n), np.cos(theta_i)], axis=-1)
-        wi_t = _rot_x(_rot_y(wi0, -d_stage), tilt)
-        spec_t = wi_t * np.array([-1.0, -1.0, 1.0])
-        spec = _rot_y(_rot_x(spec_t, -tilt), d_stage)
+    reach = 3.5 if far else 6.0
+    y_u = half_w + k * np.minimum(t_max, reach * sigma)
+    y_v = np.full(n, half_h + reach * sigma)
     rel = spec - arm
     u_c = np.clip(np.einsum("ij,ij->i", rel, e_theta) * L, -y_u, y_u)
     v_c = np.clip(np.einsum("ij,ij->i", rel, e_perp) * L, -y_v, y_v)
-    yu, wu = _sinh_rule(_GL_U, -y_u, y_u, u_c, CLUSTER_RAD * L)
-    yv, wv = _sinh_rule(_GL_V, -y_v, y_v, v_c, CLUSTER_RAD * L)
+    if far:  # smooth integrand: symmetric rules, so linear variations cancel exactly
+        yu, wu = y_u[:, None] * rule_u[0], y_u[:, None] * rule_u[1]
+        yv, wv = y_v[:, None] * rule_v[0], y_v[:, None] * rule_v[1]
+    else:
+        yu, wu = _sinh_rule(rule_u, -y_u, y_u, u_c, CLUSTER_RAD * L)
+        yv, wv = _sinh_rule(rule_v, -y_v, y_v, v_c, CLUSTER_RAD * L)
     pu = _box_gauss_density(yu, half_w, k[:, None], sigma, t_max[:, None]) * wu
     # Renormalise to the analytic mass (fraction of the beam on the sample): removes the rule's
     # error on the density's soft edges, so a Lambertian reads rd/pi.
@@ -228,7 +267,9 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL):
 def instrument_forward(theta_i, theta_r, phi_r, polarization, config: RigConfig, material) -> np.ndarray:
     """The bare instrument: ``sum(weight * f)`` over :func:`instrument_nodes` (see module doc).
 
-    ``material.brdf(wi, wo, polarization)`` is called once per polarization present.
+    ``material.brdf(wi, wo, polarization)`` is called once per polarization and node group
+    (:func:`node_groups`: points within FAR_DEG of specular get the fine rule, the others a
+    6 x 6 rule).
     Angles (n,) radians; polarization (n,) str. Returns (n,) 1/sr.
     """
     out = np.zeros(theta_i.shape[0])
@@ -236,10 +277,10 @@ def instrument_forward(theta_i, theta_r, phi_r, polarization, config: RigConfig,
         sel = np.flatnonzero(polarization == code)
         if sel.size == 0:
             continue
-        wi, wo, weight = instrument_nodes(theta_i[sel], theta_r[sel], phi_r[sel], config)
-        wi_b, wo_b = np.broadcast_arrays(wi, wo)
-        f = np.asarray(material.brdf(wi_b.reshape(-1, 3), wo_b.reshape(-1, 3), code), float)
-        out[sel] = np.einsum("nauv,nauv->n", weight, f.reshape(weight.shape))
+        for idx, wi, wo, weight in node_groups(theta_i[sel], theta_r[sel], phi_r[sel], config):
+            wi_b, wo_b = np.broadcast_arrays(wi, wo)
+            f = np.asarray(material.brdf(wi_b.reshape(-1, 3), wo_b.reshape(-1, 3), code), float)
+            out[sel[idx]] = np.einsum("nauv,nauv->n", weight, f.reshape(weight.shape))
     return out
 
 

@@ -38,6 +38,18 @@ class _WithSubstrate:
         lobe = self.attenuation / (2 * math.pi * w**2) * np.exp(-0.5 * geom["r2"] / w**2)
         return base + np.where(geom["above"], lobe, 0.0)
 
+    def reading_geom(self, geom, weight, polarization="u"):
+        """Instrument reading from cached node geometry (rig.diagnose.NodeCache); the ghost
+        lobe's integral is cached per width (its amplitude is linear)."""
+        from rig.diagnose import cached_integral
+
+        def unit_lobe():
+            w = self.width_rad * np.clip(geom["cos_i"], 1e-6, None)
+            return np.where(geom["above"], np.exp(-0.5 * geom["r2"] / w**2) / (2 * math.pi * w**2), 0.0)
+
+        base = self.material.reading_geom(geom, weight, polarization)
+        return base + self.attenuation * cached_integral(geom, weight, ("substrate", self.width_rad), unit_lobe)
+
     @property
     def supports_geom(self) -> bool:
         return getattr(self.material, "supports_geom", False)

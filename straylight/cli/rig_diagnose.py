@@ -1,0 +1,68 @@
+"""``straylight rig diagnose``: compare a measured scan with the rig model and explain the gap
+(CONTRACTS §4.1). Thin layer over :func:`rig.diagnose.diagnose`; ``rig`` is imported lazily."""
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+
+def add_parser(rig_subparsers) -> None:
+    """Register ``diagnose`` under ``straylight rig`` (called by straylight.cli.rig)."""
+    p = rig_subparsers.add_parser(
+        "diagnose", help="sim-to-real diagnosis of a measured scan",
+        description="Fit the sample's BRDF through the rig model on the training incidence angles, "
+                    "then try every instrument effect of the catalogue (CONTRACTS §3) and report which "
+                    "ones explain the measured-vs-simulated gap, checked on held-out incidence angles. "
+                    "Method and rules: docs/diagnose.md.")
+    p.add_argument("measured", metavar="MEASURED.csv", help="measured scan (CONTRACTS §2)")
+    p.add_argument("--holdout-theta-i", metavar="DEG", type=float, nargs="+", dest="holdout_theta_i_deg",
+                   help="incidence angles to hold out (default: the middle and the highest)")
+    p.add_argument("--effects", metavar="NAME", nargs="+",
+                   help="candidate effects (default: the whole catalogue)")
+    p.add_argument("--json", required=True, metavar="OUT.json", help="write the result here")
+    p.add_argument("--report", metavar="DIR", help="write plots, report.md and index.html here")
+    p.add_argument("--workers", type=int, default=2, help="threads for the candidate fits (default 2)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="recorded only: the diagnosis is deterministic (no random numbers)")
+    p.set_defaults(func=run)
+
+
+def _clean(obj):
+    """JSON-safe: numpy scalars to Python, NaN/inf to None."""
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def run(args) -> int:
+    from materials.scan import read_scan
+    from rig.diagnose import diagnose, to_json
+
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    scan = read_scan(args.measured)
+    result = diagnose(scan, holdout_theta_i_deg=args.holdout_theta_i_deg, effects=args.effects,
+                      progress=sys.stderr.isatty(), workers=args.workers)
+    doc = to_json(result)
+    doc["measured"] = str(args.measured)
+    doc["seed"] = args.seed
+    out = Path(args.json)
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(_clean(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    if args.report:
+        from rig.report import write_report
+
+        write_report(result, args.report)
+    sel = ", ".join(doc["selected_effects"]) or "none"
+    print(f"held-out gap {doc['baseline']['heldout_gap']!s} -> {doc['final']['heldout_gap']!s} dex; "
+          f"selected: {sel}; wrote {out}", file=sys.stderr)
+    return 0
