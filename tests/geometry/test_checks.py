@@ -95,4 +95,5 @@ def test_bevelled_tube_with_aperture_stop_passes_checks():
     assert "aperture_stop" in scene.part_names and len(result.parts) == 8
     # touching parts share their circle nodes at any tolerance: no interpenetration beyond round-off
     touching = overlap_volumes(scene)
-    assert len(touching) >= 5 and max(abs(v) for _, _, v in touching) < 1e-6
+    assert {(a, b) for a, b, _ in touching} >= {("wall", f"vane_{k}") for k in range(1, 5)}
+    assert max(abs(v) for _, _, v in touching) < 1e-6
