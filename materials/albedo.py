@@ -31,8 +31,22 @@ def _gauss(n: int):
 
 
 def _grid(theta_i: np.ndarray, n_radial: int, n_azimuth: int):
-    """Nodes (wi, wo) and weights (per d^2 beta) for each theta_i; arrays (m, k)."""
+    """Nodes (wi, wo) and weights (per d^2 beta) for each theta_i; arrays (m, k), read-only.
+
+    Small grids are cached (the energy check and the composite tables reuse theirs).
+    """
     theta_i = np.atleast_1d(np.asarray(theta_i, float))
+    if theta_i.size * n_radial * n_azimuth > _CACHE_MAX_NODES:
+        return _grid_cached.__wrapped__(theta_i.tobytes(), n_radial, n_azimuth)
+    return _grid_cached(theta_i.tobytes(), n_radial, n_azimuth)
+
+
+_CACHE_MAX_NODES = 400_000  # ~25 MB per cached grid
+
+
+@lru_cache(maxsize=6)
+def _grid_cached(theta_bytes: bytes, n_radial: int, n_azimuth: int):
+    theta_i = np.frombuffer(theta_bytes, dtype=float)
     b = np.sin(theta_i)[:, None]
     # azimuth map: alpha -> 1 at grazing incidence, where r_edge(0) = 1 - b is small
     alpha = np.clip(1.0 - 2.0 * np.sqrt(np.maximum(1.0 - b, 0.0)), 0.0, 0.97)
@@ -62,7 +76,11 @@ def _grid(theta_i: np.ndarray, n_radial: int, n_azimuth: int):
     bz = np.sqrt(np.maximum(1.0 - bx * bx - by * by, 0.0))
     wo = np.stack([bx, by, bz], axis=-1)
     wi = np.stack([-np.sin(theta_i), np.zeros(m), np.cos(theta_i)], axis=-1)
-    return wi, wo, wt
+    wi_rep = np.repeat(wi, k, axis=0)
+    wo = wo.reshape(-1, 3)
+    for a in (wi, wi_rep, wo, wt):
+        a.flags.writeable = False
+    return wi, wi_rep, wo, wt
 
 
 def integrate_over_disk(func, theta_i, n_radial: int = 96, n_azimuth: int = 192) -> np.ndarray:
@@ -72,10 +90,9 @@ def integrate_over_disk(func, theta_i, n_radial: int = 96, n_azimuth: int = 192)
     f itself; for a density per sr it is pdf / cos(theta_r)). Returns shape of ``theta_i``.
     """
     theta_arr = np.asarray(theta_i, float)
-    wi, wo, wt = _grid(theta_arr.ravel(), n_radial, n_azimuth)
+    wi, wi_rep, wo, wt = _grid(theta_arr.ravel(), n_radial, n_azimuth)
     m, k = wt.shape
-    wi_rep = np.repeat(wi, k, axis=0)
-    vals = func(wi_rep, wo.reshape(-1, 3)).reshape(m, k)
+    vals = func(wi_rep, wo).reshape(m, k)
     spec = np.stack([-wi[:, 0], -wi[:, 1], wi[:, 2]], axis=-1)
     core = np.pi * R_MIN**2 * func(wi, spec)
     out = np.sum(vals * wt, axis=1) + core

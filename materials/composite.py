@@ -72,7 +72,7 @@ class Composite:
     def selection_probabilities(self, theta_i, polarization: str = "u") -> np.ndarray:
         """p_k(theta_i), shape (n, K): proportional to each component's albedo, with a floor."""
         table = self._table(polarization)
-        th = np.clip(np.asarray(theta_i, float), 0.0, np.pi / 2)
+        th = np.clip(np.atleast_1d(np.asarray(theta_i, float)), 0.0, np.pi / 2)
         alb = np.stack([np.interp(th, _TABLE_THETA, row) for row in table], axis=-1)
         k = len(self.components)
         total = alb.sum(axis=1, keepdims=True)

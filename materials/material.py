@@ -110,9 +110,9 @@ class Material:
         theta = np.deg2rad(ENERGY_CHECK_THETA_I_DEG)
         for pol in ("s", "p"):
             # a coarse grid (<~1 % for beta-centred lobes, ~10 % for grazing microfacet lobes
-            # at 89 deg), refined with the default grid wherever it comes within 20 % of 1
+            # at 89 deg), refined with the default grid wherever it comes near 1
             rho = directional_hemispherical_reflectance(self.composite, theta, pol, 32, 48)
-            near = rho > 0.8
+            near = (rho > 0.8) & (rho < 1.25)  # outside, the coarse answer is not in doubt
             if np.any(near):
                 rho[near] = directional_hemispherical_reflectance(self.composite, theta[near], pol)
             k = int(np.argmax(rho))

@@ -1,0 +1,75 @@
+"""Composite (seed paper Eq. 2 sum of components) and its one-sample MIS sampler (PHYSICS §3)."""
+import numpy as np
+import pytest
+
+from materials import Composite, KCorrelation, Lambertian, MaterialError
+from materials.albedo import directional_hemispherical_reflectance
+from materials.base import directions_from_angles
+
+
+@pytest.fixture(scope="module")
+def three():
+    return Composite.example()
+
+
+def test_brdf_is_the_sum_of_components(three):
+    rng = np.random.default_rng(4)
+    wi, wo = directions_from_angles(rng.uniform(0, 1.5, 300), rng.uniform(0, 1.5, 300), rng.uniform(0, 6.3, 300))
+    for pol in "sp":
+        expected = sum(c.brdf(wi, wo, pol) for c in three.components)
+        np.testing.assert_allclose(three.brdf(wi, wo, pol), expected, rtol=1e-14)
+
+
+@pytest.mark.parametrize("pol", ["s", "p"])
+def test_selection_probabilities_follow_component_albedos(three, pol):
+    th = np.deg2rad([5.0, 33.0, 61.0, 80.0])
+    alb = np.array([directional_hemispherical_reflectance(c, th, pol) for c in three.components]).T
+    expected = alb / alb.sum(axis=1, keepdims=True)
+    p = three.selection_probabilities(th, pol)
+    np.testing.assert_allclose(p.sum(axis=1), 1.0, rtol=1e-12)
+    np.testing.assert_allclose(p, expected, atol=0.01)  # table interpolation + 0.1 % floor
+
+
+def test_sample_weight_is_f_cos_over_the_mixture_pdf(three):
+    n = 5000
+    wi, _ = directions_from_angles(np.full(n, np.deg2rad(40.0)), 0.0, 0.0)
+    s = three.sample(wi, np.random.default_rng(8).random((n, 3)), "s")
+    ok = s.weight > 0
+    assert ok.sum() > 0.9 * n
+    mix = three.pdf(wi[ok], s.wo[ok], "s")
+    np.testing.assert_allclose(s.pdf_per_sr[ok], mix, rtol=1e-12)
+    np.testing.assert_allclose(s.weight[ok], three.brdf(wi[ok], s.wo[ok], "s") * s.wo[ok, 2] / mix, rtol=1e-12)
+
+
+def test_first_uniform_chooses_the_component(three):
+    """u[:, 0] below p_0 picks the Lambertian: its draws spread over the disk, far from beta0."""
+    n = 2000
+    wi, _ = directions_from_angles(np.full(n, np.deg2rad(30.0)), 0.0, 0.0)
+    p0 = three.selection_probabilities(np.deg2rad(30.0), "u")[0, 0]
+    u = np.random.default_rng(1).random((n, 3))
+    u[:, 0] = 0.5 * p0
+    d = three.sample(wi, u).wo[:, :2] + wi[:, :2]
+    assert np.median(np.hypot(d[:, 0], d[:, 1])) > 0.3
+    u[:, 0] = 1 - 1e-9  # the last (glossy) lobe: draws within a few widths of beta0
+    d = three.sample(wi, u).wo[:, :2] + wi[:, :2]
+    assert np.median(np.hypot(d[:, 0], d[:, 1])) < 0.05
+
+
+def test_composite_needs_three_uniforms_and_components(three):
+    wi, _ = directions_from_angles(np.zeros(3), 0.0, 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        three.sample(wi, np.zeros((3, 2)))
+    with pytest.raises(MaterialError):
+        Composite(())
+
+
+def test_zero_albedo_component_is_still_unbiased():
+    """A zero-reflectance component gets only the floor probability; the estimator stays exact."""
+    comp = Composite((Lambertian(rd=0.0), KCorrelation(sigma_nm=3, lc_um=5, s=2.5, r=0.05, wavelength_nm=532.0)))
+    n = 40000
+    wi, _ = directions_from_angles(np.full(n, 0.3), 0.0, 0.0)
+    s = comp.sample(wi, np.random.default_rng(2).random((n, 3)))
+    rho = directional_hemispherical_reflectance(comp, 0.3)
+    se = s.weight.std() / np.sqrt(n)
+    assert rho > 0
+    assert abs(s.weight.mean() - rho) < 4 * se + 1e-6 * rho
