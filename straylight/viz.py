@@ -1,0 +1,237 @@
+"""Pictures: the scene in 3-D (pyvista) with traced ray paths, and detector irradiance maps (matplotlib).
+
+3-D views render off screen when a PNG path is given (or no display exists) and open an
+interactive window otherwise. Off screen, VTK needs no X server here: with no ``DISPLAY``
+the EGL render window is selected (Mesa's llvmpipe works on machines without a GPU).
+The scene is drawn cut away (the half y > 0 removed) so the inside of a tube shows.
+
+Ray paths for a picture are traced by :func:`trace_ray_paths`, a short random walk that
+records vertices: the engine's intersector and the parts' own BRDF sampling, a few
+hundred rays, for display only (the numbers come from ``straylight.trace``).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+PART_COLORS = ("#4c72b0", "#dd8452", "#55a868", "#c44e52", "#8172b2", "#937860", "#da8bc3", "#8c8c8c",
+               "#ccb974", "#64b5cd")
+
+
+def _pyvista(off_screen: bool):
+    if off_screen and not os.environ.get("DISPLAY"):
+        # no X server: go straight to EGL instead of letting VTK try X first (and warn)
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+    import pyvista as pv
+
+    return pv
+
+
+def has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def part_polydata(part):
+    """pyvista PolyData of one ``geometry.Part`` (vertices in mm)."""
+    pv = _pyvista(True)
+    faces = np.hstack([np.full((len(part.faces), 1), 3), part.faces]).ravel()
+    return pv.PolyData(part.vertices_mm, faces)
+
+
+def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 200, seed: int = 0,
+                    max_events: int = 6, min_weight: float = 1e-4):
+    """Random walks with recorded vertices, for display.
+
+    Returns a list of (points (k, 3) mm, weights (k - 1,) relative power on each segment,
+    reached_detector bool). Scatter directions come from each surface's material ``sample``;
+    absorbers and detectors end a path; a path ends when its weight drops below ``min_weight``.
+    """
+    from straylight.intersect import EmbreeIntersector
+    from straylight.sources import orthonormal_basis
+
+    scene = setup.scene
+    rng = np.random.default_rng([int(seed), 7])
+    src = setup.beam.source(off_axis, azimuth)
+    o, d = src.emit(rng.random((n_rays, 4)))
+    isect = EmbreeIntersector(scene.triangles_mm)
+    normals = scene.triangle_normals
+    roles = np.array([p.role for p in scene.parts])
+    mats = [None if p.role != "surface" else (setup.materials or {}).get(p.material) for p in scene.parts]
+    if any(m is None for m, p in zip(mats, scene.parts) if p.role == "surface"):
+        from materials import load_material
+
+        mats = [m if m is not None or p.role != "surface" else load_material(p.material)
+                for m, p in zip(mats, scene.parts)]
+    eps = 1e-6 * float(np.ptp(scene.bounds_mm, axis=0).max())
+    pts = [[o[i]] for i in range(n_rays)]
+    wts = [[] for _ in range(n_rays)]
+    hit_det = np.zeros(n_rays, bool)
+    alive = np.arange(n_rays)
+    w = np.ones(n_rays)
+    for _ in range(max_events):
+        if len(alive) == 0:
+            break
+        tri, t = isect.intersect(o, d)
+        miss = tri < 0
+        for k in np.flatnonzero(miss):  # escaping rays: a short stub shows where they go
+            i = alive[k]
+            pts[i].append(o[k] + d[k] * 0.3 * float(np.ptp(scene.bounds_mm[:, 2])))
+            wts[i].append(w[k])
+        keep = ~miss
+        alive, o, d, w, tri, t = alive[keep], o[keep], d[keep], w[keep], tri[keep], t[keep]
+        p = o + t[:, None] * d
+        for k, i in enumerate(alive):
+            pts[i].append(p[k])
+            wts[i].append(w[k])
+        part = scene.triangle_part[tri]
+        role = roles[part]
+        hit_det[alive[role == "detector"]] = True
+        cont = role == "surface"
+        alive, d, w, tri, p, part = alive[cont], d[cont], w[cont], tri[cont], p[cont], part[cont]
+        if len(alive) == 0:
+            break
+        n = normals[tri]
+        n = np.where((np.einsum("ij,ij->i", d, n) < 0)[:, None], n, -n)
+        tb, bb = orthonormal_basis(n)
+        wi_world = -d
+        wi = np.stack([np.einsum("ij,ij->i", wi_world, a) for a in (tb, bb, n)], axis=1)
+        new_d = np.empty_like(d)
+        new_w = np.zeros(len(alive))
+        for m_index in np.unique(part):
+            sel = part == m_index
+            s = mats[m_index].sample(wi[sel], rng.random((sel.sum(), 3)))
+            wo = s.wo
+            new_d[sel] = wo[:, :1] * tb[sel] + wo[:, 1:2] * bb[sel] + wo[:, 2:3] * n[sel]
+            new_w[sel] = np.where(wo[:, 2] > 0, s.weight, 0.0)
+        w = w * new_w
+        live = w > min_weight
+        alive, d, w, p, n = alive[live], new_d[live], w[live], p[live], n[live]
+        o = p + eps * n
+    return [(np.array(pts[i]), np.array(wts[i]), bool(hit_det[i])) for i in range(n_rays) if len(pts[i]) > 1]
+
+
+def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict | None = None, ray_paths=None,
+                 cutaway: bool = True, window_size=(1200, 800), title: str | None = None, camera=None):
+    """Draw the scene (and ray paths); write a PNG to ``path`` or open a window.
+
+    color_by : "part" (one colour per part, legend) or "absorbed" (parts coloured by
+        ``absorbed_w[part]``, log scale, with a colour bar)
+    ray_paths : output of :func:`trace_ray_paths`; segments coloured by log10 relative power,
+        paths that reach a detector drawn thicker in red
+    Returns the path written (or None after an interactive session).
+    """
+    if color_by not in ("part", "absorbed"):
+        raise ValueError(f"color_by must be 'part' or 'absorbed', got {color_by!r}")
+    if color_by == "absorbed" and not absorbed_w:
+        raise ValueError("color_by='absorbed' needs absorbed_w {part: watts}")
+    off_screen = path is not None or not has_display()
+    pv = _pyvista(off_screen)
+    pl = pv.Plotter(off_screen=off_screen, window_size=tuple(window_size))
+    pl.set_background("white")
+    legend = []
+    bar_shown = False
+    if color_by == "absorbed":
+        vals = np.array([v for v in absorbed_w.values() if v > 0])
+        lo, hi = (np.log10(vals.min()), np.log10(vals.max())) if len(vals) else (-12.0, 0.0)
+        if hi - lo < 1e-6:
+            lo -= 1
+    for i, part in enumerate(scene.parts):
+        mesh = part_polydata(part)
+        if cutaway and part.role != "detector":
+            mesh = mesh.clip(normal=(0, 1, 0), origin=(0, 0, 0), invert=True)
+            if mesh.n_points == 0:
+                continue
+        if part.role == "detector":
+            pl.add_mesh(mesh, color="#ffd400", show_edges=False)
+            legend.append([f"{part.name} (detector)", "#ffd400"])
+        elif color_by == "part":
+            color = PART_COLORS[i % len(PART_COLORS)]
+            pl.add_mesh(mesh, color=color, smooth_shading=True, specular=0.2)
+            legend.append([part.name, color])
+        else:
+            value = absorbed_w.get(part.name, 0.0)
+            mesh.cell_data["log10 absorbed power (W)"] = np.full(mesh.n_cells, np.log10(value) if value > 0 else lo)
+            pl.add_mesh(mesh, scalars="log10 absorbed power (W)", cmap="inferno", clim=(lo, hi),
+                        show_scalar_bar=not bar_shown, smooth_shading=True,
+                        scalar_bar_args={"title": "log10 absorbed (W)", "color": "black", "vertical": True,
+                                         "position_x": 0.82, "position_y": 0.25, "width": 0.08, "height": 0.5})
+            bar_shown = True
+    if ray_paths:
+        lines, values, hits = [], [], []
+        for pts, wts, reached in ray_paths:
+            for k in range(len(wts)):
+                lines.append(pts[k:k + 2])
+                values.append(np.log10(max(wts[k], 1e-12)))
+                hits.append(reached)
+        if lines:
+            seg = np.concatenate(lines)
+            cells = np.hstack([np.full((len(lines), 1), 2), np.arange(2 * len(lines)).reshape(-1, 2)]).ravel()
+            poly = pv.PolyData(seg, lines=cells)
+            poly.cell_data["log10 relative ray power"] = np.array(values)
+            hit = np.array(hits)
+            other = poly.extract_cells(np.flatnonzero(~hit)) if (~hit).any() else None
+            if other is not None and other.n_cells:
+                pl.add_mesh(other, scalars="log10 relative ray power", cmap="viridis", line_width=1.5,
+                            opacity=0.8, clim=(min(values), 0.0),
+                            scalar_bar_args={"title": "log10 relative ray power", "color": "black",
+                                             "position_x": 0.05, "vertical": True})
+            if hit.any():
+                pl.add_mesh(poly.extract_cells(np.flatnonzero(hit)), color="red", line_width=3.0)
+                legend.append(["rays reaching the detector", "red"])
+    if legend:
+        corner = "lower right" if color_by == "part" else "upper right"
+        pl.add_legend(legend, bcolor="white", face="rectangle", loc=corner,
+                      size=(0.2, min(0.035 * len(legend), 0.5)))
+    if title:
+        pl.add_text(title, font_size=10, color="black", position="upper_edge")
+    if camera is None:
+        # look into the cut (the kept half is y < 0) from +y, a little above and to the side
+        lo, hi = scene.bounds_mm
+        center = 0.5 * (lo + hi)
+        dist = 3.0 * float(np.max(hi - lo))
+        view = np.array([0.35, 1.0, 0.3])
+        pl.camera_position = [tuple(center + dist * view / np.linalg.norm(view)), tuple(center), (0.0, 0.0, 1.0)]
+        pl.enable_parallel_projection()
+        pl.reset_camera()
+    else:
+        pl.camera_position = camera
+    if off_screen:
+        out = Path(path) if path is not None else Path("scene.png")
+        pl.screenshot(str(out))
+        pl.close()
+        return out
+    pl.show()
+    return None
+
+
+def plot_detector_map(imap, path=None, title: str = "Detector irradiance", ax=None):
+    """Irradiance map of one detector (``TraceResult.maps[name]``), log colour scale, mm axes."""
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    e = np.asarray(imap.irradiance_w_per_mm2, dtype=float)
+    own = ax is None
+    if own:
+        fig, ax = plt.subplots(figsize=(6, 5), dpi=120)
+    pos = e[e > 0]
+    eu, ev = np.asarray(imap.edges_u_mm), np.asarray(imap.edges_v_mm)
+    if len(pos):
+        # at most 5 decades below the peak, so a few low-weight bins do not wash out the map
+        vmin = max(pos.min(), pos.max() * 1e-5)
+        im = ax.pcolormesh(eu, ev, np.ma.masked_less_equal(e.T, 0), norm=LogNorm(vmin=vmin, vmax=pos.max()),
+                           cmap="inferno", shading="flat")
+        ax.figure.colorbar(im, ax=ax, label="irradiance (W/mm^2)")
+    else:
+        ax.text(0.5, 0.5, "no power detected", transform=ax.transAxes, ha="center")
+    ax.set_aspect("equal")
+    ax.set_xlabel("u (mm)")
+    ax.set_ylabel("v (mm)")
+    ax.set_title(title, fontsize=10)
+    if own:
+        fig.tight_layout()
+        if path is not None:
+            fig.savefig(path)
+            plt.close(fig)
+    return ax
