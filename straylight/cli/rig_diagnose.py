@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -29,22 +28,10 @@ def add_parser(rig_subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _clean(obj):
-    """JSON-safe: numpy scalars to Python, NaN/inf to None."""
-    if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def run(args) -> int:
     from materials.scan import read_scan
     from rig.diagnose import diagnose, to_json
+    from rig.report import json_safe, write_report
 
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
@@ -57,11 +44,9 @@ def run(args) -> int:
     out = Path(args.json)
     if out.parent and not out.parent.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(_clean(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    out.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
     if args.report:
-        from rig.report import write_report
-
-        write_report(result, args.report)
+        write_report(result, args.report, doc)
     sel = ", ".join(doc["selected_effects"]) or "none"
     print(f"held-out gap {doc['baseline']['heldout_gap']!s} -> {doc['final']['heldout_gap']!s} dex; "
           f"selected: {sel}; wrote {out}", file=sys.stderr)
