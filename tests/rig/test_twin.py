@@ -272,3 +272,26 @@ def test_footprint_overfill_loses_the_gaussian_tails():
     assert np.all(np.abs(scan.brdf_per_sr - expect) < 3 * scan.stderr_per_sr), scan.brdf_per_sr
     assert np.all(np.abs(scan.brdf_per_sr - rd / math.pi) > 3 * scan.stderr_per_sr)  # the loss is resolved
     assert scan.model_per_sr == pytest.approx(expect, rel=1e-3)
+
+
+@pytest.mark.slow
+def test_paper_sized_scan_of_sample_b_matches_the_converged_fast_model(monkeypatch):
+    """Seed paper Fig. 7 in full: the paper's five incidences, s and p, fine steps near specular and
+    5 deg steps off it (covered at fewer points by the fast tests above). Each point within 4 sigma
+    (twin stderr (+) 0.3 % quadrature), and chi-square per point below 1 + 4 sqrt(2 / n)."""
+    import rig.forward as forward
+    from rig.forward import predict_brdf
+
+    material = load_material("z302_sample_b")
+    incidences = [10.0, 30.0, 40.0, 70.0, 80.0]
+    plan = {ti: sorted({*(ti + np.array([-1.0, -0.5, -0.2, 0.0, 0.05, 0.2, 0.5, 1.0])), *np.arange(-80.0, 86.0, 15.0)})
+            for ti in incidences}
+    scan = twin_scan(material, incidences, plan, ["s", "p"], n_rays=50_000, seed=77)
+    monkeypatch.setattr(forward, "_GL_U", np.polynomial.legendre.leggauss(256))
+    monkeypatch.setattr(forward, "_GL_V", np.polynomial.legendre.leggauss(256))
+    model = predict_brdf(material, scan.theta_i_deg, scan.theta_r_deg, 0.0, scan.polarization)
+    assert np.all(scan.brdf_per_sr > 0)
+    z = (scan.brdf_per_sr - model) / np.hypot(scan.stderr_per_sr, 0.003 * model)
+    n = len(z)
+    assert np.all(np.abs(z) < 4), np.c_[scan.theta_i_deg, scan.theta_r_deg, z][np.abs(z) >= 4]
+    assert np.mean(z**2) < 1 + 4 * np.sqrt(2 / n)
