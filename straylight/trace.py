@@ -7,16 +7,19 @@ Estimators (every one reports a standard error from per-ray contributions):
   ``mirror`` it reflects specularly, ``w <- R w``; ``absorber`` and ``detector`` parts end it.
 - Next-event estimation (NEE) toward detector parts: at every BRDF scatter vertex x, one shadow
   ray to a point y drawn uniformly over each detector's area A; if unoccluded it adds
-  ``w f(wi, wo) cos_x cos_y A / |y - x|^2`` (area form of the rendering equation, pdf 1/A).
-  The random walk then counts only detector hits whose previous event was the source or a
-  specular reflection, so nothing is counted twice.
+  ``w f(wi, wo) cos_x cos_y A / |y - x|^2 * m_nee`` (area form of the rendering equation, pdf 1/A).
+  A random-walk hit on a detector straight after a BRDF scatter counts ``w * m_brdf``; hits after
+  the source or a specular reflection count fully. ``m_nee + m_brdf = 1`` are power-heuristic MIS
+  weights (Veach 1997, eq. 9.13) of the two densities per steradian, ``d^2 / (A cos_y)`` and the
+  material's ``pdf``: NEE wins for diffuse coatings, BRDF sampling for narrow specular lobes (NEE
+  alone is unbiased there too, but heavy-tailed: its error bars would be wrong in practice).
 - Russian roulette: a weight below ``rr_threshold * w0`` survives with probability
   ``w / (rr_threshold w0)`` and is raised to ``rr_threshold w0`` (unbiased).
 
 Ledger (exact per ray, so ``emitted = detected + absorbed + escaped`` to round-off):
 ``absorbed[part] = absorbed_physical + roulette + nee_exchange + truncated`` where
-``roulette`` = weight roulette removed (zero in expectation), ``nee_exchange`` = walk hits
-covered by NEE minus the NEE contributions made from that part (zero in expectation) and
+``roulette`` = weight roulette removed (zero in expectation), ``nee_exchange`` = the MIS
+share of walk hits left to NEE minus the NEE contributions made from that part (zero in expectation) and
 ``truncated`` = weight still in flight after ``max_events`` (a small bias, reported).
 
 Materials are two-sided: the local frame's z is the geometric normal flipped to face the
@@ -164,6 +167,7 @@ class _Compiled:
         self.detectors = [
             DetectorGeometry.from_triangles(tri[spec.triangle_part == p]) for p in self.det_parts
         ]
+        self.det_area = np.array([g.area_mm2 for g in self.detectors])
         self.target = self.target_isect = None
         if spec.options.target_parts:
             idx = [spec.part_names.index(name) for name in spec.options.target_parts]
@@ -244,6 +248,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     idx = np.arange(n)
     w = np.full(n, w0)
     prev_kind = np.zeros(n, dtype=np.int8)
+    pdf_prev = np.zeros(n)  # solid-angle pdf of the last sampled scatter direction (for NEE MIS weights)
     prev_part = np.full(n, -1, dtype=np.int64)
     hkey = np.zeros(n, dtype=np.uint64)
     depth = np.zeros(n, dtype=np.int64)
@@ -273,7 +278,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         if miss.any():
             M[lay.ESC, idx[miss]] += w[miss]
             hit = ~miss
-            idx, o, d, w, tri, U = idx[hit], o[hit], d[hit], w[hit], tri[hit], U[hit]
+            idx, o, d, w, tri, U, pdf_prev = idx[hit], o[hit], d[hit], w[hit], tri[hit], U[hit], pdf_prev[hit]
             prev_kind, prev_part, hkey, depth = prev_kind[hit], prev_part[hit], hkey[hit], depth[hit]
             if hist is not None:
                 hist = hist[hit]
@@ -302,15 +307,21 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             M[lay.ABS + part[dead], idx[dead]] += w[dead]
             dj = comp.det_of_part[part]
             M[lay.DET_WALK + dj[sens], idx[sens]] += w[sens]
-            covered = sens & (prev_kind == KIND_SCATTER) & opt.nee
-            M[lay.NEX + prev_part[covered], idx[covered]] += w[covered]
-            counted = sens & ~covered
-            M[lay.DET_DIRECT + dj[counted], idx[counted]] += w[counted]
+            # a hit straight after a BRDF scatter is shared with NEE by MIS weights (power heuristic)
+            covered = np.flatnonzero(sens & (prev_kind == KIND_SCATTER) & opt.nee)
+            w_det = w.copy()
+            if len(covered):
+                p_n = t[covered] ** 2 / (comp.det_area[dj[covered]] * np.abs(cos_in[covered]))
+                w_b = _power_heuristic(pdf_prev[covered], p_n)
+                w_det[covered] = w[covered] * w_b
+                M[lay.NEX + prev_part[covered], idx[covered]] += w[covered] - w_det[covered]
+            counted = sens & (w_det > 0)
+            M[lay.DET_DIRECT + dj[counted], idx[counted]] += w_det[counted]
             for j in range(D):
                 cj = np.flatnonzero(counted & (dj == j))
                 if len(cj):
                     keys = mix_key(hkey[cj], comp.det_parts[j] * 4 + KIND_DETECTOR) if opt.record_paths else None
-                    record(j, idx[cj], p[cj], w[cj], keys, None if hist is None else hist[cj].copy(), depth[cj])
+                    record(j, idx[cj], p[cj], w_det[cj], keys, None if hist is None else hist[cj].copy(), depth[cj])
         isabs = role == _ABSORBER
         M[lay.ABS + part[isabs], idx[isabs]] += w[isabs]
 
@@ -320,11 +331,13 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             idx = idx[:0]
             break
         if len(cont) < len(idx):
-            idx, d, w, U, part, role, p, ng, nf = (a[cont] for a in (idx, d, w, U, part, role, p, ng, nf))
+            idx, d, w, U, part, role, p, ng, nf, pdf_prev = (
+                a[cont] for a in (idx, d, w, U, part, role, p, ng, nf, pdf_prev))
             prev_kind, prev_part, hkey, depth = prev_kind[cont], prev_part[cont], hkey[cont], depth[cont]
             if hist is not None:
                 hist = hist[cont]
         w_new = np.zeros(len(idx))
+        pdf_new = np.zeros(len(idx))
         d_new = d - 2.0 * _dot(d, nf)[:, None] * nf
         kind = np.where(role == _SURFACE, KIND_SCATTER, KIND_SPECULAR).astype(np.int8)
         mir = role == _MIRROR
@@ -356,14 +369,20 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                     if len(ok) == 0:
                         continue
                     wo_loc = np.stack([_dot(wdir[ok], tb[ok]), _dot(wdir[ok], bb[ok]), cos_s[ok]], axis=-1)
-                    if len(spec.materials) == 1:
-                        f = spec.materials[0].brdf(wi_loc[ok], wo_loc, opt.polarization)
-                    else:
-                        f = np.zeros(len(ok))
-                        for m in np.unique(mat[ok]):
-                            sel = mat[ok] == m
-                            f[sel] = spec.materials[m].brdf(wi_loc[ok][sel], wo_loc[sel], opt.polarization)
-                    c = w[surf][ok] * f * cos_s[ok] * cos_d[ok] * geo.area_mm2 / dist2[ok]
+                    f = np.zeros(len(ok))
+                    p_b = np.zeros(len(ok))
+                    for m in np.unique(mat[ok]):
+                        sel = mat[ok] == m
+                        model = spec.materials[m]
+                        f[sel] = model.brdf(wi_loc[ok][sel], wo_loc[sel], opt.polarization)
+                        p_b[sel] = model.pdf(wi_loc[ok][sel], wo_loc[sel], opt.polarization)
+                    if comp.target is not None:
+                        q = float(opt.target_fraction)
+                        p_b = (1 - q) * p_b + q * _target_pdf(comp, p[surf][ok], nf[surf][ok], wdir[ok], spec.eps)
+                    # MIS with the walk's own hits on the detector (power heuristic, Veach 1997 ch. 9)
+                    p_n = dist2[ok] / (geo.area_mm2 * cos_d[ok])
+                    c = (w[surf][ok] * f * cos_s[ok] * cos_d[ok] * geo.area_mm2 / dist2[ok]
+                         * _power_heuristic(p_n, p_b))
                     pos = c > 0
                     ok, c = ok[pos], c[pos]
                     if len(ok) == 0:
@@ -390,19 +409,22 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                 groups = [(m, mat == m) for m in np.unique(mat)]
             wo_world = np.empty((n_surf, 3))
             weight = np.empty(n_surf)
+            pdf_dir = np.empty(n_surf)
             nfs = nf[surf]
             for m, sel in groups:
                 smp = spec.materials[m].sample(wi_loc[sel], U[surf][sel, 0:3], opt.polarization)
                 wo = np.asarray(smp.wo, dtype=np.float64)
                 weight[sel] = np.where(wo[:, 2] > 0, np.asarray(smp.weight, dtype=np.float64), 0.0)
+                pdf_dir[sel] = smp.pdf_per_sr
                 wo_world[sel] = wo[:, :1] * tb[sel] + wo[:, 1:2] * bb[sel] + wo[:, 2:3] * nfs[sel]
             norm = np.linalg.norm(wo_world, axis=1, keepdims=True)
             wo_world = wo_world / np.where(norm > 0, norm, 1.0)
             if comp.target is not None:
-                wo_world, weight = _target_mixture(spec, comp, opt, U[surf, tcol:tcol + 4], p[surf], nfs, tb, bb,
-                                                   wi_loc, wo_world, mat, groups)
+                wo_world, weight, pdf_dir = _target_mixture(spec, comp, opt, U[surf, tcol:tcol + 4], p[surf], nfs,
+                                                            tb, bb, wi_loc, wo_world, mat, groups)
             d_new[surf] = wo_world
             w_new[surf] = w[surf] * weight
+            pdf_new[surf] = pdf_dir
         M[lay.ABS + part, idx] += w - w_new
         # Russian roulette (unbiased): survive with probability w_new / thr at weight thr
         low = (w_new < thr) & (w_new > 0)
@@ -427,6 +449,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         d = d_new[keep]
         w = w_after[keep]
         prev_kind = kind[keep]
+        pdf_prev = pdf_new[keep]
         prev_part = part[keep]
         if opt.record_paths:  # path hashes are only needed for path records
             hkey = mix_key(hkey[keep], code[keep])
@@ -475,21 +498,33 @@ def _target_mixture(spec, comp, opt, ut, p, nf, tb, bb, wi_loc, wo_world, mat, g
     for m, sel in groups:
         f[sel] = spec.materials[m].brdf(wi_loc[sel], wo_loc[sel], opt.polarization)
         pdf_b[sel] = spec.materials[m].pdf(wi_loc[sel], wo_loc[sel], opt.polarization)
-    o_t = p + spec.eps * nf
-    tri_t = comp.target_isect.first_triangle(o_t, wo_world)
+    mix = (1.0 - q) * pdf_b + q * _target_pdf(comp, p, nf, wo_world, spec.eps)
+    cos_o = wo_loc[:, 2]
+    good = (cos_o > 0) & (mix > 0)
+    weight = np.where(good, f * cos_o / np.where(good, mix, 1.0), 0.0)
+    return wo_world, weight, np.where(good, mix, 0.0)
+
+
+def _target_pdf(comp, p, nf, dirs, eps):
+    """Solid-angle density of area-sampling the flat target toward ``dirs`` from ``p``: d^2 / (A |cos_y|)."""
+    tri_t = comp.target_isect.first_triangle(p + eps * nf, dirs)
     hit = np.flatnonzero(tri_t >= 0)
     pdf_t = np.zeros(len(p))
     if len(hit):
         nt = comp.target.normals[tri_t[hit]]
-        cos_y = _dot(wo_world[hit], nt)
+        cos_y = _dot(dirs[hit], nt)
         ok = np.abs(cos_y) > 1e-12
         dist = (comp.target_plane_d[tri_t[hit]] - _dot(nt, p[hit])) / np.where(ok, cos_y, 1.0)
         pdf_t[hit] = np.where(ok, dist * dist / (comp.target.area_mm2 * np.abs(np.where(ok, cos_y, 1.0))), 0.0)
-    mix = (1.0 - q) * pdf_b + q * pdf_t
-    cos_o = wo_loc[:, 2]
-    good = (cos_o > 0) & (mix > 0)
-    weight = np.where(good, f * cos_o / np.where(good, mix, 1.0), 0.0)
-    return wo_world, weight
+    return pdf_t
+
+
+def _power_heuristic(p_this, p_other):
+    """MIS weight p^2 / (p^2 + q^2) of the strategy with density p_this (Veach 1997, eq. 9.13)."""
+    a = np.asarray(p_this, dtype=np.float64) ** 2
+    b = np.asarray(p_other, dtype=np.float64) ** 2
+    total = a + b
+    return np.where(total > 0, a / np.where(total > 0, total, 1.0), 0.0)
 
 
 def _chunk_maps(map_rows, nch, C, D, bins):
