@@ -42,6 +42,23 @@ def test_contracts_example_loads_and_round_trips(tmp_path):
     assert again.to_dict() == m.to_dict()
 
 
+def test_contracts_section5_example_verbatim_loads():
+    text = """{
+  "name": "z302_sample_b",
+  "wavelength_nm": 532.0,
+  "components": [
+    {"type": "lambertian", "rd": 0.03},
+    {"type": "k_correlation", "sigma_nm": 3.0, "lc_um": 40.0, "s": 2.4, "n": 1.52},
+    {"type": "k_correlation", "sigma_nm": 25.0, "lc_um": 3.0, "s": 3.0, "n": 1.52, "weight": 0.5},
+    {"type": "abg", "a": 0.001, "b": 0.0001, "g": 2.0},
+    {"type": "harvey_shack", "b0": 10.0, "l": 0.01, "s": -2.0}
+  ]
+}"""
+    m = load_material(json.loads(text))
+    assert [type(c).__name__ for c in m.components] == ["Lambertian", "KCorrelation", "KCorrelation", "Abg", "HarveyShack"]
+    assert m.components[2].weight == 0.5
+
+
 def test_inline_dict_without_wavelength_and_name():
     m = load_material({"components": [{"type": "lambertian", "rd": 0.05}]}, name="black")
     assert m.name == "black" and m.wavelength_nm is None
