@@ -85,7 +85,9 @@ class TwinConfig:
         ``RigConfig.sample_width_mm``).
     holder_rd : 0 makes holder and post perfect absorbers; > 0 makes them Lambertian
         surfaces of that reflectance (stray light from the mount).
-    source_standoff_mm : where the (virtual) beam rays start, upstream of the sample.
+    source_standoff_mm : where the (virtual) beam rays start, upstream of the sample; None (default):
+        beyond the arm's orbit (1.25 arm + 10 mm), so that near retroreflection the arm shadows the
+        beam as on the real rig.
     tolerance_mm : chord tolerance of the tessellation (only the post is curved).
     estimator : "auto", "nee" or "walk" (module docstring).
     pilot_fraction : pilot rays per estimator, as a fraction of the set-point's rays (auto only).
@@ -97,7 +99,7 @@ class TwinConfig:
     detector_margin_mm: float = 0.1
     sample_height_mm: float = 25.4
     holder_rd: float = 0.0
-    source_standoff_mm: float = 40.0
+    source_standoff_mm: float | None = None
     tolerance_mm: float = 0.05
     estimator: str = "auto"
     pilot_fraction: float = 0.1
@@ -110,6 +112,8 @@ class TwinConfig:
         for name in ("slit_plate_thickness_mm", "detector_gap_mm", "detector_margin_mm", "sample_height_mm",
                      "source_standoff_mm", "tolerance_mm", "pilot_fraction"):
             value = getattr(self, name)
+            if value is None and name == "source_standoff_mm":
+                continue
             if not (math.isfinite(value) and value > 0):
                 raise TwinError(f"{name} must be a finite number > 0, got {value!r}")
         if not (0.0 <= self.holder_rd < 1.0):
@@ -258,10 +262,11 @@ def build_twin_scene(theta_i: float, theta_r: float, phi_r: float = 0.0, config:
 
 
 def laser_beam(config: RigConfig = NOMINAL, twin: TwinConfig = DEFAULT_TWIN, power_w: float = 1.0) -> LaserBeam:
-    """The rig's fixed laser: along -z onto the rotation axis, waist at the sample."""
+    """The rig's fixed laser: along -z onto the rotation axis, waist at the sample, starting beyond the arm."""
     return LaserBeam(center_mm=np.zeros(3), direction=np.array([0.0, 0.0, -1.0]), axis_u=np.array([1.0, 0.0, 0.0]),
                      diameter_mm=config.beam_diameter_mm, profile=twin.beam_profile,
-                     divergence_mrad=config.beam_divergence_mrad, standoff_mm=twin.source_standoff_mm,
+                     divergence_mrad=config.beam_divergence_mrad,
+                     standoff_mm=twin.source_standoff_mm or 1.25 * config.arm_mm + 10.0,
                      power_w=power_w)
 
 

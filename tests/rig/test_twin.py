@@ -295,3 +295,13 @@ def test_paper_sized_scan_of_sample_b_matches_the_converged_fast_model(monkeypat
     n = len(z)
     assert np.all(np.abs(z) < 4), np.c_[scan.theta_i_deg, scan.theta_r_deg, z][np.abs(z) >= 4]
     assert np.mean(z**2) < 1 + 4 * np.sqrt(2 / n)
+
+
+def test_arm_shadows_the_beam_near_retroreflection():
+    """The laser comes from beyond the arm's orbit: with the arm on the incident beam (theta_r = -theta_i,
+    backscatter side) the 25 mm slit plate blocks it and nothing reaches the sample; 10 deg away
+    (beyond the plate's 3.6 deg half-width at 200 mm) a Lambertian sample reads rd/pi again."""
+    blocked = twin_point(Lambertian(0.6), 30.0, -30.0, n_rays=5000, seed=1)
+    clear = twin_point(Lambertian(0.6), 30.0, -40.0, n_rays=5000, seed=1)
+    assert blocked.brdf_per_sr == 0.0
+    assert clear.brdf_per_sr > 0 and abs(clear.brdf_per_sr - 0.6 / math.pi) < 3 * clear.stderr_per_sr
