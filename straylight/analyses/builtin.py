@@ -146,12 +146,20 @@ def resolve_materials(material) -> tuple[str, dict | None]:
 
 
 @lru_cache(maxsize=16)
-def _tube_scene(params, tag: str, tolerance_mm: float):
-    """Tessellated tube; cached because CadQuery takes seconds and scenes are immutable."""
+def _tube_scene(params, tolerance_mm: float):
+    """Tessellated tube, untagged; cached because CadQuery takes seconds and scenes are immutable."""
     from geometry.parts.tube import build_tube
     from geometry.tessellate import tessellate_parts
 
-    return tessellate_parts(build_tube(params), tolerance_mm=tolerance_mm, material=tag)
+    return tessellate_parts(build_tube(params), tolerance_mm=tolerance_mm)
+
+
+def _tagged(scene, tag: str):
+    """The same triangles with material ``tag`` on every non-detector part (arrays are shared)."""
+    from geometry.mesh import Part, Scene
+
+    return Scene(tuple(Part(p.name, p.vertices_mm, p.faces, None if p.role == "detector" else tag, p.role, p.meta)
+                       for p in scene.parts))
 
 
 def tube_setup(material=DEFAULT_MATERIAL, tolerance_mm: float = DEFAULT_TOLERANCE_MM, **params) -> Setup:
@@ -163,7 +171,7 @@ def tube_setup(material=DEFAULT_MATERIAL, tolerance_mm: float = DEFAULT_TOLERANC
 
     p = replace(REFERENCE_TUBE, **params) if params else REFERENCE_TUBE
     tag, mats = resolve_materials(material)
-    scene = _tube_scene(p, tag, float(tolerance_mm))
+    scene = _tagged(_tube_scene(p, float(tolerance_mm)), tag)
     top = p.length_mm + (p.aperture_stop_thickness_mm if p.aperture_stop_radius_mm is not None else 0.0)
     r_entrance = p.aperture_stop_radius_mm if p.aperture_stop_radius_mm is not None else p.inner_radius_mm
     reference_like = np.isclose(p.outer_radius_mm, 51.0)

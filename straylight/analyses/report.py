@@ -1,0 +1,371 @@
+"""The baffle design study: every analysis on the built-in tube, written as a report folder.
+
+``run_study(out_dir)`` builds the default baffled tube (the BENCHMARK.md geometry, walls
+and vanes coated with the ``z302_sample_b`` preset), then
+
+1. a PST sweep over off-axis angles (next-event estimation toward the detector);
+2. a design sweep of the vane count (0..9) at two stray-light angles;
+3. the stray-light path report at one stray-light angle;
+4. critical and illuminated objects at that angle;
+5. a 3-D view with traced rays, a view coloured by absorbed power, and the detector map,
+
+and writes PNG plots, CSV/JSON results, ``report.md`` and ``index.html`` into ``out_dir``.
+Every Monte Carlo number carries its standard error; each step has its own seed derived
+from the user's seed.
+"""
+from __future__ import annotations
+
+import html
+import json
+import math
+import platform
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+DEFAULT_ANGLES_DEG = (0.0, 2.0, 5.0, 8.0, 10.0, 12.0, 14.0, 16.0, 20.0, 25.0, 30.0, 40.0, 50.0, 60.0)
+DEFAULT_SWEEP_ANGLES_DEG = (20.0, 30.0)
+DEFAULT_PATH_ANGLE_DEG = 20.0
+
+
+@dataclass
+class StudyConfig:
+    """What the study runs; ``rays`` is the PST rays per angle, other steps scale from it."""
+
+    rays: int = 100_000
+    seed: int = 0
+    workers: int | None = None
+    scheduler: str | None = None
+    material: str = "z302_sample_b"
+    angles_deg: tuple = DEFAULT_ANGLES_DEG
+    sweep_parameter: str = "vane_count"
+    sweep_values: tuple = tuple(range(10))
+    sweep_angles_deg: tuple = DEFAULT_SWEEP_ANGLES_DEG
+    path_angle_deg: float = DEFAULT_PATH_ANGLE_DEG
+    progress: bool = True
+
+    @property
+    def sweep_rays(self) -> int:
+        return max(1000, self.rays // 2)
+
+    @property
+    def path_rays(self) -> int:
+        return max(1000, 2 * self.rays)
+
+    @property
+    def critical_rays(self) -> int:
+        return max(1000, self.rays)
+
+
+@dataclass
+class StudyResult:
+    out_dir: Path
+    config: StudyConfig
+    files: dict = field(default_factory=dict)
+    timings_s: dict = field(default_factory=dict)
+    summary: dict = field(default_factory=dict)
+
+
+def _step(name: str, progress: bool):
+    if progress:
+        print(f"[study] {name} ...", file=sys.stderr, flush=True)
+
+
+def benchmark_direct_ratio(off_axis, params: dict) -> np.ndarray:
+    """Unscattered transmission of the built-in tube (entrance normalisation), BENCHMARK.md formula.
+
+    With equal vane holes and detector radius, the direct beam is limited by the top vane's
+    hole (top face at z_top) and the detector: lens(r, r, z_top tan a) / (pi r_entrance^2).
+    Returns NaN where that shortcut does not hold (no vanes, or unequal radii).
+    """
+    from straylight.analyses.pst import geometric_direct_ratio
+
+    r_v, r_e = params["vane_inner_radius_mm"], params["inner_radius_mm"]
+    r_d = params["detector_radius_mm"] or params["field_stop_radius_mm"]
+    if params["vane_count"] < 1 or not math.isclose(r_v, r_d) or params["field_stop_radius_mm"] < r_v:
+        return np.full(np.shape(off_axis), np.nan)
+    z_top = params["vane_last_z_mm"] + params["vane_thickness_mm"] / 2 if params["vane_z_mm"] is None \
+        else max(params["vane_z_mm"]) + params["vane_thickness_mm"] / 2
+    return geometric_direct_ratio(off_axis, r_v, r_d, z_top) * (r_v / r_e) ** 2
+
+
+def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
+    """Run every step and write the report folder; returns what was written and the key numbers."""
+    from straylight import viz
+    from straylight.analyses.builtin import tube_setup
+    from straylight.analyses.critical import critical_objects
+    from straylight.analyses.paths_report import paths_analysis
+    from straylight.analyses.pst import dask_client, point_seed, pst_sweep
+    from straylight.analyses.sweep import design_sweep
+
+    cfg = config or StudyConfig()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result = StudyResult(out, cfg)
+    t_all = time.perf_counter()
+
+    _step("building the tube (CadQuery, tessellation)", cfg.progress)
+    t0 = time.perf_counter()
+    setup = tube_setup(material=cfg.material)
+    result.timings_s["geometry"] = time.perf_counter() - t0
+
+    with dask_client(cfg.workers, cfg.scheduler) as client:
+        _step(f"PST sweep, {len(cfg.angles_deg)} angles x {cfg.rays} rays", cfg.progress)
+        t0 = time.perf_counter()
+        pst = pst_sweep(setup, np.radians(cfg.angles_deg), n_rays=cfg.rays, seed=point_seed(cfg.seed, 1),
+                        client=client, progress=cfg.progress)
+        result.timings_s["pst"] = time.perf_counter() - t0
+        pst.write_csv(out / "pst.csv")
+        pst.write_json(out / "pst.json")
+        _pst_plot(pst, setup, out / "pst.png", cfg.material)
+        pst.plot(out / "entrance_ratio.png", quantity="entrance_ratio")
+
+        _step(f"paths at {cfg.path_angle_deg:g} deg, {cfg.path_rays} rays", cfg.progress)
+        t0 = time.perf_counter()
+        report, trace_res = paths_analysis(setup, math.radians(cfg.path_angle_deg), n_rays=cfg.path_rays,
+                                           seed=point_seed(cfg.seed, 2), client=client, progress=cfg.progress)
+        result.timings_s["paths"] = time.perf_counter() - t0
+        (out / "paths.md").write_text(report.markdown(20))
+        report.write_csv(out / "paths.csv")
+        report.write_json(out / "paths.json")
+        report.plot(out / "paths.png", top=15)
+        viz.plot_detector_map(trace_res.maps[setup.detector], out / "detector_map.png",
+                              title=f"Detector irradiance at {cfg.path_angle_deg:g} deg off axis "
+                                    f"({cfg.path_rays:.2g} rays, 1 W beam)")
+
+        _step(f"critical and illuminated objects at {cfg.path_angle_deg:g} deg", cfg.progress)
+        t0 = time.perf_counter()
+        crit = critical_objects(setup, math.radians(cfg.path_angle_deg), n_rays=cfg.critical_rays,
+                                seed=point_seed(cfg.seed, 3), client=client)
+        result.timings_s["critical"] = time.perf_counter() - t0
+        crit.write_json(out / "critical.json")
+        crit.write_csv(out / "critical.csv")
+        (out / "critical.md").write_text(crit.markdown())
+        crit.plot(out / "critical.png")
+
+    _step(f"design sweep of {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
+    t0 = time.perf_counter()
+    sweep = design_sweep(cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
+                         n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4), material=cfg.material,
+                         workers=cfg.workers, scheduler=cfg.scheduler, progress=cfg.progress)
+    result.timings_s["sweep"] = time.perf_counter() - t0
+    sweep.write_csv(out / "sweep.csv")
+    sweep.write_json(out / "sweep.json")
+    sweep.plot(out / "sweep.png")
+
+    _step("3-D views", cfg.progress)
+    t0 = time.perf_counter()
+    a = math.radians(cfg.path_angle_deg)
+    walks = viz.trace_ray_paths(setup, a, n_rays=4000, seed=point_seed(cfg.seed, 5))
+    hits = [w for w in walks if w[2]][:40]
+    others = [w for w in walks if not w[2]][:160]
+    viz.render_scene(setup.scene, out / "view_rays.png", ray_paths=others + hits,
+                     title=f"Baffled tube, beam {cfg.path_angle_deg:g} deg off axis: {len(others) + len(hits)} "
+                           f"rays ({len(hits)} reaching the detector, red)")
+    viz.render_scene(setup.scene, out / "view_absorbed.png", color_by="absorbed",
+                     absorbed_w={k: v.power_w for k, v in trace_res.absorbed.items()},
+                     title=f"Absorbed power per part, beam {cfg.path_angle_deg:g} deg off axis")
+    result.timings_s["views"] = time.perf_counter() - t0
+    result.timings_s["total"] = time.perf_counter() - t_all
+
+    direct = benchmark_direct_ratio(np.radians(cfg.angles_deg), setup.params)
+    result.summary = {
+        "description": setup.description,
+        "pst": pst.to_json_dict(),
+        "geometric_direct_entrance_ratio": [None if not np.isfinite(x) else float(x) for x in direct],
+        "paths": report.to_json_dict(top=20),
+        "critical": crit.to_json_dict(),
+        "sweep": sweep.to_json_dict(),
+        "sweep_best": {f"{a:g} deg": sweep.best(j) for j, a in enumerate(sweep.off_axis_deg)},
+        "energy_ledger_at_path_angle": {"emitted_w": trace_res.emitted_w,
+                                        "detected_w": sum(t.power_w for t in trace_res.detectors.values()),
+                                        "absorbed_w": sum(t.power_w for t in trace_res.absorbed.values()),
+                                        "escaped_w": trace_res.escaped.power_w},
+        "timings_s": result.timings_s,
+        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items()},
+        "software": {"python": platform.python_version(), "numpy": np.__version__},
+    }
+    (out / "results.json").write_text(json.dumps(result.summary, indent=2, default=_json_default))
+    write_markdown(result, pst, report, crit, sweep, direct)
+    write_html(result, pst, report, crit, sweep, direct)
+    result.files = {p.name: p for p in sorted(out.iterdir())}
+    return result
+
+
+def _json_default(x):
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.floating,)):
+        return float(x)
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
+
+
+def _pst_plot(pst, setup, path, material: str = ""):
+    """PST plot with the unscattered (geometric) transmission drawn for comparison."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.8), dpi=120)
+    pst.plot(ax=ax, label_prefix="Monte Carlo ")
+    a = np.linspace(0.0, max(pst.off_axis_deg), 400)
+    direct = benchmark_direct_ratio(np.radians(a), setup.params)
+    if np.any(direct > 0):
+        # entrance ratio -> PST: times entrance area * cos a / detector area
+        r_e = setup.entrance.radius_mm
+        conv = math.pi * r_e**2 * np.cos(np.radians(a)) / pst.detector_area_mm2
+        ok = direct > 0
+        ax.plot(a[ok], (direct * conv)[ok], "k--", lw=1, label="unscattered (geometric) transmission")
+    ax.legend(fontsize=8)
+    prm = setup.params or {}
+    ax.set_title(f"Point source transmittance of the baffled tube: {prm.get('vane_count', '?')} vanes "
+                 f"(hole r = {prm.get('vane_inner_radius_mm', float('nan')):g} mm)\n"
+                 f"coating {material}; {pst.rays:.2g} rays per angle, 1-sigma error bars", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _pst_table_rows(pst, direct):
+    rows = []
+    for i, a in enumerate(pst.off_axis_deg):
+        rel = pst.pst_stderr[i] / pst.pst[i] if pst.pst[i] > 0 else math.nan
+        d = direct[i] if i < len(direct) else math.nan
+        rows.append((f"{a:g}", f"{pst.pst[i]:.3e}", f"{pst.pst_stderr[i]:.2e}", f"{rel:.1%}" if rel == rel else "-",
+                     f"{pst.entrance_ratio[i]:.3e}", f"{d:.3e}" if np.isfinite(d) else "-", f"{pst.seconds[i]:.1f}"))
+    return rows
+
+
+PST_HEADER = ("off-axis (deg)", "PST", "1 sigma", "rel. error", "detector / entrance power",
+              "unscattered (geometric)", "time (s)")
+
+
+def _md_table(header, rows) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _html_table(header, rows) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _findings(pst, report, crit, sweep) -> list[str]:
+    out = []
+    stray = [i for i, a in enumerate(pst.off_axis_deg) if a >= 20]
+    if stray:
+        i = stray[0]
+        out.append(f"PST at {pst.off_axis_deg[i]:g} deg off axis: {pst.pst[i]:.2e} +- {pst.pst_stderr[i]:.1e} "
+                   f"(only scattered light reaches the detector past the geometric cut-off).")
+    if report.rows:
+        top = report.rows[0]
+        out.append(f"Largest stray-light path at {crit.off_axis_deg:g} deg: {top.label} "
+                   f"({top.fraction:.1%} +- {top.fraction_stderr:.1%} of the detector power).")
+        once = report.ancestry_w.get("scattered_once", (0.0, 0.0))[0]
+        if report.total_w > 0:
+            out.append(f"Single-scatter paths carry {once / report.total_w:.1%} of the detector power.")
+    if crit.ranking:
+        out.append("Parts both illuminated and seen by the detector (ranked): "
+                   + ", ".join(r.part for r in crit.ranking[:5]) + ".")
+    for j, a in enumerate(sweep.off_axis_deg):
+        out.append(f"Design sweep: lowest PST at {a:g} deg with {sweep.parameter.replace('_', ' ')} = "
+                   f"{sweep.best(j):g} ({np.nanmin(sweep.pst[:, j]):.2e}; with {sweep.values[0]:g}: "
+                   f"{sweep.pst[0, j]:.2e}).")
+    return out
+
+
+def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
+    cfg = result.config
+    lines = [f"# Baffle design study", "", result.summary["description"], "", "## Findings", ""]
+    lines += [f"- {f}" for f in _findings(pst, report, crit, sweep)]
+    lines += ["", "## Point source transmittance", "", "![PST](pst.png)", "",
+              _md_table(PST_HEADER, _pst_table_rows(pst, direct)), "",
+              "## Stray-light paths", "", "![paths](paths.png)", "", report.markdown(15), "",
+              "## Critical and illuminated objects", "", "![critical](critical.png)", "", crit.markdown(), "",
+              "## Design sweep", "", "![sweep](sweep.png)", "",
+              "## 3-D views and detector map", "", "![rays](view_rays.png)", "", "![absorbed](view_absorbed.png)",
+              "", "![map](detector_map.png)", "", "## Method", "", *_method_lines(result)]
+    path = result.out_dir / "report.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _method_lines(result: StudyResult) -> list[str]:
+    cfg = result.config
+    t = result.timings_s
+    return [
+        "- PST = detector irradiance / beam irradiance normal to the rays; the entrance ratio is detector "
+        "power / beam power crossing the entrance disk (shared/BENCHMARK.md).",
+        "- Forward Monte Carlo with next-event estimation toward the detector (docs/engine.md); error bars "
+        "are 1 standard error of the mean over rays.",
+        f"- Rays: {cfg.rays} per PST angle, {cfg.sweep_rays} per design-sweep point, {cfg.path_rays} for the "
+        f"path report, {cfg.critical_rays} each way for critical/illuminated objects. Seed {cfg.seed} "
+        "(each step and point derives its own stream from it).",
+        f"- Coating: `{cfg.material}` on wall, vanes and end plate; the detector absorbs everything.",
+        "- Wall time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in t.items()) + ".",
+        "- Numbers: results.json, pst.csv, sweep.csv, paths.csv, critical.csv.",
+    ]
+
+
+def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
+    """index.html: findings, plots and tables, readable without a server."""
+    def img(name, alt, width="100%"):
+        return f'<figure><img src="{name}" alt="{html.escape(alt)}" style="max-width:{width}"><figcaption>' \
+               f"{html.escape(alt)}</figcaption></figure>"
+
+    path_rows = [(r.rank, r.label, r.ancestry.replace("_", " "), f"{r.fraction:.2%}", f"{r.fraction_stderr:.2%}",
+                  f"{r.power_w:.2e}", r.n_records) for r in report.rows[:15]]
+    anc_rows = [(k.replace("_", " "), f"{v[0] / report.total_w:.2%}" if report.total_w > 0 else "-",
+                 f"{v[1] / report.total_w:.2%}" if report.total_w > 0 else "-") for k, v in report.ancestry_w.items()]
+    ranked = crit.ranking + [r for r in sorted(crit.rows, key=lambda r: -(r.illuminated + r.view_factor))
+                             if r not in crit.ranking]
+    crit_rows = [(i + 1 if r in crit.ranking else "-", r.part, f"{r.illuminated:.3e} +- {r.illuminated_stderr:.1e}",
+                  f"{r.view_factor:.3e} +- {r.view_factor_stderr:.1e}", f"{r.score:.2e}") for i, r in enumerate(ranked)]
+    sweep_rows = [(f"{v:g}", *[f"{sweep.pst[i, j]:.2e} +- {sweep.pst_stderr[i, j]:.1e}"
+                               for j in range(len(sweep.off_axis_deg))]) for i, v in enumerate(sweep.values)]
+    body = f"""
+<h1>Baffle design study</h1>
+<p>{html.escape(result.summary['description'])}</p>
+<h2>Findings</h2>
+<ul>{''.join(f'<li>{html.escape(f)}</li>' for f in _findings(pst, report, crit, sweep))}</ul>
+<h2>Point source transmittance</h2>
+{img('pst.png', 'PST vs off-axis angle, with the unscattered (geometric) transmission')}
+{_html_table(PST_HEADER, _pst_table_rows(pst, direct))}
+<p>Entrance-normalised ratio: <a href="entrance_ratio.png">entrance_ratio.png</a>; numbers in
+<a href="pst.csv">pst.csv</a>.</p>
+<h2>Stray-light paths at {crit.off_axis_deg:g} deg</h2>
+{img('paths.png', 'Largest paths to the detector, fraction of detector power')}
+<p>Detector total {report.total_w:.3e} +- {report.total_stderr_w:.1e} W for a 1 W beam.</p>
+{_html_table(('rank', 'path', 'ancestry', 'fraction', '1 sigma', 'power (W)', 'records'), path_rows)}
+{_html_table(('ancestry', 'fraction', '1 sigma'), anc_rows)}
+<h2>Critical and illuminated objects at {crit.off_axis_deg:g} deg</h2>
+{img('critical.png', 'View factor from the detector vs fraction of the beam first hitting each part', '70%')}
+{_html_table(('rank', 'part', 'illuminated fraction', 'view factor det -> part', 'score'), crit_rows)}
+<h2>Design sweep: {html.escape(sweep.parameter.replace('_', ' '))}</h2>
+{img('sweep.png', 'PST vs design parameter at the stray-light angles')}
+{_html_table((sweep.parameter,) + tuple(f'PST at {a:g} deg' for a in sweep.off_axis_deg), sweep_rows)}
+<h2>3-D views and detector map</h2>
+{img('view_rays.png', 'Cut-away view with traced rays (colour: log10 relative power; red: reaching the detector)')}
+{img('view_absorbed.png', 'Cut-away view coloured by absorbed power per part')}
+{img('detector_map.png', 'Detector irradiance map', '60%')}
+<h2>Method</h2>
+<ul>{''.join(f'<li>{html.escape(x)}</li>' for x in _method_lines(result))}</ul>
+"""
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>Baffle design study</title>
+<style>
+body {{ font-family: sans-serif; max-width: 1000px; margin: 2em auto; padding: 0 1em; color: #222; }}
+table {{ border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; }}
+th, td {{ border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }}
+td:nth-child(2) {{ text-align: left; }}
+figure {{ margin: 1em 0; }} figcaption {{ font-size: 0.85em; color: #555; }}
+</style></head><body>{body}</body></html>
+"""
+    path = result.out_dir / "index.html"
+    path.write_text(page)
+    return path

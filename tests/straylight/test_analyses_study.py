@@ -1,0 +1,40 @@
+"""The study runs end to end on a tiny ray count and writes a report a person can open."""
+import json
+
+import pytest
+
+from straylight.analyses.report import StudyConfig, run_study
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    out = tmp_path_factory.mktemp("report")
+    cfg = StudyConfig(rays=2000, seed=1, angles_deg=(0.0, 10.0, 20.0), sweep_values=(0, 7), sweep_angles_deg=(20.0,),
+                      progress=False)
+    return run_study(out, cfg)
+
+
+def test_study_writes_index_and_pngs(study):
+    out = study.out_dir
+    html = (out / "index.html").read_text()
+    for name in ("pst.png", "paths.png", "critical.png", "sweep.png", "view_rays.png", "view_absorbed.png",
+                 "detector_map.png"):
+        assert (out / name).stat().st_size > 5_000, name
+        assert f'src="{name}"' in html, name
+    assert "<table>" in html and "Findings" in html
+    assert (out / "report.md").exists()
+
+
+def test_study_results_are_consistent(study):
+    doc = json.loads((study.out_dir / "results.json").read_text())
+    points = doc["pst"]["points"]
+    assert [p["off_axis_deg"] for p in points] == [0.0, 10.0, 20.0]
+    # on axis, 49 % of the entrance power reaches the detector directly (BENCHMARK.md direct(0) = 0.49);
+    # with 2000 rays the binomial sigma is 0.011; 4 sigma
+    assert abs(points[0]["entrance_ratio"] - 0.49) < 4 * 0.0112
+    assert points[2]["pst"] < points[1]["pst"] < points[0]["pst"]
+    ledger = doc["energy_ledger_at_path_angle"]
+    total = ledger["detected_w"] + ledger["absorbed_w"] + ledger["escaped_w"]
+    assert total == pytest.approx(ledger["emitted_w"], rel=1e-9)
+    assert set(doc["sweep"]["values"]) == {0.0, 7.0}
+    assert doc["paths"]["total_w"] > 0
