@@ -117,7 +117,9 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
 
     def on_signal(signum, frame):
         interrupted["signal"] = signal.Signals(signum).name
-        RE.loop.call_soon_threadsafe(RE.request_pause, False)
+        # request_pause blocks until the RunEngine's loop thread acknowledges: never call it
+        # from that thread or hold the main thread on it (bluesky's SigintHandler does the same)
+        threading.Thread(target=_quiet_pause, args=(RE,), daemon=True).start()
 
     if handle_signals and threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -151,6 +153,13 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
         raise ScanFailed(f"{reason}; {outcome.n_points_in_file} of {outcome.n_points_plan} points saved in "
                          f"{csv_path} (log {log_path.name}); fix the fault and rerun with --resume")
     return outcome
+
+
+def _quiet_pause(RE):
+    try:
+        RE.request_pause(defer=False)
+    except Exception:  # noqa: BLE001 - the run already ended or is pausing: nothing to pause
+        pass
 
 
 def _key(p):
