@@ -116,7 +116,9 @@ class Composite:
         for k, c in enumerate(self.components):
             m = choice == k
             if np.any(m):
-                wo[m] = c.sample(wi[m], u[m], polarization).wo  # components read u[:, 1:]
+                # components read u[:, 1:]; sample_direction skips weights we recompute below
+                draw = getattr(c, "sample_direction", None)
+                wo[m] = draw(wi[m], u[m]) if draw is not None else c.sample(wi[m], u[m], polarization).wo
         above = (wo[:, 2] > 0) & (wi[:, 2] > 0)
         mix = np.zeros(n)
         for k, c in enumerate(self.components):

@@ -72,8 +72,19 @@ def polarization_factor(cos_i, cos_r, cos_phi, sin_phi, n, polarization: str = "
     cos_r = np.asarray(cos_r, float)
     sin2_i = np.maximum(0.0, 1.0 - cos_i * cos_i)
     sin2_r = np.maximum(0.0, 1.0 - cos_r * cos_r)
-    qi = _q(eps, sin2_i)
-    qr = _q(eps, sin2_r)
+    if eps.imag == 0.0 and eps.real >= 1.0:
+        # real index >= 1: every factor is real (same formulas, about 3x faster)
+        eps = eps.real
+        qi = np.sqrt(eps - sin2_i)
+        qr = np.sqrt(eps - sin2_r)
+        _abs2 = np.square
+    else:
+        qi = _q(eps, sin2_i)
+        qr = _q(eps, sin2_r)
+
+        def _abs2(z):
+            return z.real**2 + z.imag**2
+
     e1 = eps - 1.0
     di_s = cos_i + qi
     di_p = eps * cos_i + qi
@@ -83,13 +94,13 @@ def polarization_factor(cos_i, cos_r, cos_phi, sin_phi, n, polarization: str = "
     if polarization in ("s", "u"):
         ss = e1 * cos_phi / (di_s * dr_s)
         ps = e1 * qr * sin_phi / (di_s * dr_p)
-        qs = np.abs(ss) ** 2 + np.abs(ps) ** 2
+        qs = _abs2(ss) + _abs2(ps)
         if polarization == "s":
             return qs
         out = 0.5 * qs
     sp = e1 * qi * sin_phi / (di_p * dr_s)
     pp = e1 * (qi * qr * cos_phi - eps * np.sqrt(sin2_i * sin2_r)) / (di_p * dr_p)
-    qp = np.abs(pp) ** 2 + np.abs(sp) ** 2
+    qp = _abs2(pp) + _abs2(sp)
     if polarization == "p":
         return qp
     return out + 0.5 * qp
@@ -104,13 +115,17 @@ def scatter_azimuth(wi, wo) -> tuple[np.ndarray, np.ndarray]:
     wi = np.asarray(wi, float)
     wo = np.asarray(wo, float)
     tx, ty = -wi[:, 0], -wi[:, 1]
-    tn = np.hypot(tx, ty)
-    ok = tn > 1e-15
-    tx = np.where(ok, tx / np.where(ok, tn, 1.0), 1.0)
-    ty = np.where(ok, ty / np.where(ok, tn, 1.0), 0.0)
-    on = np.hypot(wo[:, 0], wo[:, 1])
-    ok_o = on > 1e-15
-    inv = 1.0 / np.where(ok_o, on, 1.0)
-    cos_phi = np.where(ok_o, (wo[:, 0] * tx + wo[:, 1] * ty) * inv, 1.0)
-    sin_phi = np.where(ok_o, (tx * wo[:, 1] - ty * wo[:, 0]) * inv, 0.0)
+    ox, oy = wo[:, 0], wo[:, 1]
+    norm = np.hypot(tx, ty) * np.hypot(ox, oy)
+    ok = norm > 1e-30
+    inv = 1.0 / np.where(ok, norm, 1.0)
+    cos_phi = (ox * tx + oy * ty) * inv
+    sin_phi = (tx * oy - ty * ox) * inv
+    # degenerate: normal incidence (plane of incidence = xz) or theta_r = 0 (phi_r = 0)
+    bad = ~ok
+    if np.any(bad):
+        normal = bad & (np.hypot(ox, oy) > 1e-15)
+        on = np.hypot(ox, oy)
+        cos_phi[bad] = np.where(normal[bad], ox[bad] / np.where(normal[bad], on[bad], 1.0), 1.0)
+        sin_phi[bad] = np.where(normal[bad], oy[bad] / np.where(normal[bad], on[bad], 1.0), 0.0)
     return cos_phi, sin_phi

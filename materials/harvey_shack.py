@@ -26,7 +26,7 @@ import numpy as np
 
 from materials.base import Sample, bragg_offset, check_polarization
 from materials.registry import register
-from materials.sampling import check_real, lobe_pdf, lobe_sample, set_fields
+from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
 
 
 @register("harvey_shack")
@@ -65,6 +65,10 @@ class HarveyShack:
     def sample(self, wi, u, polarization: str = "u") -> Sample:
         check_polarization(polarization)
         return lobe_sample(self, wi, u, polarization, self.l, -self.s)
+
+    def sample_direction(self, wi, u) -> np.ndarray:
+        """The directions ``sample`` would draw, without weights (used by composites)."""
+        return lobe_direction(wi, u, self.l, -self.s)
 
     def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         return lobe_pdf(wi, wo, self.l, -self.s)

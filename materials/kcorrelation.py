@@ -59,7 +59,7 @@ import numpy as np
 from materials.base import MaterialError, Sample, bragg_offset, check_polarization
 from materials.fresnel import complex_index, polarization_factor, scatter_azimuth
 from materials.registry import register
-from materials.sampling import check_real, lobe_pdf, lobe_sample, set_fields
+from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
 
 
 def _slope_ratio(s: float, log1p_x: float) -> float:
@@ -171,21 +171,26 @@ class KCorrelation:
         wi = np.asarray(wi, float)
         wo = np.asarray(wo, float)
         above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        out = np.zeros(len(wi))
-        if not np.any(above):
-            return out
-        a, b = wi[above], wo[above]
-        d = bragg_offset(a, b)
+        d = bragg_offset(wi, wo)
         r2 = d[:, 0] ** 2 + d[:, 1] ** 2
         shape = np.exp(-0.5 * self.s * np.log1p(r2 / self.width**2))
-        q = self.polarization_factor(a, b, polarization)
-        out[above] = self.prefactor * q * a[:, 2] * b[:, 2] * shape
-        return out
+        cos_i = np.where(above, wi[:, 2], 0.0)
+        cos_r = np.where(above, wo[:, 2], 0.0)
+        if self.r is not None:
+            q = self.r
+        else:
+            cos_phi, sin_phi = scatter_azimuth(wi, wo)
+            q = polarization_factor(cos_i, cos_r, cos_phi, sin_phi, self._index, polarization)
+        return self.prefactor * q * cos_i * cos_r * shape
 
     def sample(self, wi, u, polarization: str = "u") -> Sample:
         """Radial inverse-CDF draw about beta0; weight f cos / pdf (0 below the horizon)."""
         check_polarization(polarization)
         return lobe_sample(self, wi, u, polarization, self.width, self.s)
+
+    def sample_direction(self, wi, u) -> np.ndarray:
+        """The directions ``sample`` would draw, without weights (used by composites)."""
+        return lobe_direction(wi, u, self.width, self.s)
 
     def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         return lobe_pdf(wi, wo, self.width, self.s)

@@ -63,6 +63,10 @@ class Lambertian:
             pdf_per_sr=np.where(above, wo[:, 2] / np.pi, 0.0),
         )
 
+    def sample_direction(self, wi, u) -> np.ndarray:
+        """The directions ``sample`` would draw, without weights (used by composites)."""
+        return sample_cosine_hemisphere(direction_uniforms(u))
+
     def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         """cos(theta_r) / pi per sr above the horizon."""
         wi = np.asarray(wi, float)

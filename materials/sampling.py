@@ -172,6 +172,14 @@ def direction_from_beta(beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return wo, above
 
 
+def lobe_direction(wi, u, l, s) -> np.ndarray:
+    """Only the directions of :func:`lobe_sample` (for composites, which weight draws themselves)."""
+    wi = np.asarray(wi, float)
+    b0 = beta0_of(wi)
+    r_max = 1.0 + np.hypot(b0[:, 0], b0[:, 1])
+    return direction_from_beta(b0 + sample_radial_lobe(direction_uniforms(u), l, s, r_max))[0]
+
+
 def lobe_sample(model, wi, u, polarization, l, s) -> Sample:
     """Sample a lobe centred on beta0 with the radial proposal of width l, slope s.
 
