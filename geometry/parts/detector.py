@@ -24,5 +24,6 @@ def rectangular_detector(width_mm: float, height_mm: float, *, name: str = "dete
     import cadquery as cq
 
     require_positive(width_mm=width_mm, height_mm=height_mm)
-    face = cq.Face.makePlane(width_mm, height_mm, cq.Vector(0, 0, 0), cq.Vector(0, 0, 1))
+    # makePlane(length, width) puts `length` along y and `width` along x.
+    face = cq.Face.makePlane(height_mm, width_mm, cq.Vector(0, 0, 0), cq.Vector(0, 0, 1))
     return ShapePart(name, face, "detector", "sheet")
