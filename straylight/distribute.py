@@ -29,7 +29,7 @@ def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
             n = 1 if workers is None else int(workers)
             if n < 1:
                 raise ValueError(f"workers must be >= 1, got {workers}")
-            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0")
             client = Client(cluster)
             owned += [client, cluster]
     try:
