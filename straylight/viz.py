@@ -180,9 +180,8 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
             if hit.any():
                 pl.add_mesh(poly.extract_cells(np.flatnonzero(hit)), color="red", line_width=3.0)
                 legend.append(["rays reaching the detector", "red"])
-    if legend:
-        corner = "lower right" if color_by == "part" else "upper right"
-        pl.add_legend(legend, bcolor="white", face="rectangle", loc=corner,
+    if legend and color_by == "part":
+        pl.add_legend(legend, bcolor="white", face="rectangle", loc="lower right",
                       size=(0.2, min(0.035 * len(legend), 0.5)))
     if title:
         pl.add_text(title, font_size=10, color="black", position="upper_edge")
@@ -206,20 +205,30 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
     return None
 
 
-def plot_detector_map(imap, path=None, title: str = "Detector irradiance", ax=None):
-    """Irradiance map of one detector (``TraceResult.maps[name]``), log colour scale, mm axes."""
+def plot_detector_map(imap, path=None, title: str = "Detector irradiance", ax=None, rebin: int = 1):
+    """Irradiance map of one detector (``TraceResult.maps[name]``), log colour scale, mm axes.
+
+    rebin : sum blocks of rebin x rebin bins first (fewer, less noisy bins; must divide the bin counts)
+    """
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
 
-    e = np.asarray(imap.irradiance_w_per_mm2, dtype=float)
+    power = np.asarray(imap.power_w, dtype=float)
+    eu, ev = np.asarray(imap.edges_u_mm), np.asarray(imap.edges_v_mm)
+    if rebin > 1:
+        nu, nv = power.shape
+        if nu % rebin or nv % rebin:
+            raise ValueError(f"rebin {rebin} does not divide the map's {nu} x {nv} bins")
+        power = power.reshape(nu // rebin, rebin, nv // rebin, rebin).sum(axis=(1, 3))
+        eu, ev = eu[::rebin], ev[::rebin]
+    e = power / np.outer(np.diff(eu), np.diff(ev))
     own = ax is None
     if own:
         fig, ax = plt.subplots(figsize=(6, 5), dpi=120)
     pos = e[e > 0]
-    eu, ev = np.asarray(imap.edges_u_mm), np.asarray(imap.edges_v_mm)
     if len(pos):
-        # at most 5 decades below the peak, so a few low-weight bins do not wash out the map
-        vmin = max(pos.min(), pos.max() * 1e-5)
+        # at most 4 decades below the peak, so a few low-weight bins do not wash out the map
+        vmin = max(pos.min(), pos.max() * 1e-4)
         im = ax.pcolormesh(eu, ev, np.ma.masked_less_equal(e.T, 0), norm=LogNorm(vmin=vmin, vmax=pos.max()),
                            cmap="inferno", shading="flat")
         ax.figure.colorbar(im, ax=ax, label="irradiance (W/mm^2)")

@@ -134,7 +134,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         report.plot(out / "paths.png", top=15)
         viz.plot_detector_map(trace_res.maps[setup.detector], out / "detector_map.png",
                               title=f"Detector irradiance at {cfg.path_angle_deg:g} deg off axis "
-                                    f"({cfg.path_rays:.2g} rays, 1 W beam)")
+                                    f"({cfg.path_rays:.2g} rays, 1 W beam)", rebin=4)
 
         _step(f"critical and illuminated objects at {cfg.path_angle_deg:g} deg", cfg.progress)
         t0 = time.perf_counter()
@@ -167,7 +167,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
                            f"rays ({len(hits)} reaching the detector, red)")
     viz.render_scene(setup.scene, out / "view_absorbed.png", color_by="absorbed",
                      absorbed_w={k: v.power_w for k, v in trace_res.absorbed.items()},
-                     title=f"Absorbed power per part, beam {cfg.path_angle_deg:g} deg off axis")
+                     title=f"Absorbed power per part (detector in yellow), beam {cfg.path_angle_deg:g} deg off axis")
     result.timings_s["views"] = time.perf_counter() - t0
     result.timings_s["total"] = time.perf_counter() - t_all
 
