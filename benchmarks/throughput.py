@@ -112,7 +112,8 @@ def main(argv=None):
 
     res, el = timed_trace(scene, mats, 30.0, args.rays, args.seed)
     rate1 = (res.segments + res.shadow_rays) / el
-    rate1_cpu = (res.segments + res.shadow_rays) / timed_trace.cpu_s
+    cpu1 = timed_trace.cpu_s
+    rate1_cpu = (res.segments + res.shadow_rays) / cpu1
     out.update(trace_rate_1=rate1, trace_s_1=el, trace_rate_1_cpu=rate1_cpu)
     print(f"full trace at 30 deg, 1 worker: {args.rays} rays, {res.segments} segments + {res.shadow_rays} shadow "
           f"rays in {el:.2f} s = {rate1 / 1e6:.2f} M rays/s = {rate1 / raw1:.0%} of raw "
@@ -138,10 +139,9 @@ def main(argv=None):
     print("\n  a   ratio (NEE)            reference              dev/sigma  direct(a)   t_2%[CPU s]  "
           "plain t_2%[CPU s]  gain")
     out["angles"] = {}
-    cpu30 = res.segments and (res, timed_trace.cpu_s)
     for a in (0.0, 5.0, 10.0, 20.0, 30.0):
         if a == 30.0:
-            r, el = res, cpu30[1]
+            r, el = res, cpu1
         else:
             r, _ = timed_trace(scene, mats, a, args.rays, args.seed)
             el = timed_trace.cpu_s  # CPU seconds: robust to other jobs on a shared machine
