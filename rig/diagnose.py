@@ -22,10 +22,13 @@ terms; PHYSICS §4 "diagnosis practice"):
    the held-out gap before and after.
 5. **Forward selection.** The best candidate (lowest BIC) is kept if it lowers BIC by more
    than :data:`BIC_THRESHOLD` *and* improves the prediction of the held-out angles: their
-   chi^2 falls by more than :data:`HELDOUT_CHI2_GAIN` and their gap falls; repeat with the rest on top (only candidates that helped alone
-   are retried). Candidates that helped alone but add nothing once another was selected
-   are reported as *confounded* with it (e.g. an offset and the slit width both act in
-   the specular core).
+   chi^2 falls by more than :data:`HELDOUT_CHI2_GAIN` and their gap falls; repeat with the
+   rest on top (only the best :data:`MAX_RETRIED` candidates that helped alone are
+   retried). Candidates that helped alone but add nothing once another was selected are
+   reported as *confounded* with it (e.g. an offset and the slit width both act in
+   the specular core). An effect whose fitted parameter sits at a bound of its plausible
+   range (``at_bound`` in the JSON) is never selected: the residual is larger than any
+   plausible instrument error of that kind, which usually means the material model fails.
 6. **Regions.** ``specular_core`` (|theta_r - theta_i| <= 0.5 deg in the plane),
    ``shoulder`` (0.5..5 deg), ``wing`` (beyond), and where present ``grazing`` (viewing
    beyond 75 deg, outside core and shoulder) and ``near_retro`` (backscatter side within
@@ -60,6 +63,8 @@ HELDOUT_CHI2_GAIN = 10.0
 DEFAULT_RELATIVE_STD = 0.05
 #: Floor on sigma_log10 (model/quadrature error, ~0.5 %).
 SIGMA_FLOOR_DEX = 0.002
+#: Forward selection retries at most this many of the candidates that helped alone (best first).
+MAX_RETRIED = 4
 CORE_DEG, SHOULDER_DEG, GRAZING_DEG, RETRO_DEG = 0.5, 5.0, 75.0, 10.0
 REGION_ORDER = ("specular_core", "shoulder", "wing", "grazing", "near_retro")
 
@@ -556,6 +561,19 @@ class Diagnosis:
     timings: dict = field(default_factory=dict)
 
 
+def _at_bound(model: Model, name: str) -> list:
+    """Parameters of effect ``name`` pinned (within 0.1 % of the range) at a bound of the
+    catalogue's plausible range: the residual is larger than any plausible instrument error of
+    that kind, so the effect is not selected (usually the material model is what fails)."""
+    out = []
+    for spec in effect_specs(name):
+        x = spec.to_x(model.values[(name, spec.name)])
+        lo, hi = spec.bounds_x
+        if min(x - lo, hi - x) < 1e-3 * (hi - lo):
+            out.append(spec.name)
+    return out
+
+
 def _progress(iterable, total, desc, show):
     try:
         from tqdm import tqdm
@@ -638,6 +656,7 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
             "train_gap_after": problem.gap(f.model, problem.train_idx),
             "delta_heldout_chi2": problem.chi2(f.model, held) - problem.chi2(baseline.model, held),
             "region": effect_types()[name].region,
+            "at_bound": _at_bound(f.model, name),
         })
     candidates.sort(key=lambda c: (c["delta_bic"], c["heldout_gap_after"] if c["heldout_gap_after"] is not None else 0.0))
 
@@ -645,8 +664,8 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
     selected, confounded = [], []
     current = baseline
     current_gap = gap_before
-    helpful = [c["name"] for c in candidates if c["delta_bic"] < -BIC_THRESHOLD]
-    pool = list(helpful)
+    helpful = [c["name"] for c in candidates if c["delta_bic"] < -BIC_THRESHOLD and not c["at_bound"]]
+    pool = list(helpful[:MAX_RETRIED])
     round_fits = {n: singles[n] for n in pool}
     while pool:
         ranked = sorted(pool, key=lambda n: round_fits[n].bic)
@@ -670,6 +689,9 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
         if not pool:
             break
         round_fits = _fit_many(problem, current, pool, workers, progress, f"round {len(selected) + 1}")
+        for n in list(pool):
+            if _at_bound(round_fits[n].model, n):
+                pool.remove(n)
         for n in list(pool):
             if round_fits[n].bic - current.bic >= -BIC_THRESHOLD:
                 confounded.append({
