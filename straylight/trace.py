@@ -63,6 +63,7 @@ class TraceOptions:
     progress: bool = False
     mirror_reflectance: float = 1.0
     target_parts: tuple = ()
+    nee_samples: int = 1
     target_fraction: float = 0.5
 
     def __post_init__(self):
@@ -70,6 +71,8 @@ class TraceOptions:
             raise TraceError(f"max_events must be >= 1, got {self.max_events}")
         if not (0.0 <= float(self.rr_threshold) < 1.0):
             raise TraceError(f"rr_threshold must be in [0, 1), got {self.rr_threshold}")
+        if int(self.nee_samples) < 1:
+            raise TraceError(f"nee_samples must be >= 1, got {self.nee_samples}")
         if int(self.batch_rays) < 1:
             raise TraceError(f"batch_rays must be >= 1, got {self.batch_rays}")
         if self.detector_sides not in ("both", "front"):
@@ -253,8 +256,9 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     hkey = np.zeros(n, dtype=np.uint64)
     depth = np.zeros(n, dtype=np.int64)
     hist = np.full((n, K), -1, dtype=np.int16) if opt.record_paths else None
-    n_uniform = 4 + 3 * D + (4 if comp.target is not None else 0)
-    tcol = 4 + 3 * D
+    k_nee = int(opt.nee_samples)
+    n_uniform = 4 + 3 * D * k_nee + (4 if comp.target is not None else 0)
+    tcol = 4 + 3 * D * k_nee
     segments = 0
     shadow_rays = 0
 
@@ -311,7 +315,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             covered = np.flatnonzero(sens & (prev_kind == KIND_SCATTER) & opt.nee)
             w_det = w.copy()
             if len(covered):
-                p_n = t[covered] ** 2 / (comp.det_area[dj[covered]] * np.abs(cos_in[covered]))
+                p_n = k_nee * t[covered] ** 2 / (comp.det_area[dj[covered]] * np.abs(cos_in[covered]))
                 w_b = _power_heuristic(pdf_prev[covered], p_n)
                 w_det[covered] = w[covered] * w_b
                 M[lay.NEX + prev_part[covered], idx[covered]] += w[covered] - w_det[covered]
@@ -355,8 +359,10 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             o_off = p[surf] + spec.eps * nf[surf]
             if opt.nee and D:
                 keys_v = mix_key(hkey[surf], code[surf]) if opt.record_paths else None
-                for j, geo in enumerate(comp.detectors):
-                    y, ny = geo.sample(U[surf, 4 + 3 * j: 7 + 3 * j])
+                for jk in range(D * k_nee):
+                    j = jk // k_nee
+                    geo = comp.detectors[j]
+                    y, ny = geo.sample(U[surf, 4 + 3 * jk: 7 + 3 * jk])
                     v = y - p[surf]
                     dist2 = _dot(v, v)
                     dist = np.sqrt(dist2)
@@ -380,9 +386,10 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                         q = float(opt.target_fraction)
                         p_b = (1 - q) * p_b + q * _target_pdf(comp, p[surf][ok], nf[surf][ok], wdir[ok], spec.eps)
                     # MIS with the walk's own hits on the detector (power heuristic, Veach 1997 ch. 9)
-                    p_n = dist2[ok] / (geo.area_mm2 * cos_d[ok])
+                    # (k shadow rays per vertex: each counts 1/k, MIS density k p_n)
+                    p_n = k_nee * dist2[ok] / (geo.area_mm2 * cos_d[ok])
                     c = (w[surf][ok] * f * cos_s[ok] * cos_d[ok] * geo.area_mm2 / dist2[ok]
-                         * _power_heuristic(p_n, p_b))
+                         * _power_heuristic(p_n, p_b) / k_nee)
                     pos = c > 0
                     ok, c = ok[pos], c[pos]
                     if len(ok) == 0:

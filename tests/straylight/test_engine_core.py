@@ -97,13 +97,16 @@ def test_nee_and_plain_random_walk_agree_within_errors():
     assert a.power_w > 0 and b.power_w > 0
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)
     assert a.stderr_w < 0.5 * b.stderr_w  # NEE is the point: much smaller error at equal rays
+    split = trace(_plate_scene(), PLATE_SRC, 20000, seed=16, materials=PLATE_MATS,
+                  options=TraceOptions(nee=True, nee_samples=3)).detectors["det"]
+    assert abs(split.power_w - b.power_w) < 4 * math.hypot(split.stderr_w, b.stderr_w)
 
 
 def test_power_ledger_closes_with_mirror_absorber_roulette_and_truncation():
     mirror = annulus_part("mirror", 60.0, 0.0001, 30.0, 64, role="mirror", facing=-1)
     stop = annulus_part("stop", 45.0, 20.0, 35.0, 64, role="absorber")
     scene = _plate_scene((mirror, stop))
-    for opts in (TraceOptions(), TraceOptions(nee=False), TraceOptions(max_events=2),
+    for opts in (TraceOptions(), TraceOptions(nee=False), TraceOptions(max_events=2), TraceOptions(nee_samples=2),
                  TraceOptions(rr_threshold=0.4, mirror_reflectance=0.7)):
         res = trace(scene, [PLATE_SRC, PointSource([0, 0, 20], 1.0)], 5000, seed=4, materials=PLATE_MATS,
                     options=opts)
