@@ -29,7 +29,7 @@ from typing import Optional
 import numpy as np
 
 from materials.albedo import directional_hemispherical_reflectance
-from materials.base import MaterialError, Sample, check_polarization
+from materials.base import MaterialError, Sample
 from materials.composite import Composite
 from materials.registry import build_component
 from materials.sampling import check_real

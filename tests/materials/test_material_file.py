@@ -1,6 +1,5 @@
 """Material files (CONTRACTS §5): load / save / validation with one-line errors naming where."""
 import json
-import os
 
 import numpy as np
 import pytest
