@@ -342,10 +342,12 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                 hist = hist[cont]
         w_new = np.zeros(len(idx))
         pdf_new = np.zeros(len(idx))
-        d_new = d - 2.0 * _dot(d, nf)[:, None] * nf
         kind = np.where(role == _SURFACE, KIND_SCATTER, KIND_SPECULAR).astype(np.int8)
-        mir = role == _MIRROR
-        w_new[mir] = w[mir] * float(opt.mirror_reflectance)
+        mir = np.flatnonzero(role == _MIRROR)
+        d_new = np.empty_like(d)
+        if len(mir):  # specular reflection about the geometric normal
+            d_new[mir] = d[mir] - 2.0 * _dot(d[mir], nf[mir])[:, None] * nf[mir]
+            w_new[mir] = w[mir] * float(opt.mirror_reflectance)
         code = part * 4 + kind
         surf = np.flatnonzero(role == _SURFACE)
         n_surf = len(surf)
