@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from engine_helpers import (
-    StandInLambertian, annulus_part, baffled_tube_scene, disk_part, merge_parts,
+    StandInLambertian, annulus_part, baffled_tube_scene, disk_part,
 )
 from geometry.mesh import Part, Scene
 from straylight.intersect import EmbreeIntersector, ReferenceIntersector

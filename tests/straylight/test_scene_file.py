@@ -1,8 +1,6 @@
 """Scene TOML (CONTRACTS §6) -> resolved scene, and `straylight trace` (CONTRACTS §4.3)."""
 import json
-import math
 
-import numpy as np
 import pytest
 import trimesh
 
