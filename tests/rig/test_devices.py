@@ -163,7 +163,9 @@ def test_real_backend_over_pyvisa_sim():
     assert d.laser.power_w.get() == pytest.approx(2.5 * 0.002)
     d.chopper.trigger().wait(2)
     assert d.chopper.frequency_hz.get() == pytest.approx(1000.0)
-    assert d.lockin.time_constant_s.get() == pytest.approx(0.3)
+    d.lockin.time_constant_s.put(0.1)  # forwarded to the instrument (OFLT 8) and read back
+    assert d.lockin.time_constant_s.get() == pytest.approx(0.1)
+    assert d.lockin._backend.driver.query("OFLT?") == "8"
 
 
 def test_real_backend_stalled_move_and_mute_lockin():
