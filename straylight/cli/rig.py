@@ -31,6 +31,9 @@ def add_parser(subparsers) -> None:
     scan.add_argument("--seed", type=int, default=0, help="seed of the simulated noise (default 0)")
     scan.add_argument("--resume", action="store_true", help="continue an interrupted scan in the same file")
     scan.add_argument("--log", metavar="LOG.jsonl", help="document log (default: SCAN.log.jsonl next to the CSV)")
+    scan.add_argument("--effect", action="append", default=[], metavar="NAME[:KEY=VALUE,...]",
+                      help="--sim only: inject an instrument effect of CONTRACTS §3 into the simulated "
+                           "rig, e.g. angle_offset:offset_deg=0.1 (repeatable; recorded in the log only)")
     scan.add_argument("--fsync", action="store_true",
                       help="--sim: fsync the CSV and log after every point (always on with --hardware)")
     scan.add_argument("--ideal", action="store_true",
@@ -61,13 +64,18 @@ def run_scan_command(args) -> int:
     else:
         sample_label = args.sample
     if args.sim:
-        sim, devices = sim_instrument(None if spec.signature else args.sample, seed=args.seed, ideal=args.ideal)
-        config, gain, md = sim.config, sim.gain_v_per_w, {"backend": "sim", "seed": args.seed, "ideal": args.ideal}
+        effects = [parse_effect(text) for text in args.effect]
+        if effects and args.ideal:
+            raise ValueError("--effect needs the rig model: drop --ideal")
+        sim, devices = sim_instrument(None if spec.signature else args.sample, seed=args.seed, ideal=args.ideal,
+                                      effects=effects)
+        config, gain = sim.config, sim.gain_v_per_w
+        md = {"backend": "sim", "seed": args.seed, "ideal": args.ideal, "sim_effects": list(args.effect)}
         if not spec.signature:
             sample_label = getattr(sim.material, "name", None) or args.sample
     else:
-        if args.ideal:
-            raise ValueError("--ideal applies to --sim only")
+        if args.ideal or args.effect:
+            raise ValueError("--ideal and --effect apply to --sim only")
         config, devices, gain = hardware_instrument(load_hardware_config(args.hardware))
         md = {"backend": "hardware", "hardware_config": str(args.hardware)}
     outcome = run_scan(devices, spec, args.output, sample=sample_label, config=config, md=md,
@@ -79,3 +87,20 @@ def run_scan_command(args) -> int:
         return 130
     print(f"scan complete: {saved} (log {outcome.log_path})", file=sys.stderr)
     return 0
+
+
+def parse_effect(text: str):
+    """``'angle_offset:offset_deg=0.1,...'`` -> ``rig.effects.build_effect(...)``."""
+    from rig.effects import build_effect
+
+    name, _, rest = text.partition(":")
+    params = {}
+    for item in filter(None, (p.strip() for p in rest.split(","))):
+        key, eq, value = item.partition("=")
+        if not eq:
+            raise ValueError(f"--effect {text!r}: expected NAME:KEY=VALUE[,KEY=VALUE], got {item!r}")
+        try:
+            params[key.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--effect {text!r}: {key.strip()} = {value!r} is not a number") from None
+    return build_effect(name.strip(), **params)

@@ -143,3 +143,24 @@ def test_help_lists_the_contract_options(capsys):
     out = capsys.readouterr().out
     for opt in ("--sim", "--hardware", "--sample", "--plan", "-o", "--seed", "--resume"):
         assert opt in out
+
+
+def test_sim_effect_injection_moves_the_peak(tmp_path, capsys):
+    # PHYSICS §4: a sample-stage offset d moves the specular peak by 2 d in arm angle
+    from straylight.cli.main import main
+
+    plan = tmp_path / "p.json"
+    plan.write_text(json.dumps({"polarizations": ["s"], "incidence": [{"theta_i_deg": 30, "grid": "paper"}]}))
+    model = tmp_path / "m.json"
+    model.write_text(json.dumps(MODEL))
+    peaks = []
+    for name, extra in (("base", []), ("offset", ["--effect", "angle_offset:offset_deg=0.5"])):
+        out = tmp_path / f"{name}.csv"
+        assert main(["rig", "scan", "--sim", "--sample", str(model), "--plan", str(plan), "-o", str(out), *extra]) == 0
+        scan = read_scan(out)
+        peaks.append(scan.theta_r_deg[np.argmax(scan.brdf_per_sr)])
+    assert peaks[0] == pytest.approx(30.0, abs=0.1)
+    assert abs(peaks[1] - peaks[0]) == pytest.approx(1.0, abs=0.15)
+    assert main(["rig", "scan", "--sim", "--sample", str(model), "--plan", str(plan), "-o", str(tmp_path / "x.csv"),
+                 "--effect", "no_such_effect"]) == 2
+    assert "unknown effect 'no_such_effect'" in capsys.readouterr().err
