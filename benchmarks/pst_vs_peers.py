@@ -47,7 +47,8 @@ PEERS_DIR = HERE / ".peers"
 PEERS = {
     "raysect": {"pip": "raysect==0.9.1", "module": "raysect", "script": HERE / "peers" / "raysect_tube.py", "args": []},
     "optiland": {"pip": "optiland==0.6.3", "module": "optiland", "script": HERE / "peers" / "optiland_tube.py",
-                 "args": ["--rays-per-repeat", "100000"], "quick_args": ["--rays-per-repeat", "5000"]},
+                 "args": ["--rays-per-repeat", "100000"], "easy_args": ["--rays-per-repeat", "20000"],
+                 "quick_args": ["--rays-per-repeat", "5000"]},
 }
 ANGLES_DEG = (0.0, 5.0, 10.0, 20.0, 30.0)
 STRAY_ANGLES_DEG = (20.0, 30.0)
@@ -83,7 +84,11 @@ def ensure_peer(name: str) -> Path | None:
 
 
 def run_peer(name: str, python: Path, angle_deg: float, seconds: float, quick: bool = False) -> dict | None:
-    extra = PEERS[name].get("quick_args", PEERS[name]["args"]) if quick else PEERS[name]["args"]
+    extra = PEERS[name]["args"]
+    if quick:
+        extra = PEERS[name].get("quick_args", extra)
+    elif angle_deg not in STRAY_ANGLES_DEG:
+        extra = PEERS[name].get("easy_args", extra)
     cmd = [str(python), str(PEERS[name]["script"]), "--angle-deg", str(angle_deg), "--seconds", str(seconds),
            *extra]
     wall = time.perf_counter()
