@@ -297,6 +297,53 @@ class ScanPoint(Device):
         return status
 
 
+class Snapshot:
+    """One bluesky Readable + Triggerable standing for several devices: ``trigger`` triggers the
+    detectors (in order; the status completes when all have), ``read``/``describe`` merge every
+    device's. A point then costs one ``trigger`` and one ``read`` message instead of ten: the
+    event holds the same fields as reading each device separately.
+    """
+
+    parent = None
+
+    def __init__(self, name: str, triggered, readables):
+        self.name = name
+        self._triggered = list(triggered)
+        self._readables = list(readables)
+
+    def trigger(self):
+        statuses = [obj.trigger() for obj in self._triggered]
+        status = statuses[0]
+        for other in statuses[1:]:
+            status = status & other
+        return status
+
+    def _merge(self, method):
+        out = {}
+        for obj in self._readables:
+            out.update(getattr(obj, method)())
+        return out
+
+    def read(self):
+        return self._merge("read")
+
+    def describe(self):
+        return self._merge("describe")
+
+    def read_configuration(self):
+        return self._merge("read_configuration")
+
+    def describe_configuration(self):
+        return self._merge("describe_configuration")
+
+    @property
+    def hints(self):
+        fields = []
+        for obj in self._readables:
+            fields += list(getattr(obj, "hints", {}).get("fields", []))
+        return {"fields": fields}
+
+
 @dataclass
 class RigDevices:
     """Every device of one reflectometer."""
@@ -314,6 +361,14 @@ class RigDevices:
     def detectors(self):
         """What each point reads, besides the motors."""
         return [self.lockin, self.laser, self.chopper, self.point]
+
+    @property
+    def snapshot(self) -> Snapshot:
+        """Triggers lock-in, laser, chopper; reads them, the point and the three axes."""
+        if getattr(self, "_snapshot", None) is None:
+            self._snapshot = Snapshot("rig", [self.lockin, self.laser, self.chopper],
+                                      [*self.detectors, self.sample_stage, self.arm, self.hwp])
+        return self._snapshot
 
     def all(self):
         return [self.sample_stage, self.arm, self.hwp, self.laser, self.chopper, self.lockin, self.point]

@@ -234,8 +234,9 @@ def brdf_scan(devices, points, *, n_readings: int = PAPER_N_READINGS, md: dict |
     """Measure ``points`` (a sequence of :class:`Point`), one event per point.
 
     Each point: ``checkpoint``; record the nominal point and move stage and arm together
-    (``set`` x 3, ``wait``); ``create``; trigger the lock-in (``n_readings`` readings -> mean,
-    std), laser and chopper; ``wait``; ``read`` those, the point and the three axes; ``save``. The HWP moves only when the polarization changes. Points whose
+    (``set`` x 3, ``wait``); ``create``; ``trigger`` the snapshot (lock-in: ``n_readings``
+    readings -> mean, std; laser; chopper); ``wait``; ``read`` the snapshot (those, the point and
+    the three axes); ``save`` (:class:`rig.devices.Snapshot`). The HWP moves only when the polarization changes. Points whose
     :func:`point_key` is in ``skip`` are left out (``--resume``).
 
     Parameters
@@ -246,19 +247,18 @@ def brdf_scan(devices, points, *, n_readings: int = PAPER_N_READINGS, md: dict |
     skip = set(skip)
     todo = [Point(*p) for p in points if point_key(*p) not in skip]
     d = devices
-    readables = [*d.detectors, d.sample_stage, d.arm, d.hwp]
     _md = {"plan_name": "brdf_scan", "n_readings": int(n_readings), "n_points_total": len(points),
            "n_points_todo": len(todo), "hints": {"dimensions": [(["point_theta_r_deg"], "primary")]}}
     _md.update(md or {})
 
-    triggered = [d.lockin, d.laser, d.chopper]
+    snap = d.snapshot
 
     @bpp.stage_decorator([d.lockin, d.laser, d.chopper, d.sample_stage, d.arm, d.hwp])
     @bpp.run_decorator(md=_md)
     def inner():
-        # Raw Msgs in the per-point loop: the same messages as bps.mv / bps.trigger_and_read
-        # (without no-op triggers), but without bluesky's per-stub stack capture, which costs
-        # more than the simulated instrument itself.
+        # Raw Msgs in the per-point loop: the same messages as bps.mv / bps.trigger_and_read,
+        # without bluesky's per-stub stack capture, which costs more than the simulated
+        # instrument itself; one Snapshot stands for every detector and axis read.
         yield from bps.mv(d.lockin.n_readings, int(n_readings))
         pol = None
         for i, p in enumerate(todo):
@@ -273,11 +273,9 @@ def brdf_scan(devices, points, *, n_readings: int = PAPER_N_READINGS, md: dict |
             yield Msg("wait", None, group=group)
             yield Msg("create", None, name="primary")
             group = f"trigger-{i}"
-            for obj in triggered:
-                yield Msg("trigger", obj, group=group)
+            yield Msg("trigger", snap, group=group)
             yield Msg("wait", None, group=group)
-            for obj in readables:
-                yield Msg("read", obj)
+            yield Msg("read", snap)
             yield Msg("save")
 
     return (yield from inner())

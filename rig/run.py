@@ -52,13 +52,18 @@ def _cause(exc: BaseException) -> BaseException:
     """The device error behind a bluesky FailedStatus (or the exception itself)."""
     from bluesky.utils import FailedStatus
 
-    seen = 0
-    while isinstance(exc, FailedStatus) and seen < 5:
-        status = exc.args[0] if exc.args else None
+    def from_status(status):
+        # an AndStatus (the Snapshot's trigger) holds the failed device status in left/right
+        for part in (getattr(status, "left", None), getattr(status, "right", None)):
+            if part is not None and part.done and not part.success:
+                return from_status(part)
         inner = status.exception() if hasattr(status, "exception") else None
-        if inner is None:
-            break
-        exc, seen = inner, seen + 1
+        return inner if isinstance(inner, BaseException) and not isinstance(inner, FailedStatus) else None
+
+    if isinstance(exc, FailedStatus) and exc.args:
+        inner = from_status(exc.args[0])
+        if inner is not None:
+            return inner
     return exc
 
 
