@@ -26,8 +26,11 @@ maps to the in-plane angle with ``sin(theta_r) = sin(theta_i) +/- d`` (clamped t
 (K-correlation-like) extension, wrong for strongly anisotropic or off-specular lobes.
 Not reciprocal in general.
 
-Sampling: cosine-weighted with weight ``pi f`` (unbiased; high variance for tables
-with narrow specular peaks).
+Sampling: an even mixture of the cosine-weighted hemisphere and a radial lobe about
+beta0 (PHYSICS §3 proposal, slope 2) whose width is the narrowest half-width at half
+maximum of the table's rows in beta; ``u[:, 1] < 1/2`` picks the cosine half (rescaled).
+Weight ``f cos / (pdf_cos / 2 + pdf_lobe / 2)``: unbiased, and a narrow specular peak in
+the table is sampled where it is.
 """
 from __future__ import annotations
 
@@ -39,7 +42,13 @@ import numpy as np
 
 from materials.base import MaterialError, Sample, bragg_offset, check_polarization
 from materials.registry import register
-from materials.sampling import cosine_hemisphere_pdf, cosine_sample
+from materials.sampling import (
+    cosine_hemisphere_pdf,
+    direction_uniforms,
+    lobe_direction,
+    lobe_pdf,
+    sample_cosine_hemisphere,
+)
 
 
 def _axis(name, values, lo, hi):
@@ -176,14 +185,53 @@ class Tabulated:
             f = interp[polarization](theta_i, theta_r)
         return np.where(above, f, 0.0)
 
+    @cached_property
+    def proposal_width(self) -> float:
+        """Narrowest half-width at half maximum of the table rows, in beta (>= 1e-4)."""
+        beta_r = np.sin(np.deg2rad(self.theta_r_deg))
+        widths = []
+        for key in ("brdf_per_sr", "brdf_s_per_sr", "brdf_p_per_sr"):
+            table = getattr(self, key)
+            if table is None:
+                continue
+            for row in np.asarray(table, float):
+                if row.max() <= 0:
+                    continue
+                above = np.nonzero(row >= 0.5 * row.max())[0]
+                widths.append(0.5 * (beta_r[above[-1]] - beta_r[above[0]]))
+        if not widths:
+            return 1.0
+        return float(np.clip(min(widths), 1e-4, 1.0))
+
+    def sample_direction(self, wi, u) -> np.ndarray:
+        """The directions ``sample`` would draw, without weights (used by composites)."""
+        wi = np.asarray(wi, float)
+        u2 = direction_uniforms(u)
+        cos_half = u2[:, 0] < 0.5
+        v = u2.copy()
+        v[:, 0] = np.where(cos_half, 2.0 * u2[:, 0], 2.0 * u2[:, 0] - 1.0)
+        wo = lobe_direction(wi, v, self.proposal_width, 2.0)
+        if np.any(cos_half):
+            wo[cos_half] = sample_cosine_hemisphere(v[cos_half])
+        return wo
+
     def sample(self, wi, u, polarization: str = "u") -> Sample:
-        """Cosine-weighted draw, weight pi f."""
+        """Cosine / lobe mixture draw, weight f cos / pdf (0 below the horizon)."""
         check_polarization(polarization)
-        return cosine_sample(self, wi, u, polarization)
+        wi = np.asarray(wi, float)
+        wo = self.sample_direction(wi, u)
+        pdf = self.pdf(wi, wo, polarization)
+        above = (wo[:, 2] > 0) & (pdf > 0)
+        f = self.brdf(wi, wo, polarization)
+        weight = np.where(above, f * wo[:, 2] / np.where(above, pdf, 1.0), 0.0)
+        return Sample(wo=wo, weight=weight, pdf_per_sr=np.where(above, pdf, 0.0))
 
     def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
+        """Mixture density per sr: half cosine, half lobe about beta0."""
         wi = np.asarray(wi, float)
-        return np.where(wi[:, 2] > 0, cosine_hemisphere_pdf(np.asarray(wo, float)[:, 2]), 0.0)
+        wo = np.asarray(wo, float)
+        cos_part = np.where(wi[:, 2] > 0, cosine_hemisphere_pdf(wo[:, 2]), 0.0)
+        return 0.5 * cos_part + 0.5 * lobe_pdf(wi, wo, self.proposal_width, 2.0)
 
     def to_dict(self) -> dict:
         out = {"type": "tabulated", "theta_i_deg": list(self.theta_i_deg), "theta_r_deg": list(self.theta_r_deg)}

@@ -144,3 +144,12 @@ def test_tabulated_s_and_p_tables():
 def test_tabulated_bad_tables_are_refused(kwargs, word):
     with pytest.raises(MaterialError, match=word):
         Tabulated(**kwargs)
+
+
+def test_tabulated_proposal_width_is_the_half_width_at_half_maximum():
+    """Rows f = 1 / (1 + (d / w)^2), d = sin(theta_r) - sin(theta_i): HWHM in beta is w."""
+    ti = np.array([20.0, 40.0])
+    tr = np.linspace(-89.0, 89.0, 17801)  # 0.01-deg steps resolve w = 0.01
+    d = np.sin(np.deg2rad(tr))[None, :] - np.sin(np.deg2rad(ti))[:, None]
+    model = Tabulated(theta_i_deg=list(ti), theta_r_deg=list(tr), brdf_per_sr=(1 / (1 + (d / 0.01) ** 2)).tolist())
+    assert model.proposal_width == pytest.approx(0.01, rel=0.02)
