@@ -71,14 +71,15 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
              md: dict | None = None, resume: bool = False, progress: bool = False, log_path=None,
              gain_v_per_w: float = DEFAULT_GAIN_V_PER_W, suspend_fraction: float = 0.5,
              resume_fraction: float = 0.9, handle_signals: bool = True, fsync: bool = True,
-             run_engine=None, callbacks=()) -> ScanOutcome:
+             run_engine=None, callbacks=(), nominal_power_w: float | None = None) -> ScanOutcome:
     """Measure ``spec`` with ``devices`` into ``csv_path`` (CONTRACTS §2) and its document log.
 
     Returns a :class:`ScanOutcome` (``exit_status`` 'abort' after SIGINT/SIGTERM or
     ``run_engine.request_pause``); raises :class:`ScanFailed` on a device fault and
     ``rig.writer.ResumeError`` / ``SoftLimitError`` on bad requests, before anything moves.
     ``callbacks`` are subscribed after the log and the CSV writer (they see the files as
-    written for each document).
+    written for each document). The laser suspender's thresholds are fractions of
+    ``nominal_power_w`` (default: the power read when the scan starts).
     """
     from bluesky import RunEngine
     from bluesky.suspenders import SuspendFloor
@@ -110,7 +111,7 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
         bar = tqdm(total=len(spec.points), initial=len(spec.points) - n_todo, unit="pt", file=sys.stderr,
                    desc=spec.name, disable=None)
         tokens.append(RE.subscribe(lambda name, doc: bar.update(1), "event"))
-    nominal_w = devices.laser.power_w.get()
+    nominal_w = float(nominal_power_w) if nominal_power_w is not None else devices.laser.power_w.get()
     suspender = SuspendFloor(devices.laser.power_w, suspend_fraction * nominal_w,
                              resume_thresh=resume_fraction * nominal_w, sleep=0.0)
     RE.install_suspender(suspender)
@@ -226,7 +227,8 @@ def load_hardware_config(path) -> dict:
         raise HardwareConfigError(f"{path}, line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
     except Exception as exc:  # tomllib.TOMLDecodeError carries line/column in its message
         raise HardwareConfigError(f"{path}: {exc}") from None
-    allowed = {"visa_library", "gain_v_per_w", "laser_watts_per_volt", "move_timeout_s", "motion", "lockin", "rig"}
+    allowed = {"visa_library", "gain_v_per_w", "laser_watts_per_volt", "laser_nominal_w", "move_timeout_s",
+               "motion", "lockin", "rig"}
     unknown = sorted(set(data) - allowed)
     if unknown:
         raise HardwareConfigError(f"{path}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")

@@ -63,6 +63,7 @@ def run_scan_command(args) -> int:
         raise ValueError("--sample is required (a preset name or MODEL.json) unless the plan is a signature scan")
     else:
         sample_label = args.sample
+    nominal_w = None
     if args.sim:
         effects = [parse_effect(text) for text in args.effect]
         if effects and args.ideal:
@@ -76,11 +77,13 @@ def run_scan_command(args) -> int:
     else:
         if args.ideal or args.effect:
             raise ValueError("--ideal and --effect apply to --sim only")
-        config, devices, gain = hardware_instrument(load_hardware_config(args.hardware))
+        hw = load_hardware_config(args.hardware)
+        config, devices, gain = hardware_instrument(hw)
         md = {"backend": "hardware", "hardware_config": str(args.hardware)}
+        nominal_w = hw.get("laser_nominal_w")
     outcome = run_scan(devices, spec, args.output, sample=sample_label, config=config, md=md,
                        resume=args.resume, progress=True, log_path=args.log, gain_v_per_w=gain,
-                       fsync=bool(args.hardware) or args.fsync)
+                       fsync=bool(args.hardware) or args.fsync, nominal_power_w=nominal_w)
     saved = f"{outcome.n_points_in_file} of {outcome.n_points_plan} points in {outcome.csv_path}"
     if outcome.exit_status == "abort":
         print(f"straylight: scan {outcome.reason}: {saved}; continue with --resume", file=sys.stderr)
