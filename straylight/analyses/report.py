@@ -240,7 +240,7 @@ def _pst_table_rows(pst, direct):
 
 
 PST_HEADER = ("off-axis (deg)", "PST", "1 sigma", "rel. error", "detector / entrance power",
-              "unscattered (geometric)", "time (s)")
+              "unscattered (geometric) detector / entrance power", "time (s)")
 
 
 def _md_table(header, rows) -> str:
