@@ -1,4 +1,5 @@
-"""``straylight rig``: scan (CONTRACTS §4.4) and, when present, diagnose (straylight.cli.rig_diagnose).
+"""``straylight rig``: scan (CONTRACTS §4.4) and, when present, diagnose and twin
+(straylight.cli.rig_diagnose, straylight.cli.rig_twin).
 
 Thin layer: parse, build the simulated or real instrument, call :func:`rig.run.run_scan`.
 ``rig`` is imported lazily, inside the command, so ``import straylight`` never pulls in bluesky.
@@ -40,13 +41,14 @@ def add_parser(subparsers) -> None:
                       help="--sim only: read the material BRDF itself (no slit/beam averaging)")
     scan.set_defaults(func=run_scan_command)
 
-    try:
-        rig_diagnose = importlib.import_module("straylight.cli.rig_diagnose")
-    except ModuleNotFoundError as exc:
-        if exc.name != "straylight.cli.rig_diagnose":
-            raise
-    else:
-        rig_diagnose.add_parser(rig_sub)
+    for name in ("straylight.cli.rig_diagnose", "straylight.cli.rig_twin"):
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+        else:
+            module.add_parser(rig_sub)
 
 
 def run_scan_command(args) -> int:
