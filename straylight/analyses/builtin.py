@@ -58,13 +58,15 @@ class Beam:
     def basis(self) -> tuple[np.ndarray, np.ndarray]:
         """(e1, e2): unit vectors perpendicular to ``axis``; azimuth 0 tilts toward e1.
 
-        e1 is the world axis least aligned with ``axis``, made orthogonal to it, so a beam
-        along -z tilts toward +x at azimuth 0 (BENCHMARK.md's (sin a, 0, -cos a)).
+        e1 is the world axis least aligned with ``axis``, made orthogonal to it, and
+        e2 = e1 x axis, so azimuths turn counter-clockwise seen from the sky (about -axis): a
+        beam along -z tilts toward +x at azimuth 0 (BENCHMARK.md's (sin a, 0, -cos a)) and
+        toward +y at 90 deg.
         """
         k = int(np.argmin(np.abs(self.axis)))
         e1 = np.eye(3)[k] - self.axis[k] * self.axis
         e1 /= np.linalg.norm(e1)
-        return e1, np.cross(self.axis, e1)
+        return e1, np.cross(e1, self.axis)
 
     def direction(self, off_axis: float, azimuth: float = 0.0) -> np.ndarray:
         """Unit ray direction tilted by ``off_axis`` (rad) toward azimuth ``azimuth`` (rad)."""
