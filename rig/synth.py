@@ -311,7 +311,7 @@ SCORE_CASES = {
     "angle_offset": {"offset_deg": 0.1},
     "arm_offset": {"offset_deg": 0.1},
     "sample_tilt": {"tilt_deg": 0.8},
-    "detector_aperture": {"width_mm": 1.0},
+    "detector_aperture": {"width_mm": 2.5},
     "beam_divergence": {"sigma_mrad": 4.0},
     "footprint_overfill": {"sample_width_mm": 4.0},
     "polarization_leakage": {"fraction": 0.02},
