@@ -139,10 +139,22 @@ def test_real_z307_unpolarized_coarse_scan_runs():
     assert not (set(doc["selected_effects"]) & at_bound)
 
 
+# In an in-plane scan of a specular lobe, an incidence spread and a wider slit blur the core
+# the same way (beta - beta0 moves by cos(theta_i) alpha or cos(theta_r) u, equal at specular):
+# the diagnosis may pick either and must then report the pair as confounded.
+EXPECTED_CONFOUNDED = {"beam_divergence": "detector_aperture"}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", CATALOGUE)
 def test_catalogue_sweep_each_effect_ranked_first(name):
     _, _, doc = score_case({name: SCORE_CASES[name]}, seed=1, workers=1)
+    _check_gap(doc)
+    twin = EXPECTED_CONFOUNDED.get(name)
+    if twin and doc["candidates"][0]["name"] == twin:
+        assert doc["candidates"][1]["name"] == name
+        assert doc["selected_effects"][:1] == [twin]
+        assert any(set(c["effects"]) == {name, twin} for c in doc["confounded"])
+        return
     assert doc["candidates"][0]["name"] == name
     assert doc["selected_effects"][:1] == [name]
-    _check_gap(doc)
