@@ -95,8 +95,8 @@ class SweepResult:
             ax.set_xticks(self.values)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
-        ax.set_title(f"Design sweep: {PARAMETER_LABELS.get(self.parameter, self.parameter)} "
-                     f"({self.material}, {self.rays:.2g} rays/point, 1-sigma bars)", fontsize=10)
+        ax.set_title(f"Design sweep: {PARAMETER_LABELS.get(self.parameter, self.parameter)}\n"
+                     f"coating {self.material}; {self.rays:.2g} rays per point, 1-sigma error bars", fontsize=10)
         if own:
             fig.tight_layout()
             if path is not None:

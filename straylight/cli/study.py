@@ -17,7 +17,11 @@ def add_parser(subparsers):
     p.add_argument("--scheduler", default=None, help="dask scheduler address")
     p.add_argument("--material", default="z302_sample_b", help="coating of wall, vanes and end plate")
     p.add_argument("--angles-deg", type=float, nargs="+", default=None, help="PST angles")
-    p.add_argument("--sweep-vanes", type=int, nargs="+", default=None, help="vane counts of the design sweep")
+    p.add_argument("--sweep-parameter", default="vane_count",
+                   help="tube parameter of the design sweep (a geometry.parts.tube.TubeParams field, "
+                        "e.g. vane_count, vane_inner_radius_mm, vane_bevel_deg)")
+    p.add_argument("--sweep-values", type=float, nargs="+", default=None,
+                   help="values of the swept parameter (default for vane_count: 0 .. 9)")
     p.set_defaults(func=run)
 
 
@@ -30,8 +34,11 @@ def run(args) -> int:
                       material=args.material)
     if args.angles_deg:
         cfg.angles_deg = tuple(args.angles_deg)
-    if args.sweep_vanes:
-        cfg.sweep_values = tuple(args.sweep_vanes)
+    cfg.sweep_parameter = args.sweep_parameter
+    if args.sweep_values:
+        cfg.sweep_values = tuple(args.sweep_values)
+    elif args.sweep_parameter != "vane_count":
+        raise ValueError(f"--sweep-values is needed to sweep {args.sweep_parameter}")
     result = run_study(args.out, cfg)
     print(f"study written to {result.out_dir}/index.html ({result.timings_s['total']:.0f} s)")
     return 0
