@@ -170,7 +170,17 @@ class _Compiled:
         self.detectors = [
             DetectorGeometry.from_triangles(tri[spec.triangle_part == p]) for p in self.det_parts
         ]
-        self.det_area = np.array([g.area_mm2 for g in self.detectors])
+        self.det_area = np.array([g.area_mm2 for g in self.detectors], dtype=np.float64)
+        # all detectors' sampling tables, concatenated (rows det_off[j]:det_off[j+1] belong to detector j)
+        self.det_off = np.concatenate([[0], np.cumsum([len(g.normals) for g in self.detectors])]).astype(np.int64)
+        dets = self.detectors
+        self.det_prob = np.concatenate([np.zeros(0)] + [g._alias[0] for g in dets]).astype(np.float64)
+        self.det_alias = np.concatenate([np.zeros(0, np.int64)] + [g._alias[1] for g in dets]).astype(np.int64)
+        self.det_v0, self.det_e1, self.det_e2 = (
+            np.ascontiguousarray(np.concatenate([np.zeros((0, 3))] + [g._edges[k] for g in dets]), dtype=np.float64)
+            for k in range(3))
+        self.det_normals = np.ascontiguousarray(np.concatenate([np.zeros((0, 3))] + [g.normals for g in dets]),
+                                                dtype=np.float64)
         self.target = self.target_isect = None
         if spec.options.target_parts:
             idx = [spec.part_names.index(name) for name in spec.options.target_parts]
@@ -212,8 +222,9 @@ def _emit(source, u, eps):
     return o + (eps * side)[:, None] * np.asarray(normal, dtype=np.float64), d
 
 
-def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
-    """Trace chunks ``first_chunk .. stop_chunk-1``; returns per-chunk sums (see :func:`trace`)."""
+def run_batch_reference(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
+    """Vectorised-numpy twin of :func:`run_batch` (the slow reference the compiled path is tested
+    against: same random streams, same arithmetic order, bit-identical results)."""
     comp = _compiled(spec, intersector)
     opt = spec.options
     lay = _Layout(len(spec.part_names), len(comp.det_parts))
@@ -466,14 +477,27 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             hkey = hkey[keep]
         depth = depth[keep] + 1
 
-    # per-chunk sums (chunk order, fixed chunk length: independent of the batch size)
+    return _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays)
+
+
+def _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays):
+    """Per-chunk sums S1, S2 of every tally row (chunk order, fixed chunk length: independent of the
+    batch size), irradiance-map sums and path records of one batch."""
+    C = CHUNK_RAYS
     ledger = (M[lay.ABS:lay.ABS + lay.P] + M[lay.RR:lay.RR + lay.P]
               + M[lay.NEX:lay.NEX + lay.P] + M[lay.TRUNC:lay.TRUNC + lay.P])
     det_total = M[lay.DET_NEE:lay.DET_NEE + D] + M[lay.DET_DIRECT:lay.DET_DIRECT + D]
     ext = np.concatenate([M, ledger, det_total], axis=0)
     starts = np.arange(0, n, C)
-    s1 = np.add.reduceat(ext, starts, axis=1).T.copy()
-    s2 = np.add.reduceat(ext * ext, starts, axis=1).T.copy()
+    # rows that were never touched sum to zero: reduce only the others (each row independently,
+    # so the sums are the same as over the whole matrix)
+    live = np.flatnonzero(ext.any(axis=1))
+    s1 = np.zeros((nch, len(ext)))
+    s2 = np.zeros((nch, len(ext)))
+    if len(live):
+        sub = ext[live]
+        s1[:, live] = np.add.reduceat(sub, starts, axis=1).T
+        s2[:, live] = np.add.reduceat(sub * sub, starts, axis=1).T
     maps = _chunk_maps(map_rows, nch, C, D, bins)
     paths = None
     if opt.record_paths and path_rows:
@@ -485,6 +509,199 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         }
     return {"first_chunk": first_chunk, "s1": s1, "s2": s2, "maps": maps, "paths": paths,
             "segments": segments, "shadow_rays": shadow_rays}
+
+
+def _draw_uniforms(gens, idx, nch, width):
+    """This event's uniforms of the live rays (ascending ids): chunk k draws (live rays in k, width)."""
+    counts = np.bincount(idx // CHUNK_RAYS, minlength=nch)
+    parts = [gens[c].random((counts[c], width)) for c in range(nch) if counts[c]]
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _emit_batch(spec, gens, first_chunk, nch, n):
+    """Emission: chunk k draws (rays in chunk, 5) uniforms first; returns origins, directions (n, 3)."""
+    C = CHUNK_RAYS
+    u = np.concatenate([gens[c].random((chunk_bounds(first_chunk + c, spec.n_rays)[1] - (first_chunk + c) * C, 5))
+                        for c in range(nch)])
+    if len(spec.sources) == 1:
+        o, d = _emit(spec.sources[0], u[:, 1:5], spec.eps)
+    else:
+        powers = np.array([s.power_w for s in spec.sources], dtype=np.float64)
+        o = np.empty((n, 3))
+        d = np.empty((n, 3))
+        cum = np.cumsum(powers) / float(powers.sum())
+        which = np.minimum(np.searchsorted(cum, u[:, 0], side="right"), len(powers) - 1)
+        for s, src in enumerate(spec.sources):
+            sel = which == s
+            if sel.any():
+                o[sel], d[sel] = _emit(src, u[sel, 1:5], spec.eps)
+    return np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64)
+
+
+def _by_material(spec, mat, call):
+    """Evaluate ``call(model, rows)`` per material over the rows of ``mat`` (material index per row);
+    returns the list of (rows, result); rows is a slice when one material covers everything."""
+    if len(spec.materials) == 1:
+        return [(slice(None), call(spec.materials[0], slice(None)))]
+    out = []
+    for m in np.unique(mat):
+        sel = np.flatnonzero(mat == m)
+        out.append((sel, call(spec.materials[m], sel)))
+    return out
+
+
+def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
+    """Trace chunks ``first_chunk .. stop_chunk-1``; returns per-chunk sums (see :func:`trace`).
+
+    The per-vertex work runs in compiled kernels (:mod:`straylight._kernels`); materials, sources,
+    random draws and ray casts are called once per event on contiguous arrays.
+    :func:`run_batch_reference` is the numpy twin it is tested against (bit-identical).
+    """
+    from straylight import _kernels as kern
+
+    comp = _compiled(spec, intersector)
+    opt = spec.options
+    lay = _Layout(len(spec.part_names), len(comp.det_parts))
+    C = CHUNK_RAYS
+    start = first_chunk * C
+    stop = min(stop_chunk * C, spec.n_rays)
+    n = stop - start
+    nch = stop_chunk - first_chunk
+    gens = [chunk_rng(spec.seed, k) for k in range(first_chunk, stop_chunk)]
+    total_power = float(sum(s.power_w for s in spec.sources))
+    w0 = total_power / spec.n_rays
+    thr = opt.rr_threshold * w0
+    M = np.zeros((lay.n, n))  # per-ray tallies, one row per tally
+    D = len(comp.det_parts)
+    K = int(opt.path_depth)
+    bins = tuple(int(b) for b in opt.map_bins)
+    both_sides = opt.detector_sides == "both"
+    nee = bool(opt.nee) and D > 0
+    record_paths = bool(opt.record_paths)
+    pol = opt.polarization
+    map_rows, path_rows = [], []
+
+    o, d = _emit_batch(spec, gens, first_chunk, nch, n)
+    idx = np.arange(n, dtype=np.int64)
+    w = np.full(n, w0)
+    prev_kind = np.zeros(n, dtype=np.int8)
+    pdf_prev = np.zeros(n)  # solid-angle pdf of the last sampled scatter direction (for NEE MIS weights)
+    prev_part = np.full(n, -1, dtype=np.int64)
+    hkey = np.zeros(n, dtype=np.uint64)
+    depth = np.zeros(n, dtype=np.int64)
+    hist = np.full((n if record_paths else 0, K), -1, dtype=np.int16)
+    k_nee = int(opt.nee_samples)
+    n_uniform = 4 + 3 * D * k_nee + (4 if comp.target is not None else 0)
+    tcol = 4 + 3 * D * k_nee
+    segments = 0
+    shadow_rays = 0
+    max_events = int(opt.max_events)
+
+    def record(det_j, ray_local, pts, power, keys, events, dep):
+        if len(ray_local) == 0:
+            return
+        b = comp.detectors[det_j].bin_index(pts, bins)
+        map_rows.append((ray_local, np.full(len(ray_local), det_j), b, power))
+        if record_paths:
+            path_rows.append((ray_local, np.full(len(ray_local), comp.det_parts[det_j], dtype=np.int16), power,
+                              dep.astype(np.int16), keys, events))
+
+    for ev in range(max_events):
+        if len(idx) == 0:
+            break
+        U = _draw_uniforms(gens, idx, nch, n_uniform)
+        tri = np.asarray(comp.isect.first_triangle(o, d))
+        segments += len(idx)
+        cont, p, nf, part, t, cos_in, rec, rec_w = kern.hits(
+            tri, o, d, w, idx, prev_kind, pdf_prev, prev_part, spec.triangle_part, spec.part_roles, comp.normals,
+            comp.plane_d, comp.centroids, comp.det_of_part, comp.det_area, both_sides, bool(opt.nee), k_nee, M,
+            lay.ESC, lay.INC, lay.FIRST, lay.ABS, lay.DET_WALK, lay.NEX, lay.DET_DIRECT)
+        if len(rec):  # counted random-walk hits on detectors
+            dj = comp.det_of_part[part[rec]]
+            for j in range(D):
+                sel = dj == j
+                if sel.any():
+                    r = rec[sel]
+                    keys = mix_key(hkey[r], comp.det_parts[j] * 4 + KIND_DETECTOR) if record_paths else None
+                    record(j, idx[r], p[r], rec_w[sel], keys, hist[r] if record_paths else None, depth[r])
+        if len(cont) == 0:
+            idx = idx[:0]
+            break
+        surf, surf_of, tb, bb, wi_loc = kern.frames(cont, d, nf, part, spec.part_roles)
+        n_surf = len(surf)
+        wo_world, weight, pdf_dir = np.zeros((0, 3)), np.zeros(0), np.zeros(0)
+        if n_surf:
+            ii = cont[surf]
+            mat = spec.part_material[part[ii]]
+            if nee:
+                ps, pjk, y, wo_loc, dist2, cos_s, cos_d, wdir = kern.nee_pairs(
+                    cont, surf, tb, bb, p, nf, U, 4, D, k_nee, comp.det_off, comp.det_prob, comp.det_alias,
+                    comp.det_v0, comp.det_e1, comp.det_e2, comp.det_normals, both_sides, spec.eps)
+                if len(ps):
+                    wi_p = wi_loc[ps]
+                    mat_p = mat[ps]
+                    f = np.empty(len(ps))
+                    p_b = np.empty(len(ps))
+                    for rows, (fv, pv) in _by_material(spec, mat_p, lambda model, rows: (
+                            model.brdf(wi_p[rows], wo_loc[rows], pol), model.pdf(wi_p[rows], wo_loc[rows], pol))):
+                        f[rows] = fv
+                        p_b[rows] = pv
+                    if comp.target is not None:
+                        q = float(opt.target_fraction)
+                        jp = ii[ps]
+                        p_b = (1 - q) * p_b + q * _target_pdf(comp, p[jp], nf[jp], wdir, spec.eps)
+                    keep, cc, so, sd, tmax = kern.nee_shadow(ps, pjk, y, dist2, cos_s, cos_d, f, p_b, cont, surf, w,
+                                                             p, nf, k_nee, comp.det_area, spec.eps)
+                    if len(keep):
+                        blocked = np.asarray(comp.isect.occluded(so, sd, tmax), dtype=bool)
+                        shadow_rays += len(keep)
+                        okb = kern.nee_tally(keep, cc, blocked, ps, pjk, cont, surf, idx, part, k_nee, M,
+                                             lay.DET_NEE, lay.NEX)
+                        if len(okb):
+                            _record_nee(record, okb, keep, cc, ps, pjk, y, ii, idx, part, hkey, depth, hist, k_nee, D,
+                                        K, comp, record_paths)
+            u_s = U[ii, 0:3]
+            wo = np.empty((n_surf, 3))
+            wraw = np.empty(n_surf)
+            pdf_dir = np.empty(n_surf)
+            for rows, smp in _by_material(spec, mat, lambda model, rows: model.sample(wi_loc[rows], u_s[rows], pol)):
+                wo[rows] = smp.wo
+                wraw[rows] = smp.weight
+                pdf_dir[rows] = smp.pdf_per_sr
+            wo_world, weight, pdf_dir = kern.to_world(wo, wraw, pdf_dir, tb, bb, surf, cont, nf)
+            if comp.target is not None:
+                groups = [(0, slice(None))] if len(spec.materials) == 1 else [(m, mat == m) for m in np.unique(mat)]
+                wo_world, weight, pdf_dir = _target_mixture(spec, comp, opt, U[ii, tcol:tcol + 4], p[ii], nf[ii],
+                                                            tb, bb, wi_loc, wo_world, mat, groups)
+        idx, o, d, w, prev_kind, pdf_prev, prev_part, hkey, depth, hist = kern.advance(
+            cont, surf_of, np.ascontiguousarray(wo_world).reshape(-1, 3), np.ascontiguousarray(weight, np.float64),
+            np.ascontiguousarray(pdf_dir, np.float64), d, w, p, nf, part, idx, U, hkey, depth, hist, record_paths,
+            record_paths, float(opt.mirror_reflectance), thr, spec.eps, ev == max_events - 1, M, lay.ABS, lay.RR,
+            lay.TRUNC)
+
+    return _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays)
+
+
+def _record_nee(record, okb, keep, cc, ps, pjk, y, ii, idx, part, hkey, depth, hist, k_nee, D, K, comp, record_paths):
+    """Map (and path) records of the unblocked NEE contributions, per detector."""
+    a = keep[okb]
+    c = cc[okb]
+    live = ii[ps[a]]
+    jj = pjk[a] // k_nee
+    for j in range(D):
+        sel = np.flatnonzero(jj == j)
+        if len(sel) == 0:
+            continue
+        i = live[sel]
+        keys = ev_rows = None
+        if record_paths:
+            code = part[i] * 4 + KIND_SCATTER
+            keys = mix_key(mix_key(hkey[i], code), comp.det_parts[j] * 4 + KIND_DETECTOR)
+            ev_rows = hist[i]
+            dd = depth[i]
+            inside = np.flatnonzero(dd < K)
+            ev_rows[inside, dd[inside]] = code[inside]
+        record(j, idx[i], y[a[sel]], c[sel], keys, ev_rows, depth[i] + 1)
 
 
 def _target_mixture(spec, comp, opt, ut, p, nf, tb, bb, wi_loc, wo_world, mat, groups):

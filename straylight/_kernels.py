@@ -1,0 +1,371 @@
+"""Compiled (numba) per-vertex kernels of :func:`straylight.trace.run_batch`.
+
+Each kernel does, ray by ray in one pass, what the numpy version did in ~40 vectorised steps
+(fancy-index copies, masks, compaction); the arithmetic is written in the same order as numpy
+evaluates it, so the numbers are bit-identical to the numpy formulation:
+
+- ``np.einsum("ij,ij->i", a, b)`` on (n, 3) rows sums ``(a0 b0 + a2 b2) + a1 b1`` (:func:`_dot`);
+- ``np.linalg.norm(v, axis=1)`` is ``sqrt((v0^2 + v1^2) + v2^2)``;
+- no fused multiply-add (numba does not contract without ``fastmath``).
+
+Materials, sources, random draws and ray casts stay outside: the kernels prepare contiguous
+arrays for them and consume their results. Estimators and ledger: see :mod:`straylight.trace`.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_SURFACE, _MIRROR, _ABSORBER, _DETECTOR = 0, 1, 2, 3
+KIND_SCATTER, KIND_SPECULAR, KIND_DETECTOR = 1, 2, 3
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+
+
+@njit(cache=True, inline="always")
+def _dot(a0, a1, a2, b0, b1, b2):
+    # numpy's einsum order for three terms
+    return (a0 * b0 + a2 * b2) + a1 * b1
+
+
+@njit(cache=True, inline="always")
+def _mis(p_this, p_other):
+    """Power heuristic p^2 / (p^2 + q^2) (Veach 1997, eq. 9.13)."""
+    a = p_this * p_this
+    b = p_other * p_other
+    total = a + b
+    return a / total if total > 0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def mix_key1(h, code):
+    """splitmix64 fold of one event code (same as straylight.paths.mix_key)."""
+    x = (h ^ (np.uint64(code) + np.uint64(1))) * _GOLDEN
+    x = (x ^ (x >> np.uint64(30))) * _M1
+    x = (x ^ (x >> np.uint64(27))) * _M2
+    return x ^ (x >> np.uint64(31))
+
+
+@njit(cache=True)
+def hits(tri, o, d, w, idx, prev_kind, pdf_prev, prev_part, tri_part, part_roles, normals, plane_d, centroids,
+         det_of_part, det_area, both_sides, nee, k_nee, M, r_esc, r_inc, r_first, r_abs, r_walk, r_nex, r_direct):
+    """First event of every live ray: escape, detector, absorber tallies; the continuing rays.
+
+    Returns (cont, p, nf, part, t, cos_in, rec, rec_w): ``cont`` positions of the rays that go on
+    (surface or mirror hit), hit points ``p`` and incident-side normals ``nf`` (n, 3) of all rays,
+    ``rec`` positions of counted detector hits and their weights ``rec_w`` (MIS share of NEE removed).
+    """
+    n = len(tri)
+    p = np.empty((n, 3))
+    nf = np.empty((n, 3))
+    part = np.empty(n, np.int64)
+    t_out = np.empty(n)
+    cos_out = np.empty(n)
+    cont = np.empty(n, np.int64)
+    rec = np.empty(n, np.int64)
+    rec_w = np.empty(n)
+    nc = 0
+    nr = 0
+    for i in range(n):
+        k = tri[i]
+        r = idx[i]
+        if k < 0:
+            M[r_esc, r] += w[i]
+            part[i] = -1
+            continue
+        pt = np.int64(tri_part[k])
+        part[i] = pt
+        role = part_roles[pt]
+        n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
+        d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
+        o0, o1, o2 = o[i, 0], o[i, 1], o[i, 2]
+        cos_in = _dot(d0, d1, d2, n0, n1, n2)
+        # hit distance in float64 from the triangle's plane (embree found the triangle in float32)
+        if abs(cos_in) < 1e-12:
+            t = _dot(centroids[k, 0] - o0, centroids[k, 1] - o1, centroids[k, 2] - o2, d0, d1, d2)
+        else:
+            t = (plane_d[k] - _dot(n0, n1, n2, o0, o1, o2)) / cos_in
+        t_out[i] = t
+        cos_out[i] = cos_in
+        tc = t if (t > 0.0 or t != t) else 0.0  # np.maximum(t, 0): NaN propagates
+        p[i, 0] = o0 + tc * d0
+        p[i, 1] = o1 + tc * d1
+        p[i, 2] = o2 + tc * d2
+        if cos_in < 0:
+            nf[i, 0], nf[i, 1], nf[i, 2] = n0, n1, n2
+        else:
+            nf[i, 0], nf[i, 1], nf[i, 2] = -n0, -n1, -n2
+        wi_ = w[i]
+        M[r_inc + pt, r] += wi_
+        if prev_kind[i] == 0:
+            M[r_first + pt, r] += wi_
+        if role == _DETECTOR:
+            if not (both_sides or cos_in < 0):
+                M[r_abs + pt, r] += wi_
+                continue
+            j = det_of_part[pt]
+            M[r_walk + j, r] += wi_
+            w_det = wi_
+            # a hit straight after a BRDF scatter is shared with NEE by MIS weights (power heuristic)
+            if nee and prev_kind[i] == KIND_SCATTER:
+                p_n = k_nee * (t * t) / (det_area[j] * abs(cos_in))
+                w_det = wi_ * _mis(pdf_prev[i], p_n)
+                M[r_nex + prev_part[i], r] += wi_ - w_det
+            if w_det > 0:
+                M[r_direct + j, r] += w_det
+                rec[nr] = i
+                rec_w[nr] = w_det
+                nr += 1
+        elif role == _ABSORBER:
+            M[r_abs + pt, r] += wi_
+        else:
+            cont[nc] = i
+            nc += 1
+    return cont[:nc], p, nf, part, t_out, cos_out, rec[:nr], rec_w[:nr]
+
+
+@njit(cache=True)
+def frames(cont, d, nf, part, part_roles):
+    """Local frames (Duff et al. 2017 basis, as straylight.sources.orthonormal_basis) of the surface
+    (BRDF) hits among ``cont``: returns (surf: positions into cont, surf_of: row of each cont entry in
+    the per-surface arrays or -1 for a mirror, tb, bb, wi_loc)"""
+    n = len(cont)
+    surf = np.empty(n, np.int64)
+    surf_of = np.full(n, -1, np.int64)
+    ns = 0
+    for c in range(n):
+        if part_roles[part[cont[c]]] == _SURFACE:
+            surf[ns] = c
+            surf_of[c] = ns
+            ns += 1
+    surf = surf[:ns]
+    tb = np.empty((ns, 3))
+    bb = np.empty((ns, 3))
+    wi_loc = np.empty((ns, 3))
+    for s in range(ns):
+        i = cont[surf[s]]
+        x, y, z = nf[i, 0], nf[i, 1], nf[i, 2]
+        sign = 1.0 if z >= 0 else -1.0
+        a = -1.0 / (sign + z)
+        b = x * y * a
+        t0, t1, t2 = 1.0 + sign * x * x * a, sign * b, -sign * x
+        b0, b1, b2 = b, sign + y * y * a, -y
+        tb[s, 0], tb[s, 1], tb[s, 2] = t0, t1, t2
+        bb[s, 0], bb[s, 1], bb[s, 2] = b0, b1, b2
+        w0, w1, w2 = -d[i, 0], -d[i, 1], -d[i, 2]
+        wi_loc[s, 0] = _dot(w0, w1, w2, t0, t1, t2)
+        wi_loc[s, 1] = _dot(w0, w1, w2, b0, b1, b2)
+        wi_loc[s, 2] = _dot(w0, w1, w2, x, y, z)
+    return surf, surf_of, tb, bb, wi_loc
+
+
+@njit(cache=True)
+def nee_pairs(cont, surf, tb, bb, p, nf, U, u_col0, n_det, k_nee, det_off, prob, alias, v0, e1, e2, det_normals,
+              both_sides, eps):
+    """Detector points for next-event estimation: for each surface hit s and each (detector j, sample k),
+    a point y uniform over j's area (triangle by Walker alias, then Turk 1990 barycentrics), kept when
+    it faces the surface and the detector (cos_s > 0, cos_d > 0, d > 2 eps).
+
+    Returns pairs (s, jk) in s-major order and their y, wo_loc (sample frame), dist2, cos_s, cos_d, wdir.
+    """
+    ns = len(surf)
+    m = ns * n_det * k_nee
+    ps = np.empty(m, np.int64)
+    pjk = np.empty(m, np.int64)
+    y = np.empty((m, 3))
+    wo_loc = np.empty((m, 3))
+    wdir = np.empty((m, 3))
+    dist2 = np.empty(m)
+    cos_s = np.empty(m)
+    cos_d = np.empty(m)
+    q = 0
+    two_eps = 2 * eps
+    for s in range(ns):
+        i = cont[surf[s]]
+        p0, p1, p2 = p[i, 0], p[i, 1], p[i, 2]
+        f0, f1, f2 = nf[i, 0], nf[i, 1], nf[i, 2]
+        for jk in range(n_det * k_nee):
+            j = jk // k_nee
+            c0 = u_col0 + 3 * jk
+            ua, ub, uc = U[i, c0], U[i, c0 + 1], U[i, c0 + 2]
+            lo, hi = det_off[j], det_off[j + 1]
+            mt = hi - lo
+            x = ua * mt
+            kk = min(np.int64(x), mt - 1)
+            k = kk if x - kk < prob[lo + kk] else alias[lo + kk]
+            g = lo + k
+            su = np.sqrt(ub)
+            bw1 = su * (1.0 - uc)
+            bw2 = su * uc
+            y0 = v0[g, 0] + bw1 * e1[g, 0] + bw2 * e2[g, 0]
+            y1 = v0[g, 1] + bw1 * e1[g, 1] + bw2 * e2[g, 1]
+            y2 = v0[g, 2] + bw1 * e1[g, 2] + bw2 * e2[g, 2]
+            v0_, v1_, v2_ = y0 - p0, y1 - p1, y2 - p2
+            dd2 = _dot(v0_, v1_, v2_, v0_, v1_, v2_)
+            dist = np.sqrt(dd2)
+            inv = dist if dist > 0 else 1.0
+            a0, a1, a2 = v0_ / inv, v1_ / inv, v2_ / inv
+            cs = _dot(a0, a1, a2, f0, f1, f2)
+            cd = -_dot(a0, a1, a2, det_normals[g, 0], det_normals[g, 1], det_normals[g, 2])
+            if both_sides:
+                cd = abs(cd)
+            if cs > 0 and cd > 0 and dist > two_eps:
+                ps[q] = s
+                pjk[q] = jk
+                y[q, 0], y[q, 1], y[q, 2] = y0, y1, y2
+                wo_loc[q, 0] = _dot(a0, a1, a2, tb[s, 0], tb[s, 1], tb[s, 2])
+                wo_loc[q, 1] = _dot(a0, a1, a2, bb[s, 0], bb[s, 1], bb[s, 2])
+                wo_loc[q, 2] = cs
+                wdir[q, 0], wdir[q, 1], wdir[q, 2] = a0, a1, a2
+                dist2[q] = dd2
+                cos_s[q] = cs
+                cos_d[q] = cd
+                q += 1
+    return ps[:q], pjk[:q], y[:q], wo_loc[:q], dist2[:q], cos_s[:q], cos_d[:q], wdir[:q]
+
+
+@njit(cache=True)
+def nee_shadow(ps, pjk, y, dist2, cos_s, cos_d, f, p_b, cont, surf, w, p, nf, k_nee, det_area, eps):
+    """NEE contributions c = w f cos_s cos_d A / d^2 * m_nee / k (area form, MIS density k d^2 / (A cos_d))
+    and the shadow rays of those with c > 0: returns (keep (pair positions), c, origins, dirs, tmax)."""
+    m = len(ps)
+    keep = np.empty(m, np.int64)
+    cc = np.empty(m)
+    so = np.empty((m, 3))
+    sd = np.empty((m, 3))
+    tmax = np.empty(m)
+    q = 0
+    for a in range(m):
+        s = ps[a]
+        i = cont[surf[s]]
+        j = pjk[a] // k_nee
+        area = det_area[j]
+        p_n = k_nee * dist2[a] / (area * cos_d[a])
+        c = w[i] * f[a] * cos_s[a] * cos_d[a] * area / dist2[a] * _mis(p_n, p_b[a]) / k_nee
+        if c > 0:
+            oo0 = p[i, 0] + eps * nf[i, 0]
+            oo1 = p[i, 1] + eps * nf[i, 1]
+            oo2 = p[i, 2] + eps * nf[i, 2]
+            v0_, v1_, v2_ = y[a, 0] - oo0, y[a, 1] - oo1, y[a, 2] - oo2
+            lo = np.sqrt(_dot(v0_, v1_, v2_, v0_, v1_, v2_))
+            keep[q] = a
+            cc[q] = c
+            so[q, 0], so[q, 1], so[q, 2] = oo0, oo1, oo2
+            sd[q, 0], sd[q, 1], sd[q, 2] = v0_ / lo, v1_ / lo, v2_ / lo
+            tmax[q] = lo - eps
+            q += 1
+    return keep[:q], cc[:q], so[:q], sd[:q], tmax[:q]
+
+
+@njit(cache=True)
+def nee_tally(keep, cc, blocked, ps, pjk, cont, surf, idx, part, k_nee, M, r_nee, r_nex):
+    """Add unblocked NEE contributions to the detector and (negated) to the NEE exchange of the part."""
+    m = len(keep)
+    ok = np.empty(m, np.int64)
+    q = 0
+    for b in range(m):
+        if blocked[b]:
+            continue
+        a = keep[b]
+        i = cont[surf[ps[a]]]
+        r = idx[i]
+        M[r_nee + pjk[a] // k_nee, r] += cc[b]
+        M[r_nex + part[i], r] -= cc[b]
+        ok[q] = b
+        q += 1
+    return ok[:q]
+
+
+@njit(cache=True)
+def to_world(wo, weight, pdf, tb, bb, surf, cont, nf):
+    """Sampled local directions to world (renormalised); weight zero below the horizon."""
+    ns = len(surf)
+    out = np.empty((ns, 3))
+    wt = np.empty(ns)
+    for s in range(ns):
+        i = cont[surf[s]]
+        a, b, c = wo[s, 0], wo[s, 1], wo[s, 2]
+        wt[s] = weight[s] if c > 0 else 0.0
+        x0 = a * tb[s, 0] + b * bb[s, 0] + c * nf[i, 0]
+        x1 = a * tb[s, 1] + b * bb[s, 1] + c * nf[i, 1]
+        x2 = a * tb[s, 2] + b * bb[s, 2] + c * nf[i, 2]
+        nrm = np.sqrt((x0 * x0 + x1 * x1) + x2 * x2)
+        if not nrm > 0:
+            nrm = 1.0
+        out[s, 0], out[s, 1], out[s, 2] = x0 / nrm, x1 / nrm, x2 / nrm
+    return out, wt, pdf
+
+
+@njit(cache=True)
+def advance(cont, surf_of, wo_world, weight, pdf_dir, d, w, p, nf, part, idx, U, hkey, depth, hist, has_hist,
+            record_paths, mirror_r, thr, eps, last, M, r_abs, r_rr, r_trunc):
+    """Absorption, Russian roulette, truncation and the next state of the rays that go on.
+
+    ``surf_of[c]``: row in the sampled arrays of continuing ray c, -1 for a mirror hit (specular
+    reflection about nf, weight x R). Roulette: a weight below ``thr`` survives with probability
+    w / thr at weight thr. Returns the compacted state (idx, o, d, w, prev_kind, pdf_prev, prev_part,
+    hkey, depth, hist) of the surviving rays.
+    """
+    n = len(cont)
+    K = hist.shape[1]
+    n_idx = np.empty(n, np.int64)
+    n_o = np.empty((n, 3))
+    n_d = np.empty((n, 3))
+    n_w = np.empty(n)
+    n_kind = np.empty(n, np.int8)
+    n_pdf = np.empty(n)
+    n_part = np.empty(n, np.int64)
+    n_key = np.empty(n, np.uint64)
+    n_depth = np.empty(n, np.int64)
+    n_hist = np.empty((n if has_hist else 0, K), np.int16)
+    q = 0
+    for c in range(n):
+        i = cont[c]
+        r = idx[i]
+        pt = part[i]
+        s = surf_of[c]
+        if s < 0:
+            dn = _dot(d[i, 0], d[i, 1], d[i, 2], nf[i, 0], nf[i, 1], nf[i, 2])
+            e0 = d[i, 0] - 2.0 * dn * nf[i, 0]
+            e1 = d[i, 1] - 2.0 * dn * nf[i, 1]
+            e2 = d[i, 2] - 2.0 * dn * nf[i, 2]
+            w_new = w[i] * mirror_r
+            pdf_new = 0.0
+            kind = KIND_SPECULAR
+        else:
+            e0, e1, e2 = wo_world[s, 0], wo_world[s, 1], wo_world[s, 2]
+            w_new = w[i] * weight[s]
+            pdf_new = pdf_dir[s]
+            kind = KIND_SCATTER
+        M[r_abs + pt, r] += w[i] - w_new
+        w_after = w_new
+        if w_new < thr and w_new > 0:
+            w_after = thr if U[i, 3] * thr < w_new else 0.0
+            M[r_rr + pt, r] += w_new - w_after
+        if not w_after > 0:
+            continue
+        if last:
+            M[r_trunc + pt, r] += w_after
+            continue
+        code = pt * 4 + kind
+        if has_hist:
+            for kk in range(K):
+                n_hist[q, kk] = hist[i, kk]
+            if depth[i] < K:
+                n_hist[q, depth[i]] = code
+        n_idx[q] = r
+        n_o[q, 0] = p[i, 0] + eps * nf[i, 0]
+        n_o[q, 1] = p[i, 1] + eps * nf[i, 1]
+        n_o[q, 2] = p[i, 2] + eps * nf[i, 2]
+        n_d[q, 0], n_d[q, 1], n_d[q, 2] = e0, e1, e2
+        n_w[q] = w_after
+        n_kind[q] = kind
+        n_pdf[q] = pdf_new
+        n_part[q] = pt
+        n_key[q] = mix_key1(hkey[i], code) if record_paths else hkey[i]
+        n_depth[q] = depth[i] + 1
+        q += 1
+    return (n_idx[:q], n_o[:q], n_d[:q], n_w[:q], n_kind[:q], n_pdf[:q], n_part[:q], n_key[:q], n_depth[:q],
+            n_hist[:q] if has_hist else n_hist[:0])
