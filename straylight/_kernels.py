@@ -369,3 +369,76 @@ def advance(cont, surf_of, wo_world, weight, pdf_dir, d, w, p, nf, part, idx, U,
         q += 1
     return (n_idx[:q], n_o[:q], n_d[:q], n_w[:q], n_kind[:q], n_pdf[:q], n_part[:q], n_key[:q], n_depth[:q],
             n_hist[:q] if has_hist else n_hist[:0])
+
+
+@njit(cache=True)
+def _pairwise(x, lo, n):
+    """numpy's pairwise sum of x[lo:lo+n] (numpy/_core/src/umath/loops_utils.h.src, 8-way unrolled
+    blocks of up to 128), so that per-chunk sums are bit-identical to ``np.add.reduceat``."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += x[lo + i]
+        return res
+    if n <= 128:
+        r0, r1, r2, r3 = x[lo], x[lo + 1], x[lo + 2], x[lo + 3]
+        r4, r5, r6, r7 = x[lo + 4], x[lo + 5], x[lo + 6], x[lo + 7]
+        i = 8
+        stop = n - n % 8
+        while i < stop:
+            r0 += x[lo + i]
+            r1 += x[lo + i + 1]
+            r2 += x[lo + i + 2]
+            r3 += x[lo + i + 3]
+            r4 += x[lo + i + 4]
+            r5 += x[lo + i + 5]
+            r6 += x[lo + i + 6]
+            r7 += x[lo + i + 7]
+            i += 8
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < n:
+            res += x[lo + i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return _pairwise(x, lo, n2) + _pairwise(x, lo + n2, n - n2)
+
+
+@njit(cache=True)
+def chunk_sums(M, chunk, n_parts, n_det, r_abs, r_rr, r_nex, r_trunc, r_nee, r_direct):
+    """Per-chunk S1 = sum x, S2 = sum x^2 of every tally row of M (n_rows, n) and of the derived rows
+    (absorbed ledger ABS + RR + NEX + TRUNC per part, detector total NEE + DIRECT), as
+    ``np.add.reduceat`` over chunks of ``chunk`` rays would give them. Returns (s1, s2), (n_chunks, rows)."""
+    n_rows, n = M.shape
+    n_ext = n_rows + n_parts + n_det
+    nch = (n + chunk - 1) // chunk
+    s1 = np.zeros((nch, n_ext))
+    s2 = np.zeros((nch, n_ext))
+    x = np.empty(n)
+    for r in range(n_ext):
+        if r < n_rows:
+            x[:] = M[r]
+        elif r < n_rows + n_parts:
+            k = r - n_rows
+            for i in range(n):
+                x[i] = ((M[r_abs + k, i] + M[r_rr + k, i]) + M[r_nex + k, i]) + M[r_trunc + k, i]
+        else:
+            k = r - n_rows - n_parts
+            for i in range(n):
+                x[i] = M[r_nee + k, i] + M[r_direct + k, i]
+        nz = False
+        for i in range(n):
+            if x[i] != 0.0:
+                nz = True
+                break
+        if not nz:
+            continue
+        x2 = x * x
+        for c in range(nch):
+            a = c * chunk
+            b = min(a + chunk, n)
+            # reduceat: the first element, then the pairwise sum of the rest
+            s1[c, r] = x[a] + _pairwise(x, a + 1, b - a - 1)
+            s2[c, r] = x2[a] + _pairwise(x2, a + 1, b - a - 1)
+    return s1, s2

@@ -477,27 +477,27 @@ def run_batch_reference(spec: TraceSpec, first_chunk: int, stop_chunk: int, inte
             hkey = hkey[keep]
         depth = depth[keep] + 1
 
-    return _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays)
+    return _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays,
+                       compiled=False)
 
 
-def _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays):
+def _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays,
+                compiled=True):
     """Per-chunk sums S1, S2 of every tally row (chunk order, fixed chunk length: independent of the
     batch size), irradiance-map sums and path records of one batch."""
     C = CHUNK_RAYS
-    ledger = (M[lay.ABS:lay.ABS + lay.P] + M[lay.RR:lay.RR + lay.P]
-              + M[lay.NEX:lay.NEX + lay.P] + M[lay.TRUNC:lay.TRUNC + lay.P])
-    det_total = M[lay.DET_NEE:lay.DET_NEE + D] + M[lay.DET_DIRECT:lay.DET_DIRECT + D]
-    ext = np.concatenate([M, ledger, det_total], axis=0)
-    starts = np.arange(0, n, C)
-    # rows that were never touched sum to zero: reduce only the others (each row independently,
-    # so the sums are the same as over the whole matrix)
-    live = np.flatnonzero(ext.any(axis=1))
-    s1 = np.zeros((nch, len(ext)))
-    s2 = np.zeros((nch, len(ext)))
-    if len(live):
-        sub = ext[live]
-        s1[:, live] = np.add.reduceat(sub, starts, axis=1).T
-        s2[:, live] = np.add.reduceat(sub * sub, starts, axis=1).T
+    if compiled:
+        from straylight._kernels import chunk_sums
+
+        s1, s2 = chunk_sums(M, C, lay.P, D, lay.ABS, lay.RR, lay.NEX, lay.TRUNC, lay.DET_NEE, lay.DET_DIRECT)
+    else:
+        ledger = (M[lay.ABS:lay.ABS + lay.P] + M[lay.RR:lay.RR + lay.P]
+                  + M[lay.NEX:lay.NEX + lay.P] + M[lay.TRUNC:lay.TRUNC + lay.P])
+        det_total = M[lay.DET_NEE:lay.DET_NEE + D] + M[lay.DET_DIRECT:lay.DET_DIRECT + D]
+        ext = np.concatenate([M, ledger, det_total], axis=0)
+        starts = np.arange(0, n, C)
+        s1 = np.add.reduceat(ext, starts, axis=1).T.copy()
+        s2 = np.add.reduceat(ext * ext, starts, axis=1).T.copy()
     maps = _chunk_maps(map_rows, nch, C, D, bins)
     paths = None
     if opt.record_paths and path_rows:
