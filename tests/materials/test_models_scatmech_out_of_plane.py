@@ -55,3 +55,21 @@ def test_out_of_plane_rayleigh_rice_matches_scatmech(n):
     np.testing.assert_allclose(lobe.brdf(wi, wo, "s"), rows[:, 3], rtol=1e-8)
     np.testing.assert_allclose(lobe.brdf(wi, wo, "p"), rows[:, 4], rtol=1e-8)
     assert math.isclose(float(np.mean(lobe.brdf(wi, wo, "u") / (rows[:, 3] + rows[:, 4]))), 0.5, rel_tol=1e-8)
+
+
+# The s = 2 branch: same lobe with C = 2 and A = sigma^2 B^2 / (pi ln(1 + (B/lambda)^2)) passed to
+# SCATMECH (GENERATOR with C = 2.0 and that A, n = 1.5): theta_i, theta_r, phi_r, f_s, f_p
+GOLDEN_S2 = [
+    (10, 10, 0, 6.328873157e-02, 5.829362540e-02),
+    (45, 47, 0, 5.437400609e-02, 4.188144752e-03),
+    (45, 30, 30, 8.811706367e-04, 3.274233653e-04),
+    (80, 70, 150, 1.855111151e-05, 9.470652053e-05),
+]
+
+
+def test_s_equal_2_branch_matches_scatmech():
+    rows = np.array(GOLDEN_S2, float)
+    lobe = KCorrelation(sigma_nm=10.0, lc_um=2.0, s=2.0, n=1.5, wavelength_nm=532.0)
+    wi, wo = directions_from_angles(np.deg2rad(rows[:, 0]), np.deg2rad(rows[:, 1]), np.deg2rad(rows[:, 2]))
+    np.testing.assert_allclose(lobe.brdf(wi, wo, "s"), rows[:, 3], rtol=1e-8)
+    np.testing.assert_allclose(lobe.brdf(wi, wo, "p"), rows[:, 4], rtol=1e-8)
