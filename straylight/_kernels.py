@@ -372,37 +372,58 @@ def advance(cont, surf_of, wo_world, weight, pdf_dir, d, w, p, nf, part, idx, U,
 
 
 @njit(cache=True)
-def _pairwise(x, lo, n):
-    """numpy's pairwise sum of x[lo:lo+n] (numpy/_core/src/umath/loops_utils.h.src, 8-way unrolled
-    blocks of up to 128), so that per-chunk sums are bit-identical to ``np.add.reduceat``."""
+def _pairwise2(x, lo, n):
+    """numpy's pairwise sums of x[lo:lo+n] and of its squares (numpy/_core/src/umath/loops_utils.h.src:
+    8-way unrolled blocks of up to 128, halves above), so that per-chunk sums are bit-identical to
+    ``np.add.reduceat(x)`` and ``np.add.reduceat(x * x)``."""
     if n < 8:
         res = 0.0
+        res2 = 0.0
         for i in range(n):
-            res += x[lo + i]
-        return res
+            v = x[lo + i]
+            res += v
+            res2 += v * v
+        return res, res2
     if n <= 128:
         r0, r1, r2, r3 = x[lo], x[lo + 1], x[lo + 2], x[lo + 3]
         r4, r5, r6, r7 = x[lo + 4], x[lo + 5], x[lo + 6], x[lo + 7]
-        i = 8
-        stop = n - n % 8
+        q0, q1, q2, q3 = r0 * r0, r1 * r1, r2 * r2, r3 * r3
+        q4, q5, q6, q7 = r4 * r4, r5 * r5, r6 * r6, r7 * r7
+        i = lo + 8
+        stop = lo + n - n % 8
         while i < stop:
-            r0 += x[lo + i]
-            r1 += x[lo + i + 1]
-            r2 += x[lo + i + 2]
-            r3 += x[lo + i + 3]
-            r4 += x[lo + i + 4]
-            r5 += x[lo + i + 5]
-            r6 += x[lo + i + 6]
-            r7 += x[lo + i + 7]
+            v0, v1, v2, v3 = x[i], x[i + 1], x[i + 2], x[i + 3]
+            v4, v5, v6, v7 = x[i + 4], x[i + 5], x[i + 6], x[i + 7]
+            r0 += v0
+            r1 += v1
+            r2 += v2
+            r3 += v3
+            r4 += v4
+            r5 += v5
+            r6 += v6
+            r7 += v7
+            q0 += v0 * v0
+            q1 += v1 * v1
+            q2 += v2 * v2
+            q3 += v3 * v3
+            q4 += v4 * v4
+            q5 += v5 * v5
+            q6 += v6 * v6
+            q7 += v7 * v7
             i += 8
         res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        while i < n:
-            res += x[lo + i]
+        res2 = ((q0 + q1) + (q2 + q3)) + ((q4 + q5) + (q6 + q7))
+        while i < lo + n:
+            v = x[i]
+            res += v
+            res2 += v * v
             i += 1
-        return res
+        return res, res2
     n2 = n // 2
     n2 -= n2 % 8
-    return _pairwise(x, lo, n2) + _pairwise(x, lo + n2, n - n2)
+    a, a2 = _pairwise2(x, lo, n2)
+    b, b2 = _pairwise2(x, lo + n2, n - n2)
+    return a + b, a2 + b2
 
 
 @njit(cache=True)
@@ -415,30 +436,32 @@ def chunk_sums(M, chunk, n_parts, n_det, r_abs, r_rr, r_nex, r_trunc, r_nee, r_d
     nch = (n + chunk - 1) // chunk
     s1 = np.zeros((nch, n_ext))
     s2 = np.zeros((nch, n_ext))
-    x = np.empty(n)
+    buf = np.empty(n)
     for r in range(n_ext):
         if r < n_rows:
-            x[:] = M[r]
+            x = M[r]
         elif r < n_rows + n_parts:
             k = r - n_rows
             for i in range(n):
-                x[i] = ((M[r_abs + k, i] + M[r_rr + k, i]) + M[r_nex + k, i]) + M[r_trunc + k, i]
+                buf[i] = ((M[r_abs + k, i] + M[r_rr + k, i]) + M[r_nex + k, i]) + M[r_trunc + k, i]
+            x = buf
         else:
             k = r - n_rows - n_parts
             for i in range(n):
-                x[i] = M[r_nee + k, i] + M[r_direct + k, i]
-        nz = False
-        for i in range(n):
-            if x[i] != 0.0:
-                nz = True
-                break
-        if not nz:
-            continue
-        x2 = x * x
+                buf[i] = M[r_nee + k, i] + M[r_direct + k, i]
+            x = buf
         for c in range(nch):
             a = c * chunk
             b = min(a + chunk, n)
+            nz = False
+            for i in range(a, b):
+                if x[i] != 0.0:
+                    nz = True
+                    break
+            if not nz:
+                continue  # a sum of zeros
             # reduceat: the first element, then the pairwise sum of the rest
-            s1[c, r] = x[a] + _pairwise(x, a + 1, b - a - 1)
-            s2[c, r] = x2[a] + _pairwise(x2, a + 1, b - a - 1)
+            t1, t2 = _pairwise2(x, a + 1, b - a - 1)
+            s1[c, r] = x[a] + t1
+            s2[c, r] = x[a] * x[a] + t2
     return s1, s2
