@@ -195,8 +195,9 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     setup : :class:`straylight.analyses.builtin.Setup` (scene, materials, beam, entrance, detector)
     off_axis : (n,) float, radians; azimuth : (m,) float, radians (every pair is traced)
     n_rays : rays per point; seed : user seed (each point gets :func:`point_seed`)
-    nee : next-event estimation toward the detector (the engine's target sampling);
-        False traces the plain random walk (same expectation, larger variance)
+    nee : importance sampling toward the detector: the engine's next-event estimation (a
+        shadow ray per scatter vertex, combined with BRDF sampling by multiple importance
+        sampling); False traces the plain random walk (same expectation, larger variance)
     options : ``straylight.trace.TraceOptions`` to start from (``nee`` overrides its field)
     workers, scheduler, client : distribution (one dask cluster for the whole sweep)
     """
