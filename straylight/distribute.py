@@ -16,6 +16,29 @@ def _batch_task(spec, first_chunk, stop_chunk):
     return run_batch(spec, first_chunk, stop_chunk)
 
 
+def _warm_task(spec):
+    import time
+
+    from straylight.trace import run_batch
+
+    run_batch(spec, 0, 1)
+    return time.process_time()
+
+
+def warm_up(client, spec) -> dict:
+    """Build the scene (embree + compiled kernels) in every worker of ``client`` now, by tracing the
+    first chunk of ``spec`` on each (so that start-up is not charged to the first real tasks).
+    Returns {worker address: process CPU seconds so far}."""
+    return client.run(_warm_task, spec)
+
+
+def worker_cpu_seconds(client) -> dict:
+    """{worker address: CPU seconds used by that worker process so far} (``time.process_time``)."""
+    import time
+
+    return client.run(time.process_time)
+
+
 def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
     """Yield ``run_batch`` results for ``ranges`` (list of (first_chunk, stop_chunk)), in order."""
     from dask.distributed import Client, LocalCluster
