@@ -211,9 +211,8 @@ class FitMaterial:
 
 
 class NodeCache:
-    """The instrument forward model (as :func:`rig.forward.instrument_forward`, with the faster
-    fit rule, 0.16 % from it) with its quadrature nodes and node geometry cached per
-    (rig config, scan points)."""
+    """The instrument forward model (the same rules as :func:`rig.forward.instrument_forward`)
+    with its quadrature nodes and node geometry cached per (rig config, scan points)."""
 
     def __init__(self, max_entries: int = 12):
         self._store: dict = {}
@@ -228,7 +227,7 @@ class NodeCache:
                 sel = np.flatnonzero(pol == code)
                 if sel.size == 0:
                     continue
-                for idx, wi, wo, weight in node_groups(theta_i[sel], theta_r[sel], phi_r[sel], config, fast=True):
+                for idx, wi, wo, weight in node_groups(theta_i[sel], theta_r[sel], phi_r[sel], config):
                     wi_b, wo_b = np.broadcast_arrays(wi, wo)
                     wi_f, wo_f = wi_b.reshape(-1, 3), wo_b.reshape(-1, 3)
                     entry.append((code, sel[idx], weight.reshape(len(idx), -1), node_geometry(wi_f, wo_f), wi_f, wo_f))

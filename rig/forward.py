@@ -46,28 +46,23 @@ from scipy.special import erf
 
 from rig.instrument import NOMINAL, RigConfig
 
-#: Quadrature orders: in-plane (u), out-of-plane (v), beam divergence (alpha).
-N_U = 16
-N_V = 24
-#: Out-of-plane order of the faster rule used inside fits (rig.diagnose): 0.16 % instead of 0.03 %
-#: on the glossy test sample of rig.synth.
-N_V_FIT = 16
-N_ALPHA = 5
-#: Angular scale (rad) of the node clustering about the specular ray. Against a 64 x 96 rule,
-#: Gaussian lobes 1 to 30 mrad wide (K-correlation lc up to ~80 um at 532 nm) read within 0.3 %.
-CLUSTER_RAD = 2.0e-3
-
-#: Orders for points far from specular (arm more than FAR_DEG from the specular ray), where
-#: the BRDF is smooth over the ~0.5 deg instrument response.
-N_U_FAR = 6
-N_V_FAR = 6
+#: Quadrature rules (in-plane u nodes, out-of-plane v nodes, sinh clustering scale in rad) for
+#: three tiers of set-points: "core" (the specular ray lands inside the integration window:
+#: the lobe's peak is integrated), "mid" (within FAR_DEG of specular: only its tail) and
+#: "far" (plain symmetric rules: the BRDF is smooth over the ~0.5 deg response).
+#: Against a 64 x 96 rule clustered at 0.05 mrad, the z302_sample_a / z302_sample_b presets
+#: (sharp lobe lc 500 um, 0.17 mrad wide) and rig.synth.glossy_black read within 0.3 %.
+CORE_RULE = (24, 24, 2.0e-4)
+MID_RULE = (16, 16, 5.0e-3)
+FAR_RULE = (6, 6, None)
 FAR_DEG = 3.0
+N_ALPHA = 5
+#: Kept for reference: the clustering scale of the core rule (lobes narrower than ~0.1 mrad,
+#: e.g. lc > 1 mm at 532 nm, are not resolved).
+CLUSTER_RAD = CORE_RULE[2]
 
-_GL_U = np.polynomial.legendre.leggauss(N_U)
-_GL_V = np.polynomial.legendre.leggauss(N_V)
-_GL_V_FIT = np.polynomial.legendre.leggauss(N_V_FIT)
-_GL_U_FAR = np.polynomial.legendre.leggauss(N_U_FAR)
-_GL_V_FAR = np.polynomial.legendre.leggauss(N_V_FAR)
+_RULES = {name: (np.polynomial.legendre.leggauss(nu), np.polynomial.legendre.leggauss(nv), scale)
+          for name, (nu, nv, scale) in (("core", CORE_RULE), ("mid", MID_RULE), ("far", FAR_RULE))}
 _GH_A = np.polynomial.hermite_e.hermegauss(N_ALPHA)  # weight exp(-x^2/2)
 _GH_A = (_GH_A[0], _GH_A[1] / math.sqrt(2 * math.pi))
 
@@ -157,31 +152,32 @@ def _arm_and_specular(theta_i, theta_r, phi_r, config):
     return arm, spec
 
 
-def node_groups(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, fast: bool = False):
-    """Split n set-points into those near specular (full rule) and far from it (coarse rule).
-    ``fast``: the cheaper near-specular rule (N_U x N_V_FIT) used inside fits.
-
-    Yields ``(indices, wi, wo, weight)`` per non-empty group, as :func:`instrument_nodes`.
-    """
+def node_groups(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL):
+    """Split n set-points into the core, mid and far tiers (see CORE_RULE) and yield
+    ``(indices, wi, wo, weight)`` per non-empty tier, as :func:`instrument_nodes`."""
     arm, spec = _arm_and_specular(theta_i, theta_r, phi_r, config)
-    cos_sep = np.einsum("ij,ij->i", arm, spec)
-    near = cos_sep > math.cos(math.radians(FAR_DEG))
-    near_rules = (_GL_U, _GL_V_FIT if fast else _GL_V)
-    for mask, rules, far in ((near, near_rules, False), (~near, (_GL_U_FAR, _GL_V_FAR), True)):
+    sep = np.arccos(np.clip(np.einsum("ij,ij->i", arm, spec), -1.0, 1.0))
+    cos_i = np.clip(np.cos(theta_i + math.radians(config.stage_offset_deg)), 1e-9, None)
+    k = np.abs(np.cos(theta_r)) / cos_i
+    t_max = 0.5 * config.sample_width_mm * cos_i
+    window = (0.5 * config.slit_width_mm + k * np.minimum(t_max, 6.0 * config.beam_sigma_mm)) / config.arm_mm
+    window = np.hypot(window, 0.5 * config.slit_height_mm / config.arm_mm) + 3.0 * config.beam_divergence_mrad * 1e-3
+    core = sep <= window + 2e-3
+    far = sep > math.radians(FAR_DEG)
+    for name, mask in (("core", core), ("mid", ~core & ~far), ("far", far & ~core)):
         idx = np.flatnonzero(mask)
         if idx.size:
-            yield (idx, *instrument_nodes(theta_i[idx], theta_r[idx], phi_r[idx], config, rules, far))
+            yield (idx, *instrument_nodes(theta_i[idx], theta_r[idx], phi_r[idx], config, name))
 
 
-def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, rules=None, far=False):
+def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier: str = "core"):
     """Quadrature nodes of the rig's angular response for n set-points.
 
     Parameters
     ----------
     theta_i, theta_r, phi_r : (n,) float64, radians (set-points).
     config : RigConfig
-    rules : (u_rule, v_rule) Gauss-Legendre (nodes, weights); default the fine rule.
-    far : True for set-points far from specular: plain (unclustered) rules over +-3.5 sigma.
+    tier : "core", "mid" or "far" (see CORE_RULE); "far" uses plain rules over +-3.5 sigma.
 
     Returns
     -------
@@ -205,7 +201,8 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, rules
     # where the specular ray goes: the nodes cluster there (sinh map), so lobes down to
     # ~CLUSTER_RAD wide are resolved wherever offsets or a tilt put them.
     arm, spec = _arm_and_specular(theta_i, theta_r, phi_r, config)
-    rule_u, rule_v = rules if rules is not None else (_GL_U, _GL_V)
+    rule_u, rule_v, scale = _RULES[tier]
+    far = scale is None
     y_hat = np.array([0.0, 1.0, 0.0])
     e_perp = y_hat - arm[:, 1:2] * arm
     norm = np.linalg.norm(e_perp, axis=-1, keepdims=True)
@@ -231,8 +228,8 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, rules
         yu, wu = y_u[:, None] * rule_u[0], y_u[:, None] * rule_u[1]
         yv, wv = y_v[:, None] * rule_v[0], y_v[:, None] * rule_v[1]
     else:
-        yu, wu = _sinh_rule(rule_u, -y_u, y_u, u_c, CLUSTER_RAD * L)
-        yv, wv = _sinh_rule(rule_v, -y_v, y_v, v_c, CLUSTER_RAD * L)
+        yu, wu = _sinh_rule(rule_u, -y_u, y_u, u_c, scale * L)
+        yv, wv = _sinh_rule(rule_v, -y_v, y_v, v_c, scale * L)
     pu = _box_gauss_density(yu, half_w, k[:, None], sigma, t_max[:, None]) * wu
     # Renormalise to the analytic mass (fraction of the beam on the sample): removes the rule's
     # error on the density's soft edges, so a Lambertian reads rd/pi.
@@ -274,8 +271,7 @@ def instrument_forward(theta_i, theta_r, phi_r, polarization, config: RigConfig,
     """The bare instrument: ``sum(weight * f)`` over :func:`instrument_nodes` (see module doc).
 
     ``material.brdf(wi, wo, polarization)`` is called once per polarization and node group
-    (:func:`node_groups`: points within FAR_DEG of specular get the fine rule, the others a
-    6 x 6 rule).
+    (:func:`node_groups`: core, mid and far tiers with their own rules).
     Angles (n,) radians; polarization (n,) str. Returns (n,) 1/sr.
     """
     out = np.zeros(theta_i.shape[0])
