@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from tests.contracts.conftest import assert_one_line_error, write_json
+from contract_helpers import assert_one_line_error, write_json
 
 
 def _beta_dist(ti, tr, phi):
