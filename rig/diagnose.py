@@ -274,7 +274,7 @@ def material_specs(n_lobes: int):
     specs = [ParamSpec("material", "rd", 1e-6, 0.99, "log")]
     for k in range(n_lobes):
         specs += [ParamSpec("material", f"sigma{k}_nm", 1e-3, 300.0, "log"),
-                  ParamSpec("material", f"lc{k}_um", 0.05, 80.0, "log"),
+                  ParamSpec("material", f"lc{k}_um", 0.05, 1000.0, "log"),
                   ParamSpec("material", f"s{k}", 1.0, 6.0, "lin")]
     specs.append(ParamSpec("material", "n", 1.05, 3.0, "lin"))
     return specs
@@ -500,7 +500,8 @@ def _material_starts(problem: Problem, n_lobes: int):
     if n_lobes == 1:
         lobe_sets = [[(5.0, 5.0, 2.5)], [(20.0, 1.0, 3.0)], [(2.0, 30.0, 2.2)]]
     else:
-        lobe_sets = [[(2.0, 30.0, 2.5), (20.0, 1.0, 3.0)], [(3.0, 10.0, 2.2), (30.0, 0.5, 3.5)]]
+        lobe_sets = [[(2.0, 30.0, 2.5), (20.0, 1.0, 3.0)], [(3.0, 10.0, 2.2), (30.0, 0.5, 3.5)],
+                     [(10.0, 300.0, 2.3), (20.0, 3.0, 3.0)]]
     for lobes in lobe_sets:
         vals = {("material", "rd"): rd, ("material", "n"): 1.5}
         for k, (s, l, sl) in enumerate(lobes):

@@ -12,7 +12,8 @@ with the expectation over
   the sample is stretched by 1/cos(theta_i) and truncated by the sample width (overfill
   loses that power: it is not renormalised);
 * the slit (uniform over width x height at ``arm_mm``);
-* the beam's in-plane angular spread (Gaussian, ``beam_divergence_mrad``).
+* the beam's in-plane angular spread (Gaussian, ``beam_divergence_mrad``), folded into the
+  in-plane density (it moves the specular ray by the same angle).
 
 A ray from sample point x to slit point (s, h) leaves along ``n + u e_theta + v e_perp``
 (n: arm axis, e_theta: in-plane, e_perp: out of plane) with ``u = (s - x cos theta_r) / L``
@@ -20,8 +21,8 @@ and ``v = (h - y) / L``. So the in-plane offset u has the density of a uniform s
 convolved with the beam's footprint projected on the slit (its width is
 ``k = cos theta_r / cos theta_i`` times the beam's), and v that of the slit height
 convolved with the beam's height. Both densities are written in closed form with
-``erf`` (:func:`_box_gauss_density`), and the integral over (u, v, alpha) is a fixed
-product Gauss-Legendre (Gauss-Hermite in alpha) rule, vectorised over all scan points.
+``erf`` (:func:`_box_gauss_density`), and the integral over (u, v) is a fixed product
+Gauss-Legendre rule (three tiers, see CORE_RULE), vectorised over all scan points.
 A mirror therefore reads the beam profile convolved with the slit: it is seen over
 ~(beam + slit) / arm = 8.5 mrad on the nominal rig (PHYSICS §4), not over the slit's
 1 mrad.
@@ -56,15 +57,12 @@ CORE_RULE = (24, 24, 2.0e-4)
 MID_RULE = (16, 16, 5.0e-3)
 FAR_RULE = (6, 6, None)
 FAR_DEG = 3.0
-N_ALPHA = 5
 #: Kept for reference: the clustering scale of the core rule (lobes narrower than ~0.1 mrad,
 #: e.g. lc > 1 mm at 532 nm, are not resolved).
 CLUSTER_RAD = CORE_RULE[2]
 
 _RULES = {name: (np.polynomial.legendre.leggauss(nu), np.polynomial.legendre.leggauss(nv), scale)
           for name, (nu, nv, scale) in (("core", CORE_RULE), ("mid", MID_RULE), ("far", FAR_RULE))}
-_GH_A = np.polynomial.hermite_e.hermegauss(N_ALPHA)  # weight exp(-x^2/2)
-_GH_A = (_GH_A[0], _GH_A[1] / math.sqrt(2 * math.pi))
 
 POL_CODES = ("s", "p", "u")
 
@@ -181,8 +179,9 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
 
     Returns
     -------
-    wi : (n, A, 1, 1, 3), wo : (n, 1, U, V, 3)
-        Directions in the true sample frame (A divergence nodes, U x V slit/beam nodes).
+    wi : (n, A, 1, 1, 3), wo : (n, A, U, V, 3)
+        Directions in the true sample frame (A divergence nodes, U x V slit/beam nodes; the
+        slit nodes of each divergence node cluster about its own specular ray).
     weight : (n, A, U, V)
         Quadrature weights including the 1/cos(theta_r) of the rig's BRDF definition and the
         cos(theta_o) of the collected power; ``sum(weight * f)`` is the reading.
@@ -221,50 +220,58 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
     reach = 3.5 if far else 6.0
     y_u = half_w + k * np.minimum(t_max, reach * sigma)
     y_v = np.full(n, half_h + reach * sigma)
-    rel = spec - arm
-    u_c = np.clip(np.einsum("ij,ij->i", rel, e_theta) * L, -y_u, y_u)
-    v_c = np.clip(np.einsum("ij,ij->i", rel, e_perp) * L, -y_v, y_v)
-    if far:  # smooth integrand: symmetric rules, so linear variations cancel exactly
-        yu, wu = y_u[:, None] * rule_u[0], y_u[:, None] * rule_u[1]
-        yv, wv = y_v[:, None] * rule_v[0], y_v[:, None] * rule_v[1]
-    else:
-        yu, wu = _sinh_rule(rule_u, -y_u, y_u, u_c, scale * L)
-        yv, wv = _sinh_rule(rule_v, -y_v, y_v, v_c, scale * L)
-    pu = _box_gauss_density(yu, half_w, k[:, None], sigma, t_max[:, None]) * wu
-    # Renormalise to the analytic mass (fraction of the beam on the sample): removes the rule's
-    # error on the density's soft edges, so a Lambertian reads rd/pi.
-    mass_u = _phi(t_max / sigma) - _phi(-t_max / sigma)
-    pu *= (mass_u / np.maximum(pu.sum(axis=1), 1e-300))[:, None]
-    pv = _box_gauss_density(yv, half_h, 1.0, sigma, np.inf) * wv
-    pv /= np.maximum(pv.sum(axis=1), 1e-300)[:, None]
-    u = yu / L
-    v = yv / L
-
-    wo = arm[:, None, None, :] + u[:, :, None, None] * e_theta[:, None, None, :] + v[:, None, :, None] * e_perp[:, None, None, :]
-    wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
-
-    if config.beam_divergence_mrad > 0:
-        alpha = _GH_A[0] * (config.beam_divergence_mrad * 1e-3)
-        pa = _GH_A[1]
-    else:
-        alpha = np.zeros(1)
-        pa = np.ones(1)
-    ang = theta_i[:, None] + alpha[None, :]  # (n, A)
-    wi = np.stack([-np.sin(ang), np.zeros_like(ang), np.cos(ang)], axis=-1)
-
-    # Lab (nominal sample frame) -> true sample frame.
-    if d_stage:
-        wi = _rot_y(wi, -d_stage)
-        wo = _rot_y(wo, -d_stage)
-    if tilt:
-        wi = _rot_x(wi, tilt)
-        wo = _rot_x(wo, tilt)
-
-    cos_o = np.clip(wo[..., 2], 0.0, None)
     cos_r_nominal = np.clip(np.cos(theta_r), 1e-9, None)
-    weight = (pa[None, :, None, None] * (pu[:, None, :, None] * pv[:, None, None, :])
-              * (cos_o[:, None, :, :] / cos_r_nominal[:, None, None, None]))
-    return wi[:, :, None, None, :], wo[:, None, :, :, :], weight
+    mass_u = _phi(t_max / sigma) - _phi(-t_max / sigma)
+    # Beam divergence: an incidence tilted by alpha moves the specular ray (and a lobe about it)
+    # by alpha in u, so it is folded into the in-plane density as a Gaussian of sigma L alpha
+    # added in quadrature to the projected beam (k sigma). The change of the incidence angle
+    # itself (a relative change ~ alpha d ln f / d theta_i, first order, averaging to zero)
+    # is neglected. Discrete incidence nodes would ripple on lobes narrower than the beam.
+    if config.beam_divergence_mrad > 0:
+        k = np.hypot(k, L * config.beam_divergence_mrad * 1e-3 / sigma)
+        y_u = half_w + k * np.minimum(t_max, reach * sigma)
+    alphas, p_alpha = np.zeros(1), np.ones(1)
+    wi_all, wo_all, w_all = [], [], []
+    for alpha, pa in zip(alphas, p_alpha):
+        # each incidence direction of the diverging beam has its own specular ray: cluster there
+        if alpha:
+            _, spec = _arm_and_specular(theta_i + alpha, theta_r, phi_r, config)
+        rel = spec - arm
+        u_c = np.clip(np.einsum("ij,ij->i", rel, e_theta) * L, -y_u, y_u)
+        v_c = np.clip(np.einsum("ij,ij->i", rel, e_perp) * L, -y_v, y_v)
+        if far:  # smooth integrand: symmetric rules, so linear variations cancel exactly
+            yu, wu = y_u[:, None] * rule_u[0], y_u[:, None] * rule_u[1]
+            yv, wv = y_v[:, None] * rule_v[0], y_v[:, None] * rule_v[1]
+        else:
+            yu, wu = _sinh_rule(rule_u, -y_u, y_u, u_c, scale * L)
+            yv, wv = _sinh_rule(rule_v, -y_v, y_v, v_c, scale * L)
+        pu = _box_gauss_density(yu, half_w, k[:, None], sigma, t_max[:, None]) * wu
+        # Renormalise to the analytic mass (fraction of the beam on the sample): removes the
+        # rule's error on the density's soft edges, so a Lambertian reads rd/pi.
+        pu *= (mass_u / np.maximum(pu.sum(axis=1), 1e-300))[:, None]
+        pv = _box_gauss_density(yv, half_h, 1.0, sigma, np.inf) * wv
+        pv /= np.maximum(pv.sum(axis=1), 1e-300)[:, None]
+        u = yu / L
+        v = yv / L
+        wo = (arm[:, None, None, :] + u[:, :, None, None] * e_theta[:, None, None, :]
+              + v[:, None, :, None] * e_perp[:, None, None, :])
+        wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
+        ang = theta_i + alpha
+        wi = np.stack([-np.sin(ang), np.zeros_like(ang), np.cos(ang)], axis=-1)
+        # Lab (nominal sample frame) -> true sample frame.
+        if d_stage:
+            wi = _rot_y(wi, -d_stage)
+            wo = _rot_y(wo, -d_stage)
+        if tilt:
+            wi = _rot_x(wi, tilt)
+            wo = _rot_x(wo, tilt)
+        cos_o = np.clip(wo[..., 2], 0.0, None)
+        w_all.append(pa * pu[:, :, None] * pv[:, None, :] * cos_o / cos_r_nominal[:, None, None])
+        wi_all.append(wi)
+        wo_all.append(wo)
+    wi = np.stack(wi_all, axis=1)[:, :, None, None, :]
+    wo = np.stack(wo_all, axis=1)
+    return wi, wo, np.stack(w_all, axis=1)
 
 
 def instrument_forward(theta_i, theta_r, phi_r, polarization, config: RigConfig, material) -> np.ndarray:
