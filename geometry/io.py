@@ -217,8 +217,11 @@ def load_scene(path) -> Scene:
         tolerance_mm = entry.get("tolerance_mm", DEFAULT_TOLERANCE_MM)
         if not isinstance(tolerance_mm, (int, float)) or isinstance(tolerance_mm, bool):
             raise GeometryError(f"{where}: tolerance_mm must be a number")
-        parts.append(load_part(path.parent / entry["mesh"], name=entry["name"], material=entry.get("material"),
-                               role=entry.get("role", "surface"), tolerance_mm=float(tolerance_mm)))
+        try:
+            parts.append(load_part(path.parent / entry["mesh"], name=entry["name"], material=entry.get("material"),
+                                   role=entry.get("role", "surface"), tolerance_mm=float(tolerance_mm)))
+        except GeometryError as exc:  # name the scene file and entry, not only the mesh file
+            raise GeometryError(f"{where}: {exc}") from exc
     try:
         return Scene(tuple(parts))
     except GeometryError as exc:
