@@ -127,10 +127,10 @@ def hits(tri, o, d, w, idx, prev_kind, pdf_prev, prev_part, tri_part, part_roles
 
 
 @njit(cache=True)
-def frames(cont, d, nf, part, part_roles):
+def frames(cont, d, nf, part, part_roles, part_material, U):
     """Local frames (Duff et al. 2017 basis, as straylight.sources.orthonormal_basis) of the surface
     (BRDF) hits among ``cont``: returns (surf: positions into cont, surf_of: row of each cont entry in
-    the per-surface arrays or -1 for a mirror, tb, bb, wi_loc)"""
+    the per-surface arrays or -1 for a mirror, tb, bb, wi_loc, material index, the sampling uniforms U[:, 0:3])"""
     n = len(cont)
     surf = np.empty(n, np.int64)
     surf_of = np.full(n, -1, np.int64)
@@ -144,8 +144,12 @@ def frames(cont, d, nf, part, part_roles):
     tb = np.empty((ns, 3))
     bb = np.empty((ns, 3))
     wi_loc = np.empty((ns, 3))
+    mat = np.empty(ns, np.int64)
+    u_s = np.empty((ns, 3))
     for s in range(ns):
         i = cont[surf[s]]
+        mat[s] = part_material[part[i]]
+        u_s[s, 0], u_s[s, 1], u_s[s, 2] = U[i, 0], U[i, 1], U[i, 2]
         x, y, z = nf[i, 0], nf[i, 1], nf[i, 2]
         sign = 1.0 if z >= 0 else -1.0
         a = -1.0 / (sign + z)
@@ -158,7 +162,7 @@ def frames(cont, d, nf, part, part_roles):
         wi_loc[s, 0] = _dot(w0, w1, w2, t0, t1, t2)
         wi_loc[s, 1] = _dot(w0, w1, w2, b0, b1, b2)
         wi_loc[s, 2] = _dot(w0, w1, w2, x, y, z)
-    return surf, surf_of, tb, bb, wi_loc
+    return surf, surf_of, tb, bb, wi_loc, mat, u_s
 
 
 @njit(cache=True)
@@ -372,58 +376,92 @@ def advance(cont, surf_of, wo_world, weight, pdf_dir, d, w, p, nf, part, idx, U,
 
 
 @njit(cache=True)
-def _pairwise2(x, lo, n):
-    """numpy's pairwise sums of x[lo:lo+n] and of its squares (numpy/_core/src/umath/loops_utils.h.src:
-    8-way unrolled blocks of up to 128, halves above), so that per-chunk sums are bit-identical to
-    ``np.add.reduceat(x)`` and ``np.add.reduceat(x * x)``."""
+def _pairwise_block(x, lo, n):
+    """numpy's pairwise sum of x[lo:lo+n] and of its squares for n <= 128 (numpy/_core/src/umath/
+    loops_utils.h.src: plain loop below 8, else 8 accumulators then the tail)."""
     if n < 8:
         res = 0.0
         res2 = 0.0
-        for i in range(n):
-            v = x[lo + i]
-            res += v
-            res2 += v * v
-        return res, res2
-    if n <= 128:
-        r0, r1, r2, r3 = x[lo], x[lo + 1], x[lo + 2], x[lo + 3]
-        r4, r5, r6, r7 = x[lo + 4], x[lo + 5], x[lo + 6], x[lo + 7]
-        q0, q1, q2, q3 = r0 * r0, r1 * r1, r2 * r2, r3 * r3
-        q4, q5, q6, q7 = r4 * r4, r5 * r5, r6 * r6, r7 * r7
-        i = lo + 8
-        stop = lo + n - n % 8
-        while i < stop:
-            v0, v1, v2, v3 = x[i], x[i + 1], x[i + 2], x[i + 3]
-            v4, v5, v6, v7 = x[i + 4], x[i + 5], x[i + 6], x[i + 7]
-            r0 += v0
-            r1 += v1
-            r2 += v2
-            r3 += v3
-            r4 += v4
-            r5 += v5
-            r6 += v6
-            r7 += v7
-            q0 += v0 * v0
-            q1 += v1 * v1
-            q2 += v2 * v2
-            q3 += v3 * v3
-            q4 += v4 * v4
-            q5 += v5 * v5
-            q6 += v6 * v6
-            q7 += v7 * v7
-            i += 8
-        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-        res2 = ((q0 + q1) + (q2 + q3)) + ((q4 + q5) + (q6 + q7))
-        while i < lo + n:
+        for i in range(lo, lo + n):
             v = x[i]
             res += v
             res2 += v * v
-            i += 1
         return res, res2
-    n2 = n // 2
-    n2 -= n2 % 8
-    a, a2 = _pairwise2(x, lo, n2)
-    b, b2 = _pairwise2(x, lo + n2, n - n2)
-    return a + b, a2 + b2
+    r0, r1, r2, r3 = x[lo], x[lo + 1], x[lo + 2], x[lo + 3]
+    r4, r5, r6, r7 = x[lo + 4], x[lo + 5], x[lo + 6], x[lo + 7]
+    q0, q1, q2, q3 = r0 * r0, r1 * r1, r2 * r2, r3 * r3
+    q4, q5, q6, q7 = r4 * r4, r5 * r5, r6 * r6, r7 * r7
+    i = lo + 8
+    stop = lo + n - n % 8
+    while i < stop:
+        v0, v1, v2, v3 = x[i], x[i + 1], x[i + 2], x[i + 3]
+        v4, v5, v6, v7 = x[i + 4], x[i + 5], x[i + 6], x[i + 7]
+        r0 += v0
+        r1 += v1
+        r2 += v2
+        r3 += v3
+        r4 += v4
+        r5 += v5
+        r6 += v6
+        r7 += v7
+        q0 += v0 * v0
+        q1 += v1 * v1
+        q2 += v2 * v2
+        q3 += v3 * v3
+        q4 += v4 * v4
+        q5 += v5 * v5
+        q6 += v6 * v6
+        q7 += v7 * v7
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    res2 = ((q0 + q1) + (q2 + q3)) + ((q4 + q5) + (q6 + q7))
+    while i < lo + n:
+        v = x[i]
+        res += v
+        res2 += v * v
+        i += 1
+    return res, res2
+
+
+@njit(cache=True)
+def _pairwise2(x, lo, n):
+    """numpy's pairwise sums of x[lo:lo+n] and of its squares: blocks of <= 128 combined as a binary
+    tree whose splits are halves rounded down to multiples of 8, so that per-chunk sums are
+    bit-identical to ``np.add.reduceat(x)`` and ``np.add.reduceat(x * x)``. Written without recursion
+    (an explicit post-order stack; numba's on-disk cache and recursion do not mix well)."""
+    if n <= 128:
+        return _pairwise_block(x, lo, n)
+    # stack of (lo, n, state); state 0 = expand, 1 = combine the two results on the value stack
+    st_lo = np.empty(64, np.int64)
+    st_n = np.empty(64, np.int64)
+    st_s = np.empty(64, np.int64)
+    v1 = np.empty(64)
+    v2 = np.empty(64)
+    top = 0
+    nv = 0
+    st_lo[0], st_n[0], st_s[0] = lo, n, 0
+    top = 1
+    while top > 0:
+        top -= 1
+        a, m, state = st_lo[top], st_n[top], st_s[top]
+        if state == 1:  # right result on top of left result
+            nv -= 1
+            v1[nv - 1] = v1[nv - 1] + v1[nv]
+            v2[nv - 1] = v2[nv - 1] + v2[nv]
+        elif m <= 128:
+            s1_, s2_ = _pairwise_block(x, a, m)
+            v1[nv] = s1_
+            v2[nv] = s2_
+            nv += 1
+        else:
+            m2 = m // 2
+            m2 -= m2 % 8
+            # push: combine, right, left (left is evaluated first)
+            st_lo[top], st_n[top], st_s[top] = a, m, 1
+            st_lo[top + 1], st_n[top + 1], st_s[top + 1] = a + m2, m - m2, 0
+            st_lo[top + 2], st_n[top + 2], st_s[top + 2] = a, m2, 0
+            top += 3
+    return v1[0], v2[0]
 
 
 @njit(cache=True)

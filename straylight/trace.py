@@ -30,6 +30,7 @@ short of their target.
 from __future__ import annotations
 
 import hashlib
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -170,6 +171,7 @@ class _Compiled:
         self.detectors = [
             DetectorGeometry.from_triangles(tri[spec.triangle_part == p]) for p in self.det_parts
         ]
+        self._local = threading.local()  # per-thread scratch (dask may run several threads per process)
         self.det_area = np.array([g.area_mm2 for g in self.detectors], dtype=np.float64)
         # all detectors' sampling tables, concatenated (rows det_off[j]:det_off[j+1] belong to detector j)
         self.det_off = np.concatenate([[0], np.cumsum([len(g.normals) for g in self.detectors])]).astype(np.int64)
@@ -192,6 +194,17 @@ class _Compiled:
                 from straylight.intersect.reference import ReferenceIntersector as _Target
             self.target_isect = _Target(ttri) if not isinstance(intersector, _NoIsect) else None
             self.target_plane_d = np.einsum("ij,ij->i", self.target.normals, ttri[:, 0])
+
+
+    def tally_buffer(self, rows, n):
+        """A zeroed (rows, n) float64 array, reused between batches of this thread (fresh pages from
+        np.zeros cost a page fault each time they are first written)."""
+        buf = getattr(self._local, "buf", None)
+        if buf is None or buf.size < rows * n:
+            buf = self._local.buf = np.empty(rows * n)
+        M = buf[:rows * n].reshape(rows, n)
+        M.fill(0.0)
+        return M
 
 
 def _compiled(spec: TraceSpec, intersector=None) -> _Compiled:
@@ -571,7 +584,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     total_power = float(sum(s.power_w for s in spec.sources))
     w0 = total_power / spec.n_rays
     thr = opt.rr_threshold * w0
-    M = np.zeros((lay.n, n))  # per-ray tallies, one row per tally
+    M = comp.tally_buffer(lay.n, n)  # per-ray tallies, one row per tally (zeroed, reused)
     D = len(comp.det_parts)
     K = int(opt.path_depth)
     bins = tuple(int(b) for b in opt.map_bins)
@@ -627,12 +640,12 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         if len(cont) == 0:
             idx = idx[:0]
             break
-        surf, surf_of, tb, bb, wi_loc = kern.frames(cont, d, nf, part, spec.part_roles)
+        surf, surf_of, tb, bb, wi_loc, mat, u_s = kern.frames(cont, d, nf, part, spec.part_roles, spec.part_material,
+                                                              U)
         n_surf = len(surf)
         wo_world, weight, pdf_dir = np.zeros((0, 3)), np.zeros(0), np.zeros(0)
         if n_surf:
             ii = cont[surf]
-            mat = spec.part_material[part[ii]]
             if nee:
                 ps, pjk, y, wo_loc, dist2, cos_s, cos_d, wdir = kern.nee_pairs(
                     cont, surf, tb, bb, p, nf, U, 4, D, k_nee, comp.det_off, comp.det_prob, comp.det_alias,
@@ -660,7 +673,6 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                         if len(okb):
                             _record_nee(record, okb, keep, cc, ps, pjk, y, ii, idx, part, hkey, depth, hist, k_nee, D,
                                         K, comp, record_paths)
-            u_s = U[ii, 0:3]
             wo = np.empty((n_surf, 3))
             wraw = np.empty(n_surf)
             pdf_dir = np.empty(n_surf)
