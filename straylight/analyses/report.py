@@ -35,7 +35,7 @@ DEFAULT_PATH_ANGLE_DEG = 20.0
 class StudyConfig:
     """What the study runs; ``rays`` is the PST rays per angle, other steps scale from it."""
 
-    rays: int = 100_000
+    rays: int = 200_000
     seed: int = 0
     workers: int | None = None
     scheduler: str | None = None
@@ -273,9 +273,14 @@ def _findings(pst, report, crit, sweep) -> list[str]:
         out.append("Parts both illuminated and seen by the detector (ranked): "
                    + ", ".join(r.part for r in crit.ranking[:5]) + ".")
     for j, a in enumerate(sweep.off_axis_deg):
-        out.append(f"Design sweep: lowest PST at {a:g} deg with {sweep.parameter.replace('_', ' ')} = "
-                   f"{sweep.best(j):g} ({np.nanmin(sweep.pst[:, j]):.2e}; with {sweep.values[0]:g}: "
-                   f"{sweep.pst[0, j]:.2e}).")
+        col, err = sweep.pst[:, j], sweep.pst_stderr[:, j]
+        k = int(np.nanargmin(col))
+        # designs whose PST is within 2 combined sigma of the lowest cannot be told apart
+        ties = [f"{v:g}" for i, v in enumerate(sweep.values)
+                if i != k and col[i] - col[k] < 2 * math.hypot(err[i], err[k])]
+        out.append(f"Design sweep at {a:g} deg: lowest PST with {sweep.parameter.replace('_', ' ')} = "
+                   f"{sweep.values[k]:g} ({col[k]:.2e} +- {err[k]:.1e}; with {sweep.values[0]:g}: {col[0]:.2e})"
+                   + (f"; within 2 sigma of it: {', '.join(ties)}." if ties else "."))
     return out
 
 

@@ -11,7 +11,7 @@ def add_parser(subparsers):
     p = subparsers.add_parser("study", help="baffle design study: PST, paths, critical objects, design sweep",
                               description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True, help="report directory (created)")
-    p.add_argument("--rays", type=int, default=100_000, help="rays per PST angle; other steps scale from it")
+    p.add_argument("--rays", type=int, default=200_000, help="rays per PST angle; other steps scale from it")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="dask worker processes (default: in-process)")
     p.add_argument("--scheduler", default=None, help="dask scheduler address")
