@@ -191,7 +191,10 @@ def sim_instrument(sample, config: RigConfig | None = None, *, seed: int = 0, id
     from rig.sim import SimRig
 
     material = load_sample(sample) if sample is None or isinstance(sample, (str, Path)) else sample
-    sim = SimRig(material, config or RigConfig(), seed=seed, ideal=ideal, effects=effects, **kwargs)
+    if config is None:  # the simulated laser runs at the sample model's wavelength (the CSV's wavelength_nm)
+        wavelength_nm = getattr(material, "wavelength_nm", None)
+        config = RigConfig(wavelength_nm=float(wavelength_nm)) if wavelength_nm else RigConfig()
+    sim = SimRig(material, config, seed=seed, ideal=ideal, effects=effects, **kwargs)
     return sim, sim_devices(sim)
 
 

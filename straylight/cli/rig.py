@@ -52,7 +52,14 @@ def add_parser(subparsers) -> None:
 
 
 def run_scan_command(args) -> int:
+    import logging
     from dataclasses import replace
+
+    bluesky_log = logging.getLogger("bluesky")
+    if not getattr(args, "debug", False) and not bluesky_log.handlers:
+        # bluesky logs an aborted run (Ctrl-C, SIGTERM) with a traceback that logging's last-resort
+        # handler prints to stderr; the interruption is reported below in one line instead
+        bluesky_log.addHandler(logging.NullHandler())
 
     from rig.plans import load_plan, paper_plan_spec
     from rig.run import hardware_instrument, load_hardware_config, run_scan, sim_instrument
