@@ -181,10 +181,13 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
                 pl.add_mesh(poly.extract_cells(np.flatnonzero(hit)), color="red", line_width=3.0)
                 legend.append(["rays reaching the detector", "red"])
     if legend and color_by == "part":
-        pl.add_legend(legend, bcolor="white", face="rectangle", loc="lower right",
+        pl.add_legend(legend, bcolor="white", face="rectangle", loc="center right",
                       size=(0.2, min(0.035 * len(legend), 0.5)))
     if title:
-        pl.add_text(title, font_size=10, color="black", position="upper_edge")
+        import textwrap
+
+        width = max(40, int(window_size[0] / 14))  # characters that fit at font size 10
+        pl.add_text("\n".join(textwrap.wrap(title, width)), font_size=10, color="black", position="upper_edge")
     if camera is None:
         # look into the cut (the kept half is y < 0) from +y, a little above and to the side
         lo, hi = scene.bounds_mm
