@@ -24,13 +24,13 @@ _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _dot(a0, a1, a2, b0, b1, b2):
     # numpy's einsum order for three terms
     return (a0 * b0 + a2 * b2) + a1 * b1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _mis(p_this, p_other):
     """Power heuristic p^2 / (p^2 + q^2) (Veach 1997, eq. 9.13)."""
     a = p_this * p_this
@@ -39,7 +39,7 @@ def _mis(p_this, p_other):
     return a / total if total > 0 else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def mix_key1(h, code):
     """splitmix64 fold of one event code (same as straylight.paths.mix_key)."""
     x = (h ^ (np.uint64(code) + np.uint64(1))) * _GOLDEN
@@ -48,7 +48,7 @@ def mix_key1(h, code):
     return x ^ (x >> np.uint64(31))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def hits(tri, o, d, w, idx, prev_kind, pdf_prev, prev_part, tri_part, part_roles, normals, plane_d, centroids,
          det_of_part, det_area, both_sides, nee, k_nee, M, r_esc, r_inc, r_first, r_abs, r_walk, r_nex, r_direct):
     """First event of every live ray: escape, detector, absorber tallies; the continuing rays.
@@ -126,7 +126,7 @@ def hits(tri, o, d, w, idx, prev_kind, pdf_prev, prev_part, tri_part, part_roles
     return cont[:nc], p, nf, part, t_out, cos_out, rec[:nr], rec_w[:nr]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def frames(cont, d, nf, part, part_roles, part_material, U):
     """Local frames (Duff et al. 2017 basis, as straylight.sources.orthonormal_basis) of the surface
     (BRDF) hits among ``cont``: returns (surf: positions into cont, surf_of: row of each cont entry in
@@ -165,7 +165,7 @@ def frames(cont, d, nf, part, part_roles, part_material, U):
     return surf, surf_of, tb, bb, wi_loc, mat, u_s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def nee_pairs(cont, surf, tb, bb, p, nf, U, u_col0, n_det, k_nee, det_off, prob, alias, v0, e1, e2, det_normals,
               both_sides, eps):
     """Detector points for next-event estimation: for each surface hit s and each (detector j, sample k),
@@ -230,7 +230,7 @@ def nee_pairs(cont, surf, tb, bb, p, nf, U, u_col0, n_det, k_nee, det_off, prob,
     return ps[:q], pjk[:q], y[:q], wo_loc[:q], dist2[:q], cos_s[:q], cos_d[:q], wdir[:q]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def nee_shadow(ps, pjk, y, dist2, cos_s, cos_d, f, p_b, cont, surf, w, p, nf, k_nee, det_area, eps):
     """NEE contributions c = w f cos_s cos_d A / d^2 * m_nee / k (area form, MIS density k d^2 / (A cos_d))
     and the shadow rays of those with c > 0: returns (keep (pair positions), c, origins, dirs, tmax)."""
@@ -263,7 +263,7 @@ def nee_shadow(ps, pjk, y, dist2, cos_s, cos_d, f, p_b, cont, surf, w, p, nf, k_
     return keep[:q], cc[:q], so[:q], sd[:q], tmax[:q]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def nee_tally(keep, cc, blocked, ps, pjk, cont, surf, idx, part, k_nee, M, r_nee, r_nex):
     """Add unblocked NEE contributions to the detector and (negated) to the NEE exchange of the part."""
     m = len(keep)
@@ -282,7 +282,7 @@ def nee_tally(keep, cc, blocked, ps, pjk, cont, surf, idx, part, k_nee, M, r_nee
     return ok[:q]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def to_world(wo, weight, pdf, tb, bb, surf, cont, nf):
     """Sampled local directions to world (renormalised); weight zero below the horizon."""
     ns = len(surf)
@@ -302,7 +302,7 @@ def to_world(wo, weight, pdf, tb, bb, surf, cont, nf):
     return out, wt, pdf
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def advance(cont, surf_of, wo_world, weight, pdf_dir, d, w, p, nf, part, idx, U, hkey, depth, hist, has_hist,
             record_paths, mirror_r, thr, eps, last, M, r_abs, r_rr, r_trunc):
     """Absorption, Russian roulette, truncation and the next state of the rays that go on.
@@ -375,7 +375,7 @@ def advance(cont, surf_of, wo_world, weight, pdf_dir, d, w, p, nf, part, idx, U,
             n_hist[:q] if has_hist else n_hist[:0])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pairwise_block(x, lo, n):
     """numpy's pairwise sum of x[lo:lo+n] and of its squares for n <= 128 (numpy/_core/src/umath/
     loops_utils.h.src: plain loop below 8, else 8 accumulators then the tail)."""
@@ -423,7 +423,7 @@ def _pairwise_block(x, lo, n):
     return res, res2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pairwise2(x, lo, n):
     """numpy's pairwise sums of x[lo:lo+n] and of its squares: blocks of <= 128 combined as a binary
     tree whose splits are halves rounded down to multiples of 8, so that per-chunk sums are
@@ -464,7 +464,7 @@ def _pairwise2(x, lo, n):
     return v1[0], v2[0]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def chunk_sums(M, chunk, n_parts, n_det, r_abs, r_rr, r_nex, r_trunc, r_nee, r_direct):
     """Per-chunk S1 = sum x, S2 = sum x^2 of every tally row of M (n_rows, n) and of the derived rows
     (absorbed ledger ABS + RR + NEX + TRUNC per part, detector total NEE + DIRECT), as
