@@ -96,13 +96,13 @@ def timed_trace(scene, mats, a_deg, n, seed, nee=True, client=None):
 
 def two_workers(scene, mats, a_deg, n, seed):
     """The same trace on a LocalCluster of 2 processes x 1 thread; start-up timed apart."""
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
-    from straylight.distribute import warm_up, worker_cpu_seconds
+    from straylight.distribute import local_cluster, warm_up, worker_cpu_seconds
     from straylight.trace import TraceOptions, make_spec
 
     t = time.perf_counter()
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
+    cluster = local_cluster(2)  # what trace(..., workers=2) starts
     client = Client(cluster)
     start_s = time.perf_counter() - t
     t = time.perf_counter()
