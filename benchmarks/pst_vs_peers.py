@@ -194,7 +194,7 @@ def main(argv=None) -> int:
         for n in names:
             if a in results[n]:
                 t = results[n][a]["t_2pct_s"]
-                cells.append(f"{n}: {t:.3g} s" + ("" if n == "straylight" else f" ({t / ours:.0f}x)"))
+                cells.append(f"{n}: {t:.3g} s" + ("" if n == "straylight" else f" ({t / ours:.3g}x)"))
         print(f"  {a:g} deg: " + "; ".join(cells))
     peers_t = {a: min((results[n][a]["t_2pct_s"] for n in PEERS if n in results and a in results[n]),
                       default=math.nan) for a in angles}
