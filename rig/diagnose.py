@@ -29,6 +29,9 @@ terms; PHYSICS §4 "diagnosis practice"):
    the specular core). An effect whose fitted parameter sits at a bound of its plausible
    range (``at_bound`` in the JSON) is never selected: the residual is larger than any
    plausible instrument error of that kind, which usually means the material model fails.
+   Finally a backward pass refits without each selected effect in turn and drops it when
+   removing it costs less than :data:`BIC_THRESHOLD` in BIC or less than
+   :data:`HELDOUT_CHI2_GAIN` in held-out chi^2 (``dropped_effects``).
 6. **Regions.** ``specular_core`` (|theta_r - theta_i| <= 0.5 deg in the plane),
    ``shoulder`` (0.5..5 deg), ``wing`` (beyond), and where present ``grazing`` (viewing
    beyond 75 deg, outside core and shoulder) and ``near_retro`` (backscatter side within
@@ -64,7 +67,7 @@ DEFAULT_RELATIVE_STD = 0.05
 #: Floor on sigma_log10 (model/quadrature error, ~0.5 %).
 SIGMA_FLOOR_DEX = 0.002
 #: Forward selection retries at most this many of the candidates that helped alone (best first).
-MAX_RETRIED = 4
+MAX_RETRIED = 6
 CORE_DEG, SHOULDER_DEG, GRAZING_DEG, RETRO_DEG = 0.5, 5.0, 75.0, 10.0
 REGION_ORDER = ("specular_core", "shoulder", "wing", "grazing", "near_retro")
 
@@ -562,6 +565,7 @@ class Diagnosis:
     final: Fit
     single_fits: dict  # effect name -> Fit alone
     confounded: list
+    dropped: list
     timings: dict = field(default_factory=dict)
 
 
@@ -705,8 +709,21 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
                             f"but adds nothing once {chosen} is in: they explain the same residual",
                 })
                 pool.remove(n)
+    # backward pass: an effect selected early can become redundant once later ones are in
+    dropped = []
+    if len(selected) > 1:
+        for name in list(selected):
+            rest = tuple(e for e in current.model.effects if e != name)
+            vals = {k: v for k, v in current.model.values.items() if k[0] != name}
+            without = problem.fit(Model(current.model.n_lobes, vals, rest), max_nfev=25)
+            d_held = problem.chi2(without.model, held) - problem.chi2(current.model, held)
+            if without.bic - current.bic < BIC_THRESHOLD or (held.size and d_held < HELDOUT_CHI2_GAIN):
+                selected.remove(name)
+                dropped.append({"name": name, "delta_bic_when_removed": float(without.bic - current.bic),
+                                "delta_heldout_chi2_when_removed": float(d_held)})
+                current = without
     t3 = time.perf_counter()
-    return Diagnosis(problem, baseline, candidates, selected, current, singles, confounded,
+    return Diagnosis(problem, baseline, candidates, selected, current, singles, confounded, dropped,
                      {"baseline_s": t1 - t0, "candidates_s": t2 - t1, "selection_s": t3 - t2})
 
 
@@ -769,6 +786,7 @@ def to_json(d: Diagnosis) -> dict:
         "selected_effects": list(d.selected),
         "selected_parameters": final_params,
         "confounded": d.confounded,
+        "dropped_effects": d.dropped,
         "final": {"heldout_gap": p.gap(d.final.model, held), "train_gap": p.gap(d.final.model, train),
                   "bic": d.final.bic, "material": d.final.model.material(p.wavelength_nm).to_dict()},
         "noise_level": {"heldout_gap": noise_held, "train_gap": noise_train,
