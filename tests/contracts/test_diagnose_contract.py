@@ -1,0 +1,160 @@
+"""CONTRACTS §4.1 ``straylight rig diagnose`` on scans the rig simulator makes here for a new material,
+at incidence angles that are not the paper's, with an injected catalogue effect (the golden value:
+the injected parameter), without one (no effect must be selected), and unpolarized-only.
+"""
+import csv
+import json
+import time
+
+import numpy as np
+import pytest
+
+from contract_helpers import assert_one_line_error, write_json
+
+CATALOGUE = ("angle_offset", "arm_offset", "sample_tilt", "detector_aperture", "beam_divergence",
+             "footprint_overfill", "polarization_leakage", "stray_background", "detector_nonlinearity",
+             "substrate_reflection")
+REGION_KEYS = ("name", "theta_i_deg", "polarization", "n_points", "heldout", "gap", "bias")
+CANDIDATE_KEYS = ("name", "fitted", "delta_bic", "heldout_gap_before", "heldout_gap_after")
+OFFSET_DEG = 0.3
+MATERIAL = {"name": "contract_black", "wavelength_nm": 633.0, "components": [
+    {"type": "lambertian", "rd": 0.02},
+    {"type": "k_correlation", "sigma_nm": 4.0, "lc_um": 25.0, "s": 2.5, "n": 1.6},
+    {"type": "k_correlation", "sigma_nm": 30.0, "lc_um": 2.0, "s": 3.2, "n": 1.6, "weight": 0.7}]}
+
+
+def _grid(ti):
+    near = np.arange(-2.0, 2.01, 0.25)
+    far = np.arange(0.0, 86.0, 8.0)
+    tr = np.unique(np.round(np.concatenate([ti + near, far]), 3))
+    return [float(t) for t in tr if 0 <= t <= 85]
+
+
+@pytest.fixture(scope="module")
+def scans(tmp_path_factory):
+    """(clean, angle-offset) sim scans at 20, 45, 60 deg, s and p."""
+    from straylight.cli.main import main
+
+    d = tmp_path_factory.mktemp("diag")
+    mat = write_json(d / "mat.json", MATERIAL)
+    plan = write_json(d / "plan.json", {"name": "diag", "n_readings": 3, "polarizations": ["s", "p"],
+                                        "incidence": [{"theta_i_deg": t, "theta_r_deg": _grid(t)} for t in (20, 45, 60)]})
+    out = {}
+    for name, extra in (("clean", []), ("offset", ["--effect", f"angle_offset:offset_deg={OFFSET_DEG}"])):
+        csv_path = d / f"{name}.csv"
+        assert main(["rig", "scan", "--sim", "--sample", str(mat), "--plan", str(plan), "-o", str(csv_path),
+                     "--seed", "21"] + extra) == 0
+        out[name] = csv_path
+    return out
+
+
+def _diagnose(cli, scan, out, *extra):
+    rc, _, err = cli("rig", "diagnose", scan, "--json", out, *extra)
+    assert rc == 0, err
+    doc = json.loads(out.read_text())
+    assert doc["gap_metric"] == "rms_log10"
+    for part in ("baseline", "final"):
+        assert set(doc[part]) >= {"heldout_gap", "train_gap"}
+        assert doc[part]["heldout_gap"] >= 0 and doc[part]["train_gap"] >= 0
+    assert isinstance(doc["selected_effects"], list)
+    return doc
+
+
+def _check_regions(doc, angles, pols):
+    held = set(doc["heldout_theta_i_deg"])
+    seen = {}
+    for r in doc["regions"]:
+        for k in REGION_KEYS:
+            assert k in r, f"region lacks {k!r}: {r}"
+        assert r["heldout"] == (r["theta_i_deg"] in held)
+        assert isinstance(r["n_points"], int) and r["n_points"] >= 0
+        if r["n_points"] > 0 and r["gap"] is not None:
+            assert r["gap"] >= 0 and abs(r["bias"]) <= r["gap"] + 1e-12  # RMS >= |mean| over the same points
+        seen.setdefault((r["theta_i_deg"], r["polarization"]), set()).add(r["name"])
+    assert set(seen) == {(t, p) for t in angles for p in pols}
+    for names in seen.values():
+        assert names >= {"specular_core", "shoulder", "wing"}
+
+
+def test_injected_angle_offset_found(cli, scans, tmp_path):
+    effects = ["angle_offset", "stray_background"]
+    doc = _diagnose(cli, scans["offset"], tmp_path / "d.json", "--holdout-theta-i", "45", "--effects", *effects)
+    assert doc["heldout_theta_i_deg"] == [45.0]
+    _check_regions(doc, (20.0, 45.0, 60.0), ("s", "p"))
+    cands = doc["candidates"]
+    assert sorted(c["name"] for c in cands) == sorted(effects)  # each tried, alone
+    for c in cands:
+        for k in CANDIDATE_KEYS:
+            assert k in c
+        assert isinstance(c["fitted"], dict) and c["fitted"]
+        assert c["heldout_gap_before"] == pytest.approx(doc["baseline"]["heldout_gap"])
+    bic = [c["delta_bic"] for c in cands]
+    assert bic == sorted(bic), "candidates must be best first"
+    assert cands[0]["name"] == "angle_offset"
+    fitted = cands[0]["fitted"]
+    offset = fitted.get("offset_deg", next(iter(fitted.values())))
+    assert offset == pytest.approx(OFFSET_DEG, abs=0.05)
+    assert doc["selected_effects"][0] == "angle_offset"
+    assert doc["final"]["heldout_gap"] < 0.5 * doc["baseline"]["heldout_gap"]
+
+
+def test_clean_scan_selects_nothing(cli, scans, tmp_path):
+    doc = _diagnose(cli, scans["clean"], tmp_path / "d.json", "--effects", "angle_offset", "arm_offset",
+                    "stray_background")
+    assert doc["selected_effects"] == []
+    assert set(doc["heldout_theta_i_deg"]) < {20.0, 45.0, 60.0} and doc["heldout_theta_i_deg"]
+    assert len(doc["candidates"]) == 3
+
+
+def test_unpolarized_only_scan(cli, scans, tmp_path):
+    """u = mean of s and p for an unpolarized beam; a 'u'-only file must diagnose."""
+    lines = scans["clean"].read_text().splitlines()
+    meta = [ln for ln in lines if ln.startswith("#")]
+    rows = list(csv.DictReader([ln for ln in lines if not ln.startswith("#")]))
+    by_key = {}
+    for r in rows:
+        by_key.setdefault((r["theta_i_deg"], r["theta_r_deg"], r["phi_r_deg"]), {})[r["polarization"]] = r
+    out = [meta[0] if meta else "# sample: u", ",".join(rows[0].keys())]
+    for (ti, tr, ph), pair in by_key.items():
+        s, p = pair["s"], pair["p"]
+        f = (float(s["brdf_per_sr"]) + float(p["brdf_per_sr"])) / 2
+        sd = 0.5 * float(np.hypot(float(s["brdf_std_per_sr"]), float(p["brdf_std_per_sr"])))
+        out.append(f"{s['wavelength_nm']},u,{ti},{tr},{ph},{f!r},{sd!r},{s['n_repeats']}")
+    u_scan = tmp_path / "u_only.csv"
+    u_scan.write_text("\n".join(out) + "\n")
+    doc = _diagnose(cli, u_scan, tmp_path / "d.json", "--effects", "stray_background", "angle_offset")
+    _check_regions(doc, (20.0, 45.0, 60.0), ("u",))
+
+
+def test_diagnose_errors(cli, scans, tmp_path):
+    rc, _, err = cli("rig", "diagnose", scans["clean"], "--json", tmp_path / "d.json", "--effects", "gremlins")
+    assert_one_line_error(rc, err, "gremlins")
+    rc, _, err = cli("rig", "diagnose", scans["clean"], "--json", tmp_path / "d.json", "--holdout-theta-i", "33")
+    assert_one_line_error(rc, err, "33")
+    rc, _, err = cli("rig", "diagnose", scans["clean"], "--json", tmp_path / "d.json",
+                     "--holdout-theta-i", "20", "45", "60")
+    assert_one_line_error(rc, err)
+    assert not (tmp_path / "d.json").exists()
+
+
+@pytest.mark.slow
+def test_paper_sized_scan_all_candidates_under_a_minute(cli, tmp_path):
+    """Six incidence angles (not the paper's), s and p, the paper grid, every catalogue effect."""
+    from straylight.cli.main import main
+
+    mat = write_json(tmp_path / "mat.json", MATERIAL)
+    plan = write_json(tmp_path / "plan.json", {"name": "big", "n_readings": 3, "polarizations": ["s", "p"],
+                                               "incidence": [{"theta_i_deg": t, "grid": "paper"}
+                                                             for t in (15, 25, 35, 50, 65, 75)]})
+    scan = tmp_path / "big.csv"
+    assert main(["rig", "scan", "--sim", "--sample", str(mat), "--plan", str(plan), "-o", str(scan), "--seed", "2",
+                 "--effect", "angle_offset:offset_deg=0.3"]) == 0
+    t0 = time.perf_counter()
+    doc = _diagnose(cli, scan, tmp_path / "d.json")
+    elapsed = time.perf_counter() - t0
+    rc, _, err = cli("rig", "diagnose", scan, "--json", tmp_path / "d2.json", "--effects", "angle_offset",
+                     "--report", tmp_path / "rep")
+    assert rc == 0, err
+    assert any(p.suffix == ".png" for p in (tmp_path / "rep").iterdir())
+    assert sorted(c["name"] for c in doc["candidates"]) == sorted(CATALOGUE)
+    assert elapsed < 60.0, f"diagnosis took {elapsed:.1f} s"
