@@ -10,8 +10,8 @@ negative ``theta_r_deg`` is read as the mirror direction: ``(|theta_r|, phi_r + 
 (a signed in-plane arm angle), so the radian properties always have
 ``theta_r >= 0``.
 
-A NaN, zero or negative ``brdf_per_sr`` is kept (lock-ins read below zero at the
-noise floor) and marked in :attr:`Scan.flagged`; fits skip those points.
+A NaN, infinite, zero or negative ``brdf_per_sr`` is kept (lock-ins read below zero at the
+noise floor; an overloaded one may write inf) and marked in :attr:`Scan.flagged`; fits skip those points.
 A NaN ``brdf_std_per_sr`` means "unknown" (e.g. a single reading).
 """
 from __future__ import annotations
@@ -178,9 +178,9 @@ class Scan:
     # --- derived quantities -------------------------------------------------
     @cached_property
     def flagged(self) -> np.ndarray:
-        """(n,) bool: brdf_per_sr is NaN, zero or negative (kept, but not fittable in log space)."""
+        """(n,) bool: brdf_per_sr is NaN, infinite, zero or negative (kept, but not fittable in log space)."""
         with np.errstate(invalid="ignore"):
-            return ~(self.brdf_per_sr > 0)
+            return ~((self.brdf_per_sr > 0) & np.isfinite(self.brdf_per_sr))
 
     @property
     def theta_i(self) -> np.ndarray:

@@ -51,9 +51,11 @@ def test_nan_and_negative_brdf_kept_flagged_and_fit_survives(cli, tmp_path):
     rows = _rows()
     rows[1] = rows[1].replace(f",{RD / math.pi!r},", ",nan,")
     rows[7] = rows[7].replace(f",{RD / math.pi!r},", ",-3.5e-05,")
+    rows[9] = rows[9].replace(f",{RD / math.pi!r},", ",inf,")  # an overloaded lock-in
+    rows[11] = rows[11].replace(f",{0.02 * RD / math.pi!r},", ",nan,")  # unknown std
     p, _ = _write(tmp_path / "noisy.csv", [HEADER] + rows)
     scan = read_scan(p)
-    assert len(scan) == 24 and int(scan.flagged.sum()) == 2
+    assert len(scan) == 24 and int(scan.flagged.sum()) == 3
     out = tmp_path / "fit.json"
     rc, _, err = cli("material", "fit", p, "--model", "lambertian", "-o", out, "--starts", 2)
     assert rc == 0, err
