@@ -113,6 +113,26 @@ def test_point_source_over_detector_square(cli, tmp_path):
     assert doc["emitted_w"] == pytest.approx(power)
 
 
+def test_point_cone_and_lambertian_disk_over_detector_square(cli, tmp_path):
+    """A cone of half-angle 60 deg holding the square: Omega / (2 pi (1 - cos 60)). A tiny Lambertian disk
+    facing the square: 4 x the differential-to-parallel-rectangle view factor (corner above the corner),
+    F = (1 / 2 pi) [A / sqrt(1 + A^2) atan(A / sqrt(1 + A^2)) x 2], A = a / h."""
+    a, h = 20.0, 30.0
+    _square(a, 0.0).export(tmp_path / "det.stl")
+    omega = 4 * math.atan(a * a / (h * math.sqrt(2 * a * a + h * h)))
+    A = a / h
+    view = 4 * (2 * A / math.sqrt(1 + A * A) * math.atan(A / math.sqrt(1 + A * A))) / (2 * math.pi)
+    cases = [({"type": "point", "position_mm": [0.0, 0.0, h], "axis": [0.0, 0.0, -1.0], "half_angle_deg": 60.0},
+              omega / (2 * math.pi * (1 - math.cos(math.radians(60))))),
+             ({"type": "lambertian_disk", "center_mm": [0.0, 0.0, h], "normal": [0.0, 0.0, -1.0], "radius_mm": 1e-3},
+              view)]
+    for k, (src, expect) in enumerate(cases):
+        scene = _scene(tmp_path / f"c{k}.toml", [{"name": "fp", "mesh": "det.stl", "role": "detector"}], [src])
+        det = _trace(cli, scene, tmp_path / f"o{k}.json", rays=20000)["detectors"]["fp"]
+        assert det["power_w"] > 0 and det["stderr_w"] > 0
+        assert abs(det["power_w"] - expect) <= 4 * det["stderr_w"], (src["type"], det, expect)
+
+
 def test_mirror_step_folds_beam_onto_detector(cli, tmp_path):
     import cadquery as cq
 
@@ -200,6 +220,7 @@ BAD_SCENES = [
     ("unknown source type", lambda t: t.replace('"collimated_disk"', '"laser"'), ["laser"]),
     ("bad source vector", lambda t: t.replace("normal = [0.0, 0.0, -1.0]", "normal = [0.0, 0.0]"), ["normal"]),
     ("no source", lambda t: t.split("[[source]]")[0], ["source"]),
+    ("surface without material", lambda t: t.replace('material = "grey"\n', ""), ["material"]),
     ("bad inline material", lambda t: t.replace("rd = 0.3", "rd = 0.3, rdd = 1"), ["rdd"]),
     ("missing material file", lambda t: t.replace('material = "grey"', 'material = "mats/none.json"'), ["none.json"]),
     ("toml syntax", lambda t: t.replace("[[part]]", "[[part]\n"), ["s.toml"]),
