@@ -98,6 +98,19 @@ def test_sim_scan_custom_plan_new_material(cli, tmp_path):
     assert parse_csv(out3)[1] != rows
 
 
+def test_sim_scan_preset_sample(cli, tmp_path):
+    from materials import list_presets, load_material
+
+    name = list_presets()[-1]
+    plan = write_json(tmp_path / "tiny.json", {"incidence": [{"theta_i_deg": 33, "theta_r_deg": [10, 33, 60]}]})
+    out = tmp_path / "preset.csv"
+    rc, _, err = cli("rig", "scan", "--sim", "--sample", name, "--plan", plan, "-o", out)
+    assert rc == 0, err
+    meta, rows = parse_csv(out)
+    assert meta["sample"] == name and len(rows) == 3 * len({r["polarization"] for r in rows})
+    assert {r["wavelength_nm"] for r in rows} == {load_material(name).wavelength_nm}
+
+
 def test_paper_plan_points():
     """--plan paper: incidence 10, 30, 40, 70, 80; s and p; 0.5/0.2/0.05 deg steps near specular, 5 deg off."""
     from rig.plans import load_plan

@@ -99,3 +99,28 @@ def test_malformed_scan_diagnose(cli, tmp_path, desc, edit, line, column):
 def test_missing_scan_file(cli, tmp_path):
     rc, _, err = cli("material", "fit", tmp_path / "nowhere.csv", "-o", tmp_path / "m.json")
     assert_one_line_error(rc, err, "nowhere.csv")
+
+
+def test_negative_theta_r_is_the_backscatter_half_plane(cli, tmp_path):
+    """(theta_r = -t, phi_r = 0) and (theta_r = t, phi_r = 180) are the same direction: same fit."""
+    from materials import load_material
+    from materials.base import brdf_angles
+
+    mat = load_material({"name": "lobe", "wavelength_nm": 633.0, "components": [
+        {"type": "lambertian", "rd": 0.03}, {"type": "abg", "a": 2e-3, "b": 2e-3, "g": 1.8}]})
+    rows_neg, rows_phi = [], []
+    for ti in (15.0, 40.0):
+        for t in (5.0, 20.0, 35.0, 50.0, 70.0):
+            for sign in (1, -1):
+                f = float(np.ravel(brdf_angles(mat, np.radians(ti), np.radians(t), 0.0 if sign > 0 else np.pi, "s"))[0])
+                rows_neg.append(f"633.0,s,{ti},{sign * t},0.0,{f!r},{0.01 * f!r},3")
+                rows_phi.append(f"633.0,s,{ti},{t},{0.0 if sign > 0 else 180.0},{f!r},{0.01 * f!r},3")
+    fits = []
+    for name, rows in (("neg.csv", rows_neg), ("phi.csv", rows_phi)):
+        p, _ = _write(tmp_path / name, [HEADER] + rows)
+        out = tmp_path / f"{name}.json"
+        rc, _, err = cli("material", "fit", p, "--model", "lambertian+abg", "-o", out, "--starts", 2)
+        assert rc == 0, err
+        fits.append(json.loads(out.read_text())["components"])
+    assert fits[0] == fits[1]
+    assert fits[0][0]["rd"] == pytest.approx(0.03, rel=0.02)  # the generating Lambertian comes back
