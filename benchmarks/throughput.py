@@ -16,6 +16,7 @@ Everything is measured in this one run and printed as ratios, because the machin
 4. time to 2 % relative error at 20 and 30 deg, t_2% = t (relerr / 0.02)^2, with next-event
    estimation and for the plain tracer (cosine sampling + roulette, no NEE), and their ratio.
 
+Each rate is measured ``--repeats`` times (default 3) and the least disturbed (fastest) kept.
 Which clock: rates are given per CPU second (``time.process_time`` of this process; on 2 workers,
 the CPU seconds of each worker process, read through ``client.run``) AND per wall second. The CPU
 figures are the ones to compare, since other jobs steal wall time but not CPU time; the 2-worker
@@ -94,7 +95,27 @@ def timed_trace(scene, mats, a_deg, n, seed, nee=True, client=None):
     return res, time.perf_counter() - t, time.process_time() - c
 
 
-def two_workers(scene, mats, a_deg, n, seed):
+def compiled_vs_numpy(scene, mats, a_deg, n, seed):
+    """CPU seconds of the compiled engine (run_batch) and of its numpy twin (run_batch_reference,
+    the engine before the kernels) on the same batches, interleaved; and whether the sums agree bit for bit."""
+    from straylight.rng import batches
+    from straylight.trace import TraceOptions, make_spec, run_batch, run_batch_reference
+
+    spec = make_spec(scene, source(a_deg), n, seed, mats, TraceOptions())
+    t_fast = t_ref = 0.0
+    same = True
+    for a, b in batches(n, spec.options.batch_rays):
+        c = time.process_time()
+        fast = run_batch(spec, a, b)
+        t_fast += time.process_time() - c
+        c = time.process_time()
+        ref = run_batch_reference(spec, a, b)
+        t_ref += time.process_time() - c
+        same &= bool(np.array_equal(fast["s1"], ref["s1"]) and np.array_equal(fast["s2"], ref["s2"]))
+    return t_fast, t_ref, same
+
+
+def two_workers(scene, mats, a_deg, n, seed, repeats=1):
     """The same trace on a LocalCluster of 2 processes x 1 thread; start-up timed apart."""
     from dask.distributed import Client
 
@@ -109,13 +130,17 @@ def two_workers(scene, mats, a_deg, n, seed):
     # each worker builds its embree scene and loads the compiled kernels once
     warm_up(client, make_spec(scene, source(a_deg), n, seed, mats, TraceOptions()))
     warm_s = time.perf_counter() - t
-    before = worker_cpu_seconds(client)
-    res, wall, own_cpu = timed_trace(scene, mats, a_deg, n, seed, client=client)
-    after = worker_cpu_seconds(client)
+    best = None
+    for _ in range(repeats):  # keep the least disturbed repeat (smallest busiest-worker CPU time)
+        before = worker_cpu_seconds(client)
+        res, wall, own_cpu = timed_trace(scene, mats, a_deg, n, seed, client=client)
+        after = worker_cpu_seconds(client)
+        cpu = {w: after[w] - before[w] for w in after}
+        if best is None or max(cpu.values()) < max(best[3].values()):
+            best = (res, wall, own_cpu, cpu)
     client.close()
     cluster.close()
-    cpu = {w: after[w] - before[w] for w in after}
-    return res, wall, own_cpu, cpu, start_s, warm_s
+    return best + (start_s, warm_s)
 
 
 def main(argv=None):
@@ -124,6 +149,8 @@ def main(argv=None):
     ap.add_argument("--plain-rays", type=int, default=400_000, help="rays per plain (no NEE) run")
     ap.add_argument("--quick", action="store_true", help="small runs (a smoke test)")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="rate measurements repeated, the least disturbed kept (default 3)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     if args.quick:
@@ -140,13 +167,16 @@ def main(argv=None):
     print(f"reference tube: {len(scene.triangles_mm)} triangles (tolerance 0.01 mm), "
           f"built in {out['scene_build_s']:.1f} s")
 
-    raw1, raw2, raw1_cpu = raw_rates(scene)
+    # shared machine: repeat each rate measurement and keep the least disturbed one (fastest)
+    raws = [raw_rates(scene) for _ in range(args.repeats)]
+    raw1, raw2, raw1_cpu = max(r[0] for r in raws), max(r[1] for r in raws), max(r[2] for r in raws)
     out.update(raw_rate_1=raw1, raw_rate_2threads=raw2, raw_rate_1_cpu=raw1_cpu)
     print(f"raw embreex run, incoherent rays, 1 process: {raw1_cpu / 1e6:.2f} M/CPU-s, {raw1 / 1e6:.2f} M/wall-s; "
           f"2 threads: {raw2 / 1e6:.2f} M/wall-s")
 
     timed_trace(scene, mats, 30.0, 2000, args.seed)  # build the embree scene, load the compiled kernels
-    res, el, cpu1 = timed_trace(scene, mats, 30.0, args.rays, args.seed)
+    runs = [timed_trace(scene, mats, 30.0, args.rays, args.seed) for _ in range(args.repeats)]
+    res, el, cpu1 = runs[0][0], min(r[1] for r in runs), min(r[2] for r in runs)
     casts = res.segments + res.shadow_rays
     rate1, rate1_cpu = casts / el, casts / cpu1
     out.update(trace_casts=casts, trace_s_1=el, trace_cpu_s_1=cpu1, trace_rate_1=rate1, trace_rate_1_cpu=rate1_cpu,
@@ -155,7 +185,13 @@ def main(argv=None):
           f"\n    {rate1_cpu / 1e6:.2f} M/CPU-s = {rate1_cpu / raw1_cpu:.0%} of raw (CPU);  "
           f"{rate1 / 1e6:.2f} M/wall-s = {rate1 / raw1:.0%} of raw (wall)")
 
-    res2, el2, own2, wcpu, start_s, warm_s = two_workers(scene, mats, 30.0, args.rays, args.seed)
+    t_fast, t_ref, same_ref = compiled_vs_numpy(scene, mats, 30.0, args.rays, args.seed)
+    out.update(compiled_cpu_s=t_fast, numpy_reference_cpu_s=t_ref, compiled_speedup=t_ref / t_fast,
+               compiled_bit_identical=same_ref)
+    print(f"    compiled kernels vs the numpy engine (run_batch_reference), same batches interleaved: "
+          f"x{t_ref / t_fast:.2f} less CPU ({t_ref:.2f} -> {t_fast:.2f} s); bit-identical sums: {same_ref}")
+
+    res2, el2, own2, wcpu, start_s, warm_s = two_workers(scene, mats, 30.0, args.rays, args.seed, args.repeats)
     same = res2.to_json_dict() == res.to_json_dict()
     rate2 = casts / el2
     busiest = max(wcpu.values())

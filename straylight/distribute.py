@@ -10,6 +10,15 @@ so the same seed gives the same numbers for any worker count.
 from __future__ import annotations
 
 
+TASK_BATCHES = 5  # at most this many batches per dask task
+
+
+def _group_task(spec, ranges):
+    from straylight.trace import run_batch
+
+    return [run_batch(spec, a, b) for a, b in ranges]
+
+
 def _batch_task(spec, first_chunk, stop_chunk):
     from straylight.trace import run_batch
 
@@ -68,9 +77,15 @@ def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
             owned += [client, cluster]
     try:
         spec_future = client.scatter(spec, broadcast=True)
-        futures = [client.submit(_batch_task, spec_future, a, b, pure=False) for a, b in ranges]
+        # a few batches per task: each dask task costs the scheduler and client ~20 ms of CPU, which
+        # competes with the workers on a small machine (the batches, hence the numbers, are unchanged)
+        # (but at least 3 tasks per worker, for balance)
+        n_workers = max(1, len(client.scheduler_info().get("workers", {})))
+        per = max(1, min(TASK_BATCHES, len(ranges) // (3 * n_workers)))
+        groups = [ranges[k:k + per] for k in range(0, len(ranges), per)]
+        futures = [client.submit(_group_task, spec_future, g, pure=False) for g in groups]
         for fut in futures:
-            yield fut.result()
+            yield from fut.result()
             fut.release()
     finally:
         for obj in owned:
