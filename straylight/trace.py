@@ -699,9 +699,12 @@ def _record_nee(record, okb, keep, cc, ps, pjk, y, ii, idx, part, hkey, depth, h
     a = keep[okb]
     c = cc[okb]
     live = ii[ps[a]]
-    jj = pjk[a] // k_nee
-    for j in range(D):
-        sel = np.flatnonzero(jj == j)
+    jk_a = pjk[a]
+    # one record call per (detector, sample), as the numpy engine makes them: the map binning
+    # (a BLAS product) then sees the same arrays, so the bins are the same to the last bit
+    for jk in range(D * k_nee):
+        j = jk // k_nee
+        sel = np.flatnonzero(jk_a == jk)
         if len(sel) == 0:
             continue
         i = live[sel]
