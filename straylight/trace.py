@@ -651,18 +651,27 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                     cont, surf, tb, bb, p, nf, U, 4, D, k_nee, comp.det_off, comp.det_prob, comp.det_alias,
                     comp.det_v0, comp.det_e1, comp.det_e2, comp.det_normals, both_sides, spec.eps)
                 if len(ps):
-                    wi_p = wi_loc[ps]
-                    mat_p = mat[ps]
                     f = np.empty(len(ps))
                     p_b = np.empty(len(ps))
-                    for rows, (fv, pv) in _by_material(spec, mat_p, lambda model, rows: (
-                            model.brdf(wi_p[rows], wo_loc[rows], pol), model.pdf(wi_p[rows], wo_loc[rows], pol))):
-                        f[rows] = fv
-                        p_b[rows] = pv
-                    if comp.target is not None:
-                        q = float(opt.target_fraction)
-                        jp = ii[ps]
-                        p_b = (1 - q) * p_b + q * _target_pdf(comp, p[jp], nf[jp], wdir, spec.eps)
+                    # materials see the same arrays as in the numpy engine: one call per (detector,
+                    # sample) and material, rays in order (vectorised transcendental functions may
+                    # round differently in a block's tail)
+                    for jk in range(D * k_nee):
+                        sel_jk = np.flatnonzero(pjk == jk) if D * k_nee > 1 else slice(None)
+                        wi_p = wi_loc[ps[sel_jk]]
+                        wo_p = wo_loc[sel_jk]
+                        fj = np.empty(len(wi_p))
+                        pj = np.empty(len(wi_p))
+                        for rows, (fv, pv) in _by_material(spec, mat[ps[sel_jk]], lambda model, rows: (
+                                model.brdf(wi_p[rows], wo_p[rows], pol), model.pdf(wi_p[rows], wo_p[rows], pol))):
+                            fj[rows] = fv
+                            pj[rows] = pv
+                        if comp.target is not None:
+                            q = float(opt.target_fraction)
+                            jp = ii[ps[sel_jk]]
+                            pj = (1 - q) * pj + q * _target_pdf(comp, p[jp], nf[jp], wdir[sel_jk], spec.eps)
+                        f[sel_jk] = fj
+                        p_b[sel_jk] = pj
                     keep, cc, so, sd, tmax = kern.nee_shadow(ps, pjk, y, dist2, cos_s, cos_d, f, p_b, cont, surf, w,
                                                              p, nf, k_nee, comp.det_area, spec.eps)
                     if len(keep):
