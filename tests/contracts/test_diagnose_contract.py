@@ -168,3 +168,10 @@ def test_paper_sized_scan_all_candidates_under_a_minute(cli, tmp_path):
     # machine depends on the other jobs, so it is printed, not asserted)
     print(f"paper-sized diagnosis: {elapsed:.1f} s wall, {cpu:.1f} CPU-s")
     assert cpu < 120.0, f"diagnosis used {cpu:.1f} CPU-s ({elapsed:.1f} s wall)"
+
+
+def test_catalogue_names_registered():
+    """CONTRACTS §3: these names must exist (the default candidate set is the whole catalogue)."""
+    from rig.effects import effect_names
+
+    assert set(CATALOGUE) <= set(effect_names())
