@@ -976,7 +976,7 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
 
 
 def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=None, client=None,
-          scheduler=None, intersector=None) -> TraceResult:
+          scheduler=None, intersector=None, threads=None) -> TraceResult:
     """Trace ``n_rays`` rays from ``sources`` through ``scene``; see docs/engine.md.
 
     Parameters
@@ -989,7 +989,12 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     options : TraceOptions
     workers, client, scheduler : run on dask (straylight.distribute); default in-process
     intersector : an intersector object to use in-process (e.g. ReferenceIntersector)
+    threads : int, optional
+        in-process thread pool of this size (embree and the compiled kernels release the GIL;
+        materials, sources and bookkeeping do not); same numbers as any other way of running
     """
+    if threads is not None and (isinstance(threads, bool) or int(threads) < 1):
+        raise TraceError(f"threads must be a positive integer, got {threads!r}")
     spec = make_spec(scene, sources, n_rays, seed, materials, options)
     opt = spec.options
     ranges = batches(spec.n_rays, opt.batch_rays)
@@ -998,6 +1003,8 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
         from straylight.distribute import run_distributed
 
         results = run_distributed(spec, ranges, workers=workers, client=client, scheduler=scheduler)
+    elif threads is not None and int(threads) > 1:
+        results = _run_threads(spec, ranges, intersector, int(threads))
     else:
         results = _run_local(spec, ranges, intersector)
     comp_dets = _Compiled(spec, intersector=_NoIsect()).detectors
@@ -1037,6 +1044,18 @@ class _NoIsect:
 def _run_local(spec, ranges, intersector):
     for a, b in ranges:
         yield run_batch(spec, a, b, intersector)
+
+
+def _run_threads(spec, ranges, intersector, n_threads):
+    """Batches on a thread pool, results yielded in batch order (so the sums are the same)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    if intersector is None:
+        _compiled(spec)  # build the embree scene once, before the threads share it
+    with ThreadPoolExecutor(max_workers=n_threads) as pool:
+        futures = [pool.submit(run_batch, spec, a, b, intersector) for a, b in ranges]
+        for fut in futures:
+            yield fut.result()
 
 
 def _progress(total, enabled):

@@ -26,3 +26,12 @@ def test_same_numbers_on_any_worker_count(setup, workers):
     assert local.detectors["detector"].power_w > 0
     assert res.to_json_dict() == local.to_json_dict()
     assert (res.paths.key == local.paths.key).all()
+
+
+def test_same_numbers_on_a_thread_pool(setup):
+    """threads=2: batches run concurrently in one process (embree and the kernels release the GIL)."""
+    scene, src, mats, opts, local = setup
+    res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, threads=2)
+    assert local.detectors["detector"].power_w > 0
+    assert res.to_json_dict() == local.to_json_dict()
+    assert (res.paths.key == local.paths.key).all()
