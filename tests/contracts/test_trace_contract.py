@@ -146,6 +146,16 @@ def test_mirror_step_folds_beam_onto_detector(cli, tmp_path):
     assert doc["detectors"]["screen"]["power_w"] == pytest.approx(1.0, rel=1e-9)
 
 
+def test_sources_are_virtual(cli, tmp_path):
+    """A flat mirror sends the beam straight back through the source disk to a detector above it."""
+    _box([100, 100, 2], (0, 0, -1)).export(tmp_path / "m.stl")
+    _square(50.0, 100.0).export(tmp_path / "top.stl")
+    scene = _scene(tmp_path / "v.toml", [{"name": "m", "mesh": "m.stl", "role": "mirror"},
+                                         {"name": "top", "mesh": "top.stl", "role": "detector"}], [BEAM])
+    doc = _trace(cli, scene, tmp_path / "o.json")
+    assert doc["detectors"]["top"]["power_w"] == pytest.approx(1.0, rel=1e-9)
+
+
 def _mixed_scene(tmp_path):
     """Inline, file-path and preset materials; every source type; meshes in a subdirectory."""
     from materials import list_presets
