@@ -161,3 +161,14 @@ def test_catalogue_sweep_each_effect_ranked_first(name):
         return
     assert doc["candidates"][0]["name"] == name
     assert doc["selected_effects"][:1] == [name]
+
+
+@pytest.mark.slow
+def test_second_pair_tilt_and_leakage():
+    """Greedy selection first takes substrate_reflection, which imitates both; the true effects
+    are added on top and the backward pass drops the imitation (docs/diagnose.md)."""
+    _, _, doc = score_case({"sample_tilt": SCORE_CASES["sample_tilt"],
+                            "polarization_leakage": SCORE_CASES["polarization_leakage"]}, seed=1, workers=1)
+    assert set(doc["selected_effects"]) == {"sample_tilt", "polarization_leakage"}
+    before, after, noise = _check_gap(doc)
+    assert _excess(after, noise) <= 0.5 * _excess(before, noise)
