@@ -193,7 +193,6 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
     L = config.arm_mm
     sigma = config.beam_sigma_mm
     d_stage = math.radians(config.stage_offset_deg)
-    d_arm = math.radians(config.arm_offset_deg)
     tilt = math.radians(config.sample_tilt_deg)
 
     # Arm axis in the nominal sample frame (lab), rotated by the arm's zero offset, and
