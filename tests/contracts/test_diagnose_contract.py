@@ -55,10 +55,14 @@ def _cpu_s():
     return r.ru_utime + r.ru_stime
 
 
+def _no_nan(token):
+    raise AssertionError(f"OUT.json holds {token}, which is not JSON")
+
+
 def _diagnose(cli, scan, out, *extra):
     rc, _, err = cli("rig", "diagnose", scan, "--json", out, *extra)
     assert rc == 0, err
-    doc = json.loads(out.read_text())
+    doc = json.loads(out.read_text(), parse_constant=_no_nan)  # strict JSON: no NaN / Infinity
     assert doc["gap_metric"] == "rms_log10"
     for part in ("baseline", "final"):
         assert set(doc[part]) >= {"heldout_gap", "train_gap"}
@@ -111,6 +115,20 @@ def test_clean_scan_selects_nothing(cli, scans, tmp_path):
     assert doc["selected_effects"] == []
     assert set(doc["heldout_theta_i_deg"]) < {20.0, 45.0, 60.0} and doc["heldout_theta_i_deg"]
     assert len(doc["candidates"]) == 3
+
+
+def test_nan_negative_inf_rows_do_not_crash(cli, scans, tmp_path):
+    """CONTRACTS §2: NaN or negative brdf_per_sr is kept but flagged and must not crash a fit."""
+    lines = scans["offset"].read_text().splitlines()
+    data = [i for i, ln in enumerate(lines) if ln[:1].isdigit()]
+    for i, value in zip(data[3::23], ["nan", "-2e-05", "0", "inf", "-0.0"]):
+        cells = lines[i].split(",")
+        cells[5] = value
+        lines[i] = ",".join(cells)
+    bad = tmp_path / "flagged.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    doc = _diagnose(cli, bad, tmp_path / "d.json", "--effects", "angle_offset")
+    assert doc["selected_effects"] == ["angle_offset"]
 
 
 def test_unpolarized_only_scan(cli, scans, tmp_path):
