@@ -210,3 +210,32 @@ def test_preset_names_evaluate(cli, tmp_path):
     for name in names:
         f, dhr = _eval(cli, tmp_path, name, 30, [30.0, 60.0], "u")
         assert np.all(f > 0) and 0 < dhr < 1
+
+
+@pytest.mark.parametrize("ti_deg", [0.0, 40.0])
+def test_dhr_narrow_kcorrelation_lobe_vs_scipy(cli, tmp_path, ti_deg):
+    """dhr = integral of the BRDF over projected solid angle = d^2 beta on the unit disk (scipy, polar
+    coordinates about beta0) for a narrow lobe (B / lambda ~ 470), Dittman's formula with constant R."""
+    lam_nm, sigma_nm, lc_um, s, R = 532.0, 3.0, 40.0, 2.4, 0.9
+    m = write_json(tmp_path / "narrow.json", {"name": "narrow", "wavelength_nm": lam_nm, "components": [
+        {"type": "k_correlation", "sigma_nm": sigma_nm, "lc_um": lc_um, "s": s, "r": R}]})
+    _, dhr = _eval(cli, tmp_path, m, ti_deg, [ti_deg], "s")
+    lam, B = lam_nm * 1e-3, 2 * np.pi * lc_um
+    pre = 8 * np.pi * R * B ** 2 / lam ** 4 * (sigma_nm * 1e-3) ** 2 * (s - 2) / (1 - (1 + (B / lam) ** 2) ** (1 - s / 2))
+    ti = np.radians(ti_deg)
+    b0 = np.sin(ti)
+
+    def along(phi):
+        c = np.cos(phi)
+        rmax = -b0 * c + np.sqrt(b0 * b0 * c * c - b0 * b0 + 1)
+
+        def g(r):
+            return r * pre * np.cos(ti) * np.sqrt(max(0.0, 1 - (b0 * b0 + 2 * b0 * r * c + r * r))) \
+                / (1 + B * B * r * r / lam ** 2) ** (s / 2)
+
+        pts = [x for x in (1e-4, 1e-3, 1e-2, 0.1) if x < rmax]
+        return integrate.quad(g, 0, rmax, points=pts, limit=400, epsabs=1e-13, epsrel=1e-10)[0]
+
+    expect = integrate.quad(along, 0, 2 * np.pi, limit=200, epsrel=1e-9)[0]
+    assert 0 < expect < R
+    assert dhr == pytest.approx(expect, rel=1e-4)
