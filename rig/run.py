@@ -92,6 +92,8 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     done = writer.completed_keys
     writer.check_resume(sample=sample, plan_name=spec.name)
     check_points(spec.points, devices)
+    for directory in {csv_path.parent, log_path.parent}:  # -o out/SCAN.csv: create out/
+        directory.mkdir(parents=True, exist_ok=True)
     rig_md = {k.split(".", 1)[1]: v for k, v in config.to_metadata().items()}  # no dots in document keys
     full_md = {"sample": sample, "rig": rig_md, "wavelength_nm": config.wavelength_nm,
                "gain_v_per_w": float(gain_v_per_w), "plan_name": spec.name, "resumed": bool(resume and done),

@@ -103,7 +103,7 @@ def test_sim_scan_preset_sample(cli, tmp_path):
 
     name = list_presets()[-1]
     plan = write_json(tmp_path / "tiny.json", {"incidence": [{"theta_i_deg": 33, "theta_r_deg": [10, 33, 60]}]})
-    out = tmp_path / "preset.csv"
+    out = tmp_path / "new" / "dir" / "preset.csv"  # parent directories are created
     rc, _, err = cli("rig", "scan", "--sim", "--sample", name, "--plan", plan, "-o", out)
     assert rc == 0, err
     meta, rows = parse_csv(out)
