@@ -84,14 +84,14 @@ def raw_rates(scene, n=1_000_000):
     return one, two, one_cpu
 
 
-def timed_trace(scene, mats, a_deg, n, seed, nee=True, client=None):
+def timed_trace(scene, mats, a_deg, n, seed, nee=True, client=None, threads=None):
     """Trace; returns (result, wall s, CPU s of this process)."""
     from straylight.trace import TraceOptions, trace
 
     opts = TraceOptions(nee=nee, max_events=20 if not nee else 1000)
     t = time.perf_counter()
     c = time.process_time()
-    res = trace(scene, source(a_deg), n, seed, materials=mats, options=opts, client=client)
+    res = trace(scene, source(a_deg), n, seed, materials=mats, options=opts, client=client, threads=threads)
     return res, time.perf_counter() - t, time.process_time() - c
 
 
@@ -209,6 +209,15 @@ def main(argv=None):
           f"x{el / el2:.2f} by wall time ({rate2 / 1e6:.2f} M/wall-s = {rate2 / raw2:.0%} of 2-thread raw); "
           f"identical numbers: {same}")
     print(f"    with start-up included: x{el / (el2 + start_s + warm_s):.2f} by wall time")
+
+    truns = [timed_trace(scene, mats, 30.0, args.rays, args.seed, threads=2) for _ in range(args.repeats)]
+    el_t, cpu_t = min(r[1] for r in truns), min(r[2] for r in truns)
+    same_t = truns[0][0].to_json_dict() == res.to_json_dict()
+    out.update(trace_s_2threads=el_t, trace_cpu_s_2threads=cpu_t, speedup_2threads_wall=el / el_t,
+               same_numbers_2threads=same_t)
+    print(f"full trace at 30 deg, 2 threads in one process (trace(..., threads=2)): {casts / el_t / 1e6:.2f} M/wall-s, "
+          f"speed-up x{el / el_t:.2f} by wall time (raw embreex 2 threads: x{raw2 / raw1:.2f}); CPU {cpu_t:.2f} s "
+          f"in all (1 thread: {cpu1:.2f} s); identical numbers: {same_t}")
 
     print("\n  a   ratio (NEE)            reference              dev/sigma  direct(a)   t_2%[CPU s]  "
           "plain t_2%[CPU s]  gain")
