@@ -193,3 +193,30 @@ def test_catalogue_names_registered():
     from rig.effects import effect_names
 
     assert set(CATALOGUE) <= set(effect_names())
+
+
+def test_foreign_scan_normal_to_grazing_with_backscatter(cli, tmp_path):
+    """A scan not made by this rig: incidence 0..85 deg, negative theta_r (backscatter), no rig metadata,
+    the material's own BRDF with 2 % noise and a 2e-5 1/sr floor. It must diagnose, select nothing."""
+    from materials import load_material
+    from materials.base import brdf_angles
+
+    mat = load_material(MATERIAL)
+    rng = np.random.default_rng(1)
+    rows = []
+    for pol in "sp":
+        for ti in (0.0, 8.0, 22.0, 37.0, 52.0, 85.0):
+            trs = np.unique(np.concatenate([np.arange(-89.0, 90.0, 7.0), ti + np.arange(-2.0, 2.01, 0.25)]))
+            trs = trs[np.abs(trs) <= 89.5]
+            f = np.ravel(brdf_angles(mat, np.radians(ti), np.radians(np.abs(trs)), np.where(trs < 0, np.pi, 0.0), pol))
+            v = f * (1 + 0.02 * rng.standard_normal(f.size)) + 2e-5 * rng.standard_normal(f.size)
+            rows += [f"633.0,{pol},{ti},{t},0.0,{a!r},{0.02 * b + 2e-5!r},5" for t, a, b in zip(trs, v.tolist(), f.tolist())]
+    scan = tmp_path / "foreign.csv"
+    scan.write_text("# sample: foreign\n" + ",".join(
+        ["wavelength_nm", "polarization", "theta_i_deg", "theta_r_deg", "phi_r_deg", "brdf_per_sr", "brdf_std_per_sr",
+         "n_repeats"]) + "\n" + "\n".join(rows) + "\n")
+    doc = _diagnose(cli, scan, tmp_path / "d.json", "--effects", "angle_offset", "stray_background",
+                    "footprint_overfill")
+    _check_regions(doc, (0.0, 8.0, 22.0, 37.0, 52.0, 85.0), ("s", "p"))
+    assert doc["selected_effects"] == []
+    assert doc["baseline"]["heldout_gap"] < 0.05  # 2 % noise is 0.009 dex
