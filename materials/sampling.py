@@ -69,12 +69,42 @@ def direction_uniforms(u) -> np.ndarray:
 # ---------------------------------------------------------------- cosine (unit disk)
 
 
+_TWO_PI = 2.0 * np.pi
+
+
+def _cosine_hemisphere_loop(u2, out):
+    # one pass per draw, the operations of the numpy form in the same order (bit-identical)
+    for i in range(u2.shape[0]):
+        r = math.sqrt(u2[i, 0])
+        phi = _TWO_PI * u2[i, 1]
+        out[i, 0] = r * math.cos(phi)
+        out[i, 1] = r * math.sin(phi)
+        out[i, 2] = math.sqrt(max(0.0, 1.0 - r * r))
+    return out
+
+
+_COMPILED = {}
+
+
+def _compiled(fn):
+    """``fn`` compiled by numba on first use (numba is imported only when sampling starts)."""
+    jit = _COMPILED.get(fn)
+    if jit is None:
+        from numba import njit
+
+        jit = _COMPILED[fn] = njit(cache=True, nogil=True)(fn)
+    return jit
+
+
 def sample_cosine_hemisphere(u2: np.ndarray) -> np.ndarray:
-    """Cosine-weighted direction: uniform in the unit beta disk. u2 : (n, 2) -> (n, 3)."""
-    r = np.sqrt(u2[:, 0])
-    phi = 2.0 * np.pi * u2[:, 1]
-    bx, by = r * np.cos(phi), r * np.sin(phi)
-    return np.stack([bx, by, np.sqrt(np.maximum(0.0, 1.0 - r * r))], axis=-1)
+    """Cosine-weighted direction: uniform in the unit beta disk. u2 : (n, 2) -> (n, 3).
+
+    ``r = sqrt(u0)``, ``phi = 2 pi u1``, ``w = (r cos phi, r sin phi, sqrt(1 - r^2))`` (PHYSICS §3).
+    """
+    u2 = np.asarray(u2, dtype=np.float64)
+    if u2.ndim != 2 or u2.shape[1] != 2:
+        raise ValueError(f"uniforms u2 must have shape (n, 2), got {u2.shape}")
+    return _compiled(_cosine_hemisphere_loop)(u2, np.empty((len(u2), 3)))
 
 
 def cosine_hemisphere_pdf(cos_theta: np.ndarray) -> np.ndarray:

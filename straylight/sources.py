@@ -52,11 +52,41 @@ def orthonormal_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t, bb
 
 
-def _disk_points(center, normal, radius, u0, u1):
+_TWO_PI = 2.0 * np.pi
+
+
+def _disk_points_loop(center, t, b, radius, u, c0, c1, out):
+    """``center + (r cos phi) t + (r sin phi) b`` with ``r = radius sqrt(u[:, c0])``,
+    ``phi = 2 pi u[:, c1]``, one pass per point (same operation order as the numpy form)."""
+    for i in range(u.shape[0]):
+        r = radius * math.sqrt(u[i, c0])
+        phi = _TWO_PI * u[i, c1]
+        rc = r * math.cos(phi)
+        rs = r * math.sin(phi)
+        for k in range(3):
+            out[i, k] = (center[k] + rc * t[k]) + rs * b[k]
+    return out
+
+
+_COMPILED = {}
+
+
+def _compiled(fn):
+    """``fn`` compiled by numba on first use (numba is imported only when a source emits)."""
+    jit = _COMPILED.get(fn)
+    if jit is None:
+        from numba import njit
+
+        jit = _COMPILED[fn] = njit(cache=True, nogil=True)(fn)
+    return jit
+
+
+def _disk_points(center, normal, radius, u, c0=0, c1=1):
+    """Uniform points on a disk from the uniform columns ``u[:, c0]`` (radius) and ``u[:, c1]`` (azimuth)."""
     t, b = orthonormal_basis(normal)
-    r = radius * np.sqrt(u0)
-    phi = 2.0 * np.pi * u1
-    return center + (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b
+    u = np.asarray(u, dtype=np.float64)
+    out = np.empty((len(u), 3))
+    return _compiled(_disk_points_loop)(center, t, b, float(radius), u, c0, c1, out)
 
 
 def _cone_dirs(axis, cos_max, u0, u1):
@@ -90,7 +120,7 @@ class CollimatedDisk:
         object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
 
     def emit(self, u):
-        o = _disk_points(self.center_mm, self.normal, self.radius_mm, u[:, 0], u[:, 1])
+        o = _disk_points(self.center_mm, self.normal, self.radius_mm, u)
         return o, np.broadcast_to(self.direction, o.shape).copy()
 
     def bounds_mm(self):
@@ -114,7 +144,7 @@ class LambertianDisk:
         object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
 
     def emit(self, u):
-        o = _disk_points(self.center_mm, self.normal, self.radius_mm, u[:, 0], u[:, 1])
+        o = _disk_points(self.center_mm, self.normal, self.radius_mm, u)
         t, b = orthonormal_basis(self.normal)
         r = np.sqrt(u[:, 2])
         phi = 2.0 * np.pi * u[:, 3]
