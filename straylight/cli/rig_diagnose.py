@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -35,16 +36,19 @@ def run(args) -> int:
 
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not os.access(out.parent, os.W_OK):  # fail before a minute of fitting, not after
+        raise PermissionError(f"--json {out}: folder {out.parent} is not writable")
     scan = read_scan(args.measured)
     result = diagnose(scan, holdout_theta_i_deg=args.holdout_theta_i_deg, effects=args.effects,
                       progress=sys.stderr.isatty(), workers=args.workers)
     doc = to_json(result)
     doc["measured"] = str(args.measured)
     doc["seed"] = args.seed
-    out = Path(args.json)
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    os.replace(tmp, out)  # atomic: a reader never sees half a file
     if args.report:
         write_report(result, args.report, doc)
     sel = ", ".join(doc["selected_effects"]) or "none"
