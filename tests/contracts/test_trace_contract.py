@@ -201,9 +201,10 @@ def test_same_seed_same_numbers_any_workers(cli, tmp_path):
     scene = _mixed_scene(tmp_path)
     scene.write_text(scene.read_text().replace("[material.black]", "[material.black]\nwavelength_nm = 633.0"))
     docs = [_trace(cli, scene, tmp_path / f"o{k}.json", rays=3000, seed=5, extra=extra)
-            for k, extra in enumerate([(), ("--workers", 1), ("--workers", 2), ("--batch-rays", 700)])]
+            for k, extra in enumerate([(), ("--workers", 1), ("--workers", 2), ("--batch-rays", 700),
+                                       ("--threads", 2)])]
     strip = [{k: d[k] for k in KEYS} for d in docs]
-    assert strip[0] == strip[1] == strip[2] == strip[3]
+    assert strip[0] == strip[1] == strip[2] == strip[3] == strip[4]
     other = _trace(cli, scene, tmp_path / "o9.json", rays=3000, seed=6)
     assert other["escaped_w"] != docs[0]["escaped_w"]
 
@@ -248,7 +249,8 @@ def test_bad_scene_one_line_error(cli, tmp_path, desc, edit, needles):
     assert not (tmp_path / "o.json").exists()
 
 
-@pytest.mark.parametrize("argv", [["--rays", "0"], ["--rays", "10", "--workers", "0"], ["--rays", "ten"]])
+@pytest.mark.parametrize("argv", [["--rays", "0"], ["--rays", "10", "--workers", "0"], ["--rays", "ten"],
+                                  ["--rays", "10", "--threads", "0"]])
 def test_bad_trace_options(cli, tmp_path, argv):
     _box([20, 20, 2]).export(tmp_path / "b.stl")
     scene = _scene(tmp_path / "s.toml", [{"name": "b", "mesh": "b.stl", "role": "absorber"}], [BEAM])
