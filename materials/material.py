@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -29,6 +28,7 @@ from typing import Optional
 import numpy as np
 
 from materials.albedo import directional_hemispherical_reflectance
+from materials.atomic import atomic_write_text
 from materials.base import MaterialError, Sample
 from materials.composite import Composite
 from materials.registry import build_component
@@ -242,14 +242,4 @@ def save_material(path, material: Material, check_energy: bool = True) -> Path:
     if check_energy:
         material.check_energy(str(path))
     text = json.dumps(material.to_dict(), indent=2) + "\n"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write_text(path, text, fsync=False)

@@ -21,12 +21,13 @@ import dataclasses
 import io
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+
+from materials.atomic import atomic_write_text
 
 CSV_COLUMNS = (
     "wavelength_nm",
@@ -370,16 +371,4 @@ def write_scan(path, scan: Scan) -> Path:
     """Write ``scan`` (metadata, header, rows) atomically: a temp file, then ``os.replace``."""
     path = Path(path)
     text = header_text(scan.metadata) + _rows_text(scan)
-    directory = path.parent if str(path.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write_text(path, text)

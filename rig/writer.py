@@ -21,11 +21,11 @@ import datetime as _dt
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from materials.atomic import atomic_write_text
 from materials.scan import format_rows, header_text, read_scan
 from rig.instrument import RigConfig
 from rig.plans import point_key
@@ -43,23 +43,6 @@ def _json_default(obj):
     if isinstance(obj, (set, tuple)):
         return list(obj)
     return repr(obj)
-
-
-def atomic_write_text(path: Path, text: str, fsync: bool = True) -> None:
-    """Write ``text`` to ``path`` so that readers see the old or the new file, never a mix."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            if fsync:
-                os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 class DocumentLog:

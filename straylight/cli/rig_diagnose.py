@@ -30,6 +30,7 @@ def add_parser(rig_subparsers) -> None:
 
 
 def run(args) -> int:
+    from materials.atomic import atomic_write_text
     from materials.scan import read_scan
     from rig.diagnose import diagnose, to_json
     from rig.report import json_safe, write_report
@@ -46,9 +47,7 @@ def run(args) -> int:
     doc = to_json(result)
     doc["measured"] = str(args.measured)
     doc["seed"] = args.seed
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, out)  # atomic: a reader never sees half a file
+    atomic_write_text(out, json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
     if args.report:
         write_report(result, args.report, doc)
     sel = ", ".join(doc["selected_effects"]) or "none"

@@ -6,10 +6,8 @@ standard errors (plus the ledger) to OUT.json.
 from __future__ import annotations
 
 import json
-import os
 import sys
 import warnings
-from pathlib import Path
 
 
 def add_parser(subparsers) -> None:
@@ -32,6 +30,7 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
+    from materials.atomic import atomic_write_text
     from straylight.scene import SceneWarning, load_scene
     from straylight.trace import TraceOptions, trace
 
@@ -50,9 +49,5 @@ def run(args) -> int:
                            progress=sys.stderr.isatty())
     res = trace(rs.scene, rs.sources, args.rays, args.seed, materials=rs.materials, options=options,
                 workers=args.workers, scheduler=args.scheduler, threads=args.threads)
-    out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(json.dumps(res.to_json_dict(), indent=2) + "\n")
-    os.replace(tmp, out)  # atomic
+    atomic_write_text(args.json, json.dumps(res.to_json_dict(), indent=2) + "\n")
     return 0
