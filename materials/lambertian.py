@@ -20,9 +20,9 @@ from materials.base import Sample, check_polarization
 from materials.registry import register
 from materials.sampling import (
     check_real,
-    cosine_hemisphere_pdf,
     direction_uniforms,
     sample_cosine_hemisphere,
+    sample_cosine_hemisphere_weighted,
     set_fields,
 )
 
@@ -54,14 +54,7 @@ class Lambertian:
     def sample(self, wi, u, polarization: str = "u") -> Sample:
         """Cosine-weighted draw; weight f cos / pdf = rd."""
         check_polarization(polarization)
-        wi = np.asarray(wi, float)
-        wo = sample_cosine_hemisphere(direction_uniforms(u))
-        above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        return Sample(
-            wo=wo,
-            weight=np.where(above, self.rd, 0.0),
-            pdf_per_sr=np.where(above, wo[:, 2] / np.pi, 0.0),
-        )
+        return sample_cosine_hemisphere_weighted(wi, direction_uniforms(u), self.rd)
 
     def sample_direction(self, wi, u) -> np.ndarray:
         """The directions ``sample`` would draw, without weights (used by composites)."""
@@ -69,9 +62,8 @@ class Lambertian:
 
     def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         """cos(theta_r) / pi per sr above the horizon."""
-        wi = np.asarray(wi, float)
-        wo = np.asarray(wo, float)
-        return np.where(wi[:, 2] > 0, cosine_hemisphere_pdf(wo[:, 2]), 0.0)
+        cos_r = np.asarray(wo, float)[:, 2]
+        return np.where((np.asarray(wi, float)[:, 2] > 0) & (cos_r > 0), cos_r / np.pi, 0.0)
 
     def to_dict(self) -> dict:
         return {"type": "lambertian", "rd": self.rd}

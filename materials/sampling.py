@@ -83,6 +83,23 @@ def _cosine_hemisphere_loop(u2, out):
     return out
 
 
+def _cosine_sample_loop(wi, u2, weight_above, wo, weight, pdf):
+    # _cosine_hemisphere_loop plus weight and pdf (cos / pi), zero unless wi and wo are above the horizon
+    for i in range(u2.shape[0]):
+        r = math.sqrt(u2[i, 0])
+        phi = _TWO_PI * u2[i, 1]
+        wo[i, 0] = r * math.cos(phi)
+        wo[i, 1] = r * math.sin(phi)
+        z = math.sqrt(max(0.0, 1.0 - r * r))
+        wo[i, 2] = z
+        if wi[i, 2] > 0 and z > 0:
+            weight[i] = weight_above
+            pdf[i] = z / math.pi
+        else:
+            weight[i] = 0.0
+            pdf[i] = 0.0
+
+
 _COMPILED = {}
 
 
@@ -105,6 +122,20 @@ def sample_cosine_hemisphere(u2: np.ndarray) -> np.ndarray:
     if u2.ndim != 2 or u2.shape[1] != 2:
         raise ValueError(f"uniforms u2 must have shape (n, 2), got {u2.shape}")
     return _compiled(_cosine_hemisphere_loop)(u2, np.empty((len(u2), 3)))
+
+
+def sample_cosine_hemisphere_weighted(wi: np.ndarray, u2: np.ndarray, weight_above: float) -> Sample:
+    """:func:`sample_cosine_hemisphere` draws with weight ``weight_above`` and pdf ``cos(theta_r) / pi`` per sr
+    where wi and wo are above the horizon (0 elsewhere), in one pass: the sample of a constant BRDF
+    ``f = weight_above / pi`` (f cos / pdf = weight_above)."""
+    wi = np.asarray(wi, dtype=np.float64)
+    u2 = np.asarray(u2, dtype=np.float64)
+    if u2.ndim != 2 or u2.shape[1] != 2 or wi.shape != (len(u2), 3):
+        raise ValueError(f"need wi (n, 3) and uniforms u2 (n, 2), got {wi.shape} and {u2.shape}")
+    n = len(u2)
+    wo, weight, pdf = np.empty((n, 3)), np.empty(n), np.empty(n)
+    _compiled(_cosine_sample_loop)(wi, u2, float(weight_above), wo, weight, pdf)
+    return Sample(wo=wo, weight=weight, pdf_per_sr=pdf)
 
 
 def cosine_hemisphere_pdf(cos_theta: np.ndarray) -> np.ndarray:
