@@ -68,6 +68,18 @@ def _disk_points_loop(center, t, b, radius, u, c0, c1, out):
     return out
 
 
+def _collimated_loop(center, t, b, radius, direction, u, o, d):
+    """:func:`_disk_points_loop` on columns 0, 1 of u, and every direction set to ``direction``."""
+    for i in range(u.shape[0]):
+        r = radius * math.sqrt(u[i, 0])
+        phi = _TWO_PI * u[i, 1]
+        rc = r * math.cos(phi)
+        rs = r * math.sin(phi)
+        for k in range(3):
+            o[i, k] = (center[k] + rc * t[k]) + rs * b[k]
+            d[i, k] = direction[k]
+
+
 _COMPILED = {}
 
 
@@ -118,10 +130,17 @@ class CollimatedDisk:
         object.__setattr__(self, "direction", _vec("direction", self.direction, owner, unit=True))
         object.__setattr__(self, "radius_mm", _positive("radius_mm", self.radius_mm, owner))
         object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
+        object.__setattr__(self, "_basis", orthonormal_basis(self.normal))
 
     def emit(self, u):
-        o = _disk_points(self.center_mm, self.normal, self.radius_mm, u)
-        return o, np.broadcast_to(self.direction, o.shape).copy()
+        u = np.asarray(u, dtype=np.float64)
+        if u.ndim != 2 or u.shape[1] < 2:
+            raise SourceError(f"collimated_disk source: uniforms u must have shape (n, >= 2), got {u.shape}")
+        o = np.empty((len(u), 3))
+        d = np.empty((len(u), 3))
+        t, b = self._basis
+        _compiled(_collimated_loop)(self.center_mm, t, b, self.radius_mm, self.direction, u, o, d)
+        return o, d
 
     def bounds_mm(self):
         return np.stack([self.center_mm - self.radius_mm, self.center_mm + self.radius_mm])
