@@ -128,11 +128,14 @@ def sample_cosine_hemisphere_weighted(wi: np.ndarray, u2: np.ndarray, weight_abo
     """:func:`sample_cosine_hemisphere` draws with weight ``weight_above`` and pdf ``cos(theta_r) / pi`` per sr
     where wi and wo are above the horizon (0 elsewhere), in one pass: the sample of a constant BRDF
     ``f = weight_above / pi`` (f cos / pdf = weight_above)."""
-    wi = np.asarray(wi, dtype=np.float64)
     u2 = np.asarray(u2, dtype=np.float64)
-    if u2.ndim != 2 or u2.shape[1] != 2 or wi.shape != (len(u2), 3):
-        raise ValueError(f"need wi (n, 3) and uniforms u2 (n, 2), got {wi.shape} and {u2.shape}")
+    if u2.ndim != 2 or u2.shape[1] != 2:
+        raise ValueError(f"uniforms u2 must have shape (n, 2), got {u2.shape}")
     n = len(u2)
+    try:
+        wi = np.broadcast_to(np.asarray(wi, dtype=np.float64), (n, 3))
+    except ValueError:
+        raise ValueError(f"wi must have shape (n, 3) or (1, 3) for {n} uniforms, got {np.shape(wi)}") from None
     wo, weight, pdf = np.empty((n, 3)), np.empty(n), np.empty(n)
     _compiled(_cosine_sample_loop)(wi, u2, float(weight_above), wo, weight, pdf)
     return Sample(wo=wo, weight=weight, pdf_per_sr=pdf)
