@@ -10,7 +10,8 @@ Everything is measured in this one run and printed as ratios, because the machin
 2. full-trace rate on the 30 deg stray-light case: (ray segments + NEE shadow rays) per second,
    scatter sampling and all bookkeeping included, in-process (1 worker) and on a dask LocalCluster
    of 2 worker processes with 1 thread each (cluster start-up and the per-worker scene build are
-   timed separately and excluded from the steady-state rate), and its ratio to the raw rate;
+   timed separately and excluded from the steady-state rate), and its ratio to the raw rate; the share of
+   the 1-worker CPU time spent inside the embree queries (what bounds that ratio) and the CPU per cast of the rest;
 3. ratio(a) = detector power / power through the entrance disk at a = 0, 5, 10, 20, 30 deg with
    its standard error, against BENCHMARK.md's reference values and the geometric direct(a);
 4. time to 2 % relative error at 20 and 30 deg, t_2% = t (relerr / 0.02)^2, with next-event
@@ -93,6 +94,33 @@ def timed_trace(scene, mats, a_deg, n, seed, nee=True, client=None, threads=None
     c = time.process_time()
     res = trace(scene, source(a_deg), n, seed, materials=mats, options=opts, client=client, threads=threads)
     return res, time.perf_counter() - t, time.process_time() - c
+
+
+def embree_share(scene, mats, a_deg, n, seed):
+    """CPU seconds of one 1-worker trace and the part spent inside the embree queries (first hit and
+    occlusion, float32 conversion included), timed by wrapping the intersector's two methods for this
+    run: the full-trace / raw ratio cannot exceed (raw ratio) x total / embree."""
+    from straylight.intersect.embree import EmbreeIntersector
+
+    spent = [0.0]
+    saved = {name: getattr(EmbreeIntersector, name) for name in ("first_triangle", "occluded")}
+
+    def timed(method):
+        def wrapper(self, *args):
+            c = time.process_time()
+            out = method(self, *args)
+            spent[0] += time.process_time() - c
+            return out
+        return wrapper
+
+    try:
+        for name, method in saved.items():
+            setattr(EmbreeIntersector, name, timed(method))
+        _, _, total = timed_trace(scene, mats, a_deg, n, seed)
+    finally:
+        for name, method in saved.items():
+            setattr(EmbreeIntersector, name, method)
+    return total, spent[0]
 
 
 def compiled_vs_numpy(scene, mats, a_deg, n, seed):
@@ -184,6 +212,11 @@ def main(argv=None):
     print(f"full trace at 30 deg, 1 worker: {args.rays} rays, {res.segments} segments + {res.shadow_rays} shadow rays"
           f"\n    {rate1_cpu / 1e6:.2f} M/CPU-s = {rate1_cpu / raw1_cpu:.0%} of raw (CPU);  "
           f"{rate1 / 1e6:.2f} M/wall-s = {rate1 / raw1:.0%} of raw (wall)")
+
+    total_s, embree_s = embree_share(scene, mats, 30.0, args.rays, args.seed)
+    out.update(embree_share_cpu=embree_s / total_s)
+    print(f"    of which embree queries: {embree_s:.2f} of {total_s:.2f} CPU s ({embree_s / total_s:.0%}); "
+          f"the rest (sampling, kernels, draws, tallies, glue) costs {(total_s - embree_s) / casts * 1e6:.2f} us/cast")
 
     t_fast, t_ref, same_ref = compiled_vs_numpy(scene, mats, 30.0, args.rays, args.seed)
     out.update(compiled_cpu_s=t_fast, numpy_reference_cpu_s=t_ref, compiled_speedup=t_ref / t_fast,
