@@ -25,7 +25,8 @@ def add_parser(subparsers) -> None:
                             "often the fastest choice on one machine)")
     p.add_argument("--no-nee", action="store_true", help="disable next-event estimation toward detectors")
     p.add_argument("--max-events", type=int, default=1000, help="surface events per ray (default 1000)")
-    p.add_argument("--batch-rays", type=int, default=20000, help="rays per batch in memory (no effect on results)")
+    p.add_argument("--batch-rays", type=int, default=None,
+                   help="rays per batch in memory (default: automatic; no effect on results)")
     p.set_defaults(func=run)
 
 
