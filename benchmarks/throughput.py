@@ -151,7 +151,7 @@ def two_workers(scene, mats, a_deg, n, seed, repeats=1):
     from straylight.trace import TraceOptions, make_spec
 
     t = time.perf_counter()
-    cluster = local_cluster(2)  # what trace(..., workers=2) starts
+    cluster = local_cluster(2, processes=True)  # 2 processes (trace(..., workers=2) now uses threads)
     client = Client(cluster)
     start_s = time.perf_counter() - t
     t = time.perf_counter()
@@ -242,6 +242,19 @@ def main(argv=None):
           f"x{el / el2:.2f} by wall time ({rate2 / 1e6:.2f} M/wall-s = {rate2 / raw2:.0%} of 2-thread raw); "
           f"identical numbers: {same}")
     print(f"    with start-up included: x{el / (el2 + start_s + warm_s):.2f} by wall time")
+
+    from dask.distributed import Client
+
+    from straylight.distribute import local_cluster
+
+    with local_cluster(2) as cluster, Client(cluster) as client:  # what trace(..., workers=2) starts
+        timed_trace(scene, mats, 30.0, 20_000, args.seed, client=client)  # warm-up
+        druns = [timed_trace(scene, mats, 30.0, args.rays, args.seed, client=client) for _ in range(args.repeats)]
+    el_d = min(r[1] for r in druns)
+    same_d = druns[0][0].to_json_dict() == res.to_json_dict()
+    out.update(trace_s_dask_threads=el_d, speedup_dask_threads_wall=el / el_d, same_numbers_dask_threads=same_d)
+    print(f"full trace at 30 deg, dask LocalCluster default (--workers 2 = 1 process x 2 threads): "
+          f"speed-up x{el / el_d:.2f} by wall time; identical numbers: {same_d}")
 
     truns = [timed_trace(scene, mats, 30.0, args.rays, args.seed, threads=2) for _ in range(args.repeats)]
     el_t, cpu_t = min(r[1] for r in truns), min(r[2] for r in truns)

@@ -68,10 +68,11 @@ def dask_client(workers: int | None = None, scheduler: str | None = None):
         with Client(scheduler) as client:
             yield client
     elif workers and workers > 1:
-        from dask.distributed import Client, LocalCluster
+        from dask.distributed import Client
 
-        with LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                          dashboard_address=None) as cluster, Client(cluster) as client:
+        from straylight.distribute import local_cluster
+
+        with local_cluster(int(workers)) as cluster, Client(cluster) as client:
             yield client
     else:
         yield None

@@ -13,7 +13,7 @@ def add_parser(subparsers):
     p.add_argument("--out", required=True, help="report directory (created)")
     p.add_argument("--rays", type=int, default=200_000, help="rays per PST angle; other steps scale from it")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=None, help="dask worker processes (default: in-process)")
+    p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (default: in-process)")
     p.add_argument("--scheduler", default=None, help="dask scheduler address")
     p.add_argument("--material", default="z302_sample_b", help="coating of wall, vanes and end plate")
     p.add_argument("--angles-deg", type=float, nargs="+", default=None, help="PST angles")

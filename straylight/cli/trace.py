@@ -18,7 +18,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same numbers)")
     p.add_argument("--json", required=True, metavar="OUT.json", help="where to write the result")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker processes")
+    where.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS", help="dask scheduler address")
     where.add_argument("--threads", type=int, default=None,
                        help="K threads in this process (embree and the kernels release the GIL; "
