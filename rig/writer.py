@@ -53,15 +53,6 @@ class DocumentLog:
         self.fsync = fsync
         self._fh = open(self.path, "a", encoding="utf-8")
 
-    def check_resume(self, **expected) -> None:
-        """Raise ResumeError if the existing file's metadata differ (e.g. ``sample=``, ``plan_name=``)."""
-        if self._existing is None:
-            return
-        old = self._existing.metadata
-        for key, new in expected.items():
-            if key in old and old[key] != str(new):
-                raise ResumeError(f"{self.path}: cannot resume: file has {key} {old[key]!r}, this scan {str(new)!r}")
-
     def __call__(self, name, doc):
         self._fh.write(json.dumps({"name": name, "doc": doc}, default=_json_default) + "\n")
         self._fh.flush()
