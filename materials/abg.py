@@ -29,7 +29,7 @@ from functools import cached_property
 
 import numpy as np
 
-from materials.base import Sample, bragg_offset, check_polarization
+from materials.base import Sample, check_polarization, lobe_inputs
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
 
@@ -64,11 +64,7 @@ class Abg:
 
     def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         """BRDF in 1/sr (no cos). wi, wo : (n, 3) unit vectors."""
-        check_polarization(polarization)
-        wi = np.asarray(wi, float)
-        wo = np.asarray(wo, float)
-        above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        d = bragg_offset(wi, wo)
+        wi, wo, above, d = lobe_inputs(wi, wo, polarization)
         x = np.hypot(d[:, 0], d[:, 1])
         return np.where(above, self.a / (self.b + x**self.g), 0.0)
 

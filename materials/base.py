@@ -65,6 +65,16 @@ def bragg_offset(wi, wo):
     return np.asarray(wo)[:, :2] + np.asarray(wi)[:, :2]
 
 
+def lobe_inputs(wi, wo, polarization: str):
+    """The common start of every beta-centred lobe's ``brdf``: checks the polarization and returns
+    ``(wi, wo, above, d)`` with float arrays, the both-above-the-horizon mask and ``beta - beta0``."""
+    check_polarization(polarization)
+    wi = np.asarray(wi, float)
+    wo = np.asarray(wo, float)
+    above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    return wi, wo, above, bragg_offset(wi, wo)
+
+
 @dataclass(frozen=True)
 class Sample:
     """Result of importance sampling.

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from materials.base import Sample, bragg_offset, check_polarization
+from materials.base import Sample, check_polarization, lobe_inputs
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
 
@@ -54,11 +54,7 @@ class HarveyShack:
 
     def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         """BRDF in 1/sr (no cos). wi, wo : (n, 3) unit vectors."""
-        check_polarization(polarization)
-        wi = np.asarray(wi, float)
-        wo = np.asarray(wo, float)
-        above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        d = bragg_offset(wi, wo)
+        wi, wo, above, d = lobe_inputs(wi, wo, polarization)
         r2 = d[:, 0] ** 2 + d[:, 1] ** 2
         return np.where(above, self.b0 * np.exp(0.5 * self.s * np.log1p(r2 / self.l**2)), 0.0)
 

@@ -56,7 +56,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from materials.base import MaterialError, Sample, bragg_offset, check_polarization
+from materials.base import MaterialError, Sample, check_polarization, lobe_inputs
 from materials.fresnel import complex_index, polarization_factor, scatter_azimuth
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
@@ -167,11 +167,7 @@ class KCorrelation:
 
     def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         """BRDF in 1/sr (no cos), (n,). wi, wo : (n, 3) unit vectors, sample frame."""
-        check_polarization(polarization)
-        wi = np.asarray(wi, float)
-        wo = np.asarray(wo, float)
-        above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
-        d = bragg_offset(wi, wo)
+        wi, wo, above, d = lobe_inputs(wi, wo, polarization)
         r2 = d[:, 0] ** 2 + d[:, 1] ** 2
         shape = np.exp(-0.5 * self.s * np.log1p(r2 / self.width**2))
         cos_i = np.where(above, wi[:, 2], 0.0)
