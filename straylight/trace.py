@@ -66,6 +66,7 @@ class TraceOptions:
     target_parts: tuple = ()
     nee_samples: int = 1
     target_fraction: float = 0.5
+    first_vertex_sampling: bool = False
 
     def __post_init__(self):
         if int(self.max_events) < 1:
@@ -124,6 +125,7 @@ class TraceSpec:
     options: TraceOptions
     eps: float
     token: str = field(default="")
+    vertex_table: object = None  # straylight.first_vertex.VertexTable when first_vertex_sampling is on
 
     @property
     def detector_parts(self) -> np.ndarray:
@@ -238,6 +240,8 @@ def _emit(source, u, eps):
 def run_batch_reference(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
     """Vectorised-numpy twin of :func:`run_batch` (the slow reference the compiled path is tested
     against: same random streams, same arithmetic order, bit-identical results)."""
+    if spec.vertex_table is not None:
+        raise TraceError("the numpy reference engine does not implement first_vertex_sampling")
     comp = _compiled(spec, intersector)
     opt = spec.options
     lay = _Layout(len(spec.part_names), len(comp.det_parts))
@@ -609,6 +613,8 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     segments = 0
     shadow_rays = 0
     max_events = int(opt.max_events)
+    table = spec.vertex_table if D > 0 else None
+    w_first = np.ones(n) if table is not None else None  # forward MIS weight of each ray's first vertex
 
     def record(det_j, ray_local, pts, power, keys, events, dep):
         if len(ray_local) == 0:
@@ -629,6 +635,9 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             tri, o, d, w, idx, prev_kind, pdf_prev, prev_part, spec.triangle_part, spec.part_roles, comp.normals,
             comp.plane_d, comp.centroids, comp.det_of_part, comp.det_area, both_sides, bool(opt.nee), k_nee, M,
             lay.ESC, lay.INC, lay.FIRST, lay.ABS, lay.DET_WALK, lay.NEX, lay.DET_DIRECT)
+        if len(rec) and table is not None:
+            rec, rec_w = _share_single_scatter(rec, rec_w, prev_kind, depth, prev_part, part, idx, w_first, comp, M,
+                                               lay)
         if len(rec):  # counted random-walk hits on detectors
             dj = comp.det_of_part[part[rec]]
             for j in range(D):
@@ -646,6 +655,16 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         wo_world, weight, pdf_dir = np.zeros((0, 3)), np.zeros(0), np.zeros(0)
         if n_surf:
             ii = cont[surf]
+            w_vertex = None
+            if table is not None:
+                first = np.flatnonzero(prev_kind[ii] == 0)
+                if len(first):
+                    from straylight.first_vertex import forward_weight
+
+                    w_vertex = np.ones(n_surf)
+                    w_vertex[first] = forward_weight(spec, table, comp.normals, tri[ii[first]], p[ii[first]],
+                                                     d[ii[first]])
+                    w_first[idx[ii[first]]] = w_vertex[first]
             if nee:
                 ps, pjk, y, wo_loc, dist2, cos_s, cos_d, wdir = kern.nee_pairs(
                     cont, surf, tb, bb, p, nf, U, 4, D, k_nee, comp.det_off, comp.det_prob, comp.det_alias,
@@ -670,7 +689,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                             q = float(opt.target_fraction)
                             jp = ii[ps[sel_jk]]
                             pj = (1 - q) * pj + q * _target_pdf(comp, p[jp], nf[jp], wdir[sel_jk], spec.eps)
-                        f[sel_jk] = fj
+                        f[sel_jk] = fj if w_vertex is None else fj * w_vertex[ps[sel_jk]]
                         p_b[sel_jk] = pj
                     keep, cc, so, sd, tmax = kern.nee_shadow(ps, pjk, y, dist2, cos_s, cos_d, f, p_b, cont, surf, w,
                                                              p, nf, k_nee, comp.det_area, spec.eps)
@@ -700,7 +719,29 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             record_paths, float(opt.mirror_reflectance), thr, spec.eps, ev == max_events - 1, M, lay.ABS, lay.RR,
             lay.TRUNC)
 
+    if table is not None:
+        from straylight.first_vertex import run_vertex_pass
+
+        shadow_rays += run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, lay, record, record_paths, K)
     return _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays)
+
+
+def _share_single_scatter(rec, rec_w, prev_kind, depth, prev_part, part, idx, w_first, comp, M, lay):
+    """Walk hits on a detector straight after a ray's first (scatter) event keep only their forward
+    MIS share ``w_first`` (the rest is the vertex-sampling strategy's); the remainder goes to the
+    NEE exchange, so the ledger stays exact."""
+    single = np.flatnonzero((prev_kind[rec] == KIND_SCATTER) & (depth[rec] == 1))
+    if len(single) == 0:
+        return rec, rec_w
+    i = rec[single]
+    r = idx[i]
+    moved = rec_w[single] * (1.0 - w_first[r])
+    M[lay.DET_DIRECT + comp.det_of_part[part[i]], r] -= moved
+    M[lay.NEX + prev_part[i], r] += moved
+    rec_w = rec_w.copy()
+    rec_w[single] -= moved
+    keep = rec_w > 0
+    return rec[keep], rec_w[keep]
 
 
 def _record_nee(record, okb, keep, cc, ps, pjk, y, ii, idx, part, hkey, depth, hist, k_nee, D, K, comp, record_paths):
@@ -973,6 +1014,12 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
         if off > 1e-6 * max(size, 1.0):
             raise TraceError(f"target parts {', '.join(options.target_parts)} must be flat (coplanar): "
                              f"vertices lie up to {off:.3g} mm off their plane")
+    if options.first_vertex_sampling:
+        from straylight.first_vertex import unsupported
+
+        why = unsupported(tuple(sources))
+        if why:
+            raise TraceError(why)
     tri = np.ascontiguousarray(scene.triangles_mm, dtype=np.float64)
     tri_part = np.ascontiguousarray(scene.triangle_part, dtype=np.int32)
     roles = np.array([ROLE_CODES[p.role] for p in scene.parts], dtype=np.int64)
@@ -1009,6 +1056,12 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
         raise TraceError(f"threads must be a positive integer, got {threads!r}")
     spec = make_spec(scene, sources, n_rays, seed, materials, options)
     opt = spec.options
+    if opt.first_vertex_sampling and intersector is None and len(spec.detector_parts):
+        from dataclasses import replace as _replace
+
+        from straylight.first_vertex import build_table
+
+        spec = _replace(spec, vertex_table=build_table(spec, _compiled(spec)))
     ranges = batches(spec.n_rays, opt.batch_rays or auto_batch_rays(spec.n_rows))
     total_chunks = n_chunks(spec.n_rays)
     if workers is not None or client is not None or scheduler is not None:

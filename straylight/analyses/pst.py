@@ -216,7 +216,8 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
         raise ValueError(f"rays must be >= 1, got {n_rays!r}")
     det = detector_name(setup.scene, setup.detector)
     area = part_area_mm2(setup.scene, det)
-    opts = dc_replace(options or TraceOptions(), nee=bool(nee))
+    opts = options or TraceOptions(first_vertex_sampling=True)
+    opts = dc_replace(opts, nee=bool(nee), first_vertex_sampling=bool(nee) and opts.first_vertex_sampling)
     pairs = [(a, phi) for phi in azimuth for a in off_axis]
     n = len(pairs)
     out = {k: np.full(n, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "p", "p_se", "sec")}

@@ -124,7 +124,7 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
     off_axis = np.atleast_1d(np.asarray(off_axis, dtype=np.float64))
     shape = (len(values), len(off_axis))
     out = {k: np.full(shape, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "sec")}
-    opts = TraceOptions(nee=nee)
+    opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee))
     label = material if isinstance(material, str) else repr(material)
     with dask_client(workers, scheduler) as client:
         bar = tqdm(total=len(values) * len(off_axis), desc=f"sweep {parameter}", unit="point",

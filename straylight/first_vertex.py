@@ -1,0 +1,258 @@
+"""Area sampling of single-scatter vertices, combined with the forward walk by MIS.
+
+With ``TraceOptions(first_vertex_sampling=True)`` the single-scatter paths
+
+    source -> (straight) -> surface point x (one BRDF scatter) -> (straight) -> detector
+
+get a second sampling strategy next to the forward walk's: a point x drawn directly on the
+scene's surfaces (triangle t with probability q_t, uniform on it: area density
+p_A(x) = q_t / A_t), joined to the source by a deterministic shadow ray and to a uniform
+detector point z by another. The forward walk draws the same vertex with area density p_F(x)
+(collimated disk: |cos theta_x| / (A_disk |n_disk . d|); point source: |cos theta_x| / (Omega r^2)).
+Both estimates of a vertex's contribution are weighted by the balance heuristic,
+w_s = p_s / (p_F + p_A) (one sample of each per ray id; Veach 1997, ch. 9), so the sum is
+unbiased for any table q, and any vertex with q_t = 0 is left to the forward walk alone.
+
+Why: a collimated beam that lights small faces the detector sees well (the inner edges of
+baffle vanes, 1 mm tall, struck by ~0.2 % of the rays at 20 deg off axis) makes the forward
+estimate a rare-event count, and from the detector those faces are small too; drawn on their
+own area they are found every time.
+
+The table q is learnt before the run from a fixed number of probe points per surface triangle
+(its own random stream): q_t proportional to A_t sqrt(mean of g^2), with g the probe's
+single-scatter contribution E(x) f cos_x cos_z / |x - z|^2 (unblocked). It depends only on the
+scene, the source and the seed, so results stay independent of batch size and worker count.
+Contributions go to the detector and, negated, to the part's NEE-exchange row, so the power
+ledger stays exact (docs/engine.md).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from straylight.paths import KIND_DETECTOR, KIND_SCATTER, mix_key
+from straylight.rng import CHUNK_RAYS, check_seed, chunk_bounds
+from straylight.sources import CollimatedDisk, PointSource
+
+VERTEX_STREAM = 0x56455254  # third entropy word: this strategy's streams differ from the forward's
+PROBE_STREAM = 0x50524F42
+PROBES_PER_TRIANGLE = 8
+_SURFACE = 0
+
+
+@dataclass(frozen=True, eq=False)
+class VertexTable:
+    """Triangle sampling table: ``tri`` (m,) triangle ids, ``cdf`` (m,) cumulative q, and
+    ``p_area`` (n_triangles,) the area density q_t / A_t of every triangle (0 if not in the table)."""
+
+    tri: np.ndarray
+    cdf: np.ndarray
+    p_area: np.ndarray
+
+
+def unsupported(sources) -> str | None:
+    """Why the strategy cannot run with these sources (None when it can)."""
+    if len(sources) != 1:
+        return f"first_vertex_sampling needs exactly one source, got {len(sources)}"
+    if not isinstance(sources[0], (CollimatedDisk, PointSource)):
+        return f"first_vertex_sampling connects to collimated and point sources only, not {type(sources[0]).__name__}"
+    return None
+
+
+def vertex_rng(seed: int, chunk: int) -> np.random.Generator:
+    return np.random.default_rng([check_seed(seed), int(chunk), VERTEX_STREAM])
+
+
+def _frames(nf):
+    """Tangent, bitangent of each unit normal (Duff et al. 2017, the engine's basis)."""
+    x, y, z = nf[:, 0], nf[:, 1], nf[:, 2]
+    sign = np.where(z >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    return (np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=1),
+            np.stack([b, sign + y * y * a, -y], axis=1))
+
+
+def _local(v, tb, bb, nf):
+    return np.stack([np.einsum("ij,ij->i", v, tb), np.einsum("ij,ij->i", v, bb), np.einsum("ij,ij->i", v, nf)],
+                    axis=1)
+
+
+def source_connection(src, x, n_geo):
+    """Direction x -> source (unit), lit-side normal, irradiance on that side E(x), shadow length.
+
+    E = 0 where the source cannot light x (outside the beam or cone)."""
+    n = len(x)
+    if isinstance(src, CollimatedDisk):
+        wi = np.ascontiguousarray(np.broadcast_to(-src.direction, (n, 3)))
+        denom = float(np.dot(-src.direction, src.normal))
+        if abs(denom) < 1e-12:
+            return wi, n_geo, np.zeros(n), np.zeros(n)
+        t = ((src.center_mm - x) @ src.normal) / denom
+        y = x + t[:, None] * wi
+        dy = y - src.center_mm
+        inside = np.einsum("ij,ij->i", dy, dy) < src.radius_mm ** 2
+        cos_g = np.einsum("ij,ij->i", wi, n_geo)
+        nf = np.where((cos_g >= 0)[:, None], n_geo, -n_geo)
+        e_perp = src.power_w / (math.pi * src.radius_mm ** 2 * abs(denom))
+        ok = inside & (t > 0)
+        return wi, nf, np.where(ok, e_perp * np.abs(cos_g), 0.0), np.where(ok, t, 0.0)
+    v = src.position_mm - x
+    r2 = np.einsum("ij,ij->i", v, v)
+    r = np.sqrt(r2)
+    wi = v / np.where(r > 0, r, 1.0)[:, None]
+    cos_g = np.einsum("ij,ij->i", wi, n_geo)
+    nf = np.where((cos_g >= 0)[:, None], n_geo, -n_geo)
+    cos_max = math.cos(math.radians(src.half_angle_deg))
+    ok = ((-wi @ src.axis) >= cos_max) & (r > 0)
+    intensity = src.power_w / (2.0 * math.pi * (1.0 - cos_max))
+    return wi, nf, np.where(ok, intensity * np.abs(cos_g) / np.where(ok, r2, 1.0), 0.0), np.where(ok, r, 0.0)
+
+
+def forward_density(src, x, cos_x):
+    """Area density at x of the forward walk's first hit (per ray), |cos_x| the incidence cosine."""
+    if isinstance(src, CollimatedDisk):
+        return np.abs(cos_x) / (math.pi * src.radius_mm ** 2 * abs(float(np.dot(src.direction, src.normal))))
+    cos_max = math.cos(math.radians(src.half_angle_deg))
+    v = x - src.position_mm
+    return np.abs(cos_x) / (2.0 * math.pi * (1.0 - cos_max) * np.einsum("ij,ij->i", v, v))
+
+
+def _points(tri_mm, t, u1, u2):
+    su = np.sqrt(u1)
+    b1, b2 = su * (1.0 - u2), su * u2
+    v0 = tri_mm[t, 0]
+    return v0 + b1[:, None] * (tri_mm[t, 1] - v0) + b2[:, None] * (tri_mm[t, 2] - v0)
+
+
+def _single_scatter(spec, comp, src, t, x, u_det, j):
+    """Unblocked single-scatter contribution E f cos_x cos_z / d^2 (W/mm^4 units: per area of x and z)
+    of points x on triangles t toward detector j; returns (value, detector point z, shadow rays cast)."""
+    eps = spec.eps
+    n_geo = comp.normals[t]
+    wi, nf, e_x, tmax = source_connection(src, x, n_geo)
+    value = np.zeros(len(x))
+    z, n_det = comp.detectors[j].sample(u_det)
+    lit = np.flatnonzero(e_x > 0)
+    shadows = 0
+    if len(lit) == 0:
+        return value, z, shadows
+    v = z[lit] - x[lit]
+    d2 = np.einsum("ij,ij->i", v, v)
+    dist = np.sqrt(d2)
+    wo = v / np.where(dist > 0, dist, 1.0)[:, None]
+    cos_o = np.einsum("ij,ij->i", wo, nf[lit])
+    cos_z = -np.einsum("ij,ij->i", wo, n_det[lit])
+    if spec.options.detector_sides == "both":
+        cos_z = np.abs(cos_z)
+    good = (cos_o > 0) & (cos_z > 0) & (dist > 2 * eps)
+    lit, v, d2, dist, wo, cos_o, cos_z = (a[good] for a in (lit, v, d2, dist, wo, cos_o, cos_z))
+    if len(lit) == 0:
+        return value, z, shadows
+    so = np.ascontiguousarray(x[lit] + eps * nf[lit])
+    blocked = np.asarray(comp.isect.occluded(so, np.ascontiguousarray(wi[lit]), tmax[lit]), dtype=bool)
+    to_det = np.ascontiguousarray(z[lit] - so)
+    ld = np.sqrt(np.einsum("ij,ij->i", to_det, to_det))
+    blocked |= np.asarray(comp.isect.occluded(so, np.ascontiguousarray(to_det / ld[:, None]), ld - eps), dtype=bool)
+    shadows = 2 * len(lit)
+    keep = ~blocked
+    lit, wo, d2, cos_o, cos_z = lit[keep], wo[keep], d2[keep], cos_o[keep], cos_z[keep]
+    if len(lit) == 0:
+        return value, z, shadows
+    tb, bb = _frames(nf[lit])
+    wi_loc = _local(wi[lit], tb, bb, nf[lit])
+    wo_loc = _local(wo, tb, bb, nf[lit])
+    mat = spec.part_material[spec.triangle_part[t[lit]]]
+    f = np.empty(len(lit))
+    for m in np.unique(mat):
+        sel = mat == m
+        f[sel] = spec.materials[m].brdf(wi_loc[sel], wo_loc[sel], spec.options.polarization)
+    value[lit] = e_x[lit] * f * cos_o * cos_z / d2
+    return value, z, shadows
+
+
+def build_table(spec, comp) -> VertexTable:
+    """Learn q_t from PROBES_PER_TRIANGLE probe points per surface triangle (module doc)."""
+    src = spec.sources[0]
+    tri_mm = spec.triangles_mm
+    n_tri = len(tri_mm)
+    surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == _SURFACE)
+    area = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
+    surf = surf[area[surf] > 0]
+    m = PROBES_PER_TRIANGLE
+    rng = np.random.default_rng([check_seed(spec.seed), PROBE_STREAM])
+    t = np.repeat(surf, m)
+    u = rng.random((len(t), 5))
+    # stratify the probes within each triangle along the first coordinate
+    u[:, 0] = (np.tile(np.arange(m), len(surf)) + u[:, 0]) / m
+    x = _points(tri_mm, t, u[:, 0], u[:, 1])
+    g2 = np.zeros(len(t))
+    for j in range(len(comp.det_parts)):
+        g, _, _ = _single_scatter(spec, comp, src, t, x, u[:, 2:5], j)
+        g2 += g * g
+    score = area[surf] * np.sqrt(g2.reshape(len(surf), m).mean(axis=1))
+    keep = score > 0
+    p_area = np.zeros(n_tri)
+    if not keep.any():
+        return VertexTable(np.zeros(0, np.int64), np.zeros(0), p_area)
+    q = score[keep] / score[keep].sum()
+    p_area[surf[keep]] = q / area[surf[keep]]
+    return VertexTable(surf[keep].astype(np.int64), np.cumsum(q), p_area)
+
+
+def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, lay, record, record_paths, path_depth):
+    """Add this strategy's MIS-weighted estimates for chunks ``first_chunk .. stop_chunk-1`` to ``M``
+    (one sample per ray id and detector). Returns the number of shadow rays cast."""
+    if len(table.tri) == 0:
+        return 0
+    C = CHUNK_RAYS
+    n_total = spec.n_rays
+    src = spec.sources[0]
+    sizes = [chunk_bounds(k, n_total)[1] - k * C for k in range(first_chunk, stop_chunk)]
+    D = len(comp.det_parts)
+    u_all = np.concatenate([vertex_rng(spec.seed, first_chunk + c).random((sizes[c], 6 * D))
+                            for c in range(len(sizes))])
+    shadows = 0
+    for j in range(D):
+        u = u_all[:, 6 * j:6 * j + 6]
+        k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
+        t = table.tri[k]
+        x = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
+        g, z, s = _single_scatter(spec, comp, src, t, x, u[:, 3:6], j)
+        shadows += s
+        good = np.flatnonzero(g > 0)
+        if len(good) == 0:
+            continue
+        tg = t[good]
+        p_a = table.p_area[tg]
+        if isinstance(src, CollimatedDisk):
+            cos_x = comp.normals[tg] @ src.direction
+        else:
+            arrive = x[good] - src.position_mm
+            cos_x = np.einsum("ij,ij->i", comp.normals[tg], arrive / np.linalg.norm(arrive, axis=1)[:, None])
+        p_f = forward_density(src, x[good], cos_x)
+        c = g[good] * comp.detectors[j].area_mm2 / (p_a + p_f) / n_total
+        r = good
+        pt = spec.triangle_part[tg].astype(np.int64)
+        M[lay.DET_NEE + j, r] += c
+        M[lay.NEX + pt, r] -= c
+        keys = events = None
+        if record_paths:
+            code = pt * 4 + KIND_SCATTER
+            keys = mix_key(mix_key(np.zeros(len(r), dtype=np.uint64), code), comp.det_parts[j] * 4 + KIND_DETECTOR)
+            events = np.full((len(r), path_depth), -1, dtype=np.int16)
+            if path_depth > 0:
+                events[:, 0] = code
+        record(j, r, z[good], c, keys, events, np.ones(len(r), dtype=np.int64))
+    return shadows
+
+
+def forward_weight(spec, table, normals, tri, p, d):
+    """Balance-heuristic weight p_F / (p_F + p_A) of the forward walk's first vertices
+    (triangles ``tri``, points ``p``, arrival directions ``d``)."""
+    p_a = table.p_area[tri]
+    cos_x = np.einsum("ij,ij->i", normals[tri], d)
+    p_f = forward_density(spec.sources[0], p, cos_x)
+    return np.where(p_a > 0, p_f / (p_f + p_a), 1.0)
