@@ -8,9 +8,11 @@ the time to 2 % relative error is extrapolated from one run of wall time t that 
 relative error relerr, t_2% = t (relerr / 0.02)^2 (the 1/sqrt(N) law; t is CPU time,
 since the machines are shared and wall time depends on the neighbours), and the ratio
 plain / NEE is printed together with the agreement of the two answers in units of
-their combined standard error. The engine's NEE sends, at every scatter vertex, one
-shadow ray to a point sampled uniformly over the detector's area (docs/engine.md); the
-plain walk samples the BRDF and counts detector hits.
+their combined standard error. The engine's estimator ("NEE" below) is what `pst_sweep`
+runs by default: at every scatter vertex one shadow ray to a point sampled uniformly over the
+detector's area, plus first-vertex area sampling of single-scatter paths combined with the walk
+by MIS (docs/engine.md); the plain walk samples the BRDF (cosine) and counts detector hits, with
+the same Russian roulette.
 """
 from __future__ import annotations
 

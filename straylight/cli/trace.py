@@ -24,6 +24,9 @@ def add_parser(subparsers) -> None:
                        help="K threads in this process (embree and the kernels release the GIL; "
                             "often the fastest choice on one machine)")
     p.add_argument("--no-nee", action="store_true", help="disable next-event estimation toward detectors")
+    p.add_argument("--vertex-sampling", choices=("auto", "on", "off"), default="auto",
+                   help="first-vertex area sampling for single-scatter paths, combined with the walk by MIS "
+                        "(docs/engine.md); auto: on with NEE and exactly one collimated or point source")
     p.add_argument("--max-events", type=int, default=1000, help="surface events per ray (default 1000)")
     p.add_argument("--batch-rays", type=int, default=None,
                    help="rays per batch in memory (default: automatic; no effect on results)")
@@ -46,8 +49,13 @@ def run(args) -> int:
         rs = load_scene(args.scene)
     for w in caught:
         print(f"straylight: warning: {w.message}", file=sys.stderr)
+    from straylight.first_vertex import unsupported
+
+    vertex = {"on": True, "off": False}.get(args.vertex_sampling)
+    if vertex is None:
+        vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
-                           progress=sys.stderr.isatty())
+                           progress=sys.stderr.isatty(), first_vertex_sampling=vertex)
     res = trace(rs.scene, rs.sources, args.rays, args.seed, materials=rs.materials, options=options,
                 workers=args.workers, scheduler=args.scheduler, threads=args.threads)
     atomic_write_text(args.json, json.dumps(res.to_json_dict(), indent=2) + "\n")
