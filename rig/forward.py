@@ -252,18 +252,22 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
         pv /= np.maximum(pv.sum(axis=1), 1e-300)[:, None]
         u = yu / L
         v = yv / L
-        wo = (arm[:, None, None, :] + u[:, :, None, None] * e_theta[:, None, None, :]
-              + v[:, None, :, None] * e_perp[:, None, None, :])
-        wo /= np.linalg.norm(wo, axis=-1, keepdims=True)
         ang = theta_i + alpha
         wi = np.stack([-np.sin(ang), np.zeros_like(ang), np.cos(ang)], axis=-1)
-        # Lab (nominal sample frame) -> true sample frame.
+        # Lab (nominal sample frame) -> true sample frame: a rotation, applied to the (n, 3)
+        # frame vectors before the (n, U, V) nodes are built from them (the norm is invariant).
+        frame = (arm, e_theta, e_perp)
         if d_stage:
             wi = _rot_y(wi, -d_stage)
-            wo = _rot_y(wo, -d_stage)
+            frame = tuple(_rot_y(f, -d_stage) for f in frame)
         if tilt:
             wi = _rot_x(wi, tilt)
-            wo = _rot_x(wo, tilt)
+            frame = tuple(_rot_x(f, tilt) for f in frame)
+        f_arm, f_theta, f_perp = frame
+        wo = (f_arm[:, None, None, :] + u[:, :, None, None] * f_theta[:, None, None, :]
+              + v[:, None, :, None] * f_perp[:, None, None, :])
+        # |arm + u e_theta + v e_perp|^2 = 1 + u^2 + v^2 (orthonormal frame)
+        wo *= (1.0 / np.sqrt(1.0 + u[:, :, None] ** 2 + v[:, None, :] ** 2))[..., None]
         cos_o = np.clip(wo[..., 2], 0.0, None)
         w_all.append(pa * pu[:, :, None] * pv[:, None, :] * cos_o / cos_r_nominal[:, None, None])
         wi_all.append(wi)
