@@ -1,11 +1,14 @@
 """End-to-end diagnosis on synthetic scans (rig.synth: a QMC ray-geometry path, not the fit's
-quadrature) of a Z302-sample-B-like material, with effects injected at SCORE_CASES strengths.
+quadrature) of a Z302-sample-B-like material, with effects injected at the SCORE_CASES
+("visible") strengths: alignment and detector errors a hand-aligned reflectometer can have,
+leaving a baseline held-out gap of 1.9-7.5x the noise level.
 
-Pass criteria (brief of issue 7): the injected effect ranks first and is selected; two injected
-effects are both selected; a clean scan selects nothing; the held-out gap's excess over the
-noise level, sqrt(gap^2 - noise^2), falls by at least half and the final held-out gap is within
-1.5x the noise level (the gap a perfect model would leave, from the reported std). The full
-catalogue sweep is the slow test and the table in docs/diagnose.md.
+Pass criteria (issue 7): the injected effect ranks first and is selected; two injected effects
+are both selected; a clean scan selects nothing; the raw held-out gap (CONTRACTS §4.1 metric)
+falls by at least half and the final held-out gap is within 1.5x the noise level (the gap a
+perfect model would leave, from the reported std). Known exception, asserted as such:
+detector_aperture and beam_divergence (see KNOWN_BLUR below). The full catalogue sweep, the
+second pair, the detection-limit strengths and a second truth material are slow tests.
 """
 import json
 import math
@@ -13,17 +16,24 @@ import math
 import pytest
 
 from rig.effects import CATALOGUE
-from rig.synth import SCORE_CASES, score_case
+from rig.synth import DETECTION_LIMIT_CASES, SCORE_CASES, score_case
 
 CASES = {
     "clean": {},
     "angle_offset": {"angle_offset": SCORE_CASES["angle_offset"]},
     "stray_background": {"stray_background": SCORE_CASES["stray_background"]},
-    "footprint_overfill": {"footprint_overfill": SCORE_CASES["footprint_overfill"]},
     "pair": {"angle_offset": SCORE_CASES["angle_offset"], "stray_background": SCORE_CASES["stray_background"]},
 }
-#: the injected parameter the fit must recover within 20 % (noise-limited)
-RECOVER = {"angle_offset": "offset_deg", "stray_background": "level_per_sr", "footprint_overfill": "sample_width_mm"}
+#: the injected parameter the fit must recover within 10 %
+RECOVER = {"angle_offset": "offset_deg", "arm_offset": "offset_deg", "sample_tilt": "tilt_deg",
+           "detector_aperture": "width_mm", "beam_divergence": "sigma_mrad", "footprint_overfill": "sample_width_mm",
+           "polarization_leakage": "fraction", "stray_background": "level_per_sr",
+           "detector_nonlinearity": "saturation_per_sr", "substrate_reflection": "attenuation"}
+#: A wider slit or a diverging beam blurs the specular core, and the baseline's sharp lobe
+#: widens to imitate it (lc falls): the baseline's held-out gap stays near 2x the noise level
+#: even at 10 mm / 17 mrad, so the raw gap cannot halve (after >= noise). For these the test
+#: asserts that the gap in excess of noise, sqrt(gap^2 - noise^2), falls by half.
+KNOWN_BLUR = ("detector_aperture", "beam_divergence")
 
 
 def run_case(name):
@@ -36,11 +46,17 @@ def _excess(gap, noise):
     return math.sqrt(max(gap * gap - noise * noise, 0.0))
 
 
-def _check_gap(doc):
+def _check_gap(doc, halves=True):
+    """Final held-out gap <= 1.5x noise; the raw held-out gap halves (or, for ``halves=False``,
+    its excess over noise halves)."""
     noise = doc["noise_level"]["heldout_gap"]
     before, after = doc["baseline"]["heldout_gap"], doc["final"]["heldout_gap"]
     assert noise > 0
     assert after <= 1.5 * noise, (after, noise)
+    if halves:
+        assert after <= 0.5 * before, (before, after)
+    else:
+        assert _excess(after, noise) <= 0.5 * _excess(before, noise), (before, after, noise)
     return before, after, noise
 
 
@@ -62,35 +78,35 @@ def _check_contract_fields(doc):
     json.dumps(doc["candidates"])
 
 
+def _check_single(doc, name, params):
+    assert doc["candidates"][0]["name"] == name
+    assert doc["selected_effects"][0] == name
+    _check_gap(doc, halves=name not in KNOWN_BLUR)
+    key = RECOVER[name]
+    assert doc["selected_parameters"][name][key] == pytest.approx(params[key], rel=0.1)
+
+
 def test_clean_scan_selects_nothing():
     _, _, doc = run_case("clean")
     assert doc["selected_effects"] == []
-    _check_gap(doc)
+    noise = doc["noise_level"]["heldout_gap"]
+    assert doc["final"]["heldout_gap"] <= 1.5 * noise
     _check_contract_fields(doc)
 
 
-@pytest.mark.parametrize("name", [
-    "angle_offset", "stray_background",
-    pytest.param("footprint_overfill", marks=pytest.mark.slow),  # also in the slow sweep
-])
-def test_single_effect_is_ranked_first_and_closes_the_gap(name):
-    """One effect per region: core (offset), wing (background), grazing (overfill, slow)."""
+@pytest.mark.parametrize("name", ["angle_offset", "stray_background"])
+def test_single_effect_is_ranked_first_and_halves_the_gap(name):
+    """One effect in the specular core (stage offset 0.3 deg), one in the wings (a 2e-3 /sr
+    floor): ranked first, selected, parameter recovered, raw held-out gap halved."""
     _, _, doc = run_case(name)
     _check_contract_fields(doc)
-    assert doc["candidates"][0]["name"] == name
-    assert doc["selected_effects"][0] == name
-    before, after, noise = _check_gap(doc)
-    assert before > 1.1 * noise  # sanity: the injected effect was visible
-    assert _excess(after, noise) <= 0.5 * _excess(before, noise)
-    key = RECOVER[name]
-    assert doc["selected_parameters"][name][key] == pytest.approx(SCORE_CASES[name][key], rel=0.2)
+    _check_single(doc, name, SCORE_CASES[name])
 
 
 def test_two_effects_are_both_selected():
     _, _, doc = run_case("pair")
     assert set(doc["selected_effects"]) == {"angle_offset", "stray_background"}
-    before, after, noise = _check_gap(doc)
-    assert _excess(after, noise) <= 0.5 * _excess(before, noise)
+    _check_gap(doc)
 
 
 def test_cli_writes_json_and_report(tmp_path):
@@ -142,17 +158,40 @@ def test_real_z307_unpolarized_coarse_scan_runs():
     assert not (set(doc["selected_effects"]) & at_bound)
 
 
+# ----------------------------------------------------------------------------- slow sweeps
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [n for n in CATALOGUE if n not in ("angle_offset", "stray_background")])
+def test_catalogue_sweep_each_effect_ranked_first_and_closed(name):
+    """The rest of the catalogue at visible strengths (angle_offset and stray_background are the
+    fast tests above)."""
+    _, _, doc = score_case({name: SCORE_CASES[name]}, seed=1, workers=1)
+    _check_single(doc, name, SCORE_CASES[name])
+
+
+@pytest.mark.slow
+def test_second_pair_tilt_and_leakage():
+    """Alone, the 1 deg tilt is masked by the 7 % leakage (the baseline lobe absorbs the lower
+    peak; the tilt fit goes to zero): it is found by the screen after leakage is selected."""
+    _, _, doc = score_case({"sample_tilt": SCORE_CASES["sample_tilt"],
+                            "polarization_leakage": SCORE_CASES["polarization_leakage"]}, seed=1, workers=1)
+    assert set(doc["selected_effects"]) == {"sample_tilt", "polarization_leakage"}
+    _check_gap(doc)
+
+
 # In an in-plane scan of a specular lobe, an incidence spread and a wider slit blur the core
 # the same way (beta - beta0 moves by cos(theta_i) alpha or cos(theta_r) u, equal at specular):
-# the diagnosis may pick either and must then report the pair as confounded.
+# near the detection limit the diagnosis may pick either and must then report the pair confounded.
 EXPECTED_CONFOUNDED = {"beam_divergence": "detector_aperture"}
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", CATALOGUE)
-def test_catalogue_sweep_each_effect_ranked_first(name):
-    _, _, doc = score_case({name: SCORE_CASES[name]}, seed=1, workers=1)
-    _check_gap(doc)
+def test_detection_limit_each_effect_ranked_first(name):
+    """Near the detection limit (held-out gap 1.1-1.7x noise; the gap cannot halve there) the
+    injected effect is still ranked first and selected, and the final gap is within 1.5x noise."""
+    _, _, doc = score_case({name: DETECTION_LIMIT_CASES[name]}, seed=1, workers=1)
+    assert doc["final"]["heldout_gap"] <= 1.5 * doc["noise_level"]["heldout_gap"]
     twin = EXPECTED_CONFOUNDED.get(name)
     if twin and doc["candidates"][0]["name"] == twin:
         assert doc["candidates"][1]["name"] == name
@@ -164,11 +203,12 @@ def test_catalogue_sweep_each_effect_ranked_first(name):
 
 
 @pytest.mark.slow
-def test_second_pair_tilt_and_leakage():
-    """Greedy selection first takes substrate_reflection, which imitates both; the true effects
-    are added on top and the backward pass drops the imitation (docs/diagnose.md)."""
-    _, _, doc = score_case({"sample_tilt": SCORE_CASES["sample_tilt"],
-                            "polarization_leakage": SCORE_CASES["polarization_leakage"]}, seed=1, workers=1)
-    assert set(doc["selected_effects"]) == {"sample_tilt", "polarization_leakage"}
-    before, after, noise = _check_gap(doc)
-    assert _excess(after, noise) <= 0.5 * _excess(before, noise)
+@pytest.mark.parametrize("name", ["sample_tilt", "stray_background"])
+def test_second_material_z302_sample_a(name):
+    """Another truth (the z302_sample_a preset: one sharp lobe, rd 5e-4, deep p minimum near
+    Brewster). The tilt case needs the final refit from fresh material starts (without it the
+    joint fit stopped at 0.89 deg and 1.8x the noise level)."""
+    from rig.synth import truth_material
+
+    _, _, doc = score_case({name: SCORE_CASES[name]}, seed=1, workers=1, material=truth_material("z302_sample_a"))
+    _check_single(doc, name, SCORE_CASES[name])
