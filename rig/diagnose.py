@@ -625,29 +625,46 @@ def _progress(iterable, total, desc, show):
     return tqdm(iterable, total=total, desc=desc, file=sys.stderr, disable=not show, leave=False)
 
 
-def _run_parallel(jobs, workers: int):
-    """[job(problem) for job, problem in jobs] on ``workers`` threads (numpy releases the GIL in
-    its array loops; each job gets its own fork of the problem's caches). Same results as serial."""
-    if workers <= 1 or len(jobs) <= 1:
-        return [job(problem) for job, problem in jobs]
-    from concurrent.futures import ThreadPoolExecutor
+_WORKER_PROBLEM = None  # the Problem a forked worker process inherits
 
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(job, problem.fork()) for job, problem in jobs]
-        return [f.result() for f in futures]
+
+def _in_worker(task):
+    fn, args = task
+    return fn(_WORKER_PROBLEM, *args)
+
+
+def _run_parallel(problem: Problem, fn, arglist, workers: int, progress: bool = False, desc: str = "") -> list:
+    """``[fn(problem, *args) for args in arglist]`` on ``workers`` forked processes (threads ran
+    at ~1.2x on 2 cores: the fit is Python-heavy and holds the GIL). ``fn`` is a module-level
+    function; each process inherits ``problem`` (and its caches) at the fork. The results, in
+    order, are those of the serial loop."""
+    global _WORKER_PROBLEM
+    arglist = [tuple(a) for a in arglist]
+    if workers <= 1 or len(arglist) <= 1:
+        return [fn(problem, *a) for a in _progress(arglist, len(arglist), desc, progress)]
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    _WORKER_PROBLEM = problem
+    try:
+        with ProcessPoolExecutor(max_workers=min(workers, len(arglist)),
+                                 mp_context=multiprocessing.get_context("fork")) as pool:
+            results = pool.map(_in_worker, [(fn, a) for a in arglist])
+            return list(_progress(results, len(arglist), desc, progress))
+    finally:
+        _WORKER_PROBLEM = None
+
+
+def _baseline_job(problem: Problem, start: Model, max_nfev: int) -> Fit:
+    return problem.fit(_rescale_lobes(problem, start), max_nfev=max_nfev)
 
 
 def fit_baseline(problem: Problem, workers: int = 1) -> Fit:
     """Material only, one or two lobes, several starts (run on ``workers`` threads); lowest BIC
     wins (first in start order on ties, as a serial loop)."""
-    jobs = []
-    for n_lobes in (1, 2):
-        for start in _material_starts(problem, n_lobes):
-            def job(pr, start=start, n_lobes=n_lobes):
-                return pr.fit(_rescale_lobes(pr, start), max_nfev=80 if n_lobes == 1 else 120)
-            jobs.append((job, problem))
+    args = [(start, 80 if n_lobes == 1 else 120) for n_lobes in (1, 2) for start in _material_starts(problem, n_lobes)]
     best = None
-    for f in _run_parallel(jobs, workers):
+    for f in _run_parallel(problem, _baseline_job, args, workers):
         if best is None or f.bic < best.bic:
             best = f
     # polish the winner
@@ -684,47 +701,43 @@ def refit_fresh_material(problem: Problem, fit: Fit, workers: int = 1) -> Fit:
     to imitate the effects (a tilt lowers the peak: the baseline lowers n and widens the lobe)
     and can hold the joint fit in a local minimum."""
     effect_vals = {k: v for k, v in fit.model.values.items() if k[0] != "material"}
-    jobs = []
-    for n_lobes in (1, 2):
-        for start in _material_starts(problem, n_lobes):
-            model = Model(n_lobes, {**start.values, **effect_vals}, fit.model.effects)
-
-            def job(pr, model=model):
-                m = _rescale_lobes(pr, model)
-                free = {(s.owner, s.name) for s in material_specs(m.n_lobes)}
-                return pr.fit(pr.fit(m, free=free, max_nfev=60).model, max_nfev=40)
-            jobs.append((job, problem))
+    args = [(Model(n_lobes, {**start.values, **effect_vals}, fit.model.effects),)
+            for n_lobes in (1, 2) for start in _material_starts(problem, n_lobes)]
     best = fit
-    for f in _run_parallel(jobs, workers):
+    for f in _run_parallel(problem, _fresh_job, args, workers):
         if f.bic < best.bic:
             best = f
     return best
+
+
+def _fresh_job(problem: Problem, model: Model) -> Fit:
+    m = _rescale_lobes(problem, model)
+    free = {(s.owner, s.name) for s in material_specs(m.n_lobes)}
+    return problem.fit(problem.fit(m, free=free, max_nfev=60).model, max_nfev=40)
 
 
 def _unmasked(problem: Problem, base: Fit, names, workers: int) -> list:
     """Those of ``names`` whose effect-only fit on top of ``base`` lowers chi^2 by more than the
     BIC threshold plus the effect's parameter penalty (a cheap screen: material fixed)."""
     names = list(names)
-    fits = _run_parallel([(lambda pr, n=n: _effect_prefits(pr, base, n), problem) for n in names], workers)
+    fits = _run_parallel(problem, _effect_prefits, [(base, n) for n in names], workers)
     log_n = math.log(max(problem.train_idx.size, 1))
     return [n for n, f in zip(names, fits)
             if base.chi2 - f.chi2 > BIC_THRESHOLD + len(effect_specs(n)) * log_n and not _at_bound(f.model, n)]
 
 
 def _fit_many(problem: Problem, base: Fit, names, workers: int, progress: bool, desc: str) -> dict:
-    """fit_with_effect for each name, on ``workers`` threads (numpy releases the GIL in its
-    array loops); each thread works on its own fork of the problem's caches."""
-    from concurrent.futures import ThreadPoolExecutor
-
+    """fit_with_effect for each name, on ``workers`` processes (:func:`_run_parallel`)."""
     names = list(names)
-    if workers <= 1 or len(names) <= 1:
-        return {n: fit_with_effect(problem, base, n) for n in _progress(names, len(names), desc, progress)}
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = {n: pool.submit(fit_with_effect, problem.fork(), base, n) for n in names}
-        out = {}
-        for n in _progress(names, len(names), desc, progress):
-            out[n] = futures[n].result()
-    return out
+    fits = _run_parallel(problem, fit_with_effect, [(base, n) for n in names], workers, progress, desc)
+    return dict(zip(names, fits))
+
+
+def _without_job(problem: Problem, name: str, model: Model) -> Fit:
+    """``model`` refitted without effect ``name`` (the backward pass)."""
+    rest = tuple(e for e in model.effects if e != name)
+    vals = {k: v for k, v in model.values.items() if k[0] != name}
+    return problem.fit(Model(model.n_lobes, vals, rest), max_nfev=25)
 
 
 def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConfig | None = None,
@@ -811,15 +824,10 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
     if len(selected) > 1:
         # the refits without each effect are independent until one is dropped: run them in parallel
         # and redo the rest serially only after a drop (the same results as the serial loop)
-        def without_job(name, model):
-            rest = tuple(e for e in model.effects if e != name)
-            vals = {k: v for k, v in model.values.items() if k[0] != name}
-            return lambda pr: pr.fit(Model(model.n_lobes, vals, rest), max_nfev=25)
-
         order = list(selected)
-        ahead = dict(zip(order, _run_parallel([(without_job(n, current.model), problem) for n in order], workers)))
+        ahead = dict(zip(order, _run_parallel(problem, _without_job, [(n, current.model) for n in order], workers)))
         for name in order:
-            without = ahead[name] if ahead is not None else without_job(name, current.model)(problem)
+            without = ahead[name] if ahead is not None else _without_job(problem, name, current.model)
             d_held = problem.chi2(without.model, held) - problem.chi2(current.model, held)
             if without.bic - current.bic < BIC_THRESHOLD or (held.size and d_held < HELDOUT_CHI2_GAIN):
                 selected.remove(name)
