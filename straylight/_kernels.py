@@ -464,42 +464,76 @@ def _pairwise2(x, lo, n):
     return v1[0], v2[0]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _any_nonzero(x, a, b):
+    """True if some x[a:b] != 0 (NaN counts), tested 8 at a time."""
+    i = a
+    while i + 8 <= b:
+        if ((x[i] != 0.0) | (x[i + 1] != 0.0) | (x[i + 2] != 0.0) | (x[i + 3] != 0.0)
+                | (x[i + 4] != 0.0) | (x[i + 5] != 0.0) | (x[i + 6] != 0.0) | (x[i + 7] != 0.0)):
+            return True
+        i += 8
+    while i < b:
+        if x[i] != 0.0:
+            return True
+        i += 1
+    return False
+
+
 @njit(cache=True, nogil=True)
-def chunk_sums(M, chunk, n_parts, n_det, r_abs, r_rr, r_nex, r_trunc, r_nee, r_direct):
+def chunk_sums(M, chunk, n_parts, n_det, r_abs, r_rr, r_nex, r_trunc, r_nee, r_direct, clear=False):
     """Per-chunk S1 = sum x, S2 = sum x^2 of every tally row of M (n_rows, n) and of the derived rows
     (absorbed ledger ABS + RR + NEX + TRUNC per part, detector total NEE + DIRECT), as
-    ``np.add.reduceat`` over chunks of ``chunk`` rays would give them. Returns (s1, s2), (n_chunks, rows)."""
+    ``np.add.reduceat`` over chunks of ``chunk`` rays would give them. Returns (s1, s2), (n_chunks, rows).
+
+    Blocks (row, chunk) that hold only zeros are skipped (derived rows: when all their source blocks
+    are zero); ``clear=True`` zeroes the non-zero blocks of M afterwards, so that M is all zeros again
+    and the caller can reuse it without filling it."""
     n_rows, n = M.shape
     n_ext = n_rows + n_parts + n_det
     nch = (n + chunk - 1) // chunk
     s1 = np.zeros((nch, n_ext))
     s2 = np.zeros((nch, n_ext))
-    buf = np.empty(n)
+    nz = np.zeros((nch, n_rows), np.bool_)
+    buf = np.empty(chunk)
     for r in range(n_ext):
-        if r < n_rows:
-            x = M[r]
-        elif r < n_rows + n_parts:
-            k = r - n_rows
-            for i in range(n):
-                buf[i] = ((M[r_abs + k, i] + M[r_rr + k, i]) + M[r_nex + k, i]) + M[r_trunc + k, i]
-            x = buf
-        else:
-            k = r - n_rows - n_parts
-            for i in range(n):
-                buf[i] = M[r_nee + k, i] + M[r_direct + k, i]
-            x = buf
         for c in range(nch):
             a = c * chunk
             b = min(a + chunk, n)
-            nz = False
-            for i in range(a, b):
-                if x[i] != 0.0:
-                    nz = True
-                    break
-            if not nz:
-                continue  # a sum of zeros
+            if r < n_rows:
+                x = M[r]
+                lo = a
+                if not _any_nonzero(x, a, b):
+                    continue  # a sum of zeros
+                nz[c, r] = True
+            elif r < n_rows + n_parts:
+                k = r - n_rows
+                if not (nz[c, r_abs + k] or nz[c, r_rr + k] or nz[c, r_nex + k] or nz[c, r_trunc + k]):
+                    continue
+                for i in range(a, b):
+                    buf[i - a] = ((M[r_abs + k, i] + M[r_rr + k, i]) + M[r_nex + k, i]) + M[r_trunc + k, i]
+                x = buf
+                lo = 0
+                if not _any_nonzero(x, 0, b - a):
+                    continue
+            else:
+                k = r - n_rows - n_parts
+                if not (nz[c, r_nee + k] or nz[c, r_direct + k]):
+                    continue
+                for i in range(a, b):
+                    buf[i - a] = M[r_nee + k, i] + M[r_direct + k, i]
+                x = buf
+                lo = 0
+                if not _any_nonzero(x, 0, b - a):
+                    continue
             # reduceat: the first element, then the pairwise sum of the rest
-            t1, t2 = _pairwise2(x, a + 1, b - a - 1)
-            s1[c, r] = x[a] + t1
-            s2[c, r] = x[a] * x[a] + t2
+            t1, t2 = _pairwise2(x, lo + 1, b - a - 1)
+            s1[c, r] = x[lo] + t1
+            s2[c, r] = x[lo] * x[lo] + t2
+    if clear:
+        for r in range(n_rows):
+            for c in range(nch):
+                if nz[c, r]:
+                    a = c * chunk
+                    M[r, a:min(a + chunk, n)] = 0.0
     return s1, s2

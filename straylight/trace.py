@@ -196,15 +196,30 @@ class _Compiled:
             self.target_plane_d = np.einsum("ij,ij->i", self.target.normals, ttri[:, 0])
 
 
+    def scratch(self, name, size):
+        """A flat float64 scratch array of at least ``size`` elements, reused by this thread."""
+        buf = getattr(self._local, name, None)
+        if buf is None or buf.size < size:
+            buf = np.empty(size)
+            setattr(self._local, name, buf)
+        return buf
+
     def tally_buffer(self, rows, n):
         """A zeroed (rows, n) float64 array, reused between batches of this thread (fresh pages from
-        np.zeros cost a page fault each time they are first written)."""
+        np.zeros cost a page fault each time they are first written). The batch that used it last
+        left it all zeros (``chunk_sums(..., clear=True)`` then :meth:`tally_cleared`) unless it
+        stopped half-way; only then is it filled again."""
         buf = getattr(self._local, "buf", None)
         if buf is None or buf.size < rows * n:
-            buf = self._local.buf = np.empty(rows * n)
-        M = buf[:rows * n].reshape(rows, n)
-        M.fill(0.0)
-        return M
+            buf = self._local.buf = np.zeros(rows * n)
+        elif not getattr(self._local, "buf_clean", False):
+            buf.fill(0.0)
+        self._local.buf_clean = False
+        return buf[:rows * n].reshape(rows, n)
+
+    def tally_cleared(self):
+        """Record that this thread's tally buffer is all zeros again."""
+        self._local.buf_clean = True
 
 
 def _compiled(spec: TraceSpec, intersector=None) -> _Compiled:
@@ -495,14 +510,15 @@ def run_batch_reference(spec: TraceSpec, first_chunk: int, stop_chunk: int, inte
 
 
 def _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays,
-                compiled=True):
+                compiled=True, clear=False):
     """Per-chunk sums S1, S2 of every tally row (chunk order, fixed chunk length: independent of the
-    batch size), irradiance-map sums and path records of one batch."""
+    batch size), irradiance-map sums and path records of one batch (``clear``: leave M all zeros)."""
     C = CHUNK_RAYS
     if compiled:
         from straylight._kernels import chunk_sums
 
-        s1, s2 = chunk_sums(M, C, lay.P, D, lay.ABS, lay.RR, lay.NEX, lay.TRUNC, lay.DET_NEE, lay.DET_DIRECT)
+        s1, s2 = chunk_sums(M, C, lay.P, D, lay.ABS, lay.RR, lay.NEX, lay.TRUNC, lay.DET_NEE, lay.DET_DIRECT,
+                            clear)
     else:
         ledger = (M[lay.ABS:lay.ABS + lay.P] + M[lay.RR:lay.RR + lay.P]
                   + M[lay.NEX:lay.NEX + lay.P] + M[lay.TRUNC:lay.TRUNC + lay.P])
@@ -524,18 +540,26 @@ def _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows
             "segments": segments, "shadow_rays": shadow_rays}
 
 
-def _draw_uniforms(gens, idx, nch, width):
-    """This event's uniforms of the live rays (ascending ids): chunk k draws (live rays in k, width)."""
-    counts = np.bincount(idx // CHUNK_RAYS, minlength=nch)
-    parts = [gens[c].random((counts[c], width)) for c in range(nch) if counts[c]]
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+def _draw_uniforms(gens, idx, nch, width, buf=None):
+    """This event's uniforms of the live rays (ascending ids): chunk k draws (live rays in k, width),
+    written in place into ``buf`` (flat float64 scratch of at least len(idx) * width) when given."""
+    m = len(idx)
+    U = np.empty((m, width)) if buf is None else buf[:m * width].reshape(m, width)
+    # rows of chunk c are idx[cut[c]:cut[c+1]] (idx ascending); each chunk fills its rows in place
+    cut = np.searchsorted(idx, np.arange(0, (nch + 1) * CHUNK_RAYS, CHUNK_RAYS)).tolist()
+    for c in range(nch):
+        a, b = cut[c], cut[c + 1]
+        if b > a:
+            gens[c].random(out=U[a:b])
+    return U
 
 
-def _emit_batch(spec, gens, first_chunk, nch, n):
+def _emit_batch(spec, gens, first_chunk, nch, n, buf=None):
     """Emission: chunk k draws (rays in chunk, 5) uniforms first; returns origins, directions (n, 3)."""
     C = CHUNK_RAYS
-    u = np.concatenate([gens[c].random((chunk_bounds(first_chunk + c, spec.n_rays)[1] - (first_chunk + c) * C, 5))
-                        for c in range(nch)])
+    u = np.empty((n, 5)) if buf is None else buf[:n * 5].reshape(n, 5)
+    for c in range(nch):  # chunk c holds rays c*C .. (its end) of the batch, filled in place
+        gens[c].random(out=u[c * C:min((c + 1) * C, n)])
     if len(spec.sources) == 1:
         o, d = _emit(spec.sources[0], u[:, 1:5], spec.eps)
     else:
@@ -548,7 +572,13 @@ def _emit_batch(spec, gens, first_chunk, nch, n):
             sel = which == s
             if sel.any():
                 o[sel], d[sel] = _emit(src, u[sel, 1:5], spec.eps)
-    return np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64)
+    o = np.ascontiguousarray(o, dtype=np.float64)
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    if buf is not None and np.may_share_memory(d, buf):  # a source that returns views of its uniforms:
+        d = d.copy()  # the scratch is refilled every event
+    if buf is not None and np.may_share_memory(o, buf):
+        o = o.copy()
+    return o, d
 
 
 def _by_material(spec, mat, call):
@@ -594,7 +624,9 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     pol = opt.polarization
     map_rows, path_rows = [], []
 
-    o, d = _emit_batch(spec, gens, first_chunk, nch, n)
+    n_uniform = 4 + 3 * D * int(opt.nee_samples) + (4 if comp.target is not None else 0)
+    ubuf = comp.scratch("uniforms", n * max(5, n_uniform))  # this thread's draws, refilled every event
+    o, d = _emit_batch(spec, gens, first_chunk, nch, n, ubuf)
     idx = np.arange(n, dtype=np.int64)
     w = np.full(n, w0)
     prev_kind = np.zeros(n, dtype=np.int8)
@@ -604,7 +636,6 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     depth = np.zeros(n, dtype=np.int64)
     hist = np.full((n if record_paths else 0, K), -1, dtype=np.int16)
     k_nee = int(opt.nee_samples)
-    n_uniform = 4 + 3 * D * k_nee + (4 if comp.target is not None else 0)
     tcol = 4 + 3 * D * k_nee
     segments = 0
     shadow_rays = 0
@@ -622,7 +653,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     for ev in range(max_events):
         if len(idx) == 0:
             break
-        U = _draw_uniforms(gens, idx, nch, n_uniform)
+        U = _draw_uniforms(gens, idx, nch, n_uniform, ubuf)
         tri = np.asarray(comp.isect.first_triangle(o, d))
         segments += len(idx)
         cont, p, nf, part, t, cos_in, rec, rec_w = kern.hits(
@@ -700,7 +731,10 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
             record_paths, float(opt.mirror_reflectance), thr, spec.eps, ev == max_events - 1, M, lay.ABS, lay.RR,
             lay.TRUNC)
 
-    return _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays)
+    out = _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays,
+                      clear=True)
+    comp.tally_cleared()
+    return out
 
 
 def _record_nee(record, okb, keep, cc, ps, pjk, y, ii, idx, part, hkey, depth, hist, k_nee, D, K, comp, record_paths):
@@ -1019,7 +1053,8 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
         results = _run_threads(spec, ranges, intersector, int(threads))
     else:
         results = _run_local(spec, ranges, intersector)
-    comp_dets = _Compiled(spec, intersector=_NoIsect()).detectors
+    cached = _COMPILED.get(spec.token)  # this process's scene, if it traced here; else detectors only
+    comp_dets = cached.detectors if cached is not None else _Compiled(spec, intersector=_NoIsect()).detectors
     rows = spec.n_rows
     s1 = np.zeros(rows)
     s2 = np.zeros(rows)

@@ -91,3 +91,9 @@ def test_chunk_sums_equal_numpy_reduceat(n):
     assert np.abs(s1).sum() > 0
     np.testing.assert_array_equal(s1, np.add.reduceat(ext, starts, axis=1).T)
     np.testing.assert_array_equal(s2, np.add.reduceat(ext * ext, starts, axis=1).T)
+    # clear=True: the same sums, and M left all zeros (the engine then reuses it without a fill)
+    Mc = M.copy()
+    c1, c2 = _kernels.chunk_sums(Mc, 1000, 2, 1, 0, 2, 4, 6, 8, 10, True)
+    np.testing.assert_array_equal(c1, s1)
+    np.testing.assert_array_equal(c2, s2)
+    assert not Mc.any()
