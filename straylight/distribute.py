@@ -1,16 +1,28 @@
 """Run trace batches on dask.distributed, combining results in chunk order.
 
-A LocalCluster of ``workers`` processes with one thread each by default, an existing ``Client``,
-or ``Client(scheduler_address)``. The :class:`straylight.trace.TraceSpec` (triangle array,
+A LocalCluster of one process with ``workers`` threads by default (:func:`local_cluster`), an
+existing ``Client``, or ``Client(scheduler_address)``. The :class:`straylight.trace.TraceSpec` (triangle array,
 materials, sources) is broadcast once; each worker process builds its embree scene from the
 triangles on first use and keeps it (``straylight.trace._COMPILED``), so no embree object is
-ever pickled. Each task is a batch of whole chunks whose random streams are keyed by chunk id,
-so the same seed gives the same numbers for any worker count.
+ever pickled. Each task is a run of whole chunks (:func:`task_plan`) whose random streams are
+keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
 from __future__ import annotations
 
 
 TASK_BATCHES = 5  # at most this many batches per dask task
+MIN_TASK_CHUNKS = 10  # smallest task (chunks) of the decreasing task sizes at the end of a run
+
+# a LocalCluster made for tracing: the event loop shares the GIL (threads) or the cores (processes)
+# with the workers, so its periodic housekeeping is slowed down (idle CPU 40 -> 7 ms per second) and
+# work stealing, useless for equal independent tasks, is off
+LEAN_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.scheduler.work-stealing": False,
+}
 
 
 def _group_task(spec, ranges):
@@ -25,9 +37,43 @@ def _batch_task(spec, first_chunk, stop_chunk):
     return run_batch(spec, first_chunk, stop_chunk)
 
 
+def task_plan(ranges, n_slots: int) -> list:
+    """Group batch ranges ``(first_chunk, stop_chunk)`` into dask tasks (lists of ranges, in chunk
+    order) of decreasing size (guided self-scheduling: about remaining / (2 slots) chunks, in steps of
+    MIN_TASK_CHUNKS or of a batch if smaller, at most TASK_BATCHES batches), so that few tasks carry the run and the last ones
+    are small enough that no worker thread idles long at the end. Batches are cut, never merged: no
+    piece is larger than its batch (the tally memory), and results stay the same for any cut."""
+    chunks = [(a, b) for a, b in ranges]
+    if not chunks:
+        return []
+    batch = max(b - a for a, b in chunks)
+    cap = TASK_BATCHES * batch
+    step = min(MIN_TASK_CHUNKS, batch)
+    remaining = sum(b - a for a, b in chunks)
+    tasks = []
+    k = 0
+    a, b = chunks[0]
+    while remaining > 0:
+        want = -(-remaining // (2 * max(1, int(n_slots))))
+        want = min(cap, max(step, -(-want // step) * step))
+        task = []
+        while want > 0 and remaining > 0:
+            take = min(want, b - a)
+            task.append((a, a + take))
+            a += take
+            want -= take
+            remaining -= take
+            if a == b and k + 1 < len(chunks):
+                k += 1
+                a, b = chunks[k]
+        tasks.append(task)
+    return tasks
+
+
 def local_cluster(n_workers: int, processes: bool = False):
-    """LocalCluster for tracing with ``n_workers`` parallel workers: no dashboard port, and dask's
-    statistical profiler off (it samples every thread every 10 ms, ~5-10 % of a worker's CPU).
+    """LocalCluster for tracing with ``n_workers`` parallel workers: no dashboard port, dask's
+    statistical profiler off (it samples every thread every 10 ms, ~5-10 % of a worker's CPU) and
+    the housekeeping of :data:`LEAN_CONFIG`.
 
     Default: ONE worker process with ``n_workers`` threads. Embree and the compiled kernels release
     the GIL, and threads share one copy of the scene: on the reference tube 2 threads ran x2.10
@@ -36,7 +82,7 @@ def local_cluster(n_workers: int, processes: bool = False):
     import dask
     from dask.distributed import LocalCluster
 
-    with dask.config.set({"distributed.worker.profile.enabled": False}):
+    with dask.config.set(LEAN_CONFIG):
         if processes:
             return LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True,
                                 dashboard_address=":0")
@@ -69,7 +115,7 @@ def worker_cpu_seconds(client) -> dict:
 
 def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
     """Yield ``run_batch`` results for ``ranges`` (list of (first_chunk, stop_chunk)), in order."""
-    from dask.distributed import Client
+    from dask.distributed import Client, as_completed
 
     owned = []
     if client is None:
@@ -90,12 +136,18 @@ def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
         # (but at least 3 tasks per worker thread, for balance)
         workers_info = client.scheduler_info().get("workers", {})
         n_slots = max(1, sum(int(w.get("nthreads", 1)) for w in workers_info.values()))
-        per = max(1, min(TASK_BATCHES, len(ranges) // (3 * n_slots)))
-        groups = [ranges[k:k + per] for k in range(0, len(ranges), per)]
-        futures = [client.submit(_group_task, spec_future, g, pure=False) for g in groups]
-        for fut in futures:
-            yield from fut.result()
+        groups = task_plan(ranges, n_slots)
+        futures = client.map(_group_task, [spec_future] * len(groups), groups, pure=False)
+        order = {fut.key: k for k, fut in enumerate(futures)}
+        done = {}
+        nxt = 0
+        # results as they finish (one event-loop round trip for each), yielded in chunk order
+        for fut, result in as_completed(futures, with_results=True):
+            done[order[fut.key]] = result
             fut.release()
+            while nxt in done:
+                yield from done.pop(nxt)
+                nxt += 1
     finally:
         for obj in owned:
             obj.close()

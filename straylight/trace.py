@@ -37,7 +37,7 @@ import numpy as np
 
 from straylight.detectors import DetectorGeometry, IrradianceMap
 from straylight.paths import KIND_DETECTOR, KIND_SCATTER, KIND_SPECULAR, PathRecords, mix_key, stderr_from_sums
-from straylight.rng import CHUNK_RAYS, batches, check_seed, chunk_bounds, chunk_rng, n_chunks
+from straylight.rng import CHUNK_RAYS, ChunkStreams, batches, check_seed, chunk_bounds, chunk_rng, n_chunks
 from straylight.sources import orthonormal_basis
 
 ROLE_CODES = {"surface": 0, "mirror": 1, "absorber": 2, "detector": 3}
@@ -540,26 +540,19 @@ def _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows
             "segments": segments, "shadow_rays": shadow_rays}
 
 
-def _draw_uniforms(gens, idx, nch, width, buf=None):
-    """This event's uniforms of the live rays (ascending ids): chunk k draws (live rays in k, width),
-    written in place into ``buf`` (flat float64 scratch of at least len(idx) * width) when given."""
+def _draw_uniforms(streams, idx, width, buf=None):
+    """This event's uniforms of the live rays (ascending ids): chunk k draws (live rays in k, width)
+    from its stream (compiled, :class:`straylight.rng.ChunkStreams`), written in place into ``buf``
+    (flat float64 scratch of at least len(idx) * width) when given."""
     m = len(idx)
     U = np.empty((m, width)) if buf is None else buf[:m * width].reshape(m, width)
-    # rows of chunk c are idx[cut[c]:cut[c+1]] (idx ascending); each chunk fills its rows in place
-    cut = np.searchsorted(idx, np.arange(0, (nch + 1) * CHUNK_RAYS, CHUNK_RAYS)).tolist()
-    for c in range(nch):
-        a, b = cut[c], cut[c + 1]
-        if b > a:
-            gens[c].random(out=U[a:b])
-    return U
+    return streams.fill(idx, width, U, CHUNK_RAYS)
 
 
-def _emit_batch(spec, gens, first_chunk, nch, n, buf=None):
+def _emit_batch(spec, streams, n, buf=None):
     """Emission: chunk k draws (rays in chunk, 5) uniforms first; returns origins, directions (n, 3)."""
-    C = CHUNK_RAYS
     u = np.empty((n, 5)) if buf is None else buf[:n * 5].reshape(n, 5)
-    for c in range(nch):  # chunk c holds rays c*C .. (its end) of the batch, filled in place
-        gens[c].random(out=u[c * C:min((c + 1) * C, n)])
+    streams.fill(np.arange(n, dtype=np.int64), 5, u, CHUNK_RAYS)
     if len(spec.sources) == 1:
         o, d = _emit(spec.sources[0], u[:, 1:5], spec.eps)
     else:
@@ -610,7 +603,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     stop = min(stop_chunk * C, spec.n_rays)
     n = stop - start
     nch = stop_chunk - first_chunk
-    gens = [chunk_rng(spec.seed, k) for k in range(first_chunk, stop_chunk)]
+    streams = ChunkStreams(spec.seed, first_chunk, stop_chunk)  # chunk_rng's streams, compiled
     total_power = float(sum(s.power_w for s in spec.sources))
     w0 = total_power / spec.n_rays
     thr = opt.rr_threshold * w0
@@ -626,7 +619,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
 
     n_uniform = 4 + 3 * D * int(opt.nee_samples) + (4 if comp.target is not None else 0)
     ubuf = comp.scratch("uniforms", n * max(5, n_uniform))  # this thread's draws, refilled every event
-    o, d = _emit_batch(spec, gens, first_chunk, nch, n, ubuf)
+    o, d = _emit_batch(spec, streams, n, ubuf)
     idx = np.arange(n, dtype=np.int64)
     w = np.full(n, w0)
     prev_kind = np.zeros(n, dtype=np.int8)
@@ -653,7 +646,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     for ev in range(max_events):
         if len(idx) == 0:
             break
-        U = _draw_uniforms(gens, idx, nch, n_uniform, ubuf)
+        U = _draw_uniforms(streams, idx, n_uniform, ubuf)
         tri = np.asarray(comp.isect.first_triangle(o, d))
         segments += len(idx)
         cont, p, nf, part, t, cos_in, rec, rec_w = kern.hits(
