@@ -11,7 +11,6 @@ from __future__ import annotations
 
 
 TASK_BATCHES = 5  # at most this many batches per dask task
-MIN_TASK_CHUNKS = 10  # smallest task (chunks) of the decreasing task sizes at the end of a run
 
 # a LocalCluster made for tracing: the event loop shares the GIL (threads) or the cores (processes)
 # with the workers, so its periodic housekeeping is slowed down (idle CPU 40 -> 7 ms per second) and
@@ -38,35 +37,19 @@ def _batch_task(spec, first_chunk, stop_chunk):
 
 
 def task_plan(ranges, n_slots: int) -> list:
-    """Group batch ranges ``(first_chunk, stop_chunk)`` into dask tasks (lists of ranges, in chunk
-    order) of decreasing size (guided self-scheduling: about remaining / (2 slots) chunks, in steps of
-    MIN_TASK_CHUNKS or of a batch if smaller, at most TASK_BATCHES batches), so that few tasks carry the run and the last ones
-    are small enough that no worker thread idles long at the end. Batches are cut, never merged: no
-    piece is larger than its batch (the tally memory), and results stay the same for any cut."""
-    chunks = [(a, b) for a, b in ranges]
-    if not chunks:
-        return []
-    batch = max(b - a for a, b in chunks)
-    cap = TASK_BATCHES * batch
-    step = min(MIN_TASK_CHUNKS, batch)
-    remaining = sum(b - a for a, b in chunks)
+    """Group batch ranges ``(first_chunk, stop_chunk)`` into dask tasks (lists of whole batches, in
+    chunk order) of decreasing size (guided self-scheduling: about remaining / (2 slots) batches, at
+    most TASK_BATCHES), so that few tasks carry the run (each costs the scheduler a few ms of CPU)
+    and the last ones are single batches, so no worker thread idles long at the end. Batches are
+    never cut: a small batch pays the per-event Python costs for few rays."""
+    ranges = list(ranges)
     tasks = []
     k = 0
-    a, b = chunks[0]
-    while remaining > 0:
-        want = -(-remaining // (2 * max(1, int(n_slots))))
-        want = min(cap, max(step, -(-want // step) * step))
-        task = []
-        while want > 0 and remaining > 0:
-            take = min(want, b - a)
-            task.append((a, a + take))
-            a += take
-            want -= take
-            remaining -= take
-            if a == b and k + 1 < len(chunks):
-                k += 1
-                a, b = chunks[k]
-        tasks.append(task)
+    while k < len(ranges):
+        left = len(ranges) - k
+        per = min(TASK_BATCHES, max(1, -(-left // (2 * max(1, int(n_slots))))))
+        tasks.append(ranges[k:k + per])
+        k += per
     return tasks
 
 

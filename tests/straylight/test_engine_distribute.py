@@ -39,19 +39,16 @@ def test_same_numbers_on_a_thread_pool(setup):
 
 @pytest.mark.parametrize("n_rays,batch,slots", [(400_000, 50_000, 2), (2_000_000, 50_000, 2), (9000, 3000, 2),
                                                (123_456, 20_000, 3), (1000, 50_000, 4)])
-def test_task_plan_covers_every_chunk_once_in_order_with_shrinking_tasks(n_rays, batch, slots):
+def test_task_plan_covers_every_batch_once_in_order_with_shrinking_tasks(n_rays, batch, slots):
     from straylight.distribute import TASK_BATCHES, task_plan
     from straylight.rng import batches
 
     ranges = batches(n_rays, batch)
     tasks = task_plan(ranges, slots)
-    pieces = [r for t in tasks for r in t]
-    chunks = [c for a, b in pieces for c in range(a, b)]
-    assert chunks == list(range(ranges[-1][1]))  # every chunk once, in order
-    per_batch = max(b - a for a, b in ranges)
-    assert max(b - a for a, b in pieces) <= per_batch  # no piece larger than a batch (tally memory)
-    sizes = [sum(b - a for a, b in t) for t in tasks]
-    assert max(sizes) <= TASK_BATCHES * per_batch
-    assert sizes[:-1] == sorted(sizes[:-1], reverse=True)  # guided: tasks shrink toward the end
+    assert [r for t in tasks for r in t] == ranges  # whole batches, each once, in order
+    sizes = [len(t) for t in tasks]
+    assert max(sizes) <= TASK_BATCHES
+    assert sizes == sorted(sizes, reverse=True)  # guided: tasks shrink toward the end
+    assert sizes[-1] == 1  # the tail is single batches
     if len(ranges) >= 4 * slots:
-        assert sizes[-2] <= sizes[0] / 4  # the tail is fine-grained
+        assert len(tasks) < len(ranges)  # fewer tasks than batches
