@@ -14,7 +14,9 @@ arrays for them and consume their results. Estimators and ledger: see :mod:`stra
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 _SURFACE, _MIRROR, _ABSORBER, _DETECTOR = 0, 1, 2, 3
 KIND_SCATTER, KIND_SPECULAR, KIND_DETECTOR = 1, 2, 3
@@ -609,18 +611,17 @@ def seed_states(words, n_words, out):
     return out
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _mulhi(a, b):
-    """High 64 bits of the 128-bit product of two uint64."""
-    m32 = np.uint64(0xFFFFFFFF)
-    s32 = np.uint64(32)
-    a_lo, a_hi = a & m32, a >> s32
-    b_lo, b_hi = b & m32, b >> s32
-    p0 = a_lo * b_lo
-    p1 = a_lo * b_hi
-    p2 = a_hi * b_lo
-    mid = (p0 >> s32) + (p1 & m32) + (p2 & m32)
-    return a_hi * b_hi + (p1 >> s32) + (p2 >> s32) + (mid >> s32)
+@intrinsic
+def _mulhi(typingctx, a, b):
+    """High 64 bits of the 128-bit product of two uint64 (one LLVM i128 multiply: x86-64 ``mul``)."""
+    sig = types.uint64(types.uint64, types.uint64)
+
+    def codegen(context, builder, signature, args):
+        i128 = ir.IntType(128)
+        prod = builder.mul(builder.zext(args[0], i128), builder.zext(args[1], i128))
+        return builder.trunc(builder.lshr(prod, ir.Constant(i128, 64)), ir.IntType(64))
+
+    return sig, codegen
 
 
 @njit(cache=True, nogil=True, inline="always")
