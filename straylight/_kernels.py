@@ -659,3 +659,76 @@ def fill_uniforms(states, rows, per_chunk, width, out):
             i += 1
         states[c, 0], states[c, 1] = s_hi, s_lo
     return out
+
+
+@njit(cache=True, nogil=True)
+def map_sums(key, pw, nb, n_det, chunk):
+    """Irradiance-map sums of one batch from its records sorted by ``key = (ray * D + det) * nb + bin``
+    (stable, so each key's powers keep record order): per (ray, det, bin) the ray's power
+    x = reduceat(pw) (first element + pairwise rest, as numpy), then per (chunk, det, bin) cell
+    S1 = sum x, S2 = sum x^2 in ray order (as np.bincount). Returns cells (chunk, det, bin ascending):
+    chunk, det, bin, s1, s2, and the group bounds (start, stop) of each (chunk, det)."""
+    m = len(key)
+    width = n_det * nb
+    acc1 = np.zeros(width)
+    acc2 = np.zeros(width)
+    touched = np.zeros(width, np.bool_)
+    tl = np.empty(width, np.int64)
+    nt = 0
+    o_chunk = np.empty(m, np.int64)
+    o_cell = np.empty(m, np.int64)
+    o1 = np.empty(m)
+    o2 = np.empty(m)
+    q = 0
+    cur = -1
+    a = 0
+    while a <= m:
+        if a < m:
+            k = key[a]
+            ch = (k // width) // chunk
+        else:
+            ch = -2  # flush the last chunk
+        if ch != cur and nt > 0:
+            cells = np.sort(tl[:nt])
+            for t in range(nt):
+                cell = cells[t]
+                o_chunk[q] = cur
+                o_cell[q] = cell
+                o1[q] = acc1[cell]
+                o2[q] = acc2[cell]
+                acc1[cell] = 0.0
+                acc2[cell] = 0.0
+                touched[cell] = False
+                q += 1
+            nt = 0
+        if a == m:
+            break
+        cur = ch
+        b = a + 1
+        while b < m and key[b] == k:
+            b += 1
+        if b - a == 1:
+            x = pw[a]
+        else:
+            t1, t2 = _pairwise2(pw, a + 1, b - a - 1)
+            x = pw[a] + t1
+        cell = k % width
+        if not touched[cell]:
+            touched[cell] = True
+            tl[nt] = cell
+            nt += 1
+        acc1[cell] += x
+        acc2[cell] += x * x
+        a = b
+    o_chunk, o_cell, o1, o2 = o_chunk[:q], o_cell[:q], o1[:q], o2[:q]
+    # groups of equal (chunk, det)
+    g_start = np.empty(q, np.int64)
+    ng = 0
+    for i in range(q):
+        if i == 0 or o_chunk[i] != o_chunk[i - 1] or o_cell[i] // nb != o_cell[i - 1] // nb:
+            g_start[ng] = i
+            ng += 1
+    g_stop = np.empty(ng, np.int64)
+    for g in range(ng):
+        g_stop[g] = g_start[g + 1] if g + 1 < ng else q
+    return o_chunk, o_cell // nb, o_cell % nb, o1, o2, g_start[:ng], g_stop

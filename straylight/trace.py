@@ -810,23 +810,16 @@ def _chunk_maps(map_rows, nch, C, D, bins):
     out = [[None] * D for _ in range(nch)]
     if not map_rows:
         return out
+    from straylight._kernels import map_sums
+
     ray, det, b, pw = (np.concatenate(x) for x in zip(*map_rows))
     # one key per (ray, detector, bin); sorting makes the sums independent of record order
     key = (ray.astype(np.int64) * D + det) * nb + b
     order = np.argsort(key, kind="stable")
-    key, pw = key[order], pw[order]
-    ukey, start = np.unique(key, return_index=True)
-    xr = np.add.reduceat(pw, start)
-    cell = ((ukey // (nb * D)) // C * D + (ukey // nb) % D) * nb + ukey % nb  # (chunk, det, bin)
-    ucell, cinv = np.unique(cell, return_inverse=True)
-    cinv = cinv.ravel()
-    s1 = np.bincount(cinv, weights=xr)
-    s2 = np.bincount(cinv, weights=xr * xr)
-    cd = ucell // nb
-    bounds = np.flatnonzero(np.diff(cd)) + 1
-    for grp in np.split(np.arange(len(ucell)), bounds):
-        c, j = divmod(int(cd[grp[0]]), D)
-        out[c][j] = (ucell[grp] % nb, s1[grp], s2[grp])
+    chunk, dj, bins_, s1, s2, g_start, g_stop = map_sums(key[order], np.ascontiguousarray(pw[order], np.float64),
+                                                         nb, D, C)
+    for a, z in zip(g_start.tolist(), g_stop.tolist()):
+        out[int(chunk[a])][int(dj[a])] = (bins_[a:z], s1[a:z], s2[a:z])
     return out
 
 
