@@ -732,3 +732,16 @@ def map_sums(key, pw, nb, n_det, chunk):
     for g in range(ng):
         g_stop[g] = g_start[g + 1] if g + 1 < ng else q
     return o_chunk, o_cell // nb, o_cell % nb, o1, o2, g_start[:ng], g_stop
+
+
+@njit(cache=True, nogil=True)
+def lift_origins(o, d, normal, eps):
+    """Emitted origins moved eps along the source plane's normal toward each ray's side (in place):
+    o + eps sign(d . n) n, with sign(0) = +1."""
+    n0, n1, n2 = normal[0], normal[1], normal[2]
+    for i in range(o.shape[0]):
+        s = eps if _dot(d[i, 0], d[i, 1], d[i, 2], n0, n1, n2) >= 0 else -eps
+        o[i, 0] = o[i, 0] + s * n0
+        o[i, 1] = o[i, 1] + s * n1
+        o[i, 2] = o[i, 2] + s * n2
+    return o

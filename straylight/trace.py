@@ -242,12 +242,15 @@ def _dot(a, b):
 def _emit(source, u, eps):
     """Emit and lift origins eps off the source's plane toward where each ray goes, so that a source
     laid on a surface (e.g. a Lambertian disk on a detector, for a backward trace) does not hit it."""
+    from straylight._kernels import lift_origins
+
     o, d = source.emit(u)
     normal = getattr(source, "normal", None)
     if normal is None:
         return o + eps * d, d
-    side = np.where(d @ np.asarray(normal, dtype=np.float64) >= 0, 1.0, -1.0)
-    return o + (eps * side)[:, None] * np.asarray(normal, dtype=np.float64), d
+    o = np.array(o, dtype=np.float64, order="C")  # a copy: the source's array is left alone
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    return lift_origins(o, d, np.ascontiguousarray(normal, dtype=np.float64), float(eps)), d
 
 
 def run_batch_reference(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
