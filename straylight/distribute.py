@@ -113,10 +113,12 @@ def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
             client = Client(cluster)
             owned += [client, cluster]
     try:
-        spec_future = client.scatter(spec, broadcast=True)
-        # a few batches per task: each dask task costs the scheduler and client ~20 ms of CPU, which
-        # competes with the workers on a small machine (the batches, hence the numbers, are unchanged)
-        # (but at least 3 tasks per worker thread, for balance)
+        # a fresh key for every trace (hash=False): with the content's hash as key, a trace repeated
+        # with the same spec re-scattered a key whose release by the previous trace was still on its
+        # way, and the scheduler dropped the data under the new tasks (FutureCancelledError)
+        spec_future = client.scatter(spec, broadcast=True, hash=False)
+        # few tasks (each costs the scheduler a few ms of CPU, which competes with the workers on a
+        # small machine), shrinking toward the end for balance: task_plan (the numbers are unchanged)
         workers_info = client.scheduler_info().get("workers", {})
         n_slots = max(1, sum(int(w.get("nthreads", 1)) for w in workers_info.values()))
         groups = task_plan(ranges, n_slots)
@@ -126,6 +128,8 @@ def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
         nxt = 0
         # results as they finish (one event-loop round trip for each), yielded in chunk order
         for fut, result in as_completed(futures, with_results=True):
+            if fut.status != "finished":
+                fut.result()  # raises the task's error (or the cancellation)
             done[order[fut.key]] = result
             fut.release()
             while nxt in done:

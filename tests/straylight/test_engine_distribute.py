@@ -52,3 +52,18 @@ def test_task_plan_covers_every_batch_once_in_order_with_shrinking_tasks(n_rays,
     assert sizes[-1] == 1  # the tail is single batches
     if len(ranges) >= 4 * slots:
         assert len(tasks) < len(ranges)  # fewer tasks than batches
+
+
+def test_the_same_trace_repeated_on_one_client(setup):
+    """Back-to-back traces of one spec on a reused client (as a benchmark or a PST sweep does): each
+    must complete with the same numbers (a content-hashed scatter key used to be dropped under the
+    next trace's tasks)."""
+    from dask.distributed import Client
+
+    from straylight.distribute import local_cluster
+
+    scene, src, mats, opts, local = setup
+    with local_cluster(2) as cluster, Client(cluster) as client:
+        for _ in range(4):
+            res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, client=client)
+            assert res.to_json_dict() == local.to_json_dict()
