@@ -8,10 +8,12 @@ Everything is measured in this one run and printed as ratios, because the machin
 1. raw embreex rate: ``EmbreeScene.run`` on 1e6 incoherent rays (random origins inside the tube,
    random directions), 1 process; and on 2 threads (embreex releases the GIL);
 2. full-trace rate on the 30 deg stray-light case: (ray segments + NEE shadow rays) per second,
-   scatter sampling and all bookkeeping included, in-process (1 worker) and on a dask LocalCluster
-   of 2 worker processes with 1 thread each (cluster start-up and the per-worker scene build are
-   timed separately and excluded from the steady-state rate), and its ratio to the raw rate; the share of
-   the 1-worker CPU time spent inside the embree queries (what bounds that ratio) and the CPU per cast of the rest;
+   scatter sampling and all bookkeeping included, in-process (1 worker), on the dask LocalCluster that
+   ``--workers 2`` starts (1 process x 2 threads; its rate against the 2-thread raw rate), on 2 threads
+   in-process, and on a LocalCluster of 2 worker processes with 1 thread each (cluster start-up and
+   worker warm-up timed separately and excluded from the steady-state rates), with the ratios to the
+   raw rate; the share of the 1-worker CPU time spent inside the embree queries (what bounds that
+   ratio) and the CPU per cast of the rest;
 3. ratio(a) = detector power / power through the entrance disk at a = 0, 5, 10, 20, 30 deg with
    its standard error, against BENCHMARK.md's reference values and the geometric direct(a);
 4. time to 2 % relative error at 20 and 30 deg, t_2% = t (relerr / 0.02)^2, with next-event
@@ -251,10 +253,15 @@ def main(argv=None):
         timed_trace(scene, mats, 30.0, 20_000, args.seed, client=client)  # warm-up
         druns = [timed_trace(scene, mats, 30.0, args.rays, args.seed, client=client) for _ in range(args.repeats)]
     el_d = min(r[1] for r in druns)
+    cpu_d = min(r[2] for r in druns)  # CPU of the whole process: both worker threads, scheduler, client
     same_d = druns[0][0].to_json_dict() == res.to_json_dict()
-    out.update(trace_s_dask_threads=el_d, speedup_dask_threads_wall=el / el_d, same_numbers_dask_threads=same_d)
+    rate_d = casts / el_d
+    out.update(trace_s_dask_threads=el_d, trace_cpu_s_dask_threads=cpu_d, speedup_dask_threads_wall=el / el_d,
+               trace_rate_dask_threads=rate_d, trace_ratio_dask_threads_wall=rate_d / raw2,
+               same_numbers_dask_threads=same_d)
     print(f"full trace at 30 deg, dask LocalCluster default (--workers 2 = 1 process x 2 threads): "
-          f"speed-up x{el / el_d:.2f} by wall time; identical numbers: {same_d}")
+          f"speed-up x{el / el_d:.2f} by wall time; {rate_d / 1e6:.2f} M/wall-s = {rate_d / raw2:.0%} of 2-thread raw "
+          f"(wall); CPU {cpu_d:.2f} s in all = x{cpu_d / cpu1:.2f} of 1 worker; identical numbers: {same_d}")
 
     truns = [timed_trace(scene, mats, 30.0, args.rays, args.seed, threads=2) for _ in range(args.repeats)]
     el_t, cpu_t = min(r[1] for r in truns), min(r[2] for r in truns)
@@ -294,7 +301,8 @@ def main(argv=None):
               f"{t2:9.2f}  {plain}")
     print("\nsummary (same run): full trace / raw embreex = "
           f"{out['trace_ratio_1_cpu']:.0%} on 1 worker (CPU time; target >= 50 %); speed-up 1 -> 2 workers "
-          f"(target >= 1.8): dask default (2 threads) x{out['speedup_dask_threads_wall']:.2f}, in-process threads "
+          f"(target >= 1.8): dask default (2 threads) x{out['speedup_dask_threads_wall']:.2f} "
+          f"(= {out['trace_ratio_dask_threads_wall']:.0%} of 2-thread raw, target >= 50 %), in-process threads "
           f"x{out['speedup_2threads_wall']:.2f} (wall); 2 dask processes x{speed_cpu:.2f} (CPU) / x{el / el2:.2f} (wall)")
     if args.json:
         with open(args.json, "w") as fh:

@@ -14,7 +14,9 @@ arrays for them and consume their results. Estimators and ledger: see :mod:`stra
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 _SURFACE, _MIRROR, _ABSORBER, _DETECTOR = 0, 1, 2, 3
 KIND_SCATTER, KIND_SPECULAR, KIND_DETECTOR = 1, 2, 3
@@ -464,42 +466,282 @@ def _pairwise2(x, lo, n):
     return v1[0], v2[0]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _any_nonzero(x, a, b):
+    """True if some x[a:b] != 0 (NaN counts), tested 8 at a time."""
+    i = a
+    while i + 8 <= b:
+        if ((x[i] != 0.0) | (x[i + 1] != 0.0) | (x[i + 2] != 0.0) | (x[i + 3] != 0.0)
+                | (x[i + 4] != 0.0) | (x[i + 5] != 0.0) | (x[i + 6] != 0.0) | (x[i + 7] != 0.0)):
+            return True
+        i += 8
+    while i < b:
+        if x[i] != 0.0:
+            return True
+        i += 1
+    return False
+
+
 @njit(cache=True, nogil=True)
-def chunk_sums(M, chunk, n_parts, n_det, r_abs, r_rr, r_nex, r_trunc, r_nee, r_direct):
+def chunk_sums(M, chunk, n_parts, n_det, r_abs, r_rr, r_nex, r_trunc, r_nee, r_direct, clear=False):
     """Per-chunk S1 = sum x, S2 = sum x^2 of every tally row of M (n_rows, n) and of the derived rows
     (absorbed ledger ABS + RR + NEX + TRUNC per part, detector total NEE + DIRECT), as
-    ``np.add.reduceat`` over chunks of ``chunk`` rays would give them. Returns (s1, s2), (n_chunks, rows)."""
+    ``np.add.reduceat`` over chunks of ``chunk`` rays would give them. Returns (s1, s2), (n_chunks, rows).
+
+    Blocks (row, chunk) that hold only zeros are skipped (derived rows: when all their source blocks
+    are zero); ``clear=True`` zeroes the non-zero blocks of M afterwards, so that M is all zeros again
+    and the caller can reuse it without filling it."""
     n_rows, n = M.shape
     n_ext = n_rows + n_parts + n_det
     nch = (n + chunk - 1) // chunk
     s1 = np.zeros((nch, n_ext))
     s2 = np.zeros((nch, n_ext))
-    buf = np.empty(n)
+    nz = np.zeros((nch, n_rows), np.bool_)
+    buf = np.empty(chunk)
     for r in range(n_ext):
-        if r < n_rows:
-            x = M[r]
-        elif r < n_rows + n_parts:
-            k = r - n_rows
-            for i in range(n):
-                buf[i] = ((M[r_abs + k, i] + M[r_rr + k, i]) + M[r_nex + k, i]) + M[r_trunc + k, i]
-            x = buf
-        else:
-            k = r - n_rows - n_parts
-            for i in range(n):
-                buf[i] = M[r_nee + k, i] + M[r_direct + k, i]
-            x = buf
         for c in range(nch):
             a = c * chunk
             b = min(a + chunk, n)
-            nz = False
-            for i in range(a, b):
-                if x[i] != 0.0:
-                    nz = True
-                    break
-            if not nz:
-                continue  # a sum of zeros
+            if r < n_rows:
+                x = M[r]
+                lo = a
+                if not _any_nonzero(x, a, b):
+                    continue  # a sum of zeros
+                nz[c, r] = True
+            elif r < n_rows + n_parts:
+                k = r - n_rows
+                if not (nz[c, r_abs + k] or nz[c, r_rr + k] or nz[c, r_nex + k] or nz[c, r_trunc + k]):
+                    continue
+                for i in range(a, b):
+                    buf[i - a] = ((M[r_abs + k, i] + M[r_rr + k, i]) + M[r_nex + k, i]) + M[r_trunc + k, i]
+                x = buf
+                lo = 0
+                if not _any_nonzero(x, 0, b - a):
+                    continue
+            else:
+                k = r - n_rows - n_parts
+                if not (nz[c, r_nee + k] or nz[c, r_direct + k]):
+                    continue
+                for i in range(a, b):
+                    buf[i - a] = M[r_nee + k, i] + M[r_direct + k, i]
+                x = buf
+                lo = 0
+                if not _any_nonzero(x, 0, b - a):
+                    continue
             # reduceat: the first element, then the pairwise sum of the rest
-            t1, t2 = _pairwise2(x, a + 1, b - a - 1)
-            s1[c, r] = x[a] + t1
-            s2[c, r] = x[a] * x[a] + t2
+            t1, t2 = _pairwise2(x, lo + 1, b - a - 1)
+            s1[c, r] = x[lo] + t1
+            s2[c, r] = x[lo] * x[lo] + t2
+    if clear:
+        for r in range(n_rows):
+            for c in range(nch):
+                if nz[c, r]:
+                    a = c * chunk
+                    M[r, a:min(a + chunk, n)] = 0.0
     return s1, s2
+
+
+# ------------------------------------------------------------------ random streams (straylight.rng)
+
+
+@njit(cache=True, nogil=True)
+def seed_states(words, n_words, out):
+    """SeedSequence(entropy words).generate_state(4, uint64) -> PCG64 srandom, one row per chunk.
+
+    words : (m, w) uint32 entropy as uint64 values, n_words (m,) used length; out : (m, 4) uint64
+    (state hi, state lo, inc hi, inc lo). Constants and steps of numpy's SeedSequence (pool size 4)."""
+    m32 = np.uint64(0xFFFFFFFF)
+    mult_a = np.uint64(0x931E8875)
+    mult_b = np.uint64(0x58F38DED)
+    mix_l = np.uint64(0xCA01F9DD)
+    mix_r = np.uint64(0x4973F715)
+    s16 = np.uint64(16)
+    s32 = np.uint64(32)
+    one = np.uint64(1)
+    s63 = np.uint64(63)
+    mult_hi = np.uint64(2549297995355413924)
+    mult_lo = np.uint64(4865540595714422341)
+    pool = np.empty(4, np.uint64)
+    st = np.empty(8, np.uint64)
+    for r in range(words.shape[0]):
+        nw = n_words[r]
+        h = np.uint64(0x43B0D7E5)
+        for i in range(4):  # hashmix of the entropy (0 past its end)
+            v = words[r, i] if i < nw else np.uint64(0)
+            v = (v ^ h) & m32
+            h = (h * mult_a) & m32
+            v = (v * h) & m32
+            pool[i] = v ^ (v >> s16)
+        for i_src in range(4):
+            for i_dst in range(4):
+                if i_src != i_dst:
+                    v = (pool[i_src] ^ h) & m32
+                    h = (h * mult_a) & m32
+                    v = (v * h) & m32
+                    v = v ^ (v >> s16)
+                    x = (mix_l * pool[i_dst] - mix_r * v) & m32
+                    pool[i_dst] = x ^ (x >> s16)
+        for i_src in range(4, nw):
+            for i_dst in range(4):
+                v = (words[r, i_src] ^ h) & m32
+                h = (h * mult_a) & m32
+                v = (v * h) & m32
+                v = v ^ (v >> s16)
+                x = (mix_l * pool[i_dst] - mix_r * v) & m32
+                pool[i_dst] = x ^ (x >> s16)
+        hb = np.uint64(0x8B51F9DD)
+        for i in range(8):  # generate_state(4, uint64): 8 uint32 words, little-endian pairs
+            v = (pool[i % 4] ^ hb) & m32
+            hb = (hb * mult_b) & m32
+            v = (v * hb) & m32
+            st[i] = v ^ (v >> s16)
+        seed_hi = st[0] | (st[1] << s32)
+        seed_lo = st[2] | (st[3] << s32)
+        inc_hi0 = st[4] | (st[5] << s32)
+        inc_lo0 = st[6] | (st[7] << s32)
+        inc_hi = (inc_hi0 << one) | (inc_lo0 >> s63)
+        inc_lo = (inc_lo0 << one) | one
+        # pcg_setseq_128_srandom_r: state 0, step, add the seed, step
+        s_hi, s_lo = _pcg_step(np.uint64(0), np.uint64(0), inc_hi, inc_lo, mult_hi, mult_lo)
+        lo = s_lo + seed_lo
+        s_hi = s_hi + seed_hi + (one if lo < s_lo else np.uint64(0))
+        s_lo = lo
+        s_hi, s_lo = _pcg_step(s_hi, s_lo, inc_hi, inc_lo, mult_hi, mult_lo)
+        out[r, 0], out[r, 1], out[r, 2], out[r, 3] = s_hi, s_lo, inc_hi, inc_lo
+    return out
+
+
+@intrinsic
+def _mulhi(typingctx, a, b):
+    """High 64 bits of the 128-bit product of two uint64 (one LLVM i128 multiply: x86-64 ``mul``)."""
+    sig = types.uint64(types.uint64, types.uint64)
+
+    def codegen(context, builder, signature, args):
+        i128 = ir.IntType(128)
+        prod = builder.mul(builder.zext(args[0], i128), builder.zext(args[1], i128))
+        return builder.trunc(builder.lshr(prod, ir.Constant(i128, 64)), ir.IntType(64))
+
+    return sig, codegen
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _pcg_step(s_hi, s_lo, inc_hi, inc_lo, mult_hi, mult_lo):
+    """state <- state * MULT + inc (mod 2^128)."""
+    lo = s_lo * mult_lo
+    hi = _mulhi(s_lo, mult_lo) + s_lo * mult_hi + s_hi * mult_lo
+    lo2 = lo + inc_lo
+    hi = hi + inc_hi + (np.uint64(1) if lo2 < lo else np.uint64(0))
+    return hi, lo2
+
+
+@njit(cache=True, nogil=True)
+def fill_uniforms(states, rows, per_chunk, width, out):
+    """out[i, :] <- the next ``width`` uniforms of the generator of chunk ``rows[i] // per_chunk``
+    (rows of one chunk contiguous and in order, as gen.random((rows, width)) fills them)."""
+    mult_hi = np.uint64(2549297995355413924)
+    mult_lo = np.uint64(4865540595714422341)
+    s11 = np.uint64(11)
+    s58 = np.uint64(58)
+    s63 = np.uint64(63)
+    unit = 1.0 / 9007199254740992.0
+    n = out.shape[0]
+    i = 0
+    while i < n:
+        c = rows[i] // per_chunk
+        s_hi, s_lo, inc_hi, inc_lo = states[c, 0], states[c, 1], states[c, 2], states[c, 3]
+        while i < n and rows[i] // per_chunk == c:
+            for k in range(width):
+                s_hi, s_lo = _pcg_step(s_hi, s_lo, inc_hi, inc_lo, mult_hi, mult_lo)
+                x = s_hi ^ s_lo
+                rot = s_hi >> s58
+                x = (x >> rot) | (x << ((np.uint64(64) - rot) & s63))  # rotr64
+                out[i, k] = np.float64(x >> s11) * unit
+            i += 1
+        states[c, 0], states[c, 1] = s_hi, s_lo
+    return out
+
+
+@njit(cache=True, nogil=True)
+def map_sums(key, pw, nb, n_det, chunk):
+    """Irradiance-map sums of one batch from its records sorted by ``key = (ray * D + det) * nb + bin``
+    (stable, so each key's powers keep record order): per (ray, det, bin) the ray's power
+    x = reduceat(pw) (first element + pairwise rest, as numpy), then per (chunk, det, bin) cell
+    S1 = sum x, S2 = sum x^2 in ray order (as np.bincount). Returns cells (chunk, det, bin ascending):
+    chunk, det, bin, s1, s2, and the group bounds (start, stop) of each (chunk, det)."""
+    m = len(key)
+    width = n_det * nb
+    acc1 = np.zeros(width)
+    acc2 = np.zeros(width)
+    touched = np.zeros(width, np.bool_)
+    tl = np.empty(width, np.int64)
+    nt = 0
+    o_chunk = np.empty(m, np.int64)
+    o_cell = np.empty(m, np.int64)
+    o1 = np.empty(m)
+    o2 = np.empty(m)
+    q = 0
+    cur = -1
+    a = 0
+    while a <= m:
+        if a < m:
+            k = key[a]
+            ch = (k // width) // chunk
+        else:
+            ch = -2  # flush the last chunk
+        if ch != cur and nt > 0:
+            cells = np.sort(tl[:nt])
+            for t in range(nt):
+                cell = cells[t]
+                o_chunk[q] = cur
+                o_cell[q] = cell
+                o1[q] = acc1[cell]
+                o2[q] = acc2[cell]
+                acc1[cell] = 0.0
+                acc2[cell] = 0.0
+                touched[cell] = False
+                q += 1
+            nt = 0
+        if a == m:
+            break
+        cur = ch
+        b = a + 1
+        while b < m and key[b] == k:
+            b += 1
+        if b - a == 1:
+            x = pw[a]
+        else:
+            t1, t2 = _pairwise2(pw, a + 1, b - a - 1)
+            x = pw[a] + t1
+        cell = k % width
+        if not touched[cell]:
+            touched[cell] = True
+            tl[nt] = cell
+            nt += 1
+        acc1[cell] += x
+        acc2[cell] += x * x
+        a = b
+    o_chunk, o_cell, o1, o2 = o_chunk[:q], o_cell[:q], o1[:q], o2[:q]
+    # groups of equal (chunk, det)
+    g_start = np.empty(q, np.int64)
+    ng = 0
+    for i in range(q):
+        if i == 0 or o_chunk[i] != o_chunk[i - 1] or o_cell[i] // nb != o_cell[i - 1] // nb:
+            g_start[ng] = i
+            ng += 1
+    g_stop = np.empty(ng, np.int64)
+    for g in range(ng):
+        g_stop[g] = g_start[g + 1] if g + 1 < ng else q
+    return o_chunk, o_cell // nb, o_cell % nb, o1, o2, g_start[:ng], g_stop
+
+
+@njit(cache=True, nogil=True)
+def lift_origins(o, d, normal, eps):
+    """Emitted origins moved eps along the source plane's normal toward each ray's side (in place):
+    o + eps sign(d . n) n, with sign(0) = +1."""
+    n0, n1, n2 = normal[0], normal[1], normal[2]
+    for i in range(o.shape[0]):
+        s = eps if _dot(d[i, 0], d[i, 1], d[i, 2], n0, n1, n2) >= 0 else -eps
+        o[i, 0] = o[i, 0] + s * n0
+        o[i, 1] = o[i, 1] + s * n1
+        o[i, 2] = o[i, 2] + s * n2
+    return o

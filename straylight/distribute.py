@@ -1,16 +1,27 @@
 """Run trace batches on dask.distributed, combining results in chunk order.
 
-A LocalCluster of ``workers`` processes with one thread each by default, an existing ``Client``,
-or ``Client(scheduler_address)``. The :class:`straylight.trace.TraceSpec` (triangle array,
+A LocalCluster of one process with ``workers`` threads by default (:func:`local_cluster`), an
+existing ``Client``, or ``Client(scheduler_address)``. The :class:`straylight.trace.TraceSpec` (triangle array,
 materials, sources) is broadcast once; each worker process builds its embree scene from the
 triangles on first use and keeps it (``straylight.trace._COMPILED``), so no embree object is
-ever pickled. Each task is a batch of whole chunks whose random streams are keyed by chunk id,
-so the same seed gives the same numbers for any worker count.
+ever pickled. Each task is a run of whole chunks (:func:`task_plan`) whose random streams are
+keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
 from __future__ import annotations
 
 
 TASK_BATCHES = 5  # at most this many batches per dask task
+
+# a LocalCluster made for tracing: the event loop shares the GIL (threads) or the cores (processes)
+# with the workers, so its periodic housekeeping is slowed down (idle CPU 40 -> 7 ms per second) and
+# work stealing, useless for equal independent tasks, is off
+LEAN_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.scheduler.work-stealing": False,
+}
 
 
 def _group_task(spec, ranges):
@@ -25,9 +36,27 @@ def _batch_task(spec, first_chunk, stop_chunk):
     return run_batch(spec, first_chunk, stop_chunk)
 
 
+def task_plan(ranges, n_slots: int) -> list:
+    """Group batch ranges ``(first_chunk, stop_chunk)`` into dask tasks (lists of whole batches, in
+    chunk order) of decreasing size (guided self-scheduling: about remaining / (2 slots) batches, at
+    most TASK_BATCHES), so that few tasks carry the run (each costs the scheduler a few ms of CPU)
+    and the last ones are single batches, so no worker thread idles long at the end. Batches are
+    never cut: a small batch pays the per-event Python costs for few rays."""
+    ranges = list(ranges)
+    tasks = []
+    k = 0
+    while k < len(ranges):
+        left = len(ranges) - k
+        per = min(TASK_BATCHES, max(1, -(-left // (2 * max(1, int(n_slots))))))
+        tasks.append(ranges[k:k + per])
+        k += per
+    return tasks
+
+
 def local_cluster(n_workers: int, processes: bool = False):
-    """LocalCluster for tracing with ``n_workers`` parallel workers: no dashboard port, and dask's
-    statistical profiler off (it samples every thread every 10 ms, ~5-10 % of a worker's CPU).
+    """LocalCluster for tracing with ``n_workers`` parallel workers: no dashboard port, dask's
+    statistical profiler off (it samples every thread every 10 ms, ~5-10 % of a worker's CPU) and
+    the housekeeping of :data:`LEAN_CONFIG`.
 
     Default: ONE worker process with ``n_workers`` threads. Embree and the compiled kernels release
     the GIL, and threads share one copy of the scene: on the reference tube 2 threads ran x2.10
@@ -36,7 +65,7 @@ def local_cluster(n_workers: int, processes: bool = False):
     import dask
     from dask.distributed import LocalCluster
 
-    with dask.config.set({"distributed.worker.profile.enabled": False}):
+    with dask.config.set(LEAN_CONFIG):
         if processes:
             return LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True,
                                 dashboard_address=":0")
@@ -69,7 +98,7 @@ def worker_cpu_seconds(client) -> dict:
 
 def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
     """Yield ``run_batch`` results for ``ranges`` (list of (first_chunk, stop_chunk)), in order."""
-    from dask.distributed import Client
+    from dask.distributed import Client, as_completed
 
     owned = []
     if client is None:
@@ -84,18 +113,28 @@ def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
             client = Client(cluster)
             owned += [client, cluster]
     try:
-        spec_future = client.scatter(spec, broadcast=True)
-        # a few batches per task: each dask task costs the scheduler and client ~20 ms of CPU, which
-        # competes with the workers on a small machine (the batches, hence the numbers, are unchanged)
-        # (but at least 3 tasks per worker thread, for balance)
+        # a fresh key for every trace (hash=False): with the content's hash as key, a trace repeated
+        # with the same spec re-scattered a key whose release by the previous trace was still on its
+        # way, and the scheduler dropped the data under the new tasks (FutureCancelledError)
+        spec_future = client.scatter(spec, broadcast=True, hash=False)
+        # few tasks (each costs the scheduler a few ms of CPU, which competes with the workers on a
+        # small machine), shrinking toward the end for balance: task_plan (the numbers are unchanged)
         workers_info = client.scheduler_info().get("workers", {})
         n_slots = max(1, sum(int(w.get("nthreads", 1)) for w in workers_info.values()))
-        per = max(1, min(TASK_BATCHES, len(ranges) // (3 * n_slots)))
-        groups = [ranges[k:k + per] for k in range(0, len(ranges), per)]
-        futures = [client.submit(_group_task, spec_future, g, pure=False) for g in groups]
-        for fut in futures:
-            yield from fut.result()
+        groups = task_plan(ranges, n_slots)
+        futures = client.map(_group_task, [spec_future] * len(groups), groups, pure=False)
+        order = {fut.key: k for k, fut in enumerate(futures)}
+        done = {}
+        nxt = 0
+        # results as they finish (one event-loop round trip for each), yielded in chunk order
+        for fut, result in as_completed(futures, with_results=True):
+            if fut.status != "finished":
+                fut.result()  # raises the task's error (or the cancellation)
+            done[order[fut.key]] = result
             fut.release()
+            while nxt in done:
+                yield from done.pop(nxt)
+                nxt += 1
     finally:
         for obj in owned:
             obj.close()

@@ -43,3 +43,49 @@ def batches(n_rays: int, batch_rays: int, chunk_rays: int = CHUNK_RAYS) -> list[
     per = max(1, int(batch_rays) // chunk_rays)
     total = n_chunks(n_rays, chunk_rays)
     return [(k, min(k + per, total)) for k in range(0, total, per)]
+
+
+# ------------------------------------------------------------------ the same streams, compiled
+#
+# chunk_rng(seed, k) is PCG64 (XSL-RR 128/64; O'Neill 2014) seeded through SeedSequence([seed, k])
+# (numpy/random/bit_generator.pyx, numpy/random/src/pcg64). straylight._kernels redoes both steps
+# and the uniform draw (next64 >> 11) * 2^-53 in numba, so that the engine seeds its chunks' generators
+# and fills its draws without Python calls or the GIL; they give numpy's numbers bit for bit
+# (tests/straylight/test_rng.py), and run_batch_reference still draws with numpy's Generator, so the
+# engine's bit-identity tests check them end to end as well.
+
+
+def _entropy_words(value: int) -> list:
+    """SeedSequence's uint32 words of a non-negative int (little-endian, [0] for 0)."""
+    words = [value & 0xFFFFFFFF]
+    value >>= 32
+    while value:
+        words.append(value & 0xFFFFFFFF)
+        value >>= 32
+    return words
+
+
+class ChunkStreams:
+    """The generators of chunks ``first_chunk .. stop_chunk-1`` (the streams of :func:`chunk_rng`),
+    as a (chunks, 4) uint64 PCG64 state table filled by compiled code.
+
+    ``fill(rows, width, out, per_chunk=1)`` writes, for each i, the next ``width`` uniforms of chunk
+    ``c = rows[i] // per_chunk`` (relative to first_chunk; rows of a chunk contiguous, chunks
+    ascending): what ``chunk_rng(seed, first_chunk + c).random((rows of c, width))`` gives, bit for bit."""
+
+    def __init__(self, seed: int, first_chunk: int, stop_chunk: int):
+        seed = check_seed(seed)
+        ents = [_entropy_words(seed) + _entropy_words(int(k)) for k in range(int(first_chunk), int(stop_chunk))]
+        width = max((len(e) for e in ents), default=0)
+        words = np.zeros((len(ents), max(width, 1)), np.uint64)
+        for r, e in enumerate(ents):
+            words[r, :len(e)] = e
+        n_words = np.array([len(e) for e in ents], np.int64)
+        from straylight._kernels import seed_states
+
+        self.states = seed_states(words, n_words, np.empty((len(ents), 4), np.uint64))
+
+    def fill(self, rows, width, out, per_chunk=1):
+        from straylight._kernels import fill_uniforms
+
+        return fill_uniforms(self.states, np.asarray(rows, dtype=np.int64), int(per_chunk), int(width), out)

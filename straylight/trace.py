@@ -37,7 +37,7 @@ import numpy as np
 
 from straylight.detectors import DetectorGeometry, IrradianceMap
 from straylight.paths import KIND_DETECTOR, KIND_SCATTER, KIND_SPECULAR, PathRecords, mix_key, stderr_from_sums
-from straylight.rng import CHUNK_RAYS, batches, check_seed, chunk_bounds, chunk_rng, n_chunks
+from straylight.rng import CHUNK_RAYS, ChunkStreams, batches, check_seed, chunk_bounds, chunk_rng, n_chunks
 from straylight.sources import orthonormal_basis
 
 ROLE_CODES = {"surface": 0, "mirror": 1, "absorber": 2, "detector": 3}
@@ -198,18 +198,55 @@ class _Compiled:
             self.target_plane_d = np.einsum("ij,ij->i", self.target.normals, ttri[:, 0])
 
 
+    def scratch(self, name, size):
+        """A flat float64 scratch array of at least ``size`` elements, reused by this thread."""
+        buf = getattr(self._local, name, None)
+        if buf is None or buf.size < size:
+            buf = np.empty(size)
+            setattr(self._local, name, buf)
+        return buf
+
     def tally_buffer(self, rows, n):
         """A zeroed (rows, n) float64 array, reused between batches of this thread (fresh pages from
-        np.zeros cost a page fault each time they are first written)."""
+        np.zeros cost a page fault each time they are first written). The batch that used it last
+        left it all zeros (``chunk_sums(..., clear=True)`` then :meth:`tally_cleared`) unless it
+        stopped half-way; only then is it filled again."""
         buf = getattr(self._local, "buf", None)
         if buf is None or buf.size < rows * n:
-            buf = self._local.buf = np.empty(rows * n)
-        M = buf[:rows * n].reshape(rows, n)
-        M.fill(0.0)
-        return M
+            buf = self._local.buf = np.zeros(rows * n)
+        elif not getattr(self._local, "buf_clean", False):
+            buf.fill(0.0)
+        self._local.buf_clean = False
+        return buf[:rows * n].reshape(rows, n)
+
+    def tally_cleared(self):
+        """Record that this thread's tally buffer is all zeros again."""
+        self._local.buf_clean = True
+
+
+_MALLOC_TUNED = []
+
+
+def _keep_freed_memory():
+    """glibc only, once per process: serve blocks up to 32 MB from the heap and keep up to 256 MB of
+    freed heap (mallopt M_MMAP_THRESHOLD, M_TRIM_THRESHOLD). The engine frees and reallocates
+    MB-sized arrays every event; with glibc's defaults many came back as fresh pages (6k-50k page
+    faults per 4e5-ray trace, up to 10 % of its CPU), now ~100. Elsewhere: nothing."""
+    if _MALLOC_TUNED:
+        return
+    _MALLOC_TUNED.append(True)
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, 32 * 1024 * 1024)  # M_MMAP_THRESHOLD (its maximum on 64-bit)
+        libc.mallopt(-1, 256 * 1024 * 1024)  # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):
+        pass
 
 
 def _compiled(spec: TraceSpec, intersector=None) -> _Compiled:
+    _keep_freed_memory()
     if intersector is not None:
         return _Compiled(spec, intersector)
     comp = _COMPILED.get(spec.token)
@@ -229,12 +266,15 @@ def _dot(a, b):
 def _emit(source, u, eps):
     """Emit and lift origins eps off the source's plane toward where each ray goes, so that a source
     laid on a surface (e.g. a Lambertian disk on a detector, for a backward trace) does not hit it."""
+    from straylight._kernels import lift_origins
+
     o, d = source.emit(u)
     normal = getattr(source, "normal", None)
     if normal is None:
         return o + eps * d, d
-    side = np.where(d @ np.asarray(normal, dtype=np.float64) >= 0, 1.0, -1.0)
-    return o + (eps * side)[:, None] * np.asarray(normal, dtype=np.float64), d
+    o = np.array(o, dtype=np.float64, order="C")  # a copy: the source's array is left alone
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    return lift_origins(o, d, np.ascontiguousarray(normal, dtype=np.float64), float(eps)), d
 
 
 def run_batch_reference(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
@@ -499,14 +539,15 @@ def run_batch_reference(spec: TraceSpec, first_chunk: int, stop_chunk: int, inte
 
 
 def _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays,
-                compiled=True):
+                compiled=True, clear=False):
     """Per-chunk sums S1, S2 of every tally row (chunk order, fixed chunk length: independent of the
-    batch size), irradiance-map sums and path records of one batch."""
+    batch size), irradiance-map sums and path records of one batch (``clear``: leave M all zeros)."""
     C = CHUNK_RAYS
     if compiled:
         from straylight._kernels import chunk_sums
 
-        s1, s2 = chunk_sums(M, C, lay.P, D, lay.ABS, lay.RR, lay.NEX, lay.TRUNC, lay.DET_NEE, lay.DET_DIRECT)
+        s1, s2 = chunk_sums(M, C, lay.P, D, lay.ABS, lay.RR, lay.NEX, lay.TRUNC, lay.DET_NEE, lay.DET_DIRECT,
+                            clear)
     else:
         ledger = (M[lay.ABS:lay.ABS + lay.P] + M[lay.RR:lay.RR + lay.P]
                   + M[lay.NEX:lay.NEX + lay.P] + M[lay.TRUNC:lay.TRUNC + lay.P])
@@ -528,18 +569,19 @@ def _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows
             "segments": segments, "shadow_rays": shadow_rays}
 
 
-def _draw_uniforms(gens, idx, nch, width):
-    """This event's uniforms of the live rays (ascending ids): chunk k draws (live rays in k, width)."""
-    counts = np.bincount(idx // CHUNK_RAYS, minlength=nch)
-    parts = [gens[c].random((counts[c], width)) for c in range(nch) if counts[c]]
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+def _draw_uniforms(streams, idx, width, buf=None):
+    """This event's uniforms of the live rays (ascending ids): chunk k draws (live rays in k, width)
+    from its stream (compiled, :class:`straylight.rng.ChunkStreams`), written in place into ``buf``
+    (flat float64 scratch of at least len(idx) * width) when given."""
+    m = len(idx)
+    U = np.empty((m, width)) if buf is None else buf[:m * width].reshape(m, width)
+    return streams.fill(idx, width, U, CHUNK_RAYS)
 
 
-def _emit_batch(spec, gens, first_chunk, nch, n):
+def _emit_batch(spec, streams, n, buf=None):
     """Emission: chunk k draws (rays in chunk, 5) uniforms first; returns origins, directions (n, 3)."""
-    C = CHUNK_RAYS
-    u = np.concatenate([gens[c].random((chunk_bounds(first_chunk + c, spec.n_rays)[1] - (first_chunk + c) * C, 5))
-                        for c in range(nch)])
+    u = np.empty((n, 5)) if buf is None else buf[:n * 5].reshape(n, 5)
+    streams.fill(np.arange(n, dtype=np.int64), 5, u, CHUNK_RAYS)
     if len(spec.sources) == 1:
         o, d = _emit(spec.sources[0], u[:, 1:5], spec.eps)
     else:
@@ -552,7 +594,13 @@ def _emit_batch(spec, gens, first_chunk, nch, n):
             sel = which == s
             if sel.any():
                 o[sel], d[sel] = _emit(src, u[sel, 1:5], spec.eps)
-    return np.ascontiguousarray(o, dtype=np.float64), np.ascontiguousarray(d, dtype=np.float64)
+    o = np.ascontiguousarray(o, dtype=np.float64)
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    if buf is not None and np.may_share_memory(d, buf):  # a source that returns views of its uniforms:
+        d = d.copy()  # the scratch is refilled every event
+    if buf is not None and np.may_share_memory(o, buf):
+        o = o.copy()
+    return o, d
 
 
 def _by_material(spec, mat, call):
@@ -584,7 +632,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     stop = min(stop_chunk * C, spec.n_rays)
     n = stop - start
     nch = stop_chunk - first_chunk
-    gens = [chunk_rng(spec.seed, k) for k in range(first_chunk, stop_chunk)]
+    streams = ChunkStreams(spec.seed, first_chunk, stop_chunk)  # chunk_rng's streams, compiled
     total_power = float(sum(s.power_w for s in spec.sources))
     w0 = total_power / spec.n_rays
     thr = opt.rr_threshold * w0
@@ -598,7 +646,9 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     pol = opt.polarization
     map_rows, path_rows = [], []
 
-    o, d = _emit_batch(spec, gens, first_chunk, nch, n)
+    n_uniform = 4 + 3 * D * int(opt.nee_samples) + (4 if comp.target is not None else 0)
+    ubuf = comp.scratch("uniforms", n * max(5, n_uniform))  # this thread's draws, refilled every event
+    o, d = _emit_batch(spec, streams, n, ubuf)
     idx = np.arange(n, dtype=np.int64)
     w = np.full(n, w0)
     prev_kind = np.zeros(n, dtype=np.int8)
@@ -608,7 +658,6 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     depth = np.zeros(n, dtype=np.int64)
     hist = np.full((n if record_paths else 0, K), -1, dtype=np.int16)
     k_nee = int(opt.nee_samples)
-    n_uniform = 4 + 3 * D * k_nee + (4 if comp.target is not None else 0)
     tcol = 4 + 3 * D * k_nee
     segments = 0
     shadow_rays = 0
@@ -628,7 +677,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
     for ev in range(max_events):
         if len(idx) == 0:
             break
-        U = _draw_uniforms(gens, idx, nch, n_uniform)
+        U = _draw_uniforms(streams, idx, n_uniform, ubuf)
         tri = np.asarray(comp.isect.first_triangle(o, d))
         segments += len(idx)
         cont, p, nf, part, t, cos_in, rec, rec_w = kern.hits(
@@ -723,7 +772,10 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
         from straylight.first_vertex import run_vertex_pass
 
         shadow_rays += run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, lay, record, record_paths, K)
-    return _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays)
+    out = _batch_sums(M, lay, D, n, nch, start, first_chunk, bins, map_rows, path_rows, opt, segments, shadow_rays,
+                      clear=True)
+    comp.tally_cleared()
+    return out
 
 
 def _share_single_scatter(rec, rec_w, prev_kind, depth, prev_part, part, idx, w_first, comp, M, lay):
@@ -824,23 +876,16 @@ def _chunk_maps(map_rows, nch, C, D, bins):
     out = [[None] * D for _ in range(nch)]
     if not map_rows:
         return out
+    from straylight._kernels import map_sums
+
     ray, det, b, pw = (np.concatenate(x) for x in zip(*map_rows))
     # one key per (ray, detector, bin); sorting makes the sums independent of record order
     key = (ray.astype(np.int64) * D + det) * nb + b
     order = np.argsort(key, kind="stable")
-    key, pw = key[order], pw[order]
-    ukey, start = np.unique(key, return_index=True)
-    xr = np.add.reduceat(pw, start)
-    cell = ((ukey // (nb * D)) // C * D + (ukey // nb) % D) * nb + ukey % nb  # (chunk, det, bin)
-    ucell, cinv = np.unique(cell, return_inverse=True)
-    cinv = cinv.ravel()
-    s1 = np.bincount(cinv, weights=xr)
-    s2 = np.bincount(cinv, weights=xr * xr)
-    cd = ucell // nb
-    bounds = np.flatnonzero(np.diff(cd)) + 1
-    for grp in np.split(np.arange(len(ucell)), bounds):
-        c, j = divmod(int(cd[grp[0]]), D)
-        out[c][j] = (ucell[grp] % nb, s1[grp], s2[grp])
+    chunk, dj, bins_, s1, s2, g_start, g_stop = map_sums(key[order], np.ascontiguousarray(pw[order], np.float64),
+                                                         nb, D, C)
+    for a, z in zip(g_start.tolist(), g_stop.tolist()):
+        out[int(chunk[a])][int(dj[a])] = (bins_[a:z], s1[a:z], s2[a:z])
     return out
 
 
@@ -1072,7 +1117,8 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
         results = _run_threads(spec, ranges, intersector, int(threads))
     else:
         results = _run_local(spec, ranges, intersector)
-    comp_dets = _Compiled(spec, intersector=_NoIsect()).detectors
+    cached = _COMPILED.get(spec.token)  # this process's scene, if it traced here; else detectors only
+    comp_dets = cached.detectors if cached is not None else _Compiled(spec, intersector=_NoIsect()).detectors
     rows = spec.n_rows
     s1 = np.zeros(rows)
     s2 = np.zeros(rows)

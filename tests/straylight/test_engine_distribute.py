@@ -35,3 +35,35 @@ def test_same_numbers_on_a_thread_pool(setup):
     assert local.detectors["detector"].power_w > 0
     assert res.to_json_dict() == local.to_json_dict()
     assert (res.paths.key == local.paths.key).all()
+
+
+@pytest.mark.parametrize("n_rays,batch,slots", [(400_000, 50_000, 2), (2_000_000, 50_000, 2), (9000, 3000, 2),
+                                               (123_456, 20_000, 3), (1000, 50_000, 4)])
+def test_task_plan_covers_every_batch_once_in_order_with_shrinking_tasks(n_rays, batch, slots):
+    from straylight.distribute import TASK_BATCHES, task_plan
+    from straylight.rng import batches
+
+    ranges = batches(n_rays, batch)
+    tasks = task_plan(ranges, slots)
+    assert [r for t in tasks for r in t] == ranges  # whole batches, each once, in order
+    sizes = [len(t) for t in tasks]
+    assert max(sizes) <= TASK_BATCHES
+    assert sizes == sorted(sizes, reverse=True)  # guided: tasks shrink toward the end
+    assert sizes[-1] == 1  # the tail is single batches
+    if len(ranges) >= 4 * slots:
+        assert len(tasks) < len(ranges)  # fewer tasks than batches
+
+
+def test_the_same_trace_repeated_on_one_client(setup):
+    """Back-to-back traces of one spec on a reused client (as a benchmark or a PST sweep does): each
+    must complete with the same numbers (a content-hashed scatter key used to be dropped under the
+    next trace's tasks)."""
+    from dask.distributed import Client
+
+    from straylight.distribute import local_cluster
+
+    scene, src, mats, opts, local = setup
+    with local_cluster(2) as cluster, Client(cluster) as client:
+        for _ in range(4):
+            res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, client=client)
+            assert res.to_json_dict() == local.to_json_dict()

@@ -91,3 +91,54 @@ def test_chunk_sums_equal_numpy_reduceat(n):
     assert np.abs(s1).sum() > 0
     np.testing.assert_array_equal(s1, np.add.reduceat(ext, starts, axis=1).T)
     np.testing.assert_array_equal(s2, np.add.reduceat(ext * ext, starts, axis=1).T)
+    # clear=True: the same sums, and M left all zeros (the engine then reuses it without a fill)
+    Mc = M.copy()
+    c1, c2 = _kernels.chunk_sums(Mc, 1000, 2, 1, 0, 2, 4, 6, 8, 10, True)
+    np.testing.assert_array_equal(c1, s1)
+    np.testing.assert_array_equal(c2, s2)
+    assert not Mc.any()
+
+
+def _chunk_maps_numpy(map_rows, nch, C, D, bins):
+    """The numpy formulation the compiled map sums replaced (reduceat per key, bincount per cell)."""
+    nb = bins[0] * bins[1]
+    out = [[None] * D for _ in range(nch)]
+    ray, det, b, pw = (np.concatenate(x) for x in zip(*map_rows))
+    key = (ray.astype(np.int64) * D + det) * nb + b
+    order = np.argsort(key, kind="stable")
+    key, pw = key[order], pw[order]
+    ukey, start = np.unique(key, return_index=True)
+    xr = np.add.reduceat(pw, start)
+    cell = ((ukey // (nb * D)) // C * D + (ukey // nb) % D) * nb + ukey % nb
+    ucell, cinv = np.unique(cell, return_inverse=True)
+    cinv = cinv.ravel()
+    s1 = np.bincount(cinv, weights=xr)
+    s2 = np.bincount(cinv, weights=xr * xr)
+    cd = ucell // nb
+    for grp in np.split(np.arange(len(ucell)), np.flatnonzero(np.diff(cd)) + 1):
+        c, j = divmod(int(cd[grp[0]]), D)
+        out[c][j] = (ucell[grp] % nb, s1[grp], s2[grp])
+    return out
+
+
+def test_compiled_map_sums_equal_the_numpy_formulation():
+    """Records with repeated (ray, detector, bin) keys (up to 40 contributions: pairwise sums),
+    several detectors, empty chunks, in several record calls."""
+    from straylight.trace import _chunk_maps
+
+    rng = np.random.default_rng(4)
+    C, D, bins, nch = 100, 3, (4, 5), 6
+    rows = []
+    for _ in range(7):
+        m = int(rng.integers(1, 400))
+        ray = rng.integers(0, 4 * C, size=m)  # chunks 4 and 5 stay empty
+        ray[: m // 4] = 17  # one ray with many contributions in one bin
+        det = rng.integers(0, D, size=m)
+        det[: m // 4] = 1
+        b = rng.integers(0, 20, size=m)
+        b[: m // 4] = 3
+        rows.append((ray, det, b, rng.lognormal(size=m)))
+    got = _chunk_maps(rows, nch, C, D, bins)
+    want = _chunk_maps_numpy(rows, nch, C, D, bins)
+    assert sum(e is not None for row in want for e in row) > 5
+    _same(got, want)
