@@ -625,7 +625,12 @@ def _progress(iterable, total, desc, show):
     return tqdm(iterable, total=total, desc=desc, file=sys.stderr, disable=not show, leave=False)
 
 
-_WORKER_PROBLEM = None  # the Problem a forked worker process inherits
+_WORKER_PROBLEM = None  # in a worker process: the Problem it inherited at the fork
+
+
+def _set_worker_problem(problem):
+    global _WORKER_PROBLEM
+    _WORKER_PROBLEM = problem
 
 
 def _in_worker(task):
@@ -636,23 +641,19 @@ def _in_worker(task):
 def _run_parallel(problem: Problem, fn, arglist, workers: int, progress: bool = False, desc: str = "") -> list:
     """``[fn(problem, *args) for args in arglist]`` on ``workers`` forked processes (threads ran
     at ~1.2x on 2 cores: the fit is Python-heavy and holds the GIL). ``fn`` is a module-level
-    function; each process inherits ``problem`` (and its caches) at the fork. The results, in
-    order, are those of the serial loop."""
-    global _WORKER_PROBLEM
+    function; each process inherits ``problem`` (and its caches) at the fork, so concurrent
+    diagnoses do not share it. The results, in order, are those of the serial loop."""
     arglist = [tuple(a) for a in arglist]
     if workers <= 1 or len(arglist) <= 1:
         return [fn(problem, *a) for a in _progress(arglist, len(arglist), desc, progress)]
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    _WORKER_PROBLEM = problem
-    try:
-        with ProcessPoolExecutor(max_workers=min(workers, len(arglist)),
-                                 mp_context=multiprocessing.get_context("fork")) as pool:
-            results = pool.map(_in_worker, [(fn, a) for a in arglist])
-            return list(_progress(results, len(arglist), desc, progress))
-    finally:
-        _WORKER_PROBLEM = None
+    # with "fork" the initializer's arguments are inherited, not pickled
+    with ProcessPoolExecutor(max_workers=min(workers, len(arglist)), mp_context=multiprocessing.get_context("fork"),
+                             initializer=_set_worker_problem, initargs=(problem,)) as pool:
+        results = pool.map(_in_worker, [(fn, a) for a in arglist])
+        return list(_progress(results, len(arglist), desc, progress))
 
 
 def _baseline_job(problem: Problem, start: Model, max_nfev: int) -> Fit:
