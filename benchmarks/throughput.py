@@ -259,7 +259,7 @@ def main(argv=None):
     out.update(trace_s_dask_threads=el_d, trace_cpu_s_dask_threads=cpu_d, speedup_dask_threads_wall=el / el_d,
                trace_rate_dask_threads=rate_d, trace_ratio_dask_threads_wall=rate_d / raw2,
                same_numbers_dask_threads=same_d)
-    print(f"full trace at 30 deg, dask LocalCluster default (--workers 2 = 1 process x 2 threads): "
+    print(f"full trace at 30 deg, dask LocalCluster default (--workers 2 = 1 in-process worker, a pool of 2 threads per task): "
           f"speed-up x{el / el_d:.2f} by wall time; {rate_d / 1e6:.2f} M/wall-s = {rate_d / raw2:.0%} of 2-thread raw "
           f"(wall); CPU {cpu_d:.2f} s in all = x{cpu_d / cpu1:.2f} of 1 worker; identical numbers: {same_d}")
 

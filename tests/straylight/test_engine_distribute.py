@@ -67,3 +67,15 @@ def test_the_same_trace_repeated_on_one_client(setup):
         for _ in range(4):
             res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, client=client)
             assert res.to_json_dict() == local.to_json_dict()
+
+
+def test_pooled_plan_keeps_every_batch_in_order_in_runs_the_pool_can_share():
+    from straylight.distribute import pooled_plan
+
+    ranges = [(k, k + 1) for k in range(37)]
+    for pool in (1, 2, 3):
+        tasks = pooled_plan(ranges, pool)
+        assert [r for t in tasks for r in t] == ranges
+        assert all(len(t) % pool == 0 for t in tasks[:-1])
+        assert len(tasks[0]) <= 8 * pool
+    assert pooled_plan([], 2) == []
