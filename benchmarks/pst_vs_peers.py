@@ -142,7 +142,7 @@ def main(argv=None) -> int:
 
     t0 = time.perf_counter()
     # BENCHMARK.md: ideal Lambertian, reflectance 0.05; a 0.01 mm chord tolerance (~15k triangles, like
-    # BENCHMARK.md's 17k) so that the polygonal vane holes do not cut the direct beam at 5-10 deg
+    # BENCHMARK.md's 17k mesh and throughput.py's)
     setup = tube_setup(material=Lambertian(rd=0.05), tolerance_mm=0.01)
     build_s = time.perf_counter() - t0
     print(f"straylight: CadQuery tube tessellated in {build_s:.1f} s "
