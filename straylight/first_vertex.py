@@ -18,9 +18,9 @@ baffle vanes, 1 mm tall, struck by ~0.2 % of the rays at 20 deg off axis) makes 
 estimate a rare-event count, and from the detector those faces are small too; drawn on their
 own area they are found every time.
 
-The table q is learnt before the run from a fixed number of probe points per surface triangle
-(its own random stream): q_t proportional to A_t sqrt(mean of g^2), with g the probe's
-single-scatter contribution E(x) f cos_x cos_z / |x - z|^2 (unblocked). It depends only on the
+The table q is learnt before the run from 8 probe points per surface triangle (fewer on scenes
+with more than 50k surface triangles; its own random stream): q_t proportional to
+A_t sqrt(mean of g^2), with g the probe's single-scatter contribution E(x) f cos_x cos_z / |x - z|^2 (unblocked). It depends only on the
 scene, the source and the seed, so results stay independent of batch size and worker count.
 Contributions go to the detector and, negated, to the part's NEE-exchange row, so the power
 ledger stays exact (docs/engine.md).
@@ -39,6 +39,7 @@ from straylight.sources import CollimatedDisk, PointSource
 VERTEX_STREAM = 0x56455254  # third entropy word: this strategy's streams differ from the forward's
 PROBE_STREAM = 0x50524F42
 PROBES_PER_TRIANGLE = 8
+PROBE_BUDGET = 400_000
 _SURFACE = 0
 
 
@@ -181,7 +182,8 @@ def build_table(spec, comp) -> VertexTable:
     surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == _SURFACE)
     area = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
     surf = surf[area[surf] > 0]
-    m = PROBES_PER_TRIANGLE
+    # at most PROBE_BUDGET probes in all (a million-triangle scene gets one per triangle)
+    m = int(min(PROBES_PER_TRIANGLE, max(1, PROBE_BUDGET // max(len(surf), 1))))
     rng = np.random.default_rng([check_seed(spec.seed), PROBE_STREAM])
     t = np.repeat(surf, m)
     u = rng.random((len(t), 5))
