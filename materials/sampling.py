@@ -103,8 +103,9 @@ def _cosine_sample_loop(wi, u2, weight_above, wo, weight, pdf):
 _COMPILED = {}
 
 
-def _compiled(fn):
-    """``fn`` compiled by numba on first use (numba is imported only when sampling starts)."""
+def lazy_njit(fn):
+    """``fn`` compiled by numba (``nogil``, cached) on first use, so numba is imported only when a
+    compiled loop first runs; also used by ``straylight.sources``."""
     jit = _COMPILED.get(fn)
     if jit is None:
         from numba import njit
@@ -121,7 +122,7 @@ def sample_cosine_hemisphere(u2: np.ndarray) -> np.ndarray:
     u2 = np.asarray(u2, dtype=np.float64)
     if u2.ndim != 2 or u2.shape[1] != 2:
         raise ValueError(f"uniforms u2 must have shape (n, 2), got {u2.shape}")
-    return _compiled(_cosine_hemisphere_loop)(u2, np.empty((len(u2), 3)))
+    return lazy_njit(_cosine_hemisphere_loop)(u2, np.empty((len(u2), 3)))
 
 
 def sample_cosine_hemisphere_weighted(wi: np.ndarray, u2: np.ndarray, weight_above: float) -> Sample:
@@ -137,7 +138,7 @@ def sample_cosine_hemisphere_weighted(wi: np.ndarray, u2: np.ndarray, weight_abo
     except ValueError:
         raise ValueError(f"wi must have shape (n, 3) or (1, 3) for {n} uniforms, got {np.shape(wi)}") from None
     wo, weight, pdf = np.empty((n, 3)), np.empty(n), np.empty(n)
-    _compiled(_cosine_sample_loop)(wi, u2, float(weight_above), wo, weight, pdf)
+    lazy_njit(_cosine_sample_loop)(wi, u2, float(weight_above), wo, weight, pdf)
     return Sample(wo=wo, weight=weight, pdf_per_sr=pdf)
 
 

@@ -48,12 +48,6 @@ def pooled_plan(ranges, n_threads: int) -> list:
     return [ranges[i:i + per] for i in range(0, len(ranges), per)]
 
 
-def _batch_task(spec, first_chunk, stop_chunk):
-    from straylight.trace import run_batch
-
-    return run_batch(spec, first_chunk, stop_chunk)
-
-
 def task_plan(ranges, n_slots: int) -> list:
     """Group batch ranges ``(first_chunk, stop_chunk)`` into dask tasks (lists of whole batches, in
     chunk order) of decreasing size (guided self-scheduling: about remaining / (2 slots) batches, at

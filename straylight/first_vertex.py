@@ -34,7 +34,7 @@ import numpy as np
 
 from straylight.paths import KIND_DETECTOR, KIND_SCATTER, mix_key
 from straylight.rng import CHUNK_RAYS, check_seed, chunk_bounds
-from straylight.sources import CollimatedDisk, PointSource
+from straylight.sources import CollimatedDisk, PointSource, orthonormal_basis
 
 VERTEX_STREAM = 0x56455254  # third entropy word: this strategy's streams differ from the forward's
 PROBE_STREAM = 0x50524F42
@@ -64,16 +64,6 @@ def unsupported(sources) -> str | None:
 
 def vertex_rng(seed: int, chunk: int) -> np.random.Generator:
     return np.random.default_rng([check_seed(seed), int(chunk), VERTEX_STREAM])
-
-
-def _frames(nf):
-    """Tangent, bitangent of each unit normal (Duff et al. 2017, the engine's basis)."""
-    x, y, z = nf[:, 0], nf[:, 1], nf[:, 2]
-    sign = np.where(z >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    return (np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=1),
-            np.stack([b, sign + y * y * a, -y], axis=1))
 
 
 def _local(v, tb, bb, nf):
@@ -112,13 +102,16 @@ def source_connection(src, x, n_geo):
     return wi, nf, np.where(ok, intensity * np.abs(cos_g) / np.where(ok, r2, 1.0), 0.0), np.where(ok, r, 0.0)
 
 
-def forward_density(src, x, cos_x):
-    """Area density at x of the forward walk's first hit (per ray), |cos_x| the incidence cosine."""
+def forward_density(src, x, normals):
+    """Area density at x (triangle normals ``normals``) of the forward walk's first hit, per ray."""
     if isinstance(src, CollimatedDisk):
+        cos_x = normals @ src.direction
         return np.abs(cos_x) / (math.pi * src.radius_mm ** 2 * abs(float(np.dot(src.direction, src.normal))))
     cos_max = math.cos(math.radians(src.half_angle_deg))
     v = x - src.position_mm
-    return np.abs(cos_x) / (2.0 * math.pi * (1.0 - cos_max) * np.einsum("ij,ij->i", v, v))
+    r2 = np.einsum("ij,ij->i", v, v)
+    cos_x = np.einsum("ij,ij->i", normals, v) / np.sqrt(r2)
+    return np.abs(cos_x) / (2.0 * math.pi * (1.0 - cos_max) * r2)
 
 
 def _points(tri_mm, t, u1, u2):
@@ -162,7 +155,7 @@ def _single_scatter(spec, comp, src, t, x, u_det, j):
     lit, wo, d2, cos_o, cos_z = lit[keep], wo[keep], d2[keep], cos_o[keep], cos_z[keep]
     if len(lit) == 0:
         return value, z, shadows
-    tb, bb = _frames(nf[lit])
+    tb, bb = orthonormal_basis(nf[lit])
     wi_loc = _local(wi[lit], tb, bb, nf[lit])
     wo_loc = _local(wo, tb, bb, nf[lit])
     mat = spec.part_material[spec.triangle_part[t[lit]]]
@@ -229,12 +222,7 @@ def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, lay, record, 
             continue
         tg = t[good]
         p_a = table.p_area[tg]
-        if isinstance(src, CollimatedDisk):
-            cos_x = comp.normals[tg] @ src.direction
-        else:
-            arrive = x[good] - src.position_mm
-            cos_x = np.einsum("ij,ij->i", comp.normals[tg], arrive / np.linalg.norm(arrive, axis=1)[:, None])
-        p_f = forward_density(src, x[good], cos_x)
+        p_f = forward_density(src, x[good], comp.normals[tg])
         c = g[good] * comp.detectors[j].area_mm2 / (p_a + p_f) / n_total
         r = good
         pt = spec.triangle_part[tg].astype(np.int64)
@@ -251,10 +239,9 @@ def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, lay, record, 
     return shadows
 
 
-def forward_weight(spec, table, normals, tri, p, d):
+def forward_weight(spec, table, normals, tri, p):
     """Balance-heuristic weight p_F / (p_F + p_A) of the forward walk's first vertices
-    (triangles ``tri``, points ``p``, arrival directions ``d``)."""
+    (triangles ``tri``, points ``p``)."""
     p_a = table.p_area[tri]
-    cos_x = np.einsum("ij,ij->i", normals[tri], d)
-    p_f = forward_density(spec.sources[0], p, cos_x)
+    p_f = forward_density(spec.sources[0], p, normals[tri])
     return np.where(p_a > 0, p_f / (p_f + p_a), 1.0)

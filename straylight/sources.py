@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from materials.sampling import lazy_njit
+
 
 class SourceError(ValueError):
     """A source definition that cannot be used; the message names the key."""
@@ -80,25 +82,12 @@ def _collimated_loop(center, t, b, radius, direction, u, o, d):
             d[i, k] = direction[k]
 
 
-_COMPILED = {}
-
-
-def _compiled(fn):
-    """``fn`` compiled by numba on first use (numba is imported only when a source emits)."""
-    jit = _COMPILED.get(fn)
-    if jit is None:
-        from numba import njit
-
-        jit = _COMPILED[fn] = njit(cache=True, nogil=True)(fn)
-    return jit
-
-
 def _disk_points(center, normal, radius, u, c0=0, c1=1):
     """Uniform points on a disk from the uniform columns ``u[:, c0]`` (radius) and ``u[:, c1]`` (azimuth)."""
     t, b = orthonormal_basis(normal)
     u = np.asarray(u, dtype=np.float64)
     out = np.empty((len(u), 3))
-    return _compiled(_disk_points_loop)(center, t, b, float(radius), u, c0, c1, out)
+    return lazy_njit(_disk_points_loop)(center, t, b, float(radius), u, c0, c1, out)
 
 
 def _cone_dirs(axis, cos_max, u0, u1):
@@ -139,7 +128,7 @@ class CollimatedDisk:
         o = np.empty((len(u), 3))
         d = np.empty((len(u), 3))
         t, b = self._basis
-        _compiled(_collimated_loop)(self.center_mm, t, b, self.radius_mm, self.direction, u, o, d)
+        lazy_njit(_collimated_loop)(self.center_mm, t, b, self.radius_mm, self.direction, u, o, d)
         return o, d
 
     def bounds_mm(self):

@@ -711,8 +711,7 @@ def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=No
                     from straylight.first_vertex import forward_weight
 
                     w_vertex = np.ones(n_surf)
-                    w_vertex[first] = forward_weight(spec, table, comp.normals, tri[ii[first]], p[ii[first]],
-                                                     d[ii[first]])
+                    w_vertex[first] = forward_weight(spec, table, comp.normals, tri[ii[first]], p[ii[first]])
                     w_first[idx[ii[first]]] = w_vertex[first]
             if nee:
                 ps, pjk, y, wo_loc, dist2, cos_s, cos_d, wdir = kern.nee_pairs(
