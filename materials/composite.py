@@ -94,6 +94,8 @@ class Composite:
     def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         """Mixture density sum_k p_k(theta_i) pdf_k, per sr."""
         check_polarization(polarization)
+        if len(self.components) == 1:  # p_0 = 1: the component's own density
+            return self.components[0].pdf(wi, wo, polarization)
         wi = np.asarray(wi, float)
         p = self.selection_probabilities(np.arccos(np.clip(wi[:, 2], -1, 1)), polarization)
         out = np.zeros(len(wi))
@@ -108,6 +110,8 @@ class Composite:
         u = np.asarray(u, float)
         if u.ndim != 2 or u.shape[1] != 3:
             raise ValueError(f"composite sampling needs uniforms of shape (n, 3), got {u.shape}")
+        if len(self.components) == 1:  # p_0 = 1: the component's own draw (same uniforms u[:, 1:])
+            return self.components[0].sample(wi, u, polarization)
         n = len(wi)
         p = self.selection_probabilities(np.arccos(np.clip(wi[:, 2], -1, 1)), polarization)
         cdf = np.cumsum(p, axis=1)

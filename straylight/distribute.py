@@ -10,6 +10,7 @@ keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
 from __future__ import annotations
 
+import threading
 
 TASK_BATCHES = 5  # at most this many batches per dask task
 
@@ -31,17 +32,37 @@ def _group_task(spec, ranges):
     return [run_batch(spec, a, b) for a, b in ranges]
 
 
-def _pooled_task(spec, ranges, n_threads):
-    """Run whole batches on a pool of ``n_threads`` threads inside the worker, results in batch order."""
-    from straylight.trace import _run_threads
+_POOLS: dict = {}  # n_threads -> this process's shared batch pool
+_POOLS_LOCK = threading.Lock()
 
-    return list(_run_threads(spec, ranges, None, int(n_threads)))
+
+def _shared_pool(n_threads: int):
+    """The process-wide thread pool of ``n_threads`` threads that pooled tasks feed (created once)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with _POOLS_LOCK:
+        pool = _POOLS.get(n_threads)
+        if pool is None:
+            pool = _POOLS[n_threads] = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="straylight")
+        return pool
+
+
+def _pooled_task(spec, ranges, n_threads):
+    """Queue whole batches on the worker's shared pool of ``n_threads`` threads and return their results
+    in batch order. The worker runs ``n_threads`` such tasks at once, so the next task's batches are
+    already queued when this one's last batch runs: the pool's threads never wait at task ends."""
+    from straylight.trace import _compiled, run_batch
+
+    _compiled(spec)  # build the embree scene once, before the pool's threads share it
+    pool = _shared_pool(int(n_threads))
+    futures = [pool.submit(run_batch, spec, a, b) for a, b in ranges]
+    return [fut.result() for fut in futures]
 
 
 def pooled_plan(ranges, n_threads: int) -> list:
     """Tasks for a pooled worker: runs of whole batches, a multiple of ``n_threads`` long (about
-    half the run per task, at most 8 rounds of the pool), so the pool's threads start and end
-    together and a long run still reports progress task by task."""
+    half the run per task, at most 8 rounds of the pool), so a long run still reports progress
+    task by task."""
     ranges = list(ranges)
     k = max(1, int(n_threads))
     per = k * max(1, min(8, -(-len(ranges) // (2 * k))))
@@ -70,14 +91,14 @@ def local_cluster(n_workers: int, processes: bool = False):
     statistical profiler off (it samples every thread every 10 ms, ~5-10 % of a worker's CPU) and
     the housekeeping of :data:`LEAN_CONFIG`.
 
-    Default: ONE in-process worker whose tasks run their batches on a pool of ``n_workers``
-    threads (:func:`_pooled_task`; the cluster carries ``straylight_threads = n_workers``). Embree
-    and the compiled kernels release the GIL, and threads share one copy of the scene. On the
-    reference tube (idle machine, same run) 2 dask threads ran x1.68 faster than 1, against x1.84
-    for a plain thread pool: dask's own threads (event loop, task hand-offs) compete for the GIL
-    and leave the pool's threads waiting; a pool inside each task does not. 2 worker processes ran
-    x1.26 by wall (each with its own scene). ``processes=True`` gives ``n_workers`` processes with
-    one thread each."""
+    Default: ONE in-process worker with ``n_workers`` dask threads whose tasks queue their batches
+    on one shared pool of ``n_workers`` threads (:func:`_pooled_task`; the cluster carries
+    ``straylight_threads = n_workers``). Embree and the compiled kernels release the GIL, and the
+    threads share one copy of the scene. The tasks overlap, so the pool never idles at a task's
+    end (tasks run one at a time on a private pool gave x1.61-1.90 from 1 to 2 workers on the
+    reference tube; the shared pool x1.84-1.91, as a plain thread pool). 2 worker processes
+    ran x1.77 by wall (each with its own scene and warm-up). ``processes=True`` gives ``n_workers``
+    processes with one thread each."""
     import dask
     from dask.distributed import LocalCluster
 
@@ -85,7 +106,8 @@ def local_cluster(n_workers: int, processes: bool = False):
         if processes:
             return LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True,
                                 dashboard_address=":0")
-        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0")
+        cluster = LocalCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
+                               dashboard_address=":0")
         cluster.straylight_threads = int(n_workers)
         return cluster
 

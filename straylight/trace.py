@@ -245,14 +245,20 @@ def _keep_freed_memory():
         pass
 
 
+_COMPILED_LOCK = threading.Lock()
+
+
 def _compiled(spec: TraceSpec, intersector=None) -> _Compiled:
     _keep_freed_memory()
     if intersector is not None:
         return _Compiled(spec, intersector)
     comp = _COMPILED.get(spec.token)
     if comp is None:
-        _COMPILED.clear()  # keep one scene per process
-        comp = _COMPILED[spec.token] = _Compiled(spec)
+        with _COMPILED_LOCK:  # threads of one worker may start their first batch together: build once
+            comp = _COMPILED.get(spec.token)
+            if comp is None:
+                _COMPILED.clear()  # keep one scene per process
+                comp = _COMPILED[spec.token] = _Compiled(spec)
     return comp
 
 
