@@ -263,7 +263,7 @@ class NodeCache:
                     continue
                 for idx, wi, wo, weight in node_groups(theta_i[sel], theta_r[sel], phi_r[sel], config):
                     m = len(idx)
-                    if wi.shape[1] == 1:  # one incidence per point: (m, 1, 3) against (m, nodes, 3)
+                    if wi.size == 3 * m:  # one incidence per point: (m, 1, 3) against (m, nodes, 3)
                         wi2, wo2 = wi.reshape(m, 1, 3), wo.reshape(m, -1, 3)
                     else:
                         wi2, wo2 = (a.reshape(m, -1, 3) for a in np.broadcast_arrays(wi, wo))

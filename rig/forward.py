@@ -179,7 +179,7 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
 
     Returns
     -------
-    wi : (n, A, 1, 1, 3), wo : (n, A, U, V, 3)
+    wi : (n, A, 1, 1, 3), or (n, A, U, 1, 3) with beam divergence; wo : (n, A, U, V, 3)
         Directions in the true sample frame (A divergence nodes, U x V slit/beam nodes; the
         slit nodes of each divergence node cluster about its own specular ray).
     weight : (n, A, U, V)
@@ -223,10 +223,19 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
     mass_u = _phi(t_max / sigma) - _phi(-t_max / sigma)
     # Beam divergence: an incidence tilted by alpha moves the specular ray (and a lobe about it)
     # by alpha in u, so it is folded into the in-plane density as a Gaussian of sigma L alpha
-    # added in quadrature to the projected beam (k sigma). The change of the incidence angle
-    # itself (a relative change ~ alpha d ln f / d theta_i, first order, averaging to zero)
-    # is neglected. Discrete incidence nodes would ripple on lobes narrower than the beam.
+    # added in quadrature to the projected beam (k sigma): the nodes y' = y - L alpha then follow
+    # a smooth density, with no ripple on lobes narrower than the beam (discrete incidence nodes
+    # would ripple). The incidence itself is not dropped: at node y' the material sees the mean
+    # incidence tilt given y' (Gaussian regression of z = L alpha on y' = y - z, with y the
+    # beam x slit offset of variance s_bs^2 = (k sigma)^2 + W^2 / 12):
+    #     z(y') = -y' s_d^2 / (s_d^2 + s_bs^2),  s_d = L alpha_sigma,
+    # and the true ray offset y' + z(y'). What is left is the spread of alpha about that mean
+    # (variance s_d^2 s_bs^2 / (s_d^2 + s_bs^2) < s_bs^2), second order in the incidence.
+    z_gain = None
     if config.beam_divergence_mrad > 0:
+        s_d2 = (L * config.beam_divergence_mrad * 1e-3) ** 2
+        s_bs2 = (k * sigma) ** 2 + (2 * half_w) ** 2 / 12.0
+        z_gain = -s_d2 / (s_d2 + s_bs2)  # (n,)
         k = np.hypot(k, L * config.beam_divergence_mrad * 1e-3 / sigma)
         y_u = half_w + k * np.minimum(t_max, reach * sigma)
     alphas, p_alpha = np.zeros(1), np.ones(1)
@@ -250,13 +259,20 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
         pu *= (mass_u / np.maximum(pu.sum(axis=1), 1e-300))[:, None]
         pv = _box_gauss_density(yv, half_h, 1.0, sigma, np.inf) * wv
         pv /= np.maximum(pv.sum(axis=1), 1e-300)[:, None]
-        u = yu / L
         v = yv / L
-        ang = theta_i + alpha
+        if z_gain is None:
+            u = yu / L
+            ang = theta_i + alpha
+        else:  # mean incidence tilt z / L at each folded node, true ray offset y' + z (see above)
+            z = z_gain[:, None] * yu
+            u = (yu + z) / L
+            ang = theta_i[:, None] + alpha + z / L  # (n, U)
         wi = np.stack([-np.sin(ang), np.zeros_like(ang), np.cos(ang)], axis=-1)
         # Lab (nominal sample frame) -> true sample frame: a rotation, applied to the (n, 3)
         # frame vectors before the (n, U, V) nodes are built from them (the norm is invariant).
         frame = (arm, e_theta, e_perp)
+        if wi.ndim == 2:
+            wi = wi[:, None, :]  # (n, 1 or U, 3)
         if d_stage:
             wi = _rot_y(wi, -d_stage)
             frame = tuple(_rot_y(f, -d_stage) for f in frame)
@@ -272,7 +288,7 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
         w_all.append(pa * pu[:, :, None] * pv[:, None, :] * cos_o / cos_r_nominal[:, None, None])
         wi_all.append(wi)
         wo_all.append(wo)
-    wi = np.stack(wi_all, axis=1)[:, :, None, None, :]
+    wi = np.stack(wi_all, axis=1)[:, :, :, None, :]  # (n, A, 1 or U, 1, 3)
     wo = np.stack(wo_all, axis=1)
     return wi, wo, np.stack(w_all, axis=1)
 
