@@ -81,7 +81,19 @@ def paper_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p")):
     return make_plan(theta_i_deg, polarizations)
 
 
-def compact_plan(theta_i_deg=(10.0, 25.0, 40.0, 55.0, 70.0, 80.0), polarizations=("s", "p")):
+#: The incidences of the synthetic score scans: six, two of them (40, 80) held out by default.
+SCORE_INCIDENCES_DEG = (10.0, 25.0, 40.0, 55.0, 70.0, 80.0)
+
+
+def score_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
+    """The score scans' plan: the seed paper's steps (0.05 deg within 0.5 deg of specular, 0.2 to
+    2 deg, 0.5 to 5 deg, 5 deg beyond; ~80 points per curve) at six incidences. The paper's fine
+    steps resolve a blurred core (wide slit, diverging beam) that 0.1 / 0.5 deg steps see only
+    as a wider lobe."""
+    return make_plan(theta_i_deg, polarizations)
+
+
+def compact_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
     """~60 points per curve: 0.1 deg within 0.5 deg, 0.5 deg to 3 deg, 5 deg beyond."""
     return make_plan(theta_i_deg, polarizations, steps=[(0.5, 0.1), (3.0, 0.5), (None, 5.0)])
 
@@ -361,15 +373,16 @@ def truth_material(name: str):
     return load_material(name)
 
 
-def score_case(effects: dict, seed: int = 1, n_samples: int = 1024, workers: int = 2, material=None):
-    """Synthesize a compact-plan scan of ``material`` (default :func:`glossy_black`) with
-    ``effects`` ({name: params}) and diagnose it. Returns (scan, Diagnosis, json document)."""
+def score_case(effects: dict, seed: int = 1, n_samples: int = 1024, workers: int = 2, material=None, plan=None):
+    """Synthesize a scan of ``material`` (default :func:`glossy_black`) on ``plan`` (default
+    :func:`score_plan`) with ``effects`` ({name: params}) and diagnose it. Returns (scan,
+    Diagnosis, json document)."""
     from rig.diagnose import diagnose, to_json
     from rig.effects import build_effect
 
     truth = [build_effect(n, **p) for n, p in effects.items()]
-    scan = synth_scan(material if material is not None else glossy_black(), compact_plan(), truth, seed=seed,
-                      n_samples=n_samples)
+    scan = synth_scan(material if material is not None else glossy_black(), plan if plan is not None else score_plan(),
+                      truth, seed=seed, n_samples=n_samples)
     d = diagnose(scan, workers=workers)
     return scan, d, to_json(d)
 
