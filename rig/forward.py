@@ -13,7 +13,8 @@ with the expectation over
   loses that power: it is not renormalised);
 * the slit (uniform over width x height at ``arm_mm``);
 * the beam's in-plane angular spread (Gaussian, ``beam_divergence_mrad``), folded into the
-  in-plane density (it moves the specular ray by the same angle).
+  in-plane density (it moves the specular ray by the same angle), each node keeping the mean
+  incidence tilt that reaches it (see :func:`instrument_nodes`).
 
 A ray from sample point x to slit point (s, h) leaves along ``n + u e_theta + v e_perp``
 (n: arm axis, e_theta: in-plane, e_perp: out of plane) with ``u = (s - x cos theta_r) / L``
@@ -57,6 +58,8 @@ CORE_RULE = (24, 24, 2.0e-4)
 MID_RULE = (16, 16, 5.0e-3)
 FAR_RULE = (6, 6, None)
 FAR_DEG = 3.0
+#: How many divergence sigmas the core and mid windows reach (exp(-7^2/2) = 2e-11 of the peak).
+DIVERGENCE_REACH = 7.0
 #: Kept for reference: the clustering scale of the core rule (lobes narrower than ~0.1 mrad,
 #: e.g. lc > 1 mm at 532 nm, are not resolved).
 CLUSTER_RAD = CORE_RULE[2]
@@ -159,7 +162,10 @@ def node_groups(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL):
     k = np.abs(np.cos(theta_r)) / cos_i
     t_max = 0.5 * config.sample_width_mm * cos_i
     window = (0.5 * config.slit_width_mm + k * np.minimum(t_max, 6.0 * config.beam_sigma_mm)) / config.arm_mm
-    window = np.hypot(window, 0.5 * config.slit_height_mm / config.arm_mm) + 3.0 * config.beam_divergence_mrad * 1e-3
+    # a diverging beam carries a narrow lobe's peak out to its Gaussian tail: points within
+    # DIVERGENCE_REACH sigmas of it get the clustered rules (beyond, < 1e-10 of the peak)
+    window = (np.hypot(window, 0.5 * config.slit_height_mm / config.arm_mm)
+              + DIVERGENCE_REACH * config.beam_divergence_mrad * 1e-3)
     core = sep <= window + 2e-3
     far = sep > math.radians(FAR_DEG)
     for name, mask in (("core", core), ("mid", ~core & ~far), ("far", far & ~core)):
@@ -236,8 +242,9 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
         s_d2 = (L * config.beam_divergence_mrad * 1e-3) ** 2
         s_bs2 = (k * sigma) ** 2 + (2 * half_w) ** 2 / 12.0
         z_gain = -s_d2 / (s_d2 + s_bs2)  # (n,)
-        k = np.hypot(k, L * config.beam_divergence_mrad * 1e-3 / sigma)
-        y_u = half_w + k * np.minimum(t_max, reach * sigma)
+        s_d = L * config.beam_divergence_mrad * 1e-3
+        y_u = half_w + np.hypot(k * np.minimum(t_max, reach * sigma), (DIVERGENCE_REACH if not far else reach) * s_d)
+        k = np.hypot(k, s_d / sigma)
     alphas, p_alpha = np.zeros(1), np.ones(1)
     wi_all, wo_all, w_all = [], [], []
     for alpha, pa in zip(alphas, p_alpha):
