@@ -19,7 +19,9 @@ class DetectorAperture:
 
     width_mm: Optional[float] = None
 
-    fit_space = {"width_mm": (0.02, 10.0, "log", (0.5, 2.0))}
+    # up to a 25 mm detector with no slit in front (a 10 mm photodiode acting as the aperture must
+    # lie inside the range: an effect fitted at a bound is never selected)
+    fit_space = {"width_mm": (0.02, 25.0, "log", (0.5, 2.0))}
     region = "specular_core"
 
     def __post_init__(self):
