@@ -67,6 +67,10 @@ CLUSTER_RAD = CORE_RULE[2]
 _RULES = {name: (np.polynomial.legendre.leggauss(nu), np.polynomial.legendre.leggauss(nv), scale)
           for name, (nu, nv, scale) in (("core", CORE_RULE), ("mid", MID_RULE), ("far", FAR_RULE))}
 
+#: In-plane rules of the clustered tiers when the beam diverges (1.5x the nodes).
+_WIDE_RULES_U = {name: np.polynomial.legendre.leggauss(3 * rule[0] // 2) for name, rule in (("core", CORE_RULE),
+                                                                                     ("mid", MID_RULE))}
+
 POL_CODES = ("s", "p", "u")
 
 Forward = Callable[..., np.ndarray]
@@ -206,6 +210,10 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
     # ~CLUSTER_RAD wide are resolved wherever offsets or a tilt put them.
     arm, spec = _arm_and_specular(theta_i, theta_r, phi_r, config)
     rule_u, rule_v, scale = _RULES[tier]
+    if config.beam_divergence_mrad > 0 and scale is not None:
+        # the in-plane window now spans the divergence's +-7 sigma: 1.5x the nodes keep the bulk
+        # resolved next to the clustered peak (24 left 0.017 dex at 5 sigma off specular, 36 < 0.001)
+        rule_u = _WIDE_RULES_U[tier]
     far = scale is None
     y_hat = np.array([0.0, 1.0, 0.0])
     e_perp = y_hat - arm[:, 1:2] * arm

@@ -196,9 +196,10 @@ def test_strong_divergence_follows_the_incidence_change():
 def test_strong_divergence_is_the_average_over_incidences(preset):
     """Reference: the rig without divergence, averaged over 0.5 mrad incidence nodes with
     Gaussian weights out to 8 sigma (brute force; fine enough since the rig's response is
-    ~8.5 mrad wide). The folded model must agree within 0.005 dex out to 4 deg from specular
-    (4 sigma), where a sharp lobe's reading comes from the divergence's tail: the windows
-    reach 7 sigma (at 3 sigma the tail was cut: 0.024 dex at 4 deg)."""
+    ~8.5 mrad wide). The folded model must agree within 0.005 dex out to 5 deg from specular
+    (5 sigma), where a sharp lobe's reading comes from the divergence's tail: the windows
+    reach 7 sigma (at 3 sigma the tail was cut: 0.024 dex at 4 deg) with 1.5x the in-plane
+    nodes (24 left 0.017 dex at 5 deg)."""
     from materials import load_material
     from rig.synth import glossy_black
 
@@ -208,7 +209,7 @@ def test_strong_divergence_is_the_average_over_incidences(preset):
     w = np.exp(-0.5 * (alpha / (sd * 1e-3)) ** 2)
     w /= w.sum()
     for ti in (10.0, 80.0):
-        tr = ti + np.array([-4.0, -3.0, -2.0, -1.0, -0.3, 0.0, 0.3, 1.0, 2.0, 3.0, 4.0])
+        tr = ti + np.array([-5.0, -4.0, -3.0, -2.0, -1.0, -0.3, 0.0, 0.3, 1.0, 2.0, 3.0, 4.0, 5.0])
         tr = tr[tr < 87.0]
         got = predict_brdf(mat, ti, tr, 0.0, "s", config=NOMINAL.replace(beam_divergence_mrad=sd))
         each = predict_brdf(mat, np.repeat(ti + np.rad2deg(alpha), len(tr)), np.tile(tr, len(alpha)), 0.0, "s")
