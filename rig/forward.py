@@ -247,10 +247,9 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
     # (variance s_d^2 s_bs^2 / (s_d^2 + s_bs^2) < s_bs^2), second order in the incidence.
     z_gain = None
     if config.beam_divergence_mrad > 0:
-        s_d2 = (L * config.beam_divergence_mrad * 1e-3) ** 2
-        s_bs2 = (k * sigma) ** 2 + (2 * half_w) ** 2 / 12.0
-        z_gain = -s_d2 / (s_d2 + s_bs2)  # (n,)
         s_d = L * config.beam_divergence_mrad * 1e-3
+        s_bs2 = (k * sigma) ** 2 + (2 * half_w) ** 2 / 12.0
+        z_gain = -s_d**2 / (s_d**2 + s_bs2)  # (n,)
         y_u = half_w + np.hypot(k * np.minimum(t_max, reach * sigma), (DIVERGENCE_REACH if not far else reach) * s_d)
         k = np.hypot(k, s_d / sigma)
     alphas, p_alpha = np.zeros(1), np.ones(1)

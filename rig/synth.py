@@ -90,7 +90,7 @@ def score_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
     2 deg, 0.5 to 5 deg, 5 deg beyond; ~80 points per curve) at six incidences. The paper's fine
     steps resolve a blurred core (wide slit, diverging beam) that 0.1 / 0.5 deg steps see only
     as a wider lobe."""
-    return make_plan(theta_i_deg, polarizations)
+    return paper_plan(theta_i_deg, polarizations)
 
 
 def compact_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):

@@ -1,16 +1,13 @@
 """Run trace batches on dask.distributed, combining results in chunk order.
 
-A LocalCluster of one in-process worker running each task on a pool of ``workers`` threads by
-default (:func:`local_cluster`), an
-existing ``Client``, or ``Client(scheduler_address)``. The :class:`straylight.trace.TraceSpec` (triangle array,
-materials, sources) is broadcast once; each worker process builds its embree scene from the
+A LocalCluster of one in-process worker whose tasks share a pool of ``workers`` threads by
+default (:func:`local_cluster`), an existing ``Client``, or ``Client(scheduler_address)``. The
+:class:`straylight.trace.TraceSpec` (triangle array, materials, sources) is broadcast once; each worker process builds its embree scene from the
 triangles on first use and keeps it (``straylight.trace._COMPILED``), so no embree object is
 ever pickled. Each task is a run of whole chunks (:func:`task_plan`) whose random streams are
 keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
 from __future__ import annotations
-
-import threading
 
 TASK_BATCHES = 5  # at most this many batches per dask task
 
@@ -32,31 +29,14 @@ def _group_task(spec, ranges):
     return [run_batch(spec, a, b) for a, b in ranges]
 
 
-_POOLS: dict = {}  # n_threads -> this process's shared batch pool
-_POOLS_LOCK = threading.Lock()
-
-
-def _shared_pool(n_threads: int):
-    """The process-wide thread pool of ``n_threads`` threads that pooled tasks feed (created once)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    with _POOLS_LOCK:
-        pool = _POOLS.get(n_threads)
-        if pool is None:
-            pool = _POOLS[n_threads] = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="straylight")
-        return pool
-
-
 def _pooled_task(spec, ranges, n_threads):
-    """Queue whole batches on the worker's shared pool of ``n_threads`` threads and return their results
-    in batch order. The worker runs ``n_threads`` such tasks at once, so the next task's batches are
-    already queued when this one's last batch runs: the pool's threads never wait at task ends."""
-    from straylight.trace import _compiled, run_batch
+    """Queue whole batches on the worker's shared pool of ``n_threads`` threads
+    (:func:`straylight.trace.shared_pool`) and return their results in batch order. The worker runs
+    ``n_threads`` such tasks at once, so the next task's batches are already queued when this one's
+    last batch runs: the pool's threads never wait at task ends."""
+    from straylight.trace import _run_threads
 
-    _compiled(spec)  # build the embree scene once, before the pool's threads share it
-    pool = _shared_pool(int(n_threads))
-    futures = [pool.submit(run_batch, spec, a, b) for a, b in ranges]
-    return [fut.result() for fut in futures]
+    return list(_run_threads(spec, ranges, None, int(n_threads)))
 
 
 def pooled_plan(ranges, n_threads: int) -> list:

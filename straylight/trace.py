@@ -1162,16 +1162,30 @@ def _run_local(spec, ranges, intersector):
         yield run_batch(spec, a, b, intersector)
 
 
-def _run_threads(spec, ranges, intersector, n_threads):
-    """Batches on a thread pool, results yielded in batch order (so the sums are the same)."""
+_POOLS: dict = {}  # n_threads -> this process's shared batch pool
+_POOLS_LOCK = threading.Lock()
+
+
+def shared_pool(n_threads: int):
+    """The process-wide pool of ``n_threads`` threads that batches run on (created once, kept: its
+    threads keep their scratch buffers; dask tasks of one worker feed it together)."""
     from concurrent.futures import ThreadPoolExecutor
 
+    with _POOLS_LOCK:
+        pool = _POOLS.get(n_threads)
+        if pool is None:
+            pool = _POOLS[n_threads] = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="straylight")
+        return pool
+
+
+def _run_threads(spec, ranges, intersector, n_threads):
+    """Batches on the shared pool of ``n_threads`` threads, results yielded in batch order (so the
+    sums are the same). All batches are queued at once."""
     if intersector is None:
         _compiled(spec)  # build the embree scene once, before the threads share it
-    with ThreadPoolExecutor(max_workers=n_threads) as pool:
-        futures = [pool.submit(run_batch, spec, a, b, intersector) for a, b in ranges]
-        for fut in futures:
-            yield fut.result()
+    futures = [shared_pool(int(n_threads)).submit(run_batch, spec, a, b, intersector) for a, b in ranges]
+    for fut in futures:
+        yield fut.result()
 
 
 def _progress(total, enabled):
