@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 from geometry.mesh import ROLES, GeometryError, Part, Scene
 from geometry.tessellate import DEFAULT_ANGULAR_TOLERANCE_DEG, DEFAULT_TOLERANCE_MM, tessellate
 
@@ -57,7 +59,7 @@ def _write_ply64(part: Part, path: Path):
     faces = np.empty(part.n_triangles, dtype=[("n", "u1"), ("v", "<i4", (3,))])
     faces["n"] = 3
     faces["v"] = part.faces
-    with open(path, "wb") as out:
+    with atomicio.atomic_open(path, "wb") as out:
         out.write(header.encode("ascii"))
         out.write(np.ascontiguousarray(part.vertices_mm, dtype="<f8").tobytes())
         out.write(faces.tobytes())
@@ -178,7 +180,7 @@ def save_scene(scene: Scene, directory, *, mesh_format: str = "ply", scene_file:
     if sources:
         doc["source"] = [dict(s) for s in sources]
     path = directory / scene_file
-    path.write_text(tomli_w.dumps(doc))
+    atomicio.write_text(path, tomli_w.dumps(doc))
     return path
 
 

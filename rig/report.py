@@ -13,11 +13,12 @@ plus ``gaps.png`` (gap per region, before and after) and the score table of the 
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 
 import numpy as np
 
+import atomicio
+from atomicio import json_safe  # noqa: F401 - the CLI's name for it
 from rig.diagnose import REGION_ORDER, Diagnosis, to_json
 
 REGION_COLOURS = {"specular_core": "tab:red", "shoulder": "tab:orange", "wing": "tab:blue",
@@ -72,7 +73,7 @@ def _plot_overlays(d: Diagnosis, sim_before, sim_after, out: Path, pol: str, cor
     axes.flat[0].legend(fontsize=7)
     fig.tight_layout()
     name = f"{'core' if core else 'overlay'}_{pol}.png"
-    fig.savefig(out / name, dpi=110)
+    atomicio.write_figure(fig, out / name, dpi=110)
     plt.close(fig)
     return name
 
@@ -113,7 +114,7 @@ def _plot_residuals(d: Diagnosis, sim_before, sim_after, out: Path, pol: str):
     fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=6)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     name = f"residuals_{pol}.png"
-    fig.savefig(out / name, dpi=110)
+    atomicio.write_figure(fig, out / name, dpi=110)
     plt.close(fig)
     return name
 
@@ -137,7 +138,7 @@ def _plot_gaps(doc: dict, out: Path):
     ax.set_title("gap per region, incidence and polarization (* held out)", fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "gaps.png", dpi=110)
+    atomicio.write_figure(fig, out / "gaps.png", dpi=110)
     plt.close(fig)
     return "gaps.png"
 
@@ -250,22 +251,7 @@ def write_report(d: Diagnosis, out_dir, doc: dict | None = None) -> Path:
             images.append(_plot_residuals(d, sim_before, sim_after, out, pol))
     images.append(_plot_gaps(doc, out))
     md = _markdown(doc, images)
-    (out / "report.md").write_text(md, encoding="utf-8")
-    (out / "index.html").write_text(_html(md, images), encoding="utf-8")
-    (out / "diagnosis.json").write_text(json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    atomicio.write_text(out / "report.md", md)
+    atomicio.write_text(out / "index.html", _html(md, images))
+    atomicio.write_json(out / "diagnosis.json", doc)
     return out
-
-
-def json_safe(obj):
-    """numpy scalars to Python, NaN/inf to None, recursively (for json.dumps(allow_nan=False))."""
-    import math
-
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj

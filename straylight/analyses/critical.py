@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 
 @dataclass(frozen=True, eq=False)
 class LambertianPart:
@@ -121,12 +123,12 @@ class CriticalReport:
 
     def write_json(self, path) -> Path:
         path = Path(path)
-        path.write_text(json.dumps(self.to_json_dict(), indent=2))
+        atomicio.write_text(path, json.dumps(self.to_json_dict(), indent=2))
         return path
 
     def write_csv(self, path) -> Path:
         path = Path(path)
-        with path.open("w", newline="") as fh:
+        with atomicio.atomic_open(path, "w") as fh:
             w = csv.writer(fh)
             w.writerow(list(ObjectRow.__dataclass_fields__))
             for r in sorted(self.rows, key=lambda r: -r.score):

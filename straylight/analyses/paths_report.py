@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more")
 GROUP_BY = ("sequence", "first_part", "last_part", "ancestry")
 
@@ -125,7 +127,7 @@ class PathReport:
 
     def write_csv(self, path) -> Path:
         path = Path(path)
-        with path.open("w", newline="") as fh:
+        with atomicio.atomic_open(path, "w") as fh:
             writer = csv.writer(fh)
             writer.writerow(["rank", "path", "ancestry", "fraction", "fraction_stderr", "power_w", "stderr_w",
                              "n_records"])
@@ -136,7 +138,7 @@ class PathReport:
 
     def write_json(self, path, top: int | None = None) -> Path:
         path = Path(path)
-        path.write_text(json.dumps(self.to_json_dict(top), indent=2))
+        atomicio.write_text(path, json.dumps(self.to_json_dict(top), indent=2))
         return path
 
     def plot(self, path=None, top: int = 15, ax=None):

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 from straylight.analyses.builtin import Beam, Entrance, Setup
 
 CSV_COLUMNS = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "entrance_ratio", "entrance_ratio_stderr",
@@ -131,12 +133,12 @@ class PstResult:
 
     def write_json(self, path) -> Path:
         path = Path(path)
-        path.write_text(json.dumps(self.to_json_dict(), indent=2))
+        atomicio.write_text(path, json.dumps(self.to_json_dict(), indent=2))
         return path
 
     def write_csv(self, path) -> Path:
         path = Path(path)
-        with path.open("w", newline="") as fh:
+        with atomicio.atomic_open(path, "w") as fh:
             writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS)
             writer.writeheader()
             writer.writerows(self.rows())

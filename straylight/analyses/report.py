@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 DEFAULT_ANGLES_DEG = (0.0, 2.0, 5.0, 8.0, 10.0, 12.0, 14.0, 16.0, 20.0, 25.0, 30.0, 40.0, 50.0, 60.0)
 DEFAULT_SWEEP_ANGLES_DEG = (20.0, 30.0)
 DEFAULT_PATH_ANGLE_DEG = 20.0
@@ -128,7 +130,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         report, trace_res = paths_analysis(setup, math.radians(cfg.path_angle_deg), n_rays=cfg.path_rays,
                                            seed=point_seed(cfg.seed, 2), client=client, progress=cfg.progress)
         result.timings_s["paths"] = time.perf_counter() - t0
-        (out / "paths.md").write_text(report.markdown(20))
+        atomicio.write_text(out / "paths.md", report.markdown(20))
         report.write_csv(out / "paths.csv")
         report.write_json(out / "paths.json")
         report.plot(out / "paths.png", top=15)
@@ -143,7 +145,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         result.timings_s["critical"] = time.perf_counter() - t0
         crit.write_json(out / "critical.json")
         crit.write_csv(out / "critical.csv")
-        (out / "critical.md").write_text(crit.markdown())
+        atomicio.write_text(out / "critical.md", crit.markdown())
         crit.plot(out / "critical.png")
 
     _step(f"design sweep of {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
@@ -188,7 +190,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items()},
         "software": {"python": platform.python_version(), "numpy": np.__version__},
     }
-    (out / "results.json").write_text(json.dumps(result.summary, indent=2, default=_json_default))
+    atomicio.write_text(out / "results.json", json.dumps(result.summary, indent=2, default=_json_default))
     write_markdown(result, pst, report, crit, sweep, direct)
     write_html(result, pst, report, crit, sweep, direct)
     result.files = {p.name: p for p in sorted(out.iterdir())}
@@ -296,7 +298,7 @@ def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Pat
               "## 3-D views and detector map", "", "![rays](view_rays.png)", "", "![absorbed](view_absorbed.png)",
               "", "![map](detector_map.png)", "", "## Method", "", *_method_lines(result)]
     path = result.out_dir / "report.md"
-    path.write_text("\n".join(lines) + "\n")
+    atomicio.write_text(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -372,5 +374,5 @@ figure {{ margin: 1em 0; }} figcaption {{ font-size: 0.85em; color: #555; }}
 </style></head><body>{body}</body></html>
 """
     path = result.out_dir / "index.html"
-    path.write_text(page)
+    atomicio.write_text(path, page)
     return path

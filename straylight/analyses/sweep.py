@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 from straylight.analyses.pst import dask_client, point_seed
 
 PARAMETER_LABELS = {
@@ -56,13 +58,13 @@ class SweepResult:
 
     def write_json(self, path) -> Path:
         path = Path(path)
-        path.write_text(json.dumps(self.to_json_dict(), indent=2))
+        atomicio.write_text(path, json.dumps(self.to_json_dict(), indent=2))
         return path
 
     def write_csv(self, path) -> Path:
         path = Path(path)
         rows = self.rows()
-        with path.open("w", newline="") as fh:
+        with atomicio.atomic_open(path, "w") as fh:
             w = csv.DictWriter(fh, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)

@@ -91,9 +91,10 @@ def _finish(args, shape_parts, scene) -> int:
     print(checks.format())
     print(f"scene: {path}")
     if args.json:
-        with open(args.json, "w") as out:
-            json.dump({"scene": str(path), "tessellation": [r.as_dict() for r in scene_report(scene)],
-                       "checks": checks.as_dict()}, out, indent=2)
+        import atomicio
+
+        atomicio.write_text(args.json, json.dumps({"scene": str(path), "tessellation": [r.as_dict() for r in scene_report(scene)],
+                                                   "checks": checks.as_dict()}, indent=2))
     return 0 if checks.ok else 1
 
 
@@ -128,6 +129,7 @@ def _check(args) -> int:
         checks = check_scene(load_scene(args.scene))
     print(checks.format())
     if args.json:
-        with open(args.json, "w") as out:
-            json.dump(checks.as_dict(), out, indent=2)
+        import atomicio
+
+        atomicio.write_text(args.json, json.dumps(checks.as_dict(), indent=2))
     return 1 if (args.strict and not checks.ok) else 0

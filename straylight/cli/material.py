@@ -19,9 +19,9 @@ def _models():
 
 
 def _write_json(path, data) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+    import atomicio
+
+    atomicio.write_text(path, json.dumps(data, indent=2) + "\n")
 
 
 def _angle(name, value, lo=-90.0, hi=90.0):

@@ -44,7 +44,9 @@ def run(args) -> int:
     report, _ = paths_analysis(setup, math.radians(args.angle_deg), math.radians(args.azimuth_deg),
                                n_rays=args.rays, seed=args.seed, nee=not args.no_nee, group_by=args.group_by,
                                ancestry=args.ancestry, workers=args.workers, scheduler=args.scheduler)
-    (out / "paths.md").write_text(report.markdown(args.top))
+    import atomicio
+
+    atomicio.write_text(out / "paths.md", report.markdown(args.top))
     report.write_csv(out / "paths.csv")
     report.write_json(out / "paths.json")
     report.plot(out / "paths.png", top=args.top)

@@ -1,0 +1,137 @@
+"""Atomic file writes: readers see the old file or the new one, never a mix.
+
+The one writer every result file of the project goes through (scans, material files, CLI
+JSON, reports, figures, meshes). It sits below every other package (materials, geometry,
+straylight and rig may all import it; it imports none of them).
+
+How a file is written (the POSIX recipe for a durable replace, cf. ``rename(2)`` and
+LWN "Ensuring data reaches disk"):
+
+1. a temp file ``.NAME.<random>.tmp`` is created in the target's folder with
+   ``open(O_CREAT | O_EXCL, 0o666)``, so the kernel applies the user's umask exactly as for
+   any other program (0644 under umask 022; ``tempfile.mkstemp`` would give 0600). When the
+   target already exists its permission bits are kept;
+2. the data are written, flushed and ``fsync``-ed (the file);
+3. ``os.replace`` moves it over the target (atomic on POSIX and Windows);
+4. the folder is ``fsync``-ed, so the rename itself survives a power cut.
+
+``fsync=False`` skips steps 2's and 4's fsync (fast, still atomic against crashes of the
+process, not of the machine).
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import os
+import secrets
+import stat
+from pathlib import Path
+
+__all__ = ["write_text", "write_bytes", "write_json", "json_safe", "atomic_open", "write_figure"]
+
+
+def _fsync_directory(directory: Path) -> None:
+    """fsync a folder so a rename in it is durable (no-op where folders cannot be opened)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # Windows: folders cannot be opened; NTFS journals the rename
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # some file systems (e.g. certain network mounts) refuse fsync on a folder
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_open(path, mode: str = "w", *, fsync: bool = True, encoding: str = "utf-8", newline: str | None = ""):
+    """Context manager yielding a file object; on a clean exit it replaces ``path`` atomically.
+
+    ``mode`` is ``"w"`` (text) or ``"wb"`` (bytes). On an exception the temp file is removed
+    and ``path`` is untouched.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_open: mode must be 'w' or 'wb', not {mode!r}")
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        keep_mode = stat.S_IMODE(os.stat(path).st_mode)
+    except FileNotFoundError:
+        keep_mode = None
+    tmp = directory / f".{path.name}.{secrets.token_hex(4)}.tmp"
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
+    fd = os.open(tmp, flags, 0o666)  # the kernel applies the umask
+    try:
+        if keep_mode is not None:
+            os.chmod(tmp, keep_mode)
+        if mode == "wb":
+            fh = os.fdopen(fd, "wb")
+        else:
+            fh = os.fdopen(fd, "w", encoding=encoding, newline=newline)
+        with fh:
+            yield fh
+            fh.flush()
+            if fsync:
+                os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    if fsync:
+        _fsync_directory(directory)
+
+
+def write_text(path, text: str, *, fsync: bool = True, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically (module doc); returns the path."""
+    with atomic_open(path, "w", fsync=fsync, encoding=encoding) as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def write_bytes(path, data: bytes, *, fsync: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically (module doc); returns the path."""
+    with atomic_open(path, "wb", fsync=fsync) as fh:
+        fh.write(data)
+    return Path(path)
+
+
+def json_safe(obj):
+    """``obj`` made JSON-clean, recursively: numpy scalars/arrays to Python, tuples/sets to lists,
+    Paths to strings, NaN and +-inf to ``None`` (strict JSON has no NaN)."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, set, frozenset)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, bool) or obj is None or isinstance(obj, str):
+        return obj
+    if isinstance(obj, int):
+        return int(obj)
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    tolist = getattr(obj, "tolist", None)  # numpy scalars and arrays, without importing numpy
+    if callable(tolist):
+        return json_safe(tolist())
+    item = getattr(obj, "item", None)
+    if callable(item):
+        return json_safe(item())
+    raise TypeError(f"json_safe: cannot write a {type(obj).__name__} to JSON")
+
+
+def write_json(path, obj, *, indent: int | None = 2, fsync: bool = True) -> Path:
+    """Write ``json_safe(obj)`` as strict JSON (no NaN) with a final newline, atomically."""
+    return write_text(path, json.dumps(json_safe(obj), indent=indent, allow_nan=False) + "\n", fsync=fsync)
+
+
+def write_figure(fig, path, *, fsync: bool = False, **savefig_kwargs) -> Path:
+    """Save a matplotlib figure atomically (format from the file suffix)."""
+    path = Path(path)
+    buf = io.BytesIO()
+    fig.savefig(buf, format=path.suffix.lstrip(".") or "png", **savefig_kwargs)
+    return write_bytes(path, buf.getvalue(), fsync=fsync)

@@ -1,0 +1,94 @@
+"""The project's one atomic writer (atomicio): umask, durability order, atomicity."""
+import json
+import os
+import stat
+
+import numpy as np
+import pytest
+
+import atomicio
+from materials.atomic import atomic_write_text
+
+
+@pytest.fixture
+def umask_022():
+    old = os.umask(0o022)
+    try:
+        yield
+    finally:
+        os.umask(old)
+
+
+def _mode(path):
+    return stat.S_IMODE(os.stat(path).st_mode)
+
+
+def test_new_file_gets_the_users_umask(tmp_path, umask_022):
+    # what open(path, "w") gives any other program under umask 022: 0o666 & ~0o022
+    expected = 0o666 & ~0o022
+    for write in (lambda p: atomicio.write_text(p, "x"), lambda p: atomicio.write_bytes(p, b"x"),
+                  lambda p: atomicio.write_json(p, {"a": 1}), lambda p: atomic_write_text(p, "x")):
+        path = tmp_path / f"f{len(list(tmp_path.iterdir()))}.txt"
+        write(path)
+        assert _mode(path) == expected == 0o644
+    with open(tmp_path / "plain.txt", "w") as fh:  # same as a plain open()
+        fh.write("x")
+    assert _mode(tmp_path / "plain.txt") == 0o644
+
+
+def test_other_umask_and_existing_mode_kept(tmp_path):
+    old = os.umask(0o077)
+    try:
+        atomicio.write_text(tmp_path / "a.txt", "x")
+        assert _mode(tmp_path / "a.txt") == 0o600
+        os.chmod(tmp_path / "a.txt", 0o640)
+        atomicio.write_text(tmp_path / "a.txt", "y")  # replacing keeps the file's own mode
+        assert _mode(tmp_path / "a.txt") == 0o640
+    finally:
+        os.umask(old)
+
+
+def test_fsync_file_then_directory_after_rename(tmp_path, monkeypatch):
+    path = tmp_path / "out.json"
+    calls = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fake_fsync(fd):
+        kind = "dir" if stat.S_ISDIR(os.fstat(fd).st_mode) else "file"
+        calls.append((kind, path.exists()))
+        real_fsync(fd)
+
+    def fake_replace(src, dst):
+        calls.append(("replace", None))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fake_fsync)
+    monkeypatch.setattr(os, "replace", fake_replace)
+    atomicio.write_json(path, {"a": 1})
+    # the file's data are on disk before the rename, the folder entry after it
+    assert calls == [("file", False), ("replace", None), ("dir", True)]
+    calls.clear()
+    atomicio.write_text(path, "x", fsync=False)
+    assert calls == [("replace", None)]
+
+
+def test_failed_write_leaves_old_file_and_no_temp(tmp_path):
+    path = tmp_path / "keep.txt"
+    atomicio.write_text(path, "old")
+    with pytest.raises(RuntimeError):
+        with atomicio.atomic_open(path) as fh:
+            fh.write("half")
+            raise RuntimeError("boom")
+    assert path.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt"]
+
+
+def test_write_json_is_strict_and_numpy_clean(tmp_path):
+    path = tmp_path / "r.json"
+    atomicio.write_json(path, {"x": np.float64(1.5), "n": np.int64(3), "v": np.array([1.0, np.nan]),
+                               "t": (1, 2), "inf": float("inf"), "ok": np.bool_(True)})
+    text = path.read_text()
+    assert text.endswith("\n") and "NaN" not in text and "Infinity" not in text
+    assert json.loads(text) == {"x": 1.5, "n": 3, "v": [1.0, None], "t": [1, 2], "inf": None, "ok": True}
+    with pytest.raises(TypeError, match="object"):
+        atomicio.json_safe(object())
