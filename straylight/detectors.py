@@ -144,3 +144,57 @@ class IrradianceMap:
     @property
     def irradiance_stderr_w_per_mm2(self) -> np.ndarray:
         return self.stderr_w / self.bin_area_mm2
+
+
+# ------------------------------------------------------------------ the area a user means
+
+FRONT_FACE_COS = 0.5  # a closed detector's face counts if its outward normal is within 60 deg of the front
+
+
+@dataclass(frozen=True)
+class SensitiveArea:
+    """The detector area a PST divides by, and how it was chosen (written to pst.json)."""
+
+    area_mm2: float
+    total_area_mm2: float
+    closed: bool
+    rule: str
+
+
+def sensitive_area(vertices_mm, faces, toward_mm=None) -> SensitiveArea:
+    """Area of a detector part that light can reach from the instrument's side.
+
+    - An open part (a sheet: the detector disk of a tessellated scene, a one-sided STL) counts
+      all its triangles: each point of it is one point of the sensitive surface.
+    - A closed part (a thin solid from CAD: front, back and rim) counts its *front* faces: the
+      triangles whose outward normal is within 60 deg of the front normal N. N is the normal of the
+      part's plane of least spread (the area-weighted principal axis of its vertices), turned to
+      face ``toward_mm`` (the entrance centre; it says on which side the instrument is). The back
+      faces point away from the light and the rim of a thin disk is at 90 deg, so a 0.5 mm
+      thick disk counts exactly its front disk, as the one-sided disk of its front face would.
+    """
+    import trimesh
+
+    v = np.asarray(vertices_mm, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    tri = v[f]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    twice = np.linalg.norm(cross, axis=1)
+    total = float(0.5 * twice.sum())
+    if total <= 0:
+        raise ValueError("detector part has zero area")
+    closed = bool(trimesh.Trimesh(v, f, process=True).is_watertight)
+    if not closed:
+        return SensitiveArea(total, total, False, "open part: the area of all its triangles")
+    geo = DetectorGeometry.from_triangles(tri)
+    normal = geo.normal
+    if toward_mm is not None and float(np.dot(np.asarray(toward_mm, dtype=np.float64) - geo.origin_mm, normal)) < 0:
+        normal = -normal
+    unit = cross / np.where(twice > 0, twice, 1.0)[:, None]
+    front = unit @ normal > FRONT_FACE_COS
+    area = float(0.5 * twice[front].sum())
+    if area <= 0:
+        raise ValueError("closed detector part: no face points to the instrument's side; "
+                         "give [analysis] detector_area_mm2")
+    return SensitiveArea(area, total, True,
+                         "closed part: its front faces (outward normal within 60 deg of the face toward the entrance)")

@@ -18,7 +18,7 @@ import numpy as np
 
 from straylight.sources import SourceError, source_from_dict
 
-TOP_KEYS = ("material", "part", "source")
+TOP_KEYS = ("material", "part", "source", "analysis")  # [analysis]: straylight.analyses.scene_setup
 
 
 class SceneFileError(ValueError):

@@ -34,6 +34,8 @@ class Beam:
     pivot_mm : (3,) or None. None: the disk stays at ``center_mm`` for every tilt
         (BENCHMARK.md). A point: the disk slides in its own plane so that the ray through
         its centre passes through the pivot (keeps a tilted beam on the entrance).
+    disk_normal : (3,) or None: normal of the emitting disk when it is not ``axis`` (a scene's
+        collimated_disk source may emit obliquely through its disk); None: ``axis``.
     """
 
     center_mm: np.ndarray
@@ -41,6 +43,7 @@ class Beam:
     radius_mm: float
     power_w: float = 1.0
     pivot_mm: np.ndarray | None = None
+    disk_normal: np.ndarray | None = None
 
     def __post_init__(self):
         axis = np.asarray(self.axis, dtype=np.float64)
@@ -53,6 +56,10 @@ class Beam:
             object.__setattr__(self, "pivot_mm", np.asarray(self.pivot_mm, dtype=np.float64).reshape(3))
         if not (np.isfinite(self.radius_mm) and self.radius_mm > 0):
             raise ValueError(f"beam radius_mm must be > 0, got {self.radius_mm!r}")
+        n = self.axis if self.disk_normal is None else np.asarray(self.disk_normal, dtype=np.float64).reshape(3)
+        if not np.isfinite(np.linalg.norm(n)) or abs(float(np.dot(n, self.axis))) < 1e-9 * np.linalg.norm(n):
+            raise ValueError(f"beam disk normal {self.disk_normal!r} must not be perpendicular to the beam")
+        object.__setattr__(self, "disk_normal", n / np.linalg.norm(n))
 
     @property
     def basis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -79,20 +86,27 @@ class Beam:
         if self.pivot_mm is None:
             return self.center_mm
         d = self.direction(off_axis, azimuth)
-        t = float(np.dot(self.pivot_mm - self.center_mm, self.axis) / np.dot(d, self.axis))
+        n = self.disk_normal
+        t = float(np.dot(self.pivot_mm - self.center_mm, n) / np.dot(d, n))
         return self.pivot_mm - t * d
 
     def source(self, off_axis: float, azimuth: float = 0.0):
         """The engine's ``CollimatedDisk`` for this tilt."""
         from straylight.sources import CollimatedDisk
 
-        return CollimatedDisk(center_mm=self.center_for(off_axis, azimuth), normal=self.axis,
+        return CollimatedDisk(center_mm=self.center_for(off_axis, azimuth), normal=self.disk_normal,
                               direction=self.direction(off_axis, azimuth), radius_mm=float(self.radius_mm),
                               power_w=float(self.power_w))
 
-    def irradiance_w_per_mm2(self, off_axis: float) -> float:
-        """Irradiance on a plane normal to the rays: P / (pi R^2 cos a) (the disk is fixed)."""
-        return self.power_w / (np.pi * self.radius_mm**2 * np.cos(off_axis))
+    def cross_section_mm2(self, off_axis: float, azimuth: float = 0.0) -> float:
+        """Beam area normal to the rays: pi R^2 |n . d| (the disk seen along the rays)."""
+        d = self.direction(off_axis, azimuth)
+        return float(np.pi * self.radius_mm**2 * abs(np.dot(self.disk_normal, d)))
+
+    def irradiance_w_per_mm2(self, off_axis: float, azimuth: float = 0.0) -> float:
+        """Irradiance on a plane normal to the rays: P / (pi R^2 |n . d|) (P / (pi R^2 cos a) when the
+        disk is normal to ``axis``; the disk is fixed, so a tilted beam spreads its power wider)."""
+        return self.power_w / self.cross_section_mm2(off_axis, azimuth)
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,17 +120,28 @@ class Entrance:
 
     center_mm: np.ndarray
     radius_mm: float
+    normal: np.ndarray | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "center_mm", np.asarray(self.center_mm, dtype=np.float64).reshape(3))
         if not (np.isfinite(self.radius_mm) and self.radius_mm > 0):
             raise ValueError(f"entrance radius_mm must be > 0, got {self.radius_mm!r}")
+        if self.normal is not None:
+            n = np.asarray(self.normal, dtype=np.float64).reshape(3)
+            if not np.isfinite(np.linalg.norm(n)) or np.linalg.norm(n) == 0:
+                raise ValueError(f"entrance normal must be 3 finite numbers, not all zero, got {self.normal!r}")
+            object.__setattr__(self, "normal", n / np.linalg.norm(n))
 
     def power_w(self, beam: Beam, off_axis: float, azimuth: float = 0.0) -> float:
-        """Beam power crossing the entrance disk; ValueError if the beam does not cover it."""
+        """Beam power crossing the entrance disk; ValueError if the beam does not cover it.
+
+        P r_e^2 |n_e . d| / (R^2 |n_s . d|): the entrance's area seen along the rays over the
+        beam's (n_e: entrance normal, default the beam axis; n_s: the source disk's normal).
+        """
         d = beam.direction(off_axis, azimuth)
+        n = beam.disk_normal
         # walk back from the entrance centre along the rays to the source plane
-        t = float(np.dot(self.center_mm - beam.center_mm, beam.axis) / np.dot(d, beam.axis))
+        t = float(np.dot(self.center_mm - beam.center_mm, n) / np.dot(d, n))
         foot = self.center_mm - t * d
         offset = float(np.linalg.norm(foot - beam.center_for(off_axis, azimuth)))
         if offset + self.radius_mm > beam.radius_mm * (1 + 1e-12):
@@ -124,7 +149,9 @@ class Entrance:
                 f"beam (radius_mm {beam.radius_mm:g}) does not cover the entrance (radius_mm {self.radius_mm:g}) "
                 f"at {np.degrees(off_axis):g} deg off axis: offset {offset:.3g} mm; use a larger beam"
             )
-        return beam.power_w * (self.radius_mm / beam.radius_mm) ** 2
+        n_e = beam.axis if self.normal is None else self.normal
+        return beam.power_w * self.radius_mm**2 * abs(float(np.dot(n_e, d))) / (
+            beam.radius_mm**2 * abs(float(np.dot(n, d))))
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,6 +165,7 @@ class Setup:
     detector: str
     description: str = ""
     params: dict | None = None
+    detector_area_mm2: float | None = None  # None: straylight.detectors.sensitive_area of the part
 
 
 def resolve_materials(material) -> tuple[str, dict | None]:
@@ -184,7 +212,7 @@ def tube_setup(material=DEFAULT_MATERIAL, tolerance_mm: float = DEFAULT_TOLERANC
     # the disk slides with the tilt so that it always covers the entrance and the rim
     beam = Beam(center_mm=(0.0, 0.0, top + BEAM_STANDOFF_MM), axis=(0.0, 0.0, -1.0), radius_mm=beam_radius,
                 pivot_mm=(0.0, 0.0, top))
-    entrance = Entrance(center_mm=(0.0, 0.0, top), radius_mm=r_entrance)
+    entrance = Entrance(center_mm=(0.0, 0.0, top), radius_mm=r_entrance, normal=(0.0, 0.0, 1.0))
     params_dict = {f: getattr(p, f) for f in p.names()}
     desc = (f"baffled tube r={p.inner_radius_mm:g} mm, L={p.length_mm:g} mm, {p.vane_count} vanes "
             f"(hole r={p.vane_inner_radius_mm:g} mm), coating {material if isinstance(material, str) else repr(material)}")

@@ -57,8 +57,25 @@ def detector_name(scene, name: str | None = None) -> str:
         return name
     if len(detectors) != 1:
         raise ValueError(f"the scene has {len(detectors)} detector parts ({', '.join(detectors) or 'none'}); "
-                         "name one with --detector")
+                         "name one with [analysis] detector = \"NAME\" or --detector")
     return detectors[0]
+
+
+def detector_area(setup, name: str):
+    """The detector area a PST divides by (:class:`straylight.detectors.SensitiveArea`).
+
+    ``setup.detector_area_mm2`` when given ([analysis] detector_area_mm2); otherwise the part's
+    sensitive area (:func:`straylight.detectors.sensitive_area`), its front turned toward the
+    entrance centre (or the beam's disk centre without an entrance).
+    """
+    from straylight.detectors import SensitiveArea, sensitive_area
+
+    part = setup.scene.part(name)
+    if setup.detector_area_mm2 is not None:
+        total = part_area_mm2(setup.scene, name)
+        return SensitiveArea(float(setup.detector_area_mm2), total, False, "given: [analysis] detector_area_mm2")
+    toward = setup.entrance.center_mm if setup.entrance is not None else setup.beam.center_mm
+    return sensitive_area(part.vertices_mm, part.faces, toward_mm=toward)
 
 
 @contextmanager
@@ -108,6 +125,7 @@ class PstResult:
     beam_power_w: float
     description: str = ""
     traces: list = field(default_factory=list, repr=False)
+    detector_area_rule: str = ""
 
     def rows(self) -> list[dict]:
         """One dict per point, keys ``CSV_COLUMNS``."""
@@ -128,7 +146,8 @@ class PstResult:
                 "definitions": {"pst": "detector irradiance / beam irradiance normal to the rays",
                                 "entrance_ratio": "detector power / beam power crossing the entrance disk"},
                 "description": self.description, "detector": self.detector,
-                "detector_area_mm2": self.detector_area_mm2, "rays_per_point": self.rays, "seed": self.seed,
+                "detector_area_mm2": self.detector_area_mm2, "detector_area_rule": self.detector_area_rule,
+                "rays_per_point": self.rays, "seed": self.seed,
                 "nee": self.nee, "points": clean}
 
     def write_json(self, path) -> Path:
@@ -217,7 +236,8 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     if int(n_rays) < 1:
         raise ValueError(f"rays must be >= 1, got {n_rays!r}")
     det = detector_name(setup.scene, setup.detector)
-    area = part_area_mm2(setup.scene, det)
+    sens = detector_area(setup, det)
+    area = sens.area_mm2
     opts = options or TraceOptions(first_vertex_sampling=True)
     opts = dc_replace(opts, nee=bool(nee), first_vertex_sampling=bool(nee) and opts.first_vertex_sampling)
     pairs = [(a, phi) for phi in azimuth for a in off_axis]
@@ -235,7 +255,7 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
                         materials=setup.materials, options=opts, client=cl)
             out["sec"][i] = time.perf_counter() - t0
             tally = res.detectors[det]
-            e_in = beam.irradiance_w_per_mm2(a)
+            e_in = beam.irradiance_w_per_mm2(a, phi)
             out["p"][i], out["p_se"][i] = tally.power_w, tally.stderr_w
             out["pst"][i] = tally.power_w / area / e_in
             out["pst_se"][i] = tally.stderr_w / area / e_in
@@ -249,7 +269,7 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
         pst=out["pst"], pst_stderr=out["pst_se"], entrance_ratio=out["ratio"], entrance_ratio_stderr=out["ratio_se"],
         detector_w=out["p"], detector_stderr_w=out["p_se"], seconds=out["sec"], rays=int(n_rays), seed=int(seed),
         nee=bool(nee), detector=det, detector_area_mm2=area, beam_power_w=float(setup.beam.power_w),
-        description=setup.description, traces=traces,
+        description=setup.description, traces=traces, detector_area_rule=sens.rule,
     )
 
 

@@ -48,6 +48,9 @@ class StudyConfig:
     sweep_angles_deg: tuple = DEFAULT_SWEEP_ANGLES_DEG
     path_angle_deg: float = DEFAULT_PATH_ANGLE_DEG
     progress: bool = True
+    scene: str | None = None  # SCENE.toml: the user's instrument instead of the built-in tube
+    detector: str | None = None  # overrides the scene's [analysis] detector
+    sweep: bool = True  # the design sweep (built-in tube parameters, or a --model file's)
 
     @property
     def sweep_rays(self) -> int:
@@ -85,6 +88,8 @@ def benchmark_direct_ratio(off_axis, params: dict) -> np.ndarray:
     """
     from straylight.analyses.pst import geometric_direct_ratio
 
+    if not params or "vane_inner_radius_mm" not in params:  # a scene file: no formula
+        return np.full(np.shape(off_axis), np.nan)
     r_v, r_e = params["vane_inner_radius_mm"], params["inner_radius_mm"]
     r_d = params["detector_radius_mm"] or params["field_stop_radius_mm"]
     if params["vane_count"] < 1 or not math.isclose(r_v, r_d) or params["field_stop_radius_mm"] < r_v:
@@ -109,9 +114,15 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
     result = StudyResult(out, cfg)
     t_all = time.perf_counter()
 
-    _step("building the tube (CadQuery, tessellation)", cfg.progress)
     t0 = time.perf_counter()
-    setup = tube_setup(material=cfg.material)
+    if cfg.scene is not None:
+        from straylight.analyses.scene_setup import scene_setup
+
+        _step(f"loading {cfg.scene}", cfg.progress)
+        setup = scene_setup(cfg.scene, detector=cfg.detector)
+    else:
+        _step("building the tube (CadQuery, tessellation)", cfg.progress)
+        setup = tube_setup(material=cfg.material)
     result.timings_s["geometry"] = time.perf_counter() - t0
 
     with dask_client(cfg.workers, cfg.scheduler) as client:
@@ -148,15 +159,17 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         atomicio.write_text(out / "critical.md", crit.markdown())
         crit.plot(out / "critical.png")
 
-    _step(f"design sweep of {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
-    t0 = time.perf_counter()
-    sweep = design_sweep(cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
-                         n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4), material=cfg.material,
-                         workers=cfg.workers, scheduler=cfg.scheduler, progress=cfg.progress)
-    result.timings_s["sweep"] = time.perf_counter() - t0
-    sweep.write_csv(out / "sweep.csv")
-    sweep.write_json(out / "sweep.json")
-    sweep.plot(out / "sweep.png")
+    sweep = None
+    if cfg.sweep and cfg.scene is None:
+        _step(f"design sweep of {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
+        t0 = time.perf_counter()
+        sweep = design_sweep(cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
+                             n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4), material=cfg.material,
+                             workers=cfg.workers, scheduler=cfg.scheduler, progress=cfg.progress)
+        result.timings_s["sweep"] = time.perf_counter() - t0
+        sweep.write_csv(out / "sweep.csv")
+        sweep.write_json(out / "sweep.json")
+        sweep.plot(out / "sweep.png")
 
     _step("3-D views", cfg.progress)
     t0 = time.perf_counter()
@@ -165,7 +178,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
     hits = [w for w in walks if w[2]][:40]
     others = [w for w in walks if not w[2]][:160]
     viz.render_scene(setup.scene, out / "view_rays.png", ray_paths=others + hits,
-                     title=f"Baffled tube, beam {cfg.path_angle_deg:g} deg off axis: {len(others) + len(hits)} "
+                     title=f"{_short_name(setup)}, beam {cfg.path_angle_deg:g} deg off axis: {len(others) + len(hits)} "
                            f"rays ({len(hits)} reaching the detector, red)")
     viz.render_scene(setup.scene, out / "view_absorbed.png", color_by="absorbed",
                      absorbed_w={k: v.power_w for k, v in trace_res.absorbed.items()},
@@ -180,8 +193,8 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         "geometric_direct_entrance_ratio": [None if not np.isfinite(x) else float(x) for x in direct],
         "paths": report.to_json_dict(top=20),
         "critical": crit.to_json_dict(),
-        "sweep": sweep.to_json_dict(),
-        "sweep_best": {f"{a:g} deg": sweep.best(j) for j, a in enumerate(sweep.off_axis_deg)},
+        "sweep": sweep.to_json_dict() if sweep is not None else None,
+        "sweep_best": {f"{a:g} deg": sweep.best(j) for j, a in enumerate(sweep.off_axis_deg)} if sweep else None,
         "energy_ledger_at_path_angle": {"emitted_w": trace_res.emitted_w,
                                         "detected_w": sum(t.power_w for t in trace_res.detectors.values()),
                                         "absorbed_w": sum(t.power_w for t in trace_res.absorbed.values()),
@@ -195,6 +208,14 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
     write_html(result, pst, report, crit, sweep, direct)
     result.files = {p.name: p for p in sorted(out.iterdir())}
     return result
+
+
+def _title(result) -> str:
+    return "Baffle design study" if result.config.scene is None else f"Stray-light study of {result.config.scene}"
+
+
+def _short_name(setup) -> str:
+    return "Baffled tube" if setup.params else str(setup.description).replace("scene ", "Scene ", 1)
 
 
 def _json_default(x):
@@ -215,7 +236,7 @@ def _pst_plot(pst, setup, path, material: str = ""):
     pst.plot(ax=ax, label_prefix="Monte Carlo ")
     a = np.linspace(0.0, max(pst.off_axis_deg), 400)
     direct = benchmark_direct_ratio(np.radians(a), setup.params)
-    if np.any(direct > 0):
+    if np.any(direct > 0) and setup.entrance is not None:
         # entrance ratio -> PST: times entrance area * cos a / detector area
         r_e = setup.entrance.radius_mm
         conv = math.pi * r_e**2 * np.cos(np.radians(a)) / pst.detector_area_mm2
@@ -223,9 +244,11 @@ def _pst_plot(pst, setup, path, material: str = ""):
         ax.plot(a[ok], (direct * conv)[ok], "k--", lw=1, label="unscattered (geometric) transmission")
     ax.legend(fontsize=8)
     prm = setup.params or {}
-    ax.set_title(f"Point source transmittance of the baffled tube: {prm.get('vane_count', '?')} vanes "
-                 f"(hole r = {prm.get('vane_inner_radius_mm', float('nan')):g} mm)\n"
-                 f"coating {material}; {pst.rays:.2g} rays per angle, 1-sigma error bars", fontsize=9)
+    what = (f"the baffled tube: {prm.get('vane_count', '?')} vanes "
+            f"(hole r = {prm.get('vane_inner_radius_mm', float('nan')):g} mm)\ncoating {material}"
+            if prm else f"{setup.description}\n")
+    ax.set_title(f"Point source transmittance of {what}; {pst.rays:.2g} rays per angle, 1-sigma error bars",
+                 fontsize=9)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -274,7 +297,7 @@ def _findings(pst, report, crit, sweep) -> list[str]:
     if crit.ranking:
         out.append("Parts both illuminated and seen by the detector (ranked): "
                    + ", ".join(r.part for r in crit.ranking[:5]) + ".")
-    for j, a in enumerate(sweep.off_axis_deg):
+    for j, a in enumerate(sweep.off_axis_deg if sweep is not None else ()):
         col, err = sweep.pst[:, j], sweep.pst_stderr[:, j]
         k = int(np.nanargmin(col))
         # designs whose PST is within 2 combined sigma of the lowest cannot be told apart
@@ -288,13 +311,13 @@ def _findings(pst, report, crit, sweep) -> list[str]:
 
 def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
     cfg = result.config
-    lines = [f"# Baffle design study", "", result.summary["description"], "", "## Findings", ""]
+    lines = [f"# {_title(result)}", "", result.summary["description"], "", "## Findings", ""]
     lines += [f"- {f}" for f in _findings(pst, report, crit, sweep)]
     lines += ["", "## Point source transmittance", "", "![PST](pst.png)", "",
               _md_table(PST_HEADER, _pst_table_rows(pst, direct)), "",
               "## Stray-light paths", "", "![paths](paths.png)", "", report.markdown(15), "",
               "## Critical and illuminated objects", "", "![critical](critical.png)", "", crit.markdown(), "",
-              "## Design sweep", "", "![sweep](sweep.png)", "",
+              *(["## Design sweep", "", "![sweep](sweep.png)", ""] if sweep is not None else []),
               "## 3-D views and detector map", "", "![rays](view_rays.png)", "", "![absorbed](view_absorbed.png)",
               "", "![map](detector_map.png)", "", "## Method", "", *_method_lines(result)]
     path = result.out_dir / "report.md"
@@ -333,10 +356,15 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
                              if r not in crit.ranking]
     crit_rows = [(i + 1 if r in crit.ranking else "-", r.part, f"{r.illuminated:.3e} +- {r.illuminated_stderr:.1e}",
                   f"{r.view_factor:.3e} +- {r.view_factor_stderr:.1e}", f"{r.score:.2e}") for i, r in enumerate(ranked)]
-    sweep_rows = [(f"{v:g}", *[f"{sweep.pst[i, j]:.2e} +- {sweep.pst_stderr[i, j]:.1e}"
-                               for j in range(len(sweep.off_axis_deg))]) for i, v in enumerate(sweep.values)]
+    sweep_html = ""
+    if sweep is not None:
+        sweep_rows = [(f"{v:g}", *[f"{sweep.pst[i, j]:.2e} +- {sweep.pst_stderr[i, j]:.1e}"
+                                   for j in range(len(sweep.off_axis_deg))]) for i, v in enumerate(sweep.values)]
+        sweep_html = f"""<h2>Design sweep: {html.escape(sweep.parameter.replace('_', ' '))}</h2>
+{img('sweep.png', 'PST vs design parameter at the stray-light angles')}
+{_html_table((sweep.parameter,) + tuple(f'PST at {a:g} deg' for a in sweep.off_axis_deg), sweep_rows)}"""
     body = f"""
-<h1>Baffle design study</h1>
+<h1>{html.escape(_title(result))}</h1>
 <p>{html.escape(result.summary['description'])}</p>
 <h2>Findings</h2>
 <ul>{''.join(f'<li>{html.escape(f)}</li>' for f in _findings(pst, report, crit, sweep))}</ul>
@@ -353,9 +381,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 <h2>Critical and illuminated objects at {crit.off_axis_deg:g} deg</h2>
 {img('critical.png', 'View factor from the detector vs fraction of the beam first hitting each part', '70%')}
 {_html_table(('rank', 'part', 'illuminated fraction', 'view factor det -> part', 'score'), crit_rows)}
-<h2>Design sweep: {html.escape(sweep.parameter.replace('_', ' '))}</h2>
-{img('sweep.png', 'PST vs design parameter at the stray-light angles')}
-{_html_table((sweep.parameter,) + tuple(f'PST at {a:g} deg' for a in sweep.off_axis_deg), sweep_rows)}
+{sweep_html}
 <h2>3-D views and detector map</h2>
 {img('view_rays.png', 'Cut-away view with traced rays (colour: log10 relative power; red: reaching the detector)')}
 {img('view_absorbed.png', 'Cut-away view coloured by absorbed power per part')}
@@ -364,7 +390,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 <ul>{''.join(f'<li>{html.escape(x)}</li>' for x in _method_lines(result))}</ul>
 """
     page = f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>Baffle design study</title>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(_title(result))}</title>
 <style>
 body {{ font-family: sans-serif; max-width: 1000px; margin: 2em auto; padding: 0 1em; color: #222; }}
 table {{ border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; }}

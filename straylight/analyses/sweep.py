@@ -155,6 +155,6 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
 
 
 def _area(setup) -> float:
-    from straylight.analyses.pst import part_area_mm2
+    from straylight.analyses.pst import detector_area
 
-    return part_area_mm2(setup.scene, setup.detector)
+    return detector_area(setup, setup.detector).area_mm2

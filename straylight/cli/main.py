@@ -17,6 +17,7 @@ SUBCOMMAND_MODULES = (
     "straylight.cli.trace",
     "straylight.cli.pst",
     "straylight.cli.paths",
+    "straylight.cli.critical",
     "straylight.cli.study",
     "straylight.cli.view",
     "straylight.cli.rig",

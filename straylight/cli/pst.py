@@ -3,8 +3,9 @@
     straylight pst --builtin tube [--vanes N] --angles-deg 0 5 10 20 30 --rays N --seed S --out DIR
     straylight pst SCENE.toml [--entrance-center-mm X Y Z --entrance-radius-mm R] --angles-deg ... --out DIR
 
-With a scene file, the beam is the file's first ``collimated_disk`` source: its disk (centre,
-normal, radius, power) stays put and the ray direction is tilted off the disk normal.
+With a scene file, the beam is the file's ``collimated_disk`` source, tilted away from its own
+direction; the file's optional [analysis] table names the detector and the entrance
+(docs/study.md, "Your own instrument").
 Writes DIR/pst.csv, pst.json, pst.png (and entrance_ratio.png with an entrance).
 """
 from __future__ import annotations
@@ -41,8 +42,12 @@ def add_parser(subparsers):
 
 
 def load_setup(args):
-    """A :class:`straylight.analyses.builtin.Setup` from the common scene arguments."""
-    from straylight.analyses.builtin import DEFAULT_MATERIAL, Beam, Entrance, Setup, tube_setup
+    """A :class:`straylight.analyses.builtin.Setup` from the common scene arguments.
+
+    SCENE.toml goes through :func:`straylight.analyses.scene_setup.scene_setup` (its [analysis]
+    table; ``--detector`` and pst's ``--entrance-*`` override it); ``--builtin tube`` builds the tube.
+    """
+    from straylight.analyses.builtin import DEFAULT_MATERIAL, Entrance, Setup, tube_setup
 
     if (args.scene is None) == (args.builtin is None):
         raise ValueError("give either SCENE.toml or --builtin tube")
@@ -57,19 +62,19 @@ def load_setup(args):
             setup = Setup(setup.scene, setup.materials, setup.beam, setup.entrance, args.detector,
                           setup.description, setup.params)
         return setup
-    from straylight.scene import load_scene
+    for flag in ("vanes", "vane_inner_radius_mm", "material"):
+        if getattr(args, flag, None) is not None:
+            raise ValueError(f"--{flag.replace('_', '-')} applies to --builtin tube, not to a scene file")
+    from straylight.analyses.scene_setup import scene_setup
 
-    rs = load_scene(args.scene)
-    beams = [s for s in rs.sources if type(s).__name__ == "CollimatedDisk"]
-    if not beams:
-        raise ValueError(f"{args.scene}: no collimated_disk source to tilt for a PST sweep")
-    src = beams[0]
     entrance = None
-    if args.entrance_radius_mm is not None:
-        center = args.entrance_center_mm if args.entrance_center_mm is not None else src.center_mm
-        entrance = Entrance(center_mm=center, radius_mm=args.entrance_radius_mm)
-    beam = Beam(center_mm=src.center_mm, axis=src.normal, radius_mm=src.radius_mm, power_w=src.power_w)
-    return Setup(rs.scene, rs.materials, beam, entrance, args.detector, f"scene {args.scene}")
+    radius = getattr(args, "entrance_radius_mm", None)
+    center = getattr(args, "entrance_center_mm", None)
+    if (radius is None) != (center is None):
+        raise ValueError("give --entrance-center-mm and --entrance-radius-mm together")
+    if radius is not None:
+        entrance = Entrance(center_mm=center, radius_mm=radius)
+    return scene_setup(args.scene, detector=args.detector, entrance=entrance)
 
 
 def run(args) -> int:

@@ -1,43 +1,66 @@
-"""``straylight study``: the baffle design study on the built-in tube, written as a report folder.
+"""``straylight study``: every analysis of an instrument, written as a report folder.
 
-    straylight study --out report [--rays N] [--seed S] [--workers K]
+    straylight study --out report [--rays N] [--seed S] [--workers K]      # the built-in tube
+    straylight study SCENE.toml --out report [--rays N] [--seed S]           # your own instrument
 
-Open DIR/index.html. See docs/study.md for what each step computes.
+Open DIR/index.html (numbers in DIR/results.json). See docs/study.md for what each step computes.
 """
 from __future__ import annotations
 
 
 def add_parser(subparsers):
-    p = subparsers.add_parser("study", help="baffle design study: PST, paths, critical objects, design sweep",
+    p = subparsers.add_parser("study", help="stray-light study: PST, paths, critical objects, design sweep",
                               description=__doc__.splitlines()[0])
+    p.add_argument("scene", nargs="?", metavar="SCENE.toml",
+                   help="scene file (CONTRACTS §6); default: the built-in tube")
+    p.add_argument("--builtin", choices=("tube",), default=None, help="the built-in baffled tube (the default)")
     p.add_argument("--out", required=True, help="report directory (created)")
     p.add_argument("--rays", type=int, default=200_000, help="rays per PST angle; other steps scale from it")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (default: in-process)")
     p.add_argument("--scheduler", default=None, help="dask scheduler address")
-    p.add_argument("--material", default="z302_sample_b", help="coating of wall, vanes and end plate")
+    p.add_argument("--detector", default=None, help="scene file: detector part (default: [analysis] or the only one)")
+    p.add_argument("--material", default=None, help="built-in tube: coating of wall, vanes and end plate "
+                                                     "(default z302_sample_b)")
     p.add_argument("--angles-deg", type=float, nargs="+", default=None, help="PST angles")
+    p.add_argument("--path-angle-deg", type=float, default=None,
+                   help="off-axis angle of the path, critical-object and view steps (default 20)")
     p.add_argument("--sweep-parameter", default="vane_count",
-                   help="tube parameter of the design sweep (a geometry.parts.tube.TubeParams field, "
+                   help="built-in tube: parameter of the design sweep (a geometry.parts.tube.TubeParams field, "
                         "e.g. vane_count, vane_inner_radius_mm, vane_bevel_deg)")
     p.add_argument("--sweep-values", type=float, nargs="+", default=None,
                    help="values of the swept parameter (default for vane_count: 0 .. 9)")
+    p.add_argument("--no-sweep", action="store_true", help="skip the design sweep")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from straylight.analyses.report import StudyConfig, run_study
 
+    if args.scene is not None and args.builtin is not None:
+        raise ValueError("give either SCENE.toml or --builtin tube, not both")
     if args.rays < 100:
         raise ValueError(f"--rays must be at least 100, got {args.rays}")
+    if args.scene is not None and args.material is not None:
+        raise ValueError("--material applies to the built-in tube; a scene file names its own materials")
+    if args.scene is None and args.detector is not None:
+        raise ValueError("--detector applies to a scene file")
     cfg = StudyConfig(rays=args.rays, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
-                      material=args.material)
+                      material=args.material or "z302_sample_b", scene=args.scene, detector=args.detector,
+                      sweep=not args.no_sweep)
     if args.angles_deg:
         cfg.angles_deg = tuple(args.angles_deg)
+    if args.path_angle_deg is not None:
+        if not -90 < args.path_angle_deg < 90:
+            raise ValueError(f"--path-angle-deg must be in (-90, 90), got {args.path_angle_deg}")
+        cfg.path_angle_deg = args.path_angle_deg
     cfg.sweep_parameter = args.sweep_parameter
     if args.sweep_values:
+        if args.scene is not None:
+            raise ValueError("--sweep-values sweeps a built-in tube parameter; a scene file has none "
+                             "(use --model FILE.py:build for your own parametric design)")
         cfg.sweep_values = tuple(args.sweep_values)
-    elif args.sweep_parameter != "vane_count":
+    elif args.sweep_parameter != "vane_count" and args.scene is None:
         raise ValueError(f"--sweep-values is needed to sweep {args.sweep_parameter}")
     result = run_study(args.out, cfg)
     print(f"study written to {result.out_dir}/index.html ({result.timings_s['total']:.0f} s)")
