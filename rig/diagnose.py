@@ -65,6 +65,7 @@ from materials.scan import Scan
 from rig.effects import CATALOGUE, build_effect, effect_types
 from rig.forward import compose, node_groups
 from rig.instrument import RigConfig
+from rig.node_integrals import cached_integral
 
 GAP_METRIC = "rms_log10"
 #: BIC must drop by more than this to keep an effect ("very strong" evidence, Kass & Raftery 1995).
@@ -151,23 +152,6 @@ def node_geometry(wi, wo) -> dict:
     r2 = dx * dx + dy * dy
     return {"cos_i": cos_i, "cos_o": cos_o, "r2": r2, "r2_f32": r2.astype(np.float32), "cos_phi": cos_phi,
             "sin_phi": sin_phi, "above": above, "q_cache": {}, "int_cache": {}}
-
-
-def cached_integral(geom, weight, key, make):
-    """sum over nodes of weight * make() per point, cached in ``geom`` under ``key``.
-
-    ``weight`` is (n_points, n_nodes); ``make()`` returns the integrand, (n_points, n_nodes)
-    or flat.
-    Each component's integral is cached separately, so changing one lobe (or only an
-    amplitude) re-integrates only that lobe (or nothing)."""
-    cache = geom["int_cache"]
-    out = cache.get(key)
-    if out is None:
-        if len(cache) > 64:
-            cache.clear()
-        out = np.einsum("nk,nk->n", weight, make().reshape(weight.shape))
-        cache[key] = out
-    return out
 
 
 @lru_cache(maxsize=4096)

@@ -2,12 +2,15 @@
 
 A LocalCluster of one in-process worker whose tasks share a pool of ``workers`` threads by
 default (:func:`local_cluster`), an existing ``Client``, or ``Client(scheduler_address)``. The
-:class:`straylight.trace.TraceSpec` (triangle array, materials, sources) is broadcast once; each worker process builds its embree scene from the
-triangles on first use and keeps it (``straylight.trace._COMPILED``), so no embree object is
+:class:`straylight.engine.core.TraceSpec` (triangle array, materials, sources) is broadcast once; each worker process
+builds its embree scene from the triangles on first use and keeps it (``straylight.engine.core._COMPILED``), so no embree object is
 ever pickled. Each task is a run of whole chunks (:func:`task_plan`) whose random streams are
 keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
 from __future__ import annotations
+
+from straylight.engine.core import run_batch
+from straylight.engine.threads import run_threads
 
 TASK_BATCHES = 5  # at most this many batches per dask task
 
@@ -24,19 +27,15 @@ LEAN_CONFIG = {
 
 
 def _group_task(spec, ranges):
-    from straylight.trace import run_batch
-
     return [run_batch(spec, a, b) for a, b in ranges]
 
 
 def _pooled_task(spec, ranges, n_threads):
     """Queue whole batches on the worker's shared pool of ``n_threads`` threads
-    (:func:`straylight.trace.shared_pool`) and return their results in batch order. The worker runs
+    (:func:`straylight.engine.threads.shared_pool`) and return their results in batch order. The worker runs
     ``n_threads`` such tasks at once, so the next task's batches are already queued when this one's
     last batch runs: the pool's threads never wait at task ends."""
-    from straylight.trace import _run_threads
-
-    return list(_run_threads(spec, ranges, None, int(n_threads)))
+    return list(run_threads(spec, ranges, None, int(n_threads)))
 
 
 def pooled_plan(ranges, n_threads: int) -> list:
@@ -94,8 +93,6 @@ def local_cluster(n_workers: int, processes: bool = False):
 
 def _warm_task(spec):
     import time
-
-    from straylight.trace import run_batch
 
     run_batch(spec, 0, 1)
     return time.process_time()

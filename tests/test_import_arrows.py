@@ -1,11 +1,16 @@
-"""The import arrows of STYLE §1 hold: atomicio <- materials <- geometry (names only) <- straylight <- rig.
+"""The import arrows of STYLE §1 hold: atomicio <- materials <- geometry (names only) <- straylight <- rig,
+with no cycles between files, and the ``straylight`` command finds ``rig`` through its entry point.
 
-Walks every module with ``ast`` and fails on a forbidden import.
+Walks every module with ``ast`` (imports inside functions included: a lazy import is still an
+arrow) and fails on a forbidden import or a cycle.
 """
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("atomicio", "materials", "geometry", "straylight", "rig")
 FORBIDDEN = {
     # atomicio (the one atomic file writer) sits below every package: all may import it
     "atomicio": {"materials", "geometry", "straylight", "rig", "numpy", "bluesky", "ophyd"},
@@ -30,18 +35,129 @@ def test_no_forbidden_imports():
     bad = []
     for package, forbidden in FORBIDDEN.items():
         for path in (ROOT / package).rglob("*.py"):
-            if package == "straylight" and "cli" in path.relative_to(ROOT / package).parts:
-                continue  # the CLI sits above every package and imports rig lazily
             for name, line, col in _imports(path):
                 if name in forbidden:
                     bad.append(f"{path.relative_to(ROOT)}:{line}: imports {name}")
     assert not bad, "\n".join(bad)
 
 
-def test_import_straylight_does_not_pull_bluesky():
-    import subprocess
-    import sys
+# ------------------------------------------------------------------ cycles between files
 
+
+def module_files(root=ROOT, packages=PACKAGES) -> dict:
+    """{dotted module name: file} of every module of ``packages`` (a package is its __init__.py)."""
+    out = {}
+    for package in packages:
+        for path in (Path(root) / package).rglob("*.py"):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            out[".".join(parts)] = path
+    return out
+
+
+def import_graph(modules: dict) -> dict:
+    """{module: set of modules it imports} (within ``modules``; an import of a name is an arrow to
+    the most specific module that exists: ``from a.b import c`` -> ``a.b.c`` if it is a module,
+    else ``a.b``). Relative imports are resolved; imports inside functions count too."""
+
+    def known(name):
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        return name or None
+
+    graph = {}
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.Import):
+                targets.update(known(a.name) for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                    origin = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    origin = node.module
+                for a in node.names:
+                    full = f"{origin}.{a.name}"
+                    targets.add(full if full in modules else known(origin))
+        targets.discard(None)
+        targets.discard(name)
+        graph[name] = targets
+    return graph
+
+
+def cycles(graph: dict) -> list:
+    """Strongly connected components of more than one module (Tarjan), each sorted."""
+    index, low, stack, on_stack, found = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                found.append(sorted(comp))
+
+    limit = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(limit, 10 * len(graph) + 100))
+    try:
+        for v in sorted(graph):
+            if v not in index:
+                visit(v)
+    finally:
+        sys.setrecursionlimit(limit)
+    return found
+
+
+def test_no_two_files_import_each_other():
+    found = cycles(import_graph(module_files()))
+    assert not found, "import cycles between files (lazy imports count):\n" + "\n".join(" <-> ".join(c) for c in found)
+
+
+def test_cycle_finder_sees_a_lazy_cycle(tmp_path):
+    """The finder is not vacuous: a cycle closed by an import inside a function, through a package
+    __init__ and a relative import, is found; a one-way chain is not."""
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from pkg.sub import thing\n")
+    (pkg / "sub" / "__init__.py").write_text("from .b import thing\n")
+    (pkg / "sub" / "b.py").write_text("def thing():\n    import pkg.a\n")
+    (pkg / "c.py").write_text("import pkg.a\n")
+    found = cycles(import_graph(module_files(tmp_path, ("pkg",))))
+    assert found == [["pkg.a", "pkg.sub", "pkg.sub.b"]]
+
+
+# ------------------------------------------------------------------ the command's entry points
+
+
+def test_import_straylight_does_not_pull_bluesky():
     code = "import sys, straylight, straylight.cli.main as m; m.build_parser(); print('bluesky' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+def test_straylight_help_lists_rig_through_its_entry_point():
+    from importlib.metadata import entry_points
+
+    eps = {ep.name: ep.value for ep in entry_points(group="straylight.commands")}
+    assert eps.get("rig") == "rig.cli:add_parser", f"installed straylight.commands entry points: {eps}"
+    out = subprocess.run([sys.executable, "-m", "straylight.cli.main", "--help"], capture_output=True, text=True,
+                         check=True)
+    listed = [line.split()[0] for line in out.stdout.splitlines() if line.startswith("    ") and line.split()]
+    assert "rig" in listed, out.stdout

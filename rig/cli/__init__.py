@@ -1,13 +1,17 @@
-"""``straylight rig``: scan (CONTRACTS §4.4) and, when present, diagnose and twin
-(straylight.cli.rig_diagnose, straylight.cli.rig_twin).
+"""``straylight rig``: scan (CONTRACTS §4.4), diagnose (rig.cli.diagnose) and twin (rig.cli.twin).
 
+Registered with the ``straylight`` command through the entry point ``rig = "rig.cli:add_parser"``
+of the group ``straylight.commands`` (pyproject.toml), so straylight never imports rig.
 Thin layer: parse, build the simulated or real instrument, call :func:`rig.run.run_scan`.
-``rig`` is imported lazily, inside the command, so ``import straylight`` never pulls in bluesky.
+The instrument modules are imported inside the commands, so building the parser never pulls in
+bluesky.
 """
 from __future__ import annotations
 
-import importlib
 import sys
+
+from rig.cli import diagnose as diagnose_command
+from rig.cli import twin as twin_command
 
 
 def add_parser(subparsers) -> None:
@@ -41,14 +45,8 @@ def add_parser(subparsers) -> None:
                       help="--sim only: read the material BRDF itself (no slit/beam averaging)")
     scan.set_defaults(func=run_scan_command)
 
-    for name in ("straylight.cli.rig_diagnose", "straylight.cli.rig_twin"):
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-        else:
-            module.add_parser(rig_sub)
+    diagnose_command.add_parser(rig_sub)
+    twin_command.add_parser(rig_sub)
 
 
 def run_scan_command(args) -> int:

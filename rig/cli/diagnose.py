@@ -9,7 +9,7 @@ from pathlib import Path
 
 
 def add_parser(rig_subparsers) -> None:
-    """Register ``diagnose`` under ``straylight rig`` (called by straylight.cli.rig)."""
+    """Register ``diagnose`` under ``straylight rig`` (called by rig.cli)."""
     p = rig_subparsers.add_parser(
         "diagnose", help="sim-to-real diagnosis of a measured scan",
         description="Fit the sample's BRDF through the rig model on the training incidence angles, "

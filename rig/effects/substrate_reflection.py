@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rig.effects.registry import check_param, register_effect
+from rig.node_integrals import cached_integral
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,8 +42,6 @@ class _WithSubstrate:
     def reading_geom(self, geom, weight, polarization="u"):
         """Instrument reading from cached node geometry (rig.diagnose.NodeCache); the ghost
         lobe's integral is cached per width (its amplitude is linear)."""
-        from rig.diagnose import cached_integral
-
         def unit_lobe():
             w = self.width_rad * np.clip(geom["cos_i"], 1e-6, None)
             return np.where(geom["above"], np.exp(-0.5 * geom["r2"] / w**2) / (2 * math.pi * w**2), 0.0)

@@ -1,8 +1,12 @@
 """The ``straylight`` command: one parser, one module per subcommand group.
 
-Each module in ``SUBCOMMAND_MODULES`` exposes ``add_parser(subparsers)``, which
-registers its subcommand(s) and sets ``func`` on them: ``func(args) -> int``.
-Modules are imported lazily so ``import straylight`` never pulls in bluesky.
+straylight's own groups are the modules of ``OWN_GROUPS``; other packages add theirs through entry
+points of the group ``straylight.commands`` (the way dask's CLI finds ``distributed``'s commands in
+the group ``dask_cli``), as ``rig`` adds ``rig`` from ``rig/cli`` (so straylight never imports rig).
+Each module or entry point gives ``add_parser(subparsers)``, which registers its subcommand(s) and
+sets ``func`` on them: ``func(args) -> int``. A group that fails to load is an error, not a
+silently missing command. Modules import their heavy dependencies inside their commands, so
+building the parser stays light (``import straylight`` never pulls in bluesky).
 Errors become one line on stderr and exit code 2 (a traceback with ``--debug``).
 """
 from __future__ import annotations
@@ -10,8 +14,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from importlib.metadata import entry_points
 
-SUBCOMMAND_MODULES = (
+OWN_GROUPS = (
     "straylight.cli.material",
     "straylight.cli.geometry",
     "straylight.cli.trace",
@@ -20,12 +25,13 @@ SUBCOMMAND_MODULES = (
     "straylight.cli.critical",
     "straylight.cli.study",
     "straylight.cli.view",
-    "straylight.cli.rig",
 )
+COMMAND_GROUP = "straylight.commands"  # entry-point group of the command groups of other packages
 
 
-class CliError(Exception):
-    """A user-facing error: printed as one line, exit code 2."""
+def command_entry_points() -> list:
+    """The installed ``straylight.commands`` entry points, by name."""
+    return sorted(entry_points(group=COMMAND_GROUP), key=lambda ep: ep.name)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,14 +41,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in SUBCOMMAND_MODULES:
+    for name in OWN_GROUPS:
+        importlib.import_module(name).add_parser(sub)
+    for ep in command_entry_points():
         try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name == name:  # that subcommand group is not written yet
-                continue
-            raise
-        module.add_parser(sub)
+            add_parser = ep.load()
+        except Exception as exc:
+            raise ImportError(f"straylight command group {ep.name!r} ({ep.value}) failed to load: {exc}") from exc
+        add_parser(sub)
     return parser
 
 

@@ -1,11 +1,11 @@
-"""``straylight rig twin`` (straylight/cli/rig_twin.py), driven through its own argparse subparsers
+"""``straylight rig twin`` (rig/cli/twin.py), driven through its own argparse subparsers
 (the coordinator wires ``add_parser`` into the ``rig`` group)."""
 import argparse
 import json
 
 import pytest
 
-from straylight.cli import rig_twin
+from rig.cli import twin as rig_twin
 
 
 def run(argv):
