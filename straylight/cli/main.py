@@ -25,6 +25,7 @@ OWN_GROUPS = (
     "straylight.cli.critical",
     "straylight.cli.study",
     "straylight.cli.view",
+    "straylight.cli.design",
 )
 COMMAND_GROUP = "straylight.commands"  # entry-point group of the command groups of other packages
 

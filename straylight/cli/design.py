@@ -1,0 +1,61 @@
+"""``straylight design vanes``: design the vanes of a cylindrical baffle tube (CONTRACTS 4.6).
+
+    straylight design vanes --tube-radius-mm 50 --tube-length-mm 300 --stop-radius-mm 35 \\
+        --field-deg 0 --exclusion-deg 20 --out design_out
+
+Writes DIR/design.json, DIR/scene.toml (+ meshes), DIR/design.step and DIR/index.html.
+"""
+from __future__ import annotations
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser("design", help="design baffle vanes (construction + Monte Carlo refinement)",
+                              description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="design_command", metavar="WHAT", required=True)
+    v = sub.add_parser("vanes", help="vanes of a cylindrical tube: Freniere construction, then PST refinement",
+                       description="Vanes of a cylindrical tube (docs/design.md). Frame: axis z, wall r = R for "
+                                   "0 <= z <= L, entrance z = L, detector r <= S at z = 0.")
+    v.add_argument("--tube-radius-mm", type=float, required=True, help="R: wall inner radius")
+    v.add_argument("--tube-length-mm", type=float, required=True, help="L: detector plane to entrance")
+    v.add_argument("--stop-radius-mm", type=float, required=True, help="S: detector / aperture stop radius")
+    v.add_argument("--field-deg", type=float, required=True, help="F: field half-angle that must not vignette")
+    v.add_argument("--exclusion-deg", type=float, required=True, help="E: off-axis angle beyond which to reject")
+    v.add_argument("--vane-thickness-mm", type=float, default=1.0)
+    v.add_argument("--bevel-deg", type=float, default=0.0, help="bevel of the vane edge (knife edge), deg")
+    v.add_argument("--bevel-side", choices=("back", "front"), default="back",
+                   help="face the bevel is on: back = toward the detector (knife edge toward the entrance)")
+    v.add_argument("--max-vanes", type=int, default=30)
+    v.add_argument("--keep-out-mm", type=float, nargs=2, action="append", metavar=("Z_LO", "Z_HI"), default=[],
+                   help="no vane between these heights (repeatable)")
+    v.add_argument("--material", default="z302_sample_b", help="coating: preset name or material file")
+    v.add_argument("--rays", type=int, default=100_000, help="rays per angle for the PST in design.json")
+    v.add_argument("--refine-rays", type=int, default=None, help="rays per angle in the optimiser (default rays/5)")
+    v.add_argument("--refine-evals", type=int, default=40, help="optimiser budget in traced layouts (0: no refinement)")
+    v.add_argument("--seed", type=int, default=0)
+    v.add_argument("--threads", type=int, default=2, help="tracing threads")
+    v.add_argument("--out", required=True, help="output directory")
+    v.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from straylight.design.construction import BaffleSpec
+    from straylight.design.vanes import design_vanes
+
+    spec = BaffleSpec(args.tube_radius_mm, args.tube_length_mm, args.stop_radius_mm, args.field_deg,
+                      args.exclusion_deg, args.vane_thickness_mm, args.bevel_deg, args.bevel_side, args.max_vanes,
+                      tuple(tuple(k) for k in args.keep_out_mm))
+    for name in ("rays", "threads"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
+    if args.refine_evals < 0:
+        raise ValueError(f"--refine-evals must be >= 0, got {args.refine_evals}")
+    doc = design_vanes(spec, args.out, material=args.material, rays=args.rays, seed=args.seed,
+                       refine_rays=args.refine_rays, refine_evals=args.refine_evals, threads=args.threads)
+    print(f"{len(doc['vanes'])} vanes ({doc['design_source']}):")
+    for v in doc["vanes"]:
+        print(f"  z {v['z_mm']:8.2f} mm  inner radius {v['inner_radius_mm']:7.3f} mm")
+    for d, r in zip(doc["pst"], doc["ratio_to_baseline"]):
+        ratio = "" if r["ratio"] is None else f"  design / evenly spaced {r['ratio']:.3f} +- {r['ratio_stderr']:.3f}"
+        print(f"{d['off_axis_deg']:6.2f} deg  PST {d['pst']:.4e} +- {d['pst_stderr']:.2e}{ratio}")
+    print(f"written {args.out}/design.json, scene.toml, design.step, index.html")
+    return 0

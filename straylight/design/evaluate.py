@@ -1,0 +1,63 @@
+"""PST of a vane layout, defined and seeded exactly as ``straylight pst`` (CONTRACTS 4.5).
+
+PST = (detector power / detector area) / beam irradiance normal to the rays, the beam being the
+scene file's collimated disk (:func:`straylight.design.model.beam`) tilted toward +x; angle i of
+a list is traced with seed ``point_seed(seed, i)`` and next-event estimation with first-vertex
+sampling, as :func:`straylight.analyses.pst.pst_sweep` does. So the same seed and angle list give
+the same numbers as ``straylight pst DIR/scene.toml``, and two layouts evaluated with the same
+seed share their random numbers (common random numbers: their difference is not dominated by
+noise, since the source rays and most of the early random choices are the same).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from straylight.design import model
+
+
+@dataclass(frozen=True)
+class PstPoint:
+    """One PST value with its 1-sigma Monte Carlo standard error."""
+
+    off_axis_deg: float
+    pst: float
+    pst_stderr: float
+    rays: int
+
+    def to_dict(self) -> dict:
+        return {"off_axis_deg": self.off_axis_deg, "pst": self.pst, "pst_stderr": self.pst_stderr,
+                "rays": self.rays}
+
+
+def pst_points(spec, vanes, material_models: dict, angles_deg, rays: int, seed: int,
+               threads: int | None = None) -> list[PstPoint]:
+    """PST of the tube with ``vanes`` at each off-axis angle (same definition and seeds as ``straylight pst``)."""
+    from straylight.analyses.pst import part_area_mm2, point_seed
+    from straylight.trace import TraceOptions, trace
+
+    sc = model.scene(spec, vanes)
+    bm = model.beam(spec)
+    area = part_area_mm2(sc, "detector")
+    opts = TraceOptions(first_vertex_sampling=True)
+    out = []
+    for i, a_deg in enumerate(angles_deg):
+        a = math.radians(float(a_deg))
+        res = trace(sc, [bm.source(a, 0.0)], n_rays=int(rays), seed=point_seed(seed, i), materials=material_models,
+                    options=opts, threads=threads)
+        tally = res.detectors["detector"]
+        e_in = bm.irradiance_w_per_mm2(a)
+        out.append(PstPoint(float(a_deg), tally.power_w / area / e_in, tally.stderr_w / area / e_in, int(rays)))
+    return out
+
+
+def log_objective(points) -> tuple[float, float]:
+    """(J, stderr of J): J = mean over the band of ln PST (a geometric mean: every angle counts, not
+    only the brightest); stderr by the delta method, sqrt(sum (se_i / PST_i)^2) / n."""
+    pst = np.array([p.pst for p in points])
+    se = np.array([p.pst_stderr for p in points])
+    if np.any(pst <= 0):
+        return -math.inf, math.inf  # nothing reached the detector: no estimate of the log
+    return float(np.mean(np.log(pst))), float(np.sqrt(np.sum((se / pst) ** 2)) / len(pst))

@@ -1,0 +1,120 @@
+"""``straylight design vanes`` (CONTRACTS 4.6): files, PST against ``straylight pst``, baseline, errors.
+
+One small design run (few rays, a short optimiser budget) is shared by the tests of this module.
+Monte Carlo comparisons use 4 sigma of the runs' own standard errors, fixed seeds.
+"""
+import json
+import math
+import tomllib
+
+import numpy as np
+import pytest
+
+from straylight.cli.main import main
+from straylight.design.construction import BaffleSpec, evenly_spaced
+from straylight.design.refine import feasible
+
+ARGS = ["--tube-radius-mm", "50", "--tube-length-mm", "300", "--stop-radius-mm", "35", "--field-deg", "0.5",
+        "--exclusion-deg", "20"]
+E = 20.0
+
+
+@pytest.fixture(scope="module")
+def design_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("design")
+    code = main(["design", "vanes", *ARGS, "--vane-thickness-mm", "1", "--rays", "20000", "--refine-rays", "4000",
+                 "--refine-evals", "6", "--seed", "3", "--threads", "2", "--out", str(out)])
+    assert code == 0
+    return out
+
+
+def test_design_json_contract(design_dir):
+    doc = json.loads((design_dir / "design.json").read_text())
+    z = [v["z_mm"] for v in doc["vanes"]]
+    assert z == sorted(z) and len(z) >= 3
+    for v in doc["vanes"] + doc["baseline"]["vanes"]:
+        assert set(v) == {"z_mm", "inner_radius_mm", "thickness_mm"} and v["thickness_mm"] == 1.0
+        # inner edge on the field envelope S + (z + t/2) tan F (square edge: the top corner binds)
+        assert v["inner_radius_mm"] == pytest.approx(35 + (v["z_mm"] + 0.5) * math.tan(math.radians(0.5)))
+    angles = [p["off_axis_deg"] for p in doc["pst"]]
+    assert E in angles and E + 10 in angles
+    assert [p["off_axis_deg"] for p in doc["baseline"]["pst"]] == angles
+    assert all(p["pst"] > 0 and p["pst_stderr"] > 0 for p in doc["pst"] + doc["baseline"]["pst"])
+    # baseline: same count, evenly spaced z_k = k L / (N + 1)
+    n = len(doc["vanes"])
+    assert [v["z_mm"] for v in doc["baseline"]["vanes"]] == pytest.approx([300 * k / (n + 1) for k in range(1, n + 1)])
+    assert doc["baseline"]["pst"][0]["rays"] == doc["pst"][0]["rays"] == 20000
+    assert doc["geometry"]["vignetting_margin_mm"] >= -1e-9
+    if doc["design_source"] == "construction":
+        assert doc["geometry"]["complete"] and doc["geometry"]["lit_and_seen_mm"] == 0
+    # the bare tube is far brighter than either vane layout (sanity of the comparison)
+    assert doc["no_vanes"]["pst"][0]["pst"] > 20 * doc["pst"][0]["pst"]
+    for name in ("scene.toml", "design.step", "index.html", "layout.png", "pst.png"):
+        assert (design_dir / name).stat().st_size > 0
+    assert (design_dir / "design.step").read_text(errors="ignore").startswith("ISO-10303-21")
+    html = (design_dir / "index.html").read_text()
+    assert "layout.png" in html and "pst.png" in html
+
+
+def test_scene_file_parts_and_source(design_dir):
+    doc = tomllib.loads((design_dir / "scene.toml").read_text())
+    names = [p["name"] for p in doc["part"]]
+    n = len(json.loads((design_dir / "design.json").read_text())["vanes"])
+    assert names == ["wall"] + [f"vane_{k}" for k in range(1, n + 1)] + ["end_plate", "detector"]
+    assert [p["role"] for p in doc["part"]][-1] == "detector"
+    (src,) = doc["source"]
+    assert src["type"] == "collimated_disk" and src["direction"] == [0.0, 0.0, -1.0]
+
+
+def test_pst_agrees_with_straylight_pst_on_the_written_scene(design_dir, tmp_path):
+    """Same definition: with the same seed the numbers are identical; with another seed they agree
+    within 4 sigma of the two runs' errors."""
+    doc = json.loads((design_dir / "design.json").read_text())
+    angles = [str(p["off_axis_deg"]) for p in doc["pst"]]
+    for seed, out in ((3, tmp_path / "same"), (11, tmp_path / "other")):
+        assert main(["pst", str(design_dir / "scene.toml"), "--angles-deg", *angles, "--rays", "20000",
+                     "--seed", str(seed), "--out", str(out)]) == 0
+    same = json.loads((tmp_path / "same" / "pst.json").read_text())["points"]
+    other = json.loads((tmp_path / "other" / "pst.json").read_text())["points"]
+    for ours, s, o in zip(doc["pst"], same, other):
+        assert s["pst"] == pytest.approx(ours["pst"], rel=1e-9)
+        assert abs(o["pst"] - ours["pst"]) <= 4 * math.hypot(o["pst_stderr"], ours["pst_stderr"])
+        assert o["pst"] != ours["pst"]  # really another sample
+
+
+def test_design_not_worse_than_baseline_at_e_and_e_plus_10(design_dir):
+    doc = json.loads((design_dir / "design.json").read_text())
+    for d, b in zip(doc["pst"], doc["baseline"]["pst"]):
+        if d["off_axis_deg"] in (E, E + 10):
+            assert d["pst"] <= b["pst"] + 4 * math.hypot(d["pst_stderr"], b["pst_stderr"]), d["off_axis_deg"]
+
+
+def test_optimiser_history(design_dir):
+    opt = json.loads((design_dir / "design.json").read_text())["optimiser"]
+    traced = [e for e in opt["evaluations"] if e["objective"] is not None]
+    assert 2 <= len(traced) <= 6 and opt["stop_reason"]
+    assert opt["best_objective"] == pytest.approx(min(e["objective"] for e in traced))
+    assert opt["angles_deg"] == [E, E + 5, E + 10]
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--stop-radius-mm", "50"], "stop_radius_mm (50) must be below tube_radius_mm (50)"),
+    (["--field-deg", "25"], "field_deg (25) must be below exclusion_deg (20)"),
+    (["--field-deg", "3"], "too wide for the tube"),
+    (["--tube-length-mm", "-5"], "tube_length_mm must be a finite number > 0"),
+    (["--rays", "0"], "--rays must be >= 1"),
+    (["--keep-out-mm", "10", "400"], "keep-out zone (10, 400)"),
+])
+def test_bad_inputs_give_one_line_errors(extra, message, capsys, tmp_path):
+    assert main(["design", "vanes", *ARGS, *extra, "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and err.startswith("straylight: error:")
+
+
+def test_feasible_rejects_overlap_outside_and_keep_out():
+    spec = BaffleSpec(50, 300, 35, 0, 20, keep_out_mm=((100, 120),))
+    assert feasible(spec, [50, 150, 250]) is None
+    assert feasible(spec, [50, 50.5, 250]) == "vanes overlap"
+    assert feasible(spec, [0.2, 150]) == "outside the tube"
+    assert feasible(spec, [50, 110, 250]) == "in a keep-out zone"
+    assert np.allclose([v.z_mm for v in evenly_spaced(spec, 3).vanes], [75, 150, 225])
