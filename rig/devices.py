@@ -20,6 +20,7 @@ a lock-in that does not answer fails the trigger with the driver's ``InstrumentT
 """
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from dataclasses import dataclass
@@ -31,7 +32,9 @@ from ophyd import Device, Kind, Signal
 from ophyd.status import DeviceStatus
 from ophyd.utils import LimitError
 
-from rig.drivers.sr830 import SENSITIVITY_V
+from rig.drivers.sr830 import OVERLOAD_BITS, REFERENCE_UNLOCK, SENSITIVITY_V
+
+log = logging.getLogger(__name__)
 
 
 class SoftLimitError(LimitError):
@@ -40,6 +43,33 @@ class SoftLimitError(LimitError):
 
 class MoveTimeout(TimeoutError):
     """A move did not finish in time (stalled axis); the axis was told to stop."""
+
+
+class ReferenceUnlocked(RuntimeError):
+    """The lock-in lost its reference (SR830 LIAS? bit 3) and did not lock again in time."""
+
+
+class LockinOverload(RuntimeError):
+    """The lock-in overloaded (LIAS? bits 0-2) and could not range out of it."""
+
+
+class Quantity(Signal):
+    """A soft ophyd Signal whose ``describe()`` carries ``units`` and ``precision`` (decimal
+    places), as an EPICS signal's does, so every event descriptor says what its numbers mean."""
+
+    def __init__(self, *args, units: str = "", precision: int | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.units = units
+        self.precision = precision
+
+    def describe(self):
+        desc = super().describe()
+        entry = desc[self.name]
+        if self.units:
+            entry["units"] = self.units
+        if self.precision is not None:
+            entry["precision"] = int(self.precision)
+        return desc
 
 
 class AxisBackend(Protocol):
@@ -55,7 +85,7 @@ class LockinBackend(Protocol):
     time_constant_s: float
     def output(self, which: str = "x") -> float: ...
     def settle_time_s(self) -> float: ...
-    def overloads(self) -> list[str]: ...
+    def status_flags(self) -> list[str]: ...
     def sleep(self, seconds: float) -> None: ...
 
 
@@ -89,8 +119,8 @@ class RotaryStage(Device):
     poll_s : motion-done polling interval (real backends).
     """
 
-    readback = Cpt(Signal, value=0.0, kind=Kind.hinted)
-    setpoint = Cpt(Signal, value=0.0, kind=Kind.normal)
+    readback = Cpt(Quantity, value=0.0, kind=Kind.hinted, units="deg", precision=4)
+    setpoint = Cpt(Quantity, value=0.0, kind=Kind.normal, units="deg", precision=4)
 
     def __init__(self, prefix="", *, backend, limits_deg=(-170.0, 170.0), timeout_s=30.0, poll_s=0.02, name, **kwargs):
         super().__init__(prefix, name=name, **kwargs)
@@ -143,7 +173,7 @@ class RotaryStage(Device):
         self._backend.stop()
 
 
-class _Backed(Signal):
+class _Backed(Quantity):
     """A configuration signal forwarded to an attribute of the parent's backend."""
 
     def __init__(self, *args, attr, **kwargs):
@@ -173,37 +203,79 @@ class LockIn(Device):
     six decades of a black coating's BRDF.
     """
 
-    mean_v = Cpt(Signal, value=np.nan, kind=Kind.hinted)
-    std_v = Cpt(Signal, value=np.nan, kind=Kind.normal)
+    mean_v = Cpt(Quantity, value=np.nan, kind=Kind.hinted, units="V", precision=9)
+    std_v = Cpt(Quantity, value=np.nan, kind=Kind.normal, units="V", precision=9)
     n = Cpt(Signal, value=0, kind=Kind.normal)
-    sensitivity_v = Cpt(_Backed, attr="sensitivity_v", kind=Kind.config)
-    time_constant_s = Cpt(_Backed, attr="time_constant_s", kind=Kind.config)
+    #: readings discarded for a reference unlock (then waited for) in the last trigger
+    discarded = Cpt(Signal, value=0, kind=Kind.normal)
+    sensitivity_v = Cpt(_Backed, attr="sensitivity_v", kind=Kind.config, units="V", precision=9)
+    time_constant_s = Cpt(_Backed, attr="time_constant_s", kind=Kind.config, units="s", precision=5)
     n_readings = Cpt(Signal, value=3, kind=Kind.config)
     settle_factor = Cpt(Signal, value=1.0, kind=Kind.config)
     autorange = Cpt(Signal, value=True, kind=Kind.config)
+    #: how long a lost reference may take to lock again before the trigger fails
+    relock_timeout_s = Cpt(Quantity, value=10.0, kind=Kind.config, units="s", precision=1)
 
     def __init__(self, prefix="", *, backend, name, **kwargs):
         self._backend = backend
+        self._discarded = 0
         super().__init__(prefix, name=name, **kwargs)
 
     def _read_one(self) -> float:
+        """One reading after settling. A reference unlock discards it and waits for the lock
+        (:meth:`_wait_for_lock`); an overload moves one range up (autorange) or fails the
+        trigger with :class:`LockinOverload`; with autorange a reading under 10 % of full scale
+        moves one range down. Every retry reads again after settling."""
         b = self._backend
-        for _ in range(len(SENSITIVITY_V)):
+        for _ in range(2 * len(SENSITIVITY_V)):
             b.sleep(self.settle_factor.get() * b.settle_time_s())
             v = b.output("x")
-            over = b.overloads()
-            if not self.autorange.get():
+            flags = set(b.status_flags())
+            if REFERENCE_UNLOCK in flags:
+                self._discarded += 1
+                self._retry()
+                self._wait_for_lock()
+                continue
+            over = sorted(flags & set(OVERLOAD_BITS.values()))
+            autorange = bool(self.autorange.get())
+            if over and not autorange:
+                raise LockinOverload(f"{self.name}: {', '.join(over)} (LIAS?) with autorange off; "
+                                     f"the reading is not used")
+            if not autorange:
                 return v
             idx = int(np.searchsorted(np.asarray(SENSITIVITY_V), b.sensitivity_v * (1 - 1e-9)))
-            if over and idx < len(SENSITIVITY_V) - 1:
+            if over:
+                if idx >= len(SENSITIVITY_V) - 1:
+                    raise LockinOverload(f"{self.name}: {', '.join(over)} (LIAS?) on the largest range "
+                                         f"({SENSITIVITY_V[-1]:g} V); the reading is not used")
                 b.sensitivity_v = SENSITIVITY_V[idx + 1]
-            elif not over and abs(v) < 0.1 * SENSITIVITY_V[idx] and idx > 0 and abs(v) < 0.5 * SENSITIVITY_V[idx - 1]:
+            elif abs(v) < 0.1 * SENSITIVITY_V[idx] and idx > 0 and abs(v) < 0.5 * SENSITIVITY_V[idx - 1]:
                 b.sensitivity_v = SENSITIVITY_V[idx - 1]
             else:
                 return v
-            if hasattr(b, "discard_reading"):
-                b.discard_reading()
-        return v
+            self._retry()
+        raise LockinOverload(f"{self.name}: no stable range after {2 * len(SENSITIVITY_V)} tries")
+
+    def _retry(self):
+        if hasattr(self._backend, "discard_reading"):
+            self._backend.discard_reading()
+
+    def _wait_for_lock(self):
+        """The reference is lost (LIAS? bit 3): poll the status every settling time until a
+        poll finds it locked, or fail after ``relock_timeout_s`` with :class:`ReferenceUnlocked`."""
+        b = self._backend
+        timeout_s = float(self.relock_timeout_s.get())
+        log.warning("%s: reference unlocked (LIAS? bit 3); reading discarded, waiting up to %g s for the lock",
+                    self.name, timeout_s)
+        waited = 0.0
+        step = max(b.settle_time_s(), 0.05)
+        while waited <= timeout_s:
+            b.sleep(step)
+            waited += step
+            if REFERENCE_UNLOCK not in set(b.status_flags()):
+                return
+        raise ReferenceUnlocked(f"{self.name}: reference unlocked (LIAS? bit 3: chopper stopped or its reference "
+                                f"lost) for more than {timeout_s:g} s; readings while unlocked are discarded")
 
     def trigger(self):
         n = int(self.n_readings.get())
@@ -213,10 +285,12 @@ class LockIn(Device):
         def work():
             if hasattr(self._backend, "start_acquisition"):
                 self._backend.start_acquisition()
+            self._discarded = 0
             values = np.array([self._read_one() for _ in range(n)])
             self.mean_v.put(float(values.mean()))
             self.std_v.put(float(values.std(ddof=1)) if n > 1 else float("nan"))
             self.n.put(n)
+            self.discarded.put(self._discarded)
 
         return _run(self._backend, self, work)
 
@@ -225,7 +299,7 @@ class Laser(Device):
     """Laser with a power monitor. ``power_w`` is refreshed on trigger and, for suspenders, by a
     backend listener (simulation) or a polling thread started by :meth:`start_monitor` (real)."""
 
-    power_w = Cpt(Signal, value=np.nan, kind=Kind.hinted)
+    power_w = Cpt(Quantity, value=np.nan, kind=Kind.hinted, units="W", precision=7)
 
     def __init__(self, prefix="", *, backend, name, **kwargs):
         super().__init__(prefix, name=name, **kwargs)
@@ -264,7 +338,7 @@ class Laser(Device):
 class Chopper(Device):
     """Optical chopper; its frequency is read from the lock-in's reference input."""
 
-    frequency_hz = Cpt(Signal, value=np.nan, kind=Kind.normal)
+    frequency_hz = Cpt(Quantity, value=np.nan, kind=Kind.normal, units="Hz", precision=2)
 
     def __init__(self, prefix="", *, backend, name, **kwargs):
         super().__init__(prefix, name=name, **kwargs)
@@ -281,9 +355,9 @@ class ScanPoint(Device):
     point in the plan); it moves nothing.
     """
 
-    theta_i_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
-    theta_r_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
-    phi_r_deg = Cpt(Signal, value=np.nan, kind=Kind.normal)
+    theta_i_deg = Cpt(Quantity, value=np.nan, kind=Kind.normal, units="deg", precision=6)
+    theta_r_deg = Cpt(Quantity, value=np.nan, kind=Kind.normal, units="deg", precision=6)
+    phi_r_deg = Cpt(Quantity, value=np.nan, kind=Kind.normal, units="deg", precision=6)
     polarization = Cpt(Signal, value="", kind=Kind.normal)
 
     def set(self, value, **kwargs):
@@ -295,53 +369,6 @@ class ScanPoint(Device):
         status = DeviceStatus(self)
         status.set_finished()
         return status
-
-
-class Snapshot:
-    """One bluesky Readable + Triggerable standing for several devices: ``trigger`` triggers the
-    detectors (in order; the status completes when all have), ``read``/``describe`` merge every
-    device's. A point then costs one ``trigger`` and one ``read`` message instead of ten: the
-    event holds the same fields as reading each device separately.
-    """
-
-    parent = None
-
-    def __init__(self, name: str, triggered, readables):
-        self.name = name
-        self._triggered = list(triggered)
-        self._readables = list(readables)
-
-    def trigger(self):
-        statuses = [obj.trigger() for obj in self._triggered]
-        status = statuses[0]
-        for other in statuses[1:]:
-            status = status & other
-        return status
-
-    def _merge(self, method):
-        out = {}
-        for obj in self._readables:
-            out.update(getattr(obj, method)())
-        return out
-
-    def read(self):
-        return self._merge("read")
-
-    def describe(self):
-        return self._merge("describe")
-
-    def read_configuration(self):
-        return self._merge("read_configuration")
-
-    def describe_configuration(self):
-        return self._merge("describe_configuration")
-
-    @property
-    def hints(self):
-        fields = []
-        for obj in self._readables:
-            fields += list(getattr(obj, "hints", {}).get("fields", []))
-        return {"fields": fields}
 
 
 @dataclass
@@ -359,20 +386,24 @@ class RigDevices:
 
     @property
     def detectors(self):
-        """What each point reads, besides the motors."""
-        return [self.lockin, self.laser, self.chopper, self.point]
+        """The triggered detectors of every point (the start document's ``detectors``)."""
+        return [self.lockin, self.laser, self.chopper]
 
     @property
-    def snapshot(self) -> Snapshot:
-        """Triggers lock-in, laser, chopper; reads them, the point and the three axes."""
-        if getattr(self, "_snapshot", None) is None:
-            self._snapshot = Snapshot("rig", [self.lockin, self.laser, self.chopper],
-                                      [*self.detectors, self.sample_stage, self.arm, self.hwp])
-        return self._snapshot
+    def motors(self):
+        """The axes (the start document's ``motors``)."""
+        return [self.sample_stage, self.arm, self.hwp]
+
+    def as_dict(self) -> dict:
+        """The ophyd objects by role, as :func:`rig.plans.brdf_scan` takes them."""
+        return {role: getattr(self, role) for role in DEVICE_ROLES}
 
     def all(self):
         return [self.sample_stage, self.arm, self.hwp, self.laser, self.chopper, self.lockin, self.point]
 
+
+#: the roles of a reflectometer's ophyd objects (keyword names of rig.plans.brdf_scan)
+DEVICE_ROLES = ("lockin", "laser", "chopper", "sample_stage", "arm", "hwp", "point")
 
 #: Soft limits (deg). The arm cannot go within 5 deg of the incoming beam (its head would block
 #: the beam) nor past 175 deg (the stage base).
@@ -447,8 +478,8 @@ class Sr830Lockin:
     def settle_time_s(self):
         return self.driver.settle_time_s()
 
-    def overloads(self):
-        return self.driver.overloads()
+    def status_flags(self):
+        return self.driver.status_flags()
 
     def sleep(self, seconds):
         time.sleep(seconds)

@@ -220,65 +220,193 @@ def load_plan(source) -> PlanSpec:
 
 def check_points(points, devices) -> None:
     """Raise the stage's SoftLimitError for the first point the rig cannot reach (nothing moves)."""
+    d = devices if isinstance(devices, dict) else devices.as_dict()
     for p in points:
         try:
-            devices.sample_stage.check_value(p.theta_i_deg)
-            devices.arm.check_value(arm_deg(p))
-            devices.hwp.check_value(HWP_DEG[p.polarization])
+            d["sample_stage"].check_value(p.theta_i_deg)
+            d["arm"].check_value(arm_deg(p))
+            d["hwp"].check_value(HWP_DEG[p.polarization])
         except ValueError as exc:
             raise type(exc)(f"point theta_i {p.theta_i_deg:g} deg, {p.polarization}, theta_r {p.theta_r_deg:g} deg, "
                             f"phi_r {p.phi_r_deg:g} deg: {exc}") from None
 
 
-def brdf_scan(devices, points, *, n_readings: int = PAPER_N_READINGS, md: dict | None = None, skip=()):
-    """Measure ``points`` (a sequence of :class:`Point`), one event per point.
+class StopReason:
+    """Why a run ended early, for its stop document.
 
-    Each point: ``checkpoint``; record the nominal point and move stage and arm together
-    (``set`` x 3, ``wait``); ``create``; ``trigger`` the snapshot (lock-in: ``n_readings``
-    readings -> mean, std; laser; chopper); ``wait``; ``read`` the snapshot (those, the point and
-    the three axes); ``save`` (:class:`rig.devices.Snapshot`). The HWP moves only when the polarization changes. Points whose
-    :func:`point_key` is in ``skip`` are left out (``--resume``).
-
-    Parameters
-    ----------
-    devices : rig.devices.RigDevices
-    md : extra start-document metadata (sample, rig, plan name, ...).
+    bluesky's ``run_wrapper`` closes an aborted run without the reason given to
+    ``RE.abort(reason)``; :func:`brdf_scan` closes it with :attr:`text` instead. The caller that
+    turns a signal into an abort (``rig.run.run_scan``) sets the text first; when nobody did,
+    the stop document still says what happened.
     """
-    skip = set(skip)
-    todo = [Point(*p) for p in points if point_key(*p) not in skip]
-    d = devices
-    _md = {"plan_name": "brdf_scan", "n_readings": int(n_readings), "n_points_total": len(points),
-           "n_points_todo": len(todo), "hints": {"dimensions": [(["point_theta_r_deg"], "primary")]}}
+
+    def __init__(self, text: str = ""):
+        self.text = text
+
+    def for_abort(self) -> str:
+        return self.text or "aborted (RE.abort after a pause: Ctrl-C, SIGTERM or the operator)"
+
+
+class ScanFault(RuntimeError):
+    """A device failed during a point; ``cause`` is the device's own error (MoveTimeout,
+    InstrumentTimeout, ReferenceUnlocked, LockinOverload, SoftLimitError ...)."""
+
+    def __init__(self, cause: BaseException):
+        self.cause = cause
+        super().__init__(f"{type(cause).__name__}: {cause}")
+
+
+def device_error(exc: BaseException) -> BaseException:
+    """The device error behind a bluesky ``FailedStatus`` (or ``exc`` itself)."""
+    from bluesky.utils import FailedStatus
+
+    def from_status(status):
+        for part in (getattr(status, "left", None), getattr(status, "right", None)):  # AndStatus
+            if part is not None and part.done and not part.success:
+                return from_status(part)
+        inner = status.exception() if hasattr(status, "exception") else None
+        return inner if isinstance(inner, BaseException) and not isinstance(inner, FailedStatus) else None
+
+    if isinstance(exc, FailedStatus) and exc.args:
+        inner = from_status(exc.args[0])
+        if inner is not None:
+            return inner
+    return exc
+
+
+def _devices(devices, kwargs) -> dict:
+    """The ophyd objects by role, from a RigDevices / mapping and/or keyword arguments."""
+    from rig.devices import DEVICE_ROLES, ScanPoint
+
+    found = {}
+    if devices is not None:
+        found.update(devices if isinstance(devices, dict) else devices.as_dict())
+    found.update({k: v for k, v in kwargs.items() if v is not None})
+    if found.get("point") is None:
+        found["point"] = ScanPoint(name="point")
+    missing = [r for r in DEVICE_ROLES if found.get(r) is None]
+    if missing:
+        raise TypeError(f"brdf_scan: missing device(s) {', '.join(missing)}")
+    return found
+
+
+def brdf_scan(devices=None, points=(), *, n_readings: int = PAPER_N_READINGS, md: dict | None = None, skip=(),
+              csv_path=None, log_path=None, resume: bool = False, fsync: bool = True,
+              laser_nominal_w: float | None = None, suspend_fraction: float = 0.5, resume_fraction: float = 0.9,
+              files=None, stop_reason: StopReason | None = None, check_limits: bool = True,
+              lockin=None, laser=None, chopper=None, sample_stage=None, arm=None, hwp=None, point=None):
+    """Measure ``points`` (a sequence of :class:`Point`), one event per point, and keep the data safe.
+
+    Devices are ophyd objects, given by keyword (``lockin``, ``laser``, ``chopper``,
+    ``sample_stage``, ``arm``, ``hwp``; ``point`` optional) or as a ``rig.devices.RigDevices``
+    / mapping first argument. Each point: ``checkpoint``; record the nominal point and move stage
+    and arm together (``set`` x 3, ``wait``); ``create``; ``trigger`` lock-in, laser and chopper
+    (one group), ``wait``; ``read`` each device (one ophyd object per device in the descriptor's
+    ``object_keys``, units and precision in its data keys); ``save``. The HWP moves only when
+    the polarization changes. Points whose :func:`point_key` is in ``skip`` are left out.
+
+    Data safety travels with the plan, so ``RE(brdf_scan(...))`` in a notebook or a
+    queueserver keeps it: with ``csv_path`` the plan subscribes the CONTRACTS §2 CSV writer and
+    the ``[name, doc]`` document log (``log_path``, default ``SCAN.log.jsonl``) for its own
+    run (``bluesky.preprocessors.subs_wrapper``), skips the points already in the CSV when
+    ``resume``, and installs a ``SuspendFloor`` on the laser power (suspend below
+    ``suspend_fraction`` of ``laser_nominal_w``, default the power now; resume above
+    ``resume_fraction``; the point is re-measured). Every point is checked against the soft
+    limits before anything moves. A device fault closes the run with ``exit_status 'fail'``
+    and the device's error as ``reason`` (raised as :class:`ScanFault`); an abort closes it with
+    ``exit_status 'abort'`` and ``stop_reason`` (:class:`StopReason`).
+
+    ``files`` : a ready ``rig.writer.ScanFiles`` (what ``rig.run.run_scan`` passes) instead of
+    ``csv_path``/``log_path``/``resume``/``fsync``. ``check_limits=False`` leaves the soft
+    limits to the devices themselves (each ``set`` still refuses before motion).
+    """
+    from bluesky.suspenders import SuspendFloor
+    from bluesky.utils import RunEngineControlException
+
+    d = _devices(devices, dict(lockin=lockin, laser=laser, chopper=chopper, sample_stage=sample_stage, arm=arm,
+                               hwp=hwp, point=point))
+    points = [Point(*p) for p in points]
+    if check_limits:
+        check_points(points, d)
+    if files is None and csv_path is not None:
+        from rig.writer import ScanFiles
+
+        files = ScanFiles(csv_path, log_path=log_path, resume=resume, fsync=fsync)
+    skip = set(skip) | (files.completed_keys if files is not None else set())
+    todo = [p for p in points if point_key(*p) not in skip]
+    stop_reason = stop_reason or StopReason()
+    detectors = [d["lockin"], d["laser"], d["chopper"]]
+    motors = [d["sample_stage"], d["arm"], d["hwp"]]
+    readables = [*detectors, d["point"], *motors]
+    _md = {"plan_name": "brdf_scan", "plan_type": "generator", "n_readings": int(n_readings),
+           "n_points_total": len(points), "n_points_todo": len(todo), "num_points": len(todo),
+           "detectors": [obj.name for obj in detectors], "motors": [obj.name for obj in motors],
+           "plan_args": {"detectors": [repr(o) for o in detectors], "motors": [repr(o) for o in motors],
+                         "n_points": len(points), "n_readings": int(n_readings), "resume": bool(files and files.resume)},
+           "hints": {"dimensions": [(["point_theta_r_deg"], "primary")]}}
     _md.update(md or {})
+    if files is not None:
+        files.check_resume(**{k: _md[k] for k in ("sample", "plan_name") if k in _md})
 
-    snap = d.snapshot
-
-    @bpp.stage_decorator([d.lockin, d.laser, d.chopper, d.sample_stage, d.arm, d.hwp])
-    @bpp.run_decorator(md=_md)
-    def inner():
+    def points_plan():
         # Raw Msgs in the per-point loop: the same messages as bps.mv / bps.trigger_and_read,
-        # without bluesky's per-stub stack capture, which costs more than the simulated
-        # instrument itself; one Snapshot stands for every detector and axis read.
-        yield from bps.mv(d.lockin.n_readings, int(n_readings))
+        # without bluesky's per-stub stack capture, which costs more than the simulated instrument.
+        yield from bps.mv(d["lockin"].n_readings, int(n_readings))
         pol = None
         for i, p in enumerate(todo):
             if p.polarization != pol:
-                yield from bps.mv(d.hwp, HWP_DEG[p.polarization])
+                yield from _fail_on_device_error(bps.mv(d["hwp"], HWP_DEG[p.polarization]))
                 pol = p.polarization
             yield Msg("checkpoint")
-            group = f"move-{i}"
-            yield Msg("set", d.point, tuple(p), group=group)
-            yield Msg("set", d.sample_stage, p.theta_i_deg, group=group)
-            yield Msg("set", d.arm, arm_deg(p), group=group)
-            yield Msg("wait", None, group=group)
-            yield Msg("create", None, name="primary")
-            group = f"trigger-{i}"
-            yield Msg("trigger", snap, group=group)
-            yield Msg("wait", None, group=group)
-            yield Msg("read", snap)
-            yield Msg("save")
+            yield from _fail_on_device_error(one_point(i, p))
 
-    return (yield from inner())
+    def one_point(i, p):
+        group = f"move-{i}"
+        yield Msg("set", d["point"], tuple(p), group=group)
+        yield Msg("set", d["sample_stage"], p.theta_i_deg, group=group)
+        yield Msg("set", d["arm"], arm_deg(p), group=group)
+        yield Msg("wait", None, group=group)
+        yield Msg("create", None, name="primary")
+        group = f"trigger-{i}"
+        for obj in detectors:
+            yield Msg("trigger", obj, group=group)
+        yield Msg("wait", None, group=group)
+        for obj in readables:
+            yield Msg("read", obj)
+        yield Msg("save")
+
+    def run_plan():
+        uid = yield from bps.open_run(_md)
+
+        def except_plan(e):
+            if isinstance(e, RunEngineControlException):
+                reason = stop_reason.for_abort() if e.exit_status == "abort" else ""
+                yield from bps.close_run(exit_status=e.exit_status, reason=reason)
+            else:
+                yield from bps.close_run(exit_status="fail", reason=str(e))
+
+        yield from bpp.contingency_wrapper(points_plan(), except_plan=except_plan, else_plan=bps.close_run)
+        return uid
+
+    plan = bpp.stage_wrapper(run_plan(), readables)
+    if files is not None:
+        nominal_w = float(laser_nominal_w) if laser_nominal_w is not None else float(d["laser"].power_w.get())
+        suspender = SuspendFloor(d["laser"].power_w, suspend_fraction * nominal_w,
+                                 resume_thresh=resume_fraction * nominal_w, sleep=0.0)
+        plan = bpp.suspend_wrapper(plan, suspender)
+        plan = bpp.subs_wrapper(plan, files.callbacks())
+        plan = bpp.finalize_wrapper(plan, files.close_plan())
+    return plan
+
+
+def _fail_on_device_error(plan):
+    """Run ``plan``; a failed device status becomes :class:`ScanFault` naming the device's error."""
+    from bluesky.utils import FailedStatus
+
+    try:
+        return (yield from plan)
+    except FailedStatus as exc:
+        raise ScanFault(device_error(exc)) from exc
 
 
 def paper_scan(devices, *, md=None, skip=()):

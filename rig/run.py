@@ -5,13 +5,14 @@
 1. refuses to overwrite an existing scan unless resuming, and on resume skips every point
    already in the CSV (``rig.plans.point_key``);
 2. checks every point against the soft limits before anything moves;
-3. runs the plan in a bluesky ``RunEngine`` with the document log and the CSV writer
-   subscribed, a ``SuspendFloor`` on the laser power (the scan suspends when the power falls
-   below ``suspend_fraction`` of nominal and resumes, re-measuring the point, when it is back
-   above ``resume_fraction``), and SIGINT/SIGTERM turned into a pause then an abort, so an
-   interrupted run still ends with a stop document;
-4. reports a fault (stalled move, lock-in timeout, soft limit) as :class:`ScanFailed` naming
-   the cause and how many points are saved.
+3. runs the plan in a bluesky ``RunEngine``; the plan itself subscribes the document log and
+   the CSV writer and installs a ``SuspendFloor`` on the laser power (the scan suspends when
+   the power falls below ``suspend_fraction`` of nominal and resumes, re-measuring the point,
+   when it is back above ``resume_fraction``), so ``RE(plan)`` anywhere keeps them; this adds
+   SIGINT/SIGTERM turned into a pause then an abort, so an interrupted run still ends with a
+   stop document naming the signal;
+4. reports a fault (stalled move, lock-in timeout or overload, reference unlock, soft limit)
+   as :class:`ScanFailed` naming the cause and how many points are saved.
 """
 from __future__ import annotations
 
@@ -23,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from rig.instrument import RigConfig
-from rig.plans import PlanSpec, brdf_scan, check_points
-from rig.writer import CsvScanWriter, DocumentLog, log_path_for
+from rig.plans import PlanSpec, ScanFault, StopReason, brdf_scan, device_error
+from rig.writer import ScanFiles
 
 DEFAULT_GAIN_V_PER_W = 1000.0
 
@@ -48,25 +49,6 @@ class ScanOutcome:
     reason: str = ""
 
 
-def _cause(exc: BaseException) -> BaseException:
-    """The device error behind a bluesky FailedStatus (or the exception itself)."""
-    from bluesky.utils import FailedStatus
-
-    def from_status(status):
-        # an AndStatus (the Snapshot's trigger) holds the failed device status in left/right
-        for part in (getattr(status, "left", None), getattr(status, "right", None)):
-            if part is not None and part.done and not part.success:
-                return from_status(part)
-        inner = status.exception() if hasattr(status, "exception") else None
-        return inner if isinstance(inner, BaseException) and not isinstance(inner, FailedStatus) else None
-
-    if isinstance(exc, FailedStatus) and exc.args:
-        inner = from_status(exc.args[0])
-        if inner is not None:
-            return inner
-    return exc
-
-
 def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfig | None = None,
              md: dict | None = None, resume: bool = False, progress: bool = False, log_path=None,
              gain_v_per_w: float = DEFAULT_GAIN_V_PER_W, suspend_fraction: float = 0.5,
@@ -74,6 +56,9 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
              run_engine=None, callbacks=(), nominal_power_w: float | None = None) -> ScanOutcome:
     """Measure ``spec`` with ``devices`` into ``csv_path`` (CONTRACTS §2) and its document log.
 
+    The plan (``rig.plans.brdf_scan``) carries the CSV, the log and the laser suspender itself;
+    this adds what only a program owning the process can: SIGINT/SIGTERM turned into a pause
+    then an abort with the signal named in the stop document, a progress bar, the outcome.
     Returns a :class:`ScanOutcome` (``exit_status`` 'abort' after SIGINT/SIGTERM or
     ``run_engine.request_pause``); raises :class:`ScanFailed` on a device fault and
     ``rig.writer.ResumeError`` / ``SoftLimitError`` on bad requests, before anything moves.
@@ -82,30 +67,30 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     ``nominal_power_w`` (default: the power read when the scan starts).
     """
     from bluesky import RunEngine
-    from bluesky.suspenders import SuspendFloor
     from bluesky.utils import RunEngineInterrupted
 
     config = config or RigConfig()
     csv_path = Path(csv_path)
-    log_path = Path(log_path) if log_path is not None else log_path_for(csv_path)
-    writer = CsvScanWriter(csv_path, resume=resume, fsync=fsync)
-    done = writer.completed_keys
-    writer.check_resume(sample=sample, plan_name=spec.name)
-    check_points(spec.points, devices)
-    for directory in {csv_path.parent, log_path.parent}:  # -o out/SCAN.csv: create out/
-        directory.mkdir(parents=True, exist_ok=True)
+    files = ScanFiles(csv_path, log_path=log_path, resume=resume, fsync=fsync, after=callbacks)
+    done = files.completed_keys
     rig_md = {k.split(".", 1)[1]: v for k, v in config.to_metadata().items()}  # no dots in document keys
     full_md = {"sample": sample, "rig": rig_md, "wavelength_nm": config.wavelength_nm,
                "gain_v_per_w": float(gain_v_per_w), "plan_name": spec.name, "resumed": bool(resume and done),
                **(md or {})}
-    plan = brdf_scan(devices, spec.points, n_readings=spec.n_readings, md=full_md, skip=done)
+    stop_reason = StopReason()
+    nominal_w = float(nominal_power_w) if nominal_power_w is not None else devices.laser.power_w.get()
+    plan = brdf_scan(devices, spec.points, n_readings=spec.n_readings, md=full_md, files=files,
+                     laser_nominal_w=nominal_w, suspend_fraction=suspend_fraction,
+                     resume_fraction=resume_fraction, stop_reason=stop_reason)
+    real = not getattr(devices.backend, "synchronous", False) and devices.backend is None
+    if real:
+        devices.laser.start_monitor()
     n_todo = sum(1 for p in spec.points if _key(p) not in done)
     if hasattr(devices.backend, "prefetch"):
         devices.backend.prefetch([p for p in spec.points if _key(p) not in done])
 
     RE = run_engine or RunEngine({}, context_managers=[])
-    log = DocumentLog(log_path, fsync=fsync)
-    tokens = [RE.subscribe(log), RE.subscribe(writer)] + [RE.subscribe(cb) for cb in callbacks]
+    tokens = []
     bar = None
     if progress:
         from tqdm import tqdm
@@ -113,18 +98,12 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
         bar = tqdm(total=len(spec.points), initial=len(spec.points) - n_todo, unit="pt", file=sys.stderr,
                    desc=spec.name, disable=None)
         tokens.append(RE.subscribe(lambda name, doc: bar.update(1), "event"))
-    nominal_w = float(nominal_power_w) if nominal_power_w is not None else devices.laser.power_w.get()
-    suspender = SuspendFloor(devices.laser.power_w, suspend_fraction * nominal_w,
-                             resume_thresh=resume_fraction * nominal_w, sleep=0.0)
-    RE.install_suspender(suspender)
-    real = not getattr(devices.backend, "synchronous", False) and devices.backend is None
-    if real:
-        devices.laser.start_monitor()
     interrupted = {}
     old_handlers = {}
 
     def on_signal(signum, frame):
         interrupted["signal"] = signal.Signals(signum).name
+        stop_reason.text = f"interrupted ({interrupted['signal']})"
         # request_pause blocks until the RunEngine's loop thread acknowledges: never call it
         # from that thread or hold the main thread on it (bluesky's SigintHandler does the same)
         threading.Thread(target=_quiet_pause, args=(RE,), daemon=True).start()
@@ -138,28 +117,28 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
             RE(plan)
         except RunEngineInterrupted:
             reason = f"interrupted ({interrupted.get('signal', 'pause requested')})"
+            stop_reason.text = reason
             RE.abort(reason)
             status = "abort"
-        except Exception as exc:  # noqa: BLE001 - a fault; the run is closed with 'fail'
-            cause = _cause(exc)
+        except Exception as exc:  # noqa: BLE001 - a fault; the plan closed the run with 'fail'
+            cause = exc.cause if isinstance(exc, ScanFault) else device_error(exc)
             status, reason = "fail", f"{type(cause).__name__}: {cause}"
     finally:
         for sig, handler in old_handlers.items():
             signal.signal(sig, handler)
         if real:
             devices.laser.stop_monitor()
-        RE.remove_suspender(suspender)
         for token in tokens:
             RE.unsubscribe(token)
-        log.close()
+        files.log.close()
         if bar is not None:
             bar.close()
-    outcome = ScanOutcome(csv_path=csv_path, log_path=log_path, exit_status=status,
-                          n_points_plan=len(spec.points), n_points_in_file=len(writer.completed_keys),
-                          n_measured=writer.n_written, reason=reason)
+    outcome = ScanOutcome(csv_path=csv_path, log_path=files.log_path, exit_status=status,
+                          n_points_plan=len(spec.points), n_points_in_file=len(files.completed_keys),
+                          n_measured=files.csv.n_written, reason=reason)
     if status == "fail":
         raise ScanFailed(f"{reason}; {outcome.n_points_in_file} of {outcome.n_points_plan} points saved in "
-                         f"{csv_path} (log {log_path.name}); fix the fault and rerun with --resume")
+                         f"{csv_path} (log {files.log_path.name}); fix the fault and rerun with --resume")
     return outcome
 
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rig.drivers import InstrumentTimeout
-from rig.drivers.sr830 import SENSITIVITY_V, TIME_CONSTANT_S
+from rig.drivers.sr830 import REFERENCE_UNLOCK, SENSITIVITY_V, TIME_CONSTANT_S
 from rig.instrument import RigConfig
 
 #: HWP angle (deg) selecting each polarization: a half-wave plate at 45 deg turns s into p.
@@ -129,6 +129,10 @@ class SimFaults:
     laser_dip_at_reading: int | None = None
     laser_dip_fraction: float = 0.05
     laser_dip_duration_s: float = 0.2
+    #: the chopper's reference is lost at this reading, for ``reference_unlock_duration_s`` of
+    #: simulated time (``None``: never; ``float('inf')``: for good). Readings while unlocked are garbage.
+    reference_unlock_at_reading: int | None = None
+    reference_unlock_duration_s: float = 2.0
     on_reading: list = field(default_factory=list)  # callables fn(n_readings) run before each reading
 
 
@@ -147,6 +151,8 @@ class SimLockin:
         self.filter_slope = 1
         self.n_readings = 0
         self._overload = False
+        self._unlocked_until_s = -1.0
+        self._unlock_latched = False
         self._key = None
         self._k = 0
         self.synchronous = True
@@ -177,9 +183,17 @@ class SimLockin:
         the retry reuses its noise draw, so the values do not depend on the range history."""
         self._k = max(self._k - 1, 0)
 
-    def overloads(self) -> list[str]:
+    def reference_unlocked(self) -> bool:
+        """True while the simulated chopper reference is lost (SimFaults.reference_unlock_*)."""
+        return self.rig.clock.t_s < self._unlocked_until_s
+
+    def status_flags(self) -> list[str]:
+        """The LIAS? names set since the last call (latched like the SR830's, cleared by reading)."""
         out = ["output overload"] if self._overload else []
+        if self._unlock_latched or self.reference_unlocked():
+            out.append(REFERENCE_UNLOCK)
         self._overload = False
+        self._unlock_latched = False
         return out
 
     # signal ---------------------------------------------------------------------
@@ -197,6 +211,11 @@ class SimLockin:
             raise InstrumentTimeout("simulated SR830: no reply to 'OUTP? 1' within 0.05 s")
         if faults.laser_dip_at_reading is not None and self.n_readings == faults.laser_dip_at_reading:
             rig.laser.dip(faults.laser_dip_fraction, faults.laser_dip_duration_s)
+        if faults.reference_unlock_at_reading is not None and self.n_readings == faults.reference_unlock_at_reading:
+            self._unlocked_until_s = rig.clock.t_s + faults.reference_unlock_duration_s
+        unlocked = self.reference_unlocked()
+        if unlocked:
+            self._unlock_latched = True
         self.n_readings += 1
         key = rig.state_key()
         if key != self._key:
@@ -207,6 +226,8 @@ class SimLockin:
         floor_v = rig.gain_v_per_w * rig.laser.power_w() * rig.config.solid_angle_sr * rig.noise_floor_per_sr
         sigma = np.hypot(rig.noise_rel * v_true, floor_v)
         v = v_true + sigma * rng.standard_normal()
+        if unlocked:  # no reference: the demodulator drifts; what it reads means nothing
+            v *= 0.3
         full = self.sensitivity_v
         if abs(v) > full:
             self._overload = True

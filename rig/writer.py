@@ -1,7 +1,7 @@
 """Data never lost: the document log and the CONTRACTS §2 CSV, written as the scan runs.
 
-:class:`DocumentLog` appends every bluesky document to a JSON-lines file (one
-``{"name": ..., "doc": ...}`` per line), flushed and fsynced as it arrives, so the log is
+:class:`DocumentLog` appends every bluesky document to a JSON-lines file (one ``[name, doc]``
+array per line, as suitcase-jsonl writes it), flushed and fsynced as it arrives, so the log is
 complete up to the last document even if the process dies.
 
 :class:`CsvScanWriter` turns each event of the ``primary`` stream into one CSV row and
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from materials.atomic import atomic_write_text
+from atomicio import write_text as atomic_write_text
 from materials.scan import format_rows, header_text, read_scan
 from rig.instrument import RigConfig
 from rig.plans import point_key
@@ -35,43 +35,46 @@ class ResumeError(ValueError):
     """The existing CSV cannot be continued by this scan (names the file and the mismatch)."""
 
 
-def _json_default(obj):
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (set, tuple)):
-        return list(obj)
-    return repr(obj)
-
-
 class DocumentLog:
-    """Append each ``(name, doc)`` to a JSON-lines file, flushed and fsynced per document."""
+    """Append each document as one ``[name, doc]`` JSON array per line, the form bluesky's own
+    tools read (suitcase-jsonl writes it, ``event_model``'s ``NumpyEncoder`` serialises numpy
+    values), flushed and (``fsync=True``) fsynced per document. The file is opened at the first
+    document (appending: a resumed scan adds its run after the earlier ones) and created with the
+    user's umask."""
 
     def __init__(self, path, fsync: bool = True):
         self.path = Path(path)
         self.fsync = fsync
-        self._fh = open(self.path, "a", encoding="utf-8")
+        self._fh = None
 
     def __call__(self, name, doc):
-        self._fh.write(json.dumps({"name": name, "doc": doc}, default=_json_default) + "\n")
+        from event_model import NumpyEncoder
+
+        if self._fh is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.path, "a", encoding="utf-8")
+        self._fh.write(json.dumps([name, doc], cls=NumpyEncoder) + "\n")
         self._fh.flush()
         if self.fsync:
             os.fsync(self._fh.fileno())
 
     def close(self):
-        if not self._fh.closed:
+        if self._fh is not None and not self._fh.closed:
             self._fh.close()
 
 
 def read_log(path) -> list[tuple[str, dict]]:
-    """The ``(name, doc)`` pairs of a document log, in order."""
+    """The ``(name, doc)`` pairs of a document log, in order (also reads the older
+    ``{"name": ..., "doc": ...}`` lines, so a log begun before the change can be resumed)."""
     out = []
     with open(path, encoding="utf-8") as fh:
         for line in fh:
             if line.strip():
                 rec = json.loads(line)
-                out.append((rec["name"], rec["doc"]))
+                if isinstance(rec, dict):
+                    rec = (rec["name"], rec["doc"])
+                name, doc = rec
+                out.append((name, doc))
     return out
 
 
@@ -190,3 +193,32 @@ def log_path_for(csv_path) -> Path:
     """The document log next to a scan: ``SCAN.csv`` -> ``SCAN.log.jsonl``."""
     p = Path(csv_path)
     return p.with_name(p.stem + ".log.jsonl")
+
+
+class ScanFiles:
+    """The CSV writer and the document log of one scan, as one bundle a plan subscribes
+    (``rig.plans.brdf_scan``): the log first, so a document is in the log before the CSV
+    reflects it. ``after``: callbacks subscribed after both (they see the files as written)."""
+
+    def __init__(self, csv_path, *, log_path=None, resume: bool = False, fsync: bool = True, after=()):
+        self.csv_path = Path(csv_path)
+        self.log_path = Path(log_path) if log_path is not None else log_path_for(csv_path)
+        self.resume = resume
+        self.csv = CsvScanWriter(self.csv_path, resume=resume, fsync=fsync)
+        self.log = DocumentLog(self.log_path, fsync=fsync)
+        self.after = list(after)
+
+    @property
+    def completed_keys(self) -> set:
+        return self.csv.completed_keys
+
+    def check_resume(self, **expected) -> None:
+        self.csv.check_resume(**expected)
+
+    def callbacks(self) -> list:
+        return [self.log, self.csv, *self.after]
+
+    def close_plan(self):
+        """A (message-free) plan that closes the log: ``finalize_wrapper`` runs it at the end."""
+        self.log.close()
+        yield from ()

@@ -5,7 +5,9 @@ Command set (SR830 manual, chapter 5): ``OUTP? i`` (1 X, 2 Y, 3 R, 4 theta), ``S
 ``OFLT i`` / ``OFLT?`` (time constant index 0..19, 10 us .. 30 ks), ``OFSL?`` (filter slope
 6/12/18/24 dB/oct), ``OAUX? i`` (aux input i in V; the laser power monitor is on AUX IN 1),
 ``FREQ?`` (reference frequency: the chopper's, in external reference mode), ``LIAS?`` (status
-byte: bit 0 input overload, bit 1 filter overload, bit 2 output overload, bit 3 reference unlock).
+byte: bit 0 input overload, bit 1 filter overload, bit 2 output overload, bit 3 reference unlock;
+the bits latch until read and reading clears them, so :meth:`Sr830.status_flags` reads the byte
+once and reports every bit).
 """
 from __future__ import annotations
 
@@ -21,6 +23,9 @@ TIME_CONSTANT_S = tuple(float(f"{m}e{e}") for e in range(-5, 5) for m in (1, 3))
 SETTLE_TC_99 = (5.0, 7.0, 9.0, 10.0)
 OUTPUTS = {"x": 1, "y": 2, "r": 3, "theta": 4}
 OVERLOAD_BITS = {0: "input overload", 1: "filter overload", 2: "output overload"}
+REFERENCE_UNLOCK = "reference unlock"
+#: LIAS? bits 0-3 (SR830 manual, "LIA status byte"): the overloads and the reference unlock
+STATUS_BITS = {**OVERLOAD_BITS, 3: REFERENCE_UNLOCK}
 
 
 def sensitivity_index(full_scale_v: float) -> int:
@@ -106,7 +111,12 @@ class Sr830(VisaInstrument):
         """The LIA status byte (reading clears it)."""
         return self.query_int("LIAS?")
 
-    def overloads(self) -> list[str]:
-        """Names of the overload bits set since the last read; empty when none."""
-        byte = self.status()
-        return [name for bit, name in OVERLOAD_BITS.items() if byte >> bit & 1]
+    def status_flags(self) -> list[str]:
+        """Names of the LIAS? bits 0-3 set since the last read (overloads and ``'reference unlock'``);
+        empty when none. One query: reading the byte clears it, so every bit is reported here."""
+        return flags_from_status_byte(self.status())
+
+
+def flags_from_status_byte(byte: int) -> list[str]:
+    """The :data:`STATUS_BITS` names set in a LIAS? byte, in bit order."""
+    return [name for bit, name in STATUS_BITS.items() if int(byte) >> bit & 1]

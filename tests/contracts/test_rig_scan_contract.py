@@ -155,7 +155,14 @@ def test_interrupt_then_resume(tmp_path, sig):
     assert len({key(r) for r in partial}) == len(partial)
     log = out.with_suffix(".log.jsonl")
     docs = [json.loads(line) for line in log.read_text().splitlines()]
-    assert docs[0]["name"] == "start" and docs[-1]["name"] == "stop"  # a complete document log
+    # a complete document log of [name, doc] lines (CONTRACTS 4.4), valid under event-model's schemas
+    from event_model import DocumentNames, schema_validators
+
+    assert all(isinstance(d, list) and len(d) == 2 for d in docs)
+    for name, doc in docs:
+        schema_validators[DocumentNames[name]].validate(doc)
+    assert docs[0][0] == "start" and docs[-1][0] == "stop"
+    assert docs[-1][1]["exit_status"] == "abort" and sig.name in docs[-1][1]["reason"]
     from materials.scan import read_scan
 
     assert len(read_scan(out)) == len(partial)

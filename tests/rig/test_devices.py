@@ -39,7 +39,7 @@ def test_devices_satisfy_bluesky_protocols():
         assert isinstance(dev, protocols.Movable) and isinstance(dev, protocols.Stoppable)
     for dev in (d.lockin, d.laser, d.chopper):
         assert isinstance(dev, protocols.Triggerable)
-    assert set(d.lockin.read()) == {"lockin_mean_v", "lockin_std_v", "lockin_n"}
+    assert set(d.lockin.read()) == {"lockin_mean_v", "lockin_std_v", "lockin_n", "lockin_discarded"}
     assert "lockin_time_constant_s" in d.lockin.read_configuration()
 
 

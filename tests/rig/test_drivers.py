@@ -95,7 +95,7 @@ def test_sr830_reads_parse():
     assert drv.snap("x", "y") == pytest.approx([1.25e-3, 2e-6])
     assert drv.aux_in_v(1) == pytest.approx(2.5)
     assert drv.frequency_hz() == pytest.approx(1000.0)
-    assert drv.overloads() == []
+    assert drv.status_flags() == []
     with pytest.raises(ValueError, match="output must be"):
         drv.output("z")
 
@@ -112,7 +112,7 @@ def test_sr830_settings_round_trip_and_settling():
 
 def test_sr830_overload_and_bad_reply():
     drv = lockin("GPIB0::9::INSTR")
-    assert drv.overloads() == ["input overload", "output overload"]
+    assert drv.status_flags() == ["input overload", "output overload"]
     with pytest.raises(ResponseError, match=r"reply 'oops' to 'SENS\?' is not an integer"):
         drv.sensitivity_v
 

@@ -28,11 +28,12 @@ def test_brdf_scan_messages(rig):
     points = [Point(30.0, "s", 30.0, 0.0), Point(30.0, "p", 20.0, 180.0)]
     msgs = list(brdf_scan(d, points, n_readings=3, md={"sample": "x"}))
     got = summary(msgs)
-    staged = ["lockin", "laser", "chopper", "sample_stage", "arm", "hwp"]
+    staged = ["lockin", "laser", "chopper", "point", "sample_stage", "arm", "hwp"]
     def point_msgs(p, arm):
-        return [("checkpoint", None, ()), ("set", "point", (tuple(p),)), ("set", "sample_stage", (p.theta_i_deg,)),
-                ("set", "arm", (arm,)), ("wait", None, ()), ("create", None, ()),
-                ("trigger", "rig", ()), ("wait", None, ()), ("read", "rig", ()), ("save", None, ())]
+        return ([("checkpoint", None, ()), ("set", "point", (tuple(p),)), ("set", "sample_stage", (p.theta_i_deg,)),
+                 ("set", "arm", (arm,)), ("wait", None, ()), ("create", None, ())]
+                + [("trigger", n, ()) for n in ("lockin", "laser", "chopper")] + [("wait", None, ())]
+                + [("read", n, ()) for n in staged] + [("save", None, ())])
 
     expected = ([("stage", n, ()) for n in staged] + [("open_run", None, ())]
                 + [("set", "lockin_n_readings", (3,)), ("wait", None, ())]
@@ -42,12 +43,14 @@ def test_brdf_scan_messages(rig):
     assert got == expected
     open_run = next(m for m in msgs if m.command == "open_run")
     assert open_run.kwargs["sample"] == "x" and open_run.kwargs["n_points_total"] == 2
-    # the snapshot reads every device: lock-in, laser, chopper, point, three axes
-    assert set(d.snapshot.read()) == {
-        "lockin_mean_v", "lockin_std_v", "lockin_n", "laser_power_w", "chopper_frequency_hz",
+    # each point reads every device: lock-in, laser, chopper, point, three axes
+    fields = set()
+    for dev in d.all():
+        fields |= set(dev.read())
+    assert fields == {
+        "lockin_mean_v", "lockin_std_v", "lockin_n", "lockin_discarded", "laser_power_w", "chopper_frequency_hz",
         "point_theta_i_deg", "point_theta_r_deg", "point_phi_r_deg", "point_polarization",
         "sample_stage", "sample_stage_setpoint", "arm", "arm_setpoint", "hwp", "hwp_setpoint"}
-    assert set(d.snapshot.describe()) == set(d.snapshot.read())
 
 
 def test_skip_leaves_out_completed_points(rig):
