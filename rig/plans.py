@@ -45,12 +45,13 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 from bluesky import plan_stubs as bps
 from bluesky import preprocessors as bpp
 from bluesky.utils import Msg
+
+from rig.points import Point, point_key  # noqa: F401 - the plans' point vocabulary
 
 HWP_DEG = {"s": 0.0, "p": 45.0}
 PAPER_THETA_I_DEG = (10.0, 30.0, 40.0, 70.0, 80.0)
@@ -64,19 +65,6 @@ WING_STEP_DEG = 5.0
 
 class PlanError(ValueError):
     """A plan file or point list is invalid; the message names the file and the entry."""
-
-
-class Point(NamedTuple):
-    theta_i_deg: float
-    polarization: str
-    theta_r_deg: float
-    phi_r_deg: float = 0.0
-
-
-def point_key(theta_i_deg, polarization, theta_r_deg, phi_r_deg) -> tuple:
-    """Hashable identity of a point, angles rounded to 1e-6 deg (resume matches on it)."""
-    return (round(float(theta_i_deg), 6), str(polarization), round(float(theta_r_deg), 6),
-            round(float(phi_r_deg) % 360.0, 6))
 
 
 def arm_deg(point: Point) -> float:

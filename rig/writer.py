@@ -28,7 +28,7 @@ import numpy as np
 from atomicio import write_text as atomic_write_text
 from materials.scan import format_rows, header_text, read_scan
 from rig.instrument import RigConfig
-from rig.plans import point_key
+from rig.points import point_key
 
 
 class ResumeError(ValueError):

@@ -2,7 +2,6 @@
 (CONTRACTS §4.1). Thin layer over :func:`rig.diagnose.diagnose`; ``rig`` is imported lazily."""
 from __future__ import annotations
 
-import json
 import os
 import sys
 from pathlib import Path
@@ -30,10 +29,10 @@ def add_parser(rig_subparsers) -> None:
 
 
 def run(args) -> int:
-    from materials.atomic import atomic_write_text
+    import atomicio
     from materials.scan import read_scan
     from rig.diagnose import diagnose, to_json
-    from rig.report import json_safe, write_report
+    from rig.report import write_report
 
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
@@ -47,7 +46,7 @@ def run(args) -> int:
     doc = to_json(result)
     doc["measured"] = str(args.measured)
     doc["seed"] = args.seed
-    atomic_write_text(out, json.dumps(json_safe(doc), indent=2, allow_nan=False) + "\n")
+    atomicio.write_json(out, doc)
     if args.report:
         write_report(result, args.report, doc)
     sel = ", ".join(doc["selected_effects"]) or "none"

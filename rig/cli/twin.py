@@ -10,6 +10,8 @@ import json
 import sys
 from pathlib import Path
 
+import atomicio
+
 RIG_OPTIONS = (("arm_mm", "sample-to-slit distance"), ("slit_width_mm", "slit width in the plane of incidence"),
                ("slit_height_mm", "slit height"), ("beam_diameter_mm", "beam 1/e^2 diameter at the sample"),
                ("beam_divergence_mrad", "Gaussian sigma of the in-plane beam divergence"),
@@ -78,8 +80,7 @@ def run_twin_command(args) -> int:
                 "rig": {k: getattr(config, k) for k in ("wavelength_nm",) + tuple(f for f, _ in RIG_OPTIONS)},
                 "twin": {k: getattr(twin, k) for k in twin.__dataclass_fields__}})
     path = Path(args.json)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=2) + "\n", encoding="utf-8")
+    atomicio.write_text(path, json.dumps(out, indent=2) + "\n")
     print(f"{'theta_i':>8} {'theta_r':>8} pol {'twin 1/sr':>11} {'stderr':>10} {'model 1/sr':>11} {'z':>6}  est")
     for pt in out["points"]:
         model = "-" if pt["model_brdf_per_sr"] is None else f"{pt['model_brdf_per_sr']:.4e}"
