@@ -12,19 +12,24 @@ from materials.kcorrelation import KCorrelation
 from materials.lambertian import Lambertian
 from materials.microfacet import Microfacet
 from materials.tabulated import Tabulated
+from materials.smooth import Dielectric, Specular
+from materials.particulate import Particulate
 from materials.material import Material, list_presets, load_material, material_from_dict, save_material
 
 __all__ = [
     "Abg",
     "Brdf",
     "Composite",
+    "Dielectric",
     "HarveyShack",
     "KCorrelation",
     "Lambertian",
     "Material",
     "Microfacet",
     "MaterialError",
+    "Particulate",
     "Sample",
+    "Specular",
     "Tabulated",
     "directional_hemispherical_reflectance",
     "fresnel_reflectance",

@@ -129,3 +129,54 @@ def scatter_azimuth(wi, wo) -> tuple[np.ndarray, np.ndarray]:
         cos_phi[bad] = np.where(normal[bad], ox[bad] / np.where(normal[bad], on[bad], 1.0), 1.0)
         sin_phi[bad] = np.where(normal[bad], oy[bad] / np.where(normal[bad], on[bad], 1.0), 0.0)
     return cos_phi, sin_phi
+
+
+def fresnel_amplitudes(cos_i, m):
+    """Amplitude coefficients of a plane interface, incidence from medium 1 into medium 2.
+
+    ``m = n2 / n1`` (real or complex, scalar or (n,)), ``cos_i`` (n,) the cosine of the
+    incidence angle in medium 1 (>= 0). With ``q = sqrt(m^2 - sin^2 theta_i) = m cos theta_t``
+    (principal branch, Im q >= 0; imaginary under total internal reflection)::
+
+        r_s = (cos_i - q) / (cos_i + q)            r_p = (m^2 cos_i - q) / (m^2 cos_i + q)
+        t_s = 2 cos_i / (cos_i + q)                t_p = 2 m cos_i / (m^2 cos_i + q)
+
+    Basis: s = the unit vector along (propagation x normal), p = propagation x s, on both sides
+    of the interface (so r_p = -r_s at normal incidence and a perfect conductor has r_s = -1,
+    r_p = +1; Born & Wolf §1.5 with the p vectors turned accordingly; the same r_p as
+    :func:`fresnel_reflectance`).
+
+    Returns
+    -------
+    r_s, r_p, t_s, t_p : (n,) complex128
+    q : (n,) complex128, m cos(theta_t)
+    """
+    c = np.asarray(cos_i, float)
+    m = np.asarray(m, complex)
+    m2 = m * m
+    q = np.sqrt(m2 - (1.0 - c * c) + 0j)
+    ds = c + q
+    dp = m2 * c + q
+    return (c - q) / ds, (m2 * c - q) / dp, 2.0 * c / ds, 2.0 * m * c / dp, q
+
+
+def fresnel_power(cos_i, m):
+    """Power reflectances and transmittances ``R_s, R_p, T_s, T_p`` (n,) of a plane interface.
+
+    ``R = |r|^2``; for a real ``m``, ``T = Re(q) / cos_i |t|^2`` (Born & Wolf §1.5.3), which
+    is 0 under total internal reflection and equals ``1 - R``. For a complex ``m`` (an
+    absorbing medium 2) the power that enters is taken as ``T = 1 - R``.
+    """
+    c = np.asarray(cos_i, float)
+    rs, rp, ts, tp, q = fresnel_amplitudes(c, m)
+    Rs = np.abs(rs) ** 2
+    Rp = np.abs(rp) ** 2
+    if np.all(np.imag(m) == 0):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = np.where(c > 0, q.real / np.where(c > 0, c, 1.0), 0.0)
+        Ts = f * np.abs(ts) ** 2
+        Tp = f * np.abs(tp) ** 2
+    else:
+        Ts = 1.0 - Rs
+        Tp = 1.0 - Rp
+    return Rs, Rp, Ts, Tp

@@ -30,7 +30,7 @@ import numpy as np
 from materials.albedo import directional_hemispherical_reflectance
 from materials.atomic import atomic_write_text
 from materials.base import MaterialError, Sample
-from materials.composite import Composite
+from materials.composite import _TABLE_THETA, Composite
 from materials.registry import build_component
 from materials.sampling import check_real
 
@@ -70,6 +70,9 @@ class Material:
             fields = {f.name for f in dataclasses.fields(c)} if dataclasses.is_dataclass(c) else set()
             if "wavelength_nm" in fields and getattr(c, "wavelength_nm") is None:
                 if self.wavelength_nm is None:
+                    if getattr(c, "wavelength_optional", False):
+                        comps.append(c)
+                        continue
                     raise MaterialError(
                         f"{where}: components[{i}] ({getattr(c, 'type_name', type(c).__name__)}) "
                         "needs wavelength_nm: give it in the material or the component"
@@ -78,36 +81,118 @@ class Material:
             comps.append(c)
         if not comps:
             raise MaterialError(f"{where}: 'components' must be a non-empty list")
+        smooth = [i for i, c in enumerate(comps) if getattr(c, "delta", False)]
+        if len(smooth) > 1:
+            raise MaterialError(
+                f"{where}: components[{smooth[1]}]: at most one specular or dielectric component per material"
+            )
+        comps = _with_substrate(comps, comps[smooth[0]] if smooth else None)
         object.__setattr__(self, "components", tuple(comps))
 
+    # ------------------------------------------------------------ smooth part and lobes
+
+    @property
+    def smooth(self):
+        """The material's delta component (``specular`` or ``dielectric``), or None."""
+        for c in self.components:
+            if getattr(c, "delta", False):
+                return c
+        return None
+
+    @property
+    def lobes(self) -> tuple:
+        """The scatter components (everything but the delta component)."""
+        return tuple(c for c in self.components if not getattr(c, "delta", False))
+
+    def lobe_reflectance(self, theta_i, polarization: str = "u") -> np.ndarray:
+        """Directional-hemispherical reflectance of the scatter lobes at theta_i (radians),
+        interpolated from the composite's albedo table (2.5 deg grid); zeros without lobes."""
+        th = np.atleast_1d(np.asarray(theta_i, float))
+        if self.composite is None:
+            return np.zeros(th.shape)
+        if polarization == "u":
+            return 0.5 * (self.lobe_reflectance(th, "s") + self.lobe_reflectance(th, "p"))
+        table = self.composite._table(polarization).sum(axis=0)
+        return np.interp(np.clip(th, 0.0, np.pi / 2), _TABLE_THETA, table)
+
+    def smooth_coefficients(self, cos_i, back: bool = False):
+        """Amplitude coefficients (:class:`materials.smooth.Coefficients`) of the delta component
+        at incidence cosines ``cos_i`` (n,), after the scatter lobes have taken their energy:
+        powers scaled by ``g = max(0, 1 - rho_lobes / (R + T))`` for s and p separately
+        (CONTRACTS §5.1). None without a delta component."""
+        smooth = self.smooth
+        if smooth is None:
+            return None
+        c = np.clip(np.atleast_1d(np.asarray(cos_i, float)), 0.0, 1.0)
+        coef = smooth.coefficients(c, back=back)
+        if self.composite is None:
+            return coef
+        theta = np.arccos(c)
+        g = []
+        for pol, R, T in (("s", coef.R_s, coef.T_s), ("p", coef.R_p, coef.T_p)):
+            tot = R + T
+            rho = self.lobe_reflectance(theta, pol)
+            g.append(np.where(tot > 0, np.clip(1.0 - rho / np.where(tot > 0, tot, 1.0), 0.0, 1.0), 0.0))
+        return coef.scaled(*g)
+
+    def reflectance(self, theta_i, polarization: str = "u") -> np.ndarray:
+        """Directional-hemispherical reflectance including the specular part: lobes + R'."""
+        th = np.atleast_1d(np.asarray(theta_i, float))
+        rho = self.lobe_reflectance(th, polarization)
+        coef = self.smooth_coefficients(np.cos(th))
+        return rho if coef is None else rho + coef.reflectance(polarization)
+
+    def transmittance(self, theta_i, polarization: str = "u") -> np.ndarray:
+        """Power transmitted by the delta component (T', zero without a dielectric)."""
+        th = np.atleast_1d(np.asarray(theta_i, float))
+        coef = self.smooth_coefficients(np.cos(th))
+        return np.zeros(th.shape) if coef is None else coef.transmittance(polarization)
+
     @cached_property
-    def composite(self) -> Composite:
-        return Composite(self.components)
+    def composite(self) -> Optional[Composite]:
+        """The scatter lobes as one Composite (None when the material is only a delta component)."""
+        lobes = self.lobes
+        return Composite(lobes) if lobes else None
 
     @property
     def reciprocal(self) -> bool:
-        return self.composite.reciprocal
+        return self.composite is None or self.composite.reciprocal
 
     # ------------------------------------------------------------ Brdf protocol
 
+    # The protocol covers the scatter lobes only; the delta component (``smooth``) is handled
+    # by the tracer's surface interaction through ``smooth_coefficients``.
+
     def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
-        """Sum of the components' BRDFs in 1/sr (no cos). wi, wo : (n, 3)."""
+        """Sum of the scatter lobes' BRDFs in 1/sr (no cos). wi, wo : (n, 3)."""
+        if self.composite is None:
+            return np.zeros(len(np.asarray(wi)))
         return self.composite.brdf(wi, wo, polarization)
 
     def sample(self, wi, u, polarization: str = "u") -> Sample:
-        """One-sample MIS over the components; u : (n, 3) uniforms."""
+        """One-sample MIS over the scatter lobes; u : (n, 3) uniforms (weight 0 without lobes)."""
+        if self.composite is None:
+            n = len(np.asarray(wi))
+            return Sample(wo=np.tile([0.0, 0.0, 1.0], (n, 1)), weight=np.zeros(n), pdf_per_sr=np.zeros(n))
         return self.composite.sample(wi, u, polarization)
 
     def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
+        if self.composite is None:
+            return np.zeros(len(np.asarray(wi)))
         return self.composite.pdf(wi, wo, polarization)
 
     def albedo(self, theta_i, polarization: str = "u") -> np.ndarray:
-        """Directional-hemispherical reflectance rho at incidence theta_i (radians)."""
+        """Directional-hemispherical reflectance rho of the scatter lobes at theta_i (radians);
+        :meth:`reflectance` adds the specular part."""
+        if self.composite is None:
+            return np.zeros(np.shape(np.atleast_1d(theta_i)))
         return directional_hemispherical_reflectance(self.composite, theta_i, polarization)
 
     def check_energy(self, where: Optional[str] = None) -> None:
         """Raise MaterialError if rho(theta_i) >= 1 at any integer theta_i in 0..89 deg (s or p)."""
         theta = np.deg2rad(ENERGY_CHECK_THETA_I_DEG)
+        if self.composite is None:
+            return  # a delta component alone: R + T <= 1 by construction (Fresnel, r <= 1, weight <= 1)
         for pol in ("s", "p"):
             # a coarse grid (<~1 % for beta-centred lobes, ~10 % for grazing microfacet lobes
             # at 89 deg), refined with the default grid wherever it comes near 1
@@ -140,6 +225,17 @@ class Material:
             comps.append(d)
         out["components"] = comps
         return out
+
+
+def _with_substrate(comps, smooth):
+    """Components that model particles on a surface (``particulate``) learn the index of the
+    surface under them from the material's delta component, unless they were given one."""
+    out = []
+    for c in comps:
+        if getattr(c, "needs_substrate", False) and smooth is not None and c.substrate_unset:
+            c = c.with_substrate(smooth)
+        out.append(c)
+    return out
 
 
 # ---------------------------------------------------------------- files

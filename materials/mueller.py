@@ -1,0 +1,121 @@
+"""Stokes vectors and Mueller matrices at smooth interfaces (plain numpy, batch axis first).
+
+Convention: a ray's Stokes vector ``S = (S0, S1, S2, S3)`` is given in a reference frame
+``(e1, e2 = d x e1)`` carried with the ray (``d`` its direction, ``e1`` a unit vector normal
+to it): with complex field components ``E1, E2``, ``S0 = |E1|^2 + |E2|^2``,
+``S1 = |E1|^2 - |E2|^2``, ``S2 = 2 Re(E1 E2*)``, ``S3 = 2 Im(E1* E2)``. At an interface the
+frame is first rotated onto ``e1 = s`` (the unit vector along d x normal), so that
+``S1 = I_s - I_p``; the Fresnel coefficients of :func:`materials.fresnel.fresnel_amplitudes`
+act in that basis, and the outgoing ray's frame is again ``e1 = s``.
+
+References
+----------
+R. A. Chipman, W. S. T. Lam, G. Young, *Polarized Light and Optical Systems* (CRC, 2018),
+ch. 6 (Mueller matrices of Fresnel interfaces) and ch. 10 (polarization ray tracing).
+Born & Wolf, *Principles of Optics*, §1.4.2 (Stokes parameters), §1.5 (Fresnel).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def interface_mueller(a_s, a_p) -> np.ndarray:
+    """Mueller matrices (n, 4, 4) of a diagonal Jones matrix ``diag(a_s, a_p)`` in the s/p basis.
+
+    ``M = [[A, B, 0, 0], [B, A, 0, 0], [0, 0, C, D], [0, 0, -D, C]]`` with
+    ``A = (|a_s|^2 + |a_p|^2) / 2``, ``B = (|a_s|^2 - |a_p|^2) / 2``, ``C + iD = a_s a_p*``
+    (Chipman et al. ch. 6; reflection: ``a = r``; transmission: ``a = t sqrt(Re q / cos_i)``
+    so that ``M[0, 0]`` is the power transmittance).
+    """
+    a_s = np.atleast_1d(np.asarray(a_s, complex))
+    a_p = np.atleast_1d(np.asarray(a_p, complex))
+    a_s, a_p = np.broadcast_arrays(a_s, a_p)
+    ss = np.abs(a_s) ** 2
+    pp = np.abs(a_p) ** 2
+    c = a_s * np.conj(a_p)
+    m = np.zeros(a_s.shape + (4, 4))
+    m[..., 0, 0] = m[..., 1, 1] = 0.5 * (ss + pp)
+    m[..., 0, 1] = m[..., 1, 0] = 0.5 * (ss - pp)
+    m[..., 2, 2] = m[..., 3, 3] = c.real
+    m[..., 2, 3] = c.imag
+    m[..., 3, 2] = -c.imag
+    return m
+
+
+def rotation_mueller(cos_psi, sin_psi) -> np.ndarray:
+    """Mueller matrices (n, 4, 4) that re-express S in a frame turned by psi about the ray.
+
+    New ``e1' = cos psi e1 + sin psi e2``: ``S1' = cos 2psi S1 + sin 2psi S2``,
+    ``S2' = -sin 2psi S1 + cos 2psi S2`` (S0, S3 unchanged).
+    """
+    c = np.atleast_1d(np.asarray(cos_psi, float))
+    s = np.atleast_1d(np.asarray(sin_psi, float))
+    c2 = c * c - s * s
+    s2 = 2.0 * c * s
+    m = np.zeros(c.shape + (4, 4))
+    m[..., 0, 0] = m[..., 3, 3] = 1.0
+    m[..., 1, 1] = m[..., 2, 2] = c2
+    m[..., 1, 2] = s2
+    m[..., 2, 1] = -s2
+    return m
+
+
+def rotate_stokes(stokes, e1_from, e1_to, direction) -> np.ndarray:
+    """Stokes vectors (n, 4) re-expressed from the frame ``e1_from`` to ``e1_to`` (both normal to
+    ``direction``, all (n, 3) unit vectors): ``cos psi = e1_from . e1_to``,
+    ``sin psi = (direction x e1_from) . e1_to``."""
+    d = np.asarray(direction, float)
+    a = np.asarray(e1_from, float)
+    b = np.asarray(e1_to, float)
+    cos_psi = np.einsum("ij,ij->i", a, b)
+    sin_psi = np.einsum("ij,ij->i", np.cross(d, a), b)
+    s = np.asarray(stokes, float)
+    c2 = cos_psi * cos_psi - sin_psi * sin_psi
+    s2 = 2.0 * cos_psi * sin_psi
+    out = s.copy()
+    out[:, 1] = c2 * s[:, 1] + s2 * s[:, 2]
+    out[:, 2] = -s2 * s[:, 1] + c2 * s[:, 2]
+    return out
+
+
+def s_vector(direction, normal) -> np.ndarray:
+    """The s unit vector (n, 3) of rays ``direction`` hitting a surface of ``normal``:
+    ``d x n`` normalised; at normal incidence any unit vector normal to ``d`` (a fixed rule:
+    ``d x x`` or, when that vanishes, ``d x y``)."""
+    d = np.asarray(direction, float)
+    n = np.asarray(normal, float)
+    s = np.cross(d, n)
+    norm = np.linalg.norm(s, axis=1)
+    bad = norm < 1e-12
+    if np.any(bad):
+        alt = np.cross(d[bad], np.array([1.0, 0.0, 0.0]))
+        small = np.linalg.norm(alt, axis=1) < 1e-6
+        alt[small] = np.cross(d[bad][small], np.array([0.0, 1.0, 0.0]))
+        s[bad] = alt
+        norm[bad] = np.linalg.norm(alt, axis=1)
+    return s / norm[:, None]
+
+
+def linear_stokes(e_field, direction, e1) -> np.ndarray:
+    """Stokes vectors (n, 4) of unit-power linear polarization along ``e_field`` (n, 3), in the
+    frame ``e1`` of rays ``direction``: ``(1, cos 2a, sin 2a, 0)`` with ``a`` the angle of the
+    field from e1 toward e2 = d x e1."""
+    d = np.asarray(direction, float)
+    e = np.asarray(e_field, float)
+    e1 = np.asarray(e1, float)
+    c = np.einsum("ij,ij->i", e, e1)
+    s = np.einsum("ij,ij->i", e, np.cross(d, e1))
+    norm = np.hypot(c, s)
+    norm = np.where(norm > 0, norm, 1.0)
+    c, s = c / norm, s / norm
+    return np.stack([np.ones_like(c), c * c - s * s, 2 * c * s, np.zeros_like(c)], axis=1)
+
+
+def polarized_value(value_s, value_p, stokes) -> np.ndarray:
+    """A quantity that is ``value_s`` for s and ``value_p`` for p light (no analyser), for light of
+    Stokes vector (n, 4) given in the s/p frame: ``S0 [(v_s + v_p)/2 + (S1/S0)(v_s - v_p)/2]``
+    per unit S0 (i.e. returns the factor for unit power)."""
+    s = np.asarray(stokes, float)
+    s0 = np.where(s[:, 0] > 0, s[:, 0], 1.0)
+    dop1 = s[:, 1] / s0
+    return 0.5 * (value_s + value_p) + 0.5 * dop1 * (value_s - value_p)

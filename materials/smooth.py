@@ -1,0 +1,291 @@
+"""Smooth (delta) interface components: ``specular`` mirrors and ``dielectric`` interfaces.
+
+CONTRACTS §5.1. These are not BRDF lobes: they send each ray into one direction (the
+mirror direction, or the Snell direction), so they have no finite ``brdf``/``pdf``. A
+:class:`materials.Material` keeps at most one of them apart from its scatter lobes
+(``Material.smooth``), and the tracer's surface interaction asks it for the amplitude
+coefficients at each hit (:meth:`Specular.coefficients`, :meth:`Dielectric.coefficients`).
+
+Energy: the scatter lobes of the same material take their energy from the specular parts
+(``Material.smooth_coefficients``): with the lobes' directional-hemispherical reflectance
+rho(theta_i) for s or p light, the reflected and transmitted powers are scaled by
+``g = max(0, 1 - rho / (R + T))``, so ``R' + T' + rho = max(R + T, rho) <= 1``.
+
+References
+----------
+Born & Wolf, *Principles of Optics*, §1.5 (Fresnel, Snell, total internal reflection).
+E. D. Palik, *Handbook of Optical Constants of Solids* (k and the absorption coefficient
+``alpha = 4 pi k / lambda``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Union
+
+import numpy as np
+
+from materials.base import MaterialError
+from materials.fresnel import fresnel_amplitudes
+from materials.registry import register
+from materials.sampling import check_real, set_fields
+
+
+def reflect(d, n) -> np.ndarray:
+    """Mirror direction ``d - 2 (d.n) n`` (n, 3) of directions ``d`` at unit normals ``n``."""
+    d = np.asarray(d, float)
+    n = np.asarray(n, float)
+    return d - 2.0 * np.einsum("ij,ij->i", d, n)[:, None] * n
+
+
+def refract(d, n, eta, cos_t) -> np.ndarray:
+    """Snell direction ``eta d + (eta cos_i - cos_t) n`` (n, 3).
+
+    ``n`` is the unit normal on the incident side (``d . n < 0``), ``eta = n1 / n2`` (real),
+    ``cos_t`` the cosine of the refraction angle (>= 0); Born & Wolf §1.5.1 in vector form.
+    """
+    d = np.asarray(d, float)
+    n = np.asarray(n, float)
+    cos_i = -np.einsum("ij,ij->i", d, n)
+    eta = np.broadcast_to(np.asarray(eta, float), cos_i.shape)
+    t = eta[:, None] * d + (eta * cos_i - np.asarray(cos_t, float))[:, None] * n
+    return t / np.linalg.norm(t, axis=1)[:, None]
+
+
+def _index(owner: str, key: str, value):
+    """A refractive index given as a number or ``[n, k]`` -> (n, k) floats, checked."""
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise MaterialError(f"{owner}: parameter {key!r} must be a number or [n, k], got {value!r}")
+        return (check_real(owner, f"{key}[0]", value[0], lo=0.0, lo_open=True),
+                check_real(owner, f"{key}[1]", value[1], lo=0.0))
+    return (check_real(owner, key, value, lo=0.0, lo_open=True), 0.0)
+
+
+@dataclass(frozen=True)
+class Coefficients:
+    """Amplitude coefficients of one smooth interaction per ray, in the s/p basis
+    (:mod:`materials.mueller`).
+
+    r_s, r_p : (n,) complex, reflection; ``|r|^2`` is the reflected power fraction
+    t_s, t_p : (n,) complex, transmission scaled so that ``|t|^2`` is the transmitted power
+        fraction (zeros for a mirror and under total internal reflection)
+    cos_t : (n,) cosine of the refraction angle (0 where nothing is transmitted)
+    eta : (n,) n_incident / n_transmitted (real parts), for :func:`refract`
+    """
+
+    r_s: np.ndarray
+    r_p: np.ndarray
+    t_s: np.ndarray
+    t_p: np.ndarray
+    cos_t: np.ndarray
+    eta: np.ndarray
+
+    @property
+    def R_s(self):
+        return np.abs(self.r_s) ** 2
+
+    @property
+    def R_p(self):
+        return np.abs(self.r_p) ** 2
+
+    @property
+    def T_s(self):
+        return np.abs(self.t_s) ** 2
+
+    @property
+    def T_p(self):
+        return np.abs(self.t_p) ** 2
+
+    def reflectance(self, polarization: str = "u"):
+        return {"s": self.R_s, "p": self.R_p, "u": 0.5 * (self.R_s + self.R_p)}[polarization]
+
+    def transmittance(self, polarization: str = "u"):
+        return {"s": self.T_s, "p": self.T_p, "u": 0.5 * (self.T_s + self.T_p)}[polarization]
+
+    def scaled(self, g_s, g_p) -> "Coefficients":
+        """Powers scaled by g_s, g_p (amplitudes by their square roots)."""
+        a = np.sqrt(np.asarray(g_s, float))
+        b = np.sqrt(np.asarray(g_p, float))
+        return Coefficients(self.r_s * a, self.r_p * b, self.t_s * a, self.t_p * b, self.cos_t, self.eta)
+
+
+@register("specular")
+@dataclass(frozen=True)
+class Specular:
+    """Mirror reflection, a delta lobe (CONTRACTS §5.1 ``specular``).
+
+    Parameters
+    ----------
+    r : float, optional
+        Constant reflectance in [0, 1] for every polarization (amplitudes ``r_s = -sqrt(r)``,
+        ``r_p = +sqrt(r)``: an ideal mirror, no retardance between s and p).
+    n : float or [n, k], optional
+        Substrate index: Fresnel ``r_s``, ``r_p`` (:func:`materials.fresnel.fresnel_amplitudes`)
+        for the ray's polarization. Exactly one of ``r`` and ``n``.
+    weight : float
+        Multiplies the reflected power, in [0, 1] (default 1).
+    """
+
+    r: Optional[float] = None
+    n: Optional[Union[float, tuple]] = None
+    weight: float = 1.0
+
+    delta = True
+    reciprocal = True
+
+    def __post_init__(self):
+        o = "specular"
+        set_fields(self, weight=check_real(o, "weight", self.weight, lo=0.0, hi=1.0))
+        if (self.n is None) == (self.r is None):
+            raise MaterialError(f"{o}: give exactly one of 'n' (refractive index) or 'r' (constant reflectance)")
+        if self.r is not None:
+            set_fields(self, r=check_real(o, "r", self.r, lo=0.0, hi=1.0))
+        else:
+            n, k = _index(o, "n", self.n)
+            set_fields(self, n=(n, k) if k else n)
+
+    @classmethod
+    def example(cls) -> "Specular":
+        return cls(n=(0.96, 6.69))
+
+    @property
+    def index(self) -> complex:
+        return complex(*self.n) if isinstance(self.n, tuple) else complex(self.n, 0.0)
+
+    def coefficients(self, cos_i, back: bool = False) -> Coefficients:
+        """Reflection amplitudes at incidence cosines ``cos_i`` (n,); a mirror reflects the same
+        on both sides."""
+        c = np.atleast_1d(np.asarray(cos_i, float))
+        zero = np.zeros(c.shape, complex)
+        if self.r is not None:
+            a = np.sqrt(self.r * self.weight)
+            rs = np.full(c.shape, -a, complex)
+            rp = np.full(c.shape, a, complex)
+        else:
+            rs, rp, _, _, _ = fresnel_amplitudes(c, self.index)
+            if self.weight != 1.0:
+                w = np.sqrt(self.weight)
+                rs, rp = rs * w, rp * w
+        return Coefficients(rs, rp, zero, zero, np.zeros(c.shape), np.ones(c.shape))
+
+    def to_dict(self) -> dict:
+        d = {"type": "specular"}
+        if self.r is not None:
+            d["r"] = self.r
+        else:
+            d["n"] = list(self.n) if isinstance(self.n, tuple) else self.n
+        if self.weight != 1.0:
+            d["weight"] = self.weight
+        return d
+
+
+@register("dielectric")
+@dataclass(frozen=True)
+class Dielectric:
+    """Smooth interface to a transparent medium (CONTRACTS §5.1 ``dielectric``).
+
+    The medium of index ``n`` lies on the part's back side (inside a closed mesh; the back
+    of an analytic surface), ``n_outside`` on the front. Fresnel s and p reflection and
+    transmission, Snell refraction, total internal reflection.
+
+    Parameters
+    ----------
+    n : float or [n, k]
+        Index of the medium. ``k`` enters the reflectance seen from outside and the bulk
+        absorption ``4 pi k / lambda``; light leaving the medium sees the real index ``n``
+        (valid for k << n).
+    n_outside : float
+        Index on the front side (default 1).
+    absorption_per_mm : float
+        Bulk absorption coefficient inside the medium, 1/mm (default 0): a path of length
+        L keeps ``exp(-alpha L)`` of its power, with ``alpha = absorption_per_mm + 4 pi k / lambda``.
+    wavelength_nm : float, optional
+        Needed only with ``k > 0`` (the material's, by default).
+    """
+
+    n: Union[float, tuple]
+    n_outside: float = 1.0
+    absorption_per_mm: float = 0.0
+    wavelength_nm: Optional[float] = None
+
+    delta = True
+    reciprocal = True
+
+    def __post_init__(self):
+        o = "dielectric"
+        n, k = _index(o, "n", self.n)
+        set_fields(
+            self,
+            n=(n, k) if k else n,
+            n_outside=check_real(o, "n_outside", self.n_outside, lo=0.0, lo_open=True),
+            absorption_per_mm=check_real(o, "absorption_per_mm", self.absorption_per_mm, lo=0.0),
+        )
+        if self.wavelength_nm is not None:
+            set_fields(self, wavelength_nm=check_real(o, "wavelength_nm", self.wavelength_nm, lo=0.0, lo_open=True))
+
+    @classmethod
+    def example(cls) -> "Dielectric":
+        return cls(n=1.5195)
+
+    @property
+    def wavelength_optional(self) -> bool:
+        """Only an absorbing index (k > 0) needs the wavelength."""
+        return self.k == 0.0
+
+    @property
+    def n_real(self) -> float:
+        return self.n[0] if isinstance(self.n, tuple) else float(self.n)
+
+    @property
+    def k(self) -> float:
+        return self.n[1] if isinstance(self.n, tuple) else 0.0
+
+    @property
+    def attenuation_per_mm(self) -> float:
+        """alpha = absorption_per_mm + 4 pi k / lambda (1/mm) inside the medium."""
+        if self.k == 0.0:
+            return self.absorption_per_mm
+        if self.wavelength_nm is None:
+            raise MaterialError("dielectric: an index [n, k] with k > 0 needs wavelength_nm")
+        return self.absorption_per_mm + 4.0 * np.pi * self.k / (self.wavelength_nm * 1e-6)
+
+    def coefficients(self, cos_i, back: bool = False) -> Coefficients:
+        """Fresnel amplitudes at incidence cosines ``cos_i`` (n,), from the front (outside ->
+        medium) or, with ``back=True``, from inside the medium."""
+        c = np.atleast_1d(np.asarray(cos_i, float))
+        if back:
+            m = self.n_outside / self.n_real
+        else:
+            m = complex(self.n_real, self.k) / self.n_outside
+        rs, rp, ts, tp, q = fresnel_amplitudes(c, m)
+        Rs = np.abs(rs) ** 2
+        Rp = np.abs(rp) ** 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if np.imag(m) == 0:
+                f = np.where(c > 0, q.real / np.where(c > 0, c, 1.0), 0.0)
+            else:  # absorbing medium entered: the power that enters is 1 - R
+                f_s = np.where(np.abs(ts) > 0, (1.0 - Rs) / np.abs(ts) ** 2, 0.0)
+                f_p = np.where(np.abs(tp) > 0, (1.0 - Rp) / np.abs(tp) ** 2, 0.0)
+        if np.imag(m) == 0:
+            ts = ts * np.sqrt(f)
+            tp = tp * np.sqrt(f)
+        else:
+            ts = ts * np.sqrt(f_s)
+            tp = tp * np.sqrt(f_p)
+        m_real = float(np.real(m))
+        sin2_t = (1.0 - c * c) / (m_real * m_real)
+        tir = sin2_t >= 1.0
+        cos_t = np.where(tir, 0.0, np.sqrt(np.maximum(0.0, 1.0 - sin2_t)))
+        ts = np.where(tir, 0.0, ts)
+        tp = np.where(tir, 0.0, tp)
+        return Coefficients(rs, rp, ts, tp, cos_t, np.full(c.shape, 1.0 / m_real))
+
+    def to_dict(self) -> dict:
+        d = {"type": "dielectric", "n": list(self.n) if isinstance(self.n, tuple) else self.n}
+        if self.n_outside != 1.0:
+            d["n_outside"] = self.n_outside
+        if self.absorption_per_mm:
+            d["absorption_per_mm"] = self.absorption_per_mm
+        if self.wavelength_nm is not None:
+            d["wavelength_nm"] = self.wavelength_nm
+        return d
