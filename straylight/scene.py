@@ -80,6 +80,16 @@ def resolve_material(name: str, inline: dict, base_dir: Path, where: str):
         raise SceneFileError(f"{where}: {exc}") from None
 
 
+def _check_delta_supported(material, where: str) -> None:
+    """The walk of this version scatters by the BRDF lobes only: refuse a material whose specular or
+    dielectric component it would silently drop (the surface interactions of issue 14 lift this)."""
+    smooth = getattr(material, "smooth", None)
+    if smooth is not None:
+        raise SceneFileError(
+            f"{where}: material {getattr(material, 'name', '?')!r} has a {smooth.type_name!r} component, which "
+            "the tracer does not handle yet; use role = \"mirror\" for a plain mirror")
+
+
 def _probe_reaches_box(source, lo, hi, n=256) -> bool:
     """Do any of n deterministic probe rays of the source cross the box [lo, hi]?"""
     g = np.random.default_rng(0)
@@ -128,6 +138,7 @@ def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
                 raise SceneFileError(f"{where}: a surface part needs a material")
             if part.material not in materials:
                 materials[part.material] = resolve_material(part.material, inline, path.parent, where)
+                _check_delta_supported(materials[part.material], where)
         if check_watertight and part.role != "detector" and not part.to_trimesh().is_watertight:
             notes.append(f"{where}: mesh is not watertight (light may enter the solid through gaps)")
     entries = doc.get("source", [])
