@@ -311,6 +311,8 @@ def brdf_scan(devices=None, points=(), *, n_readings: int = PAPER_N_READINGS, md
     from bluesky.suspenders import SuspendFloor
     from bluesky.utils import RunEngineControlException
 
+    if isinstance(devices, (list, tuple)):  # brdf_scan(points, lockin=..., ...)
+        devices, points = None, devices
     d = _devices(devices, dict(lockin=lockin, laser=laser, chopper=chopper, sample_stage=sample_stage, arm=arm,
                                hwp=hwp, point=point))
     points = [Point(*p) for p in points]

@@ -181,6 +181,6 @@ def test_plain_run_engine_keeps_csv_log_and_suspender(tmp_path, reference):
     assert sim.lockin.n_readings > 3 * len(SPEC.points)  # the suspension re-measured the dipped point
     assert docs[-1][1]["exit_status"] == "success"
     assert not RE._suspenders and not RE.dispatcher.cb_registry.callbacks.get("all")  # nothing left behind
-    # a second RE(plan) on the same file resumes: no duplicates, nothing re-measured
-    RE(brdf_scan(dev, SPEC.points, md=MD, csv_path=tmp_path / "nb.csv", resume=True))
+    # a second RE(plan) on the same file resumes: no duplicates, nothing re-measured; devices by keyword
+    RE(brdf_scan(list(SPEC.points), md=MD, csv_path=tmp_path / "nb.csv", resume=True, **dev.as_dict()))
     assert_same_scan(read_scan(tmp_path / "nb.csv"), ref)
