@@ -27,6 +27,9 @@ class Part:
     faces : (m, 3) int64, counter-clockwise seen from outside (outward normals)
     material : material name (a preset, a file path or a scene [material.*] key), or None
     role : one of ROLES
+    surface : optional analytic surface (geometry.analytic, CONTRACTS §6.1): the mesh finds the
+        hits, the surface refines them and gives the exact normal; the front is its front side
+    back_material : optional material name of the back side (default: ``material``)
     """
 
     name: str
@@ -35,6 +38,8 @@ class Part:
     material: str | None = None
     role: str = "surface"
     meta: dict = field(default_factory=dict)
+    surface: object = None
+    back_material: str | None = None
 
     def __post_init__(self):
         if self.role not in ROLES:
