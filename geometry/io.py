@@ -25,7 +25,7 @@ from geometry.tessellate import DEFAULT_ANGULAR_TOLERANCE_DEG, DEFAULT_TOLERANCE
 
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
 STEP_SUFFIXES = (".step", ".stp")
-PART_KEYS = ("name", "mesh", "tolerance_mm", "material", "role")
+PART_KEYS = ("name", "mesh", "tolerance_mm", "material", "role", "surface", "back_material")
 
 
 def export_step(shape, path) -> Path:
@@ -213,12 +213,18 @@ def load_scene(path) -> Scene:
         if unknown:
             raise GeometryError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; "
                                 f"expected {', '.join(PART_KEYS)}")
-        for key in ("name", "mesh"):
+        keys = ("name", "mesh") if "surface" not in entry or "mesh" in entry else ("name",)
+        for key in keys:
             if not isinstance(entry.get(key), str):
                 raise GeometryError(f"{where}: missing or non-string {key!r}")
         tolerance_mm = entry.get("tolerance_mm", DEFAULT_TOLERANCE_MM)
         if not isinstance(tolerance_mm, (int, float)) or isinstance(tolerance_mm, bool):
             raise GeometryError(f"{where}: tolerance_mm must be a number")
+        if "surface" in entry:
+            parts.append(_analytic_entry(entry, path, where, float(tolerance_mm)))
+            continue
+        if "back_material" in entry:
+            raise GeometryError(f"{where}: 'back_material' needs an analytic 'surface' (CONTRACTS §6.1)")
         try:
             parts.append(load_part(path.parent / entry["mesh"], name=entry["name"], material=entry.get("material"),
                                    role=entry.get("role", "surface"), tolerance_mm=float(tolerance_mm)))
@@ -228,6 +234,26 @@ def load_scene(path) -> Scene:
         return Scene(tuple(parts))
     except GeometryError as exc:
         raise GeometryError(f"{path}: {exc}") from exc
+
+
+def _analytic_entry(entry: dict, path: Path, where: str, tolerance_mm: float) -> Part:
+    """A part with ``surface = {...}`` (CONTRACTS §6.1): meshed by the project, or its own ``mesh``
+    (CAD geometry with its optical prescription) used for the hit search."""
+    from geometry.analytic import analytic_part, surface_from_dict
+
+    surface = surface_from_dict(entry["surface"], where)
+    back = entry.get("back_material")
+    if back is not None and not isinstance(back, str):
+        raise GeometryError(f"{where}: 'back_material' must be a material name (string)")
+    mesh = None
+    try:
+        if "mesh" in entry:
+            cad = load_part(path.parent / entry["mesh"], name=entry["name"], tolerance_mm=tolerance_mm)
+            mesh = (cad.vertices_mm, cad.faces)
+        return analytic_part(entry["name"], surface, entry.get("material"), entry.get("role", "surface"), back,
+                             tolerance_mm=tolerance_mm, mesh=mesh)
+    except GeometryError as exc:
+        raise GeometryError(f"{where}: {exc}") from exc
 
 
 def export_build(shape_parts: dict, scene: Scene, directory, *, mesh_format: str = "stl", step: bool = True,

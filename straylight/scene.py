@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from straylight.polarization import PolarizationError, attach, check_polarization_for_source, split_polarization
 from straylight.sources import SourceError, source_from_dict
 
 TOP_KEYS = ("material", "part", "source", "analysis")  # [analysis]: straylight.analyses.scene_setup
@@ -80,6 +81,17 @@ def resolve_material(name: str, inline: dict, base_dir: Path, where: str):
         raise SceneFileError(f"{where}: {exc}") from None
 
 
+def _resolve_back_material(part, materials: dict, inline: dict, base_dir: Path, where: str) -> None:
+    """An analytic part's ``back_material`` (CONTRACTS §6.1) is resolved like its ``material``."""
+    back = getattr(part, "back_material", None)
+    if back is None or back in materials:
+        return
+    if part.role != "surface":
+        raise SceneFileError(f"{where}: 'back_material' is for role = \"surface\" parts")
+    materials[back] = resolve_material(back, inline, base_dir, where)
+    _check_delta_supported(materials[back], where)
+
+
 def _check_delta_supported(material, where: str) -> None:
     """The walk of this version scatters by the BRDF lobes only: refuse a material whose specular or
     dielectric component it would silently drop (the surface interactions of issue 14 lift this)."""
@@ -139,6 +151,7 @@ def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
             if part.material not in materials:
                 materials[part.material] = resolve_material(part.material, inline, path.parent, where)
                 _check_delta_supported(materials[part.material], where)
+        _resolve_back_material(part, materials, inline, path.parent, where)
         if check_watertight and part.role != "detector" and not part.to_trimesh().is_watertight:
             notes.append(f"{where}: mesh is not watertight (light may enter the solid through gaps)")
     entries = doc.get("source", [])
@@ -149,8 +162,10 @@ def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
     for i, entry in enumerate(entries, start=1):
         where = f"{path}: [[source]] {i}"
         try:
-            src = source_from_dict(entry, where=where)
-        except SourceError as exc:
+            entry, pol = split_polarization(entry, where)
+            src = attach(source_from_dict(entry, where=where), pol)
+            check_polarization_for_source(pol, src, where)
+        except (SourceError, PolarizationError) as exc:
             raise SceneFileError(str(exc)) from None
         if not _probe_reaches_box(src, lo, hi):
             notes.append(f"{where}: no ray of this source reaches the scene's bounding box")
