@@ -68,20 +68,21 @@ class DetectorGeometry:
         b1 = (su * (1.0 - u[:, 2]))[:, None]
         b2 = (su * u[:, 2])[:, None]
         # P = A + b1 (B - A) + b2 (C - A), uniform over the triangle (Turk 1990)
-        v0, e1, e2 = self._edges
+        v0, e1, e2 = self.vertex_and_edges_mm
         pts = v0[k] + b1 * e1[k] + b2 * e2[k]
         return pts, self.normals[k]
 
     def _pick_triangle(self, u0):
         """Triangle index with probability area / total (Walker's alias method, Vose's table)."""
-        prob, alias = self._alias
+        prob, alias = self.alias_table
         m = len(prob)
         x = u0 * m
         k = np.minimum(x.astype(np.int64), m - 1)
         return np.where(x - k < prob[k], k, alias[k])
 
     @cached_property
-    def _alias(self):
+    def alias_table(self):
+        """(probability, alias) of Walker's alias table over the triangles (by area; Vose)."""
         p = np.diff(np.concatenate([[0.0], self.cdf])) * len(self.cdf)
         prob = np.ones(len(p))
         alias = np.arange(len(p))
@@ -96,7 +97,8 @@ class DetectorGeometry:
         return prob, alias
 
     @cached_property
-    def _edges(self):
+    def vertex_and_edges_mm(self):
+        """(v0, v1 - v0, v2 - v0) of every triangle, each (m, 3) contiguous."""
         tri = self.triangles_mm
         return (np.ascontiguousarray(tri[:, 0]), np.ascontiguousarray(tri[:, 1] - tri[:, 0]),
                 np.ascontiguousarray(tri[:, 2] - tri[:, 0]))

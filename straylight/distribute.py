@@ -2,15 +2,15 @@
 
 A LocalCluster of one in-process worker whose tasks share a pool of ``workers`` threads by
 default (:func:`local_cluster`), an existing ``Client``, or ``Client(scheduler_address)``. The
-:class:`straylight.engine.core.TraceSpec` (triangle array, materials, sources) is broadcast once; each worker process
-builds its embree scene from the triangles on first use and keeps it (``straylight.engine.core._COMPILED``), so no embree object is
+:class:`straylight.engine.spec.TraceSpec` (triangle array, materials, sources) is broadcast once; each worker process
+builds its embree scene from the triangles on first use and keeps it (``straylight.engine.compiled_scene``), so no embree object is
 ever pickled. Each task is a run of whole chunks (:func:`task_plan`) whose random streams are
 keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
 from __future__ import annotations
 
-from straylight.engine.core import run_batch
-from straylight.engine.threads import run_threads
+from straylight.engine.batch_pool import run_threads
+from straylight.engine.walk import run_batch
 
 TASK_BATCHES = 5  # at most this many batches per dask task
 
@@ -32,7 +32,7 @@ def _group_task(spec, ranges):
 
 def _pooled_task(spec, ranges, n_threads):
     """Queue whole batches on the worker's shared pool of ``n_threads`` threads
-    (:func:`straylight.engine.threads.shared_pool`) and return their results in batch order. The worker runs
+    (:func:`straylight.engine.batch_pool.shared_pool`) and return their results in batch order. The worker runs
     ``n_threads`` such tasks at once, so the next task's batches are already queued when this one's
     last batch runs: the pool's threads never wait at task ends."""
     return list(run_threads(spec, ranges, None, int(n_threads)))
@@ -112,14 +112,14 @@ def worker_cpu_seconds(client) -> dict:
     return client.run(time.process_time)
 
 
-def run_distributed(spec, ranges, workers=None, client=None, scheduler=None):
+def run_distributed(spec, ranges, workers=None, client=None, scheduler=None, security=None):
     """Yield ``run_batch`` results for ``ranges`` (list of (first_chunk, stop_chunk)), in order."""
     from dask.distributed import Client, as_completed
 
     owned = []
     if client is None:
         if scheduler is not None:
-            client = Client(scheduler)
+            client = Client(scheduler, security=security)
             owned.append(client)
         else:
             n = 1 if workers is None else int(workers)

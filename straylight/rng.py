@@ -48,7 +48,7 @@ def batches(n_rays: int, batch_rays: int, chunk_rays: int = CHUNK_RAYS) -> list[
 # ------------------------------------------------------------------ the same streams, compiled
 #
 # chunk_rng(seed, k) is PCG64 (XSL-RR 128/64; O'Neill 2014) seeded through SeedSequence([seed, k])
-# (numpy/random/bit_generator.pyx, numpy/random/src/pcg64). straylight._kernels redoes both steps
+# (numpy/random/bit_generator.pyx, numpy/random/src/pcg64). straylight.pcg64 redoes both steps
 # and the uniform draw (next64 >> 11) * 2^-53 in numba, so that the engine seeds its chunks' generators
 # and fills its draws without Python calls or the GIL; they give numpy's numbers bit for bit
 # (tests/straylight/test_rng.py), and run_batch_reference still draws with numpy's Generator, so the
@@ -81,11 +81,11 @@ class ChunkStreams:
         for r, e in enumerate(ents):
             words[r, :len(e)] = e
         n_words = np.array([len(e) for e in ents], np.int64)
-        from straylight._kernels import seed_states
+        from straylight.pcg64 import seed_states
 
         self.states = seed_states(words, n_words, np.empty((len(ents), 4), np.uint64))
 
     def fill(self, rows, width, out, per_chunk=1):
-        from straylight._kernels import fill_uniforms
+        from straylight.pcg64 import fill_uniforms
 
         return fill_uniforms(self.states, np.asarray(rows, dtype=np.int64), int(per_chunk), int(width), out)

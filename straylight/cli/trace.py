@@ -49,7 +49,7 @@ def run(args) -> int:
         rs = load_scene(args.scene)
     for w in caught:
         print(f"straylight: warning: {w.message}", file=sys.stderr)
-    from straylight.first_vertex import unsupported
+    from straylight.engine.first_vertex import unsupported
 
     vertex = {"on": True, "off": False}.get(args.vertex_sampling)
     if vertex is None:

@@ -1,5 +1,5 @@
-"""The compiled engine (straylight._kernels, used by run_batch) against its numpy twin
-(run_batch_reference): the same random streams and arithmetic order, so every tally, map bin and
+"""The compiled engine (the numba kernels of straylight.engine, used by run_batch) against their
+numpy twins (run_batch_reference: the same walk): the same random streams and arithmetic order, so every tally, map bin and
 path record must be bit-identical, not merely close (STYLE §9: a fast path with a slow reference
 beside it, tested against each other)."""
 import math
@@ -9,7 +9,8 @@ import pytest
 
 from engine_helpers import StandInLambertian, annulus_part, baffled_tube_scene, disk_part
 from geometry.mesh import Part, Scene
-from straylight import _kernels
+from straylight.engine.tallies import chunk_sums
+from straylight.engine.tally_rows import TallyRows
 from straylight.sources import CollimatedDisk, PointSource
 from straylight.trace import TraceOptions, make_spec, run_batch, run_batch_reference
 
@@ -85,7 +86,12 @@ def test_chunk_sums_equal_numpy_reduceat(n):
     """Per-chunk S1, S2 (and the derived ledger rows) as np.add.reduceat computes them."""
     rng = np.random.default_rng(n)
     M = rng.normal(size=(13, n)) * np.exp(4 * rng.normal(size=(13, n))) * (rng.random((13, 1)) < 0.7)
-    s1, s2 = _kernels.chunk_sums(M, 1000, 2, 1, 0, 2, 4, 6, 8, 10)
+    # 2 parts, 1 detector; absorbed, roulette, nee_exchange, truncated at rows 0, 2, 4, 6; detector
+    # nee and direct at 8, 10
+    rows = TallyRows(n_parts=2, n_detectors=1, incident=-1, first_hit=-1, absorbed=0, roulette=2, nee_exchange=4,
+                     truncated=6, detector_nee=8, detector_direct=10, detector_walk=-1, escaped=-1, n_per_ray=13,
+                     ledger_absorbed=13, detector_total=15, n_summed=16)
+    s1, s2 = chunk_sums(M, 1000, rows)
     ext = np.concatenate([M, M[0:2] + M[2:4] + M[4:6] + M[6:8], M[8:9] + M[10:11]])
     starts = np.arange(0, n, 1000)
     assert np.abs(s1).sum() > 0
@@ -93,7 +99,7 @@ def test_chunk_sums_equal_numpy_reduceat(n):
     np.testing.assert_array_equal(s2, np.add.reduceat(ext * ext, starts, axis=1).T)
     # clear=True: the same sums, and M left all zeros (the engine then reuses it without a fill)
     Mc = M.copy()
-    c1, c2 = _kernels.chunk_sums(Mc, 1000, 2, 1, 0, 2, 4, 6, 8, 10, True)
+    c1, c2 = chunk_sums(Mc, 1000, rows, True)
     np.testing.assert_array_equal(c1, s1)
     np.testing.assert_array_equal(c2, s2)
     assert not Mc.any()
@@ -124,7 +130,7 @@ def _chunk_maps_numpy(map_rows, nch, C, D, bins):
 def test_compiled_map_sums_equal_the_numpy_formulation():
     """Records with repeated (ray, detector, bin) keys (up to 40 contributions: pairwise sums),
     several detectors, empty chunks, in several record calls."""
-    from straylight.trace import _chunk_maps
+    from straylight.engine.tallies import chunk_maps as _chunk_maps
 
     rng = np.random.default_rng(4)
     C, D, bins, nch = 100, 3, (4, 5), 6

@@ -114,7 +114,7 @@ def test_unsupported_sources_and_reference_engine_are_clear_errors():
     spec = make_spec(scene, _tube_source(20.0), 1000, materials=BLACK, options=FV)
     from dataclasses import replace
 
-    from straylight.first_vertex import VertexTable
+    from straylight.engine.first_vertex import VertexTable
     spec = replace(spec, vertex_table=VertexTable(np.zeros(0, np.int64), np.zeros(0), np.zeros(1)))
     with pytest.raises(TraceError, match="reference engine"):
         run_batch_reference(spec, 0, 1)

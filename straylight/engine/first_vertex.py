@@ -32,7 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from straylight.paths import KIND_DETECTOR, KIND_SCATTER, mix_key
+from straylight.engine.material_groups import by_material
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE
+from straylight.engine.roles import ROLE_SURFACE
+from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS, check_seed, chunk_bounds
 from straylight.sources import CollimatedDisk, PointSource, orthonormal_basis
 
@@ -40,7 +43,6 @@ VERTEX_STREAM = 0x56455254  # third entropy word: this strategy's streams differ
 PROBE_STREAM = 0x50524F42
 PROBES_PER_TRIANGLE = 8
 PROBE_BUDGET = 400_000
-_SURFACE = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -160,9 +162,9 @@ def _single_scatter(spec, comp, src, t, x, u_det, j):
     wo_loc = _local(wo, tb, bb, nf[lit])
     mat = spec.part_material[spec.triangle_part[t[lit]]]
     f = np.empty(len(lit))
-    for m in np.unique(mat):
-        sel = mat == m
-        f[sel] = spec.materials[m].brdf(wi_loc[sel], wo_loc[sel], spec.options.polarization)
+    pol = spec.options.polarization
+    for rows, fv in by_material(spec.materials, mat, lambda model, rows: model.brdf(wi_loc[rows], wo_loc[rows], pol)):
+        f[rows] = fv
     value[lit] = e_x[lit] * f * cos_o * cos_z / d2
     return value, z, shadows
 
@@ -172,7 +174,7 @@ def build_table(spec, comp) -> VertexTable:
     src = spec.sources[0]
     tri_mm = spec.triangles_mm
     n_tri = len(tri_mm)
-    surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == _SURFACE)
+    surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == ROLE_SURFACE)
     area = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
     surf = surf[area[surf] > 0]
     # at most PROBE_BUDGET probes in all (a million-triangle scene gets one per triangle)
@@ -197,7 +199,7 @@ def build_table(spec, comp) -> VertexTable:
     return VertexTable(surf[keep].astype(np.int64), np.cumsum(q), p_area)
 
 
-def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, lay, record, record_paths, path_depth):
+def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, rows, records, record_paths, path_depth):
     """Add this strategy's MIS-weighted estimates for chunks ``first_chunk .. stop_chunk-1`` to ``M``
     (one sample per ray id and detector). Returns the number of shadow rays cast."""
     if len(table.tri) == 0:
@@ -226,16 +228,16 @@ def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, lay, record, 
         c = g[good] * comp.detectors[j].area_mm2 / (p_a + p_f) / n_total
         r = good
         pt = spec.triangle_part[tg].astype(np.int64)
-        M[lay.DET_NEE + j, r] += c
-        M[lay.NEX + pt, r] -= c
+        M[rows.detector_nee + j, r] += c
+        M[rows.nee_exchange + pt, r] -= c
         keys = events = None
         if record_paths:
-            code = pt * 4 + KIND_SCATTER
-            keys = mix_key(mix_key(np.zeros(len(r), dtype=np.uint64), code), comp.det_parts[j] * 4 + KIND_DETECTOR)
+            code = pt * 4 + EVENT_SCATTER
+            keys = mix_key(mix_key(np.zeros(len(r), dtype=np.uint64), code), comp.det_parts[j] * 4 + EVENT_DETECTOR)
             events = np.full((len(r), path_depth), -1, dtype=np.int16)
             if path_depth > 0:
                 events[:, 0] = code
-        record(j, r, z[good], c, keys, events, np.ones(len(r), dtype=np.int64))
+        records.add(j, r, z[good], c, keys, events, np.ones(len(r), dtype=np.int64))
     return shadows
 
 
@@ -245,3 +247,45 @@ def forward_weight(spec, table, normals, tri, p):
     p_a = table.p_area[tri]
     p_f = forward_density(spec.sources[0], p, normals[tri])
     return np.where(p_a > 0, p_f / (p_f + p_a), 1.0)
+
+
+class FirstVertexWeights:
+    """The forward walk's side of the MIS: the weight of each ray's first (scatter) vertex, kept
+    per ray of the batch, applied to its NEE contributions (:meth:`vertex_weights`) and to its walk
+    hit on a detector right after that vertex (:meth:`share_single_scatter`)."""
+
+    def __init__(self, spec, table, n_rays_in_batch):
+        self.spec = spec
+        self.table = table
+        self.w_first = np.ones(n_rays_in_batch)
+
+    def vertex_weights(self, event, verts):
+        """Forward MIS weights of the scatter vertices ``verts`` (1 unless it is the ray's first event)."""
+        first = np.flatnonzero(event.rays.last_event[verts] == EVENT_SOURCE)
+        if len(first) == 0:
+            return None
+        w_vertex = np.ones(len(verts))
+        at = verts[first]
+        w_vertex[first] = forward_weight(self.spec, self.table, event.scene.normals, event.tri[at],
+                                         event.hits.point_mm[at])
+        self.w_first[event.rays.ray[at]] = w_vertex[first]
+        return w_vertex
+
+    def share_single_scatter(self, event, rec, rec_w):
+        """Walk hits on a detector straight after a ray's first (scatter) event keep only their forward
+        MIS share ``w_first`` (the rest is the vertex-sampling strategy's); the remainder goes to the
+        NEE exchange, so the ledger stays exact. Returns the hits still counted and their weights."""
+        rays = event.rays
+        single = np.flatnonzero((rays.last_event[rec] == EVENT_SCATTER) & (rays.depth[rec] == 1))
+        if len(single) == 0:
+            return rec, rec_w
+        i = rec[single]
+        r = rays.ray[i]
+        moved = rec_w[single] * (1.0 - self.w_first[r])
+        M, rows = event.tallies, event.rows
+        M[rows.detector_direct + event.scene.arrays.detector_of_part[event.hits.part[i]], r] -= moved
+        M[rows.nee_exchange + rays.last_part[i], r] += moved
+        rec_w = rec_w.copy()
+        rec_w[single] -= moved
+        keep = rec_w > 0
+        return rec[keep], rec_w[keep]

@@ -1,11 +1,12 @@
-"""In-process scheduling of trace batches: one after another, or on a process-wide pool of threads
-(embree and the compiled kernels release the GIL). Results come back in batch order, so the sums
-are the same whichever way the batches ran."""
+"""Batches in this process: one after another, or on a process-wide pool of threads (embree and
+the compiled kernels release the GIL; materials, sources and the Python glue do not). Results are
+yielded in batch order, so the sums are the same whichever way the batches ran."""
 from __future__ import annotations
 
 import threading
 
-from straylight.engine.core import _compiled, run_batch
+from straylight.engine.compiled_scene import compiled_scene
+from straylight.engine.walk import run_batch
 
 
 def run_local(spec, ranges, intersector=None):
@@ -34,7 +35,7 @@ def run_threads(spec, ranges, intersector, n_threads):
     """Batches on the shared pool of ``n_threads`` threads, results yielded in batch order (so the
     sums are the same). All batches are queued at once."""
     if intersector is None:
-        _compiled(spec)  # build the embree scene once, before the threads share it
+        compiled_scene(spec)  # build the embree scene once, before the threads share it
     futures = [shared_pool(int(n_threads)).submit(run_batch, spec, a, b, intersector) for a, b in ranges]
     for fut in futures:
         yield fut.result()

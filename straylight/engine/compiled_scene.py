@@ -1,0 +1,166 @@
+"""Stage 2, the scene as the kernels see it: triangle planes, detector samplers and the embree
+scene, built once per process and scene (:func:`compiled_scene`), with per-thread scratch buffers.
+
+Detector sampling tables come from :class:`straylight.detectors.DetectorGeometry` through its
+public ``alias_table`` and ``vertex_and_edges_mm``; :func:`detector_samplers` builds them without
+any intersector (the result builder needs only them)."""
+from __future__ import annotations
+
+import threading
+from typing import NamedTuple
+
+import numpy as np
+
+from straylight.detectors import DetectorGeometry
+from straylight.engine.spec import TraceSpec
+
+
+class SceneArrays(NamedTuple):
+    """What the compiled kernels read of the scene (one argument)."""
+
+    triangle_part: np.ndarray  # (T,) int32
+    part_roles: np.ndarray  # (P,) int64, straylight.engine.spec.ROLE_*
+    normals: np.ndarray  # (T, 3) unit geometric normals
+    plane_d: np.ndarray  # (T,) n . v0 of each triangle's plane
+    centroids: np.ndarray  # (T, 3)
+    detector_of_part: np.ndarray  # (P,) detector index, -1 for other parts
+    detector_area_mm2: np.ndarray  # (D,)
+    # every detector's sampling table, concatenated: rows det_offset[j]:det_offset[j+1] are detector j's
+    det_offset: np.ndarray
+    det_alias_prob: np.ndarray
+    det_alias: np.ndarray
+    det_v0: np.ndarray
+    det_e1: np.ndarray
+    det_e2: np.ndarray
+    det_normals: np.ndarray
+
+
+def detector_samplers(spec: TraceSpec) -> list:
+    """One :class:`DetectorGeometry` per detector part, in part order."""
+    tri = spec.triangles_mm
+    return [DetectorGeometry.from_triangles(tri[spec.triangle_part == p]) for p in spec.detector_parts]
+
+
+class TargetSampler:
+    """Area sampling of the (flat) target parts and the density of a direction toward them
+    (straylight.engine.targets); its own intersector over the target triangles."""
+
+    def __init__(self, spec: TraceSpec, reference: bool):
+        idx = [spec.part_names.index(name) for name in spec.options.target_parts]
+        ttri = spec.triangles_mm[np.isin(spec.triangle_part, idx)]
+        self.geometry = DetectorGeometry.from_triangles(ttri)
+        if reference:
+            from straylight.intersect.reference import ReferenceIntersector as Intersector
+        else:
+            from straylight.intersect.embree import EmbreeIntersector as Intersector
+        self.isect = Intersector(ttri)
+        self.plane_d = np.einsum("ij,ij->i", self.geometry.normals, ttri[:, 0])
+
+
+class CompiledScene:
+    """Per process: intersector, triangle planes, detector samplers and tables, target sampler."""
+
+    def __init__(self, spec: TraceSpec, intersector=None):
+        from straylight.intersect.embree import EmbreeIntersector
+
+        self.isect = intersector if intersector is not None else EmbreeIntersector(spec.triangles_mm)
+        tri = spec.triangles_mm
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        self.normals = n / np.where(length > 0, length, 1.0)
+        plane_d = np.einsum("ij,ij->i", self.normals, tri[:, 0])
+        self.det_parts = spec.detector_parts
+        det_of_part = np.full(len(spec.part_names), -1, dtype=np.int64)
+        det_of_part[self.det_parts] = np.arange(len(self.det_parts))
+        self.detectors = detector_samplers(spec)
+        dets = self.detectors
+        tables = [g.vertex_and_edges_mm for g in dets]
+
+        def stacked(arrays, width, dtype):
+            empty = np.zeros((0, width) if width else 0, dtype)
+            return np.ascontiguousarray(np.concatenate([empty] + list(arrays)), dtype=dtype)
+
+        self.arrays = SceneArrays(
+            triangle_part=spec.triangle_part, part_roles=spec.part_roles, normals=self.normals, plane_d=plane_d,
+            centroids=tri.mean(axis=1), detector_of_part=det_of_part,
+            detector_area_mm2=np.array([g.area_mm2 for g in dets], dtype=np.float64),
+            det_offset=np.concatenate([[0], np.cumsum([len(g.normals) for g in dets])]).astype(np.int64),
+            det_alias_prob=stacked((g.alias_table[0] for g in dets), 0, np.float64),
+            det_alias=stacked((g.alias_table[1] for g in dets), 0, np.int64),
+            det_v0=stacked((t[0] for t in tables), 3, np.float64),
+            det_e1=stacked((t[1] for t in tables), 3, np.float64),
+            det_e2=stacked((t[2] for t in tables), 3, np.float64),
+            det_normals=stacked((g.normals for g in dets), 3, np.float64))
+        self.target = TargetSampler(spec, reference=intersector is not None) if spec.options.target_parts else None
+        self._local = threading.local()  # per-thread scratch (dask may run several threads per process)
+
+    def scratch(self, name, size):
+        """A flat float64 scratch array of at least ``size`` elements, reused by this thread."""
+        buf = getattr(self._local, name, None)
+        if buf is None or buf.size < size:
+            buf = np.empty(size)
+            setattr(self._local, name, buf)
+        return buf
+
+    def tally_buffer(self, rows, n):
+        """A zeroed (rows, n) float64 array, reused between batches of this thread (fresh pages from
+        np.zeros cost a page fault each time they are first written). The batch that used it last
+        left it all zeros (``chunk_sums(..., clear=True)`` then :meth:`tally_cleared`) unless it
+        stopped half-way; only then is it filled again."""
+        buf = getattr(self._local, "buf", None)
+        if buf is None or buf.size < rows * n:
+            buf = self._local.buf = np.zeros(rows * n)
+        elif not getattr(self._local, "buf_clean", False):
+            buf.fill(0.0)
+        self._local.buf_clean = False
+        return buf[:rows * n].reshape(rows, n)
+
+    def tally_cleared(self):
+        """Record that this thread's tally buffer is all zeros again."""
+        self._local.buf_clean = True
+
+
+_MALLOC_TUNED = []
+
+
+def keep_freed_memory():
+    """glibc only, once per process: serve blocks up to 32 MB from the heap and keep up to 256 MB of
+    freed heap (mallopt M_MMAP_THRESHOLD, M_TRIM_THRESHOLD). The engine frees and reallocates
+    MB-sized arrays every event; with glibc's defaults many came back as fresh pages (6k-50k page
+    faults per 4e5-ray trace, up to 10 % of its CPU), now ~100. Elsewhere: nothing."""
+    if _MALLOC_TUNED:
+        return
+    _MALLOC_TUNED.append(True)
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, 32 * 1024 * 1024)  # M_MMAP_THRESHOLD (its maximum on 64-bit)
+        libc.mallopt(-1, 256 * 1024 * 1024)  # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):
+        pass
+
+
+_CACHE: dict = {}  # token -> CompiledScene; one embree scene per process and scene (cache only)
+_CACHE_LOCK = threading.Lock()
+
+
+def compiled_scene(spec: TraceSpec, intersector=None) -> CompiledScene:
+    """This process's :class:`CompiledScene` of ``spec`` (built on first use, one scene kept);
+    with an ``intersector`` a fresh one around it (not cached)."""
+    keep_freed_memory()
+    if intersector is not None:
+        return CompiledScene(spec, intersector)
+    comp = _CACHE.get(spec.token)
+    if comp is None:
+        with _CACHE_LOCK:  # threads of one worker may start their first batch together: build once
+            comp = _CACHE.get(spec.token)
+            if comp is None:
+                _CACHE.clear()  # keep one scene per process
+                comp = _CACHE[spec.token] = CompiledScene(spec)
+    return comp
+
+
+def cached_scene(spec: TraceSpec):
+    """This process's scene of ``spec`` if it traced here, else None."""
+    return _CACHE.get(spec.token)

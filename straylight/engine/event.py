@@ -1,0 +1,49 @@
+"""What a surface interaction sees of one event (:class:`Event`) and what it hands back
+(:class:`Outgoing`). Built by the walk (straylight.engine.walk) once per event."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Outgoing(NamedTuple):
+    """Where each continuing ray goes next; one row per entry of ``Event.hits.continuing``. An
+    interaction fills the rows it was given."""
+
+    direction: np.ndarray  # (n, 3) unit, world frame
+    throughput: np.ndarray  # (n,) weight factor: new weight = weight x throughput (0: absorbed)
+    pdf_per_sr: np.ndarray  # (n,) density of the sampled direction (for MIS with NEE); 0 for a delta event
+    event: np.ndarray  # (n,) int8 event code recorded in the path (EVENT_SCATTER, EVENT_SPECULAR)
+    side: np.ndarray  # (n,) int8: +1 the ray leaves on the side it came from, -1 it crosses the surface
+
+
+def empty_outgoing(n: int) -> Outgoing:
+    return Outgoing(direction=np.empty((n, 3)), throughput=np.empty(n), pdf_per_sr=np.empty(n),
+                    event=np.empty(n, dtype=np.int8), side=np.ones(n, dtype=np.int8))
+
+
+@dataclass
+class Event:
+    """One event of a batch: the rays before it, what they hit, their uniforms, and where the
+    estimates go. ``kernels`` is the walk's kernel set (compiled, or the numpy twins)."""
+
+    spec: object  # TraceSpec
+    scene: object  # CompiledScene
+    kernels: object  # straylight.engine.kernel_sets.KernelSet
+    settings: object  # WalkSettings
+    rows: object  # TallyRows
+    tallies: np.ndarray  # the per-ray tally matrix M (rows x rays of the batch)
+    records: object  # straylight.engine.tallies.DetectorRecords
+    rays: object  # RayBatch before the event
+    tri: np.ndarray  # triangle hit by each ray (-1: miss)
+    hits: object  # straylight.engine.hits.Hits
+    uniforms: np.ndarray  # (live rays, columns.width)
+    columns: object  # straylight.engine.draws.EventColumns
+    first_vertex: object = None  # straylight.engine.first_vertex.FirstVertexWeights or None
+    shadow_rays: int = 0  # shadow rays cast by the interactions in this event
+
+    def vertex_rows(self, selection) -> np.ndarray:
+        """Rows (into the event's per-ray arrays) of the continuing hits ``selection``."""
+        return self.hits.continuing[selection]

@@ -1,0 +1,300 @@
+"""Stage: next-event estimation (NEE) toward the detector parts, at the BRDF scatter vertices.
+
+At a vertex x, for each detector j and each of its k samples, a point y uniform over j's area
+(triangle by Walker alias, then Turk 1990 barycentrics) and, if unoccluded, the contribution
+``w f(wi, wo) cos_x cos_y A / |y - x|^2 * m_nee / k`` (area form of the rendering equation, pdf
+1/A) with the power-heuristic MIS weight m_nee against BRDF sampling (Veach 1997, eq. 9.13; MIS
+density of NEE k d^2 / (A cos_y)). Contributions go to ``detector_nee`` and, negated, to the
+part's ``nee_exchange`` row (the walk's hits on the detector give back the rest), so the ledger
+stays exact. Kernels: :func:`nee_pairs` (points), :func:`nee_shadow` (contributions and shadow
+rays), :func:`nee_tally`; each with its numpy twin (same bits)."""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from straylight.engine.material_groups import by_material
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
+from straylight.engine.targets import target_pdf
+from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows
+from straylight.paths import mix_key
+
+
+class NeePairs(NamedTuple):
+    """Vertex-detector sample pairs that face each other, vertex-major."""
+
+    vertex: np.ndarray  # position of the vertex among the event's scatter vertices
+    sample: np.ndarray  # j * k + sample number (j: detector)
+    point_mm: np.ndarray  # (m, 3) point on the detector
+    wo_local: np.ndarray  # (m, 3) direction to it in the vertex's local frame
+    dist2_mm2: np.ndarray
+    cos_vertex: np.ndarray
+    cos_detector: np.ndarray
+    direction: np.ndarray  # (m, 3) world direction to it
+
+
+class ShadowRays(NamedTuple):
+    pair: np.ndarray  # positions into the pairs of the contributions > 0
+    contribution_w: np.ndarray
+    origin_mm: np.ndarray
+    direction: np.ndarray
+    tmax_mm: np.ndarray
+
+
+@njit(cache=True, nogil=True)
+def nee_pairs(verts, frame, hit, U, u_col0, scene, settings):
+    """Detector points for the vertices ``verts`` (rows of the event), kept when they face the
+    vertex and the detector (cos_x > 0, cos_y > 0, d > 2 eps); fields of :class:`NeePairs`."""
+    n_det = len(scene.detector_area_mm2)
+    k_nee = settings.nee_samples
+    ns = len(verts)
+    m = ns * n_det * k_nee
+    ps = np.empty(m, np.int64)
+    pjk = np.empty(m, np.int64)
+    y = np.empty((m, 3))
+    wo_loc = np.empty((m, 3))
+    wdir = np.empty((m, 3))
+    dist2 = np.empty(m)
+    cos_s = np.empty(m)
+    cos_d = np.empty(m)
+    q = 0
+    two_eps = 2 * settings.eps_mm
+    p, nf = hit.point_mm, hit.facing_normal
+    tb, bb = frame.tangent, frame.bitangent
+    det_off, prob, alias = scene.det_offset, scene.det_alias_prob, scene.det_alias
+    v0, e1, e2, det_normals = scene.det_v0, scene.det_e1, scene.det_e2, scene.det_normals
+    for s in range(ns):
+        i = verts[s]
+        p0, p1, p2 = p[i, 0], p[i, 1], p[i, 2]
+        f0, f1, f2 = nf[i, 0], nf[i, 1], nf[i, 2]
+        for jk in range(n_det * k_nee):
+            j = jk // k_nee
+            c0 = u_col0 + 3 * jk
+            ua, ub, uc = U[i, c0], U[i, c0 + 1], U[i, c0 + 2]
+            lo, hi = det_off[j], det_off[j + 1]
+            mt = hi - lo
+            x = ua * mt
+            kk = min(np.int64(x), mt - 1)
+            k = kk if x - kk < prob[lo + kk] else alias[lo + kk]
+            g = lo + k
+            su = np.sqrt(ub)
+            bw1 = su * (1.0 - uc)
+            bw2 = su * uc
+            y0 = v0[g, 0] + bw1 * e1[g, 0] + bw2 * e2[g, 0]
+            y1 = v0[g, 1] + bw1 * e1[g, 1] + bw2 * e2[g, 1]
+            y2 = v0[g, 2] + bw1 * e1[g, 2] + bw2 * e2[g, 2]
+            v0_, v1_, v2_ = y0 - p0, y1 - p1, y2 - p2
+            dd2 = dot3(v0_, v1_, v2_, v0_, v1_, v2_)
+            dist = np.sqrt(dd2)
+            inv = dist if dist > 0 else 1.0
+            a0, a1, a2 = v0_ / inv, v1_ / inv, v2_ / inv
+            cs = dot3(a0, a1, a2, f0, f1, f2)
+            cd = -dot3(a0, a1, a2, det_normals[g, 0], det_normals[g, 1], det_normals[g, 2])
+            if settings.both_sides:
+                cd = abs(cd)
+            if cs > 0 and cd > 0 and dist > two_eps:
+                ps[q] = s
+                pjk[q] = jk
+                y[q, 0], y[q, 1], y[q, 2] = y0, y1, y2
+                wo_loc[q, 0] = dot3(a0, a1, a2, tb[s, 0], tb[s, 1], tb[s, 2])
+                wo_loc[q, 1] = dot3(a0, a1, a2, bb[s, 0], bb[s, 1], bb[s, 2])
+                wo_loc[q, 2] = cs
+                wdir[q, 0], wdir[q, 1], wdir[q, 2] = a0, a1, a2
+                dist2[q] = dd2
+                cos_s[q] = cs
+                cos_d[q] = cd
+                q += 1
+    return ps[:q], pjk[:q], y[:q], wo_loc[:q], dist2[:q], cos_s[:q], cos_d[:q], wdir[:q]
+
+
+def nee_pairs_numpy(verts, frame, hit, U, u_col0, scene, settings):
+    """:func:`nee_pairs` in vectorised numpy (the reference)."""
+    n_jk = len(scene.detector_area_mm2) * settings.nee_samples
+    s = np.repeat(np.arange(len(verts)), n_jk)
+    jk = np.tile(np.arange(n_jk), len(verts))
+    j = jk // settings.nee_samples
+    i = verts[s]
+    c0 = u_col0 + 3 * jk
+    ua, ub, uc = U[i, c0], U[i, c0 + 1], U[i, c0 + 2]
+    lo = scene.det_offset[j]
+    mt = scene.det_offset[j + 1] - lo
+    x = ua * mt
+    kk = np.minimum(x.astype(np.int64), mt - 1)
+    g = lo + np.where(x - kk < scene.det_alias_prob[lo + kk], kk, scene.det_alias[lo + kk])
+    su = np.sqrt(ub)
+    bw1 = (su * (1.0 - uc))[:, None]
+    bw2 = (su * uc)[:, None]
+    y = scene.det_v0[g] + bw1 * scene.det_e1[g] + bw2 * scene.det_e2[g]
+    v = y - hit.point_mm[i]
+    dd2 = dot_rows(v, v)
+    dist = np.sqrt(dd2)
+    a = v / np.where(dist > 0, dist, 1.0)[:, None]
+    cs = dot_rows(a, hit.facing_normal[i])
+    cd = -dot_rows(a, scene.det_normals[g])
+    if settings.both_sides:
+        cd = np.abs(cd)
+    ok = np.flatnonzero((cs > 0) & (cd > 0) & (dist > 2 * settings.eps_mm))
+    a, s_ok = a[ok], s[ok]
+    wo_loc = np.stack([dot_rows(a, frame.tangent[s_ok]), dot_rows(a, frame.bitangent[s_ok]), cs[ok]], axis=-1)
+    return s_ok, jk[ok], y[ok], wo_loc, dd2[ok], cs[ok], cd[ok], a
+
+
+@njit(cache=True, nogil=True)
+def nee_shadow(pairs, f, pdf_brdf, verts, rays, hit, scene, settings):
+    """Contributions c = w f cos_x cos_y A / d^2 * m_nee / k, and the shadow rays of those with
+    c > 0 (from the vertex lifted eps, stopping eps short of y); fields of :class:`ShadowRays`."""
+    m = len(pairs.vertex)
+    k_nee = settings.nee_samples
+    eps = settings.eps_mm
+    keep = np.empty(m, np.int64)
+    cc = np.empty(m)
+    so = np.empty((m, 3))
+    sd = np.empty((m, 3))
+    tmax = np.empty(m)
+    p, nf, w = hit.point_mm, hit.facing_normal, rays.weight_w
+    q = 0
+    for a in range(m):
+        i = verts[pairs.vertex[a]]
+        area = scene.detector_area_mm2[pairs.sample[a] // k_nee]
+        dist2, cos_d = pairs.dist2_mm2[a], pairs.cos_detector[a]
+        p_nee = k_nee * dist2 / (area * cos_d)
+        c = w[i] * f[a] * pairs.cos_vertex[a] * cos_d * area / dist2 * power_heuristic(p_nee, pdf_brdf[a]) / k_nee
+        if c > 0:
+            oo0 = p[i, 0] + eps * nf[i, 0]
+            oo1 = p[i, 1] + eps * nf[i, 1]
+            oo2 = p[i, 2] + eps * nf[i, 2]
+            y = pairs.point_mm
+            v0_, v1_, v2_ = y[a, 0] - oo0, y[a, 1] - oo1, y[a, 2] - oo2
+            lo = np.sqrt(dot3(v0_, v1_, v2_, v0_, v1_, v2_))
+            keep[q] = a
+            cc[q] = c
+            so[q, 0], so[q, 1], so[q, 2] = oo0, oo1, oo2
+            sd[q, 0], sd[q, 1], sd[q, 2] = v0_ / lo, v1_ / lo, v2_ / lo
+            tmax[q] = lo - eps
+            q += 1
+    return keep[:q], cc[:q], so[:q], sd[:q], tmax[:q]
+
+
+def nee_shadow_numpy(pairs, f, pdf_brdf, verts, rays, hit, scene, settings):
+    """:func:`nee_shadow` in vectorised numpy (the reference)."""
+    k_nee = settings.nee_samples
+    eps = settings.eps_mm
+    i = verts[pairs.vertex]
+    area = scene.detector_area_mm2[pairs.sample // k_nee]
+    p_nee = k_nee * pairs.dist2_mm2 / (area * pairs.cos_detector)
+    c = (rays.weight_w[i] * f * pairs.cos_vertex * pairs.cos_detector * area / pairs.dist2_mm2
+         * power_heuristic_rows(p_nee, pdf_brdf) / k_nee)
+    keep = np.flatnonzero(c > 0)
+    i = i[keep]
+    so = hit.point_mm[i] + eps * hit.facing_normal[i]
+    v = pairs.point_mm[keep] - so
+    lo = np.sqrt(dot_rows(v, v))
+    return keep, c[keep], so, v / lo[:, None], lo - eps
+
+
+@njit(cache=True, nogil=True)
+def nee_tally(shadow, blocked, pairs, verts, rays, hit, k_nee, M, rows):
+    """Add the unblocked contributions to the detector and (negated) to the part's NEE exchange;
+    returns the positions (into the shadow rays) of the unblocked ones."""
+    m = len(shadow.pair)
+    ok = np.empty(m, np.int64)
+    q = 0
+    for b in range(m):
+        if blocked[b]:
+            continue
+        a = shadow.pair[b]
+        i = verts[pairs.vertex[a]]
+        r = rays.ray[i]
+        M[rows.detector_nee + pairs.sample[a] // k_nee, r] += shadow.contribution_w[b]
+        M[rows.nee_exchange + hit.part[i], r] -= shadow.contribution_w[b]
+        ok[q] = b
+        q += 1
+    return ok[:q]
+
+
+def nee_tally_numpy(shadow, blocked, pairs, verts, rays, hit, k_nee, M, rows):
+    """:func:`nee_tally` in numpy (np.add.at: repeated (row, ray) cells added in order)."""
+    ok = np.flatnonzero(~np.asarray(blocked, dtype=bool))
+    a = shadow.pair[ok]
+    i = verts[pairs.vertex[a]]
+    r = rays.ray[i]
+    c = shadow.contribution_w[ok]
+    np.add.at(M, (rows.detector_nee + pairs.sample[a] // k_nee, r), c)
+    np.subtract.at(M, (rows.nee_exchange + hit.part[i], r), c)
+    return ok
+
+
+def estimate(event, verts, frame, w_vertex):
+    """NEE from the scatter vertices ``verts`` (rows of the event) with local frames ``frame``
+    (straylight.engine.interactions.brdf_scatter.LocalFrames); ``w_vertex``: first-vertex MIS
+    weights per vertex or None. Tallies, records and counts the shadow rays."""
+    spec, kern, settings, hit = event.spec, event.kernels, event.settings, event.hits
+    pol = spec.options.polarization
+    n_jk = len(event.scene.det_parts) * settings.nee_samples
+    pairs = NeePairs(*kern.nee_pairs(verts, frame, hit, event.uniforms, event.columns.nee, event.scene.arrays,
+                                     settings))
+    if len(pairs.vertex) == 0:
+        return
+    f = np.empty(len(pairs.vertex))
+    pdf_brdf = np.empty(len(pairs.vertex))
+    wi_local, mat = frame.wi_local, frame.material
+    target = event.scene.target
+    # materials see the same arrays in both walks: one call per (detector, sample) and material,
+    # vertices in order (vectorised transcendental functions may round differently in a block's tail)
+    for jk in range(n_jk):
+        sel = np.flatnonzero(pairs.sample == jk) if n_jk > 1 else slice(None)
+        wi_p = wi_local[pairs.vertex[sel]]
+        wo_p = pairs.wo_local[sel]
+        f_jk = np.empty(len(wi_p))
+        pdf_jk = np.empty(len(wi_p))
+        for rows, (fv, pv) in by_material(spec.materials, mat[pairs.vertex[sel]], lambda model, rows: (
+                model.brdf(wi_p[rows], wo_p[rows], pol), model.pdf(wi_p[rows], wo_p[rows], pol))):
+            f_jk[rows] = fv
+            pdf_jk[rows] = pv
+        if target is not None:
+            q = float(spec.options.target_fraction)
+            at = verts[pairs.vertex[sel]]
+            pdf_jk = (1 - q) * pdf_jk + q * target_pdf(target, hit.point_mm[at], hit.facing_normal[at],
+                                                       pairs.direction[sel], spec.eps)
+        f[sel] = f_jk if w_vertex is None else f_jk * w_vertex[pairs.vertex[sel]]
+        pdf_brdf[sel] = pdf_jk
+    shadow = ShadowRays(*kern.nee_shadow(pairs, f, pdf_brdf, verts, event.rays, hit, event.scene.arrays, settings))
+    if len(shadow.pair) == 0:
+        return
+    blocked = np.asarray(event.scene.isect.occluded(shadow.origin_mm, shadow.direction, shadow.tmax_mm), dtype=bool)
+    event.shadow_rays += len(shadow.pair)
+    ok = kern.nee_tally(shadow, blocked, pairs, verts, event.rays, hit, settings.nee_samples, event.tallies,
+                        event.rows)
+    if len(ok):
+        _record(event, verts, pairs, shadow, ok)
+
+
+def _record(event, verts, pairs, shadow, ok):
+    """Map (and path) records of the unblocked NEE contributions, per detector. One record call per
+    (detector, sample), as both walks make them: the map binning (a BLAS product) then sees the same
+    arrays, so the bins are the same to the last bit."""
+    a = shadow.pair[ok]
+    c = shadow.contribution_w[ok]
+    live = verts[pairs.vertex[a]]
+    jk_a = pairs.sample[a]
+    k_nee = event.settings.nee_samples
+    rays, part = event.rays, event.hits.part
+    K = rays.history.shape[1]
+    det_parts = event.scene.det_parts
+    for jk in range(len(det_parts) * k_nee):
+        j = jk // k_nee
+        sel = np.flatnonzero(jk_a == jk)
+        if len(sel) == 0:
+            continue
+        i = live[sel]
+        keys = events = None
+        if event.settings.record_paths:
+            code = part[i] * 4 + EVENT_SCATTER
+            keys = mix_key(mix_key(rays.path_key[i], code), det_parts[j] * 4 + EVENT_DETECTOR)
+            events = rays.history[i]
+            depth = rays.depth[i]
+            inside = np.flatnonzero(depth < K)
+            events[inside, depth[inside]] = code[inside]
+        event.records.add(j, rays.ray[i], pairs.point_mm[a[sel]], c[sel], keys, events, rays.depth[i] + 1)

@@ -1,0 +1,68 @@
+"""Stage 0, what the user asks for: :class:`TraceOptions` and :class:`TraceError`."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+
+class TraceError(ValueError):
+    """A trace request that cannot run; the message names the parameter or part."""
+
+
+@dataclass(frozen=True)
+class TraceOptions:
+    """Options of :func:`straylight.trace.trace` (see docs/engine.md)."""
+
+    nee: bool = True
+    max_events: int = 1000
+    rr_threshold: float = 1e-3
+    batch_rays: int | None = None  # None: auto_batch_rays(rows of the tally matrix)
+    record_paths: bool = False
+    path_depth: int = 12
+    map_bins: tuple = (64, 64)
+    polarization: str = "u"
+    detector_sides: str = "both"
+    progress: bool = False
+    mirror_reflectance: float = 1.0
+    target_parts: tuple = ()
+    nee_samples: int = 1
+    target_fraction: float = 0.5
+    first_vertex_sampling: bool = False
+
+    def __post_init__(self):
+        if int(self.max_events) < 1:
+            raise TraceError(f"max_events must be >= 1, got {self.max_events}")
+        if not (0.0 <= float(self.rr_threshold) < 1.0):
+            raise TraceError(f"rr_threshold must be in [0, 1), got {self.rr_threshold}")
+        if int(self.nee_samples) < 1:
+            raise TraceError(f"nee_samples must be >= 1, got {self.nee_samples}")
+        if self.batch_rays is not None and int(self.batch_rays) < 1:
+            raise TraceError(f"batch_rays must be >= 1, got {self.batch_rays}")
+        if self.detector_sides not in ("both", "front"):
+            raise TraceError(f"detector_sides must be 'both' or 'front', got {self.detector_sides!r}")
+        if len(tuple(self.map_bins)) != 2 or min(self.map_bins) < 1:
+            raise TraceError(f"map_bins must be two positive integers, got {self.map_bins!r}")
+        if not (0.0 < float(self.target_fraction) < 1.0):
+            raise TraceError(f"target_fraction must be in (0, 1), got {self.target_fraction}")
+        if isinstance(self.target_parts, str):
+            object.__setattr__(self, "target_parts", (self.target_parts,))
+        object.__setattr__(self, "target_parts", tuple(self.target_parts))
+        if not (0.0 <= float(self.mirror_reflectance) <= 1.0):
+            raise TraceError(f"mirror_reflectance must be in [0, 1], got {self.mirror_reflectance}")
+
+
+class WalkSettings(NamedTuple):
+    """The options the compiled kernels read (one argument)."""
+
+    both_sides: bool  # detectors count light from both sides
+    nee: bool  # next-event estimation on
+    nee_samples: int  # shadow rays per scatter vertex and detector
+    roulette_w: float  # Russian roulette threshold, W (rr_threshold x start weight)
+    eps_mm: float  # self-intersection offset
+    record_paths: bool
+
+
+def walk_settings(options: TraceOptions, eps_mm: float, start_weight_w: float) -> WalkSettings:
+    return WalkSettings(both_sides=options.detector_sides == "both", nee=bool(options.nee),
+                        nee_samples=int(options.nee_samples), roulette_w=float(options.rr_threshold) * start_weight_w,
+                        eps_mm=float(eps_mm), record_paths=bool(options.record_paths))

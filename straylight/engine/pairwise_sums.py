@@ -1,0 +1,111 @@
+"""numpy's pairwise summation in numba, so that compiled per-chunk sums are bit-identical to
+``np.add.reduceat`` (numpy/_core/src/umath/loops_utils.h.src)."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def pairwise_block(x, lo, n):
+    """numpy's pairwise sum of x[lo:lo+n] and of its squares for n <= 128 (numpy/_core/src/umath/
+    loops_utils.h.src: plain loop below 8, else 8 accumulators then the tail)."""
+    if n < 8:
+        res = 0.0
+        res2 = 0.0
+        for i in range(lo, lo + n):
+            v = x[i]
+            res += v
+            res2 += v * v
+        return res, res2
+    r0, r1, r2, r3 = x[lo], x[lo + 1], x[lo + 2], x[lo + 3]
+    r4, r5, r6, r7 = x[lo + 4], x[lo + 5], x[lo + 6], x[lo + 7]
+    q0, q1, q2, q3 = r0 * r0, r1 * r1, r2 * r2, r3 * r3
+    q4, q5, q6, q7 = r4 * r4, r5 * r5, r6 * r6, r7 * r7
+    i = lo + 8
+    stop = lo + n - n % 8
+    while i < stop:
+        v0, v1, v2, v3 = x[i], x[i + 1], x[i + 2], x[i + 3]
+        v4, v5, v6, v7 = x[i + 4], x[i + 5], x[i + 6], x[i + 7]
+        r0 += v0
+        r1 += v1
+        r2 += v2
+        r3 += v3
+        r4 += v4
+        r5 += v5
+        r6 += v6
+        r7 += v7
+        q0 += v0 * v0
+        q1 += v1 * v1
+        q2 += v2 * v2
+        q3 += v3 * v3
+        q4 += v4 * v4
+        q5 += v5 * v5
+        q6 += v6 * v6
+        q7 += v7 * v7
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    res2 = ((q0 + q1) + (q2 + q3)) + ((q4 + q5) + (q6 + q7))
+    while i < lo + n:
+        v = x[i]
+        res += v
+        res2 += v * v
+        i += 1
+    return res, res2
+
+
+@njit(cache=True, nogil=True)
+def pairwise_sums(x, lo, n):
+    """numpy's pairwise sums of x[lo:lo+n] and of its squares: blocks of <= 128 combined as a binary
+    tree whose splits are halves rounded down to multiples of 8, so that per-chunk sums are
+    bit-identical to ``np.add.reduceat(x)`` and ``np.add.reduceat(x * x)``. Written without recursion
+    (an explicit post-order stack; numba's on-disk cache and recursion do not mix well)."""
+    if n <= 128:
+        return pairwise_block(x, lo, n)
+    # stack of (lo, n, state); state 0 = expand, 1 = combine the two results on the value stack
+    st_lo = np.empty(64, np.int64)
+    st_n = np.empty(64, np.int64)
+    st_s = np.empty(64, np.int64)
+    v1 = np.empty(64)
+    v2 = np.empty(64)
+    top = 0
+    nv = 0
+    st_lo[0], st_n[0], st_s[0] = lo, n, 0
+    top = 1
+    while top > 0:
+        top -= 1
+        a, m, state = st_lo[top], st_n[top], st_s[top]
+        if state == 1:  # right result on top of left result
+            nv -= 1
+            v1[nv - 1] = v1[nv - 1] + v1[nv]
+            v2[nv - 1] = v2[nv - 1] + v2[nv]
+        elif m <= 128:
+            s1_, s2_ = pairwise_block(x, a, m)
+            v1[nv] = s1_
+            v2[nv] = s2_
+            nv += 1
+        else:
+            m2 = m // 2
+            m2 -= m2 % 8
+            # push: combine, right, left (left is evaluated first)
+            st_lo[top], st_n[top], st_s[top] = a, m, 1
+            st_lo[top + 1], st_n[top + 1], st_s[top + 1] = a + m2, m - m2, 0
+            st_lo[top + 2], st_n[top + 2], st_s[top + 2] = a, m2, 0
+            top += 3
+    return v1[0], v2[0]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def any_nonzero(x, a, b):
+    """True if some x[a:b] != 0 (NaN counts), tested 8 at a time."""
+    i = a
+    while i + 8 <= b:
+        if ((x[i] != 0.0) | (x[i + 1] != 0.0) | (x[i + 2] != 0.0) | (x[i + 3] != 0.0)
+                | (x[i + 4] != 0.0) | (x[i + 5] != 0.0) | (x[i + 6] != 0.0) | (x[i + 7] != 0.0)):
+            return True
+        i += 8
+    while i < b:
+        if x[i] != 0.0:
+            return True
+        i += 1
+    return False

@@ -1,0 +1,26 @@
+"""Stage: scheduling. The ray ids are cut into chunks of CHUNK_RAYS (each with its own random
+stream), the chunks into batches (``batch_rays``, see :func:`straylight.engine.spec.auto_batch_rays`),
+and the batches run in this process (one after another, or on a thread pool:
+straylight.engine.batch_pool) or on dask (straylight.distribute). Results come back in chunk
+order, so every way gives the same numbers."""
+from __future__ import annotations
+
+from straylight.distribute import run_distributed
+from straylight.engine.batch_pool import run_local, run_threads
+from straylight.engine.spec import auto_batch_rays
+from straylight.rng import batches
+
+
+def batch_ranges(spec) -> list:
+    """(first_chunk, stop_chunk) of every batch of ``spec``."""
+    return batches(spec.n_rays, spec.options.batch_rays or auto_batch_rays(spec.n_rows))
+
+
+def run_batches(spec, ranges, workers=None, client=None, scheduler=None, intersector=None, threads=None, security=None):
+    """Batch results for ``ranges``, in order: on dask if ``workers``, ``client`` or ``scheduler``
+    is given, else on ``threads`` threads, else one after another."""
+    if workers is not None or client is not None or scheduler is not None:
+        return run_distributed(spec, ranges, workers=workers, client=client, scheduler=scheduler, security=security)
+    if threads is not None and int(threads) > 1:
+        return run_threads(spec, ranges, intersector, int(threads))
+    return run_local(spec, ranges, intersector)

@@ -1,0 +1,146 @@
+"""Stage 1, what a worker needs: :class:`TraceSpec` (picklable: triangles, part roles, resolved
+materials, sources, options) built and checked once by :func:`make_spec`."""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from straylight.detectors import DetectorGeometry
+from straylight.engine.options import TraceError, TraceOptions
+from straylight.engine.roles import ROLE_CODES, ROLE_DETECTOR
+from straylight.engine.tally_rows import tally_rows
+from straylight.rng import CHUNK_RAYS, check_seed
+
+
+
+def scene_epsilon(triangles_mm) -> float:
+    """Scale-aware offset: max(1e-7 x bounding diagonal, 32 float32 ulps of the largest coordinate)."""
+    pts = np.asarray(triangles_mm).reshape(-1, 3)
+    diag = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))
+    big = float(np.abs(pts).max())
+    return max(1e-7 * diag, 32.0 * float(np.spacing(np.float32(max(big, 1.0)))))
+
+
+@dataclass(frozen=True, eq=False)
+class TraceSpec:
+    """Everything a worker needs to trace chunks; picklable (no embree objects)."""
+
+    triangles_mm: np.ndarray
+    triangle_part: np.ndarray
+    part_names: tuple
+    part_roles: np.ndarray
+    part_material: np.ndarray  # index into ``materials`` per part, -1 where the part has none
+    materials: tuple
+    sources: tuple
+    n_rays: int
+    seed: int
+    options: TraceOptions
+    eps: float
+    token: str = field(default="")  # content hash of the geometry: the key of the per-process scene cache
+    vertex_table: object = None  # straylight.engine.first_vertex.VertexTable when first_vertex_sampling is on
+
+    @property
+    def detector_parts(self) -> np.ndarray:
+        return np.flatnonzero(self.part_roles == ROLE_DETECTOR)
+
+    @property
+    def rows(self):
+        """The :class:`~straylight.engine.tally_rows.TallyRows` of this scene."""
+        return tally_rows(len(self.part_names), len(self.detector_parts))
+
+    @property
+    def n_rows(self) -> int:
+        return self.rows.n_summed
+
+    @property
+    def total_power_w(self) -> float:
+        return float(sum(s.power_w for s in self.sources))
+
+
+def resolve_materials(scene, materials):
+    """Material name -> model, for parts that scatter; returns (part_material (P,), models tuple).
+    ``materials`` (e.g. a scene file's, already resolved) is used as given; a name it lacks is a
+    preset or file name for ``materials.load_material``."""
+    needed = sorted({p.material for p in scene.parts if p.role == "surface"}, key=str)
+    models = []
+    index = {}
+    for name in needed:
+        if name is None:
+            bad = [p.name for p in scene.parts if p.role == "surface" and p.material is None]
+            raise TraceError(f"surface part(s) {', '.join(bad)} have no material")
+        if materials is not None and name in materials:
+            model = materials[name]
+        else:
+            try:
+                from materials import load_material
+            except ImportError:
+                known = ", ".join(sorted(materials)) if materials else "none given"
+                raise TraceError(f"unknown material {name!r}; known: {known}") from None
+            model = load_material(name)
+        index[name] = len(models)
+        models.append(model)
+    part_material = np.array([index.get(p.material, -1) if p.role == "surface" else -1 for p in scene.parts],
+                             dtype=np.int64)
+    return part_material, tuple(models)
+
+
+AUTO_BATCH_MAX_RAYS = 50_000
+TALLY_BUDGET_BYTES = 32_000_000
+
+
+def auto_batch_rays(n_rows: int) -> int:
+    """Rays per in-memory batch: as many as amortise the per-call overheads (up to
+    AUTO_BATCH_MAX_RAYS; 50k ran ~10 % faster than 20k on the reference tube) while the per-ray
+    tally matrix (n_rows x batch float64) stays under TALLY_BUDGET_BYTES. Never changes results."""
+    fit = TALLY_BUDGET_BYTES // (8 * max(int(n_rows), 1))
+    return int(max(CHUNK_RAYS, min(AUTO_BATCH_MAX_RAYS, fit // CHUNK_RAYS * CHUNK_RAYS)))
+
+
+def _check_targets(scene, options):
+    for name in options.target_parts:
+        if name not in scene.part_names:
+            raise TraceError(f"target part {name!r} not in the scene; parts: {', '.join(scene.part_names)}")
+    if options.target_parts:
+        ttri = np.concatenate([scene.part(n).vertices_mm[scene.part(n).faces] for n in options.target_parts])
+        geo = DetectorGeometry.from_triangles(ttri)
+        off = np.abs((ttri.reshape(-1, 3) - geo.origin_mm) @ geo.normal).max()
+        size = float(np.ptp(ttri.reshape(-1, 3), axis=0).max())
+        if off > 1e-6 * max(size, 1.0):
+            raise TraceError(f"target parts {', '.join(options.target_parts)} must be flat (coplanar): "
+                             f"vertices lie up to {off:.3g} mm off their plane")
+
+
+def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> TraceSpec:
+    """Check inputs and build the picklable :class:`TraceSpec` used by ``run_batch``."""
+    options = options or TraceOptions()
+    seed = check_seed(seed)
+    if isinstance(n_rays, bool) or not isinstance(n_rays, (int, np.integer)) or int(n_rays) < 1:
+        raise TraceError(f"n_rays must be a positive integer, got {n_rays!r}")
+    if not isinstance(sources, (list, tuple)):
+        sources = (sources,)
+    if not sources:
+        raise TraceError("at least one source is needed")
+    if sum(s.power_w for s in sources) <= 0:
+        raise TraceError("total source power_w must be > 0")
+    part_material, models = resolve_materials(scene, materials)
+    _check_targets(scene, options)
+    if options.first_vertex_sampling:
+        from straylight.engine.first_vertex import unsupported
+
+        why = unsupported(tuple(sources))
+        if why:
+            raise TraceError(why)
+    tri = np.ascontiguousarray(scene.triangles_mm, dtype=np.float64)
+    tri_part = np.ascontiguousarray(scene.triangle_part, dtype=np.int32)
+    roles = np.array([ROLE_CODES[p.role] for p in scene.parts], dtype=np.int64)
+    h = hashlib.sha1(tri.tobytes())
+    h.update(tri_part.tobytes())
+    h.update(roles.tobytes())  # detector geometry depends on the roles,
+    h.update(repr(options.target_parts).encode())  # and the target sampler on the targets
+    return TraceSpec(
+        triangles_mm=tri, triangle_part=tri_part, part_names=scene.part_names, part_roles=roles,
+        part_material=part_material, materials=models, sources=tuple(sources), n_rays=int(n_rays), seed=seed,
+        options=options, eps=scene_epsilon(tri), token=h.hexdigest(),
+    )

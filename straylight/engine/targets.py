@@ -1,0 +1,54 @@
+"""Target sampling: at each BRDF scatter, with probability q = ``target_fraction`` the new
+direction points at a uniform point of the (flat) target parts, else it is the material's own
+draw; either way the weight is f cos / ((1 - q) pdf_brdf + q pdf_target) (one-sample MIS, balance
+heuristic; Veach 1997, ch. 9), with pdf_target = d^2 / (A |cos_y|)."""
+from __future__ import annotations
+
+import numpy as np
+
+from straylight.engine.material_groups import by_material
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def target_pdf(target, p, nf, dirs, eps):
+    """Solid-angle density of area-sampling the flat target toward ``dirs`` from ``p``: d^2 / (A |cos_y|)
+    (``target``: straylight.engine.compiled_scene.TargetSampler)."""
+    tri_t = target.isect.first_triangle(p + eps * nf, dirs)
+    hit = np.flatnonzero(tri_t >= 0)
+    pdf_t = np.zeros(len(p))
+    if len(hit):
+        nt = target.geometry.normals[tri_t[hit]]
+        cos_y = _dot(dirs[hit], nt)
+        ok = np.abs(cos_y) > 1e-12
+        dist = (target.plane_d[tri_t[hit]] - _dot(nt, p[hit])) / np.where(ok, cos_y, 1.0)
+        pdf_t[hit] = np.where(ok, dist * dist / (target.geometry.area_mm2 * np.abs(np.where(ok, cos_y, 1.0))), 0.0)
+    return pdf_t
+
+
+def target_mixture(spec, target, ut, p, nf, frame, wo_world):
+    """Directions, weights and densities of the mixture (``ut``: the 4 target uniforms per vertex;
+    ``frame``: the vertices' LocalFrames; ``wo_world``: the material's draws)."""
+    q = float(spec.options.target_fraction)
+    use_t = ut[:, 0] < q
+    wo_world = wo_world.copy()
+    if use_t.any():
+        y, _ = target.geometry.sample(ut[use_t, 1:4])
+        v = y - p[use_t]
+        wo_world[use_t] = v / np.linalg.norm(v, axis=1, keepdims=True)
+    tb, bb, wi_loc = frame.tangent, frame.bitangent, frame.wi_local
+    wo_loc = np.stack([_dot(wo_world, tb), _dot(wo_world, bb), _dot(wo_world, nf)], axis=-1)
+    f = np.zeros(len(p))
+    pdf_b = np.zeros(len(p))
+    pol = spec.options.polarization
+    for rows, (fv, pv) in by_material(spec.materials, frame.material, lambda model, rows: (
+            model.brdf(wi_loc[rows], wo_loc[rows], pol), model.pdf(wi_loc[rows], wo_loc[rows], pol))):
+        f[rows] = fv
+        pdf_b[rows] = pv
+    mix = (1.0 - q) * pdf_b + q * target_pdf(target, p, nf, wo_world, spec.eps)
+    cos_o = wo_loc[:, 2]
+    good = (cos_o > 0) & (mix > 0)
+    weight = np.where(good, f * cos_o / np.where(good, mix, 1.0), 0.0)
+    return wo_world, weight, np.where(good, mix, 0.0)

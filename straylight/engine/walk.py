@@ -1,0 +1,135 @@
+"""Stage: the walk. One batch of whole chunks, event after event: draw the uniforms, cast the
+rays (first triangle), the hit stage (escape, detection, absorption), the surface interaction of
+each continuing hit (by kind: straylight.engine.interactions), then absorption, roulette and the
+next ray state (straylight.engine.advance). :func:`run_batch` runs it on compiled kernels,
+:func:`run_batch_reference` on their numpy twins: the same walk, so the two cannot drift.
+
+Estimators and ledger: docs/engine.md. Every ray starts with weight total power / n_rays."""
+from __future__ import annotations
+
+import numpy as np
+
+from straylight.engine.advance import next_rays
+from straylight.engine.compiled_scene import compiled_scene
+from straylight.engine.draws import event_columns, event_uniforms
+from straylight.engine.emission import emit_batch
+from straylight.engine.event import Event, empty_outgoing
+from straylight.engine.first_vertex import FirstVertexWeights, run_vertex_pass
+from straylight.engine.hits import Hits
+from straylight.engine.interactions import get_interaction, interaction_name
+from straylight.engine.kernel_sets import COMPILED, NUMPY
+from straylight.engine.options import TraceError, walk_settings
+from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
+from straylight.engine.roles import ROLE_NAMES
+from straylight.engine.spec import TraceSpec
+from straylight.engine.tallies import DetectorRecords, batch_sums
+from straylight.paths import mix_key
+from straylight.rng import CHUNK_RAYS
+
+def part_interactions(spec: TraceSpec):
+    """(index of each part's interaction kind (P,), the kinds) for the parts of ``spec``."""
+    kinds, index, of_part = [], {}, []
+    for p, role in enumerate(spec.part_roles):
+        m = spec.part_material[p]
+        name = interaction_name(ROLE_NAMES[int(role)], spec.materials[m] if m >= 0 else None)
+        kind = get_interaction(name)
+        if kind.terminal != (ROLE_NAMES[int(role)] in ("detector", "absorber")):
+            raise TraceError(f"part {spec.part_names[p]!r}: interaction {name!r} does not fit its role {ROLE_NAMES[int(role)]!r}")
+        if name not in index:
+            index[name] = len(kinds)
+            kinds.append(kind)
+        of_part.append(index[name])
+    return np.array(of_part, dtype=np.int64), kinds
+
+
+def _by_interaction(kind_of_part, kinds, part):
+    """(interaction, selection of the continuing hits) per kind present; a slice when one kind has them all."""
+    k = kind_of_part[part]
+    if len(k) and (k == k[0]).all():
+        return [(kinds[k[0]], slice(None))]
+    return [(kinds[u], np.flatnonzero(k == u)) for u in np.unique(k)]
+
+
+def _record_walk_hits(event, rec, rec_w):
+    """Map (and path) records of the counted random-walk hits on detectors."""
+    rays, hit, scene = event.rays, event.hits, event.scene
+    dj = scene.arrays.detector_of_part[hit.part[rec]]
+    for j in range(len(scene.det_parts)):
+        sel = dj == j
+        if sel.any():
+            r = rec[sel]
+            keys = mix_key(rays.path_key[r], scene.det_parts[j] * 4 + EVENT_DETECTOR) if event.settings.record_paths \
+                else None
+            events = rays.history[r] if event.settings.record_paths else None
+            event.records.add(j, rays.ray[r], hit.point_mm[r], rec_w[sel], keys, events, rays.depth[r])
+
+
+def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernels) -> dict:
+    """Trace chunks ``first_chunk .. stop_chunk-1`` with the kernel set ``kernels``; returns per-chunk
+    sums (straylight.engine.tallies.batch_sums)."""
+    scene = compiled_scene(spec, intersector)
+    opt = spec.options
+    rows = spec.rows
+    n = min(stop_chunk * CHUNK_RAYS, spec.n_rays) - first_chunk * CHUNK_RAYS
+    draws = kernels.draws(spec.seed, first_chunk, stop_chunk)  # chunk_rng's streams
+    w0 = spec.total_power_w / spec.n_rays
+    settings = walk_settings(opt, spec.eps, w0)
+    reuse = kernels.reuse_buffers
+    M = scene.tally_buffer(rows.n_per_ray, n) if reuse else np.zeros((rows.n_per_ray, n))
+    columns = event_columns(rows.n_detectors, opt.nee_samples, scene.target is not None)
+    ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
+    rays = emitted_rays(*emit_batch(spec, draws, n, ubuf), w0, opt.path_depth, settings.record_paths)
+    records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.map_bins),
+                              settings.record_paths)
+    kind_of_part, kinds = part_interactions(spec)
+    first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
+        if spec.vertex_table is not None and rows.n_detectors > 0 else None
+    segments = shadow_rays = 0
+    max_events = int(opt.max_events)
+    for ev in range(max_events):
+        if len(rays.ray) == 0:
+            break
+        U = event_uniforms(draws, rays.ray, columns.width, ubuf)
+        tri = np.asarray(scene.isect.first_triangle(rays.origin_mm, rays.direction))
+        segments += len(rays.ray)
+        hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, M))
+        event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=M,
+                      records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
+                      first_vertex=first_vertex)
+        rec, rec_w = hit.detected, hit.detected_w
+        if len(rec) and first_vertex is not None:
+            rec, rec_w = first_vertex.share_single_scatter(event, rec, rec_w)
+        if len(rec):
+            _record_walk_hits(event, rec, rec_w)
+        cont = hit.continuing
+        if len(cont) == 0:
+            break
+        out = empty_outgoing(len(cont))
+        for interaction, selection in _by_interaction(kind_of_part, kinds, hit.part[cont]):
+            interaction.interact(event, selection, out)
+        shadow_rays += event.shadow_rays
+        rays, _kept = next_rays(kernels.advance(cont, out, rays, hit, U[:, columns.roulette], settings,
+                                                ev == max_events - 1, M, rows))
+    if first_vertex is not None:
+        shadow_rays += run_vertex_pass(spec, scene, spec.vertex_table, first_chunk, stop_chunk, M, rows, records,
+                                       settings.record_paths, int(opt.path_depth))
+    result = batch_sums(M, rows, first_chunk, records, segments, shadow_rays, kernels.chunk_sums, clear=reuse)
+    if reuse:
+        scene.tally_cleared()
+    return result
+
+
+def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
+    """Trace chunks ``first_chunk .. stop_chunk-1`` on the compiled kernels; returns per-chunk sums.
+
+    Materials, sources, random draws and ray casts are called once per event on contiguous arrays;
+    :func:`run_batch_reference` is the numpy twin it is tested against (bit-identical)."""
+    return walk(spec, first_chunk, stop_chunk, intersector, COMPILED)
+
+
+def run_batch_reference(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
+    """The same walk on the vectorised-numpy twins of the kernels and numpy's Generator (the slow
+    reference the compiled path is tested against: same random streams, same arithmetic order)."""
+    if spec.vertex_table is not None:
+        raise TraceError("the numpy reference engine does not implement first_vertex_sampling")
+    return walk(spec, first_chunk, stop_chunk, intersector, NUMPY)
