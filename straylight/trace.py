@@ -39,7 +39,7 @@ from straylight.rng import n_chunks
 
 
 def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=None, client=None,
-          scheduler=None, intersector=None, threads=None, security=None) -> TraceResult:
+          scheduler=None, intersector=None, threads=None, security=None, first_chunk=0) -> TraceResult:
     """Trace ``n_rays`` rays from ``sources`` through ``scene``; see docs/engine.md.
 
     Parameters
@@ -56,10 +56,18 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     threads : int, optional
         in-process thread pool of this size (embree and the compiled kernels release the GIL;
         materials, sources and bookkeeping do not); same numbers as any other way of running
+    first_chunk : int, optional
+        trace the ray ids from ``first_chunk * CHUNK_RAYS`` on: the random streams of chunks
+        ``first_chunk, first_chunk + 1, ...`` (continues an earlier trace of ``first_chunk`` whole
+        chunks with the same seed; :func:`straylight.analyses.precision.merge_results` pools them exactly)
     """
     if threads is not None and (isinstance(threads, bool) or int(threads) < 1):
         raise TraceError(f"threads must be a positive integer, got {threads!r}")
     spec = make_spec(scene, sources, n_rays, seed, materials, options)
+    if first_chunk:
+        if isinstance(first_chunk, bool) or int(first_chunk) < 0:
+            raise TraceError(f"first_chunk must be a non-negative integer, got {first_chunk!r}")
+        spec = replace(spec, chunk_offset=int(first_chunk))
     opt = spec.options
     if opt.first_vertex_sampling and intersector is None and len(spec.detector_parts):
         spec = replace(spec, vertex_table=build_table(spec, compiled_scene(spec)))

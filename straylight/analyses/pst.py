@@ -34,6 +34,7 @@ from straylight.analyses.builtin import Beam, Entrance, Setup
 
 CSV_COLUMNS = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "entrance_ratio", "entrance_ratio_stderr",
                "detector_w", "detector_stderr_w", "rays", "seconds")
+DIAGNOSTIC_COLUMNS = ("vov", "rel_error_of_error", "max_chunk_share", "stop_reason", "rounds")
 
 
 def point_seed(seed: int, index: int) -> int:
@@ -126,6 +127,9 @@ class PstResult:
     description: str = ""
     traces: list = field(default_factory=list, repr=False)
     detector_area_rule: str = ""
+    point_rays: np.ndarray | None = None  # (n,) rays traced per point (differs with a precision target)
+    diagnostics: list | None = None  # per point: reliability of the error estimate, stop reason, rounds
+    precision: dict | None = None  # the target and caps, when traced to a relative error
 
     def rows(self) -> list[dict]:
         """One dict per point, keys ``CSV_COLUMNS``."""
@@ -135,7 +139,8 @@ class PstResult:
              "entrance_ratio": float(self.entrance_ratio[i]),
              "entrance_ratio_stderr": float(self.entrance_ratio_stderr[i]),
              "detector_w": float(self.detector_w[i]), "detector_stderr_w": float(self.detector_stderr_w[i]),
-             "rays": int(self.rays), "seconds": float(self.seconds[i])}
+             "rays": int(self.rays if self.point_rays is None else self.point_rays[i]),
+             "seconds": float(self.seconds[i]), **(self.diagnostics[i] if self.diagnostics else {})}
             for i in range(len(self.pst))
         ]
 
@@ -147,7 +152,10 @@ class PstResult:
                                 "entrance_ratio": "detector power / beam power crossing the entrance disk"},
                 "description": self.description, "detector": self.detector,
                 "detector_area_mm2": self.detector_area_mm2, "detector_area_rule": self.detector_area_rule,
-                "rays_per_point": self.rays, "seed": self.seed,
+                "rays_per_point": self.rays if self.precision is None else None, "seed": self.seed,
+                "precision": self.precision,
+                "reliability_note": "rel_error_of_error ~ sqrt(vov) / 2; vov > 0.1 (MCNP's check) or a large "
+                                    "max_chunk_share means rare heavy paths: the error bar itself is uncertain",
                 "nee": self.nee, "points": clean}
 
     def write_json(self, path) -> Path:
@@ -158,7 +166,7 @@ class PstResult:
     def write_csv(self, path) -> Path:
         path = Path(path)
         with atomicio.atomic_open(path, "w") as fh:
-            writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS)
+            writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS + DIAGNOSTIC_COLUMNS, restval="")
             writer.writeheader()
             writer.writerows(self.rows())
         return path
@@ -196,7 +204,8 @@ class PstResult:
                       else "detector power / entrance power")
         ax.grid(True, which="both", alpha=0.3)
         ax.set_title(f"{'Point source transmittance' if quantity == 'pst' else 'Entrance-normalised ratio'}"
-                     f" ({self.rays:.2g} rays/point, 1-sigma bars)", fontsize=10)
+                     + (f" ({self.rays:.2g} rays/point, 1-sigma bars)" if self.precision is None else
+                        f" (to {self.precision['target_rel_error']:.1%} rel. error, 1-sigma bars)"), fontsize=10)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
         if own:
@@ -209,7 +218,7 @@ class PstResult:
 
 def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, seed: int = 0, nee: bool = True,
               options=None, workers: int | None = None, scheduler: str | None = None, client=None,
-              progress: bool = True, keep_traces: bool = False) -> PstResult:
+              progress: bool = True, keep_traces: bool = False, precision=None) -> PstResult:
     """Trace a collimated beam at each (off-axis, azimuth) and return the PST with errors.
 
     Parameters
@@ -222,11 +231,15 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
         sampling); False traces the plain random walk (same expectation, larger variance)
     options : ``straylight.trace.TraceOptions`` to start from (``nee`` overrides its field)
     workers, scheduler, client : distribution (one dask cluster for the whole sweep)
+    precision : :class:`straylight.analyses.precision.Precision` or None. Given, each point is
+        traced in growing rounds (its own seed's streams continued) until its relative standard
+        error reaches the target with a reliable error estimate, or a cap; ``n_rays`` is then unused
     """
     from dataclasses import replace as dc_replace
 
     from tqdm.auto import tqdm
 
+    from straylight.analyses.precision import reliability, trace_to_precision
     from straylight.trace import TraceOptions, trace
 
     off_axis = np.atleast_1d(np.asarray(off_axis, dtype=np.float64))
@@ -243,6 +256,8 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     pairs = [(a, phi) for phi in azimuth for a in off_axis]
     n = len(pairs)
     out = {k: np.full(n, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "p", "p_se", "sec")}
+    point_rays = np.full(n, int(n_rays), dtype=np.int64)
+    diagnostics = []
     traces = []
     with (dask_client(workers, scheduler) if client is None else _given(client)) as cl:
         bar = tqdm(pairs, desc="PST sweep", unit="angle", disable=None if progress else True, leave=False)
@@ -251,8 +266,19 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
             beam: Beam = setup.beam
             p_ent = setup.entrance.power_w(beam, a, phi) if setup.entrance is not None else math.nan
             t0 = time.perf_counter()
-            res = trace(setup.scene, [beam.source(a, phi)], n_rays=int(n_rays), seed=point_seed(seed, i),
-                        materials=setup.materials, options=opts, client=cl)
+            if precision is None:
+                res = trace(setup.scene, [beam.source(a, phi)], n_rays=int(n_rays), seed=point_seed(seed, i),
+                            materials=setup.materials, options=opts, client=cl)
+                rel = reliability(*res.detector_chunks[det], res.n_rays)
+                diagnostics.append({**_diag(rel)})
+            else:
+                run = trace_to_precision(setup.scene, [beam.source(a, phi)], point_seed(seed, i), precision,
+                                         materials=setup.materials, options=opts, detectors=[det], client=cl,
+                                         progress=lambda msg, a=a: bar.set_postfix_str(f"{math.degrees(a):g} deg: {msg}"))
+                res = run.result
+                point_rays[i] = res.n_rays
+                diagnostics.append({**_diag(run.reliability[det]), "stop_reason": run.stop_reason,
+                                    "rounds": len(run.rounds)})
             out["sec"][i] = time.perf_counter() - t0
             tally = res.detectors[det]
             e_in = beam.irradiance_w_per_mm2(a, phi)
@@ -269,8 +295,17 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
         pst=out["pst"], pst_stderr=out["pst_se"], entrance_ratio=out["ratio"], entrance_ratio_stderr=out["ratio_se"],
         detector_w=out["p"], detector_stderr_w=out["p_se"], seconds=out["sec"], rays=int(n_rays), seed=int(seed),
         nee=bool(nee), detector=det, detector_area_mm2=area, beam_power_w=float(setup.beam.power_w),
-        description=setup.description, traces=traces, detector_area_rule=sens.rule,
+        description=setup.description, traces=traces, detector_area_rule=sens.rule, point_rays=point_rays,
+        diagnostics=diagnostics, precision=None if precision is None else {
+            "target_rel_error": precision.target_rel_error, "max_rays": int(precision.max_rays),
+            "max_seconds": None if not math.isfinite(precision.max_seconds) else float(precision.max_seconds),
+            "max_vov": precision.max_vov, "first_rays": int(precision.first_rays)},
     )
+
+
+def _diag(rel) -> dict:
+    d = rel.to_dict()
+    return {"vov": d["vov"], "rel_error_of_error": d["rel_error_of_error"], "max_chunk_share": d["max_chunk_share"]}
 
 
 @contextmanager

@@ -51,6 +51,7 @@ class StudyConfig:
     scene: str | None = None  # SCENE.toml: the user's instrument instead of the built-in tube
     detector: str | None = None  # overrides the scene's [analysis] detector
     sweep: bool = True  # the design sweep (built-in tube parameters, or a --model file's)
+    precision: object = None  # straylight.analyses.precision.Precision: PST points traced to a target
 
     @property
     def sweep_rays(self) -> int:
@@ -129,6 +130,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         _step(f"PST sweep, {len(cfg.angles_deg)} angles x {cfg.rays} rays", cfg.progress)
         t0 = time.perf_counter()
         pst = pst_sweep(setup, np.radians(cfg.angles_deg), n_rays=cfg.rays, seed=point_seed(cfg.seed, 1),
+                        precision=cfg.precision,
                         client=client, progress=cfg.progress)
         result.timings_s["pst"] = time.perf_counter() - t0
         pst.write_csv(out / "pst.csv")
@@ -200,7 +202,8 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
                                         "absorbed_w": sum(t.power_w for t in trace_res.absorbed.values()),
                                         "escaped_w": trace_res.escaped.power_w},
         "timings_s": result.timings_s,
-        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.__dict__.items()},
+        "config": {k: (list(v) if isinstance(v, tuple) else dict(v.__dict__) if k == "precision" and v else v)
+                   for k, v in cfg.__dict__.items()},
         "software": {"python": platform.python_version(), "numpy": np.__version__},
     }
     atomicio.write_text(out / "results.json", json.dumps(result.summary, indent=2, default=_json_default))
@@ -256,16 +259,20 @@ def _pst_plot(pst, setup, path, material: str = ""):
 
 def _pst_table_rows(pst, direct):
     rows = []
-    for i, a in enumerate(pst.off_axis_deg):
+    for i, (a, row) in enumerate(zip(pst.off_axis_deg, pst.rows())):
         rel = pst.pst_stderr[i] / pst.pst[i] if pst.pst[i] > 0 else math.nan
         d = direct[i] if i < len(direct) else math.nan
+        vov = row.get("vov")
         rows.append((f"{a:g}", f"{pst.pst[i]:.3e}", f"{pst.pst_stderr[i]:.2e}", f"{rel:.1%}" if rel == rel else "-",
-                     f"{pst.entrance_ratio[i]:.3e}", f"{d:.3e}" if np.isfinite(d) else "-", f"{pst.seconds[i]:.1f}"))
+                     f"{vov:.2g}" if vov is not None and vov == vov else "-",
+                     f"{pst.entrance_ratio[i]:.3e}", f"{d:.3e}" if np.isfinite(d) else "-", f"{row['rays']:.3g}",
+                     row.get("stop_reason", "rays given"), f"{pst.seconds[i]:.1f}"))
     return rows
 
 
-PST_HEADER = ("off-axis (deg)", "PST", "1 sigma", "rel. error", "detector / entrance power",
-              "unscattered (geometric) detector / entrance power", "time (s)")
+PST_HEADER = ("off-axis (deg)", "PST", "1 sigma", "rel. error", "VOV (error of the error)",
+              "detector / entrance power", "unscattered (geometric) detector / entrance power", "rays",
+              "stopped by", "time (s)")
 
 
 def _md_table(header, rows) -> str:
@@ -333,7 +340,13 @@ def _method_lines(result: StudyResult) -> list[str]:
         "power / beam power crossing the entrance disk (shared/BENCHMARK.md).",
         "- Forward Monte Carlo with next-event estimation toward the detector (docs/engine.md); error bars "
         "are 1 standard error of the mean over rays.",
-        f"- Rays: {cfg.rays} per PST angle, {cfg.sweep_rays} per design-sweep point, {cfg.path_rays} for the "
+        (f"- PST points traced to a relative standard error of {cfg.precision.target_rel_error:.1%} with a "
+         f"reliable error estimate (VOV <= {cfg.precision.max_vov:g}), or a cap of {cfg.precision.max_rays:.3g} rays"
+         + (f" / {cfg.precision.max_seconds:g} s" if math.isfinite(cfg.precision.max_seconds) else "")
+         + " per point; the table says which stopped each point (docs/study.md)." if cfg.precision else
+         "- VOV: the estimated relative variance of each point's variance (MCNP's check, < 0.1 means the "
+         "error bar can be trusted to ~16 %; larger: rare heavy paths; docs/study.md)."),
+        f"- Rays: {cfg.rays if cfg.precision is None else 'see the table'} per PST angle, {cfg.sweep_rays} per design-sweep point, {cfg.path_rays} for the "
         f"path report, {cfg.critical_rays} each way for critical/illuminated objects. Seed {cfg.seed} "
         "(each step and point derives its own stream from it).",
         f"- Coating: `{cfg.material}` on wall, vanes and end plate; the detector absorbs everything.",

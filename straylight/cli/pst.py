@@ -24,13 +24,47 @@ def add_common_scene_args(parser):
     parser.add_argument("--detector", default=None, help="detector part name (default: the only detector)")
 
 
+def add_precision_args(parser, default_rays=None, what="rays"):
+    """``--rays N`` or ``--target-rel-error E`` (with its caps), shared by pst, study and trace."""
+    group = parser.add_mutually_exclusive_group(required=default_rays is None)
+    group.add_argument("--rays", type=int, default=default_rays,
+                       help=what + (f" (default {default_rays})" if default_rays else ""))
+    group.add_argument("--target-rel-error", type=float, default=None, metavar="E",
+                       help="trace in growing rounds until the relative standard error is <= E (e.g. 0.02) "
+                            "with a reliable error estimate (VOV <= --max-vov), or a cap (docs/study.md)")
+    parser.add_argument("--max-rays", type=float, default=None,
+                        help="with --target-rel-error: stop at this many rays (default 5e7)")
+    parser.add_argument("--max-seconds", type=float, default=None,
+                        help="with --target-rel-error: stop after this wall time (s; per point for pst)")
+    parser.add_argument("--max-vov", type=float, default=None,
+                        help="with --target-rel-error: largest variance of the variance accepted (default 0.1)")
+
+
+def precision_from_args(args):
+    """A :class:`straylight.analyses.precision.Precision`, or None for a fixed ray count."""
+    from straylight.analyses.precision import DEFAULT_MAX_RAYS, DEFAULT_MAX_VOV, Precision
+
+    caps = {"--max-rays": args.max_rays, "--max-seconds": args.max_seconds, "--max-vov": args.max_vov}
+    if args.target_rel_error is None:
+        given = [k for k, v in caps.items() if v is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} need --target-rel-error")
+        return None
+    if not 0 < args.target_rel_error < 1:
+        raise ValueError(f"--target-rel-error must be in (0, 1), e.g. 0.02, got {args.target_rel_error}")
+    return Precision(args.target_rel_error,
+                     max_rays=int(args.max_rays) if args.max_rays is not None else DEFAULT_MAX_RAYS,
+                     max_seconds=args.max_seconds if args.max_seconds is not None else float("inf"),
+                     max_vov=args.max_vov if args.max_vov is not None else DEFAULT_MAX_VOV)
+
+
 def add_parser(subparsers):
     p = subparsers.add_parser("pst", help="point source transmittance vs off-axis angle",
                               description=__doc__.splitlines()[0])
     add_common_scene_args(p)
     p.add_argument("--angles-deg", type=float, nargs="+", default=[0, 5, 10, 15, 20, 30, 45])
     p.add_argument("--azimuths-deg", type=float, nargs="+", default=[0.0])
-    p.add_argument("--rays", type=int, default=200_000, help="rays per angle")
+    add_precision_args(p, default_rays=200_000, what="rays per angle")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-nee", action="store_true", help="plain random walk (no next-event estimation)")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)
@@ -82,11 +116,13 @@ def run(args) -> int:
 
     from straylight.analyses.pst import pst_sweep
 
+    precision = precision_from_args(args)
     setup = load_setup(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    res = pst_sweep(setup, np.radians(args.angles_deg), np.radians(args.azimuths_deg), n_rays=args.rays,
-                    seed=args.seed, nee=not args.no_nee, workers=args.workers, scheduler=args.scheduler)
+    res = pst_sweep(setup, np.radians(args.angles_deg), np.radians(args.azimuths_deg),
+                    n_rays=args.rays if precision is None else 1, seed=args.seed, nee=not args.no_nee,
+                    workers=args.workers, scheduler=args.scheduler, precision=precision)
     res.write_csv(out / "pst.csv")
     res.write_json(out / "pst.json")
     res.plot(out / "pst.png")
@@ -94,7 +130,9 @@ def run(args) -> int:
         res.plot(out / "entrance_ratio.png", quantity="entrance_ratio")
     for row in res.rows():
         rel = row["pst_stderr"] / row["pst"] if row["pst"] > 0 else math.nan
+        stop = f", {row['rays']:.3g} rays, stopped by {row['stop_reason']}" if "stop_reason" in row else ""
+        vov = row.get("vov")
         print(f"{row['off_axis_deg']:6.2f} deg  az {row['azimuth_deg']:5.1f}  PST {row['pst']:.4e} "
-              f"+- {row['pst_stderr']:.2e} ({rel:.1%})")
+              f"+- {row['pst_stderr']:.2e} ({rel:.1%}; VOV {vov if vov is not None else float('nan'):.2g}){stop}")
     print(f"written {out}/pst.csv, pst.json, pst.png")
     return 0

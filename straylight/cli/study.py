@@ -15,7 +15,11 @@ def add_parser(subparsers):
                    help="scene file (CONTRACTS §6); default: the built-in tube")
     p.add_argument("--builtin", choices=("tube",), default=None, help="the built-in baffled tube (the default)")
     p.add_argument("--out", required=True, help="report directory (created)")
-    p.add_argument("--rays", type=int, default=200_000, help="rays per PST angle; other steps scale from it")
+    from straylight.cli.pst import add_precision_args
+
+    add_precision_args(p, default_rays=200_000,
+                       what="rays per PST angle; other steps scale from it (with --target-rel-error: the "
+                            "PST points trace to E, the other steps use --rays)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (default: in-process)")
     p.add_argument("--scheduler", default=None, help="dask scheduler address")
@@ -36,9 +40,11 @@ def add_parser(subparsers):
 
 def run(args) -> int:
     from straylight.analyses.report import StudyConfig, run_study
+    from straylight.cli.pst import precision_from_args
 
     if args.scene is not None and args.builtin is not None:
         raise ValueError("give either SCENE.toml or --builtin tube, not both")
+    precision = precision_from_args(args)
     if args.rays < 100:
         raise ValueError(f"--rays must be at least 100, got {args.rays}")
     if args.scene is not None and args.material is not None:
@@ -47,7 +53,7 @@ def run(args) -> int:
         raise ValueError("--detector applies to a scene file")
     cfg = StudyConfig(rays=args.rays, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
                       material=args.material or "z302_sample_b", scene=args.scene, detector=args.detector,
-                      sweep=not args.no_sweep)
+                      sweep=not args.no_sweep, precision=precision)
     if args.angles_deg:
         cfg.angles_deg = tuple(args.angles_deg)
     if args.path_angle_deg is not None:

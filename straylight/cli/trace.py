@@ -14,7 +14,9 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser("trace", help="Monte Carlo trace of a scene file (CONTRACTS §6)",
                               description="Trace a scene TOML and write powers with standard errors as JSON.")
     p.add_argument("scene", metavar="SCENE.toml", help="scene file")
-    p.add_argument("--rays", type=int, required=True, help="number of rays")
+    from straylight.cli.pst import add_precision_args
+
+    add_precision_args(p, what="number of rays")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same numbers)")
     p.add_argument("--json", required=True, metavar="OUT.json", help="where to write the result")
     where = p.add_mutually_exclusive_group()
@@ -34,11 +36,13 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
-    from materials.atomic import atomic_write_text
+    import atomicio
     from straylight.scene import SceneWarning, load_scene
+    from straylight.cli.pst import precision_from_args
     from straylight.trace import TraceOptions, trace
 
-    if args.rays < 1:
+    precision = precision_from_args(args)
+    if precision is None and args.rays < 1:
         raise ValueError(f"--rays must be >= 1, got {args.rays}")
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
@@ -56,7 +60,24 @@ def run(args) -> int:
         vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
                            progress=sys.stderr.isatty(), first_vertex_sampling=vertex)
-    res = trace(rs.scene, rs.sources, args.rays, args.seed, materials=rs.materials, options=options,
-                workers=args.workers, scheduler=args.scheduler, threads=args.threads)
-    atomic_write_text(args.json, json.dumps(res.to_json_dict(), indent=2) + "\n")
+    if precision is None:
+        res = trace(rs.scene, rs.sources, args.rays, args.seed, materials=rs.materials, options=options,
+                    workers=args.workers, scheduler=args.scheduler, threads=args.threads)
+        doc = res.to_json_dict()
+    else:
+        from straylight.analyses.precision import trace_to_precision
+
+        if not any(p.role == "detector" for p in rs.scene.parts):
+            raise ValueError(f"{args.scene}: --target-rel-error needs a detector part (its power is the target)")
+        run = trace_to_precision(rs.scene, rs.sources, args.seed, precision, materials=rs.materials,
+                                 options=options, workers=args.workers, scheduler=args.scheduler,
+                                 threads=args.threads,
+                                 progress=lambda msg: print(f"straylight: trace: {msg}", file=sys.stderr))
+        doc = run.result.to_json_dict()
+        doc["precision"] = {"target_rel_error": precision.target_rel_error, "max_rays": int(precision.max_rays),
+                            "max_seconds": precision.max_seconds if precision.max_seconds != float("inf") else None,
+                            "max_vov": precision.max_vov, **run.summary()}
+        print(f"straylight: trace: stopped by {run.stop_reason} after {run.result.n_rays} rays "
+              f"({run.seconds:.1f} s)", file=sys.stderr)
+    atomicio.write_text(args.json, json.dumps(doc, indent=2) + "\n")
     return 0

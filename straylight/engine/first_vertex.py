@@ -209,7 +209,7 @@ def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, rows, records
     src = spec.sources[0]
     sizes = [chunk_bounds(k, n_total)[1] - k * C for k in range(first_chunk, stop_chunk)]
     D = len(comp.det_parts)
-    u_all = np.concatenate([vertex_rng(spec.seed, first_chunk + c).random((sizes[c], 6 * D))
+    u_all = np.concatenate([vertex_rng(spec.seed, spec.chunk_offset + first_chunk + c).random((sizes[c], 6 * D))
                             for c in range(len(sizes))])
     shadows = 0
     for j in range(D):

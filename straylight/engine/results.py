@@ -41,6 +41,7 @@ class TraceResult:
     paths: PathRecords | None
     segments: int
     shadow_rays: int
+    detector_chunks: dict | None = None  # name -> (s1 (K,), s2 (K,)): per-chunk sums of the detector total
 
     def to_json_dict(self) -> dict:
         """CONTRACTS §4.3 keys, plus the ledger breakdown (its terms are already inside ``absorbed``)."""
@@ -142,12 +143,16 @@ class BatchTotals:
         self.paths = []
         self.segments = 0
         self.shadow_rays = 0
+        self.detector_rows = spec.rows.detector_total + np.arange(self.n_detectors)
+        self.chunk_s1, self.chunk_s2 = [], []  # per chunk: the detector totals' sums (reliability checks)
 
     def add(self, res: dict) -> int:
         """Add one batch result; returns its number of chunks."""
         for c in range(len(res["s1"])):
             self.s1 += res["s1"][c]
             self.s2 += res["s2"][c]
+            self.chunk_s1.append(res["s1"][c][self.detector_rows])
+            self.chunk_s2.append(res["s2"][c][self.detector_rows])
             for j in range(self.n_detectors):
                 entry = res["maps"][c][j]
                 if entry is not None:
@@ -159,5 +164,11 @@ class BatchTotals:
         return len(res["s1"])
 
     def result(self, spec: TraceSpec, detector_geometry) -> "TraceResult":
-        return build_result(spec, detector_geometry, self.s1, self.s2, self.map_sums, self.paths, self.segments,
-                            self.shadow_rays)
+        from dataclasses import replace
+
+        res = build_result(spec, detector_geometry, self.s1, self.s2, self.map_sums, self.paths, self.segments,
+                           self.shadow_rays)
+        c1 = np.array(self.chunk_s1).reshape(-1, self.n_detectors)
+        c2 = np.array(self.chunk_s2).reshape(-1, self.n_detectors)
+        names = [spec.part_names[p] for p in spec.detector_parts]
+        return replace(res, detector_chunks={n: (c1[:, j], c2[:, j]) for j, n in enumerate(names)})

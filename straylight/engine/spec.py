@@ -40,6 +40,7 @@ class TraceSpec:
     eps: float
     token: str = field(default="")  # content hash of the geometry: the key of the per-process scene cache
     vertex_table: object = None  # straylight.engine.first_vertex.VertexTable when first_vertex_sampling is on
+    chunk_offset: int = 0  # local chunk k draws from the stream of chunk chunk_offset + k (trace(first_chunk=))
 
     @property
     def detector_parts(self) -> np.ndarray:

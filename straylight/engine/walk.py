@@ -71,7 +71,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     opt = spec.options
     rows = spec.rows
     n = min(stop_chunk * CHUNK_RAYS, spec.n_rays) - first_chunk * CHUNK_RAYS
-    draws = kernels.draws(spec.seed, first_chunk, stop_chunk)  # chunk_rng's streams
+    draws = kernels.draws(spec.seed, spec.chunk_offset + first_chunk, spec.chunk_offset + stop_chunk)  # chunk_rng's
     w0 = spec.total_power_w / spec.n_rays
     settings = walk_settings(opt, spec.eps, w0)
     reuse = kernels.reuse_buffers

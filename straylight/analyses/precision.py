@@ -1,0 +1,269 @@
+"""Ask for precision, not rays: trace in growing rounds until the relative standard error is reached.
+
+Round ``r`` traces the ray ids right after the previous rounds' (``trace(..., first_chunk=K)``:
+the random streams of chunks K, K+1, ... of the same seed), so the rounds together are the first N
+rays of one long run: the same seed and target give the same rounds and the same numbers, and the
+merged estimate equals a single trace of N rays (:func:`merge_results`, exact pooled sums).
+
+Stop rules (the first that holds ends the point; ``stop_reason`` says which):
+
+``target``
+    relative standard error <= E **and** the error estimate is reliable: the variance of the
+    variance (VOV) <= ``max_vov``. A rare heavy path (a ray carrying a large share of the power)
+    makes the error estimate itself swing; the VOV measures that (MCNP's statistical check: the
+    relative variance of the estimated variance of the mean, ``VOV = sum (x - m)^4 /
+    (sum (x - m)^2)^2 - 1/N``, recommended < 0.1; X-5 Monte Carlo Team, *MCNP - A General Monte
+    Carlo N-Particle Transport Code, Version 5*, LA-UR-03-1987, vol. I, §2.VI.D). Here it is
+    estimated from the per-chunk sums of the engine (1000-ray chunks): with
+    ``c_k = sum over chunk k of (x - m)^2``, ``VOV = Var(sum c_k) / (sum c_k)^2``, the same quantity
+    in expectation. ``rel_error_of_error = sqrt(VOV) / 2`` (delta method).
+``max_rays`` / ``max_seconds``
+    the cap was reached first (the estimate is kept, with its error and VOV).
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from straylight.rng import CHUNK_RAYS
+
+DEFAULT_FIRST_RAYS = 20_000
+DEFAULT_MAX_RAYS = 50_000_000
+DEFAULT_MAX_VOV = 0.1
+MAX_GROWTH = 4.0  # a round adds at most 4x the rays traced so far
+SAFETY = 1.15  # aim 15 % beyond the rays the 1/sqrt(N) law predicts
+
+
+@dataclass(frozen=True)
+class Precision:
+    """What to trace to: relative standard error ``target_rel_error`` (e.g. 0.02), with caps."""
+
+    target_rel_error: float
+    max_rays: int = DEFAULT_MAX_RAYS
+    max_seconds: float = math.inf
+    first_rays: int = DEFAULT_FIRST_RAYS
+    max_vov: float = DEFAULT_MAX_VOV
+
+    def __post_init__(self):
+        if not (0 < float(self.target_rel_error) < 1):
+            raise ValueError(f"target relative error must be in (0, 1), got {self.target_rel_error!r}")
+        if int(self.max_rays) < CHUNK_RAYS:
+            raise ValueError(f"max rays must be >= {CHUNK_RAYS}, got {self.max_rays!r}")
+        if not float(self.max_seconds) > 0:
+            raise ValueError(f"max seconds must be > 0, got {self.max_seconds!r}")
+        if int(self.first_rays) < CHUNK_RAYS:
+            raise ValueError(f"first round must have >= {CHUNK_RAYS} rays, got {self.first_rays!r}")
+        if not float(self.max_vov) > 0:
+            raise ValueError(f"max VOV must be > 0, got {self.max_vov!r}")
+
+
+@dataclass(frozen=True)
+class Reliability:
+    """How far the error estimate of one tally can be trusted (see the module docstring)."""
+
+    rel_error: float
+    vov: float
+    rel_error_of_error: float
+    max_chunk_share: float  # largest 1000-ray chunk's share of sum (x - m)^2: a heavy ray shows here
+    chunks: int
+
+    def to_dict(self) -> dict:
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.__dict__.items()}
+
+
+def reliability(chunk_s1, chunk_s2, n_rays: int, chunk_rays=None) -> Reliability:
+    """Relative error, VOV and the largest chunk's share from per-chunk sums of per-ray values x.
+
+    chunk_s1, chunk_s2 : (K,) sums of x and x^2 per chunk (x: a ray's contribution, the estimate is
+    sum x); chunk_rays : (K,) rays per chunk (default: all CHUNK_RAYS but the last).
+    """
+    s1 = np.asarray(chunk_s1, dtype=np.float64)
+    s2 = np.asarray(chunk_s2, dtype=np.float64)
+    n = int(n_rays)
+    k = len(s1)
+    if chunk_rays is None:
+        chunk_rays = np.full(k, CHUNK_RAYS, dtype=np.float64)
+        if k:
+            chunk_rays[-1] = n - CHUNK_RAYS * (k - 1)
+    c_n = np.asarray(chunk_rays, dtype=np.float64)
+    total = float(s1.sum())
+    mean = total / n  # mean contribution per ray
+    c = s2 - 2.0 * mean * s1 + c_n * mean * mean  # sum over chunk of (x - mean)^2
+    sum_c = float(c.sum())
+    if n < 2 or sum_c <= 0 or total == 0:
+        return Reliability(math.nan, math.nan, math.nan, math.nan, k)
+    stderr = math.sqrt(max(sum_c, 0.0) * n / (n - 1))
+    expected = c_n * sum_c / n
+    var_sum = float(np.sum((c - expected) ** 2)) * k / max(k - 1, 1)
+    vov = var_sum / sum_c**2
+    return Reliability(abs(stderr / total), vov, 0.5 * math.sqrt(vov), float(c.max() / sum_c), k)
+
+
+# ------------------------------------------------------------------ merging rounds exactly
+
+def _merge_pair(parts):
+    """[(n_rays, power, stderr), ...] -> (power, stderr) of the pooled N = sum n rays (exact sums).
+
+    A round of n rays has per-ray contributions x = y / n (y: the ray's estimate of the total);
+    power = sum x, stderr^2 = (sum x^2 - (sum x)^2 / n) n / (n - 1). The pooled estimate over all
+    rays is sum y / N with the same formula on the pooled sums of y and y^2.
+    """
+    n_tot = sum(n for n, _, _ in parts)
+    y1 = y2 = 0.0
+    for n, p, e in parts:
+        s2 = (e * e * (n - 1) / n + p * p / n) if n > 1 else p * p
+        y1 = y1 + n * np.asarray(p, dtype=np.float64)
+        y2 = y2 + n * n * np.asarray(s2, dtype=np.float64)
+    power = y1 / n_tot
+    if n_tot < 2:
+        return power, np.zeros_like(power)
+    var = (y2 / n_tot**2 - power * power / n_tot) * (n_tot / (n_tot - 1.0))
+    return power, np.sqrt(np.maximum(var, 0.0))
+
+
+def _merge_tallies(results, get):
+    from straylight.trace import Tally
+
+    p, e = _merge_pair([(r.n_rays, get(r).power_w, get(r).stderr_w) for r in results])
+    return Tally(float(p), float(e))
+
+
+def _merge_dict(results, get):
+    keys = get(results[0]).keys()
+    return {k: _merge_tallies(results, lambda r, k=k: get(r)[k]) for k in keys}
+
+
+def merge_results(results):
+    """One TraceResult from rounds that traced consecutive ray ids of one seed (see module doc)."""
+    from straylight.detectors import IrradianceMap
+    from straylight.paths import PathRecords
+
+    if len(results) == 1:
+        return results[0]
+    first = results[0]
+    n_tot = sum(r.n_rays for r in results)
+    maps = {}
+    for name, m in first.maps.items():
+        p, e = _merge_pair([(r.n_rays, r.maps[name].power_w, r.maps[name].stderr_w) for r in results])
+        maps[name] = IrradianceMap(m.edges_u_mm, m.edges_v_mm, p, e, m.origin_mm, m.axis_u, m.axis_v, m.normal)
+    ledger = {}
+    for key, val in first.ledger.items():
+        if isinstance(val, dict):
+            ledger[key] = _merge_dict(results, lambda r, key=key: r.ledger[key])
+        elif key == "balance_residual_w":
+            continue
+        else:
+            ledger[key] = _merge_tallies(results, lambda r, key=key: r.ledger[key])
+    detectors = _merge_dict(results, lambda r: r.detectors)
+    absorbed = _merge_dict(results, lambda r: r.absorbed)
+    escaped = _merge_tallies(results, lambda r: r.escaped)
+    ledger["balance_residual_w"] = float(first.emitted_w - (sum(t.power_w for t in detectors.values())
+                                                            + sum(t.power_w for t in absorbed.values())
+                                                            + escaped.power_w))
+    paths = None
+    if first.paths is not None:
+        pieces, offset = [], 0
+        for r in results:
+            rec = r.paths
+            pieces.append({"ray": rec.ray + offset, "detector": rec.detector, "power_w": rec.power_w * (r.n_rays / n_tot),
+                           "depth": rec.depth, "key": rec.key, "events": rec.events})
+            offset += r.n_rays
+        paths = PathRecords.concatenate(pieces, first.paths.part_names, n_tot, first.paths.events.shape[1])
+    chunks = None
+    if all(r.detector_chunks is not None for r in results):
+        # per-chunk sums in units of the pooled run: x_pooled = x_round * n_round / N
+        chunks = {name: (np.concatenate([r.detector_chunks[name][0] * (r.n_rays / n_tot) for r in results]),
+                         np.concatenate([r.detector_chunks[name][1] * (r.n_rays / n_tot) ** 2 for r in results]))
+                  for name in first.detector_chunks}
+    return replace(first, n_rays=n_tot, detectors=detectors, maps=maps, absorbed=absorbed, escaped=escaped,
+                   incident=_merge_dict(results, lambda r: r.incident),
+                   first_hit=_merge_dict(results, lambda r: r.first_hit), ledger=ledger, paths=paths,
+                   segments=sum(r.segments for r in results), shadow_rays=sum(r.shadow_rays for r in results),
+                   detector_chunks=chunks)
+
+
+# ------------------------------------------------------------------ tracing to a target
+
+@dataclass
+class PrecisionRun:
+    """A merged trace and how it stopped: ``stop_reason`` is target, max_rays or max_seconds."""
+
+    result: object
+    stop_reason: str
+    rounds: list = field(default_factory=list)  # (rays so far, rel_error, vov) after each round
+    seconds: float = 0.0
+    reliability: dict = field(default_factory=dict)  # detector name -> Reliability
+
+    def summary(self) -> dict:
+        return {"stop_reason": self.stop_reason, "rays": int(self.result.n_rays), "seconds": self.seconds,
+                "rounds": [{"rays": n, "rel_error": _clean(e), "vov": _clean(v)} for n, e, v in self.rounds],
+                "reliability": {k: v.to_dict() for k, v in self.reliability.items()}}
+
+
+def _clean(x):
+    return None if x is None or (isinstance(x, float) and not math.isfinite(x)) else float(x)
+
+
+def _worst(rel: dict):
+    """The detector that decides: largest relative error (NaN, i.e. nothing detected, counts as worst)."""
+    items = list(rel.values())
+    if not items:
+        return math.nan, math.nan
+    errs = [math.inf if not math.isfinite(r.rel_error) else r.rel_error for r in items]
+    i = int(np.argmax(errs))
+    return items[i].rel_error, items[i].vov
+
+
+def _chunk_rays(n: int) -> int:
+    return int(-(-int(n) // CHUNK_RAYS) * CHUNK_RAYS)
+
+
+def trace_to_precision(scene, sources, seed, precision: Precision, materials=None, options=None,
+                       detectors=None, progress=None, **where) -> PrecisionRun:
+    """Trace in growing rounds until every detector in ``detectors`` (default: all) reaches the
+    target (see the module docstring). ``where``: workers / client / scheduler / threads of trace().
+    ``progress``: a callable(str) told about each round (e.g. a tqdm bar's set_postfix_str)."""
+    from straylight.trace import trace
+
+    t0 = time.perf_counter()
+    results = []
+    rounds = []
+    n_done = 0
+    next_n = _chunk_rays(min(precision.first_rays, precision.max_rays))
+    stop = None
+    rel = {}
+    while True:
+        res = trace(scene, sources, next_n, seed, materials=materials, options=options,
+                    first_chunk=n_done // CHUNK_RAYS, **where)
+        results.append(res)
+        n_done += next_n
+        merged = merge_results(results)
+        names = list(detectors) if detectors is not None else list(merged.detectors)
+        rel = {name: reliability(*merged.detector_chunks[name], n_done) for name in names}
+        err, vov = _worst(rel)
+        rounds.append((n_done, err, vov))
+        elapsed = time.perf_counter() - t0
+        if progress is not None:
+            progress(f"{n_done:.3g} rays, rel. error {err:.2%}, VOV {vov:.2g}" if math.isfinite(err)
+                     else f"{n_done:.3g} rays, nothing detected yet")
+        if math.isfinite(err) and err <= precision.target_rel_error and vov <= precision.max_vov:
+            stop = "target"
+        elif n_done >= precision.max_rays:
+            stop = "max_rays"
+        elif elapsed >= precision.max_seconds:
+            stop = "max_seconds"
+        if stop:
+            break
+        # rays the 1/sqrt(N) law asks for; at least a quarter more (a VOV still too high needs
+        # more rays even at the target), at most MAX_GROWTH x what is done; within the caps
+        want = n_done * (err / precision.target_rel_error) ** 2 * SAFETY if math.isfinite(err) else MAX_GROWTH * n_done
+        add = min(max(want - n_done, 0.25 * n_done), MAX_GROWTH * n_done, precision.max_rays - n_done)
+        per_ray = elapsed / n_done
+        if math.isfinite(precision.max_seconds) and per_ray > 0:
+            add = min(add, max((precision.max_seconds - elapsed) / per_ray, CHUNK_RAYS))
+        next_n = _chunk_rays(max(add, CHUNK_RAYS))
+        next_n = min(next_n, precision.max_rays - n_done) if precision.max_rays - n_done >= CHUNK_RAYS else next_n
+    return PrecisionRun(merge_results(results), stop, rounds, time.perf_counter() - t0, rel)

@@ -1,0 +1,133 @@
+"""Ask for precision, not rays: rounds continue the chunk streams, merge exactly, and stop on a
+reliable error estimate (straylight.analyses.precision)."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from straylight.analyses.precision import Precision, merge_results, reliability, trace_to_precision
+from straylight.cli.main import main
+from straylight.rng import CHUNK_RAYS
+
+
+@pytest.fixture(scope="module")
+def tube():
+    from straylight.analyses.builtin import tube_setup
+
+    return tube_setup()
+
+
+def _trace(tube, n, first_chunk=0, angle_deg=20.0, seed=3):
+    from straylight.trace import TraceOptions, trace
+
+    return trace(tube.scene, [tube.beam.source(math.radians(angle_deg))], n, seed, materials=tube.materials,
+                 options=TraceOptions(first_vertex_sampling=True), first_chunk=first_chunk)
+
+
+def test_rounds_continue_the_streams_and_merge_to_one_trace(tube):
+    """trace(5000) == merge(trace(2000), trace(3000, first_chunk=2)): the same rays, pooled sums."""
+    whole = _trace(tube, 5 * CHUNK_RAYS)
+    merged = merge_results([_trace(tube, 2 * CHUNK_RAYS), _trace(tube, 3 * CHUNK_RAYS, first_chunk=2)])
+    assert merged.n_rays == whole.n_rays
+    for get in (lambda r: r.detectors["detector"], lambda r: r.absorbed["wall"], lambda r: r.escaped,
+                lambda r: r.first_hit["vane_7"]):
+        assert get(merged).power_w == pytest.approx(get(whole).power_w, rel=1e-12)
+        assert get(merged).stderr_w == pytest.approx(get(whole).stderr_w, rel=1e-9)
+    assert abs(merged.ledger["balance_residual_w"]) < 1e-9
+    for k in (0, 1):
+        np.testing.assert_allclose(merged.detector_chunks["detector"][k], whole.detector_chunks["detector"][k],
+                                   rtol=1e-12, atol=0)
+    # a different first chunk is a different stream: not the same numbers
+    assert _trace(tube, 2 * CHUNK_RAYS, first_chunk=3).detectors["detector"].power_w != \
+        _trace(tube, 2 * CHUNK_RAYS).detectors["detector"].power_w
+
+
+def test_reliability_matches_the_exponential_kurtosis():
+    """Per-ray x ~ Exp(1): relative error = std / (mean sqrt N) and VOV = (mu4 / sigma^4 - 1) / N = 8 / N
+    (the exponential's kurtosis is 9; MCNP's VOV definition). The chunk estimate must find both."""
+    rng = np.random.default_rng(7)
+    n = 2_000_000
+    x = rng.exponential(1.0, n)
+    s1 = x.reshape(-1, CHUNK_RAYS).sum(axis=1)
+    s2 = (x * x).reshape(-1, CHUNK_RAYS).sum(axis=1)
+    rel = reliability(s1, s2, n)
+    assert rel.rel_error == pytest.approx(np.std(x, ddof=1) * math.sqrt(n) / x.sum(), rel=1e-9)
+    assert rel.vov == pytest.approx(8.0 / n, rel=0.15)
+    assert rel.max_chunk_share < 0.01
+    # one heavy ray carrying as much as all the others: the VOV and the chunk share show it
+    x[12345] = x.sum()
+    s1 = x.reshape(-1, CHUNK_RAYS).sum(axis=1)
+    s2 = (x * x).reshape(-1, CHUNK_RAYS).sum(axis=1)
+    heavy = reliability(s1, s2, n)
+    assert heavy.vov > 0.5 and heavy.max_chunk_share > 0.99
+
+
+def test_trace_to_precision_stops_on_target_and_is_reproducible(tube):
+    src = [tube.beam.source(0.0)]
+    from straylight.trace import TraceOptions
+
+    opts = TraceOptions(first_vertex_sampling=True)
+    target = Precision(0.002, first_rays=2000)
+    runs = [trace_to_precision(tube.scene, src, 5, target, materials=tube.materials, options=opts,
+                               detectors=["detector"]) for _ in range(2)]
+    a, b = runs
+    assert a.stop_reason == "target" and len(a.rounds) >= 2  # 2000 rays give ~0.6 %: it had to grow
+    assert a.reliability["detector"].rel_error <= 0.002 and a.reliability["detector"].vov <= 0.1
+    assert a.result.n_rays == b.result.n_rays and a.result.n_rays % CHUNK_RAYS == 0
+    assert a.result.detectors["detector"].power_w == b.result.detectors["detector"].power_w
+    # the merged rounds are the first N rays of one run of the same seed
+    one = _trace(tube, a.result.n_rays, angle_deg=0.0, seed=5)
+    assert a.result.detectors["detector"].power_w == pytest.approx(one.detectors["detector"].power_w, rel=1e-12)
+
+
+def test_caps_say_what_stopped_the_run(tube):
+    from straylight.trace import TraceOptions
+
+    run = trace_to_precision(tube.scene, [tube.beam.source(math.radians(20))], 1,
+                             Precision(0.001, max_rays=3000, first_rays=2000), materials=tube.materials,
+                             options=TraceOptions(first_vertex_sampling=True), detectors=["detector"])
+    assert run.stop_reason == "max_rays" and run.result.n_rays == 3000
+
+
+def test_pst_and_trace_cli_with_target(tmp_path, tube):
+    from straylight.analyses.scene_setup import write_setup_scene
+
+    out = tmp_path / "pst"
+    assert main(["pst", "--builtin", "tube", "--angles-deg", "0", "20", "--target-rel-error", "0.03",
+                 "--max-rays", "4000", "--seed", "2", "--out", str(out)]) == 0
+    doc = json.loads((out / "pst.json").read_text())
+    p0, p20 = doc["points"]
+    assert doc["precision"]["target_rel_error"] == 0.03
+    assert p0["stop_reason"] == "target" and p0["pst_stderr"] / p0["pst"] <= 0.03
+    assert p20["stop_reason"] == "max_rays" and p20["rays"] == 4000
+    assert "vov" in p20 and "stop_reason" in (out / "pst.csv").read_text()
+    scene = write_setup_scene(tube, tmp_path / "scene")
+    assert main(["trace", str(scene), "--target-rel-error", "0.05", "--max-rays", "6000", "--seed", "1",
+                 "--json", str(tmp_path / "t.json")]) == 0
+    t = json.loads((tmp_path / "t.json").read_text())
+    assert t["precision"]["stop_reason"] in ("target", "max_rays") and t["rays"] == t["precision"]["rays"]
+    assert t["rays"] <= 6000
+    rel = t["detectors"]["detector"]["stderr_w"] / t["detectors"]["detector"]["power_w"]
+    assert t["precision"]["stop_reason"] == "max_rays" or rel <= 0.05
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["pst", "--builtin", "tube", "--rays", "100", "--target-rel-error", "0.1", "--out", "x"], "not allowed with"),
+    (["pst", "--builtin", "tube", "--max-rays", "1e5", "--out", "x"], "--max-rays need --target-rel-error"),
+    (["pst", "--builtin", "tube", "--target-rel-error", "2", "--out", "x"], "--target-rel-error must be in (0, 1)"),
+])
+def test_bad_precision_args(argv, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) if "not allowed" in message else _nothing():
+        rc = main(argv)
+        assert rc == 2
+    assert message in capsys.readouterr().err
+
+
+class _nothing:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
