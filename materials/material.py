@@ -100,6 +100,12 @@ class Material:
         return None
 
     @property
+    def interaction(self) -> str:
+        """The tracer's surface interaction for this material: ``"optical_surface"`` (Fresnel /
+        specular branching, refinement, polarization) with a delta component, else ``"brdf_scatter"``."""
+        return "optical_surface" if self.smooth is not None else "brdf_scatter"
+
+    @property
     def lobes(self) -> tuple:
         """The scatter components (everything but the delta component)."""
         return tuple(c for c in self.components if not getattr(c, "delta", False))

@@ -89,17 +89,6 @@ def _resolve_back_material(part, materials: dict, inline: dict, base_dir: Path, 
     if part.role != "surface":
         raise SceneFileError(f"{where}: 'back_material' is for role = \"surface\" parts")
     materials[back] = resolve_material(back, inline, base_dir, where)
-    _check_delta_supported(materials[back], where)
-
-
-def _check_delta_supported(material, where: str) -> None:
-    """The walk of this version scatters by the BRDF lobes only: refuse a material whose specular or
-    dielectric component it would silently drop (the surface interactions of issue 14 lift this)."""
-    smooth = getattr(material, "smooth", None)
-    if smooth is not None:
-        raise SceneFileError(
-            f"{where}: material {getattr(material, 'name', '?')!r} has a {smooth.type_name!r} component, which "
-            "the tracer does not handle yet; use role = \"mirror\" for a plain mirror")
 
 
 def _probe_reaches_box(source, lo, hi, n=256) -> bool:
@@ -150,7 +139,6 @@ def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
                 raise SceneFileError(f"{where}: a surface part needs a material")
             if part.material not in materials:
                 materials[part.material] = resolve_material(part.material, inline, path.parent, where)
-                _check_delta_supported(materials[part.material], where)
         _resolve_back_material(part, materials, inline, path.parent, where)
         if check_watertight and part.role != "detector" and not part.to_trimesh().is_watertight:
             notes.append(f"{where}: mesh is not watertight (light may enter the solid through gaps)")

@@ -226,10 +226,12 @@ def nee_tally_numpy(shadow, blocked, pairs, verts, rays, hit, k_nee, M, rows):
     return ok
 
 
-def estimate(event, verts, frame, w_vertex):
+def estimate(event, verts, frame, w_vertex, evaluate=None):
     """NEE from the scatter vertices ``verts`` (rows of the event) with local frames ``frame``
     (straylight.engine.interactions.brdf_scatter.LocalFrames); ``w_vertex``: first-vertex MIS
-    weights per vertex or None. Tallies, records and counts the shadow rays."""
+    weights per vertex or None. Tallies, records and counts the shadow rays. ``evaluate(wi, wo,
+    vertex)``, if given, returns ``(f, pdf)`` for local directions of the vertices ``vertex``
+    (positions in ``verts``) instead of the materials' ``brdf``/``pdf`` (e.g. per-ray polarization)."""
     spec, kern, settings, hit = event.spec, event.kernels, event.settings, event.hits
     pol = spec.options.polarization
     n_jk = len(event.scene.det_parts) * settings.nee_samples
@@ -249,10 +251,13 @@ def estimate(event, verts, frame, w_vertex):
         wo_p = pairs.wo_local[sel]
         f_jk = np.empty(len(wi_p))
         pdf_jk = np.empty(len(wi_p))
-        for rows, (fv, pv) in by_material(spec.materials, mat[pairs.vertex[sel]], lambda model, rows: (
-                model.brdf(wi_p[rows], wo_p[rows], pol), model.pdf(wi_p[rows], wo_p[rows], pol))):
-            f_jk[rows] = fv
-            pdf_jk[rows] = pv
+        if evaluate is not None:
+            f_jk[:], pdf_jk[:] = evaluate(wi_p, wo_p, pairs.vertex[sel])
+        else:
+            for rows, (fv, pv) in by_material(spec.materials, mat[pairs.vertex[sel]], lambda model, rows: (
+                    model.brdf(wi_p[rows], wo_p[rows], pol), model.pdf(wi_p[rows], wo_p[rows], pol))):
+                f_jk[rows] = fv
+                pdf_jk[rows] = pv
         if target is not None:
             q = float(spec.options.target_fraction)
             at = verts[pairs.vertex[sel]]

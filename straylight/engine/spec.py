@@ -41,6 +41,8 @@ class TraceSpec:
     token: str = field(default="")  # content hash of the geometry: the key of the per-process scene cache
     vertex_table: object = None  # straylight.engine.first_vertex.VertexTable when first_vertex_sampling is on
     chunk_offset: int = 0  # local chunk k draws from the stream of chunk chunk_offset + k (trace(first_chunk=))
+    part_surfaces: tuple = ()  # analytic surface per part (geometry.analytic) or None (issue 14)
+    part_back_material: np.ndarray = None  # index into ``materials`` of each part's back side, -1: as the front
 
     @property
     def detector_parts(self) -> np.ndarray:
@@ -64,7 +66,7 @@ def resolve_materials(scene, materials):
     """Material name -> model, for parts that scatter; returns (part_material (P,), models tuple).
     ``materials`` (e.g. a scene file's, already resolved) is used as given; a name it lacks is a
     preset or file name for ``materials.load_material``."""
-    needed = sorted({p.material for p in scene.parts if p.role == "surface"}, key=str)
+    needed = _material_names(scene)
     models = []
     index = {}
     for name in needed:
@@ -85,6 +87,20 @@ def resolve_materials(scene, materials):
     part_material = np.array([index.get(p.material, -1) if p.role == "surface" else -1 for p in scene.parts],
                              dtype=np.int64)
     return part_material, tuple(models)
+
+
+def _material_names(scene) -> list:
+    """Material names of the surface parts (front, and the back of analytic parts), sorted."""
+    return sorted({p.material for p in scene.parts if p.role == "surface"}
+                  | {p.back_material for p in scene.parts if p.role == "surface" and getattr(p, "back_material", None)},
+                  key=str)
+
+
+def back_material_index(scene) -> np.ndarray:
+    """Index into the resolved models of each surface part's ``back_material`` (-1: none)."""
+    index = {name: k for k, name in enumerate(_material_names(scene))}
+    return np.array([index[p.back_material] if p.role == "surface" and getattr(p, "back_material", None) else -1
+                     for p in scene.parts], dtype=np.int64)
 
 
 AUTO_BATCH_MAX_RAYS = 50_000
@@ -144,4 +160,6 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
         triangles_mm=tri, triangle_part=tri_part, part_names=scene.part_names, part_roles=roles,
         part_material=part_material, materials=models, sources=tuple(sources), n_rays=int(n_rays), seed=seed,
         options=options, eps=scene_epsilon(tri), token=h.hexdigest(),
+        part_surfaces=tuple(getattr(p, "surface", None) for p in scene.parts),
+        part_back_material=back_material_index(scene),
     )

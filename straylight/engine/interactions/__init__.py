@@ -1,5 +1,5 @@
 """Surface interactions, the engine's extension point (registry.py; docs/engine.md, "How to add
 an interaction kind"). Importing this package registers the built-in kinds."""
-from straylight.engine.interactions import brdf_scatter, delta_reflection, terminal  # noqa: F401 - registers them
+from straylight.engine.interactions import brdf_scatter, delta_reflection, optical_surface, terminal  # noqa: F401 - registers them
 from straylight.engine.interactions.registry import (  # noqa: F401 - re-exported
     INTERACTIONS, Interaction, get_interaction, interaction_name, register_interaction)

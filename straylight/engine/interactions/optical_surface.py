@@ -1,0 +1,322 @@
+"""``optical_surface``: mirrors, windows and lenses that also scatter (issue 14; CONTRACTS §5.1, §6.3).
+
+Selected for surface parts whose material has a ``specular`` or ``dielectric`` component
+(``Material.interaction``). Per hit:
+
+1. **Exact surface.** On a part with an analytic surface (geometry.analytic) the mesh hit is
+   refined by Newton onto the surface and the exact normal replaces the facet's. A hit that
+   refines back onto the ray's own origin (the ray met its surface's mesh a chord away) or
+   outside the clear aperture passes through unchanged (a pass-through event).
+2. **Polarization.** Each ray carries a Stokes vector in a reference frame (per batch, by ray
+   id; ``materials.mueller`` conventions). Rays start unpolarized or linear (the sources'
+   ``polarization``); a scatter lobe (here or on any ``brdf_scatter`` part) leaves the light
+   unpolarized. At a Fresnel interface the frame is turned onto s and the Mueller matrix of the
+   reflection or transmission is applied; the outgoing frame is s.
+3. **Branch by probability.** The expected powers of the three outcomes for this ray's
+   polarization are E_l = rho_lobes (a rho_s + b rho_p), E_r = R, E_t = T, with
+   ``a, b = (1 +- S1 / S0) / 2`` in the s/p basis and R, T after the lobes took their energy
+   (``Material.smooth_coefficients``). One outcome is drawn with probability E_x / (E_l + E_r + E_t)
+   and the weight is multiplied by E_x / P_x = E_l + E_r + E_t (the lobe branch by the lobe
+   sample's own ``f cos / pdf`` over P_l, times f_pol / f_u): unbiased, and the weight of a ghost
+   does not shrink with every reflection, so Russian roulette (which stays unbiased) never sees
+   it as weak. Splitting would need several outgoing rays per hit, which the walk does not carry.
+4. **Next-event estimation** from every hit toward the detectors for the lobes (with their s/p
+   factors for this ray's polarization; MIS with the lobe branch uses the lobes' own pdf on both
+   sides, so the weights sum to one).
+5. **Bulk absorption.** A ray arriving on the back of a ``dielectric`` has crossed the medium: its
+   weight is multiplied by ``exp(-alpha d)`` (``Dielectric.attenuation_per_mm``, d the segment).
+
+Outgoing rays of the specular branches start on the exact line through the refined point, just
+past the hit facet (the walk's eps offset is compensated), so a paraboloid images to < 1e-6 mm.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.smooth import Dielectric, reflect, refract
+from straylight.engine import nee
+from straylight.engine.interactions.brdf_scatter import LocalFrames
+from straylight.engine.interactions.registry import Interaction, register_interaction
+from straylight.engine.options import TraceError
+from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
+from straylight.polarization import UNPOLARIZED
+
+SELF_HIT_MM = 1e-6  # a refined hit this close to (or behind) the ray's origin on its own last part is spurious
+
+
+class PolarizationState:
+    """Per batch: each ray's Stokes vector (S0 = 1; the walk's weight carries the power), its frame
+    vector e1, and the depth at which it was last set (stale when another interaction came between)."""
+
+    def __init__(self, n_rays: int, source_polarization):
+        self.stokes = np.zeros((n_rays, 4))
+        self.stokes[:, 0] = 1.0
+        self.e1 = np.zeros((n_rays, 3))
+        self.depth = np.full(n_rays, -1, dtype=np.int64)
+        self.source = source_polarization
+
+
+def batch_state(event) -> PolarizationState:
+    """The batch's polarization state (kept on the batch's DetectorRecords, which live as long as the batch)."""
+    st = getattr(event.records, "_optics_state", None)
+    if st is None:
+        pols = {getattr(s, "polarization", UNPOLARIZED) for s in event.spec.sources}
+        if len(pols) > 1:
+            raise TraceError("sources with different polarizations in one trace are not supported; trace them apart")
+        st = PolarizationState(event.tallies.shape[1], pols.pop())
+        event.records._optics_state = st
+    return st
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def incoming_stokes(st: PolarizationState, ray, depth, d, s):
+    """Stokes vectors (m, 4) of the arriving rays in the s/p basis (e1 = s)."""
+    m = len(ray)
+    S = np.zeros((m, 4))
+    S[:, 0] = 1.0
+    known = st.depth[ray] == depth
+    if np.any(known):
+        k = np.flatnonzero(known)
+        S[k] = rotate_stokes(st.stokes[ray[k]], st.e1[ray[k]], s[k], d[k])
+    if st.source.is_linear:
+        fresh = np.flatnonzero(~known & (depth == 0))
+        if len(fresh):
+            e = np.tile(np.asarray(st.source.e_field, float), (len(fresh), 1))
+            e -= _dot(e, d[fresh])[:, None] * d[fresh]
+            e /= np.linalg.norm(e, axis=1)[:, None]
+            S[fresh] = rotate_stokes(np.tile([1.0, 1.0, 0.0, 0.0], (len(fresh), 1)), e, s[fresh], d[fresh])
+    return S
+
+
+def _mix(value_s, value_p, S):
+    """The value for light of Stokes S (S0 = 1, s/p basis), no analyser: a v_s + b v_p."""
+    return 0.5 * (value_s + value_p) + 0.5 * S[:, 1] * (value_s - value_p)
+
+
+@register_interaction
+class OpticalSurface(Interaction):
+    name = "optical_surface"
+
+    def interact(self, event, selection, out):
+        spec, hit, rays, kern = event.spec, event.hits, event.rays, event.kernels
+        rows = np.ascontiguousarray(event.vertex_rows(selection))
+        m = len(rows)
+        if m == 0:
+            return
+        st = batch_state(event)
+        d = rays.direction[rows]
+        part = hit.part[rows]
+        front = hit.cos_in[rows] < 0  # facet side, replaced below on analytic parts
+        facing = hit.facing_normal[rows].copy()
+        exact = np.zeros((m, 3))
+        refined = np.zeros(m, bool)
+        passing = np.zeros(m, bool)
+        surfaces = spec.part_surfaces or ()
+        for p in np.unique(part):
+            surf = surfaces[p] if p < len(surfaces) else None
+            if surf is None:
+                continue
+            g = np.flatnonzero(part == p)
+            i = rows[g]
+            t, n_front, ok = surf.refine_hits(rays.origin_mm[i], d[g], hit.distance_mm[i])
+            bad = ~ok | ((rays.last_part[i] == p) & (t < SELF_HIT_MM))
+            passing[g[bad]] = True
+            good = g[~bad]
+            nf = n_front[~bad]
+            exact[good] = rays.origin_mm[i[~bad]] + t[~bad, None] * d[good]
+            fr = _dot(d[good], nf) < 0
+            front[good] = fr
+            facing[good] = np.where(fr[:, None], nf, -nf)
+            refined[good] = True
+        live = ~passing
+        hit.facing_normal[rows[live]] = facing[live]
+        # material of the side that was hit; a dielectric's back is its medium
+        m_front = spec.part_material[part]
+        back_idx = spec.part_back_material[part] if spec.part_back_material is not None else np.full(m, -1)
+        mat = np.where(front | (back_idx < 0), m_front, back_idx)
+        back = ~front
+        cos_i = np.clip(-_dot(d, facing), 0.0, 1.0)
+        theta = np.arccos(cos_i)
+        s = s_vector(d, facing)
+        S = incoming_stokes(st, rays.ray[rows], rays.depth[rows], d, s)
+        U = event.uniforms
+        u = U[rows, event.columns.sample].copy()
+
+        E_l = np.zeros(m)
+        E_r = np.zeros(m)
+        E_t = np.zeros(m)
+        rs = np.zeros(m, complex)
+        rp = np.zeros(m, complex)
+        ts = np.zeros(m, complex)
+        tp = np.zeros(m, complex)
+        cos_t = np.zeros(m)
+        eta = np.ones(m)
+        bulk = np.ones(m)
+        rho_s = np.zeros(m)
+        rho_p = np.zeros(m)
+        for k in np.unique(mat[live]):
+            g = np.flatnonzero(live & (mat == k))
+            model = spec.materials[k]
+            if getattr(model, "composite", None) is not None:
+                rho_s[g] = model.lobe_reflectance(theta[g], "s")
+                rho_p[g] = model.lobe_reflectance(theta[g], "p")
+            smooth = getattr(model, "smooth", None)
+            if smooth is None:
+                continue
+            for side in (False, True):
+                gg = g[back[g] == side]
+                if len(gg) == 0:
+                    continue
+                c = model.smooth_coefficients(cos_i[gg], back=side)
+                rs[gg], rp[gg], ts[gg], tp[gg] = c.r_s, c.r_p, c.t_s, c.t_p
+                cos_t[gg], eta[gg] = c.cos_t, c.eta
+                if side and isinstance(smooth, Dielectric) and smooth.attenuation_per_mm > 0:
+                    bulk[gg] = np.exp(-smooth.attenuation_per_mm * hit.distance_mm[rows[gg]])
+        E_l = np.where(live, _mix(rho_s, rho_p, S), 0.0)
+        E_r = np.where(live, _mix(np.abs(rs) ** 2, np.abs(rp) ** 2, S), 0.0)
+        E_t = np.where(live, _mix(np.abs(ts) ** 2, np.abs(tp) ** 2, S), 0.0)
+        total = E_l + E_r + E_t
+        safe = np.where(total > 0, total, 1.0)
+        P_l, P_r = E_l / safe, E_r / safe
+        lobe = live & (total > 0) & (u < P_l)
+        refl = live & (total > 0) & ~lobe & (u < P_l + P_r)
+        trans = live & (total > 0) & ~lobe & ~refl
+        dead = live & ~(total > 0)
+
+        direction = d.copy()
+        throughput = np.ones(m)
+        pdf = np.zeros(m)
+        code = np.full(m, EVENT_SPECULAR, dtype=np.int8)
+        side_out = np.ones(m, dtype=np.int8)
+        S_new = np.zeros((m, 4))
+        S_new[:, 0] = 1.0
+        e1_new = s.copy()
+
+        # --- lobes: NEE from every vertex whose material scatters, and the lobe branch
+        has_lobes = live & ((rho_s > 0) | (rho_p > 0))
+        if np.any(has_lobes):
+            self._lobes(event, rows, has_lobes, lobe, mat, S, P_l, u, direction, throughput, pdf, code)
+        # --- specular reflection and refraction (Mueller matrices in the s/p basis)
+        for branch, a_s, a_p, P in ((refl, rs, rp, P_r), (trans, ts, tp, 1.0 - P_l - P_r)):
+            b = np.flatnonzero(branch)
+            if len(b) == 0:
+                continue
+            Mm = interface_mueller(a_s[b], a_p[b])
+            So = np.einsum("nij,nj->ni", Mm, S[b])
+            P_b = P[b] if np.ndim(P) else P
+            throughput[b] = So[:, 0] / P_b
+            S_new[b] = So / np.where(So[:, 0] > 0, So[:, 0], 1.0)[:, None]
+            if branch is refl:
+                direction[b] = reflect(d[b], facing[b])
+            else:
+                direction[b] = refract(d[b], facing[b], eta[b], cos_t[b])
+                side_out[b] = -1
+        throughput[dead] = 0.0
+        throughput *= bulk
+        # pass-through: the ray goes on unchanged (same event kind and pdf for the MIS at a detector)
+        pt = np.flatnonzero(passing)
+        if len(pt):
+            direction[pt] = d[pt]
+            throughput[pt] = 1.0
+            code[pt] = rays.last_event[rows[pt]]
+            pdf[pt] = rays.last_pdf_per_sr[rows[pt]]
+            side_out[pt] = -1
+        # specular rays leave on the exact line through the refined point, past the hit facet
+        spec_rows = np.flatnonzero((refl | trans) & refined)
+        if len(spec_rows):
+            self._place_on_exact_line(event, rows[spec_rows], exact[spec_rows], direction[spec_rows],
+                                      facing[spec_rows], side_out[spec_rows])
+        # polarization bookkeeping: lobes depolarize; pass-through keeps the state
+        r = rays.ray[rows]
+        keep = np.flatnonzero(~passing)
+        st.stokes[r[keep]] = S_new[keep]
+        st.e1[r[keep]] = e1_new[keep]
+        st.depth[r] = rays.depth[rows] + 1
+        out.direction[selection] = direction
+        out.throughput[selection] = throughput
+        out.pdf_per_sr[selection] = pdf
+        out.event[selection] = code
+        out.side[selection] = side_out
+
+    # ------------------------------------------------------------------ lobes
+
+    def _lobes(self, event, rows, has_lobes, lobe, mat, S, P_l, u, direction, throughput, pdf, code):
+        spec, kern, hit = event.spec, event.kernels, event.hits
+        sel = np.flatnonzero(has_lobes)
+        verts = np.ascontiguousarray(rows[sel])
+        frame = LocalFrames(*kern.frames(verts, event.rays.direction, hit.facing_normal, hit.part,
+                                         spec.part_material, event.uniforms))
+        frame = frame._replace(material=mat[sel])
+        S_sel = S[sel]
+        polarized = np.any(S_sel[:, 1] != 0.0)
+
+        def evaluate(wi, wo, vertex):
+            f = np.empty(len(wi))
+            p = np.empty(len(wi))
+            mv = mat[sel][vertex]
+            for k in np.unique(mv):
+                g = np.flatnonzero(mv == k)
+                model = spec.materials[k]
+                if polarized:
+                    f[g] = _mix(model.brdf(wi[g], wo[g], "s"), model.brdf(wi[g], wo[g], "p"), S_sel[vertex[g]])
+                else:
+                    f[g] = model.brdf(wi[g], wo[g], "u")
+                p[g] = model.pdf(wi[g], wo[g], "u")
+            return f, p
+
+        if event.settings.nee and len(event.scene.det_parts):
+            w_vertex = None if event.first_vertex is None else event.first_vertex.vertex_weights(event, verts)
+            nee.estimate(event, verts, frame, w_vertex, evaluate=evaluate)
+        # the lobe branch: the material's own draw, u[:, 0] re-used within the branch's interval
+        lb = np.flatnonzero(lobe[sel])
+        if len(lb) == 0:
+            return
+        at = sel[lb]
+        wi = frame.wi_local[lb]
+        u3 = frame.u_sample[lb].copy()
+        u3[:, 0] = np.clip(u[at] / P_l[at], 0.0, np.nextafter(1.0, 0.0))
+        wo = np.empty((len(lb), 3))
+        weight = np.empty(len(lb))
+        pdf_l = np.empty(len(lb))
+        mv = mat[at]
+        for k in np.unique(mv):
+            g = np.flatnonzero(mv == k)
+            smp = spec.materials[k].sample(wi[g], u3[g], "u")
+            wo[g], weight[g], pdf_l[g] = smp.wo, smp.weight, smp.pdf_per_sr
+            if polarized:
+                fu = spec.materials[k].brdf(wi[g], smp.wo, "u")
+                fpol = _mix(spec.materials[k].brdf(wi[g], smp.wo, "s"), spec.materials[k].brdf(wi[g], smp.wo, "p"),
+                            S[at[g]])
+                weight[g] *= np.where(fu > 0, fpol / np.where(fu > 0, fu, 1.0), 0.0)
+        sub = LocalFrames(frame.tangent[lb], frame.bitangent[lb], wi, mv, u3)
+        wo_world, weight, pdf_l = kern.to_world(wo, weight, pdf_l, sub, np.ascontiguousarray(rows[at]),
+                                                hit.facing_normal)
+        direction[at] = wo_world
+        throughput[at] = weight / P_l[at]
+        pdf[at] = pdf_l
+        code[at] = EVENT_SCATTER
+
+    # ------------------------------------------------------------------ origins
+
+    @staticmethod
+    def _place_on_exact_line(event, rows, p_exact, d_out, facing, side):
+        """Set the hit point so that the walk's next origin (point + side eps facing) is
+        ``p_exact + lam d_out``, with lam >= 0 the smallest that clears the hit facet's plane by
+        2 eps on the outgoing side."""
+        hit = event.hits
+        eps = event.settings.eps_mm
+        arrays = event.scene.arrays
+        tri = event.tri[rows]
+        ng = arrays.normals[tri]
+        cos_in = hit.cos_in[rows]
+        nfg = np.where((cos_in < 0)[:, None], ng, -ng)  # facet normal toward the incoming ray
+        h = (_dot(ng, p_exact) - arrays.plane_d[tri]) * np.where(cos_in < 0, 1.0, -1.0)
+        sg = side.astype(float)
+        g = _dot(d_out, nfg)
+        need = sg * g > 0
+        lam = np.where(need, np.maximum(0.0, (sg * 2.0 * eps - h) / np.where(need, g, 1.0)), 0.0)
+        hit.point_mm[rows] = p_exact + lam[:, None] * d_out - (sg * eps)[:, None] * facing
