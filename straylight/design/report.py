@@ -48,8 +48,10 @@ def draw_layout(ax, spec, layout, title):
 
 
 def _pst_plot(ax, doc):
-    for key, label, fmt in (("design", "design", "o-"), ("baseline", "evenly spaced", "s--"),
-                            ("no_vanes", "no vanes", "^:")):
+    series = [("design", "design", "o-"), ("baseline", "evenly spaced", "s--"), ("no_vanes", "no vanes", "^:")]
+    if doc["design_source"] != "construction":
+        series.insert(1, ("construction", "construction", "d-."))
+    for key, label, fmt in series:
         pts = doc["pst"] if key == "design" else doc[key]["pst"]
         x = np.array([p["off_axis_deg"] for p in pts])
         y = np.array([p["pst"] for p in pts])
