@@ -118,3 +118,43 @@ def test_feasible_rejects_overlap_outside_and_keep_out():
     assert feasible(spec, [0.2, 150]) == "outside the tube"
     assert feasible(spec, [50, 110, 250]) == "in a keep-out zone"
     assert np.allclose([v.z_mm for v in evenly_spaced(spec, 3).vanes], [75, 150, 225])
+
+
+def test_refine_stops_on_the_error_rule_and_finds_the_minimum(monkeypatch):
+    """With a smooth stand-in for the traced PST (ln PST = ((z - z*) / 20 mm)^2 summed, 1 % errors),
+    Nelder-Mead reaches z* and stops because the simplex values lie within se(J), not on the budget."""
+    import straylight.design.refine as refine_mod
+    from straylight.design.evaluate import PstPoint
+
+    target = np.array([60.0, 130.0, 240.0])
+
+    def fake(spec, vanes, models, angles, rays, seed, threads=None):
+        z = np.array([v.z_mm for v in vanes])
+        lnp = float(np.sum(((z - target) / 20.0) ** 2)) - 12.0
+        return [PstPoint(a, math.exp(lnp), 0.01 * math.exp(lnp), rays) for a in angles]
+
+    monkeypatch.setattr(refine_mod, "pst_points", fake)
+    spec = BaffleSpec(50, 300, 35, 0, 20)
+    res = refine_mod.refine(spec, [50.0, 140.0, 230.0], {}, [20, 25, 30], rays=10, seed=0, max_evals=200,
+                            progress=False, also_z_mm=[75.0, 150.0, 225.0])
+    assert res.stop_reason.startswith("converged")
+    assert res.fatol == pytest.approx(0.01 / math.sqrt(3))
+    assert np.allclose(res.best_z_mm, target, atol=20 * math.sqrt(res.fatol) + 0.5)
+    assert res.best_objective < res.start_objective
+
+
+def test_material_file_goes_inline_into_the_scene(tmp_path):
+    """--material FILE: the scene file carries the material as [material.coating], so it is self-contained."""
+    from straylight.design import construct_vanes, model
+    from straylight.scene import load_scene
+
+    mat = tmp_path / "my_black.json"
+    mat.write_text(json.dumps({"name": "my_black", "components": [{"type": "lambertian", "rd": 0.05}]}))
+    layout = construct_vanes(50, 300, 35, 0, 30)
+    path = model.write_scene(layout.spec, layout.vanes, str(mat), tmp_path / "scene")
+    mat.unlink()
+    rs = load_scene(path)
+    assert rs.materials["coating"].name == "my_black"
+    (src,) = rs.sources
+    # the fixed beam disk covers the entrance and rim up to 85 deg: radius >= 51 + 0.2 tan 85
+    assert src.radius_mm >= 51 + 0.2 * math.tan(math.radians(85)) - 1e-9
