@@ -122,7 +122,7 @@ def test_chord_error_below_tolerance_and_matches_sagitta(tolerance_mm):
     part = scene.part("wall")
     report = part.meta["tessellation"]
     assert report.max_chord_error_mm <= tolerance_mm
-    assert report.method == "exact" and report.n_triangles == part.n_triangles
+    assert report.method == "sampled" and report.n_triangles == part.n_triangles
     v = part.vertices_mm
     sagitta = []
     for r in (50.0, 51.0):
@@ -196,36 +196,8 @@ def test_fused_tube_is_one_solid_with_the_union_volume():
     assert fused.shape.Volume() == pytest.approx(exact, rel=1e-9)
 
 
-def test_exact_cylinder_chord_error_against_dense_sampling():
-    """R - min |r_perp| over a triangle, checked against 5151 barycentric points per triangle of
-    random triangles with vertices on a cylinder of radius 7 about an oblique axis."""
-    from geometry.tessellate import _cylinder_error
-
-    rng = np.random.default_rng(3)
-    axis = np.array([1.0, 2.0, 2.0]) / 3.0
-    c = np.array([0.5, -1.0, 2.0])
-    e1 = np.cross(axis, [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
-    phi = rng.uniform(0, 2 * np.pi, (50, 1)) + rng.uniform(-0.6, 0.6, (50, 3))
-    h = rng.uniform(-3, 3, (50, 3))
-    tri = c + 7.0 * (np.cos(phi)[..., None] * e1 + np.sin(phi)[..., None] * e2) + h[..., None] * axis
-    exact = _cylinder_error(tri, c, axis, 7.0)
-    n = 100
-    w = np.array([(i, j, n - i - j) for i in range(n + 1) for j in range(n + 1 - i)]) / n
-    pts = np.einsum("kj,mjc->mkc", w, tri) - c
-    r_perp = np.linalg.norm(pts - (pts @ axis)[..., None] * axis, axis=2)
-    sampled = (7.0 - r_perp).max(axis=1)
-    assert sampled.max() > 0.1  # sanity: the triangles do cut inside the cylinder
-    assert np.all(exact >= sampled - 1e-12)
-    assert np.all(exact - sampled <= 7.0 * 2e-4)  # the grid's own resolution
-    # a triangle whose projection contains the axis reaches it: error = R
-    big = c + 7.0 * np.stack([np.cos(a) * e1 + np.sin(a) * e2 for a in (0.0, 2.1, 4.2)])[None]
-    assert _cylinder_error(big, c, axis, 7.0)[0] == pytest.approx(7.0)
-
-
 def test_sphere_and_torus_chord_error_against_analytic_distance():
-    """Sampled (sphere) and projected (torus) measurements against the analytic distances
+    """The generic (parametric) measurement on a sphere and a torus against the analytic distances
     | |p| - r | and | sqrt((rho - R)^2 + z^2) - r | at 66 points per triangle. OpenCascade's
     first sphere mesh at 0.05 mm deflection is 0.088 mm off: tessellate must refine it."""
     import cadquery as cq
@@ -235,19 +207,20 @@ def test_sphere_and_torus_chord_error_against_analytic_distance():
     n = 10
     w = np.array([(i, j, n - i - j) for i in range(n + 1) for j in range(n + 1 - i)]) / n
     sphere = cq.Solid.makeSphere(20.0, angleDegrees1=-90, angleDegrees2=90)
-    cases = [(sphere, "sampled", lambda p: np.abs(np.linalg.norm(p, axis=1) - 20.0)),
-             (cq.Solid.makeTorus(30.0, 5.0), "projected",
+    cases = [(sphere, "sphere", lambda p: np.abs(np.linalg.norm(p, axis=1) - 20.0)),
+             (cq.Solid.makeTorus(30.0, 5.0), "torus",
               lambda p: np.abs(np.hypot(radius(p) - 30.0, p[:, 2]) - 5.0))]
     for shape, method, distance in cases:
         part = tessellate(shape, tolerance_mm=0.05)
         report = part.meta["tessellation"]
-        assert report.method == method
+        assert report.method == "sampled"
         dense = distance(np.einsum("kj,mjc->mkc", w, part.vertices_mm[part.faces]).reshape(-1, 3)).max()
         assert dense > 0.005  # sanity: a coarse enough mesh to measure
         assert report.max_chord_error_mm <= 0.05
-        # the report samples fewer points than this dense grid, but not much coarser
-        assert 0.9 * dense <= report.max_chord_error_mm <= dense * (1 + 1e-6) + 1e-9
+        # the report samples fewer points than this dense grid, but not much coarser; it measures the
+        # other way round (surface points -> triangle plane), which agrees to second order
+        assert 0.9 * dense <= report.max_chord_error_mm <= dense * (1 + 1e-3) + 1e-9
         assert dense <= 0.05 / 0.9
         assert part.to_trimesh().is_watertight and part.to_trimesh().volume > 0
-        if method == "sampled":
+        if method == "sphere":
             assert report.deflection_mm < 0.05  # refined

@@ -1,0 +1,198 @@
+"""Reading CAD exchange files (STEP, IGES) from any CAD tool, with their assembly names and units.
+
+:func:`read_cad` reads a file through OpenCascade's XDE readers (``STEPCAFControl_Reader`` /
+``IGESCAFControl_Reader``), which keep the assembly structure and the names the CAD tool gave
+to products and instances, and returns one :class:`CadSolid` per solid in file order, placed in
+the assembly (instance locations applied) and in **millimetres** whatever unit the file uses
+(OpenCascade converts to its session unit, mm).
+
+Names (CONTRACTS §6.2): a solid takes the name of the instance that places it, else of its
+product (label); a part with several solids gives each the part's name; a solid without a
+name is ``solid<k>`` (k from 1, in file order); repeated names get ``_2``, ``_3``. Shells and
+faces that are not inside a solid (surface models) are kept as sheets.
+
+Every failure is a one-line :class:`geometry.mesh.GeometryError` naming the file.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from geometry.mesh import GeometryError
+
+STEP_SUFFIXES = (".step", ".stp")
+IGES_SUFFIXES = (".iges", ".igs")
+CAD_SUFFIXES = STEP_SUFFIXES + IGES_SUFFIXES
+
+
+@dataclass(frozen=True, eq=False)
+class CadSolid:
+    """One solid (or a free sheet) of a CAD file: its unique name, the OCP shape (placed, mm), and
+    ``kind`` "solid" or "sheet"; ``label`` is the name as written in the file (None if unnamed)."""
+
+    name: str
+    shape: object
+    kind: str
+    label: str | None
+
+
+def _label_name(label) -> str | None:
+    from OCP.TDataStd import TDataStd_Name
+
+    attr = TDataStd_Name()
+    if label.FindAttribute(TDataStd_Name.GetID_s(), attr):
+        text = attr.Get().ToExtString().strip()
+        return text or None
+    return None
+
+
+def _read_document(path: Path):
+    """XDE document of a STEP/IGES file (names, colours, assembly structure kept)."""
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDocStd import TDocStd_Document
+
+    suffix = path.suffix.lower()
+    if suffix in STEP_SUFFIXES:
+        from OCP.STEPCAFControl import STEPCAFControl_Reader as Reader
+        kind = "STEP"
+    elif suffix in IGES_SUFFIXES:
+        from OCP.IGESCAFControl import IGESCAFControl_Reader as Reader
+        kind = "IGES"
+    else:
+        raise GeometryError(f"{path}: not a CAD exchange file (expected {', '.join(CAD_SUFFIXES)})")
+    if not path.is_file():
+        raise GeometryError(f"{path}: file not found")
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+    reader = Reader()
+    reader.SetNameMode(True)
+    try:
+        status = reader.ReadFile(str(path))
+    except Exception as exc:  # noqa: BLE001 - OCC raises bare Standard_Failure; name the file
+        raise GeometryError(f"{path}: cannot read {kind} file: {exc}") from None
+    if status != IFSelect_RetDone:
+        raise GeometryError(f"{path}: not a readable {kind} file (OpenCascade reader status {int(status)}: "
+                            f"syntax error, truncated file or wrong format)")
+    try:
+        ok = reader.Transfer(doc)
+    except Exception as exc:  # noqa: BLE001
+        raise GeometryError(f"{path}: cannot translate the {kind} entities to shapes: {exc}") from None
+    if not ok:
+        raise GeometryError(f"{path}: the {kind} file holds no shape that OpenCascade can translate")
+    return doc
+
+
+def _sub_solids(shape):
+    """Solids of ``shape`` in order; else its free shells/faces as sheets (surface models)."""
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
+    from OCP.TopExp import TopExp_Explorer
+
+    found = []
+    explorer = TopExp_Explorer(shape, TopAbs_SOLID)
+    while explorer.More():
+        found.append((explorer.Current(), "solid"))
+        explorer.Next()
+    if found:
+        return found
+    explorer = TopExp_Explorer(shape, TopAbs_SHELL)
+    while explorer.More():
+        found.append((explorer.Current(), "sheet"))
+        explorer.Next()
+    if found:
+        return found
+    explorer = TopExp_Explorer(shape, TopAbs_FACE)
+    while explorer.More():
+        found.append((explorer.Current(), "sheet"))
+        explorer.Next()
+    return found
+
+
+def _walk(shape_tool, label, location, name, out):
+    """Depth-first over an XDE label: assemblies recurse into their components (locations composed),
+    simple shapes contribute their solids with ``name``."""
+    from OCP.TDF import TDF_Label, TDF_LabelSequence
+    from OCP.XCAFDoc import XCAFDoc_ShapeTool
+
+    if XCAFDoc_ShapeTool.IsAssembly_s(label):
+        components = TDF_LabelSequence()
+        XCAFDoc_ShapeTool.GetComponents_s(label, components, False)
+        for i in range(1, components.Length() + 1):
+            component = components.Value(i)
+            referred = TDF_Label()
+            XCAFDoc_ShapeTool.GetReferredShape_s(component, referred)
+            child_location = location.Multiplied(XCAFDoc_ShapeTool.GetLocation_s(component))
+            child_name = _instance_name(component, referred)
+            _walk(shape_tool, referred, child_location, child_name, out)
+        return
+    shape = XCAFDoc_ShapeTool.GetShape_s(label)
+    if shape.IsNull():
+        return
+    if name is None:
+        name = _label_name(label)
+    for sub, kind in _sub_solids(shape):
+        out.append((sub.Moved(location), kind, name))
+
+
+def _instance_name(component, referred) -> str | None:
+    """An instance's own name if the file gives one, else its product's."""
+    own, product = _label_name(component), _label_name(referred)
+    if own and not own.startswith("=>"):  # "=>[0:1:1:2]": OpenCascade's placeholder for no name
+        return own
+    return product
+
+
+def unique_names(names) -> list[str]:
+    """None -> ``solid<k>`` (k = position from 1); repeated names get ``_2``, ``_3`` (first keeps its name)."""
+    out, seen = [], {}
+    raw = [n if n else f"solid{k}" for k, n in enumerate(names, start=1)]
+    taken = set(raw)
+    for n in raw:
+        if n not in seen:
+            seen[n] = 1
+            out.append(n)
+            continue
+        k = seen[n]
+        while True:
+            k += 1
+            candidate = f"{n}_{k}"
+            if candidate not in taken:
+                break
+        seen[n] = k
+        taken.add(candidate)
+        out.append(candidate)
+    return out
+
+
+def read_cad(path) -> list[CadSolid]:
+    """Every solid of a STEP or IGES file, placed, in mm, with unique names (see the module docstring)."""
+    from OCP.TDF import TDF_LabelSequence
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
+
+    path = Path(path)
+    doc = _read_document(path)
+    shape_tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    free = TDF_LabelSequence()
+    shape_tool.GetFreeShapes(free)
+    found = []
+    for i in range(1, free.Length() + 1):
+        label = free.Value(i)
+        _walk(shape_tool, label, TopLoc_Location(), None, found)
+    if not found:
+        raise GeometryError(f"{path}: the file holds no solid, shell or face")
+    names = unique_names([name for _, _, name in found])
+    return [CadSolid(n, shape, kind, label) for n, (shape, kind, label) in zip(names, found)]
+
+
+def read_cad_shape(path):
+    """All of a CAD file as one OCP compound (placed, mm) and the number of solids in it."""
+    from OCP.BRep import BRep_Builder
+    from OCP.TopoDS import TopoDS_Compound
+
+    solids = read_cad(path)
+    compound = TopoDS_Compound()
+    builder = BRep_Builder()
+    builder.MakeCompound(compound)
+    for s in solids:
+        builder.Add(compound, s.shape)
+    return compound, solids
