@@ -52,6 +52,7 @@ class StudyConfig:
     detector: str | None = None  # overrides the scene's [analysis] detector
     sweep: bool = True  # the design sweep (built-in tube parameters, or a --model file's)
     precision: object = None  # straylight.analyses.precision.Precision: PST points traced to a target
+    model: str | None = None  # FILE.py:build, the user's parametric CadQuery design (analyses.model)
 
     @property
     def sweep_rays(self) -> int:
@@ -116,7 +117,13 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
     t_all = time.perf_counter()
 
     t0 = time.perf_counter()
-    if cfg.scene is not None:
+    if cfg.model is not None:
+        from straylight.analyses.model import design_scene
+        from straylight.analyses.scene_setup import scene_setup
+
+        _step(f"building {cfg.model} with its default parameters", cfg.progress)
+        setup = scene_setup(design_scene(cfg.model, {}, out / "model_scene"), detector=cfg.detector)
+    elif cfg.scene is not None:
         from straylight.analyses.scene_setup import scene_setup
 
         _step(f"loading {cfg.scene}", cfg.progress)
@@ -162,7 +169,19 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         crit.plot(out / "critical.png")
 
     sweep = None
-    if cfg.sweep and cfg.scene is None:
+    if cfg.sweep and cfg.model is not None and cfg.sweep_values:
+        from straylight.analyses.model import model_sweep
+
+        _step(f"design sweep of {cfg.model}: {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
+        t0 = time.perf_counter()
+        sweep = model_sweep(cfg.model, cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
+                            out / "designs", n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4),
+                            progress=cfg.progress)
+        result.timings_s["sweep"] = time.perf_counter() - t0
+        sweep.write_csv(out / "sweep.csv")
+        sweep.write_json(out / "sweep.json")
+        sweep.plot(out / "sweep.png")
+    elif cfg.sweep and cfg.scene is None and cfg.model is None:
         _step(f"design sweep of {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
         t0 = time.perf_counter()
         sweep = design_sweep(cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
@@ -214,6 +233,8 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
 
 
 def _title(result) -> str:
+    if result.config.model is not None:
+        return f"Stray-light study of {result.config.model}"
     return "Baffle design study" if result.config.scene is None else f"Stray-light study of {result.config.scene}"
 
 
