@@ -9,8 +9,9 @@ import numpy as np
 
 
 class Outgoing(NamedTuple):
-    """Where each continuing ray goes next; one row per entry of ``Event.hits.continuing``. An
-    interaction fills the rows it was given."""
+    """Where each continuing ray goes next: what an interaction returns for the hits it was given
+    (one row each, in order); the walk puts the kinds' answers together, one row per entry of
+    ``Event.hits.continuing``."""
 
     direction: np.ndarray  # (n, 3) unit, world frame
     throughput: np.ndarray  # (n,) weight factor: new weight = weight x throughput (0: absorbed)
@@ -19,9 +20,23 @@ class Outgoing(NamedTuple):
     side: np.ndarray  # (n,) int8: +1 the ray leaves on the side it came from, -1 it crosses the surface
 
 
-def empty_outgoing(n: int) -> Outgoing:
-    return Outgoing(direction=np.empty((n, 3)), throughput=np.empty(n), pdf_per_sr=np.empty(n),
-                    event=np.empty(n, dtype=np.int8), side=np.ones(n, dtype=np.int8))
+def outgoing(direction, throughput, pdf_per_sr, event_code: int, side: int = 1) -> Outgoing:
+    """An :class:`Outgoing` whose rows all have the same event code and side."""
+    n = len(throughput)
+    return Outgoing(direction=np.ascontiguousarray(direction, dtype=np.float64),
+                    throughput=np.ascontiguousarray(throughput, dtype=np.float64),
+                    pdf_per_sr=np.ascontiguousarray(pdf_per_sr, dtype=np.float64),
+                    event=np.full(n, event_code, dtype=np.int8), side=np.full(n, side, dtype=np.int8))
+
+
+def combined_outgoing(n: int, parts) -> Outgoing:
+    """One :class:`Outgoing` of ``n`` rows from ``parts`` = [(selection, Outgoing of those rows)]."""
+    out = Outgoing(direction=np.empty((n, 3)), throughput=np.empty(n), pdf_per_sr=np.empty(n),
+                   event=np.empty(n, dtype=np.int8), side=np.empty(n, dtype=np.int8))
+    for selection, part in parts:
+        for field, value in zip(out, part):
+            field[selection] = value
+    return out
 
 
 @dataclass

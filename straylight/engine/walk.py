@@ -13,7 +13,7 @@ from straylight.engine.advance import next_rays
 from straylight.engine.compiled_scene import compiled_scene
 from straylight.engine.draws import event_columns, event_uniforms
 from straylight.engine.emission import emit_batch
-from straylight.engine.event import Event, empty_outgoing
+from straylight.engine.event import Event, combined_outgoing
 from straylight.engine.first_vertex import FirstVertexWeights, run_vertex_pass
 from straylight.engine.hits import Hits
 from straylight.engine.interactions import get_interaction, interaction_name
@@ -27,7 +27,8 @@ from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS
 
 def part_interactions(spec: TraceSpec):
-    """(index of each part's interaction kind (P,), the kinds) for the parts of ``spec``."""
+    """(index of each part's interaction kind (P,), the kinds, the kinds of continuing hits) for
+    the parts of ``spec``."""
     kinds, index, of_part = [], {}, []
     for p, role in enumerate(spec.part_roles):
         m = spec.part_material[p]
@@ -39,11 +40,14 @@ def part_interactions(spec: TraceSpec):
             index[name] = len(kinds)
             kinds.append(kind)
         of_part.append(index[name])
-    return np.array(of_part, dtype=np.int64), kinds
+    continuing = sorted({k for k in of_part if not kinds[k].terminal})
+    return np.array(of_part, dtype=np.int64), kinds, continuing
 
 
-def _by_interaction(kind_of_part, kinds, part):
+def _by_interaction(kind_of_part, kinds, continuing, part):
     """(interaction, selection of the continuing hits) per kind present; a slice when one kind has them all."""
+    if len(continuing) == 1:  # one kind in the scene for every continuing hit
+        return [(kinds[continuing[0]], slice(None))]
     k = kind_of_part[part]
     if len(k) and (k == k[0]).all():
         return [(kinds[k[0]], slice(None))]
@@ -81,7 +85,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     rays = emitted_rays(*emit_batch(spec, draws, n, ubuf), w0, opt.path_depth, settings.record_paths)
     records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.map_bins),
                               settings.record_paths)
-    kind_of_part, kinds = part_interactions(spec)
+    kind_of_part, kinds, continuing = part_interactions(spec)
     first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
     segments = shadow_rays = 0
@@ -104,9 +108,11 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         cont = hit.continuing
         if len(cont) == 0:
             break
-        out = empty_outgoing(len(cont))
-        for interaction, selection in _by_interaction(kind_of_part, kinds, hit.part[cont]):
-            interaction.interact(event, selection, out)
+        groups = _by_interaction(kind_of_part, kinds, continuing, hit.part[cont])
+        if len(groups) == 1:
+            out = groups[0][0].interact(event, groups[0][1])
+        else:
+            out = combined_outgoing(len(cont), [(sel, kind.interact(event, sel)) for kind, sel in groups])
         shadow_rays += event.shadow_rays
         rays, _kept = next_rays(kernels.advance(cont, out, rays, hit, U[:, columns.roulette], settings,
                                                 ev == max_events - 1, M, rows))

@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from straylight.engine import nee
+from straylight.engine.event import outgoing
 from straylight.engine.interactions.registry import Interaction, register_interaction
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER
@@ -109,7 +110,7 @@ def to_world_numpy(wo, weight, pdf, frame, verts, nf):
 class BrdfScatter(Interaction):
     name = "brdf_scatter"
 
-    def interact(self, event, selection, out):
+    def interact(self, event, selection):
         spec, kern, hit = event.spec, event.kernels, event.hits
         verts = np.ascontiguousarray(event.vertex_rows(selection))
         frame = LocalFrames(*kern.frames(verts, event.rays.direction, hit.facing_normal, hit.part,
@@ -133,8 +134,4 @@ class BrdfScatter(Interaction):
             col = event.columns.target
             wo_world, weight, pdf = target_mixture(spec, target, event.uniforms[verts, col:col + 4],
                                                    hit.point_mm[verts], hit.facing_normal[verts], frame, wo_world)
-        out.direction[selection] = wo_world
-        out.throughput[selection] = weight
-        out.pdf_per_sr[selection] = pdf
-        out.event[selection] = EVENT_SCATTER
-        out.side[selection] = 1
+        return outgoing(wo_world, weight, pdf, EVENT_SCATTER)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from straylight.engine.event import outgoing
 from straylight.engine.interactions.registry import Interaction, register_interaction
 from straylight.engine.ray_batch import EVENT_SPECULAR
 from straylight.engine.vec3 import dot3, dot_rows
@@ -33,11 +34,8 @@ def reflect_numpy(rows, d, nf, out):
 class DeltaReflection(Interaction):
     name = "delta_reflection"
 
-    def interact(self, event, selection, out):
+    def interact(self, event, selection):
         rows = np.ascontiguousarray(event.vertex_rows(selection))
-        out.direction[selection] = event.kernels.reflect(rows, event.rays.direction, event.hits.facing_normal,
-                                                         np.empty((len(rows), 3)))
-        out.throughput[selection] = float(event.spec.options.mirror_reflectance)
-        out.pdf_per_sr[selection] = 0.0
-        out.event[selection] = EVENT_SPECULAR
-        out.side[selection] = 1
+        direction = event.kernels.reflect(rows, event.rays.direction, event.hits.facing_normal, np.empty((len(rows), 3)))
+        reflectance = np.full(len(rows), float(event.spec.options.mirror_reflectance))
+        return outgoing(direction, reflectance, np.zeros(len(rows)), EVENT_SPECULAR)

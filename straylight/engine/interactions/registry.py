@@ -23,11 +23,12 @@ INTERACTIONS: dict = {}  # name -> Interaction instance
 class Interaction:
     """One kind of surface interaction.
 
-    ``interact(event, selection, out)`` handles the continuing hits ``event.hits.continuing[selection]``
-    (``selection``: a slice or an index array into the continuing hits; ``event.vertex_rows(selection)``
-    gives the rows of the event's per-ray arrays) and fills ``out.direction``, ``out.throughput``,
-    ``out.pdf_per_sr``, ``out.event`` and ``out.side`` at ``selection``
-    (:class:`straylight.engine.event.Outgoing`). It may add estimates to ``event.tallies`` (rows of
+    ``interact(event, selection) -> Outgoing`` handles the continuing hits
+    ``event.hits.continuing[selection]`` (``selection``: a slice or an index array into the
+    continuing hits; ``event.vertex_rows(selection)`` gives their rows in the event's per-ray arrays)
+    and returns, one row per hit in order, the new direction, throughput, pdf, event code and side
+    (:class:`straylight.engine.event.Outgoing`; :func:`straylight.engine.event.outgoing` builds one).
+    It may add estimates to ``event.tallies`` (rows of
     ``event.rows``; keep the ledger exact: whatever it adds to a detector it subtracts from the
     part's ``nee_exchange`` row), record detector contributions with ``event.records.add`` and
     count its shadow rays in ``event.shadow_rays``. Absorption, Russian roulette, truncation and
@@ -37,7 +38,7 @@ class Interaction:
     name = ""
     terminal = False  # tallied by the hit stage; never called
 
-    def interact(self, event, selection, out) -> None:
+    def interact(self, event, selection):
         raise NotImplementedError
 
 
