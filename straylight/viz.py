@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 PART_COLORS = ("#4c72b0", "#dd8452", "#55a868", "#c44e52", "#8172b2", "#937860", "#da8bc3", "#8c8c8c",
                "#ccb974", "#64b5cd")
 
@@ -201,8 +203,15 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
         pl.camera_position = camera
     if off_screen:
         out = Path(path) if path is not None else Path("scene.png")
-        pl.screenshot(str(out))
+        image = pl.screenshot(return_img=True)
         pl.close()
+        import io
+
+        from PIL import Image
+
+        buf = io.BytesIO()
+        Image.fromarray(image).save(buf, format=out.suffix.lstrip(".").upper().replace("JPG", "JPEG") or "PNG")
+        atomicio.write_bytes(out, buf.getvalue())  # a reader never sees half a picture
         return out
     pl.show()
     return None
@@ -244,6 +253,6 @@ def plot_detector_map(imap, path=None, title: str = "Detector irradiance", ax=No
     if own:
         fig.tight_layout()
         if path is not None:
-            fig.savefig(path)
+            atomicio.write_figure(fig, path)
             plt.close(fig)
     return ax

@@ -174,7 +174,7 @@ class CriticalReport:
         ax.grid(True, which="both", alpha=0.3)
         fig.tight_layout()
         if path is not None:
-            fig.savefig(path)
+            atomicio.write_figure(fig, path)
             plt.close(fig)
         return ax
 

@@ -211,7 +211,7 @@ class PstResult:
         if own:
             fig.tight_layout()
             if path is not None:
-                fig.savefig(path)
+                atomicio.write_figure(fig, path)
                 plt.close(fig)
         return ax
 

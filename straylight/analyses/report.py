@@ -274,7 +274,7 @@ def _pst_plot(pst, setup, path, material: str = ""):
     ax.set_title(f"Point source transmittance of {what}; {pst.rays:.2g} rays per angle, 1-sigma error bars",
                  fontsize=9)
     fig.tight_layout()
-    fig.savefig(path)
+    atomicio.write_figure(fig, path)
     plt.close(fig)
 
 

@@ -102,7 +102,7 @@ class SweepResult:
         if own:
             fig.tight_layout()
             if path is not None:
-                fig.savefig(path)
+                atomicio.write_figure(fig, path)
                 plt.close(fig)
         return ax
 
