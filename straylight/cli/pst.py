@@ -24,9 +24,10 @@ def add_common_scene_args(parser):
     parser.add_argument("--detector", default=None, help="detector part name (default: the only detector)")
 
 
-def add_precision_args(parser, default_rays=None, what="rays"):
-    """``--rays N`` or ``--target-rel-error E`` (with its caps), shared by pst, study and trace."""
-    group = parser.add_mutually_exclusive_group(required=default_rays is None)
+def add_precision_args(parser, default_rays=None, what="rays", exclusive=True):
+    """``--rays N`` or ``--target-rel-error E`` (with its caps), shared by pst, study and trace
+    (study: not exclusive, its other steps still use --rays)."""
+    group = parser.add_mutually_exclusive_group(required=default_rays is None) if exclusive else parser
     group.add_argument("--rays", type=int, default=default_rays,
                        help=what + (f" (default {default_rays})" if default_rays else ""))
     group.add_argument("--target-rel-error", type=float, default=None, metavar="E",

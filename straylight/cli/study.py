@@ -23,7 +23,7 @@ def add_parser(subparsers):
 
     add_precision_args(p, default_rays=200_000,
                        what="rays per PST angle; other steps scale from it (with --target-rel-error: the "
-                            "PST points trace to E, the other steps use --rays)")
+                            "PST points trace to E, the other steps use --rays)", exclusive=False)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (default: in-process)")
     p.add_argument("--scheduler", default=None, help="dask scheduler address")

@@ -131,3 +131,15 @@ class _nothing:
 
     def __exit__(self, *exc):
         return False
+
+
+def test_study_report_shows_the_precision_stop(tmp_path):
+    out = tmp_path / "study"
+    assert main(["study", "--target-rel-error", "0.05", "--max-rays", "2000", "--angles-deg", "0", "20",
+                 "--rays", "1000", "--no-sweep", "--seed", "2", "--out", str(out)]) == 0
+    doc = json.loads((out / "results.json").read_text())
+    assert doc["pst"]["precision"]["target_rel_error"] == 0.05
+    stops = [p["stop_reason"] for p in doc["pst"]["points"]]
+    assert stops[0] == "target" and stops[1] == "max_rays"
+    page = (out / "index.html").read_text()
+    assert "stopped by" in page and "max_rays" in page and "VOV" in page
