@@ -1,7 +1,7 @@
 """``straylight paths``: stray-light paths to the detector, ranked by power fraction.
 
     straylight paths --builtin tube --angle-deg 20 --rays N --seed S --out DIR
-        [--group-by sequence|first_part|last_part|ancestry] [--ancestry scattered_once ...] [--top 20]
+        [--group-by sequence|first_part|last_part|ancestry] [--ancestry scattered_once ...] [--top 20] [--ghosts]
 
 Writes DIR/paths.md (table), paths.csv (every group), paths.json, paths.png (bar plot).
 """
@@ -26,6 +26,8 @@ def add_parser(subparsers):
     p.add_argument("--group-by", choices=GROUP_BY, default="sequence")
     p.add_argument("--ancestry", choices=ANCESTRY, nargs="+", default=None, help="keep only these classes")
     p.add_argument("--top", type=int, default=20, help="rows in the table and bars in the plot")
+    p.add_argument("--ghosts", action="store_true",
+                   help="also rank the specular paths (nominal and ghosts): DIR/ghosts.md, ghosts.json")
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--scheduler", default=None)
     p.add_argument("--out", required=True, help="output directory")
@@ -41,7 +43,7 @@ def run(args) -> int:
     setup = load_setup(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    report, _ = paths_analysis(setup, math.radians(args.angle_deg), math.radians(args.azimuth_deg),
+    report, res = paths_analysis(setup, math.radians(args.angle_deg), math.radians(args.azimuth_deg),
                                n_rays=args.rays, seed=args.seed, nee=not args.no_nee, group_by=args.group_by,
                                ancestry=args.ancestry, workers=args.workers, scheduler=args.scheduler)
     import atomicio
@@ -51,5 +53,11 @@ def run(args) -> int:
     report.write_json(out / "paths.json")
     report.plot(out / "paths.png", top=args.top)
     print(report.markdown(min(args.top, 10)))
-    print(f"written {out}/paths.md, paths.csv, paths.json, paths.png")
+    if args.ghosts:
+        from straylight.analyses.ghosts import ghost_table
+
+        table = ghost_table(res.paths, report.detector, report.total_w)
+        table.write(out)
+        print(table.markdown(min(args.top, 10)))
+    print(f"written {out}/paths.md, paths.csv, paths.json, paths.png" + (", ghosts.md, ghosts.json" if args.ghosts else ""))
     return 0

@@ -1,0 +1,41 @@
+"""Ghost analysis of a window: the two-bounce ghost of its two surfaces, grouped from path records.
+
+Reference: incoherent plate (Born & Wolf §7.6.1), normal incidence, R = ((n-1)/(n+1))^2: the direct
+transmission carries (1-R)^2, the two-bounce ghost (reflect at the bottom, then the top) (1-R)^2 R^2,
+the next ghost (1-R)^2 R^4.
+"""
+import math
+
+import numpy as np
+
+from geometry import Scene
+from geometry.analytic import Plane, analytic_part
+from materials import load_material
+from straylight.analyses.ghosts import ghost_table, two_bounce_pair
+from straylight.sources import CollimatedDisk
+from straylight.trace import TraceOptions, trace
+
+
+def test_two_bounce_pattern():
+    n = ("lens1_a", "lens1_b", "lens2_a", "lens2_b")
+    assert two_bounce_pair(("lens1_a", "lens1_b", "lens2_a", "lens1_b", "lens2_a", "lens2_b"), n) == ("lens1_b", "lens2_a")
+    assert two_bounce_pair(("lens1_a", "lens1_b", "lens1_a", "lens1_b", "lens2_a", "lens2_b"), n) == ("lens1_a", "lens1_b")
+    assert two_bounce_pair(n, n) is None
+
+
+def test_window_ghost_power():
+    up = np.array([0.0, 0.0, 1.0])
+    glass = load_material({"name": "glass", "components": [{"type": "dielectric", "n": 1.5}]})
+    top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, 100.0, 0.0), "glass")
+    bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, 100.0, 0.0), "glass")
+    det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
+    src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
+    res = trace(Scene((top, bottom, det)), [src], 400_000, seed=3, materials={"glass": glass},
+                options=TraceOptions(nee=False, record_paths=True))
+    table = ghost_table(res.paths, "det", res.detectors["det"].power_w)
+    R = 0.04
+    nominal, ghost = table.rows[0], table.rows[1]
+    assert nominal.kind == "nominal" and nominal.sequence == "source -> top -> bottom -> det"
+    assert abs(nominal.power_w - (1 - R) ** 2) < 4 * nominal.stderr_w
+    assert ghost.kind == "two-bounce ghost" and ghost.surfaces == "bottom then top"
+    assert ghost.power_w > 0 and abs(ghost.power_w - (1 - R) ** 2 * R**2) < 4 * ghost.stderr_w
