@@ -12,6 +12,8 @@ Light enters at +z and travels toward -z. Parts (names are what path reports sho
 - ``tube``: the main tube wall; ``vane_1 .. vane_N``: annular vanes on the wall (vane_1 nearest
   the primary); ``end_plate``: closes the tube behind the focal plane.
 - ``focal_plane``: the detector, a disk at the Cassegrain focus facing the sky.
+- optional ``filter_top`` / ``filter_bottom``: an uncoated plane-parallel filter (``n_bk7``) in the
+  converging beam (``filter_thickness_mm > 0``), the source of the window ghosts.
 
 Paraxial design (mirror equation with the secondary's virtual object at the prime focus):
 ``m = F / f1``, ``s = (m f1 - b) / (m + 1)``, ``p = f1 - s``, ``q = s + b``, ``|R2| = 2 p q / (q - p)``.
@@ -39,6 +41,9 @@ MIRROR_MATERIAL_TABLE = {
     ],
 }
 BLACK_MATERIAL = "z302_sample_b"
+FILTER_MATERIAL = "n_bk7"
+FILTER_MATERIAL_TABLE = {"name": FILTER_MATERIAL, "wavelength_nm": 532.0,
+                         "components": [{"type": "dielectric", "n": 1.5195}]}
 
 
 @dataclass(frozen=True)
@@ -59,6 +64,10 @@ class CassegrainParams:
     vane_count: int = 5
     vane_inner_radius_mm: float = 102.0
     detector_radius_mm: float = 8.0
+    filter_thickness_mm: float = 0.0  # > 0: an uncoated plane-parallel filter in the converging beam
+    filter_z_mm: float = -80.0  # its upper face
+    filter_radius_mm: float = 10.0
+    filter_index: float = 1.5195  # to refocus: the plate moves the focus by t (1 - 1/n)
 
     @classmethod
     def names(cls):
@@ -92,7 +101,8 @@ class CassegrainParams:
 
     @property
     def focus_z_mm(self) -> float:
-        return -self.back_focus_mm
+        """The Cassegrain focus (moved down by t (1 - 1/n) behind a filter)."""
+        return -self.back_focus_mm - self.filter_thickness_mm * (1.0 - 1.0 / self.filter_index)
 
 
 def cassegrain_scene(params: CassegrainParams = CassegrainParams(), *, mirror_material: str = MIRROR_MATERIAL,
@@ -130,6 +140,13 @@ def cassegrain_scene(params: CassegrainParams = CassegrainParams(), *, mirror_ma
             parts.append(analytic_part(f"vane_{i + 1}", Plane(np.array([0.0, 0.0, z]), up, math.inf, 0.0,
                                                               p.tube_radius_mm, p.vane_inner_radius_mm),
                                        black_material, "surface", None, tolerance_mm))
+    if p.filter_thickness_mm > 0:
+        top = np.array([0.0, 0.0, p.filter_z_mm])
+        parts.append(analytic_part("filter_top", Plane(top, up, math.inf, 0.0, p.filter_radius_mm, 0.0),
+                                   FILTER_MATERIAL, "surface", None, tolerance_mm))
+        parts.append(analytic_part("filter_bottom", Plane(top - p.filter_thickness_mm * up, down, math.inf, 0.0,
+                                                          p.filter_radius_mm, 0.0),
+                                   FILTER_MATERIAL, "surface", None, tolerance_mm))
     parts.append(analytic_part("end_plate", Plane(np.array([0.0, 0.0, p.focus_z_mm - 10.0]), up, math.inf, 0.0,
                                                   p.tube_radius_mm, 0.0), black_material, "surface", None,
                                tolerance_mm))

@@ -3,6 +3,7 @@
     straylight study --out report [--rays N] [--seed S] [--workers K]      # the built-in tube
     straylight study SCENE.toml --out report [--rays N] [--seed S]           # your own instrument
     straylight study --model mydesign.py:build --sweep-parameter vane_count --sweep-values 3 5 7 --out report
+    straylight study --builtin cassegrain --out report [--rays N]          # the built-in telescope
 
 Open DIR/index.html (numbers in DIR/results.json). See docs/study.md for what each step computes.
 """
@@ -14,7 +15,8 @@ def add_parser(subparsers):
                               description=__doc__.splitlines()[0])
     p.add_argument("scene", nargs="?", metavar="SCENE.toml",
                    help="scene file (CONTRACTS §6); default: the built-in tube")
-    p.add_argument("--builtin", choices=("tube",), default=None, help="the built-in baffled tube (the default)")
+    p.add_argument("--builtin", choices=("tube", "cassegrain"), default=None,
+                   help="the built-in baffled tube (the default) or the built-in Cassegrain telescope")
     p.add_argument("--model", default=None, metavar="FILE.py:FUNCTION",
                    help="your parametric CadQuery design: FUNCTION(**params) returns named parts; the study runs "
                         "on its defaults and --sweep-parameter/--sweep-values sweep its parameters (docs/study.md)")
@@ -48,6 +50,8 @@ def run(args) -> int:
 
     if sum(x is not None for x in (args.scene, args.builtin, args.model)) > 1:
         raise ValueError("give one of SCENE.toml, --builtin tube or --model FILE.py:FUNCTION")
+    if args.builtin == "cassegrain":
+        return _cassegrain(args)
     precision = precision_from_args(args)
     if args.rays < 100:
         raise ValueError(f"--rays must be at least 100, got {args.rays}")
@@ -82,4 +86,18 @@ def run(args) -> int:
             cfg.sweep_values = ()  # a model is swept only over the values given
     result = run_study(args.out, cfg)
     print(f"study written to {result.out_dir}/index.html ({result.timings_s['total']:.0f} s)")
+    return 0
+
+
+def _cassegrain(args) -> int:
+    """The telescope study (straylight.analyses.telescope): PST with its contributions, ghosts."""
+    from straylight.analyses.telescope import TelescopeStudy, run_telescope_study
+
+    if args.rays < 100:
+        raise ValueError(f"--rays must be at least 100, got {args.rays}")
+    cfg = TelescopeStudy(rays=args.rays, seed=args.seed, workers=args.workers)
+    if args.angles_deg:
+        cfg.angles_deg = tuple(args.angles_deg)
+    run_telescope_study(args.out, cfg)
+    print(f"study written to {args.out}/index.html ({cfg.timings_s['total']:.0f} s)")
     return 0
