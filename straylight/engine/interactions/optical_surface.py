@@ -36,6 +36,7 @@ import numpy as np
 from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.smooth import Dielectric, reflect, refract
 from straylight.engine import nee
+from straylight.engine.event import Outgoing
 from straylight.engine.interactions.brdf_scatter import LocalFrames
 from straylight.engine.interactions.registry import Interaction, register_interaction
 from straylight.engine.options import TraceError
@@ -101,12 +102,12 @@ def _mix(value_s, value_p, S):
 class OpticalSurface(Interaction):
     name = "optical_surface"
 
-    def interact(self, event, selection, out):
+    def interact(self, event, selection):
         spec, hit, rays, kern = event.spec, event.hits, event.rays, event.kernels
         rows = np.ascontiguousarray(event.vertex_rows(selection))
         m = len(rows)
         if m == 0:
-            return
+            return Outgoing(np.empty((0, 3)), np.empty(0), np.empty(0), np.empty(0, np.int8), np.empty(0, np.int8))
         st = batch_state(event)
         d = rays.direction[rows]
         part = hit.part[rows]
@@ -236,11 +237,8 @@ class OpticalSurface(Interaction):
         st.stokes[r[keep]] = S_new[keep]
         st.e1[r[keep]] = e1_new[keep]
         st.depth[r] = rays.depth[rows] + 1
-        out.direction[selection] = direction
-        out.throughput[selection] = throughput
-        out.pdf_per_sr[selection] = pdf
-        out.event[selection] = code
-        out.side[selection] = side_out
+        return Outgoing(direction=np.ascontiguousarray(direction), throughput=throughput, pdf_per_sr=pdf,
+                        event=code, side=side_out)
 
     # ------------------------------------------------------------------ lobes
 
