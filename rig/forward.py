@@ -47,6 +47,7 @@ import numpy as np
 from scipy.special import erf
 
 from rig.instrument import NOMINAL, RigConfig
+from rig.rotations import rotate_about_x, rotate_about_y
 
 #: Quadrature rules (in-plane u nodes, out-of-plane v nodes, sinh clustering scale in rad) for
 #: three tiers of set-points: "core" (the specular ray lands inside the integration window:
@@ -125,20 +126,6 @@ def _as_pol_array(polarization, shape):
     return pol
 
 
-def _rot_y(vec, angle):
-    """Rotate (..., 3) vectors about y so that (sin a, 0, cos a) -> (sin(a+angle), 0, cos(a+angle))."""
-    c, s = np.cos(angle), np.sin(angle)
-    x, y, z = vec[..., 0], vec[..., 1], vec[..., 2]
-    return np.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
-
-
-def _rot_x(vec, angle):
-    """Rotate (..., 3) vectors about x by ``angle`` (tilts the sample normal toward -y)."""
-    c, s = np.cos(angle), np.sin(angle)
-    x, y, z = vec[..., 0], vec[..., 1], vec[..., 2]
-    return np.stack([x, c * y - s * z, s * y + c * z], axis=-1)
-
-
 def _arm_and_specular(theta_i, theta_r, phi_r, config):
     """Arm axis (offset applied) and the true specular ray, both in the lab frame, (n, 3)."""
     n = theta_i.shape[0]
@@ -148,12 +135,12 @@ def _arm_and_specular(theta_i, theta_r, phi_r, config):
     st = np.sin(theta_r)
     arm = np.stack([st * np.cos(phi_r), st * np.sin(phi_r), np.cos(theta_r)], axis=-1)
     if d_arm:
-        arm = _rot_y(arm, d_arm)
+        arm = rotate_about_y(arm, d_arm)
     spec = np.stack([np.sin(theta_i), np.zeros(n), np.cos(theta_i)], axis=-1)
     if tilt or d_stage:
         wi0 = np.stack([-np.sin(theta_i), np.zeros(n), np.cos(theta_i)], axis=-1)
-        wi_t = _rot_x(_rot_y(wi0, -d_stage), tilt)
-        spec = _rot_y(_rot_x(wi_t * np.array([-1.0, -1.0, 1.0]), -tilt), d_stage)
+        wi_t = rotate_about_x(rotate_about_y(wi0, -d_stage), tilt)
+        spec = rotate_about_y(rotate_about_x(wi_t * np.array([-1.0, -1.0, 1.0]), -tilt), d_stage)
     return arm, spec
 
 
@@ -288,11 +275,11 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
         if wi.ndim == 2:
             wi = wi[:, None, :]  # (n, 1 or U, 3)
         if d_stage:
-            wi = _rot_y(wi, -d_stage)
-            frame = tuple(_rot_y(f, -d_stage) for f in frame)
+            wi = rotate_about_y(wi, -d_stage)
+            frame = tuple(rotate_about_y(f, -d_stage) for f in frame)
         if tilt:
-            wi = _rot_x(wi, tilt)
-            frame = tuple(_rot_x(f, tilt) for f in frame)
+            wi = rotate_about_x(wi, tilt)
+            frame = tuple(rotate_about_x(f, tilt) for f in frame)
         f_arm, f_theta, f_perp = frame
         wo = (f_arm[:, None, None, :] + u[:, :, None, None] * f_theta[:, None, None, :]
               + v[:, None, :, None] * f_perp[:, None, None, :])

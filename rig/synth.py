@@ -34,6 +34,7 @@ from scipy.stats import qmc
 
 from materials.scan import Scan, make_scan
 from rig.instrument import NOMINAL, RigConfig
+from rig.rotations import rotate_about_x, rotate_about_y
 
 PAPER_INCIDENCES_DEG = (10.0, 30.0, 40.0, 70.0, 80.0)
 RETRO_GAP_DEG = 3.0  # the detector cannot view within this of the incident beam
@@ -99,16 +100,6 @@ def compact_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
 
 
 # ----------------------------------------------------------------------------- geometry
-
-def _rot_y(v, ang):
-    c, s = math.cos(ang), math.sin(ang)
-    return np.stack([c * v[..., 0] + s * v[..., 2], v[..., 1], -s * v[..., 0] + c * v[..., 2]], axis=-1)
-
-
-def _rot_x(v, ang):
-    c, s = math.cos(ang), math.sin(ang)
-    return np.stack([v[..., 0], c * v[..., 1] - s * v[..., 2], s * v[..., 1] + c * v[..., 2]], axis=-1)
-
 
 class _Ghost:
     """Material plus the substrate's Gaussian ghost lobe (own implementation; see
@@ -195,8 +186,8 @@ def mc_reading(material, theta_i_deg, theta_r_deg, polarization, config: RigConf
             e_t = np.stack([np.cos(a_i) + 0 * t, 0 * t + 0 * a_i, np.sin(a_i) + 0 * t], axis=-1)
             q = e_t * t[None, :, None] + np.array([0.0, 1.0, 0.0]) * yb[None, :, None]
             # true sample frame axes in the lab: nominal axes turned by the stage offset, then tilted
-            ex = _rot_y(_rot_x(np.array([1.0, 0.0, 0.0]), 0.0), d_stage)
-            nz = _rot_y(_rot_x(np.array([0.0, 0.0, 1.0]), -tilt), d_stage)
+            ex = rotate_about_y(rotate_about_x(np.array([1.0, 0.0, 0.0]), 0.0), d_stage)
+            nz = rotate_about_y(rotate_about_x(np.array([0.0, 0.0, 1.0]), -tilt), d_stage)
             ey = np.cross(nz, ex)
             lam = -(q @ nz) / (d @ nz)
             p = q + lam[..., None] * d

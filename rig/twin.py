@@ -40,6 +40,7 @@ from functools import lru_cache
 import numpy as np
 
 from rig.instrument import NOMINAL, RigConfig
+from rig.rotations import matrix_about_x, matrix_about_y
 
 ESTIMATORS = ("auto", "nee", "walk")
 PROFILES = ("gaussian", "tophat")
@@ -170,18 +171,6 @@ class LaserBeam:
 # ------------------------------------------------------------------ geometry
 
 
-def rot_y(angle: float) -> np.ndarray:
-    """Rotation about y taking (sin a, 0, cos a) to (sin(a + angle), 0, cos(a + angle))."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def rot_x(angle: float) -> np.ndarray:
-    """Right-handed rotation about x by ``angle``."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
-
-
 def reflectometer_params(config: RigConfig = NOMINAL, twin: TwinConfig = DEFAULT_TWIN):
     """The :class:`geometry.parts.reflectometer.ReflectometerParams` of a rig and twin configuration."""
     from geometry.parts.reflectometer import ReflectometerParams
@@ -247,8 +236,8 @@ def build_twin_scene(theta_i: float, theta_r: float, phi_r: float = 0.0, config:
         raise TwinError(f"phi_r_deg must be 0 or 180 (the arm orbits in the plane of incidence), "
                         f"got {math.degrees(phi_r):g}")
     home = _home_parts(reflectometer_params(config, twin), float(twin.tolerance_mm))
-    m_sample = rot_y(theta_i + math.radians(config.stage_offset_deg)) @ rot_x(-math.radians(config.sample_tilt_deg))
-    m_arm = rot_y(arm_angle(theta_i, theta_r, phi_r, config))
+    m_sample = matrix_about_y(theta_i + math.radians(config.stage_offset_deg)) @ matrix_about_x(-math.radians(config.sample_tilt_deg))
+    m_arm = matrix_about_y(arm_angle(theta_i, theta_r, phi_r, config))
     black_role = "surface" if twin.holder_rd > 0 else "absorber"
     tags = {"sample": ("sample", sample_role), "holder": ("black", black_role),
             "holder_post": ("black", black_role), "slit_plate": (None, "absorber"), "detector": (None, "detector")}

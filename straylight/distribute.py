@@ -9,6 +9,9 @@ keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
 from __future__ import annotations
 
+import sys
+from contextlib import contextmanager
+
 from straylight.engine.batch_pool import run_threads
 from straylight.engine.walk import run_batch
 
@@ -65,10 +68,17 @@ def task_plan(ranges, n_slots: int) -> list:
     return tasks
 
 
-def local_cluster(n_workers: int, processes: bool = False):
-    """LocalCluster for tracing with ``n_workers`` parallel workers: no dashboard port, dask's
-    statistical profiler off (it samples every thread every 10 ms, ~5-10 % of a worker's CPU) and
-    the housekeeping of :data:`LEAN_CONFIG`.
+LOOPBACK = "127.0.0.1"
+
+
+def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = False):
+    """LocalCluster for tracing with ``n_workers`` parallel workers, reachable from this machine only:
+    every socket (scheduler, workers, their HTTP servers) binds to 127.0.0.1 (an in-process cluster
+    talks over ``inproc://``, with no scheduler port at all), and there is no dashboard unless
+    ``dashboard`` (then on 127.0.0.1, a free port: ``cluster.dashboard_link``; needs bokeh). A dask
+    scheduler runs whatever pickled task it is sent, so a port open to the network would let anyone
+    run code as the user. Dask's statistical profiler is off (it samples every thread every 10 ms,
+    ~5-10 % of a worker's CPU), with the housekeeping of :data:`LEAN_CONFIG`.
 
     Default: ONE in-process worker with ``n_workers`` dask threads whose tasks queue their batches
     on one shared pool of ``n_workers`` threads (:func:`_pooled_task`; the cluster carries
@@ -79,16 +89,79 @@ def local_cluster(n_workers: int, processes: bool = False):
     ran x1.77 by wall (each with its own scene and warm-up). ``processes=True`` gives ``n_workers``
     processes with one thread each."""
     import dask
-    from dask.distributed import LocalCluster
+    from dask.distributed import LocalCluster, Worker
+
+    if dashboard:
+        try:
+            import bokeh  # noqa: F401 - dask's dashboard is drawn with bokeh
+        except ImportError:
+            raise RuntimeError("the dask dashboard needs bokeh: pip install 'straylight[dashboard]'") from None
+    http = f"{LOOPBACK}:0"  # the scheduler's HTTP server (dashboard or not): loopback, a free port
+    scheduler_kwargs = {"dashboard": bool(dashboard), "dashboard_address": http}
+
+    class LoopbackWorker(Worker):
+        """An in-process worker whose HTTP server listens on 127.0.0.1 (dask binds it to every
+        interface when the worker itself has no TCP address)."""
+
+        def __init__(self, *args, **kwargs):
+            kwargs.update(dashboard=False, dashboard_address=http)
+            super().__init__(*args, **kwargs)
 
     with dask.config.set(LEAN_CONFIG):
         if processes:
-            return LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True,
-                                dashboard_address=":0")
+            return LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True, host=LOOPBACK,
+                                dashboard_address=None, scheduler_kwargs=scheduler_kwargs)
         cluster = LocalCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
-                               dashboard_address=":0")
+                               dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker)
         cluster.straylight_threads = int(n_workers)
         return cluster
+
+
+def tls_security(ca_file=None, cert=None, key=None):
+    """A dask ``Security`` for TLS from PEM files (as ``dask scheduler/worker --tls-ca-file --tls-cert
+    --tls-key``), or None when no file is given (then dask's own configuration applies, e.g.
+    ``distributed.comm.tls`` in ~/.config/dask/*.yaml). Missing files are an error naming the flag."""
+    from pathlib import Path
+
+    given = {"--tls-ca-file": ca_file, "--tls-cert": cert, "--tls-key": key}
+    if not any(given.values()):
+        return None
+    for flag, path in given.items():
+        if path is not None and not Path(path).is_file():
+            raise FileNotFoundError(f"{flag} {path}: no such file")
+    if not (ca_file and cert):
+        raise ValueError("TLS needs --tls-ca-file and --tls-cert (and --tls-key unless the key is in the cert file)")
+    from dask.distributed import Security
+
+    return Security(tls_ca_file=str(ca_file), tls_client_cert=str(cert), tls_client_key=str(key) if key else None,
+                    require_encryption=True)
+
+
+@contextmanager
+def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in_process_below=1):
+    """The one dask client builder: ``Client(scheduler, security=security)`` for a running scheduler;
+    else, for ``workers`` >= ``in_process_below``, a :func:`local_cluster` of ``workers`` (loopback
+    only) and its client; else None (run in this process). Closed on exit.
+
+    ``in_process_below``: worker counts below it run in-process (sweeps pass 2: one worker is just
+    this process); ``trace(workers=1)`` passes 1 and gets a one-thread cluster."""
+    if scheduler:
+        from dask.distributed import Client
+
+        with Client(scheduler, security=security) as client:
+            yield client
+    elif workers is not None and int(workers) >= max(1, int(in_process_below)):
+        from dask.distributed import Client
+
+        n = int(workers)
+        with local_cluster(n, dashboard=dashboard) as cluster, Client(cluster) as client:
+            if dashboard:
+                print(f"straylight: dask dashboard at {cluster.dashboard_link} (this machine only)", file=sys.stderr)
+            yield client
+    else:
+        if workers is not None and int(workers) < 1:
+            raise ValueError(f"workers must be >= 1, got {workers}")
+        yield None
 
 
 def _warm_task(spec):
@@ -113,49 +186,46 @@ def worker_cpu_seconds(client) -> dict:
 
 
 def run_distributed(spec, ranges, workers=None, client=None, scheduler=None, security=None):
-    """Yield ``run_batch`` results for ``ranges`` (list of (first_chunk, stop_chunk)), in order."""
-    from dask.distributed import Client, as_completed
+    """Yield ``run_batch`` results for ``ranges`` (list of (first_chunk, stop_chunk)), in order: on
+    ``client``, else on a client of :func:`dask_client` (``scheduler``, or a local cluster of
+    ``workers``) opened and closed for this trace."""
+    if client is not None:
+        yield from _run_on(client, spec, ranges)
+        return
+    n = 1 if workers is None else int(workers)
+    if n < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    with dask_client(n, scheduler, security=security) as own:
+        yield from _run_on(own, spec, ranges)
 
-    owned = []
-    if client is None:
-        if scheduler is not None:
-            client = Client(scheduler, security=security)
-            owned.append(client)
-        else:
-            n = 1 if workers is None else int(workers)
-            if n < 1:
-                raise ValueError(f"workers must be >= 1, got {workers}")
-            cluster = local_cluster(n)
-            client = Client(cluster)
-            owned += [client, cluster]
-    try:
-        # a fresh key for every trace (hash=False): with the content's hash as key, a trace repeated
-        # with the same spec re-scattered a key whose release by the previous trace was still on its
-        # way, and the scheduler dropped the data under the new tasks (FutureCancelledError)
-        spec_future = client.scatter(spec, broadcast=True, hash=False)
-        # few tasks (each costs the scheduler a few ms of CPU, which competes with the workers on a
-        # small machine), shrinking toward the end for balance: task_plan (the numbers are unchanged)
-        pool = int(getattr(getattr(client, "cluster", None), "straylight_threads", 0) or 0)
-        if pool > 1:  # our local cluster: a thread pool inside each task (local_cluster)
-            groups = pooled_plan(ranges, pool)
-            futures = client.map(_pooled_task, [spec_future] * len(groups), groups, [pool] * len(groups), pure=False)
-        else:
-            workers_info = client.scheduler_info().get("workers", {})
-            n_slots = max(1, sum(int(w.get("nthreads", 1)) for w in workers_info.values()))
-            groups = task_plan(ranges, n_slots)
-            futures = client.map(_group_task, [spec_future] * len(groups), groups, pure=False)
-        order = {fut.key: k for k, fut in enumerate(futures)}
-        done = {}
-        nxt = 0
-        # results as they finish (one event-loop round trip for each), yielded in chunk order
-        for fut, result in as_completed(futures, with_results=True):
-            if fut.status != "finished":
-                fut.result()  # raises the task's error (or the cancellation)
-            done[order[fut.key]] = result
-            fut.release()
-            while nxt in done:
-                yield from done.pop(nxt)
-                nxt += 1
-    finally:
-        for obj in owned:
-            obj.close()
+
+def _run_on(client, spec, ranges):
+    from dask.distributed import as_completed
+
+    # a fresh key for every trace (hash=False): with the content's hash as key, a trace repeated
+    # with the same spec re-scattered a key whose release by the previous trace was still on its
+    # way, and the scheduler dropped the data under the new tasks (FutureCancelledError)
+    spec_future = client.scatter(spec, broadcast=True, hash=False)
+    # few tasks (each costs the scheduler a few ms of CPU, which competes with the workers on a
+    # small machine), shrinking toward the end for balance: task_plan (the numbers are unchanged)
+    pool = int(getattr(getattr(client, "cluster", None), "straylight_threads", 0) or 0)
+    if pool > 1:  # our local cluster: a thread pool inside each task (local_cluster)
+        groups = pooled_plan(ranges, pool)
+        futures = client.map(_pooled_task, [spec_future] * len(groups), groups, [pool] * len(groups), pure=False)
+    else:
+        workers_info = client.scheduler_info().get("workers", {})
+        n_slots = max(1, sum(int(w.get("nthreads", 1)) for w in workers_info.values()))
+        groups = task_plan(ranges, n_slots)
+        futures = client.map(_group_task, [spec_future] * len(groups), groups, pure=False)
+    order = {fut.key: k for k, fut in enumerate(futures)}
+    done = {}
+    nxt = 0
+    # results as they finish (one event-loop round trip for each), yielded in chunk order
+    for fut, result in as_completed(futures, with_results=True):
+        if fut.status != "finished":
+            fut.result()  # raises the task's error (or the cancellation)
+        done[order[fut.key]] = result
+        fut.release()
+        while nxt in done:
+            yield from done.pop(nxt)
+            nxt += 1

@@ -79,23 +79,12 @@ def detector_area(setup, name: str):
     return sensitive_area(part.vertices_mm, part.faces, toward_mm=toward)
 
 
-@contextmanager
-def dask_client(workers: int | None = None, scheduler: str | None = None):
-    """A dask client for a whole sweep (one LocalCluster, not one per trace), or None in-process."""
-    if scheduler:
-        from dask.distributed import Client
+def dask_client(workers: int | None = None, scheduler: str | None = None, security=None):
+    """A dask client for a whole sweep (one local cluster, not one per trace), or None in-process:
+    :func:`straylight.distribute.dask_client` (the one builder; 1 worker = this process)."""
+    from straylight.distribute import dask_client as one_builder
 
-        with Client(scheduler) as client:
-            yield client
-    elif workers and workers > 1:
-        from dask.distributed import Client
-
-        from straylight.distribute import local_cluster
-
-        with local_cluster(int(workers)) as cluster, Client(cluster) as client:
-            yield client
-    else:
-        yield None
+    return one_builder(workers, scheduler, security=security, in_process_below=2)
 
 
 @dataclass(frozen=True, eq=False)

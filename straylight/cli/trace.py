@@ -32,14 +32,16 @@ def add_parser(subparsers) -> None:
     p.add_argument("--max-events", type=int, default=1000, help="surface events per ray (default 1000)")
     p.add_argument("--batch-rays", type=int, default=None,
                    help="rays per batch in memory (default: automatic; no effect on results)")
+    from straylight.cli.cluster_args import add_cluster_args
+
+    add_cluster_args(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    import atomicio
     from straylight.scene import SceneWarning, load_scene
     from straylight.cli.pst import precision_from_args
-    from straylight.trace import TraceOptions, trace
+    from straylight.trace import TraceOptions
 
     precision = precision_from_args(args)
     if precision is None and args.rays < 1:
@@ -60,9 +62,19 @@ def run(args) -> int:
         vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
                            progress=sys.stderr.isatty(), first_vertex_sampling=vertex)
+    from straylight.cli.cluster_args import cluster_client
+
+    with cluster_client(args) as client:
+        return _run(args, rs, options, precision, client)
+
+
+def _run(args, rs, options, precision, client) -> int:
+    import atomicio
+    from straylight.trace import trace
+
     if precision is None:
         res = trace(rs.scene, rs.sources, args.rays, args.seed, materials=rs.materials, options=options,
-                    workers=args.workers, scheduler=args.scheduler, threads=args.threads)
+                    client=client, threads=args.threads)
         doc = res.to_json_dict()
     else:
         from straylight.analyses.precision import trace_to_precision
@@ -70,8 +82,7 @@ def run(args) -> int:
         if not any(p.role == "detector" for p in rs.scene.parts):
             raise ValueError(f"{args.scene}: --target-rel-error needs a detector part (its power is the target)")
         run = trace_to_precision(rs.scene, rs.sources, args.seed, precision, materials=rs.materials,
-                                 options=options, workers=args.workers, scheduler=args.scheduler,
-                                 threads=args.threads,
+                                 options=options, client=client, threads=args.threads,
                                  progress=lambda msg: print(f"straylight: trace: {msg}", file=sys.stderr))
         doc = run.result.to_json_dict()
         doc["precision"] = {"target_rel_error": precision.target_rel_error, "max_rays": int(precision.max_rays),

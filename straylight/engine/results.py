@@ -168,7 +168,8 @@ class BatchTotals:
 
         res = build_result(spec, detector_geometry, self.s1, self.s2, self.map_sums, self.paths, self.segments,
                            self.shadow_rays)
-        c1 = np.array(self.chunk_s1).reshape(-1, self.n_detectors)
-        c2 = np.array(self.chunk_s2).reshape(-1, self.n_detectors)
+        shape = (len(self.chunk_s1), self.n_detectors)  # (chunks, detectors); a scene may have no detector
+        c1 = np.array(self.chunk_s1, dtype=np.float64).reshape(shape)
+        c2 = np.array(self.chunk_s2, dtype=np.float64).reshape(shape)
         names = [spec.part_names[p] for p in spec.detector_parts]
         return replace(res, detector_chunks={n: (c1[:, j], c2[:, j]) for j, n in enumerate(names)})

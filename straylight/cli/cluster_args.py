@@ -1,0 +1,33 @@
+"""Command-line options for running on dask, shared by the commands that trace: ``--dashboard``
+and the TLS files of a secured scheduler (``--tls-ca-file``, ``--tls-cert``, ``--tls-key``, as
+``dask scheduler`` / ``dask worker`` take them). See docs/cluster.md."""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+
+def add_cluster_args(parser) -> None:
+    g = parser.add_argument_group("dask cluster (docs/cluster.md)")
+    g.add_argument("--dashboard", action="store_true",
+                   help="with --workers: serve dask's dashboard on 127.0.0.1 and print its address (needs bokeh)")
+    g.add_argument("--tls-ca-file", metavar="CA.pem", help="with --scheduler tls://...: CA certificate")
+    g.add_argument("--tls-cert", metavar="CERT.pem", help="with --scheduler tls://...: this client's certificate")
+    g.add_argument("--tls-key", metavar="KEY.pem", help="with --scheduler tls://...: its private key")
+
+
+@contextmanager
+def cluster_client(args):
+    """The dask client the options ask for (``--workers K``: a loopback-only local cluster; ``--scheduler``:
+    that scheduler, with TLS if given), or None to run in this process."""
+    from straylight.distribute import dask_client, tls_security
+
+    workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
+    security = tls_security(args.tls_ca_file, args.tls_cert, args.tls_key)
+    if security is not None and not scheduler:
+        raise ValueError("--tls-ca-file/--tls-cert/--tls-key apply to --scheduler only (a local cluster uses no network)")
+    if args.dashboard and not workers:
+        raise ValueError("--dashboard needs --workers K (a remote scheduler serves its own dashboard)")
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
+    with dask_client(workers, scheduler, security=security, dashboard=args.dashboard) as client:
+        yield client

@@ -1,0 +1,143 @@
+"""Dask for real (issue #17): a ``--workers 2`` run opens no socket beyond this machine; worker
+processes give the numbers of an in-process run; a worker killed mid-trace (SIGKILL to a real
+``dask worker`` process on localhost) costs only its tasks, which dask reruns, and the numbers stay
+identical (counter-based streams: a chunk's numbers do not depend on where or when it runs).
+
+The expected numbers are the in-process trace's, an independent way of running the same chunks."""
+from __future__ import annotations
+
+import ipaddress
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from straylight.scene import load_scene
+from straylight.trace import TraceOptions, trace
+
+GOLDEN = Path(__file__).resolve().parents[1] / "data" / "engine_golden"
+OPTIONS = TraceOptions(batch_rays=1000)  # many small tasks, so a kill lands mid-trace
+
+
+def listening_addresses(pid=None) -> list:
+    """(pid, ip, port) of every listening TCP socket of process ``pid`` (default: this one) and its children."""
+    root = psutil.Process(pid or os.getpid())
+    out = []
+    for proc in [root] + root.children(recursive=True):
+        try:
+            conns = proc.net_connections(kind="inet")
+        except psutil.NoSuchProcess:
+            continue
+        out += [(proc.pid, c.laddr.ip, c.laddr.port) for c in conns if c.status == psutil.CONN_LISTEN]
+    return out
+
+
+def _non_loopback(addresses):
+    return [a for a in addresses if not ipaddress.ip_address(a[1].split("%")[0]).is_loopback]
+
+
+@pytest.fixture(scope="module")
+def tube():
+    rs = load_scene(GOLDEN / "tube.toml")
+    reference = trace(rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS).to_json_dict()
+    return rs, reference
+
+
+def test_workers_2_listens_on_loopback_only(tube, tmp_path):
+    """`straylight trace --workers 2` (its own argument parsing and client): every listening socket
+    of the run is on 127.0.0.1 (dask's defaults opened two on 0.0.0.0: scheduler HTTP and worker HTTP)."""
+    from straylight.cli.cluster_args import cluster_client
+    from straylight.cli.main import build_parser
+
+    rs, reference = tube
+    args = build_parser().parse_args(["trace", str(GOLDEN / "tube.toml"), "--rays", "30000", "--workers", "2",
+                                      "--json", str(tmp_path / "out.json")])
+    before = set(listening_addresses())
+    with cluster_client(args) as client:
+        opened = set(listening_addresses()) - before
+        res = trace(rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, client=client)
+        opened |= set(listening_addresses()) - before
+    assert client is not None and client.cluster.straylight_threads == 2
+    assert not _non_loopback(opened), f"sockets open beyond this machine: {_non_loopback(opened)}"
+    assert res.to_json_dict() == reference
+
+
+def test_local_cluster_of_worker_processes_gives_identical_numbers(tube):
+    from dask.distributed import Client
+
+    from straylight.distribute import local_cluster
+
+    rs, reference = tube
+    with local_cluster(2, processes=True) as cluster, Client(cluster) as client:
+        assert len(client.scheduler_info()["workers"]) == 2
+        assert not _non_loopback(listening_addresses())
+        res = trace(rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, client=client)
+    assert res.to_json_dict() == reference
+
+
+def _start(cmd, log):
+    return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def _stop(proc):
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)
+
+
+def test_killed_dask_worker_process_gives_identical_numbers(tube, tmp_path):
+    """A `dask scheduler` and two `dask worker --no-nanny` processes on localhost; one worker is
+    killed with SIGKILL while it holds tasks. The trace finishes on the other with the same JSON."""
+    from dask.distributed import Client
+
+    rs, reference = tube
+    sched_file = tmp_path / "scheduler.json"
+    log = open(tmp_path / "dask.log", "w")
+    py = [sys.executable, "-m", "dask"]
+    procs = [_start(py + ["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                          "--dashboard-address", "127.0.0.1:0", "--scheduler-file", str(sched_file)], log)]
+    try:
+        for _ in range(200):
+            if sched_file.exists() and sched_file.stat().st_size:
+                break
+            time.sleep(0.1)
+        for _ in range(2):
+            procs.append(_start(py + ["worker", "--scheduler-file", str(sched_file), "--nthreads", "1", "--no-nanny",
+                                      "--host", "127.0.0.1", "--no-dashboard", "--dashboard-address", "127.0.0.1:0"],
+                                log))
+        with Client(scheduler_file=str(sched_file), timeout=60) as client:
+            client.wait_for_workers(2, timeout=120)
+            pid_of = client.run(os.getpid)  # worker address -> pid
+            assert sorted(pid_of.values()) == sorted(p.pid for p in procs[1:])
+            done = {}
+            runner = threading.Thread(target=lambda: done.update(res=trace(
+                rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, client=client)))
+            runner.start()
+            victim = None
+            deadline = time.monotonic() + 120
+            while victim is None and runner.is_alive() and time.monotonic() < deadline:
+                busy = [addr for addr, tasks in client.processing().items() if tasks]
+                if busy:
+                    victim = busy[0]
+                    os.kill(pid_of[victim], signal.SIGKILL)
+                time.sleep(0.005)
+            runner.join(300)
+            assert victim is not None, "no worker ever held a task"
+            assert not runner.is_alive() and "res" in done
+            assert len(client.scheduler_info()["workers"]) == 1  # the victim is gone for good
+    finally:
+        for proc in reversed(procs):
+            _stop(proc)
+        log.close()
+    assert done["res"].to_json_dict() == reference, (tmp_path / "dask.log").read_text()[-2000:]
