@@ -62,6 +62,7 @@ import materials.lambertian  # noqa: F401  (registers "lambertian")
 import materials.microfacet  # noqa: F401  (registers "microfacet")
 from materials.albedo import directional_hemispherical_reflectance
 from materials.base import directions_from_angles
+from materials.composite import Composite
 from materials.material import Material
 from materials.registry import build_component
 from materials.scan import Scan
@@ -484,7 +485,7 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
     dof = max(1, len(r) - len(x_best))
     rho = {"theta_i_deg": list(map(float, rho_theta_i_deg))}
     theta = np.radians(np.asarray(rho_theta_i_deg, float))
-    total = _Sum(comps)
+    total = Composite(tuple(comps))
     for pol in data.polarizations:
         rho[pol] = [float(v) for v in directional_hemispherical_reflectance(total, theta, pol)]
     result = FitResult(
@@ -495,19 +496,6 @@ def fit(scan: Scan, model: str = "lambertian+k_correlation", *, fixed=None, boun
         log10_ratio=ratio, group_counts=counts,
     )
     return result
-
-
-class _Sum:
-    """Minimal sum of components for quadrature (avoids the composite's sampling tables)."""
-
-    def __init__(self, comps):
-        self.comps = comps
-
-    def brdf(self, wi, wo, polarization="u"):
-        out = self.comps[0].brdf(wi, wo, polarization)
-        for c in self.comps[1:]:
-            out = out + c.brdf(wi, wo, polarization)
-        return out
 
 
 def format_fit_report(result: FitResult) -> str:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import signal
-import sys
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -93,10 +92,9 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     tokens = []
     bar = None
     if progress:
-        from tqdm import tqdm
+        from straylight.progress import progress_bar
 
-        bar = tqdm(total=len(spec.points), initial=len(spec.points) - n_todo, unit="pt", file=sys.stderr,
-                   desc=spec.name, disable=None)
+        bar = progress_bar(total=len(spec.points), initial=len(spec.points) - n_todo, unit="pt", desc=spec.name)
         tokens.append(RE.subscribe(lambda name, doc: bar.update(1), "event"))
     interrupted = {}
     old_handlers = {}

@@ -413,11 +413,9 @@ def twin_scan(material, theta_i_deg, theta_r_deg, polarization="u", config: RigC
         raise TwinError("the scan has no set-points")
     bar = None
     if progress:
-        import sys
+        from straylight.progress import progress_bar
 
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(grid), unit="point", desc="twin", file=sys.stderr, disable=not sys.stderr.isatty())
+        bar = progress_bar(total=len(grid), unit="point", desc="twin")
     points = []
     for ti, tr, pol in grid:
         points.append(twin_point(material, ti, tr, phi_r_deg, pol, config, twin, n_rays, seed))

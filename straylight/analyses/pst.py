@@ -31,6 +31,7 @@ import numpy as np
 import atomicio
 
 from straylight.analyses.builtin import Beam, Entrance, Setup
+from straylight.progress import progress_bar
 
 CSV_COLUMNS = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "entrance_ratio", "entrance_ratio_stderr",
                "detector_w", "detector_stderr_w", "rays", "seconds")
@@ -226,7 +227,6 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     """
     from dataclasses import replace as dc_replace
 
-    from tqdm.auto import tqdm
 
     from straylight.analyses.precision import reliability, trace_to_precision
     from straylight.trace import TraceOptions, trace
@@ -249,7 +249,7 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     diagnostics = []
     traces = []
     with (dask_client(workers, scheduler) if client is None else _given(client)) as cl:
-        bar = tqdm(pairs, desc="PST sweep", unit="angle", disable=None if progress else True, leave=False)
+        bar = progress_bar(pairs, desc="PST sweep", unit="angle", enabled=progress)
         for i, (a, phi) in enumerate(bar):
             bar.set_postfix_str(f"{math.degrees(a):g} deg")
             beam: Beam = setup.beam

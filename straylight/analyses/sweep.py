@@ -18,6 +18,7 @@ import numpy as np
 import atomicio
 
 from straylight.analyses.pst import dask_client, point_seed
+from straylight.progress import progress_bar
 
 PARAMETER_LABELS = {
     "vane_count": "number of vanes",
@@ -112,7 +113,6 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
                  nee: bool = True, workers: int | None = None, scheduler: str | None = None,
                  progress: bool = True) -> SweepResult:
     """PST of the built-in tube at ``off_axis`` (radians) for each value of one ``TubeParams`` field."""
-    from tqdm.auto import tqdm
 
     from geometry.parts.tube import TubeParams
     from straylight.analyses.builtin import tube_setup
@@ -129,8 +129,8 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
     opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee))
     label = material if isinstance(material, str) else repr(material)
     with dask_client(workers, scheduler) as client:
-        bar = tqdm(total=len(values) * len(off_axis), desc=f"sweep {parameter}", unit="point",
-                   disable=None if progress else True, leave=False)
+        bar = progress_bar(total=len(values) * len(off_axis), desc=f"sweep {parameter}", unit="point",
+                           enabled=progress)
         for i, v in enumerate(values):
             params = dict(base_params or {})
             params[parameter] = int(v) if parameter == "vane_count" else float(v)

@@ -31,9 +31,9 @@ def _angle(name, value, lo=-90.0, hi=90.0):
 
 
 def _progress(total, desc):
-    from tqdm import tqdm
+    from straylight.progress import progress_bar
 
-    return tqdm(total=total, desc=desc, file=sys.stderr, disable=not sys.stderr.isatty())
+    return progress_bar(total=total, desc=desc)
 
 
 def _parse_pairs(items, option, bounds=False):
