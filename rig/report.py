@@ -12,7 +12,6 @@ plus ``gaps.png`` (gap per region, before and after) and the score table of the 
 """
 from __future__ import annotations
 
-import html
 from pathlib import Path
 
 import numpy as np
@@ -199,40 +198,15 @@ def _markdown(doc: dict, images: list) -> str:
 
 
 def _html(markdown_text: str, images: list) -> str:
-    """A self-contained page: the markdown tables rendered as HTML, the plots inline."""
-    out = ["<!doctype html><html><head><meta charset='utf-8'><title>Sim-to-real diagnosis</title>",
-           "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse;"
-           "font-size:12px}td,th{border:1px solid #ccc;padding:2px 6px}img{max-width:100%}</style></head><body>"]
-    in_table = False
-    for line in markdown_text.splitlines():
-        if line.startswith("|"):
-            cells = [c.strip() for c in line.strip("|").split("|")]
-            if set("".join(cells)) <= set("-"):
-                continue
-            if not in_table:
-                out.append("<table>")
-                in_table = True
-                out.append("<tr>" + "".join(f"<th>{html.escape(c)}</th>" for c in cells) + "</tr>")
-                continue
-            out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
-            continue
-        if in_table:
-            out.append("</table>")
-            in_table = False
-        if line.startswith("# "):
-            out.append(f"<h1>{html.escape(line[2:])}</h1>")
-        elif line.startswith("## "):
-            out.append(f"<h2>{html.escape(line[3:])}</h2>")
-        elif line.startswith("!["):
-            src = line[line.index("(") + 1:-1]
-            out.append(f"<p><img src='{html.escape(src)}'></p>")
-        elif line.strip():
-            text = html.escape(line).replace("**", "")
-            out.append(f"<p>{text}</p>")
-    if in_table:
-        out.append("</table>")
-    out.append("</body></html>")
-    return "\n".join(out)
+    """A self-contained page: the report's Markdown rendered by markdown-it-py (CommonMark with
+    GFM tables: code spans, lists, links, emphasis), the plots as images beside it."""
+    from markdown_it import MarkdownIt
+
+    body = MarkdownIt("commonmark", {"html": False}).enable("table").render(markdown_text)
+    return ("<!doctype html><html><head><meta charset='utf-8'><title>Sim-to-real diagnosis</title>"
+            "<style>body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse;"
+            "font-size:12px}td,th{border:1px solid #ccc;padding:2px 6px}img{max-width:100%}</style></head><body>\n"
+            + body + "</body></html>\n")
 
 
 def write_report(d: Diagnosis, out_dir, doc: dict | None = None) -> Path:
