@@ -8,10 +8,10 @@ Model spec: component types joined by ``+``, e.g. ``"lambertian+k_correlation"``
 =================  ==========================  ============  =========
 component          parameter                   bounds        scale
 =================  ==========================  ============  =========
-lambertian         ``lambertian.rd``           1e-6 .. 0.999 log
-k_correlation      ``k_correlation.sigma_nm``  1e-3 .. 1e3   log
-                   ``k_correlation.lc_um``     1e-2 .. 1e4   log
-                   ``k_correlation.s``         0.5 .. 10     linear
+lambertian         ``lambertian.rd``           1e-6 .. 0.99  log
+k_correlation      ``k_correlation.sigma_nm``  1e-3 .. 300   log
+                   ``k_correlation.lc_um``     0.05 .. 1e3   log
+                   ``k_correlation.s``         1 .. 6        linear
 microfacet         ``microfacet.alpha``        1e-3 .. 2     log
                    ``microfacet.weight``       1e-6 .. 1e3   log
 abg                ``abg.a``                   1e-10 .. 1e4  log
@@ -22,6 +22,9 @@ harvey_shack       ``harvey_shack.b0``         1e-6 .. 1e8   log
                    ``harvey_shack.s``          -8 .. 0       linear
 (shared)           ``n``                       1.05 .. 3     linear
 =================  ==========================  ============  =========
+
+The Lambertian and K-correlation ranges (and ``n``) are the components' own ``FIT_BOUNDS``
+(materials/lambertian.py, materials/kcorrelation.py), which the rig diagnosis uses too.
 
 A type used twice is numbered: ``k_correlation1.sigma_nm``, ``k_correlation2.sigma_nm``.
 Every component with a refractive index (k_correlation, microfacet) uses the ONE
@@ -69,13 +72,16 @@ from materials.scan import Scan
 
 LN10 = math.log(10.0)
 
+_KC = materials.kcorrelation.FIT_BOUNDS  # the components' own bounds (one source)
+_LB = materials.lambertian.FIT_BOUNDS
+
 # name, lower, upper, log-scaled, default start, plausible range for random starts
 _PARAMS = {
-    "lambertian": [("rd", 1e-6, 0.999, True, None, None)],
+    "lambertian": [("rd", *_LB["rd"], None, None)],
     "k_correlation": [
-        ("sigma_nm", 1e-3, 1e3, True, 5.0, (0.3, 60.0)),
-        ("lc_um", 1e-2, 1e4, True, 10.0, (0.3, 200.0)),
-        ("s", 0.5, 10.0, False, 2.5, (1.5, 4.0)),
+        ("sigma_nm", *_KC["sigma_nm"], 5.0, (0.3, 60.0)),
+        ("lc_um", *_KC["lc_um"], 10.0, (0.3, 200.0)),
+        ("s", *_KC["s"], 2.5, (1.5, 4.0)),
     ],
     "microfacet": [
         ("alpha", 1e-3, 2.0, True, 0.3, (0.05, 1.0)),
@@ -93,7 +99,7 @@ _PARAMS = {
     ],
 }
 _USES_N = {"k_correlation", "microfacet"}
-_N_DEF = ("n", 1.001, 3.0, False, 1.5, (1.3, 1.9))
+_N_DEF = ("n", *_KC["n"], 1.5, (1.3, 1.9))
 RHO_THETA_I_DEG = (0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 85.0)
 
 

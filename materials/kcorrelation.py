@@ -61,6 +61,17 @@ from materials.fresnel import complex_index, polarization_factor, scatter_azimut
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
 
+#: The fit range of each parameter, ``(lower, upper, log-scaled)``: the one source of these bounds
+#: (materials.fit and the rig diagnosis both read it). sigma from a polished mirror to a rough
+#: black; lc from sub-wavelength to 1 mm; the PSD slope s of measured blacks and optics (1..6);
+#: n of paints, glasses and oxides (the shared index also serves microfacet lobes).
+FIT_BOUNDS = {
+    "sigma_nm": (1e-3, 300.0, True),
+    "lc_um": (0.05, 1000.0, True),
+    "s": (1.0, 6.0, False),
+    "n": (1.05, 3.0, False),
+}
+
 
 def _slope_ratio(s: float, log1p_x: float) -> float:
     """``(s - 2) / [1 - (1 + X)^(1 - s/2)]`` with ``log1p_x = ln(1 + X)``; its limit 2 / ln(1 + X) at s = 2."""

@@ -26,6 +26,9 @@ from materials.sampling import (
     set_fields,
 )
 
+#: The fit range of the albedo ``(lower, upper, log-scaled)``: the one source (materials.fit, rig diagnosis).
+FIT_BOUNDS = {"rd": (1e-6, 0.99, True)}
+
 
 @register("lambertian")
 @dataclass(frozen=True)
