@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
-from atomicio import json_safe  # noqa: F401 - the CLI's name for it
 from rig.diagnose import REGION_ORDER, Diagnosis, to_json
 
 REGION_COLOURS = {"specular_core": "tab:red", "shoulder": "tab:orange", "wing": "tab:blue",

@@ -364,17 +364,18 @@ def truth_material(name: str):
     return load_material(name)
 
 
-def score_case(effects: dict, seed: int = 1, n_samples: int = 1024, workers: int = 2, material=None, plan=None):
+def score_case(effects: dict, seed: int = 1, n_samples: int = 1024, workers: int = 2, material=None, plan=None,
+               executor=None):
     """Synthesize a scan of ``material`` (default :func:`glossy_black`) on ``plan`` (default
-    :func:`score_plan`) with ``effects`` ({name: params}) and diagnose it. Returns (scan,
-    Diagnosis, json document)."""
+    :func:`score_plan`) with ``effects`` ({name: params}) and diagnose it (on ``executor`` if
+    given, else ``workers`` processes). Returns (scan, Diagnosis, json document)."""
     from rig.diagnose import diagnose, to_json
     from rig.effects import build_effect
 
     truth = [build_effect(n, **p) for n, p in effects.items()]
     scan = synth_scan(material if material is not None else glossy_black(), plan if plan is not None else score_plan(),
                       truth, seed=seed, n_samples=n_samples)
-    d = diagnose(scan, workers=workers)
+    d = diagnose(scan, executor=executor) if executor is not None else diagnose(scan, workers=workers)
     return scan, d, to_json(d)
 
 
@@ -392,14 +393,17 @@ def score_table(cases=None, seed: int = 1, material=None, workers: int = 2, verb
     ``verbose`` prints each row as it is done."""
     import time
 
+    from concurrent.futures import ProcessPoolExecutor
+
     cases = cases if cases is not None else default_cases()
+    pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
     rows = ["| injected | rank of injected | selected | held-out gap before | after | noise | fall | after / noise | time (s) |",
             "|---|---|---|---|---|---|---|---|---|"]
     if verbose:
         print("\n".join(rows), flush=True)
     for label, effects in cases:
         t0 = time.perf_counter()
-        _, _, doc = score_case(effects, seed=seed, material=material, workers=workers)
+        _, _, doc = score_case(effects, seed=seed, material=material, workers=1, executor=pool)
         dt = time.perf_counter() - t0
         names = [c["name"] for c in doc["candidates"]]
         ranks = ", ".join(str(names.index(n) + 1) for n in effects) or "-"
@@ -410,6 +414,8 @@ def score_table(cases=None, seed: int = 1, material=None, workers: int = 2, verb
                     f"{1 - after / before:.0%} | {after / noise:.2f} | {dt:.0f} |")
         if verbose:
             print(rows[-1], flush=True)
+    if pool is not None:
+        pool.shutdown()
     return "\n".join(rows)
 
 

@@ -22,7 +22,7 @@ def add_parser(rig_subparsers) -> None:
                    help="candidate effects (default: the whole catalogue)")
     p.add_argument("--json", required=True, metavar="OUT.json", help="write the result here")
     p.add_argument("--report", metavar="DIR", help="write plots, report.md and index.html here")
-    p.add_argument("--workers", type=int, default=2, help="threads for the candidate fits (default 2)")
+    p.add_argument("--workers", type=int, default=2, help="worker processes for the independent fits (default 2; 1 = serial)")
     p.add_argument("--seed", type=int, default=0,
                    help="recorded only: the diagnosis is deterministic (no random numbers)")
     p.set_defaults(func=run)
@@ -41,8 +41,15 @@ def run(args) -> int:
     if not os.access(out.parent, os.W_OK):  # fail before a minute of fitting, not after
         raise PermissionError(f"--json {out}: folder {out.parent} is not writable")
     scan = read_scan(args.measured)
-    result = diagnose(scan, holdout_theta_i_deg=args.holdout_theta_i_deg, effects=args.effects,
-                      progress=sys.stderr.isatty(), workers=args.workers)
+    if args.workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=args.workers) as pool:
+            result = diagnose(scan, holdout_theta_i_deg=args.holdout_theta_i_deg, effects=args.effects,
+                              progress=sys.stderr.isatty(), executor=pool)
+    else:
+        result = diagnose(scan, holdout_theta_i_deg=args.holdout_theta_i_deg, effects=args.effects,
+                          progress=sys.stderr.isatty())
     doc = to_json(result)
     doc["measured"] = str(args.measured)
     doc["seed"] = args.seed

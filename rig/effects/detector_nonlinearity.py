@@ -25,6 +25,12 @@ class DetectorNonlinearity:
     fit_space = {"saturation_per_sr": (1e-3, 1e6, "log", (None,))}
     region = "specular_core"
 
+    @staticmethod
+    def starts_from_data(signal_per_sr):
+        """Fit starts from the training readings x = BRDF cos(theta_r): 3x and 30x the largest."""
+        top = float(np.max(signal_per_sr))
+        return {"saturation_per_sr": [3.0 * top, 30.0 * top]}
+
     def __post_init__(self):
         object.__setattr__(self, "saturation_per_sr",
                            check_param("detector_nonlinearity", "saturation_per_sr", self.saturation_per_sr, 1e-12, None, allow_inf=True))

@@ -7,8 +7,11 @@ with the forward-model signature of :data:`rig.forward.Forward`. At zero strengt
 
 Each class also declares ``fit_space``: for each parameter, ``(lower, upper, scale,
 starts)``, with ``scale`` "lin" or "log" and ``starts`` a tuple of starting values
-(``None`` entries are filled from the data by :mod:`rig.diagnose`). ``region`` names
-the scan region where the effect mostly acts (used to flag confounded effects).
+(``None`` entries are filled from the data: the class's optional
+``starts_from_data(signal_per_sr) -> {param: [values]}``, given the training readings
+BRDF x cos(theta_r); the middle of the range otherwise). ``region`` names the scan region where
+the effect mostly acts (used to flag confounded effects). Everything effect-specific the
+diagnosis needs lives in the effect's own file.
 """
 from __future__ import annotations
 

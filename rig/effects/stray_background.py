@@ -25,6 +25,13 @@ class StrayBackground:
     fit_space = {"level_per_sr": (1e-9, 1.0, "log", (None,))}
     region = "wing"
 
+    @staticmethod
+    def starts_from_data(signal_per_sr):
+        """Fit starts from the training readings x = BRDF cos(theta_r): 30 % and 3 % of their 5th
+        percentile (a floor lies under the darkest readings)."""
+        p5 = float(np.percentile(signal_per_sr, 5))
+        return {"level_per_sr": [0.3 * p5, 0.03 * p5]}
+
     def __post_init__(self):
         object.__setattr__(self, "level_per_sr", check_param("stray_background", "level_per_sr", self.level_per_sr, 0.0, None))
 

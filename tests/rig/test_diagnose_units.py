@@ -73,16 +73,21 @@ def test_bad_holdout_is_a_clear_error():
         Problem(_scan(y, y * 0.05), holdout_theta_i_deg=[45.0])
 
 
-def test_worker_processes_give_the_serial_results():
-    """rig.diagnose runs independent fits on forked processes; the results equal the serial loop."""
-    from rig.diagnose import _fit_many, fit_baseline
+def test_executor_gives_the_serial_results():
+    """Independent fits on a caller-owned ProcessPoolExecutor give the serial loop's results."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from rig.diagnose import fit_baseline, fit_many
     from rig.synth import compact_plan, glossy_black, synth_scan
 
     scan = synth_scan(glossy_black(), compact_plan(theta_i_deg=(10.0, 40.0, 70.0), polarizations=("s",)), [],
                       seed=3, n_samples=256)
     p = Problem(scan)
-    serial, forked = fit_baseline(p, workers=1), fit_baseline(p, workers=2)
-    assert forked.chi2 == serial.chi2 and forked.model.values == serial.model.values
     names = ["angle_offset", "stray_background"]
-    a, b = _fit_many(p, serial, names, 1, False, ""), _fit_many(p, serial, names, 2, False, "")
+    serial = fit_baseline(p)
+    a = fit_many(p, serial, names)
+    with ProcessPoolExecutor(max_workers=2) as pool:
+        pooled = fit_baseline(p, pool)
+        b = fit_many(p, serial, names, pool)
+    assert pooled.chi2 == serial.chi2 and pooled.model.values == serial.model.values
     assert [a[n].chi2 for n in names] == [b[n].chi2 for n in names]
