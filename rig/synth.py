@@ -101,17 +101,57 @@ def compact_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
 
 # ----------------------------------------------------------------------------- geometry
 
+def _ghost_fraction(theta_i, pol, n1, transmittance, n2):
+    """Power returned by the substrate under the coating, written here independently of
+    rig.effects.substrate_reflection: complex Snell's law for the angles and the textbook Fresnel
+    amplitudes in terms of the two angles' cosines (Hecht, Optics, §4.6), incoherent bounces."""
+    s1 = np.sin(theta_i) / n1                      # sin of the angle inside the coating
+    cos1 = np.sqrt(1.0 - s1 * s1)
+    cos0 = np.cos(theta_i)
+    cos2 = np.sqrt(1.0 - (n1 * s1 / n2) ** 2 + 0j)   # inside the silicon (complex)
+
+    def rs(na, ca, nb, cb):
+        return (na * ca - nb * cb) / (na * ca + nb * cb)
+
+    def rp(na, ca, nb, cb):
+        return (nb * ca - na * cb) / (nb * ca + na * cb)
+
+    r = rs if pol == "s" else rp
+    r01 = np.abs(r(1.0, cos0, n1, cos1)) ** 2
+    r12 = np.abs(r(n1, cos1, n2, cos2)) ** 2
+    a = transmittance ** (2.0 / cos1)
+    return (1.0 - r01) ** 2 * r12 * a / (1.0 - r01 * r12 * a)
+
+
+def _coating_n(material):
+    for comp in getattr(material, "components", ()) or (material,):
+        n = getattr(comp, "n", None)
+        if n is not None and np.real(n) > 1.0:
+            return float(np.real(n))
+    return 1.5
+
+
 class _Ghost:
-    """Material plus the substrate's Gaussian ghost lobe (own implementation; see
+    """Material plus the substrate's ghost lobe (own implementation; see
     rig.effects.substrate_reflection for the definition)."""
 
-    def __init__(self, material, attenuation, width_deg):
-        self.material, self.att, self.width = material, attenuation, math.radians(width_deg)
+    def __init__(self, material, effect):
+        self.material = material
+        self.t = effect.transmittance
+        self.width = math.radians(effect.lobe_width_deg)
+        self.n1 = effect.coating_n if effect.coating_n is not None else _coating_n(material)
+        self.n2 = complex(effect.substrate_n, effect.substrate_k)
 
     def brdf(self, wi, wo, pol="u"):
+        theta_i = np.arccos(np.clip(wi[:, 2], -1.0, 1.0))
+        if pol == "u":
+            frac = 0.5 * (_ghost_fraction(theta_i, "s", self.n1, self.t, self.n2)
+                          + _ghost_fraction(theta_i, "p", self.n1, self.t, self.n2))
+        else:
+            frac = _ghost_fraction(theta_i, pol, self.n1, self.t, self.n2)
         w = self.width * np.clip(wi[:, 2], 1e-6, None)
         r2 = (wo[:, 0] + wi[:, 0]) ** 2 + (wo[:, 1] + wi[:, 1]) ** 2
-        g = self.att / (2 * math.pi * w**2) * np.exp(-r2 / (2 * w**2))
+        g = frac / (2 * math.pi * w**2) * np.exp(-r2 / (2 * w**2))
         return self.material.brdf(wi, wo, pol) + np.where((wo[:, 2] > 0) & (wi[:, 2] > 0), g, 0.0)
 
 
@@ -136,8 +176,8 @@ def _truth_config(config: RigConfig, effects):
             if e.sample_width_mm is not None:
                 cfg = cfg.replace(sample_width_mm=e.sample_width_mm)
         elif name == "substrate_reflection":
-            if e.attenuation > 0:
-                material_wrap.append((e.attenuation, e.lobe_width_deg))
+            if e.transmittance > 0:
+                material_wrap.append(e)
         elif name in ("polarization_leakage", "stray_background", "detector_nonlinearity"):
             post.append(e)
         else:
@@ -254,8 +294,8 @@ def synth_scan(material, plan, effects=(), config: RigConfig = NOMINAL, seed: in
     ti, tr, pol = (np.asarray(a) for a in plan)
     cfg, ghosts, post = _truth_config(config, effects)
     mat = material
-    for att, width in ghosts:
-        mat = _Ghost(mat, att, width)
+    for ghost in ghosts:
+        mat = _Ghost(mat, ghost)
     clean, _ = mc_reading(mat, ti, tr, pol, cfg, n_samples=n_samples, seed=seed)
     other = None
     if any(type(e).name == "polarization_leakage" for e in post):
@@ -321,7 +361,7 @@ SCORE_CASES = {
     "polarization_leakage": {"fraction": 0.07},
     "stray_background": {"level_per_sr": 2e-3},
     "detector_nonlinearity": {"saturation_per_sr": 1.0},
-    "substrate_reflection": {"attenuation": 2e-3, "lobe_width_deg": 1.5},
+    "substrate_reflection": {"transmittance": 0.1, "lobe_width_deg": 1.5},
 }
 
 #: The same effects near the detection limit (held-out gap 1.1-1.7x the noise level): the
@@ -336,7 +376,7 @@ DETECTION_LIMIT_CASES = {
     "polarization_leakage": {"fraction": 0.02},
     "stray_background": {"level_per_sr": 3e-4},
     "detector_nonlinearity": {"saturation_per_sr": 20.0},
-    "substrate_reflection": {"attenuation": 2e-3, "lobe_width_deg": 1.5},
+    "substrate_reflection": {"transmittance": 0.05, "lobe_width_deg": 1.5},
 }
 
 #: The two-effect cases (names into a strength table).

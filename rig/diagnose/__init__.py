@@ -40,6 +40,10 @@ terms; PHYSICS §4 "diagnosis practice"):
    (:func:`refit_fresh_material`): the baseline material has bent to imitate the effects and
    can hold the joint fit in a local minimum (a 1 deg tilt on the z302_sample_a preset
    ended at 0.89 deg and 1.8x the noise level without it, at 1.00 deg and 1.03x with it).
+   Then each selected effect that has a *twin* (stage and arm offsets) is checked against it
+   with the rest of the model in place (:mod:`rig.diagnose.twins`): replaced when the data
+   prefer the twin, kept when they prefer it, reported confounded when they cannot tell
+   (``twin_checks`` in the JSON).
 6. **Regions.** ``specular_core`` (|theta_r - theta_i| <= 0.5 deg in the plane),
    ``shoulder`` (0.5..5 deg), ``wing`` (beyond), and where present ``grazing`` (viewing
    beyond 75 deg, outside core and shoulder) and ``near_retro`` (backscatter side within
@@ -51,7 +55,8 @@ Files: :mod:`~rig.diagnose.regions` (regions and the per-region table),
 :mod:`~rig.diagnose.problem` (the scan prepared: noise, hold-out, least-squares fit),
 :mod:`~rig.diagnose.starts`, :mod:`~rig.diagnose.candidates` (baseline and effect fits),
 :mod:`~rig.diagnose.heldout` (held-out scoring, candidate table), :mod:`~rig.diagnose.selection`
-(forward/backward selection, :func:`diagnose`), :mod:`~rig.diagnose.json_doc` (OUT.json),
+(forward/backward selection, :func:`diagnose`), :mod:`~rig.diagnose.twins` (telling twin
+effects apart: stage vs arm offset), :mod:`~rig.diagnose.json_doc` (OUT.json),
 :mod:`~rig.diagnose.tasks` (independent fits on the caller's executor).
 
 The *noise level* is the gap a perfect model would leave: the RMS over the usable points

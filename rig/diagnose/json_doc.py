@@ -48,6 +48,7 @@ def to_json(d) -> dict:
         "selected_effects": list(d.selected),
         "selected_parameters": final_params,
         "confounded": d.confounded,
+        "twin_checks": d.twin_checks,
         "dropped_effects": d.dropped,
         "final": {"heldout_gap": p.gap(d.final.model, held), "train_gap": p.gap(d.final.model, train),
                   "bic": d.final.bic, "material": d.final.model.material(p.wavelength_nm).to_dict()},

@@ -12,6 +12,7 @@ from rig.diagnose.heldout import HELDOUT_CHI2_GAIN, candidate_row, predicts_bett
 from rig.diagnose.params import Fit
 from rig.diagnose.problem import DiagnoseError, Problem
 from rig.diagnose.tasks import run_tasks
+from rig.diagnose.twins import check_twins
 from rig.effects import CATALOGUE, effect_types
 from rig.instrument import RigConfig
 
@@ -32,6 +33,7 @@ class Diagnosis:
     confounded: list
     dropped: list
     timings: dict = field(default_factory=dict)
+    twin_checks: list = field(default_factory=list)  # rig.diagnose.twins: offsets told apart or not
 
 
 def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConfig | None = None,
@@ -122,8 +124,11 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
                                 "delta_heldout_chi2_when_removed": float(d_held)})
                 current = without
                 ahead = None  # later refits start from the reduced model
+    twin_checks = []
     if selected:
         current = refit_fresh_material(problem, current, executor)
+        current, selected, twin_checks, undecided = check_twins(problem, current, selected)
+        confounded += undecided
     t3 = time.perf_counter()
     return Diagnosis(problem, baseline, candidates, selected, current, singles, confounded, dropped,
-                     {"baseline_s": t1 - t0, "candidates_s": t2 - t1, "selection_s": t3 - t2})
+                     {"baseline_s": t1 - t0, "candidates_s": t2 - t1, "selection_s": t3 - t2}, twin_checks)

@@ -21,6 +21,14 @@ class AngleOffset:
 
     fit_space = {"offset_deg": (-3.0, 3.0, "lin", (0.0,))}
     region = "specular_core"
+    #: the effect whose signature is nearly the same (a stage offset d moves the specular peak by 2d in arm angle, an arm offset a by -a); the diagnosis checks which of
+    #: the two the data prefer and reports them confounded when it cannot tell
+    twin = "arm_offset"
+
+    @staticmethod
+    def twin_params(offset_deg):
+        """The arm_offset that moves the specular peak as this one does (a start for the check)."""
+        return {"offset_deg": -2.0 * offset_deg}
 
     def __post_init__(self):
         object.__setattr__(self, "offset_deg", check_param("angle_offset", "offset_deg", self.offset_deg, -45.0, 45.0))

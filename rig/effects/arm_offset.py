@@ -20,6 +20,14 @@ class ArmOffset:
 
     fit_space = {"offset_deg": (-3.0, 3.0, "lin", (0.0,))}
     region = "specular_core"
+    #: the effect whose signature is nearly the same (an arm offset a moves the specular peak by -a in arm angle, a stage offset d by 2d); the diagnosis checks which of
+    #: the two the data prefer and reports them confounded when it cannot tell
+    twin = "angle_offset"
+
+    @staticmethod
+    def twin_params(offset_deg):
+        """The angle_offset that moves the specular peak as this one does (a start for the check)."""
+        return {"offset_deg": -0.5 * offset_deg}
 
     def __post_init__(self):
         object.__setattr__(self, "offset_deg", check_param("arm_offset", "offset_deg", self.offset_deg, -45.0, 45.0))

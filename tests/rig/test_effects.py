@@ -43,7 +43,7 @@ STRONG = {
     "polarization_leakage": dict(fraction=0.02),
     "stray_background": dict(level_per_sr=1e-3),
     "detector_nonlinearity": dict(saturation_per_sr=2.0),
-    "substrate_reflection": dict(attenuation=0.01, lobe_width_deg=0.5),
+    "substrate_reflection": dict(transmittance=0.3, lobe_width_deg=0.5),
 }
 
 
@@ -195,15 +195,19 @@ def test_nonlinearity_compresses_signal_not_angle():
 
 
 def test_substrate_reflection_adds_its_power_fraction():
-    """The ghost lobe returns ``attenuation`` of the power: the area of reading x cos over
-    arm angle grows by attenuation x L / H times the fraction of the out-of-plane spread
-    (beam and lobe, w = width x cos(theta_i) in beta) inside the slit height."""
+    """The ghost lobe returns the fraction G of the power: the area of reading x cos over
+    arm angle grows by G x L / H times the fraction of the out-of-plane spread
+    (beam and lobe, w = width x cos(theta_i) in beta) inside the slit height. G from rig.synth's
+    own implementation (complex Snell + textbook Fresnel amplitudes)."""
+    from rig.synth import _ghost_fraction
+
     ti = 30.0
     tr = np.linspace(ti - 4.0, ti + 4.0, 1601)
     x = np.radians(tr)
     lam = Lambertian(0.02)
-    att = 0.02
-    sub = [build_effect("substrate_reflection", attenuation=att, lobe_width_deg=0.3)]
+    n2 = complex(4.15, 0.044)
+    att = 0.5 * sum(_ghost_fraction(math.radians(ti), pol, 1.5, 0.2, n2) for pol in "sp")
+    sub = [build_effect("substrate_reflection", transmittance=0.2, lobe_width_deg=0.3, coating_n=1.5)]
     extra = np.trapezoid((predict_brdf(lam, ti, tr, effects=sub) - predict_brdf(lam, ti, tr)) * np.cos(x), x)
     spread = math.hypot(NOMINAL.beam_sigma_mm, NOMINAL.arm_mm * math.radians(0.3) * math.cos(math.radians(ti)))
     inside = erf(NOMINAL.slit_height_mm / 2 / (math.sqrt(2) * spread))
@@ -226,5 +230,25 @@ def test_effects_are_frozen_dataclasses_with_unit_suffixes():
         cls = effect_types()[name]
         assert dataclasses.is_dataclass(cls) and cls.__dataclass_params__.frozen
         for f in dataclasses.fields(cls):
-            assert f.name.endswith(units) or f.name in ("fraction", "attenuation"), (name, f.name)
-            assert f.name in cls.fit_space
+            assert f.name.endswith(units) or f.name in ("fraction", "transmittance") or f.name in cls.fixed, (name, f.name)
+            assert f.name in cls.fit_space or f.name in cls.fixed
+
+
+def test_substrate_ghost_physics():
+    """Ghost fraction G (rig.effects.substrate_reflection): at normal incidence by hand,
+    G = T^2 R12 A / (1 - R01 R12 A) with R01 = ((n1 - 1)/(n1 + 1))^2, R12 = |(n1 - n2)/(n1 + n2)|^2
+    (n1 1.5, n2 4.15 + 0.044i: R01 0.04, R12 7.024436/31.924436); attenuation there and back
+    (G ~ t^2 for a dark coating); no Brewster zero in p (the coating's own p reflectance vanishes
+    at 56.31 deg, the ghost does not)."""
+    from rig.effects.substrate_reflection import ghost_fraction
+
+    r01, r12 = 0.04, 7.024436 / 31.924436
+    assert ghost_fraction(1.0, "s", 1.5, 1.0) == pytest.approx((0.96**2 * r12) / (1 - r01 * r12), rel=1e-6)
+    assert ghost_fraction(1.0, "p", 1.5, 0.5) == pytest.approx(0.96**2 * r12 * 0.25 / (1 - r01 * r12 * 0.25), rel=1e-6)
+    assert ghost_fraction(1.0, "u", 1.5, 0.01) / ghost_fraction(1.0, "u", 1.5, 0.001) == pytest.approx(100.0, rel=1e-3)
+    # the slant path: at 60 deg in a 1.5 coating cos(theta_t) = sqrt(1 - 0.75 / 2.25)
+    cos_t = math.sqrt(1 - 0.75 / 2.25)
+    lo, hi = ghost_fraction(0.5, "s", 1.5, 0.01), ghost_fraction(0.5, "s", 1.5, 0.001)
+    assert lo / hi == pytest.approx(10.0 ** (2 / cos_t), rel=1e-3)
+    brewster = math.cos(math.atan(1.5))
+    assert ghost_fraction(brewster, "p", 1.5, 1.0) > 0.5 * ghost_fraction(1.0, "p", 1.5, 1.0)
