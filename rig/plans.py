@@ -8,19 +8,10 @@ incoming beam, to ``theta_i + theta_r`` on the specular side (``phi_r = 0``) or
 ``theta_i - theta_r`` on the backscatter side (``phi_r = 180``); the half-wave plate to
 ``HWP_DEG[polarization]`` (0 deg = s, 45 deg = p).
 
-The paper plan (seed paper section 3)
--------------------------------------
-Incidence 10, 30, 40, 70, 80 deg; s then p; 3 readings per point. Viewing angles, with
-``d = theta_r - theta_i`` (zones chosen here; the paper gives only the step sizes):
-
-| zone | |d| (deg) | step (deg) | points per incidence |
-|---|---|---|---|
-| core | 0 .. 0.5 | 0.05 | 21 |
-| shoulder | 0.5 .. 2.5 | 0.2 | 20 (0.7, 0.9, .. 2.5 each side) |
-| near | 2.5 .. 5 | 0.5 | 10 (3.0, 3.5, .. 5.0 each side) |
-| wing | > 5 | 5 | d = +-10, +-15, .. |
-
-all clipped to ``0 <= theta_r <= 85`` deg on the specular side (phi_r = 0).
+The paper plan
+--------------
+The seed paper's grid lives in :mod:`rig.points` (the project's one paper plan; rig.synth's
+synthetic scans use it too).
 
 Custom plans (PLAN.json)
 ------------------------
@@ -51,16 +42,10 @@ from bluesky import plan_stubs as bps
 from bluesky import preprocessors as bpp
 from bluesky.utils import Msg
 
-from rig.points import Point, point_key  # noqa: F401 - the plans' point vocabulary
+from rig.points import (PAPER_N_READINGS, PAPER_POLARIZATIONS, PAPER_THETA_I_DEG, PAPER_ZONES_DEG,  # noqa: F401
+                        THETA_R_MAX_DEG, WING_STEP_DEG, Point, paper_points, paper_theta_r_deg, point_key)
 
 HWP_DEG = {"s": 0.0, "p": 45.0}
-PAPER_THETA_I_DEG = (10.0, 30.0, 40.0, 70.0, 80.0)
-PAPER_POLARIZATIONS = ("s", "p")
-PAPER_N_READINGS = 3
-THETA_R_MAX_DEG = 85.0
-#: (|d| upper edge, step) of the paper grid's zones around specular, deg
-PAPER_ZONES_DEG = ((0.5, 0.05), (2.5, 0.2), (5.0, 0.5))
-WING_STEP_DEG = 5.0
 
 
 class PlanError(ValueError):
@@ -72,33 +57,6 @@ def arm_deg(point: Point) -> float:
     if point.phi_r_deg % 360.0 == 0.0:
         return point.theta_i_deg + point.theta_r_deg
     return point.theta_i_deg - point.theta_r_deg
-
-
-def paper_theta_r_deg(theta_i_deg: float, theta_r_max_deg: float = THETA_R_MAX_DEG) -> np.ndarray:
-    """The paper grid's viewing angles for one incidence (module table), ascending, deg."""
-    offsets = [0.0]
-    lo = 0.0
-    for hi, step in PAPER_ZONES_DEG:
-        n = int(round((hi - lo) / step))
-        offsets += [lo + step * k for k in range(1, n + 1)]
-        lo = hi
-    k = 2
-    while WING_STEP_DEG * k <= 90.0:
-        offsets.append(WING_STEP_DEG * k)
-        k += 1
-    d = np.round(np.array(offsets), 6)
-    theta_r = np.concatenate([theta_i_deg - d[1:], [theta_i_deg], theta_i_deg + d[1:]])
-    theta_r = np.round(theta_r, 6)
-    keep = (theta_r >= 0.0) & (theta_r <= theta_r_max_deg)
-    return np.unique(theta_r[keep])
-
-
-def paper_points(theta_i_deg=PAPER_THETA_I_DEG, polarizations=PAPER_POLARIZATIONS,
-                 theta_r_max_deg: float = THETA_R_MAX_DEG) -> list[Point]:
-    """The seed paper's scan as points, polarization-major."""
-    return [Point(float(ti), pol, float(tr), 0.0)
-            for pol in polarizations for ti in theta_i_deg
-            for tr in paper_theta_r_deg(float(ti), theta_r_max_deg)]
 
 
 @dataclass(frozen=True)

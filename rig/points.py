@@ -1,7 +1,33 @@
-"""A scan point and its identity: the key a CSV row, a plan and ``--resume`` agree on."""
+"""Scan points: a point and its identity (the key a CSV row, a plan and ``--resume`` agree on),
+and the seed paper's grid, the one paper plan of the project (``straylight rig scan --plan
+paper`` measures it; rig.synth's synthetic scans use it too, with a backscatter wing added).
+
+The paper plan (seed paper section 3): incidence 10, 30, 40, 70, 80 deg; s then p; 3 readings
+per point. Viewing angles, with ``d = theta_r - theta_i`` (zones chosen here; the paper gives
+only the step sizes):
+
+| zone | abs(d) (deg) | step (deg) | points per incidence |
+|---|---|---|---|
+| core | 0 .. 0.5 | 0.05 | 21 |
+| shoulder | 0.5 .. 2.5 | 0.2 | 20 (0.7, 0.9, .. 2.5 each side) |
+| near | 2.5 .. 5 | 0.5 | 10 (3.0, 3.5, .. 5.0 each side) |
+| wing | > 5 | 5 | d = +-10, +-15, .. |
+
+all clipped to ``0 <= theta_r <= 85`` deg on the specular side (phi_r = 0).
+"""
 from __future__ import annotations
 
 from typing import NamedTuple
+
+import numpy as np
+
+PAPER_THETA_I_DEG = (10.0, 30.0, 40.0, 70.0, 80.0)
+PAPER_POLARIZATIONS = ("s", "p")
+PAPER_N_READINGS = 3
+THETA_R_MAX_DEG = 85.0
+#: (|d| upper edge, step) of the paper grid's zones around specular, deg
+PAPER_ZONES_DEG = ((0.5, 0.05), (2.5, 0.2), (5.0, 0.5))
+WING_STEP_DEG = 5.0
 
 
 class Point(NamedTuple):
@@ -15,3 +41,44 @@ def point_key(theta_i_deg, polarization, theta_r_deg, phi_r_deg) -> tuple:
     """Hashable identity of a point, angles rounded to 1e-6 deg (resume matches on it)."""
     return (round(float(theta_i_deg), 6), str(polarization), round(float(theta_r_deg), 6),
             round(float(phi_r_deg) % 360.0, 6))
+
+
+def paper_theta_r_deg(theta_i_deg: float, theta_r_max_deg: float = THETA_R_MAX_DEG) -> np.ndarray:
+    """The paper grid's viewing angles for one incidence (module table), ascending, deg."""
+    offsets = [0.0]
+    lo = 0.0
+    for hi, step in PAPER_ZONES_DEG:
+        n = int(round((hi - lo) / step))
+        offsets += [lo + step * k for k in range(1, n + 1)]
+        lo = hi
+    k = 2
+    while WING_STEP_DEG * k <= 90.0:
+        offsets.append(WING_STEP_DEG * k)
+        k += 1
+    d = np.round(np.array(offsets), 6)
+    theta_r = np.concatenate([theta_i_deg - d[1:], [theta_i_deg], theta_i_deg + d[1:]])
+    theta_r = np.round(theta_r, 6)
+    keep = (theta_r >= 0.0) & (theta_r <= theta_r_max_deg)
+    return np.unique(theta_r[keep])
+
+
+def paper_points(theta_i_deg=PAPER_THETA_I_DEG, polarizations=PAPER_POLARIZATIONS,
+                 theta_r_max_deg: float = THETA_R_MAX_DEG) -> list[Point]:
+    """The seed paper's scan as points, polarization-major."""
+    return [Point(float(ti), pol, float(tr), 0.0)
+            for pol in polarizations for ti in theta_i_deg
+            for tr in paper_theta_r_deg(float(ti), theta_r_max_deg)]
+
+
+def paper_viewing_deg(theta_i_deg: float, *, backscatter_step_deg: float | None = None, retro_gap_deg: float = 3.0,
+                      theta_r_max_deg: float = THETA_R_MAX_DEG) -> np.ndarray:
+    """Signed in-plane viewing angles of the paper grid (negative: the backscatter side,
+    ``phi_r = 180``): :func:`paper_theta_r_deg`, plus, with ``backscatter_step_deg``, the
+    backscatter side every that many degrees, leaving out ``retro_gap_deg`` around the incident
+    beam (the detector head would block it). Ascending."""
+    tr = paper_theta_r_deg(theta_i_deg, theta_r_max_deg)
+    if backscatter_step_deg:
+        back = -np.arange(backscatter_step_deg, theta_r_max_deg + 1e-9, backscatter_step_deg)
+        back = back[np.abs(back + theta_i_deg) >= retro_gap_deg]
+        tr = np.concatenate([back, tr])
+    return np.unique(np.round(tr, 6))

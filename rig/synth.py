@@ -20,7 +20,7 @@ log10(BRDF) to 30 % four decades below (and above that); ``brdf_std_per_sr`` is 
 sample standard deviation of those readings.
 
 Plans (incidence lists, viewing-angle grids) are plain arrays: :func:`paper_plan` is
-the seed paper's (0.05 / 0.2 / 0.5 deg steps near specular, 5 deg off it) and
+the seed paper's, the project's one paper grid (:mod:`rig.points`) with a backscatter wing, and
 :func:`compact_plan` a ~60-point-per-curve version for fast diagnosis tests.
 
 ``python -m rig.synth --score-table`` runs the catalogue sweep of docs/diagnose.md.
@@ -77,9 +77,25 @@ def make_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p"), steps=
 
 
 def paper_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p")):
-    """The seed paper's plan: 0.05 deg steps within 0.5 deg of specular, 0.2 to 2 deg,
-    0.5 to 5 deg, then 5 deg steps (~150 points per curve)."""
-    return make_plan(theta_i_deg, polarizations)
+    """The seed paper's plan, the project's one (:func:`rig.points.paper_viewing_deg`: 0.05 deg
+    steps within 0.5 deg of specular, 0.2 to 2.5 deg, 0.5 to 5 deg, 5 deg beyond; specular side
+    0..85 deg), with the backscatter side added every 5 deg (``RETRO_GAP_DEG`` left out around the
+    beam), ~90 points per curve."""
+    from rig.points import paper_viewing_deg
+
+    ti_all, tr_all, pol_all = [], [], []
+    for ti in np.atleast_1d(np.asarray(theta_i_deg, float)):
+        if not 0.0 <= ti < 90.0:
+            raise ValueError(f"theta_i_deg: {ti} outside [0, 90)")
+        tr = paper_viewing_deg(float(ti), backscatter_step_deg=5.0, retro_gap_deg=RETRO_GAP_DEG,
+                               theta_r_max_deg=MAX_VIEW_DEG)
+        for pol in polarizations:
+            if pol not in ("s", "p", "u"):
+                raise ValueError(f"polarizations: unknown {pol!r}")
+            ti_all.append(np.full(tr.shape, ti))
+            tr_all.append(tr)
+            pol_all.append(np.full(tr.shape, pol))
+    return np.concatenate(ti_all), np.concatenate(tr_all), np.concatenate(pol_all)
 
 
 #: The incidences of the synthetic score scans: six, two of them (40, 80) held out by default.
@@ -87,8 +103,8 @@ SCORE_INCIDENCES_DEG = (10.0, 25.0, 40.0, 55.0, 70.0, 80.0)
 
 
 def score_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
-    """The score scans' plan: the seed paper's steps (0.05 deg within 0.5 deg of specular, 0.2 to
-    2 deg, 0.5 to 5 deg, 5 deg beyond; ~80 points per curve) at six incidences. The paper's fine
+    """The score scans' plan: :func:`paper_plan` (the paper's grid with a backscatter wing) at six
+    incidences. The paper's fine
     steps resolve a blurred core (wide slit, diverging beam) that 0.1 / 0.5 deg steps see only
     as a wider lobe."""
     return paper_plan(theta_i_deg, polarizations)

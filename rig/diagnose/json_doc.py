@@ -17,14 +17,14 @@ def to_json(d) -> dict:
     base_rows = region_table(p, d.baseline.model)
     final_rows = region_table(p, d.final.model)
     # blame: per region, the selected effect whose single fit lowers that region's gap most
-    single_rows = {n: region_table(p, d.single_fits[n].model) for n in d.selected}
+    single_rows = {n: region_table(p, d.single_fits[n].model) for n in d.selected if n in d.single_fits}
     regions = []
     for i, row in enumerate(base_rows):
         row = dict(row)
         row["gap_final"] = final_rows[i]["gap"]
         row["bias_final"] = final_rows[i]["bias"]
         blamed, best = None, row["gap"]
-        for n in d.selected:
+        for n in single_rows:
             g = single_rows[n][i]["gap"]
             if g < 0.8 * best:
                 blamed, best = n, g

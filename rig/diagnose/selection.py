@@ -127,7 +127,7 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
     twin_checks = []
     if selected:
         current = refit_fresh_material(problem, current, executor)
-        current, selected, twin_checks, undecided = check_twins(problem, current, selected)
+        current, selected, twin_checks, undecided = check_twins(problem, current, selected, allowed=names)
         confounded += undecided
     t3 = time.perf_counter()
     return Diagnosis(problem, baseline, candidates, selected, current, singles, confounded, dropped,

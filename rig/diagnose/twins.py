@@ -43,14 +43,15 @@ def fit_twin(problem: Problem, current: Fit, name: str) -> Fit:
     return joint if joint.chi2 <= alone.chi2 else alone
 
 
-def check_twins(problem: Problem, current: Fit, selected: list) -> tuple:
-    """(fit, selected, checks, confounded): ``current`` with each twin decision applied (module doc)."""
+def check_twins(problem: Problem, current: Fit, selected: list, allowed=None) -> tuple:
+    """(fit, selected, checks, confounded): ``current`` with each twin decision applied (module doc).
+    ``allowed``: the candidate names (``--effects``); a twin outside them is not tried."""
     held = problem.held_idx
     checks, confounded = [], []
     selected = list(selected)
     for name in list(selected):
         twin = getattr(effect_types()[name], "twin", None)
-        if twin is None or twin in selected:
+        if twin is None or twin in selected or (allowed is not None and twin not in allowed):
             continue
         alt = fit_twin(problem, current, name)
         d_bic = alt.bic - current.bic
