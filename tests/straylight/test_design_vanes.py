@@ -158,3 +158,16 @@ def test_material_file_goes_inline_into_the_scene(tmp_path):
     (src,) = rs.sources
     # the fixed beam disk covers the entrance and rim up to 85 deg: radius >= 51 + 0.2 tan 85
     assert src.radius_mm >= 51 + 0.2 * math.tan(math.radians(85)) - 1e-9
+
+
+@pytest.mark.slow
+def test_default_design_of_the_reference_tube(tmp_path):
+    """The README's example at the command's defaults (100 000 rays, 40 layouts; ~2 min on 2 cores):
+    the design is not brighter than the evenly spaced baseline beyond 4 sigma at E and E + 10."""
+    args = [a if a != "0.5" else "0" for a in ARGS]  # F = 0: the built-in tube's 35 mm holes
+    assert main(["design", "vanes", *args, "--out", str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "design.json").read_text())
+    assert len(doc["vanes"]) == 5 and doc["construction"]["geometry"]["complete"]
+    for d, b in zip(doc["pst"], doc["baseline"]["pst"]):
+        if d["off_axis_deg"] in (E, E + 10):
+            assert d["pst"] <= b["pst"] + 4 * math.hypot(d["pst_stderr"], b["pst_stderr"])
