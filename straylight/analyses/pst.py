@@ -208,7 +208,8 @@ class PstResult:
 
 def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, seed: int = 0, nee: bool = True,
               options=None, workers: int | None = None, scheduler: str | None = None, client=None,
-              progress: bool = True, keep_traces: bool = False, precision=None) -> PstResult:
+              progress: bool = True, keep_traces: bool = False, precision=None, checkpoint_dir=None,
+              resume: bool = False) -> PstResult:
     """Trace a collimated beam at each (off-axis, azimuth) and return the PST with errors.
 
     Parameters
@@ -224,6 +225,8 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     precision : :class:`straylight.analyses.precision.Precision` or None. Given, each point is
         traced in growing rounds (its own seed's streams continued) until its relative standard
         error reaches the target with a reliable error estimate, or a cap; ``n_rays`` is then unused
+    checkpoint_dir, resume : write each finished point there (straylight.checkpoints.PointStore);
+        ``resume`` reads back the points a previous run of the same sweep finished and skips them
     """
     from dataclasses import replace as dc_replace
 
@@ -248,10 +251,18 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     point_rays = np.full(n, int(n_rays), dtype=np.int64)
     diagnostics = []
     traces = []
+    store = _point_store(checkpoint_dir, resume, keep_traces, setup, pairs, n_rays, seed, opts, precision, det, area)
     with (dask_client(workers, scheduler) if client is None else _given(client)) as cl:
         bar = progress_bar(pairs, desc="PST sweep", unit="angle", enabled=progress)
         for i, (a, phi) in enumerate(bar):
             bar.set_postfix_str(f"{math.degrees(a):g} deg")
+            saved = store.get(i) if store is not None else None
+            if saved is not None:  # finished by an earlier run of this sweep
+                for k in out:
+                    out[k][i] = saved[k]
+                point_rays[i] = saved["rays"]
+                diagnostics.append(saved["diagnostics"])
+                continue
             beam: Beam = setup.beam
             p_ent = setup.entrance.power_w(beam, a, phi) if setup.entrance is not None else math.nan
             t0 = time.perf_counter()
@@ -278,6 +289,9 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
             out["ratio_se"][i] = tally.stderr_w / p_ent
             if keep_traces:
                 traces.append(res)
+            if store is not None:
+                store.put(i, {**{k: float(out[k][i]) for k in out}, "rays": int(point_rays[i]),
+                              "diagnostics": diagnostics[-1]})
     return PstResult(
         off_axis_deg=np.round(np.degrees([a for a, _ in pairs]), 9),
         azimuth_deg=np.round(np.degrees([phi for _, phi in pairs]), 9),
@@ -290,6 +304,24 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
             "max_seconds": None if not math.isfinite(precision.max_seconds) else float(precision.max_seconds),
             "max_vov": precision.max_vov, "first_rays": int(precision.first_rays)},
     )
+
+
+def _point_store(folder, resume, keep_traces, setup, pairs, n_rays, seed, opts, precision, det, area):
+    """The sweep's :class:`straylight.checkpoints.PointStore` in ``folder`` (None: no checkpoints)."""
+    if folder is None:
+        if resume:
+            raise ValueError("resume needs a checkpoint folder")
+        return None
+    if keep_traces:
+        raise ValueError("checkpoints keep numbers, not traces: keep_traces cannot be combined with them")
+    from straylight.checkpoints import PointStore
+
+    scene = setup.scene
+    fingerprint = {"triangles": scene.triangles_mm, "triangle_part": scene.triangle_part,
+                   "parts": [(p.name, p.role, p.material) for p in scene.parts], "materials": setup.materials,
+                   "beam": setup.beam, "entrance": setup.entrance, "pairs": pairs, "rays": int(n_rays),
+                   "seed": int(seed), "options": opts, "precision": precision, "detector": det, "area_mm2": area}
+    return PointStore(folder, fingerprint, resume=resume)
 
 
 def _diag(rel) -> dict:

@@ -73,6 +73,8 @@ def add_parser(subparsers):
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--scheduler", default=None, help="dask scheduler address")
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted sweep: points already finished (OUT/pst.points/) are not traced again")
     p.set_defaults(func=run)
 
 
@@ -123,7 +125,8 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     res = pst_sweep(setup, np.radians(args.angles_deg), np.radians(args.azimuths_deg),
                     n_rays=args.rays if precision is None else 1, seed=args.seed, nee=not args.no_nee,
-                    workers=args.workers, scheduler=args.scheduler, precision=precision)
+                    workers=args.workers, scheduler=args.scheduler, precision=precision,
+                    checkpoint_dir=out / "pst.points", resume=args.resume)
     res.write_csv(out / "pst.csv")
     res.write_json(out / "pst.json")
     res.plot(out / "pst.png")
@@ -135,5 +138,8 @@ def run(args) -> int:
         vov = row.get("vov")
         print(f"{row['off_axis_deg']:6.2f} deg  az {row['azimuth_deg']:5.1f}  PST {row['pst']:.4e} "
               f"+- {row['pst_stderr']:.2e} ({rel:.1%}; VOV {vov if vov is not None else float('nan'):.2g}){stop}")
+    from straylight.checkpoints import PointStore
+
+    PointStore.remove_folder(out / "pst.points")  # the sweep's results are written
     print(f"written {out}/pst.csv, pst.json, pst.png")
     return 0
