@@ -125,17 +125,22 @@ def write_report(out, spec, doc, built, design, baseline, refinement):
     vanes = _table([(k, f"{v['z_mm']:.3f}", f"{v['inner_radius_mm']:.3f}", f"{v['thickness_mm']:g}")
                     for k, v in enumerate(doc["vanes"], 1)], ["vane", "z (mm)", "inner radius (mm)", "thickness (mm)"])
     rows = []
-    for d, b, n, r in zip(doc["pst"], doc["baseline"]["pst"], doc["no_vanes"]["pst"], doc["ratio_to_baseline"]):
+    for d, c, b, n, r in zip(doc["pst"], doc["construction"]["pst"], doc["baseline"]["pst"], doc["no_vanes"]["pst"],
+                             doc["ratio_to_baseline"]):
         ratio = "-" if r["ratio"] is None else f"{r['ratio']:.3f} +- {r['ratio_stderr']:.3f}"
         rows.append((f"{d['off_axis_deg']:g}", f"{d['pst']:.3e} +- {d['pst_stderr']:.1e}",
-                     f"{b['pst']:.3e} +- {b['pst_stderr']:.1e}", f"{n['pst']:.3e} +- {n['pst_stderr']:.1e}", ratio))
-    pst_table = _table(rows, ["off-axis (deg)", "design PST", "evenly spaced PST", "no vanes PST", "design / evenly"])
+                     f"{c['pst']:.3e} +- {c['pst_stderr']:.1e}", f"{b['pst']:.3e} +- {b['pst_stderr']:.1e}",
+                     f"{n['pst']:.3e} +- {n['pst_stderr']:.1e}", ratio))
+    pst_table = _table(rows, ["off-axis (deg)", "design PST", "construction PST", "evenly spaced PST", "no vanes PST",
+                              "design / evenly"])
     geo = doc["geometry"]
     notes = "".join(f"<li>{html.escape(n)}</li>" for n in doc["construction"]["notes"])
     opt = doc["optimiser"]
     opt_text = ("not run" if opt is None else
                 f"{sum(e['objective'] is not None for e in opt['evaluations'])} layouts traced; {opt['stop_reason']}; "
-                f"J {opt['start_objective']:.3f} -> {opt['best_objective']:.3f} (1 sigma {opt['start_objective_stderr']:.3f})")
+                f"J {opt['start_objective']:.3f} -> {opt['best_objective']:.3f} (1 sigma {opt['start_objective_stderr']:.3f}) "
+                f"on the optimiser's own random numbers; the best of many noisy values is biased low, so the "
+                f"construction and the refined layout were traced again with fresh numbers and the lower was kept")
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>Vane design</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}</style></head><body>
