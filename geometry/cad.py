@@ -184,15 +184,14 @@ def read_cad(path) -> list[CadSolid]:
     return [CadSolid(n, shape, kind, label) for n, (shape, kind, label) in zip(names, found)]
 
 
-def read_cad_shape(path):
-    """All of a CAD file as one OCP compound (placed, mm) and the number of solids in it."""
+def compound_of(shapes):
+    """One OCP compound holding ``shapes``."""
     from OCP.BRep import BRep_Builder
     from OCP.TopoDS import TopoDS_Compound
 
-    solids = read_cad(path)
     compound = TopoDS_Compound()
     builder = BRep_Builder()
     builder.MakeCompound(compound)
-    for s in solids:
-        builder.Add(compound, s.shape)
-    return compound, solids
+    for shape in shapes:
+        builder.Add(compound, shape)
+    return compound

@@ -38,6 +38,8 @@ class PartCheck:
     volume_mm3: float
     manifold_status: str
     problems: tuple[str, ...] = ()
+    role: str = "surface"
+    material: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -48,7 +50,7 @@ class PartCheck:
                 "winding_consistent": self.winding_consistent, "n_open_edges": self.n_open_edges,
                 "n_nonmanifold_edges": self.n_nonmanifold_edges, "n_degenerate": self.n_degenerate,
                 "volume_mm3": self.volume_mm3, "manifold_status": self.manifold_status,
-                "problems": list(self.problems), "ok": self.ok}
+                "problems": list(self.problems), "ok": self.ok, "role": self.role, "material": self.material}
 
 
 @dataclass(frozen=True)
@@ -71,11 +73,15 @@ class SceneCheck:
 
     def format(self) -> str:
         """A plain-text table, one line per part, then the problems."""
-        lines = [f"{'part':<16} {'kind':<6} {'triangles':>9} {'watertight':>10} {'winding':>8} "
-                 f"{'volume_mm3':>12} manifold"]
+        w = max([16] + [len(p.name) for p in self.parts])
+        lines = [f"{'part':<{w}} {'role':<8} {'kind':<6} {'triangles':>9} {'watertight':>10} {'winding':>8} "
+                 f"{'volume_mm3':>12} {'manifold':<8} material"]
         for p in self.parts:
-            lines.append(f"{p.name:<16} {p.kind:<6} {p.n_triangles:>9d} {str(p.watertight):>10} "
-                         f"{str(p.winding_consistent):>8} {p.volume_mm3:>12.6g} {p.manifold_status}")
+            lines.append(f"{p.name:<{w}} {p.role:<8} {p.kind:<6} {p.n_triangles:>9d} {str(p.watertight):>10} "
+                         f"{str(p.winding_consistent):>8} {p.volume_mm3:>12.6g} {p.manifold_status:<8} "
+                         f"{p.material or '-'}")
+        lines.append(f"{'total':<{w}} {'':<8} {'':<6} {sum(p.n_triangles for p in self.parts):>9d} "
+                     f"({len(self.parts)} parts)")
         for a, b, v in self.overlaps:
             lines.append(f"overlap {a} / {b}: {v:.3g} mm^3")
         lines.extend(f"PROBLEM: {message}" for message in self.problems)
@@ -146,7 +152,7 @@ def check_part(part: Part) -> PartCheck:
         if status != "NoError":
             problems.append(f"part {part.name!r}: manifold3d says {status}")
     return PartCheck(part.name, kind, part.n_triangles, watertight, winding, n_open, n_nonmanifold, n_degenerate,
-                     volume, status, tuple(problems))
+                     volume, status, tuple(problems), part.role, part.material)
 
 
 def overlap_volumes(scene: Scene, names=None) -> list[tuple[str, str, float]]:

@@ -3,8 +3,10 @@
 - STEP export per CadQuery part (``cadquery.exporters``); STL / PLY / OBJ export per
   tessellated part (trimesh; PLY is written with float64 vertices, so it is lossless).
 - :func:`load_part` reads STL, OBJ, PLY (trimesh, ``process=False``: face order is kept;
-  exactly coincident vertices, as in STL triangle soup, are merged) and STEP (CadQuery
-  importer, then :func:`geometry.tessellate.tessellate` at ``tolerance_mm``).
+  exactly coincident vertices, as in STL triangle soup, are merged) and STEP / IGES from any
+  CAD tool (:mod:`geometry.cad`: names and units kept; tessellated at ``tolerance_mm`` and
+  cached, :mod:`geometry.cad_cache`); :func:`load_cad_parts` gives one part per solid
+  (``split = "solids"``, CONTRACTS §6.2).
 - :func:`save_scene` writes one mesh file per part and a scene TOML (CONTRACTS §6) whose
   ``[[part]]`` entries point at them; :func:`load_scene` reads the parts back.
 
@@ -25,7 +27,10 @@ from geometry.tessellate import DEFAULT_ANGULAR_TOLERANCE_DEG, DEFAULT_TOLERANCE
 
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
 STEP_SUFFIXES = (".step", ".stp")
-PART_KEYS = ("name", "mesh", "tolerance_mm", "material", "role", "surface", "back_material")
+CAD_SUFFIXES = STEP_SUFFIXES + (".iges", ".igs")
+PART_KEYS = ("name", "mesh", "tolerance_mm", "material", "role", "surface", "back_material", "split", "solids")
+SPLIT_MODES = ("none", "solids")
+SOLID_KEYS = ("material", "role")
 
 
 def export_step(shape, path) -> Path:
@@ -106,26 +111,13 @@ def load_part(path, *, name: str | None = None, material: str | None = None, rol
     if not path.is_file():
         raise GeometryError(f"{path}: mesh file not found (part {name!r})")
     suffix = path.suffix.lower()
-    if suffix in STEP_SUFFIXES:
-        import cadquery as cq
-
-        try:
-            shapes = cq.importers.importStep(str(path)).vals()
-        except Exception as exc:  # noqa: BLE001 - OCC raises bare exceptions; name the file
-            raise GeometryError(f"{path}: cannot read STEP file: {exc}") from exc
-        if not shapes:
-            raise GeometryError(f"{path}: the STEP file holds no shape")
-        shape = shapes[0] if len(shapes) == 1 else cq.Compound.makeCompound(shapes)
-        try:
-            part = tessellate(shape, name=name, tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg,
-                              material=material, role=role)
-        except GeometryError as exc:
-            raise GeometryError(f"{path}: {exc}") from exc
-        part.meta["source"] = str(path)
-        return part
+    if suffix in CAD_SUFFIXES:
+        (_, _, _, part), = tessellate_cad(path, tolerance_mm=tolerance_mm,
+                                          angular_tolerance_deg=angular_tolerance_deg, split=False)
+        return Part(name, part.vertices_mm, part.faces, material, role, dict(part.meta))
     if suffix not in MESH_SUFFIXES:
         raise GeometryError(f"{path}: unsupported mesh format {suffix!r}; expected one of "
-                            f"{', '.join(MESH_SUFFIXES + STEP_SUFFIXES)}")
+                            f"{', '.join(MESH_SUFFIXES + CAD_SUFFIXES)}")
     import trimesh
 
     try:
@@ -142,6 +134,87 @@ def load_part(path, *, name: str | None = None, material: str | None = None, rol
         return Part(name, vertices, faces, material, role, {"source": str(path)})
     except GeometryError as exc:
         raise GeometryError(f"{path}: {exc}") from exc
+
+
+def tessellate_cad(path, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
+                   angular_tolerance_deg: float = DEFAULT_ANGULAR_TOLERANCE_DEG, split: bool = True):
+    """Tessellate a STEP/IGES file: [(solid name, kind, label in the file, Part)] (one entry for the whole
+    file when ``split`` is False). Parts carry no material and role "surface"; results are cached on disk
+    (:mod:`geometry.cad_cache`) by file content, tolerances and code version."""
+    from geometry import cad_cache
+    from geometry.cad import read_cad
+
+    path = Path(path)
+    if not path.is_file():
+        raise GeometryError(f"{path}: file not found")
+    mode = "solids" if split else "whole"
+    entry = cad_cache.entry_path(path, tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg,
+                                 mode=mode) if cad_cache.enabled() else None
+    cached = cad_cache.load(entry) if entry is not None else None
+    if cached is not None:
+        return cached
+    solids = read_cad(path)
+    if split:
+        items = [(s.name, s.kind, s.label, s.shape) for s in solids]
+    else:
+        from geometry.cad import compound_of
+
+        kinds = {s.kind for s in solids}
+        items = [(path.stem, "solid" if "solid" in kinds else "sheet", None, compound_of(s.shape for s in solids))]
+    out = []
+    from tqdm.auto import tqdm
+
+    for name, kind, label, shape in tqdm(items, desc=f"tessellating {path.name}", unit="solid", leave=False,
+                                         disable=None if len(items) > 20 else True):
+        try:
+            part = tessellate(shape, name=name, tolerance_mm=tolerance_mm,
+                              angular_tolerance_deg=angular_tolerance_deg, kind=kind)
+        except GeometryError as exc:
+            raise GeometryError(f"{path}: solid {name!r}: {exc}") from None
+        except Exception as exc:  # noqa: BLE001 - OCC raises bare Standard_Failure; name the file and solid
+            raise GeometryError(f"{path}: solid {name!r} cannot be tessellated: {exc}") from None
+        part.meta["source"] = str(path)
+        out.append((name, kind, label, part))
+    if entry is not None:
+        cad_cache.store(entry, out)
+    return out
+
+
+def load_cad_parts(path, *, name: str | None = None, material: str | None = None, role: str = "surface",
+                   tolerance_mm: float = DEFAULT_TOLERANCE_MM,
+                   angular_tolerance_deg: float = DEFAULT_ANGULAR_TOLERANCE_DEG,
+                   solids: dict | None = None) -> list[Part]:
+    """One part per solid of a STEP/IGES assembly, named ``<name>/<solid name>`` (CONTRACTS §6.2).
+
+    solids : {solid name: {"material": ..., "role": ...}} overrides for single solids; an unknown
+        solid name is an error that lists the file's solid names.
+    """
+    path = Path(path)
+    name = path.stem if name is None else str(name)
+    if role not in ROLES:
+        raise GeometryError(f"{path}: part {name!r}: unknown role {role!r}; expected one of {', '.join(ROLES)}")
+    items = tessellate_cad(path, tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg, split=True)
+    overrides = dict(solids or {})
+    names = [solid for solid, _, _, _ in items]
+    unknown = sorted(set(overrides) - set(names))
+    if unknown:
+        raise GeometryError(f"{path}: no solid named {', '.join(map(repr, unknown))} in the file; its solids: "
+                            f"{', '.join(names)}")
+    parts = []
+    for solid, kind, label, part in items:
+        tags = overrides.get(solid, {})
+        if not isinstance(tags, dict) or set(tags) - set(SOLID_KEYS):
+            bad = sorted(set(tags) - set(SOLID_KEYS)) if isinstance(tags, dict) else tags
+            raise GeometryError(f"{path}: solid {solid!r}: overrides must be a table of {', '.join(SOLID_KEYS)}, "
+                                f"got {bad!r}")
+        solid_role = tags.get("role", role)
+        if solid_role not in ROLES:
+            raise GeometryError(f"{path}: solid {solid!r}: unknown role {solid_role!r}; expected one of "
+                                f"{', '.join(ROLES)}")
+        meta = dict(part.meta, solid=solid, label=label)
+        parts.append(Part(f"{name}/{solid}", part.vertices_mm, part.faces, tags.get("material", material),
+                          solid_role, meta))
+    return parts
 
 
 def save_scene(scene: Scene, directory, *, mesh_format: str = "ply", scene_file: str = "scene.toml",
@@ -225,6 +298,9 @@ def load_scene(path) -> Scene:
             continue
         if "back_material" in entry:
             raise GeometryError(f"{where}: 'back_material' needs an analytic 'surface' (CONTRACTS §6.1)")
+        if "split" in entry or "solids" in entry:
+            parts.extend(_split_entry(entry, path, where, float(tolerance_mm)))
+            continue
         try:
             parts.append(load_part(path.parent / entry["mesh"], name=entry["name"], material=entry.get("material"),
                                    role=entry.get("role", "surface"), tolerance_mm=float(tolerance_mm)))
@@ -234,6 +310,29 @@ def load_scene(path) -> Scene:
         return Scene(tuple(parts))
     except GeometryError as exc:
         raise GeometryError(f"{path}: {exc}") from exc
+
+
+def _split_entry(entry: dict, path: Path, where: str, tolerance_mm: float) -> list[Part]:
+    """A CAD part with ``split = "solids"`` (and optional ``[part.solids."name"]`` overrides), CONTRACTS §6.2."""
+    split = entry.get("split", "none")
+    if split not in SPLIT_MODES:
+        raise GeometryError(f"{where}: split must be one of {', '.join(map(repr, SPLIT_MODES))}, got {split!r}")
+    mesh = path.parent / entry["mesh"]
+    if mesh.suffix.lower() not in CAD_SUFFIXES:
+        raise GeometryError(f"{where}: split/solids need a STEP or IGES file, got {entry['mesh']!r}")
+    solids = entry.get("solids", {})
+    if not isinstance(solids, dict):
+        raise GeometryError(f"{where}: 'solids' must be tables [part.solids.\"NAME\"]")
+    if split == "none":
+        if solids:
+            raise GeometryError(f"{where}: per-solid overrides ('solids') need split = \"solids\"")
+        return [load_part(mesh, name=entry["name"], material=entry.get("material"),
+                          role=entry.get("role", "surface"), tolerance_mm=tolerance_mm)]
+    try:
+        return load_cad_parts(mesh, name=entry["name"], material=entry.get("material"),
+                              role=entry.get("role", "surface"), tolerance_mm=tolerance_mm, solids=solids)
+    except GeometryError as exc:
+        raise GeometryError(f"{where}: {exc}") from exc
 
 
 def _analytic_entry(entry: dict, path: Path, where: str, tolerance_mm: float) -> Part:

@@ -1,0 +1,118 @@
+"""On-disk cache of CAD tessellations, so a second run on a big STEP assembly starts at once.
+
+Key: SHA-256 of the file's bytes + chord and angular tolerance + how the file is split
+(``whole`` / ``solids``) + the code version (a hash of the source of the modules that read and
+tessellate CAD, and OpenCascade's version). Editing the file, asking another tolerance or
+updating the code makes a new entry; nothing is ever served stale.
+
+Where: ``$STRAYLIGHT_CACHE_DIR`` if set, else the user cache directory
+(``platformdirs.user_cache_dir("straylight")``, e.g. ``~/.cache/straylight`` on Linux), in
+``tessellation/``. ``STRAYLIGHT_CACHE=off`` (or ``0``, ``no``) disables the cache (the test
+suite does, except the tests of the cache). Entries are ``.npz`` files written atomically
+(:mod:`atomicio`): a crash or a concurrent run never leaves a half-written entry, and an
+unreadable entry is ignored (and rewritten).
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from geometry.mesh import Part
+from geometry.tessellate import TessellationReport
+
+ENV_DIR = "STRAYLIGHT_CACHE_DIR"
+ENV_SWITCH = "STRAYLIGHT_CACHE"
+_CODE_FILES = ("cad.py", "cad_cache.py", "tessellate.py")
+
+
+def enabled() -> bool:
+    return os.environ.get(ENV_SWITCH, "on").strip().lower() not in ("off", "0", "no", "false")
+
+
+def cache_dir() -> Path:
+    """The tessellation cache folder (not created here)."""
+    base = os.environ.get(ENV_DIR)
+    if not base:
+        import platformdirs
+
+        base = platformdirs.user_cache_dir("straylight")
+    return Path(base) / "tessellation"
+
+
+@lru_cache(maxsize=1)
+def code_version() -> str:
+    """Hash of the code that turns a CAD file into triangles (and OpenCascade's version)."""
+    from importlib import metadata
+
+    h = hashlib.sha256()
+    here = Path(__file__).parent
+    for name in _CODE_FILES:
+        h.update((here / name).read_bytes())
+    for dist in ("cadquery-ocp", "cadquery_ocp"):
+        try:
+            h.update(metadata.version(dist).encode())
+            break
+        except metadata.PackageNotFoundError:
+            continue
+    return h.hexdigest()[:16]
+
+
+def file_digest(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def entry_path(path, *, tolerance_mm: float, angular_tolerance_deg: float, mode: str) -> Path:
+    key = json.dumps([file_digest(path), repr(float(tolerance_mm)), repr(float(angular_tolerance_deg)), mode,
+                      code_version()])
+    return cache_dir() / f"{Path(path).stem[:40]}-{hashlib.sha256(key.encode()).hexdigest()[:32]}.npz"
+
+
+def load(entry: Path):
+    """[(name, kind, label, Part-without-tags)] from a cache entry, or None if missing/unreadable."""
+    if not entry.is_file():
+        return None
+    try:
+        with np.load(entry, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            out = []
+            for i, item in enumerate(meta["solids"]):
+                report = TessellationReport(**item["report"])
+                part = Part(item["name"], data[f"v{i}"], data[f"f{i}"], None, "surface",
+                            {"tessellation": report, "kind": item["kind"], "brep_face": data[f"b{i}"],
+                             "cache": str(entry)})
+                out.append((item["name"], item["kind"], item["label"], part))
+            return out
+    except Exception:  # noqa: BLE001 - a damaged entry is a cache miss, not an error
+        return None
+
+
+def store(entry: Path, solids) -> None:
+    """Write [(name, kind, label, Part)] atomically; failures (read-only disk...) are ignored."""
+    import atomicio
+
+    arrays, items = {}, []
+    for i, (name, kind, label, part) in enumerate(solids):
+        arrays[f"v{i}"] = np.asarray(part.vertices_mm, dtype=np.float64)
+        arrays[f"f{i}"] = np.asarray(part.faces, dtype=np.int64 if len(part.vertices_mm) >= 2**31 else np.int32)
+        arrays[f"b{i}"] = np.asarray(part.meta.get("brep_face", np.zeros(part.n_triangles)), dtype=np.int32)
+        report = part.meta["tessellation"]
+        fields = {k: getattr(report, k) for k in TessellationReport.__dataclass_fields__}
+        items.append({"name": name, "kind": kind, "label": label, "report": fields})
+    arrays["meta"] = np.array(json.dumps({"solids": items}))
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    try:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        atomicio.write_bytes(entry, buffer.getvalue(), fsync=False)
+    except OSError:
+        pass
