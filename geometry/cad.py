@@ -8,13 +8,15 @@ the assembly (instance locations applied) and in **millimetres** whatever unit t
 
 Names (CONTRACTS §6.2): a solid takes the name of the instance that places it, else of its
 product (label); a part with several solids gives each the part's name; a solid without a
-name is ``solid<k>`` (k from 1, in file order); repeated names get ``_2``, ``_3``. Shells and
-faces that are not inside a solid (surface models) are kept as sheets.
+name (or with only a writer's placeholder, see ``_PLACEHOLDERS``) is ``solid<k>`` (k from 1, in
+file order); repeated names get ``_2``, ``_3``. Surface models (IGES files usually hold faces,
+not solids) are sewn: closed shells become solids, open ones stay sheets.
 
 Every failure is a one-line :class:`geometry.mesh.GeometryError` naming the file.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,13 +38,23 @@ class CadSolid:
     label: str | None
 
 
+_PLACEHOLDERS = re.compile(r"^(=>\[[0-9:]*\]|[0-9]+|Open CASCADE STEP translator .*|NAUO[0-9]*|"
+                           r"COMPOUND|COMPSOLID|SOLID|SHELL|FACE)$")
+"""Names that writers put where the user gave none: OpenCascade's label paths ("=>[0:1:1:8]"),
+bare entity ids ("1", "NAUO12": the reader falls back to the id when an instance has no name),
+OpenCascade's default product name ("Open CASCADE STEP translator 7.8 1.1", gmsh's files) and the
+shape type its IGES reader gives an unnamed entity ("COMPOUND")."""
+SEWING_TOLERANCE_MM = 1e-3
+
+
 def _label_name(label) -> str | None:
+    """The label's name, or None if it has none or only a writer's placeholder."""
     from OCP.TDataStd import TDataStd_Name
 
     attr = TDataStd_Name()
     if label.FindAttribute(TDataStd_Name.GetID_s(), attr):
         text = attr.Get().ToExtString().strip()
-        return text or None
+        return None if not text or _PLACEHOLDERS.match(text) else text
     return None
 
 
@@ -82,28 +94,55 @@ def _read_document(path: Path):
     return doc
 
 
-def _sub_solids(shape):
-    """Solids of ``shape`` in order; else its free shells/faces as sheets (surface models)."""
-    from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
+def _explore(shape, kind):
     from OCP.TopExp import TopExp_Explorer
 
+    out = []
+    explorer = TopExp_Explorer(shape, kind)
+    while explorer.More():
+        out.append(explorer.Current())
+        explorer.Next()
+    return out
+
+
+def _sub_solids(shape):
+    """[(shape, kind)]: the solids of ``shape`` in order; a surface model (faces only, as IGES files and
+    some STEP files hold) is first sewn (``BRepBuilderAPI_Sewing``): every closed shell becomes a solid
+    (outward oriented), open shells and loose faces stay sheets."""
+    from OCP.BRep import BRep_Builder, BRep_Tool
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeSolid, BRepBuilderAPI_Sewing
+    from OCP.BRepLib import BRepLib
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SHELL, TopAbs_SOLID
+    from OCP.TopoDS import TopoDS, TopoDS_Shell
+
+    solids = _explore(shape, TopAbs_SOLID)
+    if solids:
+        return [(s, "solid") for s in solids]
+    faces = _explore(shape, TopAbs_FACE)
+    if not faces:
+        return []
+    sewing = BRepBuilderAPI_Sewing(SEWING_TOLERANCE_MM)
+    for face in faces:
+        sewing.Add(face)
+    sewing.Perform()
+    sewn = sewing.SewedShape()
+    shells = [TopoDS.Shell_s(shell) for shell in _explore(sewn, TopAbs_SHELL)]
+    in_shells = {f.__hash__() for shell in shells for f in _explore(shell, TopAbs_FACE)}
+    builder = BRep_Builder()
+    for face in _explore(sewn, TopAbs_FACE):  # a loose face may be closed by itself (a torus, a sphere)
+        if face.__hash__() not in in_shells:
+            shell = TopoDS_Shell()
+            builder.MakeShell(shell)
+            builder.Add(shell, face)
+            shells.append(shell)
     found = []
-    explorer = TopExp_Explorer(shape, TopAbs_SOLID)
-    while explorer.More():
-        found.append((explorer.Current(), "solid"))
-        explorer.Next()
-    if found:
-        return found
-    explorer = TopExp_Explorer(shape, TopAbs_SHELL)
-    while explorer.More():
-        found.append((explorer.Current(), "sheet"))
-        explorer.Next()
-    if found:
-        return found
-    explorer = TopExp_Explorer(shape, TopAbs_FACE)
-    while explorer.More():
-        found.append((explorer.Current(), "sheet"))
-        explorer.Next()
+    for shell in shells:
+        if BRep_Tool.IsClosed_s(shell):
+            solid = BRepBuilderAPI_MakeSolid(shell).Solid()
+            BRepLib.OrientClosedSolid_s(solid)
+            found.append((solid, "solid"))
+        else:
+            found.append((shell, "sheet"))
     return found
 
 
@@ -135,10 +174,7 @@ def _walk(shape_tool, label, location, name, out):
 
 def _instance_name(component, referred) -> str | None:
     """An instance's own name if the file gives one, else its product's."""
-    own, product = _label_name(component), _label_name(referred)
-    if own and not own.startswith("=>"):  # "=>[0:1:1:2]": OpenCascade's placeholder for no name
-        return own
-    return product
+    return _label_name(component) or _label_name(referred)
 
 
 def unique_names(names) -> list[str]:
