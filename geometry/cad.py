@@ -51,6 +51,8 @@ def _label_name(label) -> str | None:
     """The label's name, or None if it has none or only a writer's placeholder."""
     from OCP.TDataStd import TDataStd_Name
 
+    if not label.IsAttribute(TDataStd_Name.GetID_s()):
+        return None
     attr = TDataStd_Name()
     if label.FindAttribute(TDataStd_Name.GetID_s(), attr):
         text = attr.Get().ToExtString().strip()
@@ -75,7 +77,11 @@ def _read_document(path: Path):
         raise GeometryError(f"{path}: not a CAD exchange file (expected {', '.join(CAD_SUFFIXES)})")
     if not path.is_file():
         raise GeometryError(f"{path}: file not found")
-    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+    from OCP.XCAFApp import XCAFApp_Application
+
+    app = XCAFApp_Application.GetApplication_s()
+    doc = TDocStd_Document(TCollection_ExtendedString("MDTV-XCAF"))
+    app.InitDocument(doc)
     reader = Reader()
     reader.SetNameMode(True)
     try:
@@ -91,7 +97,7 @@ def _read_document(path: Path):
         raise GeometryError(f"{path}: cannot translate the {kind} entities to shapes: {exc}") from None
     if not ok:
         raise GeometryError(f"{path}: the {kind} file holds no shape that OpenCascade can translate")
-    return doc
+    return doc, reader
 
 
 def _explore(shape, kind):
@@ -206,7 +212,7 @@ def read_cad(path) -> list[CadSolid]:
     from OCP.XCAFDoc import XCAFDoc_DocumentTool
 
     path = Path(path)
-    doc = _read_document(path)
+    doc, reader = _read_document(path)  # the reader stays referenced until the walk is done
     shape_tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
     free = TDF_LabelSequence()
     shape_tool.GetFreeShapes(free)
@@ -214,6 +220,7 @@ def read_cad(path) -> list[CadSolid]:
     for i in range(1, free.Length() + 1):
         label = free.Value(i)
         _walk(shape_tool, label, TopLoc_Location(), None, found)
+    del reader
     if not found:
         raise GeometryError(f"{path}: the file holds no solid, shell or face")
     names = unique_names([name for _, _, name in found])
