@@ -191,7 +191,7 @@ class Material:
         """Directional-hemispherical reflectance rho of the scatter lobes at theta_i (radians);
         :meth:`reflectance` adds the specular part."""
         if self.composite is None:
-            return np.zeros(np.shape(np.atleast_1d(theta_i)))
+            return np.zeros(np.shape(theta_i))
         return directional_hemispherical_reflectance(self.composite, theta_i, polarization)
 
     def check_energy(self, where: Optional[str] = None) -> None:

@@ -67,9 +67,16 @@ def cmd_eval(args) -> int:
     brdf = brdf_angles(material, np.radians(theta_i_deg), np.radians(np.abs(theta_r_deg)), phi_r,
                        args.polarization)
     dhr = float(material.albedo(np.radians(theta_i_deg), args.polarization))
+    smooth = material.smooth_coefficients(np.cos(np.radians([theta_i_deg]))) \
+        if getattr(material, "smooth", None) is not None else None
+    if smooth is not None:  # the specular part (delta lobe, not in brdf_per_sr) belongs to the dhr too
+        dhr += float(smooth.reflectance(args.polarization)[0])
     out = {"material": material.name, "theta_i_deg": theta_i_deg, "theta_r_deg": theta_r_deg.tolist(),
            "phi_r_deg": np.broadcast_to(phi, theta_r_deg.shape).tolist(), "polarization": args.polarization,
            "brdf_per_sr": brdf.tolist(), "dhr": dhr}
+    if smooth is not None:
+        out["specular_reflectance"] = float(smooth.reflectance(args.polarization)[0])
+        out["transmittance"] = float(smooth.transmittance(args.polarization)[0])
     for t, f in zip(theta_r_deg, brdf):
         print(f"theta_r = {t:8.3f} deg  BRDF = {f:.6g} 1/sr")
     print(f"dhr(theta_i = {theta_i_deg:g} deg, {args.polarization}) = {dhr:.6g}")

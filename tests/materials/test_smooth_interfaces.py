@@ -186,3 +186,20 @@ def test_scatter_lobes_take_their_energy_from_the_specular_part():
     # lobes stronger than the mirror: the specular part vanishes, the total is the lobes' rho < 1
     weak = load_material({"name": "w", "components": [{"type": "specular", "r": 0.05}, {"type": "lambertian", "rd": 0.3}]})
     np.testing.assert_allclose(weak.reflectance(np.array([0.3]), "u"), 0.3, rtol=1e-9)
+
+
+def test_material_eval_dhr_includes_the_specular_part(tmp_path):
+    """CONTRACTS §4.2: dhr of a bare aluminium mirror at normal incidence is the Fresnel R."""
+    import subprocess
+    import sys
+
+    p = tmp_path / "al.json"
+    p.write_text(json.dumps(_mirror()))
+    out = tmp_path / "o.json"
+    r = subprocess.run([sys.executable, "-m", "straylight.cli.main", "material", "eval", str(p), "--theta-i-deg", "0",
+                        "--theta-r-deg", "10", "--polarization", "u", "--json", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(out.read_text())
+    n, k = 0.96, 6.69
+    assert d["dhr"] == pytest.approx(((n - 1) ** 2 + k**2) / ((n + 1) ** 2 + k**2), rel=1e-9)
+    assert d["brdf_per_sr"] == [0.0] and d["transmittance"] == 0.0
