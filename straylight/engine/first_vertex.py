@@ -175,6 +175,10 @@ def build_table(spec, comp) -> VertexTable:
     tri_mm = spec.triangles_mm
     n_tri = len(tri_mm)
     surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == ROLE_SURFACE)
+    # optical_surface parts (exact normals, polarization: issue 14) are left to the walk (q_t = 0)
+    optical = np.array([m >= 0 and getattr(spec.materials[m], "interaction", "") == "optical_surface"
+                        for m in spec.part_material], dtype=bool)
+    surf = surf[~optical[spec.triangle_part[surf]]]
     area = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
     surf = surf[area[surf] > 0]
     # at most PROBE_BUDGET probes in all (a million-triangle scene gets one per triangle)
