@@ -17,7 +17,8 @@ from pathlib import Path
 def add_common_scene_args(parser):
     """SCENE.toml or --builtin tube (+ tube overrides), used by pst, paths and view."""
     parser.add_argument("scene", nargs="?", help="scene TOML file (CONTRACTS §6)")
-    parser.add_argument("--builtin", choices=("tube",), help="use the built-in baffled tube instead of a file")
+    parser.add_argument("--builtin", choices=("tube", "cassegrain"),
+                        help="use the built-in baffled tube (or the built-in Cassegrain telescope) instead of a file")
     parser.add_argument("--vanes", type=int, default=None, help="built-in tube: number of vanes")
     parser.add_argument("--vane-inner-radius-mm", type=float, default=None, help="built-in tube: vane hole radius")
     parser.add_argument("--material", default=None, help="built-in tube: coating (preset or file; default z302_sample_b)")
@@ -88,6 +89,13 @@ def load_setup(args):
 
     if (args.scene is None) == (args.builtin is None):
         raise ValueError("give either SCENE.toml or --builtin tube")
+    if args.builtin == "cassegrain":
+        from straylight.analyses.telescope import cassegrain_setup
+
+        for flag in ("vanes", "vane_inner_radius_mm", "material", "detector"):
+            if getattr(args, flag, None) is not None:
+                raise ValueError(f"--{flag.replace('_', '-')} applies to --builtin tube, not to the Cassegrain")
+        return cassegrain_setup()
     if args.builtin:
         params = {}
         if args.vanes is not None:

@@ -36,3 +36,13 @@ def test_cassegrain_study_cli(tmp_path):
     ghost = on["contributions"]["ghost"]["pst"]
     R = ((1.5195 - 1) / (1.5195 + 1)) ** 2
     assert ghost > 0 and abs(ghost / on["contributions"]["nominal"]["pst"] - R * R) < 5 * on["contributions"]["ghost"]["pst_stderr"] / on["contributions"]["nominal"]["pst"]
+
+
+def test_paths_ghost_filter_on_the_cassegrain(tmp_path):
+    """``straylight paths --builtin cassegrain --ghosts``: the ranked specular paths, nominal first."""
+    rc = main(["paths", "--builtin", "cassegrain", "--angle-deg", "0", "--rays", "3000", "--seed", "2", "--ghosts",
+               "--out", str(tmp_path)])
+    assert rc == 0
+    doc = json.loads((tmp_path / "ghosts.json").read_text())
+    assert doc["rows"][0]["kind"] == "nominal"
+    assert doc["rows"][0]["sequence"] == "source -> primary -> secondary -> filter_top -> filter_bottom -> focal_plane"
