@@ -99,7 +99,8 @@ def refine(spec, start_z_mm, material_models: dict, angles_deg, *, rays: int, se
         initial simplex, so the search spans both.
     """
     from scipy.optimize import minimize
-    from tqdm.auto import tqdm
+
+    from straylight.progress import progress_bar
 
     x0 = np.sort(np.asarray(start_z_mm, dtype=float))
     n = len(x0)
@@ -119,8 +120,7 @@ def refine(spec, start_z_mm, material_models: dict, angles_deg, *, rays: int, se
     if n == 0 or not math.isfinite(j0):
         result.stop_reason = "nothing to refine (no vanes, or no light on the detector)"
         return result
-    bar = tqdm(total=max_evals, desc="refining vanes", unit="layout", disable=None if progress else True,
-               leave=False)
+    bar = progress_bar(total=max_evals, desc="refining vanes", unit="layout", enabled=progress)
     bar.update(1)
     best = {"j": j0, "x": x0.copy()}
     penalty = j0 + 10.0
