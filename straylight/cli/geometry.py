@@ -3,6 +3,7 @@
     straylight geometry build tube [--vanes N] [--vane-bevel-deg B] ... [--tolerance-mm T] -o DIR
     straylight geometry build reflectometer --theta-i-deg A --theta-r-deg B [--arm-mm L] ... -o DIR
     straylight geometry check SCENE.toml [--strict] [--json OUT.json]
+    straylight geometry scene ASSEMBLY.step -o SCENE.toml [--detector NAME] [--material M] [--tolerance-mm T]
 """
 from __future__ import annotations
 
@@ -68,6 +69,16 @@ def add_parser(subparsers):
     check.add_argument("--strict", action="store_true", help="exit 1 if a check fails")
     check.add_argument("--json", metavar="PATH")
     check.set_defaults(func=_check)
+    scene = group.add_parser("scene", help="write a scene file for your own STEP/IGES assembly (one part per solid)")
+    scene.add_argument("cad", metavar="ASSEMBLY.step", help="STEP or IGES file from any CAD tool")
+    scene.add_argument("-o", "--output", required=True, metavar="SCENE.toml")
+    scene.add_argument("--detector", default=None, metavar="NAME",
+                       help="solid that is the detector (default: the solid named 'detector')")
+    scene.add_argument("--material", default="z302_sample_b", help="material of every other solid")
+    scene.add_argument("--tolerance-mm", type=float, default=0.05, help="chord tolerance (mm)")
+    scene.add_argument("--axis", type=float, nargs=3, default=(0.0, 0.0, 1.0), metavar=("X", "Y", "Z"),
+                       help="the instrument looks toward +axis; the beam travels along -axis (default 0 0 1)")
+    scene.set_defaults(func=_scene)
 
 
 def _usage(parser):
@@ -133,3 +144,21 @@ def _check(args) -> int:
 
         atomicio.write_text(args.json, json.dumps(checks.as_dict(), indent=2))
     return 1 if (args.strict and not checks.ok) else 0
+
+
+def _scene(args) -> int:
+    from geometry.cad_scene import write_cad_scene
+
+    path, parts = write_cad_scene(args.cad, args.output, detector=args.detector, material=args.material,
+                                  tolerance_mm=args.tolerance_mm, axis=args.axis)
+    import tomllib
+
+    detector = next(iter(tomllib.loads(path.read_text())["part"][0]["solids"]))
+    width = max(len(p.name) for p in parts)
+    for p in parts:
+        role = "detector" if p.meta["solid"] == detector else p.role
+        print(f"{p.name:<{width}} {role:<8} {p.n_triangles:>9d} triangles  "
+              f"chord error {p.meta['tessellation'].max_chord_error_mm:.3g} mm")
+    print(f"{'total':<{width}} {'':<8} {sum(p.n_triangles for p in parts):>9d} triangles in {len(parts)} parts")
+    print(f"scene: {path}")
+    return 0

@@ -1,0 +1,127 @@
+"""Start-up (time to the first traced rays) and memory on big CAD assemblies, cold and cached.
+
+    python benchmarks/startup.py [--sizes 0.36M 1M 5M] [--out DIR] [--rays 20000]
+
+For each size the hooked-vane tube (geometry.parts.assembly) is written as ONE named STEP
+assembly and a scene.toml that loads it with ``split = "solids"`` (one part per solid, the
+detector by a per-solid override), at the chord tolerance that gives about that many triangles.
+Each run is a fresh process (so its peak RSS is its own):
+
+- cold: empty tessellation cache (read STEP, tessellate, measure chord errors, write the cache);
+- cached: the same command again (the cache entry is read instead).
+
+Reported per run: seconds to load the scene (``straylight.scene.load_scene``: geometry, checks,
+materials, sources), seconds to the first traced rays (load + embree scene + compiled kernels +
+a 1000-ray trace), peak RSS (``resource.getrusage``) after that, and peak RSS after a trace of
+``--rays`` and of 10x that many rays: memory stays flat in ray count (the tracer works in
+fixed-size batches). The ratio cold/cached is measured within one run. The machine is shared.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+# chord tolerance (mm) that gives about this many triangles for the default hooked-vane assembly
+SIZES = {"0.36M": dict(tolerance_mm=0.005), "1M": dict(tolerance_mm=0.0004),
+         "5M": dict(tolerance_mm=0.00002)}
+
+
+def _rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def child(toml: str, rays: int) -> dict:
+    """One measurement in this (fresh) process."""
+    t0 = time.perf_counter()
+    import warnings
+
+    from straylight.scene import load_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rs = load_scene(toml)
+    t_load = time.perf_counter() - t0
+    n_tri = int(sum(p.n_triangles for p in rs.scene.parts))
+    rs.trace(1000, seed=1)
+    t_first = time.perf_counter() - t0
+    rss_first = _rss_mb()
+    t = time.perf_counter()
+    rs.trace(rays, seed=2)
+    t_rays = time.perf_counter() - t
+    rss_rays = _rss_mb()
+    rs.trace(10 * rays, seed=3)
+    rss_10x = _rss_mb()
+    cached = any("cache" in p.meta for p in rs.scene.parts)
+    return {"triangles": n_tri, "parts": len(rs.scene.parts), "from_cache": cached, "load_s": t_load,
+            "first_rays_s": t_first, "rss_first_mb": rss_first, "rays": rays, "trace_s": t_rays,
+            "rss_after_rays_mb": rss_rays, "rss_after_10x_rays_mb": rss_10x}
+
+
+def build(size: str, directory: Path) -> Path:
+    """assembly.step + scene.toml (split = "solids") for one size."""
+    from geometry.io import export_assembly_step
+    from geometry.parts.assembly import DEFAULT, collimated_source, hooked_tube_assembly
+
+    directory.mkdir(parents=True, exist_ok=True)
+    step = directory / "assembly.step"
+    if not step.exists():
+        export_assembly_step(hooked_tube_assembly(DEFAULT), step)
+    import tomli_w
+
+    doc = {"part": [{"name": "tube", "mesh": "assembly.step", "split": "solids",
+                     "tolerance_mm": SIZES[size]["tolerance_mm"], "material": "z302_sample_b", "role": "surface",
+                     "solids": {"detector": {"role": "detector"}}}],
+           "source": [collimated_source(DEFAULT)]}
+    toml = directory / f"scene_{size}.toml"
+    toml.write_text(tomli_w.dumps(doc))
+    return toml
+
+
+def run(toml: Path, rays: int, cache_dir: Path) -> dict:
+    env = dict(os.environ, STRAYLIGHT_CACHE="on", STRAYLIGHT_CACHE_DIR=str(cache_dir))
+    out = subprocess.run([sys.executable, __file__, "--child", str(toml), "--rays", str(rays)], env=env,
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", nargs="+", default=list(SIZES), choices=list(SIZES))
+    parser.add_argument("--rays", type=int, default=20000)
+    parser.add_argument("--out", default=None, help="folder for the STEP/scene files and startup.json")
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        print(json.dumps(child(args.child, args.rays)))
+        return 0
+    out = Path(args.out or tempfile.mkdtemp(prefix="straylight_startup_"))
+    rows = []
+    for size in args.sizes:
+        toml = build(size, out)
+        cache_dir = out / f"cache_{size}"
+        for label in ("cold", "cached"):
+            result = run(toml, args.rays, cache_dir)
+            result.update(size=size, run=label, tolerance_mm=SIZES[size]["tolerance_mm"])
+            rows.append(result)
+            print(f"{size:>6} {label:<6} {result['triangles']:>9,d} tri  load {result['load_s']:7.2f} s  "
+                  f"first rays {result['first_rays_s']:7.2f} s  peak RSS {result['rss_first_mb']:7.0f} MB  "
+                  f"after {result['rays']:,d} rays {result['rss_after_rays_mb']:7.0f} MB  "
+                  f"after {10 * result['rays']:,d} {result['rss_after_10x_rays_mb']:7.0f} MB", flush=True)
+        cold, cached = rows[-2], rows[-1]
+        print(f"{size:>6} cold/cached time to first rays: x{cold['first_rays_s'] / cached['first_rays_s']:.1f}")
+    import atomicio
+
+    atomicio.write_json(out / "startup.json", {"rows": rows, "note": "shared 2-core machine"})
+    print(f"results: {out / 'startup.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
