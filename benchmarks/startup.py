@@ -2,9 +2,13 @@
 
     python benchmarks/startup.py [--sizes 0.36M 1M 5M] [--out DIR] [--rays 20000]
 
-For each size the hooked-vane tube (geometry.parts.assembly) is written as ONE named STEP
-assembly and a scene.toml that loads it with ``split = "solids"`` (one part per solid, the
-detector by a per-solid override), at the chord tolerance that gives about that many triangles.
+For each size, K copies of the hooked-vane tube (geometry.parts.assembly, 354,546 triangles at
+0.005 mm) are written as ONE named STEP assembly (OCP's XDE writer: a "tube" sub-assembly of 46
+named products, placed K times side by side, as a CAD tool writes repeated parts) and a scene.toml
+that loads it with ``split = "solids"`` (one part per solid, the detectors by per-solid
+overrides): K = 1, 3, 14 for about 0.36M, 1.06M, 5.0M triangles. The reader meshes a product once
+and places its instances (``geometry.io._Instances``), so the cold time of the big scenes is
+mostly one tube's meshing plus reading and placing; the cached runs read the whole mesh back.
 Each run is a fresh process (so its peak RSS is its own):
 
 - cold: empty tessellation cache (read STEP, tessellate, measure chord errors, write the cache);
@@ -28,9 +32,11 @@ import tempfile
 import time
 from pathlib import Path
 
-# chord tolerance (mm) that gives about this many triangles for the default hooked-vane assembly
-SIZES = {"0.36M": dict(tolerance_mm=0.005), "1M": dict(tolerance_mm=0.0004),
-         "5M": dict(tolerance_mm=0.00002)}
+import numpy as np
+
+TOLERANCE_MM = 0.005
+SIZES = {"0.36M": 1, "1M": 3, "5M": 14}  # copies of the tube
+PITCH_MM = 200.0  # copies side by side along x (flange diameter 135 mm)
 
 
 def _rss_mb() -> float:
@@ -64,21 +70,63 @@ def child(toml: str, rays: int) -> dict:
             "rss_after_rays_mb": rss_rays, "rss_after_10x_rays_mb": rss_10x}
 
 
-def build(size: str, directory: Path) -> Path:
-    """assembly.step + scene.toml (split = "solids") for one size."""
-    from geometry.io import export_assembly_step
-    from geometry.parts.assembly import DEFAULT, collimated_source, hooked_tube_assembly
+def write_tubes_step(path: Path, copies: int) -> list[str]:
+    """STEP with ``copies`` placed instances of the tube sub-assembly; returns the first copy's part names."""
+    from OCP.gp import gp_Trsf, gp_Vec
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.STEPCAFControl import STEPCAFControl_Writer
+    from OCP.STEPControl import STEPControl_AsIs
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDataStd import TDataStd_Name
+    from OCP.TDocStd import TDocStd_Document
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
 
-    directory.mkdir(parents=True, exist_ok=True)
-    step = directory / "assembly.step"
-    if not step.exists():
-        export_assembly_step(hooked_tube_assembly(DEFAULT), step)
+    from geometry.parts.assembly import DEFAULT, hooked_tube_assembly
+
+    parts = hooked_tube_assembly(DEFAULT)
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+    tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    top, tube = tool.NewShape(), tool.NewShape()
+    TDataStd_Name.Set_s(top, TCollection_ExtendedString("bench"))
+    TDataStd_Name.Set_s(tube, TCollection_ExtendedString("tube"))
+    for name, part in parts.items():
+        label = tool.AddShape(part.shape.wrapped, False)
+        TDataStd_Name.Set_s(label, TCollection_ExtendedString(name))
+        tool.AddComponent(tube, label, TopLoc_Location())
+    for k in range(copies):
+        t = gp_Trsf()
+        t.SetTranslation(gp_Vec(k * PITCH_MM, 0.0, 0.0))
+        tool.AddComponent(top, tube, TopLoc_Location(t))
+    tool.UpdateAssemblies()
+    writer = STEPCAFControl_Writer()
+    writer.SetNameMode(True)
+    writer.Transfer(doc, STEPControl_AsIs)
+    if writer.Write(str(path)) != IFSelect_RetDone:
+        raise RuntimeError(f"cannot write {path}")
+    return list(parts)
+
+
+def build(size: str, directory: Path) -> Path:
+    """tubes_<size>.step + scene_<size>.toml (split = "solids", every copy's detector a detector)."""
     import tomli_w
 
-    doc = {"part": [{"name": "tube", "mesh": "assembly.step", "split": "solids",
-                     "tolerance_mm": SIZES[size]["tolerance_mm"], "material": "z302_sample_b", "role": "surface",
-                     "solids": {"detector": {"role": "detector"}}}],
-           "source": [collimated_source(DEFAULT)]}
+    from geometry.cad import unique_names
+    from geometry.parts.assembly import DEFAULT, collimated_source
+
+    directory.mkdir(parents=True, exist_ok=True)
+    copies = SIZES[size]
+    step = directory / f"tubes_{size}.step"
+    names = write_tubes_step(step, copies)
+    solids = unique_names(names * copies)  # the reader's names: detector, detector_2, ...
+    detectors = [n for n in solids if n == "detector" or n.startswith("detector_")]
+    source = collimated_source(DEFAULT)
+    source["center_mm"][0] = (copies - 1) * PITCH_MM / 2
+    source["radius_mm"] = float(np.hypot((copies - 1) * PITCH_MM / 2, 0.0) + DEFAULT.flange_radius_mm)
+    doc = {"part": [{"name": "tubes", "mesh": step.name, "split": "solids", "tolerance_mm": TOLERANCE_MM,
+                     "material": "z302_sample_b", "role": "surface",
+                     "solids": {d: {"role": "detector"} for d in detectors}}],
+           "source": [source]}
     toml = directory / f"scene_{size}.toml"
     toml.write_text(tomli_w.dumps(doc))
     return toml
@@ -108,7 +156,7 @@ def main(argv=None) -> int:
         cache_dir = out / f"cache_{size}"
         for label in ("cold", "cached"):
             result = run(toml, args.rays, cache_dir)
-            result.update(size=size, run=label, tolerance_mm=SIZES[size]["tolerance_mm"])
+            result.update(size=size, run=label, tolerance_mm=TOLERANCE_MM, copies=SIZES[size])
             rows.append(result)
             print(f"{size:>6} {label:<6} {result['triangles']:>9,d} tri  load {result['load_s']:7.2f} s  "
                   f"first rays {result['first_rays_s']:7.2f} s  peak RSS {result['rss_first_mb']:7.0f} MB  "

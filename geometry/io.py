@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import re
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -136,6 +137,33 @@ def load_part(path, *, name: str | None = None, material: str | None = None, rol
         raise GeometryError(f"{path}: {exc}") from exc
 
 
+class _Instances:
+    """Tessellate each distinct solid once: an assembly that places one product many times (36 identical
+    vanes) shares one B-rep (``IsPartner``); each placement is the shared mesh moved rigidly (a rigid
+    motion keeps every chord error)."""
+
+    def __init__(self):
+        self.done = []  # [(un-located shape, Part)]
+
+    def tessellate(self, shape, *, name, kind, **tolerances) -> Part:
+        from OCP.TopLoc import TopLoc_Location
+
+        trsf = shape.Location().Transformation()
+        if abs(trsf.ScaleFactor() - 1.0) > 1e-12:  # not rigid: tessellate this placement itself
+            return tessellate(shape, name=name, kind=kind, **tolerances)
+        base = shape.Located(TopLoc_Location())
+        for other, mesh in self.done:
+            if base.IsPartner(other) and base.Orientation() == other.Orientation():
+                break
+        else:
+            mesh = tessellate(base, name=name, kind=kind, **tolerances)
+            self.done.append((base, mesh))
+        rot = np.array([[trsf.Value(i, j) for j in (1, 2, 3)] for i in (1, 2, 3)])
+        shift = np.array([trsf.Value(i, 4) for i in (1, 2, 3)])
+        meta = dict(mesh.meta, tessellation=replace(mesh.meta["tessellation"], name=name))
+        return Part(name, mesh.vertices_mm @ rot.T + shift, mesh.faces, None, "surface", meta)
+
+
 def tessellate_cad(path, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
                    angular_tolerance_deg: float = DEFAULT_ANGULAR_TOLERANCE_DEG, split: bool = True):
     """Tessellate a STEP/IGES file: [(solid name, kind, label in the file, Part)] (one entry for the whole
@@ -164,11 +192,12 @@ def tessellate_cad(path, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
     out = []
     from tqdm.auto import tqdm
 
+    instances = _Instances()
     for name, kind, label, shape in tqdm(items, desc=f"tessellating {path.name}", unit="solid", leave=False,
                                          disable=None if len(items) > 20 else True):
         try:
-            part = tessellate(shape, name=name, tolerance_mm=tolerance_mm,
-                              angular_tolerance_deg=angular_tolerance_deg, kind=kind)
+            part = instances.tessellate(shape, name=name, tolerance_mm=tolerance_mm,
+                                        angular_tolerance_deg=angular_tolerance_deg, kind=kind)
         except GeometryError as exc:
             raise GeometryError(f"{path}: solid {name!r}: {exc}") from None
         except Exception as exc:  # noqa: BLE001 - OCC raises bare Standard_Failure; name the file and solid
