@@ -231,3 +231,12 @@ def test_geometry_scene_command_writes_a_traceable_scene(tmp_path, capsys):
     assert abs(result.ledger["balance_residual_w"]) < 1e-9 and result.detectors["ocp_bench_m/detector"].power_w > 0
     assert main(["geometry", "scene", str(DATA / "gmsh_parts.step"), "-o", str(tmp_path / "g.toml")]) == 2
     assert "solid1, solid2" in capsys.readouterr().err
+
+
+def test_instances_of_one_product_share_one_mesh():
+    """ocp_bench places product "vane" twice (z = 20 and 40): one mesh, moved rigidly by 20 mm."""
+    parts = {p.name: p for p in load_cad_parts(DATA / "ocp_bench_m.step", name="a", tolerance_mm=TOL)}
+    a, b = parts["a/vane"], parts["a/vane_2"]
+    assert np.array_equal(a.faces, b.faces)
+    assert np.allclose(b.vertices_mm - a.vertices_mm, [0.0, 0.0, 20.0], atol=1e-9)
+    assert a.meta["tessellation"].max_chord_error_mm == b.meta["tessellation"].max_chord_error_mm
