@@ -14,9 +14,10 @@ Each run is a fresh process (so its peak RSS is its own):
 - cold: empty tessellation cache (read STEP, tessellate, measure chord errors, write the cache);
 - cached: the same command again (the cache entry is read instead).
 
-Reported per run: seconds to load the scene (``straylight.scene.load_scene``: geometry, checks,
-materials, sources), seconds to the first traced rays (load + embree scene + compiled kernels +
-a 1000-ray trace), peak RSS (``resource.getrusage``) after that, and peak RSS after a trace of
+Reported per run: seconds to import the tracer (``import_s``: numpy, numba, embreex, ...: the
+same for any scene), seconds from process start to the scene loaded (``load_s``:
+``straylight.scene.load_scene``: geometry, checks, materials, sources), seconds to the first traced
+rays (load + embree scene + compiled kernels + a 1000-ray trace), peak RSS (``resource.getrusage``) after that, and peak RSS after a trace of
 ``--rays`` and of 10x that many rays: memory stays flat in ray count (the tracer works in
 fixed-size batches). The ratio cold/cached is measured within one run. The machine is shared.
 """
@@ -48,7 +49,11 @@ def child(toml: str, rays: int) -> dict:
     t0 = time.perf_counter()
     import warnings
 
+    import embreex  # noqa: F401 - the imports any scene pays (tracer, embree, numba), timed apart
+    import straylight.trace  # noqa: F401
     from straylight.scene import load_scene
+
+    t_import = time.perf_counter() - t0
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -65,7 +70,8 @@ def child(toml: str, rays: int) -> dict:
     rs.trace(10 * rays, seed=3)
     rss_10x = _rss_mb()
     cached = any("cache" in p.meta for p in rs.scene.parts)
-    return {"triangles": n_tri, "parts": len(rs.scene.parts), "from_cache": cached, "load_s": t_load,
+    return {"triangles": n_tri, "parts": len(rs.scene.parts), "from_cache": cached, "import_s": t_import,
+            "load_s": t_load,
             "first_rays_s": t_first, "rss_first_mb": rss_first, "rays": rays, "trace_s": t_rays,
             "rss_after_rays_mb": rss_rays, "rss_after_10x_rays_mb": rss_10x}
 
@@ -158,7 +164,8 @@ def main(argv=None) -> int:
             result = run(toml, args.rays, cache_dir)
             result.update(size=size, run=label, tolerance_mm=TOLERANCE_MM, copies=SIZES[size])
             rows.append(result)
-            print(f"{size:>6} {label:<6} {result['triangles']:>9,d} tri  load {result['load_s']:7.2f} s  "
+            print(f"{size:>6} {label:<6} {result['triangles']:>9,d} tri  imports {result.get('import_s', 0):5.2f} s  "
+                  f"load {result['load_s']:7.2f} s  "
                   f"first rays {result['first_rays_s']:7.2f} s  peak RSS {result['rss_first_mb']:7.0f} MB  "
                   f"after {result['rays']:,d} rays {result['rss_after_rays_mb']:7.0f} MB  "
                   f"after {10 * result['rays']:,d} {result['rss_after_10x_rays_mb']:7.0f} MB", flush=True)

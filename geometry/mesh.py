@@ -59,6 +59,15 @@ class Part:
     def n_triangles(self) -> int:
         return len(self.faces)
 
+    @property
+    def is_watertight(self) -> bool:
+        """Every edge shared by exactly two triangles (as ``trimesh``'s ``is_watertight``; numpy only, so
+        loading a scene need not import trimesh)."""
+        edges = np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        key = edges[:, 0] * (int(self.faces.max()) + 1) + edges[:, 1]
+        _, counts = np.unique(key, return_counts=True)
+        return bool(np.all(counts == 2))
+
     def to_trimesh(self):
         import trimesh
 

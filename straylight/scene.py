@@ -140,7 +140,7 @@ def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
             if part.material not in materials:
                 materials[part.material] = resolve_material(part.material, inline, path.parent, where)
         _resolve_back_material(part, materials, inline, path.parent, where)
-        if check_watertight and part.role != "detector" and not part.to_trimesh().is_watertight:
+        if check_watertight and part.role != "detector" and not part.is_watertight:
             notes.append(f"{where}: mesh is not watertight (light may enter the solid through gaps)")
     entries = doc.get("source", [])
     if not isinstance(entries, list) or not entries:

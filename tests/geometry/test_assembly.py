@@ -88,3 +88,13 @@ def test_exported_scene_traces_with_exact_power_balance(tmp_path):
     result = rs.trace(3000, seed=1)
     assert abs(result.ledger["balance_residual_w"]) < 1e-9
     assert result.detectors["detector"].power_w > 0
+
+
+def test_numpy_watertight_check_agrees_with_trimesh(small_parts):
+    from geometry.mesh import Part
+    from geometry.tessellate import tessellate
+
+    part = tessellate(small_parts["vane_1"].shape, tolerance_mm=0.2)
+    assert part.is_watertight and part.to_trimesh().is_watertight
+    cut = Part("cut", part.vertices_mm, part.faces[:-1])
+    assert not cut.is_watertight and not cut.to_trimesh().is_watertight
