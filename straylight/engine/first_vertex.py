@@ -147,11 +147,11 @@ def _single_scatter(spec, comp, src, t, x, u_det, j):
     lit, v, d2, dist, wo, cos_o, cos_z = (a[good] for a in (lit, v, d2, dist, wo, cos_o, cos_z))
     if len(lit) == 0:
         return value, z, shadows
-    so = np.ascontiguousarray(x[lit] + eps * nf[lit])
-    blocked = np.asarray(comp.isect.occluded(so, np.ascontiguousarray(wi[lit]), tmax[lit]), dtype=bool)
-    to_det = np.ascontiguousarray(z[lit] - so)
+    shadow_origin = np.ascontiguousarray(x[lit] + eps * nf[lit])
+    blocked = np.asarray(comp.isect.occluded(shadow_origin, np.ascontiguousarray(wi[lit]), tmax[lit]), dtype=bool)
+    to_det = np.ascontiguousarray(z[lit] - shadow_origin)
     ld = np.sqrt(np.einsum("ij,ij->i", to_det, to_det))
-    blocked |= np.asarray(comp.isect.occluded(so, np.ascontiguousarray(to_det / ld[:, None]), ld - eps), dtype=bool)
+    blocked |= np.asarray(comp.isect.occluded(shadow_origin, np.ascontiguousarray(to_det / ld[:, None]), ld - eps), dtype=bool)
     shadows = 2 * len(lit)
     keep = ~blocked
     lit, wo, d2, cos_o, cos_z = lit[keep], wo[keep], d2[keep], cos_o[keep], cos_z[keep]

@@ -51,8 +51,8 @@ def nee_pairs(verts, frame, hit, U, u_col0, scene, settings):
     k_nee = settings.nee_samples
     ns = len(verts)
     m = ns * n_det * k_nee
-    ps = np.empty(m, np.int64)
-    pjk = np.empty(m, np.int64)
+    pair_vertex = np.empty(m, np.int64)
+    pair_sample = np.empty(m, np.int64)
     y = np.empty((m, 3))
     wo_loc = np.empty((m, 3))
     wdir = np.empty((m, 3))
@@ -95,8 +95,8 @@ def nee_pairs(verts, frame, hit, U, u_col0, scene, settings):
             if settings.both_sides:
                 cd = abs(cd)
             if cs > 0 and cd > 0 and dist > two_eps:
-                ps[q] = s
-                pjk[q] = jk
+                pair_vertex[q] = s
+                pair_sample[q] = jk
                 y[q, 0], y[q, 1], y[q, 2] = y0, y1, y2
                 wo_loc[q, 0] = dot3(a0, a1, a2, tb[s, 0], tb[s, 1], tb[s, 2])
                 wo_loc[q, 1] = dot3(a0, a1, a2, bb[s, 0], bb[s, 1], bb[s, 2])
@@ -106,7 +106,7 @@ def nee_pairs(verts, frame, hit, U, u_col0, scene, settings):
                 cos_s[q] = cs
                 cos_d[q] = cd
                 q += 1
-    return ps[:q], pjk[:q], y[:q], wo_loc[:q], dist2[:q], cos_s[:q], cos_d[:q], wdir[:q]
+    return pair_vertex[:q], pair_sample[:q], y[:q], wo_loc[:q], dist2[:q], cos_s[:q], cos_d[:q], wdir[:q]
 
 
 def nee_pairs_numpy(verts, frame, hit, U, u_col0, scene, settings):
@@ -149,9 +149,9 @@ def nee_shadow(pairs, f, pdf_brdf, verts, rays, hit, scene, settings):
     k_nee = settings.nee_samples
     eps = settings.eps_mm
     keep = np.empty(m, np.int64)
-    cc = np.empty(m)
-    so = np.empty((m, 3))
-    sd = np.empty((m, 3))
+    contribution = np.empty(m)
+    shadow_origin = np.empty((m, 3))
+    shadow_dir = np.empty((m, 3))
     tmax = np.empty(m)
     p, nf, w = hit.point_mm, hit.facing_normal, rays.weight_w
     q = 0
@@ -169,12 +169,12 @@ def nee_shadow(pairs, f, pdf_brdf, verts, rays, hit, scene, settings):
             v0_, v1_, v2_ = y[a, 0] - oo0, y[a, 1] - oo1, y[a, 2] - oo2
             lo = np.sqrt(dot3(v0_, v1_, v2_, v0_, v1_, v2_))
             keep[q] = a
-            cc[q] = c
-            so[q, 0], so[q, 1], so[q, 2] = oo0, oo1, oo2
-            sd[q, 0], sd[q, 1], sd[q, 2] = v0_ / lo, v1_ / lo, v2_ / lo
+            contribution[q] = c
+            shadow_origin[q, 0], shadow_origin[q, 1], shadow_origin[q, 2] = oo0, oo1, oo2
+            shadow_dir[q, 0], shadow_dir[q, 1], shadow_dir[q, 2] = v0_ / lo, v1_ / lo, v2_ / lo
             tmax[q] = lo - eps
             q += 1
-    return keep[:q], cc[:q], so[:q], sd[:q], tmax[:q]
+    return keep[:q], contribution[:q], shadow_origin[:q], shadow_dir[:q], tmax[:q]
 
 
 def nee_shadow_numpy(pairs, f, pdf_brdf, verts, rays, hit, scene, settings):
@@ -188,10 +188,10 @@ def nee_shadow_numpy(pairs, f, pdf_brdf, verts, rays, hit, scene, settings):
          * power_heuristic_rows(p_nee, pdf_brdf) / k_nee)
     keep = np.flatnonzero(c > 0)
     i = i[keep]
-    so = hit.point_mm[i] + eps * hit.facing_normal[i]
-    v = pairs.point_mm[keep] - so
+    shadow_origin = hit.point_mm[i] + eps * hit.facing_normal[i]
+    v = pairs.point_mm[keep] - shadow_origin
     lo = np.sqrt(dot_rows(v, v))
-    return keep, c[keep], so, v / lo[:, None], lo - eps
+    return keep, c[keep], shadow_origin, v / lo[:, None], lo - eps
 
 
 @njit(cache=True, nogil=True)
