@@ -268,11 +268,12 @@ def _pst_plot(pst, setup, path, material: str = ""):
         ax.plot(a[ok], (direct * conv)[ok], "k--", lw=1, label="unscattered (geometric) transmission")
     ax.legend(fontsize=8)
     prm = setup.params or {}
-    what = (f"the baffled tube: {prm.get('vane_count', '?')} vanes "
-            f"(hole r = {prm.get('vane_inner_radius_mm', float('nan')):g} mm)\ncoating {material}"
-            if prm else f"{setup.description}\n")
-    ax.set_title(f"Point source transmittance of {what}; {pst.rays:.2g} rays per angle, 1-sigma error bars",
-                 fontsize=9)
+    what, extra = ((f"the baffled tube: {prm.get('vane_count', '?')} vanes "
+                    f"(hole r = {prm.get('vane_inner_radius_mm', float('nan')):g} mm)", f"coating {material}; ")
+                   if prm else (setup.description, ""))
+    rays = (f"{pst.rays:.2g} rays per angle" if pst.precision is None
+            else f"traced to {pst.precision['target_rel_error']:.1%} rel. error (or a cap)")
+    ax.set_title(f"Point source transmittance of {what}\n{extra}{rays}, 1-sigma error bars", fontsize=9)
     fig.tight_layout()
     atomicio.write_figure(fig, path)
     plt.close(fig)
