@@ -341,28 +341,17 @@ def synth_scan(material, plan, effects=(), config: RigConfig = NOMINAL, seed: in
 
 # ----------------------------------------------------------------------------- score cases
 
-class _Sum:
-    """Sum of material components (Brdf protocol: brdf only)."""
-
-    def __init__(self, components, wavelength_nm):
-        self.components = tuple(components)
-        self.wavelength_nm = wavelength_nm
-
-    def brdf(self, wi, wo, polarization="u"):
-        return sum(c.brdf(wi, wo, polarization) for c in self.components)
-
-
 def glossy_black(wavelength_nm: float = 532.0):
     """Test sample like the seed paper's Z302 sample B: Lambertian rd 0.02, a sharp lobe
     (sigma 5 nm, lc 40 um, s 2.4) narrower than the rig's ~0.5 deg response, and a broad lobe
     (sigma 25 nm, lc 1.5 um, s 3), one index n = 1.52 for s and p."""
+    from materials.composite import Composite
     from materials.kcorrelation import KCorrelation
     from materials.lambertian import Lambertian
 
-    return _Sum([Lambertian(0.02),
-                 KCorrelation(sigma_nm=5.0, lc_um=40.0, s=2.4, n=1.52, wavelength_nm=wavelength_nm),
-                 KCorrelation(sigma_nm=25.0, lc_um=1.5, s=3.0, n=1.52, wavelength_nm=wavelength_nm)],
-                wavelength_nm)
+    return Composite((Lambertian(0.02),
+                      KCorrelation(sigma_nm=5.0, lc_um=40.0, s=2.4, n=1.52, wavelength_nm=wavelength_nm),
+                      KCorrelation(sigma_nm=25.0, lc_um=1.5, s=3.0, n=1.52, wavelength_nm=wavelength_nm)))
 
 
 #: One injected effect per catalogue entry, at a strength a hand-aligned reflectometer can have
@@ -402,11 +391,11 @@ PAIRS = (("angle_offset", "stray_background"), ("sample_tilt", "polarization_lea
 def broad_black(wavelength_nm: float = 532.0):
     """A second truth sample unlike :func:`glossy_black`: Lambertian rd 0.05 and one broad
     K-correlation lobe (sigma 15 nm, lc 3 um, s 2.8, n 1.6) -- a matte black with a wide sheen."""
+    from materials.composite import Composite
     from materials.kcorrelation import KCorrelation
     from materials.lambertian import Lambertian
 
-    return _Sum([Lambertian(0.05), KCorrelation(sigma_nm=15.0, lc_um=3.0, s=2.8, n=1.6, wavelength_nm=wavelength_nm)],
-                wavelength_nm)
+    return Composite((Lambertian(0.05), KCorrelation(sigma_nm=15.0, lc_um=3.0, s=2.8, n=1.6, wavelength_nm=wavelength_nm)))
 
 
 def truth_material(name: str):

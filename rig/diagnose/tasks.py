@@ -9,8 +9,6 @@ rest of the diagnosis. Results come back in submission order: the same as the se
 """
 from __future__ import annotations
 
-import sys
-
 _PROBLEMS: dict = {}  # in a worker process: problem token -> the Problem (caches warm)
 _KEEP = 4
 
@@ -24,13 +22,12 @@ def _call(problem, fn, args):
     return fn(local, *args)
 
 
-def progress_bar(iterable, total, desc, show):
-    """tqdm on stderr when ``show`` (a no-op wrapper otherwise)."""
+def _bar(iterable, total, desc, show):
     if not show:
         return iterable
-    from tqdm import tqdm
+    from straylight.progress import progress_bar
 
-    return tqdm(iterable, total=total, desc=desc, file=sys.stderr, leave=False)
+    return progress_bar(iterable, total=total, desc=desc)
 
 
 def run_tasks(problem, fn, arglist, executor=None, progress: bool = False, desc: str = "") -> list:
@@ -38,6 +35,6 @@ def run_tasks(problem, fn, arglist, executor=None, progress: bool = False, desc:
     be a module-level function, so it pickles)."""
     arglist = [tuple(a) for a in arglist]
     if executor is None or len(arglist) <= 1:
-        return [fn(problem, *a) for a in progress_bar(arglist, len(arglist), desc, progress)]
+        return [fn(problem, *a) for a in _bar(arglist, len(arglist), desc, progress)]
     futures = [executor.submit(_call, problem, fn, a) for a in arglist]
-    return [f.result() for f in progress_bar(futures, len(futures), desc, progress)]
+    return [f.result() for f in _bar(futures, len(futures), desc, progress)]
