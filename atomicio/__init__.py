@@ -102,7 +102,8 @@ def write_bytes(path, data: bytes, *, fsync: bool = True) -> Path:
 
 def json_safe(obj):
     """``obj`` made JSON-clean, recursively: numpy scalars/arrays to Python, tuples/sets to lists,
-    Paths to strings, NaN and +-inf to ``None`` (strict JSON has no NaN)."""
+    Paths to strings, NaN and +-inf to ``None`` (strict JSON has no NaN), any other object to its
+    ``str``. The project's one JSON sanitiser."""
     if isinstance(obj, dict):
         return {str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple, set, frozenset)):
@@ -121,7 +122,7 @@ def json_safe(obj):
     item = getattr(obj, "item", None)
     if callable(item):
         return json_safe(item())
-    raise TypeError(f"json_safe: cannot write a {type(obj).__name__} to JSON")
+    return str(obj)  # anything else (an enum, a model object): its text, as json.dumps(default=str)
 
 
 def write_json(path, obj, *, indent: int | None = 2, fsync: bool = True) -> Path:

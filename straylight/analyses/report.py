@@ -16,7 +16,6 @@ from the user's seed.
 from __future__ import annotations
 
 import html
-import json
 import math
 import platform
 import sys
@@ -225,7 +224,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
                    for k, v in cfg.__dict__.items()},
         "software": {"python": platform.python_version(), "numpy": np.__version__},
     }
-    atomicio.write_text(out / "results.json", json.dumps(result.summary, indent=2, default=_json_default))
+    atomicio.write_json(out / "results.json", result.summary)
     write_markdown(result, pst, report, crit, sweep, direct)
     write_html(result, pst, report, crit, sweep, direct)
     result.files = {p.name: p for p in sorted(out.iterdir())}
@@ -240,16 +239,6 @@ def _title(result) -> str:
 
 def _short_name(setup) -> str:
     return "Baffled tube" if setup.params else str(setup.description).replace("scene ", "Scene ", 1)
-
-
-def _json_default(x):
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (np.floating,)):
-        return float(x)
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)
 
 
 def _pst_plot(pst, setup, path, material: str = ""):
