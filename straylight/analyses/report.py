@@ -100,8 +100,67 @@ def benchmark_direct_ratio(off_axis, params: dict) -> np.ndarray:
     return geometric_direct_ratio(off_axis, r_v, r_d, z_top) * (r_v / r_e) ** 2
 
 
-def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
-    """Run every step and write the report folder; returns what was written and the key numbers."""
+POINTS_DIR = "study.points"  # finished sweep points of an unfinished study (straylight.checkpoints)
+
+
+def run_study(out_dir, config: StudyConfig | None = None, resume: bool = False) -> StudyResult:
+    """Run every step and write the report folder; returns what was written and the key numbers.
+
+    Each finished point of the PST and design sweeps is kept in ``out_dir/study.points`` until the
+    report is written; ``resume`` reads those back instead of tracing them again (same numbers).
+    On Ctrl-C (KeyboardInterrupt) a partial ``results.json``/``index.html`` naming the finished and
+    missing steps is written before the interrupt is passed on."""
+    cfg = config or StudyConfig()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    done: list[str] = []
+    try:
+        return _run_study(out, cfg, resume, done)
+    except KeyboardInterrupt:
+        write_partial_report(out, cfg, done)
+        raise
+
+
+def planned_steps(cfg: StudyConfig) -> list[str]:
+    """The study's steps, in order, for this configuration."""
+    sweep = cfg.sweep and ((cfg.model is not None and cfg.sweep_values) or (cfg.scene is None and cfg.model is None))
+    return ["geometry", "pst", "paths", "critical", *(["sweep"] if sweep else []), "views", "report"]
+
+
+def write_partial_report(out: Path, cfg: StudyConfig, done: list[str]) -> None:
+    """results.json and index.html of an interrupted study: which steps finished, which are missing."""
+    missing = [s for s in planned_steps(cfg) if s not in done]
+    points = {p.name: len(list(p.glob("point_*.json"))) for p in sorted((out / POINTS_DIR).glob("*"))
+              if p.is_dir() and p.name != "study"}
+    files = sorted(p.name for p in out.iterdir() if p.is_file() and p.name not in ("results.json", "index.html"))
+    doc = {"status": "interrupted", "completed_steps": list(done), "missing_steps": missing,
+           "finished_sweep_points": points, "files": files,
+           "resume": "run the same study command again with --resume: finished sweep points are read back",
+           "config": _config_dict(cfg)}
+    atomicio.write_json(out / "results.json", doc)
+    items = "".join(f'<li><a href="{html.escape(f)}">{html.escape(f)}</a></li>' for f in files)
+    pts = "".join(f"<li>{html.escape(k)}: {v} points</li>" for k, v in points.items())
+    page = f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>Interrupted study</title></head>
+<body style="font-family: sans-serif; max-width: 900px; margin: 2em auto">
+<h1>{html.escape(_title(StudyResult(out, cfg)))}: interrupted</h1>
+<p>Finished steps: {html.escape(', '.join(done) or 'none')}.</p>
+<p><strong>Missing steps: {html.escape(', '.join(missing))}.</strong></p>
+<p>Sweep points finished and kept for <code>--resume</code>:</p><ul>{pts or '<li>none</li>'}</ul>
+<p>Run the same <code>straylight study</code> command again with <code>--resume</code> to finish it;
+the finished sweep points are read back, not traced again.</p>
+<h2>Files written so far</h2><ul>{items or '<li>none</li>'}</ul>
+</body></html>
+"""
+    atomicio.write_text(out / "index.html", page)
+
+
+def _config_dict(cfg: StudyConfig) -> dict:
+    return {k: (list(v) if isinstance(v, tuple) else dict(v.__dict__) if k == "precision" and v else v)
+            for k, v in cfg.__dict__.items()}
+
+
+def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list) -> StudyResult:
     from straylight import viz
     from straylight.analyses.builtin import tube_setup
     from straylight.analyses.critical import critical_objects
@@ -109,9 +168,15 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
     from straylight.analyses.pst import dask_client, point_seed, pst_sweep
     from straylight.analyses.sweep import design_sweep
 
-    cfg = config or StudyConfig()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    from straylight.checkpoints import PointStore
+
+    points = out / POINTS_DIR
+    if not resume:
+        PointStore.remove_folder(points)
+    # settings first: a resume with other settings is refused before any work (the sweeps' own stores
+    # check the scene and everything else that decides their numbers)
+    PointStore(points / "study", {k: v for k, v in _config_dict(cfg).items()
+                                  if k not in ("progress", "workers", "scheduler")}, resume=resume)
     result = StudyResult(out, cfg)
     t_all = time.perf_counter()
 
@@ -131,18 +196,20 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         _step("building the tube (CadQuery, tessellation)", cfg.progress)
         setup = tube_setup(material=cfg.material)
     result.timings_s["geometry"] = time.perf_counter() - t0
+    done.append("geometry")
 
     with dask_client(cfg.workers, cfg.scheduler) as client:
         _step(f"PST sweep, {len(cfg.angles_deg)} angles x {cfg.rays} rays", cfg.progress)
         t0 = time.perf_counter()
         pst = pst_sweep(setup, np.radians(cfg.angles_deg), n_rays=cfg.rays, seed=point_seed(cfg.seed, 1),
-                        precision=cfg.precision,
-                        client=client, progress=cfg.progress)
+                        precision=cfg.precision, client=client, progress=cfg.progress,
+                        checkpoint_dir=points / "pst", resume=resume)
         result.timings_s["pst"] = time.perf_counter() - t0
         pst.write_csv(out / "pst.csv")
         pst.write_json(out / "pst.json")
         _pst_plot(pst, setup, out / "pst.png", cfg.material)
         pst.plot(out / "entrance_ratio.png", quantity="entrance_ratio")
+        done.append("pst")
 
         _step(f"paths at {cfg.path_angle_deg:g} deg, {cfg.path_rays} rays", cfg.progress)
         t0 = time.perf_counter()
@@ -156,6 +223,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         viz.plot_detector_map(trace_res.maps[setup.detector], out / "detector_map.png",
                               title=f"Detector irradiance at {cfg.path_angle_deg:g} deg off axis "
                                     f"({cfg.path_rays:.2g} rays, 1 W beam)", rebin=4)
+        done.append("paths")
 
         _step(f"critical and illuminated objects at {cfg.path_angle_deg:g} deg", cfg.progress)
         t0 = time.perf_counter()
@@ -166,6 +234,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         crit.write_csv(out / "critical.csv")
         atomicio.write_text(out / "critical.md", crit.markdown())
         crit.plot(out / "critical.png")
+        done.append("critical")
 
     sweep = None
     if cfg.sweep and cfg.model is not None and cfg.sweep_values:
@@ -180,16 +249,19 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
         sweep.write_csv(out / "sweep.csv")
         sweep.write_json(out / "sweep.json")
         sweep.plot(out / "sweep.png")
+        done.append("sweep")
     elif cfg.sweep and cfg.scene is None and cfg.model is None:
         _step(f"design sweep of {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
         t0 = time.perf_counter()
         sweep = design_sweep(cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
                              n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4), material=cfg.material,
-                             workers=cfg.workers, scheduler=cfg.scheduler, progress=cfg.progress)
+                             workers=cfg.workers, scheduler=cfg.scheduler, progress=cfg.progress,
+                             checkpoint_dir=points / "sweep", resume=resume)
         result.timings_s["sweep"] = time.perf_counter() - t0
         sweep.write_csv(out / "sweep.csv")
         sweep.write_json(out / "sweep.json")
         sweep.plot(out / "sweep.png")
+        done.append("sweep")
 
     _step("3-D views", cfg.progress)
     t0 = time.perf_counter()
@@ -204,6 +276,7 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
                      absorbed_w={k: v.power_w for k, v in trace_res.absorbed.items()},
                      title=f"Absorbed power per part (detector in yellow), beam {cfg.path_angle_deg:g} deg off axis")
     result.timings_s["views"] = time.perf_counter() - t0
+    done.append("views")
     result.timings_s["total"] = time.perf_counter() - t_all
 
     direct = benchmark_direct_ratio(np.radians(cfg.angles_deg), setup.params)
@@ -220,13 +293,14 @@ def run_study(out_dir, config: StudyConfig | None = None) -> StudyResult:
                                         "absorbed_w": sum(t.power_w for t in trace_res.absorbed.values()),
                                         "escaped_w": trace_res.escaped.power_w},
         "timings_s": result.timings_s,
-        "config": {k: (list(v) if isinstance(v, tuple) else dict(v.__dict__) if k == "precision" and v else v)
-                   for k, v in cfg.__dict__.items()},
+        "config": _config_dict(cfg),
         "software": {"python": platform.python_version(), "numpy": np.__version__},
     }
     atomicio.write_json(out / "results.json", result.summary)
     write_markdown(result, pst, report, crit, sweep, direct)
     write_html(result, pst, report, crit, sweep, direct)
+    PointStore.remove_folder(points)  # the report holds every number now
+    done.append("report")
     result.files = {p.name: p for p in sorted(out.iterdir())}
     return result
 

@@ -111,8 +111,12 @@ class SweepResult:
 def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math.radians(20), math.radians(30)),
                  n_rays: int = 50_000, seed: int = 0, material="z302_sample_b", base_params: dict | None = None,
                  nee: bool = True, workers: int | None = None, scheduler: str | None = None,
-                 progress: bool = True) -> SweepResult:
-    """PST of the built-in tube at ``off_axis`` (radians) for each value of one ``TubeParams`` field."""
+                 progress: bool = True, checkpoint_dir=None, resume: bool = False) -> SweepResult:
+    """PST of the built-in tube at ``off_axis`` (radians) for each value of one ``TubeParams`` field.
+
+    ``checkpoint_dir``: each finished (design, angle) point is written there
+    (:class:`straylight.checkpoints.PointStore`); ``resume`` reads back the points an interrupted
+    run of the same sweep finished (same numbers: every point has its own seed)."""
 
     from geometry.parts.tube import TubeParams
     from straylight.analyses.builtin import tube_setup
@@ -128,15 +132,27 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
     out = {k: np.full(shape, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "sec")}
     opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee))
     label = material if isinstance(material, str) else repr(material)
+    store = _point_store(checkpoint_dir, resume, {
+        "sweep": "design_sweep", "parameter": parameter, "values": values, "off_axis": off_axis,
+        "rays": int(n_rays), "seed": int(seed), "material": material, "base_params": base_params, "nee": bool(nee)})
     with dask_client(workers, scheduler) as client:
         bar = progress_bar(total=len(values) * len(off_axis), desc=f"sweep {parameter}", unit="point",
                            enabled=progress)
         for i, v in enumerate(values):
             params = dict(base_params or {})
             params[parameter] = int(v) if parameter == "vane_count" else float(v)
-            setup = tube_setup(material=material, **params)
-            area = _area(setup)
+            setup = None
             for j, a in enumerate(off_axis):
+                k = i * len(off_axis) + j
+                saved = store.get(k) if store is not None else None
+                if saved is not None:  # finished by an earlier run of this sweep
+                    for key in out:
+                        out[key][i, j] = saved[key]
+                    bar.update()
+                    continue
+                if setup is None:  # built only when one of its points is still to trace
+                    setup = tube_setup(material=material, **params)
+                    area = _area(setup)
                 bar.set_postfix_str(f"{parameter}={v:g}, {math.degrees(a):g} deg")
                 t0 = time.perf_counter()
                 res = trace(setup.scene, [setup.beam.source(a)], n_rays=int(n_rays),
@@ -148,10 +164,23 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
                 p_ent = setup.entrance.power_w(setup.beam, a)
                 out["pst"][i, j], out["pst_se"][i, j] = t.power_w / area / e_in, t.stderr_w / area / e_in
                 out["ratio"][i, j], out["ratio_se"][i, j] = t.power_w / p_ent, t.stderr_w / p_ent
+                if store is not None:
+                    store.put(k, {key: float(out[key][i, j]) for key in out})
                 bar.update()
         bar.close()
     return SweepResult(parameter, values, np.round(np.degrees(off_axis), 9), out["pst"], out["pst_se"],
                        out["ratio"], out["ratio_se"], out["sec"], int(n_rays), int(seed), label)
+
+
+def _point_store(folder, resume: bool, fingerprint: dict):
+    """The sweep's :class:`straylight.checkpoints.PointStore` in ``folder`` (None: no checkpoints)."""
+    if folder is None:
+        if resume:
+            raise ValueError("resume needs a checkpoint folder")
+        return None
+    from straylight.checkpoints import PointStore
+
+    return PointStore(folder, fingerprint, resume=resume)
 
 
 def _area(setup) -> float:

@@ -41,6 +41,9 @@ def add_parser(subparsers):
     p.add_argument("--sweep-values", type=float, nargs="+", default=None,
                    help="values of the swept parameter (default for vane_count: 0 .. 9)")
     p.add_argument("--no-sweep", action="store_true", help="skip the design sweep")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted study in the same --out: finished PST and design-sweep points "
+                        "are read back (same numbers); refused if the settings changed")
     p.set_defaults(func=run)
 
 
@@ -51,6 +54,8 @@ def run(args) -> int:
     if sum(x is not None for x in (args.scene, args.builtin, args.model)) > 1:
         raise ValueError("give one of SCENE.toml, --builtin tube or --model FILE.py:FUNCTION")
     if args.builtin == "cassegrain":
+        if args.resume:
+            raise ValueError("--resume is not available for --builtin cassegrain")
         return _cassegrain(args)
     precision = precision_from_args(args)
     if args.rays < 100:
@@ -84,7 +89,7 @@ def run(args) -> int:
             check_parameter(fn, args.sweep_parameter, args.model.rsplit(":", 1)[0])
         else:
             cfg.sweep_values = ()  # a model is swept only over the values given
-    result = run_study(args.out, cfg)
+    result = run_study(args.out, cfg, resume=args.resume)
     print(f"study written to {result.out_dir}/index.html ({result.timings_s['total']:.0f} s)")
     return 0
 
