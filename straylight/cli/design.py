@@ -34,6 +34,8 @@ def add_parser(subparsers):
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--threads", type=int, default=2, help="tracing threads")
     v.add_argument("--out", required=True, help="output directory")
+    v.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run in the same --out: finished final PST points are read back")
     v.set_defaults(func=run)
 
 
@@ -50,7 +52,8 @@ def run(args) -> int:
     if args.refine_evals < 0:
         raise ValueError(f"--refine-evals must be >= 0, got {args.refine_evals}")
     doc = design_vanes(spec, args.out, material=args.material, rays=args.rays, seed=args.seed,
-                       refine_rays=args.refine_rays, refine_evals=args.refine_evals, threads=args.threads)
+                       refine_rays=args.refine_rays, refine_evals=args.refine_evals, threads=args.threads,
+                       resume=args.resume)
     print(f"{len(doc['vanes'])} vanes ({doc['design_source']}):")
     for v in doc["vanes"]:
         print(f"  z {v['z_mm']:8.2f} mm  inner radius {v['inner_radius_mm']:7.3f} mm")

@@ -33,8 +33,11 @@ class PstPoint:
 
 
 def pst_points(spec, vanes, material_models: dict, angles_deg, rays: int, seed: int,
-               threads: int | None = None) -> list[PstPoint]:
-    """PST of the tube with ``vanes`` at each off-axis angle (same definition and seeds as ``straylight pst``)."""
+               threads: int | None = None, store=None, slot: int = 0) -> list[PstPoint]:
+    """PST of the tube with ``vanes`` at each off-axis angle (same definition and seeds as ``straylight pst``).
+
+    ``store``: a :class:`straylight.checkpoints.PointStore`; angle i is kept there as point
+    ``slot * 1000 + i`` with the layout's vane heights, and read back if an earlier run finished it."""
     from straylight.analyses.pst import part_area_mm2, point_seed
     from straylight.trace import TraceOptions, trace
 
@@ -43,13 +46,20 @@ def pst_points(spec, vanes, material_models: dict, angles_deg, rays: int, seed: 
     area = part_area_mm2(sc, "detector")
     opts = TraceOptions(first_vertex_sampling=True)
     out = []
+    z_mm = [float(v.z_mm) for v in vanes]
     for i, a_deg in enumerate(angles_deg):
+        saved = store.get(slot * 1000 + i) if store is not None else None
+        if saved is not None and saved["z_mm"] == z_mm:  # finished by an earlier run
+            out.append(PstPoint(float(a_deg), saved["pst"], saved["pst_stderr"], int(saved["rays"])))
+            continue
         a = math.radians(float(a_deg))
         res = trace(sc, [bm.source(a, 0.0)], n_rays=int(rays), seed=point_seed(seed, i), materials=material_models,
                     options=opts, threads=threads)
         tally = res.detectors["detector"]
         e_in = bm.irradiance_w_per_mm2(a)
         out.append(PstPoint(float(a_deg), tally.power_w / area / e_in, tally.stderr_w / area / e_in, int(rays)))
+        if store is not None:
+            store.put(slot * 1000 + i, {**out[-1].to_dict(), "z_mm": z_mm})
     return out
 
 

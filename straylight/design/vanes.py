@@ -37,8 +37,12 @@ def optimiser_seed(seed: int) -> int:
 
 def design_vanes(spec: BaffleSpec, out, *, material="z302_sample_b", rays: int = 100_000, seed: int = 0,
                  refine_rays: int | None = None, refine_evals: int = 40, threads: int | None = None,
-                 progress: bool = True, log=print) -> dict:
-    """Design the vanes of ``spec``'s tube and write DIR (see the module docstring); returns design.json's dict."""
+                 progress: bool = True, log=print, resume: bool = False) -> dict:
+    """Design the vanes of ``spec``'s tube and write DIR (see the module docstring); returns design.json's dict.
+
+    The final PST evaluations are kept point by point in DIR/design.points until design.json is
+    written; ``resume`` reads back those an interrupted run finished (the optimiser is re-run: it is
+    seeded, so it ends at the same layout)."""
     from atomicio import write_json
 
     from straylight.design.refine import refine
@@ -55,6 +59,12 @@ def design_vanes(spec: BaffleSpec, out, *, material="z302_sample_b", rays: int =
         + ", ".join(f"{v.z_mm:.1f}" for v in built.vanes) + " mm"
         + ("" if built.complete else f" (incomplete: {'; '.join(built.notes)})"))
     angles = band_angles(spec)
+    from straylight.checkpoints import PointStore
+
+    # checked before the optimiser runs: a resume with other settings is refused at once
+    store = PointStore(out / "design.points", {
+        "spec": built.to_dict()["spec"], "material": material, "angles": angles, "rays": int(rays),
+        "seed": int(seed), "threads": threads}, resume=resume)
     refine_rays = int(refine_rays or max(2_000, int(rays) // 5))
     refinement = None
     if refine_evals > 0 and built.vanes:
@@ -64,8 +74,11 @@ def design_vanes(spec: BaffleSpec, out, *, material="z302_sample_b", rays: int =
         log(f"refinement: {refinement.stop_reason}; J {refinement.start_objective:.3f} -> "
             f"{refinement.best_objective:.3f} (+- {refinement.start_objective_stderr:.3f})")
 
+    slots = iter(range(4))
+
     def traced(layout):
-        return pst_points(spec, layout.vanes, models, angles, int(rays), int(seed), threads=threads)
+        return pst_points(spec, layout.vanes, models, angles, int(rays), int(seed), threads=threads, store=store,
+                          slot=next(slots))
 
     built_pst = traced(built)
     design, design_pst, source = built, built_pst, "construction"
@@ -106,6 +119,7 @@ def design_vanes(spec: BaffleSpec, out, *, material="z302_sample_b", rays: int =
     doc["seconds"] = round(time.perf_counter() - t_start, 1)
     write_report(out, spec, doc, built, design, baseline, refinement)
     write_json(out / "design.json", doc)
+    store.remove()
     return doc
 
 
