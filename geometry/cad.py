@@ -17,6 +17,7 @@ Every failure is a one-line :class:`geometry.mesh.GeometryError` naming the file
 from __future__ import annotations
 
 import re
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -60,9 +61,24 @@ def _label_name(label) -> str | None:
     return None
 
 
+@contextmanager
+def _quiet_opencascade():
+    """OpenCascade's readers print statistics to stdout ("Total number of loaded entities"); mute them."""
+    from OCP.Message import Message, Message_PrinterOStream
+
+    messenger = Message.DefaultMessenger_s()
+    printers = [messenger.Printers().Value(i) for i in range(1, messenger.Printers().Length() + 1)]
+    messenger.RemovePrinters(Message_PrinterOStream.get_type_descriptor_s())
+    try:
+        yield
+    finally:
+        for printer in printers:
+            if printer.IsKind(Message_PrinterOStream.get_type_descriptor_s()):
+                messenger.AddPrinter(printer)
+
+
 def _read_document(path: Path):
     """XDE document of a STEP/IGES file (names, colours, assembly structure kept)."""
-    from OCP.IFSelect import IFSelect_RetDone
     from OCP.TCollection import TCollection_ExtendedString
     from OCP.TDocStd import TDocStd_Document
 
@@ -84,6 +100,13 @@ def _read_document(path: Path):
     app.InitDocument(doc)
     reader = Reader()
     reader.SetNameMode(True)
+    with _quiet_opencascade():
+        return _transfer(reader, doc, path, kind)
+
+
+def _transfer(reader, doc, path: Path, kind: str):
+    from OCP.IFSelect import IFSelect_RetDone
+
     try:
         status = reader.ReadFile(str(path))
     except Exception as exc:  # noqa: BLE001 - OCC raises bare Standard_Failure; name the file
