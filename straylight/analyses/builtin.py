@@ -204,6 +204,15 @@ def tube_setup(material=DEFAULT_MATERIAL, tolerance_mm: float = DEFAULT_TOLERANC
     p = replace(REFERENCE_TUBE, **params) if params else REFERENCE_TUBE
     tag, mats = resolve_materials(material)
     scene = _tagged(_tube_scene(p, float(tolerance_mm)), tag)
+    beam, entrance = tube_beam_and_entrance(p)
+    params_dict = {f: getattr(p, f) for f in p.names()}
+    desc = (f"baffled tube r={p.inner_radius_mm:g} mm, L={p.length_mm:g} mm, {p.vane_count} vanes "
+            f"(hole r={p.vane_inner_radius_mm:g} mm), coating {material if isinstance(material, str) else repr(material)}")
+    return Setup(scene, mats, beam, entrance, "detector", desc, params_dict)
+
+
+def tube_beam_and_entrance(p) -> tuple[Beam, Entrance]:
+    """The PST beam and entrance of a tube built from ``TubeParams`` ``p``."""
     top = p.length_mm + (p.aperture_stop_thickness_mm if p.aperture_stop_radius_mm is not None else 0.0)
     r_entrance = p.aperture_stop_radius_mm if p.aperture_stop_radius_mm is not None else p.inner_radius_mm
     # only the entrance and the rim (r < outer radius at the top) can send light inside: rays
@@ -213,7 +222,4 @@ def tube_setup(material=DEFAULT_MATERIAL, tolerance_mm: float = DEFAULT_TOLERANC
     beam = Beam(center_mm=(0.0, 0.0, top + BEAM_STANDOFF_MM), axis=(0.0, 0.0, -1.0), radius_mm=beam_radius,
                 pivot_mm=(0.0, 0.0, top))
     entrance = Entrance(center_mm=(0.0, 0.0, top), radius_mm=r_entrance, normal=(0.0, 0.0, 1.0))
-    params_dict = {f: getattr(p, f) for f in p.names()}
-    desc = (f"baffled tube r={p.inner_radius_mm:g} mm, L={p.length_mm:g} mm, {p.vane_count} vanes "
-            f"(hole r={p.vane_inner_radius_mm:g} mm), coating {material if isinstance(material, str) else repr(material)}")
-    return Setup(scene, mats, beam, entrance, "detector", desc, params_dict)
+    return beam, entrance

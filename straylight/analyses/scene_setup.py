@@ -132,27 +132,15 @@ def scene_setup(path, detector: str | None = None, entrance=None):
     return setup_from_resolved(rs, analysis, path, detector=detector, entrance=entrance)
 
 
-def write_setup_scene(setup, directory, scene_file: str = "scene.toml") -> Path:
-    """Write a Setup as a scene file (meshes, source, ``[analysis]``) that :func:`scene_setup` reads
-    back to the same analyses: the beam at 0 deg as the ``[[source]]``, its entrance and detector.
-
-    Materials are written by name (presets and material files resolve by name again).
-    """
-    import tomllib
-
-    import tomli_w
-
-    from geometry.io import save_scene
-    import atomicio
-
-    b = setup.beam
+def scene_tables(beam, entrance, detector: str, detector_area_mm2=None) -> tuple[dict, dict]:
+    """The ``[[source]]`` (the beam at 0 deg) and ``[analysis]`` tables that make :func:`scene_setup`
+    read a scene back with this beam, entrance and detector."""
+    b = beam
     source = {"type": "collimated_disk", "center_mm": [float(x) for x in b.center_mm],
               "normal": [float(x) for x in b.disk_normal], "direction": [float(x) for x in b.axis],
               "radius_mm": float(b.radius_mm), "power_w": float(b.power_w)}
-    path = save_scene(setup.scene, directory, scene_file=scene_file, sources=[source])
-    doc = tomllib.loads(Path(path).read_text())
-    analysis = {"detector": setup.detector}
-    e = setup.entrance
+    analysis = {"detector": detector}
+    e = entrance
     if e is not None:
         if b.pivot_mm is not None and not np.allclose(b.pivot_mm, e.center_mm):
             raise ValueError("the beam pivots about a point other than the entrance centre: not expressible "
@@ -160,8 +148,33 @@ def write_setup_scene(setup, directory, scene_file: str = "scene.toml") -> Path:
         normal = -b.axis if e.normal is None else e.normal
         analysis["entrance"] = {"center_mm": [float(x) for x in e.center_mm],
                                 "normal": [float(x) for x in normal], "radius_mm": float(e.radius_mm)}
-    if setup.detector_area_mm2 is not None:
-        analysis["detector_area_mm2"] = float(setup.detector_area_mm2)
-    doc["analysis"] = analysis
+    if detector_area_mm2 is not None:
+        analysis["detector_area_mm2"] = float(detector_area_mm2)
+    return source, analysis
+
+
+def add_scene_tables(path, tables: dict) -> Path:
+    """Rewrite the scene TOML at ``path`` (atomically) with top-level ``tables`` added or replaced."""
+    import tomllib
+
+    import tomli_w
+
+    import atomicio
+
+    doc = tomllib.loads(Path(path).read_text())
+    doc.update(tables)
     atomicio.write_text(path, tomli_w.dumps(doc))
     return Path(path)
+
+
+def write_setup_scene(setup, directory, scene_file: str = "scene.toml") -> Path:
+    """Write a Setup as a scene file (meshes, source, ``[analysis]``) that :func:`scene_setup` reads
+    back to the same analyses: the beam at 0 deg as the ``[[source]]``, its entrance and detector.
+
+    Materials are written by name (presets and material files resolve by name again).
+    """
+    from geometry.io import save_scene
+
+    source, analysis = scene_tables(setup.beam, setup.entrance, setup.detector, setup.detector_area_mm2)
+    path = save_scene(setup.scene, directory, scene_file=scene_file, sources=[source])
+    return add_scene_tables(path, {"analysis": analysis})

@@ -89,12 +89,16 @@ def _usage(parser):
     return show
 
 
-def _finish(args, shape_parts, scene) -> int:
+def _finish(args, shape_parts, scene, tables: dict | None = None) -> int:
     from geometry.checks import check_scene
     from geometry.io import export_build
     from geometry.tessellate import format_reports, scene_report
 
     path = export_build(shape_parts, scene, args.output, mesh_format=args.mesh_format, step=not args.no_step)
+    if tables:
+        from straylight.analyses.scene_setup import add_scene_tables
+
+        add_scene_tables(path, tables)
     print(format_reports(scene_report(scene)))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the problems are printed in the table below
@@ -113,10 +117,26 @@ def _build_tube(args) -> int:
     from geometry.parts.tube import TubeParams, build_tube
     from geometry.tessellate import tessellate_parts
 
-    shape_parts = build_tube(TubeParams(**_params(args)))
+    params = TubeParams(**_params(args))
+    shape_parts = build_tube(params)
     scene = tessellate_parts(shape_parts, tolerance_mm=args.tolerance_mm,
                              angular_tolerance_deg=args.angular_tolerance_deg, material=args.material)
-    return _finish(args, shape_parts, scene)
+    return _finish(args, shape_parts, scene, _tube_tables(params, args.material))
+
+
+def _tube_tables(params, material: str) -> dict:
+    """The tube scene's PST beam as its ``[[source]]``, its ``[analysis]`` table, and the BENCHMARK.md
+    coating (Lambertian, rho = 0.05) inline when the default name is used, so every analysis runs on
+    the written scene file as on ``--builtin tube``."""
+    from geometry.scenes import BENCHMARK_MATERIAL
+    from straylight.analyses.builtin import tube_beam_and_entrance
+    from straylight.analyses.scene_setup import scene_tables
+
+    source, analysis = scene_tables(*tube_beam_and_entrance(params), "detector")
+    tables = {"source": [source], "analysis": analysis}
+    if material == BENCHMARK_MATERIAL:
+        tables["material"] = {BENCHMARK_MATERIAL: {"components": [{"type": "lambertian", "rd": 0.05}]}}
+    return tables
 
 
 def _build_reflectometer(args) -> int:

@@ -151,3 +151,31 @@ def test_default_entrance_is_the_source_disk(tmp_path, tube_scene):
     assert setup.beam.pivot_mm is None
     np.testing.assert_allclose(setup.beam.source(math.radians(20)).center_mm, [0, 0, 310])
     assert setup.entrance.power_w(setup.beam, math.radians(20)) == pytest.approx(1.0)
+
+
+def test_geometry_build_tube_scene_runs_pst_like_the_builtin(tmp_path):
+    """`straylight geometry build tube` writes a scene that every analysis can run (source,
+    [analysis] and, for the default name, the BENCHMARK.md coating inline); with the built-in's
+    coating and float64 meshes it gives the built-in tube's numbers for the same seed."""
+    built = tmp_path / "tube_dir"
+    assert main(["geometry", "build", "tube", "--material", "z302_sample_b", "--mesh-format", "ply",
+                 "--no-step", "-o", str(built)]) == 0
+    a, b = _both(tmp_path, built / "scene.toml", ["pst", "--angles-deg", "20", "--rays", RAYS, "--seed", "4"])
+    ja, jb = (json.loads((d / "pst.json").read_text()) for d in (a, b))
+    assert ja["points"][0]["pst"] > 0
+    assert ja["points"][0]["pst"] == pytest.approx(jb["points"][0]["pst"], rel=1e-12)
+
+
+def test_geometry_build_tube_default_coating_is_written_inline(tmp_path):
+    """The default material name `benchmark_black` is not a preset: the scene file must define it
+    (Lambertian rho = 0.05, BENCHMARK.md) or `trace` cannot resolve it."""
+    from straylight.scene import load_scene
+
+    built = tmp_path / "tube_dir"
+    assert main(["geometry", "build", "tube", "--vanes", "2", "--no-step", "-o", str(built)]) == 0
+    rs = load_scene(built / "scene.toml")
+    model = rs.materials["benchmark_black"]
+    wi = np.array([[0.0, 0.0, 1.0]])
+    assert model.brdf(wi, wi)[0] == pytest.approx(0.05 / math.pi)
+    res = rs.trace(2000, seed=1)
+    assert res.emitted_w > 0
