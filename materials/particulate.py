@@ -54,7 +54,7 @@ import numpy as np
 from materials.base import MaterialError, Sample, check_polarization
 from materials.fresnel import fresnel_amplitudes
 from materials.registry import register
-from materials.sampling import check_real, direction_uniforms, set_fields
+from materials.sampling import check_index, check_real, direction_uniforms, set_fields
 
 MIN_SIZE_UM = 1.0            # the standard's distribution starts at 1 um
 TAIL_COUNT = 1e-3            # largest size: N(>x) = 1e-3 per 0.1 m^2
@@ -149,15 +149,6 @@ def mie_table(level: float, slope: float, n_re: float, n_im: float, wavelength_n
     return theta, P, sca, ext, coverage
 
 
-def _index_pair(owner, key, value):
-    if isinstance(value, (list, tuple)):
-        if len(value) != 2:
-            raise MaterialError(f"{owner}: parameter {key!r} must be a number or [n, k], got {value!r}")
-        return (check_real(owner, f"{key}[0]", value[0], lo=0.0, lo_open=True),
-                check_real(owner, f"{key}[1]", value[1], lo=0.0))
-    return (check_real(owner, key, value, lo=0.0, lo_open=True), 0.0)
-
-
 @register("particulate")
 @dataclass(frozen=True)
 class Particulate:
@@ -201,12 +192,12 @@ class Particulate:
             slope=check_real(o, "slope", self.slope, lo=0.0, lo_open=True),
             weight=check_real(o, "weight", self.weight, lo=0.0),
         )
-        n, k = _index_pair(o, "n", self.n)
+        n, k = check_index(o, "n", self.n)
         set_fields(self, n=(n, k) if k else n)
         if self.substrate_n is not None and self.substrate_r is not None:
             raise MaterialError(f"{o}: give at most one of 'substrate_n' and 'substrate_r'")
         if self.substrate_n is not None:
-            sn, sk = _index_pair(o, "substrate_n", self.substrate_n)
+            sn, sk = check_index(o, "substrate_n", self.substrate_n)
             set_fields(self, substrate_n=(sn, sk) if sk else sn)
         if self.substrate_r is not None:
             set_fields(self, substrate_r=check_real(o, "substrate_r", self.substrate_r, lo=0.0, hi=1.0))

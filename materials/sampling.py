@@ -45,6 +45,16 @@ def check_real(owner: str, name: str, value, *, lo=None, hi=None, lo_open=False,
     return v
 
 
+def check_index(owner: str, name: str, value) -> tuple[float, float]:
+    """A refractive index given as a number or ``[n, k]`` -> (n, k) floats, checked (n > 0, k >= 0)."""
+    if isinstance(value, (list, tuple)):
+        if len(value) != 2:
+            raise MaterialError(f"{owner}: parameter {name!r} must be a number or [n, k], got {value!r}")
+        return (check_real(owner, f"{name}[0]", value[0], lo=0.0, lo_open=True),
+                check_real(owner, f"{name}[1]", value[1], lo=0.0))
+    return (check_real(owner, name, value, lo=0.0, lo_open=True), 0.0)
+
+
 def set_fields(obj, **values) -> None:
     """Assign checked values on a frozen dataclass (used in ``__post_init__``)."""
     for key, value in values.items():

@@ -27,7 +27,7 @@ import numpy as np
 from materials.base import MaterialError
 from materials.fresnel import fresnel_amplitudes
 from materials.registry import register
-from materials.sampling import check_real, set_fields
+from materials.sampling import check_index, check_real, set_fields
 
 
 def reflect(d, n) -> np.ndarray:
@@ -49,16 +49,6 @@ def refract(d, n, eta, cos_t) -> np.ndarray:
     eta = np.broadcast_to(np.asarray(eta, float), cos_i.shape)
     t = eta[:, None] * d + (eta * cos_i - np.asarray(cos_t, float))[:, None] * n
     return t / np.linalg.norm(t, axis=1)[:, None]
-
-
-def _index(owner: str, key: str, value):
-    """A refractive index given as a number or ``[n, k]`` -> (n, k) floats, checked."""
-    if isinstance(value, (list, tuple)):
-        if len(value) != 2:
-            raise MaterialError(f"{owner}: parameter {key!r} must be a number or [n, k], got {value!r}")
-        return (check_real(owner, f"{key}[0]", value[0], lo=0.0, lo_open=True),
-                check_real(owner, f"{key}[1]", value[1], lo=0.0))
-    return (check_real(owner, key, value, lo=0.0, lo_open=True), 0.0)
 
 
 @dataclass(frozen=True)
@@ -141,7 +131,7 @@ class Specular:
         if self.r is not None:
             set_fields(self, r=check_real(o, "r", self.r, lo=0.0, hi=1.0))
         else:
-            n, k = _index(o, "n", self.n)
+            n, k = check_index(o, "n", self.n)
             set_fields(self, n=(n, k) if k else n)
 
     @classmethod
@@ -213,7 +203,7 @@ class Dielectric:
 
     def __post_init__(self):
         o = "dielectric"
-        n, k = _index(o, "n", self.n)
+        n, k = check_index(o, "n", self.n)
         set_fields(
             self,
             n=(n, k) if k else n,

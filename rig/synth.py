@@ -62,18 +62,7 @@ def make_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p"), steps=
     """
     if steps is None:
         steps = [(0.5, 0.05), (2.0, 0.2), (5.0, 0.5), (None, 5.0)]
-    ti_all, tr_all, pol_all = [], [], []
-    for ti in np.atleast_1d(np.asarray(theta_i_deg, float)):
-        if not 0.0 <= ti < 90.0:
-            raise ValueError(f"theta_i_deg: {ti} outside [0, 90)")
-        tr = _viewing_grid(float(ti), steps)
-        for pol in polarizations:
-            if pol not in ("s", "p", "u"):
-                raise ValueError(f"polarizations: unknown {pol!r}")
-            ti_all.append(np.full(tr.shape, ti))
-            tr_all.append(tr)
-            pol_all.append(np.full(tr.shape, pol))
-    return np.concatenate(ti_all), np.concatenate(tr_all), np.concatenate(pol_all)
+    return _plan_arrays(theta_i_deg, polarizations, lambda ti: _viewing_grid(ti, steps))
 
 
 def paper_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p")):
@@ -83,12 +72,18 @@ def paper_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p")):
     beam), ~90 points per curve."""
     from rig.points import paper_viewing_deg
 
+    return _plan_arrays(theta_i_deg, polarizations, lambda ti: paper_viewing_deg(
+        ti, backscatter_step_deg=5.0, retro_gap_deg=RETRO_GAP_DEG, theta_r_max_deg=MAX_VIEW_DEG))
+
+
+def _plan_arrays(theta_i_deg, polarizations, viewing_grid):
+    """(theta_i_deg, theta_r_deg, polarization) arrays: ``viewing_grid(theta_i_deg)`` per incidence,
+    repeated for each polarization."""
     ti_all, tr_all, pol_all = [], [], []
     for ti in np.atleast_1d(np.asarray(theta_i_deg, float)):
         if not 0.0 <= ti < 90.0:
             raise ValueError(f"theta_i_deg: {ti} outside [0, 90)")
-        tr = paper_viewing_deg(float(ti), backscatter_step_deg=5.0, retro_gap_deg=RETRO_GAP_DEG,
-                               theta_r_max_deg=MAX_VIEW_DEG)
+        tr = viewing_grid(float(ti))
         for pol in polarizations:
             if pol not in ("s", "p", "u"):
                 raise ValueError(f"polarizations: unknown {pol!r}")
