@@ -13,28 +13,22 @@ from pathlib import Path
 
 
 def add_parser(subparsers):
-    from straylight.cli.pst import add_common_scene_args
+    from straylight.cli.pst import add_common_scene_args, add_dask_out_args, add_one_angle_args
 
     p = subparsers.add_parser("critical", help="critical and illuminated parts at one off-axis angle",
                               description=__doc__.splitlines()[0])
     add_common_scene_args(p)
-    p.add_argument("--angle-deg", type=float, required=True, help="off-axis angle of the beam")
-    p.add_argument("--azimuth-deg", type=float, default=0.0)
-    p.add_argument("--rays", type=int, default=100_000, help="rays each way (beam forward, detector reverse)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--scheduler", default=None)
-    p.add_argument("--out", required=True, help="output directory")
+    add_one_angle_args(p, 100_000, "rays each way (beam forward, detector reverse)")
+    add_dask_out_args(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from straylight.analyses.critical import critical_objects
     from straylight.analyses.pst import dask_client
-    from straylight.cli.pst import load_setup
+    from straylight.cli.pst import check_angle_deg, load_setup
 
-    if not -90 < args.angle_deg < 90:
-        raise ValueError(f"--angle-deg must be in (-90, 90), got {args.angle_deg}")
+    check_angle_deg(args.angle_deg)
     if args.rays < 2:
         raise ValueError(f"--rays must be >= 2, got {args.rays}")
     setup = load_setup(args)

@@ -13,33 +13,27 @@ from pathlib import Path
 
 def add_parser(subparsers):
     from straylight.analyses.paths_report import ANCESTRY, GROUP_BY
-    from straylight.cli.pst import add_common_scene_args
+    from straylight.cli.pst import add_common_scene_args, add_dask_out_args, add_one_angle_args
 
     p = subparsers.add_parser("paths", help="stray-light path report at one off-axis angle",
                               description=__doc__.splitlines()[0])
     add_common_scene_args(p)
-    p.add_argument("--angle-deg", type=float, required=True, help="off-axis angle of the beam")
-    p.add_argument("--azimuth-deg", type=float, default=0.0)
-    p.add_argument("--rays", type=int, default=200_000)
-    p.add_argument("--seed", type=int, default=0)
+    add_one_angle_args(p, 200_000)
     p.add_argument("--no-nee", action="store_true", help="plain random walk (no next-event estimation)")
     p.add_argument("--group-by", choices=GROUP_BY, default="sequence")
     p.add_argument("--ancestry", choices=ANCESTRY, nargs="+", default=None, help="keep only these classes")
     p.add_argument("--top", type=int, default=20, help="rows in the table and bars in the plot")
     p.add_argument("--ghosts", action="store_true",
                    help="also rank the specular paths (nominal and ghosts): DIR/ghosts.md, ghosts.json")
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--scheduler", default=None)
-    p.add_argument("--out", required=True, help="output directory")
+    add_dask_out_args(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from straylight.analyses.paths_report import paths_analysis
-    from straylight.cli.pst import load_setup
+    from straylight.cli.pst import check_angle_deg, load_setup
 
-    if not -90 < args.angle_deg < 90:
-        raise ValueError(f"--angle-deg must be in (-90, 90), got {args.angle_deg}")
+    check_angle_deg(args.angle_deg)
     setup = load_setup(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -25,6 +25,27 @@ def add_common_scene_args(parser):
     parser.add_argument("--detector", default=None, help="detector part name (default: the only detector)")
 
 
+def add_one_angle_args(parser, default_rays: int, rays_help: str | None = None):
+    """--angle-deg, --azimuth-deg, --rays, --seed: one beam direction, used by paths and critical."""
+    parser.add_argument("--angle-deg", type=float, required=True, help="off-axis angle of the beam")
+    parser.add_argument("--azimuth-deg", type=float, default=0.0)
+    parser.add_argument("--rays", type=int, default=default_rays, help=rays_help)
+    parser.add_argument("--seed", type=int, default=0)
+
+
+def add_dask_out_args(parser):
+    """--workers, --scheduler, --out (required output directory)."""
+    parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--scheduler", default=None)
+    parser.add_argument("--out", required=True, help="output directory")
+
+
+def check_angle_deg(value: float, flag: str = "--angle-deg") -> None:
+    """An off-axis angle must lie in (-90, 90) deg."""
+    if not -90 < value < 90:
+        raise ValueError(f"{flag} must be in (-90, 90), got {value}")
+
+
 def add_precision_args(parser, default_rays=None, what="rays", exclusive=True):
     """``--rays N`` or ``--target-rel-error E`` (with its caps), shared by pst, study and trace
     (study: not exclusive, its other steps still use --rays)."""

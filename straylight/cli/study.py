@@ -70,8 +70,9 @@ def run(args) -> int:
     if args.angles_deg:
         cfg.angles_deg = tuple(args.angles_deg)
     if args.path_angle_deg is not None:
-        if not -90 < args.path_angle_deg < 90:
-            raise ValueError(f"--path-angle-deg must be in (-90, 90), got {args.path_angle_deg}")
+        from straylight.cli.pst import check_angle_deg
+
+        check_angle_deg(args.path_angle_deg, "--path-angle-deg")
         cfg.path_angle_deg = args.path_angle_deg
     cfg.sweep_parameter = args.sweep_parameter
     if args.sweep_values:
