@@ -13,6 +13,7 @@ next-event estimation, Russian roulette and an exact power ledger. The engine is
     interactions/          what a continuing hit does: brdf_scatter, delta_reflection (extension point)
     nee, targets           next-event estimation; target-part MIS
     first_vertex           area sampling of single-scatter vertices (MIS with the walk)
+    second_vertex          area sampling of the critical surfaces as second vertex (MIS with the walk)
     advance                absorption, roulette, truncation, next ray state
     tallies, results       per-chunk sums, maps, paths; TraceResult
     scheduling             batches in process, on threads, or on dask (straylight.distribute)
@@ -26,6 +27,7 @@ from dataclasses import replace
 from straylight.engine.batch_pool import shared_pool  # noqa: F401 - re-exported
 from straylight.engine.compiled_scene import cached_scene, compiled_scene, detector_samplers
 from straylight.engine.first_vertex import build_table
+from straylight.engine.second_vertex import build_table as build_critical_table
 from straylight.engine.options import TraceError, TraceOptions  # noqa: F401 - re-exported
 from straylight.engine.results import BatchTotals, Tally, TraceResult  # noqa: F401 - re-exported
 from straylight.engine.scheduling import batch_ranges, run_batches
@@ -71,6 +73,8 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     opt = spec.options
     if opt.first_vertex_sampling and intersector is None and len(spec.detector_parts):
         spec = replace(spec, vertex_table=build_table(spec, compiled_scene(spec)))
+    if opt.second_vertex_sampling and opt.nee and len(spec.detector_parts):
+        spec = replace(spec, critical_table=build_critical_table(spec, compiled_scene(spec, intersector)))
     results = run_batches(spec, batch_ranges(spec), workers=workers, client=client, scheduler=scheduler,
                           intersector=intersector, threads=threads, security=security)
     totals = BatchTotals(spec)

@@ -23,11 +23,14 @@ class EventColumns(NamedTuple):
     nee: int  # 3 per (detector, NEE sample): detector point
     target: int  # 4 with target parts: strategy choice and target point
     width: int
+    second: int = 0  # 3 + 3 per detector with second-vertex sampling: critical point, detector points
 
 
-def event_columns(n_detectors: int, nee_samples: int, has_target: bool) -> EventColumns:
+def event_columns(n_detectors: int, nee_samples: int, has_target: bool, second_vertex: bool = False) -> EventColumns:
     nee_end = 4 + 3 * int(n_detectors) * int(nee_samples)
-    return EventColumns(sample=0, roulette=3, nee=4, target=nee_end, width=nee_end + (4 if has_target else 0))
+    target_end = nee_end + (4 if has_target else 0)
+    return EventColumns(sample=0, roulette=3, nee=4, target=nee_end, second=target_end,
+                        width=target_end + (3 + 3 * int(n_detectors) if second_vertex else 0))
 
 
 class GeneratorDraws:

@@ -169,8 +169,51 @@ def _single_scatter(spec, comp, src, t, x, u_det, j):
     return value, z, shadows
 
 
+def _may_see_detector(spec, comp, src, surf):
+    """Bool per triangle of ``surf``: can a point of it be lit by ``src`` and see a detector on its
+    lit side? False only when it cannot (a conservative test, no rays): the detectors' bounding box
+    lies wholly behind the triangle's plane on every side the source can light."""
+    tri_mm = spec.triangles_mm
+    n = comp.normals[surf]
+    det = np.concatenate([d.triangles_mm.reshape(-1, 3) for d in comp.detectors])
+    lo, hi = det.min(axis=0), det.max(axis=0)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    height = n @ corners.T - np.einsum("ij,ij->i", n, tri_mm[surf, 0])[:, None]  # (m, 8) above the plane
+    if isinstance(src, CollimatedDisk):
+        sides = np.sign(n @ -src.direction)[:, None]
+    else:  # the side facing the point source, at each vertex (it may change across a triangle)
+        sides = np.sign(np.stack([np.einsum("ij,ij->i", n, src.position_mm - tri_mm[surf, k]) for k in range(3)],
+                                 axis=1))
+    ok = np.zeros(len(surf), dtype=bool)
+    for k in range(sides.shape[1]):
+        s = sides[:, k]
+        ok |= (s != 0) & ((s[:, None] * height) > 0).any(axis=1)
+    return ok
+
+
+def _probe_scores(spec, comp, src, tris, m, rng):
+    """sqrt(mean g^2) over ``m`` probes per triangle of ``tris`` (stratified along the first
+    barycentric coordinate), summed over the detectors."""
+    t = np.repeat(tris, m)
+    u = rng.random((len(t), 5))
+    u[:, 0] = (np.tile(np.arange(m), len(tris)) + u[:, 0]) / m
+    x = _points(spec.triangles_mm, t, u[:, 0], u[:, 1])
+    g2 = np.zeros(len(t))
+    for j in range(len(comp.det_parts)):
+        g, _, _ = _single_scatter(spec, comp, src, t, x, u[:, 2:5], j)
+        g2 += g * g
+    return np.sqrt(g2.reshape(len(tris), m).mean(axis=1))
+
+
 def build_table(spec, comp) -> VertexTable:
-    """Learn q_t from PROBES_PER_TRIANGLE probe points per surface triangle (module doc)."""
+    """Learn q_t from PROBES_PER_TRIANGLE probe points per surface triangle (module doc).
+
+    A scene with more surface triangles than PROBE_BUDGET / PROBES_PER_TRIANGLE is probed in two
+    stages: one probe per triangle that may be lit and see a detector (:func:`_may_see_detector`)
+    finds the parts that contribute at all; the budget then goes to those parts' triangles
+    (PROBES_PER_TRIANGLE each when it allows). On the 0.6M-triangle hooked-vane assembly at 30 deg
+    one probe per triangle found 943 contributing triangles, eight per triangle 2041 (relative
+    error at 1e5 rays 5.3 % -> 0.94 %); the two stages find the eight-probe set at ~1/10 the cost."""
     src = spec.sources[0]
     tri_mm = spec.triangles_mm
     n_tri = len(tri_mm)
@@ -181,19 +224,15 @@ def build_table(spec, comp) -> VertexTable:
     surf = surf[~optical[spec.triangle_part[surf]]]
     area = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
     surf = surf[area[surf] > 0]
+    rng = np.random.default_rng([check_seed(spec.seed), PROBE_STREAM])
+    if len(surf) * PROBES_PER_TRIANGLE > PROBE_BUDGET:
+        surf = surf[_may_see_detector(spec, comp, src, surf)]
+        first = _probe_scores(spec, comp, src, surf, 1, rng)
+        parts = np.unique(spec.triangle_part[surf[first > 0]])
+        surf = surf[np.isin(spec.triangle_part[surf], parts)]
     # at most PROBE_BUDGET probes in all (a million-triangle scene gets one per triangle)
     m = int(min(PROBES_PER_TRIANGLE, max(1, PROBE_BUDGET // max(len(surf), 1))))
-    rng = np.random.default_rng([check_seed(spec.seed), PROBE_STREAM])
-    t = np.repeat(surf, m)
-    u = rng.random((len(t), 5))
-    # stratify the probes within each triangle along the first coordinate
-    u[:, 0] = (np.tile(np.arange(m), len(surf)) + u[:, 0]) / m
-    x = _points(tri_mm, t, u[:, 0], u[:, 1])
-    g2 = np.zeros(len(t))
-    for j in range(len(comp.det_parts)):
-        g, _, _ = _single_scatter(spec, comp, src, t, x, u[:, 2:5], j)
-        g2 += g * g
-    score = area[surf] * np.sqrt(g2.reshape(len(surf), m).mean(axis=1))
+    score = area[surf] * _probe_scores(spec, comp, src, surf, m, rng)
     keep = score > 0
     p_area = np.zeros(n_tri)
     if not keep.any():

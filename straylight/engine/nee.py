@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from straylight.engine import second_vertex
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.targets import target_pdf
@@ -231,7 +232,19 @@ def estimate(event, verts, frame, w_vertex, evaluate=None):
     (straylight.engine.interactions.brdf_scatter.LocalFrames); ``w_vertex``: first-vertex MIS
     weights per vertex or None. Tallies, records and counts the shadow rays. ``evaluate(wi, wo,
     vertex)``, if given, returns ``(f, pdf)`` for local directions of the vertices ``vertex``
-    (positions in ``verts``) instead of the materials' ``brdf``/``pdf`` (e.g. per-ray polarization)."""
+    (positions in ``verts``) instead of the materials' ``brdf``/``pdf`` (e.g. per-ray polarization).
+
+    With second-vertex sampling on (``spec.critical_table``), the vertices reached straight from a
+    scatter vertex keep their walk share of the estimate, and each vertex draws its own critical
+    second vertex (straylight.engine.second_vertex)."""
+    if event.spec.critical_table is None:
+        _estimate(event, verts, frame, w_vertex, evaluate)
+        return
+    _estimate(event, verts, frame, second_vertex.walk_weights(event, verts, w_vertex), evaluate)
+    second_vertex.estimate(event, verts, frame)
+
+
+def _estimate(event, verts, frame, w_vertex, evaluate):
     spec, kern, settings, hit = event.spec, event.kernels, event.settings, event.hits
     pol = spec.options.polarization
     n_jk = len(event.scene.det_parts) * settings.nee_samples

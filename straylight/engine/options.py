@@ -28,6 +28,7 @@ class TraceOptions:
     nee_samples: int = 1
     target_fraction: float = 0.5
     first_vertex_sampling: bool = False
+    second_vertex_sampling: bool = False
 
     def __post_init__(self):
         if int(self.max_events) < 1:

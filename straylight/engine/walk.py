@@ -80,7 +80,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     settings = walk_settings(opt, spec.eps, w0)
     reuse = kernels.reuse_buffers
     M = scene.tally_buffer(rows.n_per_ray, n) if reuse else np.zeros((rows.n_per_ray, n))
-    columns = event_columns(rows.n_detectors, opt.nee_samples, scene.target is not None)
+    columns = event_columns(rows.n_detectors, opt.nee_samples, scene.target is not None,
+                            spec.critical_table is not None)
     ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
     rays = emitted_rays(*emit_batch(spec, draws, n, ubuf), w0, opt.path_depth, settings.record_paths)
     records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.map_bins),

@@ -1,0 +1,293 @@
+"""Second-vertex sampling: area sampling of the surfaces the detector sees, combined with the walk by MIS.
+
+With ``TraceOptions(second_vertex_sampling=True)`` the paths
+
+    ... -> scatter vertex A -> (straight) -> surface point B -> (NEE) -> detector point z
+
+get a second way to pick B. The walk picks B by sampling the BRDF at A and casting the ray; then
+NEE joins B to the detector. Off axis in a baffled tube that is a rare event: A (a lit wall or
+vane face) scatters into a wide lobe, and only the small part of the tube the detector sees
+(the lower vanes' faces and hooks) makes B count -- on the hooked-vane assembly at 30 deg one
+such ray carried 84 % of a run's variance. The second strategy draws B directly on the
+*critical* surfaces (triangle t with probability q_t, uniform on it: area density
+p_C(B) = q_t / A_t), joins A -> B by a shadow ray, and does the same NEE from B.
+
+Both estimates of a path are weighted by the balance heuristic (Veach 1997, ch. 9, eq. 9.10):
+with p_W(B) = pdf_A(wo) |cos_B| / d_AB^2 the walk's area density of B (its BRDF-sample, or
+target-mixture, pdf at A),
+
+    walk:    NEE at B  x  p_W / (p_W + p_C)
+    area:    w_A f_A cos_A |cos_B| / d_AB^2 / (p_W + p_C)  x  f_B cos_B' cos_z A_det / d_Bz^2 x m_nee
+
+(the second factor is the walk's own NEE estimate at B, with the same power-heuristic weight m_nee
+against BRDF sampling at B). The random walk's hits on the detector after B keep their weight
+1 - m_nee; so for every path the weights add to one and the sum is unbiased for any table q
+(triangles with q_t = 0, parts that are not ``brdf_scatter`` surfaces, and B reached after a
+specular event are left to the walk alone).
+
+The table q is learnt before the run by a backward pass: ``BACKWARD_RAYS`` cosine-distributed
+rays from uniform points on the detectors (own random stream, seed only); q_t is proportional to
+the detector area times the fraction of those rays whose first hit is on t, i.e. the projected
+solid angle of t seen from the detector (the "critical objects" of docs/engine.md). It depends
+only on the scene and the seed, so results do not depend on batch size, threads or workers.
+
+Cost: one A -> B shadow ray per ``brdf_scatter`` vertex and, if B is visible, one B -> z per
+detector, two BRDF evaluations each. Contributions go to ``detector_nee`` and, negated, to the
+part of B's NEE-exchange row, so the power ledger stays exact. Uses 3 + 3 D uniforms of the event
+(columns ``EventColumns.second``). A vertex on the walk's last allowed event (``max_events``)
+still gets the estimate (the walk itself would have truncated there: the reported truncation is
+that much smaller).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from straylight.engine.interactions.registry import interaction_name
+from straylight.engine.material_groups import by_material
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
+from straylight.engine.roles import ROLE_NAMES, ROLE_SURFACE
+from straylight.engine.targets import target_pdf
+from straylight.engine.vec3 import power_heuristic_rows
+from straylight.paths import mix_key
+from straylight.rng import check_seed
+from straylight.sources import orthonormal_basis
+
+BACKWARD_STREAM = 0x53454356  # entropy word of the backward pass's stream
+BACKWARD_RAYS = 200_000
+SCATTER_KIND = "brdf_scatter"
+
+
+@dataclass(frozen=True, eq=False)
+class CriticalTable:
+    """``tri`` (m,) critical triangle ids, ``cdf`` (m,) cumulative q, ``p_area`` (n_triangles,) the
+    area density q_t / A_t of every triangle (0 off the table), ``from_part`` (n_parts,) bool: parts
+    whose vertices draw a second vertex (``brdf_scatter`` surfaces)."""
+
+    tri: np.ndarray
+    cdf: np.ndarray
+    p_area: np.ndarray
+    from_part: np.ndarray
+
+
+def scatter_parts(spec) -> np.ndarray:
+    """Bool per part: a surface part whose hits are ``brdf_scatter`` vertices."""
+    out = np.zeros(len(spec.part_roles), dtype=bool)
+    for p, role in enumerate(spec.part_roles):
+        m = spec.part_material[p]
+        if int(role) == ROLE_SURFACE and m >= 0:
+            out[p] = interaction_name(ROLE_NAMES[int(role)], spec.materials[m]) == SCATTER_KIND
+    return out
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _local(v, tb, bb, nf):
+    return np.stack([_dot(v, tb), _dot(v, bb), _dot(v, nf)], axis=1)
+
+
+def _points(tri_mm, t, u1, u2):
+    """Uniform points on triangles ``t`` (Turk 1990)."""
+    su = np.sqrt(u1)
+    b1, b2 = su * (1.0 - u2), su * u2
+    v0 = tri_mm[t, 0]
+    return v0 + b1[:, None] * (tri_mm[t, 1] - v0) + b2[:, None] * (tri_mm[t, 2] - v0)
+
+
+def build_table(spec, comp, n_rays: int = BACKWARD_RAYS) -> CriticalTable:
+    """q_t from a backward pass: cosine-distributed rays from uniform detector points (both sides
+    when ``detector_sides == "both"``), counted on the first triangle they hit, weighted by the
+    detector's area (module doc)."""
+    n_tri = len(spec.triangles_mm)
+    from_part = scatter_parts(spec)
+    eligible = from_part[spec.triangle_part]
+    D = len(comp.det_parts)
+    areas = np.array([comp.detectors[j].area_mm2 for j in range(D)])
+    rng = np.random.default_rng([check_seed(spec.seed), BACKWARD_STREAM])
+    score = np.zeros(n_tri)
+    both = spec.options.detector_sides == "both"
+    for j in range(D):
+        n = max(1, int(round(n_rays * areas[j] / areas.sum())))
+        u = rng.random((n, 6))
+        z, nz = comp.detectors[j].sample(u[:, 0:3])
+        side = np.where(u[:, 3] < 0.5, -1.0, 1.0) if both else np.ones(n)
+        nz = nz * side[:, None]
+        # cosine-weighted direction about nz (Malley's method)
+        r, phi = np.sqrt(u[:, 4]), 2.0 * np.pi * u[:, 5]
+        tb, bb = orthonormal_basis(nz)
+        ct = np.sqrt(np.maximum(0.0, 1.0 - u[:, 4]))
+        d = (r * np.cos(phi))[:, None] * tb + (r * np.sin(phi))[:, None] * bb + ct[:, None] * nz
+        o = np.ascontiguousarray(z + spec.eps * nz)
+        tri = np.asarray(comp.isect.first_triangle(o, np.ascontiguousarray(d)), dtype=np.int64)
+        hit = tri[tri >= 0]
+        hit = hit[eligible[hit]]
+        score += np.bincount(hit, minlength=n_tri) * (areas[j] / n)
+    tri_mm = spec.triangles_mm
+    a_t = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
+    keep = np.flatnonzero((score > 0) & (a_t > 0))
+    p_area = np.zeros(n_tri)
+    if len(keep) == 0:
+        return CriticalTable(np.zeros(0, np.int64), np.zeros(0), p_area, from_part)
+    q = score[keep] / score[keep].sum()
+    p_area[keep] = q / a_t[keep]
+    return CriticalTable(keep.astype(np.int64), np.cumsum(q), p_area, from_part)
+
+
+def walk_weights(event, verts, w_vertex):
+    """The walk's balance-heuristic share p_W / (p_W + p_C) of the scatter vertices ``verts`` (rows
+    of the event) reached straight from a ``brdf_scatter`` vertex, times ``w_vertex`` (first-vertex
+    weights or None). Returns the weights for :func:`straylight.engine.nee.estimate` (or None: all 1)."""
+    table = event.spec.critical_table
+    rays, hit = event.rays, event.hits
+    p_c = table.p_area[event.tri[verts]]
+    last = rays.last_part[verts]
+    prev = (rays.last_event[verts] == EVENT_SCATTER) & (last >= 0)
+    prev[prev] = table.from_part[last[prev]]
+    s = np.flatnonzero(prev & (p_c > 0))
+    if len(s) == 0:
+        return w_vertex
+    i = verts[s]
+    dist = hit.distance_mm[i]
+    p_w = rays.last_pdf_per_sr[i] * np.abs(hit.cos_in[i]) / (dist * dist)
+    w = np.ones(len(verts)) if w_vertex is None else w_vertex.copy()
+    w[s] *= p_w / (p_w + p_c[s])
+    return w
+
+
+def _brdf_pdf(spec, mat, wi, wo, with_pdf=True):
+    f = np.empty(len(wi))
+    pdf = np.empty(len(wi))
+    pol = spec.options.polarization
+    for rows, (fv, pv) in by_material(spec.materials, mat, lambda model, rows: (
+            model.brdf(wi[rows], wo[rows], pol), model.pdf(wi[rows], wo[rows], pol) if with_pdf else 0.0)):
+        f[rows] = fv
+        pdf[rows] = pv
+    return f, pdf
+
+
+def _mixture_pdf(event, pdf, p, nf, dirs):
+    """The walk's direction density with target parts on: (1 - q) pdf_brdf + q pdf_target."""
+    target = event.scene.target
+    if target is None:
+        return pdf
+    q = float(event.spec.options.target_fraction)
+    return (1 - q) * pdf + q * target_pdf(target, p, nf, dirs, event.spec.eps)
+
+
+def estimate(event, verts, frame):
+    """The area strategy from the scatter vertices ``verts`` (rows of the event; local frames
+    ``frame``, straylight.engine.interactions.brdf_scatter.LocalFrames): one critical point B per
+    vertex, NEE from B to each detector; tallies, records, counts shadow rays (module doc)."""
+    spec, hit, scene = event.spec, event.hits, event.scene
+    table = spec.critical_table
+    if len(table.tri) == 0:
+        return
+    s = np.flatnonzero(table.from_part[hit.part[verts]])
+    if len(s) == 0:
+        return
+    eps = spec.eps
+    i = verts[s]
+    col = event.columns.second
+    u = event.uniforms[i, col:col + 3]
+    k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
+    t = table.tri[k]
+    y = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
+    p_a, n_a = hit.point_mm[i], hit.facing_normal[i]
+    v = y - p_a
+    d1sq = _dot(v, v)
+    d1 = np.sqrt(d1sq)
+    w = v / np.where(d1 > 0, d1, 1.0)[:, None]
+    cos_a = _dot(w, n_a)
+    n_y = scene.normals[t]
+    c_y = _dot(w, n_y)
+    ok = np.flatnonzero((cos_a > 0) & (np.abs(c_y) > 1e-12) & (d1 > 2 * eps))
+    if len(ok) == 0:
+        return
+    s, i, t, y, w, d1sq, cos_a, c_y = (a[ok] for a in (s, i, t, y, w, d1sq, cos_a, c_y))
+    origin = p_a[ok] + eps * n_a[ok]
+    to_y = y - origin
+    ly = np.sqrt(_dot(to_y, to_y))
+    blocked = np.asarray(scene.isect.occluded(np.ascontiguousarray(origin), np.ascontiguousarray(to_y / ly[:, None]),
+                                              ly - eps), dtype=bool)
+    event.shadow_rays += len(ok)
+    ok = np.flatnonzero(~blocked)
+    if len(ok) == 0:
+        return
+    s, i, t, y, w, d1sq, cos_a, c_y = (a[ok] for a in (s, i, t, y, w, d1sq, cos_a, c_y))
+    # the walk's side at A: f_A and its direction density toward B
+    wo_a = np.stack([_dot(w, frame.tangent[s]), _dot(w, frame.bitangent[s]), cos_a], axis=1)
+    f_a, pdf_a = _brdf_pdf(spec, frame.material[s], frame.wi_local[s], wo_a)
+    pdf_a = _mixture_pdf(event, pdf_a, hit.point_mm[i], hit.facing_normal[i], w)
+    cos_b = np.abs(c_y)
+    p_w = pdf_a * cos_b / d1sq
+    p_c = table.p_area[t]
+    base = event.rays.weight_w[i] * f_a * cos_a * cos_b / d1sq / (p_w + p_c)
+    ok = np.flatnonzero(base > 0)
+    if len(ok) == 0:
+        return
+    s, i, t, y, w, base = (a[ok] for a in (s, i, t, y, w, base))
+    nf_y = np.where((_dot(w, scene.normals[t]) < 0)[:, None], scene.normals[t], -scene.normals[t])
+    tb_y, bb_y = orthonormal_basis(nf_y)
+    wi_y = _local(-w, tb_y, bb_y, nf_y)
+    mat_y = spec.part_material[spec.triangle_part[t]]
+    part_y = spec.triangle_part[t].astype(np.int64)
+    k_nee = event.settings.nee_samples
+    both = event.settings.both_sides
+    for j in range(len(scene.det_parts)):
+        c0 = col + 3 + 3 * j
+        z, n_z = scene.detectors[j].sample(event.uniforms[i, c0:c0 + 3])
+        v2 = z - y
+        d2sq = _dot(v2, v2)
+        d2 = np.sqrt(d2sq)
+        w2 = v2 / np.where(d2 > 0, d2, 1.0)[:, None]
+        cos_o = _dot(w2, nf_y)
+        cos_z = -_dot(w2, n_z)
+        if both:
+            cos_z = np.abs(cos_z)
+        g = np.flatnonzero((cos_o > 0) & (cos_z > 0) & (d2 > 2 * eps))
+        if len(g) == 0:
+            continue
+        o2 = y[g] + eps * nf_y[g]
+        to_z = z[g] - o2
+        lz = np.sqrt(_dot(to_z, to_z))
+        blocked = np.asarray(scene.isect.occluded(np.ascontiguousarray(o2), np.ascontiguousarray(to_z / lz[:, None]),
+                                                  lz - eps), dtype=bool)
+        event.shadow_rays += len(g)
+        g = g[~blocked]
+        if len(g) == 0:
+            continue
+        wo_y = _local(w2[g], tb_y[g], bb_y[g], nf_y[g])
+        f_y, pdf_y = _brdf_pdf(spec, mat_y[g], wi_y[g], wo_y)
+        pdf_y = _mixture_pdf(event, pdf_y, y[g], nf_y[g], w2[g])
+        area = float(scene.arrays.detector_area_mm2[j])
+        p_nee = k_nee * d2sq[g] / (area * cos_z[g])
+        c = base[g] * f_y * cos_o[g] * cos_z[g] * area / d2sq[g] * power_heuristic_rows(p_nee, pdf_y)
+        good = c > 0
+        if not good.any():
+            continue
+        g, c = g[good], c[good]
+        r = event.rays.ray[i[g]]
+        M, rows = event.tallies, event.rows
+        np.add.at(M, (rows.detector_nee + j, r), c)
+        np.subtract.at(M, (rows.nee_exchange + part_y[g], r), c)
+        _record(event, j, i[g], part_y[g], z[g], c)
+
+
+def _record(event, j, i, part_b, z, c):
+    """Map (and path) records of the area strategy's contributions to detector j (rows ``i``)."""
+    rays = event.rays
+    keys = events = None
+    depth = rays.depth[i]
+    if event.settings.record_paths:
+        code_a = event.hits.part[i] * 4 + EVENT_SCATTER
+        code_b = part_b * 4 + EVENT_SCATTER
+        keys = mix_key(mix_key(mix_key(rays.path_key[i], code_a), code_b), event.scene.det_parts[j] * 4 + EVENT_DETECTOR)
+        events = rays.history[i]
+        K = events.shape[1]
+        for off, code in ((0, code_a), (1, code_b)):
+            inside = np.flatnonzero(depth + off < K)
+            events[inside, depth[inside] + off] = code[inside]
+    event.records.add(j, rays.ray[i], z, c, keys, events, depth + 2)
