@@ -59,6 +59,8 @@ def unsupported(sources) -> str | None:
     """Why the strategy cannot run with these sources (None when it can)."""
     if len(sources) != 1:
         return f"first_vertex_sampling needs exactly one source, got {len(sources)}"
+    if getattr(getattr(sources[0], "polarization", None), "is_linear", False):
+        return "first_vertex_sampling does not follow polarized sources (its first vertex is evaluated unpolarized)"
     if not isinstance(sources[0], (CollimatedDisk, PointSource)):
         return f"first_vertex_sampling connects to collimated and point sources only, not {type(sources[0]).__name__}"
     return None

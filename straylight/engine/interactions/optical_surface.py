@@ -33,69 +33,22 @@ from __future__ import annotations
 
 import numpy as np
 
-from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.mueller import interface_mueller, s_vector
 from materials.smooth import Dielectric, reflect, refract
 from straylight.engine import nee
 from straylight.engine.event import Outgoing
 from straylight.engine.interactions.brdf_scatter import LocalFrames
 from straylight.engine.interactions.registry import Interaction, register_interaction
+from straylight.engine.interactions.stokes import batch_state, incoming_stokes
+from straylight.engine.interactions.stokes import mix as _mix
 from straylight.engine.options import TraceError
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
-from straylight.polarization import UNPOLARIZED
 
 SELF_HIT_MM = 1e-6  # a refined hit this close to (or behind) the ray's origin on its own last part is spurious
 
 
-class PolarizationState:
-    """Per batch: each ray's Stokes vector (S0 = 1; the walk's weight carries the power), its frame
-    vector e1, and the depth at which it was last set (stale when another interaction came between)."""
-
-    def __init__(self, n_rays: int, source_polarization):
-        self.stokes = np.zeros((n_rays, 4))
-        self.stokes[:, 0] = 1.0
-        self.e1 = np.zeros((n_rays, 3))
-        self.depth = np.full(n_rays, -1, dtype=np.int64)
-        self.source = source_polarization
-
-
-def batch_state(event) -> PolarizationState:
-    """The batch's polarization state (kept on the batch's DetectorRecords, which live as long as the batch)."""
-    st = getattr(event.records, "_optics_state", None)
-    if st is None:
-        pols = {getattr(s, "polarization", UNPOLARIZED) for s in event.spec.sources}
-        if len(pols) > 1:
-            raise TraceError("sources with different polarizations in one trace are not supported; trace them apart")
-        st = PolarizationState(event.tallies.shape[1], pols.pop())
-        event.records._optics_state = st
-    return st
-
-
 def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
-
-
-def incoming_stokes(st: PolarizationState, ray, depth, d, s):
-    """Stokes vectors (m, 4) of the arriving rays in the s/p basis (e1 = s)."""
-    m = len(ray)
-    S = np.zeros((m, 4))
-    S[:, 0] = 1.0
-    known = st.depth[ray] == depth
-    if np.any(known):
-        k = np.flatnonzero(known)
-        S[k] = rotate_stokes(st.stokes[ray[k]], st.e1[ray[k]], s[k], d[k])
-    if st.source.is_linear:
-        fresh = np.flatnonzero(~known & (depth == 0))
-        if len(fresh):
-            e = np.tile(np.asarray(st.source.e_field, float), (len(fresh), 1))
-            e -= _dot(e, d[fresh])[:, None] * d[fresh]
-            e /= np.linalg.norm(e, axis=1)[:, None]
-            S[fresh] = rotate_stokes(np.tile([1.0, 1.0, 0.0, 0.0], (len(fresh), 1)), e, s[fresh], d[fresh])
-    return S
-
-
-def _mix(value_s, value_p, S):
-    """The value for light of Stokes S (S0 = 1, s/p basis), no analyser: a v_s + b v_p."""
-    return 0.5 * (value_s + value_p) + 0.5 * S[:, 1] * (value_s - value_p)
 
 
 @register_interaction
@@ -232,11 +185,9 @@ class OpticalSurface(Interaction):
             self._place_on_exact_line(event, rows[spec_rows], exact[spec_rows], direction[spec_rows],
                                       facing[spec_rows], side_out[spec_rows])
         # polarization bookkeeping: lobes depolarize; pass-through keeps the state
-        r = rays.ray[rows]
-        keep = np.flatnonzero(~passing)
-        st.stokes[r[keep]] = S_new[keep]
-        st.e1[r[keep]] = e1_new[keep]
-        st.depth[r] = rays.depth[rows] + 1
+        # (a pass-through keeps its arriving state, here in the frame s)
+        S_new[passing] = S[passing]
+        st.store(rays.ray[rows], rays.depth[rows], S_new, e1_new)
         return Outgoing(direction=np.ascontiguousarray(direction), throughput=throughput, pdf_per_sr=pdf,
                         event=code, side=side_out)
 

@@ -1,0 +1,96 @@
+"""Each ray's polarization during a batch (CONTRACTS §6.3; issue 14): a Stokes vector in a
+reference frame ``(e1, e2 = d x e1)`` carried with the ray (``materials.mueller`` conventions).
+
+The state lives on the batch's ``DetectorRecords`` (as long as the batch) and is created lazily:
+by the first Fresnel interface (``optical_surface``), or at once when a source is linearly
+polarized. While no state exists every interaction treats light as unpolarized and pays nothing
+for polarization (:func:`active_state` is one attribute look-up).
+
+A state is valid only for the interaction right after the one that set it: ``depth`` stamps the
+ray depth it is valid at; any interaction that does not set it (a depolarizing scatter) leaves it
+stale, i.e. the light arrives unpolarized.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from materials.mueller import rotate_stokes
+from straylight.engine.options import TraceError
+from straylight.polarization import UNPOLARIZED
+
+
+class PolarizationState:
+    """Per batch: each ray's Stokes vector (S0 = 1; the walk's weight carries the power), its frame
+    vector e1, and the depth at which it is valid (stale when another interaction came between)."""
+
+    def __init__(self, n_rays: int, source_polarization):
+        self.stokes = np.zeros((n_rays, 4))
+        self.stokes[:, 0] = 1.0
+        self.e1 = np.zeros((n_rays, 3))
+        self.depth = np.full(n_rays, -1, dtype=np.int64)
+        self.source = source_polarization
+
+    def store(self, ray, depth_in, stokes, e1):
+        """Set the outgoing state of rays ``ray`` that arrived at depth ``depth_in`` (S0 normalised to 1)."""
+        s0 = stokes[:, 0]
+        self.stokes[ray] = stokes / np.where(s0 > 0, s0, 1.0)[:, None]
+        self.e1[ray] = e1
+        self.depth[ray] = depth_in + 1
+
+
+def source_polarization(spec):
+    pols = {getattr(s, "polarization", UNPOLARIZED) for s in spec.sources}
+    if len(pols) > 1:
+        raise TraceError("sources with different polarizations in one trace are not supported; trace them apart")
+    return pols.pop()
+
+
+def batch_state(event) -> PolarizationState:
+    """The batch's polarization state, created on first use."""
+    st = getattr(event.records, "_optics_state", None)
+    if st is None:
+        st = PolarizationState(event.tallies.shape[1], source_polarization(event.spec))
+        event.records._optics_state = st
+    return st
+
+
+def active_state(event):
+    """The batch's state if any ray can be polarized (a linear source, or a Fresnel interface met
+    already), else None. With the trace option ``polarization = "s"`` or ``"p"`` (every scatter
+    evaluated for that polarization, the reflectometer twin's mode) per-ray states are not used."""
+    st = getattr(event.records, "_optics_state", None)
+    if st is not None:
+        return st
+    if any(getattr(s, "polarization", UNPOLARIZED).is_linear for s in event.spec.sources):
+        return batch_state(event)
+    return None
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def incoming_stokes(st: PolarizationState, ray, depth, d, s):
+    """Stokes vectors (m, 4) of the arriving rays in the frame e1 = ``s`` (unpolarized where the
+    state is stale; the source's linear state at depth 0)."""
+    m = len(ray)
+    S = np.zeros((m, 4))
+    S[:, 0] = 1.0
+    known = st.depth[ray] == depth
+    if np.any(known):
+        k = np.flatnonzero(known)
+        S[k] = rotate_stokes(st.stokes[ray[k]], st.e1[ray[k]], s[k], d[k])
+    if st.source.is_linear:
+        fresh = np.flatnonzero(~known & (depth == 0))
+        if len(fresh):
+            e = np.tile(np.asarray(st.source.e_field, float), (len(fresh), 1))
+            e -= _dot(e, d[fresh])[:, None] * d[fresh]
+            e /= np.linalg.norm(e, axis=1)[:, None]
+            S[fresh] = rotate_stokes(np.tile([1.0, 1.0, 0.0, 0.0], (len(fresh), 1)), e, s[fresh], d[fresh])
+    return S
+
+
+def mix(value_s, value_p, S):
+    """The value for light of Stokes S (S0 = 1, s/p basis), no analyser: a v_s + b v_p
+    (the first row of a Mueller matrix with M02 = M03 = 0)."""
+    return 0.5 * (value_s + value_p) + 0.5 * S[:, 1] * (value_s - value_p)
