@@ -39,32 +39,61 @@ import numpy as np
 TOLERANCE_MM = 0.005
 SIZES = {"0.36M": 1, "1M": 3, "5M": 14}  # copies of the tube
 PITCH_MM = 200.0  # copies side by side along x (flange diameter 135 mm)
+HEAVY_MODULES = ("OCP", "cadquery", "trimesh", "scipy", "matplotlib", "pyvista", "dask", "distributed", "pandas")
 
 
 def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _process_age_s():
+    """Seconds since this process started (Linux /proc, 10 ms ticks: interpreter start-up included), or None."""
+    try:
+        with open("/proc/self/stat") as f:
+            start_ticks = int(f.read().rsplit(")", 1)[1].split()[19])
+        with open("/proc/uptime") as f:
+            uptime = float(f.read().split()[0])
+        return max(uptime - start_ticks / os.sysconf("SC_CLK_TCK"), 0.0)
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def child(toml: str, rays: int) -> dict:
-    """One measurement in this (fresh) process."""
-    t0 = time.perf_counter()
+    """One measurement in this (fresh) process: wall seconds from the process's start (interpreter start-up
+    included, Linux) to the end of each stage (``*_s``), and the CPU seconds of each stage (``cpu_*_s``)."""
+    start = _process_age_s()
+    t0 = time.perf_counter() - (start if start is not None else 0.0)  # the process's start on this clock
+    marks = {}
+
+    def mark(name):  # process_time: CPU seconds of this process since it started (all threads)
+        marks[name] = (time.perf_counter() - t0, time.process_time())
+
     import warnings
 
     import embreex  # noqa: F401 - the imports any scene pays (tracer, embree, numba), timed apart
+    import numpy as np
+
     import straylight.trace  # noqa: F401
+    from straylight.engine.compiled_scene import compiled_scene
+    from straylight.engine.spec import make_spec
     from straylight.scene import load_scene
 
-    t_import = time.perf_counter() - t0
-
+    mark("import")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rs = load_scene(toml)
-    t_load = time.perf_counter() - t0
+    mark("load")
     n_tri = int(sum(p.n_triangles for p in rs.scene.parts))
-    rs.trace(1000, seed=1)
-    t_first = time.perf_counter() - t0
-    cpu_first = time.process_time()  # CPU seconds of this process: less sensitive to a shared machine
+    spec = make_spec(rs.scene, rs.sources, 1000, 1, materials=rs.materials)
+    comp = compiled_scene(spec)  # kept for the trace below (same geometry: same per-process scene)
+    comp.isect.first_triangle(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))  # embree builds its BVH on first use
+    mark("bvh")
+    rs.trace(1000, seed=1)  # loads the compiled kernels from numba's cache, then traces
+    mark("first")
     rss_first = _rss_mb()
+    t = time.perf_counter()
+    rs.trace(1000, seed=1)  # the same again, kernels loaded: what the first trace spent on rays alone
+    t_again = time.perf_counter() - t
     t = time.perf_counter()
     rs.trace(rays, seed=2)
     t_rays = time.perf_counter() - t
@@ -72,9 +101,15 @@ def child(toml: str, rays: int) -> dict:
     rs.trace(10 * rays, seed=3)
     rss_10x = _rss_mb()
     cached = any("cache" in p.meta for p in rs.scene.parts)
-    return {"triangles": n_tri, "parts": len(rs.scene.parts), "from_cache": cached, "import_s": t_import,
-            "load_s": t_load,
-            "first_rays_s": t_first, "cpu_first_rays_s": cpu_first, "rss_first_mb": rss_first, "rays": rays, "trace_s": t_rays,
+    heavy = sorted(m for m in HEAVY_MODULES if m in sys.modules)
+    (w_imp, c_imp), (w_load, c_load), (w_bvh, c_bvh), (w_first, c_first) = (
+        marks[k] for k in ("import", "load", "bvh", "first"))
+    return {"triangles": n_tri, "parts": len(rs.scene.parts), "from_cache": cached,
+            "import_s": w_imp, "load_s": w_load, "bvh_s": w_bvh, "first_rays_s": w_first,
+            "cpu_import_s": c_imp, "cpu_load_s": c_load - c_imp, "cpu_bvh_s": c_bvh - c_load,
+            "cpu_kernels_and_rays_s": c_first - c_bvh, "cpu_first_rays_s": c_first,
+            "trace_1000_again_s": t_again, "heavy_modules": heavy,
+            "rss_first_mb": rss_first, "rays": rays, "trace_s": t_rays,
             "rss_after_rays_mb": rss_rays, "rss_after_10x_rays_mb": rss_10x}
 
 
@@ -166,11 +201,16 @@ def main(argv=None) -> int:
             result = run(toml, args.rays, cache_dir)
             result.update(size=size, run=label, tolerance_mm=TOLERANCE_MM, copies=SIZES[size])
             rows.append(result)
-            print(f"{size:>6} {label:<6} {result['triangles']:>9,d} tri  imports {result.get('import_s', 0):5.2f} s  "
-                  f"load {result['load_s']:7.2f} s  "
-                  f"first rays {result['first_rays_s']:7.2f} s ({result.get('cpu_first_rays_s', 0):6.2f} s CPU)  peak RSS {result['rss_first_mb']:7.0f} MB  "
-                  f"after {result['rays']:,d} rays {result['rss_after_rays_mb']:7.0f} MB  "
-                  f"after {10 * result['rays']:,d} {result['rss_after_10x_rays_mb']:7.0f} MB", flush=True)
+            print(f"{size:>6} {label:<6} {result['triangles']:>9,d} tri  wall from start: imports "
+                  f"{result['import_s']:5.2f} s, loaded {result['load_s']:6.2f} s, BVH {result['bvh_s']:6.2f} s, "
+                  f"first rays {result['first_rays_s']:6.2f} s  |  CPU: imports {result['cpu_import_s']:5.2f}, "
+                  f"load {result['cpu_load_s']:6.2f}, embree {result['cpu_bvh_s']:5.2f}, kernels+1000 rays "
+                  f"{result['cpu_kernels_and_rays_s']:5.2f} (1000 rays again: {result['trace_1000_again_s']:.2f} s "
+                  f"wall), total {result['cpu_first_rays_s']:6.2f} s", flush=True)
+            print(f"{'':>13} peak RSS {result['rss_first_mb']:7.0f} MB, after {result['rays']:,d} rays "
+                  f"{result['rss_after_rays_mb']:7.0f} MB, after {10 * result['rays']:,d} "
+                  f"{result['rss_after_10x_rays_mb']:7.0f} MB; heavy modules imported: "
+                  f"{', '.join(result['heavy_modules']) or 'none'}", flush=True)
         cold, cached = rows[-2], rows[-1]
         print(f"{size:>6} cold/cached time to first rays: x{cold['first_rays_s'] / cached['first_rays_s']:.1f}")
     import atomicio

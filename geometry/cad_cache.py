@@ -10,7 +10,13 @@ Where: ``$STRAYLIGHT_CACHE_DIR`` if set, else the user cache directory
 ``tessellation/``. ``STRAYLIGHT_CACHE=off`` (or ``0``, ``no``) disables the cache (the test
 suite does, except the tests of the cache). Entries are ``.npz`` files written atomically
 (:mod:`atomicio`): a crash or a concurrent run never leaves a half-written entry, and an
-unreadable entry is ignored (and rewritten).
+unreadable or inconsistent entry (zip CRC, shapes, face indices, names) is reported with a
+:class:`CacheWarning` and rewritten.
+
+An entry also holds what was checked on the cold run, so a cached load recomputes nothing:
+each solid's chord-error report (:class:`~geometry.tessellate.TessellationReport`) and whether its
+mesh is watertight (``meta["watertight"]``, the test of :attr:`geometry.mesh.Part.is_watertight`,
+which ``straylight.scene`` reads instead of testing the edges again).
 """
 from __future__ import annotations
 
@@ -18,6 +24,7 @@ import hashlib
 import io
 import json
 import os
+import warnings
 from functools import lru_cache
 from pathlib import Path
 
@@ -28,7 +35,11 @@ from geometry.tessellate import TessellationReport
 
 ENV_DIR = "STRAYLIGHT_CACHE_DIR"
 ENV_SWITCH = "STRAYLIGHT_CACHE"
-_CODE_FILES = ("cad.py", "cad_cache.py", "tessellate.py")
+_CODE_FILES = ("cad.py", "cad_cache.py", "tessellate.py", "mesh.py")
+
+
+class CacheWarning(UserWarning):
+    """A cache entry that could not be used (damaged, or from an incompatible writer): it is rebuilt."""
 
 
 def enabled() -> bool:
@@ -78,7 +89,8 @@ def entry_path(path, *, tolerance_mm: float, angular_tolerance_deg: float, mode:
 
 
 def load(entry: Path):
-    """[(name, kind, label, Part-without-tags)] from a cache entry, or None if missing/unreadable."""
+    """[(name, kind, label, Part-without-tags)] from a cache entry, or None if missing or unusable
+    (a damaged or inconsistent entry also gives a :class:`CacheWarning`; the caller rebuilds it)."""
     if not entry.is_file():
         return None
     try:
@@ -87,12 +99,17 @@ def load(entry: Path):
             out = []
             for i, item in enumerate(meta["solids"]):
                 report = TessellationReport(**item["report"])
-                part = Part(item["name"], data[f"v{i}"], data[f"f{i}"], None, "surface",
-                            {"tessellation": report, "kind": item["kind"], "brep_face": data[f"b{i}"],
-                             "cache": str(entry)})
+                faces, brep = data[f"f{i}"], data[f"b{i}"]
+                if brep.shape != (len(faces),) or not isinstance(item["watertight"], bool):
+                    raise ValueError(f"solid {i} ({item['name']!r}): inconsistent arrays")
+                part = Part(item["name"], data[f"v{i}"], faces, None, "surface",
+                            {"tessellation": report, "kind": item["kind"], "brep_face": brep,
+                             "watertight": item["watertight"], "cache": str(entry)})
                 out.append((item["name"], item["kind"], item["label"], part))
             return out
-    except Exception:  # noqa: BLE001 - a damaged entry is a cache miss, not an error
+    except Exception as exc:  # noqa: BLE001 - a damaged entry is a cache miss, not an error
+        warnings.warn(f"{entry}: damaged or incompatible tessellation cache entry, tessellating again "
+                      f"({type(exc).__name__}: {exc})", CacheWarning, stacklevel=2)
         return None
 
 
@@ -107,7 +124,8 @@ def store(entry: Path, solids) -> None:
         arrays[f"b{i}"] = np.asarray(part.meta.get("brep_face", np.zeros(part.n_triangles)), dtype=np.int32)
         report = part.meta["tessellation"]
         fields = {k: getattr(report, k) for k in TessellationReport.__dataclass_fields__}
-        items.append({"name": name, "kind": kind, "label": label, "report": fields})
+        items.append({"name": name, "kind": kind, "label": label, "report": fields,
+                      "watertight": bool(part.meta.get("watertight", part.is_watertight))})
     arrays["meta"] = np.array(json.dumps({"solids": items}))
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)

@@ -203,6 +203,7 @@ def tessellate_cad(path, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
         except Exception as exc:  # noqa: BLE001 - OCC raises bare Standard_Failure; name the file and solid
             raise GeometryError(f"{path}: solid {name!r} cannot be tessellated: {exc}") from None
         part.meta["source"] = str(path)
+        part.meta["watertight"] = part.is_watertight  # checked once, kept in the cache entry
         out.append((name, kind, label, part))
     if entry is not None:
         cad_cache.store(entry, out)

@@ -91,6 +91,13 @@ def _resolve_back_material(part, materials: dict, inline: dict, base_dir: Path, 
     materials[back] = resolve_material(back, inline, base_dir, where)
 
 
+def _watertight(part) -> bool:
+    """``part.is_watertight``, or the answer recorded when its mesh was made (``meta["watertight"]``:
+    CAD solids, checked once and kept in the tessellation cache, geometry.cad_cache)."""
+    known = part.meta.get("watertight")
+    return bool(known) if known is not None else part.is_watertight
+
+
 def _probe_reaches_box(source, lo, hi, n=256) -> bool:
     """Do any of n deterministic probe rays of the source cross the box [lo, hi]?"""
     g = np.random.default_rng(0)
@@ -140,8 +147,11 @@ def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
             if part.material not in materials:
                 materials[part.material] = resolve_material(part.material, inline, path.parent, where)
         _resolve_back_material(part, materials, inline, path.parent, where)
-        if check_watertight and part.role != "detector" and not part.is_watertight:
+        if check_watertight and part.role != "detector" and not _watertight(part):
             notes.append(f"{where}: mesh is not watertight (light may enter the solid through gaps)")
+    from straylight.jit_start import start_numba
+
+    start_numba()  # the sources' probe below is the first compiled code; without scipy.linalg (jit_start)
     entries = doc.get("source", [])
     if not isinstance(entries, list) or not entries:
         raise SceneFileError(f"{path}: no [[source]] entries")

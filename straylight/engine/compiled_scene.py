@@ -13,6 +13,8 @@ import numpy as np
 
 from straylight.detectors import DetectorGeometry
 from straylight.engine.spec import TraceSpec
+from straylight.intersect._plane import triangle_planes
+from straylight.jit_start import start_numba
 
 
 class SceneArrays(NamedTuple):
@@ -65,10 +67,9 @@ class CompiledScene:
 
         self.isect = intersector if intersector is not None else EmbreeIntersector(spec.triangles_mm)
         tri = spec.triangles_mm
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        length = np.linalg.norm(n, axis=1, keepdims=True)
-        self.normals = n / np.where(length > 0, length, 1.0)
-        plane_d = np.einsum("ij,ij->i", self.normals, tri[:, 0])
+        planes = getattr(self.isect, "planes", None)  # our intersectors computed them from these triangles
+        v0, self.normals, centroids = planes if planes is not None else triangle_planes(tri)
+        plane_d = np.einsum("ij,ij->i", self.normals, v0)
         self.det_parts = spec.detector_parts
         det_of_part = np.full(len(spec.part_names), -1, dtype=np.int64)
         det_of_part[self.det_parts] = np.arange(len(self.det_parts))
@@ -82,7 +83,7 @@ class CompiledScene:
 
         self.arrays = SceneArrays(
             triangle_part=spec.triangle_part, part_roles=spec.part_roles, normals=self.normals, plane_d=plane_d,
-            centroids=tri.mean(axis=1), detector_of_part=det_of_part,
+            centroids=centroids, detector_of_part=det_of_part,
             detector_area_mm2=np.array([g.area_mm2 for g in dets], dtype=np.float64),
             det_offset=np.concatenate([[0], np.cumsum([len(g.normals) for g in dets])]).astype(np.int64),
             det_alias_prob=stacked((g.alias_table[0] for g in dets), 0, np.float64),
@@ -149,6 +150,7 @@ def compiled_scene(spec: TraceSpec, intersector=None) -> CompiledScene:
     """This process's :class:`CompiledScene` of ``spec`` (built on first use, one scene kept);
     with an ``intersector`` a fresh one around it (not cached)."""
     keep_freed_memory()
+    start_numba()  # before the first kernel: numba's target without scipy.linalg (straylight.jit_start)
     if intersector is not None:
         return CompiledScene(spec, intersector)
     comp = _CACHE.get(spec.token)

@@ -6,6 +6,8 @@ on the surface to double precision.
 """
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from straylight.intersect._plane import plane_distance, triangle_planes
@@ -21,16 +23,39 @@ class EmbreeIntersector:
     """
 
     def __init__(self, triangles_mm):
-        from embreex.mesh_construction import TriangleMesh
+        from embreex.rtcore import EmbreeDevice
         from embreex.rtcore_scene import EmbreeScene
+
+        from straylight.intersect import embree_build
 
         tri = np.ascontiguousarray(triangles_mm, dtype=np.float64)
         if tri.ndim != 3 or tri.shape[1:] != (3, 3) or len(tri) == 0:
             raise ValueError(f"triangles_mm must be a non-empty (m, 3, 3) array, got {tri.shape}")
         self.n_triangles = len(tri)
-        self._scene = EmbreeScene()
-        self._mesh = TriangleMesh(self._scene, np.ascontiguousarray(tri, dtype=np.float32))
-        self._v0, self._normal, self._centroid = triangle_planes(tri)
+        self._device = EmbreeDevice()
+        self._embree = EmbreeScene(self._device)
+        self._building = None
+        # the same Embree geometry as embreex's TriangleMesh, filled by numpy and its BVH built on a thread
+        # without the GIL (straylight.intersect.embree_build; issue 17, start-up), else embreex's way
+        if embree_build.add_triangles(self._embree, self._device, tri):
+            self._building = threading.Thread(target=embree_build.commit, args=(self._embree, self._device),
+                                              name="embree-bvh", daemon=True)
+            self._building.start()
+        else:
+            from embreex.mesh_construction import TriangleMesh
+
+            self._mesh = TriangleMesh(self._embree, tri)  # float64 in: the same float32 vertices (C cast)
+        self.planes = triangle_planes(tri)  # (v0, unit normal, centroid) per triangle; the engine reuses them
+        self._v0, self._normal, self._centroid = self.planes
+
+    @property
+    def _scene(self):
+        """The embreex scene, its BVH built (waits for the build thread the first time)."""
+        building = self._building
+        if building is not None:
+            building.join()
+            self._building = None
+        return self._embree
 
     def first_triangle(self, origins, dirs) -> np.ndarray:
         """Index of the first triangle hit (int32, -1 = miss), without the distance."""

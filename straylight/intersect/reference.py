@@ -22,7 +22,8 @@ class ReferenceIntersector:
         self._e1 = tri[:, 1] - tri[:, 0]
         self._e2 = tri[:, 2] - tri[:, 0]
         self._block = block
-        self._v0, self._normal, self._centroid = triangle_planes(tri)
+        self.planes = triangle_planes(tri)  # (v0, unit normal, centroid) per triangle; the engine reuses them
+        self._v0, self._normal, self._centroid = self.planes
 
     def _all_t(self, o, d):
         """(n, m) hit distance, inf where the ray misses the triangle (Moller & Trumbore 1997)."""

@@ -1,4 +1,5 @@
 """The tessellation cache: keyed by file content + tolerance (+ code), written atomically, never stale."""
+import json
 from pathlib import Path
 
 import numpy as np
@@ -49,16 +50,108 @@ def test_key_changes_with_tolerance_content_and_code(cache, tmp_path, monkeypatc
     assert cad_cache.entry_path(step, **key) != first
 
 
-def test_damaged_entry_is_a_miss_and_is_rewritten(cache, tmp_path):
+def _rewrite_entry(entry, **changes):
+    """The entry with some arrays replaced (``meta`` as a dict), written back as a valid npz."""
+    with np.load(entry) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays["meta"]))
+    for key, value in changes.items():
+        if key == "meta":
+            value(meta)
+        else:
+            arrays[key] = value
+    arrays["meta"] = np.array(json.dumps(meta))
+    np.savez(entry, **arrays)
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated", "face index", "tags length", "no watertight flag"])
+def test_damaged_entry_is_reported_and_rewritten(cache, tmp_path, damage):
     step = tmp_path / "g.step"
     step.write_bytes((DATA / "gmsh_parts.step").read_bytes())
     cold = load_cad_parts(step, tolerance_mm=0.2)
     (entry,) = cache.glob("*.npz")
-    entry.write_bytes(b"not an npz")
-    again = load_cad_parts(step, tolerance_mm=0.2)
+    good = entry.read_bytes()
+    if damage == "garbage":
+        entry.write_bytes(b"not an npz")
+    elif damage == "truncated":
+        entry.write_bytes(good[: len(good) // 2])
+    elif damage == "face index":
+        _rewrite_entry(entry, f0=np.full((4, 3), 10**6, dtype=np.int32))
+    elif damage == "tags length":
+        _rewrite_entry(entry, b0=np.zeros(3, dtype=np.int32))
+    else:
+        _rewrite_entry(entry, meta=lambda m: m["solids"][0].pop("watertight"))
+    with pytest.warns(cad_cache.CacheWarning, match=r"g-.*\.npz: damaged or incompatible tessellation cache entry"):
+        again = load_cad_parts(step, tolerance_mm=0.2)
     assert all("cache" not in p.meta for p in again)
     assert [p.n_triangles for p in again] == [p.n_triangles for p in cold]
-    assert cad_cache.load(entry) is not None  # rewritten
+    rewritten = cad_cache.load(entry)
+    assert [name for name, _, _, _ in rewritten] == [p.meta["solid"] for p in cold]
+    assert all(np.array_equal(part.faces, p.faces) and np.array_equal(part.vertices_mm, p.vertices_mm)
+               for (_, _, _, part), p in zip(rewritten, cold))
+
+
+def test_cached_entry_keeps_the_checks_of_the_cold_run(cache, tmp_path):
+    """Tags, chord-error reports and watertightness come back from the entry, equal to a fresh check."""
+    step = tmp_path / "bench.step"
+    step.write_bytes((DATA / "ocp_bench_m.step").read_bytes())
+    cold = load_cad_parts(step, name="b", tolerance_mm=0.1)
+    warm = load_cad_parts(step, name="b", tolerance_mm=0.1)
+    assert all("cache" in p.meta for p in warm)
+    for a, b in zip(cold, warm):
+        assert a.meta["watertight"] is b.meta["watertight"] is b.is_watertight
+        assert np.array_equal(a.meta["brep_face"], b.meta["brep_face"])
+        assert (a.meta["kind"], a.meta["solid"], a.meta["label"]) == (b.meta["kind"], b.meta["solid"], b.meta["label"])
+    assert any(p.meta["watertight"] for p in warm)
+
+
+def test_cold_and_cached_scene_trace_the_same_numbers(cache, tmp_path):
+    """A scene file on a STEP assembly: the cached load traces bit-identically to the cold one."""
+    import warnings
+
+    from straylight.scene import load_scene
+
+    toml = _bench_scene(tmp_path)
+    results = []
+    for _ in range(2):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rs = load_scene(toml)
+        results.append((rs, rs.trace(4000, seed=5)))
+    (cold, a), (warm, b) = results
+    assert all("cache" not in p.meta for p in cold.scene.parts) and all("cache" in p.meta for p in warm.scene.parts)
+    assert np.array_equal(cold.scene.triangles_mm, warm.scene.triangles_mm)
+    assert np.array_equal(cold.scene.triangle_part, warm.scene.triangle_part)
+    assert [(p.name, p.role, p.material) for p in cold.scene.parts] == [(p.name, p.role, p.material)
+                                                                         for p in warm.scene.parts]
+    assert cold.warnings == warm.warnings
+    assert a.detectors["cad/detector"].power_w == b.detectors["cad/detector"].power_w > 0
+    assert a.ledger == b.ledger
+
+
+def _bench_scene(tmp_path):
+    step = tmp_path / "bench.step"
+    step.write_bytes((DATA / "ocp_bench_m.step").read_bytes())
+    toml = tmp_path / "scene.toml"
+    toml.write_text(f"""
+[[part]]
+name = "cad"
+mesh = "{step.name}"
+split = "solids"
+tolerance_mm = 0.1
+material = "z302_sample_b"
+[part.solids.detector]
+role = "detector"
+
+[[source]]
+type = "collimated_disk"
+center_mm = [3.0, 2.0, 150.0]
+normal = [0.0, 0.0, -1.0]
+direction = [0.05, 0.02, -0.9985]
+radius_mm = 40.0
+power_w = 1.0
+""")
+    return toml
 
 
 def test_disabled_and_relocated(tmp_path, monkeypatch):

@@ -1,0 +1,62 @@
+"""Start numba's CPU target once per process without importing scipy.linalg (issue 17, start-up).
+
+The first time numba compiles or loads a cached kernel in a process, its CPU target imports its
+implementation registries, among them ``numba.np.arraymath``, whose module body asks whether a
+BLAS is there by importing ``scipy.linalg.cython_blas`` (``numba.np.arraymath._HAVE_BLAS``). That
+import runs all of ``scipy.linalg`` and scipy's array-API layer (which loads ``numpy.f2py``):
+0.2-0.3 s of CPU per process, a fifth of a cached start-up's budget, for nothing the tracer uses.
+
+:func:`start_numba` initialises the target with ``import scipy.linalg`` made to fail, so numba records
+"no BLAS" for ``_HAVE_BLAS``. What that changes, in numba 0.5x-0.6x: ``np.correlate`` and
+``np.convolve`` in jitted code use numba's own loop instead of BLAS ``dot`` (no kernel of this
+project calls them). ``np.dot``, ``@`` and ``np.linalg`` in jitted code are unaffected: they
+check for BLAS again when they are compiled, and then import scipy for real. Nothing is done when
+scipy.linalg is already imported, when the target is already initialised, or after the first
+call; if numba ever fails with the import blocked, the target is initialised again normally.
+
+Cached kernels do not depend on it: numba's cache index is keyed on the signature, the target
+and the source file, and kernels loaded from it are the same machine code either way.
+"""
+from __future__ import annotations
+
+import sys
+import threading
+
+_BLOCKED = "scipy.linalg"  # the package: importing scipy.linalg.cython_blas runs its __init__ first
+_DONE: list = []
+_LOCK = threading.Lock()
+
+
+class _NoScipyBlas:
+    """A meta-path finder that makes ``import scipy.linalg`` (and so its ``cython_blas``) fail while installed."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name == _BLOCKED:
+            raise ImportError(f"{_BLOCKED} is not imported while numba starts (straylight.jit_start)")
+        return None
+
+
+def start_numba() -> None:
+    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg."""
+    if _DONE:
+        return
+    with _LOCK:
+        if _DONE:
+            return
+        _DONE.append(True)
+        from numba.core.registry import cpu_target
+
+        if "scipy.linalg" in sys.modules or "numba.np.arraymath" in sys.modules:
+            cpu_target.target_context.refresh()  # nothing to save: scipy is loaded, or the target is up
+            return
+        finder = _NoScipyBlas()
+        sys.meta_path.insert(0, finder)
+        try:
+            cpu_target.target_context.refresh()
+        except Exception:  # noqa: BLE001 - an unforeseen numba: start it the normal way
+            sys.meta_path.remove(finder)
+            finder = None
+            cpu_target.target_context.refresh()
+        finally:
+            if finder is not None:
+                sys.meta_path.remove(finder)

@@ -1,0 +1,79 @@
+"""The cached start-up path (issue 17): a repeat ``straylight trace`` on a STEP assembly reads the tessellation
+cache, imports none of the heavy packages (CAD kernel, plotting, scipy.linalg, dask), and traces the same
+numbers as the cold run; numba starts without scipy.linalg and jitted linear algebra still works."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "cad"
+HEAVY = ("OCP", "cadquery", "trimesh", "matplotlib", "pyvista", "dask", "distributed", "pandas", "scipy.linalg")
+
+CHILD = r"""
+import json, sys
+from straylight.cli.main import main
+rc = main(["trace", sys.argv[1], "--rays", "3000", "--seed", "4", "--json", sys.argv[2]])
+heavy = sorted(m for m in sys.modules if any(m == h or m.startswith(h + ".") for h in json.loads(sys.argv[3])))
+print(json.dumps({"rc": rc, "heavy": heavy}))
+"""
+
+
+def _run(toml, out, cache):
+    env = dict(os.environ, STRAYLIGHT_CACHE="on", STRAYLIGHT_CACHE_DIR=str(cache))
+    done = subprocess.run([sys.executable, "-c", CHILD, str(toml), str(out), json.dumps(HEAVY)], env=env,
+                          capture_output=True, text=True, timeout=600, cwd=Path(__file__).resolve().parents[2])
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def test_cached_trace_imports_no_heavy_module_and_traces_the_same(tmp_path):
+    step = tmp_path / "bench.step"
+    step.write_bytes((DATA / "ocp_bench_m.step").read_bytes())
+    toml = tmp_path / "scene.toml"
+    toml.write_text(f"""
+[[part]]
+name = "cad"
+mesh = "{step.name}"
+split = "solids"
+tolerance_mm = 0.1
+material = "z302_sample_b"
+[part.solids.detector]
+role = "detector"
+
+[[source]]
+type = "collimated_disk"
+center_mm = [3.0, 2.0, 150.0]
+normal = [0.0, 0.0, -1.0]
+direction = [0.05, 0.02, -0.9985]
+radius_mm = 40.0
+power_w = 1.0
+""")
+    cache = tmp_path / "cache"
+    cold = _run(toml, tmp_path / "cold.json", cache)
+    assert cold["rc"] == 0 and any(m.startswith("OCP") for m in cold["heavy"])  # the cold run did read the STEP
+    assert len(list((cache / "tessellation").glob("*.npz"))) == 1
+    warm = _run(toml, tmp_path / "warm.json", cache)
+    assert warm == {"rc": 0, "heavy": []}
+    a, b = (json.loads((tmp_path / f"{k}.json").read_text()) for k in ("cold", "warm"))
+    assert a == b and a  # every number of the report, bit for bit
+
+
+def test_numba_starts_without_scipy_linalg_and_blas_kernels_still_work():
+    code = r"""
+import sys
+from straylight.jit_start import start_numba
+start_numba()
+assert "scipy.linalg" not in sys.modules, "scipy.linalg imported"
+import numpy as np
+from numba import njit
+a = np.arange(9.0).reshape(3, 3)
+dot = njit(lambda x, y: np.dot(x, y))  # BLAS: numba checks again and imports scipy now
+assert np.array_equal(dot(a, a), a @ a)
+corr = njit(lambda x, y: np.correlate(x, y))  # the one use of numba's start-up BLAS check: its own loop
+assert np.allclose(corr(np.arange(5.0), np.ones(3)), np.correlate(np.arange(5.0), np.ones(3)))
+print("ok")
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
