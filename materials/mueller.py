@@ -119,3 +119,16 @@ def polarized_value(value_s, value_p, stokes) -> np.ndarray:
     s0 = np.where(s[:, 0] > 0, s[:, 0], 1.0)
     dop1 = s[:, 1] / s0
     return 0.5 * (value_s + value_p) + 0.5 * dop1 * (value_s - value_p)
+
+
+# Pauli matrices in the order of the Stokes parameters (S_i = tr(sigma_i C), C = E E^dagger):
+# S0 = |E1|^2 + |E2|^2, S1 = |E1|^2 - |E2|^2, S2 = 2 Re(E1 E2*), S3 = 2 Im(E1* E2).
+PAULI = np.array([[[1, 0], [0, 1]], [[1, 0], [0, -1]], [[0, 1], [1, 0]], [[0, -1j], [1j, 0]]], complex)
+
+
+def jones_to_mueller(J) -> np.ndarray:
+    """Mueller matrices (n, 4, 4) of Jones matrices J (n, 2, 2) (``E_out = J E_in``, components
+    along (e1, e2) of each side): ``M_ij = tr(sigma_i J sigma_j J^dagger) / 2`` (Chipman et al.
+    ch. 6, with this module's Stokes convention; for a diagonal J it is :func:`interface_mueller`)."""
+    J = np.asarray(J, complex)
+    return 0.5 * np.einsum("iab,nbc,jcd,nad->nij", PAULI, J, PAULI, np.conj(J)).real

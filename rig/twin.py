@@ -277,6 +277,7 @@ class TwinPoint:
     n_rays: int
     seed: int
     estimator: str
+    incident_w: float = 1.0  # power reaching the sample (after the polarization optics, if any)
 
 
 def point_seed(seed: int, theta_i_deg: float, theta_r_deg: float, phi_r_deg: float, polarization: str) -> int:
@@ -296,7 +297,7 @@ def _trace_detector(scene, beam, n_rays, seed, materials, options):
 
 def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: float = 0.0, polarization: str = "u",
                config: RigConfig = NOMINAL, twin: TwinConfig = DEFAULT_TWIN, n_rays: int = 20_000,
-               seed: int = 0) -> TwinPoint:
+               seed: int = 0, optics=None) -> TwinPoint:
     """Trace one set-point and return the rig's reading (PHYSICS §4) with its standard error.
 
     Parameters
@@ -307,6 +308,11 @@ def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: floa
     polarization : "s", "p" or "u".
     n_rays : rays traced for this set-point (the auto pilot adds ``2 * pilot_fraction`` of it).
     seed : scan seed; the set-point's own seed is :func:`point_seed`.
+    optics : :class:`rig.beam_optics.BeamOptics` (HWP, PBS as Mueller elements on the laser's
+        Stokes vector) or None. With optics, ``polarization`` must be "u": the beam that leaves
+        the optics is traced with per-ray polarization (its linear part as a linearly polarized
+        source, an unpolarized remainder apart), and the reading is normalised to the power that
+        reaches the sample (``TwinPoint.incident_w``; ``detector_w`` is per watt of laser).
     """
     from straylight.trace import TraceOptions
 
@@ -330,6 +336,10 @@ def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: floa
     base = dict(polarization=polarization, detector_sides="front",
                 mirror_reflectance=float(material.reflectance) if mirror else 1.0)
     s = point_seed(seed, theta_i_deg, theta_r_deg, phi_r_deg, polarization)
+    beams = [(beam, None)]
+    incident = beam.power_w
+    if optics is not None:
+        beams, incident = _beams_after_optics(beam, optics, polarization)
     estimator = twin.estimator
     if mirror:
         estimator = "walk"  # no scatter vertex: NEE has nothing to do
@@ -342,10 +352,37 @@ def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: floa
             var[est] = err
         # a pilot that saw nothing says nothing: prefer NEE, which sees every scatter vertex
         estimator = "walk" if 0 < var["walk"] < var["nee"] else "nee"
-    power, err = _trace_detector(scene, beam, n_rays, s, materials, TraceOptions(nee=estimator == "nee", **base))
-    scale = 1.0 / (beam.power_w * config.solid_angle_sr * math.cos(theta_r))
+    power, var = 0.0, 0.0
+    for k, (b, _) in enumerate(beams):
+        if incident <= 0:
+            break
+        p, e = _trace_detector(scene, b, n_rays, s if k == 0 else point_seed(s, float(k), 0.0, 0.0, "u"), materials,
+                               TraceOptions(nee=estimator == "nee", **base))
+        power, var = power + p, var + e * e
+    err = math.sqrt(var)
+    scale = 1.0 / (incident * config.solid_angle_sr * math.cos(theta_r)) if incident > 0 else 0.0
     return TwinPoint(float(theta_i_deg), float(theta_r_deg), float(phi_r_deg), polarization, power * scale,
-                     err * scale, power, err, int(n_rays), int(s), estimator)
+                     err * scale, power, err, int(n_rays), int(s), estimator, float(incident))
+
+
+def _beams_after_optics(beam, optics, polarization):
+    """The laser ``beam`` through ``optics``: ([(beam part, e_field or None), ...], power at the sample)."""
+    import dataclasses
+
+    from rig.beam_optics import beam_parts
+    from straylight.polarization import SourcePolarization, attach
+
+    if polarization != "u":
+        raise TwinError(f"give the polarization either as optics or as polarization = s/p, not both "
+                        f"(got polarization={polarization!r} with optics)")
+    S = optics.stokes() * beam.power_w
+    out = []
+    for power, e in beam_parts(S):
+        b = dataclasses.replace(beam, power_w=float(power))
+        if e is not None:
+            attach(b, SourcePolarization("linear", tuple(float(x) for x in e)))
+        out.append((b, e))
+    return out, float(S[0])
 
 
 @dataclass(frozen=True)

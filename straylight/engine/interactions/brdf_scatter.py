@@ -7,14 +7,9 @@ Materials are two-sided: the local frame's z is the geometric normal turned towa
 ray (Duff et al. 2017 basis, as straylight.sources.orthonormal_basis); light leaves on the
 incident side only. Kernels :func:`frames` and :func:`to_world` with their numpy twins (same bits).
 
-Polarization (CONTRACTS §6.3; straylight.engine.interactions.stokes): a ray that arrives
-polarized (a linear source, or after a Fresnel interface or a mirror) is scattered with the first
-row of the material's Mueller BRDF, ``f = M00 + M01 S1`` in the s/p basis of the vertex, i.e.
-``f = (f_s + f_p)/2 + S1 (f_s - f_p)/2`` from the model's s and p BRDFs (:func:`polarized_f`), for
-the walk's sampled direction (weight x f_pol / f_u) and for NEE. The scattered light leaves
-unpolarized: M1j = M2j = M3j = 0 is assumed (exact for a Lambertian part; see docs/optics.md
-for what the K-correlation/Rayleigh-Rice model defines). Unpolarized rays take exactly the old
-path (``brdf(.., "u")``), and a batch without polarized light pays nothing.
+Polarization (CONTRACTS §6.3): the material's Mueller BRDF (materials.polarized_brdf) scatters
+each ray's Stokes vector; straylight.engine.interactions.scatter_polarization. A scene of
+unpolarized sources and non-polarizing materials takes the unpolarized path and pays nothing.
 """
 from __future__ import annotations
 
@@ -23,11 +18,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from materials.mueller import s_vector
 from straylight.engine import nee
 from straylight.engine.event import outgoing
 from straylight.engine.interactions.registry import Interaction, register_interaction
-from straylight.engine.interactions.stokes import active_state, incoming_stokes, mix
+from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER
 from straylight.engine.targets import target_mixture
@@ -127,10 +121,9 @@ class BrdfScatter(Interaction):
         frame = LocalFrames(*kern.frames(verts, event.rays.direction, hit.facing_normal, hit.part,
                                          spec.part_material, event.uniforms))
         w_vertex = None if event.first_vertex is None else event.first_vertex.vertex_weights(event, verts)
-        S = arriving_polarization(event, verts)
+        arr = arriving(event, verts, frame)
         if event.settings.nee and len(event.scene.det_parts):
-            nee.estimate(event, verts, frame, w_vertex,
-                         evaluate=None if S is None else polarized_evaluate(spec.materials, frame.material, S))
+            nee.estimate(event, verts, frame, w_vertex, evaluate=None if arr is None else arr.nee_evaluate(spec.materials))
         n = len(verts)
         wo = np.empty((n, 3))
         weight = np.empty(n)
@@ -147,65 +140,7 @@ class BrdfScatter(Interaction):
             col = event.columns.target
             wo_world, weight, pdf = target_mixture(spec, target, event.uniforms[verts, col:col + 4],
                                                    hit.point_mm[verts], hit.facing_normal[verts], frame, wo_world)
-        if S is not None:
-            weight = weight * polarized_ratio(spec.materials, frame, S, wo_world, hit.facing_normal[verts])
+        if arr is not None:
+            weight = weight * arr.scatter(event, verts, wo_world)
         return outgoing(wo_world, weight, pdf, EVENT_SCATTER)
 
-
-def arriving_polarization(event, verts):
-    """Stokes vectors (n, 4) of the rays arriving at ``verts`` in the s/p basis (e1 = s = d x n), or
-    None when none of them is polarized (so unpolarized light costs one attribute look-up)."""
-    if event.spec.options.polarization != "u":
-        return None  # every vertex is evaluated for the trace's s or p (the twin's mode)
-    st = active_state(event)
-    if st is None:
-        return None
-    rays = event.rays
-    d = rays.direction[verts]
-    S = incoming_stokes(st, rays.ray[verts], rays.depth[verts], d, s_vector(d, event.hits.facing_normal[verts]))
-    return S if np.any(S[:, 1] != 0.0) else None
-
-
-def polarized_f(model, wi, wo, S):
-    """The scattered BRDF for arriving Stokes ``S`` (S0 = 1): M00 + M01 S1 (:func:`stokes.mix`)."""
-    return mix(model.brdf(wi, wo, "s"), model.brdf(wi, wo, "p"), S)
-
-
-def polarized_evaluate(models, material, S):
-    """NEE's ``evaluate(wi, wo, vertex)``: the unpolarized f and pdf as without polarization, and
-    f for the arriving polarization where S1 != 0."""
-    def evaluate(wi, wo, vertex):
-        f = np.empty(len(wi))
-        p = np.empty(len(wi))
-        for rows, (fv, pv) in by_material(models, material[vertex], lambda model, rows: (
-                model.brdf(wi[rows], wo[rows], "u"), model.pdf(wi[rows], wo[rows], "u"))):
-            f[rows] = fv
-            p[rows] = pv
-        pol = np.flatnonzero(S[vertex, 1] != 0.0)
-        if len(pol):
-            mv = material[vertex[pol]]
-            for k in np.unique(mv):
-                g = pol[mv == k]
-                f[g] = polarized_f(models[k], wi[g], wo[g], S[vertex[g]])
-        return f, p
-    return evaluate
-
-
-def polarized_ratio(models, frame, S, wo_world, nf):
-    """f_pol / f_u at the outgoing directions (1 for unpolarized rays): turns the walk's weight
-    f_u cos / pdf into f_pol cos / pdf."""
-    ratio = np.ones(len(S))
-    pol = np.flatnonzero(S[:, 1] != 0.0)
-    if len(pol) == 0:
-        return ratio
-    wo = wo_world[pol]
-    wo_loc = np.stack([dot_rows(wo, frame.tangent[pol]), dot_rows(wo, frame.bitangent[pol]), dot_rows(wo, nf[pol])],
-                      axis=-1)
-    wi = frame.wi_local[pol]
-    mv = frame.material[pol]
-    for k in np.unique(mv):
-        g = np.flatnonzero(mv == k)
-        fu = models[k].brdf(wi[g], wo_loc[g], "u")
-        fp = polarized_f(models[k], wi[g], wo_loc[g], S[pol[g]])
-        ratio[pol[g]] = np.where(fu > 0, fp / np.where(fu > 0, fu, 1.0), 0.0)
-    return ratio

@@ -9,9 +9,9 @@ Selected for surface parts whose material has a ``specular`` or ``dielectric`` c
    outside the clear aperture passes through unchanged (a pass-through event).
 2. **Polarization.** Each ray carries a Stokes vector in a reference frame (per batch, by ray
    id; ``materials.mueller`` conventions). Rays start unpolarized or linear (the sources'
-   ``polarization``); a scatter lobe (here or on any ``brdf_scatter`` part) leaves the light
-   unpolarized. At a Fresnel interface the frame is turned onto s and the Mueller matrix of the
-   reflection or transmission is applied; the outgoing frame is s.
+   ``polarization``). At a Fresnel interface the frame is turned onto s and the Mueller matrix of
+   the reflection or transmission is applied; the outgoing frame is s. A scatter lobe applies the
+   material's Mueller BRDF, as on ``brdf_scatter`` parts (``scatter_polarization``).
 3. **Branch by probability.** The expected powers of the three outcomes for this ray's
    polarization are E_l = rho_lobes (a rho_s + b rho_p), E_r = R, E_t = T, with
    ``a, b = (1 +- S1 / S0) / 2`` in the s/p basis and R, T after the lobes took their energy
@@ -34,11 +34,13 @@ from __future__ import annotations
 import numpy as np
 
 from materials.mueller import interface_mueller, s_vector
+from materials.polarized_brdf import is_polarizing
 from materials.smooth import Dielectric, reflect, refract
 from straylight.engine import nee
 from straylight.engine.event import Outgoing
 from straylight.engine.interactions.brdf_scatter import LocalFrames
 from straylight.engine.interactions.registry import Interaction, register_interaction
+from straylight.engine.interactions.scatter_polarization import Arriving
 from straylight.engine.interactions.stokes import batch_state, incoming_stokes
 from straylight.engine.interactions.stokes import mix as _mix
 from straylight.engine.options import TraceError
@@ -153,7 +155,8 @@ class OpticalSurface(Interaction):
         # --- lobes: NEE from every vertex whose material scatters, and the lobe branch
         has_lobes = live & ((rho_s > 0) | (rho_p > 0))
         if np.any(has_lobes):
-            self._lobes(event, rows, has_lobes, lobe, mat, S, P_l, u, direction, throughput, pdf, code)
+            self._lobes(event, rows, has_lobes, lobe, mat, S, P_l, u, direction, throughput, pdf, code,
+                        (st, s, S_new, e1_new))
         # --- specular reflection and refraction (Mueller matrices in the s/p basis)
         for branch, a_s, a_p, P in ((refl, rs, rp, P_r), (trans, ts, tp, 1.0 - P_l - P_r)):
             b = np.flatnonzero(branch)
@@ -184,8 +187,8 @@ class OpticalSurface(Interaction):
         if len(spec_rows):
             self._place_on_exact_line(event, rows[spec_rows], exact[spec_rows], direction[spec_rows],
                                       facing[spec_rows], side_out[spec_rows])
-        # polarization bookkeeping: lobes depolarize; pass-through keeps the state
-        # (a pass-through keeps its arriving state, here in the frame s)
+        # polarization bookkeeping (lobe rows were set by _lobes); a pass-through keeps its arriving
+        # state, here in the frame s
         S_new[passing] = S[passing]
         st.store(rays.ray[rows], rays.depth[rows], S_new, e1_new)
         return Outgoing(direction=np.ascontiguousarray(direction), throughput=throughput, pdf_per_sr=pdf,
@@ -193,33 +196,24 @@ class OpticalSurface(Interaction):
 
     # ------------------------------------------------------------------ lobes
 
-    def _lobes(self, event, rows, has_lobes, lobe, mat, S, P_l, u, direction, throughput, pdf, code):
+    def _lobes(self, event, rows, has_lobes, lobe, mat, S, P_l, u, direction, throughput, pdf, code, pol_out):
+        """NEE and the lobe branch; the polarized scatter (Mueller BRDF on the arriving S, the
+        scattered state into ``pol_out = (state, s, S_new, e1_new)``) as on brdf_scatter parts
+        (straylight.engine.interactions.scatter_polarization)."""
         spec, kern, hit = event.spec, event.kernels, event.hits
+        st, s, S_new, e1_new = pol_out
         sel = np.flatnonzero(has_lobes)
         verts = np.ascontiguousarray(rows[sel])
         frame = LocalFrames(*kern.frames(verts, event.rays.direction, hit.facing_normal, hit.part,
                                          spec.part_material, event.uniforms))
         frame = frame._replace(material=mat[sel])
-        S_sel = S[sel]
-        polarized = np.any(S_sel[:, 1] != 0.0)
-
-        def evaluate(wi, wo, vertex):
-            f = np.empty(len(wi))
-            p = np.empty(len(wi))
-            mv = mat[sel][vertex]
-            for k in np.unique(mv):
-                g = np.flatnonzero(mv == k)
-                model = spec.materials[k]
-                if polarized:
-                    f[g] = _mix(model.brdf(wi[g], wo[g], "s"), model.brdf(wi[g], wo[g], "p"), S_sel[vertex[g]])
-                else:
-                    f[g] = model.brdf(wi[g], wo[g], "u")
-                p[g] = model.pdf(wi[g], wo[g], "u")
-            return f, p
-
+        nf = hit.facing_normal[verts]
+        s_local = np.stack([_dot(s[sel], frame.tangent), _dot(s[sel], frame.bitangent), _dot(s[sel], nf)], axis=-1)
+        polar_mat = np.array([is_polarizing(m) for m in spec.materials], bool)[mat[sel]]
+        arr = Arriving(st, S[sel], s_local, polar_mat, frame, event.rays.ray[verts], event.rays.depth[verts])
         if event.settings.nee and len(event.scene.det_parts):
             w_vertex = None if event.first_vertex is None else event.first_vertex.vertex_weights(event, verts)
-            nee.estimate(event, verts, frame, w_vertex, evaluate=evaluate)
+            nee.estimate(event, verts, frame, w_vertex, evaluate=arr.nee_evaluate(spec.materials))
         # the lobe branch: the material's own draw, u[:, 0] re-used within the branch's interval
         lb = np.flatnonzero(lobe[sel])
         if len(lb) == 0:
@@ -236,14 +230,13 @@ class OpticalSurface(Interaction):
             g = np.flatnonzero(mv == k)
             smp = spec.materials[k].sample(wi[g], u3[g], "u")
             wo[g], weight[g], pdf_l[g] = smp.wo, smp.weight, smp.pdf_per_sr
-            if polarized:
-                fu = spec.materials[k].brdf(wi[g], smp.wo, "u")
-                fpol = _mix(spec.materials[k].brdf(wi[g], smp.wo, "s"), spec.materials[k].brdf(wi[g], smp.wo, "p"),
-                            S[at[g]])
-                weight[g] *= np.where(fu > 0, fpol / np.where(fu > 0, fu, 1.0), 0.0)
         sub = LocalFrames(frame.tangent[lb], frame.bitangent[lb], wi, mv, u3)
         wo_world, weight, pdf_l = kern.to_world(wo, weight, pdf_l, sub, np.ascontiguousarray(rows[at]),
                                                 hit.facing_normal)
+        ratio, use, S_out, e1 = arr.scattered(event, verts, wo_world, subset=lb)
+        weight = weight * ratio
+        S_new[at[use]] = S_out
+        e1_new[at[use]] = e1
         direction[at] = wo_world
         throughput[at] = weight / P_l[at]
         pdf[at] = pdf_l

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from materials.mueller import rotate_stokes
+from materials.polarized_brdf import is_polarizing
 from straylight.engine.options import TraceError
 from straylight.polarization import UNPOLARIZED
 
@@ -54,14 +55,22 @@ def batch_state(event) -> PolarizationState:
     return st
 
 
+def tracks_polarization(spec) -> bool:
+    """A linear source, or a material whose scatter depends on or changes the polarization
+    (:func:`materials.polarized_brdf.is_polarizing`, cached per material)."""
+    if any(getattr(s, "polarization", UNPOLARIZED).is_linear for s in spec.sources):
+        return True
+    return any(is_polarizing(m) for m in spec.materials)
+
+
 def active_state(event):
-    """The batch's state if any ray can be polarized (a linear source, or a Fresnel interface met
-    already), else None. With the trace option ``polarization = "s"`` or ``"p"`` (every scatter
-    evaluated for that polarization, the reflectometer twin's mode) per-ray states are not used."""
+    """The batch's state if any ray can be polarized (:func:`tracks_polarization`, or a Fresnel
+    interface met already), else None: a scene of unpolarized sources and non-polarizing materials
+    pays a few attribute look-ups per interaction call."""
     st = getattr(event.records, "_optics_state", None)
     if st is not None:
         return st
-    if any(getattr(s, "polarization", UNPOLARIZED).is_linear for s in event.spec.sources):
+    if tracks_polarization(event.spec):
         return batch_state(event)
     return None
 
