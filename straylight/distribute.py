@@ -107,14 +107,70 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
             kwargs.update(dashboard=False, dashboard_address=http)
             super().__init__(*args, **kwargs)
 
+    if processes:
+        with dask.config.set({**LEAN_CONFIG, **_fork_server_config()}):
+            return _process_cluster_class()(n_workers=int(n_workers), threads_per_worker=1, processes=True,
+                                            host=LOOPBACK, dashboard_address=None, scheduler_kwargs=scheduler_kwargs)
     with dask.config.set(LEAN_CONFIG):
-        if processes:
-            return LocalCluster(n_workers=int(n_workers), threads_per_worker=1, processes=True, host=LOOPBACK,
-                                dashboard_address=None, scheduler_kwargs=scheduler_kwargs)
         cluster = LocalCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
                                dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker)
         cluster.straylight_threads = int(n_workers)
         return cluster
+
+
+FORK_SERVER_PRELOAD = ["distributed", "straylight.worker_preload"]
+
+
+def _fork_server_config() -> dict:
+    """Start local worker processes from a fork server that has imported dask and the engine and
+    loaded the compiled kernels once (:mod:`straylight.worker_preload`), instead of spawning fresh
+    interpreters that each import and load all of it (~1.5 s CPU per worker, K of them at once).
+    The server is started on first use and kept for this process's later clusters. Set for this
+    cluster's start-up unless dask's start method was configured otherwise
+    (``distributed.worker.multiprocessing-method``). Returns the dask config to start with."""
+    import multiprocessing
+
+    import dask
+    import distributed.utils
+
+    if dask.config.get("distributed.worker.multiprocessing-method") != "spawn" or sys.platform == "win32":
+        return {}  # the user's choice (or no fork on this platform)
+    if not getattr(distributed.utils, "_forkserver_preload_set", True):
+        multiprocessing.get_context("forkserver").set_forkserver_preload(FORK_SERVER_PRELOAD)
+        distributed.utils._forkserver_preload_set = True  # dask would set its own list on first use
+    return {"distributed.worker.multiprocessing-method": "forkserver"}
+
+
+WORKER_STOP_S = 0.1  # grace a finished local worker process gets to exit before it is killed
+
+
+def _process_cluster_class():
+    """LocalCluster whose close stops its worker processes at once: dask's graceful stop let an idle
+    worker process linger ~1 s (up to 4 s on a loaded machine) before it exited, added to every
+    command's wall time. The nannies kill their processes after :data:`WORKER_STOP_S` (each holds
+    nothing the client still needs: results are gathered before the cluster is closed); the
+    scheduler and the nannies then close as usual."""
+    import asyncio
+    import logging
+
+    from dask.distributed import LocalCluster
+    from distributed.core import Status
+
+    class FastStopCluster(LocalCluster):
+        async def _close(self):
+            if self.status == Status.running:
+                log = logging.getLogger("distributed.nanny")
+                level = log.level
+                log.setLevel(logging.ERROR)  # "still alive after 0.1 s, killing" is the plan here
+                try:
+                    await asyncio.gather(*(w.close(timeout=WORKER_STOP_S / 0.8, reason="straylight: cluster done")
+                                           for w in list(self.workers.values()) if hasattr(w, "kill")),
+                                         return_exceptions=True)
+                finally:
+                    log.setLevel(level)
+            await super()._close()
+
+    return FastStopCluster
 
 
 def tls_security(ca_file=None, cert=None, key=None):
@@ -138,10 +194,11 @@ def tls_security(ca_file=None, cert=None, key=None):
 
 
 @contextmanager
-def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in_process_below=1):
+def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in_process_below=1, processes=False):
     """The one dask client builder: ``Client(scheduler, security=security)`` for a running scheduler;
     else, for ``workers`` >= ``in_process_below``, a :func:`local_cluster` of ``workers`` (loopback
-    only) and its client; else None (run in this process). Closed on exit.
+    only; ``processes``: that many worker processes, else threads) and its client; else None (run in
+    this process). Closed on exit.
 
     ``in_process_below``: worker counts below it run in-process (sweeps pass 2: one worker is just
     this process); ``trace(workers=1)`` passes 1 and gets a one-thread cluster."""
@@ -154,7 +211,7 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
         from dask.distributed import Client
 
         n = int(workers)
-        with local_cluster(n, dashboard=dashboard) as cluster, Client(cluster) as client:
+        with local_cluster(n, processes=processes, dashboard=dashboard) as cluster, Client(cluster) as client:
             if dashboard:
                 print(f"straylight: dask dashboard at {cluster.dashboard_link} (this machine only)", file=sys.stderr)
             yield client

@@ -201,20 +201,28 @@ def design_scene(model: str, params: dict, directory) -> Path:
 
 
 def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: int = 50_000, seed: int = 0,
-                nee: bool = True, client=None, progress: bool = True, precision=None):
+                nee: bool = True, client=None, progress: bool = True, precision=None, workers: int | None = None,
+                scheduler: str | None = None, checkpoint_dir=None, resume: bool = False):
     """PST at ``off_axis`` (radians) of each design ``build(parameter=value)``.
 
     Each design's scene folder is ``out_dir/<parameter>=<value>/``; each (design, angle) point has
     its own seed (``point_seed(seed, i * n_angles + j)``) as in the built-in tube's sweep.
+    ``client`` (else one of ``workers``/``scheduler`` for the sweep, or this process): where to trace.
+    ``checkpoint_dir``: each finished point is written there (:class:`straylight.checkpoints.PointStore`,
+    with the model file's content in the fingerprint); ``resume`` reads back the points an interrupted
+    run of the same sweep finished, and a design whose points are all done is not built again.
     """
-    from tqdm.auto import tqdm
+    import hashlib
+    from contextlib import nullcontext
 
-    from straylight.analyses.pst import point_seed, pst_sweep
+    from straylight.analyses.pst import dask_client, point_seed, pst_sweep
     from straylight.analyses.scene_setup import scene_setup
-    from straylight.analyses.sweep import SweepResult
+    from straylight.analyses.sweep import SweepResult, _point_store
+    from straylight.progress import progress_bar
 
     fn, _ = load_model(model)
-    check_parameter(fn, parameter, model.rsplit(":", 1)[0])
+    where = model.rsplit(":", 1)[0]
+    check_parameter(fn, parameter, where)
     values = np.asarray(list(values), dtype=np.float64)
     if len(values) == 0:
         raise ModelError("the sweep needs at least one value")
@@ -222,20 +230,35 @@ def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: i
     shape = (len(values), len(off_axis))
     out = {k: np.full(shape, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "sec")}
     out_dir = Path(out_dir)
-    bar = tqdm(total=len(values), desc=f"sweep {parameter}", unit="design", disable=None if progress else True,
-               leave=False)
-    for i, v in enumerate(values):
-        bar.set_postfix_str(f"{parameter}={v:g}")
-        path = design_scene(model, {parameter: _value(v)}, out_dir / f"{parameter}={v:g}")
-        setup = scene_setup(path)
-        t0 = time.perf_counter()
-        for j, a in enumerate(off_axis):
-            res = pst_sweep(setup, [a], n_rays=n_rays, seed=point_seed(seed, i * len(off_axis) + j), nee=nee,
-                            client=client, progress=False, precision=precision)
-            out["pst"][i, j], out["pst_se"][i, j] = res.pst[0], res.pst_stderr[0]
-            out["ratio"][i, j], out["ratio_se"][i, j] = res.entrance_ratio[0], res.entrance_ratio_stderr[0]
-        out["sec"][i, :] = (time.perf_counter() - t0) / len(off_axis)
-        bar.update()
-    bar.close()
+    store = _point_store(checkpoint_dir, resume, {
+        "sweep": "model_sweep", "model": model, "model_sha256": hashlib.sha256(Path(where).read_bytes()).hexdigest(),
+        "parameter": parameter, "values": values, "off_axis": off_axis, "rays": int(n_rays), "seed": int(seed),
+        "nee": bool(nee), "precision": None if precision is None else dict(precision.__dict__)})
+    with (dask_client(workers, scheduler) if client is None else nullcontext(client)) as cl:
+        bar = progress_bar(total=len(values) * len(off_axis), desc=f"sweep {parameter}", unit="point",
+                           enabled=progress)
+        for i, v in enumerate(values):
+            setup = None
+            for j, a in enumerate(off_axis):
+                k = i * len(off_axis) + j
+                saved = store.get(k) if store is not None else None
+                if saved is not None:  # finished by an earlier run of this sweep
+                    for key in out:
+                        out[key][i, j] = saved[key]
+                    bar.update()
+                    continue
+                if setup is None:  # built only when one of its points is still to trace
+                    bar.set_postfix_str(f"{parameter}={v:g}")
+                    setup = scene_setup(design_scene(model, {parameter: _value(v)}, out_dir / f"{parameter}={v:g}"))
+                t0 = time.perf_counter()
+                res = pst_sweep(setup, [a], n_rays=n_rays, seed=point_seed(seed, k), nee=nee, client=cl,
+                                progress=False, precision=precision)
+                out["sec"][i, j] = time.perf_counter() - t0
+                out["pst"][i, j], out["pst_se"][i, j] = res.pst[0], res.pst_stderr[0]
+                out["ratio"][i, j], out["ratio_se"][i, j] = res.entrance_ratio[0], res.entrance_ratio_stderr[0]
+                if store is not None:
+                    store.put(k, {key: float(out[key][i, j]) for key in out})
+                bar.update()
+        bar.close()
     return SweepResult(parameter, values, np.round(np.degrees(off_axis), 9), out["pst"], out["pst_se"],
                        out["ratio"], out["ratio_se"], out["sec"], int(n_rays), int(seed), f"model {model}")

@@ -20,6 +20,7 @@ import math
 import platform
 import sys
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -103,8 +104,11 @@ def benchmark_direct_ratio(off_axis, params: dict) -> np.ndarray:
 POINTS_DIR = "study.points"  # finished sweep points of an unfinished study (straylight.checkpoints)
 
 
-def run_study(out_dir, config: StudyConfig | None = None, resume: bool = False) -> StudyResult:
+def run_study(out_dir, config: StudyConfig | None = None, resume: bool = False, client=None) -> StudyResult:
     """Run every step and write the report folder; returns what was written and the key numbers.
+
+    ``client``: a dask client every step runs on (else one of ``config.workers``/``config.scheduler``
+    per step that traces, or this process).
 
     Each finished point of the PST and design sweeps is kept in ``out_dir/study.points`` until the
     report is written; ``resume`` reads those back instead of tracing them again (same numbers).
@@ -115,7 +119,7 @@ def run_study(out_dir, config: StudyConfig | None = None, resume: bool = False) 
     out.mkdir(parents=True, exist_ok=True)
     done: list[str] = []
     try:
-        return _run_study(out, cfg, resume, done)
+        return _run_study(out, cfg, resume, done, client)
     except KeyboardInterrupt:
         write_partial_report(out, cfg, done)
         raise
@@ -160,7 +164,7 @@ def _config_dict(cfg: StudyConfig) -> dict:
             for k, v in cfg.__dict__.items()}
 
 
-def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list) -> StudyResult:
+def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None) -> StudyResult:
     from straylight import viz
     from straylight.analyses.builtin import tube_setup
     from straylight.analyses.critical import critical_objects
@@ -198,7 +202,7 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list) -> StudyRe
     result.timings_s["geometry"] = time.perf_counter() - t0
     done.append("geometry")
 
-    with dask_client(cfg.workers, cfg.scheduler) as client:
+    with (dask_client(cfg.workers, cfg.scheduler) if given is None else nullcontext(given)) as client:
         _step(f"PST sweep, {len(cfg.angles_deg)} angles x {cfg.rays} rays", cfg.progress)
         t0 = time.perf_counter()
         pst = pst_sweep(setup, np.radians(cfg.angles_deg), n_rays=cfg.rays, seed=point_seed(cfg.seed, 1),
@@ -244,7 +248,8 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list) -> StudyRe
         t0 = time.perf_counter()
         sweep = model_sweep(cfg.model, cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
                             out / "designs", n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4),
-                            progress=cfg.progress)
+                            progress=cfg.progress, client=given, workers=cfg.workers, scheduler=cfg.scheduler,
+                            checkpoint_dir=points / "sweep", resume=resume)
         result.timings_s["sweep"] = time.perf_counter() - t0
         sweep.write_csv(out / "sweep.csv")
         sweep.write_json(out / "sweep.json")
@@ -255,7 +260,7 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list) -> StudyRe
         t0 = time.perf_counter()
         sweep = design_sweep(cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
                              n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4), material=cfg.material,
-                             workers=cfg.workers, scheduler=cfg.scheduler, progress=cfg.progress,
+                             workers=cfg.workers, scheduler=cfg.scheduler, client=given, progress=cfg.progress,
                              checkpoint_dir=points / "sweep", resume=resume)
         result.timings_s["sweep"] = time.perf_counter() - t0
         sweep.write_csv(out / "sweep.csv")

@@ -10,6 +10,7 @@ import csv
 import json
 import math
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -110,13 +111,14 @@ class SweepResult:
 
 def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math.radians(20), math.radians(30)),
                  n_rays: int = 50_000, seed: int = 0, material="z302_sample_b", base_params: dict | None = None,
-                 nee: bool = True, workers: int | None = None, scheduler: str | None = None,
+                 nee: bool = True, workers: int | None = None, scheduler: str | None = None, client=None,
                  progress: bool = True, checkpoint_dir=None, resume: bool = False) -> SweepResult:
     """PST of the built-in tube at ``off_axis`` (radians) for each value of one ``TubeParams`` field.
 
     ``checkpoint_dir``: each finished (design, angle) point is written there
     (:class:`straylight.checkpoints.PointStore`); ``resume`` reads back the points an interrupted
-    run of the same sweep finished (same numbers: every point has its own seed)."""
+    run of the same sweep finished (same numbers: every point has its own seed). ``client``: a dask
+    client to run on (else one of ``workers``/``scheduler`` for the sweep, or this process)."""
 
     from geometry.parts.tube import TubeParams
     from straylight.analyses.builtin import tube_setup
@@ -135,7 +137,7 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
     store = _point_store(checkpoint_dir, resume, {
         "sweep": "design_sweep", "parameter": parameter, "values": values, "off_axis": off_axis,
         "rays": int(n_rays), "seed": int(seed), "material": material, "base_params": base_params, "nee": bool(nee)})
-    with dask_client(workers, scheduler) as client:
+    with (dask_client(workers, scheduler) if client is None else nullcontext(client)) as client:
         bar = progress_bar(total=len(values) * len(off_axis), desc=f"sweep {parameter}", unit="point",
                            enabled=progress)
         for i, v in enumerate(values):

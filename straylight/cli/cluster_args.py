@@ -1,5 +1,5 @@
-"""Command-line options for running on dask, shared by the commands that trace: ``--dashboard``
-and the TLS files of a secured scheduler (``--tls-ca-file``, ``--tls-cert``, ``--tls-key``, as
+"""Command-line options for running on dask, shared by trace, pst and study: ``--processes``,
+``--dashboard`` and the TLS files of a secured scheduler (``--tls-ca-file``, ``--tls-cert``, ``--tls-key``, as
 ``dask scheduler`` / ``dask worker`` take them). See docs/cluster.md."""
 from __future__ import annotations
 
@@ -8,6 +8,9 @@ from contextlib import contextmanager
 
 def add_cluster_args(parser) -> None:
     g = parser.add_argument_group("dask cluster (docs/cluster.md)")
+    g.add_argument("--processes", action="store_true",
+                   help="with --workers K: K worker processes with one thread each (each its own copy of the scene) "
+                        "instead of one process with K threads; loopback only, same numbers")
     g.add_argument("--dashboard", action="store_true",
                    help="with --workers: serve dask's dashboard on 127.0.0.1 and print its address (needs bokeh)")
     g.add_argument("--tls-ca-file", metavar="CA.pem", help="with --scheduler tls://...: CA certificate")
@@ -16,9 +19,10 @@ def add_cluster_args(parser) -> None:
 
 
 @contextmanager
-def cluster_client(args):
-    """The dask client the options ask for (``--workers K``: a loopback-only local cluster; ``--scheduler``:
-    that scheduler, with TLS if given), or None to run in this process."""
+def cluster_client(args, in_process_below: int = 1):
+    """The dask client the options ask for (``--workers K``: a loopback-only local cluster of K threads,
+    or K processes with ``--processes``; ``--scheduler``: that scheduler, with TLS if given), or None to
+    run in this process (also for ``--workers`` below ``in_process_below``: sweeps run one worker here)."""
     from straylight.distribute import dask_client, tls_security
 
     workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
@@ -27,7 +31,10 @@ def cluster_client(args):
         raise ValueError("--tls-ca-file/--tls-cert/--tls-key apply to --scheduler only (a local cluster uses no network)")
     if args.dashboard and not workers:
         raise ValueError("--dashboard needs --workers K (a remote scheduler serves its own dashboard)")
+    if args.processes and not workers:
+        raise ValueError("--processes needs --workers K (the number of worker processes)")
     if workers is not None and workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
-    with dask_client(workers, scheduler, security=security, dashboard=args.dashboard) as client:
+    with dask_client(workers, scheduler, security=security, dashboard=args.dashboard,
+                     in_process_below=in_process_below, processes=args.processes) as client:
         yield client

@@ -92,11 +92,15 @@ def add_parser(subparsers):
     p.add_argument("--no-nee", action="store_true", help="plain random walk (no next-event estimation)")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)
     p.add_argument("--entrance-radius-mm", type=float, default=None)
-    p.add_argument("--workers", type=int, default=None)
+    p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads "
+                                                                   "(K processes with --processes)")
     p.add_argument("--scheduler", default=None, help="dask scheduler address")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted sweep: points already finished (OUT/pst.points/) are not traced again")
+    from straylight.cli.cluster_args import add_cluster_args
+
+    add_cluster_args(p)
     p.set_defaults(func=run)
 
 
@@ -152,10 +156,12 @@ def run(args) -> int:
     setup = load_setup(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    res = pst_sweep(setup, np.radians(args.angles_deg), np.radians(args.azimuths_deg),
-                    n_rays=args.rays if precision is None else 1, seed=args.seed, nee=not args.no_nee,
-                    workers=args.workers, scheduler=args.scheduler, precision=precision,
-                    checkpoint_dir=out / "pst.points", resume=args.resume)
+    from straylight.cli.cluster_args import cluster_client
+
+    with cluster_client(args, in_process_below=2) as client:  # one worker: this process
+        res = pst_sweep(setup, np.radians(args.angles_deg), np.radians(args.azimuths_deg),
+                        n_rays=args.rays if precision is None else 1, seed=args.seed, nee=not args.no_nee,
+                        client=client, precision=precision, checkpoint_dir=out / "pst.points", resume=args.resume)
     res.write_csv(out / "pst.csv")
     res.write_json(out / "pst.json")
     res.plot(out / "pst.png")

@@ -27,7 +27,8 @@ def add_parser(subparsers):
                        what="rays per PST angle; other steps scale from it (with --target-rel-error: the "
                             "PST points trace to E, the other steps use --rays)", exclusive=False)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (default: in-process)")
+    p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (K processes "
+                                                               "with --processes; default: in-process)")
     p.add_argument("--scheduler", default=None, help="dask scheduler address")
     p.add_argument("--detector", default=None, help="scene file: detector part (default: [analysis] or the only one)")
     p.add_argument("--material", default=None, help="built-in tube: coating of wall, vanes and end plate "
@@ -44,6 +45,9 @@ def add_parser(subparsers):
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted study in the same --out: finished PST and design-sweep points "
                         "are read back (same numbers); refused if the settings changed")
+    from straylight.cli.cluster_args import add_cluster_args
+
+    add_cluster_args(p)
     p.set_defaults(func=run)
 
 
@@ -90,7 +94,10 @@ def run(args) -> int:
             check_parameter(fn, args.sweep_parameter, args.model.rsplit(":", 1)[0])
         else:
             cfg.sweep_values = ()  # a model is swept only over the values given
-    result = run_study(args.out, cfg, resume=args.resume)
+    from straylight.cli.cluster_args import cluster_client
+
+    with cluster_client(args, in_process_below=2) as client:  # one cluster for every step; one worker: this process
+        result = run_study(args.out, cfg, resume=args.resume, client=client)
     print(f"study written to {result.out_dir}/index.html ({result.timings_s['total']:.0f} s)")
     return 0
 

@@ -1,4 +1,4 @@
-"""``straylight trace SCENE.toml --rays N [--seed S] --json OUT.json [--workers K | --scheduler ADDRESS]``.
+"""``straylight trace SCENE.toml --rays N [--seed S] --json OUT.json [--workers K [--processes] | --scheduler ADDRESS]``.
 
 CONTRACTS §4.3: traces a scene file and writes detector, absorbed and escaped powers with their
 standard errors (plus the ledger) to OUT.json.
@@ -20,7 +20,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same numbers)")
     p.add_argument("--json", required=True, metavar="OUT.json", help="where to write the result")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads")
+    where.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (K processes with --processes)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS", help="dask scheduler address")
     where.add_argument("--threads", type=int, default=None,
                        help="K threads in this process (embree and the kernels release the GIL; "

@@ -1,0 +1,50 @@
+"""Imported once by the fork server that starts a local cluster's worker processes
+(:func:`straylight.distribute.local_cluster` with ``processes=True``): the engine's modules are
+imported and its compiled kernels loaded from numba's on-disk cache here, so that every worker
+forked from the server starts with them (a spawned worker spent ~1 s CPU on this itself, two of
+them at once on a 2-core machine, before its first ray).
+
+The kernels are loaded by tracing one chunk of a two-triangle scene on the numpy
+:class:`straylight.intersect.reference.ReferenceIntersector`: embree (and its thread pool) is
+not started in the server, which must stay free of threads to fork safely.
+"""
+from __future__ import annotations
+
+
+def load_kernels() -> None:
+    """Trace one chunk of a tiny scene (a black square facing a detector square) in this process:
+    the compiled kernels of the usual options (NEE with and without first-vertex sampling, plain walk)
+    are loaded from numba's cache."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from geometry.mesh import Part, Scene
+    from materials import Lambertian
+    from straylight.engine.compiled_scene import CompiledScene
+    from straylight.engine.first_vertex import build_table
+    from straylight.engine.options import TraceOptions
+    from straylight.engine.spec import make_spec
+    from straylight.engine.walk import run_batch
+    from straylight.intersect.reference import ReferenceIntersector
+    from straylight.sources import CollimatedDisk
+
+    square = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], dtype=np.float64)
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    wall = Part("wall", square + [0, 0, 5], faces[:, ::-1], material="black")
+    detector = Part("detector", square, faces, role="detector")
+    scene = Scene((wall, detector))
+    source = CollimatedDisk([0, 0, 4], [0, 0, 1], [0, 0, 1], 5.0)
+    for nee, vertex in ((True, True), (True, False), (False, False)):  # the CLI's default first: NEE, vertex sampling
+        options = TraceOptions(nee=nee, first_vertex_sampling=vertex, batch_rays=1000)
+        spec = make_spec(scene, [source], 100, 0, {"black": Lambertian(0.5)}, options)
+        isect = ReferenceIntersector(spec.triangles_mm)
+        if vertex:
+            spec = replace(spec, vertex_table=build_table(spec, CompiledScene(spec, isect)))
+        run_batch(spec, 0, 1, isect)
+
+
+try:
+    load_kernels()
+except Exception:  # noqa: BLE001 - a head start only: the workers load what they need themselves
+    pass
