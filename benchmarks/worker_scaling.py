@@ -12,6 +12,12 @@ raw embreex's rate measured in this run on the same scene (``EmbreeScene.run`` o
 apart), and the same trace in this process for comparison. Numbers must be identical for K = 1,
 2 and in-process (printed).
 
+Each K runs in a fresh Python process of this script (``--one K``), its clock started just before
+the cluster: the worker processes are forked from a server that imports the engine and loads the
+kernels once (``straylight.distribute``), which a second cluster in the same process would reuse;
+a fresh process gives every K its full start-up. The phases are printed: start-up (cluster up,
+scene scattered and built, kernels loaded), trace, close.
+
 Default scene: the reference tube (``geometry.scenes.reference_scene(0.01)``, 15k triangles, 30 deg).
 The machine may be shared: the wall-time ratio is meaningful only when two cores are free; the
 CPU-time rates are not disturbed by neighbours.
@@ -48,7 +54,7 @@ def raw_rate(triangles_mm, n=1_000_000):
 
 def whole_run(k, scene, sources, materials, n, seed, options):
     """Start K worker processes, trace, close: (result, wall s, worker CPU s of the trace itself
-    (after start-up: imports, scene shipped and built, kernels loaded), start-up wall s)."""
+    (after start-up: imports, scene shipped and built, kernels loaded), start-up wall s, close wall s)."""
     from dask.distributed import Client
 
     from straylight.distribute import local_cluster, warm_up, worker_cpu_seconds
@@ -62,8 +68,48 @@ def whole_run(k, scene, sources, materials, n, seed, options):
         before = worker_cpu_seconds(client)
         res = trace(scene, sources, n, seed, materials=materials, options=options, client=client)
         after = worker_cpu_seconds(client)
+        t_close = time.perf_counter()
+    end = time.perf_counter()
     cpu = {w: after[w] - before[w] for w in after}
-    return res, time.perf_counter() - t, cpu, start_s
+    return res, end - t, cpu, start_s, end - t_close
+
+
+def load(scene_path):
+    """(scene, sources, materials, label) of ``--scene`` or the default reference tube."""
+    if scene_path:
+        from straylight.scene import load_scene
+
+        rs = load_scene(scene_path)
+        return rs.scene, rs.sources, rs.materials, scene_path
+    from geometry.scenes import reference_scene
+    from materials import Lambertian
+    from straylight.sources import CollimatedDisk
+
+    scene = reference_scene(tolerance_mm=0.01)
+    a = math.radians(30.0)
+    sources = [CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(a), 0, -math.cos(a)], 60.0)]
+    return scene, sources, {scene.parts[0].material: Lambertian(0.05)}, "reference tube, 30 deg"
+
+
+def one(k, args):
+    """``--one K``: one whole run in this (fresh) process; its numbers as JSON on stdout's last line."""
+    from straylight.trace import TraceOptions
+
+    scene, sources, materials, _ = load(args.scene)
+    res, wall, cpu, start_s, close_s = whole_run(k, scene, sources, materials, args.rays, args.seed, TraceOptions())
+    print(json.dumps({"wall_s": wall, "worker_cpu_s": list(cpu.values()), "startup_s": start_s, "close_s": close_s,
+                      "casts": int(res.segments + res.shadow_rays), "result": res.to_json_dict()}), flush=True)
+
+
+def run_fresh(k, args):
+    """:func:`one` in a fresh process of this script."""
+    import subprocess
+
+    cmd = [sys.executable, __file__, "--one", str(k), "--rays", str(args.rays), "--seed", str(args.seed)]
+    if args.scene:
+        cmd += ["--scene", args.scene]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
 
 
 def main(argv=None):
@@ -73,24 +119,13 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--in-process", action="store_true", help="also trace in this process (1 thread)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--one", type=int, default=0, help=argparse.SUPPRESS)  # one K in this process (run_fresh)
     args = ap.parse_args(argv)
     from straylight.trace import TraceOptions, trace
 
-    if args.scene:
-        from straylight.scene import load_scene
-
-        rs = load_scene(args.scene)
-        scene, sources, materials, label = rs.scene, rs.sources, rs.materials, args.scene
-    else:
-        from geometry.scenes import reference_scene
-        from materials import Lambertian
-        from straylight.sources import CollimatedDisk
-
-        scene = reference_scene(tolerance_mm=0.01)
-        a = math.radians(30.0)
-        sources = [CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(a), 0, -math.cos(a)], 60.0)]
-        materials = {scene.parts[0].material: Lambertian(0.05)}
-        label = "reference tube, 30 deg"
+    if args.one:
+        return one(args.one, args)
+    scene, sources, materials, label = load(args.scene)
     options = TraceOptions()
     tri = np.asarray(scene.triangles_mm, dtype=np.float64)
     print(f"{label}: {len(tri)} triangles, {args.rays:.3g} rays", flush=True)
@@ -99,19 +134,22 @@ def main(argv=None):
     print(f"raw embreex: {raw / 1e6:.2f} M casts/CPU-s", flush=True)
     runs = {}
     for k in (1, 2):
-        res, wall, cpu, start_s = whole_run(k, scene, sources, materials, args.rays, args.seed, options)
-        casts = res.segments + res.shadow_rays
-        rate = casts / sum(cpu.values())
-        runs[k] = res
-        out[f"wall_s_{k}"] = wall
-        out[f"worker_cpu_s_{k}"] = list(cpu.values())
-        out[f"startup_s_{k}"] = start_s
+        run = run_fresh(k, args)
+        cpu = run["worker_cpu_s"]
+        rate = run["casts"] / sum(cpu)
+        runs[k] = json.dumps(run["result"], sort_keys=True)  # floats round-trip exactly (repr)
+        out[f"wall_s_{k}"] = run["wall_s"]
+        out[f"worker_cpu_s_{k}"] = cpu
+        out[f"startup_s_{k}"] = run["startup_s"]
+        out[f"close_s_{k}"] = run["close_s"]
         out[f"rate_per_process_cpu_{k}"] = rate
-        print(f"{k} worker process(es): {wall:.1f} s whole command (start-up and warm-up {start_s:.1f} s); "
-              f"trace: worker CPU {', '.join(f'{c:.1f}' for c in cpu.values())} s, "
+        trace_s = run["wall_s"] - run["startup_s"] - run["close_s"]
+        print(f"{k} worker process(es): {run['wall_s']:.1f} s whole command = start-up and warm-up "
+              f"{run['startup_s']:.1f} s + trace {trace_s:.1f} s + close {run['close_s']:.2f} s; "
+              f"trace: worker CPU {', '.join(f'{c:.1f}' for c in cpu)} s, "
               f"{rate / 1e6:.2f} M casts per worker CPU-s = {rate / raw:.0%} of raw", flush=True)
     out["scaling_wall_1_to_2"] = out["wall_s_1"] / out["wall_s_2"]
-    same = runs[1].to_json_dict() == runs[2].to_json_dict()
+    same = runs[1] == runs[2]
     out["identical_1_2"] = same
     print(f"scaling 1 -> 2 worker processes, whole command: x{out['scaling_wall_1_to_2']:.2f}; identical numbers: {same}")
     if args.in_process:
@@ -120,7 +158,7 @@ def main(argv=None):
         cpu = time.process_time() - c
         rate = (res.segments + res.shadow_rays) / cpu
         out["rate_in_process_cpu"] = rate
-        out["identical_in_process"] = res.to_json_dict() == runs[1].to_json_dict()
+        out["identical_in_process"] = json.dumps(res.to_json_dict(), sort_keys=True) == runs[1]
         print(f"in this process: {rate / 1e6:.2f} M casts/CPU-s = {rate / raw:.0%} of raw; identical: "
               f"{out['identical_in_process']}")
     if args.json:
