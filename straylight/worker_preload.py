@@ -1,12 +1,14 @@
 """Imported once by the fork server that starts a local cluster's worker processes
 (:func:`straylight.distribute.local_cluster` with ``processes=True``): the engine's modules are
 imported and its compiled kernels loaded from numba's on-disk cache here, so that every worker
-forked from the server starts with them (a spawned worker spent ~1 s CPU on this itself, two of
-them at once on a 2-core machine, before its first ray).
+forked from the server starts with them (a spawned worker spent ~1-1.5 s of CPU on this itself, all
+workers at once, before its first ray).
 
 The kernels are loaded by tracing one chunk of a two-triangle scene on the numpy
 :class:`straylight.intersect.reference.ReferenceIntersector`: embree (and its thread pool) is
-not started in the server, which must stay free of threads to fork safely.
+not started in the server, which must stay free of threads to fork safely. (The server starts with
+the environment dask's nanny sets for its workers, e.g. one OpenBLAS thread: ``distributed.nanny.
+pre-spawn-environ`` is put into this process's environment before the first worker starts.)
 """
 from __future__ import annotations
 
