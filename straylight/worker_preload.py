@@ -29,7 +29,10 @@ def load_kernels() -> None:
     from straylight.engine.spec import make_spec
     from straylight.engine.walk import run_batch
     from straylight.intersect.reference import ReferenceIntersector
+    from straylight.jit_start import start_numba
     from straylight.sources import CollimatedDisk
+
+    start_numba()  # as compiled_scene does before the first kernel: numba's target without scipy.linalg
 
     square = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], dtype=np.float64)
     faces = np.array([[0, 1, 2], [0, 2, 3]])
