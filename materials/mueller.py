@@ -131,4 +131,17 @@ def jones_to_mueller(J) -> np.ndarray:
     along (e1, e2) of each side): ``M_ij = tr(sigma_i J sigma_j J^dagger) / 2`` (Chipman et al.
     ch. 6, with this module's Stokes convention; for a diagonal J it is :func:`interface_mueller`)."""
     J = np.asarray(J, complex)
-    return 0.5 * np.einsum("iab,nbc,jcd,nad->nij", PAULI, J, PAULI, np.conj(J)).real
+    a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
+    ca, cb, cc, cd = np.conj(a), np.conj(b), np.conj(c), np.conj(d)
+    # K_j = J sigma_j J^dagger, element by element (00, 11, 01, 10)
+    K = [(a * ca + b * cb, c * cc + d * cd, a * cc + b * cd, c * ca + d * cb),
+         (a * ca - b * cb, c * cc - d * cd, a * cc - b * cd, c * ca - d * cb),
+         (b * ca + a * cb, d * cc + c * cd, b * cc + a * cd, d * ca + c * cb),
+         (1j * (b * ca - a * cb), 1j * (d * cc - c * cd), 1j * (b * cc - a * cd), 1j * (d * ca - c * cb))]
+    M = np.empty(J.shape[:-2] + (4, 4))
+    for j, (k00, k11, k01, k10) in enumerate(K):  # M_ij = tr(sigma_i K_j) / 2
+        M[..., 0, j] = 0.5 * (k00 + k11).real
+        M[..., 1, j] = 0.5 * (k00 - k11).real
+        M[..., 2, j] = 0.5 * (k01 + k10).real
+        M[..., 3, j] = 0.5 * (1j * (k01 - k10)).real
+    return M

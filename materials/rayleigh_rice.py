@@ -48,24 +48,35 @@ def s_basis(k, fallback=None) -> np.ndarray:
     return s / norm[:, None]
 
 
-def inside_field(k, e, eps):
-    """Field (n, 3) complex just inside the substrate (z < 0) for a unit plane wave travelling along
-    ``k`` (n, 3), k_z < 0, with polarization vectors ``e`` (n, 3) (complex allowed, normal to k)."""
+def _cross(a, b):
+    """Row-wise cross product (faster than np.cross on (n, 3) arrays; complex allowed)."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=-1)
+
+
+def inside_fields(k, s, eps):
+    """For unit plane waves travelling along ``k`` (n, 3), k_z < 0, with basis (s, p = k x s), ``s``
+    (n, 3) normal to k and to z (any unit vector normal to k along the normal): the fields just
+    inside the substrate (z < 0) of the s wave and of the p wave, (n, 3) complex each."""
     n = np.sqrt(complex(eps))
     cos = -k[:, 2]
     k_tan = k.copy()
     k_tan[:, 2] = 0.0
-    sin2 = np.einsum("ij,ij->i", k_tan, k_tan)
+    sin2 = k_tan[:, 0] ** 2 + k_tan[:, 1] ** 2
     q = np.sqrt(eps - sin2 + 0j)
-    s = s_basis(k, fallback=_unit(np.real(e)) if np.iscomplexobj(e) else _unit(e))
-    p = np.cross(k, s)
     t_s = 2.0 * cos / (cos + q)
     t_p = 2.0 * n * cos / (eps * cos + q)
     k_t = k_tan / n - (q / n)[:, None] * Z
-    p_t = np.cross(k_t, s)
-    es = np.einsum("ij,ij->i", e, s)
-    ep = np.einsum("ij,ij->i", e, p)
-    return (t_s * es)[:, None] * s + (t_p * ep)[:, None] * p_t
+    return t_s[:, None] * s, t_p[:, None] * _cross(k_t, s)
+
+
+def inside_field(k, e, eps):
+    """Field (n, 3) complex just inside the substrate for unit waves along ``k`` with polarization
+    vectors ``e`` (n, 3; real, normal to k)."""
+    s = s_basis(k, fallback=_unit(e))
+    E_s, E_p = inside_fields(k, s, eps)
+    p = np.cross(k, s)
+    return np.einsum("ij,ij->i", e, s)[:, None] * E_s + np.einsum("ij,ij->i", e, p)[:, None] * E_p
 
 
 def rayleigh_rice_jones(wi, wo, n, s_in=None, e1_out=None):
@@ -81,12 +92,16 @@ def rayleigh_rice_jones(wi, wo, n, s_in=None, e1_out=None):
     eps = complex(n) ** 2
     k_i = -wi
     s_i = s_basis(k_i) if s_in is None else np.asarray(s_in, float)
-    p_i = np.cross(k_i, s_i)
     e1 = s_basis(wo, fallback=s_i) if e1_out is None else np.asarray(e1_out, float)
-    e2 = np.cross(wo, e1)
+    e2 = _cross(wo, e1)
     k_r = -wo
-    E_a = [inside_field(k_i, s_i, eps), inside_field(k_i, p_i, eps)]
-    E_b = [inside_field(k_r, e1, eps), inside_field(k_r, e2, eps)]
+    s_r = s_basis(k_r, fallback=e1)
+    p_r = _cross(k_r, s_r)
+    E_a = inside_fields(k_i, s_i, eps)  # incident s, p
+    F_s, F_p = inside_fields(k_r, s_r, eps)  # reciprocal wave, its own s, p
+    E_b = []
+    for b in (e1, e2):
+        E_b.append((b * s_r).sum(axis=1)[:, None] * F_s + (b * p_r).sum(axis=1)[:, None] * F_p)
     above = (wi[:, 2] > 0) & (wo[:, 2] > 0)  # zero below either horizon (the BRDF is 0 there)
     scale = np.where(above, (eps - 1.0) / (4.0 * np.where(above, wi[:, 2] * wo[:, 2], 1.0)), 0.0)
     J = np.empty((len(wi), 2, 2), complex)
