@@ -14,11 +14,19 @@ Each run is a fresh process (so its peak RSS is its own):
 - cold: empty tessellation cache (read STEP, tessellate, measure chord errors, write the cache);
 - cached: the same command again (the cache entry is read instead).
 
-Reported per run: seconds to import the tracer (``import_s``: numpy, numba, embreex, ...: the
-same for any scene), seconds from process start to the scene loaded (``load_s``:
-``straylight.scene.load_scene``: geometry, checks, materials, sources), seconds to the first traced
-rays (load + embree scene + compiled kernels + a 1000-ray trace; also as CPU seconds of the
-process, ``cpu_first_rays_s``, which a busy shared machine inflates less than wall time), peak RSS (``resource.getrusage``) after that, and peak RSS after a trace of
+Python's own bytecode cache is warm in the cached run, as for an installed package (pip compiles
+the .pyc files): ``PYTHONDONTWRITEBYTECODE`` is dropped from the children's environment unless
+``--no-bytecode`` (with it, every run compiles the project's ~75 modules from source: ~0.1-0.2 s).
+
+Reported per run (wall seconds counted from the process's start, interpreter start-up included, on
+Linux): ``import_s`` when the tracer is imported (numpy, numba, embreex, straylight: the same for
+any scene), ``load_s`` when the scene is loaded (``straylight.scene.load_scene``: geometry, checks,
+materials, sources, numba's start), ``bvh_s`` when the engine's scene is ready
+(``make_spec`` + ``compiled_scene``: triangle tables, embree geometry and BVH), ``first_rays_s``
+after a 1000-ray trace (which loads the compiled kernels from numba's cache first); the CPU seconds
+of each stage (``cpu_*``, all threads; a busy shared machine inflates them less than wall times),
+the time of the same 1000 rays again (so kernels ~ first - again), the heavy modules imported (none
+on the cached path), peak RSS (VmHWM, Linux) after the first rays, and after a trace of
 ``--rays`` and of 10x that many rays: memory stays flat in ray count (the tracer works in
 fixed-size batches). The ratio cold/cached is measured within one run. The machine is shared.
 """
@@ -39,10 +47,20 @@ import numpy as np
 TOLERANCE_MM = 0.005
 SIZES = {"0.36M": 1, "1M": 3, "5M": 14}  # copies of the tube
 PITCH_MM = 200.0  # copies side by side along x (flange diameter 135 mm)
-HEAVY_MODULES = ("OCP", "cadquery", "trimesh", "scipy", "matplotlib", "pyvista", "dask", "distributed", "pandas")
+HEAVY_MODULES = ("OCP", "cadquery", "trimesh", "scipy.linalg", "matplotlib", "pyvista", "dask", "distributed", "pandas")
 
 
 def _rss_mb() -> float:
+    """Peak RSS of this process: VmHWM (Linux; of this program's memory since exec), else ru_maxrss (which on
+    Linux keeps the high-water mark of the parent at fork: the benchmark's parent, having written the STEP
+    with OpenCascade, is ~580 MB, and every child reported at least that before)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
@@ -175,11 +193,30 @@ def build(size: str, directory: Path) -> Path:
     return toml
 
 
-def run(toml: Path, rays: int, cache_dir: Path) -> dict:
+def run(toml: Path, rays: int, cache_dir: Path, bytecode: bool = True) -> dict:
     env = dict(os.environ, STRAYLIGHT_CACHE="on", STRAYLIGHT_CACHE_DIR=str(cache_dir))
+    if bytecode:  # Python's own .pyc cache warm, as for an installed package (pip compiles it)
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
     out = subprocess.run([sys.executable, __file__, "--child", str(toml), "--rays", str(rays)], env=env,
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def run_cli(toml: Path, cache_dir: Path, bytecode: bool = True, rays: int = 1000) -> dict:
+    """``straylight trace SCENE --rays 1000 --json OUT`` as a user runs it: the whole command, wall and CPU."""
+    env = dict(os.environ, STRAYLIGHT_CACHE="on", STRAYLIGHT_CACHE_DIR=str(cache_dir))
+    if bytecode:
+        env.pop("PYTHONDONTWRITEBYTECODE", None)
+    out = toml.parent / "startup_cli.json"
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-c", "import sys; from straylight.cli.main import main; sys.exit(main())",
+                    "trace", str(toml), "--rays", str(rays), "--json", str(out)], env=env, capture_output=True,
+                   text=True, check=True)
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return {"cli_rays": rays, "cli_wall_s": wall, "cli_cpu_s": cpu}
 
 
 def main(argv=None) -> int:
@@ -187,6 +224,8 @@ def main(argv=None) -> int:
     parser.add_argument("--sizes", nargs="+", default=list(SIZES), choices=list(SIZES))
     parser.add_argument("--rays", type=int, default=20000)
     parser.add_argument("--out", default=None, help="folder for the STEP/scene files and startup.json")
+    parser.add_argument("--no-bytecode", action="store_true",
+                        help="keep PYTHONDONTWRITEBYTECODE if set (every run compiles the project's modules)")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.child:
@@ -198,7 +237,7 @@ def main(argv=None) -> int:
         toml = build(size, out)
         cache_dir = out / f"cache_{size}"
         for label in ("cold", "cached"):
-            result = run(toml, args.rays, cache_dir)
+            result = run(toml, args.rays, cache_dir, bytecode=not args.no_bytecode)
             result.update(size=size, run=label, tolerance_mm=TOLERANCE_MM, copies=SIZES[size])
             rows.append(result)
             print(f"{size:>6} {label:<6} {result['triangles']:>9,d} tri  wall from start: imports "
@@ -211,6 +250,10 @@ def main(argv=None) -> int:
                   f"{result['rss_after_rays_mb']:7.0f} MB, after {10 * result['rays']:,d} "
                   f"{result['rss_after_10x_rays_mb']:7.0f} MB; heavy modules imported: "
                   f"{', '.join(result['heavy_modules']) or 'none'}", flush=True)
+        cli = run_cli(toml, cache_dir, bytecode=not args.no_bytecode)
+        rows[-1].update(cli)
+        print(f"{size:>6} cached `straylight trace --rays {cli['cli_rays']}` (whole command): "
+              f"{cli['cli_wall_s']:.2f} s wall, {cli['cli_cpu_s']:.2f} s CPU", flush=True)
         cold, cached = rows[-2], rows[-1]
         print(f"{size:>6} cold/cached time to first rays: x{cold['first_rays_s'] / cached['first_rays_s']:.1f}")
     import atomicio

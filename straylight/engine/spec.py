@@ -155,7 +155,7 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     tri = np.ascontiguousarray(scene.triangles_mm, dtype=np.float64)
     tri_part = np.ascontiguousarray(scene.triangle_part, dtype=np.int32)
     roles = np.array([ROLE_CODES[p.role] for p in scene.parts], dtype=np.int64)
-    h = hashlib.sha1(tri.tobytes())
+    h = hashlib.sha1(memoryview(tri).cast("B"))  # the bytes of tri.tobytes(), without copying them
     h.update(tri_part.tobytes())
     h.update(roles.tobytes())  # detector geometry depends on the roles,
     h.update(repr(options.target_parts).encode())  # and the target sampler on the targets
