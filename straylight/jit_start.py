@@ -28,10 +28,14 @@ _LOCK = threading.Lock()
 
 
 class _NoScipyBlas:
-    """A meta-path finder that makes ``import scipy.linalg`` (and so its ``cython_blas``) fail while installed."""
+    """A meta-path finder that makes ``import scipy.linalg`` (and so its ``cython_blas``) fail while installed,
+    in the thread that starts numba only (another thread of the process imports it as usual)."""
+
+    def __init__(self):
+        self.thread = threading.get_ident()
 
     def find_spec(self, name, path=None, target=None):
-        if name == _BLOCKED:
+        if name == _BLOCKED and threading.get_ident() == self.thread:
             raise ImportError(f"{_BLOCKED} is not imported while numba starts (straylight.jit_start)")
         return None
 
