@@ -25,11 +25,17 @@ against BRDF sampling at B). The random walk's hits on the detector after B keep
 (triangles with q_t = 0, parts that are not ``brdf_scatter`` surfaces, and B reached after a
 specular event are left to the walk alone).
 
-The table q is learnt before the run by a backward pass: ``BACKWARD_RAYS`` cosine-distributed
-rays from uniform points on the detectors (own random stream, seed only); q_t is proportional to
-the detector area times the fraction of those rays whose first hit is on t, i.e. the projected
-solid angle of t seen from the detector (the "critical objects" of docs/engine.md). It depends
-only on the scene and the seed, so results do not depend on batch size, threads or workers.
+The table q is learnt before the run from probes (own random stream, seed only, so results do
+not depend on batch size, threads or workers): q_t is proportional to A_t x (how well the
+detector sees t: sqrt of the mean of g^2 over probe points, g = |cos_x| cos_z A_det / d^2 for an
+unblocked uniform detector point) x (the mean direct irradiance on t's part, from 256 probes per
+part; parts without direct light get q = 0). Stage 1 probes each triangle of the lit parts once;
+stage 2 probes the faces (part, normal quantised to 1/8) where stage 1 saw anything, up to 16
+times per triangle within a 400k budget, and gives every triangle of such a face half its own
+score and half the face's mean (a sliver its probes missed is still drawn). On the hooked-vane
+assembly at 30 deg the second vertices that matter are the undersides of the upper vanes just
+outside their holes, lit by the vane below and seen by the detector straight down through all
+the holes.
 
 Cost: one A -> B shadow ray per ``brdf_scatter`` vertex and, if B is visible, one B -> z per
 detector, two BRDF evaluations each. Contributions go to ``detector_nee`` and, negated, to the
@@ -54,8 +60,10 @@ from straylight.paths import mix_key
 from straylight.rng import check_seed
 from straylight.sources import orthonormal_basis
 
-BACKWARD_STREAM = 0x53454356  # entropy word of the backward pass's stream
-BACKWARD_RAYS = 200_000
+TABLE_STREAM = 0x53454356  # entropy word of the table's probe stream
+PART_PROBES = 256
+PROBES_PER_TRIANGLE = 16
+PROBE_BUDGET = 400_000
 SCATTER_KIND = "brdf_scatter"
 
 
@@ -97,43 +105,123 @@ def _points(tri_mm, t, u1, u2):
     return v0 + b1[:, None] * (tri_mm[t, 1] - v0) + b2[:, None] * (tri_mm[t, 2] - v0)
 
 
-def build_table(spec, comp, n_rays: int = BACKWARD_RAYS) -> CriticalTable:
-    """q_t from a backward pass: cosine-distributed rays from uniform detector points (both sides
-    when ``detector_sides == "both"``), counted on the first triangle they hit, weighted by the
-    detector's area (module doc)."""
-    n_tri = len(spec.triangles_mm)
-    from_part = scatter_parts(spec)
-    eligible = from_part[spec.triangle_part]
-    D = len(comp.det_parts)
-    areas = np.array([comp.detectors[j].area_mm2 for j in range(D)])
-    rng = np.random.default_rng([check_seed(spec.seed), BACKWARD_STREAM])
-    score = np.zeros(n_tri)
+def _triangle_areas(tri_mm):
+    return 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
+
+
+def part_illumination(spec, comp, parts, rng) -> np.ndarray:
+    """Mean direct irradiance E (lit side, unblocked) over ``PART_PROBES`` area-uniform probes on each
+    of ``parts`` (straylight.engine.first_vertex.source_connection); ones when the sources are not a
+    single collimated or point source (then every part counts alike)."""
+    from straylight.engine.first_vertex import source_connection, unsupported
+
+    out = np.ones(len(parts))
+    if unsupported(spec.sources) is not None:
+        return out
+    src = spec.sources[0]
+    tri_mm, area = spec.triangles_mm, _triangle_areas(spec.triangles_mm)
+    for k, p in enumerate(parts):
+        tris = np.flatnonzero(spec.triangle_part == p)
+        cdf = np.cumsum(area[tris])
+        u = rng.random((PART_PROBES, 3))
+        u[:, 0] = (np.arange(PART_PROBES) + u[:, 0]) / PART_PROBES  # stratified over the part's area
+        t = tris[np.minimum(np.searchsorted(cdf, u[:, 0] * cdf[-1], side="right"), len(tris) - 1)]
+        x = _points(tri_mm, t, u[:, 1], u[:, 2])
+        wi, nf, e, tmax = source_connection(src, x, comp.normals[t])
+        lit = np.flatnonzero(e > 0)
+        if len(lit):
+            o = np.ascontiguousarray(x[lit] + spec.eps * nf[lit])
+            blocked = np.asarray(comp.isect.occluded(o, np.ascontiguousarray(wi[lit]), tmax[lit]), dtype=bool)
+            e[lit[blocked]] = 0.0
+        out[k] = e.mean()
+    return out
+
+
+def _seen_scores(spec, comp, tris, m, rng) -> np.ndarray:
+    """sqrt(mean g^2) over ``m`` probes per triangle (stratified along the first barycentric
+    coordinate), g = |cos_x| cos_z A_det / d^2 for an unblocked uniform detector point z, summed over
+    the detectors: how well the detector sees the triangle (either side)."""
+    t = np.repeat(tris, m)
+    u = rng.random((len(t), 5))
+    u[:, 0] = (np.tile(np.arange(m), len(tris)) + u[:, 0]) / m
+    x = _points(spec.triangles_mm, t, u[:, 0], u[:, 1])
+    n = comp.normals[t]
+    g2 = np.zeros(len(t))
     both = spec.options.detector_sides == "both"
-    for j in range(D):
-        n = max(1, int(round(n_rays * areas[j] / areas.sum())))
-        u = rng.random((n, 6))
-        z, nz = comp.detectors[j].sample(u[:, 0:3])
-        side = np.where(u[:, 3] < 0.5, -1.0, 1.0) if both else np.ones(n)
-        nz = nz * side[:, None]
-        # cosine-weighted direction about nz (Malley's method)
-        r, phi = np.sqrt(u[:, 4]), 2.0 * np.pi * u[:, 5]
-        tb, bb = orthonormal_basis(nz)
-        ct = np.sqrt(np.maximum(0.0, 1.0 - u[:, 4]))
-        d = (r * np.cos(phi))[:, None] * tb + (r * np.sin(phi))[:, None] * bb + ct[:, None] * nz
-        o = np.ascontiguousarray(z + spec.eps * nz)
-        tri = np.asarray(comp.isect.first_triangle(o, np.ascontiguousarray(d)), dtype=np.int64)
-        hit = tri[tri >= 0]
-        hit = hit[eligible[hit]]
-        score += np.bincount(hit, minlength=n_tri) * (areas[j] / n)
-    tri_mm = spec.triangles_mm
-    a_t = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
-    keep = np.flatnonzero((score > 0) & (a_t > 0))
+    for j in range(len(comp.det_parts)):
+        z, nz = comp.detectors[j].sample(u[:, 2:5])
+        v = z - x
+        d2 = _dot(v, v)
+        d = np.sqrt(d2)
+        w = v / np.where(d > 0, d, 1.0)[:, None]
+        cx = _dot(w, n)
+        cz = -_dot(w, nz)
+        if both:
+            cz = np.abs(cz)
+        ok = np.flatnonzero((np.abs(cx) > 0) & (cz > 0) & (d > 2 * spec.eps))
+        if len(ok) == 0:
+            continue
+        side = np.sign(cx[ok])[:, None] * n[ok]
+        o = x[ok] + spec.eps * side
+        to_z = z[ok] - o
+        lz = np.sqrt(_dot(to_z, to_z))
+        blocked = np.asarray(comp.isect.occluded(np.ascontiguousarray(o), np.ascontiguousarray(to_z / lz[:, None]),
+                                                 lz - spec.eps), dtype=bool)
+        ok = ok[~blocked]
+        g = np.abs(cx[ok]) * cz[ok] * comp.detectors[j].area_mm2 / d2[ok]
+        g2[ok] += g * g
+    return np.sqrt(g2.reshape(len(tris), m).mean(axis=1))
+
+
+def _face_groups(spec, comp, tris):
+    """A group id per triangle: its part and its normal quantised to 1/8 (one flat face of a part,
+    or a band of a curved one)."""
+    key = np.concatenate([spec.triangle_part[tris][:, None].astype(np.int64),
+                          np.round(comp.normals[tris] * 8).astype(np.int64)], axis=1)
+    return np.unique(key, axis=0, return_inverse=True)[1].ravel()
+
+
+def build_table(spec, comp) -> CriticalTable:
+    """q_t proportional to A_t x (how well the detector sees t) x (direct irradiance on t's part):
+    the second vertices that matter are surfaces the detector sees *near* lit ones (on the hooked-vane
+    assembly at 30 deg: the undersides of the upper vanes just outside their holes, lit by the vane
+    below, seen by the detector through a sliver). Stage 1: one probe per triangle of the lit
+    scatter parts; stage 2: up to ``PROBES_PER_TRIANGLE`` probes per triangle on the faces (part,
+    quantised normal) where stage 1 saw anything, within ``PROBE_BUDGET``. Own random stream (seed
+    only): the table is the same for any batch size, thread or worker count."""
+    from_part = scatter_parts(spec)
+    n_tri = len(spec.triangles_mm)
+    area = _triangle_areas(spec.triangles_mm)
+    rng = np.random.default_rng([check_seed(spec.seed), TABLE_STREAM])
+    parts = np.flatnonzero(from_part)
+    light = np.zeros(len(spec.part_roles))
+    light[parts] = part_illumination(spec, comp, parts, rng)
+    tris = np.flatnonzero((light[spec.triangle_part] > 0) & (area > 0))
     p_area = np.zeros(n_tri)
-    if len(keep) == 0:
-        return CriticalTable(np.zeros(0, np.int64), np.zeros(0), p_area, from_part)
+    empty = CriticalTable(np.zeros(0, np.int64), np.zeros(0), p_area, from_part)
+    if len(tris) == 0:
+        return empty
+    seen = _seen_scores(spec, comp, tris, 1, rng)
+    group = _face_groups(spec, comp, tris)
+    hit_groups = np.unique(group[seen > 0])
+    tris = tris[np.isin(group, hit_groups)]
+    if len(tris) == 0:
+        return empty
+    group = group[np.isin(group, hit_groups)]
+    m = int(min(PROBES_PER_TRIANGLE, max(1, PROBE_BUDGET // len(tris))))
+    seen = _seen_scores(spec, comp, tris, m, rng)
+    # defensive half: every triangle of a face the detector sees gets the face's mean density, so a
+    # sliver its probes missed is still drawn (q_t = 0 would leave it to the rare walk hits)
+    a_t = area[tris]
+    group = np.unique(group, return_inverse=True)[1].ravel()
+    face_mean = np.bincount(group, weights=a_t * seen) / np.bincount(group, weights=a_t)
+    score = a_t * (0.5 * seen + 0.5 * face_mean[group]) * light[spec.triangle_part[tris]]
+    keep = score > 0
+    if not keep.any():
+        return empty
     q = score[keep] / score[keep].sum()
-    p_area[keep] = q / a_t[keep]
-    return CriticalTable(keep.astype(np.int64), np.cumsum(q), p_area, from_part)
+    p_area[tris[keep]] = q / area[tris[keep]]
+    return CriticalTable(tris[keep].astype(np.int64), np.cumsum(q), p_area, from_part)
 
 
 def walk_weights(event, verts, w_vertex):
