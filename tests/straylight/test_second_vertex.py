@@ -161,3 +161,28 @@ def test_two_stage_probe_table_agrees_with_plain_nee(monkeypatch):
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)
     assert a.stderr_w < 0.6 * b.stderr_w
     _balanced(on)
+
+
+def test_tables_are_built_once_per_seed_and_reused_without_changing_numbers(monkeypatch):
+    """The rounds of --target-rel-error trace the same scene, sources and seed again: the kept
+    tables give exactly the numbers a fresh build gives."""
+    import straylight.trace as trace_module
+    from straylight.engine import table_cache
+
+    scene, src = baffled_tube_scene(), _tube_source(30.0)
+    opts = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True)
+    built = []
+    real = trace_module.build_critical_table
+    monkeypatch.setattr(trace_module, "build_critical_table", lambda spec, comp: built.append(1) or real(spec, comp))
+    table_cache._LAST.clear()
+    a = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts)
+    b = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, first_chunk=3)
+    assert len(built) == 1
+    table_cache._LAST.clear()
+    c = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, first_chunk=3)
+    assert len(built) == 2
+    assert c.detectors["detector"].power_w == b.detectors["detector"].power_w
+    assert c.detectors["detector"].stderr_w == b.detectors["detector"].stderr_w
+    trace(scene, src, 3000, seed=7, materials=BLACK, options=opts)
+    assert len(built) == 3
+    assert a.detectors["detector"].power_w != b.detectors["detector"].power_w
