@@ -243,8 +243,9 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     det = detector_name(setup.scene, setup.detector)
     sens = detector_area(setup, det)
     area = sens.area_mm2
-    opts = options or TraceOptions(first_vertex_sampling=True)
-    opts = dc_replace(opts, nee=bool(nee), first_vertex_sampling=bool(nee) and opts.first_vertex_sampling)
+    opts = options or TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True)
+    opts = dc_replace(opts, nee=bool(nee), first_vertex_sampling=bool(nee) and opts.first_vertex_sampling,
+                      second_vertex_sampling=bool(nee) and opts.second_vertex_sampling)
     pairs = [(a, phi) for phi in azimuth for a in off_axis]
     n = len(pairs)
     out = {k: np.full(n, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "p", "p_se", "sec")}

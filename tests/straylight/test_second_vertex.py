@@ -186,3 +186,24 @@ def test_tables_are_built_once_per_seed_and_reused_without_changing_numbers(monk
     trace(scene, src, 3000, seed=7, materials=BLACK, options=opts)
     assert len(built) == 3
     assert a.detectors["detector"].power_w != b.detectors["detector"].power_w
+
+
+def test_two_stage_probe_table_leaves_no_hole_in_a_face_it_saw(monkeypatch):
+    """Large-scene table: every triangle of a face (part, quantised normal) where a probe saw single
+    scatter keeps a share of the face's density (FACE_SHARE), so no sliver its probes missed is q = 0."""
+    scene, src = baffled_tube_scene(), _tube_source(20.0)
+    spec = make_spec(scene, src, 1000, seed=5, materials=BLACK, options=TraceOptions(first_vertex_sampling=True))
+    comp = compiled_scene(spec)
+    n_surf = int((spec.part_roles[spec.triangle_part] == ROLE_SURFACE).sum())
+    monkeypatch.setattr(first_vertex, "PROBE_BUDGET", 2 * n_surf)
+    table = first_vertex.build_table(spec, comp)
+    surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == ROLE_SURFACE)
+    surf = surf[first_vertex._may_see_detector(spec, comp, src, surf)]
+    surf = surf[np.isin(spec.triangle_part[surf], np.unique(spec.triangle_part[table.tri]))]
+    face = first_vertex._face_groups(spec, comp, surf)
+    seen_faces = np.unique(face[table.p_area[surf] > 0])
+    in_seen = np.isin(face, seen_faces)
+    assert in_seen.sum() > len(table.tri) * 0.99 and (table.p_area[surf[in_seen]] > 0).all()
+    tri = spec.triangles_mm
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    assert (table.p_area * area).sum() == pytest.approx(1.0, rel=1e-12)
