@@ -2,7 +2,7 @@
 
 PST = (detector power / detector area) / beam irradiance normal to the rays, the beam being the
 scene file's collimated disk (:func:`straylight.design.model.beam`) tilted toward +x; angle i of
-a list is traced with seed ``point_seed(seed, i)`` and next-event estimation with first-vertex
+a list is traced with seed ``point_seed(seed, i)`` and next-event estimation with first- and second-vertex
 sampling, as :func:`straylight.analyses.pst.pst_sweep` does. So the same seed and angle list give
 the same numbers as ``straylight pst DIR/scene.toml``, and two layouts evaluated with the same
 seed share their random numbers (common random numbers: their difference is not dominated by
@@ -44,7 +44,7 @@ def pst_points(spec, vanes, material_models: dict, angles_deg, rays: int, seed: 
     sc = model.scene(spec, vanes)
     bm = model.beam(spec)
     area = part_area_mm2(sc, "detector")
-    opts = TraceOptions(first_vertex_sampling=True)
+    opts = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True)
     out = []
     z_mm = [float(v.z_mm) for v in vanes]
     for i, a_deg in enumerate(angles_deg):
