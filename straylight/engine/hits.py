@@ -13,6 +13,7 @@ from numba import njit
 from straylight.engine.ray_batch import EVENT_SCATTER
 from straylight.engine.roles import ROLE_ABSORBER, ROLE_DETECTOR
 from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows
+from straylight.rng import CHUNK_RAYS
 
 
 class Hits(NamedTuple):
@@ -29,9 +30,10 @@ class Hits(NamedTuple):
 
 
 @njit(cache=True, nogil=True)
-def hits(tri, rays, scene, rows, settings, M):
+def hits(tri, rays, scene, rows, settings, M, parts_hit):
     """One pass over the live rays after the casts (``tri``: triangle hit, -1 = miss); tallies into
-    ``M`` at the rows of :class:`TallyRows`; returns the fields of :class:`Hits`."""
+    ``M`` at the rows of :class:`TallyRows`, marks ``parts_hit[chunk of the ray, part] = True``
+    (the chunk sums read a part's rows only where it was hit); returns the fields of :class:`Hits`."""
     n = len(tri)
     p = np.empty((n, 3))
     nf = np.empty((n, 3))
@@ -54,6 +56,7 @@ def hits(tri, rays, scene, rows, settings, M):
             continue
         pt = np.int64(scene.triangle_part[k])
         part[i] = pt
+        parts_hit[r // CHUNK_RAYS, pt] = True
         role = scene.part_roles[pt]
         n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
         d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
@@ -104,7 +107,7 @@ def hits(tri, rays, scene, rows, settings, M):
     return cont[:nc], p, nf, part, t_out, cos_out, rec[:nr], rec_w[:nr]
 
 
-def hits_numpy(tri, rays, scene, rows, settings, M):
+def hits_numpy(tri, rays, scene, rows, settings, M, parts_hit):
     """:func:`hits` in vectorised numpy (the reference)."""
     n = len(tri)
     tri = np.asarray(tri, dtype=np.int64)
@@ -126,6 +129,7 @@ def hits_numpy(tri, rays, scene, rows, settings, M):
     p = o + tc[:, None] * d
     nf = np.where((cos_in < 0)[:, None], ng, -ng)
     hit = np.flatnonzero(~miss)
+    parts_hit[r[hit] // CHUNK_RAYS, part[hit]] = True
     role = np.where(miss, -1, scene.part_roles[np.maximum(part, 0)])
     M[rows.incident + part[hit], r[hit]] += w[hit]
     first = hit[rays.last_event[hit] == 0]

@@ -55,20 +55,24 @@ def pairwise_block(x, lo, n):
 
 
 @njit(cache=True, nogil=True)
-def pairwise_sums(x, lo, n):
+def pairwise_work():
+    """Scratch for :func:`pairwise_sums_with`: an explicit stack of (lo, n, state) and of results;
+    allocate once per pass, not per sum (the allocations cost more than summing 1000 numbers)."""
+    return np.empty((3, 64), np.int64), np.empty((2, 64))
+
+
+@njit(cache=True, nogil=True)
+def pairwise_sums_with(x, lo, n, ist, fst):
     """numpy's pairwise sums of x[lo:lo+n] and of its squares: blocks of <= 128 combined as a binary
     tree whose splits are halves rounded down to multiples of 8, so that per-chunk sums are
     bit-identical to ``np.add.reduceat(x)`` and ``np.add.reduceat(x * x)``. Written without recursion
-    (an explicit post-order stack; numba's on-disk cache and recursion do not mix well)."""
+    (an explicit post-order stack in ``ist``, ``fst`` from :func:`pairwise_work`; numba's on-disk
+    cache and recursion do not mix well)."""
     if n <= 128:
         return pairwise_block(x, lo, n)
     # stack of (lo, n, state); state 0 = expand, 1 = combine the two results on the value stack
-    st_lo = np.empty(64, np.int64)
-    st_n = np.empty(64, np.int64)
-    st_s = np.empty(64, np.int64)
-    v1 = np.empty(64)
-    v2 = np.empty(64)
-    top = 0
+    st_lo, st_n, st_s = ist[0], ist[1], ist[2]
+    v1, v2 = fst[0], fst[1]
     nv = 0
     st_lo[0], st_n[0], st_s[0] = lo, n, 0
     top = 1
@@ -95,17 +99,26 @@ def pairwise_sums(x, lo, n):
     return v1[0], v2[0]
 
 
+@njit(cache=True, nogil=True)
+def pairwise_sums(x, lo, n):
+    """:func:`pairwise_sums_with` with its own scratch (one-off sums)."""
+    if n <= 128:
+        return pairwise_block(x, lo, n)
+    ist, fst = pairwise_work()
+    return pairwise_sums_with(x, lo, n, ist, fst)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def any_nonzero(x, a, b):
-    """True if some x[a:b] != 0 (NaN counts), tested 8 at a time."""
+    """True if some x[a:b] != 0 (NaN counts): an OR over runs of 256 without a branch inside (it
+    vectorises), so an all-zero block costs about a memory read."""
     i = a
-    while i + 8 <= b:
-        if ((x[i] != 0.0) | (x[i + 1] != 0.0) | (x[i + 2] != 0.0) | (x[i + 3] != 0.0)
-                | (x[i + 4] != 0.0) | (x[i + 5] != 0.0) | (x[i + 6] != 0.0) | (x[i + 7] != 0.0)):
-            return True
-        i += 8
     while i < b:
-        if x[i] != 0.0:
+        stop = min(i + 256, b)
+        acc = False
+        for k in range(i, stop):
+            acc |= x[k] != 0.0
+        if acc:
             return True
-        i += 1
+        i = stop
     return False

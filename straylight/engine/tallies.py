@@ -9,12 +9,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from straylight.engine.pairwise_sums import any_nonzero, pairwise_sums
+from straylight.engine.pairwise_sums import any_nonzero, pairwise_sums_with, pairwise_work
 from straylight.rng import CHUNK_RAYS
 
 
 @njit(cache=True, nogil=True)
-def chunk_sums(M, chunk, rows, clear=False):
+def chunk_sums(M, chunk, rows, clear=False, parts_hit=None):
     """Per-chunk S1 = sum x, S2 = sum x^2 of every tally row of M (n_rows, n) and of the derived rows
     (``ledger_absorbed`` = absorbed + roulette + nee_exchange + truncated per part, ``detector_total``
     = detector_nee + detector_direct; :class:`TallyRows`), as
@@ -22,7 +22,10 @@ def chunk_sums(M, chunk, rows, clear=False):
 
     Blocks (row, chunk) that hold only zeros are skipped (derived rows: when all their source blocks
     are zero); ``clear=True`` zeroes the non-zero blocks of M afterwards, so that M is all zeros again
-    and the caller can reuse it without filling it."""
+    and the caller can reuse it without filling it. ``parts_hit`` (n_chunks, n_parts) bool, if given:
+    the per-part rows of part k in chunk c are known to be zero unless ``parts_hit[c, k]`` (the walk
+    writes a part's rows only for rays that hit it), so those blocks are not even scanned: with many
+    parts most of M is such blocks (0.36M-triangle assembly: 310 rows, 1.3 % non-zero)."""
     n_rows, n = M.shape
     n_parts, n_det = rows.n_parts, rows.n_detectors
     r_abs, r_rr, r_nex, r_trunc = rows.absorbed, rows.roulette, rows.nee_exchange, rows.truncated
@@ -33,11 +36,15 @@ def chunk_sums(M, chunk, rows, clear=False):
     s2 = np.zeros((nch, n_ext))
     nz = np.zeros((nch, n_rows), np.bool_)
     buf = np.empty(chunk)
+    ist, fst = pairwise_work()
+    part_rows = rows.truncated + n_parts  # rows 0 .. part_rows-1: blocks of n_parts, one row per part
     for r in range(n_ext):
         for c in range(nch):
             a = c * chunk
             b = min(a + chunk, n)
             if r < n_rows:
+                if parts_hit is not None and r < part_rows and not parts_hit[c, (r - rows.incident) % n_parts]:
+                    continue  # a part no ray of this chunk hit: zeros
                 x = M[r]
                 lo = a
                 if not any_nonzero(x, a, b):
@@ -64,7 +71,7 @@ def chunk_sums(M, chunk, rows, clear=False):
                 if not any_nonzero(x, 0, b - a):
                     continue
             # reduceat: the first element, then the pairwise sum of the rest
-            t1, t2 = pairwise_sums(x, lo + 1, b - a - 1)
+            t1, t2 = pairwise_sums_with(x, lo + 1, b - a - 1, ist, fst)
             s1[c, r] = x[lo] + t1
             s2[c, r] = x[lo] * x[lo] + t2
     if clear:
@@ -97,6 +104,7 @@ def map_sums(key, pw, nb, n_det, chunk):
     q = 0
     cur = -1
     a = 0
+    ist, fst = pairwise_work()
     while a <= m:
         if a < m:
             k = key[a]
@@ -125,7 +133,7 @@ def map_sums(key, pw, nb, n_det, chunk):
         if b - a == 1:
             x = pw[a]
         else:
-            t1, t2 = pairwise_sums(pw, a + 1, b - a - 1)
+            t1, t2 = pairwise_sums_with(pw, a + 1, b - a - 1, ist, fst)
             x = pw[a] + t1
         cell = k % width
         if not touched[cell]:
@@ -149,8 +157,9 @@ def map_sums(key, pw, nb, n_det, chunk):
     return o_chunk, o_cell // nb, o_cell % nb, o1, o2, g_start[:ng], g_stop
 
 
-def chunk_sums_numpy(M, chunk, rows, clear=False):
-    """:func:`chunk_sums` as np.add.reduceat (the reference; ``clear`` zeroes M)."""
+def chunk_sums_numpy(M, chunk, rows, clear=False, parts_hit=None):
+    """:func:`chunk_sums` as np.add.reduceat (the reference; ``clear`` zeroes M; every block summed,
+    ``parts_hit`` unused)."""
     p, d = rows.n_parts, rows.n_detectors
     ledger = (M[rows.absorbed:rows.absorbed + p] + M[rows.roulette:rows.roulette + p]
               + M[rows.nee_exchange:rows.nee_exchange + p] + M[rows.truncated:rows.truncated + p])
@@ -205,13 +214,14 @@ class DetectorRecords:
                                    depth.astype(np.int16), keys, events))
 
 
-def batch_sums(M, rows, first_chunk, records, segments, shadow_rays, chunk_sum, clear=False):
+def batch_sums(M, rows, first_chunk, records, segments, shadow_rays, chunk_sum, clear=False, parts_hit=None):
     """The result of one batch: per-chunk sums S1, S2 of every tally row (``chunk_sum``: the compiled
-    :func:`chunk_sums` or its twin), irradiance-map sums and path records (``clear``: leave M zeros)."""
+    :func:`chunk_sums` or its twin), irradiance-map sums and path records (``clear``: leave M zeros;
+    ``parts_hit``: see :func:`chunk_sums`)."""
     C = CHUNK_RAYS
     n = M.shape[1]
     nch = -(-n // C)
-    s1, s2 = chunk_sum(M, C, rows, clear)
+    s1, s2 = chunk_sum(M, C, rows, clear, parts_hit)
     maps = chunk_maps(records.map_rows, nch, C, rows.n_detectors, records.bins)
     paths = None
     if records.record_paths and records.path_rows:

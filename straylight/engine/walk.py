@@ -89,6 +89,10 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     kind_of_part, kinds, continuing = part_interactions(spec)
     first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
+    # which parts each chunk's rays hit: the chunk sums skip the other parts' rows (all zeros)
+    parts_hit = np.zeros((-(-n // CHUNK_RAYS), rows.n_parts), dtype=np.bool_)
+    if first_vertex is not None:  # its vertices lie on parts the walk may not hit
+        parts_hit[:, np.unique(spec.triangle_part[spec.vertex_table.tri])] = True
     segments = shadow_rays = 0
     max_events = int(opt.max_events)
     for ev in range(max_events):
@@ -97,7 +101,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         U = event_uniforms(draws, rays.ray, columns.width, ubuf)
         tri = np.asarray(scene.isect.first_triangle(rays.origin_mm, rays.direction))
         segments += len(rays.ray)
-        hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, M))
+        hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, M, parts_hit))
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=M,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
                       first_vertex=first_vertex)
@@ -120,7 +124,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     if first_vertex is not None:
         shadow_rays += run_vertex_pass(spec, scene, spec.vertex_table, first_chunk, stop_chunk, M, rows, records,
                                        settings.record_paths, int(opt.path_depth))
-    result = batch_sums(M, rows, first_chunk, records, segments, shadow_rays, kernels.chunk_sums, clear=reuse)
+    result = batch_sums(M, rows, first_chunk, records, segments, shadow_rays, kernels.chunk_sums, clear=reuse,
+                        parts_hit=parts_hit)
     if reuse:
         scene.tally_cleared()
     return result

@@ -11,6 +11,13 @@ import threading
 import numpy as np
 
 from straylight.intersect._plane import plane_distance, triangle_planes
+from straylight.intersect.coherence import CELL_BITS, MIN_RAYS, MIN_TRIANGLES, coherent_float32, scatter_back
+
+_NO_EXTRA = np.zeros(0)
+
+
+def _float64_rows(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 class EmbreeIntersector:
@@ -47,6 +54,7 @@ class EmbreeIntersector:
             self._mesh = TriangleMesh(self._embree, tri)  # float64 in: the same float32 vertices (C cast)
         self.planes = triangle_planes(tri)  # (v0, unit normal, centroid) per triangle; the engine reuses them
         self._v0, self._normal, self._centroid = self.planes
+        self._min_rays = MIN_RAYS if self.n_triangles >= MIN_TRIANGLES else np.inf  # coherent order pays?
 
     @property
     def _scene(self):
@@ -58,10 +66,14 @@ class EmbreeIntersector:
         return self._embree
 
     def first_triangle(self, origins, dirs) -> np.ndarray:
-        """Index of the first triangle hit (int32, -1 = miss), without the distance."""
-        o32 = np.ascontiguousarray(origins, dtype=np.float32)
-        d32 = np.ascontiguousarray(dirs, dtype=np.float32)
-        return self._scene.run(o32, d32)
+        """Index of the first triangle hit (int32, -1 = miss), without the distance. Large calls
+        are cast in a coherent order (straylight.intersect.coherence; same answers)."""
+        if len(origins) < self._min_rays:
+            o32 = np.ascontiguousarray(origins, dtype=np.float32)
+            d32 = np.ascontiguousarray(dirs, dtype=np.float32)
+            return self._scene.run(o32, d32)
+        o32, d32, _, perm = coherent_float32(_float64_rows(origins), _float64_rows(dirs), _NO_EXTRA, CELL_BITS)
+        return scatter_back(self._scene.run(o32, d32), perm)
 
     def intersect(self, origins, dirs):
         """First hit. origins, dirs : (n, 3) float64 (dirs unit). Returns (tri int64, t float64)."""
@@ -80,7 +92,11 @@ class EmbreeIntersector:
         """True where some triangle lies on the ray at 0 < t < tmax."""
         if len(origins) == 0:
             return np.zeros(0, dtype=bool)
-        o32 = np.ascontiguousarray(origins, dtype=np.float32)
-        d32 = np.ascontiguousarray(dirs, dtype=np.float32)
-        tm = np.ascontiguousarray(tmax, dtype=np.float32)
-        return self._scene.run(o32, d32, dists=tm, query="OCCLUDED") != -1
+        if len(origins) < self._min_rays:
+            o32 = np.ascontiguousarray(origins, dtype=np.float32)
+            d32 = np.ascontiguousarray(dirs, dtype=np.float32)
+            tm = np.ascontiguousarray(tmax, dtype=np.float32)
+            return self._scene.run(o32, d32, dists=tm, query="OCCLUDED") != -1
+        o32, d32, tm, perm = coherent_float32(_float64_rows(origins), _float64_rows(dirs), _float64_rows(tmax),
+                                              CELL_BITS)
+        return scatter_back(self._scene.run(o32, d32, dists=tm, query="OCCLUDED"), perm) != -1
