@@ -1,6 +1,7 @@
 """Engine throughput and variance on the reference baffled tube (shared/BENCHMARK.md).
 
     .venv/bin/python benchmarks/throughput.py [--rays N] [--quick] [--seed S] [--json OUT.json] [--rates-only]
+    .venv/bin/python benchmarks/throughput.py --scene SCENE.toml [--rays N]   (items 1-2 on that scene, 1 worker)
 
 Everything is measured in this one run and printed as ratios, because the machines are shared
 (load 4-7 on 2 cores) and absolute rates move with the neighbours:
@@ -61,14 +62,24 @@ def source(a_deg):
     return CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(a), 0, -math.cos(a)], 60.0, power_w=1.0)
 
 
+SCENE_SOURCES = []  # --scene: the scene file's sources replace the tube's beam
+
+
 def raw_rates(scene, n=1_000_000):
+    """Raw embreex on incoherent rays: inside the tube (r < 50, 0 < z < 300), or for a --scene in
+    the middle half of its bounding box (as benchmarks/worker_scaling.py), random directions."""
     from straylight.intersect import EmbreeIntersector
 
     isect = EmbreeIntersector(scene.triangles_mm)
     rng = np.random.default_rng(0)
-    r = 50 * np.sqrt(rng.random(n))
-    ph = 2 * np.pi * rng.random(n)
-    o = np.stack([r * np.cos(ph), r * np.sin(ph), 300 * rng.random(n)], 1).astype(np.float32)
+    if SCENE_SOURCES:
+        tri = np.asarray(scene.triangles_mm).reshape(-1, 3)
+        lo, hi = tri.min(axis=0), tri.max(axis=0)
+        o = (lo + (hi - lo) * (0.25 + 0.5 * rng.random((n, 3)))).astype(np.float32)
+    else:
+        r = 50 * np.sqrt(rng.random(n))
+        ph = 2 * np.pi * rng.random(n)
+        o = np.stack([r * np.cos(ph), r * np.sin(ph), 300 * rng.random(n)], 1).astype(np.float32)
     d = rng.normal(size=(n, 3))
     d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
     isect._scene.run(o[:10000], d[:10000])
@@ -96,7 +107,8 @@ def timed_trace(scene, mats, a_deg, n, seed, nee=True, client=None, threads=None
     opts = TraceOptions(nee=nee, max_events=20 if not nee else 1000)
     t = time.perf_counter()
     c = time.process_time()
-    res = trace(scene, source(a_deg), n, seed, materials=mats, options=opts, client=client, threads=threads,
+    res = trace(scene, SCENE_SOURCES or source(a_deg), n, seed, materials=mats, options=opts, client=client,
+                threads=threads,
                 workers=workers)
     return res, time.perf_counter() - t, time.process_time() - c
 
@@ -217,22 +229,34 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3,
                     help="rate measurements repeated, the least disturbed kept (default 3)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--scene", default=None,
+                    help="a scene file (its sources and materials) instead of the tube at 30 deg; implies --rates-only")
     ap.add_argument("--rates-only", action="store_true",
                     help="stop after the 1-worker rates (raw, full trace, embree share, raw on the trace's rays)")
     args = ap.parse_args(argv)
     if args.quick:
         args.rays, args.plain_rays = 60_000, 40_000
-    from geometry.scenes import reference_scene
-    from materials import Lambertian
-
     out = {"rays": args.rays, "seed": args.seed}
     t = time.perf_counter()
-    scene = reference_scene(tolerance_mm=0.01)
+    if args.scene:
+        from straylight.scene import load_scene
+
+        args.rates_only = True
+        rs = load_scene(args.scene)
+        scene, mats = rs.scene, rs.materials
+        SCENE_SOURCES[:] = list(rs.sources)
+        label = args.scene
+    else:
+        from geometry.scenes import reference_scene
+        from materials import Lambertian
+
+        scene = reference_scene(tolerance_mm=0.01)
+        mats = {scene.parts[0].material: Lambertian(0.05)}
+        label = "reference tube"
     out["scene_build_s"] = time.perf_counter() - t
     out["triangles"] = len(scene.triangles_mm)
-    mats = {scene.parts[0].material: Lambertian(0.05)}
-    print(f"reference tube: {len(scene.triangles_mm)} triangles (tolerance 0.01 mm), "
-          f"built in {out['scene_build_s']:.1f} s")
+    out["scene"] = label
+    print(f"{label}: {len(scene.triangles_mm)} triangles, loaded in {out['scene_build_s']:.1f} s")
 
     # shared machine: repeat each rate measurement and keep the least disturbed one (fastest)
     raws = [raw_rates(scene) for _ in range(args.repeats)]
@@ -248,7 +272,7 @@ def main(argv=None):
     rate1, rate1_cpu = casts / el, casts / cpu1
     out.update(trace_casts=casts, trace_s_1=el, trace_cpu_s_1=cpu1, trace_rate_1=rate1, trace_rate_1_cpu=rate1_cpu,
                trace_ratio_1_cpu=rate1_cpu / raw1_cpu, trace_ratio_1_wall=rate1 / raw1)
-    print(f"full trace at 30 deg, 1 worker: {args.rays} rays, {res.segments} segments + {res.shadow_rays} shadow rays"
+    print(f"full trace{'' if args.scene else ' at 30 deg'}, 1 worker: {args.rays} rays, {res.segments} segments + {res.shadow_rays} shadow rays"
           f"\n    {rate1_cpu / 1e6:.2f} M/CPU-s = {rate1_cpu / raw1_cpu:.0%} of raw (CPU);  "
           f"{rate1 / 1e6:.2f} M/wall-s = {rate1 / raw1:.0%} of raw (wall)")
 
@@ -264,11 +288,12 @@ def main(argv=None):
           f"(segments {own_seg / 1e6:.2f}, shadow rays {own_sh / 1e6:.2f}); full trace = {rate1_cpu / own:.0%} of it "
           f"(vs {rate1_cpu / raw1_cpu:.0%} of raw on random rays)")
 
-    t_fast, t_ref, same_ref = compiled_vs_numpy(scene, mats, 30.0, args.rays, args.seed)
-    out.update(compiled_cpu_s=t_fast, numpy_reference_cpu_s=t_ref, compiled_speedup=t_ref / t_fast,
-               compiled_bit_identical=same_ref)
-    print(f"    compiled kernels vs the numpy engine (run_batch_reference), same batches interleaved: "
-          f"x{t_ref / t_fast:.2f} less CPU ({t_ref:.2f} -> {t_fast:.2f} s); bit-identical sums: {same_ref}")
+    if not args.scene:
+        t_fast, t_ref, same_ref = compiled_vs_numpy(scene, mats, 30.0, args.rays, args.seed)
+        out.update(compiled_cpu_s=t_fast, numpy_reference_cpu_s=t_ref, compiled_speedup=t_ref / t_fast,
+                   compiled_bit_identical=same_ref)
+        print(f"    compiled kernels vs the numpy engine (run_batch_reference), same batches interleaved: "
+              f"x{t_ref / t_fast:.2f} less CPU ({t_ref:.2f} -> {t_fast:.2f} s); bit-identical sums: {same_ref}")
 
     if args.rates_only:
         print(f"\nsummary (same run): full trace = {out['trace_ratio_1_cpu']:.0%} of raw embreex on random rays, "
