@@ -91,8 +91,10 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
     # which parts each chunk's rays hit: the chunk sums skip the other parts' rows (all zeros)
     parts_hit = np.zeros((-(-n // CHUNK_RAYS), rows.n_parts), dtype=np.bool_)
-    if first_vertex is not None:  # its vertices lie on parts the walk may not hit
-        parts_hit[:, np.unique(spec.triangle_part[spec.vertex_table.tri])] = True
+    # area-sampled vertices (first- and second-vertex sampling) lie on parts the walk may not hit
+    for table in (spec.vertex_table if first_vertex is not None else None, spec.critical_table):
+        if table is not None:
+            parts_hit[:, np.unique(spec.triangle_part[table.tri])] = True
     segments = shadow_rays = 0
     max_events = int(opt.max_events)
     for ev in range(max_events):

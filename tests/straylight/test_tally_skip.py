@@ -14,6 +14,23 @@ from straylight.rng import CHUNK_RAYS
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "engine_golden"
 
 
+def _spec(scene, sources, n, seed, materials, options):
+    """make_spec plus the sampling tables trace() adds (straylight.trace.trace)."""
+    from dataclasses import replace
+
+    from straylight.engine.compiled_scene import compiled_scene
+    from straylight.engine.first_vertex import build_table
+    from straylight.engine.second_vertex import build_table as build_critical_table
+    from straylight.trace import make_spec
+
+    spec = make_spec(scene, sources, n, seed, materials, options)
+    if options.first_vertex_sampling:
+        spec = replace(spec, vertex_table=build_table(spec, compiled_scene(spec)))
+    if options.second_vertex_sampling:
+        spec = replace(spec, critical_table=build_critical_table(spec, compiled_scene(spec)))
+    return spec
+
+
 def _checked_kernels(seen):
     def checking_sums(M, chunk, rows, clear=False, parts_hit=None):
         assert parts_hit is not None
@@ -34,15 +51,18 @@ def _checked_kernels(seen):
     dict(),
     dict(max_events=2, nee_samples=2, detector_sides="front"),
     dict(first_vertex_sampling=True),
+    dict(first_vertex_sampling=True, max_events=1),  # vertex parts the walk barely reaches
+    dict(second_vertex_sampling=True, max_events=1),
     dict(nee=False, rr_threshold=0.3),
+    dict(second_vertex_sampling=True),
 ])
 def test_skipped_blocks_are_zero(opts):
     from straylight.scene import load_scene
-    from straylight.trace import TraceOptions, make_spec
+    from straylight.trace import TraceOptions
 
     rs = load_scene(GOLDEN / "tube_mixed.toml")
-    sources = rs.sources[:1] if opts.get("first_vertex_sampling") else rs.sources
-    spec = make_spec(rs.scene, sources, 6 * CHUNK_RAYS, 3, rs.materials, TraceOptions(**opts))
+    sources = rs.sources[:1] if opts.get("first_vertex_sampling") or opts.get("second_vertex_sampling") else rs.sources
+    spec = _spec(rs.scene, sources, 6 * CHUNK_RAYS, 3, rs.materials, TraceOptions(**opts))
     seen = []
     walk(spec, 0, 6, None, _checked_kernels(seen))
     hit, size = seen[0]
@@ -77,3 +97,30 @@ def test_any_nonzero_finds_every_position():
             assert call(x, 0, 700) and call(x, i, i + 1) and not call(x, i + 1, 700)
             assert call(x, 0, i + 1) and not call(x, 0, i)
             x[i] = 0.0
+
+
+def test_sampled_vertices_on_parts_the_walk_never_hits():
+    """A beam from inside the tube lights only the wall and the walk stops after that first event,
+    while second-vertex sampling puts vertices on the surfaces the detector sees (vanes): their rows
+    are written with no walk hit there, so the walk must mark those parts itself (fails without)."""
+    opts = dict(second_vertex_sampling=True)
+    from straylight.engine.walk import walk as walk_fn
+    from straylight.scene import load_scene
+    from straylight.sources import CollimatedDisk
+    from straylight.trace import TraceOptions
+
+    rs = load_scene(GOLDEN / "tube_mixed.toml")
+    beam = CollimatedDisk([0, 0, 100], [1, 0, 0], [1, 0, 0], 5.0)
+    spec = _spec(rs.scene, [beam], 3 * CHUNK_RAYS, 5, rs.materials, TraceOptions(max_events=1, **opts))
+    seen = []
+    checked = _checked_kernels(seen)
+    hit_parts = set()
+
+    def hits_recording(tri, rays, scene, rows, settings, M, parts_hit):
+        out = COMPILED.hits(tri, rays, scene, rows, settings, M, parts_hit)
+        hit_parts.update(np.unique(out[3][out[3] >= 0]).tolist())
+        return out
+
+    walk_fn(spec, 0, 3, None, checked._replace(hits=hits_recording))
+    assert hit_parts == {rs.scene.part_names.index("wall")}
+    assert seen and seen[0][0] > 3  # more than the wall marked in the 3 chunks

@@ -30,7 +30,8 @@ class Interaction:
     (:class:`straylight.engine.event.Outgoing`; :func:`straylight.engine.event.outgoing` builds one).
     It may add estimates to ``event.tallies`` (rows of
     ``event.rows``; keep the ledger exact: whatever it adds to a detector it subtracts from the
-    part's ``nee_exchange`` row), record detector contributions with ``event.records.add`` and
+    part's ``nee_exchange`` row; per-part rows only of the part the ray hit: the chunk sums skip
+    the rows of parts a chunk did not hit), record detector contributions with ``event.records.add`` and
     count its shadow rays in ``event.shadow_rays``. Absorption, Russian roulette, truncation and
     the next ray state are the walk's (straylight.engine.advance): they follow from ``throughput``.
     """
