@@ -28,6 +28,7 @@ from straylight.engine.batch_pool import shared_pool  # noqa: F401 - re-exported
 from straylight.engine.compiled_scene import cached_scene, compiled_scene, detector_samplers
 from straylight.engine.first_vertex import build_table
 from straylight.engine.second_vertex import build_table as build_critical_table
+from straylight.engine.second_vertex import unsupported as second_vertex_unsupported
 from straylight.engine.table_cache import last_table
 from straylight.engine.options import TraceError, TraceOptions  # noqa: F401 - re-exported
 from straylight.engine.results import BatchTotals, Tally, TraceResult  # noqa: F401 - re-exported
@@ -74,7 +75,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     opt = spec.options
     if opt.first_vertex_sampling and intersector is None and len(spec.detector_parts):
         spec = replace(spec, vertex_table=last_table("first", spec, lambda: build_table(spec, compiled_scene(spec))))
-    if opt.second_vertex_sampling and opt.nee and len(spec.detector_parts):
+    if opt.second_vertex_sampling and opt.nee and len(spec.detector_parts) and second_vertex_unsupported(spec) is None:
         spec = replace(spec, critical_table=last_table(
             "second", spec, lambda: build_critical_table(spec, compiled_scene(spec, intersector)),
             cache=intersector is None))

@@ -29,6 +29,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--vertex-sampling", choices=("auto", "on", "off"), default="auto",
                    help="first-vertex area sampling for single-scatter paths, combined with the walk by MIS "
                         "(docs/engine.md); auto: on with NEE and exactly one collimated or point source")
+    p.add_argument("--scatter-polarization", choices=("auto", "on"), default="auto",
+                   help="auto: scattered light keeps a polarization only where the light arriving was "
+                        "polarized (linear source, Fresnel interface); on: also the partial polarization "
+                        "that scatter creates from unpolarized light (slower; docs/engine.md)")
     p.add_argument("--max-events", type=int, default=1000, help="surface events per ray (default 1000)")
     p.add_argument("--batch-rays", type=int, default=None,
                    help="rays per batch in memory (default: automatic; no effect on results)")
@@ -61,7 +65,8 @@ def run(args) -> int:
     if vertex is None:
         vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
-                           progress=sys.stderr.isatty(), first_vertex_sampling=vertex)
+                           progress=sys.stderr.isatty(), first_vertex_sampling=vertex,
+                           scatter_polarization=args.scatter_polarization)
     from straylight.cli.cluster_args import cluster_client
 
     with cluster_client(args) as client:

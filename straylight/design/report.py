@@ -100,6 +100,8 @@ def write_report(out, spec, doc, built, design, baseline, refinement):
               (baseline, "evenly spaced baseline")]
     if doc["design_source"] == "construction":
         panels = [panels[0], panels[2]]
+    elif doc["design_source"] == "evenly spaced":
+        panels = panels[:2]
     aspect = (spec.tube_length_mm + 6) / (2 * spec.tube_radius_mm + 14)
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), min(3.2 * aspect, 11) + 0.8), dpi=110)
     for ax, (layout, title) in zip(np.atleast_1d(axes), panels):

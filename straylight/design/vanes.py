@@ -5,9 +5,11 @@
    E, E + 5, E + 10 deg (common random numbers, seed derived from ``seed``; skipped with
    ``refine_evals=0``).
 3. The construction and the refined layout are traced again with ``rays`` per angle and the
-   user's ``seed`` (fresh streams: the optimiser's lucky draws do not carry over), and the lower
-   objective is the design. The evenly spaced baseline (same count, same envelope) and the bare
-   tube (no vanes) are traced with the same seed, angles and rays.
+   user's ``seed`` (fresh streams: the optimiser's lucky draws do not carry over). The evenly
+   spaced baseline (same count, same envelope) and the bare tube (no vanes) are traced with the
+   same seed, angles and rays. The design (``design_source``) is the lowest band objective among
+   the baseline and the construction or refined layouts that trace no worse than it at any band
+   angle (:func:`choose_design`): the tool never returns a layout worse than the plain one.
 4. DIR/design.json, DIR/scene.toml (+ one PLY per part), DIR/design.step, DIR/index.html.
 """
 from __future__ import annotations
@@ -81,14 +83,16 @@ def design_vanes(spec: BaffleSpec, out, *, material="z302_sample_b", rays: int =
                           slot=next(slots))
 
     built_pst = traced(built)
-    design, design_pst, source = built, built_pst, "construction"
+    candidates = [(built, built_pst, "construction")]
     if refinement is not None and refinement.best_z_mm != refinement.start_z_mm:
         refined = layout_at(spec, refinement.best_z_mm)
-        refined_pst = traced(refined)
-        if log_objective(refined_pst)[0] < log_objective(built_pst)[0]:
-            design, design_pst, source = refined, refined_pst, "refined"
-    baseline = evenly_spaced(spec, len(design.vanes))
+        candidates.append((refined, traced(refined), "refined"))
+    baseline = evenly_spaced(spec, len(built.vanes))
     baseline_pst = traced(baseline)
+    if built.vanes:
+        design, design_pst, source = choose_design(candidates, (baseline, baseline_pst, "evenly spaced"))
+    else:
+        design, design_pst, source = candidates[0]
     bare = layout_at(spec, [])
     bare_pst = traced(bare)
 
@@ -121,6 +125,23 @@ def design_vanes(spec: BaffleSpec, out, *, material="z302_sample_b", rays: int =
     write_json(out / "design.json", doc)
     store.remove()
     return doc
+
+
+def not_worse(points, base_points, sigmas: float = 2.0) -> bool:
+    """No angle where ``points`` trace significantly above ``base_points`` (by more than ``sigmas``
+    combined standard errors)."""
+    return all(p.pst <= b.pst + sigmas * math.hypot(p.pst_stderr, b.pst_stderr) for p, b in zip(points, base_points))
+
+
+def choose_design(candidates, baseline):
+    """The design among (layout, pst points, name) ``candidates`` and the evenly spaced
+    ``baseline``: the lowest band objective (:func:`straylight.design.evaluate.log_objective`) among
+    the baseline and the candidates that are :func:`not_worse` than it at any angle of the band
+    (CONTRACTS 4.6: light at E *and beyond* rejected as well as the vanes allow; a layout that
+    trades E + 10 for E is not returned over the plain one). The baseline shares the field
+    envelope, so the field stays clear whichever is chosen."""
+    fair = [c for c in candidates if not_worse(c[1], baseline[1])] + [baseline]
+    return min(fair, key=lambda c: log_objective(c[1])[0])
 
 
 def _geometry(layout) -> dict:

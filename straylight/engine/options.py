@@ -29,6 +29,7 @@ class TraceOptions:
     target_fraction: float = 0.5
     first_vertex_sampling: bool = False
     second_vertex_sampling: bool = False
+    scatter_polarization: str = "auto"  # "auto": scatter follows polarized light only; "on": always
 
     def __post_init__(self):
         if int(self.max_events) < 1:
@@ -39,6 +40,8 @@ class TraceOptions:
             raise TraceError(f"nee_samples must be >= 1, got {self.nee_samples}")
         if self.batch_rays is not None and int(self.batch_rays) < 1:
             raise TraceError(f"batch_rays must be >= 1, got {self.batch_rays}")
+        if self.scatter_polarization not in ("auto", "on"):
+            raise TraceError(f"scatter_polarization must be 'auto' or 'on', got {self.scatter_polarization!r}")
         if self.detector_sides not in ("both", "front"):
             raise TraceError(f"detector_sides must be 'both' or 'front', got {self.detector_sides!r}")
         if len(tuple(self.map_bins)) != 2 or min(self.map_bins) < 1:

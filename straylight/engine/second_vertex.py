@@ -89,6 +89,22 @@ def scatter_parts(spec) -> np.ndarray:
     return out
 
 
+def unsupported(spec) -> str | None:
+    """Why the strategy cannot run on ``spec`` (None when it can). Its vertices are evaluated for
+    unpolarized light (or the trace-wide s/p option), so it stays out of traces whose rays carry
+    a polarization state (:func:`straylight.engine.interactions.stokes.tracks_polarization`, or an
+    ``optical_surface`` part, whose Fresnel interfaces polarize): there the walk alone is used."""
+    from straylight.engine.interactions.stokes import tracks_polarization
+
+    if tracks_polarization(spec):
+        return "second_vertex_sampling does not follow polarized light (a linear source or scatter_polarization = 'on')"
+    for p, role in enumerate(spec.part_roles):
+        m = spec.part_material[p]
+        if m >= 0 and interaction_name(ROLE_NAMES[int(role)], spec.materials[m]) == "optical_surface":
+            return "second_vertex_sampling does not follow the polarization of optical_surface parts"
+    return None
+
+
 def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 

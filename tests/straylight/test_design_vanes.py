@@ -171,3 +171,18 @@ def test_default_design_of_the_reference_tube(tmp_path):
     for d, b in zip(doc["pst"], doc["baseline"]["pst"]):
         if d["off_axis_deg"] in (E, E + 10):
             assert d["pst"] <= b["pst"] + 4 * math.hypot(d["pst_stderr"], b["pst_stderr"])
+
+
+def test_choose_design_never_returns_a_layout_worse_than_the_baseline_at_some_angle():
+    from straylight.design.evaluate import PstPoint
+    from straylight.design.vanes import choose_design
+
+    def pts(*pst):
+        return [PstPoint(a, p, 0.01 * p, 1000) for a, p in zip((20.0, 25.0, 30.0), pst)]
+
+    base = ("base", pts(1.0, 1.0, 1.0), "evenly spaced")
+    trades = ("trades", pts(0.5, 0.5, 1.3), "refined")  # better band objective, 30 % worse at E + 10
+    better = ("better", pts(0.9, 0.9, 1.0), "construction")
+    assert choose_design([trades], base)[2] == "evenly spaced"
+    assert choose_design([trades, better], base)[2] == "construction"
+    assert choose_design([("noise", pts(0.5, 0.5, 1.01), "refined")], base)[2] == "refined"  # within 2 sigma
