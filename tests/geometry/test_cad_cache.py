@@ -105,13 +105,13 @@ def test_cached_entry_keeps_the_checks_of_the_cold_run(cache, tmp_path):
     assert any(p.meta["watertight"] for p in warm)
 
 
-def test_cold_and_cached_scene_trace_the_same_numbers(cache, tmp_path):
+def test_cold_and_cached_scene_trace_the_same_numbers(cache, cad_bench_scene):
     """A scene file on a STEP assembly: the cached load traces bit-identically to the cold one."""
     import warnings
 
     from straylight.scene import load_scene
 
-    toml = _bench_scene(tmp_path)
+    toml = cad_bench_scene
     results = []
     for _ in range(2):
         with warnings.catch_warnings():
@@ -129,29 +129,6 @@ def test_cold_and_cached_scene_trace_the_same_numbers(cache, tmp_path):
     assert a.ledger == b.ledger
 
 
-def _bench_scene(tmp_path):
-    step = tmp_path / "bench.step"
-    step.write_bytes((DATA / "ocp_bench_m.step").read_bytes())
-    toml = tmp_path / "scene.toml"
-    toml.write_text(f"""
-[[part]]
-name = "cad"
-mesh = "{step.name}"
-split = "solids"
-tolerance_mm = 0.1
-material = "z302_sample_b"
-[part.solids.detector]
-role = "detector"
-
-[[source]]
-type = "collimated_disk"
-center_mm = [3.0, 2.0, 150.0]
-normal = [0.0, 0.0, -1.0]
-direction = [0.05, 0.02, -0.9985]
-radius_mm = 40.0
-power_w = 1.0
-""")
-    return toml
 
 
 def test_disabled_and_relocated(tmp_path, monkeypatch):

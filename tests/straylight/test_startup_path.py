@@ -27,28 +27,8 @@ def _run(toml, out, cache):
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def test_cached_trace_imports_no_heavy_module_and_traces_the_same(tmp_path):
-    step = tmp_path / "bench.step"
-    step.write_bytes((DATA / "ocp_bench_m.step").read_bytes())
-    toml = tmp_path / "scene.toml"
-    toml.write_text(f"""
-[[part]]
-name = "cad"
-mesh = "{step.name}"
-split = "solids"
-tolerance_mm = 0.1
-material = "z302_sample_b"
-[part.solids.detector]
-role = "detector"
-
-[[source]]
-type = "collimated_disk"
-center_mm = [3.0, 2.0, 150.0]
-normal = [0.0, 0.0, -1.0]
-direction = [0.05, 0.02, -0.9985]
-radius_mm = 40.0
-power_w = 1.0
-""")
+def test_cached_trace_imports_no_heavy_module_and_traces_the_same(tmp_path, cad_bench_scene):
+    toml = cad_bench_scene
     cache = tmp_path / "cache"
     cold = _run(toml, tmp_path / "cold.json", cache)
     assert cold["rc"] == 0 and any(m.startswith("OCP") for m in cold["heavy"])  # the cold run did read the STEP
