@@ -82,3 +82,20 @@ class PointStore:
     @staticmethod
     def remove_folder(folder) -> None:
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def restore_grid_point(store, k: int, out: dict, i: int, j: int) -> bool:
+    """Fill ``out[key][i, j]`` (a sweep's grid of arrays) from point ``k`` of ``store`` if an
+    earlier run finished it; True if so (False without a store)."""
+    saved = store.get(k) if store is not None else None
+    if saved is None:
+        return False
+    for key in out:
+        out[key][i, j] = saved[key]
+    return True
+
+
+def save_grid_point(store, k: int, out: dict, i: int, j: int) -> None:
+    """Record ``out[key][i, j]`` as point ``k`` of ``store`` (nothing without a store)."""
+    if store is not None:
+        store.put(k, {key: float(out[key][i, j]) for key in out})

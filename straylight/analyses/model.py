@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from straylight.checkpoints import restore_grid_point, save_grid_point
+
 PART_KEYS = ("role", "material")
 SCENE_KEYS = ("material", "parts", "source", "analysis", "tolerance_mm")
 
@@ -241,10 +243,7 @@ def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: i
             setup = None
             for j, a in enumerate(off_axis):
                 k = i * len(off_axis) + j
-                saved = store.get(k) if store is not None else None
-                if saved is not None:  # finished by an earlier run of this sweep
-                    for key in out:
-                        out[key][i, j] = saved[key]
+                if restore_grid_point(store, k, out, i, j):  # finished by an earlier run of this sweep
                     bar.update()
                     continue
                 if setup is None:  # built only when one of its points is still to trace
@@ -256,8 +255,7 @@ def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: i
                 out["sec"][i, j] = time.perf_counter() - t0
                 out["pst"][i, j], out["pst_se"][i, j] = res.pst[0], res.pst_stderr[0]
                 out["ratio"][i, j], out["ratio_se"][i, j] = res.entrance_ratio[0], res.entrance_ratio_stderr[0]
-                if store is not None:
-                    store.put(k, {key: float(out[key][i, j]) for key in out})
+                save_grid_point(store, k, out, i, j)
                 bar.update()
         bar.close()
     return SweepResult(parameter, values, np.round(np.degrees(off_axis), 9), out["pst"], out["pst_se"],

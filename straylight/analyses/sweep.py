@@ -19,6 +19,7 @@ import numpy as np
 import atomicio
 
 from straylight.analyses.pst import dask_client, point_seed
+from straylight.checkpoints import restore_grid_point, save_grid_point
 from straylight.progress import progress_bar
 
 PARAMETER_LABELS = {
@@ -146,10 +147,7 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
             setup = None
             for j, a in enumerate(off_axis):
                 k = i * len(off_axis) + j
-                saved = store.get(k) if store is not None else None
-                if saved is not None:  # finished by an earlier run of this sweep
-                    for key in out:
-                        out[key][i, j] = saved[key]
+                if restore_grid_point(store, k, out, i, j):  # finished by an earlier run of this sweep
                     bar.update()
                     continue
                 if setup is None:  # built only when one of its points is still to trace
@@ -166,8 +164,7 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
                 p_ent = setup.entrance.power_w(setup.beam, a)
                 out["pst"][i, j], out["pst_se"][i, j] = t.power_w / area / e_in, t.stderr_w / area / e_in
                 out["ratio"][i, j], out["ratio_se"][i, j] = t.power_w / p_ent, t.stderr_w / p_ent
-                if store is not None:
-                    store.put(k, {key: float(out[key][i, j]) for key in out})
+                save_grid_point(store, k, out, i, j)
                 bar.update()
         bar.close()
     return SweepResult(parameter, values, np.round(np.degrees(off_axis), 9), out["pst"], out["pst_se"],
