@@ -109,6 +109,29 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
+def _detector_link(detector, u3, x, both: bool):
+    """A point z on ``detector`` per row of ``x`` (from the uniforms ``u3``) and the link x -> z:
+    unit direction w, squared and plain length, and the detector's cosine -w . n_z (its absolute
+    value when both sides count)."""
+    z, n_z = detector.sample(u3)
+    v = z - x
+    dsq = _dot(v, v)
+    d = np.sqrt(dsq)
+    w = v / np.where(d > 0, d, 1.0)[:, None]
+    cos_z = -_dot(w, n_z)
+    if both:
+        cos_z = np.abs(cos_z)
+    return z, w, dsq, d, cos_z
+
+
+def _blocked(isect, origin, z, eps):
+    """Bool per row: something lies between ``origin`` (already offset off its surface) and ``z``."""
+    to_z = z - origin
+    lz = np.sqrt(_dot(to_z, to_z))
+    return np.asarray(isect.occluded(np.ascontiguousarray(origin), np.ascontiguousarray(to_z / lz[:, None]),
+                                     lz - eps), dtype=bool)
+
+
 def _local(v, tb, bb, nf):
     return np.stack([_dot(v, tb), _dot(v, bb), _dot(v, nf)], axis=1)
 
@@ -165,25 +188,13 @@ def _seen_scores(spec, comp, tris, m, rng) -> np.ndarray:
     g2 = np.zeros(len(t))
     both = spec.options.detector_sides == "both"
     for j in range(len(comp.det_parts)):
-        z, nz = comp.detectors[j].sample(u[:, 2:5])
-        v = z - x
-        d2 = _dot(v, v)
-        d = np.sqrt(d2)
-        w = v / np.where(d > 0, d, 1.0)[:, None]
+        z, w, d2, d, cz = _detector_link(comp.detectors[j], u[:, 2:5], x, both)
         cx = _dot(w, n)
-        cz = -_dot(w, nz)
-        if both:
-            cz = np.abs(cz)
         ok = np.flatnonzero((np.abs(cx) > 0) & (cz > 0) & (d > 2 * spec.eps))
         if len(ok) == 0:
             continue
         side = np.sign(cx[ok])[:, None] * n[ok]
-        o = x[ok] + spec.eps * side
-        to_z = z[ok] - o
-        lz = np.sqrt(_dot(to_z, to_z))
-        blocked = np.asarray(comp.isect.occluded(np.ascontiguousarray(o), np.ascontiguousarray(to_z / lz[:, None]),
-                                                 lz - spec.eps), dtype=bool)
-        ok = ok[~blocked]
+        ok = ok[~_blocked(comp.isect, x[ok] + spec.eps * side, z[ok], spec.eps)]
         g = np.abs(cx[ok]) * cz[ok] * comp.detectors[j].area_mm2 / d2[ok]
         g2[ok] += g * g
     return np.sqrt(g2.reshape(len(tris), m).mean(axis=1))
@@ -342,23 +353,12 @@ def estimate(event, verts, frame):
     both = event.settings.both_sides
     for j in range(len(scene.det_parts)):
         c0 = col + 3 + 3 * j
-        z, n_z = scene.detectors[j].sample(event.uniforms[i, c0:c0 + 3])
-        v2 = z - y
-        d2sq = _dot(v2, v2)
-        d2 = np.sqrt(d2sq)
-        w2 = v2 / np.where(d2 > 0, d2, 1.0)[:, None]
+        z, w2, d2sq, d2, cos_z = _detector_link(scene.detectors[j], event.uniforms[i, c0:c0 + 3], y, both)
         cos_o = _dot(w2, nf_y)
-        cos_z = -_dot(w2, n_z)
-        if both:
-            cos_z = np.abs(cos_z)
         g = np.flatnonzero((cos_o > 0) & (cos_z > 0) & (d2 > 2 * eps))
         if len(g) == 0:
             continue
-        o2 = y[g] + eps * nf_y[g]
-        to_z = z[g] - o2
-        lz = np.sqrt(_dot(to_z, to_z))
-        blocked = np.asarray(scene.isect.occluded(np.ascontiguousarray(o2), np.ascontiguousarray(to_z / lz[:, None]),
-                                                  lz - eps), dtype=bool)
+        blocked = _blocked(scene.isect, y[g] + eps * nf_y[g], z[g], eps)
         event.shadow_rays += len(g)
         g = g[~blocked]
         if len(g) == 0:
