@@ -176,12 +176,12 @@ def compiled_vs_numpy(scene, mats, a_deg, n, seed):
     """CPU seconds of the compiled engine (run_batch) and of its numpy twin (run_batch_reference,
     the engine before the kernels) on the same batches, interleaved; and whether the sums agree bit for bit."""
     from straylight.rng import batches
-    from straylight.trace import TraceOptions, auto_batch_rays, make_spec, run_batch, run_batch_reference
+    from straylight.trace import AUTO_BATCH_RAYS, TraceOptions, make_spec, run_batch, run_batch_reference
 
     spec = make_spec(scene, source(a_deg), n, seed, mats, TraceOptions())
     t_fast = t_ref = 0.0
     same = True
-    for a, b in batches(n, spec.options.batch_rays or auto_batch_rays(spec.n_rows)):
+    for a, b in batches(n, spec.options.batch_rays or AUTO_BATCH_RAYS):
         c = time.process_time()
         fast = run_batch(spec, a, b)
         t_fast += time.process_time() - c

@@ -35,7 +35,7 @@ from straylight.engine.results import BatchTotals, Tally, TraceResult  # noqa: F
 from straylight.engine.scheduling import batch_ranges, run_batches
 from straylight.engine.roles import ROLE_CODES  # noqa: F401 - re-exported
 from straylight.engine.spec import (  # noqa: F401 - re-exported
-    AUTO_BATCH_MAX_RAYS, TALLY_BUDGET_BYTES, TraceSpec, auto_batch_rays, make_spec, scene_epsilon)
+    AUTO_BATCH_RAYS, TraceSpec, make_spec, scene_epsilon)
 from straylight.engine.tallies import chunk_maps  # noqa: F401 - re-exported
 from straylight.engine.walk import run_batch, run_batch_reference  # noqa: F401 - re-exported
 from straylight.progress import progress_bar

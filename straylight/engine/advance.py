@@ -11,13 +11,18 @@ import numpy as np
 from numba import njit
 
 from straylight.engine.ray_batch import RayBatch
+from straylight.engine.tally_store import tally_add
 from straylight.paths import mix_key
 from straylight.engine.path_keys import mix_key1
 
 
+ADVANCE_WRITES_PER_RAY = 3  # most tally writes one ray makes in :func:`advance`
+
+
 @njit(cache=True, nogil=True)
-def advance(cont, out, rays, hit, roulette_u, settings, last, M, rows):
-    """Returns the fields of the surviving rays' RayBatch, then ``kept`` (their positions in ``cont``)."""
+def advance(cont, out, rays, hit, roulette_u, settings, last, log, rows):
+    """Tallies absorption, roulette and truncation into ``log`` (straylight.engine.tally_store); returns
+    the fields of the surviving rays' RayBatch, then ``kept`` (their positions in ``cont``)."""
     n = len(cont)
     K = rays.history.shape[1]
     has_hist = settings.record_paths
@@ -42,15 +47,15 @@ def advance(cont, out, rays, hit, roulette_u, settings, last, M, rows):
         r = rays.ray[i]
         pt = hit.part[i]
         w_new = w[i] * out.throughput[c]
-        M[rows.absorbed + pt, r] += w[i] - w_new
+        tally_add(log, rows.absorbed + pt, r, w[i] - w_new)
         w_after = w_new
         if w_new < thr and w_new > 0:
             w_after = thr if roulette_u[i] * thr < w_new else 0.0
-            M[rows.roulette + pt, r] += w_new - w_after
+            tally_add(log, rows.roulette + pt, r, w_new - w_after)
         if not w_after > 0:
             continue
         if last:
-            M[rows.truncated + pt, r] += w_after
+            tally_add(log, rows.truncated + pt, r, w_after)
             continue
         code = pt * 4 + out.event[c]
         if has_hist:

@@ -103,22 +103,14 @@ class CompiledScene:
             setattr(self._local, name, buf)
         return buf
 
-    def tally_buffer(self, rows, n):
-        """A zeroed (rows, n) float64 array, reused between batches of this thread (fresh pages from
-        np.zeros cost a page fault each time they are first written). The batch that used it last
-        left it all zeros (``chunk_sums(..., clear=True)`` then :meth:`tally_cleared`) unless it
-        stopped half-way; only then is it filled again."""
-        buf = getattr(self._local, "buf", None)
-        if buf is None or buf.size < rows * n:
-            buf = self._local.buf = np.zeros(rows * n)
-        elif not getattr(self._local, "buf_clean", False):
-            buf.fill(0.0)
-        self._local.buf_clean = False
-        return buf[:rows * n].reshape(rows, n)
-
-    def tally_cleared(self):
-        """Record that this thread's tally buffer is all zeros again."""
-        self._local.buf_clean = True
+    def thread_local(self, name, factory):
+        """This thread's object ``name``, made by ``factory()`` on first use and kept (e.g. the tally
+        log, reused between batches: fresh pages cost a page fault each the first time they are written)."""
+        obj = getattr(self._local, name, None)
+        if obj is None:
+            obj = factory()
+            setattr(self._local, name, obj)
+        return obj
 
 
 _MALLOC_TUNED = []

@@ -49,7 +49,7 @@ class Event:
     kernels: object  # straylight.engine.kernel_sets.KernelSet
     settings: object  # WalkSettings
     rows: object  # TallyRows
-    tallies: np.ndarray  # the per-ray tally matrix M (rows x rays of the batch)
+    tallies: object  # the batch's tally store (straylight.engine.tally_store: add / subtract / reserve)
     records: object  # straylight.engine.tallies.DetectorRecords
     rays: object  # RayBatch before the event
     tri: np.ndarray  # triangle hit by each ray (-1: miss)

@@ -260,8 +260,8 @@ def build_table(spec, comp) -> VertexTable:
     return VertexTable(surf[keep].astype(np.int64), np.cumsum(q), p_area)
 
 
-def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, rows, records, record_paths, path_depth):
-    """Add this strategy's MIS-weighted estimates for chunks ``first_chunk .. stop_chunk-1`` to ``M``
+def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, tallies, rows, records, record_paths, path_depth):
+    """Add this strategy's MIS-weighted estimates for chunks ``first_chunk .. stop_chunk-1`` to ``tallies``
     (one sample per ray id and detector). Returns the number of shadow rays cast."""
     if len(table.tri) == 0:
         return 0
@@ -289,8 +289,8 @@ def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, M, rows, records
         c = g[good] * comp.detectors[j].area_mm2 / (p_a + p_f) / n_total
         r = good
         pt = spec.triangle_part[tg].astype(np.int64)
-        M[rows.detector_nee + j, r] += c
-        M[rows.nee_exchange + pt, r] -= c
+        tallies.add(rows.detector_nee + j, r, c)
+        tallies.subtract(rows.nee_exchange + pt, r, c)
         keys = events = None
         if record_paths:
             code = pt * 4 + EVENT_SCATTER
@@ -343,9 +343,9 @@ class FirstVertexWeights:
         i = rec[single]
         r = rays.ray[i]
         moved = rec_w[single] * (1.0 - self.w_first[r])
-        M, rows = event.tallies, event.rows
-        M[rows.detector_direct + event.scene.arrays.detector_of_part[event.hits.part[i]], r] -= moved
-        M[rows.nee_exchange + rays.last_part[i], r] += moved
+        tallies, rows = event.tallies, event.rows
+        tallies.subtract(rows.detector_direct + event.scene.arrays.detector_of_part[event.hits.part[i]], r, moved)
+        tallies.add(rows.nee_exchange + rays.last_part[i], r, moved)
         rec_w = rec_w.copy()
         rec_w[single] -= moved
         keep = rec_w > 0

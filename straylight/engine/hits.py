@@ -12,8 +12,8 @@ from numba import njit
 
 from straylight.engine.ray_batch import EVENT_SCATTER
 from straylight.engine.roles import ROLE_ABSORBER, ROLE_DETECTOR
+from straylight.engine.tally_store import tally_add
 from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows
-from straylight.rng import CHUNK_RAYS
 
 
 class Hits(NamedTuple):
@@ -29,11 +29,14 @@ class Hits(NamedTuple):
     detected_w: np.ndarray  # their weights (the MIS share of NEE removed)
 
 
+HITS_WRITES_PER_RAY = 5  # most tally writes one ray makes in :func:`hits` (incident, first hit, 3 at a detector)
+
+
 @njit(cache=True, nogil=True)
-def hits(tri, rays, scene, rows, settings, M, parts_hit):
+def hits(tri, rays, scene, rows, settings, log):
     """One pass over the live rays after the casts (``tri``: triangle hit, -1 = miss); tallies into
-    ``M`` at the rows of :class:`TallyRows`, marks ``parts_hit[chunk of the ray, part] = True``
-    (the chunk sums read a part's rows only where it was hit); returns the fields of :class:`Hits`."""
+    ``log`` (straylight.engine.tally_store) at the rows of :class:`TallyRows`; returns the fields of
+    :class:`Hits`."""
     n = len(tri)
     p = np.empty((n, 3))
     nf = np.empty((n, 3))
@@ -51,12 +54,11 @@ def hits(tri, rays, scene, rows, settings, M, parts_hit):
         k = tri[i]
         r = rays.ray[i]
         if k < 0:
-            M[rows.escaped, r] += w[i]
+            tally_add(log, rows.escaped, r, w[i])
             part[i] = -1
             continue
         pt = np.int64(scene.triangle_part[k])
         part[i] = pt
-        parts_hit[r // CHUNK_RAYS, pt] = True
         role = scene.part_roles[pt]
         n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
         d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
@@ -79,35 +81,35 @@ def hits(tri, rays, scene, rows, settings, M, parts_hit):
         else:
             nf[i, 0], nf[i, 1], nf[i, 2] = -n0, -n1, -n2
         w_i = w[i]
-        M[rows.incident + pt, r] += w_i
+        tally_add(log, rows.incident + pt, r, w_i)
         if rays.last_event[i] == 0:
-            M[rows.first_hit + pt, r] += w_i
+            tally_add(log, rows.first_hit + pt, r, w_i)
         if role == ROLE_DETECTOR:
             if not (settings.both_sides or cos_in < 0):
-                M[rows.absorbed + pt, r] += w_i
+                tally_add(log, rows.absorbed + pt, r, w_i)
                 continue
             j = scene.detector_of_part[pt]
-            M[rows.detector_walk + j, r] += w_i
+            tally_add(log, rows.detector_walk + j, r, w_i)
             w_det = w_i
             # a hit straight after a BRDF scatter is shared with NEE by MIS weights (power heuristic)
             if settings.nee and rays.last_event[i] == EVENT_SCATTER:
                 p_nee = settings.nee_samples * (t * t) / (scene.detector_area_mm2[j] * abs(cos_in))
                 w_det = w_i * power_heuristic(rays.last_pdf_per_sr[i], p_nee)
-                M[rows.nee_exchange + rays.last_part[i], r] += w_i - w_det
+                tally_add(log, rows.nee_exchange + rays.last_part[i], r, w_i - w_det)
             if w_det > 0:
-                M[rows.detector_direct + j, r] += w_det
+                tally_add(log, rows.detector_direct + j, r, w_det)
                 rec[nr] = i
                 rec_w[nr] = w_det
                 nr += 1
         elif role == ROLE_ABSORBER:
-            M[rows.absorbed + pt, r] += w_i
+            tally_add(log, rows.absorbed + pt, r, w_i)
         else:
             cont[nc] = i
             nc += 1
     return cont[:nc], p, nf, part, t_out, cos_out, rec[:nr], rec_w[:nr]
 
 
-def hits_numpy(tri, rays, scene, rows, settings, M, parts_hit):
+def hits_numpy(tri, rays, scene, rows, settings, M):
     """:func:`hits` in vectorised numpy (the reference)."""
     n = len(tri)
     tri = np.asarray(tri, dtype=np.int64)
@@ -129,7 +131,6 @@ def hits_numpy(tri, rays, scene, rows, settings, M, parts_hit):
     p = o + tc[:, None] * d
     nf = np.where((cos_in < 0)[:, None], ng, -ng)
     hit = np.flatnonzero(~miss)
-    parts_hit[r[hit] // CHUNK_RAYS, part[hit]] = True
     role = np.where(miss, -1, scene.part_roles[np.maximum(part, 0)])
     M[rows.incident + part[hit], r[hit]] += w[hit]
     first = hit[rays.last_event[hit] == 0]

@@ -12,14 +12,14 @@ from straylight.engine.hits import hits, hits_numpy
 from straylight.engine.interactions.brdf_scatter import frames, frames_numpy, to_world, to_world_numpy
 from straylight.engine.interactions.delta_reflection import reflect, reflect_numpy
 from straylight.engine.nee import nee_pairs, nee_pairs_numpy, nee_shadow, nee_shadow_numpy, nee_tally, nee_tally_numpy
-from straylight.engine.tallies import chunk_sums, chunk_sums_numpy
+from straylight.engine.tally_store import DenseTallies, LoggedTallies
 from straylight.rng import ChunkStreams
 
 
 class KernelSet(NamedTuple):
     name: str
     draws: Callable  # (seed, first_chunk, stop_chunk) -> object with fill(rows, width, out, per_chunk)
-    reuse_buffers: bool  # per-thread tally matrix and uniform scratch (straylight.engine.compiled_scene)
+    reuse_buffers: bool  # per-thread tally log and uniform scratch (straylight.engine.compiled_scene)
     hits: Callable
     frames: Callable
     to_world: Callable
@@ -28,10 +28,10 @@ class KernelSet(NamedTuple):
     nee_shadow: Callable
     nee_tally: Callable
     advance: Callable
-    chunk_sums: Callable
+    tallies: Callable  # (rows, rays of the batch) -> a tally store (straylight.engine.tally_store)
 
 
 COMPILED = KernelSet("compiled", ChunkStreams, True, hits, frames, to_world, reflect, nee_pairs, nee_shadow, nee_tally,
-                     advance, chunk_sums)
+                     advance, LoggedTallies)
 NUMPY = KernelSet("numpy", GeneratorDraws, False, hits_numpy, frames_numpy, to_world_numpy, reflect_numpy,
-                  nee_pairs_numpy, nee_shadow_numpy, nee_tally_numpy, advance_numpy, chunk_sums_numpy)
+                  nee_pairs_numpy, nee_shadow_numpy, nee_tally_numpy, advance_numpy, DenseTallies)

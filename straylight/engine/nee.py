@@ -19,6 +19,7 @@ from straylight.engine import second_vertex
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.targets import target_pdf
+from straylight.engine.tally_store import tally_add
 from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows
 from straylight.paths import mix_key
 
@@ -195,10 +196,14 @@ def nee_shadow_numpy(pairs, f, pdf_brdf, verts, rays, hit, scene, settings):
     return keep, c[keep], shadow_origin, v / lo[:, None], lo - eps
 
 
+NEE_WRITES_PER_SHADOW_RAY = 2  # tally writes per unblocked shadow ray in :func:`nee_tally`
+
+
 @njit(cache=True, nogil=True)
-def nee_tally(shadow, blocked, pairs, verts, rays, hit, k_nee, M, rows):
-    """Add the unblocked contributions to the detector and (negated) to the part's NEE exchange;
-    returns the positions (into the shadow rays) of the unblocked ones."""
+def nee_tally(shadow, blocked, pairs, verts, rays, hit, k_nee, log, rows):
+    """Add the unblocked contributions to the detector and (negated) to the part's NEE exchange, into
+    ``log`` (straylight.engine.tally_store); returns the positions (into the shadow rays) of the
+    unblocked ones."""
     m = len(shadow.pair)
     ok = np.empty(m, np.int64)
     q = 0
@@ -208,8 +213,8 @@ def nee_tally(shadow, blocked, pairs, verts, rays, hit, k_nee, M, rows):
         a = shadow.pair[b]
         i = verts[pairs.vertex[a]]
         r = rays.ray[i]
-        M[rows.detector_nee + pairs.sample[a] // k_nee, r] += shadow.contribution_w[b]
-        M[rows.nee_exchange + hit.part[i], r] -= shadow.contribution_w[b]
+        tally_add(log, rows.detector_nee + pairs.sample[a] // k_nee, r, shadow.contribution_w[b])
+        tally_add(log, rows.nee_exchange + hit.part[i], r, -shadow.contribution_w[b])
         ok[q] = b
         q += 1
     return ok[:q]
@@ -283,8 +288,9 @@ def _estimate(event, verts, frame, w_vertex, evaluate):
         return
     blocked = np.asarray(event.scene.isect.occluded(shadow.origin_mm, shadow.direction, shadow.tmax_mm), dtype=bool)
     event.shadow_rays += len(shadow.pair)
-    ok = kern.nee_tally(shadow, blocked, pairs, verts, event.rays, hit, settings.nee_samples, event.tallies,
-                        event.rows)
+    event.tallies.reserve(NEE_WRITES_PER_SHADOW_RAY * len(shadow.pair))
+    ok = kern.nee_tally(shadow, blocked, pairs, verts, event.rays, hit, settings.nee_samples,
+                        event.tallies.kernel_arg, event.rows)
     if len(ok):
         _record(event, verts, pairs, shadow, ok)
 

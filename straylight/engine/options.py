@@ -16,7 +16,7 @@ class TraceOptions:
     nee: bool = True
     max_events: int = 1000
     rr_threshold: float = 1e-3
-    batch_rays: int | None = None  # None: auto_batch_rays(rows of the tally matrix)
+    batch_rays: int | None = None  # None: straylight.engine.spec.AUTO_BATCH_RAYS
     record_paths: bool = False
     path_depth: int = 12
     map_bins: tuple = (64, 64)

@@ -108,17 +108,74 @@ def pairwise_sums(x, lo, n):
     return pairwise_sums_with(x, lo, n, ist, fst)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def any_nonzero(x, a, b):
-    """True if some x[a:b] != 0 (NaN counts): an OR over runs of 256 without a branch inside (it
-    vectorises), so an all-zero block costs about a memory read."""
-    i = a
-    while i < b:
-        stop = min(i + 256, b)
-        acc = False
-        for k in range(i, stop):
-            acc |= x[k] != 0.0
-        if acc:
-            return True
-        i = stop
-    return False
+@njit(cache=True, nogil=True)
+def _sparse_block(x, a, m, pos, p, n_pos, rq):
+    """:func:`pairwise_block` of x[a:a+m] reading only the listed non-zero positions ``pos[p:]``
+    (ascending) that fall below a + m: the zeros numpy adds in between change nothing (x + 0.0 == x),
+    so the accumulators, their combination and the tail come out the same to the bit. Returns
+    (sum, sum of squares, next p). ``rq``: (2, 8) scratch for the accumulators."""
+    if m < 8:
+        res = 0.0
+        res2 = 0.0
+        while p < n_pos and pos[p] < a + m:
+            v = x[pos[p]]
+            res += v
+            res2 += v * v
+            p += 1
+        return res, res2, p
+    r, q = rq[0], rq[1]
+    r[:] = 0.0
+    q[:] = 0.0
+    stop = a + m - m % 8
+    while p < n_pos and pos[p] < stop:
+        v = x[pos[p]]
+        j = (pos[p] - a) % 8
+        r[j] += v
+        q[j] += v * v
+        p += 1
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    res2 = ((q[0] + q[1]) + (q[2] + q[3])) + ((q[4] + q[5]) + (q[6] + q[7]))
+    while p < n_pos and pos[p] < a + m:
+        v = x[pos[p]]
+        res += v
+        res2 += v * v
+        p += 1
+    return res, res2, p
+
+
+@njit(cache=True, nogil=True)
+def pairwise_sums_sparse(x, lo, n, pos, n_pos, ist, fst, rq):
+    """:func:`pairwise_sums_with` of x[lo:lo+n] when x is zero except at ``pos[:n_pos]`` (ascending):
+    the same tree of blocks and splits, each block summed from its listed positions only, so the
+    result is the same to the bit at a cost that follows the non-zeros, not n. ``rq``: (2, 8) scratch."""
+    p = 0
+    while p < n_pos and pos[p] < lo:
+        p += 1
+    if n <= 128:
+        s1_, s2_, p = _sparse_block(x, lo, n, pos, p, n_pos, rq)
+        return s1_, s2_
+    st_lo, st_n, st_s = ist[0], ist[1], ist[2]
+    v1, v2 = fst[0], fst[1]
+    nv = 0
+    st_lo[0], st_n[0], st_s[0] = lo, n, 0
+    top = 1
+    while top > 0:
+        top -= 1
+        a, m, state = st_lo[top], st_n[top], st_s[top]
+        if state == 1:
+            nv -= 1
+            v1[nv - 1] = v1[nv - 1] + v1[nv]
+            v2[nv - 1] = v2[nv - 1] + v2[nv]
+        elif m <= 128:  # blocks come left to right, so one forward pass over pos serves them all
+            s1_, s2_, p = _sparse_block(x, a, m, pos, p, n_pos, rq)
+            v1[nv] = s1_
+            v2[nv] = s2_
+            nv += 1
+        else:
+            m2 = m // 2
+            m2 -= m2 % 8
+            st_lo[top], st_n[top], st_s[top] = a, m, 1
+            st_lo[top + 1], st_n[top + 1], st_s[top + 1] = a + m2, m - m2, 0
+            st_lo[top + 2], st_n[top + 2], st_s[top + 2] = a, m2, 0
+            top += 3
+    return v1[0], v2[0]

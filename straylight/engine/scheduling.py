@@ -1,5 +1,5 @@
 """Stage: scheduling. The ray ids are cut into chunks of CHUNK_RAYS (each with its own random
-stream), the chunks into batches (``batch_rays``, see :func:`straylight.engine.spec.auto_batch_rays`),
+stream), the chunks into batches (``batch_rays``, default :data:`straylight.engine.spec.AUTO_BATCH_RAYS`),
 and the batches run in this process (one after another, or on a thread pool:
 straylight.engine.batch_pool) or on dask (straylight.distribute). Results come back in chunk
 order, so every way gives the same numbers."""
@@ -7,13 +7,13 @@ from __future__ import annotations
 
 from straylight.distribute import run_distributed
 from straylight.engine.batch_pool import run_local, run_threads
-from straylight.engine.spec import auto_batch_rays
+from straylight.engine.spec import AUTO_BATCH_RAYS
 from straylight.rng import batches
 
 
 def batch_ranges(spec) -> list:
     """(first_chunk, stop_chunk) of every batch of ``spec``."""
-    return batches(spec.n_rays, spec.options.batch_rays or auto_batch_rays(spec.n_rows))
+    return batches(spec.n_rays, spec.options.batch_rays or AUTO_BATCH_RAYS)
 
 
 def run_batches(spec, ranges, workers=None, client=None, scheduler=None, intersector=None, threads=None, security=None):

@@ -374,9 +374,9 @@ def estimate(event, verts, frame):
             continue
         g, c = g[good], c[good]
         r = event.rays.ray[i[g]]
-        M, rows = event.tallies, event.rows
-        np.add.at(M, (rows.detector_nee + j, r), c)
-        np.subtract.at(M, (rows.nee_exchange + part_y[g], r), c)
+        tallies, rows = event.tallies, event.rows
+        tallies.add(rows.detector_nee + j, r, c)
+        tallies.subtract(rows.nee_exchange + part_y[g], r, c)
         _record(event, j, i[g], part_y[g], z[g], c)
 
 

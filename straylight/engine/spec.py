@@ -106,19 +106,10 @@ def back_material_index(scene) -> np.ndarray:
                      for p in scene.parts], dtype=np.int64)
 
 
-AUTO_BATCH_MAX_RAYS = 50_000
-TALLY_BUDGET_BYTES = 96_000_000  # per thread; the tally buffer is reused between batches
-
-
-def auto_batch_rays(n_rows: int) -> int:
-    """Rays per in-memory batch: as many as amortise the per-call overheads (up to
-    AUTO_BATCH_MAX_RAYS; 50k ran ~10 % faster than 20k on the reference tube) while the per-ray
-    tally matrix (n_rows x batch float64) stays under TALLY_BUDGET_BYTES (96 MB: the 0.36M-triangle
-    assembly's 310 rows get 38k-ray batches instead of 11k at 32 MB, ~1.2x the casts per CPU second;
-    its per-event costs, mostly the materials' numpy calls, do not grow with the batch). Never
-    changes results."""
-    fit = TALLY_BUDGET_BYTES // (8 * max(int(n_rows), 1))
-    return int(max(CHUNK_RAYS, min(AUTO_BATCH_MAX_RAYS, fit // CHUNK_RAYS * CHUNK_RAYS)))
+AUTO_BATCH_RAYS = 50_000  # rays per in-memory batch unless set (batch_rays): enough to amortise the
+# per-call overheads (50k ran ~10 % faster than 20k on the reference tube); the per-ray state and the
+# tally log (straylight.engine.tally_store: ~4 writes per ray on the 0.36M assembly) grow with the
+# rays, not with the parts. Never changes results.
 
 
 def _check_targets(scene, options):

@@ -1,85 +1,160 @@
-"""Stage: tallies. Per batch, the per-ray tally matrix M (rows: :class:`TallyRows`) is reduced to
-per-chunk sums S1 = sum x, S2 = sum x^2 (chunk order, fixed chunk length: independent of the batch
+"""Stage: tallies. Per batch, the per-ray tallies x[row, ray] (rows: :class:`TallyRows`; kept as a
+log of writes or a dense matrix, straylight.engine.tally_store) are reduced to per-chunk sums S1 = sum x, S2 = sum x^2 (chunk order, fixed chunk length: independent of the batch
 size; stderr = sqrt(N/(N-1) (S2 - S1^2/N)) over all N rays), irradiance-map sums per (chunk,
 detector, bin) and path records (:class:`DetectorRecords` collects them during the walk).
-The compiled sums replay numpy's pairwise summation, so they equal ``np.add.reduceat`` to the bit
-(:func:`chunk_sums_numpy` is that formulation)."""
+The compiled sums (:func:`log_chunk_sums`) replay numpy's pairwise summation, so they equal
+``np.add.reduceat`` on the dense matrix to the bit (:func:`chunk_sums_numpy` is that formulation)."""
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from straylight.engine.pairwise_sums import any_nonzero, pairwise_sums_with, pairwise_work
+from straylight.engine.pairwise_sums import pairwise_sums_sparse, pairwise_sums_with, pairwise_work
 from straylight.rng import CHUNK_RAYS
 
 
 @njit(cache=True, nogil=True)
-def chunk_sums(M, chunk, rows, clear=False, parts_hit=None):
-    """Per-chunk S1 = sum x, S2 = sum x^2 of every tally row of M (n_rows, n) and of the derived rows
-    (``ledger_absorbed`` = absorbed + roulette + nee_exchange + truncated per part, ``detector_total``
-    = detector_nee + detector_direct; :class:`TallyRows`), as
-    ``np.add.reduceat`` over chunks of ``chunk`` rays would give them. Returns (s1, s2), (n_chunks, rows).
+def _gather_block(order, lo, hi, ray, value, a, acc, mark, touched):
+    """x = the cells of one (chunk, row) block: acc[ray - a] += value over the block's log entries
+    order[lo:hi] (write order, as the dense matrix adds them), starting from the zeros acc holds.
+    Returns how many positions were touched (listed in ``touched``, marked in ``mark``)."""
+    nt = 0
+    for e in range(lo, hi):
+        q = order[e]
+        pos = ray[q] - a
+        if not mark[pos]:
+            mark[pos] = True
+            touched[nt] = pos
+            nt += 1
+        acc[pos] += value[q]
+    return nt
 
-    Blocks (row, chunk) that hold only zeros are skipped (derived rows: when all their source blocks
-    are zero); ``clear=True`` zeroes the non-zero blocks of M afterwards, so that M is all zeros again
-    and the caller can reuse it without filling it. ``parts_hit`` (n_chunks, n_parts) bool, if given:
-    the per-part rows of part k in chunk c are known to be zero unless ``parts_hit[c, k]`` (the walk
-    writes a part's rows only for rays that hit it), so those blocks are not even scanned: with many
-    parts most of M is such blocks (0.36M-triangle assembly: 310 rows, 1.3 % non-zero)."""
-    n_rows, n = M.shape
+
+SPARSE_BLOCK_MAX = 96  # blocks with more touched cells are summed densely (about as fast there)
+
+
+@njit(cache=True, nogil=True)
+def _block_sums(acc, touched, nt, length, ist, fst, rq):
+    """(non-zero?, S1, S2) of the block acc[0:length] as ``np.add.reduceat`` gives them (its first
+    element, then numpy's pairwise sum of the rest); an all-zero block is skipped (0, 0), as the
+    dense sums skip it. Few touched cells: summed from them alone (sorted in place), same bits."""
+    nz = False
+    for t in range(nt):
+        if acc[touched[t]] != 0.0:
+            nz = True
+            break
+    if not nz:
+        return False, 0.0, 0.0
+    if nt <= SPARSE_BLOCK_MAX:
+        for t in range(1, nt):  # insertion sort: a few cells, mostly in order already
+            v = touched[t]
+            u = t - 1
+            while u >= 0 and touched[u] > v:
+                touched[u + 1] = touched[u]
+                u -= 1
+            touched[u + 1] = v
+        t1, t2 = pairwise_sums_sparse(acc, 1, length - 1, touched, nt, ist, fst, rq)
+    else:
+        t1, t2 = pairwise_sums_with(acc, 1, length - 1, ist, fst)
+    return True, acc[0] + t1, acc[0] * acc[0] + t2
+
+
+@njit(cache=True, nogil=True)
+def _clear_block(acc, mark, touched, nt):
+    for t in range(nt):
+        pos = touched[t]
+        acc[pos] = 0.0
+        mark[pos] = False
+
+
+@njit(cache=True, nogil=True)
+def _add_into(acc, touched, nt, dst, dmark, dtouched, nd):
+    """dst += acc at the touched positions (the derived rows' per-ray sums, in row order)."""
+    for t in range(nt):
+        pos = touched[t]
+        if not dmark[pos]:
+            dmark[pos] = True
+            dtouched[nd] = pos
+            nd += 1
+        dst[pos] += acc[pos]
+    return nd
+
+
+@njit(cache=True, nogil=True)
+def log_chunk_sums(row, ray, value, m, n, chunk, rows):
+    """Per-chunk S1 = sum x, S2 = sum x^2 of every tally row and of the derived rows
+    (``ledger_absorbed`` = ((absorbed + roulette) + nee_exchange) + truncated per part,
+    ``detector_total`` = detector_nee + detector_direct; :class:`TallyRows`) from a log of m writes
+    x[row, ray] += value (straylight.engine.tally_store), equal to the bit to what
+    :func:`chunk_sums_numpy` gives on the dense matrix of the same writes. Returns (s1, s2), (n_chunks, rows).
+
+    The entries are sorted stably by (chunk, row), so each cell adds its values in write order from
+    0.0 as the matrix does; each block is rebuilt in a chunk-long scratch (zeros elsewhere) and
+    summed by numpy's pairwise order. Only blocks with entries are visited."""
+    n_rows = rows.n_per_ray
     n_parts, n_det = rows.n_parts, rows.n_detectors
-    r_abs, r_rr, r_nex, r_trunc = rows.absorbed, rows.roulette, rows.nee_exchange, rows.truncated
-    r_nee, r_direct = rows.detector_nee, rows.detector_direct
-    n_ext = n_rows + n_parts + n_det
+    n_ext = rows.n_summed
     nch = (n + chunk - 1) // chunk
+    nb = nch * n_rows
+    start = np.zeros(nb + 1, np.int64)
+    for e in range(m):
+        start[(ray[e] // chunk) * n_rows + row[e] + 1] += 1
+    for b in range(nb):
+        start[b + 1] += start[b]
+    fill = start[:nb].copy()
+    order = np.empty(m, np.int64)
+    for e in range(m):
+        b = (ray[e] // chunk) * n_rows + row[e]
+        order[fill[b]] = e
+        fill[b] += 1
     s1 = np.zeros((nch, n_ext))
     s2 = np.zeros((nch, n_ext))
-    nz = np.zeros((nch, n_rows), np.bool_)
-    buf = np.empty(chunk)
+    acc = np.zeros(chunk)
+    mark = np.zeros(chunk, np.bool_)
+    touched = np.empty(chunk, np.int64)
+    dacc = np.zeros(chunk)
+    dmark = np.zeros(chunk, np.bool_)
+    dtouched = np.empty(chunk, np.int64)
     ist, fst = pairwise_work()
-    part_rows = rows.truncated + n_parts  # rows 0 .. part_rows-1: blocks of n_parts, one row per part
-    for r in range(n_ext):
-        for c in range(nch):
-            a = c * chunk
-            b = min(a + chunk, n)
-            if r < n_rows:
-                if parts_hit is not None and r < part_rows and not parts_hit[c, (r - rows.incident) % n_parts]:
-                    continue  # a part no ray of this chunk hit: zeros
-                x = M[r]
-                lo = a
-                if not any_nonzero(x, a, b):
-                    continue  # a sum of zeros
-                nz[c, r] = True
-            elif r < n_rows + n_parts:
-                k = r - n_rows
-                if not (nz[c, r_abs + k] or nz[c, r_rr + k] or nz[c, r_nex + k] or nz[c, r_trunc + k]):
-                    continue
-                for i in range(a, b):
-                    buf[i - a] = ((M[r_abs + k, i] + M[r_rr + k, i]) + M[r_nex + k, i]) + M[r_trunc + k, i]
-                x = buf
-                lo = 0
-                if not any_nonzero(x, 0, b - a):
-                    continue
-            else:
-                k = r - n_rows - n_parts
-                if not (nz[c, r_nee + k] or nz[c, r_direct + k]):
-                    continue
-                for i in range(a, b):
-                    buf[i - a] = M[r_nee + k, i] + M[r_direct + k, i]
-                x = buf
-                lo = 0
-                if not any_nonzero(x, 0, b - a):
-                    continue
-            # reduceat: the first element, then the pairwise sum of the rest
-            t1, t2 = pairwise_sums_with(x, lo + 1, b - a - 1, ist, fst)
-            s1[c, r] = x[lo] + t1
-            s2[c, r] = x[lo] * x[lo] + t2
-    if clear:
+    rq = np.empty((2, 8))
+    ledger_src = (rows.absorbed, rows.roulette, rows.nee_exchange, rows.truncated)
+    for c in range(nch):
+        a = c * chunk
+        length = min(a + chunk, n) - a
+        base = c * n_rows
+        # plain rows
         for r in range(n_rows):
-            for c in range(nch):
-                if nz[c, r]:
-                    a = c * chunk
-                    M[r, a:min(a + chunk, n)] = 0.0
+            lo, hi = start[base + r], start[base + r + 1]
+            if lo == hi:
+                continue
+            nt = _gather_block(order, lo, hi, ray, value, a, acc, mark, touched)
+            nz, t1, t2 = _block_sums(acc, touched, nt, length, ist, fst, rq)
+            if nz:
+                s1[c, r] = t1
+                s2[c, r] = t2
+            _clear_block(acc, mark, touched, nt)
+        # derived rows: per part, ((absorbed + roulette) + nee_exchange) + truncated; per detector nee + direct
+        for k in range(n_parts + n_det):
+            nd = 0
+            n_src = 4 if k < n_parts else 2
+            for s in range(n_src):
+                if k < n_parts:
+                    r = ledger_src[s] + k
+                else:
+                    r = (rows.detector_nee if s == 0 else rows.detector_direct) + k - n_parts
+                lo, hi = start[base + r], start[base + r + 1]
+                if lo == hi:
+                    continue
+                nt = _gather_block(order, lo, hi, ray, value, a, acc, mark, touched)
+                nd = _add_into(acc, touched, nt, dacc, dmark, dtouched, nd)
+                _clear_block(acc, mark, touched, nt)
+            if nd == 0:
+                continue
+            nz, t1, t2 = _block_sums(dacc, dtouched, nd, length, ist, fst, rq)
+            if nz:
+                s1[c, n_rows + k] = t1
+                s2[c, n_rows + k] = t2
+            _clear_block(dacc, dmark, dtouched, nd)
     return s1, s2
 
 
@@ -157,9 +232,9 @@ def map_sums(key, pw, nb, n_det, chunk):
     return o_chunk, o_cell // nb, o_cell % nb, o1, o2, g_start[:ng], g_stop
 
 
-def chunk_sums_numpy(M, chunk, rows, clear=False, parts_hit=None):
-    """:func:`chunk_sums` as np.add.reduceat (the reference; ``clear`` zeroes M; every block summed,
-    ``parts_hit`` unused)."""
+def chunk_sums_numpy(M, chunk, rows):
+    """Per-chunk sums S1, S2 of every row of the dense tally matrix M (rows, rays) and of the derived
+    rows, as np.add.reduceat gives them (the reference :func:`log_chunk_sums` equals)."""
     p, d = rows.n_parts, rows.n_detectors
     ledger = (M[rows.absorbed:rows.absorbed + p] + M[rows.roulette:rows.roulette + p]
               + M[rows.nee_exchange:rows.nee_exchange + p] + M[rows.truncated:rows.truncated + p])
@@ -168,8 +243,6 @@ def chunk_sums_numpy(M, chunk, rows, clear=False, parts_hit=None):
     starts = np.arange(0, M.shape[1], chunk)
     s1 = np.add.reduceat(ext, starts, axis=1).T.copy()
     s2 = np.add.reduceat(ext * ext, starts, axis=1).T.copy()
-    if clear:
-        M[:] = 0.0
     return s1, s2
 
 
@@ -214,14 +287,13 @@ class DetectorRecords:
                                    depth.astype(np.int16), keys, events))
 
 
-def batch_sums(M, rows, first_chunk, records, segments, shadow_rays, chunk_sum, clear=False, parts_hit=None):
-    """The result of one batch: per-chunk sums S1, S2 of every tally row (``chunk_sum``: the compiled
-    :func:`chunk_sums` or its twin), irradiance-map sums and path records (``clear``: leave M zeros;
-    ``parts_hit``: see :func:`chunk_sums`)."""
+def batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays):
+    """The result of one batch: per-chunk sums S1, S2 of every tally row (``tallies``: a store of
+    straylight.engine.tally_store), irradiance-map sums and path records."""
     C = CHUNK_RAYS
-    n = M.shape[1]
+    n = tallies.n_rays
     nch = -(-n // C)
-    s1, s2 = chunk_sum(M, C, rows, clear, parts_hit)
+    s1, s2 = tallies.sums(C, rows)
     maps = chunk_maps(records.map_rows, nch, C, rows.n_detectors, records.bins)
     paths = None
     if records.record_paths and records.path_rows:

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from straylight.engine.advance import next_rays
+from straylight.engine.advance import ADVANCE_WRITES_PER_RAY, next_rays
 from straylight.engine.compiled_scene import compiled_scene
 from straylight.engine.draws import event_columns, event_uniforms
 from straylight.engine.emission import emit_batch
 from straylight.engine.event import Event, combined_outgoing
 from straylight.engine.first_vertex import FirstVertexWeights, run_vertex_pass
-from straylight.engine.hits import Hits
+from straylight.engine.hits import HITS_WRITES_PER_RAY, Hits
 from straylight.engine.interactions import get_interaction, interaction_name
 from straylight.engine.kernel_sets import COMPILED, NUMPY
 from straylight.engine.options import TraceError, walk_settings
@@ -79,7 +79,10 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     w0 = spec.total_power_w / spec.n_rays
     settings = walk_settings(opt, spec.eps, w0)
     reuse = kernels.reuse_buffers
-    M = scene.tally_buffer(rows.n_per_ray, n) if reuse else np.zeros((rows.n_per_ray, n))
+    if reuse:
+        tallies = scene.thread_local("tallies", lambda: kernels.tallies(rows.n_per_ray, n)).reset(rows.n_per_ray, n)
+    else:
+        tallies = kernels.tallies(rows.n_per_ray, n)
     columns = event_columns(rows.n_detectors, opt.nee_samples, scene.target is not None,
                             spec.critical_table is not None)
     ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
@@ -89,12 +92,6 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     kind_of_part, kinds, continuing = part_interactions(spec)
     first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
-    # which parts each chunk's rays hit: the chunk sums skip the other parts' rows (all zeros)
-    parts_hit = np.zeros((-(-n // CHUNK_RAYS), rows.n_parts), dtype=np.bool_)
-    # area-sampled vertices (first- and second-vertex sampling) lie on parts the walk may not hit
-    for table in (spec.vertex_table if first_vertex is not None else None, spec.critical_table):
-        if table is not None:
-            parts_hit[:, np.unique(spec.triangle_part[table.tri])] = True
     segments = shadow_rays = 0
     max_events = int(opt.max_events)
     for ev in range(max_events):
@@ -103,8 +100,9 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         U = event_uniforms(draws, rays.ray, columns.width, ubuf)
         tri = np.asarray(scene.isect.first_triangle(rays.origin_mm, rays.direction))
         segments += len(rays.ray)
-        hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, M, parts_hit))
-        event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=M,
+        tallies.reserve(HITS_WRITES_PER_RAY * len(tri))
+        hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, tallies.kernel_arg))
+        event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
                       first_vertex=first_vertex)
         rec, rec_w = hit.detected, hit.detected_w
@@ -121,16 +119,13 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         else:
             out = combined_outgoing(len(cont), [(sel, kind.interact(event, sel)) for kind, sel in groups])
         shadow_rays += event.shadow_rays
+        tallies.reserve(ADVANCE_WRITES_PER_RAY * len(cont))
         rays, _kept = next_rays(kernels.advance(cont, out, rays, hit, U[:, columns.roulette], settings,
-                                                ev == max_events - 1, M, rows))
+                                                ev == max_events - 1, tallies.kernel_arg, rows))
     if first_vertex is not None:
-        shadow_rays += run_vertex_pass(spec, scene, spec.vertex_table, first_chunk, stop_chunk, M, rows, records,
+        shadow_rays += run_vertex_pass(spec, scene, spec.vertex_table, first_chunk, stop_chunk, tallies, rows, records,
                                        settings.record_paths, int(opt.path_depth))
-    result = batch_sums(M, rows, first_chunk, records, segments, shadow_rays, kernels.chunk_sums, clear=reuse,
-                        parts_hit=parts_hit)
-    if reuse:
-        scene.tally_cleared()
-    return result
+    return batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays)
 
 
 def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:

@@ -268,15 +268,3 @@ def test_nee_agrees_with_the_walk_on_a_glossy_material():
     assert a.power_w > 0 and b.power_w > 0
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)
     assert abs(on.emitted_w - _total(on)) <= 1e-9 * on.emitted_w
-
-
-def test_auto_batch_size_caps_the_tally_memory():
-    """auto_batch_rays keeps rows x batch x 8 bytes under the budget, in whole chunks, 50k at most."""
-    from straylight.rng import CHUNK_RAYS
-    from straylight.trace import AUTO_BATCH_MAX_RAYS, TALLY_BUDGET_BYTES, auto_batch_rays
-
-    assert auto_batch_rays(64) == AUTO_BATCH_MAX_RAYS
-    for rows in (64, 700, 1300, 10_000, 10**6):
-        b = auto_batch_rays(rows)
-        assert b % CHUNK_RAYS == 0 and CHUNK_RAYS <= b <= AUTO_BATCH_MAX_RAYS
-        assert b * rows * 8 <= TALLY_BUDGET_BYTES or b == CHUNK_RAYS

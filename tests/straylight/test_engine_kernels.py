@@ -6,10 +6,11 @@ import math
 
 import numpy as np
 import pytest
+from numba import njit
 
 from engine_helpers import StandInLambertian, annulus_part, baffled_tube_scene, disk_part
 from geometry.mesh import Part, Scene
-from straylight.engine.tallies import chunk_sums
+from straylight.engine.tally_store import DenseTallies, LoggedTallies, tally_add
 from straylight.engine.tally_rows import TallyRows
 from straylight.sources import CollimatedDisk, PointSource
 from straylight.trace import TraceOptions, make_spec, run_batch, run_batch_reference
@@ -81,28 +82,74 @@ def test_compiled_batch_matches_reference_with_two_real_materials():
     _same(fast, ref)
 
 
+_ROWS = TallyRows(n_parts=2, n_detectors=1, incident=-1, first_hit=-1, absorbed=0, roulette=2, nee_exchange=4,
+                  truncated=6, detector_nee=8, detector_direct=10, detector_walk=-1, escaped=-1, n_per_ray=13,
+                  ledger_absorbed=13, detector_total=15, n_summed=16)
+
+
+@njit(cache=False)
+def _log_writes(log, row, ray, value):
+    for e in range(len(value)):
+        tally_add(log, row[e], ray[e], value[e])
+
+
 @pytest.mark.parametrize("n", [1, 7, 8, 9, 129, 1000, 2345])
-def test_chunk_sums_equal_numpy_reduceat(n):
-    """Per-chunk S1, S2 (and the derived ledger rows) as np.add.reduceat computes them."""
+@pytest.mark.parametrize("fill", [0.002, 0.05, 0.9])
+def test_logged_chunk_sums_equal_numpy_reduceat(n, fill):
+    """Per-chunk S1, S2 (and the derived ledger rows) from the log of writes (compiled, as the walk's
+    kernels make them, and from numpy's add / subtract) equal np.add.reduceat on the dense matrix of the
+    same writes, to the bit: cells written several times (in write order), subtractions, cancellations
+    to exactly 0, sparse and dense blocks, chunk edges."""
     rng = np.random.default_rng(n)
-    M = rng.normal(size=(13, n)) * np.exp(4 * rng.normal(size=(13, n))) * (rng.random((13, 1)) < 0.7)
-    # 2 parts, 1 detector; absorbed, roulette, nee_exchange, truncated at rows 0, 2, 4, 6; detector
-    # nee and direct at 8, 10
-    rows = TallyRows(n_parts=2, n_detectors=1, incident=-1, first_hit=-1, absorbed=0, roulette=2, nee_exchange=4,
-                     truncated=6, detector_nee=8, detector_direct=10, detector_walk=-1, escaped=-1, n_per_ray=13,
-                     ledger_absorbed=13, detector_total=15, n_summed=16)
-    s1, s2 = chunk_sums(M, 1000, rows)
+    m = max(4, int(fill * 13 * n * 2))
+    row = rng.integers(0, 13, m)
+    ray = rng.integers(0, n, m)
+    ray[:4] = [0, n - 1, min(999, n - 1), min(1000, n - 1)]  # block edges
+    value = rng.normal(size=m) * np.exp(4 * rng.normal(size=m))
+    value[rng.random(m) < 0.1] = 0.0
+    dense = DenseTallies(13, n)
+    logged = LoggedTallies(13, n, capacity=16)  # grows on reserve
+    half = m // 2
+    # first half as the kernels write (compiled tally_add), the rest through numpy's add / subtract
+    logged.reserve(half)
+    _log_writes(logged.kernel_arg, row[:half], ray[:half], value[:half])
+    np.add.at(dense.M, (row[:half], ray[:half]), value[:half])
+    for lo in range(half, m, 37):
+        sl = slice(lo, min(lo + 37, m))
+        if lo % 2:
+            dense.subtract(row[sl], ray[sl], value[sl])
+            logged.subtract(row[sl], ray[sl], value[sl])
+        else:
+            dense.add(row[sl], ray[sl], value[sl])
+            logged.add(row[sl], ray[sl], value[sl])
+    if m > 8:  # a cell that cancels to exactly zero
+        for store in (dense, logged):
+            store.add(5, ray[:1], [3.25])
+            store.subtract(5, ray[:1], [3.25])
+    M = dense.M
     ext = np.concatenate([M, M[0:2] + M[2:4] + M[4:6] + M[6:8], M[8:9] + M[10:11]])
     starts = np.arange(0, n, 1000)
+    s1, s2 = logged.sums(1000, _ROWS)
     assert np.abs(s1).sum() > 0
     np.testing.assert_array_equal(s1, np.add.reduceat(ext, starts, axis=1).T)
     np.testing.assert_array_equal(s2, np.add.reduceat(ext * ext, starts, axis=1).T)
-    # clear=True: the same sums, and M left all zeros (the engine then reuses it without a fill)
-    Mc = M.copy()
-    c1, c2 = chunk_sums(Mc, 1000, rows, True)
-    np.testing.assert_array_equal(c1, s1)
-    np.testing.assert_array_equal(c2, s2)
-    assert not Mc.any()
+    d1, d2 = dense.sums(1000, _ROWS)
+    np.testing.assert_array_equal(s1, d1)
+    np.testing.assert_array_equal(s2, d2)
+    # reused for a new batch: empty again, same arrays
+    logged.reset(13, n)
+    assert logged.count == 0 and not logged.sums(1000, _ROWS)[0].any()
+
+
+def test_tally_log_overflow_is_an_error_not_a_silent_loss():
+    """A kernel that writes more than was reserved does not write past the arrays; the sums refuse."""
+    logged = LoggedTallies(13, 10, capacity=4)
+    cap = len(logged.kernel_arg.value)
+    k = cap + 3
+    _log_writes(logged.kernel_arg, np.zeros(k, np.int64), np.zeros(k, np.int64), np.ones(k))
+    assert logged.count == k
+    with pytest.raises(RuntimeError, match="tally log overflow"):
+        logged.sums(1000, _ROWS)
 
 
 def _chunk_maps_numpy(map_rows, nch, C, D, bins):

@@ -28,10 +28,9 @@ class Interaction:
     continuing hits; ``event.vertex_rows(selection)`` gives their rows in the event's per-ray arrays)
     and returns, one row per hit in order, the new direction, throughput, pdf, event code and side
     (:class:`straylight.engine.event.Outgoing`; :func:`straylight.engine.event.outgoing` builds one).
-    It may add estimates to ``event.tallies`` (rows of
+    It may add estimates to ``event.tallies`` (``add(row, ray, value)`` / ``subtract``; rows of
     ``event.rows``; keep the ledger exact: whatever it adds to a detector it subtracts from the
-    part's ``nee_exchange`` row; per-part rows only of the part the ray hit: the chunk sums skip
-    the rows of parts a chunk did not hit), record detector contributions with ``event.records.add`` and
+    part's ``nee_exchange`` row), record detector contributions with ``event.records.add`` and
     count its shadow rays in ``event.shadow_rays``. Absorption, Russian roulette, truncation and
     the next ray state are the walk's (straylight.engine.advance): they follow from ``throughput``.
     """

@@ -50,7 +50,7 @@ def batch_state(event) -> PolarizationState:
     """The batch's polarization state, created on first use."""
     st = getattr(event.records, "_optics_state", None)
     if st is None:
-        st = PolarizationState(event.tallies.shape[1], source_polarization(event.spec))
+        st = PolarizationState(event.tallies.n_rays, source_polarization(event.spec))
         event.records._optics_state = st
     return st
 
