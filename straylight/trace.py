@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from straylight.distribute import ship_early
 from straylight.engine.batch_pool import shared_pool  # noqa: F401 - re-exported
 from straylight.engine.compiled_scene import cached_scene, compiled_scene, detector_samplers
 from straylight.engine.first_vertex import build_table
@@ -73,14 +74,24 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
             raise TraceError(f"first_chunk must be a non-negative integer, got {first_chunk!r}")
         spec = replace(spec, chunk_offset=int(first_chunk))
     opt = spec.options
-    if opt.first_vertex_sampling and intersector is None and len(spec.detector_parts):
-        spec = replace(spec, vertex_table=last_table("first", spec, lambda: build_table(spec, compiled_scene(spec))))
-    if opt.second_vertex_sampling and opt.nee and len(spec.detector_parts) and second_vertex_unsupported(spec) is None:
-        spec = replace(spec, critical_table=last_table(
-            "second", spec, lambda: build_critical_table(spec, compiled_scene(spec, intersector)),
-            cache=intersector is None))
+    first = opt.first_vertex_sampling and intersector is None and len(spec.detector_parts)
+    second = (opt.second_vertex_sampling and opt.nee and len(spec.detector_parts)
+              and second_vertex_unsupported(spec) is None)
+    # on dask, the workers get the spec and build their scenes while this process builds the tables
+    early = ship_early(client, spec) if client is not None and (first or second) else None
+    try:
+        if first:
+            spec = replace(spec, vertex_table=last_table("first", spec, lambda: build_table(spec, compiled_scene(spec))))
+        if second:
+            spec = replace(spec, critical_table=last_table(
+                "second", spec, lambda: build_critical_table(spec, compiled_scene(spec, intersector)),
+                cache=intersector is None))
+    except BaseException:
+        if early is not None:
+            early.release()
+        raise
     results = run_batches(spec, batch_ranges(spec), workers=workers, client=client, scheduler=scheduler,
-                          intersector=intersector, threads=threads, security=security)
+                          intersector=intersector, threads=threads, security=security, early=early)
     totals = BatchTotals(spec)
     with progress_bar(total=n_chunks(spec.n_rays), unit="chunk", enabled=opt.progress) as bar:
         for res in results:  # in chunk order

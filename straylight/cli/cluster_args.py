@@ -18,6 +18,21 @@ def add_cluster_args(parser) -> None:
     g.add_argument("--tls-key", metavar="KEY.pem", help="with --scheduler tls://...: its private key")
 
 
+def start_early(args, in_process_below: int = 1) -> bool:
+    """With ``--workers K --processes`` (K >= ``in_process_below``, no ``--scheduler``): launch the
+    worker processes' fork server now (:func:`straylight.fork_server.start`), before the command
+    loads its scene, so that its ~1.5 s of loading overlaps the scene's; :func:`cluster_client`
+    then starts the cluster from it. Returns whether it was launched (or was running)."""
+    workers = getattr(args, "workers", None)
+    if not getattr(args, "processes", False) or getattr(args, "scheduler", None) or workers is None:
+        return False
+    if workers < max(1, int(in_process_below)):
+        return False
+    from straylight import fork_server
+
+    return fork_server.start()
+
+
 @contextmanager
 def cluster_client(args, in_process_below: int = 1):
     """The dask client the options ask for (``--workers K``: a loopback-only local cluster of K threads,

@@ -148,6 +148,9 @@ def load_setup(args):
 
 
 def run(args) -> int:
+    from straylight.cli.cluster_args import start_early
+
+    start_early(args, in_process_below=2)  # worker processes: their fork server loads while the scene loads
     import numpy as np
 
     from straylight.analyses.pst import pst_sweep

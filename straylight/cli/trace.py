@@ -43,6 +43,9 @@ def add_parser(subparsers) -> None:
 
 
 def run(args) -> int:
+    from straylight.cli.cluster_args import start_early
+
+    start_early(args)  # worker processes: their fork server loads while the scene loads
     from straylight.scene import SceneWarning, load_scene
     from straylight.cli.pst import precision_from_args
     from straylight.trace import TraceOptions

@@ -16,11 +16,14 @@ def batch_ranges(spec) -> list:
     return batches(spec.n_rays, spec.options.batch_rays or AUTO_BATCH_RAYS)
 
 
-def run_batches(spec, ranges, workers=None, client=None, scheduler=None, intersector=None, threads=None, security=None):
+def run_batches(spec, ranges, workers=None, client=None, scheduler=None, intersector=None, threads=None, security=None,
+                early=None):
     """Batch results for ``ranges``, in order: on dask if ``workers``, ``client`` or ``scheduler``
-    is given, else on ``threads`` threads, else one after another."""
+    is given (``early``: the spec already sent to ``client``'s workers, straylight.distribute.ship_early),
+    else on ``threads`` threads, else one after another."""
     if workers is not None or client is not None or scheduler is not None:
-        return run_distributed(spec, ranges, workers=workers, client=client, scheduler=scheduler, security=security)
+        return run_distributed(spec, ranges, workers=workers, client=client, scheduler=scheduler, security=security,
+                               early=early)
     if threads is not None and int(threads) > 1:
         return run_threads(spec, ranges, intersector, int(threads))
     return run_local(spec, ranges, intersector)

@@ -141,3 +141,66 @@ def test_killed_dask_worker_process_gives_identical_numbers(tube, tmp_path):
             _stop(proc)
         log.close()
     assert done["res"].to_json_dict() == reference, (tmp_path / "dask.log").read_text()[-2000:]
+
+
+def test_fork_server_started_early_is_the_one_the_workers_come_from_with_the_nanny_environment():
+    """`straylight.fork_server.start` (called by `trace/pst --workers K --processes` before the scene
+    loads) launches the server the cluster's workers are then forked from, with the environment
+    dask's nanny would have given it: one OpenMP/OpenBLAS thread and PYTHONHASHSEED 6640, so the
+    workers hash strings as a fresh interpreter with that seed does."""
+    import multiprocessing.forkserver as mp_forkserver
+
+    from dask.distributed import Client
+
+    from straylight import fork_server
+    from straylight.distribute import local_cluster
+
+    assert fork_server.start()
+    server = mp_forkserver._forkserver._forkserver_pid
+    env = dict(kv.split("=", 1) for kv in Path(f"/proc/{server}/environ").read_text().split("\0") if "=" in kv)
+    assert env.get("OMP_NUM_THREADS") == "1" and env.get("OPENBLAS_NUM_THREADS") == "1"
+    assert env.get("PYTHONHASHSEED") not in (None, "0")
+    expected = subprocess.run([sys.executable, "-c", "print(hash('straylight'))"], capture_output=True, text=True,
+                              env=dict(os.environ, PYTHONHASHSEED=env["PYTHONHASHSEED"]), check=True).stdout.strip()
+    with local_cluster(2, processes=True) as cluster, Client(cluster) as client:
+        assert set(client.run(os.getppid).values()) == {server}
+        assert set(client.run(hash, "straylight").values()) == {int(expected)}
+
+
+def test_spec_shipped_early_and_tables_sent_apart_give_identical_numbers(tube):
+    """With first- and second-vertex sampling the workers get the spec (triangles) before this
+    process builds the tables (straylight.distribute.ship_early) and then only the tables: the
+    numbers are those of an in-process trace."""
+    from dask.distributed import Client
+
+    from straylight.distribute import local_cluster
+
+    rs, _ = tube
+    opts = TraceOptions(batch_rays=3000, first_vertex_sampling=True, second_vertex_sampling=True)
+    local = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts)
+    with local_cluster(2, processes=True) as cluster, Client(cluster) as client:
+        res = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts, client=client)
+        again = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts, client=client)
+    assert local.detectors and all(d.power_w > 0 for d in local.detectors.values())
+    assert res.to_json_dict() == local.to_json_dict()
+    assert again.to_json_dict() == local.to_json_dict()
+
+
+def test_early_shipment_sends_only_the_fields_that_changed(tube):
+    """What a trace sends after :func:`ship_early`: the fields that are not the shipped spec's own
+    objects (the tables), or everything (None) for a spec of another scene."""
+    from dataclasses import replace
+
+    from straylight.distribute import EarlyShipment
+    from straylight.trace import make_spec
+
+    rs, _ = tube
+    spec = make_spec(rs.scene, rs.sources, 1000, 1, rs.materials, OPTIONS)
+    early = EarlyShipment(None, spec, None, [])
+    table = object()
+    assert early.changed(spec) == {}
+    assert early.changed(replace(spec, vertex_table=table)) == {"vertex_table": table}
+    moved = rs.scene.parts[0].vertices_mm + 1.0
+    other = make_spec(type(rs.scene)((replace(rs.scene.parts[0], vertices_mm=moved),) + tuple(rs.scene.parts[1:])),
+                      rs.sources, 1000, 1, rs.materials, OPTIONS)
+    assert early.changed(other) is None

@@ -1,0 +1,88 @@
+"""The fork server of a local cluster's worker processes, started early (issue 17, start-up).
+
+A local cluster of worker processes (``straylight.distribute.local_cluster(K, processes=True)``)
+forks its workers from a server process that imports dask and the engine and loads the compiled
+kernels once (:mod:`straylight.worker_preload`): ~1.5 s of one core before the first worker can
+start, which dask's nanny would start only when the cluster starts, after the scene is loaded.
+:func:`start` launches that server at once (it returns at once; the server loads in its own
+process), so a command that knows it will open such a cluster (``straylight trace --workers K
+--processes``) starts it before loading its scene and the two overlap on two cores; the cluster's
+workers are then forked from the running server.
+
+The server is launched exactly as dask would launch it at its first worker: with the preload list
+of :data:`PRELOAD` and with the environment dask's nanny puts into this process's environment
+before it starts a worker process (``distributed.nanny.pre-spawn-environ``, e.g. one OpenBLAS
+thread, and ``PYTHONHASHSEED`` fixed as the nanny fixes it), because the forked workers inherit
+the server's interpreter and libraries as they were loaded. Light on purpose: it imports dask's
+configuration but not ``distributed`` (~0.65 s) nor the engine; dask's defaults of the two
+settings it reads come from distributed's own ``distributed.yaml`` unless the user configured them.
+"""
+from __future__ import annotations
+
+import os
+import sys
+
+PRELOAD = ["distributed", "straylight.worker_preload"]
+NANNY_HASH_SEED = "6640"  # the PYTHONHASHSEED dask's nanny sets when none is given (distributed.nanny.Nanny)
+_UNSET = object()
+
+
+def _distributed_default(key: str):
+    """The default of a ``distributed.*`` setting from distributed's ``distributed.yaml`` (what
+    ``import distributed`` gives dask's config), read without importing distributed; None if absent."""
+    import importlib.util
+    from pathlib import Path
+
+    import yaml
+
+    spec = importlib.util.find_spec("distributed")
+    if spec is None or not spec.origin:
+        return None
+    with open(Path(spec.origin).parent / "distributed.yaml") as f:
+        node = yaml.safe_load(f)
+    for part in key.split("."):
+        if not isinstance(node, dict) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def config(key: str):
+    """dask's setting ``key`` (the user's configuration, else distributed's default)."""
+    import dask
+
+    got = dask.config.get(key, default=_UNSET)
+    return _distributed_default(key) if got is _UNSET else got
+
+
+def wanted() -> bool:
+    """Will a local process cluster start its workers from our fork server? Yes unless dask's start
+    method was configured otherwise (``distributed.worker.multiprocessing-method``) or the platform
+    cannot fork. :func:`straylight.distribute.local_cluster` asks the same."""
+    return sys.platform != "win32" and config("distributed.worker.multiprocessing-method") == "spawn"
+
+
+def nanny_environ() -> dict:
+    """The variables dask's nanny puts into this process's environment before it starts a worker
+    process: ``distributed.nanny.pre-spawn-environ`` (a variable already set keeps its value; None
+    unsets nothing) and PYTHONHASHSEED (the nanny's fixed seed when unset or 0)."""
+    cfg = config("distributed.nanny.pre-spawn-environ") or {}
+    env = {k: os.environ.get(k, str(v)) for k, v in cfg.items() if v is not None}
+    if env.get("PYTHONHASHSEED") in (None, "0"):
+        env["PYTHONHASHSEED"] = NANNY_HASH_SEED
+    return env
+
+
+def start() -> bool:
+    """Launch the fork server now, if a local process cluster would use it (:func:`wanted`), and
+    return at once (True if launched or already running). Its ~1.5 s of loading runs in its own
+    process while this one goes on (e.g. loads the scene)."""
+    if not wanted():
+        return False
+    import multiprocessing
+    from multiprocessing import forkserver
+
+    os.environ.update(nanny_environ())  # as the nanny does before it starts a worker process
+    multiprocessing.get_context("forkserver").set_forkserver_preload(PRELOAD)
+    forkserver.ensure_running()
+    return True
