@@ -281,8 +281,17 @@ def _warm_task(spec):
 def warm_up(client, spec) -> dict:
     """Build the scene (embree + compiled kernels) in every worker of ``client`` now, by tracing the
     first chunk of ``spec`` on each (so that start-up is not charged to the first real tasks).
-    Returns {worker address: process CPU seconds so far}."""
-    return client.run(_warm_task, spec)
+    Returns {worker address: process CPU seconds so far}. The spec is scattered once to every
+    worker and the chunk runs as a task there: sent as an argument of ``client.run`` it went
+    through the scheduler to each worker (0.36M triangles: ~0.7 s, vs ~0.1 s scattered)."""
+    future = client.scatter(spec, broadcast=True, hash=False)
+    workers = sorted(client.scheduler_info().get("workers", {}))
+    tasks = [client.submit(_warm_task, future, workers=[w], allow_other_workers=False, pure=False) for w in workers]
+    try:
+        return dict(zip(workers, client.gather(tasks)))
+    finally:
+        for fut in [future, *tasks]:
+            fut.release()
 
 
 def _build_task(spec):

@@ -72,14 +72,25 @@ def test_workers_2_listens_on_loopback_only(tube, tmp_path):
 def test_local_cluster_of_worker_processes_gives_identical_numbers(tube):
     from dask.distributed import Client
 
-    from straylight.distribute import local_cluster
+    from straylight.distribute import local_cluster, warm_up
+    from straylight.trace import make_spec
 
     rs, reference = tube
     with local_cluster(2, processes=True) as cluster, Client(cluster) as client:
         assert len(client.scheduler_info()["workers"]) == 2
         assert not _non_loopback(listening_addresses())
+        spec = make_spec(rs.scene, rs.sources, 30_000, 5, rs.materials, OPTIONS)
+        cpu = warm_up(client, spec)  # every worker builds its scene (the spec scattered, one task each)
+        assert sorted(cpu) == sorted(client.scheduler_info()["workers"]) and min(cpu.values()) > 0
+        assert client.run(_has_scene, spec.token) == {w: True for w in cpu}
         res = trace(rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, client=client)
     assert res.to_json_dict() == reference
+
+
+def _has_scene(token):
+    from straylight.engine.compiled_scene import _CACHE
+
+    return token in _CACHE
 
 
 def _start(cmd, log):
