@@ -76,13 +76,24 @@ def nanny_environ() -> dict:
 def start() -> bool:
     """Launch the fork server now, if a local process cluster would use it (:func:`wanted`), and
     return at once (True if launched or already running). Its ~1.5 s of loading runs in its own
-    process while this one goes on (e.g. loads the scene)."""
+    process while this one goes on (e.g. loads the scene). The nanny's environment is set for the
+    server's launch only; this process's is restored (the nanny sets it here when the cluster
+    starts, as before)."""
     if not wanted():
         return False
     import multiprocessing
     from multiprocessing import forkserver
 
-    os.environ.update(nanny_environ())  # as the nanny does before it starts a worker process
-    multiprocessing.get_context("forkserver").set_forkserver_preload(PRELOAD)
-    forkserver.ensure_running()
+    env = nanny_environ()
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)  # for the server only: as the nanny sets it before it starts a worker process
+    try:
+        multiprocessing.get_context("forkserver").set_forkserver_preload(PRELOAD)
+        forkserver.ensure_running()  # spawns the server now, with this environment
+    finally:  # this process keeps its own (e.g. its BLAS threads, if numpy is not imported yet) until the nanny's
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
     return True

@@ -215,3 +215,20 @@ def test_early_shipment_sends_only_the_fields_that_changed(tube):
     other = make_spec(type(rs.scene)((replace(rs.scene.parts[0], vertices_mm=moved),) + tuple(rs.scene.parts[1:])),
                       rs.sources, 1000, 1, rs.materials, OPTIONS)
     assert early.changed(other) is None
+
+
+def test_fork_server_start_leaves_this_process_environment_as_it_was(monkeypatch):
+    """The nanny's variables are given to the server's launch only (this process's numpy may not be
+    imported yet: its BLAS threads are left as they would have been)."""
+    import multiprocessing.forkserver as mp_forkserver
+
+    from straylight import fork_server
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    launched = []
+    monkeypatch.setattr(mp_forkserver, "ensure_running",
+                        lambda: launched.append((os.environ.get("OPENBLAS_NUM_THREADS"), os.environ["OMP_NUM_THREADS"])))
+    assert fork_server.start()
+    assert launched == [("1", "3")]  # the nanny keeps a variable that is set
+    assert "OPENBLAS_NUM_THREADS" not in os.environ and os.environ["OMP_NUM_THREADS"] == "3"
