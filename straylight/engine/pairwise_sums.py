@@ -166,6 +166,10 @@ def pairwise_sums_sparse(x, lo, n, pos, n_pos, ist, fst, rq):
             nv -= 1
             v1[nv - 1] = v1[nv - 1] + v1[nv]
             v2[nv - 1] = v2[nv - 1] + v2[nv]
+        elif p >= n_pos or pos[p] >= a + m:  # no listed position in this subtree: its sum is 0.0
+            v1[nv] = 0.0
+            v2[nv] = 0.0
+            nv += 1
         elif m <= 128:  # blocks come left to right, so one forward pass over pos serves them all
             s1_, s2_, p = _sparse_block(x, a, m, pos, p, n_pos, rq)
             v1[nv] = s1_

@@ -1,7 +1,8 @@
 """Stage: tallies. Per batch, the per-ray tallies x[row, ray] (rows: :class:`TallyRows`; kept as a
-log of writes or a dense matrix, straylight.engine.tally_store) are reduced to per-chunk sums S1 = sum x, S2 = sum x^2 (chunk order, fixed chunk length: independent of the batch
-size; stderr = sqrt(N/(N-1) (S2 - S1^2/N)) over all N rays), irradiance-map sums per (chunk,
-detector, bin) and path records (:class:`DetectorRecords` collects them during the walk).
+log of writes or a dense matrix, straylight.engine.tally_store) are reduced to per-chunk sums
+S1 = sum x, S2 = sum x^2 (chunk order, fixed chunk length: independent of the batch size;
+stderr = sqrt(N/(N-1) (S2 - S1^2/N)) over all N rays), irradiance-map sums per (chunk, detector,
+bin) and path records (:class:`DetectorRecords` collects them during the walk).
 The compiled sums (:func:`log_chunk_sums`) replay numpy's pairwise summation, so they equal
 ``np.add.reduceat`` on the dense matrix to the bit (:func:`chunk_sums_numpy` is that formulation)."""
 from __future__ import annotations
@@ -14,19 +15,18 @@ from straylight.rng import CHUNK_RAYS
 
 
 @njit(cache=True, nogil=True)
-def _gather_block(order, lo, hi, ray, value, a, acc, mark, touched):
-    """x = the cells of one (chunk, row) block: acc[ray - a] += value over the block's log entries
-    order[lo:hi] (write order, as the dense matrix adds them), starting from the zeros acc holds.
-    Returns how many positions were touched (listed in ``touched``, marked in ``mark``)."""
+def _gather_block(lo, hi, pos_sorted, val_sorted, acc, mark, touched):
+    """x = the cells of one (chunk, row) block: acc[pos] += value over the block's sorted log entries
+    lo:hi (write order, as the dense matrix adds them), starting from the zeros acc holds. Returns
+    how many positions were touched (listed in ``touched``, marked in ``mark``)."""
     nt = 0
     for e in range(lo, hi):
-        q = order[e]
-        pos = ray[q] - a
+        pos = pos_sorted[e]
         if not mark[pos]:
             mark[pos] = True
             touched[nt] = pos
             nt += 1
-        acc[pos] += value[q]
+        acc[pos] += val_sorted[e]
     return nt
 
 
@@ -96,17 +96,25 @@ def log_chunk_sums(row, ray, value, m, n, chunk, rows):
     n_ext = rows.n_summed
     nch = (n + chunk - 1) // chunk
     nb = nch * n_rows
+    # counting sort by bucket (chunk, row), stable; the entries are copied out in bucket order
+    bucket = np.empty(m, np.int64)
     start = np.zeros(nb + 1, np.int64)
     for e in range(m):
-        start[(ray[e] // chunk) * n_rows + row[e] + 1] += 1
+        c = ray[e] // chunk
+        b = c * n_rows + row[e]
+        bucket[e] = b
+        start[b + 1] += 1
     for b in range(nb):
         start[b + 1] += start[b]
     fill = start[:nb].copy()
-    order = np.empty(m, np.int64)
+    pos_sorted = np.empty(m, np.int32)
+    val_sorted = np.empty(m)
     for e in range(m):
-        b = (ray[e] // chunk) * n_rows + row[e]
-        order[fill[b]] = e
-        fill[b] += 1
+        b = bucket[e]
+        f = fill[b]
+        pos_sorted[f] = ray[e] - (b // n_rows) * chunk
+        val_sorted[f] = value[e]
+        fill[b] = f + 1
     s1 = np.zeros((nch, n_ext))
     s2 = np.zeros((nch, n_ext))
     acc = np.zeros(chunk)
@@ -127,7 +135,7 @@ def log_chunk_sums(row, ray, value, m, n, chunk, rows):
             lo, hi = start[base + r], start[base + r + 1]
             if lo == hi:
                 continue
-            nt = _gather_block(order, lo, hi, ray, value, a, acc, mark, touched)
+            nt = _gather_block(lo, hi, pos_sorted, val_sorted, acc, mark, touched)
             nz, t1, t2 = _block_sums(acc, touched, nt, length, ist, fst, rq)
             if nz:
                 s1[c, r] = t1
@@ -145,7 +153,7 @@ def log_chunk_sums(row, ray, value, m, n, chunk, rows):
                 lo, hi = start[base + r], start[base + r + 1]
                 if lo == hi:
                     continue
-                nt = _gather_block(order, lo, hi, ray, value, a, acc, mark, touched)
+                nt = _gather_block(lo, hi, pos_sorted, val_sorted, acc, mark, touched)
                 nd = _add_into(acc, touched, nt, dacc, dmark, dtouched, nd)
                 _clear_block(acc, mark, touched, nt)
             if nd == 0:
