@@ -15,9 +15,12 @@ microroughness", Appl. Opt. 36, 8798 (1997); NIST SCATMECH ``urough.cpp``
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from materials.base import MaterialError, check_polarization
+from materials.sampling import lazy_njit
 
 
 def complex_index(n) -> complex:
@@ -70,20 +73,21 @@ def polarization_factor(cos_i, cos_r, cos_phi, sin_phi, n, polarization: str = "
     eps = complex(n) ** 2
     cos_i = np.asarray(cos_i, float)
     cos_r = np.asarray(cos_r, float)
+    if eps.imag == 0.0 and eps.real >= 1.0:
+        # real index >= 1: every factor is real; one compiled pass (the same operations in the same
+        # order as the complex branch below on real numbers, so the same bits as numpy's)
+        shape = np.broadcast(cos_i, cos_r, cos_phi, sin_phi).shape
+        args = [np.ascontiguousarray(np.broadcast_to(np.asarray(a, float), shape)).ravel()
+                for a in (cos_i, cos_r, cos_phi, sin_phi)]
+        which = {"s": 0, "p": 1, "u": 2}[polarization]
+        return lazy_njit(_real_polarization_factor, "numpy")(*args, eps.real, which).reshape(shape)
     sin2_i = np.maximum(0.0, 1.0 - cos_i * cos_i)
     sin2_r = np.maximum(0.0, 1.0 - cos_r * cos_r)
-    if eps.imag == 0.0 and eps.real >= 1.0:
-        # real index >= 1: every factor is real (same formulas, about 3x faster)
-        eps = eps.real
-        qi = np.sqrt(eps - sin2_i)
-        qr = np.sqrt(eps - sin2_r)
-        _abs2 = np.square
-    else:
-        qi = _q(eps, sin2_i)
-        qr = _q(eps, sin2_r)
+    qi = _q(eps, sin2_i)
+    qr = _q(eps, sin2_r)
 
-        def _abs2(z):
-            return z.real**2 + z.imag**2
+    def _abs2(z):
+        return z.real**2 + z.imag**2
 
     e1 = eps - 1.0
     di_s = cos_i + qi
@@ -106,28 +110,71 @@ def polarization_factor(cos_i, cos_r, cos_phi, sin_phi, n, polarization: str = "
     return out + 0.5 * qp
 
 
+def _real_polarization_factor(cos_i, cos_r, cos_phi, sin_phi, eps, which):
+    """:func:`polarization_factor` for a real eps >= 1, element by element (which: 0 s, 1 p, 2 u)."""
+    n = len(cos_i)
+    out = np.empty(n)
+    e1 = eps - 1.0
+    for k in range(n):
+        ci, cr = cos_i[k], cos_r[k]
+        sin2_i = 1.0 - ci * ci
+        sin2_i = sin2_i if (sin2_i > 0.0 or sin2_i != sin2_i) else 0.0  # np.maximum(0, .): NaN kept
+        sin2_r = 1.0 - cr * cr
+        sin2_r = sin2_r if (sin2_r > 0.0 or sin2_r != sin2_r) else 0.0
+        qi = math.sqrt(eps - sin2_i)
+        qr = math.sqrt(eps - sin2_r)
+        di_s = ci + qi
+        di_p = eps * ci + qi
+        dr_s = cr + qr
+        dr_p = eps * cr + qr
+        qs = 0.0
+        if which != 1:
+            ss = e1 * cos_phi[k] / (di_s * dr_s)
+            ps = e1 * qr * sin_phi[k] / (di_s * dr_p)
+            qs = ss * ss + ps * ps
+            if which == 0:
+                out[k] = qs
+                continue
+        sp = e1 * qi * sin_phi[k] / (di_p * dr_s)
+        pp = e1 * (qi * qr * cos_phi[k] - eps * math.sqrt(sin2_i * sin2_r)) / (di_p * dr_p)
+        qp = pp * pp + sp * sp
+        out[k] = qp if which == 1 else 0.5 * qs + 0.5 * qp
+    return out
+
+
 def scatter_azimuth(wi, wo) -> tuple[np.ndarray, np.ndarray]:
     """cos(phi_r), sin(phi_r) of wo about the specular half-plane of wi, (n,) each.
 
     phi_r = 0 is the specular half-plane (CONTRACTS §1). At normal incidence the
     plane of incidence is taken as xz (phi_i = pi); at theta_r = 0, phi_r = 0.
     """
-    wi = np.asarray(wi, float)
-    wo = np.asarray(wo, float)
-    tx, ty = -wi[:, 0], -wi[:, 1]
-    ox, oy = wo[:, 0], wo[:, 1]
-    norm = np.hypot(tx, ty) * np.hypot(ox, oy)
-    ok = norm > 1e-30
-    inv = 1.0 / np.where(ok, norm, 1.0)
-    cos_phi = (ox * tx + oy * ty) * inv
-    sin_phi = (tx * oy - ty * ox) * inv
-    # degenerate: normal incidence (plane of incidence = xz) or theta_r = 0 (phi_r = 0)
-    bad = ~ok
-    if np.any(bad):
-        normal = bad & (np.hypot(ox, oy) > 1e-15)
-        on = np.hypot(ox, oy)
-        cos_phi[bad] = np.where(normal[bad], ox[bad] / np.where(normal[bad], on[bad], 1.0), 1.0)
-        sin_phi[bad] = np.where(normal[bad], oy[bad] / np.where(normal[bad], on[bad], 1.0), 0.0)
+    wi = np.ascontiguousarray(wi, dtype=float)
+    wo = np.ascontiguousarray(wo, dtype=float)
+    return lazy_njit(_scatter_azimuth_loop)(wi.reshape(-1, 3), wo.reshape(-1, 3))
+
+
+def _scatter_azimuth_loop(wi, wo):
+    """:func:`scatter_azimuth`, one ray at a time: with t = -(wi_x, wi_y), o = (wo_x, wo_y),
+    cos = (o . t) / (|t| |o|), sin = (t x o) / (|t| |o|); |t| |o| <= 1e-30: o / |o| (normal
+    incidence, plane of incidence xz), or (1, 0) when |o| <= 1e-15 too."""
+    n = wi.shape[0]
+    cos_phi = np.empty(n)
+    sin_phi = np.empty(n)
+    for k in range(n):
+        tx, ty = -wi[k, 0], -wi[k, 1]
+        ox, oy = wo[k, 0], wo[k, 1]
+        on = math.hypot(ox, oy)
+        norm = math.hypot(tx, ty) * on
+        if norm > 1e-30:
+            inv = 1.0 / norm
+            cos_phi[k] = (ox * tx + oy * ty) * inv
+            sin_phi[k] = (tx * oy - ty * ox) * inv
+        elif on > 1e-15:
+            cos_phi[k] = ox / on
+            sin_phi[k] = oy / on
+        else:
+            cos_phi[k] = 1.0
+            sin_phi[k] = 0.0
     return cos_phi, sin_phi
 
 

@@ -113,14 +113,15 @@ def _cosine_sample_loop(wi, u2, weight_above, wo, weight, pdf):
 _COMPILED = {}
 
 
-def lazy_njit(fn):
+def lazy_njit(fn, error_model: str = "python"):
     """``fn`` compiled by numba (``nogil``, cached) on first use, so numba is imported only when a
-    compiled loop first runs; also used by ``straylight.sources``."""
+    compiled loop first runs; also used by ``straylight.sources``. ``error_model="numpy"``: a
+    division by zero gives inf / nan as numpy's does, instead of raising."""
     jit = _COMPILED.get(fn)
     if jit is None:
         from numba import njit
 
-        jit = _COMPILED[fn] = njit(cache=True, nogil=True)(fn)
+        jit = _COMPILED[fn] = njit(cache=True, nogil=True, error_model=error_model)(fn)
     return jit
 
 
