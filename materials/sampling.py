@@ -121,6 +121,9 @@ def lazy_njit(fn, error_model: str = "python"):
     if jit is None:
         from numba import njit
 
+        from materials.jit_start import start_numba
+
+        start_numba()  # numba's target without scipy.linalg (materials.jit_start), whoever compiles first
         jit = _COMPILED[fn] = njit(cache=True, nogil=True, error_model=error_model)(fn)
     return jit
 

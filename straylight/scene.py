@@ -151,7 +151,7 @@ def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
         _resolve_back_material(part, materials, inline, path.parent, where)
         if check_watertight and part.role != "detector" and not _watertight(part):
             notes.append(f"{where}: mesh is not watertight (light may enter the solid through gaps)")
-    from straylight.jit_start import start_numba
+    from materials.jit_start import start_numba
 
     start_numba()  # the sources' probe below is the first compiled code; without scipy.linalg (jit_start)
     entries = doc.get("source", [])

@@ -29,7 +29,7 @@ def load_kernels() -> None:
     from straylight.engine.spec import make_spec
     from straylight.engine.walk import run_batch
     from straylight.intersect.reference import ReferenceIntersector
-    from straylight.jit_start import start_numba
+    from materials.jit_start import start_numba
     from straylight.sources import CollimatedDisk
 
     start_numba()  # as compiled_scene does before the first kernel: numba's target without scipy.linalg

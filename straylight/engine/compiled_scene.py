@@ -14,7 +14,7 @@ import numpy as np
 from straylight.detectors import DetectorGeometry
 from straylight.engine.spec import TraceSpec
 from straylight.intersect._plane import triangle_planes
-from straylight.jit_start import start_numba
+from materials.jit_start import start_numba
 
 
 class SceneArrays(NamedTuple):
@@ -142,7 +142,7 @@ def compiled_scene(spec: TraceSpec, intersector=None) -> CompiledScene:
     """This process's :class:`CompiledScene` of ``spec`` (built on first use, one scene kept);
     with an ``intersector`` a fresh one around it (not cached)."""
     keep_freed_memory()
-    start_numba()  # before the first kernel: numba's target without scipy.linalg (straylight.jit_start)
+    start_numba()  # before the first kernel: numba's target without scipy.linalg (materials.jit_start)
     if intersector is not None:
         return CompiledScene(spec, intersector)
     comp = _CACHE.get(spec.token)

@@ -22,12 +22,12 @@ _COMPILED: dict = {}
 
 def _compiled(fn):
     """``fn`` compiled by numba on first use (numba is started only when a large scene casts; startup
-    order of straylight.jit_start kept)."""
+    order of materials.jit_start kept)."""
     jit = _COMPILED.get(fn)
     if jit is None:
         from numba import njit
 
-        from straylight.jit_start import start_numba
+        from materials.jit_start import start_numba
 
         start_numba()
         jit = _COMPILED[fn] = njit(cache=True, nogil=True)(fn)

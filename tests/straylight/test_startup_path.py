@@ -42,7 +42,7 @@ def test_cached_trace_imports_no_heavy_module_and_traces_the_same(tmp_path, cad_
 def test_numba_starts_without_scipy_linalg_and_blas_kernels_still_work():
     code = r"""
 import sys
-from straylight.jit_start import start_numba
+from materials.jit_start import start_numba
 start_numba()
 assert "scipy.linalg" not in sys.modules, "scipy.linalg imported"
 import numpy as np

@@ -1,4 +1,6 @@
-"""Start numba's CPU target once per process without importing scipy.linalg (issue 17, start-up).
+"""Start numba's CPU target once per process without importing scipy.linalg (issue 17, start-up); here,
+in the lowest package that compiles code, so that whichever package compiles first (a material's loop,
+the engine's kernels) starts it this way.
 
 The first time numba compiles or loads a cached kernel in a process, its CPU target imports its
 implementation registries, among them ``numba.np.arraymath``, whose module body asks whether a
@@ -36,7 +38,7 @@ class _NoScipyBlas:
 
     def find_spec(self, name, path=None, target=None):
         if name == _BLOCKED and threading.get_ident() == self.thread:
-            raise ImportError(f"{_BLOCKED} is not imported while numba starts (straylight.jit_start)")
+            raise ImportError(f"{_BLOCKED} is not imported while numba starts (materials.jit_start)")
         return None
 
 
