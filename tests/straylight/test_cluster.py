@@ -154,28 +154,41 @@ def test_killed_dask_worker_process_gives_identical_numbers(tube, tmp_path):
     assert done["res"].to_json_dict() == reference, (tmp_path / "dask.log").read_text()[-2000:]
 
 
-def test_fork_server_started_early_is_the_one_the_workers_come_from_with_the_nanny_environment():
-    """`straylight.fork_server.start` (called by `trace/pst --workers K --processes` before the scene
-    loads) launches the server the cluster's workers are then forked from, with the environment
-    dask's nanny would have given it: one OpenMP/OpenBLAS thread and PYTHONHASHSEED 6640, so the
-    workers hash strings as a fresh interpreter with that seed does."""
-    import multiprocessing.forkserver as mp_forkserver
+_FORK_SERVER_CHILD = r"""
+import os, subprocess, sys
+from pathlib import Path
+import multiprocessing.forkserver as mp_forkserver
+from dask.distributed import Client
+from straylight import fork_server
+from straylight.distribute import local_cluster
 
-    from dask.distributed import Client
-
-    from straylight import fork_server
-    from straylight.distribute import local_cluster
-
+if __name__ == "__main__":
     assert fork_server.start()
     server = mp_forkserver._forkserver._forkserver_pid
     env = dict(kv.split("=", 1) for kv in Path(f"/proc/{server}/environ").read_text().split("\0") if "=" in kv)
-    assert env.get("OMP_NUM_THREADS") == "1" and env.get("OPENBLAS_NUM_THREADS") == "1"
+    assert env.get("OMP_NUM_THREADS") == "1" and env.get("OPENBLAS_NUM_THREADS") == "1", env
     assert env.get("PYTHONHASHSEED") not in (None, "0")
     expected = subprocess.run([sys.executable, "-c", "print(hash('straylight'))"], capture_output=True, text=True,
                               env=dict(os.environ, PYTHONHASHSEED=env["PYTHONHASHSEED"]), check=True).stdout.strip()
     with local_cluster(2, processes=True) as cluster, Client(cluster) as client:
         assert set(client.run(os.getppid).values()) == {server}
         assert set(client.run(hash, "straylight").values()) == {int(expected)}
+    print("ok")
+"""
+
+
+def test_fork_server_started_early_is_the_one_the_workers_come_from_with_the_nanny_environment(tmp_path):
+    """`straylight.fork_server.start` (called by `trace/pst --workers K --processes` before the scene
+    loads) launches the server the cluster's workers are then forked from, with the environment
+    dask's nanny would have given it: one OpenMP/OpenBLAS thread and PYTHONHASHSEED 6640, so the
+    workers hash strings as a fresh interpreter with that seed does. In a fresh interpreter: a fork
+    server is started once per process, and an earlier test may have started this one's."""
+    script = tmp_path / "child.py"
+    script.write_text(_FORK_SERVER_CHILD)
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "PYTHONHASHSEED")}
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, env=env,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert done.returncode == 0 and done.stdout.strip().endswith("ok"), done.stderr[-3000:]
 
 
 def test_spec_shipped_early_and_tables_sent_apart_give_identical_numbers(tube):
