@@ -97,11 +97,13 @@ def log_chunk_sums(row, ray, value, m, n, chunk, rows):
     nch = (n + chunk - 1) // chunk
     nb = nch * n_rows
     # counting sort by bucket (chunk, row), stable; the entries are copied out in bucket order
+    chunk_of = np.empty(n, np.int64)  # a lookup, not a division per entry
+    for c in range(nch):
+        chunk_of[c * chunk:min(c * chunk + chunk, n)] = c
     bucket = np.empty(m, np.int64)
     start = np.zeros(nb + 1, np.int64)
     for e in range(m):
-        c = ray[e] // chunk
-        b = c * n_rows + row[e]
+        b = chunk_of[ray[e]] * n_rows + row[e]
         bucket[e] = b
         start[b + 1] += 1
     for b in range(nb):
@@ -112,7 +114,7 @@ def log_chunk_sums(row, ray, value, m, n, chunk, rows):
     for e in range(m):
         b = bucket[e]
         f = fill[b]
-        pos_sorted[f] = ray[e] - (b // n_rows) * chunk
+        pos_sorted[f] = ray[e] - chunk_of[ray[e]] * chunk
         val_sorted[f] = value[e]
         fill[b] = f + 1
     s1 = np.zeros((nch, n_ext))
@@ -125,36 +127,41 @@ def log_chunk_sums(row, ray, value, m, n, chunk, rows):
     dtouched = np.empty(chunk, np.int64)
     ist, fst = pairwise_work()
     rq = np.empty((2, 8))
-    ledger_src = (rows.absorbed, rows.roulette, rows.nee_exchange, rows.truncated)
+    # the source rows of the derived rows, in their order: per part absorbed, roulette, nee_exchange,
+    # truncated; per detector nee, direct. Each is summed and added into the derived row's scratch
+    # in one visit; the other rows after them.
+    n_src_rows = 4 * n_parts + 2 * n_det
+    src_row = np.empty(n_src_rows, np.int64)
+    is_src = np.zeros(n_rows, np.bool_)
+    q = 0
+    for k in range(n_parts):
+        for r0 in (rows.absorbed, rows.roulette, rows.nee_exchange, rows.truncated):
+            src_row[q] = r0 + k
+            is_src[r0 + k] = True
+            q += 1
+    for j in range(n_det):
+        for r0 in (rows.detector_nee, rows.detector_direct):
+            src_row[q] = r0 + j
+            is_src[r0 + j] = True
+            q += 1
     for c in range(nch):
-        a = c * chunk
-        length = min(a + chunk, n) - a
+        length = min(c * chunk + chunk, n) - c * chunk
         base = c * n_rows
-        # plain rows
-        for r in range(n_rows):
-            lo, hi = start[base + r], start[base + r + 1]
-            if lo == hi:
-                continue
-            nt = _gather_block(lo, hi, pos_sorted, val_sorted, acc, mark, touched)
-            nz, t1, t2 = _block_sums(acc, touched, nt, length, ist, fst, rq)
-            if nz:
-                s1[c, r] = t1
-                s2[c, r] = t2
-            _clear_block(acc, mark, touched, nt)
-        # derived rows: per part, ((absorbed + roulette) + nee_exchange) + truncated; per detector nee + direct
+        q = 0
         for k in range(n_parts + n_det):
             nd = 0
-            n_src = 4 if k < n_parts else 2
-            for s in range(n_src):
-                if k < n_parts:
-                    r = ledger_src[s] + k
-                else:
-                    r = (rows.detector_nee if s == 0 else rows.detector_direct) + k - n_parts
+            for _ in range(4 if k < n_parts else 2):
+                r = src_row[q]
+                q += 1
                 lo, hi = start[base + r], start[base + r + 1]
                 if lo == hi:
                     continue
                 nt = _gather_block(lo, hi, pos_sorted, val_sorted, acc, mark, touched)
                 nd = _add_into(acc, touched, nt, dacc, dmark, dtouched, nd)
+                nz, t1, t2 = _block_sums(acc, touched, nt, length, ist, fst, rq)
+                if nz:
+                    s1[c, r] = t1
+                    s2[c, r] = t2
                 _clear_block(acc, mark, touched, nt)
             if nd == 0:
                 continue
@@ -163,6 +170,16 @@ def log_chunk_sums(row, ray, value, m, n, chunk, rows):
                 s1[c, n_rows + k] = t1
                 s2[c, n_rows + k] = t2
             _clear_block(dacc, dmark, dtouched, nd)
+        for r in range(n_rows):
+            lo, hi = start[base + r], start[base + r + 1]
+            if is_src[r] or lo == hi:
+                continue
+            nt = _gather_block(lo, hi, pos_sorted, val_sorted, acc, mark, touched)
+            nz, t1, t2 = _block_sums(acc, touched, nt, length, ist, fst, rq)
+            if nz:
+                s1[c, r] = t1
+                s2[c, r] = t2
+            _clear_block(acc, mark, touched, nt)
     return s1, s2
 
 
