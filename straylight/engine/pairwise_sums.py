@@ -65,11 +65,23 @@ def pairwise_work():
 def pairwise_sums_with(x, lo, n, ist, fst):
     """numpy's pairwise sums of x[lo:lo+n] and of its squares: blocks of <= 128 combined as a binary
     tree whose splits are halves rounded down to multiples of 8, so that per-chunk sums are
-    bit-identical to ``np.add.reduceat(x)`` and ``np.add.reduceat(x * x)``. Written without recursion
-    (an explicit post-order stack in ``ist``, ``fst`` from :func:`pairwise_work`; numba's on-disk
-    cache and recursion do not mix well)."""
+    bit-identical to ``np.add.reduceat(x)`` and ``np.add.reduceat(x * x)`` (:func:`_pairwise_tree`;
+    ``ist``, ``fst`` from :func:`pairwise_work`)."""
     if n <= 128:
         return pairwise_block(x, lo, n)
+    return _pairwise_tree(x, lo, n, ist[0], -1, ist, fst, fst)
+
+
+@njit(cache=True, nogil=True)
+def _pairwise_tree(x, lo, n, pos, n_pos, ist, fst, rq):
+    """The tree of :func:`pairwise_sums_with` over x[lo:lo+n], its blocks summed densely
+    (``n_pos < 0``) or from the listed non-zero positions ``pos[:n_pos]`` (ascending) alone
+    (:func:`_sparse_block`; a subtree with none of them sums to 0.0 without a visit). Written
+    without recursion (an explicit post-order stack in ``ist``, values in ``fst``; numba's on-disk
+    cache and recursion do not mix well)."""
+    p = 0
+    while p < n_pos and pos[p] < lo:
+        p += 1
     # stack of (lo, n, state); state 0 = expand, 1 = combine the two results on the value stack
     st_lo, st_n, st_s = ist[0], ist[1], ist[2]
     v1, v2 = fst[0], fst[1]
@@ -83,8 +95,15 @@ def pairwise_sums_with(x, lo, n, ist, fst):
             nv -= 1
             v1[nv - 1] = v1[nv - 1] + v1[nv]
             v2[nv - 1] = v2[nv - 1] + v2[nv]
+        elif n_pos >= 0 and (p >= n_pos or pos[p] >= a + m):  # no listed position here: 0.0
+            v1[nv] = 0.0
+            v2[nv] = 0.0
+            nv += 1
         elif m <= 128:
-            s1_, s2_ = pairwise_block(x, a, m)
+            if n_pos < 0:
+                s1_, s2_ = pairwise_block(x, a, m)
+            else:  # blocks come left to right, so one forward pass over pos serves them all
+                s1_, s2_, p = _sparse_block(x, a, m, pos, p, n_pos, rq)
             v1[nv] = s1_
             v2[nv] = s2_
             nv += 1
@@ -113,16 +132,8 @@ def _sparse_block(x, a, m, pos, p, n_pos, rq):
     """:func:`pairwise_block` of x[a:a+m] reading only the listed non-zero positions ``pos[p:]``
     (ascending) that fall below a + m: the zeros numpy adds in between change nothing (x + 0.0 == x),
     so the accumulators, their combination and the tail come out the same to the bit. Returns
-    (sum, sum of squares, next p). ``rq``: (2, 8) scratch for the accumulators."""
-    if m < 8:
-        res = 0.0
-        res2 = 0.0
-        while p < n_pos and pos[p] < a + m:
-            v = x[pos[p]]
-            res += v
-            res2 += v * v
-            p += 1
-        return res, res2, p
+    (sum, sum of squares, next p). ``rq``: (2, 8) scratch for the accumulators. (Below 8 numpy adds
+    in a plain loop: here the accumulators stay 0.0 and the tail loop is that loop.)"""
     r, q = rq[0], rq[1]
     r[:] = 0.0
     q[:] = 0.0
@@ -148,38 +159,4 @@ def pairwise_sums_sparse(x, lo, n, pos, n_pos, ist, fst, rq):
     """:func:`pairwise_sums_with` of x[lo:lo+n] when x is zero except at ``pos[:n_pos]`` (ascending):
     the same tree of blocks and splits, each block summed from its listed positions only, so the
     result is the same to the bit at a cost that follows the non-zeros, not n. ``rq``: (2, 8) scratch."""
-    p = 0
-    while p < n_pos and pos[p] < lo:
-        p += 1
-    if n <= 128:
-        s1_, s2_, p = _sparse_block(x, lo, n, pos, p, n_pos, rq)
-        return s1_, s2_
-    st_lo, st_n, st_s = ist[0], ist[1], ist[2]
-    v1, v2 = fst[0], fst[1]
-    nv = 0
-    st_lo[0], st_n[0], st_s[0] = lo, n, 0
-    top = 1
-    while top > 0:
-        top -= 1
-        a, m, state = st_lo[top], st_n[top], st_s[top]
-        if state == 1:
-            nv -= 1
-            v1[nv - 1] = v1[nv - 1] + v1[nv]
-            v2[nv - 1] = v2[nv - 1] + v2[nv]
-        elif p >= n_pos or pos[p] >= a + m:  # no listed position in this subtree: its sum is 0.0
-            v1[nv] = 0.0
-            v2[nv] = 0.0
-            nv += 1
-        elif m <= 128:  # blocks come left to right, so one forward pass over pos serves them all
-            s1_, s2_, p = _sparse_block(x, a, m, pos, p, n_pos, rq)
-            v1[nv] = s1_
-            v2[nv] = s2_
-            nv += 1
-        else:
-            m2 = m // 2
-            m2 -= m2 % 8
-            st_lo[top], st_n[top], st_s[top] = a, m, 1
-            st_lo[top + 1], st_n[top + 1], st_s[top + 1] = a + m2, m - m2, 0
-            st_lo[top + 2], st_n[top + 2], st_s[top + 2] = a, m2, 0
-            top += 3
-    return v1[0], v2[0]
+    return _pairwise_tree(x, lo, n, pos, n_pos, ist, fst, rq)
