@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import re
 import tomllib
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,9 +31,35 @@ from geometry.tessellate import DEFAULT_ANGULAR_TOLERANCE_DEG, DEFAULT_TOLERANCE
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
 STEP_SUFFIXES = (".step", ".stp")
 CAD_SUFFIXES = STEP_SUFFIXES + (".iges", ".igs")
-PART_KEYS = ("name", "mesh", "tolerance_mm", "material", "role", "surface", "back_material", "split", "solids")
+PART_KEYS = ("name", "mesh", "tolerance_mm", "material", "role", "surface", "back_material", "split", "solids",
+             "rotate_deg", "translate_mm")
 SPLIT_MODES = ("none", "solids")
 SOLID_KEYS = ("material", "role")
+
+# files already read while one scene file loads: {(resolved path, what, tolerances): result}. A file used
+# by many parts (15 baffles from one STEP, CONTRACTS §6.4) is read and meshed once per tolerance.
+_READ_ONCE: ContextVar[dict | None] = ContextVar("geometry_io_read_once", default=None)
+
+
+@contextmanager
+def read_each_file_once():
+    """Within the block, each mesh or CAD file (per tolerance) is read and meshed once."""
+    token = _READ_ONCE.set({}) if _READ_ONCE.get() is None else None
+    try:
+        yield
+    finally:
+        if token is not None:
+            _READ_ONCE.reset(token)
+
+
+def _once(key, read):
+    """``read()``, or what it returned for ``key`` earlier in the same :func:`read_each_file_once` block."""
+    memo = _READ_ONCE.get()
+    if memo is None:
+        return read()
+    if key not in memo:
+        memo[key] = read()
+    return memo[key]
 
 
 def export_step(shape, path) -> Path:
@@ -119,6 +147,15 @@ def load_part(path, *, name: str | None = None, material: str | None = None, rol
     if suffix not in MESH_SUFFIXES:
         raise GeometryError(f"{path}: unsupported mesh format {suffix!r}; expected one of "
                             f"{', '.join(MESH_SUFFIXES + CAD_SUFFIXES)}")
+    vertices, faces = _once((str(path.resolve()), "mesh"), lambda: _read_mesh(path, suffix))
+    try:
+        return Part(name, vertices, faces, material, role, {"source": str(path)})
+    except GeometryError as exc:
+        raise GeometryError(f"{path}: {exc}") from exc
+
+
+def _read_mesh(path: Path, suffix: str):
+    """(vertices (v, 3) float64, faces (m, 3) int64) of an STL/OBJ/PLY file, exact duplicates merged."""
     import trimesh
 
     try:
@@ -130,11 +167,7 @@ def load_part(path, *, name: str | None = None, material: str | None = None, rol
         raise GeometryError(f"{path}: cannot read mesh: {exc}") from exc
     if faces.ndim != 2 or len(faces) == 0:
         raise GeometryError(f"{path}: the file holds no triangles")
-    vertices, faces = _merge_exact(vertices, faces)
-    try:
-        return Part(name, vertices, faces, material, role, {"source": str(path)})
-    except GeometryError as exc:
-        raise GeometryError(f"{path}: {exc}") from exc
+    return _merge_exact(vertices, faces)
 
 
 class _Instances:
@@ -169,13 +202,18 @@ def tessellate_cad(path, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
     """Tessellate a STEP/IGES file: [(solid name, kind, label in the file, Part)] (one entry for the whole
     file when ``split`` is False). Parts carry no material and role "surface"; results are cached on disk
     (:mod:`geometry.cad_cache`) by file content, tolerances and code version."""
-    from geometry import cad_cache
-    from geometry.cad import read_cad
-
     path = Path(path)
     if not path.is_file():
         raise GeometryError(f"{path}: file not found")
     mode = "solids" if split else "whole"
+    return _once((str(path.resolve()), mode, float(tolerance_mm), float(angular_tolerance_deg)),
+                 lambda: _tessellate_cad(path, tolerance_mm, angular_tolerance_deg, split, mode))
+
+
+def _tessellate_cad(path: Path, tolerance_mm: float, angular_tolerance_deg: float, split: bool, mode: str):
+    from geometry import cad_cache
+    from geometry.cad import read_cad
+
     entry = cad_cache.entry_path(path, tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg,
                                  mode=mode) if cad_cache.enabled() else None
     cached = cad_cache.load(entry) if entry is not None else None
@@ -309,6 +347,18 @@ def load_scene(path) -> Scene:
     entries = doc.get("part", [])
     if not isinstance(entries, list) or not entries:
         raise GeometryError(f"{path}: no [[part]] entries")
+    with read_each_file_once():
+        parts = _load_entries(entries, path)
+    try:
+        return Scene(tuple(parts))
+    except GeometryError as exc:
+        raise GeometryError(f"{path}: {exc}") from exc
+
+
+def _load_entries(entries: list, path: Path) -> list[Part]:
+    """The parts of the ``[[part]]`` entries, each placed by its ``rotate_deg`` / ``translate_mm``."""
+    from geometry.placement import placement_of
+
     parts = []
     for i, entry in enumerate(entries, start=1):
         where = f"{path}: [[part]] {i}"
@@ -323,23 +373,22 @@ def load_scene(path) -> Scene:
         tolerance_mm = entry.get("tolerance_mm", DEFAULT_TOLERANCE_MM)
         if not isinstance(tolerance_mm, (int, float)) or isinstance(tolerance_mm, bool):
             raise GeometryError(f"{where}: tolerance_mm must be a number")
+        placement = placement_of(entry, where)
         if "surface" in entry:
-            parts.append(_analytic_entry(entry, path, where, float(tolerance_mm)))
+            parts.append(_analytic_entry(entry, path, where, float(tolerance_mm), placement))
             continue
         if "back_material" in entry:
             raise GeometryError(f"{where}: 'back_material' needs an analytic 'surface' (CONTRACTS §6.1)")
         if "split" in entry or "solids" in entry:
-            parts.extend(_split_entry(entry, path, where, float(tolerance_mm)))
-            continue
-        try:
-            parts.append(load_part(path.parent / entry["mesh"], name=entry["name"], material=entry.get("material"),
-                                   role=entry.get("role", "surface"), tolerance_mm=float(tolerance_mm)))
-        except GeometryError as exc:  # name the scene file and entry, not only the mesh file
-            raise GeometryError(f"{where}: {exc}") from exc
-    try:
-        return Scene(tuple(parts))
-    except GeometryError as exc:
-        raise GeometryError(f"{path}: {exc}") from exc
+            placed = _split_entry(entry, path, where, float(tolerance_mm))
+        else:
+            try:
+                placed = [load_part(path.parent / entry["mesh"], name=entry["name"], material=entry.get("material"),
+                                    role=entry.get("role", "surface"), tolerance_mm=float(tolerance_mm))]
+            except GeometryError as exc:  # name the scene file and entry, not only the mesh file
+                raise GeometryError(f"{where}: {exc}") from exc
+        parts.extend(placed if placement is None else [placement.part(p) for p in placed])
+    return parts
 
 
 def _split_entry(entry: dict, path: Path, where: str, tolerance_mm: float) -> list[Part]:
@@ -365,12 +414,15 @@ def _split_entry(entry: dict, path: Path, where: str, tolerance_mm: float) -> li
         raise GeometryError(f"{where}: {exc}") from exc
 
 
-def _analytic_entry(entry: dict, path: Path, where: str, tolerance_mm: float) -> Part:
+def _analytic_entry(entry: dict, path: Path, where: str, tolerance_mm: float, placement=None) -> Part:
     """A part with ``surface = {...}`` (CONTRACTS §6.1): meshed by the project, or its own ``mesh``
-    (CAD geometry with its optical prescription) used for the hit search."""
+    (CAD geometry with its optical prescription) used for the hit search. A placement (§6.4) moves the
+    surface (and its own mesh) before the project meshes it."""
     from geometry.analytic import analytic_part, surface_from_dict
 
     surface = surface_from_dict(entry["surface"], where)
+    if placement is not None:
+        surface = placement.surface(surface)
     back = entry.get("back_material")
     if back is not None and not isinstance(back, str):
         raise GeometryError(f"{where}: 'back_material' must be a material name (string)")
@@ -378,7 +430,7 @@ def _analytic_entry(entry: dict, path: Path, where: str, tolerance_mm: float) ->
     try:
         if "mesh" in entry:
             cad = load_part(path.parent / entry["mesh"], name=entry["name"], tolerance_mm=tolerance_mm)
-            mesh = (cad.vertices_mm, cad.faces)
+            mesh = (cad.vertices_mm if placement is None else placement.points(cad.vertices_mm), cad.faces)
         return analytic_part(entry["name"], surface, entry.get("material"), entry.get("role", "surface"), back,
                              tolerance_mm=tolerance_mm, mesh=mesh)
     except GeometryError as exc:
