@@ -43,11 +43,12 @@ def part_polydata(part):
 
 
 def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 200, seed: int = 0,
-                    max_events: int = 6, min_weight: float = 1e-4):
+                    max_events: int = 6, min_weight: float = 1e-4, with_triangles: bool = False):
     """Random walks with recorded vertices, for display.
 
     Returns a list of (points (k, 3) mm, weights (k - 1,) relative power on each segment,
-    reached_detector bool). Scatter directions come from each surface's material ``sample``;
+    reached_detector bool); with ``with_triangles``, a fourth item: the triangle hit at each
+    vertex after the first ((j,) int, -1 for an escaping stub). Scatter directions come from each surface's material ``sample``;
     absorbers and detectors end a path; a path ends when its weight drops below ``min_weight``.
     """
     from straylight.intersect import EmbreeIntersector
@@ -69,6 +70,7 @@ def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 
     eps = 1e-6 * float(np.ptp(scene.bounds_mm, axis=0).max())
     pts = [[o[i]] for i in range(n_rays)]
     wts = [[] for _ in range(n_rays)]
+    tris = [[] for _ in range(n_rays)]
     hit_det = np.zeros(n_rays, bool)
     alive = np.arange(n_rays)
     w = np.ones(n_rays)
@@ -81,12 +83,14 @@ def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 
             i = alive[k]
             pts[i].append(o[k] + d[k] * 0.3 * float(np.ptp(scene.bounds_mm[:, 2])))
             wts[i].append(w[k])
+            tris[i].append(-1)
         keep = ~miss
         alive, o, d, w, tri, t = alive[keep], o[keep], d[keep], w[keep], tri[keep], t[keep]
         p = o + t[:, None] * d
         for k, i in enumerate(alive):
             pts[i].append(p[k])
             wts[i].append(w[k])
+            tris[i].append(int(tri[k]))
         part = scene.triangle_part[tri]
         role = roles[part]
         hit_det[alive[role == "detector"]] = True
@@ -111,7 +115,8 @@ def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 
         live = w > min_weight
         alive, d, w, p, n = alive[live], new_d[live], w[live], p[live], n[live]
         o = p + eps * n
-    return [(np.array(pts[i]), np.array(wts[i]), bool(hit_det[i])) for i in range(n_rays) if len(pts[i]) > 1]
+    return [(np.array(pts[i]), np.array(wts[i]), bool(hit_det[i]), *((np.array(tris[i], dtype=np.int64),)
+             if with_triangles else ())) for i in range(n_rays) if len(pts[i]) > 1]
 
 
 def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict | None = None, ray_paths=None,

@@ -280,6 +280,10 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
     viz.render_scene(setup.scene, out / "view_absorbed.png", color_by="absorbed",
                      absorbed_w={k: v.power_w for k, v in trace_res.absorbed.items()},
                      title=f"Absorbed power per part (detector in yellow), beam {cfg.path_angle_deg:g} deg off axis")
+    from straylight import view3d  # the interactive view: parts, entrance, the ranked paths' sample rays
+
+    view3d.write_view3d(out / "view3d.html", setup, trace_res, report, a, seed=point_seed(cfg.seed, 6),
+                        title=f"{_short_name(setup)}, beam {cfg.path_angle_deg:g} deg off axis")
     result.timings_s["views"] = time.perf_counter() - t0
     done.append("views")
     result.timings_s["total"] = time.perf_counter() - t_all
@@ -466,6 +470,9 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
         sweep_html = f"""<h2>Design sweep: {html.escape(sweep.parameter.replace('_', ' '))}</h2>
 {img('sweep.png', 'PST vs design parameter at the stray-light angles')}
 {_html_table((sweep.parameter,) + tuple(f'PST at {a:g} deg' for a in sweep.off_axis_deg), sweep_rows)}"""
+    from straylight.view3d import report_section
+
+    view3d_html = report_section() if (result.out_dir / "view3d.html").exists() else ""
     body = f"""
 <h1>{html.escape(_title(result))}</h1>
 <p>{html.escape(result.summary['description'])}</p>
@@ -485,6 +492,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 {img('critical.png', 'View factor from the detector vs fraction of the beam first hitting each part', '70%')}
 {_html_table(('rank', 'part', 'illuminated fraction', 'view factor det -> part', 'score'), crit_rows)}
 {sweep_html}
+{view3d_html}
 <h2>3-D views and detector map</h2>
 {img('view_rays.png', 'Cut-away view with traced rays (colour: log10 relative power; red: reaching the detector)')}
 {img('view_absorbed.png', 'Cut-away view coloured by absorbed power per part')}
