@@ -76,6 +76,13 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     full_md = {"sample": sample, "rig": rig_md, "wavelength_nm": config.wavelength_nm,
                "gain_v_per_w": float(gain_v_per_w), "plan_name": spec.name, "resumed": bool(resume and done),
                **(md or {})}
+    # settings that decide the numbers must be those of the file being continued (a resume with
+    # another --seed would mix two noise streams under the first run's header)
+    try:
+        files.check_resume(**{k: full_md[k] for k in ("sample", "plan_name", "backend", "seed") if k in full_md})
+    except Exception:
+        files.log.close()
+        raise
     stop_reason = StopReason()
     nominal_w = float(nominal_power_w) if nominal_power_w is not None else devices.laser.power_w.get()
     plan = brdf_scan(devices, spec.points, n_readings=spec.n_readings, md=full_md, files=files,

@@ -78,6 +78,42 @@ def read_log(path) -> list[tuple[str, dict]]:
     return out
 
 
+def close_dangling_runs(log: "DocumentLog") -> list[str]:
+    """Give every run of ``log``'s file that has a start document but no stop document (its process
+    was killed: SIGKILL, power cut) the stop document it never got: ``exit_status`` "abort" (no
+    error of the scan is known) with a reason saying so, and the count of its events per stream
+    (event-model's ``num_events``). Written through ``log`` before a new run starts, so every start
+    in the file has its stop (issue 27). Returns the uids of the runs closed."""
+    import time
+    import uuid
+
+    if not log.path.is_file() or log.path.stat().st_size == 0:
+        return []
+    try:
+        records = read_log(log.path)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ResumeError(f"{log.path}: damaged document log ({type(exc).__name__}: {exc}); "
+                          f"move it aside to start a new log") from None
+    open_runs, streams, counts = {}, {}, {}
+    for name, doc in records:
+        if name == "start":
+            open_runs[doc["uid"]] = doc
+            counts[doc["uid"]] = {}
+        elif name == "stop":
+            open_runs.pop(doc.get("run_start"), None)
+        elif name == "descriptor":
+            streams[doc["uid"]] = (doc.get("run_start"), doc.get("name", "primary"))
+        elif name == "event" and doc.get("descriptor") in streams:
+            run, stream = streams[doc["descriptor"]]
+            if run in counts:
+                counts[run][stream] = counts[run].get(stream, 0) + 1
+    for uid in open_runs:
+        log("stop", {"run_start": uid, "time": time.time(), "uid": str(uuid.uuid4()), "exit_status": "abort",
+                     "reason": "the process ended without closing this run (killed); closed when the scan "
+                               "was next opened", "num_events": counts.get(uid, {})})
+    return list(open_runs)
+
+
 def brdf_from_reading(mean_v, std_v, power_w, theta_r_deg, gain_v_per_w, solid_angle_sr):
     """(brdf_per_sr, brdf_std_per_sr) = (V, sigma_V) / (g P_i Omega cos theta_r) (module doc)."""
     scale = gain_v_per_w * power_w * solid_angle_sr * math.cos(math.radians(theta_r_deg))
@@ -207,6 +243,7 @@ class ScanFiles:
         self.csv = CsvScanWriter(self.csv_path, resume=resume, fsync=fsync)
         self.log = DocumentLog(self.log_path, fsync=fsync)
         self.after = list(after)
+        self.closed_runs = close_dangling_runs(self.log)  # a killed earlier run gets its stop document
 
     @property
     def completed_keys(self) -> set:

@@ -3,7 +3,13 @@ the output (``DIR/pst.points/point_000012.json``) together with the fingerprint 
 ``--resume`` the points found there are read back instead of traced again, so an interrupted sweep
 (Ctrl-C, a lost node, a reboot) continues where it stopped and ends with the same numbers (each
 point has its own seed and streams, so it does not matter which run traced it). The folder is
-removed once the sweep's results are written. Floats go through JSON exactly (``repr``)."""
+removed once the sweep's results are written. Floats go through JSON exactly (``repr``).
+
+Every file is checked before it is trusted (issue 27): ``run.json`` holds the fingerprint's digest
+and the run's parameters in readable form; each point holds its values, its index, the run's digest
+and a SHA-256 of the three. A point edited by hand (a PST x1000, a NaN), truncated, or copied from
+another run is refused on ``--resume`` with a one-line error naming the file; so is a point or
+``run.json`` that is not valid JSON."""
 from __future__ import annotations
 
 import hashlib
@@ -37,6 +43,28 @@ def fingerprint_digest(fingerprint: dict) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def _parameters(fingerprint: dict) -> dict:
+    """The fingerprint as plain JSON (arrays by content hash), for a reader of ``run.json``."""
+    return json.loads(json.dumps(fingerprint, sort_keys=True, default=_plain))
+
+
+def point_checksum(run_digest: str, index: int, values) -> str:
+    """SHA-256 of a point's values, its index and its run's digest (values in canonical JSON: floats
+    by ``repr``, so any change of any digit changes the sum)."""
+    text = json.dumps([run_digest, int(index), values], sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def read_json(path, what: str = "checkpoint"):
+    """``json.loads`` of a file, or a one-line ValueError naming the file (not JSON, not UTF-8, unreadable)."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError, OSError) as exc:
+        raise ValueError(f"--resume: {what} {path} is damaged ({type(exc).__name__}: {exc}); "
+                         f"remove it to trace that point again") from None
+
+
 class PointStore:
     """Finished points of one sweep in ``folder``. ``resume=False`` starts afresh (old points are
     removed); ``resume=True`` keeps them, after checking they belong to a run with the same
@@ -44,13 +72,13 @@ class PointStore:
 
     def __init__(self, folder, fingerprint: dict, resume: bool = False):
         self.folder = Path(folder)
-        digest = fingerprint_digest(fingerprint)
+        digest = self.digest = fingerprint_digest(fingerprint)
         meta = self.folder / _RUN
         if resume and meta.exists():
-            try:
-                stored = json.loads(meta.read_text())["fingerprint_sha256"]
-            except (ValueError, KeyError) as exc:
-                raise ValueError(f"--resume: {meta} is unreadable ({exc}); remove {self.folder}") from None
+            doc = read_json(meta, "run file")
+            stored = doc.get("fingerprint_sha256") if isinstance(doc, dict) else None
+            if not isinstance(stored, str):
+                raise ValueError(f"--resume: {meta} has no fingerprint_sha256; remove {self.folder}")
             if stored != digest:
                 raise ValueError(f"--resume: {self.folder} holds points of a different run (scene, angles, rays, "
                                  f"seed or options changed); remove it or run without --resume")
@@ -58,18 +86,32 @@ class PointStore:
             for old in self.folder.glob("point_*.json"):
                 old.unlink()
         self.folder.mkdir(parents=True, exist_ok=True)
-        atomicio.write_text(meta, json.dumps({"fingerprint_sha256": digest}) + "\n")
+        atomicio.write_text(meta, json.dumps({"fingerprint_sha256": digest, "parameters": _parameters(fingerprint)},
+                                             indent=1) + "\n")
 
     def get(self, index: int):
-        """The record of point ``index``, or None if it was not finished."""
+        """The record of point ``index``, or None if it was not finished. A point whose checksum does
+        not match its values (edited, damaged, or of another run) is a ValueError naming the file."""
         path = self.folder / _POINT.format(int(index))
         if not path.exists():
             return None
-        return json.loads(path.read_text())
+        doc = read_json(path, "checkpoint point")
+        if not isinstance(doc, dict) or not {"values", "sha256", "run_sha256", "index"} <= set(doc):
+            raise ValueError(f"--resume: {path} is not a checkpoint point of this version (no checksum); "
+                             f"remove it to trace that point again")
+        if doc["run_sha256"] != self.digest or doc["index"] != int(index):
+            raise ValueError(f"--resume: {path} belongs to another run or point; remove it to trace that point again")
+        if doc["sha256"] != point_checksum(self.digest, index, doc["values"]):
+            raise ValueError(f"--resume: {path} was changed after it was written (checksum mismatch: edited or "
+                             f"damaged); remove it to trace that point again")
+        return doc["values"]
 
     def put(self, index: int, record: dict) -> None:
-        """Record point ``index`` (atomically: a killed run leaves whole points only)."""
-        atomicio.write_text(self.folder / _POINT.format(int(index)), json.dumps(record) + "\n")
+        """Record point ``index`` with its checksum (atomically: a killed run leaves whole points only)."""
+        values = json.loads(json.dumps(record))  # what a reader will get back (tuples as lists...)
+        doc = {"index": int(index), "run_sha256": self.digest, "values": values,
+               "sha256": point_checksum(self.digest, index, values)}
+        atomicio.write_text(self.folder / _POINT.format(int(index)), json.dumps(doc) + "\n")
 
     @property
     def n_done(self) -> int:
