@@ -137,7 +137,10 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
     end (tasks run one at a time on a private pool gave x1.61-1.90 from 1 to 2 workers on the
     reference tube; the shared pool x1.84-1.91, as a plain thread pool). 2 worker processes
     ran x1.77 by wall (each with its own scene and warm-up). ``processes=True`` gives ``n_workers``
-    processes with one thread each."""
+    processes with one thread each; their scheduler listens on a loopback TCP port, which any
+    process of the machine can reach, so it speaks TLS with a key made for this cluster alone
+    (:func:`run_security`): a process without that key (another user, another program) cannot
+    connect, let alone submit a task (issue 27)."""
     import dask
     from dask.distributed import LocalCluster, Worker
 
@@ -158,9 +161,12 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
             super().__init__(*args, **kwargs)
 
     if processes:
+        security = run_security()
         with dask.config.set({**LEAN_CONFIG, **_fork_server_config()}):
-            return _process_cluster_class()(n_workers=int(n_workers), threads_per_worker=1, processes=True,
-                                            host=LOOPBACK, dashboard_address=None, scheduler_kwargs=scheduler_kwargs)
+            cluster = _process_cluster_class()(n_workers=int(n_workers), threads_per_worker=1, processes=True,
+                                               host=LOOPBACK, dashboard_address=None, scheduler_kwargs=scheduler_kwargs,
+                                               protocol="tls://", security=security)
+        return cluster  # Client(cluster) takes the cluster's security (dask's Client does)
     with dask.config.set(LEAN_CONFIG):
         cluster = LocalCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
                                dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker)
@@ -169,6 +175,77 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
 
 
 FORK_SERVER_PRELOAD = fork_server.PRELOAD
+
+
+def run_security():
+    """A dask ``Security`` made for one local cluster: a fresh self-signed certificate and RSA key
+    (``distributed.Security.temporary``), held in this process's memory only (no file), given to the
+    scheduler, the worker processes (through the nanny's pipe) and this process's clients.
+    ``require_encryption``: every connection is TLS and must present that certificate, so nothing
+    without the key talks to the scheduler."""
+    from distributed.security import Security
+
+    try:
+        return Security.temporary()
+    except ImportError:
+        raise RuntimeError("a local cluster of worker processes needs the 'cryptography' package for its "
+                           "per-run TLS key: pip install cryptography (or use --workers K without --processes)") from None
+
+
+INSECURE_ENV = "STRAYLIGHT_ALLOW_INSECURE_SCHEDULER"
+
+
+def check_scheduler_address(address, allow_insecure=None) -> str | None:
+    """Refuse a scheduler reached without encryption beyond this machine: anything that can reach a
+    plain-TCP scheduler can run code as its workers' user, and this client unpickles what comes back.
+    ``tls://`` (and ``wss://``) are encrypted and authenticated; a plain address on a loopback host is
+    this machine's; anything else is a ValueError naming the address unless ``allow_insecure`` (the
+    ``--allow-insecure`` flag; None: the environment variable ``STRAYLIGHT_ALLOW_INSECURE_SCHEDULER=1``),
+    which returns a warning to print instead. Returns None when the address is fine."""
+    import os
+
+    text = str(address)
+    protocol, _, rest = text.rpartition("://")
+    protocol = protocol or "tcp"
+    if protocol in ("tls", "wss", "inproc"):
+        return None
+    host = _address_host(rest)
+    if host is not None and _is_loopback(host):
+        return None
+    if allow_insecure is None:
+        allow_insecure = os.environ.get(INSECURE_ENV, "").strip().lower() in ("1", "yes", "true", "on")
+    message = (f"--scheduler {text} is not encrypted ({protocol}://) and not on this machine: anyone who can "
+               f"reach it can run code on its workers, and read or forge what they send back")
+    if not allow_insecure:
+        raise ValueError(f"{message}; use tls:// with --tls-ca-file/--tls-cert/--tls-key (docs/cluster.md), "
+                         f"or pass --allow-insecure on a network you trust")
+    return f"{message} (allowed by --allow-insecure)"
+
+
+def _address_host(rest: str):
+    """The host of ``host:port`` / ``[v6]:port`` / ``host``."""
+    if rest.startswith("["):
+        return rest[1:].split("]", 1)[0]
+    if rest.count(":") > 1:  # a bare IPv6 address
+        return rest
+    return rest.split(":", 1)[0] or None
+
+
+def _is_loopback(host: str) -> bool:
+    """Does ``host`` name this machine only (every address it resolves to is a loopback address)?"""
+    import ipaddress
+    import socket
+
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        pass
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except OSError:
+        return False
+    addresses = {info[4][0].split("%")[0] for info in infos}
+    return bool(addresses) and all(ipaddress.ip_address(a).is_loopback for a in addresses)
 
 
 def _fork_server_config() -> dict:
@@ -244,17 +321,24 @@ def tls_security(ca_file=None, cert=None, key=None):
 
 
 @contextmanager
-def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in_process_below=1, processes=False):
+def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in_process_below=1, processes=False,
+                allow_insecure=None):
     """The one dask client builder: ``Client(scheduler, security=security)`` for a running scheduler;
     else, for ``workers`` >= ``in_process_below``, a :func:`local_cluster` of ``workers`` (loopback
     only; ``processes``: that many worker processes, else threads) and its client; else None (run in
     this process). Closed on exit.
 
     ``in_process_below``: worker counts below it run in-process (sweeps pass 2: one worker is just
-    this process); ``trace(workers=1)`` passes 1 and gets a one-thread cluster."""
+    this process); ``trace(workers=1)`` passes 1 and gets a one-thread cluster.
+
+    A ``scheduler`` reached unencrypted beyond this machine is refused unless ``allow_insecure``
+    (:func:`check_scheduler_address`; then a warning on stderr)."""
     if scheduler:
         from dask.distributed import Client
 
+        warning = check_scheduler_address(scheduler, allow_insecure)
+        if warning:
+            print(f"straylight: warning: {warning}", file=sys.stderr)
         with Client(scheduler, security=security) as client:
             yield client
     elif workers is not None and int(workers) >= max(1, int(in_process_below)):

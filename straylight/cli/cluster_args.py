@@ -16,14 +16,28 @@ def add_cluster_args(parser) -> None:
     g.add_argument("--tls-ca-file", metavar="CA.pem", help="with --scheduler tls://...: CA certificate")
     g.add_argument("--tls-cert", metavar="CERT.pem", help="with --scheduler tls://...: this client's certificate")
     g.add_argument("--tls-key", metavar="KEY.pem", help="with --scheduler tls://...: its private key")
+    add_insecure_arg(g)
+
+
+def add_insecure_arg(parser) -> None:
+    """``--allow-insecure``: accept a plain-TCP scheduler beyond this machine (refused otherwise:
+    :func:`straylight.distribute.check_scheduler_address`)."""
+    parser.add_argument("--allow-insecure", action="store_true",
+                        help="accept --scheduler tcp://HOST on another machine without TLS (anyone who can reach "
+                             "it can run code on its workers); only on a network you trust")
 
 
 def start_early(args, in_process_below: int = 1) -> bool:
     """With ``--workers K --processes`` (K >= ``in_process_below``, no ``--scheduler``): launch the
     worker processes' fork server now (:func:`straylight.fork_server.start`), before the command
     loads its scene, so that its ~1.5 s of loading overlaps the scene's; :func:`cluster_client`
-    then starts the cluster from it. Returns whether it was launched (or was running)."""
+    then starts the cluster from it. Returns whether it was launched (or was running). An unencrypted
+    ``--scheduler`` beyond this machine is refused here, before the scene is loaded."""
     workers = getattr(args, "workers", None)
+    if getattr(args, "scheduler", None):  # an unencrypted remote scheduler is refused before any work
+        from straylight.distribute import check_scheduler_address
+
+        check_scheduler_address(args.scheduler, getattr(args, "allow_insecure", False) or None)
     if not getattr(args, "processes", False) or getattr(args, "scheduler", None) or workers is None:
         return False
     if workers < max(1, int(in_process_below)):
@@ -50,6 +64,9 @@ def cluster_client(args, in_process_below: int = 1):
         raise ValueError("--processes needs --workers K (the number of worker processes)")
     if workers is not None and workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
+    if getattr(args, "allow_insecure", False) and not scheduler:
+        raise ValueError("--allow-insecure applies to --scheduler only")
     with dask_client(workers, scheduler, security=security, dashboard=args.dashboard,
-                     in_process_below=in_process_below, processes=args.processes) as client:
+                     in_process_below=in_process_below, processes=args.processes,
+                     allow_insecure=getattr(args, "allow_insecure", False) or None) as client:
         yield client

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from contextlib import contextmanager
 from importlib.metadata import entry_points
 
 OWN_GROUPS = (
@@ -53,6 +54,27 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@contextmanager
+def _allow_insecure(allowed: bool):
+    """``--allow-insecure`` for this command: the sweeps open their dask clients deep inside
+    (straylight.distribute.dask_client reads STRAYLIGHT_ALLOW_INSECURE_SCHEDULER); restored after."""
+    if not allowed:
+        yield
+        return
+    import os
+
+    key = "STRAYLIGHT_ALLOW_INSECURE_SCHEDULER"
+    saved = os.environ.get(key)
+    os.environ[key] = "1"
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = saved
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -60,7 +82,8 @@ def main(argv=None) -> int:
         parser.print_help()
         return 0 if args.command is None else 2
     try:
-        return int(args.func(args) or 0)
+        with _allow_insecure(getattr(args, "allow_insecure", False)):
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("straylight: interrupted", file=sys.stderr)
         return 130

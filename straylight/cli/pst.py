@@ -37,6 +37,9 @@ def add_dask_out_args(parser):
     """--workers, --scheduler, --out (required output directory)."""
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--scheduler", default=None)
+    from straylight.cli.cluster_args import add_insecure_arg
+
+    add_insecure_arg(parser)
     parser.add_argument("--out", required=True, help="output directory")
 
 
