@@ -30,6 +30,7 @@ from functools import cached_property
 import numpy as np
 
 from materials.base import Sample, check_polarization, lobe_inputs
+from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
 
@@ -43,6 +44,7 @@ class Abg:
     b: float
     g: float
 
+    flags = ComponentFlags.GLOSSY
     reciprocal = True
 
     def __post_init__(self):

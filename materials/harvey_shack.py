@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from materials.base import Sample, check_polarization, lobe_inputs
+from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
 
@@ -38,6 +39,7 @@ class HarveyShack:
     l: float  # noqa: E741 - the CONTRACTS key
     s: float
 
+    flags = ComponentFlags.GLOSSY
     reciprocal = True
 
     def __post_init__(self):

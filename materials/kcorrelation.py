@@ -58,6 +58,7 @@ import numpy as np
 
 from materials.base import MaterialError, Sample, check_polarization, lobe_inputs
 from materials.fresnel import complex_index, polarization_factor, scatter_azimuth
+from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
 
@@ -94,6 +95,7 @@ class KCorrelation:
     weight: float = 1.0
     wavelength_nm: Optional[float] = None
 
+    flags = ComponentFlags.GLOSSY
     reciprocal = True
 
     def __post_init__(self):

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from materials.base import Sample, check_polarization
+from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import (
     check_real,
@@ -37,6 +38,7 @@ class Lambertian:
 
     rd: float
 
+    flags = ComponentFlags.DIFFUSE
     reciprocal = True
 
     def __post_init__(self):

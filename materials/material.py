@@ -31,6 +31,7 @@ from materials.albedo import directional_hemispherical_reflectance
 from materials.atomic import atomic_write_text
 from materials.base import MaterialError, Sample
 from materials.composite import _TABLE_THETA, Composite
+from materials.flags import ComponentFlags, flags_of, union
 from materials.registry import build_component
 from materials.sampling import check_real
 
@@ -81,7 +82,7 @@ class Material:
             comps.append(c)
         if not comps:
             raise MaterialError(f"{where}: 'components' must be a non-empty list")
-        smooth = [i for i, c in enumerate(comps) if getattr(c, "delta", False)]
+        smooth = [i for i, c in enumerate(comps) if flags_of(c) & ComponentFlags.DELTA]
         if len(smooth) > 1:
             raise MaterialError(
                 f"{where}: components[{smooth[1]}]: at most one specular or dielectric component per material"
@@ -95,20 +96,20 @@ class Material:
     def smooth(self):
         """The material's delta component (``specular`` or ``dielectric``), or None."""
         for c in self.components:
-            if getattr(c, "delta", False):
+            if flags_of(c) & ComponentFlags.DELTA:
                 return c
         return None
 
     @property
-    def interaction(self) -> str:
-        """The tracer's surface interaction for this material: ``"optical_surface"`` (Fresnel /
-        specular branching, refinement, polarization) with a delta component, else ``"brdf_scatter"``."""
-        return "optical_surface" if self.smooth is not None else "brdf_scatter"
+    def flags(self) -> ComponentFlags:
+        """The union of the components' declared flags (materials.flags); the tracer chooses the
+        surface interaction from them (straylight.engine.interactions.registry)."""
+        return union(self.components)
 
     @property
     def lobes(self) -> tuple:
         """The scatter components (everything but the delta component)."""
-        return tuple(c for c in self.components if not getattr(c, "delta", False))
+        return tuple(c for c in self.components if not flags_of(c) & ComponentFlags.DELTA)
 
     def lobe_reflectance(self, theta_i, polarization: str = "u") -> np.ndarray:
         """Directional-hemispherical reflectance of the scatter lobes at theta_i (radians),

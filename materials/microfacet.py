@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from materials.base import MaterialError, Sample, check_polarization
+from materials.flags import ComponentFlags
 from materials.registry import register
 
 
@@ -81,6 +82,7 @@ class Microfacet:
     n: object = 1.5
     weight: float = 1.0
 
+    flags = ComponentFlags.GLOSSY
     reciprocal = True  # for unpolarized light; s/p are reciprocal in the plane of incidence only
 
     def __post_init__(self):

@@ -53,6 +53,7 @@ import numpy as np
 
 from materials.base import MaterialError, Sample, check_polarization
 from materials.fresnel import fresnel_amplitudes
+from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_index, check_real, direction_uniforms, set_fields
 
@@ -181,6 +182,7 @@ class Particulate:
     substrate_r: Optional[float] = None
     wavelength_nm: Optional[float] = None
 
+    flags = ComponentFlags.GLOSSY
     reciprocal = True
     needs_substrate = True
 

@@ -1,13 +1,16 @@
 """Component registry: ``@register("abg")`` on a model class; ``build(dict)`` makes one.
 
 A registered class must be a dataclass whose fields are the component keys of
-CONTRACTS §5 and which provides the :class:`materials.base.Brdf` protocol.
+CONTRACTS §5, which provides the :class:`materials.base.Brdf` protocol (or, for a delta
+component, ``coefficients``) and which declares what it is: ``flags``, a
+:class:`materials.flags.ComponentFlags` (the tracer chooses the surface interaction from them).
 """
 from __future__ import annotations
 
 import dataclasses
 
 from materials.base import MaterialError
+from materials.flags import ComponentFlags
 
 _REGISTRY: dict[str, type] = {}
 
@@ -16,6 +19,9 @@ def register(type_name: str):
     def decorate(cls):
         if type_name in _REGISTRY and _REGISTRY[type_name] is not cls:
             raise RuntimeError(f"component type {type_name!r} registered twice")
+        if not isinstance(getattr(cls, "flags", None), (ComponentFlags, property)):
+            raise RuntimeError(f"component type {type_name!r} ({cls.__name__}) must declare "
+                               "'flags = ComponentFlags...' (materials.flags)")
         _REGISTRY[type_name] = cls
         cls.type_name = type_name
         return cls

@@ -26,6 +26,7 @@ import numpy as np
 
 from materials.base import MaterialError
 from materials.fresnel import fresnel_amplitudes
+from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_index, check_real, set_fields
 
@@ -120,7 +121,7 @@ class Specular:
     n: Optional[Union[float, tuple]] = None
     weight: float = 1.0
 
-    delta = True
+    flags = ComponentFlags.DELTA_REFLECTION | ComponentFlags.POLARIZING
     reciprocal = True
 
     def __post_init__(self):
@@ -198,7 +199,7 @@ class Dielectric:
     absorption_per_mm: float = 0.0
     wavelength_nm: Optional[float] = None
 
-    delta = True
+    flags = ComponentFlags.DELTA_REFLECTION | ComponentFlags.DELTA_TRANSMISSION | ComponentFlags.POLARIZING
     reciprocal = True
 
     def __post_init__(self):

@@ -41,6 +41,7 @@ from typing import Optional
 import numpy as np
 
 from materials.base import MaterialError, Sample, bragg_offset, check_polarization
+from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import (
     cosine_hemisphere_pdf,
@@ -119,6 +120,7 @@ class Tabulated:
     brdf_s_per_sr: Optional[tuple] = None
     brdf_p_per_sr: Optional[tuple] = None
 
+    flags = ComponentFlags.GLOSSY
     reciprocal = False
 
     def __post_init__(self):

@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from straylight.engine.interactions.registry import Capability, parts_with
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE
-from straylight.engine.roles import ROLE_SURFACE
 from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS, check_seed, chunk_bounds
 from straylight.sources import CollimatedDisk, PointSource, orthonormal_basis
@@ -228,11 +228,9 @@ def build_table(spec, comp) -> VertexTable:
     src = spec.sources[0]
     tri_mm = spec.triangles_mm
     n_tri = len(tri_mm)
-    surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == ROLE_SURFACE)
-    # optical_surface parts (exact normals, polarization: issue 14) are left to the walk (q_t = 0)
-    optical = np.array([m >= 0 and getattr(spec.materials[m], "interaction", "") == "optical_surface"
-                        for m in spec.part_material], dtype=bool)
-    surf = surf[~optical[spec.triangle_part[surf]]]
+    # only parts whose interaction kind allows it are area-sampled (Capability.FIRST_VERTEX); the
+    # others (mirrors, optical surfaces: exact normals, Fresnel branching) are left to the walk (q_t = 0)
+    surf = np.flatnonzero(parts_with(spec, Capability.FIRST_VERTEX)[spec.triangle_part])
     area = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
     surf = surf[area[surf] > 0]
     rng = np.random.default_rng([check_seed(spec.seed), PROBE_STREAM])

@@ -91,8 +91,8 @@ def hits(tri, rays, scene, rows, settings, log):
             j = scene.detector_of_part[pt]
             tally_add(log, rows.detector_walk + j, r, w_i)
             w_det = w_i
-            # a hit straight after a BRDF scatter is shared with NEE by MIS weights (power heuristic)
-            if settings.nee and rays.last_event[i] == EVENT_SCATTER:
+            # a hit straight after a scatter that did NEE is shared with NEE by MIS weights (power heuristic)
+            if settings.nee and rays.last_event[i] == EVENT_SCATTER and settings.nee_part[rays.last_part[i]]:
                 p_nee = settings.nee_samples * (t * t) / (scene.detector_area_mm2[j] * abs(cos_in))
                 w_det = w_i * power_heuristic(rays.last_pdf_per_sr[i], p_nee)
                 tally_add(log, rows.nee_exchange + rays.last_part[i], r, w_i - w_det)
@@ -144,7 +144,8 @@ def hits_numpy(tri, rays, scene, rows, settings, M):
     M[rows.detector_walk + j, r[sens]] += w[sens]
     w_det = w[sens].copy()
     if settings.nee:
-        shared = np.flatnonzero(rays.last_event[sens] == EVENT_SCATTER)
+        shared = np.flatnonzero((rays.last_event[sens] == EVENT_SCATTER)
+                                & settings.nee_part[np.maximum(rays.last_part[sens], 0)])
         i = sens[shared]
         p_nee = settings.nee_samples * (t[i] * t[i]) / (scene.detector_area_mm2[j[shared]] * np.abs(cos_in[i]))
         w_det[shared] = w[i] * power_heuristic_rows(rays.last_pdf_per_sr[i], p_nee)

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from straylight.engine import second_vertex
+from straylight.engine.interactions.registry import Capability
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.targets import target_pdf
@@ -261,6 +262,13 @@ def _estimate(event, verts, frame, w_vertex, evaluate):
     pdf_brdf = np.empty(len(pairs.vertex))
     wi_local, mat = frame.wi_local, frame.material
     target = event.scene.target
+    mixed = None  # vertices whose kind mixes in target sampling (Capability.TARGET_MIS); None: all
+    if target is not None:
+        mixed = event.capabilities.at(Capability.TARGET_MIS, hit.part[verts])
+        if mixed.all():
+            mixed = None
+        elif not mixed.any():
+            target = None
     # materials see the same arrays in both walks: one call per (detector, sample) and material,
     # vertices in order (vectorised transcendental functions may round differently in a block's tail)
     for jk in range(n_jk):
@@ -279,8 +287,14 @@ def _estimate(event, verts, frame, w_vertex, evaluate):
         if target is not None:
             q = float(spec.options.target_fraction)
             at = verts[pairs.vertex[sel]]
-            pdf_jk = (1 - q) * pdf_jk + q * target_pdf(target, hit.point_mm[at], hit.facing_normal[at],
-                                                       pairs.direction[sel], spec.eps)
+            if mixed is None:
+                pdf_jk = (1 - q) * pdf_jk + q * target_pdf(target, hit.point_mm[at], hit.facing_normal[at],
+                                                           pairs.direction[sel], spec.eps)
+            else:
+                mx = np.flatnonzero(mixed[pairs.vertex[sel]])
+                dirs = pairs.direction[sel][mx]
+                pdf_jk[mx] = (1 - q) * pdf_jk[mx] + q * target_pdf(target, hit.point_mm[at[mx]],
+                                                                   hit.facing_normal[at[mx]], dirs, spec.eps)
         f[sel] = f_jk if w_vertex is None else f_jk * w_vertex[pairs.vertex[sel]]
         pdf_brdf[sel] = pdf_jk
     shadow = ShadowRays(*kern.nee_shadow(pairs, f, pdf_brdf, verts, event.rays, hit, event.scene.arrays, settings))

@@ -4,6 +4,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import NamedTuple
 
+import numpy as np
+
 
 class TraceError(ValueError):
     """A trace request that cannot run; the message names the parameter or part."""
@@ -64,9 +66,12 @@ class WalkSettings(NamedTuple):
     roulette_w: float  # Russian roulette threshold, W (rr_threshold x start weight)
     eps_mm: float  # self-intersection offset
     record_paths: bool
+    nee_part: np.ndarray  # (P,) bool: the part's interaction kind does NEE (Capability.NEE), so a walk
+    # hit on a detector right after a scatter there keeps only its MIS share
 
 
-def walk_settings(options: TraceOptions, eps_mm: float, start_weight_w: float) -> WalkSettings:
+def walk_settings(options: TraceOptions, eps_mm: float, start_weight_w: float, nee_part) -> WalkSettings:
     return WalkSettings(both_sides=options.detector_sides == "both", nee=bool(options.nee),
                         nee_samples=int(options.nee_samples), roulette_w=float(options.rr_threshold) * start_weight_w,
-                        eps_mm=float(eps_mm), record_paths=bool(options.record_paths))
+                        eps_mm=float(eps_mm), record_paths=bool(options.record_paths),
+                        nee_part=np.ascontiguousarray(nee_part, dtype=np.bool_))

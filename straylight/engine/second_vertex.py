@@ -50,10 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from straylight.engine.interactions.registry import interaction_name
+from straylight.engine.interactions.registry import Capability, kinds_with, parts_with
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
-from straylight.engine.roles import ROLE_NAMES, ROLE_SURFACE
 from straylight.engine.targets import target_pdf
 from straylight.engine.vec3 import power_heuristic_rows
 from straylight.paths import mix_key
@@ -64,7 +63,6 @@ TABLE_STREAM = 0x53454356  # entropy word of the table's probe stream
 PART_PROBES = 256
 PROBES_PER_TRIANGLE = 16
 PROBE_BUDGET = 400_000
-SCATTER_KIND = "brdf_scatter"
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,28 +78,22 @@ class CriticalTable:
 
 
 def scatter_parts(spec) -> np.ndarray:
-    """Bool per part: a surface part whose hits are ``brdf_scatter`` vertices."""
-    out = np.zeros(len(spec.part_roles), dtype=bool)
-    for p, role in enumerate(spec.part_roles):
-        m = spec.part_material[p]
-        if int(role) == ROLE_SURFACE and m >= 0:
-            out[p] = interaction_name(ROLE_NAMES[int(role)], spec.materials[m]) == SCATTER_KIND
-    return out
+    """Bool per part: its interaction kind allows second-vertex sampling (Capability.SECOND_VERTEX)."""
+    return parts_with(spec, Capability.SECOND_VERTEX)
 
 
 def unsupported(spec) -> str | None:
     """Why the strategy cannot run on ``spec`` (None when it can). Its vertices are evaluated for
     unpolarized light (or the trace-wide s/p option), so it stays out of traces whose rays carry
     a polarization state (:func:`straylight.engine.interactions.stokes.tracks_polarization`, or an
-    ``optical_surface`` part, whose Fresnel interfaces polarize): there the walk alone is used."""
+    part whose interaction kind polarizes, Capability.POLARIZES: an ``optical_surface``'s Fresnel
+    interfaces): there the walk alone is used."""
     from straylight.engine.interactions.stokes import tracks_polarization
 
     if tracks_polarization(spec):
         return "second_vertex_sampling does not follow polarized light (a linear source or scatter_polarization = 'on')"
-    for p, role in enumerate(spec.part_roles):
-        m = spec.part_material[p]
-        if m >= 0 and interaction_name(ROLE_NAMES[int(role)], spec.materials[m]) == "optical_surface":
-            return "second_vertex_sampling does not follow the polarization of optical_surface parts"
+    for kind in kinds_with(spec, Capability.POLARIZES):
+        return f"second_vertex_sampling does not follow the polarization of {kind.name} parts"
     return None
 
 
@@ -283,13 +275,20 @@ def _brdf_pdf(spec, mat, wi, wo, with_pdf=True):
     return f, pdf
 
 
-def _mixture_pdf(event, pdf, p, nf, dirs):
-    """The walk's direction density with target parts on: (1 - q) pdf_brdf + q pdf_target."""
+def _mixture_pdf(event, pdf, p, nf, dirs, part):
+    """The walk's direction density at vertices on parts ``part``: with target parts on and a kind
+    that mixes them in (Capability.TARGET_MIS), (1 - q) pdf_brdf + q pdf_target."""
     target = event.scene.target
     if target is None:
         return pdf
     q = float(event.spec.options.target_fraction)
-    return (1 - q) * pdf + q * target_pdf(target, p, nf, dirs, event.spec.eps)
+    mixed = event.capabilities.at(Capability.TARGET_MIS, part)
+    if mixed.all():
+        return (1 - q) * pdf + q * target_pdf(target, p, nf, dirs, event.spec.eps)
+    out = pdf.copy()
+    m = np.flatnonzero(mixed)
+    out[m] = (1 - q) * pdf[m] + q * target_pdf(target, p[m], nf[m], dirs[m], event.spec.eps)
+    return out
 
 
 def estimate(event, verts, frame):
@@ -335,7 +334,7 @@ def estimate(event, verts, frame):
     # the walk's side at A: f_A and its direction density toward B
     wo_a = np.stack([_dot(w, frame.tangent[s]), _dot(w, frame.bitangent[s]), cos_a], axis=1)
     f_a, pdf_a = _brdf_pdf(spec, frame.material[s], frame.wi_local[s], wo_a)
-    pdf_a = _mixture_pdf(event, pdf_a, hit.point_mm[i], hit.facing_normal[i], w)
+    pdf_a = _mixture_pdf(event, pdf_a, hit.point_mm[i], hit.facing_normal[i], w, hit.part[i])
     cos_b = np.abs(c_y)
     p_w = pdf_a * cos_b / d1sq
     p_c = table.p_area[t]
@@ -365,7 +364,7 @@ def estimate(event, verts, frame):
             continue
         wo_y = _local(w2[g], tb_y[g], bb_y[g], nf_y[g])
         f_y, pdf_y = _brdf_pdf(spec, mat_y[g], wi_y[g], wo_y)
-        pdf_y = _mixture_pdf(event, pdf_y, y[g], nf_y[g], w2[g])
+        pdf_y = _mixture_pdf(event, pdf_y, y[g], nf_y[g], w2[g], part_y[g])
         area = float(scene.arrays.detector_area_mm2[j])
         p_nee = k_nee * d2sq[g] / (area * cos_z[g])
         c = base[g] * f_y * cos_o[g] * cos_z[g] * area / d2sq[g] * power_heuristic_rows(p_nee, pdf_y)

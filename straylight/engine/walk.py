@@ -16,11 +16,10 @@ from straylight.engine.emission import emit_batch
 from straylight.engine.event import Event, combined_outgoing
 from straylight.engine.first_vertex import FirstVertexWeights, run_vertex_pass
 from straylight.engine.hits import HITS_WRITES_PER_RAY, Hits
-from straylight.engine.interactions import get_interaction, interaction_name
+from straylight.engine.interactions import Capability, PartCapabilities, part_kinds
 from straylight.engine.kernel_sets import COMPILED, NUMPY
 from straylight.engine.options import TraceError, walk_settings
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
-from straylight.engine.roles import ROLE_NAMES
 from straylight.engine.spec import TraceSpec
 from straylight.engine.tallies import DetectorRecords, batch_sums
 from straylight.paths import mix_key
@@ -29,17 +28,15 @@ from straylight.rng import CHUNK_RAYS
 def part_interactions(spec: TraceSpec):
     """(index of each part's interaction kind (P,), the kinds, the kinds of continuing hits) for
     the parts of ``spec``."""
-    kinds, index, of_part = [], {}, []
-    for p, role in enumerate(spec.part_roles):
-        m = spec.part_material[p]
-        name = interaction_name(ROLE_NAMES[int(role)], spec.materials[m] if m >= 0 else None)
-        kind = get_interaction(name)
-        if kind.terminal != (ROLE_NAMES[int(role)] in ("detector", "absorber")):
-            raise TraceError(f"part {spec.part_names[p]!r}: interaction {name!r} does not fit its role {ROLE_NAMES[int(role)]!r}")
-        if name not in index:
-            index[name] = len(kinds)
+    kinds, of_part = [], []
+    try:
+        per_part = part_kinds(spec)
+    except ValueError as exc:
+        raise TraceError(str(exc)) from None
+    for kind in per_part:
+        if kind not in kinds:
             kinds.append(kind)
-        of_part.append(index[name])
+        of_part.append(kinds.index(kind))
     continuing = sorted({k for k in of_part if not kinds[k].terminal})
     return np.array(of_part, dtype=np.int64), kinds, continuing
 
@@ -77,7 +74,9 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     n = min(stop_chunk * CHUNK_RAYS, spec.n_rays) - first_chunk * CHUNK_RAYS
     draws = kernels.draws(spec.seed, spec.chunk_offset + first_chunk, spec.chunk_offset + stop_chunk)  # chunk_rng's
     w0 = spec.total_power_w / spec.n_rays
-    settings = walk_settings(opt, spec.eps, w0)
+    kind_of_part, kinds, continuing = part_interactions(spec)
+    capabilities = PartCapabilities(kinds[k] for k in kind_of_part)
+    settings = walk_settings(opt, spec.eps, w0, capabilities.parts(Capability.NEE))
     reuse = kernels.reuse_buffers
     if reuse:
         tallies = scene.thread_local("tallies", lambda: kernels.tallies(rows.n_per_ray, n)).reset(rows.n_per_ray, n)
@@ -89,7 +88,6 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     rays = emitted_rays(*emit_batch(spec, draws, n, ubuf), w0, opt.path_depth, settings.record_paths)
     records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.map_bins),
                               settings.record_paths)
-    kind_of_part, kinds, continuing = part_interactions(spec)
     first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
     segments = shadow_rays = 0
@@ -104,7 +102,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, tallies.kernel_arg))
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
-                      first_vertex=first_vertex)
+                      first_vertex=first_vertex, capabilities=capabilities)
         rec, rec_w = hit.detected, hit.detected_w
         if len(rec) and first_vertex is not None:
             rec, rec_w = first_vertex.share_single_scatter(event, rec, rec_w)

@@ -16,6 +16,7 @@ from scipy import stats
 import materials
 from materials.albedo import directional_hemispherical_reflectance, pdf_integral
 from materials.base import Brdf, directions_from_angles
+from materials.flags import ComponentFlags
 from materials.registry import component_types
 
 SEED = 20260611
@@ -24,7 +25,7 @@ N_MC = 40_000
 
 def _models():
     # delta components (specular, dielectric) have no finite BRDF: tests/materials/test_smooth_interfaces.py
-    out = [(name, cls.example()) for name, cls in sorted(component_types().items()) if not getattr(cls, "delta", False)]
+    out = [(name, cls.example()) for name, cls in sorted(component_types().items()) if not cls.flags & ComponentFlags.DELTA]
     out.append(("composite", materials.Composite.example()))
     out += [(f"preset:{p}", materials.load_material(p)) for p in materials.list_presets()]
     return out

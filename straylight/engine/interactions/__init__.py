@@ -2,4 +2,5 @@
 an interaction kind"). Importing this package registers the built-in kinds."""
 from straylight.engine.interactions import brdf_scatter, delta_reflection, optical_surface, terminal  # noqa: F401 - registers them
 from straylight.engine.interactions.registry import (  # noqa: F401 - re-exported
-    INTERACTIONS, Interaction, get_interaction, interaction_name, register_interaction)
+    INTERACTIONS, Capability, Interaction, PartCapabilities, get_interaction, kind_for, part_kinds, parts_with,
+    register_interaction)

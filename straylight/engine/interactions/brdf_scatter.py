@@ -20,7 +20,7 @@ from numba import njit
 
 from straylight.engine import nee
 from straylight.engine.event import outgoing
-from straylight.engine.interactions.registry import Interaction, register_interaction
+from straylight.engine.interactions.registry import Capability, Interaction, register_interaction
 from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER
@@ -114,6 +114,8 @@ def to_world_numpy(wo, weight, pdf, frame, verts, nf):
 @register_interaction
 class BrdfScatter(Interaction):
     name = "brdf_scatter"
+    roles = ("surface",)  # the default kind of surface parts (materials without a delta component)
+    capabilities = Capability.NEE | Capability.FIRST_VERTEX | Capability.SECOND_VERTEX | Capability.TARGET_MIS
 
     def interact(self, event, selection):
         spec, kern, hit = event.spec, event.kernels, event.hits
@@ -122,7 +124,7 @@ class BrdfScatter(Interaction):
                                          spec.part_material, event.uniforms))
         w_vertex = None if event.first_vertex is None else event.first_vertex.vertex_weights(event, verts)
         arr = arriving(event, verts, frame)
-        if event.settings.nee and len(event.scene.det_parts):
+        if event.settings.nee and self.allows(Capability.NEE) and len(event.scene.det_parts):
             nee.estimate(event, verts, frame, w_vertex, evaluate=None if arr is None else arr.nee_evaluate(spec.materials))
         n = len(verts)
         wo = np.empty((n, 3))
@@ -135,7 +137,7 @@ class BrdfScatter(Interaction):
             weight[rows] = smp.weight
             pdf[rows] = smp.pdf_per_sr
         wo_world, weight, pdf = kern.to_world(wo, weight, pdf, frame, verts, hit.facing_normal)
-        target = event.scene.target
+        target = event.scene.target if self.allows(Capability.TARGET_MIS) else None
         if target is not None:
             col = event.columns.target
             wo_world, weight, pdf = target_mixture(spec, target, event.uniforms[verts, col:col + 4],

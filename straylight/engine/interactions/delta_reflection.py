@@ -17,7 +17,7 @@ from numba import njit
 
 from materials.mueller import s_vector
 from straylight.engine.event import outgoing
-from straylight.engine.interactions.registry import Interaction, register_interaction
+from straylight.engine.interactions.registry import Capability, Interaction, register_interaction
 from straylight.engine.interactions.stokes import active_state, incoming_stokes
 from straylight.engine.ray_batch import EVENT_SPECULAR
 from straylight.engine.vec3 import dot3, dot_rows
@@ -44,6 +44,8 @@ def reflect_numpy(rows, d, nf, out):
 @register_interaction
 class DeltaReflection(Interaction):
     name = "delta_reflection"
+    roles = ("mirror",)
+    capabilities = Capability.NONE  # a delta event: no NEE, no area sampling; carries polarization, creates none
 
     def interact(self, event, selection):
         rows = np.ascontiguousarray(event.vertex_rows(selection))

@@ -1,7 +1,7 @@
 """``optical_surface``: mirrors, windows and lenses that also scatter (issue 14; CONTRACTS §5.1, §6.3).
 
 Selected for surface parts whose material has a ``specular`` or ``dielectric`` component
-(``Material.interaction``). Per hit:
+(``ComponentFlags.DELTA``, registry.kind_for). Per hit:
 
 1. **Exact surface.** On a part with an analytic surface (geometry.analytic) the mesh hit is
    refined by Newton onto the surface and the exact normal replaces the facet's. A hit that
@@ -39,7 +39,8 @@ from materials.smooth import Dielectric, reflect, refract
 from straylight.engine import nee
 from straylight.engine.event import Outgoing
 from straylight.engine.interactions.brdf_scatter import LocalFrames
-from straylight.engine.interactions.registry import Interaction, register_interaction
+from materials.flags import ComponentFlags
+from straylight.engine.interactions.registry import Capability, Interaction, register_interaction
 from straylight.engine.interactions.scatter_polarization import Arriving
 from straylight.engine.interactions.stokes import batch_state, incoming_stokes
 from straylight.engine.interactions.stokes import mix as _mix
@@ -56,6 +57,11 @@ def _dot(a, b):
 @register_interaction
 class OpticalSurface(Interaction):
     name = "optical_surface"
+    roles = ("surface",)
+    selected_by = ComponentFlags.DELTA  # a material with a specular or dielectric component
+    # NEE from its scatter lobes; no area sampling (exact normals, the Fresnel split is the walk's);
+    # its Fresnel interfaces polarize
+    capabilities = Capability.NEE | Capability.POLARIZES
 
     def interact(self, event, selection):
         spec, hit, rays, kern = event.spec, event.hits, event.rays, event.kernels
@@ -211,7 +217,7 @@ class OpticalSurface(Interaction):
         s_local = np.stack([_dot(s[sel], frame.tangent), _dot(s[sel], frame.bitangent), _dot(s[sel], nf)], axis=-1)
         polar_mat = np.array([is_polarizing(m) for m in spec.materials], bool)[mat[sel]]
         arr = Arriving(st, S[sel], s_local, polar_mat, frame, event.rays.ray[verts], event.rays.depth[verts])
-        if event.settings.nee and len(event.scene.det_parts):
+        if event.settings.nee and self.allows(Capability.NEE) and len(event.scene.det_parts):
             w_vertex = None if event.first_vertex is None else event.first_vertex.vertex_weights(event, verts)
             nee.estimate(event, verts, frame, w_vertex, evaluate=arr.nee_evaluate(spec.materials))
         # the lobe branch: the material's own draw, u[:, 0] re-used within the branch's interval

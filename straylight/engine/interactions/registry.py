@@ -1,23 +1,55 @@
-"""Surface interactions: what happens where a ray meets a part. The extension point of the engine.
+"""Surface interactions: what happens where a ray meets a part. The extension point of the engine,
+and the one place that decides which kind a part gets and what the estimators may do there.
 
-Every part gets one interaction kind, by name, from :func:`interaction_name` (its role, and for a
-``surface`` part its material's ``interaction`` attribute, default ``"brdf_scatter"``). Kinds:
+Every kind declares (class attributes of :class:`Interaction`):
 
-- terminal ones, tallied by the hit stage itself (straylight.engine.hits): ``detection``
-  (detector parts) and ``absorption`` (absorber parts);
-- continuing ones, called by the walk once per event with all the hits of their kind:
-  ``brdf_scatter`` (importance-sample the material, NEE toward the detectors, target MIS) and
-  ``delta_reflection`` (mirror parts: specular reflection, weight x R).
+- ``roles``: the part roles it serves (``surface``, ``mirror``, ``absorber``, ``detector``);
+- ``selected_by``: the material flags (:class:`materials.flags.ComponentFlags`) that choose it
+  among the kinds of its role; ``NONE`` marks the role's default kind;
+- ``terminal``: tallied by the hit stage itself (detection, absorption), never called;
+- ``capabilities``: what the estimators may do with its vertices (:class:`Capability`).
 
-A new kind (refraction, Fresnel-split reflection, polarization...) is a subclass of
-:class:`Interaction` registered with :func:`register_interaction` in a module imported by
-``straylight/engine/interactions/__init__.py``; a material selects it by name
-(``interaction = "my_kind"`` on its class). The walk does not change (docs/engine.md, "How to add
-an interaction kind").
+:func:`kind_for` picks a part's kind from its role and its material's declared flags (never
+from a name); :func:`part_kinds` gives every part's kind and :func:`parts_with` the parts whose
+kind has a capability. The estimators (straylight.engine.nee, first_vertex, second_vertex, and
+the target mixture) ask :func:`parts_with` / :meth:`Interaction.allows`, so a new kind says once
+what it supports and the strategies follow (docs/engine.md, "Capabilities"). The contract test
+(tests/straylight/test_engine_contract.py) runs every kind under every estimator.
+
+Built-in kinds: ``detection`` (detector parts) and ``absorption`` (absorber parts), terminal;
+``brdf_scatter`` (surface parts whose material has no delta component), ``optical_surface``
+(surface parts with a delta component: Fresnel branching, refinement, polarization) and
+``delta_reflection`` (mirror parts), continuing. Modelled on Mitsuba 3 (``BSDFFlags`` read by
+``src/integrators/path.cpp``) and pbrt-v4 (``BxDFFlags``, ``wavefront/surfscatter.cpp``).
 """
 from __future__ import annotations
 
-INTERACTIONS: dict = {}  # name -> Interaction instance
+import enum
+
+import numpy as np
+
+from materials.flags import ComponentFlags, flags_of
+from straylight.engine.roles import ROLE_NAMES
+
+INTERACTIONS: dict = {}  # name -> Interaction instance (names are labels for messages, never compared)
+
+
+class Capability(enum.Flag):
+    """What the estimators may do with the vertices of an interaction kind."""
+
+    NONE = 0
+    #: next-event estimation toward the detectors from its vertices; a walk hit on a detector
+    #: right after such a vertex keeps its MIS share against NEE (straylight.engine.hits)
+    NEE = enum.auto()
+    #: its parts may be area-sampled as the first scatter vertex (straylight.engine.first_vertex)
+    FIRST_VERTEX = enum.auto()
+    #: its vertices may start, and its parts hold, second-vertex samples (straylight.engine.second_vertex)
+    SECOND_VERTEX = enum.auto()
+    #: its scatter directions mix in target-part area sampling by MIS (straylight.engine.targets)
+    TARGET_MIS = enum.auto()
+    #: it turns unpolarized light into polarized light (Fresnel interfaces): estimators that
+    #: evaluate their vertices unpolarized must stay out of scenes with it
+    POLARIZES = enum.auto()
 
 
 class Interaction:
@@ -35,32 +67,100 @@ class Interaction:
     the next ray state are the walk's (straylight.engine.advance): they follow from ``throughput``.
     """
 
-    name = ""
+    name = ""  # a label for messages and docs
+    roles: tuple = ()
+    selected_by = ComponentFlags.NONE
     terminal = False  # tallied by the hit stage; never called
+    capabilities = Capability.NONE
+
+    def allows(self, capability: Capability) -> bool:
+        """Whether this kind declares ``capability``."""
+        return bool(self.capabilities & capability)
 
     def interact(self, event, selection):
         raise NotImplementedError
 
 
 def register_interaction(cls):
-    """Class decorator: register one instance of ``cls`` under ``cls.name``."""
+    """Class decorator: register one instance of ``cls`` under ``cls.name`` after checking its
+    declarations (roles, and no two kinds of a role selected by the same flags)."""
     if not cls.name:
         raise ValueError(f"{cls.__name__} has no name")
     if cls.name in INTERACTIONS and type(INTERACTIONS[cls.name]) is not cls:
         raise ValueError(f"interaction {cls.name!r} is already registered by {type(INTERACTIONS[cls.name]).__name__}")
+    if not cls.roles:
+        raise ValueError(f"interaction {cls.name!r} declares no roles")
+    for other in INTERACTIONS.values():
+        if other.name == cls.name:
+            continue
+        shared = set(other.roles) & set(cls.roles)
+        if shared and (other.selected_by == cls.selected_by or other.selected_by & cls.selected_by):
+            raise ValueError(f"interaction {cls.name!r} and {other.name!r} are both selected by "
+                             f"{cls.selected_by!r} for role(s) {', '.join(sorted(shared))}")
     INTERACTIONS[cls.name] = cls()
     return cls
 
 
-def interaction_name(role: str, material=None) -> str:
-    """The interaction kind of a part with ``role`` and (for a surface) ``material``."""
-    if role == "detector":
-        return "detection"
-    if role == "absorber":
-        return "absorption"
-    if role == "mirror":
-        return "delta_reflection"
-    return getattr(material, "interaction", None) or "brdf_scatter"
+def kind_for(role: str, material=None) -> Interaction:
+    """The interaction kind of a part with ``role`` and (for a surface) ``material``: the kind of
+    that role whose ``selected_by`` flags the material declares, else the role's default kind."""
+    flags = flags_of(material) if material is not None else ComponentFlags.NONE
+    default = None
+    chosen = []
+    for kind in INTERACTIONS.values():
+        if role not in kind.roles:
+            continue
+        if kind.selected_by == ComponentFlags.NONE:
+            default = kind
+        elif flags & kind.selected_by:
+            chosen.append(kind)
+    if len(chosen) > 1:
+        raise ValueError(f"material flags {flags!r} select several interactions for role {role!r}: "
+                         f"{', '.join(k.name for k in chosen)}")
+    if chosen:
+        return chosen[0]
+    if default is None:
+        raise ValueError(f"no interaction kind serves role {role!r}; known: {', '.join(sorted(INTERACTIONS))}")
+    return default
+
+
+def part_kinds(spec) -> list:
+    """The :class:`Interaction` of every part of ``spec`` (a TraceSpec), in part order."""
+    return [kind_for(ROLE_NAMES[int(role)], spec.materials[m] if m >= 0 else None)
+            for role, m in zip(spec.part_roles, spec.part_material)]
+
+
+def parts_with(spec, capability: Capability) -> np.ndarray:
+    """Bool per part: its kind declares ``capability``."""
+    return PartCapabilities(part_kinds(spec)).parts(capability)
+
+
+class PartCapabilities:
+    """Per part of a scene, what its kind allows (one per batch, on the walk's :class:`Event`):
+    ``parts(cap)`` a bool array over the parts, ``at(cap, part)`` the same for an array of part ids."""
+
+    def __init__(self, kinds):
+        self.kinds = list(kinds)
+        self._cache: dict = {}
+
+    def parts(self, capability: Capability) -> np.ndarray:
+        out = self._cache.get(capability)
+        if out is None:
+            out = np.array([k.allows(capability) for k in self.kinds], dtype=bool)
+            self._cache[capability] = out
+        return out
+
+    def at(self, capability: Capability, part) -> np.ndarray:
+        return self.parts(capability)[part]
+
+
+def kinds_with(spec, capability: Capability) -> list:
+    """The distinct kinds in ``spec`` that declare ``capability`` (first-appearance order)."""
+    out = []
+    for k in part_kinds(spec):
+        if k.allows(capability) and k not in out:
+            out.append(k)
+    return out
 
 
 def get_interaction(name: str) -> Interaction:

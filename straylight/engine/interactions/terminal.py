@@ -3,16 +3,20 @@ that finds the hit point: ``detection`` (count the walk hit, with its MIS share 
 ``absorption``. Registered so that every part has a named kind."""
 from __future__ import annotations
 
-from straylight.engine.interactions.registry import Interaction, register_interaction
+from straylight.engine.interactions.registry import Capability, Interaction, register_interaction
 
 
 @register_interaction
 class Detection(Interaction):
     name = "detection"
+    roles = ("detector",)
     terminal = True
+    capabilities = Capability.NONE
 
 
 @register_interaction
 class Absorption(Interaction):
     name = "absorption"
+    roles = ("absorber",)
     terminal = True
+    capabilities = Capability.NONE

@@ -1,0 +1,51 @@
+"""The variance-reduction strategies of the engine, listed once: what turns each on and which
+interaction-kind capability (straylight.engine.interactions.registry.Capability) it needs.
+
+With all of them off (:data:`ANALOG`) the engine is an analog random walk: every estimator must
+agree with it within its standard errors, on every interaction kind; an estimator engages on a
+kind's parts exactly when the kind declares its capability. tests/straylight/test_engine_contract.py
+runs every kind under every estimator of :data:`ESTIMATORS` (docs/engine.md, "Capabilities"); a
+new estimator is covered by adding a row here.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from straylight.engine.interactions.registry import Capability
+
+#: TraceOptions of the analog walk: no NEE, no vertex sampling, no target mixture
+ANALOG = {"nee": False, "first_vertex_sampling": False, "second_vertex_sampling": False, "target_parts": ()}
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """One strategy: its ``name``, the TraceOptions overrides (on top of :data:`ANALOG`) that turn
+    it on, the kind ``capability`` it needs, and whether the numpy reference walk implements it
+    (``reference``). ``target`` asks for the scene's flat target part in ``target_parts``."""
+
+    name: str
+    options: dict
+    capability: Capability
+    reference: bool = True
+    target: bool = False
+    requires: tuple = field(default=())  # names of estimators it runs on top of
+
+
+ESTIMATORS = (
+    Estimator("nee", {"nee": True}, Capability.NEE),
+    Estimator("first_vertex", {"first_vertex_sampling": True}, Capability.FIRST_VERTEX, reference=False),
+    Estimator("second_vertex", {"nee": True, "second_vertex_sampling": True}, Capability.SECOND_VERTEX,
+              requires=("nee",)),
+    Estimator("target_mis", {"target_fraction": 0.5}, Capability.TARGET_MIS, target=True),
+)
+
+
+def options_for(estimator: Estimator, target_part: str | None = None, **extra) -> dict:
+    """TraceOptions keywords for the analog walk with ``estimator`` on (``target_part``: the scene's
+    flat part for target sampling)."""
+    out = dict(ANALOG)
+    out.update(estimator.options)
+    if estimator.target:
+        out["target_parts"] = (target_part,) if target_part else ()
+    out.update(extra)
+    return out
