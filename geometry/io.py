@@ -14,6 +14,7 @@ Every error names the file.
 """
 from __future__ import annotations
 
+
 import re
 import tomllib
 from contextlib import contextmanager
@@ -32,9 +33,9 @@ MESH_SUFFIXES = (".stl", ".obj", ".ply")
 STEP_SUFFIXES = (".step", ".stp")
 CAD_SUFFIXES = STEP_SUFFIXES + (".iges", ".igs")
 PART_KEYS = ("name", "mesh", "tolerance_mm", "material", "role", "surface", "back_material", "split", "solids",
-             "rotate_deg", "translate_mm")
+             "rotate_deg", "translate_mm", "temperature_k")
 SPLIT_MODES = ("none", "solids")
-SOLID_KEYS = ("material", "role")
+SOLID_KEYS = ("material", "role", "temperature_k")
 
 # files already read while one scene file loads: {(resolved path, what, tolerances): result}. A file used
 # by many parts (15 baffles from one STEP, CONTRACTS §6.4) is read and meshed once per tolerance.
@@ -280,6 +281,8 @@ def load_cad_parts(path, *, name: str | None = None, material: str | None = None
             raise GeometryError(f"{path}: solid {solid!r}: unknown role {solid_role!r}; expected one of "
                                 f"{', '.join(ROLES)}")
         meta = dict(part.meta, solid=solid, label=label)
+        if "temperature_k" in tags:
+            meta["temperature_k"] = check_temperature(tags["temperature_k"], f"{path}: solid {solid!r}")
         parts.append(Part(f"{name}/{solid}", part.vertices_mm, part.faces, tags.get("material", material),
                           solid_role, meta))
     return parts
@@ -360,8 +363,10 @@ def _load_entries(entries: list, path: Path) -> list[Part]:
     from geometry.placement import placement_of
 
     parts = []
+    starts = []  # (first part of the entry, entry): temperatures are set after the loop
     for i, entry in enumerate(entries, start=1):
         where = f"{path}: [[part]] {i}"
+        starts.append((len(parts), entry, where))
         unknown = set(entry) - set(PART_KEYS)
         if unknown:
             raise GeometryError(f"{where}: unknown key(s) {', '.join(sorted(unknown))}; "
@@ -388,7 +393,26 @@ def _load_entries(entries: list, path: Path) -> list[Part]:
             except GeometryError as exc:  # name the scene file and entry, not only the mesh file
                 raise GeometryError(f"{where}: {exc}") from exc
         parts.extend(placed if placement is None else [placement.part(p) for p in placed])
+    _set_temperatures(parts, starts)
     return parts
+
+
+def check_temperature(value, where: str) -> float:
+    """A ``temperature_k`` value (CONTRACTS §7): a finite number >= 0, else a one-line error."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 <= value < float("inf")):
+        raise GeometryError(f"{where}: temperature_k must be a number >= 0 (kelvin), got {value!r}")
+    return float(value)
+
+
+def _set_temperatures(parts: list, starts: list) -> None:
+    """Each entry's ``temperature_k`` into its parts' ``meta`` (a solid override set earlier wins)."""
+    ends = [s for s, _, _ in starts[1:]] + [len(parts)]
+    for (first, entry, where), stop in zip(starts, ends):
+        if "temperature_k" in entry:
+            t = check_temperature(entry["temperature_k"], where)
+            for k in range(first, stop):
+                if "temperature_k" not in parts[k].meta:  # a new meta dict: meshes may be shared (cached)
+                    parts[k] = replace(parts[k], meta=dict(parts[k].meta, temperature_k=t))
 
 
 def _split_entry(entry: dict, path: Path, where: str, tolerance_mm: float) -> list[Part]:

@@ -113,8 +113,11 @@ def _probe_reaches_box(source, lo, hi, n=256) -> bool:
     return bool(np.any(tmax >= np.maximum(tmin, 0.0)))
 
 
-def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
+def load_scene(path, check_watertight: bool = True, sources: bool = True) -> ResolvedScene:
     """Read and resolve a scene TOML (CONTRACTS §6).
+
+    ``sources=False`` (the thermal commands, CONTRACTS §7): ``[[source]]`` entries are ignored
+    and may be absent.
 
     Raises SceneFileError (a ValueError) naming the file and entry for: unknown top-level keys,
     a missing mesh, an unknown material, a surface part without material, a bad or missing source.
@@ -154,8 +157,8 @@ def load_scene(path, check_watertight: bool = True) -> ResolvedScene:
     from materials.jit_start import start_numba
 
     start_numba()  # the sources' probe below is the first compiled code; without scipy.linalg (jit_start)
-    entries = doc.get("source", [])
-    if not isinstance(entries, list) or not entries:
+    entries = doc.get("source", []) if sources else []
+    if sources and (not isinstance(entries, list) or not entries):
         raise SceneFileError(f"{path}: no [[source]] entries")
     sources = []
     lo, hi = scene.bounds_mm

@@ -27,6 +27,7 @@ OWN_GROUPS = (
     "straylight.cli.study",
     "straylight.cli.view",
     "straylight.cli.design",
+    "straylight.cli.thermal",
 )
 COMMAND_GROUP = "straylight.commands"  # entry-point group of the command groups of other packages
 

@@ -1,0 +1,98 @@
+"""``straylight thermal`` and ``straylight exchange`` (CONTRACTS §7).
+
+    straylight thermal SCENE.toml --band-um LO HI (--rays N | --target-rel-error E) [--seed S] --out DIR
+    straylight exchange SCENE.toml --band-um LO HI --rays N [--seed S] --out DIR
+
+``thermal`` writes DIR/thermal.json: self-emission in the band reaching each detector, split by
+the emitting part (parts with ``temperature_k``); DIR/thermal_details.json says how (method,
+traced sub-bands, detector areas, rays, time, and why a --target-rel-error run stopped early). ``exchange`` writes DIR/exchange.json (Mahan's
+distribution factors D_ij with standard errors, escaped fractions, hemispherical band
+emissivities) and DIR/couplings.csv (eps_i A_i D_ij in m^2, for ESATAN-TMS / Thermal Desktop).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser("thermal", help="detector self-emission in a band (Planck, Kirchhoff, narcissus)",
+                              description=__doc__.splitlines()[0])
+    p.add_argument("scene", help="scene file (CONTRACTS §6, parts with temperature_k)")
+    _band(p)
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--rays", type=int, help="rays per detector")
+    g.add_argument("--target-rel-error", type=float, help="trace until the detector power's relative error is at most E")
+    p.add_argument("--method", choices=("reverse", "forward"), default="reverse",
+                   help="reverse: rays from the detector pick up emission at every vertex (default, faster); "
+                        "forward: emission from the parts with next-event estimation")
+    p.add_argument("--max-seconds", type=float, default=600.0, help="time cap for --target-rel-error")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="output directory")
+    p.set_defaults(func=run_thermal)
+
+    e = subparsers.add_parser("exchange", help="radiative distribution factors D_ij and couplings (Mahan)",
+                              description=__doc__.splitlines()[0])
+    e.add_argument("scene", help="scene file (CONTRACTS §6)")
+    _band(e)
+    e.add_argument("--rays", type=int, required=True, help="rays in all (shared by the emitting parts)")
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--out", required=True, help="output directory")
+    e.set_defaults(func=run_exchange)
+
+
+def _band(p):
+    p.add_argument("--band-um", type=float, nargs=2, required=True, metavar=("LO", "HI"),
+                   help="band in micrometres (vacuum wavelengths)")
+
+
+def _load(path):
+    import warnings
+
+    from straylight.scene import SceneWarning, load_scene
+    from straylight.thermal.model import thermal_scene
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)  # non-watertight sheets are normal here
+        rs = load_scene(path, sources=False)
+    return thermal_scene(rs.scene, rs.materials)
+
+
+def run_thermal(args) -> int:
+    import atomicio
+    from straylight.thermal.planck import check_band
+    from straylight.thermal.run import thermal
+
+    check_band(*args.band_um)
+    ts = _load(Path(args.scene))
+    res = thermal(ts, args.band_um, n_rays=args.rays, target_rel_error=args.target_rel_error, seed=args.seed,
+                  method=args.method, max_seconds=args.max_seconds)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    atomicio.write_json(out / "thermal.json", res.to_json_dict())
+    atomicio.write_json(out / "thermal_details.json", res.details())
+    for name, d in res.detectors.items():
+        print(f"{name}: {d.power_w:.6g} +- {d.stderr_w:.2g} W, {d.irradiance_w_m2:.6g} W/m^2 "
+              f"({args.band_um[0]:g}-{args.band_um[1]:g} um, {d.rays} rays)")
+        for part, t in sorted(d.by_part.items(), key=lambda kv: -kv[1].power_w):
+            print(f"  {part}: {t.power_w:.6g} +- {t.stderr_w:.2g} W")
+    if res.stopped:
+        print(res.stopped)
+    print(f"written {out}/thermal.json, {out}/thermal_details.json")
+    return 0
+
+
+def run_exchange(args) -> int:
+    from straylight.thermal.exchange import exchange
+    from straylight.thermal.planck import check_band
+
+    check_band(*args.band_um)
+    if args.rays < 2:
+        raise ValueError(f"--rays must be >= 2, got {args.rays}")
+    ts = _load(Path(args.scene))
+    res = exchange(ts, args.band_um, n_rays=args.rays, seed=args.seed)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    res.write(out)
+    print(res.summary())
+    print(f"written {out}/exchange.json, {out}/couplings.csv")
+    return 0

@@ -1,0 +1,172 @@
+"""Radiative distribution factors (Mahan, *Radiation Heat Transfer: A Statistical Approach*,
+2002, ch. 5-6): D_ij is the fraction of the band power emitted by part i that part j absorbs
+after any number of reflections and transmissions (CONTRACTS §7.2).
+
+Each part with a front emissivity > 0 emits at its ``temperature_k`` (300 K where it has none):
+uniform points of its front, directions with density eps(theta) cos(theta) / (pi eps_h) (exact,
+so all rays weigh the same), traced at each sub-band's wavelength with rays in proportion to the
+part's band power there. At every hit the walk books the power it removes (weight x (1 -
+throughput), what Russian roulette removes or adds, and what is left at the event cap) to the
+part hit; absorbers and detectors take everything. So each row plus ``escaped`` is exactly 1 and
+the estimate of D_ij is unbiased (roulette is). The band value is the emitted-power-weighted mean
+over sub-bands; ``emissivity`` is the hemispherical band emissivity, so that
+eps_i A_i D_ij = eps_j A_j D_ji at equal temperatures (reciprocity).
+"""
+from __future__ import annotations
+
+import csv
+import io
+from dataclasses import dataclass
+
+import numpy as np
+
+from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
+from straylight.thermal.walk import (CHUNK_RAYS, EVENT_COLUMNS, MAX_EVENTS, AreaSampler, cast, chunk_rng,
+                                     emission_directions, interact, roulette)
+
+DEFAULT_TEMPERATURE_K = 300.0
+
+
+@dataclass
+class ExchangeResult:
+    band_um: tuple
+    names: list
+    area_mm2: np.ndarray
+    emissivity: np.ndarray
+    d: np.ndarray  # (P, P)
+    stderr: np.ndarray  # (P, P)
+    escaped: np.ndarray  # (P,)
+    escaped_stderr: np.ndarray
+    rays: int
+    seed: int
+    temperatures_k: np.ndarray
+
+    def couplings_m2(self) -> np.ndarray:
+        """eps_i A_i D_ij in m^2."""
+        return (self.emissivity * self.area_mm2 * 1e-6)[:, None] * self.d
+
+    def to_json_dict(self) -> dict:
+        """exchange.json (CONTRACTS §7.2), exactly its keys."""
+        return {"band_um": [float(self.band_um[0]), float(self.band_um[1])],
+                "parts": [{"name": n, "area_mm2": float(a), "emissivity": float(e)}
+                          for n, a, e in zip(self.names, self.area_mm2, self.emissivity)],
+                "distribution_factors": self.d.tolist(), "stderr": self.stderr.tolist(),
+                "escaped": self.escaped.tolist()}
+
+    def couplings_csv(self) -> str:
+        """Matrix CSV: a header ``part,<name j>...`` and one row per emitting part i of eps_i A_i D_ij (m^2)."""
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow(["part"] + list(self.names))
+        for name, row in zip(self.names, self.couplings_m2()):
+            w.writerow([name] + [f"{x:.9g}" for x in row])
+        return buf.getvalue()
+
+    def write(self, directory) -> None:
+        from pathlib import Path
+
+        import atomicio
+
+        directory = Path(directory)
+        atomicio.write_json(directory / "exchange.json", self.to_json_dict())
+        atomicio.write_text(directory / "couplings.csv", self.couplings_csv())
+        atomicio.write_json(directory / "exchange_details.json", {
+            "rays": self.rays, "seed": self.seed, "escaped_stderr": self.escaped_stderr.tolist(),
+            "temperatures_k": dict(zip(self.names, map(float, self.temperatures_k))),
+            "couplings_m2": self.couplings_m2().tolist()})
+
+    def summary(self) -> str:
+        lines = [f"distribution factors D_ij, {self.band_um[0]:g}-{self.band_um[1]:g} um ({self.rays} rays)"]
+        for i, n in enumerate(self.names):
+            top = np.argsort(-self.d[i])[:3]
+            parts = ", ".join(f"{self.names[j]} {self.d[i, j]:.4g}" for j in top if self.d[i, j] > 0)
+            lines.append(f"  {n} (eps {self.emissivity[i]:.4g}): {parts}; escaped {self.escaped[i]:.4g}")
+        return "\n".join(lines)
+
+
+def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
+    """D_ij of every part of ``ts`` (straylight.thermal.model.ThermalScene) in the band."""
+    from straylight.thermal.model import sub_bands
+
+    lo, hi = check_band(*band_um)
+    P = ts.n_parts
+    temps = np.where(ts.temperature_k > 0, ts.temperature_k, DEFAULT_TEMPERATURE_K)
+    bands = sub_bands(lo, hi, ts.wavelength_dependent())
+    rad = np.array([[band_radiance_w_m2_sr(a, b, t) for t in temps] for a, b, _ in bands])  # (K, P)
+    eps_h = np.array([[ts.sides_at(c).hemispherical(p, 0) for p in range(P)] for _, _, c in bands])  # (K, P)
+    emitted = rad * eps_h
+    band_eps = emitted.sum(axis=0) / rad.sum(axis=0)
+    emitters = [p for p in range(P) if band_eps[p] > 0]
+    per_part = max(2, int(n_rays) // max(1, len(emitters)))
+    d = np.zeros((P, P))
+    var = np.zeros((P, P))
+    esc = np.ones(P)
+    esc_var = np.zeros(P)
+    for i in emitters:
+        share = emitted[:, i] / emitted[:, i].sum()
+        sampler = AreaSampler.of_part(ts, i)
+        esc[i] = 0.0
+        for k, (_, _, lam) in enumerate(bands):
+            n_k = int(round(per_part * share[k]))
+            if share[k] <= 0 or n_k < 2:
+                n_k = 2 if share[k] > 0 else 0
+            if n_k == 0:
+                continue
+            s1, s2 = np.zeros(P + 1), np.zeros(P + 1)
+            chunk, left = 0, n_k
+            while left > 0:
+                m = min(CHUNK_RAYS, left)
+                a, b = _emit_chunk(ts, ts.sides_at(lam), i, sampler, seed, i * 64 + k, chunk, m)
+                s1 += a
+                s2 += b
+                chunk += 1
+                left -= m
+            mean = s1 / n_k
+            v = np.maximum(s2 - s1 * s1 / n_k, 0.0) / (n_k * (n_k - 1.0))
+            d[i] += share[k] * mean[:P]
+            var[i] += share[k] ** 2 * v[:P]
+            esc[i] += share[k] * mean[P]
+            esc_var[i] += share[k] ** 2 * v[P]
+    return ExchangeResult((lo, hi), list(ts.part_names), np.array([ts.part_area_mm2(p) for p in range(P)]),
+                          band_eps, d, np.sqrt(var), esc, np.sqrt(esc_var), int(n_rays), int(seed), temps)
+
+
+def _emit_chunk(ts, sides, i, sampler, seed, stream, chunk, n):
+    """Per-ray absorbed fractions of one chunk from part i: sums (P + 1,) and sums of squares (the
+    last entry is the escaped fraction)."""
+    P = ts.n_parts
+    rng = chunk_rng(seed, stream + (2 << 20), chunk)
+    o, nrm = sampler.sample(rng.random((n, 3)))
+    d = emission_directions(sides.eps[i, 0], nrm, rng)
+    o = o + ts.eps_mm * nrm
+    w = np.ones(n)
+    ray = np.arange(n)
+    book = np.zeros((P + 1) * n)  # (part or escaped, ray)
+    terminal = np.array([r in ("absorber", "detector") for r in ts.roles])
+    for ev in range(MAX_EVENTS):
+        if len(ray) == 0:
+            break
+        U = rng.random((len(ray), EVENT_COLUMNS))
+        hit = cast(ts, o, d)
+        alive = hit.tri >= 0
+        part = np.where(alive, hit.part, P)
+        term = alive & terminal[np.where(alive, part, 0)]
+        stop = ~alive | term
+        np.add.at(book, part[stop] * n + ray[stop], w[stop])
+        cont = np.flatnonzero(~stop)
+        if len(cont) == 0:
+            break
+        out = interact(ts, sides, hit, cont, d[cont], U[cont])
+        w_thr = w[cont] * out.throughput
+        w_new = roulette(w_thr, 1.0, U[cont, 4])
+        if ev == MAX_EVENTS - 1:
+            w_new = np.zeros_like(w_new)  # truncated: booked to the part hit last
+        np.add.at(book, part[cont] * n + ray[cont], w[cont] - w_new)
+        keep = w_new > 0
+        c = cont[keep]
+        o = hit.point[c] + (ts.eps_mm * out.side[keep])[:, None] * hit.facing[c]
+        d = out.direction[keep]
+        w = w_new[keep]
+        ray = ray[c]
+    x = book.reshape(P + 1, n)
+    return x.sum(axis=1), (x * x).sum(axis=1)

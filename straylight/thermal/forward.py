@@ -1,0 +1,142 @@
+"""Forward thermal estimator: emission from every part at a temperature, with next-event
+estimation (NEE) toward the detector at every vertex.
+
+A ray picks its emitting part j with probability Phi_j / Phi (Phi_j = pi B_band(T_j) A_j eps_h,j,
+the part's emitted band power), a uniform point of its front and a direction with density
+eps(theta) cos(theta) / (pi eps_h) (exact, by rejection: straylight.thermal.walk), so every ray
+carries Phi. NEE joins each vertex to a uniform point y of the detector's front (area A_d)::
+
+    emission vertex:  W eps(theta) cos_x cos_d A_d / (pi eps_h r^2)       (the emission density)
+    scatter vertex:   W f(wi, wo) cos_x cos_d A_d / r^2                   (the material's lobes)
+
+and the walk's own detector hits count only after a specular or refracted event (the paths NEE
+cannot make), so nothing is counted twice. Unbiased; compared with the reverse estimator in
+benchmarks/thermal.py.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from straylight.thermal.walk import (EVENT_COLUMNS, MAX_EVENTS, AreaSampler, cast, chunk_rng, emission_directions,
+                                     frame, interact, roulette, to_local)
+
+
+class ForwardEstimator:
+    """Chunk function ``(sides, radiance (P,), seed, stream, chunk, n) -> (S1 (P,), S2 (P,), T1, T2)``
+    for detector part ``det`` whose receiving front is ``det_sampler``."""
+
+    def __init__(self, ts, det: int, det_sampler: AreaSampler):
+        self.ts = ts
+        self.det = det
+        self.det_sampler = det_sampler
+        self.samplers = {}
+
+    def _sampler(self, p):
+        if p not in self.samplers:
+            self.samplers[p] = AreaSampler.of_part(self.ts, p)
+        return self.samplers[p]
+
+    def __call__(self, sides, radiance, seed, stream, chunk, n):
+        ts = self.ts
+        P = ts.n_parts
+        rng = chunk_rng(seed, stream + (1 << 20), chunk)
+        eps_h = np.array([sides.hemispherical(p, 0) for p in range(P)])
+        phi = np.array([np.pi * radiance[p] * ts.part_area_mm2(p) * 1e-6 * eps_h[p] for p in range(P)])
+        total = float(phi.sum())
+        x = np.zeros(n)
+        if total <= 0:
+            return np.zeros(P), np.zeros(P), 0.0, 0.0
+        emitter = np.minimum(np.searchsorted(np.cumsum(phi) / total, rng.random(n), side="right"), P - 1)
+        o = np.zeros((n, 3))
+        nrm = np.zeros((n, 3))
+        d = np.zeros((n, 3))
+        u3 = rng.random((n, 3))
+        for p in np.unique(emitter):
+            sel = emitter == p
+            o[sel], nrm[sel] = self._sampler(p).sample(u3[sel])
+            d[sel] = emission_directions(sides.eps[p, 0], nrm[sel], rng)
+        w = np.full(n, total)
+        ray = np.arange(n)
+        # NEE from the emission points
+        cos_x, cos_d, r2, ok, _ = self._connect(o, nrm, rng.random((n, 3)))
+        th = np.arccos(np.clip(cos_x, 0.0, 1.0))
+        e = sides.emissivity(emitter, np.zeros(n, np.int64), th)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x += np.where(ok, w * e * cos_x * cos_d * self.det_sampler.area_mm2 / (np.pi * eps_h[emitter] * r2), 0.0)
+        o = o + ts.eps_mm * nrm
+        delta = np.zeros(n, bool)
+        terminal = np.array([r in ("absorber", "detector") for r in ts.roles])
+        for _ in range(MAX_EVENTS):
+            if len(ray) == 0:
+                break
+            U = rng.random((len(ray), EVENT_COLUMNS))
+            hit = cast(ts, o, d)
+            alive = hit.tri >= 0
+            part = np.where(alive, hit.part, 0)
+            on_det = alive & (part == self.det) & hit.front & delta
+            np.add.at(x, ray[on_det], w[on_det])
+            cont = np.flatnonzero(alive & ~terminal[part])
+            if len(cont) == 0:
+                break
+            self._nee_scatter(sides, hit, cont, d, w, ray, U, x)
+            out = interact(ts, sides, hit, cont, d[cont], U[cont])
+            w_new = roulette(w[cont] * out.throughput, total, U[cont, 4])
+            keep = w_new > 0
+            c = cont[keep]
+            o = hit.point[c] + (ts.eps_mm * out.side[keep])[:, None] * hit.facing[c]
+            d = out.direction[keep]
+            w = w_new[keep]
+            delta = out.delta[keep]
+            ray = ray[c]
+        s1 = np.bincount(emitter, weights=x, minlength=P)
+        s2 = np.bincount(emitter, weights=x * x, minlength=P)
+        return s1, s2, float(x.sum()), float((x * x).sum())
+
+    def _connect(self, o, nrm_x, u3):
+        """Shadow rays from points ``o`` (facing normals ``nrm_x``) to uniform detector points:
+        (cos at x, cos at the detector, r^2, unblocked and front-to-front, unit directions)."""
+        ts = self.ts
+        y, ny = self.det_sampler.sample(u3)
+        v = y - o
+        r2 = np.einsum("ij,ij->i", v, v)
+        r = np.sqrt(r2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            w = v / r[:, None]
+        cos_x = np.einsum("ij,ij->i", w, nrm_x)
+        cos_d = -np.einsum("ij,ij->i", w, ny)
+        ok = (cos_x > 0) & (cos_d > 0) & (r > 2 * ts.eps_mm)
+        idx = np.flatnonzero(ok)
+        if len(idx):
+            start = o[idx] + ts.eps_mm * nrm_x[idx]
+            blocked = ts.intersector.occluded(start, w[idx], r[idx] - 3 * ts.eps_mm)
+            ok[idx[blocked]] = False
+        return cos_x, cos_d, r2, ok, w
+
+    def _nee_scatter(self, sides, hit, cont, d, w, ray, U, x):
+        """NEE from scatter vertices of surface parts with lobes (their f toward the detector)."""
+        ts = self.ts
+        part = hit.part[cont]
+        surf = np.array([ts.roles[p] == "surface" for p in range(ts.n_parts)])[part]
+        rows = cont[surf]
+        if len(rows) == 0:
+            return
+        nf = hit.facing[rows]
+        cos_x, cos_d, r2, ok, wdir = self._connect(hit.point[rows], nf, U[rows, 5:8])
+        idx = np.flatnonzero(ok)
+        if len(idx) == 0:
+            return
+        rr = rows[idx]
+        side = np.where(hit.front[rr], 0, 1)
+        p = hit.part[rr]
+        t, b = frame(nf[idx])
+        wi = to_local(-d[rr], t, b, nf[idx])
+        wo = to_local(wdir[idx], t, b, nf[idx])
+        f = np.zeros(len(rr))
+        mats = sides.material
+        ids = np.array([id(mats[a][s]) for a, s in zip(p, side)])
+        for key in np.unique(ids):
+            sel = np.flatnonzero(ids == key)
+            m = mats[p[sel[0]]][side[sel[0]]]
+            f[sel] = m.brdf(wi[sel], wo[sel], "u")
+        contrib = w[rr] * f * cos_x[idx] * cos_d[idx] * self.det_sampler.area_mm2 / r2[idx]
+        np.add.at(x, ray[rr], contrib)

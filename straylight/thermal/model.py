@@ -1,0 +1,205 @@
+"""A scene prepared for thermal tracing: triangles, parts, roles, temperatures, the materials of
+each side at each traced wavelength, and Kirchhoff emissivity tables (CONTRACTS §7).
+
+Conventions (docs/thermal.md):
+
+- A part emits from the front of each triangle (the side its normal points to: outward for a
+  closed solid; for an analytic surface the side of ``axis``). Hit from the front, a triangle
+  shows its part's ``material``; from the back, ``back_material`` when the part has one, else the
+  same material (the engine's two-sided convention).
+- epsilon(lambda, theta) = 1 - rho - T of the material on that side (materials.wavelength);
+  ``absorber`` and ``detector`` parts 1; ``mirror`` parts 1 - the mirror reflectance.
+- Emissivity depends on the polar angle only (isotropic materials): a table on ``THETA_GRID``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from materials.wavelength import at_wavelength, emissivity, hemispherical_emissivity, wavelength_dependent
+
+THETA_GRID = np.linspace(0.0, np.pi / 2, 181)  # 0.5 deg: the tables are interpolated linearly in theta
+MAX_SUB_BANDS = 16
+SUB_BAND_RATIO = 1.1  # largest hi/lo of one traced sub-band when a material depends on wavelength
+
+
+def sub_bands(lo_um: float, hi_um: float, dependent: bool) -> list[tuple[float, float, float]]:
+    """[(lo, hi, traced wavelength um)]: the band itself when no material depends on wavelength,
+    else sub-bands equal in log(lambda) with hi/lo <= 1.1 (at most 16), each traced at its
+    geometric centre (the band integral then errs at second order in the material's change
+    across a sub-band)."""
+    if not dependent:
+        return [(lo_um, hi_um, float(np.sqrt(lo_um * hi_um)))]
+    k = int(min(MAX_SUB_BANDS, max(2, np.ceil(np.log(hi_um / lo_um) / np.log(SUB_BAND_RATIO)))))
+    edges = np.geomspace(lo_um, hi_um, k + 1)
+    return [(float(a), float(b), float(np.sqrt(a * b))) for a, b in zip(edges[:-1], edges[1:])]
+
+
+@dataclass(eq=False)
+class ThermalScene:
+    """Arrays of one scene for the thermal walks (built by :func:`thermal_scene`)."""
+
+    scene: object
+    part_names: tuple
+    roles: tuple  # per part: "surface" | "mirror" | "absorber" | "detector"
+    temperature_k: np.ndarray  # (P,) 0 = does not emit
+    materials: dict  # resolved material name -> model
+    triangles_mm: np.ndarray  # (T, 3, 3)
+    triangle_part: np.ndarray  # (T,)
+    normals: np.ndarray  # (T, 3) unit, the front side
+    plane_d: np.ndarray  # (T,) n . v0
+    areas_mm2: np.ndarray  # (T,)
+    eps_mm: float
+    mirror_reflectance: float = 1.0
+    planes: dict = field(default_factory=dict)  # part -> (vertex, unit axis, r0, r1): exact analytic disks
+    _isect: object = field(default=None, repr=False)
+    _sides: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def n_parts(self) -> int:
+        return len(self.part_names)
+
+    @property
+    def intersector(self):
+        if self._isect is None:
+            from straylight.intersect.embree import EmbreeIntersector
+
+            self._isect = EmbreeIntersector(self.triangles_mm)
+        return self._isect
+
+    def part_index(self, name: str) -> int:
+        return self.part_names.index(name)
+
+    def part_area_mm2(self, p: int) -> float:
+        if p in self.planes:
+            _, _, r0, r1 = self.planes[p]
+            return float(np.pi * (r1 * r1 - r0 * r0))
+        return float(self.areas_mm2[self.triangle_part == p].sum())
+
+    def side_materials(self, p: int) -> tuple:
+        """(front, back) material models of part ``p`` (None for non-surface roles)."""
+        part = self.scene.parts[p]
+        if part.role != "surface":
+            return None, None
+        front = self.materials[part.material]
+        back = self.materials[part.back_material] if getattr(part, "back_material", None) else front
+        return front, back
+
+    def wavelength_dependent(self) -> bool:
+        return any(wavelength_dependent(m) for m in self.materials.values())
+
+    def sides_at(self, wavelength_um: float) -> "SideTables":
+        """Materials and emissivity tables of every part's two sides at ``wavelength_um`` (cached)."""
+        key = round(float(wavelength_um), 12)
+        if key not in self._sides:
+            self._sides[key] = _side_tables(self, float(wavelength_um))
+        return self._sides[key]
+
+
+@dataclass(eq=False)
+class SideTables:
+    """Per part and side (0 front, 1 back): the material at one wavelength and 1 - rho - T on
+    THETA_GRID (for absorbers and detectors 1; mirrors 1 - R)."""
+
+    wavelength_um: float
+    material: list  # [P][2] model or None
+    eps: np.ndarray  # (P, 2, G)
+
+    def emissivity(self, part, side, theta):
+        """epsilon at (part, side, theta rad) arrays, linear in theta."""
+        g = (len(THETA_GRID) - 1) * np.clip(theta, 0.0, np.pi / 2) / (np.pi / 2)
+        i = np.minimum(g.astype(np.int64), len(THETA_GRID) - 2)
+        f = g - i
+        e = self.eps[part, side]
+        return e[np.arange(len(i)), i] * (1 - f) + e[np.arange(len(i)), i + 1] * f
+
+    def hemispherical(self, p: int, side: int = 0) -> float:
+        return hemispherical_emissivity(self.eps[p, side], THETA_GRID)
+
+
+def _side_tables(ts: ThermalScene, wavelength_um: float) -> SideTables:
+    lam_nm = wavelength_um * 1e3
+    cache = {}
+    mats, eps = [], np.zeros((ts.n_parts, 2, len(THETA_GRID)))
+    for p, role in enumerate(ts.roles):
+        if role in ("absorber", "detector"):
+            mats.append([None, None])
+            eps[p] = 1.0
+            continue
+        if role == "mirror":
+            mats.append([None, None])
+            eps[p] = 1.0 - ts.mirror_reflectance
+            continue
+        pair = []
+        for s, m in enumerate(ts.side_materials(p)):
+            if id(m) not in cache:
+                mm = at_wavelength(m, lam_nm)
+                cache[id(m)] = (mm, emissivity(mm, THETA_GRID), _back_emissivity(mm))
+            mm, e_front, e_back = cache[id(m)]
+            pair.append(mm)
+            # the back side of a dielectric is its medium (Fresnel from inside)
+            eps[p, s] = e_back if (s == 1 and e_back is not None) else e_front
+        mats.append(pair)
+    return SideTables(wavelength_um, mats, eps)
+
+
+def _back_emissivity(material):
+    """1 - rho - T seen from inside a dielectric's medium, None for other materials."""
+    smooth = getattr(material, "smooth", None)
+    if smooth is None or not hasattr(smooth, "n_outside"):  # only a dielectric has a medium behind it
+        return None
+    c = np.cos(THETA_GRID)
+    coef = material.smooth_coefficients(c, back=True)
+    rho = material.lobe_reflectance(THETA_GRID, "u") + coef.reflectance("u") + coef.transmittance("u")
+    return np.clip(1.0 - rho, 0.0, 1.0)
+
+
+def thermal_scene(scene, materials: dict, mirror_reflectance: float = 1.0) -> ThermalScene:
+    """Arrays of ``scene`` (geometry.Scene) with resolved ``materials`` for the thermal walks."""
+    from straylight.engine.spec import scene_epsilon
+
+    tris, parts, planes = [], [], {}
+    for p, prt in enumerate(scene.parts):
+        surf = getattr(prt, "surface", None)
+        if getattr(surf, "kind", None) == "plane":
+            planes[p] = (np.asarray(surf.vertex_mm, float), np.asarray(surf.axis, float) / np.linalg.norm(surf.axis),
+                         float(surf.inner_radius_mm), float(surf.outer_radius_mm))
+            t = _circumscribed_annulus(*planes[p])
+        else:
+            t = prt.vertices_mm[prt.faces]
+        tris.append(t)
+        parts.append(np.full(len(t), p, dtype=np.int64))
+    tri = np.concatenate(tris)
+    part = np.concatenate(parts)
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    twice = np.linalg.norm(cross, axis=1)
+    normals = cross / np.where(twice > 0, twice, 1.0)[:, None]
+    temps = np.array([float(p.meta.get("temperature_k", 0.0)) for p in scene.parts])
+    return ThermalScene(scene=scene, part_names=tuple(p.name for p in scene.parts),
+                        roles=tuple(p.role for p in scene.parts), temperature_k=temps, materials=dict(materials),
+                        triangles_mm=tri, triangle_part=part, normals=normals,
+                        plane_d=np.einsum("ij,ij->i", normals, tri[:, 0]), areas_mm2=0.5 * twice,
+                        eps_mm=scene_epsilon(tri), mirror_reflectance=float(mirror_reflectance), planes=planes)
+
+
+PLANE_SEGMENTS = 256
+
+
+def _circumscribed_annulus(vertex, axis, r0, r1, n=PLANE_SEGMENTS):
+    """Triangles (m, 3, 3) covering the annulus r0..r1 (normals along ``axis``): the outer polygon
+    circumscribes the outer circle and the inner one is inscribed in the hole, so the mesh covers
+    the exact annulus; hits outside it are passed through (straylight.thermal.walk.cast)."""
+    from straylight.thermal.walk import frame
+
+    t, b = frame(axis[None, :])
+    t, b = t[0], b[0]
+    phi = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    ring = np.cos(phi)[:, None] * t + np.sin(phi)[:, None] * b
+    outer = vertex + r1 / np.cos(np.pi / n) * ring
+    j = np.roll(np.arange(n), -1)
+    if r0 <= 0:
+        c = np.broadcast_to(vertex, outer.shape)
+        return np.stack([c, outer, outer[j]], axis=1)
+    inner = vertex + r0 * ring
+    return np.concatenate([np.stack([inner, outer, outer[j]], axis=1), np.stack([inner, outer[j], inner[j]], axis=1)])

@@ -1,0 +1,68 @@
+"""Reverse (adjoint) thermal estimator: rays leave the detector's front and pick up emission at
+every vertex, as FRED does.
+
+By reciprocity the band power a detector of front area A receives is P = A pi E[L], with L the
+radiance arriving along a cosine-distributed direction from a uniform point of the front. Along
+the reverse path y_1, y_2, ... (each vertex reached with throughput w_k, w_1 = 1)::
+
+    L = sum_k w_k epsilon_{j_k}(theta_k) B_band(T_{j_k})
+
+where theta_k is the angle of the path at y_k on the emitting (front) side of part j_k (Kirchhoff:
+the emitted radiance there is epsilon(theta) B), and w_{k+1} = w_k f cos / pdf from the material's
+own sampling (swapped arguments: exact for reciprocal BRDFs). The pickup is the expected emission,
+not a sampled one, so a black wall's contribution has no variance at all. Absorbers and detectors
+(epsilon = 1) end the path; a path that comes back to the detector picks up the detector's own
+emission (narcissus).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from straylight.thermal.walk import (EVENT_COLUMNS, MAX_EVENTS, AreaSampler, cast, chunk_rng, cosine_directions,
+                                     interact, roulette)
+
+
+def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, seed: int, stream: int, chunk: int,
+                  n: int):
+    """One chunk of ``n`` reverse rays. ``radiance`` (P,): B_band of each part's temperature in this
+    sub-band (W m^-2 sr^-1). Returns (per-part sums S1 (P,), S2 (P,), total S1, total S2) of the
+    per-ray power estimates A pi L in W (areas in mm^2 -> m^2)."""
+    rng = chunk_rng(seed, stream, chunk)
+    P = ts.n_parts
+    u = rng.random((n, 5))
+    o, nrm = det_sampler.sample(u[:, :3])
+    d = cosine_directions(nrm, u[:, 3:5])
+    o = o + ts.eps_mm * nrm
+    w = np.ones(n)
+    ray = np.arange(n)
+    pick = np.zeros(P * n)  # per (part, ray) radiance pickups per unit B
+    terminal = np.array([r in ("absorber", "detector") for r in ts.roles])
+    emits = ts.temperature_k > 0
+    for _ in range(MAX_EVENTS):
+        if len(ray) == 0:
+            break
+        U = rng.random((len(ray), EVENT_COLUMNS))
+        hit = cast(ts, o, d)
+        alive = hit.tri >= 0
+        part = hit.part
+        front = alive & hit.front
+        take = front & emits[np.where(alive, part, 0)]
+        if take.any():
+            e = sides.emissivity(part[take], np.zeros(take.sum(), np.int64), hit.theta[take])
+            np.add.at(pick, part[take] * n + ray[take], w[take] * e)
+        cont = np.flatnonzero(alive & ~terminal[np.where(alive, part, 0)])
+        if len(cont) == 0:
+            break
+        out = interact(ts, sides, hit, cont, d[cont], U[cont])
+        w_new = roulette(w[cont] * out.throughput, 1.0, U[cont, 4])
+        keep = w_new > 0
+        c = cont[keep]
+        o = hit.point[c] + (ts.eps_mm * out.side[keep])[:, None] * hit.facing[c]
+        d = out.direction[keep]
+        w = w_new[keep]
+        ray = ray[c]
+    scale = det_sampler.area_mm2 * 1e-6 * np.pi
+    per = pick.reshape(P, n) * scale
+    x = per * radiance[:, None]
+    tot = x.sum(axis=0)
+    return x.sum(axis=1), (x * x).sum(axis=1), float(tot.sum()), float((tot * tot).sum())

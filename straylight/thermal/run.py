@@ -1,0 +1,235 @@
+"""Detector self-emission in a band: the ``straylight thermal`` computation (CONTRACTS §7.1).
+
+For each detector part: sub-bands (straylight.thermal.model.sub_bands), each traced at its own
+wavelength with its own streams; the estimate is the sum over sub-bands of independent means, so
+its variance is the sum of theirs. Rays go to sub-bands in proportion to the radiance of the
+hottest part there. ``target_rel_error`` adds rounds of chunks until the relative standard error of
+the detector power is at most the target (or ``max_rays`` / ``max_seconds`` stop it: reported in
+``stopped``).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
+
+METHODS = ("reverse", "forward")
+DEFAULT_MAX_RAYS = 50_000_000
+DEFAULT_MAX_SECONDS = 600.0
+FRONT_FACE_COS = 0.5  # as straylight.detectors: a closed detector's faces within 60 deg of its front
+
+
+@dataclass
+class Tally:
+    power_w: float
+    stderr_w: float
+
+
+@dataclass
+class DetectorThermal:
+    name: str
+    area_mm2: float
+    power_w: float
+    stderr_w: float
+    by_part: dict  # part name -> Tally
+    rays: int
+
+    @property
+    def irradiance_w_m2(self) -> float:
+        return self.power_w / (self.area_mm2 * 1e-6)
+
+    def to_json_dict(self) -> dict:
+        """CONTRACTS §7.1's entry, exactly its keys."""
+        return {"power_w": self.power_w, "stderr_w": self.stderr_w, "irradiance_w_m2": self.irradiance_w_m2,
+                "by_part": {k: {"power_w": v.power_w, "stderr_w": v.stderr_w} for k, v in self.by_part.items()}}
+
+
+@dataclass
+class ThermalResult:
+    band_um: tuple
+    rays: int
+    seed: int
+    method: str
+    detectors: dict
+    sub_bands: list
+    temperatures_k: dict
+    seconds: float
+    stopped: str | None = None
+    notes: list = field(default_factory=list)
+
+    def to_json_dict(self) -> dict:
+        """thermal.json (CONTRACTS §7.1), exactly its keys; the rest is in :meth:`details`."""
+        return {"band_um": [float(self.band_um[0]), float(self.band_um[1])], "rays": int(self.rays),
+                "seed": int(self.seed), "detectors": {k: v.to_json_dict() for k, v in self.detectors.items()}}
+
+    def details(self) -> dict:
+        """thermal_details.json: how the numbers were made (method, traced wavelengths, areas, time)."""
+        out = {"method": self.method, "temperatures_k": self.temperatures_k,
+               "sub_bands_um": [[a, b, c] for a, b, c in self.sub_bands], "seconds": self.seconds,
+               "detectors": {k: {"area_mm2": v.area_mm2, "rays": v.rays,
+                                 "irradiance_stderr_w_m2": v.stderr_w / (v.area_mm2 * 1e-6)}
+                             for k, v in self.detectors.items()}}
+        if self.stopped:
+            out["stopped"] = self.stopped
+        return out
+
+
+def receiving_triangles(ts, p: int, toward_mm=None) -> np.ndarray:
+    """Triangle ids of detector part ``p`` that receive (CONTRACTS 4.5 area rule): every triangle of an
+    open part; a closed part's faces whose outward normal is within 60 deg of its front (the normal
+    of its plane of least spread, turned toward ``toward_mm``: the scene's centre by default)."""
+    from straylight.detectors import DetectorGeometry
+
+    ids = np.flatnonzero(ts.triangle_part == p)
+    part = ts.scene.parts[p]
+    if not part.meta.get("watertight", part.is_watertight):
+        return ids
+    geo = DetectorGeometry.from_triangles(ts.triangles_mm[ids])
+    if toward_mm is None:
+        others = ts.triangle_part != p
+        pts = ts.triangles_mm[others].reshape(-1, 3) if others.any() else ts.triangles_mm.reshape(-1, 3)
+        toward_mm = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    normal = geo.normal if float(np.dot(np.asarray(toward_mm) - geo.origin_mm, geo.normal)) >= 0 else -geo.normal
+    front = ts.normals[ids] @ normal > FRONT_FACE_COS
+    return ids[front] if front.any() else ids
+
+
+def detector_sampler(ts, p: int, toward_mm=None):
+    from straylight.thermal.walk import AreaSampler
+
+    if p in ts.planes:
+        return AreaSampler.of_part(ts, p), np.flatnonzero(ts.triangle_part == p)
+    ids = receiving_triangles(ts, p, toward_mm)
+    a = ts.areas_mm2[ids]
+    return AreaSampler(ts.triangles_mm[ids], ts.normals[ids], float(a.sum()), np.cumsum(a) / a.sum()), ids
+
+
+class _Sums:
+    """Per-stream running sums of per-ray estimates (per part and total)."""
+
+    def __init__(self, n_parts):
+        self.n = 0
+        self.s1 = np.zeros(n_parts)
+        self.s2 = np.zeros(n_parts)
+        self.t1 = 0.0
+        self.t2 = 0.0
+
+    def add(self, n, s1, s2, t1, t2):
+        self.n += n
+        self.s1 += s1
+        self.s2 += s2
+        self.t1 += t1
+        self.t2 += t2
+
+    @staticmethod
+    def _var(n, s1, s2):
+        if n < 2:
+            return np.full(np.shape(s1), np.inf)
+        return np.maximum(s2 - s1 * s1 / n, 0.0) / (n * (n - 1.0))
+
+    def means(self):
+        return self.s1 / max(self.n, 1), self._var(self.n, self.s1, self.s2), self.t1 / max(self.n, 1), \
+            float(self._var(self.n, self.t1, self.t2))
+
+
+def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | None = None, seed: int = 0,
+            method: str = "reverse", detectors=None, max_rays: int = DEFAULT_MAX_RAYS,
+            max_seconds: float = DEFAULT_MAX_SECONDS, toward_mm=None) -> ThermalResult:
+    """Band power from every part at a temperature reaching each detector (CONTRACTS §7.1).
+
+    ``ts``: :class:`straylight.thermal.model.ThermalScene`. Give ``n_rays`` (per detector) or
+    ``target_rel_error``. ``method``: "reverse" (default, rays from the detector) or "forward"
+    (emission from the parts with next-event estimation)."""
+    from straylight.thermal.model import sub_bands
+    from straylight.thermal.walk import CHUNK_RAYS
+
+    lo, hi = check_band(*band_um)
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if (n_rays is None) == (target_rel_error is None):
+        raise ValueError("give exactly one of --rays or --target-rel-error")
+    if n_rays is not None and int(n_rays) < 2:
+        raise ValueError(f"--rays must be >= 2, got {n_rays!r}")
+    if target_rel_error is not None and not (0 < float(target_rel_error) < 1):
+        raise ValueError(f"--target-rel-error must be in (0, 1), got {target_rel_error!r}")
+    names = [n for n, r in zip(ts.part_names, ts.roles) if r == "detector"] if detectors is None else list(detectors)
+    if not names:
+        raise ValueError("the scene has no detector part (role = \"detector\")")
+    bands = sub_bands(lo, hi, ts.wavelength_dependent())
+    radiance = np.array([[band_radiance_w_m2_sr(a, b, t) if t > 0 else 0.0 for t in ts.temperature_k]
+                         for a, b, _ in bands])  # (K, P)
+    emitting = [n for n, t in zip(ts.part_names, ts.temperature_k) if t > 0]
+    t0 = time.perf_counter()
+    out, stopped, total_rays = {}, None, 0
+    share = radiance.max(axis=1) if radiance.max() > 0 else np.ones(len(bands))
+    share = share / share.sum()
+    for j, name in enumerate(names):
+        p = ts.part_index(name)
+        sampler, _ = detector_sampler(ts, p, toward_mm)
+        estimator = _estimator(method, ts, p, sampler)
+        sums = [_Sums(ts.n_parts) for _ in bands]
+        next_chunk = [0] * len(bands)
+
+        def run_round(rays_now):
+            for k, (a, b, lam) in enumerate(bands):
+                if radiance[k].max() <= 0:
+                    continue
+                want = max(CHUNK_RAYS if target_rel_error is not None else 2, int(round(rays_now * share[k])))
+                sides = ts.sides_at(lam)
+                while want > 0:
+                    m = min(CHUNK_RAYS, want)
+                    sums[k].add(m, *estimator(sides, radiance[k], seed, j * 64 + k, next_chunk[k], m))
+                    next_chunk[k] += 1
+                    want -= m
+
+        def combined():
+            tot = sum(s.means()[2] for s in sums)
+            var = sum(s.means()[3] for s in sums if s.n > 0)
+            per = sum(s.means()[0] for s in sums)
+            per_var = sum(s.means()[1] for s in sums if s.n > 0)
+            return tot, float(np.sqrt(var)), per, np.sqrt(per_var)
+
+        if radiance.max() <= 0:
+            tot, err, per, per_err = 0.0, 0.0, np.zeros(ts.n_parts), np.zeros(ts.n_parts)
+        elif n_rays is not None:
+            run_round(int(n_rays))
+            tot, err, per, per_err = combined()
+        else:
+            rays_now = 8 * CHUNK_RAYS
+            while True:
+                run_round(rays_now)
+                tot, err, per, per_err = combined()
+                done = sum(s.n for s in sums)
+                if tot > 0 and err <= float(target_rel_error) * tot:
+                    break
+                if done >= max_rays or time.perf_counter() - t0 > max_seconds:
+                    stopped = (f"stopped at {done} rays / {time.perf_counter() - t0:.0f} s with relative error "
+                               f"{err / tot if tot > 0 else float('inf'):.3g} (target {target_rel_error})")
+                    break
+                rel = err / tot if tot > 0 else 1.0
+                # rays for the target from the error so far (1/sqrt(N)), at least doubling the work done
+                rays_now = int(min(max_rays - done, max(done, done * ((rel / float(target_rel_error)) ** 2 - 1.0)
+                                                        * 1.05)))
+        n_done = sum(s.n for s in sums)
+        total_rays += n_done
+        by_part = {ts.part_names[q]: Tally(float(per[q]), float(per_err[q])) for q in range(ts.n_parts)
+                   if ts.part_names[q] in emitting}
+        out[name] = DetectorThermal(name, sampler.area_mm2, float(tot), float(err), by_part, n_done)
+    temps = {n: float(t) for n, t in zip(ts.part_names, ts.temperature_k) if t > 0}
+    return ThermalResult((lo, hi), total_rays, int(seed), method, out, bands, temps,
+                         time.perf_counter() - t0, stopped)
+
+
+def _estimator(method, ts, p, sampler):
+    """chunk function (sides, radiance (P,), seed, stream, chunk, n) -> (S1, S2, T1, T2)."""
+    if method == "reverse":
+        from straylight.thermal.reverse import reverse_chunk
+
+        return lambda sides, rad, seed, stream, chunk, n: reverse_chunk(ts, sides, sampler, rad, seed, stream,
+                                                                        chunk, n)
+    from straylight.thermal.forward import ForwardEstimator
+
+    return ForwardEstimator(ts, p, sampler)

@@ -1,0 +1,66 @@
+"""``straylight thermal`` writes CONTRACTS §7.1's thermal.json (issue 24)."""
+import json
+
+import numpy as np
+import pytest
+
+from straylight.cli.main import main
+from straylight.thermal.planck import band_radiance_w_m2_sr
+from tests.validation.thermal_scenes import part, plane, view_factor_coaxial_disks, write_scene
+
+
+@pytest.fixture
+def two_disks(tmp_path):
+    text = part("focal_plane", role="detector", temperature_k=77.0, surface=plane((0, 0, 0), (0, 0, 1), 5.0))
+    text += part("baffle", "black", 300.0, surface=plane((0, 0, 30), (0, 0, -1), 20.0))
+    return write_scene(tmp_path, text)
+
+
+def test_thermal_json_keys_and_value(two_disks, tmp_path):
+    out = tmp_path / "out"
+    assert main(["thermal", str(two_disks), "--band-um", "8", "12", "--rays", "6000", "--seed", "1",
+                 "--out", str(out)]) == 0
+    doc = json.loads((out / "thermal.json").read_text())
+    assert doc["band_um"] == [8.0, 12.0] and doc["rays"] == 6000 and doc["seed"] == 1
+    det = doc["detectors"]["focal_plane"]
+    assert set(det) >= {"power_w", "stderr_w", "irradiance_w_m2", "by_part"}
+    assert set(det["by_part"]) == {"baffle", "focal_plane"}
+    assert sum(v["power_w"] for v in det["by_part"].values()) == pytest.approx(det["power_w"], rel=1e-12)
+    # black disk, emissivity 0.95 (Lambertian rd = 0.05): pi B eps A F; the detector sees only the disk
+    expect = np.pi * band_radiance_w_m2_sr(8, 12, 300) * 0.95 * np.pi * 400e-6 * view_factor_coaxial_disks(20, 5, 30)
+    assert abs(det["power_w"] - expect) <= 3 * det["stderr_w"] + 2e-3 * expect
+    assert det["irradiance_w_m2"] == pytest.approx(det["power_w"] / (np.pi * 25e-6))
+
+
+def test_same_seed_same_numbers(two_disks, tmp_path):
+    docs = []
+    for k in range(2):
+        out = tmp_path / f"o{k}"
+        assert main(["thermal", str(two_disks), "--band-um", "8", "12", "--rays", "3000", "--out", str(out)]) == 0
+        docs.append(json.loads((out / "thermal.json").read_text())["detectors"])
+    assert docs[0] == docs[1]
+
+
+def test_target_rel_error(two_disks, tmp_path):
+    out = tmp_path / "t"
+    assert main(["thermal", str(two_disks), "--band-um", "8", "12", "--target-rel-error", "0.005",
+                 "--out", str(out)]) == 0
+    det = json.loads((out / "thermal.json").read_text())["detectors"]["focal_plane"]
+    assert 0 < det["stderr_w"] <= 0.005 * det["power_w"]
+
+
+@pytest.mark.parametrize("args,msg", [(["--band-um", "12", "8", "--rays", "10"], "band-um"),
+                                      (["--band-um", "8", "12", "--rays", "1"], "rays")])
+def test_bad_input_is_one_line(two_disks, tmp_path, capsys, args, msg):
+    assert main(["thermal", str(two_disks), *args, "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and msg in err[0]
+
+
+def test_bad_temperature_names_the_part(tmp_path, capsys):
+    path = write_scene(tmp_path, part("d", role="detector", surface=plane((0, 0, 0), (0, 0, 1), 5.0))
+                       + '[[part]]\nname = "hot"\nsurface = ' + plane((0, 0, 9), (0, 0, -1), 5.0)
+                       + '\nrole = "absorber"\ntemperature_k = -3\n')
+    assert main(["thermal", str(path), "--band-um", "8", "12", "--rays", "10", "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "temperature_k" in err and "[[part]] 2" in err
