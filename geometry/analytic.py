@@ -211,7 +211,13 @@ class Conic(_Surface):
 
 @dataclass(frozen=True, eq=False)
 class Plane(Conic):
-    """A disk or annulus through vertex_mm with normal axis (a conic with c = 0)."""
+    """A disk or annulus through vertex_mm with normal axis (a conic with c = 0), exact in every role
+    (CONTRACTS §6.4): its area is pi (outer^2 - inner^2), and the tracer counts a hit only inside its
+    exact boundary (:meth:`contains`) and samples it exactly for next-event estimation.
+
+    Its mesh only finds the hits, so it *covers* the exact region: the outer polygon is circumscribed
+    about the outer circle (vertices at outer / cos(pi / n)) and the inner one inscribed in the inner
+    circle; the slivers the mesh adds are refused by :meth:`contains`."""
 
     kind = "plane"
 
@@ -219,8 +225,20 @@ class Plane(Conic):
         r1 = self.outer_radius_mm
         n_phi = max(24, int(math.ceil(math.pi / math.acos(max(-1.0, 1.0 - tolerance_mm / r1)))))
         phi = np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
-        rho = np.array([self.inner_radius_mm, r1])
+        rho = np.array([self.inner_radius_mm, r1 / math.cos(math.pi / n_phi)])
         return _revolve(self, rho, phi, np.zeros(2), center=self.inner_radius_mm == 0.0)
+
+    @property
+    def area_mm2(self) -> float:
+        """pi (outer^2 - inner^2): the exact disk or annulus."""
+        return math.pi * (self.outer_radius_mm ** 2 - self.inner_radius_mm ** 2)
+
+    def contains(self, points_mm) -> np.ndarray:
+        """(n,) bool: points (world, on the plane) inside the exact disk or annulus."""
+        rel = np.asarray(points_mm, dtype=np.float64) - self.vertex_mm
+        along = rel @ self.axis
+        rho2 = np.einsum("ij,ij->i", rel, rel) - along * along
+        return (rho2 <= self.outer_radius_mm ** 2) & (rho2 >= self.inner_radius_mm ** 2)
 
     def to_dict(self) -> dict:
         d = {"type": "plane", "vertex_mm": self.vertex_mm.tolist(), "axis": self.axis.tolist(),

@@ -2,15 +2,40 @@
 
 A detector part is any set of triangles. Next-event estimation samples a point uniformly
 over its area (triangle by area, then uniform barycentrics), so the pdf per unit area is
-``1 / area_mm2``. Irradiance maps bin positions in the plane that best fits the part
-(area-weighted principal axes).
+``1 / area_mm2``. An analytic ``plane`` detector (CONTRACTS §6.4) is its exact disk or annulus
+(:class:`Disk`): area pi (outer^2 - inner^2), points drawn on the disk itself. Irradiance maps bin
+positions in the plane that best fits the part (area-weighted principal axes).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Disk:
+    """An exact disk or annulus: centre, in-plane axes u, v, normal (unit), squared radii."""
+
+    centre_mm: np.ndarray
+    u_axis: np.ndarray
+    v_axis: np.ndarray
+    normal: np.ndarray
+    r2_in: float
+    r2_out: float
+
+    @classmethod
+    def of_plane(cls, plane) -> "Disk":
+        """The disk of a geometry.analytic.Plane (its local frame: rows u, v, w of ``rotation``)."""
+        u, v, w = (np.ascontiguousarray(a, dtype=np.float64) for a in plane.rotation)
+        return cls(np.ascontiguousarray(plane.vertex_mm, dtype=np.float64), u, v, w,
+                   float(plane.inner_radius_mm) ** 2, float(plane.outer_radius_mm) ** 2)
+
+    @property
+    def area_mm2(self) -> float:
+        return math.pi * (self.r2_out - self.r2_in)
 
 
 @dataclass(frozen=True, eq=False)
@@ -30,6 +55,14 @@ class DetectorGeometry:
     axis_v: np.ndarray
     normal: np.ndarray
     extent_mm: tuple
+    disk: Disk | None = None  # an analytic plane detector: sampled and measured exactly
+
+    @classmethod
+    def from_plane(cls, triangles_mm, plane):
+        """The geometry of an analytic plane part (its mesh ``triangles_mm`` finds the hits and frames
+        the maps; the exact disk gives the area and the samples)."""
+        disk = Disk.of_plane(plane)
+        return replace(cls.from_triangles(triangles_mm), area_mm2=disk.area_mm2, disk=disk)
 
     @classmethod
     def from_triangles(cls, triangles_mm):
@@ -63,6 +96,10 @@ class DetectorGeometry:
 
     def sample(self, u):
         """Uniform points over the area. u : (n, 3) -> (points (n, 3), triangle normals (n, 3))."""
+        if self.disk is not None:
+            from straylight.engine.disk_sampling import sample_annulus
+
+            return sample_annulus(self.disk, u[:, 1], u[:, 2]), np.tile(self.disk.normal, (len(u), 1))
         k = self._pick_triangle(u[:, 0])
         su = np.sqrt(u[:, 1])
         b1 = (su * (1.0 - u[:, 2]))[:, None]

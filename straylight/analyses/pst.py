@@ -72,10 +72,15 @@ def detector_area(setup, name: str):
     """
     from straylight.detectors import SensitiveArea, sensitive_area
 
+    from geometry.analytic import Plane
+
     part = setup.scene.part(name)
     if setup.detector_area_mm2 is not None:
         total = part_area_mm2(setup.scene, name)
         return SensitiveArea(float(setup.detector_area_mm2), total, False, "given: [analysis] detector_area_mm2")
+    if isinstance(part.surface, Plane):
+        return SensitiveArea(part.surface.area_mm2, part.surface.area_mm2, False,
+                             "analytic plane: pi (outer^2 - inner^2), exact")
     toward = setup.entrance.center_mm if setup.entrance is not None else setup.beam.center_mm
     return sensitive_area(part.vertices_mm, part.faces, toward_mm=toward)
 

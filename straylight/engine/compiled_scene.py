@@ -14,6 +14,7 @@ import numpy as np
 from straylight.detectors import DetectorGeometry
 from straylight.engine.spec import TraceSpec
 from straylight.intersect._plane import triangle_planes
+from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts
 from materials.jit_start import start_numba
 
 
@@ -35,12 +36,30 @@ class SceneArrays(NamedTuple):
     det_e1: np.ndarray
     det_e2: np.ndarray
     det_normals: np.ndarray
+    # analytic plane detectors (CONTRACTS §6.4), per detector: [inner^2, outer^2] (outer^2 = 0: sample the
+    # triangles), and the disk's centre, in-plane axes and normal
+    det_disk_r2: np.ndarray
+    det_disk_centre: np.ndarray
+    det_disk_u: np.ndarray
+    det_disk_v: np.ndarray
+    det_disk_normal: np.ndarray
 
 
 def detector_samplers(spec: TraceSpec) -> list:
     """One :class:`DetectorGeometry` per detector part, in part order."""
     tri = spec.triangles_mm
-    return [DetectorGeometry.from_triangles(tri[spec.triangle_part == p]) for p in spec.detector_parts]
+    planes = plane_parts(spec.part_surfaces)
+    return [DetectorGeometry.from_plane(tri[spec.triangle_part == p], planes[p]) if p in planes
+            else DetectorGeometry.from_triangles(tri[spec.triangle_part == p]) for p in spec.detector_parts]
+
+
+def _disk_rows(dets, field, width):
+    """(D, width) array of one :class:`~straylight.detectors.Disk` field per detector (zeros where none)."""
+    out = np.zeros((len(dets), width))
+    for j, g in enumerate(dets):
+        if g.disk is not None:
+            out[j] = [g.disk.r2_in, g.disk.r2_out] if field == "r2" else getattr(g.disk, field)
+    return np.ascontiguousarray(out)
 
 
 class TargetSampler:
@@ -66,6 +85,9 @@ class CompiledScene:
         from straylight.intersect.embree import EmbreeIntersector
 
         self.isect = intersector if intersector is not None else EmbreeIntersector(spec.triangles_mm)
+        planes = plane_parts(spec.part_surfaces)
+        if planes:  # hits on analytic planes count inside their exact boundary only
+            self.isect = ExactBoundaryIntersector(self.isect, spec.triangle_part, planes, spec.eps)
         tri = spec.triangles_mm
         planes = getattr(self.isect, "planes", None)  # our intersectors computed them from these triangles
         v0, self.normals, centroids = planes if planes is not None else triangle_planes(tri)
@@ -91,7 +113,10 @@ class CompiledScene:
             det_v0=stacked((t[0] for t in tables), 3, np.float64),
             det_e1=stacked((t[1] for t in tables), 3, np.float64),
             det_e2=stacked((t[2] for t in tables), 3, np.float64),
-            det_normals=stacked((g.normals for g in dets), 3, np.float64))
+            det_normals=stacked((g.normals for g in dets), 3, np.float64),
+            det_disk_r2=_disk_rows(dets, "r2", 2), det_disk_centre=_disk_rows(dets, "centre_mm", 3),
+            det_disk_u=_disk_rows(dets, "u_axis", 3), det_disk_v=_disk_rows(dets, "v_axis", 3),
+            det_disk_normal=_disk_rows(dets, "normal", 3))
         self.target = TargetSampler(spec, reference=intersector is not None) if spec.options.target_parts else None
         self._local = threading.local()  # per-thread scratch (dask may run several threads per process)
 

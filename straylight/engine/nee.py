@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from straylight.engine import second_vertex
+from straylight.engine.disk_sampling import annulus_point, annulus_points
 from straylight.engine.interactions.registry import Capability
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
@@ -68,6 +69,7 @@ def nee_pairs(verts, frame, hit, U, u_col0, scene, settings):
     tb, bb = frame.tangent, frame.bitangent
     det_off, prob, alias = scene.det_offset, scene.det_alias_prob, scene.det_alias
     v0, e1, e2, det_normals = scene.det_v0, scene.det_e1, scene.det_e2, scene.det_normals
+    disk_r2 = scene.det_disk_r2
     for s in range(ns):
         i = verts[s]
         p0, p1, p2 = p[i, 0], p[i, 1], p[i, 2]
@@ -82,19 +84,25 @@ def nee_pairs(verts, frame, hit, U, u_col0, scene, settings):
             kk = min(np.int64(x), mt - 1)
             k = kk if x - kk < prob[lo + kk] else alias[lo + kk]
             g = lo + k
-            su = np.sqrt(ub)
-            bw1 = su * (1.0 - uc)
-            bw2 = su * uc
-            y0 = v0[g, 0] + bw1 * e1[g, 0] + bw2 * e2[g, 0]
-            y1 = v0[g, 1] + bw1 * e1[g, 1] + bw2 * e2[g, 1]
-            y2 = v0[g, 2] + bw1 * e1[g, 2] + bw2 * e2[g, 2]
+            if disk_r2[j, 1] > 0.0:  # an analytic plane detector: its exact disk
+                y0, y1, y2 = annulus_point(scene.det_disk_centre[j], scene.det_disk_u[j], scene.det_disk_v[j],
+                                           disk_r2[j, 0], disk_r2[j, 1], ub, uc)
+                m0, m1, m2 = scene.det_disk_normal[j, 0], scene.det_disk_normal[j, 1], scene.det_disk_normal[j, 2]
+            else:
+                su = np.sqrt(ub)
+                bw1 = su * (1.0 - uc)
+                bw2 = su * uc
+                y0 = v0[g, 0] + bw1 * e1[g, 0] + bw2 * e2[g, 0]
+                y1 = v0[g, 1] + bw1 * e1[g, 1] + bw2 * e2[g, 1]
+                y2 = v0[g, 2] + bw1 * e1[g, 2] + bw2 * e2[g, 2]
+                m0, m1, m2 = det_normals[g, 0], det_normals[g, 1], det_normals[g, 2]
             v0_, v1_, v2_ = y0 - p0, y1 - p1, y2 - p2
             dd2 = dot3(v0_, v1_, v2_, v0_, v1_, v2_)
             dist = np.sqrt(dd2)
             inv = dist if dist > 0 else 1.0
             a0, a1, a2 = v0_ / inv, v1_ / inv, v2_ / inv
             cs = dot3(a0, a1, a2, f0, f1, f2)
-            cd = -dot3(a0, a1, a2, det_normals[g, 0], det_normals[g, 1], det_normals[g, 2])
+            cd = -dot3(a0, a1, a2, m0, m1, m2)
             if settings.both_sides:
                 cd = abs(cd)
             if cs > 0 and cd > 0 and dist > two_eps:
@@ -130,12 +138,19 @@ def nee_pairs_numpy(verts, frame, hit, U, u_col0, scene, settings):
     bw1 = (su * (1.0 - uc))[:, None]
     bw2 = (su * uc)[:, None]
     y = scene.det_v0[g] + bw1 * scene.det_e1[g] + bw2 * scene.det_e2[g]
+    normal_y = scene.det_normals[g]
+    for jd in np.flatnonzero(scene.det_disk_r2[:, 1] > 0):  # analytic plane detectors: their exact disks
+        rows = np.flatnonzero(j == jd)
+        r2 = scene.det_disk_r2[jd]
+        y[rows] = annulus_points(scene.det_disk_centre[jd], scene.det_disk_u[jd], scene.det_disk_v[jd], r2[0], r2[1],
+                                 np.ascontiguousarray(ub[rows]), np.ascontiguousarray(uc[rows]), np.empty((len(rows), 3)))
+        normal_y[rows] = scene.det_disk_normal[jd]
     v = y - hit.point_mm[i]
     dd2 = dot_rows(v, v)
     dist = np.sqrt(dd2)
     a = v / np.where(dist > 0, dist, 1.0)[:, None]
     cs = dot_rows(a, hit.facing_normal[i])
-    cd = -dot_rows(a, scene.det_normals[g])
+    cd = -dot_rows(a, normal_y)
     if settings.both_sides:
         cd = np.abs(cd)
     ok = np.flatnonzero((cs > 0) & (cd > 0) & (dist > 2 * settings.eps_mm))

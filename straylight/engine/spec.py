@@ -153,10 +153,12 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     h.update(tri_part.tobytes())
     h.update(roles.tobytes())  # detector geometry depends on the roles,
     h.update(repr(options.target_parts).encode())  # and the target sampler on the targets
+    surfaces = tuple(getattr(p, "surface", None) for p in scene.parts)
+    h.update(repr([None if s is None else s.to_dict() for s in surfaces]).encode())  # exact plane boundaries
     return TraceSpec(
         triangles_mm=tri, triangle_part=tri_part, part_names=scene.part_names, part_roles=roles,
         part_material=part_material, materials=models, sources=tuple(sources), n_rays=int(n_rays), seed=seed,
         options=options, eps=scene_epsilon(tri), token=h.hexdigest(),
-        part_surfaces=tuple(getattr(p, "surface", None) for p in scene.parts),
+        part_surfaces=surfaces,
         part_back_material=back_material_index(scene),
     )
