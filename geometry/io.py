@@ -33,7 +33,8 @@ MESH_SUFFIXES = (".stl", ".obj", ".ply")
 STEP_SUFFIXES = (".step", ".stp")
 CAD_SUFFIXES = STEP_SUFFIXES + (".iges", ".igs")
 PART_KEYS = ("name", "mesh", "tolerance_mm", "material", "role", "surface", "back_material", "split", "solids",
-             "rotate_deg", "translate_mm", "temperature_k")
+             "rotate_deg", "translate_mm", "temperature_k",
+             "diffraction")  # diffraction: read by straylight.scene (CONTRACTS §6.5)
 SPLIT_MODES = ("none", "solids")
 SOLID_KEYS = ("material", "role", "temperature_k")
 

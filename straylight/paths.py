@@ -3,7 +3,7 @@
 Every contribution to a detector (a next-event-estimation shadow ray or a random-walk hit)
 is one record: the ray id, the detector part, the power, the number of events before the
 detector, a 64-bit key hashing the whole event sequence and the detector, and the first
-``path_depth`` events as codes ``part_index * 4 + kind`` (kind 1 = BRDF scatter, 2 = specular),
+``path_depth`` events as codes ``part_index * 4 + kind`` (kind 1 = BRDF scatter, 2 = specular, 3 = edge diffraction),
 padded with -1.
 
 Standard errors: a group's estimate is ``S1 = sum of its records' power``; each ray's total
@@ -19,7 +19,10 @@ import numpy as np
 KIND_SCATTER = 1
 KIND_SPECULAR = 2
 KIND_DETECTOR = 3
-KIND_NAMES = {KIND_SCATTER: "scatter", KIND_SPECULAR: "specular"}
+# A detector event ends a path and is mixed into its key only, never stored among its events, so the
+# same kind marks a diffraction in the stored events (a detector part never diffracts).
+KIND_DIFFRACTION = 3
+KIND_NAMES = {KIND_SCATTER: "scatter", KIND_SPECULAR: "specular", KIND_DIFFRACTION: "diffraction"}
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)

@@ -113,6 +113,27 @@ def _probe_reaches_box(source, lo, hi, n=256) -> bool:
     return bool(np.any(tmax >= np.maximum(tmin, 0.0)))
 
 
+DIFFRACTION_KINDS = ("edges",)
+
+
+def _mark_diffraction(doc: dict, scene, path: Path) -> None:
+    """``diffraction = "edges"`` on a [[part]] (CONTRACTS §6.5) -> ``meta["diffraction"]`` of the parts
+    it made (with ``split = "solids"``, every solid ``NAME/...``)."""
+    for i, entry in enumerate(doc.get("part", []), start=1):
+        if not isinstance(entry, dict) or "diffraction" not in entry:
+            continue
+        kind = entry["diffraction"]
+        where = f"{path}: [[part]] {i} ({entry.get('name')!r})"
+        if kind not in DIFFRACTION_KINDS:
+            raise SceneFileError(f"{where}: diffraction must be \"edges\", got {kind!r}")
+        if entry.get("role", "surface") == "detector":
+            raise SceneFileError(f"{where}: a detector part cannot diffract; put diffraction = \"edges\" on the stop")
+        name = entry.get("name")
+        for part in scene.parts:
+            if part.name == name or part.name.startswith(f"{name}/"):
+                part.meta["diffraction"] = kind
+
+
 def load_scene(path, check_watertight: bool = True, sources: bool = True) -> ResolvedScene:
     """Read and resolve a scene TOML (CONTRACTS §6).
 
@@ -142,6 +163,7 @@ def load_scene(path, check_watertight: bool = True, sources: bool = True) -> Res
         scene = load_geometry(path)
     except GeometryError as exc:
         raise SceneFileError(str(exc)) from None
+    _mark_diffraction(doc, scene, path)
     notes = []
     materials = {}
     for i, part in enumerate(scene.parts, start=1):

@@ -57,6 +57,12 @@ def orthonormal_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 _TWO_PI = 2.0 * np.pi
 
 
+def _check_wavelength(source, owner) -> None:
+    """``wavelength_nm``: None (not given) or a positive number (CONTRACTS §6.5)."""
+    if source.wavelength_nm is not None:
+        object.__setattr__(source, "wavelength_nm", _positive("wavelength_nm", source.wavelength_nm, owner))
+
+
 def _disk_points_loop(center, t, b, radius, u, c0, c1, out):
     """``center + (r cos phi) t + (r sin phi) b`` with ``r = radius sqrt(u[:, c0])``,
     ``phi = 2 pi u[:, c1]``, one pass per point (same operation order as the numpy form)."""
@@ -111,9 +117,11 @@ class CollimatedDisk:
     direction: np.ndarray
     radius_mm: float
     power_w: float = 1.0
+    wavelength_nm: float | None = None  # CONTRACTS §6.5: needed when a part diffracts
 
     def __post_init__(self):
         owner = "collimated_disk source"
+        _check_wavelength(self, owner)
         object.__setattr__(self, "center_mm", _vec("center_mm", self.center_mm, owner))
         object.__setattr__(self, "normal", _vec("normal", self.normal, owner, unit=True))
         object.__setattr__(self, "direction", _vec("direction", self.direction, owner, unit=True))
@@ -143,9 +151,11 @@ class LambertianDisk:
     normal: np.ndarray
     radius_mm: float
     power_w: float = 1.0
+    wavelength_nm: float | None = None
 
     def __post_init__(self):
         owner = "lambertian_disk source"
+        _check_wavelength(self, owner)
         object.__setattr__(self, "center_mm", _vec("center_mm", self.center_mm, owner))
         object.__setattr__(self, "normal", _vec("normal", self.normal, owner, unit=True))
         object.__setattr__(self, "radius_mm", _positive("radius_mm", self.radius_mm, owner))
@@ -173,9 +183,11 @@ class PointSource:
     power_w: float = 1.0
     axis: np.ndarray | None = None
     half_angle_deg: float = 180.0
+    wavelength_nm: float | None = None
 
     def __post_init__(self):
         owner = "point source"
+        _check_wavelength(self, owner)
         object.__setattr__(self, "position_mm", _vec("position_mm", self.position_mm, owner))
         axis = np.array([0.0, 0.0, 1.0]) if self.axis is None else _vec("axis", self.axis, owner, unit=True)
         object.__setattr__(self, "axis", axis)
@@ -195,9 +207,9 @@ class PointSource:
 
 
 _KEYS = {
-    "collimated_disk": ({"center_mm", "normal", "direction", "radius_mm"}, {"power_w"}),
-    "lambertian_disk": ({"center_mm", "normal", "radius_mm"}, {"power_w"}),
-    "point": ({"position_mm"}, {"power_w", "axis", "half_angle_deg"}),
+    "collimated_disk": ({"center_mm", "normal", "direction", "radius_mm"}, {"power_w", "wavelength_nm"}),
+    "lambertian_disk": ({"center_mm", "normal", "radius_mm"}, {"power_w", "wavelength_nm"}),
+    "point": ({"position_mm"}, {"power_w", "axis", "half_angle_deg", "wavelength_nm"}),
 }
 
 

@@ -44,6 +44,7 @@ class Beam:
     power_w: float = 1.0
     pivot_mm: np.ndarray | None = None
     disk_normal: np.ndarray | None = None
+    wavelength_nm: float | None = None  # the source's (CONTRACTS §6.5), carried to every tilt
 
     def __post_init__(self):
         axis = np.asarray(self.axis, dtype=np.float64)
@@ -96,7 +97,7 @@ class Beam:
 
         return CollimatedDisk(center_mm=self.center_for(off_axis, azimuth), normal=self.disk_normal,
                               direction=self.direction(off_axis, azimuth), radius_mm=float(self.radius_mm),
-                              power_w=float(self.power_w))
+                              power_w=float(self.power_w), wavelength_nm=self.wavelength_nm)
 
     def cross_section_mm2(self, off_axis: float, azimuth: float = 0.0) -> float:
         """Beam area normal to the rays: pi R^2 |n . d| (the disk seen along the rays)."""

@@ -10,6 +10,7 @@ group). Ancestry classes:
 ``specular_only``   only specular reflections (mirror parts or specular lobes)
 ``scattered_once``  exactly one BRDF scatter
 ``scattered_more``  two or more BRDF scatters
+``diffracted``      bent at a diffracting edge (CONTRACTS §6.5) at least once, whatever else happened
 
 Grouped by first or last part, a group mixes classes (ancestry "mixed"), except "(direct)".
 
@@ -29,7 +30,7 @@ import numpy as np
 
 import atomicio
 
-ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more")
+ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more", "diffracted")
 GROUP_BY = ("sequence", "first_part", "last_part", "ancestry")
 
 
@@ -38,16 +39,19 @@ def ancestry_of(events) -> str:
     n_scatter = sum(1 for _, kind in events if kind == "scatter")
     if not events:
         return "direct"
+    if any(kind == "diffraction" for _, kind in events):
+        return "diffracted"
     if n_scatter == 0:
         return "specular_only"
     return "scattered_once" if n_scatter == 1 else "scattered_more"
 
 
 def sequence_label(events, detector: str, truncated: bool = False) -> str:
-    """'source -> wall -> vane_7 (specular) -> detector', with runs of one event collapsed ('wall x3')."""
+    """'source -> wall -> vane_7 (specular) -> diffracted at vane_1 -> detector', with runs of one
+    event collapsed ('wall x3')."""
     steps = []
     for part, kind in events:
-        name = part if kind == "scatter" else f"{part} ({kind})"
+        name = part if kind == "scatter" else f"diffracted at {part}" if kind == "diffraction" else f"{part} ({kind})"
         if steps and steps[-1][0] == name:
             steps[-1][1] += 1
         else:
@@ -149,7 +153,7 @@ class PathReport:
         own = ax is None
         if own:
             fig, ax = plt.subplots(figsize=(9, 0.38 * max(len(rows), 3) + 1.4), dpi=120)
-        colors = {"direct": "#4c72b0", "specular_only": "#8172b2", "scattered_once": "#dd8452",
+        colors = {"direct": "#4c72b0", "specular_only": "#8172b2", "scattered_once": "#dd8452", "diffracted": "#937860",
                   "scattered_more": "#c44e52", "mixed": "#8c8c8c"}
         y = np.arange(len(rows))[::-1]
         frac = np.array([r.fraction for r in rows])

@@ -93,7 +93,7 @@ def beam_of_scene(sources, path):
         raise ValueError(f"{path}: {len(beams)} collimated_disk sources; the analyses tilt one beam: keep one")
     src = beams[0]
     return Beam(center_mm=src.center_mm, axis=src.direction, radius_mm=float(src.radius_mm),
-                power_w=float(src.power_w), disk_normal=src.normal)
+                power_w=float(src.power_w), disk_normal=src.normal, wavelength_nm=src.wavelength_nm)
 
 
 def setup_from_resolved(rs, analysis: dict, path, detector: str | None = None, entrance=None):

@@ -19,6 +19,7 @@ from straylight.engine import second_vertex
 from straylight.engine.disk_sampling import annulus_point, annulus_points
 from straylight.engine.interactions.registry import Capability
 from straylight.engine.material_groups import by_material
+from straylight.engine.diffraction import blocked_by_edges
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.targets import target_pdf
 from straylight.engine.tally_store import tally_add
@@ -316,6 +317,9 @@ def _estimate(event, verts, frame, w_vertex, evaluate):
     if len(shadow.pair) == 0:
         return
     blocked = np.asarray(event.scene.isect.occluded(shadow.origin_mm, shadow.direction, shadow.tmax_mm), dtype=bool)
+    if event.spec.diffraction is not None:  # the walk bends every ray that passes a diffracting edge
+        blocked = blocked | blocked_by_edges(event.spec.diffraction, shadow.origin_mm, shadow.direction,
+                                             shadow.tmax_mm)
     event.shadow_rays += len(shadow.pair)
     event.tallies.reserve(NEE_WRITES_PER_SHADOW_RAY * len(shadow.pair))
     ok = kern.nee_tally(shadow, blocked, pairs, verts, event.rays, hit, settings.nee_samples,

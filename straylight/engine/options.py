@@ -32,6 +32,9 @@ class TraceOptions:
     first_vertex_sampling: bool = False
     second_vertex_sampling: bool = False
     scatter_polarization: str = "auto"  # "auto": scatter follows polarized light only; "on": always
+    diffraction: str = "scene"  # "scene": parts marked diffraction = "edges" diffract (HURB); "off": none do
+    hurb_gamma: float = 0.7978845608028654  # HURB uncertainty factor sqrt(2/pi) (straylight.engine.hurb)
+    diffraction_band_wavelengths: float = 100.0  # rays passing an edge closer than this many wavelengths bend
 
     def __post_init__(self):
         if int(self.max_events) < 1:
@@ -44,6 +47,10 @@ class TraceOptions:
             raise TraceError(f"batch_rays must be >= 1, got {self.batch_rays}")
         if self.scatter_polarization not in ("auto", "on"):
             raise TraceError(f"scatter_polarization must be 'auto' or 'on', got {self.scatter_polarization!r}")
+        if self.diffraction not in ("scene", "off"):
+            raise TraceError(f"diffraction must be 'scene' or 'off', got {self.diffraction!r}")
+        if not (float(self.hurb_gamma) > 0.0 and float(self.diffraction_band_wavelengths) > 0.0):
+            raise TraceError("hurb_gamma and diffraction_band_wavelengths must be > 0")
         if self.detector_sides not in ("both", "front"):
             raise TraceError(f"detector_sides must be 'both' or 'front', got {self.detector_sides!r}")
         if len(tuple(self.map_bins)) != 2 or min(self.map_bins) < 1:

@@ -3,7 +3,7 @@ materials, sources, options) built and checked once by :func:`make_spec`."""
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -46,6 +46,7 @@ class TraceSpec:
     chunk_offset: int = 0  # local chunk k draws from the stream of chunk chunk_offset + k (trace(first_chunk=))
     part_surfaces: tuple = ()  # analytic surface per part (geometry.analytic) or None (issue 14)
     part_back_material: np.ndarray = None  # index into ``materials`` of each part's back side, -1: as the front
+    diffraction: object = None  # straylight.engine.diffraction.Diffraction when a part diffracts (CONTRACTS §6.5)
 
     @property
     def detector_parts(self) -> np.ndarray:
@@ -140,6 +141,10 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
         raise TraceError("total source power_w must be > 0")
     part_material, models = resolve_materials(scene, materials)
     _check_targets(scene, options)
+    from straylight.engine.diffraction import scene_diffraction, vertex_strategies_off
+
+    diffraction = scene_diffraction(scene, sources, models, options)
+    options = vertex_strategies_off(options, diffraction)
     if options.first_vertex_sampling:
         from straylight.engine.first_vertex import unsupported
 
@@ -155,10 +160,12 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     h.update(repr(options.target_parts).encode())  # and the target sampler on the targets
     surfaces = tuple(getattr(p, "surface", None) for p in scene.parts)
     h.update(repr([None if s is None else s.to_dict() for s in surfaces]).encode())  # exact plane boundaries
+    if diffraction is not None:
+        diffraction = replace(diffraction, past_mm=4.0 * scene_epsilon(tri))
     return TraceSpec(
         triangles_mm=tri, triangle_part=tri_part, part_names=scene.part_names, part_roles=roles,
         part_material=part_material, materials=models, sources=tuple(sources), n_rays=int(n_rays), seed=seed,
         options=options, eps=scene_epsilon(tri), token=h.hexdigest(),
         part_surfaces=surfaces,
-        part_back_material=back_material_index(scene),
+        part_back_material=back_material_index(scene), diffraction=diffraction,
     )

@@ -11,6 +11,7 @@ import numpy as np
 
 from straylight.engine.advance import ADVANCE_WRITES_PER_RAY, next_rays
 from straylight.engine.compiled_scene import compiled_scene
+from straylight.engine import diffraction as diffraction_step
 from straylight.engine.draws import event_columns, event_uniforms
 from straylight.engine.emission import emit_batch
 from straylight.engine.event import Event, combined_outgoing
@@ -92,12 +93,23 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
     segments = shadow_rays = 0
     max_events = int(opt.max_events)
+    diff = spec.diffraction
+    skip = None  # per live ray: the edge ids it was just diffracted at (diffraction only)
     for ev in range(max_events):
         if len(rays.ray) == 0:
             break
         U = event_uniforms(draws, rays.ray, columns.width, ubuf)
         tri = np.asarray(scene.isect.first_triangle(rays.origin_mm, rays.direction))
         segments += len(rays.ray)
+        bent = None
+        if diff is not None:  # rays that pass a diffracting edge before their hit bend there (HURB)
+            split = diffraction_step.divert(diff, scene, rays, tri, skip, U, columns.sample, settings.record_paths)
+            if split is not None:
+                keep, bent, bent_skip = split
+                rays, tri, U = diffraction_step.subset(rays, keep), tri[keep], U[keep]
+                if ev == max_events - 1:
+                    diffraction_step.truncate(bent, tallies, rows)
+                    bent = None
         tallies.reserve(HITS_WRITES_PER_RAY * len(tri))
         hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, tallies.kernel_arg))
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
@@ -110,6 +122,9 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             _record_walk_hits(event, rec, rec_w)
         cont = hit.continuing
         if len(cont) == 0:
+            if bent is not None:
+                rays, skip = bent, bent_skip
+                continue
             break
         groups = _by_interaction(kind_of_part, kinds, continuing, hit.part[cont])
         if len(groups) == 1:
@@ -120,6 +135,10 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         tallies.reserve(ADVANCE_WRITES_PER_RAY * len(cont))
         rays, _kept = next_rays(kernels.advance(cont, out, rays, hit, U[:, columns.roulette], settings,
                                                 ev == max_events - 1, tallies.kernel_arg, rows))
+        if diff is not None:
+            skip = np.full((len(rays.ray), 3), -1, dtype=np.int64)
+            if bent is not None:
+                rays, skip = diffraction_step.merge(rays, skip, bent, bent_skip)
     if first_vertex is not None:
         shadow_rays += run_vertex_pass(spec, scene, spec.vertex_table, first_chunk, stop_chunk, tallies, rows, records,
                                        settings.record_paths, int(opt.path_depth))

@@ -63,7 +63,10 @@ def test_labels_and_classes():
     assert ancestry_of((("m", "specular"),)) == "specular_only"
     assert ancestry_of((("w", "scatter"), ("m", "specular"))) == "scattered_once"
     assert ancestry_of(ev) == "scattered_more"
-    assert set(ANCESTRY) == {"direct", "specular_only", "scattered_once", "scattered_more"}
+    assert set(ANCESTRY) == {"direct", "specular_only", "scattered_once", "scattered_more", "diffracted"}
+    bent = (("vane_7", "diffraction"), ("wall", "scatter"))
+    assert ancestry_of(bent) == "diffracted"  # CONTRACTS §6.5
+    assert sequence_label(bent, "detector") == "source -> diffracted at vane_7 -> wall -> detector"
 
 
 def test_outputs(grey_tube_30deg, tmp_path):

@@ -1,0 +1,198 @@
+"""Edge diffraction in the walk (CONTRACTS §6.5): HURB at the edges of parts marked
+``diffraction = "edges"``. docs/diffraction.md describes the method, its limits and its checks.
+
+- :func:`scene_diffraction` builds, once per trace, what the workers need (:class:`Diffraction`:
+  the edge table of straylight.engine.edge_index, the wavelength, the HURB factor).
+- :func:`divert` is the walk's hook: after the ray casts, each ray that passes a diffracting edge
+  before its hit is taken out of this event, moved to its closest approach to the edge and bent by
+  the HURB law (straylight.engine.hurb), with its power unchanged; it goes on at the next event.
+  Its path records ``diffracted at <part>``.
+- :func:`blocked_by_edges`: next-event estimation treats a shadow ray that passes a diffracting edge
+  as blocked, since the walk bends every ray there: both estimate the same light.
+
+Edges of finite thickness: a mesh vane's rim has two sharp edges (top and bottom corners); a ray
+through the hole passes them in turn and is diffracted at each it passes in the open (the first
+bend may send it into the rim face instead). An analytic ``plane`` aperture has zero thickness:
+one edge per rim.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from straylight.engine.edge_index import EdgeTable, edge_table, passages
+from straylight.engine.hurb import GAMMA, deflect
+from straylight.engine.options import TraceError
+from straylight.engine.ray_batch import RayBatch
+from straylight.paths import KIND_DIFFRACTION, mix_key
+
+METHOD = "HURB (Heisenberg uncertainty ray bending, Freniere et al. 1999)"
+EVENT_DIFFRACTION = KIND_DIFFRACTION  # last_event of a ray that was just diffracted; path-record kind
+
+
+@dataclass(frozen=True, eq=False)
+class Diffraction:
+    """What the walk needs to diffract (picklable)."""
+
+    edges: EdgeTable
+    wavelength_nm: float
+    gamma: float = GAMMA
+    past_mm: float = 0.0  # a ray bent at a rim starts this far past the aperture's plane (set by make_spec)
+
+    @property
+    def band_mm(self) -> float:
+        return self.edges.band_mm
+
+
+def diffracting_parts(scene) -> list:
+    """Indices of the parts marked ``diffraction = "edges"``."""
+    return [i for i, p in enumerate(scene.parts) if (p.meta or {}).get("diffraction") == "edges"]
+
+
+def trace_wavelength_nm(sources, materials) -> float:
+    """The sources' ``wavelength_nm`` (all the same), else the materials' common ``wavelength_nm``."""
+    given = {float(w) for w in (getattr(s, "wavelength_nm", None) for s in sources) if w is not None}
+    if len(given) > 1:
+        raise TraceError(f"diffraction needs one wavelength; the sources give {sorted(given)} nm")
+    if given:
+        return given.pop()
+    known = {float(w) for w in (getattr(m, "wavelength_nm", None) for m in materials) if w is not None}
+    if len(known) == 1:
+        return known.pop()
+    raise TraceError("a part diffracts (diffraction = \"edges\"): give wavelength_nm on the [[source]]")
+
+
+def _rims(part):
+    """(centre, axis, radius, open inside) of a plane part's rims."""
+    s = part.surface
+    out = []
+    if float(getattr(s, "inner_radius_mm", 0.0) or 0.0) > 0.0:
+        out.append((s.vertex_mm, s.axis, float(s.inner_radius_mm), True))
+    out.append((s.vertex_mm, s.axis, float(s.outer_radius_mm), False))
+    return out
+
+
+def scene_diffraction(scene, sources, materials, options) -> Diffraction | None:
+    """The trace's :class:`Diffraction`, or None when no part diffracts or ``options.diffraction`` is
+    ``"off"``."""
+    if options.diffraction == "off":
+        return None
+    marked = diffracting_parts(scene)
+    if not marked:
+        return None
+    from geometry.analytic import Plane
+    from geometry.edges import sharp_edges
+
+    for i in marked:
+        if scene.parts[i].role == "detector":
+            raise TraceError(f"part {scene.parts[i].name!r}: a detector cannot diffract (diffraction = \"edges\")")
+    wavelength_nm = trace_wavelength_nm(sources, materials)
+    band_mm = float(options.diffraction_band_wavelengths) * wavelength_nm * 1e-6
+    segments, rims = [], []
+    for i in marked:
+        part = scene.parts[i]
+        if isinstance(part.surface, Plane):
+            rims.extend((i, *rim) for rim in _rims(part))
+        else:
+            segments.append((i, sharp_edges(part.vertices_mm, part.faces)))
+    return Diffraction(edges=edge_table(segments, rims, band_mm), wavelength_nm=wavelength_nm,
+                       gamma=float(options.hurb_gamma))
+
+
+def hit_distance(scene, rays, tri) -> np.ndarray:
+    """Distance to each ray's hit (inf for a miss), from the hit triangle's plane as the hit stage."""
+    tri = np.asarray(tri, dtype=np.int64)
+    t = np.full(len(tri), np.inf)
+    hit = np.flatnonzero(tri >= 0)
+    if len(hit):
+        k = tri[hit]
+        a = scene.arrays
+        n = a.normals[k]
+        o, d = rays.origin_mm[hit], rays.direction[hit]
+        cos_in = np.einsum("ij,ij->i", n, d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            th = (a.plane_d[k] - np.einsum("ij,ij->i", n, o)) / cos_in
+        edge_on = ~(np.abs(cos_in) >= 1e-12)
+        th[edge_on] = np.einsum("ij,ij->i", a.centroids[k[edge_on]] - o[edge_on], d[edge_on])
+        t[hit] = th
+    return t
+
+
+def subset(rays: RayBatch, rows) -> RayBatch:
+    """The rays at ``rows``."""
+    hist = rays.history[rows] if len(rays.history) else rays.history
+    return RayBatch(*(f[rows] for f in rays[:9]), hist)
+
+
+def merge(a: RayBatch, skip_a, b: RayBatch, skip_b):
+    """Two ray batches as one, ascending ray id (the order the random streams are drawn in)."""
+    if len(b.ray) == 0:
+        return a, skip_a
+    order = np.argsort(np.concatenate([a.ray, b.ray]), kind="stable")
+    fields = [np.concatenate([fa, fb])[order] for fa, fb in zip(a[:9], b[:9])]
+    hist = np.concatenate([a.history, b.history])[order] if len(a.history) + len(b.history) else a.history
+    return RayBatch(*fields, hist), np.concatenate([skip_a, skip_b])[order]
+
+
+def divert(diff: Diffraction, scene, rays: RayBatch, tri, skip, U, sample_col: int, record_paths: bool):
+    """Split this event's rays: (rows that go on to their hit, the diffracted rays' next state, their
+    skip ids), or None when no ray passes an edge. ``skip``: (n, 3) edge ids each ray must ignore
+    (the edge it was just diffracted at), or None."""
+    tmax = hit_distance(scene, rays, tri)
+    tri = np.asarray(tri, dtype=np.int64)
+    hit_part = np.where(tri >= 0, scene.arrays.triangle_part[np.maximum(tri, 0)], -1).astype(np.int64)
+    edge, t, db, da, b = passages(diff.edges, rays.origin_mm, rays.direction, tmax, skip, hit_part)
+    bent = np.flatnonzero(edge >= 0)
+    if len(bent) == 0:
+        return None
+    keep = np.flatnonzero(edge < 0)
+    d = rays.direction[bent]
+    # a rim's crossing lies on its part's plane: start just past it (scene epsilon along the ray)
+    past = np.where(edge[bent] >= len(diff.edges.seg_a), diff.past_mm, 0.0)
+    origin = rays.origin_mm[bent] + (t[bent] + past)[:, None] * d
+    direction = deflect(d, b[bent], db[bent], da[bent], diff.wavelength_nm, U[bent, sample_col],
+                        U[bent, sample_col + 1], diff.gamma)
+    part = diff.edges.part_of(edge[bent])
+    code = part * 4 + EVENT_DIFFRACTION
+    depth = rays.depth[bent]
+    hist = rays.history[bent] if len(rays.history) else rays.history
+    if record_paths and len(hist):
+        inside = np.flatnonzero(depth < hist.shape[1])
+        hist[inside, depth[inside]] = code[inside]
+    key = mix_key(rays.path_key[bent], code) if record_paths else rays.path_key[bent]
+    nxt = RayBatch(ray=rays.ray[bent], origin_mm=origin, direction=direction, weight_w=rays.weight_w[bent],
+                   last_event=np.full(len(bent), EVENT_DIFFRACTION, dtype=np.int8), last_pdf_per_sr=np.zeros(len(bent)),
+                   last_part=part, path_key=key, depth=depth + 1, history=hist)
+    return keep, nxt, diff.edges.skip_of(edge[bent])
+
+
+def truncate(diff_rays: RayBatch, tallies, rows) -> None:
+    """At the last event, diffracted rays stop: their power goes to the part's ``truncated`` row."""
+    tallies.reserve(len(diff_rays.ray))
+    tallies.add(rows.truncated + diff_rays.last_part, diff_rays.ray, diff_rays.weight_w)
+
+
+def blocked_by_edges(diff: Diffraction | None, origin, direction, tmax) -> np.ndarray:
+    """Shadow rays that pass a diffracting edge before ``tmax`` (next-event estimation treats them
+    as blocked: the walk would have bent them)."""
+    n = len(origin)
+    if diff is None or n == 0:
+        return np.zeros(n, dtype=bool)
+    edge = passages(diff.edges, origin, direction, np.asarray(tmax, dtype=np.float64))[0]
+    return edge >= 0
+
+
+def describe_method(gamma: float = GAMMA) -> str:
+    return f"{METHOD}, gamma = {gamma:.3f}" if not math.isclose(gamma, GAMMA) else METHOD
+
+
+def vertex_strategies_off(options, diff: Diffraction | None):
+    """First- and second-vertex sampling join vertices by straight shadow rays that do not know the
+    edges: with diffraction on, the trace runs without them (plain NEE and the walk see every path)."""
+    if diff is None or not (options.first_vertex_sampling or options.second_vertex_sampling):
+        return options
+    from dataclasses import replace
+
+    return replace(options, first_vertex_sampling=False, second_vertex_sampling=False)
