@@ -121,6 +121,13 @@ class CriticalReport:
                 "both_ranked": [r.part for r in self.ranking],
                 "parts": [r.__dict__ for r in self.rows]}
 
+    def to_pandas(self):
+        """Every part as a pandas DataFrame (columns of critical.csv, by decreasing score; pandas is optional)."""
+        from straylight.analyses.tables import data_frame
+
+        return data_frame([r.__dict__ for r in sorted(self.rows, key=lambda r: -r.score)],
+                          tuple(ObjectRow.__dataclass_fields__))
+
     def write_json(self, path) -> Path:
         path = Path(path)
         atomicio.write_text(path, json.dumps(self.to_json_dict(), indent=2))

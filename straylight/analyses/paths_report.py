@@ -94,6 +94,7 @@ class PathReport:
     ancestry_filter: tuple
     ancestry_w: dict = field(default_factory=dict)
     title: str = ""
+    trace: object = field(default=None, repr=False)  # the TraceResult it came from, when kept (straylight.api)
 
     @property
     def fraction_sum(self) -> float:
@@ -108,6 +109,12 @@ class PathReport:
                              for k, v in self.ancestry_w.items()},
                 "n_groups": len(self.rows),
                 "groups": [r.__dict__ for r in self.rows[:top]]}
+
+    def to_pandas(self):
+        """Every ranked group as a pandas DataFrame (columns of paths.csv; pandas is optional)."""
+        from straylight.analyses.tables import PATHS_TABLE, data_frame
+
+        return data_frame([{**r.__dict__, "path": r.label} for r in self.rows], PATHS_TABLE)
 
     def markdown(self, top: int = 20) -> str:
         head = (f"Detector `{self.detector}`: total {self.total_w:.4e} +- {self.total_stderr_w:.2e} W "

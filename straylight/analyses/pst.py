@@ -33,9 +33,30 @@ import atomicio
 from straylight.analyses.builtin import Beam, Entrance, Setup
 from straylight.progress import progress_bar
 
+DEFAULT_VOV_LIMIT = 0.1  # straylight.analyses.precision.DEFAULT_MAX_VOV: MCNP's reliability check
 CSV_COLUMNS = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "entrance_ratio", "entrance_ratio_stderr",
                "detector_w", "detector_stderr_w", "rays", "seconds")
 DIAGNOSTIC_COLUMNS = ("vov", "rel_error_of_error", "max_chunk_share", "stop_reason", "rounds")
+FLAG_COLUMN = "flags"  # last column of pst.csv, key of each pst.json point (docs/notebook.md, "PST files")
+FLAGS = {
+    "zero": "no power reached the detector: the PST is below what these rays resolve (0 is not a measurement)",
+    "unreliable_error": "the variance of the variance (VOV) is above 0.1 (MCNP's check): rare heavy paths, the "
+                        "error bar itself is uncertain",
+    "target_not_reached": "traced to a target relative error, but a ray or time cap stopped the point first",
+}
+
+
+def point_flags(row: dict) -> str:
+    """The ``FLAGS`` that apply to one point (a ``PstResult.rows()`` entry), joined by ';' ('' when none)."""
+    out = []
+    if not row["pst"] > 0:
+        out.append("zero")
+    vov = row.get("vov")
+    if vov is not None and vov == vov and vov > DEFAULT_VOV_LIMIT:
+        out.append("unreliable_error")
+    if row.get("stop_reason") not in (None, "", "target"):
+        out.append("target_not_reached")
+    return ";".join(out)
 
 
 def point_seed(seed: int, index: int) -> int:
@@ -139,9 +160,19 @@ class PstResult:
             for i in range(len(self.pst))
         ]
 
+    def flagged_rows(self) -> list[dict]:
+        """:meth:`rows` with each point's ``flags`` (:func:`point_flags`)."""
+        return [{**r, FLAG_COLUMN: point_flags(r)} for r in self.rows()]
+
+    def to_pandas(self):
+        """The points as a pandas DataFrame (columns of pst.csv; pandas is an optional dependency)."""
+        from straylight.analyses.tables import data_frame
+
+        return data_frame(self.flagged_rows(), CSV_COLUMNS + DIAGNOSTIC_COLUMNS + (FLAG_COLUMN,))
+
     def to_json_dict(self) -> dict:
         clean = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
-                 for r in self.rows()]
+                 for r in self.flagged_rows()]
         return {"quantity": "point source transmittance",
                 "definitions": {"pst": "detector irradiance / beam irradiance normal to the rays",
                                 "entrance_ratio": "detector power / beam power crossing the entrance disk"},
@@ -151,7 +182,10 @@ class PstResult:
                 "precision": self.precision,
                 "reliability_note": "rel_error_of_error ~ sqrt(vov) / 2; vov > 0.1 (MCNP's check) or a large "
                                     "max_chunk_share means rare heavy paths: the error bar itself is uncertain",
-                "nee": self.nee, "points": clean}
+                "nee": self.nee, "beam_power_w": self.beam_power_w,
+                "units": {"off_axis_deg": "deg", "azimuth_deg": "deg", "pst": "1", "pst_stderr": "1",
+                          "detector_w": "W", "detector_stderr_w": "W", "detector_area_mm2": "mm^2"},
+                "flags": FLAGS, "points": clean}
 
     def write_json(self, path) -> Path:
         path = Path(path)
@@ -161,9 +195,9 @@ class PstResult:
     def write_csv(self, path) -> Path:
         path = Path(path)
         with atomicio.atomic_open(path, "w") as fh:
-            writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS + DIAGNOSTIC_COLUMNS, restval="")
+            writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS + DIAGNOSTIC_COLUMNS + (FLAG_COLUMN,), restval="")
             writer.writeheader()
-            writer.writerows(self.rows())
+            writer.writerows(self.flagged_rows())
         return path
 
     def plot(self, path=None, quantity: str = "pst", ax=None, label_prefix: str = ""):

@@ -306,6 +306,9 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
         "software": {"python": platform.python_version(), "numpy": np.__version__},
     }
     atomicio.write_json(out / "results.json", result.summary)
+    from straylight.analyses.tables import write_report_tables
+
+    write_report_tables(out, pst, report, crit, sweep, direct)  # the report's tables as table_<name>.csv
     write_markdown(result, pst, report, crit, sweep, direct)
     write_html(result, pst, report, crit, sweep, direct)
     PointStore.remove_folder(points)  # the report holds every number now
@@ -455,6 +458,10 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
         return f'<figure><img src="{name}" alt="{html.escape(alt)}" style="max-width:{width}"><figcaption>' \
                f"{html.escape(alt)}</figcaption></figure>"
 
+    def csv(name):  # link to the table's CSV (straylight.analyses.tables), when written
+        f = f"table_{name}.csv"
+        return f'<p style="font-size:0.85em"><a href="{f}">{f}</a></p>' if (result.out_dir / f).exists() else ""
+
     path_rows = [(r.rank, r.label, r.ancestry.replace("_", " "), f"{r.fraction:.2%}", f"{r.fraction_stderr:.2%}",
                   f"{r.power_w:.2e}", r.n_records) for r in report.rows[:15]]
     anc_rows = [(k.replace("_", " "), f"{v[0] / report.total_w:.2%}" if report.total_w > 0 else "-",
@@ -469,7 +476,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
                                    for j in range(len(sweep.off_axis_deg))]) for i, v in enumerate(sweep.values)]
         sweep_html = f"""<h2>Design sweep: {html.escape(sweep.parameter.replace('_', ' '))}</h2>
 {img('sweep.png', 'PST vs design parameter at the stray-light angles')}
-{_html_table((sweep.parameter,) + tuple(f'PST at {a:g} deg' for a in sweep.off_axis_deg), sweep_rows)}"""
+{_html_table((sweep.parameter,) + tuple(f'PST at {a:g} deg' for a in sweep.off_axis_deg), sweep_rows)}{csv('sweep')}"""
     from straylight.view3d import report_section
 
     view3d_html = report_section() if (result.out_dir / "view3d.html").exists() else ""
@@ -480,17 +487,17 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 <ul>{''.join(f'<li>{html.escape(f)}</li>' for f in _findings(pst, report, crit, sweep))}</ul>
 <h2>Point source transmittance</h2>
 {img('pst.png', 'PST vs off-axis angle, with the unscattered (geometric) transmission')}
-{_html_table(PST_HEADER, _pst_table_rows(pst, direct))}
+{_html_table(PST_HEADER, _pst_table_rows(pst, direct))}{csv('pst')}
 <p>Entrance-normalised ratio: <a href="entrance_ratio.png">entrance_ratio.png</a>; numbers in
 <a href="pst.csv">pst.csv</a>.</p>
 <h2>Stray-light paths at {crit.off_axis_deg:g} deg</h2>
 {img('paths.png', 'Largest paths to the detector, fraction of detector power')}
 <p>Detector total {report.total_w:.3e} +- {report.total_stderr_w:.1e} W for a 1 W beam.</p>
-{_html_table(('rank', 'path', 'ancestry', 'fraction', '1 sigma', 'power (W)', 'records'), path_rows)}
-{_html_table(('ancestry', 'fraction', '1 sigma'), anc_rows)}
+{_html_table(('rank', 'path', 'ancestry', 'fraction', '1 sigma', 'power (W)', 'records'), path_rows)}{csv('paths')}
+{_html_table(('ancestry', 'fraction', '1 sigma'), anc_rows)}{csv('ancestry')}
 <h2>Critical and illuminated objects at {crit.off_axis_deg:g} deg</h2>
 {img('critical.png', 'View factor from the detector vs fraction of the beam first hitting each part', '70%')}
-{_html_table(('rank', 'part', 'illuminated fraction', 'view factor det -> part', 'score'), crit_rows)}
+{_html_table(('rank', 'part', 'illuminated fraction', 'view factor det -> part', 'score'), crit_rows)}{csv('critical')}
 {sweep_html}
 {view3d_html}
 <h2>3-D views and detector map</h2>

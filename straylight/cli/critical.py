@@ -8,7 +8,6 @@ Writes DIR/critical.json (CONTRACTS §4.5: ``parts`` with ``illuminated``, ``vie
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 
@@ -24,19 +23,18 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from straylight.analyses.critical import critical_objects
     from straylight.analyses.pst import dask_client
-    from straylight.cli.pst import check_angle_deg, load_setup
+    from straylight.cli.pst import check_angle_deg, load_instrument
 
     check_angle_deg(args.angle_deg)
     if args.rays < 2:
         raise ValueError(f"--rays must be >= 2, got {args.rays}")
-    setup = load_setup(args)
+    inst = load_instrument(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with dask_client(args.workers, args.scheduler) as client:
-        report = critical_objects(setup, math.radians(args.angle_deg), math.radians(args.azimuth_deg),
-                                  n_rays=args.rays, seed=args.seed, client=client, progress=True)
+        report = inst.critical(args.angle_deg, args.azimuth_deg, rays=args.rays, seed=args.seed, client=client,
+                               progress=True)
     report.write_json(out / "critical.json")
     report.write_csv(out / "critical.csv")
     import atomicio

@@ -7,7 +7,6 @@ Writes DIR/paths.md (table), paths.csv (every group), paths.json, paths.png (bar
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 
@@ -30,16 +29,16 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from straylight.analyses.paths_report import paths_analysis
-    from straylight.cli.pst import check_angle_deg, load_setup
+    from straylight.cli.pst import check_angle_deg, load_instrument
 
     check_angle_deg(args.angle_deg)
-    setup = load_setup(args)
+    inst = load_instrument(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    report, res = paths_analysis(setup, math.radians(args.angle_deg), math.radians(args.azimuth_deg),
-                               n_rays=args.rays, seed=args.seed, nee=not args.no_nee, group_by=args.group_by,
-                               ancestry=args.ancestry, workers=args.workers, scheduler=args.scheduler)
+    report = inst.paths(args.angle_deg, args.azimuth_deg, rays=args.rays, seed=args.seed, nee=not args.no_nee,
+                        group_by=args.group_by, ancestry=args.ancestry, workers=args.workers,
+                        scheduler=args.scheduler, progress=True)
+    res = report.trace
     import atomicio
 
     atomicio.write_text(out / "paths.md", report.markdown(args.top))

@@ -67,8 +67,9 @@ def add_precision_args(parser, default_rays=None, what="rays", exclusive=True):
 
 
 def precision_from_args(args):
-    """A :class:`straylight.analyses.precision.Precision`, or None for a fixed ray count."""
-    from straylight.analyses.precision import DEFAULT_MAX_RAYS, DEFAULT_MAX_VOV, Precision
+    """A :class:`straylight.analyses.precision.Precision`, or None for a fixed ray count
+    (:func:`straylight.api.precision_target`; errors name the flags)."""
+    from straylight.api import precision_target
 
     caps = {"--max-rays": args.max_rays, "--max-seconds": args.max_seconds, "--max-vov": args.max_vov}
     if args.target_rel_error is None:
@@ -78,10 +79,7 @@ def precision_from_args(args):
         return None
     if not 0 < args.target_rel_error < 1:
         raise ValueError(f"--target-rel-error must be in (0, 1), e.g. 0.02, got {args.target_rel_error}")
-    return Precision(args.target_rel_error,
-                     max_rays=int(args.max_rays) if args.max_rays is not None else DEFAULT_MAX_RAYS,
-                     max_seconds=args.max_seconds if args.max_seconds is not None else float("inf"),
-                     max_vov=args.max_vov if args.max_vov is not None else DEFAULT_MAX_VOV)
+    return precision_target(args.target_rel_error, args.max_rays, args.max_seconds, args.max_vov)
 
 
 def add_parser(subparsers):
@@ -108,66 +106,55 @@ def add_parser(subparsers):
 
 
 def load_setup(args):
-    """A :class:`straylight.analyses.builtin.Setup` from the common scene arguments.
+    """A :class:`straylight.analyses.builtin.Setup` from the common scene arguments (:func:`load_instrument`)."""
+    return load_instrument(args).setup
+
+
+def load_instrument(args):
+    """A :class:`straylight.api.Instrument` from the common scene arguments: :func:`straylight.api.load`.
 
     SCENE.toml goes through :func:`straylight.analyses.scene_setup.scene_setup` (its [analysis]
     table; ``--detector`` and pst's ``--entrance-*`` override it); ``--builtin tube`` builds the tube.
     """
-    from straylight.analyses.builtin import DEFAULT_MATERIAL, Entrance, Setup, tube_setup
+    from straylight import api
 
     if (args.scene is None) == (args.builtin is None):
         raise ValueError("give either SCENE.toml or --builtin tube")
+    tube_flags = ("vanes", "vane_inner_radius_mm", "material")
     if args.builtin == "cassegrain":
-        from straylight.analyses.telescope import cassegrain_setup
-
-        for flag in ("vanes", "vane_inner_radius_mm", "material", "detector"):
+        for flag in (*tube_flags, "detector"):
             if getattr(args, flag, None) is not None:
                 raise ValueError(f"--{flag.replace('_', '-')} applies to --builtin tube, not to the Cassegrain")
-        return cassegrain_setup()
+        return api.load(builtin="cassegrain")
     if args.builtin:
-        params = {}
-        if args.vanes is not None:
-            params["vane_count"] = args.vanes
-        if args.vane_inner_radius_mm is not None:
-            params["vane_inner_radius_mm"] = args.vane_inner_radius_mm
-        setup = tube_setup(material=args.material or DEFAULT_MATERIAL, **params)
-        if args.detector is not None:
-            setup = Setup(setup.scene, setup.materials, setup.beam, setup.entrance, args.detector,
-                          setup.description, setup.params)
-        return setup
-    for flag in ("vanes", "vane_inner_radius_mm", "material"):
+        return api.load(builtin="tube", detector=args.detector, material=args.material, vane_count=args.vanes,
+                        vane_inner_radius_mm=args.vane_inner_radius_mm)
+    for flag in tube_flags:
         if getattr(args, flag, None) is not None:
             raise ValueError(f"--{flag.replace('_', '-')} applies to --builtin tube, not to a scene file")
-    from straylight.analyses.scene_setup import scene_setup
-
-    entrance = None
     radius = getattr(args, "entrance_radius_mm", None)
     center = getattr(args, "entrance_center_mm", None)
     if (radius is None) != (center is None):
         raise ValueError("give --entrance-center-mm and --entrance-radius-mm together")
-    if radius is not None:
-        entrance = Entrance(center_mm=center, radius_mm=radius)
-    return scene_setup(args.scene, detector=args.detector, entrance=entrance)
+    return api.load(args.scene, detector=args.detector, entrance_center_mm=center, entrance_radius_mm=radius)
 
 
 def run(args) -> int:
     from straylight.cli.cluster_args import start_early
 
     start_early(args, in_process_below=2)  # worker processes: their fork server loads while the scene loads
-    import numpy as np
-
-    from straylight.analyses.pst import pst_sweep
-
-    precision = precision_from_args(args)
-    setup = load_setup(args)
+    precision_from_args(args)  # flag errors first, named as flags
+    inst = load_instrument(args)
+    setup = inst.setup
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     from straylight.cli.cluster_args import cluster_client
 
     with cluster_client(args, in_process_below=2) as client:  # one worker: this process
-        res = pst_sweep(setup, np.radians(args.angles_deg), np.radians(args.azimuths_deg),
-                        n_rays=args.rays if precision is None else 1, seed=args.seed, nee=not args.no_nee,
-                        client=client, precision=precision, checkpoint_dir=out / "pst.points", resume=args.resume)
+        res = inst.pst(args.angles_deg, args.azimuths_deg, rays=args.rays, seed=args.seed, nee=not args.no_nee,
+                       target_rel_error=args.target_rel_error, max_rays=args.max_rays, max_seconds=args.max_seconds,
+                       max_vov=args.max_vov, client=client, progress=True, checkpoint_dir=out / "pst.points",
+                       resume=args.resume)
     res.write_csv(out / "pst.csv")
     res.write_json(out / "pst.json")
     res.plot(out / "pst.png")

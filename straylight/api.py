@@ -1,0 +1,177 @@
+"""The notebook API: load an instrument, run an analysis, get a typed result (docs/notebook.md).
+
+    import straylight.api as sl
+
+    inst = sl.load("scope.toml")                 # a scene file (CONTRACTS §6), or sl.load(builtin="tube")
+    pst = inst.pst([0, 10, 20, 30], rays=50_000, seed=1)      # PstResult
+    pst.to_pandas(); pst.plot()
+    paths = inst.paths(20, rays=100_000, seed=1)              # PathReport (.trace: the TraceResult)
+    crit = inst.critical(20, rays=50_000, seed=1)             # CriticalReport
+    inst.view3d("view.html", 20)                              # the interactive 3-D view
+
+Results are frozen dataclasses with named fields, ``to_pandas()`` (pandas is optional) and
+``plot()`` (matplotlib). The ``straylight pst``, ``paths`` and ``critical`` commands are built on
+these calls: the same arguments and seed give the same numbers (the docs' example is run by a test
+against the commands). Angles are in degrees here, as on the command line.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from straylight.analyses.builtin import DEFAULT_MATERIAL, Entrance, Setup
+
+BUILTINS = ("tube", "cassegrain")
+
+
+@dataclass(frozen=True)
+class PartInfo:
+    """One part of the loaded instrument: name, role, material name, triangle count."""
+
+    name: str
+    role: str
+    material: str | None
+    triangles: int
+
+
+def load(scene=None, *, builtin: str | None = None, detector: str | None = None, material: str | None = None,
+         entrance_center_mm=None, entrance_radius_mm: float | None = None, **tube_params) -> "Instrument":
+    """An :class:`Instrument` from a scene file (``scene``) or a built-in (``builtin="tube"`` or ``"cassegrain"``).
+
+    detector : the detector part (default: the scene's [analysis] detector, or its only one)
+    material : built-in tube only: the coating of wall, vanes and end plate (default z302_sample_b)
+    entrance_center_mm, entrance_radius_mm : scene file only: override its [analysis] entrance (together)
+    tube_params : built-in tube only: ``geometry.parts.tube.TubeParams`` fields (``vane_count=5``, ...)
+    """
+    if (scene is None) == (builtin is None):
+        raise ValueError("give either a scene file or builtin='tube' (or 'cassegrain')")
+    if builtin is not None and builtin not in BUILTINS:
+        raise ValueError(f"builtin must be one of {', '.join(BUILTINS)}, got {builtin!r}")
+    if (entrance_radius_mm is None) != (entrance_center_mm is None):
+        raise ValueError("give entrance_center_mm and entrance_radius_mm together")
+    if builtin == "cassegrain":
+        from straylight.analyses.telescope import cassegrain_setup
+
+        given = [k for k, v in {"material": material, "detector": detector, **tube_params}.items() if v is not None]
+        if given or entrance_radius_mm is not None:
+            raise ValueError(f"{', '.join(given) or 'entrance'} applies to the built-in tube, not to the Cassegrain")
+        return Instrument(cassegrain_setup(), "builtin cassegrain")
+    if builtin == "tube":
+        from straylight.analyses.builtin import tube_setup
+
+        if entrance_radius_mm is not None:
+            raise ValueError("the entrance of the built-in tube is fixed (give it in a scene file's [analysis])")
+        setup = tube_setup(material=material or DEFAULT_MATERIAL,
+                           **{k: v for k, v in tube_params.items() if v is not None})
+        if detector is not None:
+            setup = Setup(setup.scene, setup.materials, setup.beam, setup.entrance, detector, setup.description,
+                          setup.params)
+        return Instrument(setup, "builtin tube")
+    given = [k for k, v in {"material": material, **tube_params}.items() if v is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)} applies to the built-in tube, not to a scene file")
+    from straylight.analyses.scene_setup import scene_setup
+
+    entrance = None if entrance_radius_mm is None else Entrance(center_mm=entrance_center_mm,
+                                                                radius_mm=entrance_radius_mm)
+    return Instrument(scene_setup(scene, detector=detector, entrance=entrance), str(scene))
+
+
+def precision_target(target_rel_error: float | None, max_rays=None, max_seconds=None, max_vov=None):
+    """A :class:`~straylight.analyses.precision.Precision` (None without a target); defaults for caps not given."""
+    from straylight.analyses.precision import DEFAULT_MAX_RAYS, DEFAULT_MAX_VOV, Precision
+
+    if target_rel_error is None:
+        given = [k for k, v in {"max_rays": max_rays, "max_seconds": max_seconds, "max_vov": max_vov}.items()
+                 if v is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} need target_rel_error")
+        return None
+    if not 0 < target_rel_error < 1:
+        raise ValueError(f"target_rel_error must be in (0, 1), e.g. 0.02, got {target_rel_error}")
+    return Precision(target_rel_error, max_rays=int(max_rays) if max_rays is not None else DEFAULT_MAX_RAYS,
+                     max_seconds=max_seconds if max_seconds is not None else float("inf"),
+                     max_vov=max_vov if max_vov is not None else DEFAULT_MAX_VOV)
+
+
+def _angle_rad(value_deg: float, name: str) -> float:
+    if not -90 < float(value_deg) < 90:
+        raise ValueError(f"{name} must be in (-90, 90) deg, got {value_deg}")
+    return math.radians(float(value_deg))
+
+
+@dataclass(frozen=True, eq=False)
+class Instrument:
+    """A loaded instrument (:class:`~straylight.analyses.builtin.Setup`: scene, materials, beam, entrance,
+    detector) and the analyses that run on it. ``client``/``workers``/``scheduler`` on each call choose
+    where it runs (default: this process); they never change the numbers."""
+
+    setup: Setup
+    source: str = ""
+
+    @property
+    def parts(self) -> list[PartInfo]:
+        return [PartInfo(p.name, p.role, p.material, int(len(p.faces))) for p in self.setup.scene.parts]
+
+    @property
+    def detector(self) -> str:
+        from straylight.analyses.pst import detector_name
+
+        return detector_name(self.setup.scene, self.setup.detector)
+
+    def pst(self, angles_deg, azimuths_deg=(0.0,), *, rays: int = 100_000, seed: int = 0,
+            target_rel_error: float | None = None, max_rays=None, max_seconds=None, max_vov=None, nee: bool = True,
+            workers=None, scheduler=None, client=None, progress: bool = False, checkpoint_dir=None,
+            resume: bool = False):
+        """Point source transmittance at every (angle, azimuth): a :class:`~straylight.analyses.pst.PstResult`.
+
+        ``rays`` per point, or ``target_rel_error`` (with its caps): each point traced until its relative
+        standard error is at most that (docs/study.md). Each point has its own seed derived from ``seed``.
+        """
+        import numpy as np
+
+        from straylight.analyses.pst import pst_sweep
+
+        precision = precision_target(target_rel_error, max_rays, max_seconds, max_vov)
+        return pst_sweep(self.setup, np.radians(np.atleast_1d(np.asarray(angles_deg, dtype=float))), np.radians(np.atleast_1d(azimuths_deg)),
+                         n_rays=int(rays) if precision is None else 1, seed=int(seed), nee=nee, workers=workers,
+                         scheduler=scheduler, client=client, progress=progress, precision=precision,
+                         checkpoint_dir=checkpoint_dir, resume=resume)
+
+    def paths(self, angle_deg: float, azimuth_deg: float = 0.0, *, rays: int = 100_000, seed: int = 0,
+              nee: bool = True, group_by: str = "sequence", ancestry=None, workers=None, scheduler=None, client=None,
+              progress: bool = False):
+        """Stray-light paths to the detector, ranked: a :class:`~straylight.analyses.paths_report.PathReport`
+        whose ``trace`` is the :class:`~straylight.trace.TraceResult` (absorbed power per part, maps...)."""
+        from straylight.analyses.paths_report import paths_analysis
+
+        report, res = paths_analysis(self.setup, _angle_rad(angle_deg, "angle_deg"), math.radians(azimuth_deg),
+                                     n_rays=int(rays), seed=int(seed), nee=nee, group_by=group_by,
+                                     ancestry=ancestry, workers=workers, scheduler=scheduler, client=client,
+                                     progress=progress)
+        return replace(report, trace=res)
+
+    def critical(self, angle_deg: float, azimuth_deg: float = 0.0, *, rays: int = 100_000, seed: int = 0,
+                 client=None, progress: bool = False):
+        """Critical and illuminated parts: a :class:`~straylight.analyses.critical.CriticalReport`."""
+        from straylight.analyses.critical import critical_objects
+
+        if int(rays) < 2:
+            raise ValueError(f"rays must be >= 2, got {rays}")
+        return critical_objects(self.setup, _angle_rad(angle_deg, "angle_deg"), math.radians(azimuth_deg),
+                                n_rays=int(rays), seed=int(seed), client=client, progress=progress)
+
+    def view3d(self, path, angle_deg: float = 20.0, azimuth_deg: float = 0.0, *, rays: int = 50_000, seed: int = 0,
+               paths=None, max_triangles: int | None = None) -> Path:
+        """Write the interactive 3-D view (straylight.view3d) at this angle: parts coloured by absorbed
+        power, the ranked paths' sample rays. ``paths``: a PathReport of this angle to reuse (else traced
+        with ``rays`` and ``seed``)."""
+        from straylight import view3d
+
+        report = paths if paths is not None else self.paths(angle_deg, azimuth_deg, rays=rays, seed=seed)
+        if report.trace is None:
+            raise ValueError("paths has no trace: use the PathReport that Instrument.paths returned")
+        extra = {} if max_triangles is None else {"max_triangles": int(max_triangles)}
+        return view3d.write_view3d(path, self.setup, report.trace, report, _angle_rad(angle_deg, "angle_deg"),
+                                   math.radians(azimuth_deg), seed=seed, **extra)
