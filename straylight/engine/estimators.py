@@ -36,7 +36,8 @@ ESTIMATORS = (
     Estimator("first_vertex", {"first_vertex_sampling": True}, Capability.FIRST_VERTEX, reference=False),
     Estimator("second_vertex", {"nee": True, "second_vertex_sampling": True}, Capability.SECOND_VERTEX,
               requires=("nee",)),
-    Estimator("target_mis", {"target_fraction": 0.5}, Capability.TARGET_MIS, target=True),
+    Estimator("target_mis", {"nee": True, "target_fraction": 0.5}, Capability.TARGET_MIS, target=True,
+              requires=("nee",)),
 )
 
 

@@ -1,0 +1,280 @@
+"""The engine's contract, over every interaction kind x every estimator (issue 23).
+
+For each continuing interaction kind (straylight.engine.interactions.registry) a small scene
+(:data:`CONTRACT_SCENES`: a lit part of that kind, the "subject", seen by a flat detector, with an
+absorber; the terminal kinds, detection and absorption, are in every scene) and for each estimator
+of straylight.engine.estimators.ESTIMATORS:
+
+- the power ledger closes (emitted = detected + absorbed + escaped, to 1e-9);
+- the compiled walk equals the numpy reference walk bit for bit (where the reference implements
+  the estimator);
+- the detector power with the estimator on agrees with the analog walk (every estimator off, an
+  independent seed) within 4 combined standard errors;
+- the estimator engages on the subject's parts exactly when the subject's kind declares the
+  capability it needs (measured from what the run wrote, not from the declaration).
+
+A new kind is covered by adding a scene here (the test fails for a registered kind without one);
+a new estimator by adding a row to ESTIMATORS. :func:`test_removing_a_declaration_is_detected`
+deletes each declared capability in turn and expects this check to fail.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+
+from geometry.mesh import Part, Scene
+from materials import load_material
+from straylight.engine import second_vertex
+from straylight.engine.compiled_scene import compiled_scene
+from straylight.engine.estimators import ANALOG, ESTIMATORS, options_for
+from straylight.engine.interactions import INTERACTIONS, Capability, kind_for
+from straylight.sources import CollimatedDisk
+from straylight.trace import TraceOptions, make_spec, run_batch, run_batch_reference, trace
+
+N_RAYS = 30_000  # per run with an estimator on
+N_ANALOG = 120_000  # the analog walk (one run per kind, the noisiest side of each comparison)
+N_REF = 1_500  # compiled vs numpy reference
+SEED_ANALOG, SEED_ON = 101, 202
+# with target sampling on, the walk hits on the detector straight after a subject vertex are many
+# times more frequent (q = 0.5 of the draws aim at the detector, which subtends ~0.1 sr)
+TARGET_ENGAGED_RATIO = 3.0
+
+
+def _quad(p0, e1, e2, n=4):
+    """An n x n grid of triangles over the parallelogram p0 + s e1 + t e2 (normal e1 x e2)."""
+    s, t = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
+    v = np.asarray(p0, float) + s.reshape(-1, 1) * np.asarray(e1, float) + t.reshape(-1, 1) * np.asarray(e2, float)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    f = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return v, f
+
+
+def _merge(*quads):
+    vs, fs, off = [], [], 0
+    for v, f in quads:
+        vs.append(v)
+        fs.append(f + off)
+        off += len(v)
+    return np.concatenate(vs), np.concatenate(fs)
+
+
+FLOOR = ((-20, -20, 0), (40, 0, 0), (0, 40, 0))  # z = 0, lit by the beam around x = 0
+WALL = ((25, -20, 0), (0, 40, 0), (0, 0, 60))  # x = 25, lit by what the floor sends on
+DETECTOR = ((-20, -10, 40), (20, 0, 0), (0, 20, 0))  # flat, above the floor, sees floor and wall
+ABSORBER = ((-30, -30, -5), (0, 60, 0), (0, 0, 70))
+
+
+def _source():
+    a = math.radians(30.0)
+    d = [math.sin(a), 0.0, -math.cos(a)]
+    return CollimatedDisk([-20.0, 0.0, 35.0], d, d, 4.0)
+
+
+def _parts(subject_role, subject_material, wall_with_subject=True, wall_material=None):
+    parts = []
+    if wall_with_subject:  # one L-shaped part: lit (floor) and seen-and-lit-by-the-floor (wall) faces
+        parts.append(Part("subject", *_merge(_quad(*FLOOR), _quad(*WALL)), material=subject_material,
+                          role=subject_role))
+    else:
+        parts.append(Part("subject", *_quad(*FLOOR), material=subject_material, role=subject_role))
+        parts.append(Part("wall", *_quad(*WALL), material=wall_material, role="surface"))
+    parts.append(Part("detector", *_quad(*DETECTOR, n=2), role="detector"))
+    parts.append(Part("absorber", *_quad(*ABSORBER, n=2), role="absorber"))
+    return Scene(tuple(parts))
+
+
+MATTE = {"components": [{"type": "lambertian", "rd": 0.5}]}
+COATED_MIRROR = {"components": [{"type": "specular", "r": 0.5}, {"type": "lambertian", "rd": 0.3}]}
+
+
+@dataclass(frozen=True)
+class Case:
+    scene: Scene
+    materials: dict
+    role: str  # the subject's role
+    expects: Capability  # what the estimators must do on the subject (this test's statement, not the registry's)
+
+    @property
+    def kind(self):
+        return kind_for(self.role, self.materials.get("subject_material"))
+
+
+def _matte_case():
+    return Case(_parts("surface", "subject_material"), {"subject_material": load_material(MATTE, "matte")}, "surface",
+                Capability.NEE | Capability.FIRST_VERTEX | Capability.SECOND_VERTEX | Capability.TARGET_MIS)
+
+
+def _coated_mirror_case():
+    return Case(_parts("surface", "subject_material"),
+                {"subject_material": load_material(COATED_MIRROR, "coated_mirror")}, "surface",
+                Capability.NEE | Capability.POLARIZES)  # NEE from the lobes; no area sampling of a Fresnel surface
+
+
+def _mirror_case():
+    return Case(_parts("mirror", None, wall_with_subject=False, wall_material="wall_material"),
+                {"wall_material": load_material(MATTE, "matte")}, "mirror", Capability.NONE)
+
+
+#: one scene per continuing interaction kind (by the registry's label)
+CONTRACT_SCENES = {
+    "brdf_scatter": _matte_case,
+    "optical_surface": _coated_mirror_case,
+    "delta_reflection": _mirror_case,
+}
+TERMINAL_IN_EVERY_SCENE = ("detector", "absorber")
+
+
+def test_every_registered_kind_has_a_contract_scene():
+    continuing = {name for name, kind in INTERACTIONS.items() if not kind.terminal}
+    assert continuing == set(CONTRACT_SCENES), "add a scene for each new interaction kind to CONTRACT_SCENES"
+    for name, build in CONTRACT_SCENES.items():
+        assert build().kind is INTERACTIONS[name]
+    terminal = {kind_for(role) for role in TERMINAL_IN_EVERY_SCENE}
+    assert terminal == {k for k in INTERACTIONS.values() if k.terminal}
+
+
+_RUNS: dict = {}
+
+
+def _run(case_name, options: dict, seed: int, n_rays: int = N_RAYS):
+    """trace() of a contract scene (memoised per process: the analog runs are shared)."""
+    key = (case_name, tuple(sorted((k, repr(v)) for k, v in options.items())), seed, n_rays)
+    if key not in _RUNS:
+        case = CONTRACT_SCENES[case_name]()
+        _RUNS[key] = trace(case.scene, _source(), n_rays, seed=seed, materials=case.materials,
+                           options=TraceOptions(**options))
+    return _RUNS[key]
+
+
+def _ledger_error(res) -> float:
+    total = sum(t.power_w for t in res.detectors.values()) + sum(t.power_w for t in res.absorbed.values())
+    return abs(res.emitted_w - total - res.escaped.power_w) / res.emitted_w
+
+
+def _last_vertex_counts(res, part_index: int) -> int:
+    """Detector records whose last vertex before the detector is on part ``part_index``."""
+    p = res.paths
+    last = p.events[np.arange(len(p.depth)), np.clip(p.depth - 1, 0, p.events.shape[1] - 1)]
+    return int(np.count_nonzero((p.depth >= 1) & (last >= 0) & (last // 4 == part_index)))
+
+
+def engaged(case_name, estimator, on) -> bool:
+    """Whether ``estimator`` acted on the subject part in the run ``on`` (measured, not declared)."""
+    case = CONTRACT_SCENES[case_name]()
+    if estimator.capability in (Capability.NEE, Capability.FIRST_VERTEX):
+        # NEE / first-vertex estimates move power through the vertex part's nee_exchange row
+        # (the first-vertex run has NEE off: nothing else writes that row)
+        return on.ledger["nee_exchange"]["subject"].power_w != 0.0
+    if estimator.capability == Capability.SECOND_VERTEX:
+        spec = make_spec(case.scene, _source(), 1000, 0, case.materials, TraceOptions(**options_for(estimator)))
+        if second_vertex.unsupported(spec) is not None:
+            return False
+        table = second_vertex.build_table(spec, compiled_scene(spec))
+        subj = spec.part_names.index("subject")
+        return bool(table.from_part[subj]) and on.shadow_rays > _run(case_name, {**ANALOG, "nee": True},
+                                                                      SEED_ON).shadow_rays
+    if estimator.capability == Capability.TARGET_MIS:
+        # walk hits only (NEE off in both runs): target sampling multiplies those after a subject vertex
+        alone = _run(case_name, {**options_for(estimator, "detector"), "nee": False, "record_paths": True}, SEED_ON)
+        off = _run(case_name, {**ANALOG, "record_paths": True}, SEED_ON)
+        subj = case.scene.part_names.index("subject")
+        return _last_vertex_counts(alone, subj) > TARGET_ENGAGED_RATIO * max(_last_vertex_counts(off, subj), 1)
+    raise AssertionError(f"no engagement measure for {estimator.name}: add one to engaged()")
+
+
+def _estimator_options(estimator):
+    return options_for(estimator, "detector")
+
+
+def contract_failures(case_name, estimator) -> list:
+    """What breaks the contract for this kind's scene and estimator (empty: none)."""
+    case = CONTRACT_SCENES[case_name]()
+    out = []
+    on = _run(case_name, _estimator_options(estimator), SEED_ON)
+    analog = _run(case_name, dict(ANALOG), SEED_ANALOG, N_ANALOG)
+    if _ledger_error(on) > 1e-9:
+        out.append(f"ledger does not close: {_ledger_error(on):.3g}")
+    a, b = on.detectors["detector"], analog.detectors["detector"]
+    if not (a.power_w > 0 and b.power_w > 0):
+        out.append(f"no light on the detector: {a} {b}")
+    elif abs(a.power_w - b.power_w) > 4 * math.hypot(a.stderr_w, b.stderr_w):
+        out.append(f"biased: {a.power_w:.6g} +- {a.stderr_w:.2g} vs analog {b.power_w:.6g} +- {b.stderr_w:.2g}")
+    declared = case.kind.allows(estimator.capability)
+    expected = bool(case.expects & estimator.capability)
+    got = engaged(case_name, estimator, on)
+    if got != expected or got != declared:
+        out.append(f"{estimator.name} {'engaged' if got else 'did not engage'} on {case.kind.name} parts; "
+                   f"expected {'on' if expected else 'off'}, the kind {'declares' if declared else 'does not declare'} "
+                   f"{estimator.capability}")
+    return out
+
+
+KIND_NAMES = sorted(CONTRACT_SCENES)
+EST = {e.name: e for e in ESTIMATORS}
+
+
+@pytest.mark.parametrize("estimator", sorted(EST))
+@pytest.mark.parametrize("kind", KIND_NAMES)
+def test_contract(kind, estimator):
+    assert contract_failures(kind, EST[estimator]) == []
+
+
+@pytest.mark.parametrize("kind", KIND_NAMES)
+def test_analog_walk_ledger_closes(kind):
+    assert _ledger_error(_run(kind, dict(ANALOG), SEED_ANALOG, N_ANALOG)) <= 1e-9
+
+
+@pytest.mark.parametrize("estimator", sorted(e.name for e in ESTIMATORS if e.reference))
+@pytest.mark.parametrize("kind", KIND_NAMES)
+def test_compiled_equals_reference(kind, estimator):
+    case = CONTRACT_SCENES[kind]()
+    est = EST[estimator]
+    spec = make_spec(case.scene, _source(), N_REF, 5, case.materials, TraceOptions(**_estimator_options(est)))
+    if est.capability == Capability.SECOND_VERTEX and second_vertex.unsupported(spec) is None:
+        spec = replace(spec, critical_table=second_vertex.build_table(spec, compiled_scene(spec)))
+    n_chunks = 1
+    a, b = run_batch(spec, 0, n_chunks), run_batch_reference(spec, 0, n_chunks)
+    assert set(a) == set(b)
+    for key in a:
+        if isinstance(a[key], np.ndarray):
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
+# every (kind, capability) a kind declares that some estimator needs: deleting it must fail the contract
+REMOVABLE = [(name, est.name) for name in KIND_NAMES for est in ESTIMATORS
+             if INTERACTIONS[name].allows(est.capability)]
+
+
+@pytest.mark.parametrize("kind,estimator", REMOVABLE)
+def test_removing_a_declaration_is_detected(kind, estimator, monkeypatch):
+    cls = type(INTERACTIONS[kind])
+    est = EST[estimator]
+    monkeypatch.setattr(cls, "capabilities", cls.capabilities & ~est.capability)
+    _RUNS.clear()
+    try:
+        failures = contract_failures(kind, est)
+    finally:
+        _RUNS.clear()
+    assert failures, f"deleting {est.capability} from {kind} went unnoticed"
+
+
+# every (kind, capability) a kind does not declare: declaring it falsely must fail the contract too
+ADDABLE = [(name, est.name) for name in KIND_NAMES for est in ESTIMATORS
+           if not INTERACTIONS[name].allows(est.capability)]
+
+
+@pytest.mark.parametrize("kind,estimator", ADDABLE)
+def test_a_false_declaration_is_detected(kind, estimator, monkeypatch):
+    cls = type(INTERACTIONS[kind])
+    est = EST[estimator]
+    monkeypatch.setattr(cls, "capabilities", cls.capabilities | est.capability)
+    _RUNS.clear()
+    try:
+        failures = contract_failures(kind, est)
+    finally:
+        _RUNS.clear()
+    assert failures, f"declaring {est.capability} on {kind} went unnoticed"
