@@ -71,6 +71,12 @@ def part_area_mm2(scene, name: str) -> float:
     return float(0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum())
 
 
+NO_DETECTOR = ("the scene has no detector part: add one, e.g. the exact disk [[part]] name = \"detector\", "
+               "role = \"detector\", surface = {type = \"plane\", vertex_mm = [X, Y, Z], axis = [NX, NY, NZ], "
+               "outer_radius_mm = R} (CONTRACTS 6.4; `straylight geometry scene --detector-disk` writes it), "
+               "or mark a solid with [part.solids.\"NAME\"] role = \"detector\"")
+
+
 def detector_name(scene, name: str | None = None) -> str:
     """``name`` if it is a detector part, or the scene's only detector."""
     detectors = [p.name for p in scene.parts if p.role == "detector"]
@@ -78,8 +84,10 @@ def detector_name(scene, name: str | None = None) -> str:
         if name not in detectors:
             raise ValueError(f"detector {name!r} is not a detector part; detectors: {', '.join(detectors) or 'none'}")
         return name
+    if not detectors:
+        raise ValueError(NO_DETECTOR)
     if len(detectors) != 1:
-        raise ValueError(f"the scene has {len(detectors)} detector parts ({', '.join(detectors) or 'none'}); "
+        raise ValueError(f"the scene has {len(detectors)} detector parts ({', '.join(detectors)}); "
                          "name one with [analysis] detector = \"NAME\" or --detector")
     return detectors[0]
 

@@ -3,7 +3,8 @@
     straylight geometry build tube [--vanes N] [--vane-bevel-deg B] ... [--tolerance-mm T] -o DIR
     straylight geometry build reflectometer --theta-i-deg A --theta-r-deg B [--arm-mm L] ... -o DIR
     straylight geometry check SCENE.toml [--strict] [--json OUT.json]
-    straylight geometry scene ASSEMBLY.step -o SCENE.toml [--detector NAME] [--material M] [--tolerance-mm T]
+    straylight geometry scene ASSEMBLY.step -o SCENE.toml [--detector NAME | --detector-disk X Y Z NX NY NZ R]
+                              [--entrance-disk X Y Z NX NY NZ R] [--material M] [--tolerance-mm T]
 """
 from __future__ import annotations
 
@@ -72,8 +73,16 @@ def add_parser(subparsers):
     scene = group.add_parser("scene", help="write a scene file for your own STEP/IGES assembly (one part per solid)")
     scene.add_argument("cad", metavar="ASSEMBLY.step", help="STEP or IGES file from any CAD tool")
     scene.add_argument("-o", "--output", required=True, metavar="SCENE.toml")
-    scene.add_argument("--detector", default=None, metavar="NAME",
-                       help="solid that is the detector (default: the solid named 'detector')")
+    which = scene.add_mutually_exclusive_group()
+    which.add_argument("--detector", default=None, metavar="NAME",
+                       help="solid that is the detector (default: the solid named 'detector', if any)")
+    disk = ("X", "Y", "Z", "NX", "NY", "NZ", "R")
+    which.add_argument("--detector-disk", type=float, nargs=7, default=None, metavar=disk,
+                       help="add a detector that is the exact disk of centre X Y Z (mm), normal NX NY NZ (its "
+                            "sensitive side) and radius R (mm) (CONTRACTS 6.4): CAD rarely holds a detector solid")
+    scene.add_argument("--entrance-disk", type=float, nargs=7, default=None, metavar=disk,
+                       help="the entrance aperture for the analyses ([analysis] entrance): centre, normal "
+                            "(outward), radius")
     scene.add_argument("--material", default="z302_sample_b", help="material of every other solid")
     scene.add_argument("--tolerance-mm", type=float, default=0.05, help="chord tolerance (mm)")
     scene.add_argument("--axis", type=float, nargs=3, default=(0.0, 0.0, 1.0), metavar=("X", "Y", "Z"),
@@ -169,16 +178,25 @@ def _check(args) -> int:
 def _scene(args) -> int:
     from geometry.cad_scene import write_cad_scene
 
-    path, parts = write_cad_scene(args.cad, args.output, detector=args.detector, material=args.material,
-                                  tolerance_mm=args.tolerance_mm, axis=args.axis)
     import tomllib
 
-    detector = next(iter(tomllib.loads(path.read_text())["part"][0]["solids"]))
-    width = max(len(p.name) for p in parts)
+    from geometry.cad_scene import detector_of
+
+    path, parts = write_cad_scene(args.cad, args.output, detector=args.detector, material=args.material,
+                                  tolerance_mm=args.tolerance_mm, axis=args.axis, detector_disk=args.detector_disk,
+                                  entrance_disk=args.entrance_disk)
+    detector = detector_of(tomllib.loads(path.read_text()))
+    width = max([len(p.name) for p in parts] + [len("detector")])
     for p in parts:
-        role = "detector" if p.meta["solid"] == detector else p.role
+        role = "detector" if p.name == detector else p.role
         print(f"{p.name:<{width}} {role:<8} {p.n_triangles:>9d} triangles  "
               f"chord error {p.meta['tessellation'].max_chord_error_mm:.3g} mm")
+    if args.detector_disk is not None:
+        x, y, z, *_, r = args.detector_disk
+        print(f"{'detector':<{width}} {'detector':<8} exact disk r = {r:g} mm at ({x:g}, {y:g}, {z:g})")
     print(f"{'total':<{width}} {'':<8} {sum(p.n_triangles for p in parts):>9d} triangles in {len(parts)} parts")
     print(f"scene: {path}")
+    if detector is None:
+        print("no detector yet: the analyses need one; write the scene again with --detector-disk X Y Z NX NY NZ R "
+              "(or --detector SOLID), or add a detector part to it (CONTRACTS 6.4)")
     return 0
