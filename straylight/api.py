@@ -8,6 +8,7 @@
     paths = inst.paths(20, rays=100_000, seed=1)              # PathReport (.trace: the TraceResult)
     crit = inst.critical(20, rays=50_000, seed=1)             # CriticalReport
     inst.view3d("view.html", 20)                              # the interactive 3-D view
+    th = sl.thermal("scope.toml", (8, 12), rays=200_000)      # ThermalResult (parts at temperature_k)
 
 Results are frozen dataclasses with named fields, ``to_pandas()`` (pandas is optional) and
 ``plot()`` (matplotlib). The ``straylight pst``, ``paths`` and ``critical`` commands are built on
@@ -76,6 +77,50 @@ def load(scene=None, *, builtin: str | None = None, detector: str | None = None,
     entrance = None if entrance_radius_mm is None else Entrance(center_mm=entrance_center_mm,
                                                                 radius_mm=entrance_radius_mm)
     return Instrument(scene_setup(scene, detector=detector, entrance=entrance), str(scene))
+
+
+def thermal_scene(scene):
+    """The :class:`~straylight.thermal.model.ThermalScene` of a scene file (its ``[[source]]`` entries are
+    ignored: CONTRACTS §7; a thermal scene may have none)."""
+    import warnings
+
+    from straylight.scene import SceneWarning, load_scene
+    from straylight.thermal.model import thermal_scene as build
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SceneWarning)  # non-watertight sheets are normal here
+        rs = load_scene(Path(scene), sources=False)
+    return build(rs.scene, rs.materials)
+
+
+def thermal(scene, band_um, *, rays: int | None = None, target_rel_error: float | None = None, seed: int = 0,
+            method: str = "reverse", max_seconds: float | None = None):
+    """Self-emission in the band ``band_um`` (lo, hi) reaching each detector of a scene file (``straylight
+    thermal``, CONTRACTS §7.1): a :class:`~straylight.thermal.run.ThermalResult`. ``scene``: a file or a
+    ThermalScene (:func:`thermal_scene`, to load once and run several bands)."""
+    from straylight.thermal.model import ThermalScene
+    from straylight.thermal.planck import check_band
+    from straylight.thermal.run import DEFAULT_MAX_SECONDS
+    from straylight.thermal.run import thermal as run
+
+    check_band(*band_um)
+    ts = scene if isinstance(scene, ThermalScene) else thermal_scene(scene)
+    return run(ts, tuple(band_um), n_rays=rays, target_rel_error=target_rel_error, seed=int(seed), method=method,
+               max_seconds=DEFAULT_MAX_SECONDS if max_seconds is None else float(max_seconds))
+
+
+def exchange(scene, band_um, *, rays: int, seed: int = 0):
+    """Radiative distribution factors D_ij of a scene file's parts in the band (``straylight exchange``,
+    CONTRACTS §7.2): a :class:`~straylight.thermal.exchange.ExchangeResult`."""
+    from straylight.thermal.exchange import exchange as run
+    from straylight.thermal.model import ThermalScene
+    from straylight.thermal.planck import check_band
+
+    check_band(*band_um)
+    if int(rays) < 2:
+        raise ValueError(f"rays must be >= 2, got {rays!r}")
+    ts = scene if isinstance(scene, ThermalScene) else thermal_scene(scene)
+    return run(ts, tuple(band_um), n_rays=int(rays), seed=int(seed))
 
 
 def precision_target(target_rel_error: float | None, max_rays=None, max_seconds=None, max_vov=None):

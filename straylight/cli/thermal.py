@@ -45,27 +45,12 @@ def _band(p):
                    help="band in micrometres (vacuum wavelengths)")
 
 
-def _load(path):
-    import warnings
-
-    from straylight.scene import SceneWarning, load_scene
-    from straylight.thermal.model import thermal_scene
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SceneWarning)  # non-watertight sheets are normal here
-        rs = load_scene(path, sources=False)
-    return thermal_scene(rs.scene, rs.materials)
-
-
 def run_thermal(args) -> int:
     import atomicio
-    from straylight.thermal.planck import check_band
-    from straylight.thermal.run import thermal
+    from straylight import api
 
-    check_band(*args.band_um)
-    ts = _load(Path(args.scene))
-    res = thermal(ts, args.band_um, n_rays=args.rays, target_rel_error=args.target_rel_error, seed=args.seed,
-                  method=args.method, max_seconds=args.max_seconds)
+    res = api.thermal(Path(args.scene), args.band_um, rays=args.rays, target_rel_error=args.target_rel_error,
+                      seed=args.seed, method=args.method, max_seconds=args.max_seconds)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     atomicio.write_json(out / "thermal.json", res.to_json_dict())
@@ -82,14 +67,13 @@ def run_thermal(args) -> int:
 
 
 def run_exchange(args) -> int:
-    from straylight.thermal.exchange import exchange
+    from straylight import api
     from straylight.thermal.planck import check_band
 
     check_band(*args.band_um)
     if args.rays < 2:
         raise ValueError(f"--rays must be >= 2, got {args.rays}")
-    ts = _load(Path(args.scene))
-    res = exchange(ts, args.band_um, n_rays=args.rays, seed=args.seed)
+    res = api.exchange(Path(args.scene), args.band_um, rays=args.rays, seed=args.seed)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     res.write(out)

@@ -53,6 +53,21 @@ class ExchangeResult:
                 "distribution_factors": self.d.tolist(), "stderr": self.stderr.tolist(),
                 "escaped": self.escaped.tolist()}
 
+    def to_pandas(self):
+        """D_ij as a DataFrame: rows emitting parts, columns absorbing parts and ``escaped`` (pandas is optional)."""
+        from straylight.analyses.tables import data_frame
+
+        rows = [{"part": n, **dict(zip(self.names, map(float, d))), "escaped": float(e)}
+                for n, d, e in zip(self.names, self.d, self.escaped)]
+        return data_frame(rows, ["part", *self.names, "escaped"]).set_index("part")
+
+    def plot(self, path=None, ax=None):
+        """The matrix D_ij (log colour scale)."""
+        from straylight.analyses.tables import plot_matrix
+
+        return plot_matrix(self.d, self.names, f"distribution factors D_ij, {self.band_um[0]:g}-{self.band_um[1]:g} um",
+                           path, ax)
+
     def couplings_csv(self) -> str:
         """Matrix CSV: a header ``part,<name j>...`` and one row per emitting part i of eps_i A_i D_ij (m^2)."""
         buf = io.StringIO()

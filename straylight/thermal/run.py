@@ -65,6 +65,18 @@ class ThermalResult:
         return {"band_um": [float(self.band_um[0]), float(self.band_um[1])], "rays": int(self.rays),
                 "seed": int(self.seed), "detectors": {k: v.to_json_dict() for k, v in self.detectors.items()}}
 
+    def to_pandas(self):
+        """One row per (detector, emitting part): power and error (pandas is optional; straylight.analyses.tables)."""
+        from straylight.analyses.tables import thermal_frame
+
+        return thermal_frame(self)
+
+    def plot(self, path=None, ax=None):
+        """Bars of each emitting part's power on each detector, 1-sigma error bars (log scale)."""
+        from straylight.analyses.tables import plot_thermal
+
+        return plot_thermal(self, path, ax)
+
     def details(self) -> dict:
         """thermal_details.json: how the numbers were made (method, traced wavelengths, areas, time)."""
         out = {"method": self.method, "temperatures_k": self.temperatures_k,

@@ -16,8 +16,9 @@ import pytest
 DOC = Path(__file__).resolve().parents[2] / "docs" / "notebook.md"
 
 
-def _blocks(lang: str) -> list[str]:
-    return re.findall(rf"```{lang}\n(.*?)```", DOC.read_text(), re.S)
+def _blocks() -> list[tuple[str, str]]:
+    """(language, code) of every ```python and ```sh block, in the page's order."""
+    return re.findall(r"```(python|sh)\n(.*?)```", DOC.read_text(), re.S)
 
 
 @pytest.fixture(scope="module")
@@ -32,23 +33,24 @@ def ran(tmp_path_factory):
 
     work = tmp_path_factory.mktemp("notebook")
     ns: dict = {}
+    commands = []
     with pytest.MonkeyPatch.context() as mp:
         mp.chdir(work)
-        example = _blocks("python")[0]
-        exec(compile(example, str(DOC), "exec"), ns)  # noqa: S102 - the documentation's own example
-        plt.close("all")
-        commands = [line for block in _blocks("sh") for line in block.splitlines() if line.startswith("straylight ")]
-        for line in commands:
-            assert main(shlex.split(line)[1:]) == 0, line
-        # the reader snippet of the page runs on the files the commands wrote
-        reader = _blocks("python")[1]
-        exec(compile(reader, str(DOC), "exec"), ns)  # noqa: S102
+        for lang, code in _blocks():  # as a reader would: each block in turn, in one namespace
+            if lang == "python":
+                exec(compile(code, str(DOC), "exec"), ns)  # noqa: S102 - the documentation's own example
+                plt.close("all")
+                continue
+            for line in code.splitlines():
+                if line.startswith("straylight "):
+                    assert main(shlex.split(line)[1:]) == 0, line
+                    commands.append(line)
     return work, ns, commands
 
 
-def test_the_doc_names_the_three_commands(ran):
+def test_the_doc_names_the_commands(ran):
     _, _, commands = ran
-    assert [c.split()[1] for c in commands] == ["pst", "paths", "critical"]
+    assert [c.split()[1] for c in commands] == ["pst", "paths", "critical", "thermal", "exchange"]
 
 
 def test_pst_same_numbers_as_the_command(ran):
@@ -86,3 +88,18 @@ def test_critical_same_numbers_as_the_command(ran):
         {r.part: (r.illuminated, r.view_factor, r.score) for r in crit.rows}
     df = crit.to_pandas()
     assert set(df["part"]) == {r.part for r in crit.rows}
+
+
+def test_thermal_same_numbers_as_the_command(ran):
+    work, ns, _ = ran
+    doc = json.loads((work / "thermal_out" / "thermal.json").read_text())
+    assert doc == ns["th"].to_json_dict()
+    df = ns["th"].to_pandas()
+    assert set(df["part"]) == {"baffle", "focal_plane"}
+    assert df["power_w"].sum() == pytest.approx(doc["detectors"]["focal_plane"]["power_w"], rel=1e-12)
+    ex = json.loads((work / "exchange_out" / "exchange.json").read_text())
+    assert ex == ns["ex"].to_json_dict()
+    d = ns["ex"].to_pandas()
+    assert list(d.columns) == ["baffle", "focal_plane", "escaped"] or list(d.columns) == ["focal_plane", "baffle", "escaped"]
+    # each row of D plus the escaped fraction is 1 (CONTRACTS §7.2)
+    assert list(d.sum(axis=1)) == pytest.approx([1.0, 1.0], abs=1e-9)
