@@ -91,6 +91,11 @@ def add_parser(subparsers):
     add_precision_args(p, default_rays=200_000, what="rays per angle")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-nee", action="store_true", help="plain random walk (no next-event estimation)")
+    from straylight.cli.trace import add_diffraction_arg
+
+    add_diffraction_arg(p)
+    p.add_argument("--wavelength-nm", type=float, default=None,
+                   help="the beam's wavelength (overrides the source's wavelength_nm; used by edge diffraction)")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)
     p.add_argument("--entrance-radius-mm", type=float, default=None)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads "
@@ -154,7 +159,7 @@ def run(args) -> int:
         res = inst.pst(args.angles_deg, args.azimuths_deg, rays=args.rays, seed=args.seed, nee=not args.no_nee,
                        target_rel_error=args.target_rel_error, max_rays=args.max_rays, max_seconds=args.max_seconds,
                        max_vov=args.max_vov, client=client, progress=True, checkpoint_dir=out / "pst.points",
-                       resume=args.resume)
+                       resume=args.resume, diffraction=args.diffraction == "on", wavelength_nm=args.wavelength_nm)
     res.write_csv(out / "pst.csv")
     res.write_json(out / "pst.json")
     res.plot(out / "pst.png")

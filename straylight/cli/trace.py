@@ -11,8 +11,12 @@ import warnings
 
 
 def add_parser(subparsers) -> None:
+    from straylight.engine.diffraction import METHOD
+
     p = subparsers.add_parser("trace", help="Monte Carlo trace of a scene file (CONTRACTS §6)",
-                              description="Trace a scene TOML and write powers with standard errors as JSON.")
+                              description="Trace a scene TOML and write powers with standard errors as JSON. "
+                                          f"Edge diffraction (parts with diffraction = \"edges\", CONTRACTS §6.5): "
+                                          f"{METHOD}, at the source's wavelength_nm (docs/diffraction.md).")
     p.add_argument("scene", metavar="SCENE.toml", help="scene file")
     from straylight.cli.pst import add_precision_args
 
@@ -33,6 +37,7 @@ def add_parser(subparsers) -> None:
                    help="auto: scattered light keeps a polarization only where the light arriving was "
                         "polarized (linear source, Fresnel interface); on: also the partial polarization "
                         "that scatter creates from unpolarized light (slower; docs/engine.md)")
+    add_diffraction_arg(p)
     p.add_argument("--max-events", type=int, default=1000, help="surface events per ray (default 1000)")
     p.add_argument("--batch-rays", type=int, default=None,
                    help="rays per batch in memory (default: automatic; no effect on results)")
@@ -40,6 +45,15 @@ def add_parser(subparsers) -> None:
 
     add_cluster_args(p)
     p.set_defaults(func=run)
+
+
+def add_diffraction_arg(p) -> None:
+    """``--diffraction on|off`` (trace, pst): the scene's diffracting edges bend light, or not."""
+    from straylight.engine.diffraction import METHOD
+
+    p.add_argument("--diffraction", choices=("on", "off"), default="on",
+                   help=f"edge diffraction at the parts marked diffraction = \"edges\" (CONTRACTS §6.5) by {METHOD}; "
+                        "off: pure geometric optics (default: on)")
 
 
 def run(args) -> int:
@@ -69,7 +83,8 @@ def run(args) -> int:
         vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
                            progress=sys.stderr.isatty(), first_vertex_sampling=vertex,
-                           scatter_polarization=args.scatter_polarization)
+                           scatter_polarization=args.scatter_polarization,
+                           diffraction="scene" if args.diffraction == "on" else "off")
     from straylight.cli.cluster_args import cluster_client
 
     with cluster_client(args) as client:

@@ -189,10 +189,11 @@ def describe_method(gamma: float = GAMMA) -> str:
 
 
 def vertex_strategies_off(options, diff: Diffraction | None):
-    """First- and second-vertex sampling join vertices by straight shadow rays that do not know the
-    edges: with diffraction on, the trace runs without them (plain NEE and the walk see every path)."""
-    if diff is None or not (options.first_vertex_sampling or options.second_vertex_sampling):
+    """The strategies that do not see diffraction (straylight.engine.estimators: first- and
+    second-vertex sampling join vertices by straight shadow rays that do not know the edges) are
+    turned off when a part diffracts; NEE, target MIS and the walk see every path."""
+    if diff is None:
         return options
-    from dataclasses import replace
+    from straylight.engine.estimators import without_diffraction_blind
 
-    return replace(options, first_vertex_sampling=False, second_vertex_sampling=False)
+    return without_diffraction_blind(options)

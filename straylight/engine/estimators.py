@@ -29,15 +29,18 @@ class Estimator:
     reference: bool = True
     target: bool = False
     requires: tuple = field(default=())  # names of estimators it runs on top of
+    #: it sees edge diffraction (CONTRACTS §6.5): its shadow rays know the diffracting edges, or it only
+    #: picks directions the walk then follows; a strategy without it is turned off in traces that diffract
+    diffraction: bool = False
 
 
 ESTIMATORS = (
-    Estimator("nee", {"nee": True}, Capability.NEE),
+    Estimator("nee", {"nee": True}, Capability.NEE, diffraction=True),
     Estimator("first_vertex", {"first_vertex_sampling": True}, Capability.FIRST_VERTEX, reference=False),
     Estimator("second_vertex", {"nee": True, "second_vertex_sampling": True}, Capability.SECOND_VERTEX,
               requires=("nee",)),
     Estimator("target_mis", {"nee": True, "target_fraction": 0.5}, Capability.TARGET_MIS, target=True,
-              requires=("nee",)),
+              requires=("nee",), diffraction=True),
 )
 
 
@@ -50,3 +53,18 @@ def options_for(estimator: Estimator, target_part: str | None = None, **extra) -
         out["target_parts"] = (target_part,) if target_part else ()
     out.update(extra)
     return out
+
+
+def without_diffraction_blind(options):
+    """``options`` (TraceOptions) with every strategy that does not see edge diffraction turned off
+    (set back to its :data:`ANALOG` value): used when a part diffracts."""
+    from dataclasses import replace
+
+    off = {k: ANALOG[k] for e in ESTIMATORS if not e.diffraction for k in e.options if k in ANALOG}
+    off = {k: v for k, v in off.items() if k not in _SHARED_SWITCHES}
+    changed = {k: v for k, v in off.items() if getattr(options, k) != v}
+    return replace(options, **changed) if changed else options
+
+
+#: switches that a diffraction-blind strategy turns on together with one that sees diffraction
+_SHARED_SWITCHES = {k for e in ESTIMATORS if e.diffraction for k in e.options}
