@@ -91,7 +91,7 @@ def add_parser(subparsers):
     add_precision_args(p, default_rays=200_000, what="rays per angle")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-nee", action="store_true", help="plain random walk (no next-event estimation)")
-    from straylight.cli.trace import add_diffraction_arg
+    from straylight.cli.diffraction_args import add_diffraction_arg
 
     add_diffraction_arg(p)
     p.add_argument("--wavelength-nm", type=float, default=None,

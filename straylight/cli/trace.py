@@ -37,6 +37,8 @@ def add_parser(subparsers) -> None:
                    help="auto: scattered light keeps a polarization only where the light arriving was "
                         "polarized (linear source, Fresnel interface); on: also the partial polarization "
                         "that scatter creates from unpolarized light (slower; docs/engine.md)")
+    from straylight.cli.diffraction_args import add_diffraction_arg
+
     add_diffraction_arg(p)
     p.add_argument("--max-events", type=int, default=1000, help="surface events per ray (default 1000)")
     p.add_argument("--batch-rays", type=int, default=None,
@@ -45,15 +47,6 @@ def add_parser(subparsers) -> None:
 
     add_cluster_args(p)
     p.set_defaults(func=run)
-
-
-def add_diffraction_arg(p) -> None:
-    """``--diffraction on|off`` (trace, pst): the scene's diffracting edges bend light, or not."""
-    from straylight.engine.diffraction import METHOD
-
-    p.add_argument("--diffraction", choices=("on", "off"), default="on",
-                   help=f"edge diffraction at the parts marked diffraction = \"edges\" (CONTRACTS §6.5) by {METHOD}; "
-                        "off: pure geometric optics (default: on)")
 
 
 def run(args) -> int:
