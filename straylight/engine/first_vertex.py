@@ -35,12 +35,14 @@ import numpy as np
 from straylight.engine.interactions.registry import Capability, parts_with
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE
+from straylight.engine.vec3 import power_heuristic_rows
 from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS, check_seed, chunk_bounds
 from straylight.sources import CollimatedDisk, PointSource, orthonormal_basis
 
 VERTEX_STREAM = 0x56455254  # third entropy word: this strategy's streams differ from the forward's
 PROBE_STREAM = 0x50524F42
+LOBE_STREAM = 0x4C4F4245  # the lobe draws of vertex_lobe_sampling (so the other columns keep their bits)
 PROBES_PER_TRIANGLE = 8
 PROBE_BUDGET = 400_000
 FACE_SHARE = 0.25  # large scenes: share of each face's mean density every triangle of the face keeps
@@ -134,9 +136,11 @@ def _points(tri_mm, t, u1, u2):
     return v0 + b1[:, None] * (tri_mm[t, 1] - v0) + b2[:, None] * (tri_mm[t, 2] - v0)
 
 
-def _single_scatter(spec, comp, src, t, x, u_det, j):
+def _single_scatter(spec, comp, src, t, x, u_det, j, lobe_mis=False):
     """Unblocked single-scatter contribution E f cos_x cos_z / d^2 (W/mm^4 units: per area of x and z)
-    of points x on triangles t toward detector j; returns (value, detector point z, shadow rays cast)."""
+    of points x on triangles t toward detector j; returns (value, detector point z, shadow rays cast).
+    ``lobe_mis``: times the power-heuristic weight of the uniform detector point against the
+    material's own draw (:func:`lobe_connection`, the other strategy for the same direction)."""
     eps = spec.eps
     n_geo = comp.normals[t]
     wi, nf, e_x, tmax = source_connection(src, x, n_geo)
@@ -177,7 +181,70 @@ def _single_scatter(spec, comp, src, t, x, u_det, j):
     for rows, fv in by_material(spec.materials, mat, lambda model, rows: model.brdf(wi_loc[rows], wo_loc[rows], pol)):
         f[rows] = fv
     value[lit] = e_x[lit] * f * cos_o * cos_z / d2
+    if lobe_mis:
+        pdf = np.empty(len(lit))
+        for rows, pv in by_material(spec.materials, mat,
+                                    lambda model, rows: model.pdf(wi_loc[rows], wo_loc[rows], pol)):
+            pdf[rows] = pv
+        p_nee = d2 / (comp.detectors[j].area_mm2 * cos_z)  # uniform point on the detector, per sr
+        value[lit] *= power_heuristic_rows(p_nee, pdf)
     return value, z, shadows
+
+
+def lobe_connection(spec, comp, src, t, x, u3, j):
+    """The second way to join a sampled vertex x (triangles t) to detector j: the direction drawn
+    from the material's own lobe (``model.sample``), kept when its ray reaches detector j first.
+
+    Returns (value, hit point, rows, shadow rays): value = E(x) f cos_x / pdf_lobe x the
+    power-heuristic weight against a uniform detector point (density d^2 / (A |cos_z|) per sr),
+    so with :func:`_single_scatter`'s ``lobe_mis`` the two weights of a direction add to one
+    (Veach 1997, eq. 9.13). A narrow glossy lobe is found by this draw, not by a uniform point."""
+    eps = spec.eps
+    n_geo = comp.normals[t]
+    wi, nf, e_x, tmax = source_connection(src, x, n_geo)
+    lit = np.flatnonzero(e_x > 0)
+    empty = (np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64), 0)
+    if len(lit) == 0:
+        return empty
+    origin = np.ascontiguousarray(x[lit] + eps * nf[lit])
+    blocked = np.asarray(comp.isect.occluded(origin, np.ascontiguousarray(wi[lit]), tmax[lit]), dtype=bool)
+    shadows = len(lit)
+    lit, origin = lit[~blocked], origin[~blocked]
+    if len(lit) == 0:
+        return (*empty[:3], shadows)
+    nfl = nf[lit]
+    tb, bb = orthonormal_basis(nfl)
+    wi_loc = _local(wi[lit], tb, bb, nfl)
+    mat = spec.part_material[spec.triangle_part[t[lit]]]
+    wo = np.empty((len(lit), 3))
+    weight = np.empty(len(lit))
+    pdf = np.empty(len(lit))
+    pol = spec.options.polarization
+    for rows, smp in by_material(spec.materials, mat, lambda model, rows: model.sample(wi_loc[rows], u3[lit][rows], pol)):
+        wo[rows], weight[rows], pdf[rows] = smp.wo, smp.weight, smp.pdf_per_sr
+    ok = (wo[:, 2] > 0) & (weight > 0) & (pdf > 0)
+    lit, origin, wo, weight, pdf, tb, bb, nfl = (a[ok] for a in (lit, origin, wo, weight, pdf, tb, bb, nfl))
+    if len(lit) == 0:
+        return (*empty[:3], shadows)
+    d = wo[:, :1] * tb + wo[:, 1:2] * bb + wo[:, 2:3] * nfl
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    d = np.ascontiguousarray(d)
+    tri, dist = comp.isect.intersect(origin, d)
+    shadows += len(lit)
+    tri = np.asarray(tri)
+    on = tri >= 0
+    on[on] = spec.triangle_part[tri[on]] == comp.det_parts[j]
+    lit, origin, d, weight, pdf, tri, dist = (np.asarray(a)[on] for a in (lit, origin, d, weight, pdf, tri, dist))
+    if len(lit) == 0:
+        return (*empty[:3], shadows)
+    cos_in = np.einsum("ij,ij->i", d, comp.normals[tri])
+    front = np.ones(len(lit), dtype=bool) if spec.options.detector_sides == "both" else cos_in < 0
+    ac = np.abs(cos_in)
+    front &= ac > 0
+    lit, origin, d, weight, pdf, dist, ac = (a[front] for a in (lit, origin, d, weight, pdf, dist, ac))
+    p_nee = dist * dist / (comp.detectors[j].area_mm2 * ac)
+    value = e_x[lit] * weight * power_heuristic_rows(pdf, p_nee)
+    return value, origin + dist[:, None] * d, lit, shadows
 
 
 def _may_see_detector(spec, comp, src, surf):
@@ -270,34 +337,50 @@ def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, tallies, rows, r
     D = len(comp.det_parts)
     u_all = np.concatenate([vertex_rng(spec.seed, spec.chunk_offset + first_chunk + c).random((sizes[c], 6 * D))
                             for c in range(len(sizes))])
+    lobe = bool(spec.options.vertex_lobe_sampling)
+    if lobe:
+        u_lobe = np.concatenate([np.random.default_rng([check_seed(spec.seed), spec.chunk_offset + first_chunk + c,
+                                                        LOBE_STREAM]).random((sizes[c], 3 * D))
+                                 for c in range(len(sizes))])
     shadows = 0
     for j in range(D):
         u = u_all[:, 6 * j:6 * j + 6]
         k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
         t = table.tri[k]
         x = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
-        g, z, s = _single_scatter(spec, comp, src, t, x, u[:, 3:6], j)
+        g, z, s = _single_scatter(spec, comp, src, t, x, u[:, 3:6], j, lobe_mis=lobe)
         shadows += s
         good = np.flatnonzero(g > 0)
-        if len(good) == 0:
-            continue
-        tg = t[good]
-        p_a = table.p_area[tg]
-        p_f = forward_density(src, x[good], comp.normals[tg])
-        c = g[good] * comp.detectors[j].area_mm2 / (p_a + p_f) / n_total
-        r = good
-        pt = spec.triangle_part[tg].astype(np.int64)
-        tallies.add(rows.detector_nee + j, r, c)
-        tallies.subtract(rows.nee_exchange + pt, r, c)
-        keys = events = None
-        if record_paths:
-            code = pt * 4 + EVENT_SCATTER
-            keys = mix_key(mix_key(np.zeros(len(r), dtype=np.uint64), code), comp.det_parts[j] * 4 + EVENT_DETECTOR)
-            events = np.full((len(r), path_depth), -1, dtype=np.int16)
-            if path_depth > 0:
-                events[:, 0] = code
-        records.add(j, r, z[good], c, keys, events, np.ones(len(r), dtype=np.int64))
+        terms = [(good, g[good] * comp.detectors[j].area_mm2, z[good])]
+        if lobe:
+            value, z_hit, at, s = lobe_connection(spec, comp, src, t, x, u_lobe[:, 3 * j:3 * j + 3], j)
+            shadows += s
+            terms.append((at, value, z_hit))
+        for r, value, zz in terms:
+            if len(r) == 0:
+                continue
+            tg = t[r]
+            p_a = table.p_area[tg]
+            p_f = forward_density(src, x[r], comp.normals[tg])
+            c = value / (p_a + p_f) / n_total
+            _add_vertex_terms(spec, comp, j, tallies, rows, records, record_paths, path_depth, r, tg, zz, c)
     return shadows
+
+
+def _add_vertex_terms(spec, comp, j, tallies, rows, records, record_paths, path_depth, r, tg, z, c):
+    """Contributions ``c`` of rays ``r`` (vertices on triangles ``tg``) to detector j, and their
+    path records; the same amount leaves the vertex part's NEE-exchange row (exact ledger)."""
+    pt = spec.triangle_part[tg].astype(np.int64)
+    tallies.add(rows.detector_nee + j, r, c)
+    tallies.subtract(rows.nee_exchange + pt, r, c)
+    keys = events = None
+    if record_paths:
+        code = pt * 4 + EVENT_SCATTER
+        keys = mix_key(mix_key(np.zeros(len(r), dtype=np.uint64), code), comp.det_parts[j] * 4 + EVENT_DETECTOR)
+        events = np.full((len(r), path_depth), -1, dtype=np.int16)
+        if path_depth > 0:
+            events[:, 0] = code
+    records.add(j, r, z, c, keys, events, np.ones(len(r), dtype=np.int64))
 
 
 def forward_weight(spec, table, normals, tri, p):
