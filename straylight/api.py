@@ -168,18 +168,21 @@ class Instrument:
     def pst(self, angles_deg, azimuths_deg=(0.0,), *, rays: int = 100_000, seed: int = 0,
             target_rel_error: float | None = None, max_rays=None, max_seconds=None, max_vov=None, nee: bool = True,
             workers=None, scheduler=None, client=None, progress: bool = False, checkpoint_dir=None,
-            resume: bool = False, diffraction: bool = True, wavelength_nm: float | None = None):
+            resume: bool = False, diffraction: bool = True, wavelength_nm: float | None = None,
+            estimators: str = "default"):
         """Point source transmittance at every (angle, azimuth): a :class:`~straylight.analyses.pst.PstResult`.
 
         ``rays`` per point, or ``target_rel_error`` (with its caps): each point traced until its relative
         standard error is at most that (docs/study.md). Each point has its own seed derived from ``seed``.
         ``diffraction``: the parts marked ``diffraction = "edges"`` bend light (HURB, docs/diffraction.md)
         or, False, pure geometric optics; ``wavelength_nm`` overrides the beam's (CONTRACTS §6.5).
+        ``estimators``: the estimator set (:mod:`straylight.analyses.estimators`; "baseline" = before issue 26).
         """
         from dataclasses import replace
 
         import numpy as np
 
+        from straylight.analyses.estimators import estimator_options
         from straylight.analyses.pst import pst_sweep
         from straylight.trace import TraceOptions
 
@@ -189,8 +192,7 @@ class Instrument:
             if not float(wavelength_nm) > 0:
                 raise ValueError(f"wavelength_nm must be > 0, got {wavelength_nm}")
             setup = replace(setup, beam=replace(setup.beam, wavelength_nm=float(wavelength_nm)))
-        options = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True,
-                               diffraction="scene" if diffraction else "off")
+        options = estimator_options(estimators, TraceOptions(diffraction="scene" if diffraction else "off"))
         return pst_sweep(setup, np.radians(np.atleast_1d(np.asarray(angles_deg, dtype=float))), np.radians(np.atleast_1d(azimuths_deg)),
                          n_rays=int(rays) if precision is None else 1, seed=int(seed), nee=nee, options=options,
                          workers=workers,

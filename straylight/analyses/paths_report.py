@@ -261,7 +261,8 @@ def paths_analysis(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 1
     from straylight.trace import TraceOptions, trace
 
     det = detector_name(setup.scene, setup.detector)
-    opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee), record_paths=True, path_depth=path_depth,
+    opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee), vertex_lobe_sampling=bool(nee), record_paths=True,
+                        path_depth=path_depth,
                         progress=progress)
     if workers is not None and workers > 1 or scheduler or client is not None:
         from straylight.analyses.pst import dask_client

@@ -278,8 +278,9 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     from dataclasses import replace as dc_replace
 
 
+    from straylight.analyses.estimators import estimator_options
     from straylight.analyses.precision import reliability, trace_to_precision
-    from straylight.trace import TraceOptions, trace
+    from straylight.trace import trace
 
     off_axis = np.atleast_1d(np.asarray(off_axis, dtype=np.float64))
     azimuth = np.atleast_1d(np.asarray(azimuth, dtype=np.float64))
@@ -290,7 +291,7 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     det = detector_name(setup.scene, setup.detector)
     sens = detector_area(setup, det)
     area = sens.area_mm2
-    opts = options or TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True)
+    opts = options or estimator_options("default")
     opts = dc_replace(opts, nee=bool(nee), first_vertex_sampling=bool(nee) and opts.first_vertex_sampling,
                       second_vertex_sampling=bool(nee) and opts.second_vertex_sampling)
     pairs = [(a, phi) for phi in azimuth for a in off_axis]

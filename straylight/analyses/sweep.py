@@ -133,7 +133,8 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
     off_axis = np.atleast_1d(np.asarray(off_axis, dtype=np.float64))
     shape = (len(values), len(off_axis))
     out = {k: np.full(shape, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "sec")}
-    opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee), second_vertex_sampling=bool(nee))
+    opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee), second_vertex_sampling=bool(nee),
+                        vertex_lobe_sampling=bool(nee))
     label = material if isinstance(material, str) else repr(material)
     store = _point_store(checkpoint_dir, resume, {
         "sweep": "design_sweep", "parameter": parameter, "values": values, "off_axis": off_axis,

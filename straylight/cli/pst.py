@@ -96,6 +96,9 @@ def add_parser(subparsers):
     add_diffraction_arg(p)
     p.add_argument("--wavelength-nm", type=float, default=None,
                    help="the beam's wavelength (overrides the source's wavelength_nm; used by edge diffraction)")
+    p.add_argument("--estimators", choices=("default", "baseline"), default="default",
+                   help="estimator set (straylight.analyses.estimators): 'baseline' is the set before issue 26, "
+                        "for timing before and after")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)
     p.add_argument("--entrance-radius-mm", type=float, default=None)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads "
@@ -159,7 +162,8 @@ def run(args) -> int:
         res = inst.pst(args.angles_deg, args.azimuths_deg, rays=args.rays, seed=args.seed, nee=not args.no_nee,
                        target_rel_error=args.target_rel_error, max_rays=args.max_rays, max_seconds=args.max_seconds,
                        max_vov=args.max_vov, client=client, progress=True, checkpoint_dir=out / "pst.points",
-                       resume=args.resume, diffraction=args.diffraction == "on", wavelength_nm=args.wavelength_nm)
+                       resume=args.resume, diffraction=args.diffraction == "on", wavelength_nm=args.wavelength_nm,
+                       estimators=args.estimators)
     res.write_csv(out / "pst.csv")
     res.write_json(out / "pst.json")
     res.plot(out / "pst.png")

@@ -44,7 +44,7 @@ def pst_points(spec, vanes, material_models: dict, angles_deg, rays: int, seed: 
     sc = model.scene(spec, vanes)
     bm = model.beam(spec)
     area = part_area_mm2(sc, "detector")
-    opts = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True)
+    opts = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True)
     out = []
     z_mm = [float(v.z_mm) for v in vanes]
     for i, a_deg in enumerate(angles_deg):
