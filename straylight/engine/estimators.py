@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 from straylight.engine.interactions.registry import Capability
 
 #: TraceOptions of the analog walk: no NEE, no vertex sampling, no target mixture
-ANALOG = {"nee": False, "first_vertex_sampling": False, "second_vertex_sampling": False, "target_parts": ()}
+ANALOG = {"nee": False, "first_vertex_sampling": False, "second_vertex_sampling": False, "vertex_lobe_sampling": False,
+          "target_parts": ()}
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,9 @@ class Estimator:
 ESTIMATORS = (
     Estimator("nee", {"nee": True}, Capability.NEE, diffraction=True),
     Estimator("first_vertex", {"first_vertex_sampling": True}, Capability.FIRST_VERTEX, reference=False),
+    # first-vertex sampling joined to the detector by the lobe's own draw as well (issue 26)
+    Estimator("first_vertex_lobe", {"first_vertex_sampling": True, "vertex_lobe_sampling": True},
+              Capability.FIRST_VERTEX, reference=False),
     Estimator("second_vertex", {"nee": True, "second_vertex_sampling": True}, Capability.SECOND_VERTEX,
               requires=("nee",)),
     Estimator("target_mis", {"nee": True, "target_fraction": 0.5}, Capability.TARGET_MIS, target=True,
