@@ -1,10 +1,13 @@
-"""The baffle design study: every analysis on the built-in tube, written as a report folder.
+"""The stray-light study: every analysis of an instrument, written as a report folder.
 
 ``run_study(out_dir)`` builds the default baffled tube (the BENCHMARK.md geometry, walls
-and vanes coated with the ``z302_sample_b`` preset), then
+and vanes coated with the ``z302_sample_b`` preset) -- or loads the user's scene file or
+parametric model (``StudyConfig.scene`` / ``.model``), whose report then speaks of its own parts
+and materials -- then
 
 1. a PST sweep over off-axis angles (next-event estimation toward the detector);
-2. a design sweep of the vane count (0..9) at two stray-light angles;
+2. a design sweep of the vane count (0..9) at two stray-light angles (the built-in tube, or a
+   model's own parameter; a scene file has none);
 3. the stray-light path report at one stray-light angle;
 4. critical and illuminated objects at that angle;
 5. a 3-D view with traced rays, a view coloured by absorbed power, and the detector map,
@@ -291,6 +294,7 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
     direct = benchmark_direct_ratio(np.radians(cfg.angles_deg), setup.params)
     result.summary = {
         "description": setup.description,
+        "instrument": instrument_summary(setup, pst.detector_area_mm2),
         "pst": pst.to_json_dict(),
         "geometric_direct_entrance_ratio": [None if not np.isfinite(x) else float(x) for x in direct],
         "paths": report.to_json_dict(top=20),
@@ -317,10 +321,59 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
     return result
 
 
+def instrument_summary(setup, detector_area_mm2: float) -> dict:
+    """The instrument as the report describes it: its parts (role, material, triangles) and detector."""
+    from geometry.analytic import Plane
+
+    parts = [{"name": p.name, "role": p.role, "material": p.material, "triangles": p.n_triangles,
+              "analytic": None if p.surface is None else p.surface.kind} for p in setup.scene.parts]
+    det = setup.scene.part(setup.detector)
+    exact = isinstance(det.surface, Plane)
+    return {"parts": parts, "detector": setup.detector, "detector_area_mm2": float(detector_area_mm2),
+            "detector_shape": (f"exact disk, outer radius {det.surface.outer_radius_mm:g} mm"
+                               + (f", inner {det.surface.inner_radius_mm:g} mm" if det.surface.inner_radius_mm else "")
+                               if exact else f"mesh of {det.n_triangles} triangles")}
+
+
+def _instrument_lines(result: StudyResult) -> list[str]:
+    """What the instrument is made of: one line per material (its parts), and the detector."""
+    cfg = result.config
+    inst = result.summary.get("instrument")
+    if cfg.scene is None and cfg.model is None or inst is None:
+        return [f"- Coating: `{cfg.material}` on wall, vanes and end plate; the detector absorbs everything."]
+    by_material: dict = {}
+    for p in inst["parts"]:
+        if p["role"] == "surface":
+            by_material.setdefault(p["material"], []).append(p["name"])
+    lines = []
+    for material, names in sorted(by_material.items(), key=lambda kv: str(kv[0])):
+        shown = ", ".join(names[:8]) + (f" and {len(names) - 8} more" if len(names) > 8 else "")
+        lines.append(f"- Material `{material}` on {len(names)} part{'s' if len(names) > 1 else ''}: {shown}.")
+    for role, what in (("mirror", "mirrors (specular, the trace's mirror reflectance)"),
+                       ("absorber", "perfect absorbers")):
+        names = [p["name"] for p in inst["parts"] if p["role"] == role]
+        if names:
+            lines.append(f"- {what.capitalize()}: {', '.join(names)}.")
+    lines.append(f"- Detector `{inst['detector']}` ({inst['detector_shape']}, sensitive area "
+                 f"{inst['detector_area_mm2']:.4g} mm^2); it absorbs everything that reaches it.")
+    return lines
+
+
+def _numbers_line(result: StudyResult) -> str:
+    """The result files this report folder really holds."""
+    names = ("results.json", "pst.csv", "pst.json", "sweep.csv", "paths.csv", "critical.csv")
+    have = [n for n in names if (result.out_dir / n).exists()]
+    return "- Numbers: " + ", ".join(have) + "."
+
+
 def _title(result) -> str:
     if result.config.model is not None:
         return f"Stray-light study of {result.config.model}"
     return "Baffle design study" if result.config.scene is None else f"Stray-light study of {result.config.scene}"
+
+
+def _builtin(result) -> bool:
+    return result.config.scene is None and result.config.model is None
 
 
 def _short_name(setup) -> str:
@@ -384,13 +437,13 @@ def _html_table(header, rows) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _findings(pst, report, crit, sweep) -> list[str]:
+def _findings(pst, report, crit, sweep, builtin: bool = True) -> list[str]:
     out = []
     stray = [i for i, a in enumerate(pst.off_axis_deg) if a >= 20]
     if stray:
         i = stray[0]
-        out.append(f"PST at {pst.off_axis_deg[i]:g} deg off axis: {pst.pst[i]:.2e} +- {pst.pst_stderr[i]:.1e} "
-                   f"(only scattered light reaches the detector past the geometric cut-off).")
+        out.append(f"PST at {pst.off_axis_deg[i]:g} deg off axis: {pst.pst[i]:.2e} +- {pst.pst_stderr[i]:.1e}"
+                   + (" (only scattered light reaches the detector past the geometric cut-off)." if builtin else "."))
     if report.rows:
         top = report.rows[0]
         out.append(f"Largest stray-light path at {crit.off_axis_deg:g} deg: {top.label} "
@@ -416,7 +469,7 @@ def _findings(pst, report, crit, sweep) -> list[str]:
 def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
     cfg = result.config
     lines = [f"# {_title(result)}", "", result.summary["description"], "", "## Findings", ""]
-    lines += [f"- {f}" for f in _findings(pst, report, crit, sweep)]
+    lines += [f"- {f}" for f in _findings(pst, report, crit, sweep, _builtin(result))]
     lines += ["", "## Point source transmittance", "", "![PST](pst.png)", "",
               _md_table(PST_HEADER, _pst_table_rows(pst, direct)), "",
               "## Stray-light paths", "", "![paths](paths.png)", "", report.markdown(15), "",
@@ -446,9 +499,9 @@ def _method_lines(result: StudyResult) -> list[str]:
         f"- Rays: {cfg.rays if cfg.precision is None else 'see the table'} per PST angle, {cfg.sweep_rays} per design-sweep point, {cfg.path_rays} for the "
         f"path report, {cfg.critical_rays} each way for critical/illuminated objects. Seed {cfg.seed} "
         "(each step and point derives its own stream from it).",
-        f"- Coating: `{cfg.material}` on wall, vanes and end plate; the detector absorbs everything.",
+        *_instrument_lines(result),
         "- Wall time (s): " + ", ".join(f"{k} {v:.1f}" for k, v in t.items()) + ".",
-        "- Numbers: results.json, pst.csv, sweep.csv, paths.csv, critical.csv.",
+        _numbers_line(result),
     ]
 
 
@@ -484,7 +537,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 <h1>{html.escape(_title(result))}</h1>
 <p>{html.escape(result.summary['description'])}</p>
 <h2>Findings</h2>
-<ul>{''.join(f'<li>{html.escape(f)}</li>' for f in _findings(pst, report, crit, sweep))}</ul>
+<ul>{''.join(f'<li>{html.escape(f)}</li>' for f in _findings(pst, report, crit, sweep, _builtin(result)))}</ul>
 <h2>Point source transmittance</h2>
 {img('pst.png', 'PST vs off-axis angle, with the unscattered (geometric) transmission')}
 {_html_table(PST_HEADER, _pst_table_rows(pst, direct))}{csv('pst')}

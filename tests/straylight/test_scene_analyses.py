@@ -89,6 +89,13 @@ def test_study_on_scene_file_equals_builtin(tmp_path, tube_scene):
     assert [p["view_factor"] for p in ja["critical"]["parts"]] == \
         pytest.approx([p["view_factor"] for p in jb["critical"]["parts"]], rel=1e-12)
     assert str(tube_scene) in (b / "index.html").read_text()
+    # the scene's report speaks of its own parts and materials, and of the files it wrote (issue 22)
+    for name in ("report.md", "index.html"):
+        text = (b / name).read_text()
+        assert "wall, vanes and end plate" not in text and "sweep.csv" not in text, name
+        assert "Material `" in text and "Detector `detector` (mesh of" in text, name
+    assert jb["instrument"]["detector"] == "detector" and len(jb["instrument"]["parts"]) == len(ja["instrument"]["parts"])
+    assert "sweep.csv" not in (a / "report.md").read_text()  # --no-sweep: none written, none named
 
 
 # ------------------------------------------------------------------ bad scene files: one line each
