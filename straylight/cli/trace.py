@@ -75,7 +75,7 @@ def run(args) -> int:
     if vertex is None:
         vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
-                           progress=sys.stderr.isatty(), first_vertex_sampling=vertex, vertex_lobe_sampling=vertex,
+                           progress=True, first_vertex_sampling=vertex, vertex_lobe_sampling=vertex,  # progress: a bar, or lines in a log
                            scatter_polarization=args.scatter_polarization,
                            diffraction="scene" if args.diffraction == "on" else "off")
     from straylight.cli.cluster_args import cluster_client
