@@ -19,6 +19,7 @@ from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
 METHODS = ("reverse", "forward")
 DEFAULT_MAX_RAYS = 50_000_000
 DEFAULT_MAX_SECONDS = 600.0
+MIN_ROUND_RAYS = 512  # first round of --target-rel-error, and the smallest later round (per sub-band)
 FRONT_FACE_COS = 0.5  # as straylight.detectors: a closed detector's faces within 60 deg of its front
 
 
@@ -189,7 +190,7 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
             for k, (a, b, lam) in enumerate(bands):
                 if radiance[k].max() <= 0:
                     continue
-                want = max(CHUNK_RAYS if target_rel_error is not None else 2, int(round(rays_now * share[k])))
+                want = max(MIN_ROUND_RAYS if target_rel_error is not None else 2, int(round(rays_now * share[k])))
                 sides = ts.sides_at(lam)
                 while want > 0:
                     m = min(CHUNK_RAYS, want)
@@ -210,7 +211,7 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
             run_round(int(n_rays))
             tot, err, per, per_err = combined()
         else:
-            rays_now = 8 * CHUNK_RAYS
+            rays_now = MIN_ROUND_RAYS * len(bands)
             while True:
                 run_round(rays_now)
                 tot, err, per, per_err = combined()
@@ -222,9 +223,9 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
                                f"{err / tot if tot > 0 else float('inf'):.3g} (target {target_rel_error})")
                     break
                 rel = err / tot if tot > 0 else 1.0
-                # rays for the target from the error so far (1/sqrt(N)), at least doubling the work done
-                rays_now = int(min(max_rays - done, max(done, done * ((rel / float(target_rel_error)) ** 2 - 1.0)
-                                                        * 1.05)))
+                # the rays still needed if the error falls as 1/sqrt(N), 5 % more, at most 16x the work so far
+                need = done * ((rel / float(target_rel_error)) ** 2 - 1.0) * 1.05
+                rays_now = int(min(max_rays - done, 16 * done, max(MIN_ROUND_RAYS, need)))
         n_done = sum(s.n for s in sums)
         total_rays += n_done
         by_part = {ts.part_names[q]: Tally(float(per[q]), float(per_err[q])) for q in range(ts.n_parts)

@@ -74,3 +74,21 @@ def view_factor_coaxial_disks(r1, r2, h):
     R1, R2 = r1 / h, r2 / h
     X = 1 + (1 + R2 ** 2) / R1 ** 2
     return (X - np.sqrt(X ** 2 - 4 * (R2 / R1) ** 2)) / 2
+
+
+def write_tube_inward(directory, radius_mm, length_mm, name="wall.stl", n_phi=256, n_z=8):
+    """Open cylinder wall r = radius, 0 <= z <= length, as triangles whose normals point to the axis
+    (its inside emits, CONTRACTS §7)."""
+    phi = np.linspace(0, 2 * np.pi, n_phi, endpoint=False)
+    zs = np.linspace(0, length_mm, n_z + 1)
+    verts = np.array([(radius_mm * np.cos(p), radius_mm * np.sin(p), z) for z in zs for p in phi])
+    faces = []
+    for k in range(n_z):
+        for i in range(n_phi):
+            j = (i + 1) % n_phi
+            a, b, c, d = k * n_phi + i, k * n_phi + j, (k + 1) * n_phi + j, (k + 1) * n_phi + i
+            faces += [(a, c, b), (a, d, c)]
+    mesh = trimesh.Trimesh(verts, np.array(faces), process=False)
+    assert (np.einsum("ij,ij->i", mesh.face_normals, mesh.triangles_center * [1, 1, 0]) < 0).all()
+    mesh.export(Path(directory) / name)
+    return name
