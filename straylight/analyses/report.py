@@ -19,6 +19,7 @@ from the user's seed.
 from __future__ import annotations
 
 import html
+import json
 import math
 import platform
 import sys
@@ -56,6 +57,7 @@ class StudyConfig:
     sweep: bool = True  # the design sweep (built-in tube parameters, or a --model file's)
     precision: object = None  # straylight.analyses.precision.Precision: PST points traced to a target
     model: str | None = None  # FILE.py:build, the user's parametric CadQuery design (analyses.model)
+    thermal_band_um: tuple = (8.0, 12.0)  # self-emission budget band when parts have temperature_k
 
     @property
     def sweep_rays(self) -> int:
@@ -243,6 +245,15 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
         crit.plot(out / "critical.png")
         done.append("critical")
 
+    from straylight.thermal.report import has_temperatures, thermal_step
+
+    if has_temperatures(setup.scene):  # parts at a temperature: the self-emission budget (issue 24)
+        _step(f"self-emission budget, {cfg.thermal_band_um[0]:g}-{cfg.thermal_band_um[1]:g} um", cfg.progress)
+        t0 = time.perf_counter()
+        thermal_step(setup, out, cfg.thermal_band_um, seed=point_seed(cfg.seed, 7))
+        result.timings_s["thermal"] = time.perf_counter() - t0
+        done.append("thermal")
+
     sweep = None
     if cfg.sweep and cfg.model is not None and cfg.sweep_values:
         from straylight.analyses.model import model_sweep
@@ -305,6 +316,7 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
                                         "detected_w": sum(t.power_w for t in trace_res.detectors.values()),
                                         "absorbed_w": sum(t.power_w for t in trace_res.absorbed.values()),
                                         "escaped_w": trace_res.escaped.power_w},
+        "thermal": json.loads((out / "thermal.json").read_text()) if "thermal" in done else None,
         "timings_s": result.timings_s,
         "config": _config_dict(cfg),
         "software": {"python": platform.python_version(), "numpy": np.__version__},
@@ -530,6 +542,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
         sweep_html = f"""<h2>Design sweep: {html.escape(sweep.parameter.replace('_', ' '))}</h2>
 {img('sweep.png', 'PST vs design parameter at the stray-light angles')}
 {_html_table((sweep.parameter,) + tuple(f'PST at {a:g} deg' for a in sweep.off_axis_deg), sweep_rows)}{csv('sweep')}"""
+    from straylight.thermal.report import report_section as thermal_section
     from straylight.view3d import report_section
 
     view3d_html = report_section() if (result.out_dir / "view3d.html").exists() else ""
@@ -552,6 +565,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 {img('critical.png', 'View factor from the detector vs fraction of the beam first hitting each part', '70%')}
 {_html_table(('rank', 'part', 'illuminated fraction', 'view factor det -> part', 'score'), crit_rows)}{csv('critical')}
 {sweep_html}
+{thermal_section(result.out_dir)}
 {view3d_html}
 <h2>3-D views and detector map</h2>
 {img('view_rays.png', 'Cut-away view with traced rays (colour: log10 relative power; red: reaching the detector)')}

@@ -42,6 +42,8 @@ def add_parser(subparsers):
     p.add_argument("--sweep-values", type=float, nargs="+", default=None,
                    help="values of the swept parameter (default for vane_count: 0 .. 9)")
     p.add_argument("--no-sweep", action="store_true", help="skip the design sweep")
+    p.add_argument("--band-um", type=float, nargs=2, default=None, metavar=("LO", "HI"),
+                   help="band of the self-emission budget when parts have temperature_k (default 8 12)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted study in the same --out: finished PST and design-sweep points "
                         "are read back (same numbers); refused if the settings changed")
@@ -73,6 +75,10 @@ def run(args) -> int:
                       sweep=not args.no_sweep, precision=precision, model=args.model)
     if args.angles_deg:
         cfg.angles_deg = tuple(args.angles_deg)
+    if args.band_um:
+        from straylight.thermal.planck import check_band
+
+        cfg.thermal_band_um = check_band(*args.band_um)
     if args.path_angle_deg is not None:
         from straylight.cli.pst import check_angle_deg
 

@@ -21,7 +21,7 @@ from tests.validation.cavity_radiosity import effective_emissivity
 from tests.validation.thermal_scenes import part, plane, write_scene, write_tube_inward
 
 
-@pytest.mark.parametrize("eps_wall,depth_over_radius", [(0.5, 2.0), (0.75, 4.0)])
+@pytest.mark.parametrize("eps_wall,depth_over_radius", [(0.5, 2.0), pytest.param(0.75, 4.0, marks=pytest.mark.slow)])
 def test_cylindrical_cavity_effective_emissivity(tmp_path, eps_wall, depth_over_radius):
     R, L = 10.0, 10.0 * depth_over_radius
     wall = write_tube_inward(tmp_path, R, L)
