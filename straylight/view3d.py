@@ -88,6 +88,13 @@ class PathSample:
     polylines: list
 
 
+SPECULAR_TOL = 3e-4  # rad: an outgoing direction this close to the mirror direction was a delta reflection
+
+
+def _unit(v):
+    return v / max(float(np.linalg.norm(v)), 1e-300)
+
+
 def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int = 15, per_group: int = 6,
                  n_walks: int = 3000, seed: int = 0) -> list[PathSample]:
     """A few rays drawn for each of the ``top`` groups of a path report (grouped by sequence).
@@ -95,9 +102,10 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
     Display walks (:func:`straylight.viz.trace_ray_paths`) give scatter vertices; each prefix of a
     walk that ends on a surface is joined to a random point of the detector when nothing blocks
     that segment (the next-event connection the engine makes), and a walk that hits the detector
-    is kept as it is. A ray joins the group whose label its sequence of parts gives (events count
-    as scatters: groups with specular events find no sample). Rays show where a path runs; their
-    number is not its power (the group's fraction, from the trace, is).
+    is kept as it is. A ray joins the group whose label its sequence of parts and events gives (an
+    event is specular where the walk left along the mirror direction, within ``SPECULAR_TOL``;
+    refraction and diffraction are not drawn). Rays show where a path runs; their number is not
+    its power (the group's fraction, from the trace, is).
     """
     from straylight.analyses.paths_report import sequence_label
     from straylight.intersect import EmbreeIntersector
@@ -132,15 +140,18 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
                     break
                 if roles[part] != "surface":
                     break
-                events.append((names[part], "scatter"))
-                label = sequence_label(events, det)
+                n = scene.triangle_normals[t]
+                incoming = _unit(pts[j + 1] - pts[j])
+                label = sequence_label([*events, (names[part], "scatter")], det)  # a scatter joined to the detector
                 if label in found and len(found[label]) < per_group:
                     starts.append(pts[j + 1])
                     prefixes.append(pts[: j + 2])
                     labels.append(label)
-                    n = scene.triangle_normals[t]
-                    incoming = pts[j + 1] - pts[j]
                     ends.append(-n if np.dot(incoming, n) > 0 else n)  # the side the ray came from
+                # the walk goes on: a delta reflection if it left along the mirror direction
+                mirror = incoming - 2 * np.dot(incoming, n) * n
+                delta = j + 2 < len(pts) and np.linalg.norm(_unit(pts[j + 2] - pts[j + 1]) - mirror) < SPECULAR_TOL
+                events.append((names[part], "specular" if delta else "scatter"))
         if starts:
             p, side = np.array(starts), np.array(ends)
             k = np.minimum(np.searchsorted(cdf, rng.random(len(p)), side="right"), len(cdf) - 1)
