@@ -565,7 +565,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 {img('critical.png', 'View factor from the detector vs fraction of the beam first hitting each part', '70%')}
 {_html_table(('rank', 'part', 'illuminated fraction', 'view factor det -> part', 'score'), crit_rows)}{csv('critical')}
 {sweep_html}
-{thermal_section(result.out_dir)}
+{thermal_section(result.out_dir)}{csv('thermal')}
 {view3d_html}
 <h2>3-D views and detector map</h2>
 {img('view_rays.png', 'Cut-away view with traced rays (colour: log10 relative power; red: reaching the detector)')}

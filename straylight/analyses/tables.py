@@ -29,6 +29,7 @@ PATHS_TABLE = ("rank", "path", "ancestry", "fraction", "fraction_stderr", "power
 ANCESTRY_TABLE = ("ancestry", "fraction", "fraction_stderr", "power_w", "stderr_w")
 CRITICAL_TABLE = ("rank", "part", "illuminated", "illuminated_stderr", "view_factor", "view_factor_stderr", "score",
                   "score_stderr", "illuminated_any", "seen_any")
+THERMAL_TABLE = ("detector", "part", "power_w", "stderr_w", "fraction", "detector_power_w", "irradiance_w_m2")
 
 
 def report_tables(pst, report, crit, sweep=None, direct=()) -> dict:
@@ -71,26 +72,36 @@ def write_csv_table(path, columns, rows) -> Path:
 
 
 def write_report_tables(out_dir, pst, report, crit, sweep=None, direct=()) -> dict:
-    """Write ``table_<name>.csv`` for each table of the report; returns {name: file name}."""
+    """Write ``table_<name>.csv`` for each table of the report (``thermal`` too when the study wrote
+    thermal.json); returns {name: file name}."""
     out = Path(out_dir)
     names = {}
-    for name, (cols, rows) in report_tables(pst, report, crit, sweep, direct).items():
+    tables = report_tables(pst, report, crit, sweep, direct)
+    if (out / "thermal.json").exists():  # the self-emission budget (straylight.thermal.report)
+        import json
+
+        tables["thermal"] = (THERMAL_TABLE, thermal_rows(json.loads((out / "thermal.json").read_text())))
+    for name, (cols, rows) in tables.items():
         names[name] = write_csv_table(out / f"table_{name}.csv", cols, rows).name
     return names
 
 
-THERMAL_TABLE = ("detector", "part", "power_w", "stderr_w", "fraction", "detector_power_w", "irradiance_w_m2")
+
+def thermal_rows(doc: dict) -> list[dict]:
+    """Rows (detector, emitting part), largest first, of a thermal.json document (CONTRACTS §7.1)."""
+    rows = []
+    for name, d in doc["detectors"].items():
+        total = d["power_w"]
+        for part, t in sorted(d["by_part"].items(), key=lambda kv: -kv[1]["power_w"]):
+            rows.append({"detector": name, "part": part, "power_w": t["power_w"], "stderr_w": t["stderr_w"],
+                         "fraction": t["power_w"] / total if total > 0 else math.nan,
+                         "detector_power_w": total, "irradiance_w_m2": d["irradiance_w_m2"]})
+    return rows
 
 
 def thermal_frame(res):
-    """A :class:`~straylight.thermal.run.ThermalResult` as rows (detector, emitting part), largest first."""
-    rows = []
-    for name, d in res.detectors.items():
-        for part, t in sorted(d.by_part.items(), key=lambda kv: -kv[1].power_w):
-            rows.append({"detector": name, "part": part, "power_w": t.power_w, "stderr_w": t.stderr_w,
-                         "fraction": t.power_w / d.power_w if d.power_w > 0 else math.nan,
-                         "detector_power_w": d.power_w, "irradiance_w_m2": d.irradiance_w_m2})
-    return data_frame(rows, THERMAL_TABLE)
+    """A :class:`~straylight.thermal.run.ThermalResult` as a DataFrame of :func:`thermal_rows`."""
+    return data_frame(thermal_rows(res.to_json_dict()), THERMAL_TABLE)
 
 
 def _own_axes(ax, size):
