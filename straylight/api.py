@@ -18,7 +18,7 @@ against the commands). Angles are in degrees here, as on the command line.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from straylight.analyses.builtin import DEFAULT_MATERIAL, Entrance, Setup
@@ -152,8 +152,13 @@ class Instrument:
     detector) and the analyses that run on it. ``client``/``workers``/``scheduler`` on each call choose
     where it runs (default: this process); they never change the numbers."""
 
-    setup: Setup
+    setup: Setup = field(repr=False)
     source: str = ""
+
+    def __repr__(self) -> str:
+        scene = self.setup.scene
+        return (f"Instrument({self.source!r}: {len(scene.parts)} parts, {len(scene.triangles_mm)} triangles, "
+                f"detector {self.setup.detector or '(the only one)'})")
 
     @property
     def parts(self) -> list[PartInfo]:

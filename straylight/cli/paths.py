@@ -2,8 +2,10 @@
 
     straylight paths --builtin tube --angle-deg 20 --rays N --seed S --out DIR
         [--group-by sequence|first_part|last_part|ancestry] [--ancestry scattered_once ...] [--top 20] [--ghosts]
+        [--view3d]
 
-Writes DIR/paths.md (table), paths.csv (every group), paths.json, paths.png (bar plot).
+Writes DIR/paths.md (table), paths.csv (every group), paths.json, paths.png (bar plot); with --view3d
+also DIR/view3d.html (the interactive 3-D view, docs/notebook.md).
 """
 from __future__ import annotations
 
@@ -22,6 +24,9 @@ def add_parser(subparsers):
     p.add_argument("--group-by", choices=GROUP_BY, default="sequence")
     p.add_argument("--ancestry", choices=ANCESTRY, nargs="+", default=None, help="keep only these classes")
     p.add_argument("--top", type=int, default=20, help="rows in the table and bars in the plot")
+    p.add_argument("--view3d", action="store_true",
+                   help="also write DIR/view3d.html: the interactive 3-D view of this trace (parts by absorbed "
+                        "power, each ranked path's sample rays; opens in a browser without a server)")
     p.add_argument("--ghosts", action="store_true",
                    help="also rank the specular paths (nominal and ghosts): DIR/ghosts.md, ghosts.json")
     add_dask_out_args(p)
@@ -52,5 +57,8 @@ def run(args) -> int:
         table = ghost_table(res.paths, report.detector, report.total_w)
         table.write(out)
         print(table.markdown(min(args.top, 10)))
-    print(f"written {out}/paths.md, paths.csv, paths.json, paths.png" + (", ghosts.md, ghosts.json" if args.ghosts else ""))
+    if args.view3d:
+        inst.view3d(out / "view3d.html", args.angle_deg, args.azimuth_deg, seed=args.seed, paths=report)
+    print(f"written {out}/paths.md, paths.csv, paths.json, paths.png" + (", ghosts.md, ghosts.json" if args.ghosts else "")
+          + (", view3d.html" if args.view3d else ""))
     return 0

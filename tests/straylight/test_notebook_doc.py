@@ -78,6 +78,9 @@ def test_paths_same_numbers_as_the_command(ran):
     assert list(df["path"][:3]) == [r.label for r in rep.rows[:3]]
     assert ns["absorbed_w"] == {k: v.power_w for k, v in rep.trace.absorbed.items()}
     assert (work / "tube_view.html").stat().st_size > 100_000
+    # the command's --view3d page shows the same ranked paths as the notebook's
+    page = (work / "paths_out" / "view3d.html").read_text()
+    assert all(r.label in page for r in rep.rows[:5])
 
 
 def test_critical_same_numbers_as_the_command(ran):
