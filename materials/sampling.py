@@ -19,6 +19,8 @@ from numbers import Real
 import numpy as np
 
 from materials.base import MaterialError, Sample
+from materials.jit_cache import njit
+from materials.jit_start import start_numba
 
 _S_EQUALS_2 = 1e-9  # |s - 2| below this uses the logarithmic (s = 2) branch
 
@@ -119,10 +121,6 @@ def lazy_njit(fn, error_model: str = "python"):
     division by zero gives inf / nan as numpy's does, instead of raising."""
     jit = _COMPILED.get(fn)
     if jit is None:
-        from numba import njit
-
-        from materials.jit_start import start_numba
-
         start_numba()  # numba's target without scipy.linalg (materials.jit_start), whoever compiles first
         jit = _COMPILED[fn] = njit(cache=True, nogil=True, error_model=error_model)(fn)
     return jit

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 from llvmlite import ir
-from numba import njit, types
+from numba import types
 from numba.extending import intrinsic
+
+from materials.jit_cache import njit
 
 
 @njit(cache=True, nogil=True)

@@ -8,7 +8,7 @@ w / roulette_w at weight roulette_w; the difference goes to the part's ``roulett
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 from straylight.engine.ray_batch import RayBatch
 from straylight.engine.tally_store import tally_add

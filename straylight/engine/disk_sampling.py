@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 TWO_PI = 2.0 * math.pi
 

@@ -23,7 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 LEAF_SIZE = 4
 

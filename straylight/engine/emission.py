@@ -5,7 +5,7 @@ detector, for a backward trace) does not hit it."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 from straylight.engine.draws import EMISSION_COLUMNS
 from straylight.engine.vec3 import dot3

@@ -8,7 +8,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 from straylight.engine.ray_batch import EVENT_SCATTER
 from straylight.engine.roles import ROLE_ABSORBER, ROLE_DETECTOR

@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 from straylight.engine import second_vertex
 from straylight.engine.disk_sampling import annulus_point, annulus_points

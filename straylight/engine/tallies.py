@@ -8,7 +8,7 @@ The compiled sums (:func:`log_chunk_sums`) replay numpy's pairwise summation, so
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 from straylight.engine.pairwise_sums import pairwise_sums_sparse, pairwise_sums_with, pairwise_work
 from straylight.rng import CHUNK_RAYS

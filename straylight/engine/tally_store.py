@@ -18,7 +18,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 from straylight.engine.tallies import chunk_sums_numpy, log_chunk_sums
 

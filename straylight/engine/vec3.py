@@ -5,7 +5,7 @@ no fused multiply-add (numba does not contract without ``fastmath``)."""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -14,6 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from materials.jit_cache import njit
+from materials.jit_start import start_numba
+
 CELL_BITS = 4  # 16 cells per axis, 4096 in all
 MIN_RAYS = 4096  # below this, ordering does not pay: plain conversion
 MIN_TRIANGLES = 100_000  # smaller scenes' BVHs stay in cache: no gain (tube, 15k: 3 % slower)
@@ -25,10 +28,6 @@ def _compiled(fn):
     order of materials.jit_start kept)."""
     jit = _COMPILED.get(fn)
     if jit is None:
-        from numba import njit
-
-        from materials.jit_start import start_numba
-
         start_numba()
         jit = _COMPILED[fn] = njit(cache=True, nogil=True)(fn)
     return jit

@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 from straylight.engine import nee
 from straylight.engine.event import outgoing

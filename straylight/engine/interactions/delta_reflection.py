@@ -13,7 +13,7 @@ polarization is tracked (straylight.engine.interactions.stokes) pay for it.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from materials.jit_cache import njit
 
 from materials.mueller import s_vector
 from straylight.engine.event import outgoing
