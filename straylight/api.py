@@ -37,7 +37,7 @@ class PartInfo:
 
 
 def load(scene=None, *, builtin: str | None = None, detector: str | None = None, material: str | None = None,
-         entrance_center_mm=None, entrance_radius_mm: float | None = None, **tube_params) -> "Instrument":
+         entrance_center_mm=None, entrance_radius_mm: float | None = None, **tube_params) -> Instrument:
     """An :class:`Instrument` from a scene file (``scene``) or a built-in (``builtin="tube"`` or ``"cassegrain"``).
 
     detector : the detector part (default: the scene's [analysis] detector, or its only one)
@@ -162,7 +162,7 @@ class Instrument:
 
     @property
     def parts(self) -> list[PartInfo]:
-        return [PartInfo(p.name, p.role, p.material, int(len(p.faces))) for p in self.setup.scene.parts]
+        return [PartInfo(p.name, p.role, p.material, len(p.faces)) for p in self.setup.scene.parts]
 
     @property
     def detector(self) -> str:

@@ -59,7 +59,7 @@ def view_meshes(scene, max_triangles: int = DEFAULT_MAX_TRIANGLES) -> list[ViewM
     for part in scene.parts:
         v, f = np.asarray(part.vertices_mm, dtype=np.float64), np.asarray(part.faces, dtype=np.int64)
         n = len(f)
-        target = max(MIN_PART_TRIANGLES, int(math.ceil(keep * n)))
+        target = max(MIN_PART_TRIANGLES, math.ceil(keep * n))
         if target < n:
             v, f = _decimate(v, f, 1.0 - target / n)
         out.append(ViewMesh(part.name, part.role, v.astype(np.float32), f.astype(np.uint32), n))
@@ -182,7 +182,7 @@ def view_data(setup, absorbed_w: dict, incident_w: dict, samples=(), title: str 
     """The JSON the page reads: parts (base64 little-endian float32 / uint32), entrance, paths, bounds."""
     meshes = view_meshes(setup.scene, max_triangles)
     parts = [{"name": m.name, "role": m.role, "vertices_f32": _b64(m.vertices_mm), "faces_u32": _b64(m.faces),
-              "triangles": int(len(m.faces)), "triangles_traced": m.triangles_traced,
+              "triangles": len(m.faces), "triangles_traced": m.triangles_traced,
               "absorbed_w": float(absorbed_w.get(m.name, 0.0)), "incident_w": float(incident_w.get(m.name, 0.0))}
              for m in meshes]
     entrance = None

@@ -67,7 +67,7 @@ def write_csv_table(path, columns, rows) -> Path:
         w = csv.writer(fh)
         w.writerow(columns)
         for r in rows:
-            w.writerow(["" if v is None or (isinstance(v, float) and v != v) else v for v in (r.get(c) for c in columns)])
+            w.writerow(["" if v is None or (isinstance(v, float) and math.isnan(v)) else v for v in (r.get(c) for c in columns)])
     return path
 
 

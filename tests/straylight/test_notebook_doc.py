@@ -18,7 +18,7 @@ DOC = Path(__file__).resolve().parents[2] / "docs" / "notebook.md"
 
 def _blocks() -> list[tuple[str, str]]:
     """(language, code) of every ```python and ```sh block, in the page's order."""
-    return re.findall(r"```(python|sh)\n(.*?)```", DOC.read_text(), re.S)
+    return re.findall(r"```(python|sh)\n(.*?)```", DOC.read_text(), re.DOTALL)
 
 
 @pytest.fixture(scope="module")

@@ -84,7 +84,7 @@ def test_page_is_self_contained(traced, tmp_path):
     assert not re.search(r"\s(src|href)\s*=", page)
     assert set(re.findall(r"https?://[^\s\"'<>)]+", page)) <= {"http://www.w3.org/1999/xhtml"}
     data = json.loads(re.search(r'<script type="application/json" id="view3d-data">(.*?)</script>', page,
-                                re.S).group(1).replace("<\\/", "</"))
+                                re.DOTALL).group(1).replace("<\\/", "</"))
     assert [p["name"] for p in data["parts"]] == list(setup.scene.part_names)
     wall = data["parts"][0]
     v = np.frombuffer(base64.b64decode(wall["vertices_f32"]), dtype="<f4").reshape(-1, 3)
