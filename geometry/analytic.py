@@ -442,4 +442,7 @@ def analytic_part(name: str, surface, material=None, role: str = "surface", back
     from geometry.mesh import Part
 
     vertices, faces = surface.mesh(tolerance_mm) if mesh is None else mesh
-    return Part(name, vertices, faces, material, role, {"tolerance_mm": tolerance_mm}, surface, back_material)
+    meta = {"tolerance_mm": tolerance_mm}
+    if mesh is None:
+        meta["kind"] = "sheet"  # the project's mesh of a surface is an open sheet, not a leaky solid
+    return Part(name, vertices, faces, material, role, meta, surface, back_material)

@@ -174,7 +174,8 @@ def load_scene(path, check_watertight: bool = True, sources: bool = True) -> Res
             if part.material not in materials:
                 materials[part.material] = resolve_material(part.material, inline, path.parent, where)
         _resolve_back_material(part, materials, inline, path.parent, where)
-        if check_watertight and part.role != "detector" and not _watertight(part):
+        if check_watertight and part.role != "detector" and part.meta.get("kind") != "sheet" \
+                and not _watertight(part):
             notes.append(f"{where}: mesh is not watertight (light may enter the solid through gaps)")
     from materials.jit_start import start_numba
 

@@ -508,7 +508,9 @@ def _method_lines(result: StudyResult) -> list[str]:
          + " per point; the table says which stopped each point (docs/study.md)." if cfg.precision else
          "- VOV: the estimated relative variance of each point's variance (MCNP's check, < 0.1 means the "
          "error bar can be trusted to ~16 %; larger: rare heavy paths; docs/study.md)."),
-        f"- Rays: {cfg.rays if cfg.precision is None else 'see the table'} per PST angle, {cfg.sweep_rays} per design-sweep point, {cfg.path_rays} for the "
+        f"- Rays: {cfg.rays if cfg.precision is None else 'see the table'} per PST angle, "
+        + (f"{cfg.sweep_rays} per design-sweep point, " if result.summary.get("sweep") is not None else "")
+        + f"{cfg.path_rays} for the "
         f"path report, {cfg.critical_rays} each way for critical/illuminated objects. Seed {cfg.seed} "
         "(each step and point derives its own stream from it).",
         *_instrument_lines(result),
