@@ -145,9 +145,10 @@ def _side_tables(ts: ThermalScene, wavelength_um: float) -> SideTables:
 
 
 def _back_emissivity(material):
-    """1 - rho - T seen from inside a dielectric's medium, None for other materials."""
-    smooth = getattr(material, "smooth", None)
-    if smooth is None or not hasattr(smooth, "n_outside"):  # only a dielectric has a medium behind it
+    """1 - rho - T seen from inside a transmitting (dielectric) medium, None for other materials."""
+    from materials.flags import ComponentFlags, flags_of
+
+    if not flags_of(material) & ComponentFlags.DELTA_TRANSMISSION:  # only a dielectric has a medium behind it
         return None
     c = np.cos(THETA_GRID)
     coef = material.smooth_coefficients(c, back=True)
@@ -172,6 +173,7 @@ def thermal_scene(scene, materials: dict, mirror_reflectance: float = 1.0) -> Th
         parts.append(np.full(len(t), p, dtype=np.int64))
     tri = np.concatenate(tris)
     part = np.concatenate(parts)
+    tri = _detectors_face_the_scene(scene, tri, part, planes)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     twice = np.linalg.norm(cross, axis=1)
     normals = cross / np.where(twice > 0, twice, 1.0)[:, None]
@@ -184,6 +186,28 @@ def thermal_scene(scene, materials: dict, mirror_reflectance: float = 1.0) -> Th
 
 
 PLANE_SEGMENTS = 256
+
+
+def _detectors_face_the_scene(scene, tri, part, planes):
+    """An open (sheet) detector mesh whose area-weighted normal points away from the centre of the
+    other parts' bounding box is turned round (vertex order reversed), so that its front, the side
+    that receives and emits, faces the instrument: an STL's winding is often arbitrary. Analytic
+    detectors keep their ``axis`` (CONTRACTS §6.1) and closed ones their outward faces."""
+    out = tri
+    for p, prt in enumerate(scene.parts):
+        if prt.role != "detector" or p in planes or prt.meta.get("watertight", prt.is_watertight):
+            continue
+        mine = part == p
+        others = tri[~mine]
+        if len(others) == 0:
+            continue
+        centre = 0.5 * (others.reshape(-1, 3).min(axis=0) + others.reshape(-1, 3).max(axis=0))
+        t = tri[mine]
+        cross = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])  # area-weighted normals
+        if float(np.einsum("ij,ij->", cross, centre - t.mean(axis=1))) < 0:
+            out = out.copy() if out is tri else out
+            out[mine] = t[:, ::-1]
+    return out
 
 
 def _circumscribed_annulus(vertex, axis, r0, r1, n=PLANE_SEGMENTS):

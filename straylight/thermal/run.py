@@ -19,6 +19,7 @@ from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
 METHODS = ("reverse", "forward")
 DEFAULT_MAX_RAYS = 50_000_000
 DEFAULT_MAX_SECONDS = 600.0
+ZERO_POWER_RAYS = 100_000  # --target-rel-error gives up on a detector that nothing reaches after this
 MIN_ROUND_RAYS = 512  # first round of --target-rel-error, and the smallest later round (per sub-band)
 FRONT_FACE_COS = 0.5  # as straylight.detectors: a closed detector's faces within 60 deg of its front
 
@@ -217,6 +218,9 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
                 tot, err, per, per_err = combined()
                 done = sum(s.n for s in sums)
                 if tot > 0 and err <= float(target_rel_error) * tot:
+                    break
+                if tot <= 0 and done >= ZERO_POWER_RAYS:
+                    stopped = f"no emission reached the detector in {done} rays: power 0"
                     break
                 if done >= max_rays or time.perf_counter() - t0 > max_seconds:
                     stopped = (f"stopped at {done} rays / {time.perf_counter() - t0:.0f} s with relative error "

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from materials.flags import ComponentFlags, flags_of
 from materials.smooth import reflect, refract
 
 CHUNK_RAYS = 4096
@@ -157,10 +158,13 @@ def interact(ts, sides, hit: Hit, rows, d, u) -> Outgoing:
 
 
 def _interact_material(m, back, d, nf, u, out, sel):
+    """By the material's declared flags (materials.flags): scatter lobes only, or a smooth interface
+    (specular, and refraction when it transmits) with lobes, branched by expected power."""
     t, b = frame(nf)
     wi = to_local(-d, t, b, nf)
-    coef = m.smooth_coefficients(wi[:, 2], back=bool(back) and hasattr(m.smooth, "n_outside")) \
-        if getattr(m, "smooth", None) is not None else None
+    flags = flags_of(m)
+    coef = m.smooth_coefficients(wi[:, 2], back=bool(back) and bool(flags & ComponentFlags.DELTA_TRANSMISSION)) \
+        if flags & ComponentFlags.DELTA else None
     if coef is None:  # scatter lobes only
         s = m.sample(wi, u[:, 1:4], "u")
         out.direction[sel] = to_world(s.wo, t, b, nf)

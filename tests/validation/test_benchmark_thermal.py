@@ -72,3 +72,20 @@ def test_cold_detector_under_a_warm_disk(tmp_path):
     expect = np.pi * band_radiance_w_m2_sr(8, 12, 300.0) * np.pi * 20 ** 2 * 1e-6 * view_factor_coaxial_disks(20, 5, 30)
     assert abs(d.power_w - expect) <= 3 * d.stderr_w + 1e-12
     assert d.by_part["det"].power_w == 0.0
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_open_detector_sheet_faces_the_scene_whatever_its_winding(tmp_path, sign):
+    """An STL disk detector (256-gon, r = 5 mm) under a warm black disk: the same power whichever way
+    its triangles are wound (its front is turned toward the scene), as the analytic-plane check above."""
+    from tests.validation.thermal_scenes import write_disk
+
+    det = write_disk(tmp_path, "det", 5.0, 0.0, normal_sign=sign)
+    text = part("det", role="detector", temperature_k=77.0, mesh=det)
+    text += part("hot", role="absorber", temperature_k=300.0, surface=plane((0, 0, 30), (0, 0, -1), 20.0))
+    res = thermal(_ts(write_scene(tmp_path, text)), (8, 12), n_rays=8_000, seed=2)
+    d = res.detectors["det"]
+    area = 0.5 * 256 * 25.0 * np.sin(2 * np.pi / 256)  # the polygon's area, mm^2
+    expect = np.pi * band_radiance_w_m2_sr(8, 12, 300.0) * np.pi * 20 ** 2 * 1e-6 * view_factor_coaxial_disks(20, 5, 30)
+    assert d.area_mm2 == pytest.approx(area, rel=1e-6)  # STL vertices are float32
+    assert abs(d.power_w / area - expect / (np.pi * 25)) * area <= 3 * d.stderr_w + 1e-3 * expect

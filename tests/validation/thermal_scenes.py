@@ -92,3 +92,16 @@ def write_tube_inward(directory, radius_mm, length_mm, name="wall.stl", n_phi=25
     assert (np.einsum("ij,ij->i", mesh.face_normals, mesh.triangles_center * [1, 1, 0]) < 0).all()
     mesh.export(Path(directory) / name)
     return name
+
+
+def write_disk(directory, name, radius_mm, z_mm, normal_sign=1.0, n_phi=256):
+    """A disk sheet (triangle fan) at height z, normals along +z (or -z with ``normal_sign`` -1)."""
+    phi = np.linspace(0, 2 * np.pi, n_phi, endpoint=False)
+    verts = np.vstack([[0.0, 0.0, z_mm], np.column_stack([radius_mm * np.cos(phi), radius_mm * np.sin(phi),
+                                                          np.full(n_phi, z_mm)])])
+    i = np.arange(n_phi)
+    faces = np.column_stack([np.zeros(n_phi, int), 1 + i, 1 + (i + 1) % n_phi])
+    if normal_sign < 0:
+        faces = faces[:, ::-1]
+    trimesh.Trimesh(verts, faces, process=False).export(Path(directory) / f"{name}.stl")
+    return f"{name}.stl"
