@@ -17,6 +17,8 @@ against the commands). Angles are in degrees here, as on the command line.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -94,19 +96,25 @@ def thermal_scene(scene):
 
 
 def thermal(scene, band_um, *, rays: int | None = None, target_rel_error: float | None = None, seed: int = 0,
-            method: str = "reverse", max_seconds: float | None = None):
+            method: str = "reverse", max_seconds: float | None = None, temperature_k=(), sweep=None):
     """Self-emission in the band ``band_um`` (lo, hi) reaching each detector of a scene file (``straylight
     thermal``, CONTRACTS §7.1): a :class:`~straylight.thermal.run.ThermalResult`. ``scene``: a file or a
-    ThermalScene (:func:`thermal_scene`, to load once and run several bands)."""
+    ThermalScene (:func:`thermal_scene`, to load once and run several bands). ``temperature_k``: "PART=K"
+    settings over the scene's (PART may be a pattern, ``vane_*``); ``sweep``: further temperature sets
+    on the same paths (``ThermalResult.sweep``; straylight.thermal.run.thermal)."""
     from straylight.thermal.model import ThermalScene
     from straylight.thermal.planck import check_band
     from straylight.thermal.run import DEFAULT_MAX_SECONDS
     from straylight.thermal.run import thermal as run
 
     check_band(*band_um)
+    from straylight.thermal.model import temperatures_with
+
     ts = scene if isinstance(scene, ThermalScene) else thermal_scene(scene)
+    if temperature_k:
+        ts = dataclasses.replace(ts, temperature_k=temperatures_with(ts, temperature_k))
     return run(ts, tuple(band_um), n_rays=rays, target_rel_error=target_rel_error, seed=int(seed), method=method,
-               max_seconds=DEFAULT_MAX_SECONDS if max_seconds is None else float(max_seconds))
+               max_seconds=DEFAULT_MAX_SECONDS if max_seconds is None else float(max_seconds), sweep=sweep)
 
 
 def exchange(scene, band_um, *, rays: int, seed: int = 0):

@@ -1,6 +1,7 @@
 """``straylight thermal`` and ``straylight exchange`` (CONTRACTS §7).
 
     straylight thermal SCENE.toml --band-um LO HI (--rays N | --target-rel-error E) [--seed S] --out DIR
+        [--temperature-k PART=K ...] [--sweep-temperature-k PART K1 K2 ...] [--method reverse|forward]
     straylight exchange SCENE.toml --band-um LO HI --rays N [--seed S] --out DIR
 
 ``thermal`` writes DIR/thermal.json: self-emission in the band reaching each detector, split by
@@ -26,6 +27,12 @@ def add_parser(subparsers):
                    help="reverse: rays from the detector pick up emission at every vertex (default, faster); "
                         "forward: emission from the parts with next-event estimation")
     p.add_argument("--max-seconds", type=float, default=600.0, help="time cap for --target-rel-error")
+    p.add_argument("--temperature-k", nargs="+", default=(), metavar="PART=K",
+                   help="set part temperatures (kelvin) over the scene's, in order; PART may be a shell pattern "
+                        "('vane_*', '*')")
+    p.add_argument("--sweep-temperature-k", nargs="+", default=None, metavar="PART K",
+                   help="PART K1 K2 ...: the detector power with PART (or a pattern) at each temperature, on the "
+                        "same reverse paths (DIR/thermal_sweep.csv and .json)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output directory")
     p.set_defaults(func=run_thermal)
@@ -49,12 +56,26 @@ def run_thermal(args) -> int:
     import atomicio
     from straylight import api
 
-    res = api.thermal(Path(args.scene), args.band_um, rays=args.rays, target_rel_error=args.target_rel_error,
-                      seed=args.seed, method=args.method, max_seconds=args.max_seconds)
+    from straylight.thermal.model import temperatures_with
+    from straylight.thermal.planck import check_band
+
+    check_band(*args.band_um)
+    ts = api.thermal_scene(Path(args.scene))
+    ts.temperature_k = temperatures_with(ts, args.temperature_k)
+    sweep, label = _sweep(ts, args.sweep_temperature_k)
+    res = api.thermal(ts, args.band_um, rays=args.rays, target_rel_error=args.target_rel_error,
+                      seed=args.seed, method=args.method, max_seconds=args.max_seconds, sweep=[t for _, t in sweep])
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     atomicio.write_json(out / "thermal.json", res.to_json_dict())
     atomicio.write_json(out / "thermal_details.json", res.details())
+    if sweep:
+        rows = [{"detector": det, "part": label, "temperature_k": k, "power_w": p, "stderr_w": e}
+                for det, vals in res.sweep.items() for (k, _), (p, e) in zip(sweep, vals)]
+        atomicio.write_json(out / "thermal_sweep.json", {"band_um": list(args.band_um), "rows": rows})
+        atomicio.write_text(out / "thermal_sweep.csv", "detector,part,temperature_k,power_w,stderr_w\n" + "".join(
+            f"{r['detector']},{r['part']},{r['temperature_k']:g},{r['power_w']:.9g},{r['stderr_w']:.3g}\n"
+            for r in rows))
     for name, d in res.detectors.items():
         print(f"{name}: {d.power_w:.6g} +- {d.stderr_w:.2g} W, {d.irradiance_w_m2:.6g} W/m^2 "
               f"({args.band_um[0]:g}-{args.band_um[1]:g} um, {d.rays} rays)")
@@ -62,8 +83,23 @@ def run_thermal(args) -> int:
             print(f"  {part}: {t.power_w:.6g} +- {t.stderr_w:.2g} W")
     if res.stopped:
         print(res.stopped)
-    print(f"written {out}/thermal.json, {out}/thermal_details.json")
+    for det, vals in res.sweep.items():
+        for (k, _), (p, e) in zip(sweep, vals):
+            print(f"  {label} at {k:g} K -> {det}: {p:.6g} +- {e:.2g} W")
+    print(f"written {out}/thermal.json, {out}/thermal_details.json" + (", thermal_sweep.csv/json" if sweep else ""))
     return 0
+
+
+def _sweep(ts, spec):
+    """[(kelvin, temperature set)] and the part pattern of --sweep-temperature-k PART K1 K2 ..."""
+    from straylight.thermal.model import temperatures_with
+
+    if not spec:
+        return [], None
+    if len(spec) < 2:
+        raise ValueError("--sweep-temperature-k: expected PART K1 [K2 ...]")
+    part, values = spec[0], spec[1:]
+    return [(float(v), temperatures_with(ts, [f"{part}={v}"])) for v in values], part
 
 
 def run_exchange(args) -> int:

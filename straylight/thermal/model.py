@@ -227,3 +227,30 @@ def _circumscribed_annulus(vertex, axis, r0, r1, n=PLANE_SEGMENTS):
         return np.stack([c, outer, outer[j]], axis=1)
     inner = vertex + r0 * ring
     return np.concatenate([np.stack([inner, outer, outer[j]], axis=1), np.stack([inner, outer[j], inner[j]], axis=1)])
+
+
+def temperatures_with(ts: ThermalScene, settings) -> np.ndarray:
+    """The scene's part temperatures with ``settings`` applied in order: ``"PATTERN=K"`` strings
+    (or (pattern, K) pairs), PATTERN a part name or a shell pattern (``vane_*``, ``*``). A pattern
+    that names no part, or a bad value, is a one-line error."""
+    import fnmatch
+
+    temps = np.array(ts.temperature_k, dtype=float)
+    for item in settings or ():
+        if isinstance(item, str):
+            pattern, sep, value = item.rpartition("=")
+            if not sep or not pattern:
+                raise ValueError(f"--temperature-k: expected PART=KELVIN, got {item!r}")
+        else:
+            pattern, value = item
+        try:
+            k = float(value)
+        except ValueError:
+            raise ValueError(f"--temperature-k {item!r}: {value!r} is not a number") from None
+        if not (0 <= k < float("inf")):
+            raise ValueError(f"--temperature-k {item!r}: a temperature must be >= 0 K")
+        hit = [i for i, n in enumerate(ts.part_names) if fnmatch.fnmatchcase(n, pattern)]
+        if not hit:
+            raise ValueError(f"--temperature-k {item!r}: no part named {pattern!r}; parts: {', '.join(ts.part_names)}")
+        temps[hit] = k
+    return temps

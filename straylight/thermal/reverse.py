@@ -25,8 +25,10 @@ from straylight.thermal.walk import (EVENT_COLUMNS, MAX_EVENTS, AreaSampler, cas
 def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, seed: int, stream: int, chunk: int,
                   n: int):
     """One chunk of ``n`` reverse rays. ``radiance`` (P,): B_band of each part's temperature in this
-    sub-band (W m^-2 sr^-1). Returns (per-part sums S1 (P,), S2 (P,), total S1, total S2) of the
-    per-ray power estimates A pi L in W (areas in mm^2 -> m^2)."""
+    sub-band (W m^-2 sr^-1), or (C, P) for C temperature sets traced together (the paths do not
+    depend on temperatures). Returns (per-part sums S1 (P,), S2 (P,), total S1, total S2) of the
+    per-ray power estimates A pi L in W (areas in mm^2 -> m^2), the totals (C,) for a (C, P) input
+    and the per-part sums for its first set."""
     rng = chunk_rng(seed, stream, chunk)
     P = ts.n_parts
     u = rng.random((n, 5))
@@ -63,6 +65,10 @@ def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, see
         ray = ray[c]
     scale = det_sampler.area_mm2 * 1e-6 * np.pi
     per = pick.reshape(P, n) * scale
-    x = per * radiance[:, None]
-    tot = x.sum(axis=0)
-    return x.sum(axis=1), (x * x).sum(axis=1), float(tot.sum()), float((tot * tot).sum())
+    rad = np.atleast_2d(radiance)
+    x = per * rad[0][:, None]
+    tot = rad @ per  # (C, n)
+    t1, t2 = tot.sum(axis=1), (tot * tot).sum(axis=1)
+    if np.ndim(radiance) == 1:
+        t1, t2 = float(t1[0]), float(t2[0])
+    return x.sum(axis=1), (x * x).sum(axis=1), t1, t2

@@ -60,7 +60,7 @@ class ThermalResult:
     temperatures_k: dict
     seconds: float
     stopped: str | None = None
-    notes: list = field(default_factory=list)
+    sweep: dict = field(default_factory=dict)  # detector -> [(power_w, stderr_w)] per extra temperature set
 
     def to_json_dict(self) -> dict:
         """thermal.json (CONTRACTS §7.1), exactly its keys; the rest is in :meth:`details`."""
@@ -122,14 +122,14 @@ def detector_sampler(ts, p: int, toward_mm=None):
 
 
 class _Sums:
-    """Per-stream running sums of per-ray estimates (per part and total)."""
+    """Per-stream running sums of per-ray estimates (per part, and total per temperature set)."""
 
-    def __init__(self, n_parts):
+    def __init__(self, n_parts, n_sets=1):
         self.n = 0
         self.s1 = np.zeros(n_parts)
         self.s2 = np.zeros(n_parts)
-        self.t1 = 0.0
-        self.t2 = 0.0
+        self.t1 = 0.0 if n_sets == 1 else np.zeros(n_sets)
+        self.t2 = 0.0 if n_sets == 1 else np.zeros(n_sets)
 
     def add(self, n, s1, s2, t1, t2):
         self.n += n
@@ -146,17 +146,19 @@ class _Sums:
 
     def means(self):
         return self.s1 / max(self.n, 1), self._var(self.n, self.s1, self.s2), self.t1 / max(self.n, 1), \
-            float(self._var(self.n, self.t1, self.t2))
+            self._var(self.n, self.t1, self.t2)
 
 
 def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | None = None, seed: int = 0,
             method: str = "reverse", detectors=None, max_rays: int = DEFAULT_MAX_RAYS,
-            max_seconds: float = DEFAULT_MAX_SECONDS, toward_mm=None) -> ThermalResult:
+            max_seconds: float = DEFAULT_MAX_SECONDS, toward_mm=None, sweep=None) -> ThermalResult:
     """Band power from every part at a temperature reaching each detector (CONTRACTS §7.1).
 
     ``ts``: :class:`straylight.thermal.model.ThermalScene`. Give ``n_rays`` (per detector) or
     ``target_rel_error``. ``method``: "reverse" (default, rays from the detector) or "forward"
-    (emission from the parts with next-event estimation)."""
+    (emission from the parts with next-event estimation). ``sweep``: further temperature sets
+    ((P,) arrays, kelvin) evaluated on the same reverse paths (``ThermalResult.sweep``: per detector
+    a list of (power, stderr)); the precision target applies to the scene's own temperatures."""
     from straylight.thermal.model import sub_bands
     from straylight.thermal.walk import CHUNK_RAYS
 
@@ -173,40 +175,45 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     if not names:
         raise ValueError("the scene has no detector part (role = \"detector\")")
     bands = sub_bands(lo, hi, ts.wavelength_dependent())
-    radiance = np.array([[band_radiance_w_m2_sr(a, b, t) if t > 0 else 0.0 for t in ts.temperature_k]
-                         for a, b, _ in bands])  # (K, P)
+    sets = [np.asarray(ts.temperature_k, float)] + [np.asarray(t, float) for t in (sweep or [])]
+    if len(sets) > 1 and method != "reverse":
+        raise ValueError("a temperature sweep needs the reverse method")
+    rad_sets = np.array([[[band_radiance_w_m2_sr(a, b, t) if t > 0 else 0.0 for t in temps] for temps in sets]
+                         for a, b, _ in bands])  # (K, C, P)
+    radiance = rad_sets[:, 0, :]  # (K, P): the scene's own temperatures
     emitting = [n for n, t in zip(ts.part_names, ts.temperature_k) if t > 0]
     t0 = time.perf_counter()
-    out, stopped, total_rays = {}, None, 0
-    share = radiance.max(axis=1) if radiance.max() > 0 else np.ones(len(bands))
+    out, stopped, total_rays, swept = {}, None, 0, {}
+    share = rad_sets.max(axis=(1, 2)) if rad_sets.max() > 0 else np.ones(len(bands))
     share = share / share.sum()
     for j, name in enumerate(names):
         p = ts.part_index(name)
         sampler, _ = detector_sampler(ts, p, toward_mm)
         estimator = _estimator(method, ts, p, sampler)
-        sums = [_Sums(ts.n_parts) for _ in bands]
+        sums = [_Sums(ts.n_parts, len(sets)) for _ in bands]
         next_chunk = [0] * len(bands)
 
         def run_round(rays_now):
             for k, (a, b, lam) in enumerate(bands):
-                if radiance[k].max() <= 0:
+                if rad_sets[k].max() <= 0:
                     continue
                 want = max(MIN_ROUND_RAYS if target_rel_error is not None else 2, int(round(rays_now * share[k])))
                 sides = ts.sides_at(lam)
                 while want > 0:
                     m = min(CHUNK_RAYS, want)
-                    sums[k].add(m, *estimator(sides, radiance[k], seed, j * 64 + k, next_chunk[k], m))
+                    rad = rad_sets[k] if len(sets) > 1 else radiance[k]
+                    sums[k].add(m, *estimator(sides, rad, seed, j * 64 + k, next_chunk[k], m))
                     next_chunk[k] += 1
                     want -= m
 
-        def combined():
-            tot = sum(s.means()[2] for s in sums)
-            var = sum(s.means()[3] for s in sums if s.n > 0)
+        def combined(c=0):
+            tot = sum(np.atleast_1d(s.means()[2])[c] for s in sums)
+            var = sum(np.atleast_1d(s.means()[3])[c] for s in sums if s.n > 0)
             per = sum(s.means()[0] for s in sums)
             per_var = sum(s.means()[1] for s in sums if s.n > 0)
-            return tot, float(np.sqrt(var)), per, np.sqrt(per_var)
+            return float(tot), float(np.sqrt(var)), per, np.sqrt(per_var)
 
-        if radiance.max() <= 0:
+        if rad_sets.max() <= 0:
             tot, err, per, per_err = 0.0, 0.0, np.zeros(ts.n_parts), np.zeros(ts.n_parts)
         elif n_rays is not None:
             run_round(int(n_rays))
@@ -217,7 +224,7 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
                 run_round(rays_now)
                 tot, err, per, per_err = combined()
                 done = sum(s.n for s in sums)
-                if tot > 0 and err <= float(target_rel_error) * tot:
+                if (tot > 0 and err <= float(target_rel_error) * tot) or (radiance.max() <= 0 and done > 0):
                     break
                 if tot <= 0 and done >= ZERO_POWER_RAYS:
                     stopped = f"no emission reached the detector in {done} rays: power 0"
@@ -235,9 +242,11 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
         by_part = {ts.part_names[q]: Tally(float(per[q]), float(per_err[q])) for q in range(ts.n_parts)
                    if ts.part_names[q] in emitting}
         out[name] = DetectorThermal(name, sampler.area_mm2, float(tot), float(err), by_part, n_done)
+        swept[name] = [combined(c)[:2] if rad_sets.max() > 0 and sum(s.n for s in sums) else (0.0, 0.0)
+                       for c in range(1, len(sets))]
     temps = {n: float(t) for n, t in zip(ts.part_names, ts.temperature_k) if t > 0}
     return ThermalResult((lo, hi), total_rays, int(seed), method, out, bands, temps,
-                         time.perf_counter() - t0, stopped)
+                         time.perf_counter() - t0, stopped, sweep=swept)
 
 
 def _estimator(method, ts, p, sampler):

@@ -64,3 +64,26 @@ def test_bad_temperature_names_the_part(tmp_path, capsys):
     assert main(["thermal", str(path), "--band-um", "8", "12", "--rays", "10", "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err
     assert "temperature_k" in err and "[[part]] 2" in err
+
+
+def test_temperature_settings_and_sweep(two_disks, tmp_path):
+    """--temperature-k overrides the scene; a sweep is linear in each part's band radiance (the power
+    from a part scales with B_band(T)), and its value at the scene temperature is the total itself."""
+    out = tmp_path / "sw"
+    assert main(["thermal", str(two_disks), "--band-um", "8", "12", "--rays", "4000", "--temperature-k", "b*=290",
+                 "--sweep-temperature-k", "baffle", "290", "250", "0", "--out", str(out)]) == 0
+    det = json.loads((out / "thermal.json").read_text())["detectors"]["focal_plane"]
+    rows = json.loads((out / "thermal_sweep.json").read_text())["rows"]
+    assert [r["temperature_k"] for r in rows] == [290.0, 250.0, 0.0]
+    base, wall = det["power_w"], det["by_part"]["baffle"]["power_w"]
+    assert wall > 0 and rows[0]["power_w"] == pytest.approx(base, rel=1e-12)
+    ratio = band_radiance_w_m2_sr(8, 12, 250.0) / band_radiance_w_m2_sr(8, 12, 290.0)
+    assert rows[1]["power_w"] == pytest.approx(base - wall + wall * ratio, rel=1e-9)
+    assert rows[2]["power_w"] == pytest.approx(base - wall, rel=1e-9, abs=1e-15)
+    assert (out / "thermal_sweep.csv").read_text().startswith("detector,part,temperature_k,power_w,stderr_w")
+
+
+def test_unknown_part_in_temperature_setting(two_disks, tmp_path, capsys):
+    assert main(["thermal", str(two_disks), "--band-um", "8", "12", "--rays", "10", "--temperature-k", "tube=300",
+                 "--out", str(tmp_path / "x")]) == 2
+    assert "no part named 'tube'" in capsys.readouterr().err
