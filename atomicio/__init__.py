@@ -15,6 +15,10 @@ LWN "Ensuring data reaches disk"):
 3. ``os.replace`` moves it over the target (atomic on POSIX and Windows);
 4. the folder is ``fsync``-ed, so the rename itself survives a power cut.
 
+The reading side (:mod:`atomicio.inputs`): every file a user names is checked to be a regular
+file of sane size before it is read, and read without blocking (``/dev/zero`` or a FIFO in a
+scene is a one-line error, not a hang).
+
 ``fsync=False`` skips steps 2's and 4's fsync (fast, still atomic against crashes of the
 process, not of the machine).
 """

@@ -3,6 +3,7 @@
 ``import geometry`` stays light (no CadQuery); the builders load it on first use:
 ``geometry.reference_scene()``, ``geometry.tube_scene(**params)``, ``geometry.reflectometer_scene(...)``.
 """
+import atomicio.numba_cache  # noqa: F401 - compiled kernels cache in the user's cache folder, not the install
 from geometry.mesh import GeometryError, Part, Scene  # noqa: F401
 
 _LAZY = {"reference_scene": "geometry.scenes", "tube_scene": "geometry.scenes",

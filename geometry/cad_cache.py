@@ -7,11 +7,14 @@ updating the code makes a new entry; nothing is ever served stale.
 
 Where: ``$STRAYLIGHT_CACHE_DIR`` if set, else the user cache directory
 (``platformdirs.user_cache_dir("straylight")``, e.g. ``~/.cache/straylight`` on Linux), in
-``tessellation/``. ``STRAYLIGHT_CACHE=off`` (or ``0``, ``no``) disables the cache (the test
+``tessellation/``; a private temporary folder when neither can be written (a read-only HOME:
+:mod:`atomicio.cache_dirs`). ``STRAYLIGHT_CACHE=off`` (or ``0``, ``no``) disables the cache (the test
 suite does, except the tests of the cache). Entries are ``.npz`` files written atomically
 (:mod:`atomicio`): a crash or a concurrent run never leaves a half-written entry, and an
 unreadable or inconsistent entry (zip CRC, shapes, face indices, names) is reported with a
-:class:`CacheWarning` and rewritten.
+:class:`CacheWarning` and rewritten. Each entry carries the SHA-256 of its arrays and metadata
+(:func:`entry_checksum`), checked on every load: an entry changed after it was written (by hand,
+by a disk fault, or by another program) is never served.
 
 An entry also holds what was checked on the cold run, so a cached load recomputes nothing:
 each solid's chord-error report (:class:`~geometry.tessellate.TessellationReport`) and whether its
@@ -47,13 +50,22 @@ def enabled() -> bool:
 
 
 def cache_dir() -> Path:
-    """The tessellation cache folder (not created here)."""
-    base = os.environ.get(ENV_DIR)
-    if not base:
-        import platformdirs
+    """The tessellation cache folder (atomicio.cache_dirs: $STRAYLIGHT_CACHE_DIR, else the user's
+    cache folder, else a private temporary one)."""
+    from atomicio.cache_dirs import cache_dir as project_cache_dir
 
-        base = platformdirs.user_cache_dir("straylight")
-    return Path(base) / "tessellation"
+    return project_cache_dir("tessellation")
+
+
+def entry_checksum(arrays: dict, meta_text: str) -> str:
+    """SHA-256 of an entry's arrays (name, dtype, shape and bytes, in name order) and its metadata text."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(memoryview(a).cast("B") if a.size else b"")
+    h.update(meta_text.encode())
+    return h.hexdigest()
 
 
 @lru_cache(maxsize=1)
@@ -95,14 +107,18 @@ def load(entry: Path):
         return None
     try:
         with np.load(entry, allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"]))
+            meta_text = str(data["meta"])
+            arrays = {k: data[k] for k in data.files if k not in ("meta", "sha256")}
+            if "sha256" not in data.files or str(data["sha256"]) != entry_checksum(arrays, meta_text):
+                raise ValueError("checksum mismatch (changed after it was written)")
+            meta = json.loads(meta_text)
             out = []
             for i, item in enumerate(meta["solids"]):
                 report = TessellationReport(**item["report"])
-                faces, brep = data[f"f{i}"], data[f"b{i}"]
+                faces, brep = arrays[f"f{i}"], arrays[f"b{i}"]
                 if brep.shape != (len(faces),) or not isinstance(item["watertight"], bool):
                     raise ValueError(f"solid {i} ({item['name']!r}): inconsistent arrays")
-                part = Part(item["name"], data[f"v{i}"], faces, None, "surface",
+                part = Part(item["name"], arrays[f"v{i}"], faces, None, "surface",
                             {"tessellation": report, "kind": item["kind"], "brep_face": brep,
                              "watertight": item["watertight"], "cache": str(entry)})
                 out.append((item["name"], item["kind"], item["label"], part))
@@ -126,7 +142,10 @@ def store(entry: Path, solids) -> None:
         fields = {k: getattr(report, k) for k in TessellationReport.__dataclass_fields__}
         items.append({"name": name, "kind": kind, "label": label, "report": fields,
                       "watertight": bool(part.meta.get("watertight", part.is_watertight))})
-    arrays["meta"] = np.array(json.dumps({"solids": items}))
+    meta_text = json.dumps({"solids": items})
+    checksum = entry_checksum(arrays, meta_text)
+    arrays["meta"] = np.array(meta_text)
+    arrays["sha256"] = np.array(checksum)
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
     try:

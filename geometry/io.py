@@ -124,6 +124,21 @@ def _merge_exact(vertices, faces):
     return unique[order], renumber[inverse.reshape(-1)][faces]
 
 
+def check_mesh_file(path, what: str) -> None:
+    """A mesh or CAD file must be a regular file (not ``/dev/zero``, a FIFO, a folder) no larger than
+    a quarter of this machine's memory (its triangles take several times the file's size once read):
+    else a GeometryError naming it (atomicio.inputs)."""
+    from atomicio.inputs import InputFileError, check_input_file, physical_memory_bytes
+
+    memory = physical_memory_bytes()
+    try:
+        check_input_file(path, what, max_bytes=memory // 4 if memory else None)
+    except FileNotFoundError:
+        raise GeometryError(f"{path}: {what} not found") from None
+    except InputFileError as exc:
+        raise GeometryError(str(exc)) from None
+
+
 def load_part(path, *, name: str | None = None, material: str | None = None, role: str = "surface",
               tolerance_mm: float = DEFAULT_TOLERANCE_MM,
               angular_tolerance_deg: float = DEFAULT_ANGULAR_TOLERANCE_DEG) -> Part:
@@ -139,8 +154,7 @@ def load_part(path, *, name: str | None = None, material: str | None = None, rol
     name = path.stem if name is None else str(name)
     if role not in ROLES:
         raise GeometryError(f"{path}: part {name!r}: unknown role {role!r}; expected one of {', '.join(ROLES)}")
-    if not path.is_file():
-        raise GeometryError(f"{path}: mesh file not found (part {name!r})")
+    check_mesh_file(path, f"mesh file (part {name!r})")
     suffix = path.suffix.lower()
     if suffix in CAD_SUFFIXES:
         (_, _, _, part), = tessellate_cad(path, tolerance_mm=tolerance_mm,
@@ -205,8 +219,7 @@ def tessellate_cad(path, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
     file when ``split`` is False). Parts carry no material and role "surface"; results are cached on disk
     (:mod:`geometry.cad_cache`) by file content, tolerances and code version."""
     path = Path(path)
-    if not path.is_file():
-        raise GeometryError(f"{path}: file not found")
+    check_mesh_file(path, "CAD file")
     mode = "solids" if split else "whole"
     return _once((str(path.resolve()), mode, float(tolerance_mm), float(angular_tolerance_deg)),
                  lambda: _tessellate_cad(path, tolerance_mm, angular_tolerance_deg, split, mode))
@@ -222,6 +235,12 @@ def _tessellate_cad(path: Path, tolerance_mm: float, angular_tolerance_deg: floa
     if cached is not None:
         return cached
     solids = read_cad(path)
+    from geometry.limits import ToleranceError, check_mesh_budget
+
+    try:  # before meshing (native code that cannot be stopped): a tolerance that would mesh without bound
+        check_mesh_budget([s.shape for s in solids], tolerance_mm, f"{path}")
+    except ToleranceError as exc:
+        raise GeometryError(str(exc)) from None
     if split:
         items = [(s.name, s.kind, s.label, s.shape) for s in solids]
     else:
@@ -331,13 +350,15 @@ def save_scene(scene: Scene, directory, *, mesh_format: str = "ply", scene_file:
 
 def read_scene_toml(path) -> dict:
     """Parse a scene TOML; errors name the file (and TOML line/column)."""
+    from atomicio.inputs import InputFileError, read_input_text
+
     path = Path(path)
-    if not path.is_file():
-        raise GeometryError(f"{path}: scene file not found")
     try:
-        return tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise GeometryError(f"{path}: {exc}") from exc
+        return tomllib.loads(read_input_text(path, "scene file"))
+    except FileNotFoundError:
+        raise GeometryError(f"{path}: scene file not found") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError, InputFileError) as exc:
+        raise GeometryError(f"{path}: {exc}" if not isinstance(exc, InputFileError) else str(exc)) from exc
 
 
 def load_scene(path) -> Scene:
@@ -379,6 +400,12 @@ def _load_entries(entries: list, path: Path) -> list[Part]:
         tolerance_mm = entry.get("tolerance_mm", DEFAULT_TOLERANCE_MM)
         if not isinstance(tolerance_mm, (int, float)) or isinstance(tolerance_mm, bool):
             raise GeometryError(f"{where}: tolerance_mm must be a number")
+        from geometry.limits import ToleranceError, check_tolerance_mm
+
+        try:
+            check_tolerance_mm(tolerance_mm, f"{where}: tolerance_mm")
+        except ToleranceError as exc:
+            raise GeometryError(str(exc)) from None
         placement = placement_of(entry, where)
         if "surface" in entry:
             parts.append(_analytic_entry(entry, path, where, float(tolerance_mm), placement))

@@ -320,6 +320,9 @@ def tessellate_parts(parts, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
     unknown = set(materials) - {p.name for p in items}
     if unknown:
         raise GeometryError(f"materials given for unknown part(s): {', '.join(sorted(unknown))}")
+    from geometry.limits import check_mesh_budget
+
+    check_mesh_budget([p.shape for p in items], tolerance_mm, "tolerance_mm")  # before meshing: native, unstoppable
     out = []
     for p in items:
         tag = materials.get(p.name, None if p.role == "detector" else material)

@@ -2,6 +2,7 @@
 
 Importing the package registers every component type (materials.registry).
 """
+import atomicio.numba_cache  # noqa: F401 - compiled kernels cache in the user's cache folder, not the install
 from materials.abg import Abg
 from materials.albedo import directional_hemispherical_reflectance
 from materials.base import Brdf, MaterialError, Sample

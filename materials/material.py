@@ -328,8 +328,14 @@ def load_material(source, name: Optional[str] = None, check_energy: bool = True)
                 f"unknown material {str(source)!r}: not a file and not a preset ({', '.join(list_presets())})"
             )
         path = preset
+    from atomicio.inputs import InputFileError, read_input_text
+
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_input_text(path, "material file")
+    except InputFileError as exc:
+        raise MaterialError(str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise MaterialError(f"{path}: material file is not UTF-8 text ({exc.reason})") from None
     except OSError as exc:
         raise MaterialError(f"{path}: cannot read material file ({exc.strerror or exc})") from None
     try:

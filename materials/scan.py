@@ -244,10 +244,14 @@ def read_scan(path) -> Scan:
         unknown polarization, a non-integer ``n_repeats``, a short row.
     """
     path = Path(path)
+    from atomicio.inputs import InputFileError, read_input_text
+
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_input_text(path, "scan file", max_bytes=512 * 2**20, encoding="utf-8-sig")
     except FileNotFoundError:
         raise ScanError("no such file", path) from None
+    except InputFileError as exc:
+        raise ScanError(str(exc).split(": ", 1)[1], path) from None
     except UnicodeDecodeError as exc:
         raise ScanError(f"not UTF-8 text ({exc.reason})", path) from None
     metadata: dict[str, str] = {}

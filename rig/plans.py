@@ -154,9 +154,15 @@ def load_plan(source) -> PlanSpec:
     """``'paper'`` or the path of a PLAN.json file."""
     if str(source) == "paper":
         return paper_plan_spec()
+    from atomicio.inputs import InputFileError, read_input_text
+
     path = Path(source)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_input_text(path, "plan file"))
+    except InputFileError as exc:
+        raise PlanError(str(exc)) from None
+    except UnicodeDecodeError as exc:
+        raise PlanError(f"{path}: plan file is not UTF-8 text ({exc.reason})") from None
     except FileNotFoundError:
         raise PlanError(f"{path}: no such plan file (use 'paper' or a PLAN.json)") from None
     except json.JSONDecodeError as exc:

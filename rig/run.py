@@ -200,9 +200,13 @@ def _resolve_library(lib: str, base: Path) -> str:
 
 def load_hardware_config(path) -> dict:
     """Read a --hardware TOML or JSON file (see docs/rig.md)."""
+    from atomicio.inputs import InputFileError, read_input_bytes
+
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        raw = read_input_bytes(path, "hardware config")
+    except InputFileError as exc:
+        raise HardwareConfigError(str(exc)) from None
     except FileNotFoundError:
         raise HardwareConfigError(f"{path}: no such hardware config") from None
     try:

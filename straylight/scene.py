@@ -69,8 +69,8 @@ def resolve_material(name: str, inline: dict, base_dir: Path, where: str):
                 raise SceneFileError(f"{where}: [material.{name}] must be a table")
             return load_material(dict(table), name=name)
         candidate = base_dir / name
-        if candidate.is_file() or name.endswith(".json"):
-            if not candidate.is_file():
+        if candidate.exists() or name.endswith(".json"):  # a file (load_material refuses what is not a regular one)
+            if not candidate.exists():
                 raise SceneFileError(f"{where}: material file {str(candidate)!r} not found")
             return load_material(candidate)
         return load_material(name)

@@ -59,6 +59,11 @@ def run_scan_command(args) -> int:
         # handler prints to stderr; the interruption is reported below in one line instead
         bluesky_log.addHandler(logging.NullHandler())
 
+    from atomicio.guard import check_output_file
+
+    check_output_file(args.output, "-o scan")  # before any device moves
+    if args.log:
+        check_output_file(args.log, "--log")
     from rig.plans import load_plan, paper_plan_spec
     from rig.run import hardware_instrument, load_hardware_config, run_scan, sim_instrument
 

@@ -8,6 +8,9 @@ Writes DIR/design.json, DIR/scene.toml (+ meshes), DIR/design.step and DIR/index
 from __future__ import annotations
 
 
+DESIGN_OUTPUTS = ("*.toml", "*.stl", "*.ply", "*.obj", "*.step", "*.json", "*.html", "*.png")  # what --out holds
+
+
 def add_parser(subparsers):
     p = subparsers.add_parser("design", help="design baffle vanes (construction + Monte Carlo refinement)",
                               description=__doc__.splitlines()[0])
@@ -34,6 +37,8 @@ def add_parser(subparsers):
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--threads", type=int, default=2, help="tracing threads")
     v.add_argument("--out", required=True, help="output directory")
+    v.add_argument("--force", action="store_true",
+                   help="overwrite files in --out that straylight did not write or that were changed by hand")
     v.add_argument("--resume", action="store_true",
                    help="continue an interrupted run in the same --out: finished final PST points are read back")
     v.set_defaults(func=run)
@@ -51,6 +56,10 @@ def run(args) -> int:
             raise ValueError(f"--{name} must be >= 1, got {getattr(args, name)}")
     if args.refine_evals < 0:
         raise ValueError(f"--refine-evals must be >= 0, got {args.refine_evals}")
+    from atomicio.guard import check_overwrite, record_outputs
+
+    if not args.resume:  # a resume continues writing this folder
+        check_overwrite(args.out, patterns=DESIGN_OUTPUTS, force=args.force)
     doc = design_vanes(spec, args.out, material=args.material, rays=args.rays, seed=args.seed,
                        refine_rays=args.refine_rays, refine_evals=args.refine_evals, threads=args.threads,
                        resume=args.resume)
@@ -60,5 +69,6 @@ def run(args) -> int:
     for d, r in zip(doc["pst"], doc["ratio_to_baseline"]):
         ratio = "" if r["ratio"] is None else f"  design / evenly spaced {r['ratio']:.3f} +- {r['ratio_stderr']:.3f}"
         print(f"{d['off_axis_deg']:6.2f} deg  PST {d['pst']:.4e} +- {d['pst_stderr']:.2e}{ratio}")
+    record_outputs(args.out, patterns=DESIGN_OUTPUTS)
     print(f"written {args.out}/design.json, scene.toml, design.step, index.html")
     return 0

@@ -39,6 +39,8 @@ def _common(parser, tolerance_mm):
     parser.add_argument("--mesh-format", choices=("stl", "ply", "obj"), default="stl")
     parser.add_argument("--no-step", action="store_true", help="skip the STEP files")
     parser.add_argument("--json", metavar="PATH", help="write the reports as JSON")
+    parser.add_argument("--force", action="store_true",
+                        help="overwrite files in the output folder that straylight did not write or that were changed")
 
 
 def add_parser(subparsers):
@@ -85,6 +87,7 @@ def add_parser(subparsers):
                             "(outward), radius")
     scene.add_argument("--material", default="z302_sample_b", help="material of every other solid")
     scene.add_argument("--tolerance-mm", type=float, default=0.05, help="chord tolerance (mm)")
+    scene.add_argument("--force", action="store_true", help="overwrite SCENE.toml even if it was edited by hand")
     scene.add_argument("--axis", type=float, nargs=3, default=(0.0, 0.0, 1.0), metavar=("X", "Y", "Z"),
                        help="the instrument looks toward +axis; the beam travels along -axis (default 0 0 1)")
     scene.set_defaults(func=_scene)
@@ -96,6 +99,23 @@ def _usage(parser):
         return 2
 
     return show
+
+
+def _build_outputs(args, shape_parts) -> list:
+    """The files ``geometry build`` writes in its folder (geometry.io.export_build)."""
+    names = [f"{name}.{args.mesh_format}" for name in shape_parts] + ["scene.toml"]
+    if not args.no_step:
+        names += [f"{name}.step" for name in shape_parts] + ["assembly.step"]
+    return names
+
+
+def _guard_build(args, shape_parts) -> None:
+    """Before tessellating: the folder is writable and no file the build writes was written or
+    changed by the user (atomicio.guard), unless --force."""
+    from atomicio.guard import check_output_dir, check_overwrite
+
+    check_output_dir(args.output, "-o folder")
+    check_overwrite(args.output, names=_build_outputs(args, shape_parts), force=args.force)
 
 
 def _finish(args, shape_parts, scene, tables: dict | None = None) -> int:
@@ -113,6 +133,9 @@ def _finish(args, shape_parts, scene, tables: dict | None = None) -> int:
         warnings.simplefilter("ignore")  # the problems are printed in the table below
         checks = check_scene(scene)
     print(checks.format())
+    from atomicio.guard import record_outputs
+
+    record_outputs(args.output, names=_build_outputs(args, shape_parts))
     print(f"scene: {path}")
     if args.json:
         import atomicio
@@ -128,6 +151,7 @@ def _build_tube(args) -> int:
 
     params = TubeParams(**_params(args))
     shape_parts = build_tube(params)
+    _guard_build(args, shape_parts)
     scene = tessellate_parts(shape_parts, tolerance_mm=args.tolerance_mm,
                              angular_tolerance_deg=args.angular_tolerance_deg, material=args.material)
     return _finish(args, shape_parts, scene, _tube_tables(params, args.material))
@@ -154,6 +178,7 @@ def _build_reflectometer(args) -> int:
 
     shape_parts = build_reflectometer(args.theta_i_deg, args.theta_r_deg, args.phi_r_deg,
                                       ReflectometerParams(**_params(args)))
+    _guard_build(args, shape_parts)
     scene = tessellate_parts(shape_parts, tolerance_mm=args.tolerance_mm,
                              angular_tolerance_deg=args.angular_tolerance_deg, material=args.black_material,
                              materials={"sample": args.sample_material})
@@ -176,8 +201,13 @@ def _check(args) -> int:
 
 
 def _scene(args) -> int:
+    from pathlib import Path
+
+    from atomicio.guard import check_output_file, check_overwrite, record_outputs
     from geometry.cad_scene import write_cad_scene
 
+    out = check_output_file(args.output, "-o scene file")
+    check_overwrite(out.parent, names=[out.name], force=args.force)
     import tomllib
 
     from geometry.cad_scene import detector_of
@@ -195,6 +225,7 @@ def _scene(args) -> int:
         x, y, z, *_, r = args.detector_disk
         print(f"{'detector':<{width}} {'detector':<8} exact disk r = {r:g} mm at ({x:g}, {y:g}, {z:g})")
     print(f"{'total':<{width}} {'':<8} {sum(p.n_triangles for p in parts):>9d} triangles in {len(parts)} parts")
+    record_outputs(Path(path).parent, names=[Path(path).name])
     print(f"scene: {path}")
     if detector is None:
         print("no detector yet: the analyses need one; write the scene again with --detector-disk X Y Z NX NY NZ R "

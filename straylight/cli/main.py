@@ -55,6 +55,32 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_requests(args) -> None:
+    """Requests that cannot succeed, refused before any work (issue 27), whatever the command: ray
+    counts beyond this machine (straylight.budget), chord tolerances that would mesh without bound
+    (geometry.limits), and outputs that cannot be written (``--json``/``--png`` files, ``--out``
+    folders, ``--report`` folders: atomicio.guard)."""
+    from atomicio.guard import check_output_dir, check_output_file
+
+    for flag in ("json", "png"):
+        if isinstance(getattr(args, flag, None), str):
+            check_output_file(getattr(args, flag), f"--{flag} output")
+    for flag in ("out", "report"):
+        if isinstance(getattr(args, flag, None), str):
+            check_output_dir(getattr(args, flag), f"--{flag} folder")
+    for flag in ("rays", "refine_rays"):
+        value = getattr(args, flag, None)
+        if isinstance(value, int) and value > 0:
+            from straylight.budget import check_ray_budget
+
+            check_ray_budget(value, what="--" + flag.replace("_", "-"))
+    tolerance = getattr(args, "tolerance_mm", None)
+    if isinstance(tolerance, float):
+        from geometry.limits import check_tolerance_mm
+
+        check_tolerance_mm(tolerance, "--tolerance-mm")
+
+
 @contextmanager
 def _allow_insecure(allowed: bool):
     """``--allow-insecure`` for this command: the sweeps open their dask clients deep inside
@@ -83,6 +109,7 @@ def main(argv=None) -> int:
         parser.print_help()
         return 0 if args.command is None else 2
     try:
+        _check_requests(args)
         with _allow_insecure(getattr(args, "allow_insecure", False)):
             return int(args.func(args) or 0)
     except KeyboardInterrupt:

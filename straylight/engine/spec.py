@@ -133,6 +133,9 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     seed = check_seed(seed)
     if isinstance(n_rays, bool) or not isinstance(n_rays, (int, np.integer)) or int(n_rays) < 1:
         raise TraceError(f"n_rays must be a positive integer, got {n_rays!r}")
+    from straylight.budget import check_ray_budget
+
+    check_ray_budget(n_rays, sum(p.role == "detector" for p in scene.parts), what="n_rays")
     if not isinstance(sources, (list, tuple)):
         sources = (sources,)
     if not sources:

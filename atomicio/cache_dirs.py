@@ -1,0 +1,99 @@
+"""Where the project's caches live: compiled kernels (numba) and CAD tessellations (issue 27, item 6).
+
+Both sit under the user's cache directory (``platformdirs.user_cache_dir("straylight")``, e.g.
+``~/.cache/straylight`` on Linux), never inside the installed package, so a read-only install
+works:
+
+- compiled kernels: ``$NUMBA_CACHE_DIR`` if the user set it, else ``<user cache>/numba``;
+  :func:`configure_numba_cache` sets ``NUMBA_CACHE_DIR`` for numba before any kernel is compiled
+  (``materials``, ``geometry`` and ``straylight`` call it on import; worker processes inherit it);
+- tessellations: ``$STRAYLIGHT_CACHE_DIR/tessellation`` if set, else ``<user cache>/tessellation``
+  (``geometry.cad_cache``).
+
+When that folder cannot be created or written (a read-only HOME, no HOME), a private folder in the
+system's temporary directory is used instead: ``straylight-cache-<uid>``, created with mode 0700,
+used only if it is a real folder owned by this user that nobody else can write (another local user
+could otherwise plant compiled code or meshes there for this one to load); else a fresh
+``mkdtemp`` folder for this process.
+"""
+from __future__ import annotations
+
+import os
+import stat
+import sys
+import tempfile
+from pathlib import Path
+
+ENV_DIR = "STRAYLIGHT_CACHE_DIR"
+NUMBA_ENV = "NUMBA_CACHE_DIR"
+_CHOSEN: dict = {}
+
+
+def _usable(path: Path) -> bool:
+    """Can this process create ``path`` (with its parents) and a file in it?"""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=path, prefix=".probe-")
+        os.close(fd)
+        os.unlink(probe)
+        return True
+    except OSError:
+        return False
+
+
+def _private_temp() -> Path:
+    """``<tmp>/straylight-cache-<uid>`` if it is (or can be made) a folder of this user's that no one
+    else can write; else a fresh mkdtemp folder (module doc)."""
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    path = Path(tempfile.gettempdir()) / f"straylight-cache-{uid}"
+    try:
+        path.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    except OSError:
+        return Path(tempfile.mkdtemp(prefix="straylight-cache-"))
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return Path(tempfile.mkdtemp(prefix="straylight-cache-"))
+    if (not stat.S_ISDIR(st.st_mode) or (hasattr(os, "getuid") and st.st_uid != uid)
+            or st.st_mode & (stat.S_IWGRP | stat.S_IWOTH)):
+        return Path(tempfile.mkdtemp(prefix="straylight-cache-"))
+    return path
+
+
+def user_cache_root() -> Path:
+    """``platformdirs.user_cache_dir("straylight")`` if usable, else the private temp folder."""
+    if "root" not in _CHOSEN:
+        import platformdirs
+
+        base = Path(platformdirs.user_cache_dir("straylight"))
+        _CHOSEN["root"] = base if _usable(base) else _private_temp()
+    return _CHOSEN["root"]
+
+
+def cache_dir(kind: str) -> Path:
+    """The folder of one cache (``"tessellation"``, ``"numba"``): under ``$STRAYLIGHT_CACHE_DIR`` for
+    the tessellations if set (and usable), else under :func:`user_cache_root`. Not created here
+    beyond what checking it needs."""
+    given = os.environ.get(ENV_DIR) if kind != "numba" else None
+    if given:
+        path = Path(given) / kind
+        if _usable(path):
+            return path
+    return user_cache_root() / kind
+
+
+def configure_numba_cache() -> str:
+    """Point numba's on-disk cache at :func:`cache_dir` ("numba") unless the user set
+    ``NUMBA_CACHE_DIR`` (kept when usable); done once, before the first compiled kernel. Returns the folder."""
+    if "numba" in _CHOSEN:
+        return _CHOSEN["numba"]
+    given = os.environ.get(NUMBA_ENV)
+    folder = given if given and _usable(Path(given)) else str(cache_dir("numba"))
+    os.environ[NUMBA_ENV] = folder
+    config = sys.modules.get("numba.core.config")
+    if config is not None:  # numba read its settings already: tell it too
+        config.CACHE_DIR = folder
+    _CHOSEN["numba"] = folder
+    return folder

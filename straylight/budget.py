@@ -1,0 +1,53 @@
+"""Requests beyond what the machine has, refused up front with the estimate (issue 27, item 3).
+
+A trace keeps, in the process that combines the results, two small tallies per chunk of
+:data:`straylight.rng.CHUNK_RAYS` rays (the detector sums behind the reliability checks:
+``straylight.engine.results.BatchTotals``) and a list of batch ranges, so its memory grows with the
+number of rays whatever runs the rays: ``--rays 99999999999999999999`` used to grow to 6 GB before
+the first ray. :func:`check_ray_budget` estimates that memory and the time (at a nominal rate per
+core) and refuses, in one line with both numbers, a request whose memory is more than half this
+machine's: it could never finish here.
+"""
+from __future__ import annotations
+
+import os
+
+from atomicio.inputs import physical_memory_bytes
+from straylight.rng import CHUNK_RAYS
+
+NUMPY_ARRAY_BYTES = 112  # sys.getsizeof of an empty 1-d numpy array (header), numpy 1.26-2.x
+NOMINAL_RAYS_PER_S_PER_CORE = 1.0e6  # the order of the reference tube's rate (README speed rows)
+
+
+def chunk_tally_bytes(n_detectors: int = 1) -> int:
+    """Bytes the combining process keeps per chunk: two arrays of the detectors' sums, their list
+    slots, and the (chunks, detectors) arrays they become."""
+    n = max(1, int(n_detectors))
+    return 2 * (NUMPY_ARRAY_BYTES + 8 * n) + 16 + 16 * n
+
+
+def _human_seconds(s: float) -> str:
+    for unit, size in (("years", 365.25 * 86400), ("days", 86400), ("hours", 3600), ("minutes", 60)):
+        if s >= size:
+            return f"{s / size:.3g} {unit}"
+    return f"{s:.3g} s"
+
+
+def check_ray_budget(n_rays, n_detectors: int = 1, what: str = "--rays", memory_bytes: int | None = None) -> None:
+    """Raise ValueError (one line, with the estimate) if ``n_rays`` rays need more than half of
+    ``memory_bytes`` (default: this machine's physical memory) for their chunk tallies."""
+    n = int(n_rays)
+    memory = physical_memory_bytes() if memory_bytes is None else int(memory_bytes)
+    if memory <= 0 or n < 1:
+        return
+    chunks = -(-n // CHUNK_RAYS)
+    need = chunks * chunk_tally_bytes(n_detectors)
+    if need <= memory // 2:
+        return
+    cores = os.cpu_count() or 1
+    seconds = n / (NOMINAL_RAYS_PER_S_PER_CORE * cores)
+    raise ValueError(f"{what} {n:.3g}: its {chunks:.3g} chunk tallies alone need about {need / 2**30:.3g} GB, more "
+                     f"than half this machine's {memory / 2**30:.3g} GB (and about {_human_seconds(seconds)} at "
+                     f"{NOMINAL_RAYS_PER_S_PER_CORE:.0e} rays/s on {cores} cores); trace at most "
+                     f"{memory // 2 // chunk_tally_bytes(n_detectors) * CHUNK_RAYS:.3g} rays per run (several runs "
+                     f"with other --seed values pool exactly)")
