@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import os
 import subprocess
 import sys
@@ -47,14 +48,17 @@ def time_to_target(method, target, seed):
 
 
 def planck_check():
-    from straylight.thermal.planck import band_radiance_w_m2_sr, spectral_radiance_w_m2_sr_um
+    from straylight.thermal.planck import (
+        band_radiance_w_m2_sr,
+        spectral_radiance_w_m2_sr_um,
+    )
 
     rows = []
     for lo, hi, t in [(8, 12, 300.0), (3, 5, 300.0), (8, 12, 77.0), (0.1, 1000, 300.0)]:
         x, w = np.polynomial.legendre.leggauss(200)
         edges = np.geomspace(lo, hi, 401)
         q = 0.0
-        for a, b in zip(edges[:-1], edges[1:]):
+        for a, b in itertools.pairwise(edges):
             lam = 0.5 * (b - a) * x + 0.5 * (a + b)
             q += 0.5 * (b - a) * float(w @ spectral_radiance_w_m2_sr_um(lam, t))
         rows.append((lo, hi, t, band_radiance_w_m2_sr(lo, hi, t), q))

@@ -55,7 +55,6 @@ def _band(p):
 def run_thermal(args) -> int:
     import atomicio
     from straylight import api
-
     from straylight.thermal.model import temperatures_with
     from straylight.thermal.planck import check_band
 

@@ -21,8 +21,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
-from straylight.thermal.walk import (CHUNK_RAYS, EVENT_COLUMNS, MAX_EVENTS, AreaSampler, cast, chunk_rng,
-                                     emission_directions, interact, roulette)
+from straylight.thermal.walk import (
+    CHUNK_RAYS,
+    EVENT_COLUMNS,
+    MAX_EVENTS,
+    AreaSampler,
+    cast,
+    chunk_rng,
+    emission_directions,
+    interact,
+    roulette,
+)
 
 DEFAULT_TEMPERATURE_K = 300.0
 
@@ -122,7 +131,7 @@ def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
         sampler = AreaSampler.of_part(ts, i)
         esc[i] = 0.0
         for k, (_, _, lam) in enumerate(bands):
-            n_k = int(round(per_part * share[k]))
+            n_k = round(per_part * share[k])
             if share[k] <= 0 or n_k < 2:
                 n_k = 2 if share[k] > 0 else 0
             if n_k == 0:

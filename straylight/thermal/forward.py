@@ -17,8 +17,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from straylight.thermal.walk import (EVENT_COLUMNS, MAX_EVENTS, AreaSampler, cast, chunk_rng, emission_directions,
-                                     frame, interact, roulette, to_local)
+from straylight.thermal.walk import (
+    EVENT_COLUMNS,
+    MAX_EVENTS,
+    AreaSampler,
+    cast,
+    chunk_rng,
+    emission_directions,
+    frame,
+    interact,
+    roulette,
+    to_local,
+)
 
 
 class ForwardEstimator:
@@ -29,7 +39,7 @@ class ForwardEstimator:
         self.ts = ts
         self.det = det
         self.det_sampler = det_sampler
-        self.samplers = {}
+        self.samplers: dict = {}
 
     def _sampler(self, p):
         if p not in self.samplers:

@@ -13,11 +13,18 @@ Conventions (docs/thermal.md):
 """
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-from materials.wavelength import at_wavelength, emissivity, hemispherical_emissivity, wavelength_dependent
+from materials.wavelength import (
+    at_wavelength,
+    emissivity,
+    hemispherical_emissivity,
+    wavelength_dependent,
+)
 
 THETA_GRID = np.linspace(0.0, np.pi / 2, 181)  # 0.5 deg: the tables are interpolated linearly in theta
 MAX_SUB_BANDS = 16
@@ -33,14 +40,14 @@ def sub_bands(lo_um: float, hi_um: float, dependent: bool) -> list[tuple[float, 
         return [(lo_um, hi_um, float(np.sqrt(lo_um * hi_um)))]
     k = int(min(MAX_SUB_BANDS, max(2, np.ceil(np.log(hi_um / lo_um) / np.log(SUB_BAND_RATIO)))))
     edges = np.geomspace(lo_um, hi_um, k + 1)
-    return [(float(a), float(b), float(np.sqrt(a * b))) for a, b in zip(edges[:-1], edges[1:])]
+    return [(float(a), float(b), float(np.sqrt(a * b))) for a, b in itertools.pairwise(edges)]
 
 
 @dataclass(eq=False)
 class ThermalScene:
     """Arrays of one scene for the thermal walks (built by :func:`thermal_scene`)."""
 
-    scene: object
+    scene: Any
     part_names: tuple
     roles: tuple  # per part: "surface" | "mirror" | "absorber" | "detector"
     temperature_k: np.ndarray  # (P,) 0 = does not emit
@@ -89,7 +96,7 @@ class ThermalScene:
     def wavelength_dependent(self) -> bool:
         return any(wavelength_dependent(m) for m in self.materials.values())
 
-    def sides_at(self, wavelength_um: float) -> "SideTables":
+    def sides_at(self, wavelength_um: float) -> SideTables:
         """Materials and emissivity tables of every part's two sides at ``wavelength_um`` (cached)."""
         key = round(float(wavelength_um), 12)
         if key not in self._sides:
@@ -162,7 +169,7 @@ def thermal_scene(scene, materials: dict, mirror_reflectance: float = 1.0) -> Th
 
     tris, parts, planes = [], [], {}
     for p, prt in enumerate(scene.parts):
-        surf = getattr(prt, "surface", None)
+        surf: Any = getattr(prt, "surface", None)
         if getattr(surf, "kind", None) == "plane":
             planes[p] = (np.asarray(surf.vertex_mm, float), np.asarray(surf.axis, float) / np.linalg.norm(surf.axis),
                          float(surf.inner_radius_mm), float(surf.outer_radius_mm))

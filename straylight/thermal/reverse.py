@@ -18,8 +18,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from straylight.thermal.walk import (EVENT_COLUMNS, MAX_EVENTS, AreaSampler, cast, chunk_rng, cosine_directions,
-                                     interact, roulette)
+from straylight.thermal.walk import (
+    EVENT_COLUMNS,
+    MAX_EVENTS,
+    AreaSampler,
+    cast,
+    chunk_rng,
+    cosine_directions,
+    interact,
+    roulette,
+)
 
 
 def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, seed: int, stream: int, chunk: int,

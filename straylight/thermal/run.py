@@ -160,7 +160,6 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     ((P,) arrays, kelvin) evaluated on the same reverse paths (``ThermalResult.sweep``: per detector
     a list of (power, stderr)); the precision target applies to the scene's own temperatures."""
     from straylight.thermal.model import sub_bands
-    from straylight.thermal.walk import CHUNK_RAYS
 
     lo, hi = check_band(*band_um)
     if method not in METHODS:
@@ -189,42 +188,21 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     for j, name in enumerate(names):
         p = ts.part_index(name)
         sampler, _ = detector_sampler(ts, p, toward_mm)
-        estimator = _estimator(method, ts, p, sampler)
-        sums = [_Sums(ts.n_parts, len(sets)) for _ in bands]
-        next_chunk = [0] * len(bands)
-
-        def run_round(rays_now):
-            for k, (a, b, lam) in enumerate(bands):
-                if rad_sets[k].max() <= 0:
-                    continue
-                want = max(MIN_ROUND_RAYS if target_rel_error is not None else 2, int(round(rays_now * share[k])))
-                sides = ts.sides_at(lam)
-                while want > 0:
-                    m = min(CHUNK_RAYS, want)
-                    rad = rad_sets[k] if len(sets) > 1 else radiance[k]
-                    sums[k].add(m, *estimator(sides, rad, seed, j * 64 + k, next_chunk[k], m))
-                    next_chunk[k] += 1
-                    want -= m
-
-        def combined(c=0):
-            tot = sum(np.atleast_1d(s.means()[2])[c] for s in sums)
-            var = sum(np.atleast_1d(s.means()[3])[c] for s in sums if s.n > 0)
-            per = sum(s.means()[0] for s in sums)
-            per_var = sum(s.means()[1] for s in sums if s.n > 0)
-            return float(tot), float(np.sqrt(var)), per, np.sqrt(per_var)
-
+        run = _DetectorRun(ts, bands, rad_sets, share, _estimator(method, ts, p, sampler), seed, j,
+                           MIN_ROUND_RAYS if target_rel_error is not None else 2)
         if rad_sets.max() <= 0:
             tot, err, per, per_err = 0.0, 0.0, np.zeros(ts.n_parts), np.zeros(ts.n_parts)
         elif n_rays is not None:
-            run_round(int(n_rays))
-            tot, err, per, per_err = combined()
+            run.round(int(n_rays))
+            tot, err, per, per_err = run.combined()
         else:
+            target = float(target_rel_error)  # type: ignore[arg-type]  # set when n_rays is None
             rays_now = MIN_ROUND_RAYS * len(bands)
             while True:
-                run_round(rays_now)
-                tot, err, per, per_err = combined()
-                done = sum(s.n for s in sums)
-                if (tot > 0 and err <= float(target_rel_error) * tot) or (radiance.max() <= 0 and done > 0):
+                run.round(rays_now)
+                tot, err, per, per_err = run.combined()
+                done = run.rays
+                if (tot > 0 and err <= target * tot) or (radiance.max() <= 0 and done > 0):
                     break
                 if tot <= 0 and done >= ZERO_POWER_RAYS:
                     stopped = f"no emission reached the detector in {done} rays: power 0"
@@ -235,18 +213,57 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
                     break
                 rel = err / tot if tot > 0 else 1.0
                 # the rays still needed if the error falls as 1/sqrt(N), 5 % more, at most 16x the work so far
-                need = done * ((rel / float(target_rel_error)) ** 2 - 1.0) * 1.05
+                need = done * ((rel / target) ** 2 - 1.0) * 1.05
                 rays_now = int(min(max_rays - done, 16 * done, max(MIN_ROUND_RAYS, need)))
-        n_done = sum(s.n for s in sums)
-        total_rays += n_done
+        total_rays += run.rays
         by_part = {ts.part_names[q]: Tally(float(per[q]), float(per_err[q])) for q in range(ts.n_parts)
                    if ts.part_names[q] in emitting}
-        out[name] = DetectorThermal(name, sampler.area_mm2, float(tot), float(err), by_part, n_done)
-        swept[name] = [combined(c)[:2] if rad_sets.max() > 0 and sum(s.n for s in sums) else (0.0, 0.0)
+        out[name] = DetectorThermal(name, sampler.area_mm2, float(tot), float(err), by_part, run.rays)
+        swept[name] = [run.combined(c)[:2] if rad_sets.max() > 0 and run.rays else (0.0, 0.0)
                        for c in range(1, len(sets))]
     temps = {n: float(t) for n, t in zip(ts.part_names, ts.temperature_k) if t > 0}
     return ThermalResult((lo, hi), total_rays, int(seed), method, out, bands, temps,
                          time.perf_counter() - t0, stopped, sweep=swept)
+
+
+class _DetectorRun:
+    """The running sums of one detector's trace, sub-band by sub-band (each its own streams)."""
+
+    def __init__(self, ts, bands, rad_sets, share, estimator, seed, index, min_rays):
+        self.ts, self.bands, self.rad_sets, self.share = ts, bands, rad_sets, share
+        self.estimator, self.seed, self.index, self.min_rays = estimator, seed, index, min_rays
+        self.sums = [_Sums(ts.n_parts, rad_sets.shape[1]) for _ in bands]
+        self.next_chunk = [0] * len(bands)
+
+    @property
+    def rays(self) -> int:
+        return sum(s.n for s in self.sums)
+
+    def round(self, rays_now: int) -> None:
+        """About ``rays_now`` more rays, shared by the sub-bands (whole chunks, then a remainder)."""
+        from straylight.thermal.walk import CHUNK_RAYS
+
+        for k, (_, _, lam) in enumerate(self.bands):
+            if self.rad_sets[k].max() <= 0:
+                continue
+            want = max(self.min_rays, round(rays_now * self.share[k]))
+            sides = self.ts.sides_at(lam)
+            rad = self.rad_sets[k] if self.rad_sets.shape[1] > 1 else self.rad_sets[k, 0]
+            while want > 0:
+                m = min(CHUNK_RAYS, want)
+                self.sums[k].add(m, *self.estimator(sides, rad, self.seed, self.index * 64 + k, self.next_chunk[k], m))
+                self.next_chunk[k] += 1
+                want -= m
+
+    def combined(self, c: int = 0):
+        """(total, its stderr, per-part (P,), their stderrs) for temperature set ``c``: sums over
+        the sub-bands' independent means."""
+        means = [s.means() for s in self.sums]
+        tot = sum(np.atleast_1d(m[2])[c] for m in means)
+        var = sum(np.atleast_1d(m[3])[c] for m, s in zip(means, self.sums) if s.n > 0)
+        per = sum(m[0] for m in means)
+        per_var = sum(m[1] for m, s in zip(means, self.sums) if s.n > 0)
+        return float(tot), float(np.sqrt(var)), per, np.sqrt(per_var)
 
 
 def _estimator(method, ts, p, sampler):

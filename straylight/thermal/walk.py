@@ -221,7 +221,7 @@ class AreaSampler:
     plane: tuple | None = None  # (vertex, unit axis, r0, r1): sample the exact annulus instead
 
     @classmethod
-    def of_part(cls, ts, p: int) -> "AreaSampler":
+    def of_part(cls, ts, p: int) -> AreaSampler:
         sel = ts.triangle_part == p
         a = ts.areas_mm2[sel]
         return cls(ts.triangles_mm[sel], ts.normals[sel], ts.part_area_mm2(p), np.cumsum(a) / a.sum(),

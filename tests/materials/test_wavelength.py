@@ -7,7 +7,12 @@ import pytest
 from scipy.integrate import quad
 
 from materials import load_material
-from materials.wavelength import at_wavelength, emissivity, hemispherical_emissivity, wavelength_dependent
+from materials.wavelength import (
+    at_wavelength,
+    emissivity,
+    hemispherical_emissivity,
+    wavelength_dependent,
+)
 
 
 def _abc_a(sigma_nm, lc_um, s, lam_nm):

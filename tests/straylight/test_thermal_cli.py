@@ -6,7 +6,12 @@ import pytest
 
 from straylight.cli.main import main
 from straylight.thermal.planck import band_radiance_w_m2_sr
-from tests.validation.thermal_scenes import part, plane, view_factor_coaxial_disks, write_scene
+from tests.validation.thermal_scenes import (
+    part,
+    plane,
+    view_factor_coaxial_disks,
+    write_scene,
+)
 
 
 @pytest.fixture

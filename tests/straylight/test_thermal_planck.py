@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from straylight.thermal.planck import SIGMA, band_radiance_w_m2_sr, check_band, spectral_radiance_w_m2_sr_um
+from straylight.thermal.planck import (
+    SIGMA,
+    band_radiance_w_m2_sr,
+    check_band,
+    spectral_radiance_w_m2_sr_um,
+)
 
 
 def _planck_um(lam_um, t):

@@ -11,7 +11,13 @@ from straylight.cli.main import main
 from straylight.scene import load_scene
 from straylight.thermal.exchange import exchange
 from straylight.thermal.model import thermal_scene
-from tests.validation.thermal_scenes import part, plane, view_factor_coaxial_disks, write_box, write_scene
+from tests.validation.thermal_scenes import (
+    part,
+    plane,
+    view_factor_coaxial_disks,
+    write_box,
+    write_scene,
+)
 
 
 def test_black_coaxial_disks_d12_is_the_view_factor(tmp_path):

@@ -9,7 +9,13 @@ from straylight.scene import load_scene
 from straylight.thermal.model import thermal_scene
 from straylight.thermal.planck import band_radiance_w_m2_sr
 from straylight.thermal.run import thermal
-from tests.validation.thermal_scenes import part, plane, view_factor_coaxial_disks, write_box, write_scene
+from tests.validation.thermal_scenes import (
+    part,
+    plane,
+    view_factor_coaxial_disks,
+    write_box,
+    write_scene,
+)
 
 
 def _ts(path):
