@@ -27,7 +27,7 @@ class Disk:
     r2_out: float
 
     @classmethod
-    def of_plane(cls, plane) -> "Disk":
+    def of_plane(cls, plane) -> Disk:
         """The disk of a geometry.analytic.Plane (its local frame: rows u, v, w of ``rotation``)."""
         u, v, w = (np.ascontiguousarray(a, dtype=np.float64) for a in plane.rotation)
         return cls(np.ascontiguousarray(plane.vertex_mm, dtype=np.float64), u, v, w,

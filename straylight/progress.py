@@ -30,7 +30,7 @@ def progress_bar(iterable=None, total=None, desc=None, unit="it", enabled=True, 
 
     stream = sys.stderr if file is None else file
     terminal = bool(getattr(stream, "isatty", lambda: False)())
-    kwargs = dict(total=total, desc=desc, unit=unit, initial=initial, file=stream, leave=False)
+    kwargs = {"total": total, "desc": desc, "unit": unit, "initial": initial, "file": stream, "leave": False}
     if not enabled or terminal:
         return tqdm(iterable, disable=not enabled, **kwargs)
     return _log_lines_class()(iterable, interval_s=log_interval_s(), **kwargs)

@@ -19,7 +19,7 @@ def _section() -> str:
 
 
 def _blocks(lang: str) -> list[str]:
-    return re.findall(rf"```{lang}\n(.*?)```", _section(), re.S)
+    return re.findall(rf"```{lang}\n(.*?)```", _section(), re.DOTALL)
 
 
 def _commands() -> list[list[str]]:

@@ -99,9 +99,8 @@ def detector_area(setup, name: str):
     sensitive area (:func:`straylight.detectors.sensitive_area`), its front turned toward the
     entrance centre (or the beam's disk centre without an entrance).
     """
-    from straylight.detectors import SensitiveArea, sensitive_area
-
     from geometry.analytic import Plane
+    from straylight.detectors import SensitiveArea, sensitive_area
 
     part = setup.scene.part(name)
     if setup.detector_area_mm2 is not None:

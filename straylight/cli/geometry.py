@@ -201,16 +201,14 @@ def _check(args) -> int:
 
 
 def _scene(args) -> int:
+    import tomllib
     from pathlib import Path
 
     from atomicio.guard import check_output_file, check_overwrite, record_outputs
-    from geometry.cad_scene import write_cad_scene
+    from geometry.cad_scene import detector_of, write_cad_scene
 
     out = check_output_file(args.output, "-o scene file")
     check_overwrite(out.parent, names=[out.name], force=args.force)
-    import tomllib
-
-    from geometry.cad_scene import detector_of
 
     path, parts = write_cad_scene(args.cad, args.output, detector=args.detector, material=args.material,
                                   tolerance_mm=args.tolerance_mm, axis=args.axis, detector_disk=args.detector_disk,

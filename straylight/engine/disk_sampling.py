@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 from materials.jit_cache import njit
 
 TWO_PI = 2.0 * math.pi
