@@ -38,3 +38,31 @@ def test_study_results_are_consistent(study):
     assert total == pytest.approx(ledger["emitted_w"], rel=1e-9)
     assert set(doc["sweep"]["values"]) == {0.0, 7.0}
     assert doc["paths"]["total_w"] > 0
+
+
+def test_report_tables_as_csv(study):
+    """Each table of index.html is also table_<name>.csv, with the numbers of results.json."""
+    import csv
+
+    report = study.out_dir
+    page = (report / "index.html").read_text()
+    doc = json.loads((report / "results.json").read_text())
+    for name in ("pst", "paths", "ancestry", "critical", "sweep"):
+        assert f'href="table_{name}.csv"' in page, name
+    with open(report / "table_pst.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [float(r["off_axis_deg"]) for r in rows] == [p["off_axis_deg"] for p in doc["pst"]["points"]]
+    assert [float(r["pst"]) for r in rows] == [p["pst"] for p in doc["pst"]["points"]]
+    assert [r["flags"] for r in rows] == [p["flags"] for p in doc["pst"]["points"]]
+    with open(report / "table_paths.csv", newline="") as fh:
+        paths = list(csv.DictReader(fh))
+    assert [r["path"] for r in paths][:5] == [g["label"] for g in doc["paths"]["groups"]][:5]
+    assert sum(float(r["fraction"]) for r in paths) == pytest.approx(1.0, rel=1e-9)
+    with open(report / "table_critical.csv", newline="") as fh:
+        parts = {r["part"]: float(r["view_factor"]) for r in csv.DictReader(fh)}
+    assert parts == {p["part"]: p["view_factor"] for p in doc["critical"]["parts"]}
+    with open(report / "table_sweep.csv", newline="") as fh:
+        sweep = list(csv.DictReader(fh))
+    assert [float(r["vane_count"]) for r in sweep] == doc["sweep"]["values"]
+    assert [float(r["pst_at_20_deg"]) for r in sweep] == [p["pst"] for p in doc["sweep"]["points"]
+                                                          if p["off_axis_deg"] == 20.0]
