@@ -95,3 +95,19 @@ def test_open_detector_sheet_faces_the_scene_whatever_its_winding(tmp_path, sign
     expect = np.pi * band_radiance_w_m2_sr(8, 12, 300.0) * np.pi * 20 ** 2 * 1e-6 * view_factor_coaxial_disks(20, 5, 30)
     assert d.area_mm2 == pytest.approx(area, rel=1e-6)  # STL vertices are float32
     assert abs(d.power_w / area - expect / (np.pi * 25)) * area <= 3 * d.stderr_w + 1e-3 * expect
+
+
+def test_cold_detector_in_a_warm_mirror(tmp_path):
+    """A 77 K detector (r = 10 mm) under a 300 K flat mirror (specular r = 0.9, so eps = 0.1, r = 30 mm)
+    at h = 20 mm, 3-5 um: the mirror's own emission eps pi B(300) A_m F(m -> d) and the narcissus
+    R pi B(77) A_d F(d -> image at 2h), each by its part (coaxial-disk view factors, PHYSICS §5)."""
+    text = part("det", role="detector", temperature_k=77.0, surface=plane((0, 0, 0), (0, 0, 1), 10.0))
+    text += part("mirror", "mirror", 300.0, surface=plane((0, 0, 20), (0, 0, -1), 30.0))
+    res = thermal(_ts(write_scene(tmp_path, text)), (3, 5), n_rays=20_000, seed=8)
+    d = res.detectors["det"]
+    own = 0.1 * np.pi * band_radiance_w_m2_sr(3, 5, 300.0) * np.pi * 900e-6 * view_factor_coaxial_disks(30, 10, 20)
+    narc = 0.9 * np.pi * band_radiance_w_m2_sr(3, 5, 77.0) * np.pi * 100e-6 * view_factor_coaxial_disks(10, 10, 40)
+    m, n = d.by_part["mirror"], d.by_part["det"]
+    assert m.power_w > 0 and n.power_w > 0
+    assert abs(m.power_w - own) <= 3 * m.stderr_w
+    assert abs(n.power_w - narc) <= 3 * n.stderr_w
