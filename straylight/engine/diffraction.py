@@ -19,17 +19,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from straylight.engine.edge_index import EdgeTable, edge_table, passages
 from straylight.engine.hurb import GAMMA, deflect
 from straylight.engine.options import TraceError
-from straylight.engine.ray_batch import RayBatch
-from straylight.paths import KIND_DIFFRACTION, mix_key
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_DIFFRACTION, RayBatch
+from straylight.paths import mix_key
 
 METHOD = "HURB (Heisenberg uncertainty ray bending, Freniere et al. 1999)"
-EVENT_DIFFRACTION = KIND_DIFFRACTION  # last_event of a ray that was just diffracted; path-record kind
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,6 +155,7 @@ def divert(diff: Diffraction, scene, rays: RayBatch, tri, skip, U, sample_col: i
     direction = deflect(d, b[bent], db[bent], da[bent], diff.wavelength_nm, U[bent, sample_col],
                         U[bent, sample_col + 1], diff.gamma)
     part = diff.edges.part_of(edge[bent])
+    pdf = direction_pdf(d, b[bent], db[bent], da[bent], direction, diff)
     code = part * 4 + EVENT_DIFFRACTION
     depth = rays.depth[bent]
     hist = rays.history[bent] if len(rays.history) else rays.history
@@ -163,9 +164,10 @@ def divert(diff: Diffraction, scene, rays: RayBatch, tri, skip, U, sample_col: i
         hist[inside, depth[inside]] = code[inside]
     key = mix_key(rays.path_key[bent], code) if record_paths else rays.path_key[bent]
     nxt = RayBatch(ray=rays.ray[bent], origin_mm=origin, direction=direction, weight_w=rays.weight_w[bent],
-                   last_event=np.full(len(bent), EVENT_DIFFRACTION, dtype=np.int8), last_pdf_per_sr=np.zeros(len(bent)),
+                   last_event=np.full(len(bent), EVENT_DIFFRACTION, dtype=np.int8), last_pdf_per_sr=pdf,
                    last_part=part, path_key=key, depth=depth + 1, history=hist)
-    return keep, nxt, diff.edges.skip_of(edge[bent])
+    vertex = BentVertices(incoming=d, b=b[bent], delta_b_mm=db[bent], delta_a_mm=da[bent], uniforms=U[bent])
+    return keep, nxt, diff.edges.skip_of(edge[bent]), vertex
 
 
 def truncate(diff_rays: RayBatch, tallies, rows) -> None:
@@ -174,14 +176,101 @@ def truncate(diff_rays: RayBatch, tallies, rows) -> None:
     tallies.add(rows.truncated + diff_rays.last_part, diff_rays.ray, diff_rays.weight_w)
 
 
-def blocked_by_edges(diff: Diffraction | None, origin, direction, tmax) -> np.ndarray:
+def blocked_by_edges(diff: Diffraction | None, origin, direction, tmax, skip=None) -> np.ndarray:
     """Shadow rays that pass a diffracting edge before ``tmax`` (next-event estimation treats them
-    as blocked: the walk would have bent them)."""
+    as blocked: the walk would have bent them); ``skip``: (n, 3) edge ids each may pass."""
     n = len(origin)
     if diff is None or n == 0:
         return np.zeros(n, dtype=bool)
-    edge = passages(diff.edges, origin, direction, np.asarray(tmax, dtype=np.float64))[0]
+    edge = passages(diff.edges, origin, direction, np.asarray(tmax, dtype=np.float64), skip)[0]
     return edge >= 0
+
+
+class BentVertices(NamedTuple):
+    """What next-event estimation needs of this event's diffraction vertices (one row per bent ray)."""
+
+    incoming: np.ndarray  # (n, 3) direction before the bend
+    b: np.ndarray  # (n, 3) unit, across the edge toward the ray
+    delta_b_mm: np.ndarray
+    delta_a_mm: np.ndarray  # inf: the 1-D law (no density in solid angle: no NEE)
+    uniforms: np.ndarray  # (n, width) the rays' uniforms of this event (their NEE columns are free)
+
+
+def direction_pdf(incoming, b, delta_b_mm, delta_a_mm, direction, diff: Diffraction) -> np.ndarray:
+    """Density per steradian of the HURB law (straylight.engine.hurb) at ``direction``: Gaussian in
+    (tan theta_b, tan theta_a) times the Jacobian of the gnomonic map, 1 / (direction . incoming)^3;
+    0 where the law is 1-D (delta_a = inf: a Dirac along the edge) or the direction turns back."""
+    from straylight.engine.hurb import tan_sigma
+
+    s = np.asarray(incoming, dtype=np.float64)
+    w = np.asarray(direction, dtype=np.float64)
+    a = np.cross(s, b)
+    cs = np.einsum("ij,ij->i", w, s)
+    sb = tan_sigma(delta_b_mm, diff.wavelength_nm, diff.gamma)
+    sa = tan_sigma(delta_a_mm, diff.wavelength_nm, diff.gamma)
+    ok = (cs > 0) & (sa > 0) & (sb > 0)
+    out = np.zeros(len(w))
+    if ok.any():
+        c = cs[ok]
+        tb = np.einsum("ij,ij->i", w[ok], b[ok]) / c
+        ta = np.einsum("ij,ij->i", w[ok], a[ok]) / c
+        p_tan = np.exp(-0.5 * ((tb / sb[ok]) ** 2 + (ta / sa[ok]) ** 2)) / (2.0 * np.pi * sb[ok] * sa[ok])
+        out[ok] = p_tan / c**3
+    return out
+
+
+def next_event(diff: Diffraction, scene, bent: RayBatch, skip, vertex: BentVertices, columns, settings, tallies,
+               rows, records) -> int:
+    """Next-event estimation from this event's diffraction vertices (where the law has a density):
+    per detector and NEE sample, a point y uniform on the detector, the contribution
+    ``w p_hurb(omega) cos_y A / (k d^2)`` times the power-heuristic weight against the bend itself
+    (the walk's hit on the detector right after a bend keeps the other share, straylight.engine.hits),
+    if the shadow ray is unblocked and passes no other diffracting edge. Returns the shadow rays cast."""
+    from straylight.engine.vec3 import power_heuristic_rows
+
+    live = np.flatnonzero(bent.last_pdf_per_sr > 0)
+    if len(live) == 0 or len(scene.detectors) == 0:
+        return 0
+    k = int(settings.nee_samples)
+    x = bent.origin_mm[live]
+    cast = 0
+    for j, det in enumerate(scene.detectors):
+        for s in range(k):
+            c0 = columns.nee + 3 * (j * k + s)
+            y, ny = det.sample(vertex.uniforms[live, c0:c0 + 3])
+            v = y - x
+            d2 = np.einsum("ij,ij->i", v, v)
+            dist = np.sqrt(d2)
+            omega = v / np.where(dist > 0, dist, 1.0)[:, None]
+            cos_y = -np.einsum("ij,ij->i", omega, ny)
+            if settings.both_sides:
+                cos_y = np.abs(cos_y)
+            p_hurb = direction_pdf(vertex.incoming[live], vertex.b[live], vertex.delta_b_mm[live],
+                                   vertex.delta_a_mm[live], omega, diff)
+            area = float(det.area_mm2)
+            go = np.flatnonzero((cos_y > 0) & (dist > 2 * settings.eps_mm) & (p_hurb > 0))
+            if len(go) == 0:
+                continue
+            p_nee = k * d2[go] / (area * cos_y[go])
+            c = bent.weight_w[live[go]] * p_hurb[go] * cos_y[go] * area / (k * d2[go]) \
+                * power_heuristic_rows(p_nee, p_hurb[go])
+            tmax = dist[go] - settings.eps_mm
+            blocked = np.asarray(scene.isect.occluded(x[go], omega[go], tmax), dtype=bool)
+            blocked |= blocked_by_edges(diff, x[go], omega[go], tmax, skip[live[go]])
+            cast += len(go)
+            ok = np.flatnonzero(~blocked & (c > 0))
+            if len(ok) == 0:
+                continue
+            rows_ = live[go[ok]]
+            r = bent.ray[rows_]
+            tallies.add(rows.detector_nee + j, r, c[ok])
+            tallies.subtract(rows.nee_exchange + bent.last_part[rows_], r, c[ok])
+            keys = events = None
+            if settings.record_paths:
+                keys = mix_key(bent.path_key[rows_], scene.det_parts[j] * 4 + EVENT_DETECTOR)
+                events = bent.history[rows_]
+            records.add(j, r, y[go[ok]], c[ok], keys, events, bent.depth[rows_])
+    return cast
 
 
 def describe_method(gamma: float = GAMMA) -> str:

@@ -10,7 +10,7 @@ from typing import NamedTuple
 import numpy as np
 from materials.jit_cache import njit
 
-from straylight.engine.ray_batch import EVENT_SCATTER
+from straylight.engine.ray_batch import EVENT_DIFFRACTION, EVENT_SCATTER
 from straylight.engine.roles import ROLE_ABSORBER, ROLE_DETECTOR
 from straylight.engine.tally_store import tally_add
 from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows
@@ -92,7 +92,10 @@ def hits(tri, rays, scene, rows, settings, log):
             tally_add(log, rows.detector_walk + j, r, w_i)
             w_det = w_i
             # a hit straight after a scatter that did NEE is shared with NEE by MIS weights (power heuristic)
-            if settings.nee and rays.last_event[i] == EVENT_SCATTER and settings.nee_part[rays.last_part[i]]:
+            # (or right after a bend at a diffracting edge, whose NEE straylight.engine.diffraction makes:
+            # the bend's density is its last_pdf, > 0 where the HURB law has one)
+            if settings.nee and ((rays.last_event[i] == EVENT_SCATTER and settings.nee_part[rays.last_part[i]])
+                                 or (rays.last_event[i] == EVENT_DIFFRACTION and rays.last_pdf_per_sr[i] > 0)):
                 p_nee = settings.nee_samples * (t * t) / (scene.detector_area_mm2[j] * abs(cos_in))
                 w_det = w_i * power_heuristic(rays.last_pdf_per_sr[i], p_nee)
                 tally_add(log, rows.nee_exchange + rays.last_part[i], r, w_i - w_det)
@@ -144,8 +147,9 @@ def hits_numpy(tri, rays, scene, rows, settings, M):
     M[rows.detector_walk + j, r[sens]] += w[sens]
     w_det = w[sens].copy()
     if settings.nee:
-        shared = np.flatnonzero((rays.last_event[sens] == EVENT_SCATTER)
-                                & settings.nee_part[np.maximum(rays.last_part[sens], 0)])
+        shared = np.flatnonzero(((rays.last_event[sens] == EVENT_SCATTER)
+                                 & settings.nee_part[np.maximum(rays.last_part[sens], 0)])
+                                | ((rays.last_event[sens] == EVENT_DIFFRACTION) & (rays.last_pdf_per_sr[sens] > 0)))
         i = sens[shared]
         p_nee = settings.nee_samples * (t[i] * t[i]) / (scene.detector_area_mm2[j[shared]] * np.abs(cos_in[i]))
         w_det[shared] = w[i] * power_heuristic_rows(rays.last_pdf_per_sr[i], p_nee)

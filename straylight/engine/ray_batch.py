@@ -7,10 +7,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from straylight.paths import KIND_DETECTOR, KIND_SCATTER, KIND_SPECULAR
+from straylight.paths import KIND_DETECTOR, KIND_DIFFRACTION, KIND_SCATTER, KIND_SPECULAR
 
 # event codes (also the path records' kinds; 0: the ray comes straight from its source)
 EVENT_SOURCE, EVENT_SCATTER, EVENT_SPECULAR, EVENT_DETECTOR = 0, KIND_SCATTER, KIND_SPECULAR, KIND_DETECTOR
+# a ray just bent at a diffracting edge (straylight.engine.diffraction); the detector code's value, which
+# never appears as a live ray's last event
+EVENT_DIFFRACTION = KIND_DIFFRACTION
 
 
 class RayBatch(NamedTuple):

@@ -105,8 +105,11 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         if diff is not None:  # rays that pass a diffracting edge before their hit bend there (HURB)
             split = diffraction_step.divert(diff, scene, rays, tri, skip, U, columns.sample, settings.record_paths)
             if split is not None:
-                keep, bent, bent_skip = split
+                keep, bent, bent_skip, vertex = split
                 rays, tri, U = diffraction_step.subset(rays, keep), tri[keep], U[keep]
+                if settings.nee and rows.n_detectors > 0:
+                    shadow_rays += diffraction_step.next_event(diff, scene, bent, bent_skip, vertex, columns, settings,
+                                                               tallies, rows, records)
                 if ev == max_events - 1:
                     diffraction_step.truncate(bent, tallies, rows)
                     bent = None
