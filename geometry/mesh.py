@@ -52,6 +52,10 @@ class Part:
             raise GeometryError(f"part {self.name!r}: faces must be a non-empty (m, 3) array, got {f.shape}")
         if f.min() < 0 or f.max() >= len(v):
             raise GeometryError(f"part {self.name!r}: face index out of range")
+        bad = ~np.isfinite(v).all(axis=1)
+        if bad.any():  # a NaN vertex fails much later, as "Eigenvalues did not converge" in a plane fit
+            raise GeometryError(f"part {self.name!r}: {int(bad.sum())} of {len(v)} vertices have a NaN or infinite "
+                                f"coordinate (first: vertex {int(np.argmax(bad))})")
         object.__setattr__(self, "vertices_mm", v)
         object.__setattr__(self, "faces", f)
 

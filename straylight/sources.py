@@ -42,6 +42,19 @@ def _positive(name, value, owner, allow_zero=False) -> float:
     return v
 
 
+MIN_RADIUS_MM = 1e-6  # a disk source smaller than 1 nm: its area (and the irradiance it divides) is not usable
+
+
+def _disk_radius(value, owner) -> float:
+    """A disk source's ``radius_mm``: positive, finite, and at least :data:`MIN_RADIUS_MM` (a radius
+    like 1e-300 squares to 0 and its irradiance divides by zero; a point-like source is ``point``)."""
+    r = _positive("radius_mm", value, owner)
+    if r < MIN_RADIUS_MM:
+        raise SourceError(f"{owner}: radius_mm {r:g} is below {MIN_RADIUS_MM:g} mm: a disk that small has no usable "
+                          f"area; for a point-like source use type = \"point\"")
+    return r
+
+
 def orthonormal_basis(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Tangents (t, b) with (t, b, n) right-handed, for unit n : (..., 3) (Duff et al. 2017)."""
     n = np.asarray(n, dtype=np.float64)
@@ -125,7 +138,7 @@ class CollimatedDisk:
         object.__setattr__(self, "center_mm", _vec("center_mm", self.center_mm, owner))
         object.__setattr__(self, "normal", _vec("normal", self.normal, owner, unit=True))
         object.__setattr__(self, "direction", _vec("direction", self.direction, owner, unit=True))
-        object.__setattr__(self, "radius_mm", _positive("radius_mm", self.radius_mm, owner))
+        object.__setattr__(self, "radius_mm", _disk_radius(self.radius_mm, owner))
         object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
         object.__setattr__(self, "_basis", orthonormal_basis(self.normal))
 
@@ -158,7 +171,7 @@ class LambertianDisk:
         _check_wavelength(self, owner)
         object.__setattr__(self, "center_mm", _vec("center_mm", self.center_mm, owner))
         object.__setattr__(self, "normal", _vec("normal", self.normal, owner, unit=True))
-        object.__setattr__(self, "radius_mm", _positive("radius_mm", self.radius_mm, owner))
+        object.__setattr__(self, "radius_mm", _disk_radius(self.radius_mm, owner))
         object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
 
     def emit(self, u):

@@ -97,4 +97,8 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
         for res in results:  # in chunk order
             bar.update(totals.add(res))
     here = cached_scene(spec)  # this process's scene, if it traced here; else the detectors alone
-    return totals.result(spec, here.detectors if here is not None else detector_samplers(spec))
+    result = totals.result(spec, here.detectors if here is not None else detector_samplers(spec))
+    from straylight.run_checks import check_truncation
+
+    check_truncation(result, opt.max_events)  # power cut by max_events is not round-off: say so
+    return result

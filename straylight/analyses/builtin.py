@@ -125,8 +125,11 @@ class Entrance:
 
     def __post_init__(self):
         object.__setattr__(self, "center_mm", np.asarray(self.center_mm, dtype=np.float64).reshape(3))
-        if not (np.isfinite(self.radius_mm) and self.radius_mm > 0):
-            raise ValueError(f"entrance radius_mm must be > 0, got {self.radius_mm!r}")
+        from straylight.sources import MIN_RADIUS_MM
+
+        if not (np.isfinite(self.radius_mm) and self.radius_mm >= MIN_RADIUS_MM):
+            raise ValueError(f"entrance radius_mm must be >= {MIN_RADIUS_MM:g} mm (a disk with a usable area), "
+                             f"got {self.radius_mm!r}")
         if self.normal is not None:
             n = np.asarray(self.normal, dtype=np.float64).reshape(3)
             if not np.isfinite(np.linalg.norm(n)) or np.linalg.norm(n) == 0:

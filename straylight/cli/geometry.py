@@ -69,7 +69,8 @@ def add_parser(subparsers):
     rig.set_defaults(func=_build_reflectometer)
     check = group.add_parser("check", help="check a scene's meshes (watertight, winding, overlaps)")
     check.add_argument("scene", help="scene TOML")
-    check.add_argument("--strict", action="store_true", help="exit 1 if a check fails")
+    check.add_argument("--strict", action="store_true",
+                       help="exit 1 if any check fails (overlapping solids always exit 1)")
     check.add_argument("--json", metavar="PATH")
     check.set_defaults(func=_check)
     scene = group.add_parser("scene", help="write a scene file for your own STEP/IGES assembly (one part per solid)")
@@ -197,6 +198,12 @@ def _check(args) -> int:
         import atomicio
 
         atomicio.write_text(args.json, json.dumps(checks.as_dict(), indent=2))
+    if checks.overlaps:  # solids that overlap make a scene whose numbers mean nothing: never exit 0
+        import sys
+
+        print(f"straylight: geometry check: {len(checks.overlaps)} pair(s) of solids overlap "
+              f"(first: {checks.overlaps[0][0]} / {checks.overlaps[0][1]}); fix the geometry", file=sys.stderr)
+        return 1
     return 1 if (args.strict and not checks.ok) else 0
 
 

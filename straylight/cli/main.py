@@ -82,6 +82,20 @@ def _check_requests(args) -> None:
 
 
 @contextmanager
+def _one_line_warnings():
+    """Warnings raised under a command (truncated power, float32 precision, geometry) print as
+    ``straylight: warning: ...`` on one line, once per message, instead of Python's two-line form."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"straylight: warning: {str(message).strip().splitlines()[0]}", file=file or sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
+@contextmanager
 def _allow_insecure(allowed: bool):
     """``--allow-insecure`` for this command: the sweeps open their dask clients deep inside
     (straylight.distribute.dask_client reads STRAYLIGHT_ALLOW_INSECURE_SCHEDULER); restored after."""
@@ -110,7 +124,7 @@ def main(argv=None) -> int:
         return 0 if args.command is None else 2
     try:
         _check_requests(args)
-        with _allow_insecure(getattr(args, "allow_insecure", False)):
+        with _allow_insecure(getattr(args, "allow_insecure", False)), _one_line_warnings():
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("straylight: interrupted", file=sys.stderr)

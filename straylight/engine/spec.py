@@ -142,6 +142,12 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
         raise TraceError("at least one source is needed")
     if sum(s.power_w for s in sources) <= 0:
         raise TraceError("total source power_w must be > 0")
+    from straylight.run_checks import check_origin_precision
+
+    try:  # Embree's float32 rounds far-away ray origins: warn, or refuse where rays would be lost
+        check_origin_precision(sources, scene.bounds_mm)
+    except ValueError as exc:
+        raise TraceError(str(exc)) from None
     part_material, models = resolve_materials(scene, materials)
     _check_targets(scene, options)
     from straylight.engine.diffraction import scene_diffraction, vertex_strategies_off
