@@ -37,7 +37,7 @@ class DetectorThermal:
     power_w: float
     stderr_w: float
     by_part: dict  # part name -> Tally
-    rays: int
+    rays: int  # per detector (the most any detector used; --rays N: N)
 
     @property
     def irradiance_w_m2(self) -> float:
@@ -52,7 +52,7 @@ class DetectorThermal:
 @dataclass
 class ThermalResult:
     band_um: tuple
-    rays: int
+    rays: int  # per detector: --rays N gives exactly N (the most any detector used with a target)
     seed: int
     method: str
     detectors: dict
@@ -182,7 +182,7 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     radiance = rad_sets[:, 0, :]  # (K, P): the scene's own temperatures
     emitting = [n for n, t in zip(ts.part_names, ts.temperature_k) if t > 0]
     t0 = time.perf_counter()
-    out, stopped, total_rays, swept = {}, None, 0, {}
+    out, stopped, max_rays_one, swept = {}, None, 0, {}
     share = rad_sets.max(axis=(1, 2)) if rad_sets.max() > 0 else np.ones(len(bands))
     share = share / share.sum()
     for j, name in enumerate(names):
@@ -215,15 +215,32 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
                 # the rays still needed if the error falls as 1/sqrt(N), 5 % more, at most 16x the work so far
                 need = done * ((rel / target) ** 2 - 1.0) * 1.05
                 rays_now = int(min(max_rays - done, 16 * done, max(MIN_ROUND_RAYS, need)))
-        total_rays += run.rays
+        max_rays_one = max(max_rays_one, run.rays)
         by_part = {ts.part_names[q]: Tally(float(per[q]), float(per_err[q])) for q in range(ts.n_parts)
                    if ts.part_names[q] in emitting}
         out[name] = DetectorThermal(name, sampler.area_mm2, float(tot), float(err), by_part, run.rays)
         swept[name] = [run.combined(c)[:2] if rad_sets.max() > 0 and run.rays else (0.0, 0.0)
                        for c in range(1, len(sets))]
     temps = {n: float(t) for n, t in zip(ts.part_names, ts.temperature_k) if t > 0}
-    return ThermalResult((lo, hi), total_rays, int(seed), method, out, bands, temps,
+    return ThermalResult((lo, hi), max_rays_one, int(seed), method, out, bands, temps,
                          time.perf_counter() - t0, stopped, sweep=swept)
+
+
+def split_rays(n: int, share, min_rays: int) -> np.ndarray:
+    """``n`` rays shared in proportion to ``share`` (largest remainders, so they add up to ``n``
+    exactly), each sub-band with a share getting at least ``min_rays`` when ``n`` allows."""
+    share = np.asarray(share, float)
+    on = share > 0
+    if not on.any():
+        return np.zeros(len(share), np.int64)
+    n = max(int(n), int(min_rays) * int(on.sum())) if min_rays > 2 else max(int(n), 2 * int(on.sum()))
+    floor_n = min(int(min_rays), n // int(on.sum()))
+    exact = share / share.sum() * (n - floor_n * on.sum())
+    counts = np.floor(exact).astype(np.int64)
+    rest = n - floor_n * int(on.sum()) - int(counts.sum())
+    order = np.argsort(-(exact - counts), kind="stable")
+    counts[order[:rest]] += 1
+    return np.where(on, counts + floor_n, 0)
 
 
 class _DetectorRun:
@@ -243,10 +260,12 @@ class _DetectorRun:
         """About ``rays_now`` more rays, shared by the sub-bands (whole chunks, then a remainder)."""
         from straylight.thermal.walk import CHUNK_RAYS
 
+        active = np.array([self.rad_sets[k].max() > 0 for k in range(len(self.bands))])
+        counts = split_rays(int(rays_now), np.where(active, self.share, 0.0), self.min_rays)
         for k, (_, _, lam) in enumerate(self.bands):
-            if self.rad_sets[k].max() <= 0:
+            want = int(counts[k])
+            if want <= 0:
                 continue
-            want = max(self.min_rays, round(rays_now * self.share[k]))
             sides = self.ts.sides_at(lam)
             rad = self.rad_sets[k] if self.rad_sets.shape[1] > 1 else self.rad_sets[k, 0]
             while want > 0:

@@ -92,3 +92,14 @@ def test_unknown_part_in_temperature_setting(two_disks, tmp_path, capsys):
     assert main(["thermal", str(two_disks), "--band-um", "8", "12", "--rays", "10", "--temperature-k", "tube=300",
                  "--out", str(tmp_path / "x")]) == 2
     assert "no part named 'tube'" in capsys.readouterr().err
+
+
+def test_rays_are_exact_across_sub_bands(tmp_path):
+    """A wavelength-dependent material splits the band into sub-bands; --rays N still traces N."""
+    text = part("focal_plane", role="detector", surface=plane((0, 0, 0), (0, 0, 1), 5.0))
+    text += part("baffle", "glossy", 300.0, surface=plane((0, 0, 30), (0, 0, -1), 20.0))
+    out = tmp_path / "o"
+    assert main(["thermal", str(write_scene(tmp_path, text)), "--band-um", "8", "12", "--rays", "1001",
+                 "--out", str(out)]) == 0
+    assert json.loads((out / "thermal.json").read_text())["rays"] == 1001
+    assert len(json.loads((out / "thermal_details.json").read_text())["sub_bands_um"]) == 5
