@@ -442,6 +442,12 @@ def analytic_part(name: str, surface, material=None, role: str = "surface", back
     from geometry.mesh import Part
 
     vertices, faces = surface.mesh(tolerance_mm) if mesh is None else mesh
+    if mesh is not None and isinstance(surface, Plane):
+        # a CAD mesh of a disk is a polygon inside the circle: add the project's covering mesh, so the hit
+        # search finds every point of the exact disk (hits outside it are refused by the tracer)
+        v2, f2 = surface.mesh(tolerance_mm)
+        faces = np.concatenate([np.asarray(faces, dtype=np.int64), np.asarray(f2, dtype=np.int64) + len(vertices)])
+        vertices = np.concatenate([np.asarray(vertices, dtype=np.float64), v2])
     meta = {"tolerance_mm": tolerance_mm}
     if mesh is None:
         meta["kind"] = "sheet"  # the project's mesh of a surface is an open sheet, not a leaky solid
