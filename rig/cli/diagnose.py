@@ -46,10 +46,10 @@ def run(args) -> int:
 
         with ProcessPoolExecutor(max_workers=args.workers) as pool:
             result = diagnose(scan, holdout_theta_i_deg=args.holdout_theta_i_deg, effects=args.effects,
-                              progress=sys.stderr.isatty(), executor=pool)
+                              progress=True, executor=pool)  # straylight.progress: a bar, or lines in a log
     else:
         result = diagnose(scan, holdout_theta_i_deg=args.holdout_theta_i_deg, effects=args.effects,
-                          progress=sys.stderr.isatty())
+                          progress=True)
     doc = to_json(result)
     doc["measured"] = str(args.measured)
     doc["seed"] = args.seed
