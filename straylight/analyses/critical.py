@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
+from straylight.analyses.tables import TableRepr
 
 
 @dataclass(frozen=True, eq=False)
@@ -95,7 +96,7 @@ class ObjectRow:
 
 
 @dataclass(frozen=True, eq=False)
-class CriticalReport:
+class CriticalReport(TableRepr):
     """Per-part fractions; ``ranking`` lists the parts both illuminated and critical, best first.
 
     rows : every non-detector part (fractions of the source power / of the detector's emission)

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
+from straylight.analyses.tables import TableRepr
 
 ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more", "diffracted")
 GROUP_BY = ("sequence", "first_part", "last_part", "ancestry")
@@ -77,7 +78,7 @@ class PathRow:
 
 
 @dataclass(frozen=True, eq=False)
-class PathReport:
+class PathReport(TableRepr):
     """Ranked path groups at one detector.
 
     rows : every group, by decreasing power (``top`` limits only the table and plot)

@@ -29,8 +29,8 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
-
 from straylight.analyses.builtin import Beam, Entrance, Setup
+from straylight.analyses.tables import TableRepr
 from straylight.progress import progress_bar
 
 DEFAULT_VOV_LIMIT = 0.1  # straylight.analyses.precision.DEFAULT_MAX_VOV: MCNP's reliability check
@@ -52,7 +52,7 @@ def point_flags(row: dict) -> str:
     if not row["pst"] > 0:
         out.append("zero")
     vov = row.get("vov")
-    if vov is not None and vov == vov and vov > DEFAULT_VOV_LIMIT:
+    if vov is not None and math.isfinite(vov) and vov > DEFAULT_VOV_LIMIT:
         out.append("unreliable_error")
     if row.get("stop_reason") not in (None, "", "target"):
         out.append("target_not_reached")
@@ -122,7 +122,7 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, securi
 
 
 @dataclass(frozen=True, eq=False)
-class PstResult:
+class PstResult(TableRepr):
     """A PST sweep; arrays have one entry per (off-axis, azimuth) point, in sweep order.
 
     off_axis_deg, azimuth_deg : (n,) the tilts
@@ -275,7 +275,6 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
         ``resume`` reads back the points a previous run of the same sweep finished and skips them
     """
     from dataclasses import replace as dc_replace
-
 
     from straylight.analyses.estimators import estimator_options
     from straylight.analyses.precision import reliability, trace_to_precision

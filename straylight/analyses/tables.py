@@ -23,6 +23,17 @@ def data_frame(rows: list[dict], columns):
     return pd.DataFrame([{c: r.get(c) for c in columns} for r in rows], columns=list(columns))
 
 
+class TableRepr:
+    """Mixin for results with ``to_pandas()``: a notebook shows them as their table (plain repr without pandas)."""
+
+    def _repr_html_(self):
+        try:
+            frame = self.to_pandas()
+        except ImportError:
+            return None
+        return frame.to_html(max_rows=30)
+
+
 PST_TABLE = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "rel_error", "vov", "entrance_ratio",
              "entrance_ratio_stderr", "geometric_direct_entrance_ratio", "rays", "stop_reason", "seconds", "flags")
 PATHS_TABLE = ("rank", "path", "ancestry", "fraction", "fraction_stderr", "power_w", "stderr_w", "n_records")

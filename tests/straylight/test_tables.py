@@ -25,3 +25,15 @@ def test_csv_writes_missing_values_as_empty_cells(tmp_path):
                            [{"detector": "d", "part": "p", "power_w": math.nan, "stderr_w": None}])
     with open(path, newline="") as fh:
         assert list(csv.reader(fh)) == [list(THERMAL_TABLE[:4]), ["d", "p", "", ""]]
+
+
+def test_a_notebook_shows_a_result_as_its_table():
+    pytest.importorskip("pandas")
+    from straylight.analyses.paths_report import PathReport, PathRow
+
+    rows = [PathRow(1, "source -> vane_6 -> detector", "scattered_once", 3e-6, 1e-7, 0.75, 0.02, 40),
+            PathRow(2, "source -> wall -> detector", "scattered_once", 1e-6, 1e-7, 0.25, 0.02, 12)]
+    rep = PathReport(rows, 4e-6, 1.5e-7, "detector", 1000, "sequence", ())
+    html = rep._repr_html_()
+    assert html.startswith("<table") and "source -&gt; vane_6 -&gt; detector" in html and "0.75" in html
+    assert list(rep.to_pandas()["rank"]) == [1, 2]
