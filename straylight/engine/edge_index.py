@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
 from materials.jit_cache import njit
 
 LEAF_SIZE = 4
@@ -178,14 +179,12 @@ def _box_hit(o, inv, lo, hi, tmax):
         tb = (hi[k] - o[k]) * inv[k]
         if ta > tb:
             ta, tb = tb, ta
-        if ta != ta or tb != tb:  # 0 * inf: the ray lies in the slab's plane
+        if math.isnan(ta) or math.isnan(tb):  # 0 * inf: the ray lies in the slab's plane
             if o[k] < lo[k] or o[k] > hi[k]:
                 return False
             continue
-        if ta > t0:
-            t0 = ta
-        if tb < t1:
-            t1 = tb
+        t0 = max(t0, ta)
+        t1 = min(t1, tb)
         if t0 > t1:
             return False
     return True

@@ -28,7 +28,7 @@ K_PER_MM = 2 * np.pi / (LAM_NM * 1e-6)
 def annulus_part(name, z, r_in, r_out, n_seg=1024, role="detector"):
     """Flat annulus (or disk if r_in == 0) of n_seg segments; rings with the same n_seg tile exactly."""
     a = np.linspace(0, 2 * np.pi, n_seg, endpoint=False)
-    ring = lambda r: np.stack([r * np.cos(a), r * np.sin(a), np.full(n_seg, z)], axis=1)  # noqa: E731
+    ring = lambda r: np.stack([r * np.cos(a), r * np.sin(a), np.full(n_seg, z)], axis=1)
     i = np.arange(n_seg)
     j = (i + 1) % n_seg
     if r_in == 0:
@@ -128,7 +128,7 @@ def test_knife_edge_shadow_matches_fresnel(knife_edge_run):
     simulation of the law (4e6 rays) puts these strips at 0.86-0.95 of Fresnel's (the Gaussian
     deflection law is not the Fresnel transition at w ~ -1). The beam's chord varies by < 0.1 %
     over the rays that reach these strips (|x| < 0.6 mm of a 3 mm disk)."""
-    res, bounds, per_w, n = knife_edge_run
+    res, bounds, per_w, _n = knife_edge_run
     for i in range(len(bounds) - 1):
         got = res.detectors[f"s{i}"]
         want = per_w * fresnel_strip(bounds[i], bounds[i + 1])
@@ -149,7 +149,7 @@ def test_diffracted_paths_are_recorded_and_ledger_closes(knife_edge_run):
     """Every shadow-strip contribution is a diffracted path 'diffracted at sheet'; the ledger closes."""
     from straylight.analyses.paths_report import sequence_label
 
-    res, _, _, n = knife_edge_run
+    res, _, _, _n = knife_edge_run
     assert abs(res.ledger["balance_residual_w"]) < 1e-9
     total = sum(t.power_w for t in res.detectors.values()) + sum(t.power_w for t in res.absorbed.values()) \
         + res.escaped.power_w
