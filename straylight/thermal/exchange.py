@@ -166,7 +166,7 @@ def _emit_chunk(ts, sides, i, sampler, seed, stream, chunk, n):
     w = np.ones(n)
     ray = np.arange(n)
     book = np.zeros((P + 1) * n)  # (part or escaped, ray)
-    terminal = np.array([r in ("absorber", "detector") for r in ts.roles])
+    terminal = ts.is_role("absorber", "detector")
     for ev in range(MAX_EVENTS):
         if len(ray) == 0:
             break

@@ -75,7 +75,7 @@ class ForwardEstimator:
             x += np.where(ok, w * e * cos_x * cos_d * self.det_sampler.area_mm2 / (np.pi * eps_h[emitter] * r2), 0.0)
         o = o + ts.eps_mm * nrm
         delta = np.zeros(n, bool)
-        terminal = np.array([r in ("absorber", "detector") for r in ts.roles])
+        terminal = ts.is_role("absorber", "detector")
         for _ in range(MAX_EVENTS):
             if len(ray) == 0:
                 break
@@ -126,7 +126,7 @@ class ForwardEstimator:
         """NEE from scatter vertices of surface parts with lobes (their f toward the detector)."""
         ts = self.ts
         part = hit.part[cont]
-        surf = np.array([ts.roles[p] == "surface" for p in range(ts.n_parts)])[part]
+        surf = ts.is_role("surface")[part]
         rows = cont[surf]
         if len(rows) == 0:
             return
@@ -142,11 +142,9 @@ class ForwardEstimator:
         wi = to_local(-d[rr], t, b, nf[idx])
         wo = to_local(wdir[idx], t, b, nf[idx])
         f = np.zeros(len(rr))
-        mats = sides.material
-        ids = np.array([id(mats[a][s]) for a, s in zip(p, side)])
-        for key in np.unique(ids):
-            sel = np.flatnonzero(ids == key)
-            m = mats[p[sel[0]]][side[sel[0]]]
-            f[sel] = m.brdf(wi[sel], wo[sel], "u")
+        mat = sides.material_index[p, side]
+        for key in np.unique(mat):
+            sel = np.flatnonzero(mat == key)
+            f[sel] = sides.models[key].brdf(wi[sel], wo[sel], "u")
         contrib = w[rr] * f * cos_x[idx] * cos_d[idx] * self.det_sampler.area_mm2 / r2[idx]
         np.add.at(x, ray[rr], contrib)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -75,6 +76,10 @@ class ThermalScene:
             self._isect = EmbreeIntersector(self.triangles_mm)
         return self._isect
 
+    def is_role(self, *roles) -> np.ndarray:
+        """(P,) bool: the parts whose role is one of ``roles``."""
+        return np.array([r in roles for r in self.roles], dtype=bool)
+
     def part_index(self, name: str) -> int:
         return self.part_names.index(name)
 
@@ -113,13 +118,35 @@ class SideTables:
     material: list  # [P][2] model or None
     eps: np.ndarray  # (P, 2, G)
 
+    @cached_property
+    def material_index(self) -> np.ndarray:
+        """(P, 2) index of each side's material in :attr:`models` (-1: none), to group hits by material."""
+        ids: dict = {}
+        out = np.full((len(self.material), 2), -1, dtype=np.int64)
+        for p, pair in enumerate(self.material):
+            for s, m in enumerate(pair):
+                if m is not None:
+                    out[p, s] = ids.setdefault(id(m), len(ids))
+        return out
+
+    @cached_property
+    def models(self) -> list:
+        found: dict = {}
+        for pair in self.material:
+            for m in pair:
+                if m is not None:
+                    found.setdefault(id(m), m)
+        return list(found.values())
+
     def emissivity(self, part, side, theta):
         """epsilon at (part, side, theta rad) arrays, linear in theta."""
-        g = (len(THETA_GRID) - 1) * np.clip(theta, 0.0, np.pi / 2) / (np.pi / 2)
-        i = np.minimum(g.astype(np.int64), len(THETA_GRID) - 2)
+        G = len(THETA_GRID)
+        g = (G - 1) * np.clip(theta, 0.0, np.pi / 2) / (np.pi / 2)
+        i = np.minimum(g.astype(np.int64), G - 2)
         f = g - i
-        e = self.eps[part, side]
-        return e[np.arange(len(i)), i] * (1 - f) + e[np.arange(len(i)), i + 1] * f
+        flat = self.eps.reshape(-1)
+        base = (np.asarray(part) * 2 + np.asarray(side)) * G + i
+        return flat[base] * (1 - f) + flat[base + 1] * f
 
     def hemispherical(self, p: int, side: int = 0) -> float:
         return hemispherical_emissivity(self.eps[p, side], THETA_GRID)

@@ -46,7 +46,7 @@ def _fraction_below(x):
     x = np.asarray(x, float)
     out = np.empty_like(x)
     big = x >= 0.5
-    xb = x[big]
+    xb = np.minimum(x[big], 1e4)  # beyond, F underflows to 0 anyway (exp(-1e4))
     acc = np.zeros_like(xb)
     for n in range(1, 90):  # exp(-0.5 * 90) < 3e-20: converged for x >= 1/2
         acc += np.exp(-n * xb) / n * (xb ** 3 + 3 * xb ** 2 / n + 6 * xb / n ** 2 + 6.0 / n ** 3)

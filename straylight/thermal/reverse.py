@@ -46,7 +46,7 @@ def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, see
     w = np.ones(n)
     ray = np.arange(n)
     pick = np.zeros(P * n)  # per (part, ray) radiance pickups per unit B
-    terminal = np.array([r in ("absorber", "detector") for r in ts.roles])
+    terminal = ts.is_role("absorber", "detector")
     emits = ts.temperature_k > 0
     for _ in range(MAX_EVENTS):
         if len(ray) == 0:

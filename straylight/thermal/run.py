@@ -177,7 +177,8 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     sets = [np.asarray(ts.temperature_k, float)] + [np.asarray(t, float) for t in (sweep or [])]
     if len(sets) > 1 and method != "reverse":
         raise ValueError("a temperature sweep needs the reverse method")
-    rad_sets = np.array([[[band_radiance_w_m2_sr(a, b, t) if t > 0 else 0.0 for t in temps] for temps in sets]
+    t_all = np.array(sets)  # (C, P)
+    rad_sets = np.array([np.where(t_all > 0, band_radiance_w_m2_sr(a, b, np.maximum(t_all, 1.0)), 0.0)
                          for a, b, _ in bands])  # (K, C, P)
     radiance = rad_sets[:, 0, :]  # (K, P): the scene's own temperatures
     emitting = [n for n, t in zip(ts.part_names, ts.temperature_k) if t > 0]

@@ -140,7 +140,7 @@ def interact(ts, sides, hit: Hit, rows, d, u) -> Outgoing:
     part = hit.part[rows]
     nf = hit.facing[rows]
     side = np.where(hit.front[rows], 0, 1)
-    mirror = np.array([ts.roles[p] == "mirror" for p in range(ts.n_parts)])[part]
+    mirror = ts.is_role("mirror")[part]
     if mirror.any():
         out.direction[mirror] = reflect(d[mirror], nf[mirror])
         out.throughput[mirror] = ts.mirror_reflectance
@@ -148,12 +148,12 @@ def interact(ts, sides, hit: Hit, rows, d, u) -> Outgoing:
     surf = np.flatnonzero(~mirror)
     if len(surf) == 0:
         return out
-    mats = sides.material
-    ids = np.array([id(mats[p][s]) for p, s in zip(part[surf], side[surf])])
-    for key in np.unique(ids):
-        sel = surf[ids == key]
-        p0, s0 = part[sel[0]], side[sel[0]]
-        _interact_material(mats[p0][s0], s0 == 1, d[sel], nf[sel], u[sel], out, sel)
+    idx = sides.material_index[part[surf], side[surf]]
+    for key in np.unique(idx):  # one call per material and side (a dielectric's back differs)
+        for back in (0, 1):
+            sel = surf[(idx == key) & (side[surf] == back)]
+            if len(sel):
+                _interact_material(sides.models[key], back == 1, d[sel], nf[sel], u[sel], out, sel)
     return out
 
 
