@@ -178,18 +178,38 @@ FORK_SERVER_PRELOAD = fork_server.PRELOAD
 
 
 def run_security():
-    """A dask ``Security`` made for one local cluster: a fresh self-signed certificate and RSA key
-    (``distributed.Security.temporary``), held in this process's memory only (no file), given to the
-    scheduler, the worker processes (through the nanny's pipe) and this process's clients.
-    ``require_encryption``: every connection is TLS and must present that certificate, so nothing
-    without the key talks to the scheduler."""
+    """A dask ``Security`` made for one local cluster: a fresh self-signed certificate and key, held in
+    this process's memory only (no file), given to the scheduler, the worker processes (through the
+    nanny's pipe) and this process's clients, as ``distributed.Security.temporary`` does, but with an
+    ECDSA P-256 key instead of RSA-2048 (made in ~1 ms instead of 0.1-0.4 s, and every TLS handshake
+    between the cluster's processes signs faster). ``require_encryption``: every connection is TLS
+    and must present that certificate, so nothing without the key talks to the scheduler."""
+    import datetime
+
     from distributed.security import Security
 
     try:
-        return Security.temporary()
+        from cryptography import x509
+        from cryptography.hazmat.primitives import hashes, serialization
+        from cryptography.hazmat.primitives.asymmetric import ec
+        from cryptography.x509.oid import NameOID
     except ImportError:
         raise RuntimeError("a local cluster of worker processes needs the 'cryptography' package for its "
                            "per-run TLS key: pip install cryptography (or use --workers K without --processes)") from None
+    key = ec.generate_private_key(ec.SECP256R1())
+    key_pem = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                serialization.NoEncryption()).decode()
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "dask-internal")])  # the name dask's TLS expects
+    now = datetime.datetime.now(tz=datetime.timezone.utc)
+    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
+            .add_extension(x509.SubjectAlternativeName([x509.DNSName("dask-internal")]), critical=False)
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=30))
+            .sign(key, hashes.SHA256()))
+    cert_pem = cert.public_bytes(serialization.Encoding.PEM).decode()
+    return Security(require_encryption=True, tls_ca_file=cert_pem, tls_client_key=key_pem, tls_client_cert=cert_pem,
+                    tls_scheduler_key=key_pem, tls_scheduler_cert=cert_pem, tls_worker_key=key_pem,
+                    tls_worker_cert=cert_pem)
 
 
 INSECURE_ENV = "STRAYLIGHT_ALLOW_INSECURE_SCHEDULER"
