@@ -40,6 +40,13 @@ class ExactBoundaryIntersector:
         self._r2 = np.array([[d.inner_radius_mm ** 2, d.outer_radius_mm ** 2] for d in self._disks]).reshape(-1, 2)
         self._eps = float(eps_mm)
 
+    def __getattr__(self, name):
+        """Anything else is the inner intersector's (e.g. embree's ``_scene``, whose first use waits for the
+        BVH build: straylight.distribute warms workers up with it)."""
+        if name == "inner":  # not yet set (unpickling): no recursion
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
     def _refused(self, tri, origins, dirs):
         """(bool per ray: its hit is on a plane part outside the exact boundary, hit distances)."""
         tri = np.asarray(tri, dtype=np.int64)

@@ -174,3 +174,17 @@ def test_a_plane_with_its_own_cad_mesh_is_still_the_exact_disk():
                           radius_mm=5.0, power_w=1.0)
     res = trace(Scene((det,)), [beam], 20_000, seed=2)
     assert res.detectors["det"].power_w == pytest.approx(1.0, abs=1e-12)
+
+
+def test_the_exact_boundary_wrapper_passes_other_attributes_to_its_intersector():
+    """straylight.distribute warms a worker up with ``compiled_scene(spec).isect._scene`` (embree's BVH)."""
+    from straylight.engine.compiled_scene import CompiledScene
+    from straylight.engine.spec import make_spec
+    from straylight.intersect.exact_boundary import ExactBoundaryIntersector
+
+    det = analytic_part("det", Plane(np.zeros(3), UP, math.inf, 0.0, 5.0, 0.0), None, "detector")
+    beam = CollimatedDisk(center_mm=[0.0, 0.0, 5.0], normal=[0.0, 0.0, -1.0], direction=[0.0, 0.0, -1.0],
+                          radius_mm=5.0, power_w=1.0)
+    comp = CompiledScene(make_spec(Scene((det,)), [beam], 10, seed=1))
+    assert isinstance(comp.isect, ExactBoundaryIntersector)
+    assert comp.isect._scene is comp.isect.inner._scene
