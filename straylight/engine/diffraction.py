@@ -143,7 +143,8 @@ def divert(diff: Diffraction, scene, rays: RayBatch, tri, skip, U, sample_col: i
     tmax = hit_distance(scene, rays, tri)
     tri = np.asarray(tri, dtype=np.int64)
     hit_part = np.where(tri >= 0, scene.arrays.triangle_part[np.maximum(tri, 0)], -1).astype(np.int64)
-    edge, t, db, da, b = passages(diff.edges, rays.origin_mm, rays.direction, tmax, skip, hit_part)
+    near = segment_candidates(diff, scene, rays.origin_mm, rays.direction, tmax)
+    edge, t, db, da, b = passages(diff.edges, rays.origin_mm, rays.direction, tmax, skip, hit_part, near)
     bent = np.flatnonzero(edge >= 0)
     if len(bent) == 0:
         return None
@@ -176,14 +177,36 @@ def truncate(diff_rays: RayBatch, tallies, rows) -> None:
     tallies.add(rows.truncated + diff_rays.last_part, diff_rays.ray, diff_rays.weight_w)
 
 
-def blocked_by_edges(diff: Diffraction | None, origin, direction, tmax, skip=None) -> np.ndarray:
+def blocked_by_edges(diff: Diffraction | None, origin, direction, tmax, skip=None, scene=None) -> np.ndarray:
     """Shadow rays that pass a diffracting edge before ``tmax`` (next-event estimation treats them
-    as blocked: the walk would have bent them); ``skip``: (n, 3) edge ids each may pass."""
+    as blocked: the walk would have bent them); ``skip``: (n, 3) edge ids each may pass; ``scene``:
+    the compiled scene (its thread's band prisms pre-select the rays), or None (every ray searched)."""
     n = len(origin)
     if diff is None or n == 0:
         return np.zeros(n, dtype=bool)
-    edge = passages(diff.edges, origin, direction, np.asarray(tmax, dtype=np.float64), skip)[0]
+    tmax = np.asarray(tmax, dtype=np.float64)
+    near = segment_candidates(diff, scene, origin, direction, tmax) if scene is not None else None
+    edge = passages(diff.edges, origin, direction, tmax, skip, near=near)[0]
     return edge >= 0
+
+
+def segment_candidates(diff: Diffraction, scene, origin, direction, tmax) -> np.ndarray:
+    """Rays that may pass a mesh edge before ``tmax``: one embree occlusion query against the edges'
+    band prisms (straylight.engine.edge_index.band_prisms), built once per thread and edge set."""
+    n = len(origin)
+    if len(diff.edges.seg_a) == 0:
+        return np.zeros(n, dtype=bool)
+    import hashlib
+
+    from straylight.engine.edge_index import band_prisms
+    from straylight.intersect.embree import EmbreeIntersector
+
+    h = hashlib.sha1(diff.edges.seg_a.tobytes())
+    h.update(diff.edges.seg_b.tobytes())
+    h.update(repr(diff.edges.band_mm).encode())
+    prisms = scene.thread_local(f"diffraction_prisms_{h.hexdigest()}",
+                                lambda: EmbreeIntersector(band_prisms(diff.edges)))
+    return np.asarray(prisms.occluded(origin, direction, np.minimum(tmax, 1e30)), dtype=bool)
 
 
 class BentVertices(NamedTuple):
@@ -256,7 +279,7 @@ def next_event(diff: Diffraction, scene, bent: RayBatch, skip, vertex: BentVerti
                 * power_heuristic_rows(p_nee, p_hurb[go])
             tmax = dist[go] - settings.eps_mm
             blocked = np.asarray(scene.isect.occluded(x[go], omega[go], tmax), dtype=bool)
-            blocked |= blocked_by_edges(diff, x[go], omega[go], tmax, skip[live[go]])
+            blocked |= blocked_by_edges(diff, x[go], omega[go], tmax, skip[live[go]], scene)
             cast += len(go)
             ok = np.flatnonzero(~blocked & (c > 0))
             if len(ok) == 0:

@@ -225,12 +225,12 @@ def _segment(o, d, tmax, s, a, b, into, band, out_m):
 
 
 @njit(cache=True, nogil=True)
-def first_passage(origin, direction, tmax, hit_part, skip, band, seg_a, seg_b, seg_into, seg_rc, node_lo, node_hi,
+def first_passage(origin, direction, tmax, hit_part, skip, near, band, seg_a, seg_b, seg_into, seg_rc, node_lo, node_hi,
                   node_child, node_range, order, rim_center, rim_axis, rim_radius, rim_inside, rim_part):
     """Per ray: (edge id or -1, distance along the ray, delta_b, delta_a, b (n, 3)); see the module
     docstring. ``tmax``: the ray's hit distance (inf for a miss); ``hit_part``: the part it hits (-1
     none): a rim's own part does not block the rim's crossing (its mesh only approximates the hole);
-    ``skip`` (n, 3): ids to ignore."""
+    ``skip`` (n, 3): ids to ignore; ``near`` (n,): the ray may pass a segment (else only rims are tested)."""
     n = origin.shape[0]
     ne = seg_a.shape[0]
     edge = np.full(n, -1, np.int64)
@@ -247,7 +247,7 @@ def first_passage(origin, direction, tmax, hit_part, skip, band, seg_a, seg_b, s
         best = tmax[i]
         for k in range(3):
             inv[k] = 1.0 / d[k] if d[k] != 0.0 else np.inf
-        if ne > 0:
+        if ne > 0 and near[i]:
             stack[0] = 0
             top = 1
             while top > 0:
@@ -321,16 +321,43 @@ def first_passage(origin, direction, tmax, hit_part, skip, band, seg_a, seg_b, s
     return edge, t_out, db, da, bvec
 
 
-def passages(table: EdgeTable, origin, direction, tmax, skip=None, hit_part=None):
-    """:func:`first_passage` on the table's arrays."""
+def passages(table: EdgeTable, origin, direction, tmax, skip=None, hit_part=None, near=None):
+    """:func:`first_passage` on the table's arrays (``near``: see :func:`band_prisms`; None: every ray)."""
     n = len(origin)
+    if near is None:
+        near = np.ones(n, dtype=np.bool_)
     if skip is None:
         skip = np.full((n, 3), -1, dtype=np.int64)
     if hit_part is None:
         hit_part = np.full(n, -1, dtype=np.int64)
     return first_passage(np.ascontiguousarray(origin, dtype=np.float64), np.ascontiguousarray(direction, dtype=np.float64),
                          np.ascontiguousarray(tmax, dtype=np.float64), np.ascontiguousarray(hit_part, dtype=np.int64),
-                         np.ascontiguousarray(skip, dtype=np.int64),
+                         np.ascontiguousarray(skip, dtype=np.int64), np.ascontiguousarray(near, dtype=np.bool_),
                          float(table.band_mm), table.seg_a, table.seg_b, table.seg_into, table.seg_rc, table.node_lo,
                          table.node_hi, table.node_child, table.node_range, table.order, table.rim_center,
                          table.rim_axis, table.rim_radius, table.rim_inside, table.rim_part)
+
+
+def band_prisms(table: EdgeTable, margin: float = 1.5) -> np.ndarray:
+    """(8 E, 3, 3) triangles: around each segment a closed triangular prism whose inscribed radius is
+    ``margin`` x the band, extended by the band past both ends. A ray that passes a segment closer
+    than the band crosses its prism's surface (or starts inside it), so one embree occlusion query
+    against these prisms finds the few rays that need :func:`first_passage`'s segment search."""
+    a, b = table.seg_a, table.seg_b
+    if len(a) == 0:
+        return np.zeros((0, 3, 3))
+    r = float(table.band_mm)
+    e = b - a
+    e /= np.linalg.norm(e, axis=1, keepdims=True)
+    helper = np.where(np.abs(e[:, :1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+    u = np.cross(e, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(e, u)
+    circ = 2.0 * margin * r  # circumradius of an equilateral triangle of inradius margin * r
+    ang = np.radians([90.0, 210.0, 330.0])
+    lo = a - r * e
+    hi = b + r * e
+    ring = [circ * (np.cos(t) * u + np.sin(t) * v) for t in ang]
+    p = [lo + q for q in ring] + [hi + q for q in ring]  # p0..p2 bottom, p3..p5 top
+    faces = [(0, 1, 2), (3, 5, 4), (0, 3, 1), (1, 3, 4), (1, 4, 2), (2, 4, 5), (2, 5, 0), (0, 5, 3)]
+    return np.stack([np.stack([p[i], p[j], p[k]], axis=1) for i, j, k in faces], axis=1).reshape(-1, 3, 3)

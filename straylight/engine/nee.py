@@ -319,7 +319,7 @@ def _estimate(event, verts, frame, w_vertex, evaluate):
     blocked = np.asarray(event.scene.isect.occluded(shadow.origin_mm, shadow.direction, shadow.tmax_mm), dtype=bool)
     if event.spec.diffraction is not None:  # the walk bends every ray that passes a diffracting edge
         blocked = blocked | blocked_by_edges(event.spec.diffraction, shadow.origin_mm, shadow.direction,
-                                             shadow.tmax_mm)
+                                             shadow.tmax_mm, scene=event.scene)
     event.shadow_rays += len(shadow.pair)
     event.tallies.reserve(NEE_WRITES_PER_SHADOW_RAY * len(shadow.pair))
     ok = kern.nee_tally(shadow, blocked, pairs, verts, event.rays, hit, settings.nee_samples,
