@@ -46,6 +46,9 @@ FLAGS = {
 }
 
 
+UNTRUSTED_FLAGS = {"unreliable_error", "target_not_reached"}  # marked on the plot and in the study's table
+
+
 def point_flags(row: dict) -> str:
     """The ``FLAGS`` that apply to one point (a ``PstResult.rows()`` entry), joined by ';' ('' when none)."""
     out = []
@@ -221,6 +224,7 @@ class PstResult(TableRepr):
         own = ax is None
         if own:
             fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
+        doubtful = np.array([bool(set(r[FLAG_COLUMN].split(";")) & UNTRUSTED_FLAGS) for r in self.flagged_rows()])
         for phi in np.unique(self.azimuth_deg):
             sel = self.azimuth_deg == phi
             x, yy, ee = self.off_axis_deg[sel], y[sel], e[sel]
@@ -228,6 +232,10 @@ class PstResult(TableRepr):
             label = label_prefix + (f"azimuth {phi:g} deg" if len(np.unique(self.azimuth_deg)) > 1 else "")
             line = ax.errorbar(x[pos], yy[pos], yerr=np.minimum(ee[pos], 0.999 * yy[pos]), fmt="o-", ms=4,
                                capsize=3, label=label or None)
+            bad = pos & doubtful[sel]
+            if np.any(bad):  # the error bar itself cannot be trusted there: say so on the plot
+                ax.plot(x[bad], yy[bad], "s", mfc="none", mec="red", mew=1.5, ms=11,
+                        label=(label + ": " if label else "") + "error bar NOT reliable (VOV > 0.1 or cap reached)")
             zero = ~pos & np.isfinite(yy)
             if np.any(zero):
                 # y in axes units (0 = bottom edge) for x in data units

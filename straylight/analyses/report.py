@@ -208,7 +208,10 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
     done.append("geometry")
 
     with (dask_client(cfg.workers, cfg.scheduler) if given is None else nullcontext(given)) as client:
-        _step(f"PST sweep, {len(cfg.angles_deg)} angles x {cfg.rays} rays", cfg.progress)
+        each = (f"{cfg.rays} rays" if cfg.precision is None else
+                f"to {cfg.precision.target_rel_error:.0%} rel. error"
+                + (f" (at most {cfg.precision.max_seconds:g} s)" if cfg.precision.max_seconds < float("inf") else ""))
+        _step(f"PST sweep, {len(cfg.angles_deg)} angles, each {each}", cfg.progress)
         t0 = time.perf_counter()
         pst = pst_sweep(setup, np.radians(cfg.angles_deg), n_rays=cfg.rays, seed=point_seed(cfg.seed, 1),
                         precision=cfg.precision, client=client, progress=cfg.progress,
@@ -419,22 +422,54 @@ def _pst_plot(pst, setup, path, material: str = ""):
     plt.close(fig)
 
 
+def _reliability_word(row) -> str:
+    """'yes', or 'NO: ...' naming why the error bar of a PST point cannot be trusted."""
+    flags = set(row.get("flags", "").split(";")) - {""}
+    why = []
+    if "unreliable_error" in flags:
+        why.append(f"VOV {row['vov']:.2g} > 0.1")
+    if "target_not_reached" in flags:
+        why.append(f"stopped by {row.get('stop_reason')} before the target")
+    if "zero" in flags:
+        why.append("nothing detected")
+    return "NO: " + ", ".join(why) if why else "yes"
+
+
+def _pst_reliability_note(pst) -> str:
+    """A warning line when some PST error bars are not reliable ('' when all are)."""
+    bad = [f"{r['off_axis_deg']:g}" for r in pst.flagged_rows() if _reliability_word(r) != "yes"]
+    if not bad:
+        return ""
+    return (f"**Warning: the error bars at {', '.join(bad)} deg are not reliable** (rare heavy paths: VOV > 0.1, "
+            "or a cap stopped the point before its target). Trace those angles longer "
+            "(`straylight pst --target-rel-error E --max-seconds S`) before quoting them.")
+
+
+def _html_warning(note: str) -> str:
+    """The reliability note as an HTML paragraph (markdown bold and code turned into tags)."""
+    if not note:
+        return ""
+    text = html.escape(note)
+    text = text.replace("**", "<strong>", 1).replace("**", "</strong>", 1).replace("`", "<code>", 1).replace("`", "</code>", 1)
+    return f'<p class="warning" style="color:#a00">{text}</p>\n'
+
+
 def _pst_table_rows(pst, direct):
     rows = []
-    for i, (a, row) in enumerate(zip(pst.off_axis_deg, pst.rows())):
+    for i, (a, row) in enumerate(zip(pst.off_axis_deg, pst.flagged_rows())):
         rel = pst.pst_stderr[i] / pst.pst[i] if pst.pst[i] > 0 else math.nan
         d = direct[i] if i < len(direct) else math.nan
         vov = row.get("vov")
         rows.append((f"{a:g}", f"{pst.pst[i]:.3e}", f"{pst.pst_stderr[i]:.2e}", f"{rel:.1%}" if rel == rel else "-",
                      f"{vov:.2g}" if vov is not None and vov == vov else "-",
                      f"{pst.entrance_ratio[i]:.3e}", f"{d:.3e}" if np.isfinite(d) else "-", f"{row['rays']:.3g}",
-                     row.get("stop_reason", "rays given"), f"{pst.seconds[i]:.1f}"))
+                     row.get("stop_reason", "rays given"), f"{pst.seconds[i]:.1f}", _reliability_word(row)))
     return rows
 
 
 PST_HEADER = ("off-axis (deg)", "PST", "1 sigma", "rel. error", "VOV (error of the error)",
               "detector / entrance power", "unscattered (geometric) detector / entrance power", "rays",
-              "stopped by", "time (s)")
+              "stopped by", "time (s)", "error bar reliable?")
 
 
 def _md_table(header, rows) -> str:
@@ -482,7 +517,8 @@ def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Pat
     cfg = result.config
     lines = [f"# {_title(result)}", "", result.summary["description"], "", "## Findings", ""]
     lines += [f"- {f}" for f in _findings(pst, report, crit, sweep, _builtin(result))]
-    lines += ["", "## Point source transmittance", "", "![PST](pst.png)", "",
+    note = _pst_reliability_note(pst)
+    lines += ["", "## Point source transmittance", "", "![PST](pst.png)", "", *([note, ""] if note else []),
               _md_table(PST_HEADER, _pst_table_rows(pst, direct)), "",
               "## Stray-light paths", "", "![paths](paths.png)", "", report.markdown(15), "",
               "## Critical and illuminated objects", "", "![critical](critical.png)", "", crit.markdown(), "",
@@ -555,7 +591,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 <ul>{''.join(f'<li>{html.escape(f)}</li>' for f in _findings(pst, report, crit, sweep, _builtin(result)))}</ul>
 <h2>Point source transmittance</h2>
 {img('pst.png', 'PST vs off-axis angle, with the unscattered (geometric) transmission')}
-{_html_table(PST_HEADER, _pst_table_rows(pst, direct))}{csv('pst')}
+{_html_warning(_pst_reliability_note(pst))}{_html_table(PST_HEADER, _pst_table_rows(pst, direct))}{csv('pst')}
 <p>Entrance-normalised ratio: <a href="entrance_ratio.png">entrance_ratio.png</a>; numbers in
 <a href="pst.csv">pst.csv</a>.</p>
 <h2>Stray-light paths at {crit.off_axis_deg:g} deg</h2>

@@ -169,12 +169,14 @@ def run(args) -> int:
     res.plot(out / "pst.png")
     if setup.entrance is not None:
         res.plot(out / "entrance_ratio.png", quantity="entrance_ratio")
-    for row in res.rows():
+    for row in res.flagged_rows():
         rel = row["pst_stderr"] / row["pst"] if row["pst"] > 0 else math.nan
         stop = f", {row['rays']:.3g} rays, stopped by {row['stop_reason']}" if "stop_reason" in row else ""
         vov = row.get("vov")
         print(f"{row['off_axis_deg']:6.2f} deg  az {row['azimuth_deg']:5.1f}  PST {row['pst']:.4e} "
-              f"+- {row['pst_stderr']:.2e} ({rel:.1%}; VOV {vov if vov is not None else float('nan'):.2g}){stop}")
+              f"+- {row['pst_stderr']:.2e} ({rel:.1%}; VOV {vov if vov is not None else float('nan'):.2g}){stop}"
+              + (f"  [{row['flags'].replace(';', ', ')}: the error bar is not reliable]"
+                 if {"unreliable_error", "target_not_reached"} & set(row["flags"].split(";")) else ""))
     from straylight.checkpoints import PointStore
 
     PointStore.remove_folder(out / "pst.points")  # the sweep's results are written

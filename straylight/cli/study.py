@@ -23,9 +23,10 @@ def add_parser(subparsers):
     p.add_argument("--out", required=True, help="report directory (created)")
     from straylight.cli.pst import add_precision_args
 
-    add_precision_args(p, default_rays=200_000,
-                       what="rays per PST angle; other steps scale from it (with --target-rel-error: the "
-                            "PST points trace to E, the other steps use --rays)", exclusive=False)
+    add_precision_args(p, default_rays=None,
+                       what=f"rays per PST angle (default: each PST point traced to {DEFAULT_TARGET_REL_ERROR:.0%} "
+                            f"with a reliable error, at most {DEFAULT_POINT_SECONDS:g} s per point); the other "
+                            f"steps scale from it (default {DEFAULT_RAYS})", exclusive=False)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (K processes "
                                                                "with --processes; default: in-process)")
@@ -53,6 +54,24 @@ def add_parser(subparsers):
     p.set_defaults(func=run)
 
 
+DEFAULT_RAYS = 200_000
+DEFAULT_TARGET_REL_ERROR = 0.02
+DEFAULT_POINT_SECONDS = 20.0
+
+
+def default_precision(args) -> None:
+    """Neither --rays nor --target-rel-error: the PST points trace to DEFAULT_TARGET_REL_ERROR with a
+    reliable error (VOV <= 0.1) within a time budget of DEFAULT_POINT_SECONDS each (--max-seconds
+    changes it), not a fixed ray count; the other steps use DEFAULT_RAYS. A point the budget stops is
+    flagged in the report, the plot and pst.json (issue 26)."""
+    if args.rays is None and args.target_rel_error is None:
+        args.target_rel_error = DEFAULT_TARGET_REL_ERROR
+        if args.max_seconds is None:
+            args.max_seconds = DEFAULT_POINT_SECONDS
+    if args.rays is None:
+        args.rays = DEFAULT_RAYS
+
+
 def run(args) -> int:
     from straylight.analyses.report import StudyConfig, run_study
     from straylight.cli.pst import precision_from_args
@@ -63,6 +82,7 @@ def run(args) -> int:
         if args.resume:
             raise ValueError("--resume is not available for --builtin cassegrain")
         return _cassegrain(args)
+    default_precision(args)
     precision = precision_from_args(args)
     if args.rays < 100:
         raise ValueError(f"--rays must be at least 100, got {args.rays}")
@@ -112,6 +132,8 @@ def _cassegrain(args) -> int:
     """The telescope study (straylight.analyses.telescope): PST with its contributions, ghosts."""
     from straylight.analyses.telescope import TelescopeStudy, run_telescope_study
 
+    if args.rays is None:
+        args.rays = DEFAULT_RAYS
     if args.rays < 100:
         raise ValueError(f"--rays must be at least 100, got {args.rays}")
     cfg = TelescopeStudy(rays=args.rays, seed=args.seed, workers=args.workers)
