@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,7 +33,7 @@ import atomicio
 from straylight.analyses.tables import TableRepr
 
 ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more", "diffracted")
-GROUP_BY = ("sequence", "first_part", "last_part", "ancestry")
+GROUP_BY = ("sequence", "family", "first_part", "last_part", "ancestry")
 
 
 def ancestry_of(events) -> str:
@@ -75,6 +76,9 @@ class PathRow:
     fraction: float
     fraction_stderr: float
     n_records: int
+    # share of the detector estimate's variance carried by this group: stderr_w^2 / total_stderr_w^2
+    # (the groups' own variances; a ray that contributes to several groups adds covariance terms)
+    variance_fraction: float = math.nan
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,15 +125,16 @@ class PathReport(TableRepr):
         head = (f"Detector `{self.detector}`: total {self.total_w:.4e} +- {self.total_stderr_w:.2e} W "
                 f"({self.n_rays} rays); groups by {self.group_by.replace('_', ' ')}"
                 + (f", ancestry {', '.join(self.ancestry_filter)}" if self.ancestry_filter else "") + "\n\n")
-        lines = ["| rank | path | ancestry | fraction | +- | power (W) | records |",
-                 "|---:|---|---|---:|---:|---:|---:|"]
+        lines = ["| rank | path | ancestry | fraction | +- | share of the variance | power (W) | records |",
+                 "|---:|---|---|---:|---:|---:|---:|---:|"]
         for r in self.rows[:top]:
+            var = f"{r.variance_fraction:.1%}" if r.variance_fraction == r.variance_fraction else "-"
             lines.append(f"| {r.rank} | {r.label} | {r.ancestry} | {r.fraction:.3%} | {r.fraction_stderr:.2%} | "
-                         f"{r.power_w:.3e} | {r.n_records} |")
+                         f"{var} | {r.power_w:.3e} | {r.n_records} |")
         rest = self.rows[top:]
         if rest:
             p = sum(r.power_w for r in rest)
-            lines.append(f"| | {len(rest)} more groups | | {p / self.total_w:.3%} | | {p:.3e} | "
+            lines.append(f"| | {len(rest)} more groups | | {p / self.total_w:.3%} | | | {p:.3e} | "
                          f"{sum(r.n_records for r in rest)} |")
         anc = ["", "| ancestry | fraction | +- |", "|---|---:|---:|"]
         for k, (p, e) in self.ancestry_w.items():
@@ -142,10 +147,10 @@ class PathReport(TableRepr):
         with atomicio.atomic_open(path, "w") as fh:
             writer = csv.writer(fh)
             writer.writerow(["rank", "path", "ancestry", "fraction", "fraction_stderr", "power_w", "stderr_w",
-                             "n_records"])
+                             "n_records", "variance_fraction"])
             for r in self.rows:
                 writer.writerow([r.rank, r.label, r.ancestry, r.fraction, r.fraction_stderr, r.power_w,
-                                 r.stderr_w, r.n_records])
+                                 r.stderr_w, r.n_records, r.variance_fraction])
         return path
 
     def write_json(self, path, top: int | None = None) -> Path:
@@ -183,6 +188,11 @@ class PathReport(TableRepr):
         return ax
 
 
+def _family(part: str) -> str:
+    """A part's family: its name without a trailing ``_<number>`` (``vane_12`` -> ``vane``)."""
+    return re.sub(r"_\d+$", "", part)
+
+
 def _short(label: str, width: int = 70) -> str:
     label = label.removeprefix("source -> ")
     return label if len(label) <= width else label[: width - 3] + "..."
@@ -197,7 +207,8 @@ def path_report(paths, detector: str | None = None, total=None, group_by: str = 
     paths : straylight.paths.PathRecords (``trace(..., options=TraceOptions(record_paths=True))``)
     detector : detector part name (default: the only detector in the records)
     total : Tally of the detector from the same trace (power_w, stderr_w); default: the sum of records
-    group_by : "sequence" (exact parts and events), "first_part", "last_part" or "ancestry"
+    group_by : "sequence" (exact parts and events), "family" (the sequence with numbered parts of one
+        family merged: vane_1 .. vane_33 -> vane), "first_part", "last_part" or "ancestry"
     ancestry : None or a list of ANCESTRY classes to keep (the fractions stay relative to the total)
     """
     if group_by not in GROUP_BY:
@@ -230,6 +241,8 @@ def path_report(paths, detector: str | None = None, total=None, group_by: str = 
                 return ("(direct)", "direct")
             part = events[0][0] if group_by == "first_part" else events[-1][0]
             return (f"{group_by.split('_')[0]}: {part}", "mixed")
+        if group_by == "family":  # vane_1 .. vane_33 -> vane: where a repeated part's light comes from
+            events = tuple((_family(part), kind) for part, kind in events)
         return (sequence_label(events, det, truncated(events)), anc)
 
     def kept_key(events, det):
@@ -246,11 +259,16 @@ def path_report(paths, detector: str | None = None, total=None, group_by: str = 
         if g.key is not None:
             ancestry_w[g.key] = (g.power_w, g.stderr_w)
     rows = [(g.key[0], g.key[1], g) for g in groups]
+    var_tot = tot_se * tot_se
+    if not var_tot > 0 and len(paths):  # no trace total given: the variance of all this detector's records
+        whole = [g for g in paths.group(by=lambda ev, det: det if det == detector else None) if g.key is not None]
+        var_tot = whole[0].stderr_w ** 2 if whole else math.nan
     out = []
     for rank, (label, anc, g) in enumerate(sorted(rows, key=lambda t: -t[2].power_w), start=1):
         frac = g.power_w / tot_w if tot_w > 0 else math.nan
         out.append(PathRow(rank, label, anc, g.power_w, g.stderr_w, frac,
-                           g.stderr_w / tot_w if tot_w > 0 else math.nan, g.n_records))
+                           g.stderr_w / tot_w if tot_w > 0 else math.nan, g.n_records,
+                           g.stderr_w ** 2 / var_tot if var_tot > 0 else math.nan))
     return PathReport(out, tot_w, tot_se, detector, int(paths.n_rays), group_by, keep, ancestry_w, title)
 
 

@@ -36,7 +36,8 @@ class TableRepr:
 
 PST_TABLE = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "rel_error", "vov", "entrance_ratio",
              "entrance_ratio_stderr", "geometric_direct_entrance_ratio", "rays", "stop_reason", "seconds", "flags")
-PATHS_TABLE = ("rank", "path", "ancestry", "fraction", "fraction_stderr", "power_w", "stderr_w", "n_records")
+PATHS_TABLE = ("rank", "path", "ancestry", "fraction", "fraction_stderr", "power_w", "stderr_w", "n_records",
+               "variance_fraction")
 ANCESTRY_TABLE = ("ancestry", "fraction", "fraction_stderr", "power_w", "stderr_w")
 CRITICAL_TABLE = ("rank", "part", "illuminated", "illuminated_stderr", "view_factor", "view_factor_stderr", "score",
                   "score_stderr", "illuminated_any", "seen_any")

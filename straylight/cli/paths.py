@@ -1,11 +1,12 @@
 """``straylight paths``: stray-light paths to the detector, ranked by power fraction.
 
     straylight paths --builtin tube --angle-deg 20 --rays N --seed S --out DIR
-        [--group-by sequence|first_part|last_part|ancestry] [--ancestry scattered_once ...] [--top 20] [--ghosts]
+        [--group-by sequence|family|first_part|last_part|ancestry] [--ancestry scattered_once ...] [--top 20] [--ghosts]
         [--view3d]
 
 Writes DIR/paths.md (table), paths.csv (every group), paths.json, paths.png (bar plot); with --view3d
-also DIR/view3d.html (the interactive 3-D view, docs/notebook.md).
+also DIR/view3d.html (the interactive 3-D view, docs/notebook.md). Each group has its share of the
+power and its share of the estimate's variance (which paths make the error bar: issue 26).
 """
 from __future__ import annotations
 
