@@ -76,7 +76,7 @@ def run(args) -> int:
         vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     # progress: a bar on a terminal, a plain line every few seconds in a log (straylight.progress)
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
-                           progress=True, first_vertex_sampling=vertex, vertex_lobe_sampling=vertex,
+                           progress=True, first_vertex_sampling=vertex,
                            scatter_polarization=args.scatter_polarization,
                            diffraction="scene" if args.diffraction == "on" else "off")
     from straylight.cli.cluster_args import cluster_client
