@@ -156,6 +156,7 @@ class PstResult(TableRepr):
     point_rays: np.ndarray | None = None  # (n,) rays traced per point (differs with a precision target)
     diagnostics: list | None = None  # per point: reliability of the error estimate, stop reason, rounds
     precision: dict | None = None  # the target and caps, when traced to a relative error
+    diffraction: dict | None = None  # edge diffraction on/off, method and wavelength, when a part diffracts
 
     def rows(self) -> list[dict]:
         """One dict per point, keys ``CSV_COLUMNS``."""
@@ -192,7 +193,7 @@ class PstResult(TableRepr):
                 "precision": self.precision,
                 "reliability_note": "rel_error_of_error ~ sqrt(vov) / 2; vov > 0.1 (MCNP's check) or a large "
                                     "max_chunk_share means rare heavy paths: the error bar itself is uncertain",
-                "nee": self.nee, "beam_power_w": self.beam_power_w,
+                "nee": self.nee, "beam_power_w": self.beam_power_w, "diffraction": self.diffraction,
                 "units": {"off_axis_deg": "deg", "azimuth_deg": "deg", "pst": "1", "pst_stderr": "1",
                           "detector_w": "W", "detector_stderr_w": "W", "detector_area_mm2": "mm^2"},
                 "flags": FLAGS, "points": clean}
@@ -258,6 +259,19 @@ class PstResult(TableRepr):
                 atomicio.write_figure(fig, path)
                 plt.close(fig)
         return ax
+
+
+def sweep_diffraction(scene, wavelength_nm, options) -> dict | None:
+    """What pst.json says about edge diffraction (CONTRACTS §6.5): None when no part diffracts."""
+    from straylight.engine.diffraction import METHOD, diffracting_parts
+
+    parts = [scene.parts[i].name for i in diffracting_parts(scene)]
+    if not parts:
+        return None
+    on = options.diffraction != "off"
+    return {"on": on, "method": METHOD if on else None, "parts": parts, "wavelength_nm": wavelength_nm,
+            "hurb_gamma": float(options.hurb_gamma) if on else None,
+            "band_wavelengths": float(options.diffraction_band_wavelengths) if on else None}
 
 
 def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, seed: int = 0, nee: bool = True,
@@ -354,6 +368,7 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
         detector_w=out["p"], detector_stderr_w=out["p_se"], seconds=out["sec"], rays=int(n_rays), seed=int(seed),
         nee=bool(nee), detector=det, detector_area_mm2=area, beam_power_w=float(setup.beam.power_w),
         description=setup.description, traces=traces, detector_area_rule=sens.rule, point_rays=point_rays,
+        diffraction=sweep_diffraction(setup.scene, getattr(setup.beam, "wavelength_nm", None), opts),
         diagnostics=diagnostics, precision=None if precision is None else {
             "target_rel_error": precision.target_rel_error, "max_rays": int(precision.max_rays),
             "max_seconds": None if not math.isfinite(precision.max_seconds) else float(precision.max_seconds),

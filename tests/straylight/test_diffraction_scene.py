@@ -194,3 +194,22 @@ def test_band_prisms_find_every_ray_that_passes_a_segment():
     near = EmbreeIntersector(band_prisms(table)).occluded(o, d, tmax)
     assert (full >= 0).sum() > 1000  # many rays do pass an edge
     np.testing.assert_array_equal(passages(table, o, d, tmax, near=near)[0], full)
+
+
+def test_pst_command_with_and_without_diffraction(tmp_path):
+    """`straylight pst --diffraction on|off` (and --wavelength-nm): pst.json says which, and the light
+    bent onto the off-axis spot is there only with diffraction on."""
+    path = tmp_path / "off.toml"
+    path.write_text(OFF_AXIS_SCENE)
+    docs = {}
+    for flag in ("on", "off"):
+        out = tmp_path / flag
+        run = subprocess.run([sys.executable, "-m", "straylight.cli.main", "pst", str(path), "--angles-deg", "0",
+                              "--rays", "3000", "--seed", "1", "--diffraction", flag, "--wavelength-nm", "20000",
+                              "--out", str(out)], capture_output=True, text=True, check=False)
+        assert run.returncode == 0, run.stderr
+        docs[flag] = json.loads((out / "pst.json").read_text())
+    on, off = docs["on"]["diffraction"], docs["off"]["diffraction"]
+    assert on["on"] and "HURB" in on["method"] and on["wavelength_nm"] == 20000.0 and on["parts"] == ["stop"]
+    assert off["on"] is False
+    assert docs["on"]["points"][0]["pst"] > 0 and docs["off"]["points"][0]["pst"] == 0
