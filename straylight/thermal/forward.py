@@ -1,8 +1,9 @@
 """Forward thermal estimator: emission from every part at a temperature, with next-event
 estimation (NEE) toward the detector at every vertex.
 
-A ray picks its emitting part j with probability Phi_j / Phi (Phi_j = pi B_band(T_j) A_j eps_h,j,
-the part's emitted band power), a uniform point of its front and a direction with density
+A ray picks an emitting side (every part's front; also the back of a one-sided part) with
+probability Phi_j / Phi (Phi_j = pi B_band(T_j) A_j eps_h,j, that side's emitted band power), a
+uniform point of it and a direction with density
 eps(theta) cos(theta) / (pi eps_h) (exact, by rejection: straylight.thermal.walk), so every ray
 carries Phi. NEE joins each vertex to a uniform point y of the detector's front (area A_d)::
 
@@ -50,29 +51,36 @@ class ForwardEstimator:
         ts = self.ts
         P = ts.n_parts
         rng = chunk_rng(seed, stream + (1 << 20), chunk)
-        eps_h = np.array([sides.hemispherical(p, 0) for p in range(P)])
-        phi = np.array([np.pi * radiance[p] * ts.part_area_mm2(p) * 1e-6 * eps_h[p] for p in range(P)])
+        # emitting sides: every part's front, and the back of a one-sided part (model.ThermalScene.one_sided)
+        src = [(p, 0) for p in range(P)] + [(p, 1) for p in range(P) if ts.one_sided[p]]
+        eps_h = np.array([sides.hemispherical(p, side) for p, side in src])
+        phi = np.array([np.pi * radiance[p] * ts.part_area_mm2(p) * 1e-6 * e for (p, _), e in zip(src, eps_h)])
         total = float(phi.sum())
         x = np.zeros(n)
         if total <= 0:
             return np.zeros(P), np.zeros(P), 0.0, 0.0
-        emitter = np.minimum(np.searchsorted(np.cumsum(phi) / total, rng.random(n), side="right"), P - 1)
+        which = np.minimum(np.searchsorted(np.cumsum(phi) / total, rng.random(n), side="right"), len(src) - 1)
+        emitter = np.array([p for p, _ in src])[which]
+        side = np.array([q for _, q in src])[which]
         o = np.zeros((n, 3))
         nrm = np.zeros((n, 3))
         d = np.zeros((n, 3))
         u3 = rng.random((n, 3))
-        for p in np.unique(emitter):
-            sel = emitter == p
+        for i in np.unique(which):
+            p, q = src[i]
+            sel = which == i
             o[sel], nrm[sel] = self._sampler(p).sample(u3[sel])
-            d[sel] = emission_directions(sides.eps[p, 0], nrm[sel], rng)
+            if q == 1:
+                nrm[sel] = -nrm[sel]
+            d[sel] = emission_directions(sides.eps[p, q], nrm[sel], rng)
         w = np.full(n, total)
         ray = np.arange(n)
         # NEE from the emission points
         cos_x, cos_d, r2, ok, _ = self._connect(o, nrm, rng.random((n, 3)))
         th = np.arccos(np.clip(cos_x, 0.0, 1.0))
-        e = sides.emissivity(emitter, np.zeros(n, np.int64), th)
+        e = sides.emissivity(emitter, side, th)
         with np.errstate(divide="ignore", invalid="ignore"):
-            x += np.where(ok, w * e * cos_x * cos_d * self.det_sampler.area_mm2 / (np.pi * eps_h[emitter] * r2), 0.0)
+            x += np.where(ok, w * e * cos_x * cos_d * self.det_sampler.area_mm2 / (np.pi * eps_h[which] * r2), 0.0)
         o = o + ts.eps_mm * nrm
         delta = np.zeros(n, bool)
         terminal = ts.is_role("absorber", "detector")

@@ -61,6 +61,7 @@ class ThermalScene:
     eps_mm: float
     mirror_reflectance: float = 1.0
     planes: dict = field(default_factory=dict)  # part -> (vertex, unit axis, r0, r1): exact analytic disks
+    one_sided: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (P,) analytic or open-sheet parts
     _isect: object = field(default=None, repr=False)
     _sides: dict = field(default_factory=dict, repr=False)
 
@@ -216,7 +217,17 @@ def thermal_scene(scene, materials: dict, mirror_reflectance: float = 1.0) -> Th
                         roles=tuple(p.role for p in scene.parts), temperature_k=temps, materials=dict(materials),
                         triangles_mm=tri, triangle_part=part, normals=normals,
                         plane_d=np.einsum("ij,ij->i", normals, tri[:, 0]), areas_mm2=0.5 * twice,
-                        eps_mm=scene_epsilon(tri), mirror_reflectance=float(mirror_reflectance), planes=planes)
+                        eps_mm=scene_epsilon(tri), mirror_reflectance=float(mirror_reflectance), planes=planes,
+                        one_sided=np.array([_one_sided(p) for p in scene.parts], dtype=bool))
+
+
+def _one_sided(part) -> bool:
+    """A part whose back can be seen: an analytic surface or an open mesh (a closed solid's back is
+    inside it). In the detector-power walks its back absorbs *and* emits, with the back's material
+    (Kirchhoff; without it an isothermal enclosure holding a thin detector would read below pi B)."""
+    if getattr(part, "surface", None) is not None:
+        return True
+    return not bool(part.meta.get("watertight", part.is_watertight))
 
 
 PLANE_SEGMENTS = 256

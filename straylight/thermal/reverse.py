@@ -7,8 +7,9 @@ the reverse path y_1, y_2, ... (each vertex reached with throughput w_k, w_1 = 1
 
     L = sum_k w_k epsilon_{j_k}(theta_k) B_band(T_{j_k})
 
-where theta_k is the angle of the path at y_k on the emitting (front) side of part j_k (Kirchhoff:
-the emitted radiance there is epsilon(theta) B), and w_{k+1} = w_k f cos / pdf from the material's
+where theta_k is the angle of the path at y_k on the side of part j_k it meets (Kirchhoff: the
+emitted radiance there is epsilon(theta) B with that side's epsilon; the front of every part, and
+the back of a one-sided part: model.ThermalScene.one_sided), and w_{k+1} = w_k f cos / pdf from the material's
 own sampling (swapped arguments: exact for reciprocal BRDFs). The pickup is the expected emission,
 not a sampled one, so a black wall's contribution has no variance at all. Absorbers and detectors
 (epsilon = 1) end the path; a path that comes back to the detector picks up the detector's own
@@ -56,9 +57,10 @@ def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, see
         alive = hit.tri >= 0
         part = hit.part
         front = alive & hit.front
-        take = front & emits[np.where(alive, part, 0)]
+        safe = np.where(alive, part, 0)
+        take = alive & emits[safe] & (front | ts.one_sided[safe])
         if take.any():
-            e = sides.emissivity(part[take], np.zeros(take.sum(), np.int64), hit.theta[take])
+            e = sides.emissivity(part[take], np.where(front[take], 0, 1), hit.theta[take])
             np.add.at(pick, part[take] * n + ray[take], w[take] * e)
         cont = np.flatnonzero(alive & ~terminal[np.where(alive, part, 0)])
         if len(cont) == 0:

@@ -23,7 +23,7 @@ from materials.smooth import reflect, refract
 CHUNK_RAYS = 4096
 EVENT_COLUMNS = 8
 ROULETTE_W = 1e-2  # relative to the start weight: survive with probability w / ROULETTE_W
-MAX_EVENTS = 200
+MAX_EVENTS = 100_000  # a bound, not a truncation: roulette ends the paths long before (mirror boxes need thousands)
 
 
 def chunk_rng(seed: int, stream: int, chunk: int) -> np.random.Generator:

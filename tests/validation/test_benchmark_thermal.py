@@ -50,6 +50,22 @@ def test_isothermal_enclosure_irradiance_is_pi_b(tmp_path, method, det_r):
     assert len(res.sub_bands) == 5  # the glossy lobe depends on wavelength
 
 
+def test_isothermal_mirror_box_with_a_floating_detector(tmp_path):
+    """Five mirror walls (r = 0.9) and one glossy, all at 300 K, a one-sided detector disk (r = 10 mm)
+    floating mid-box: light reaches its back too, which absorbs and therefore emits (Kirchhoff on
+    every side that can be seen). E = pi B_band(T); without the back's emission it reads 1.5 % low
+    (13 sigma at these rays)."""
+    meshes = write_box(tmp_path)
+    mats = {"floor": "mirror", "ceiling": "mirror", "wx0": "glossy", "wx1": "mirror", "wy0": "mirror", "wy1": "mirror"}
+    text = "".join(part(n, mats[n], 300.0, mesh=m) for n, m in meshes.items())
+    text += part("det", role="detector", temperature_k=300.0, surface=plane((50, 50, 50), (0, 0, 1), 10.0))
+    d = thermal(_ts(write_scene(tmp_path, text)), (8, 12), n_rays=6000, seed=3).detectors["det"]
+    expect = np.pi * band_radiance_w_m2_sr(8, 12, 300.0)
+    err = d.stderr_w / (d.area_mm2 * 1e-6)
+    assert 0 < err < 0.002 * expect
+    assert abs(d.irradiance_w_m2 - expect) <= 3 * err + 1e-3 * expect
+
+
 @pytest.mark.parametrize("method", ["reverse", "forward"])
 def test_narcissus_in_a_flat_mirror_is_the_view_factor_to_its_image(tmp_path, method):
     """A warm detector disk (r = 10 mm, 300 K) under a flat mirror (r = 0.9, 0 K) at h = 20 mm:
