@@ -27,6 +27,10 @@ from rig.plans import PlanSpec, ScanFault, StopReason, brdf_scan, device_error
 from rig.writer import ScanFiles
 
 DEFAULT_GAIN_V_PER_W = 1000.0
+# settings a resumed scan must share with the run that began the file (its start document): they
+# decide the numbers of the points still to measure
+RESUME_KEYS = ("sample", "plan_name", "backend", "seed", "ideal", "sim_effects", "hardware_config", "wavelength_nm",
+               "gain_v_per_w")
 
 
 class ScanFailed(RuntimeError):
@@ -80,6 +84,8 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     # another --seed would mix two noise streams under the first run's header)
     try:
         files.check_resume(**{k: full_md[k] for k in ("sample", "plan_name", "backend", "seed") if k in full_md})
+        if resume and done:
+            files.check_resume_log(full_md, RESUME_KEYS)
     except Exception:
         files.log.close()
         raise

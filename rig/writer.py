@@ -252,6 +252,24 @@ class ScanFiles:
     def check_resume(self, **expected) -> None:
         self.csv.check_resume(**expected)
 
+    def check_resume_log(self, md: dict, keys) -> None:
+        """ResumeError if the last run in the document log that measured into this file was started
+        with other ``keys`` than ``md`` (e.g. another --seed, --ideal or --effect list): a resumed
+        scan must continue the same measurement (keys absent from either side are not compared)."""
+        if not self.log_path.is_file():
+            return
+        try:
+            starts = [doc for name, doc in read_log(self.log_path) if name == "start"]
+        except (ValueError, KeyError, TypeError) as exc:
+            raise ResumeError(f"{self.log_path}: damaged document log ({type(exc).__name__}: {exc})") from None
+        if not starts:
+            return
+        first = starts[-1]
+        for key in keys:
+            if key in first and key in md and json.dumps(first[key], sort_keys=True) != json.dumps(md[key], sort_keys=True):
+                raise ResumeError(f"{self.csv_path}: cannot resume: it was measured with {key} {first[key]!r}, "
+                                  f"this scan has {md[key]!r} (log {self.log_path.name})")
+
     def callbacks(self) -> list:
         return [self.log, self.csv, *self.after]
 

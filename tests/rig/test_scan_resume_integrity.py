@@ -65,3 +65,10 @@ def test_killed_scan_resume_refuses_other_seed_and_closes_the_killed_run(tmp_pat
         event_model.schema_validators[event_model.DocumentNames[name]].validate(doc)
     scan = read_scan(out)
     assert len(scan) == len(PLAN["incidence"][0]["theta_r_deg"]) and scan.metadata["seed"] == "2"
+
+    # settings kept only in the log's start document are checked too (the simulated rig without its
+    # slit/beam averaging would continue the file with other numbers)
+    capsys.readouterr()
+    assert main(args + ["--seed", "2", "--resume", "--ideal"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot resume" in err[0] and "ideal" in err[0], err
