@@ -51,3 +51,26 @@ def check_ray_budget(n_rays, n_detectors: int = 1, what: str = "--rays", memory_
                      f"{NOMINAL_RAYS_PER_S_PER_CORE:.0e} rays/s on {cores} cores); trace at most "
                      f"{memory // 2 // chunk_tally_bytes(n_detectors) * CHUNK_RAYS:.3g} rays per run (several runs "
                      f"with other --seed values pool exactly)")
+
+
+WORKER_PROCESS_BYTES = 300 * 2**20  # a worker process with the engine loaded (README: 307-369 MB peak RSS)
+MAX_THREADS_PER_CORE = 32
+
+
+def check_worker_budget(workers, processes: bool = False, what: str = "--workers") -> None:
+    """Refuse a local pool this machine cannot hold: worker processes whose start-up memory alone
+    (:data:`WORKER_PROCESS_BYTES` each) exceeds half the machine's, or more than
+    :data:`MAX_THREADS_PER_CORE` threads per core (``--workers 99999 --processes`` would fork 99999
+    interpreters)."""
+    if workers is None or int(workers) < 1:
+        return
+    n = int(workers)
+    cores = os.cpu_count() or 1
+    memory = physical_memory_bytes()
+    if processes and memory and n * WORKER_PROCESS_BYTES > memory // 2:
+        raise ValueError(f"{what} {n} --processes: about {n * WORKER_PROCESS_BYTES / 2**30:.3g} GB for the worker "
+                         f"processes alone (~{WORKER_PROCESS_BYTES // 2**20} MB each), more than half this machine's "
+                         f"{memory / 2**30:.3g} GB; this machine has {cores} cores")
+    if n > MAX_THREADS_PER_CORE * cores:
+        raise ValueError(f"{what} {n}: more than {MAX_THREADS_PER_CORE} per core on this machine's {cores} cores; "
+                         f"use a cluster (--scheduler) for more")

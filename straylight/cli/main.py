@@ -74,6 +74,13 @@ def _check_requests(args) -> None:
             from straylight.budget import check_ray_budget
 
             check_ray_budget(value, what="--" + flag.replace("_", "-"))
+    for flag in ("workers", "threads"):
+        value = getattr(args, flag, None)
+        if isinstance(value, int) and value > 0 and not getattr(args, "scheduler", None):
+            from straylight.budget import check_worker_budget
+
+            check_worker_budget(value, processes=flag == "workers" and bool(getattr(args, "processes", False)),
+                                what="--" + flag)
     tolerance = getattr(args, "tolerance_mm", None)
     if isinstance(tolerance, float):
         from geometry.limits import check_tolerance_mm

@@ -119,3 +119,12 @@ def test_mesh_budget_estimate_refuses_large_parts():
     huge = cq.Solid.makeBox(10_000.0, 10_000.0, 10_000.0)
     with pytest.raises(ToleranceError, match="more than this machine can mesh"):
         check_mesh_budget([huge], 1e-4, "t")
+
+
+def test_worker_pools_beyond_the_machine_are_refused(tmp_path, capsys):
+    for extra, words in ((["--workers", "100000", "--processes"], "GB for the worker processes"),
+                         (["--threads", "100000"], "more than 32 per core")):
+        assert main(["trace", str(GOLDEN / "tube.toml"), "--rays", "1000", "--json", str(tmp_path / "o.json"),
+                     *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err
