@@ -96,9 +96,11 @@ def add_parser(subparsers):
     add_diffraction_arg(p)
     p.add_argument("--wavelength-nm", type=float, default=None,
                    help="the beam's wavelength (overrides the source's wavelength_nm; used by edge diffraction)")
-    p.add_argument("--estimators", choices=("default", "baseline"), default="default",
+    from straylight.analyses.estimators import ESTIMATOR_SETS
+
+    p.add_argument("--estimators", choices=tuple(ESTIMATOR_SETS), default="default",
                    help="estimator set (straylight.analyses.estimators): 'baseline' is the set before issue 26, "
-                        "for timing before and after")
+                        "'first_lobe' without the second-vertex lobe draw, for timing before and after")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)
     p.add_argument("--entrance-radius-mm", type=float, default=None)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads "

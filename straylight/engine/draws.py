@@ -24,13 +24,17 @@ class EventColumns(NamedTuple):
     target: int  # 4 with target parts: strategy choice and target point
     width: int
     second: int = 0  # 3 + 3 per detector with second-vertex sampling: critical point, detector points
+    second_lobe: int = 0  # 3 more with vertex_lobe_sampling: the lobe draw at the critical point
 
 
-def event_columns(n_detectors: int, nee_samples: int, has_target: bool, second_vertex: bool = False) -> EventColumns:
+def event_columns(n_detectors: int, nee_samples: int, has_target: bool, second_vertex: bool = False,
+                  second_lobe: bool = False) -> EventColumns:
     nee_end = 4 + 3 * int(n_detectors) * int(nee_samples)
     target_end = nee_end + (4 if has_target else 0)
+    second_end = target_end + (3 + 3 * int(n_detectors) if second_vertex else 0)
+    lobe = bool(second_vertex and second_lobe)
     return EventColumns(sample=0, roulette=3, nee=4, target=nee_end, second=target_end,
-                        width=target_end + (3 + 3 * int(n_detectors) if second_vertex else 0))
+                        width=second_end + (3 if lobe else 0), second_lobe=second_end if lobe else 0)
 
 
 class GeneratorDraws:

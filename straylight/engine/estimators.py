@@ -15,7 +15,7 @@ from straylight.engine.interactions.registry import Capability
 
 #: TraceOptions of the analog walk: no NEE, no vertex sampling, no target mixture
 ANALOG = {"nee": False, "first_vertex_sampling": False, "second_vertex_sampling": False, "vertex_lobe_sampling": False,
-          "target_parts": ()}
+          "second_vertex_lobe_sampling": False, "target_parts": ()}
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,9 @@ ESTIMATORS = (
               Capability.FIRST_VERTEX, reference=False),
     Estimator("second_vertex", {"nee": True, "second_vertex_sampling": True}, Capability.SECOND_VERTEX,
               requires=("nee",)),
+    # second-vertex sampling whose critical point also leaves along its lobe's own draw (issue 26)
+    Estimator("second_vertex_lobe", {"nee": True, "second_vertex_sampling": True, "second_vertex_lobe_sampling": True},
+              Capability.SECOND_VERTEX, requires=("nee",)),
     Estimator("target_mis", {"nee": True, "target_fraction": 0.5}, Capability.TARGET_MIS, target=True,
               requires=("nee",), diffraction=True),
 )

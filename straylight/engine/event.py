@@ -57,6 +57,7 @@ class Event:
     uniforms: np.ndarray  # (live rays, columns.width)
     columns: object  # straylight.engine.draws.EventColumns
     first_vertex: object = None  # straylight.engine.first_vertex.FirstVertexWeights or None
+    second_vertex: object = None  # straylight.engine.second_vertex.SecondVertexShares or None
     capabilities: object = None  # straylight.engine.interactions.registry.PartCapabilities of the parts
     shadow_rays: int = 0  # shadow rays cast by the interactions in this event
 

@@ -259,9 +259,47 @@ def walk_weights(event, verts, w_vertex):
     i = verts[s]
     dist = hit.distance_mm[i]
     p_w = rays.last_pdf_per_sr[i] * np.abs(hit.cos_in[i]) / (dist * dist)
+    share = p_w / (p_w + p_c[s])
+    if event.second_vertex is not None:
+        event.second_vertex.keep(event, i, share)
     w = np.ones(len(verts)) if w_vertex is None else w_vertex.copy()
-    w[s] *= p_w / (p_w + p_c[s])
+    w[s] *= share
     return w
+
+
+class SecondVertexShares:
+    """With ``second_vertex_lobe_sampling`` the area strategy also leaves its critical point B along the
+    lobe's own draw (:func:`_lobe_terms`), so the walk's BRDF-sampled hit on a detector straight
+    after such a B keeps only its balance-heuristic share p_W / (p_W + p_C) of B; kept per ray of
+    the batch (with the depth at which that hit would come), the rest goes to the NEE exchange."""
+
+    def __init__(self, n_rays_in_batch):
+        self.share = np.ones(n_rays_in_batch)
+        self.at_depth = np.full(n_rays_in_batch, -1, dtype=np.int64)
+
+    def keep(self, event, rows, share):
+        r = event.rays.ray[rows]
+        self.share[r] = share
+        self.at_depth[r] = event.rays.depth[rows] + 1
+
+    def share_after_vertex(self, event, rec, rec_w):
+        """Walk hits on a detector straight after a shared B keep ``share`` (ledger exact)."""
+        rays = event.rays
+        r_all = rays.ray[rec]
+        after = np.flatnonzero((rays.last_event[rec] == EVENT_SCATTER) & (self.at_depth[r_all] == rays.depth[rec])
+                               & (self.share[r_all] < 1.0))
+        if len(after) == 0:
+            return rec, rec_w
+        i = rec[after]
+        r = rays.ray[i]
+        moved = rec_w[after] * (1.0 - self.share[r])
+        tallies, rows = event.tallies, event.rows
+        tallies.subtract(rows.detector_direct + event.scene.arrays.detector_of_part[event.hits.part[i]], r, moved)
+        tallies.add(rows.nee_exchange + rays.last_part[i], r, moved)
+        rec_w = rec_w.copy()
+        rec_w[after] -= moved
+        keep = rec_w > 0
+        return rec[keep], rec_w[keep]
 
 
 def _brdf_pdf(spec, mat, wi, wo, with_pdf=True):
@@ -377,6 +415,59 @@ def estimate(event, verts, frame):
         tallies.add(rows.detector_nee + j, r, c)
         tallies.subtract(rows.nee_exchange + part_y[g], r, c)
         _record(event, j, i[g], part_y[g], z[g], c)
+    if event.second_vertex is not None:
+        _lobe_terms(event, i, y, nf_y, tb_y, bb_y, wi_y, mat_y, part_y, base)
+
+
+def _lobe_terms(event, i, y, nf_y, tb_y, bb_y, wi_y, mat_y, part_y, base):
+    """The area strategy's second way out of B: the direction drawn from B's own lobe (uniforms
+    ``columns.second_lobe``), kept when its ray reaches a detector first; weighted by the power
+    heuristic against the uniform detector point exactly as the walk weights its own hits after B
+    (power_heuristic(pdf, p_nee)), so the area strategy's weights at B add to one, and the walk's
+    hits after B keep p_W / (p_W + p_C) (:class:`SecondVertexShares`)."""
+    spec, scene = event.spec, event.scene
+    eps = spec.eps
+    col = event.columns.second_lobe
+    u = event.uniforms[i, col:col + 3]
+    wo = np.empty((len(i), 3))
+    weight = np.empty(len(i))
+    pol = spec.options.polarization
+    for rows, smp in by_material(spec.materials, mat_y, lambda model, rows: model.sample(wi_y[rows], u[rows], pol)):
+        wo[rows], weight[rows] = smp.wo, smp.weight
+    ok = np.flatnonzero((wo[:, 2] > 0) & (weight > 0))
+    if len(ok) == 0:
+        return
+    d = wo[ok, :1] * tb_y[ok] + wo[ok, 1:2] * bb_y[ok] + wo[ok, 2:3] * nf_y[ok]
+    d = np.ascontiguousarray(d / np.linalg.norm(d, axis=1)[:, None])
+    origin = np.ascontiguousarray(y[ok] + eps * nf_y[ok])
+    tri, dist = scene.isect.intersect(origin, d)
+    event.shadow_rays += len(ok)
+    tri, dist = np.asarray(tri), np.asarray(dist, dtype=np.float64)
+    hit = tri >= 0
+    det_of_part = scene.arrays.detector_of_part
+    j_all = np.full(len(ok), -1, dtype=np.int64)
+    j_all[hit] = det_of_part[spec.triangle_part[tri[hit]]]
+    cos_in = np.zeros(len(ok))
+    cos_in[hit] = _dot(d[hit], scene.normals[tri[hit]])
+    good = (j_all >= 0) & (np.abs(cos_in) > 0) & (event.settings.both_sides | (cos_in < 0))
+    g = np.flatnonzero(good)
+    if len(g) == 0:
+        return
+    k = ok[g]
+    j = j_all[g]
+    _, pdf_mix = _brdf_pdf(spec, mat_y[k], wi_y[k], wo[k])
+    pdf_mix = _mixture_pdf(event, pdf_mix, y[k], nf_y[k], d[g], part_y[k])
+    area = scene.arrays.detector_area_mm2[j]
+    p_nee = event.settings.nee_samples * dist[g] ** 2 / (area * np.abs(cos_in[g]))
+    c = base[k] * weight[k] * power_heuristic_rows(pdf_mix, p_nee)
+    for jj in np.unique(j):
+        m = np.flatnonzero((j == jj) & (c > 0))
+        if len(m) == 0:
+            continue
+        r = event.rays.ray[i[k[m]]]
+        event.tallies.add(event.rows.detector_nee + int(jj), r, c[m])
+        event.tallies.subtract(event.rows.nee_exchange + part_y[k[m]], r, c[m])
+        _record(event, int(jj), i[k[m]], part_y[k[m]], origin[g[m]] + dist[g[m], None] * d[g[m]], c[m])
 
 
 def _record(event, j, i, part_b, z, c):

@@ -21,6 +21,7 @@ from straylight.engine.interactions import Capability, PartCapabilities, part_ki
 from straylight.engine.kernel_sets import COMPILED, NUMPY
 from straylight.engine.options import TraceError, walk_settings
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
+from straylight.engine.second_vertex import SecondVertexShares
 from straylight.engine.spec import TraceSpec
 from straylight.engine.tallies import DetectorRecords, batch_sums
 from straylight.paths import mix_key
@@ -83,14 +84,16 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         tallies = scene.thread_local("tallies", lambda: kernels.tallies(rows.n_per_ray, n)).reset(rows.n_per_ray, n)
     else:
         tallies = kernels.tallies(rows.n_per_ray, n)
+    second_lobe = spec.critical_table is not None and bool(opt.second_vertex_lobe_sampling)
     columns = event_columns(rows.n_detectors, opt.nee_samples, scene.target is not None,
-                            spec.critical_table is not None)
+                            spec.critical_table is not None, second_lobe)
     ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
     rays = emitted_rays(*emit_batch(spec, draws, n, ubuf), w0, opt.path_depth, settings.record_paths)
     records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.map_bins),
                               settings.record_paths)
     first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
+    second_vertex = SecondVertexShares(n) if second_lobe and rows.n_detectors > 0 else None
     segments = shadow_rays = 0
     max_events = int(opt.max_events)
     diff = spec.diffraction
@@ -117,10 +120,12 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, tallies.kernel_arg))
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
-                      first_vertex=first_vertex, capabilities=capabilities)
+                      first_vertex=first_vertex, second_vertex=second_vertex, capabilities=capabilities)
         rec, rec_w = hit.detected, hit.detected_w
         if len(rec) and first_vertex is not None:
             rec, rec_w = first_vertex.share_single_scatter(event, rec, rec_w)
+        if len(rec) and second_vertex is not None:
+            rec, rec_w = second_vertex.share_after_vertex(event, rec, rec_w)
         if len(rec):
             _record_walk_hits(event, rec, rec_w)
         cont = hit.continuing
