@@ -66,7 +66,7 @@ def check_origin_precision(sources, bounds_mm) -> None:
             rounding = origin_rounding_mm(src)
         except Exception:  # noqa: BLE001 - a source this probe cannot sample is checked where it is traced
             continue
-        if rounding <= PRECISION_WARN_FRACTION * size_mm:
+        if not math.isfinite(rounding) or rounding <= PRECISION_WARN_FRACTION * size_mm:
             continue
         text = (f"source {i} emits up to {rounding / FLOAT32_HALF_ULP:.3g} mm from the origin, where the tracer's "
                 f"float32 rounds ray origins by up to {rounding:.3g} mm ({rounding / size_mm:.2g} of the scene's "
