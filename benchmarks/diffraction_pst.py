@@ -62,12 +62,13 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
+    from straylight.analyses.estimators import estimator_options
     from straylight.trace import TraceOptions
 
     rays = args.rays or (20_000 if args.quick else 400_000)
-    on = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True, diffraction="scene")
+    on = estimator_options("default", TraceOptions(diffraction="scene"))  # what `straylight pst` traces
     off = replace(on, diffraction="off")
-    off_plain = replace(off, first_vertex_sampling=False, second_vertex_sampling=False)
+    off_plain = replace(off, first_vertex_sampling=False, second_vertex_sampling=False, vertex_lobe_sampling=False)
     rows = []
     print(f"reference tube (BENCHMARK.md), Lambertian 0.05, every edge diffracting (HURB); {rays} rays per point, "
           f"seed {args.seed}; CPU seconds per point, 1 core")
