@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench clean
+.PHONY: demo test test-slow lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,6 +21,11 @@ demo: $(STAMP)
 ## test: the default (fast) test suite
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2
+
+## lint: ruff and mypy on the engine and the materials (pyproject.toml [tool.ruff] / [tool.mypy])
+lint: $(STAMP)
+	$(VENV)/bin/ruff check straylight/engine materials
+	$(VENV)/bin/mypy straylight/engine materials
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m slow

@@ -16,6 +16,8 @@ import numpy as np
 
 from materials.albedo import directional_hemispherical_reflectance
 from materials.base import MaterialError, Sample, check_polarization
+from materials.kcorrelation import KCorrelation
+from materials.lambertian import Lambertian
 
 _TABLE_THETA = np.deg2rad(np.linspace(0.0, 90.0, 37))
 _FLOOR = 1e-3  # mixing floor: every component keeps >= 0.1 % / K of the draws
@@ -40,9 +42,6 @@ class Composite:
     @classmethod
     def example(cls) -> "Composite":
         """Seed paper Eq. 2 three-component form: diffuse + narrow specular + glossy lobe."""
-        from materials.kcorrelation import KCorrelation
-        from materials.lambertian import Lambertian
-
         return cls(
             (
                 Lambertian(rd=0.02),

@@ -152,11 +152,11 @@ def _install() -> None:
     """Put this module's locators first in numba's list (the user's list, if set, after them)."""
     from numba import config
 
-    current = [c.strip() for c in (config.CACHE_LOCATOR_CLASSES or "").split(",") if c.strip()]
+    current = [c.strip() for c in (getattr(config, "CACHE_LOCATOR_CLASSES", "") or "").split(",") if c.strip()]
     if current[:len(_LOCATORS)] == list(_LOCATORS):
         return
     rest = [c for c in current if c not in _LOCATORS] or list(_NUMBA_DEFAULT_LOCATORS)
-    config.CACHE_LOCATOR_CLASSES = ",".join(list(_LOCATORS) + rest)
+    setattr(config, "CACHE_LOCATOR_CLASSES", ",".join(list(_LOCATORS) + rest))
 
 
 def _locator_classes():
@@ -188,4 +188,4 @@ def njit(*args, **kwargs):
 def installed() -> bool:
     """Whether numba looks up caches through this module's locators (numba imported and set up)."""
     numba = sys.modules.get("numba")
-    return numba is not None and (numba.config.CACHE_LOCATOR_CLASSES or "").startswith(_LOCATORS[0])
+    return numba is not None and (getattr(numba.config, "CACHE_LOCATOR_CLASSES", "") or "").startswith(_LOCATORS[0])

@@ -57,12 +57,13 @@ def start_numba() -> None:
             return
         finder = _NoScipyBlas()
         sys.meta_path.insert(0, finder)
+        installed = True
         try:
             cpu_target.target_context.refresh()
         except Exception:  # noqa: BLE001 - an unforeseen numba: start it the normal way
             sys.meta_path.remove(finder)
-            finder = None
+            installed = False
             cpu_target.target_context.refresh()
         finally:
-            if finder is not None:
+            if installed:
                 sys.meta_path.remove(finder)

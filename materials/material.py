@@ -27,6 +27,7 @@ from typing import Optional
 
 import numpy as np
 
+from atomicio.inputs import InputFileError, read_input_text
 from materials.albedo import directional_hemispherical_reflectance
 from materials.atomic import atomic_write_text
 from materials.base import MaterialError, Sample
@@ -328,8 +329,6 @@ def load_material(source, name: Optional[str] = None, check_energy: bool = True)
                 f"unknown material {str(source)!r}: not a file and not a preset ({', '.join(list_presets())})"
             )
         path = preset
-    from atomicio.inputs import InputFileError, read_input_text
-
     try:
         text = read_input_text(path, "material file")
     except InputFileError as exc:

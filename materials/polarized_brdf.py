@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from materials.base import directions_from_angles
 from materials.kcorrelation import KCorrelation
 from materials.rayleigh_rice import rayleigh_rice_mueller, s_basis
 
@@ -42,8 +43,6 @@ def _full(comp) -> bool:
 def _probe():
     global _PROBE
     if _PROBE is None:
-        from materials.base import directions_from_angles
-
         ti, tr, pr = np.meshgrid(np.deg2rad([10.0, 45.0, 75.0]), np.deg2rad([5.0, 40.0, 70.0]),
                                  np.deg2rad([0.0, 60.0, 180.0]), indexing="ij")
         _PROBE = directions_from_angles(ti.ravel(), tr.ravel(), pr.ravel())

@@ -112,7 +112,7 @@ def _cosine_sample_loop(wi, u2, weight_above, wo, weight, pdf):
             pdf[i] = 0.0
 
 
-_COMPILED = {}
+_COMPILED: dict = {}
 
 
 def lazy_njit(fn, error_model: str = "python"):

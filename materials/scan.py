@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from atomicio.inputs import InputFileError, read_input_text
 from materials.atomic import atomic_write_text
 
 CSV_COLUMNS = (
@@ -244,8 +245,6 @@ def read_scan(path) -> Scan:
         unknown polarization, a non-integer ``n_repeats``, a short row.
     """
     path = Path(path)
-    from atomicio.inputs import InputFileError, read_input_text
-
     try:
         text = read_input_text(path, "scan file", max_bytes=512 * 2**20, encoding="utf-8-sig")
     except FileNotFoundError:
@@ -256,7 +255,6 @@ def read_scan(path) -> Scan:
         raise ScanError(f"not UTF-8 text ({exc.reason})", path) from None
     metadata: dict[str, str] = {}
     header = None
-    header_line = None
     columns = {name: [] for name in CSV_COLUMNS}
     for lineno, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.strip()
@@ -272,7 +270,6 @@ def read_scan(path) -> Scan:
         cells = next(csv.reader([raw]))
         if header is None:
             header = [c.strip() for c in cells]
-            header_line = lineno
             missing = [c for c in CSV_COLUMNS if c not in header]
             if missing:
                 raise ScanError(f"missing required column {missing[0]!r} (header has: {', '.join(header)})",

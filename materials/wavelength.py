@@ -24,6 +24,9 @@ import math
 
 import numpy as np
 
+from materials.albedo import directional_hemispherical_reflectance
+from materials.material import Material
+
 WAVELENGTH_DEPENDENT = ("k_correlation", "particulate")
 
 
@@ -53,8 +56,6 @@ def wavelength_dependent(material) -> bool:
 def at_wavelength(material, wavelength_nm: float):
     """The material evaluated at ``wavelength_nm`` (module docstring); the material itself when
     nothing in it depends on wavelength."""
-    from materials.material import Material
-
     if not wavelength_dependent(material):
         return material
     lam = float(wavelength_nm)
@@ -80,8 +81,6 @@ def emissivity(material, theta_rad) -> np.ndarray:
     if hasattr(material, "reflectance") and hasattr(material, "transmittance"):
         rho = material.reflectance(th, "u") + material.transmittance(th, "u")
     else:
-        from materials.albedo import directional_hemispherical_reflectance
-
         rho = 0.5 * (directional_hemispherical_reflectance(material, th, "s")
                      + directional_hemispherical_reflectance(material, th, "p"))
     return np.clip(1.0 - rho, 0.0, 1.0)

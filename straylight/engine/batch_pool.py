@@ -4,6 +4,7 @@ yielded in batch order, so the sums are the same whichever way the batches ran."
 from __future__ import annotations
 
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 from straylight.engine.compiled_scene import compiled_scene
 from straylight.engine.walk import run_batch
@@ -22,8 +23,6 @@ _POOLS_LOCK = threading.Lock()
 def shared_pool(n_threads: int):
     """The process-wide pool of ``n_threads`` threads that batches run on (created once, kept: its
     threads keep their scratch buffers; dask tasks of one worker feed it together)."""
-    from concurrent.futures import ThreadPoolExecutor
-
     with _POOLS_LOCK:
         pool = _POOLS.get(n_threads)
         if pool is None:

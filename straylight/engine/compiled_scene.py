@@ -6,6 +6,7 @@ public ``alias_table`` and ``vertex_and_edges_mm``; :func:`detector_samplers` bu
 any intersector (the result builder needs only them)."""
 from __future__ import annotations
 
+import ctypes
 import threading
 from typing import NamedTuple
 
@@ -14,7 +15,9 @@ import numpy as np
 from straylight.detectors import DetectorGeometry
 from straylight.engine.spec import TraceSpec
 from straylight.intersect._plane import triangle_planes
+from straylight.intersect.embree import EmbreeIntersector
 from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts
+from straylight.intersect.reference import ReferenceIntersector
 from materials.jit_start import start_numba
 
 
@@ -70,11 +73,7 @@ class TargetSampler:
         idx = [spec.part_names.index(name) for name in spec.options.target_parts]
         ttri = spec.triangles_mm[np.isin(spec.triangle_part, idx)]
         self.geometry = DetectorGeometry.from_triangles(ttri)
-        if reference:
-            from straylight.intersect.reference import ReferenceIntersector as Intersector
-        else:
-            from straylight.intersect.embree import EmbreeIntersector as Intersector
-        self.isect = Intersector(ttri)
+        self.isect = ReferenceIntersector(ttri) if reference else EmbreeIntersector(ttri)
         self.plane_d = np.einsum("ij,ij->i", self.geometry.normals, ttri[:, 0])
 
 
@@ -82,8 +81,6 @@ class CompiledScene:
     """Per process: intersector, triangle planes, detector samplers and tables, target sampler."""
 
     def __init__(self, spec: TraceSpec, intersector=None):
-        from straylight.intersect.embree import EmbreeIntersector
-
         self.isect = intersector if intersector is not None else EmbreeIntersector(spec.triangles_mm)
         planes = plane_parts(spec.part_surfaces)
         if planes:  # hits on analytic planes count inside their exact boundary only
@@ -150,8 +147,6 @@ def keep_freed_memory():
         return
     _MALLOC_TUNED.append(True)
     try:
-        import ctypes
-
         libc = ctypes.CDLL("libc.so.6")
         libc.mallopt(-3, 32 * 1024 * 1024)  # M_MMAP_THRESHOLD (its maximum on 64-bit)
         libc.mallopt(-1, 256 * 1024 * 1024)  # M_TRIM_THRESHOLD

@@ -23,7 +23,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from geometry.analytic import Plane
+from geometry.edges import sharp_edges
 from straylight.engine.edge_index import EdgeTable, edge_table, passages
+from straylight.engine.estimators import without_diffraction_blind
 from straylight.engine.hurb import GAMMA, deflect
 from straylight.engine.options import TraceError
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_DIFFRACTION, RayBatch
@@ -82,9 +85,6 @@ def scene_diffraction(scene, sources, materials, options) -> Diffraction | None:
     marked = diffracting_parts(scene)
     if not marked:
         return None
-    from geometry.analytic import Plane
-    from geometry.edges import sharp_edges
-
     for i in marked:
         if scene.parts[i].role == "detector":
             raise TraceError(f"part {scene.parts[i].name!r}: a detector cannot diffract (diffraction = \"edges\")")
@@ -306,6 +306,4 @@ def vertex_strategies_off(options, diff: Diffraction | None):
     turned off when a part diffracts; NEE, target MIS and the walk see every path."""
     if diff is None:
         return options
-    from straylight.engine.estimators import without_diffraction_blind
-
     return without_diffraction_blind(options)

@@ -9,9 +9,9 @@ new estimator is covered by adding a row here.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
-from straylight.engine.interactions.registry import Capability
+from straylight.engine.capabilities import Capability
 
 #: TraceOptions of the analog walk: no NEE, no vertex sampling, no target mixture
 ANALOG = {"nee": False, "first_vertex_sampling": False, "second_vertex_sampling": False, "vertex_lobe_sampling": False,
@@ -65,8 +65,6 @@ def options_for(estimator: Estimator, target_part: str | None = None, **extra) -
 def without_diffraction_blind(options):
     """``options`` (TraceOptions) with every strategy that does not see edge diffraction turned off
     (set back to its :data:`ANALOG` value): used when a part diffracts."""
-    from dataclasses import replace
-
     off = {k: ANALOG[k] for e in ESTIMATORS if not e.diffraction for k in e.options if k in ANALOG}
     off = {k: v for k, v in off.items() if k not in _SHARED_SWITCHES}
     changed = {k: v for k, v in off.items() if getattr(options, k) != v}

@@ -3,7 +3,7 @@
 the power ledger and path records by :func:`build_result`."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -140,11 +140,12 @@ class BatchTotals:
         nb = bins[0] * bins[1]
         self.n_detectors = len(spec.detector_parts)
         self.map_sums = [(np.zeros(nb), np.zeros(nb)) for _ in range(self.n_detectors)]
-        self.paths = []
+        self.paths: list = []
         self.segments = 0
         self.shadow_rays = 0
         self.detector_rows = spec.rows.detector_total + np.arange(self.n_detectors)
-        self.chunk_s1, self.chunk_s2 = [], []  # per chunk: the detector totals' sums (reliability checks)
+        self.chunk_s1: list = []  # per chunk: the detector totals' sums (reliability checks)
+        self.chunk_s2: list = []
 
     def add(self, res: dict) -> int:
         """Add one batch result; returns its number of chunks."""
@@ -164,8 +165,6 @@ class BatchTotals:
         return len(res["s1"])
 
     def result(self, spec: TraceSpec, detector_geometry) -> "TraceResult":
-        from dataclasses import replace
-
         res = build_result(spec, detector_geometry, self.s1, self.s2, self.map_sums, self.paths, self.segments,
                            self.shadow_rays)
         shape = (len(self.chunk_s1), self.n_detectors)  # (chunks, detectors); a scene may have no detector

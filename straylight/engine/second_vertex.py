@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from straylight.engine.interactions.registry import Capability, kinds_with, parts_with
+from straylight.engine.interactions.stokes import tracks_polarization
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.targets import target_pdf
@@ -88,8 +89,6 @@ def unsupported(spec) -> str | None:
     a polarization state (:func:`straylight.engine.interactions.stokes.tracks_polarization`, or an
     part whose interaction kind polarizes, Capability.POLARIZES: an ``optical_surface``'s Fresnel
     interfaces): there the walk alone is used."""
-    from straylight.engine.interactions.stokes import tracks_polarization
-
     if tracks_polarization(spec):
         return "second_vertex_sampling does not follow polarized light (a linear source or scatter_polarization = 'on')"
     for kind in kinds_with(spec, Capability.POLARIZES):
@@ -144,10 +143,12 @@ def part_illumination(spec, comp, parts, rng) -> np.ndarray:
     """Mean direct irradiance E (lit side, unblocked) over ``PART_PROBES`` area-uniform probes on each
     of ``parts`` (straylight.engine.first_vertex.source_connection); ones when the sources are not a
     single collimated or point source (then every part counts alike)."""
-    from straylight.engine.first_vertex import source_connection, unsupported
+    # first_vertex imports the interaction kinds, whose NEE imports this module: imported here
+    from straylight.engine.first_vertex import source_connection
+    from straylight.engine.first_vertex import unsupported as first_vertex_unsupported
 
     out = np.ones(len(parts))
-    if unsupported(spec.sources) is not None:
+    if first_vertex_unsupported(spec.sources) is not None:
         return out
     src = spec.sources[0]
     tri_mm, area = spec.triangles_mm, _triangle_areas(spec.triangles_mm)

@@ -7,11 +7,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from materials import load_material
+from straylight.budget import check_ray_budget
 from straylight.detectors import DetectorGeometry
 from straylight.engine.options import TraceError, TraceOptions
 from straylight.engine.roles import ROLE_CODES, ROLE_DETECTOR
 from straylight.engine.tally_rows import tally_rows
-from straylight.rng import CHUNK_RAYS, check_seed
+from straylight.rng import check_seed
 
 
 
@@ -80,11 +82,6 @@ def resolve_materials(scene, materials):
         if materials is not None and name in materials:
             model = materials[name]
         else:
-            try:
-                from materials import load_material
-            except ImportError:
-                known = ", ".join(sorted(materials)) if materials else "none given"
-                raise TraceError(f"unknown material {name!r}; known: {known}") from None
             model = load_material(name)
         index[name] = len(models)
         models.append(model)
@@ -133,8 +130,6 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     seed = check_seed(seed)
     if isinstance(n_rays, bool) or not isinstance(n_rays, (int, np.integer)) or int(n_rays) < 1:
         raise TraceError(f"n_rays must be a positive integer, got {n_rays!r}")
-    from straylight.budget import check_ray_budget
-
     check_ray_budget(n_rays, sum(p.role == "detector" for p in scene.parts), what="n_rays")
     if not isinstance(sources, (list, tuple)):
         sources = (sources,)

@@ -44,7 +44,6 @@ from straylight.engine.interactions.registry import Capability, Interaction, reg
 from straylight.engine.interactions.scatter_polarization import Arriving
 from straylight.engine.interactions.stokes import batch_state, incoming_stokes
 from straylight.engine.interactions.stokes import mix as _mix
-from straylight.engine.options import TraceError
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
 
 SELF_HIT_MM = 1e-6  # a refined hit this close to (or behind) the ray's origin on its own last part is spurious
@@ -64,7 +63,7 @@ class OpticalSurface(Interaction):
     capabilities = Capability.NEE | Capability.POLARIZES
 
     def interact(self, event, selection):
-        spec, hit, rays, kern = event.spec, event.hits, event.rays, event.kernels
+        spec, hit, rays = event.spec, event.hits, event.rays
         rows = np.ascontiguousarray(event.vertex_rows(selection))
         m = len(rows)
         if m == 0:

@@ -24,32 +24,13 @@ Built-in kinds: ``detection`` (detector parts) and ``absorption`` (absorber part
 """
 from __future__ import annotations
 
-import enum
-
 import numpy as np
 
 from materials.flags import ComponentFlags, flags_of
+from straylight.engine.capabilities import Capability
 from straylight.engine.roles import ROLE_NAMES
 
 INTERACTIONS: dict = {}  # name -> Interaction instance (names are labels for messages, never compared)
-
-
-class Capability(enum.Flag):
-    """What the estimators may do with the vertices of an interaction kind."""
-
-    NONE = 0
-    #: next-event estimation toward the detectors from its vertices; a walk hit on a detector
-    #: right after such a vertex keeps its MIS share against NEE (straylight.engine.hits)
-    NEE = enum.auto()
-    #: its parts may be area-sampled as the first scatter vertex (straylight.engine.first_vertex)
-    FIRST_VERTEX = enum.auto()
-    #: its vertices may start, and its parts hold, second-vertex samples (straylight.engine.second_vertex)
-    SECOND_VERTEX = enum.auto()
-    #: its scatter directions mix in target-part area sampling by MIS (straylight.engine.targets)
-    TARGET_MIS = enum.auto()
-    #: it turns unpolarized light into polarized light (Fresnel interfaces): estimators that
-    #: evaluate their vertices unpolarized must stay out of scenes with it
-    POLARIZES = enum.auto()
 
 
 class Interaction:
@@ -139,7 +120,7 @@ class PartCapabilities:
     """Per part of a scene, what its kind allows (one per batch, on the walk's :class:`Event`):
     ``parts(cap)`` a bool array over the parts, ``at(cap, part)`` the same for an array of part ids."""
 
-    def __init__(self, kinds):
+    def __init__(self, kinds) -> None:
         self.kinds = list(kinds)
         self._cache: dict = {}
 
