@@ -17,6 +17,7 @@ one edge per rim.
 """
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -25,11 +26,12 @@ import numpy as np
 
 from geometry.analytic import Plane
 from geometry.edges import sharp_edges
-from straylight.engine.edge_index import EdgeTable, edge_table, passages
+from straylight.engine.edge_index import EdgeTable, band_prisms, edge_table, passages
 from straylight.engine.estimators import without_diffraction_blind
-from straylight.engine.hurb import GAMMA, deflect
+from straylight.engine.hurb import GAMMA, deflect, tan_sigma
 from straylight.engine.options import TraceError
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_DIFFRACTION, RayBatch
+from straylight.intersect.embree import EmbreeIntersector
 from straylight.paths import mix_key
 
 METHOD = "HURB (Heisenberg uncertainty ray bending, Freniere et al. 1999)"
@@ -196,11 +198,6 @@ def segment_candidates(diff: Diffraction, scene, origin, direction, tmax) -> np.
     n = len(origin)
     if len(diff.edges.seg_a) == 0:
         return np.zeros(n, dtype=bool)
-    import hashlib
-
-    from straylight.engine.edge_index import band_prisms
-    from straylight.intersect.embree import EmbreeIntersector
-
     h = hashlib.sha1(diff.edges.seg_a.tobytes())
     h.update(diff.edges.seg_b.tobytes())
     h.update(repr(diff.edges.band_mm).encode())
@@ -223,8 +220,6 @@ def direction_pdf(incoming, b, delta_b_mm, delta_a_mm, direction, diff: Diffract
     """Density per steradian of the HURB law (straylight.engine.hurb) at ``direction``: Gaussian in
     (tan theta_b, tan theta_a) times the Jacobian of the gnomonic map, 1 / (direction . incoming)^3;
     0 where the law is 1-D (delta_a = inf: a Dirac along the edge) or the direction turns back."""
-    from straylight.engine.hurb import tan_sigma
-
     s = np.asarray(incoming, dtype=np.float64)
     w = np.asarray(direction, dtype=np.float64)
     a = np.cross(s, b)

@@ -14,6 +14,7 @@ from straylight.engine.options import TraceError, TraceOptions
 from straylight.engine.roles import ROLE_CODES, ROLE_DETECTOR
 from straylight.engine.tally_rows import tally_rows
 from straylight.rng import check_seed
+from straylight.run_checks import check_origin_precision
 
 
 
@@ -137,8 +138,6 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
         raise TraceError("at least one source is needed")
     if sum(s.power_w for s in sources) <= 0:
         raise TraceError("total source power_w must be > 0")
-    from straylight.run_checks import check_origin_precision
-
     try:  # Embree's float32 rounds far-away ray origins: warn, or refuse where rays would be lost
         check_origin_precision(sources, scene.bounds_mm)
     except ValueError as exc:
