@@ -39,12 +39,14 @@ from straylight.engine.spec import (  # noqa: F401 - re-exported
     AUTO_BATCH_RAYS, TraceSpec, make_spec, scene_epsilon)
 from straylight.engine.tallies import chunk_maps  # noqa: F401 - re-exported
 from straylight.engine.walk import run_batch, run_batch_reference  # noqa: F401 - re-exported
+from straylight.execution import Execution
 from straylight.progress import progress_bar
 from straylight.rng import n_chunks
 
 
 def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=None, client=None,
-          scheduler=None, intersector=None, threads=None, security=None, first_chunk=0) -> TraceResult:
+          scheduler=None, intersector=None, threads=None, security=None, first_chunk=0,
+          execution: Execution | None = None) -> TraceResult:
     """Trace ``n_rays`` rays from ``sources`` through ``scene``; see docs/engine.md.
 
     Parameters
@@ -61,6 +63,9 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     threads : int, optional
         in-process thread pool of this size (embree and the compiled kernels release the GIL;
         materials, sources and bookkeeping do not); same numbers as any other way of running
+    execution : straylight.execution.Execution, optional
+        where and how to run, in one object (workers, client, scheduler, threads, security,
+        progress); the keywords above are the same fields (giving one both ways differently is an error)
     first_chunk : int, optional
         trace the ray ids from ``first_chunk * CHUNK_RAYS`` on: the random streams of chunks
         ``first_chunk, first_chunk + 1, ...`` (continues an earlier trace of ``first_chunk`` whole
@@ -68,6 +73,11 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     """
     if threads is not None and (isinstance(threads, bool) or int(threads) < 1):
         raise TraceError(f"threads must be a positive integer, got {threads!r}")
+    ex = Execution.merged(execution, workers=workers, client=client, scheduler=scheduler, threads=threads,
+                          security=security)
+    workers, client, scheduler, threads, security = ex.workers, ex.client, ex.scheduler, ex.threads, ex.security
+    if ex.progress:
+        options = replace(options or TraceOptions(), progress=True)
     spec = make_spec(scene, sources, n_rays, seed, materials, options)
     if first_chunk:
         if isinstance(first_chunk, bool) or int(first_chunk) < 0:
