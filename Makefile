@@ -4,7 +4,7 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-slow lint bench clean
+.PHONY: demo test test-slow test-latest lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,10 @@ test: $(STAMP)
 lint: $(STAMP)
 	$(VENV)/bin/ruff check straylight/engine materials
 	$(VENV)/bin/mypy straylight/engine materials
+
+## test-latest: the engine's tests on the newest numba and dask/distributed, past the upper bounds (.ci/latest)
+test-latest:
+	.ci/latest
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m slow
