@@ -31,6 +31,7 @@ import numpy as np
 import atomicio
 from straylight.analyses.builtin import Beam, Entrance, Setup
 from straylight.analyses.tables import TableRepr
+from straylight.execution import Execution
 from straylight.progress import progress_bar
 
 DEFAULT_VOV_LIMIT = 0.1  # straylight.analyses.precision.DEFAULT_MAX_VOV: MCNP's reliability check
@@ -277,7 +278,7 @@ def sweep_diffraction(scene, wavelength_nm, options) -> dict | None:
 def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, seed: int = 0, nee: bool = True,
               options=None, workers: int | None = None, scheduler: str | None = None, client=None,
               progress: bool = True, keep_traces: bool = False, precision=None, checkpoint_dir=None,
-              resume: bool = False) -> PstResult:
+              resume: bool = False, execution: Execution | None = None) -> PstResult:
     """Trace a collimated beam at each (off-axis, azimuth) and return the PST with errors.
 
     Parameters
@@ -295,6 +296,8 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
         error reaches the target with a reliable error estimate, or a cap; ``n_rays`` is then unused
     checkpoint_dir, resume : write each finished point there (straylight.checkpoints.PointStore);
         ``resume`` reads back the points a previous run of the same sweep finished and skips them
+    execution : :class:`straylight.execution.Execution`, optional: workers, scheduler, client and
+        security in one object (the keywords are the same fields); given, its ``progress`` decides
     """
     from dataclasses import replace as dc_replace
 
@@ -321,7 +324,10 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     diagnostics = []
     traces = []
     store = _point_store(checkpoint_dir, resume, keep_traces, setup, pairs, n_rays, seed, opts, precision, det, area)
-    with (dask_client(workers, scheduler) if client is None else _given(client)) as cl:
+    ex = Execution.merged(execution, workers=workers, scheduler=scheduler, client=client)
+    if execution is not None:
+        progress = ex.progress
+    with (dask_client(ex.workers, ex.scheduler, ex.security) if ex.client is None else _given(ex.client)) as cl:
         bar = progress_bar(pairs, desc="PST sweep", unit="angle", enabled=progress)
         for i, (a, phi) in enumerate(bar):
             bar.set_postfix_str(f"{math.degrees(a):g} deg")

@@ -28,3 +28,17 @@ def test_conflicts_and_bad_fields_are_refused():
     with pytest.raises(TraceError, match="not both"):
         Execution(client=object(), scheduler="tcp://127.0.0.1:8786")
     assert Execution.merged(None, workers=2, progress=False) == Execution(workers=2)
+
+
+def test_pst_sweep_takes_an_execution():
+    """The same sweep with ``execution=Execution()`` (in process, no progress bar) as with the keywords."""
+    from materials import Lambertian
+    from straylight.analyses.builtin import tube_setup
+    from straylight.analyses.pst import pst_sweep
+
+    setup = tube_setup(material=Lambertian(rd=0.5), tolerance_mm=1.0)
+    a = pst_sweep(setup, [0.3], n_rays=3000, seed=2, progress=False)
+    b = pst_sweep(setup, [0.3], n_rays=3000, seed=2, execution=Execution())
+    assert a.pst.tolist() == b.pst.tolist()
+    with pytest.raises(TraceError, match="workers given twice"):
+        pst_sweep(setup, [0.3], n_rays=3000, seed=2, workers=2, execution=Execution(workers=3))
