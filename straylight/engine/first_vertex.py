@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from straylight.engine.interactions.registry import Capability, parts_with
+from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE
 from straylight.engine.vec3 import power_heuristic_rows
@@ -182,6 +183,8 @@ def _single_scatter(spec, comp, src, t, x, u_det, j, lobe_mis=False):
         f[rows] = fv
     value[lit] = e_x[lit] * f * cos_o * cos_z / d2
     if lobe_mis:
+        glossy = lobe_materials(spec)[mat]
+        lit, mat, wi_loc, wo_loc, d2, cos_z = (a[glossy] for a in (lit, mat, wi_loc, wo_loc, d2, cos_z))
         pdf = np.empty(len(lit))
         for rows, pv in by_material(spec.materials, mat,
                                     lambda model, rows: model.pdf(wi_loc[rows], wo_loc[rows], pol)):
@@ -202,7 +205,8 @@ def lobe_connection(spec, comp, src, t, x, u3, j):
     eps = spec.eps
     n_geo = comp.normals[t]
     wi, nf, e_x, tmax = source_connection(src, x, n_geo)
-    lit = np.flatnonzero(e_x > 0)
+    glossy = lobe_materials(spec)[spec.part_material[spec.triangle_part[t]]]
+    lit = np.flatnonzero((e_x > 0) & glossy)
     empty = (np.zeros(0), np.zeros((0, 3)), np.zeros(0, np.int64), 0)
     if len(lit) == 0:
         return empty

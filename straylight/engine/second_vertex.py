@@ -52,6 +52,7 @@ import numpy as np
 
 from straylight.engine.interactions.registry import Capability, kinds_with, parts_with
 from straylight.engine.interactions.stokes import tracks_polarization
+from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.targets import target_pdf
@@ -261,8 +262,9 @@ def walk_weights(event, verts, w_vertex):
     dist = hit.distance_mm[i]
     p_w = rays.last_pdf_per_sr[i] * np.abs(hit.cos_in[i]) / (dist * dist)
     share = p_w / (p_w + p_c[s])
-    if event.second_vertex is not None:
-        event.second_vertex.keep(event, i, share)
+    if event.second_vertex is not None:  # the area strategy draws B's lobe on glossy materials only
+        glossy = lobe_materials(event.spec)[event.spec.part_material[hit.part[i]]]
+        event.second_vertex.keep(event, i, np.where(glossy, share, 1.0))
     w = np.ones(len(verts)) if w_vertex is None else w_vertex.copy()
     w[s] *= share
     return w
@@ -427,6 +429,10 @@ def _lobe_terms(event, i, y, nf_y, tb_y, bb_y, wi_y, mat_y, part_y, base):
     (power_heuristic(pdf, p_nee)), so the area strategy's weights at B add to one, and the walk's
     hits after B keep p_W / (p_W + p_C) (:class:`SecondVertexShares`)."""
     spec, scene = event.spec, event.scene
+    glossy = np.flatnonzero(lobe_materials(spec)[mat_y])
+    if len(glossy) < len(mat_y):
+        i, y, nf_y, tb_y, bb_y, wi_y, mat_y, part_y, base = (
+            a[glossy] for a in (i, y, nf_y, tb_y, bb_y, wi_y, mat_y, part_y, base))
     eps = spec.eps
     col = event.columns.second_lobe
     u = event.uniforms[i, col:col + 3]
