@@ -155,7 +155,7 @@ def test_killed_dask_worker_process_gives_identical_numbers(tube, tmp_path):
 
 
 _FORK_SERVER_CHILD = r"""
-import os, subprocess, sys
+import os, subprocess, sys, time
 from pathlib import Path
 import multiprocessing.forkserver as mp_forkserver
 from dask.distributed import Client
@@ -165,7 +165,12 @@ from straylight.distribute import local_cluster
 if __name__ == "__main__":
     assert fork_server.start()
     server = mp_forkserver._forkserver._forkserver_pid
-    env = dict(kv.split("=", 1) for kv in Path(f"/proc/{server}/environ").read_text().split("\0") if "=" in kv)
+    env = {}
+    for _ in range(200):  # a just-launched server may still be exec'ing: its environ reads empty
+        env = dict(kv.split("=", 1) for kv in Path(f"/proc/{server}/environ").read_text().split("\0") if "=" in kv)
+        if env:
+            break
+        time.sleep(0.05)
     assert env.get("OMP_NUM_THREADS") == "1" and env.get("OPENBLAS_NUM_THREADS") == "1", env
     assert env.get("PYTHONHASHSEED") not in (None, "0")
     expected = subprocess.run([sys.executable, "-c", "print(hash('straylight'))"], capture_output=True, text=True,
