@@ -38,7 +38,7 @@ from geometry.tessellate import TessellationReport
 
 ENV_DIR = "STRAYLIGHT_CACHE_DIR"
 ENV_SWITCH = "STRAYLIGHT_CACHE"
-_CODE_FILES = ("cad.py", "cad_cache.py", "tessellate.py", "mesh.py")
+_CODE_FILES = ("cad.py", "cad_cache.py", "cad_child.py", "tessellate.py", "mesh.py")
 
 
 class CacheWarning(UserWarning):
@@ -100,9 +100,10 @@ def entry_path(path, *, tolerance_mm: float, angular_tolerance_deg: float, mode:
     return cache_dir() / f"{Path(path).stem[:40]}-{hashlib.sha256(key.encode()).hexdigest()[:32]}.npz"
 
 
-def load(entry: Path):
+def load(entry: Path, warn: bool = True):
     """[(name, kind, label, Part-without-tags)] from a cache entry, or None if missing or unusable
-    (a damaged or inconsistent entry also gives a :class:`CacheWarning`; the caller rebuilds it)."""
+    (a damaged or inconsistent entry also gives a :class:`CacheWarning` unless ``warn`` is False; the
+    caller rebuilds it)."""
     if not entry.is_file():
         return None
     try:
@@ -124,13 +125,15 @@ def load(entry: Path):
                 out.append((item["name"], item["kind"], item["label"], part))
             return out
     except Exception as exc:  # noqa: BLE001 - a damaged entry is a cache miss, not an error
+        if not warn:
+            return None
         warnings.warn(f"{entry}: damaged or incompatible tessellation cache entry, tessellating again "
                       f"({type(exc).__name__}: {exc})", CacheWarning, stacklevel=2)
         return None
 
 
-def store(entry: Path, solids) -> None:
-    """Write [(name, kind, label, Part)] atomically; failures (read-only disk...) are ignored."""
+def store(entry: Path, solids, strict: bool = False) -> None:
+    """Write [(name, kind, label, Part)] atomically; failures (read-only disk...) are ignored unless ``strict``."""
     import atomicio
 
     arrays, items = {}, []
@@ -152,4 +155,5 @@ def store(entry: Path, solids) -> None:
         entry.parent.mkdir(parents=True, exist_ok=True)
         atomicio.write_bytes(entry, buffer.getvalue(), fsync=False)
     except OSError:
-        pass
+        if strict:
+            raise

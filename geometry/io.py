@@ -227,13 +227,31 @@ def tessellate_cad(path, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,
 
 def _tessellate_cad(path: Path, tolerance_mm: float, angular_tolerance_deg: float, split: bool, mode: str):
     from geometry import cad_cache
-    from geometry.cad import read_cad
 
     entry = cad_cache.entry_path(path, tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg,
                                  mode=mode) if cad_cache.enabled() else None
     cached = cad_cache.load(entry) if entry is not None else None
-    if cached is not None:
-        return cached
+    if cached is None:
+        from geometry import cad_child
+
+        if cad_child.isolated():  # a crash in OpenCascade ends a child process, not this one
+            cached = cad_child.tessellate_isolated(path, entry, tolerance_mm=tolerance_mm,
+                                                   angular_tolerance_deg=angular_tolerance_deg, split=split)
+        else:
+            cached = tessellate_cad_here(path, tolerance_mm=tolerance_mm,
+                                         angular_tolerance_deg=angular_tolerance_deg, split=split)
+            if entry is not None:
+                cad_cache.store(entry, cached)
+    from geometry.tessellate import warn_reports
+
+    warn_reports(path, cached)
+    return cached
+
+
+def tessellate_cad_here(path: Path, *, tolerance_mm: float, angular_tolerance_deg: float, split: bool):
+    """:func:`tessellate_cad` in this process, without the cache (what the child of :mod:`geometry.cad_child` runs)."""
+    from geometry.cad import read_cad
+
     solids = read_cad(path)
     from geometry.limits import ToleranceError, check_mesh_budget
 
@@ -252,11 +270,12 @@ def _tessellate_cad(path: Path, tolerance_mm: float, angular_tolerance_deg: floa
     from tqdm.auto import tqdm
 
     instances = _Instances()
-    for name, kind, label, shape in tqdm(items, desc=f"tessellating {path.name}", unit="solid", leave=False,
-                                         disable=None if len(items) > 20 else True):
+    for k, (name, kind, label, shape) in enumerate(tqdm(items, desc=f"tessellating {path.name}", unit="solid",
+                                                        leave=False, disable=None if len(items) > 20 else True), 1):
         try:
             part = instances.tessellate(shape, name=name, tolerance_mm=tolerance_mm,
-                                        angular_tolerance_deg=angular_tolerance_deg, kind=kind)
+                                        angular_tolerance_deg=angular_tolerance_deg, kind=kind, warn=False,
+                                        context=f"tessellating {path.name}: solid {name!r} ({k} of {len(items)})")
         except GeometryError as exc:
             raise GeometryError(f"{path}: solid {name!r}: {exc}") from None
         except Exception as exc:  # noqa: BLE001 - OCC raises bare Standard_Failure; name the file and solid
@@ -264,8 +283,6 @@ def _tessellate_cad(path: Path, tolerance_mm: float, angular_tolerance_deg: floa
         part.meta["source"] = str(path)
         part.meta["watertight"] = part.is_watertight  # checked once, kept in the cache entry
         out.append((name, kind, label, part))
-    if entry is not None:
-        cad_cache.store(entry, out)
     return out
 
 
