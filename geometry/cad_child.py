@@ -65,7 +65,7 @@ def memory_limit_mb() -> int:
     return int(limit)
 
 
-def _child(path: str, target: str, error: str, tolerance_mm: float, angular_tolerance_deg: float, split: bool,
+def _child(run, path: str, target: str, error: str, tolerance_mm: float, angular_tolerance_deg: float, split: bool,
            memory_mb: int) -> None:
     """Child process body: read, tessellate, store to ``target``; a failure's one line goes to ``error``."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # Ctrl-C ends the child even inside native code
@@ -82,12 +82,11 @@ def _child(path: str, target: str, error: str, tolerance_mm: float, angular_tole
     import warnings
 
     from geometry import cad_cache
-    from geometry.io import tessellate_cad_here
     from geometry.tessellate import TessellationWarning
 
     warnings.simplefilter("ignore", TessellationWarning)  # the parent warns from the reports
     try:
-        out = tessellate_cad_here(Path(path), tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg,
+        out = run(Path(path), tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg,
                                   split=split)
         cad_cache.store(Path(target), out, strict=True)
     except GeometryError as exc:
@@ -118,7 +117,6 @@ def _preload() -> None:
     import scipy.spatial  # noqa: F401
 
     import geometry.cad  # noqa: F401
-    import geometry.io  # noqa: F401
     import geometry.tessellate  # noqa: F401
 
 
@@ -129,10 +127,12 @@ def _signal_name(code: int) -> str:
         return f"signal {-code}"
 
 
-def tessellate_isolated(path, entry: Path | None, *, tolerance_mm: float, angular_tolerance_deg: float,
+def tessellate_isolated(run, path, entry: Path | None, *, tolerance_mm: float, angular_tolerance_deg: float,
                         split: bool):
-    """[(solid name, kind, label, Part)] of ``path`` read and tessellated in a child process (see module
-    docstring); ``entry`` is the cache entry to fill (None: cache off, a temporary file is used)."""
+    """[(solid name, kind, label, Part)] of ``path`` read and tessellated by ``run`` (a module-level function
+    ``run(path, tolerance_mm=, angular_tolerance_deg=, split=)``, :func:`geometry.io.tessellate_cad_here`) in a
+    child process (see module docstring); ``entry`` is the cache entry to fill (None: cache off, a temporary
+    file is used)."""
     import multiprocessing
     import time
 
@@ -148,7 +148,7 @@ def tessellate_isolated(path, entry: Path | None, *, tolerance_mm: float, angula
     with tempfile.TemporaryDirectory(prefix="straylight-cad-") as tmp:
         target = Path(tmp) / "result.npz" if entry is None else Path(entry)
         error_file = Path(tmp) / "error.txt"
-        process = context.Process(target=_child, args=(str(path), str(target), str(error_file), float(tolerance_mm),
+        process = context.Process(target=_child, args=(run, str(path), str(target), str(error_file), float(tolerance_mm),
                                                        float(angular_tolerance_deg), bool(split), memory_mb),
                                   daemon=True)
         start = time.monotonic()

@@ -235,7 +235,7 @@ def _tessellate_cad(path: Path, tolerance_mm: float, angular_tolerance_deg: floa
         from geometry import cad_child
 
         if cad_child.isolated():  # a crash in OpenCascade ends a child process, not this one
-            cached = cad_child.tessellate_isolated(path, entry, tolerance_mm=tolerance_mm,
+            cached = cad_child.tessellate_isolated(tessellate_cad_here, path, entry, tolerance_mm=tolerance_mm,
                                                    angular_tolerance_deg=angular_tolerance_deg, split=split)
         else:
             cached = tessellate_cad_here(path, tolerance_mm=tolerance_mm,
