@@ -56,7 +56,7 @@ def add_parser(subparsers):
 
 DEFAULT_RAYS = 200_000
 DEFAULT_TARGET_REL_ERROR = 0.02
-DEFAULT_POINT_SECONDS = 20.0
+DEFAULT_POINT_SECONDS = 10.0
 
 
 def default_precision(args) -> None:
