@@ -498,6 +498,13 @@ def tessellate(shape, *, name: str = "part", tolerance_mm: float = DEFAULT_TOLER
         if not meshed:
             raise GeometryError(f"{context}: the shape has no faces to tessellate")
         worst, n_tri = _worst(meshed), _n_triangles(meshed)
+        for _ in range(4):  # the budget is a hard cap: a first mesh over it is made coarser
+            if best is not None or n_tri <= budget:
+                break
+            deflection_mm *= 1.25 * n_tri / budget
+            stopped = "budget"
+            meshed = _mesh_faces(topo, deflection_mm, angular_tolerance_deg, _VERIFY_FRACTION * tol, progress)
+            worst, n_tri = _worst(meshed), _n_triangles(meshed)
         if n_tri > budget and best is not None:  # the probe's prediction undershot: keep the previous mesh
             stopped = "budget"
             notes.append(f"refining to {deflection_mm:.3g} mm gave {n_tri} triangles (budget {budget}): kept "
