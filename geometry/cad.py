@@ -7,7 +7,8 @@ the assembly (instance locations applied) and in **millimetres** whatever unit t
 (OpenCascade converts to its session unit, mm).
 
 Names (CONTRACTS §6.2): a solid takes the name of the instance that places it, else of its
-product (label); a part with several solids gives each the part's name; a solid without a
+product (label), and also answers to its product's name (``CadSolid.aliases``: Fusion's ``lens:1`` is
+also ``lens``); a part with several solids gives each the part's name; a solid without a
 name (or with only a writer's placeholder, see ``_PLACEHOLDERS``) is ``solid<k>`` (k from 1, in
 file order); repeated names get ``_2``, ``_3``. Surface models (IGES files usually hold faces,
 not solids) are sewn: closed shells become solids, open ones stay sheets.
@@ -37,6 +38,7 @@ class CadSolid:
     shape: object
     kind: str
     label: str | None
+    aliases: tuple = ()  # the other names the file gives it (its product's name when named after its instance)
 
 
 _PLACEHOLDERS = re.compile(r"^(=>\[[0-9:]*\]|[0-9]+|Open CASCADE STEP translator .*|NAUO[0-9]*|"
@@ -100,6 +102,10 @@ def _read_document(path: Path):
     app.InitDocument(doc)
     reader = Reader()
     reader.SetNameMode(True)
+    if kind == "STEP":  # keep the names of a part's bodies (MANIFOLD_SOLID_BREP) as sub-shape labels
+        from OCP.Interface import Interface_Static
+
+        Interface_Static.SetIVal_s("read.stepcaf.subshapes.name", 1)
     with _quiet_opencascade():
         return _transfer(reader, doc, path, kind)
 
@@ -175,9 +181,10 @@ def _sub_solids(shape):
     return found
 
 
-def _walk(shape_tool, label, location, name, out):
+def _walk(shape_tool, label, location, name, out, aliases=()):
     """Depth-first over an XDE label: assemblies recurse into their components (locations composed),
-    simple shapes contribute their solids with ``name``."""
+    simple shapes contribute their solids with ``name`` (and ``aliases``: the product's name of an
+    instance named on its own, as Fusion's ``lens:1`` of product ``lens``)."""
     from OCP.TDF import TDF_Label, TDF_LabelSequence
     from OCP.XCAFDoc import XCAFDoc_ShapeTool
 
@@ -190,15 +197,36 @@ def _walk(shape_tool, label, location, name, out):
             XCAFDoc_ShapeTool.GetReferredShape_s(component, referred)
             child_location = location.Multiplied(XCAFDoc_ShapeTool.GetLocation_s(component))
             child_name = _instance_name(component, referred)
-            _walk(shape_tool, referred, child_location, child_name, out)
+            product = _label_name(referred)
+            _walk(shape_tool, referred, child_location, child_name, out,
+                  (product,) if product and product != child_name else ())
         return
     shape = XCAFDoc_ShapeTool.GetShape_s(label)
     if shape.IsNull():
         return
     if name is None:
         name = _label_name(label)
-    for sub, kind in _sub_solids(shape):
-        out.append((sub.Moved(location), kind, name))
+    subs = _sub_solids(shape)
+    for sub, kind in subs:
+        body = _body_name(shape_tool, label, sub) if len(subs) > 1 else None
+        if body and body != name:  # a named body of a multi-body part (Fusion, Onshape): the body's name first
+            out.append((sub.Moved(location), kind, body, tuple(a for a in (name, *aliases) if a)))
+        else:
+            out.append((sub.Moved(location), kind, name, tuple(aliases)))
+
+
+def _body_name(shape_tool, label, sub) -> str | None:
+    """The name the file gives one solid of a part (STEP ``MANIFOLD_SOLID_BREP('pi_mount', ...)``), if the
+    reader kept it as a sub-shape label."""
+    from OCP.TDF import TDF_Label
+
+    try:
+        sublabel = TDF_Label()
+        if shape_tool.FindSubShape(label, sub, sublabel):
+            return _label_name(sublabel)
+    except Exception:  # noqa: BLE001 - a missing body name is not an error
+        return None
+    return None
 
 
 def _instance_name(component, referred) -> str | None:
@@ -246,8 +274,9 @@ def read_cad(path) -> list[CadSolid]:
     del reader
     if not found:
         raise GeometryError(f"{path}: the file holds no solid, shell or face")
-    names = unique_names([name for _, _, name in found])
-    return [CadSolid(n, shape, kind, label) for n, (shape, kind, label) in zip(names, found)]
+    names = unique_names([name for _, _, name, _ in found])
+    return [CadSolid(n, shape, kind, label, tuple(a for a in aliases if a != n))
+            for n, (shape, kind, label, aliases) in zip(names, found)]
 
 
 def compound_of(shapes):

@@ -121,7 +121,8 @@ def load(entry: Path, warn: bool = True):
                     raise ValueError(f"solid {i} ({item['name']!r}): inconsistent arrays")
                 part = Part(item["name"], arrays[f"v{i}"], faces, None, "surface",
                             {"tessellation": report, "kind": item["kind"], "brep_face": brep,
-                             "watertight": item["watertight"], "cache": str(entry)})
+                             "watertight": item["watertight"], "cache": str(entry),
+                             "aliases": list(item.get("aliases", []))})
                 out.append((item["name"], item["kind"], item["label"], part))
             return out
     except Exception as exc:  # noqa: BLE001 - a damaged entry is a cache miss, not an error
@@ -144,7 +145,8 @@ def store(entry: Path, solids, strict: bool = False) -> None:
         report = part.meta["tessellation"]
         fields = {k: getattr(report, k) for k in TessellationReport.__dataclass_fields__}
         items.append({"name": name, "kind": kind, "label": label, "report": fields,
-                      "watertight": bool(part.meta.get("watertight", part.is_watertight))})
+                      "watertight": bool(part.meta.get("watertight", part.is_watertight)),
+                      "aliases": [str(a) for a in part.meta.get("aliases", [])]})
     meta_text = json.dumps({"solids": items})
     checksum = entry_checksum(arrays, meta_text)
     arrays["meta"] = np.array(meta_text)

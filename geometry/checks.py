@@ -40,6 +40,7 @@ class PartCheck:
     problems: tuple[str, ...] = ()
     role: str = "surface"
     material: str | None = None
+    also: tuple[str, ...] = ()  # other names the CAD file gives the solid (its product's, CONTRACTS 6.2)
 
     @property
     def ok(self) -> bool:
@@ -50,7 +51,8 @@ class PartCheck:
                 "winding_consistent": self.winding_consistent, "n_open_edges": self.n_open_edges,
                 "n_nonmanifold_edges": self.n_nonmanifold_edges, "n_degenerate": self.n_degenerate,
                 "volume_mm3": self.volume_mm3, "manifold_status": self.manifold_status,
-                "problems": list(self.problems), "ok": self.ok, "role": self.role, "material": self.material}
+                "problems": list(self.problems), "ok": self.ok, "role": self.role, "material": self.material,
+                "also": list(self.also)}
 
 
 @dataclass(frozen=True)
@@ -79,7 +81,7 @@ class SceneCheck:
         for p in self.parts:
             lines.append(f"{p.name:<{w}} {p.role:<8} {p.kind:<6} {p.n_triangles:>9d} {str(p.watertight):>10} "
                          f"{str(p.winding_consistent):>8} {p.volume_mm3:>12.6g} {p.manifold_status:<8} "
-                         f"{p.material or '-'}")
+                         f"{p.material or '-'}" + (f"  (also: {', '.join(p.also)})" if p.also else ""))
         lines.append(f"{'total':<{w}} {'':<8} {'':<6} {sum(p.n_triangles for p in self.parts):>9d} "
                      f"({len(self.parts)} parts)")
         for a, b, v in self.overlaps:
@@ -152,7 +154,8 @@ def check_part(part: Part) -> PartCheck:
         if status != "NoError":
             problems.append(f"part {part.name!r}: manifold3d says {status}")
     return PartCheck(part.name, kind, part.n_triangles, watertight, winding, n_open, n_nonmanifold, n_degenerate,
-                     volume, status, tuple(problems), part.role, part.material)
+                     volume, status, tuple(problems), part.role, part.material,
+                     tuple(str(a) for a in part.meta.get("aliases", ())))
 
 
 def overlap_volumes(scene: Scene, names=None) -> list[tuple[str, str, float]]:

@@ -261,11 +261,13 @@ def tessellate_cad_here(path: Path, *, tolerance_mm: float, angular_tolerance_de
         raise GeometryError(str(exc)) from None
     if split:
         items = [(s.name, s.kind, s.label, s.shape) for s in solids]
+        aliases = {s.name: list(s.aliases) for s in solids}
     else:
         from geometry.cad import compound_of
 
         kinds = {s.kind for s in solids}
         items = [(path.stem, "solid" if "solid" in kinds else "sheet", None, compound_of(s.shape for s in solids))]
+        aliases = {}
     out = []
     from tqdm.auto import tqdm
 
@@ -281,6 +283,7 @@ def tessellate_cad_here(path: Path, *, tolerance_mm: float, angular_tolerance_de
         except Exception as exc:  # noqa: BLE001 - OCC raises bare Standard_Failure; name the file and solid
             raise GeometryError(f"{path}: solid {name!r} cannot be tessellated: {exc}") from None
         part.meta["source"] = str(path)
+        part.meta["aliases"] = aliases.get(name, [])  # other names the file gives the solid (its product's)
         part.meta["watertight"] = part.is_watertight  # checked once, kept in the cache entry
         out.append((name, kind, label, part))
     return out
@@ -301,14 +304,10 @@ def load_cad_parts(path, *, name: str | None = None, material: str | None = None
         raise GeometryError(f"{path}: part {name!r}: unknown role {role!r}; expected one of {', '.join(ROLES)}")
     items = tessellate_cad(path, tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg, split=True)
     overrides = dict(solids or {})
-    names = [solid for solid, _, _, _ in items]
-    unknown = sorted(set(overrides) - set(names))
-    if unknown:
-        raise GeometryError(f"{path}: no solid named {', '.join(map(repr, unknown))} in the file; its solids: "
-                            f"{', '.join(names)}")
+    tags_of = _solid_overrides(path, items, overrides)
     parts = []
     for solid, kind, label, part in items:
-        tags = overrides.get(solid, {})
+        tags = tags_of.get(solid, {})
         if not isinstance(tags, dict) or set(tags) - set(SOLID_KEYS):
             bad = sorted(set(tags) - set(SOLID_KEYS)) if isinstance(tags, dict) else tags
             raise GeometryError(f"{path}: solid {solid!r}: overrides must be a table of {', '.join(SOLID_KEYS)}, "
@@ -323,6 +322,28 @@ def load_cad_parts(path, *, name: str | None = None, material: str | None = None
         parts.append(Part(f"{name}/{solid}", part.vertices_mm, part.faces, tags.get("material", material),
                           solid_role, meta))
     return parts
+
+
+def _solid_overrides(path: Path, items, overrides: dict) -> dict:
+    """{solid name: override table}: a key names a solid by its own name, else by its product's name
+    (``meta["aliases"]``: every instance of that product); an exact name wins over a product name."""
+    names = [solid for solid, _, _, _ in items]
+    aliases = {solid: list(part.meta.get("aliases", [])) for solid, _, _, part in items}
+    out, unknown = {}, []
+    for key in overrides:
+        if key in names:
+            out[key] = overrides[key]
+            continue
+        matched = [solid for solid in names if key in aliases[solid]]
+        if not matched:
+            unknown.append(key)
+        for solid in matched:
+            out.setdefault(solid, overrides[key])
+    if unknown:
+        listed = ", ".join(f"{n} ({', '.join(aliases[n])})" if aliases[n] else n for n in names)
+        raise GeometryError(f"{path}: no solid named {', '.join(map(repr, sorted(unknown)))} in the file; its "
+                            f"solids (product names in brackets): {listed}")
+    return out
 
 
 def save_scene(scene: Scene, directory, *, mesh_format: str = "ply", scene_file: str = "scene.toml",
