@@ -66,9 +66,13 @@ def memory_limit_mb() -> int:
 
 
 def _child(run, path: str, target: str, error: str, tolerance_mm: float, angular_tolerance_deg: float, split: bool,
-           memory_mb: int) -> None:
+           memory_mb: int, forked: bool = False) -> None:
     """Child process body: read, tessellate, store to ``target``; a failure's one line goes to ``error``."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # Ctrl-C ends the child even inside native code
+    if not os.environ.get("STRAYLIGHT_DEBUG"):  # a crash is the parent's one line, not a dump of the child's stack
+        import faulthandler
+
+        faulthandler.disable()
     try:
         import resource
 
@@ -81,8 +85,11 @@ def _child(run, path: str, target: str, error: str, tolerance_mm: float, angular
         pass
     import warnings
 
-    from geometry import cad_cache
+    from geometry import cad_cache, tessellate
     from geometry.tessellate import TessellationWarning
+
+    if forked:  # the parent's OpenCascade thread pool did not come along (a parallel mesh would hang)
+        tessellate.MESH_IN_PARALLEL = False
 
     warnings.simplefilter("ignore", TessellationWarning)  # the parent warns from the reports
     try:
@@ -149,7 +156,8 @@ def tessellate_isolated(run, path, entry: Path | None, *, tolerance_mm: float, a
         target = Path(tmp) / "result.npz" if entry is None else Path(entry)
         error_file = Path(tmp) / "error.txt"
         process = context.Process(target=_child, args=(run, str(path), str(target), str(error_file), float(tolerance_mm),
-                                                       float(angular_tolerance_deg), bool(split), memory_mb),
+                                                       float(angular_tolerance_deg), bool(split), memory_mb,
+                                                       method == "fork"),
                                   daemon=True)
         start = time.monotonic()
         process.start()
