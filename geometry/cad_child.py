@@ -2,8 +2,9 @@
 
 OpenCascade's readers are native code: a damaged file (a dangling entity reference, a truncated
 record) can end in SIGSEGV inside the STEP transfer, which no Python ``try`` catches. Here the file is
-read and meshed in a child process (``fork`` where the platform has it: the parent's imports are
-shared and a child starts in milliseconds; ``spawn`` elsewhere) that writes its result as a
+read and meshed in a child process (``fork`` where the platform has it and this process has not
+started OpenCascade's meshing thread pool: the parent's imports are shared and a child starts in
+milliseconds, meshing serially; otherwise a fresh interpreter, ``python -m geometry.cad_reader_main``) that writes its result as a
 tessellation-cache entry (:mod:`geometry.cad_cache`, the cache entry itself when the cache is on, else
 a temporary file), and the parent reads that. The parent turns every way the child can end into a
 one-line :class:`~geometry.mesh.GeometryError` naming the file:
@@ -111,6 +112,31 @@ def _child(run, path: str, target: str, error: str, tolerance_mm: float, angular
     os._exit(0)
 
 
+class _Popen:
+    """A subprocess.Popen with the few methods of multiprocessing.Process used here."""
+
+    def __init__(self, popen):
+        self.popen = popen
+
+    def is_alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def join(self, timeout=None) -> None:
+        import subprocess
+
+        try:
+            self.popen.wait(timeout)
+        except subprocess.TimeoutExpired:
+            pass
+
+    def kill(self) -> None:
+        self.popen.kill()
+
+    @property
+    def exitcode(self):
+        return self.popen.returncode
+
+
 def _preload() -> None:
     """Import the reader's modules here once, so every forked child starts with them loaded (milliseconds,
     not the seconds OCP's import takes); the same imports an in-process read would make."""
@@ -148,19 +174,30 @@ def tessellate_isolated(run, path, entry: Path | None, *, tolerance_mm: float, a
     path = Path(path)
     timeout_s = _env_number(ENV_TIMEOUT, DEFAULT_TIMEOUT_S)
     memory_mb = memory_limit_mb()
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    context = multiprocessing.get_context(method)
-    if method == "fork":
+    from geometry import tessellate
+
+    # fork when this process has no OpenCascade thread pool yet (a forked child gets none of its threads; the
+    # child meshes serially anyway); a fresh interpreter otherwise (a few seconds of imports).
+    fork = "fork" in multiprocessing.get_all_start_methods() and not tessellate.POOL_STARTED
+    if fork:
         _preload()
     with tempfile.TemporaryDirectory(prefix="straylight-cad-") as tmp:
         target = Path(tmp) / "result.npz" if entry is None else Path(entry)
         error_file = Path(tmp) / "error.txt"
-        process = context.Process(target=_child, args=(run, str(path), str(target), str(error_file), float(tolerance_mm),
-                                                       float(angular_tolerance_deg), bool(split), memory_mb,
-                                                       method == "fork"),
-                                  daemon=True)
+        args = (str(path), str(target), str(error_file), float(tolerance_mm), float(angular_tolerance_deg),
+                bool(split), memory_mb)
+        if fork:
+            process = multiprocessing.get_context("fork").Process(target=_child, args=(run, *args, True), daemon=True)
+        else:  # a fresh interpreter (not multiprocessing's spawn, which re-runs the caller's __main__)
+            import subprocess
+
+            env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in sys.path if p))
+            process = _Popen(subprocess.Popen(
+                [sys.executable, "-m", "geometry.cad_reader_main", *map(str, args[:5]), "1" if split else "0",
+                 str(memory_mb)], env=env, stdin=subprocess.DEVNULL))
         start = time.monotonic()
-        process.start()
+        if fork:
+            process.start()
         try:
             while process.is_alive():
                 process.join(0.2)

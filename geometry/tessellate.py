@@ -63,6 +63,7 @@ _VERIFY_FRACTION = 0.5  # parametric samples above this fraction of the toleranc
 _PROGRESS_S = 5.0  # seconds between progress lines inside one part
 MESH_IN_PARALLEL = True  # OpenCascade's thread pool; off in a forked reader child (geometry.cad_child), where the
 # parent's pool threads do not exist and a parallel mesh would wait for them forever
+POOL_STARTED = False  # this process has meshed in parallel (its thread pool exists): readers start by spawn
 _MAX_SAMPLED = 256  # triangles (and boundary segments) per face whose chord error is measured
 # centroid and edge midpoints (barycentric weights): where a flat facet is farthest from a curved face
 _SAMPLE_WEIGHTS = np.array([[1 / 3, 1 / 3, 1 / 3], [0.5, 0.5, 0.0], [0.0, 0.5, 0.5], [0.5, 0.0, 0.5]])
@@ -177,6 +178,8 @@ def _mesh_faces(topo, tolerance_mm, angular_tolerance_deg, verify_above_mm=None,
     verify = _VERIFY_FRACTION * tolerance_mm if verify_above_mm is None else verify_above_mm
     # An existing finer triangulation would be kept by BRepMesh: clear it so the tolerance is the one asked for.
     BRepTools.Clean_s(topo)
+    global POOL_STARTED
+    POOL_STARTED = POOL_STARTED or MESH_IN_PARALLEL
     BRepMesh_IncrementalMesh(topo, float(tolerance_mm), False, float(np.deg2rad(angular_tolerance_deg)),
                              MESH_IN_PARALLEL)
     faces = []
