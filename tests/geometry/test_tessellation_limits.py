@@ -49,3 +49,33 @@ def test_budget_from_the_environment_is_checked(monkeypatch):
     monkeypatch.setenv(ENV_BUDGET, "lots")
     with pytest.raises(GeometryError, match="STRAYLIGHT_TRIANGLE_BUDGET"):
         triangle_budget()
+
+
+def _unsewn_box():
+    """A 10 mm box whose six faces are separate copies (no shared edges), its top face 0.5 um too high: an
+    open B-rep as CAD exchange files can hold (sewing at 1 um closes it; merging nodes at 1e-7 mm does not)."""
+    import cadquery as cq
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Copy
+
+    from geometry.cad import compound_of
+
+    box = cq.Workplane().box(10, 10, 10)
+    top = box.faces(">Z").val()
+    faces = [BRepBuilderAPI_Copy(f.translate(cq.Vector(0, 0, 5e-4)).wrapped if f.isSame(top) else f.wrapped).Shape()
+             for f in box.faces().vals()]
+    return compound_of(faces)
+
+
+def test_open_solid_is_healed_by_sewing():
+    part = tessellate(_unsewn_box(), name="box", kind="solid", tolerance_mm=0.1)
+    report = part.meta["tessellation"]
+    assert report.n_open_edges == 0 and part.is_watertight
+    assert "healed by sewing" in report.note
+
+
+def test_open_solid_left_open_is_reported_with_its_faces():
+    with pytest.warns(TessellationWarning, match=r"mesh open: \d+ open edges along B-rep faces \d"):
+        part = tessellate(_unsewn_box(), name="box", kind="solid", tolerance_mm=0.1, heal=False)
+    report = part.meta["tessellation"]
+    assert report.n_open_edges > 0 and not part.is_watertight
+    assert "power ledger still closes" in report.note
