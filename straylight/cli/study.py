@@ -24,7 +24,7 @@ def add_parser(subparsers):
     from straylight.cli.pst import add_precision_args
 
     add_precision_args(p, default_rays=None,
-                       what=f"rays per PST angle (default: each PST point traced to {DEFAULT_TARGET_REL_ERROR:.0%} "
+                       what=f"rays per PST angle (default: each PST point traced to {DEFAULT_TARGET_REL_ERROR * 100:g} %% "
                             f"with a reliable error, at most {DEFAULT_POINT_SECONDS:g} s per point); the other "
                             f"steps scale from it (default {DEFAULT_RAYS})", exclusive=False)
     p.add_argument("--seed", type=int, default=0)

@@ -38,13 +38,14 @@ def pst_points(spec, vanes, material_models: dict, angles_deg, rays: int, seed: 
 
     ``store``: a :class:`straylight.checkpoints.PointStore`; angle i is kept there as point
     ``slot * 1000 + i`` with the layout's vane heights, and read back if an earlier run finished it."""
+    from straylight.analyses.estimators import estimator_options
     from straylight.analyses.pst import part_area_mm2, point_seed
-    from straylight.trace import TraceOptions, trace
+    from straylight.trace import trace
 
     sc = model.scene(spec, vanes)
     bm = model.beam(spec)
     area = part_area_mm2(sc, "detector")
-    opts = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True)
+    opts = estimator_options("default")  # the estimator set `straylight pst` traces: same seed, same numbers
     out = []
     z_mm = [float(v.z_mm) for v in vanes]
     for i, a_deg in enumerate(angles_deg):

@@ -5,12 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from materials.flags import ComponentFlags, flags_of
+
 
 def lobe_materials(spec) -> np.ndarray:
     """Per material of ``spec``: does it declare a peaked lobe (``ComponentFlags.GLOSSY``)? The lobe
     draws run only there: for a wide (diffuse) lobe the uniform detector point is already the
     better strategy, and the extra cast cost ~30 % CPU for nothing on the Lambertian benchmark tube.
     Chosen per material, so each vertex's weights still add to one."""
-    from materials.flags import ComponentFlags, flags_of
-
     return np.array([bool(flags_of(m) & ComponentFlags.GLOSSY) for m in spec.materials] + [False], dtype=bool)

@@ -88,10 +88,9 @@ def test_rough_paraboloid_pst_matches_quadrature(theta_deg):
     E = 1.0 / (np.pi * BEAM_MM**2 * math.cos(theta))  # irradiance normal to the rays of a 1 W beam
     res = trace(Scene((prim, det)), [src], 200_000, seed=11, materials={"rough_al": material},
                 options=TraceOptions(detector_sides="front"))
-    # the detector as traced is the inscribed 24-gon of the disk (1.1 % less area); irradiance on it
-    # is uniform to 1e-3, so PST per unit of its own area is the quadrature's per unit disk area
-    tri = det.vertices_mm[det.faces]
-    a_det = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum()
+    # an analytic detector disk is traced exactly (CONTRACTS 6.4); irradiance on it is uniform to
+    # 1e-3, so PST per unit of its area is the quadrature's per unit disk area
+    a_det = math.pi * DET_MM**2
     pst = res.detectors["det"].power_w / a_det / E
     err = res.detectors["det"].stderr_w / a_det / E
     ref = quadrature_pst(material, theta)
