@@ -213,7 +213,7 @@ def test_sphere_and_torus_chord_error_against_analytic_distance():
     for shape, method, distance in cases:
         part = tessellate(shape, tolerance_mm=0.05)
         report = part.meta["tessellation"]
-        assert report.method == "sampled"
+        assert report.method in ("sampled", "sampled+projected")  # suspect samples re-measured by projection
         dense = distance(np.einsum("kj,mjc->mkc", w, part.vertices_mm[part.faces]).reshape(-1, 3)).max()
         assert dense > 0.005  # sanity: a coarse enough mesh to measure
         assert report.max_chord_error_mm <= 0.05
