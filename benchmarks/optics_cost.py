@@ -25,7 +25,7 @@ from geometry import Scene
 from geometry.mesh import Part
 from geometry.parts.cassegrain import CassegrainParams, cassegrain_scene
 from materials import load_material
-from straylight.analyses.builtin import Beam
+from straylight.analyses.types import Beam
 from straylight.trace import TraceOptions, trace
 
 

@@ -23,7 +23,8 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from straylight.analyses.builtin import DEFAULT_MATERIAL, Entrance, Setup
+from straylight.analyses.builtin import DEFAULT_MATERIAL
+from straylight.analyses.types import Entrance, Setup
 
 BUILTINS = ("tube", "cassegrain")
 
@@ -156,7 +157,7 @@ def _angle_rad(value_deg: float, name: str) -> float:
 
 @dataclass(frozen=True, eq=False)
 class Instrument:
-    """A loaded instrument (:class:`~straylight.analyses.builtin.Setup`: scene, materials, beam, entrance,
+    """A loaded instrument (:class:`~straylight.analyses.types.Setup`: scene, materials, beam, entrance,
     detector) and the analyses that run on it. ``client``/``workers``/``scheduler`` on each call choose
     where it runs (default: this process); they never change the numbers."""
 
@@ -183,7 +184,7 @@ class Instrument:
             workers=None, scheduler=None, client=None, progress: bool = False, checkpoint_dir=None,
             resume: bool = False, diffraction: bool = True, wavelength_nm: float | None = None,
             estimators: str = "default"):
-        """Point source transmittance at every (angle, azimuth): a :class:`~straylight.analyses.pst.PstResult`.
+        """Point source transmittance at every (angle, azimuth): a :class:`~straylight.analyses.types.PstResult`.
 
         ``rays`` per point, or ``target_rel_error`` (with its caps): each point traced until its relative
         standard error is at most that (docs/study.md). Each point has its own seed derived from ``seed``.

@@ -219,7 +219,8 @@ def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: i
 
     from straylight.analyses.pst import dask_client, point_seed, pst_sweep
     from straylight.analyses.scene_setup import scene_setup
-    from straylight.analyses.sweep import SweepResult, _point_store
+    from straylight.analyses.sweep import _point_store
+    from straylight.analyses.types import SweepResult
     from straylight.progress import progress_bar
 
     fn, _ = load_model(model)

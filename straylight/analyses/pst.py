@@ -18,49 +18,15 @@ index, so the points are independent and the sweep is reproducible.
 """
 from __future__ import annotations
 
-import csv
-import json
 import math
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-import atomicio
-from straylight.analyses.builtin import Beam, Entrance, Setup
-from straylight.analyses.tables import TableRepr
+from straylight.analyses.types import Beam, PstResult, Setup
 from straylight.execution import Execution
 from straylight.progress import progress_bar
-
-DEFAULT_VOV_LIMIT = 0.1  # straylight.analyses.precision.DEFAULT_MAX_VOV: MCNP's reliability check
-CSV_COLUMNS = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "entrance_ratio", "entrance_ratio_stderr",
-               "detector_w", "detector_stderr_w", "rays", "seconds")
-DIAGNOSTIC_COLUMNS = ("vov", "rel_error_of_error", "max_chunk_share", "stop_reason", "rounds")
-FLAG_COLUMN = "flags"  # last column of pst.csv, key of each pst.json point (docs/notebook.md, "PST files")
-FLAGS = {
-    "zero": "no power reached the detector: the PST is below what these rays resolve (0 is not a measurement)",
-    "unreliable_error": "the variance of the variance (VOV) is above 0.1 (MCNP's check): rare heavy paths, the "
-                        "error bar itself is uncertain",
-    "target_not_reached": "traced to a target relative error, but a ray or time cap stopped the point first",
-}
-
-
-UNTRUSTED_FLAGS = {"unreliable_error", "target_not_reached"}  # marked on the plot and in the study's table
-
-
-def point_flags(row: dict) -> str:
-    """The ``FLAGS`` that apply to one point (a ``PstResult.rows()`` entry), joined by ';' ('' when none)."""
-    out = []
-    if not row["pst"] > 0:
-        out.append("zero")
-    vov = row.get("vov")
-    if vov is not None and math.isfinite(vov) and vov > DEFAULT_VOV_LIMIT:
-        out.append("unreliable_error")
-    if row.get("stop_reason") not in (None, "", "target"):
-        out.append("target_not_reached")
-    return ";".join(out)
 
 
 def point_seed(seed: int, index: int) -> int:
@@ -125,143 +91,6 @@ def dask_client(workers: int | None = None, scheduler: str | None = None, securi
     return one_builder(workers, scheduler, security=security, in_process_below=2)
 
 
-@dataclass(frozen=True, eq=False)
-class PstResult(TableRepr):
-    """A PST sweep; arrays have one entry per (off-axis, azimuth) point, in sweep order.
-
-    off_axis_deg, azimuth_deg : (n,) the tilts
-    pst, pst_stderr : (n,) detector irradiance / input irradiance
-    entrance_ratio, entrance_ratio_stderr : (n,) detector power / entrance power (NaN without entrance)
-    detector_w, detector_stderr_w : (n,) detector power for a beam of ``beam_power_w``
-    seconds : (n,) wall time of each trace
-    """
-
-    off_axis_deg: np.ndarray
-    azimuth_deg: np.ndarray
-    pst: np.ndarray
-    pst_stderr: np.ndarray
-    entrance_ratio: np.ndarray
-    entrance_ratio_stderr: np.ndarray
-    detector_w: np.ndarray
-    detector_stderr_w: np.ndarray
-    seconds: np.ndarray
-    rays: int
-    seed: int
-    nee: bool
-    detector: str
-    detector_area_mm2: float
-    beam_power_w: float
-    description: str = ""
-    traces: list = field(default_factory=list, repr=False)
-    detector_area_rule: str = ""
-    point_rays: np.ndarray | None = None  # (n,) rays traced per point (differs with a precision target)
-    diagnostics: list | None = None  # per point: reliability of the error estimate, stop reason, rounds
-    precision: dict | None = None  # the target and caps, when traced to a relative error
-    diffraction: dict | None = None  # edge diffraction on/off, method and wavelength, when a part diffracts
-
-    def rows(self) -> list[dict]:
-        """One dict per point, keys ``CSV_COLUMNS``."""
-        return [
-            {"off_axis_deg": float(self.off_axis_deg[i]), "azimuth_deg": float(self.azimuth_deg[i]),
-             "pst": float(self.pst[i]), "pst_stderr": float(self.pst_stderr[i]),
-             "entrance_ratio": float(self.entrance_ratio[i]),
-             "entrance_ratio_stderr": float(self.entrance_ratio_stderr[i]),
-             "detector_w": float(self.detector_w[i]), "detector_stderr_w": float(self.detector_stderr_w[i]),
-             "rays": int(self.rays if self.point_rays is None else self.point_rays[i]),
-             "seconds": float(self.seconds[i]), **(self.diagnostics[i] if self.diagnostics else {})}
-            for i in range(len(self.pst))
-        ]
-
-    def flagged_rows(self) -> list[dict]:
-        """:meth:`rows` with each point's ``flags`` (:func:`point_flags`)."""
-        return [{**r, FLAG_COLUMN: point_flags(r)} for r in self.rows()]
-
-    def to_pandas(self):
-        """The points as a pandas DataFrame (columns of pst.csv; pandas is an optional dependency)."""
-        from straylight.analyses.tables import data_frame
-
-        return data_frame(self.flagged_rows(), CSV_COLUMNS + DIAGNOSTIC_COLUMNS + (FLAG_COLUMN,))
-
-    def to_json_dict(self) -> dict:
-        clean = [{k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
-                 for r in self.flagged_rows()]
-        return {"quantity": "point source transmittance",
-                "definitions": {"pst": "detector irradiance / beam irradiance normal to the rays",
-                                "entrance_ratio": "detector power / beam power crossing the entrance disk"},
-                "description": self.description, "detector": self.detector,
-                "detector_area_mm2": self.detector_area_mm2, "detector_area_rule": self.detector_area_rule,
-                "rays_per_point": self.rays if self.precision is None else None, "seed": self.seed,
-                "precision": self.precision,
-                "reliability_note": "rel_error_of_error ~ sqrt(vov) / 2; vov > 0.1 (MCNP's check) or a large "
-                                    "max_chunk_share means rare heavy paths: the error bar itself is uncertain",
-                "nee": self.nee, "beam_power_w": self.beam_power_w, "diffraction": self.diffraction,
-                "units": {"off_axis_deg": "deg", "azimuth_deg": "deg", "pst": "1", "pst_stderr": "1",
-                          "detector_w": "W", "detector_stderr_w": "W", "detector_area_mm2": "mm^2"},
-                "flags": FLAGS, "points": clean}
-
-    def write_json(self, path) -> Path:
-        path = Path(path)
-        atomicio.write_text(path, json.dumps(self.to_json_dict(), indent=2))
-        return path
-
-    def write_csv(self, path) -> Path:
-        path = Path(path)
-        with atomicio.atomic_open(path, "w") as fh:
-            writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS + DIAGNOSTIC_COLUMNS + (FLAG_COLUMN,), restval="")
-            writer.writeheader()
-            writer.writerows(self.flagged_rows())
-        return path
-
-    def plot(self, path=None, quantity: str = "pst", ax=None, label_prefix: str = ""):
-        """Log-scale plot of ``quantity`` ("pst" or "entrance_ratio") vs off-axis angle, 1-sigma bars.
-
-        Zero values (no light reached the detector) cannot sit on a log axis: they are drawn
-        as open triangles on the bottom edge and named in the legend.
-        """
-        import matplotlib.pyplot as plt
-
-        if quantity not in ("pst", "entrance_ratio"):
-            raise ValueError(f"quantity must be 'pst' or 'entrance_ratio', got {quantity!r}")
-        y, e = getattr(self, quantity), getattr(self, quantity + "_stderr")
-        own = ax is None
-        if own:
-            fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
-        doubtful = np.array([bool(set(r[FLAG_COLUMN].split(";")) & UNTRUSTED_FLAGS) for r in self.flagged_rows()])
-        for phi in np.unique(self.azimuth_deg):
-            sel = self.azimuth_deg == phi
-            x, yy, ee = self.off_axis_deg[sel], y[sel], e[sel]
-            pos = yy > 0
-            label = label_prefix + (f"azimuth {phi:g} deg" if len(np.unique(self.azimuth_deg)) > 1 else "")
-            line = ax.errorbar(x[pos], yy[pos], yerr=np.minimum(ee[pos], 0.999 * yy[pos]), fmt="o-", ms=4,
-                               capsize=3, label=label or None)
-            bad = pos & doubtful[sel]
-            if np.any(bad):  # the error bar itself cannot be trusted there: say so on the plot
-                ax.plot(x[bad], yy[bad], "s", mfc="none", mec="red", mew=1.5, ms=11,
-                        label=(label + ": " if label else "") + "error bar NOT reliable (VOV > 0.1 or cap reached)")
-            zero = ~pos & np.isfinite(yy)
-            if np.any(zero):
-                # y in axes units (0 = bottom edge) for x in data units
-                ax.plot(x[zero], np.zeros(zero.sum()), "v", mfc="none", ms=7, color=line[0].get_color(),
-                        transform=ax.get_xaxis_transform(), clip_on=False,
-                        label=(label + ": " if label else "") + "zero (no detected power)")
-        ax.set_yscale("log")
-        ax.set_xlabel("off-axis angle (deg)")
-        ax.set_ylabel("PST = E_detector / E_input" if quantity == "pst"
-                      else "detector power / entrance power")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.set_title(f"{'Point source transmittance' if quantity == 'pst' else 'Entrance-normalised ratio'}"
-                     + (f" ({self.rays:.2g} rays/point, 1-sigma bars)" if self.precision is None else
-                        f" (to {self.precision['target_rel_error']:.1%} rel. error, 1-sigma bars)"), fontsize=10)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=8)
-        if own:
-            fig.tight_layout()
-            if path is not None:
-                atomicio.write_figure(fig, path)
-                plt.close(fig)
-        return ax
-
-
 def sweep_diffraction(scene, wavelength_nm, options) -> dict | None:
     """What pst.json says about edge diffraction (CONTRACTS §6.5): None when no part diffracts."""
     from straylight.engine.diffraction import METHOD, diffracting_parts
@@ -283,7 +112,7 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
 
     Parameters
     ----------
-    setup : :class:`straylight.analyses.builtin.Setup` (scene, materials, beam, entrance, detector)
+    setup : :class:`straylight.analyses.types.Setup` (scene, materials, beam, entrance, detector)
     off_axis : (n,) float, radians; azimuth : (m,) float, radians (every pair is traced)
     n_rays : rays per point; seed : user seed (each point gets :func:`point_seed`)
     nee : importance sampling toward the detector: the engine's next-event estimation (a

@@ -3,7 +3,7 @@
 The beam is the scene's ``collimated_disk`` source (the only one, or the first with a warning-free
 rule: several collimated sources are an error). At 0 deg off axis it is that source exactly; an
 off-axis angle tilts its rays away from the source's own ``direction`` (azimuth 0 toward the world
-axis least aligned with it: :attr:`straylight.analyses.builtin.Beam.basis`).
+axis least aligned with it: :attr:`straylight.analyses.types.Beam.basis`).
 
 The optional ``[analysis]`` table (CONTRACTS §6.3)::
 
@@ -40,7 +40,7 @@ def _vector(value, where: str) -> np.ndarray:
 
 def parse_analysis_table(doc: dict, path) -> dict:
     """The checked ``[analysis]`` table of a scene document: {detector, entrance, detector_area_mm2}."""
-    from straylight.analyses.builtin import Entrance
+    from straylight.analyses.types import Entrance
 
     table = doc.get("analysis", {})
     where = f"{path}: [analysis]"
@@ -82,7 +82,7 @@ def parse_analysis_table(doc: dict, path) -> dict:
 
 def beam_of_scene(sources, path):
     """The scene's collimated_disk source as a :class:`Beam` (no pivot yet)."""
-    from straylight.analyses.builtin import Beam
+    from straylight.analyses.types import Beam
     from straylight.sources import CollimatedDisk
 
     beams = [s for s in sources if isinstance(s, CollimatedDisk)]
@@ -103,7 +103,7 @@ def setup_from_resolved(rs, analysis: dict, path, detector: str | None = None, e
     """
     from dataclasses import replace
 
-    from straylight.analyses.builtin import Entrance, Setup
+    from straylight.analyses.types import Entrance, Setup
     from straylight.analyses.pst import detector_name
 
     beam = beam_of_scene(rs.sources, path)

@@ -33,12 +33,12 @@ MIRRORS = ("primary", "secondary")
 
 
 def cassegrain_setup(params=None, mirror_components=None, tolerance_mm: float = 0.02):
-    """A :class:`straylight.analyses.builtin.Setup` of the built-in Cassegrain (with a 5-mm filter)."""
+    """A :class:`straylight.analyses.types.Setup` of the built-in Cassegrain (with a 5-mm filter)."""
     from geometry.parts.cassegrain import (BLACK_MATERIAL, FILTER_MATERIAL, FILTER_MATERIAL_TABLE,
                                            MIRROR_MATERIAL, MIRROR_MATERIAL_TABLE, CassegrainParams,
                                            cassegrain_scene)
     from materials import load_material
-    from straylight.analyses.builtin import Beam, Entrance, Setup
+    from straylight.analyses.types import Beam, Entrance, Setup
 
     p = params or CassegrainParams(filter_thickness_mm=5.0)
     table = dict(MIRROR_MATERIAL_TABLE)

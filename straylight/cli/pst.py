@@ -116,7 +116,7 @@ def add_parser(subparsers):
 
 
 def load_setup(args):
-    """A :class:`straylight.analyses.builtin.Setup` from the common scene arguments (:func:`load_instrument`)."""
+    """A :class:`straylight.analyses.types.Setup` from the common scene arguments (:func:`load_instrument`)."""
     return load_instrument(args).setup
 
 

@@ -35,8 +35,8 @@ def beam_source_dict(spec) -> dict:
 
 
 def beam(spec):
-    """The :class:`straylight.analyses.builtin.Beam` that ``straylight pst`` builds from that source."""
-    from straylight.analyses.builtin import Beam
+    """The :class:`straylight.analyses.types.Beam` that ``straylight pst`` builds from that source."""
+    from straylight.analyses.types import Beam
 
     src = beam_source_dict(spec)
     return Beam(center_mm=src["center_mm"], axis=src["normal"], radius_mm=src["radius_mm"], power_w=src["power_w"])

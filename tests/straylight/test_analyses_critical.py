@@ -6,7 +6,7 @@ import pytest
 
 from geometry.mesh import Part, Scene
 from materials import Lambertian
-from straylight.analyses.builtin import Beam, Setup
+from straylight.analyses.types import Beam, Setup
 from straylight.analyses.critical import LambertianPart, critical_objects
 
 

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from materials import Lambertian
-from straylight.analyses.builtin import Setup, tube_setup
+from straylight.analyses.builtin import tube_setup
+from straylight.analyses.types import Setup
 from straylight.analyses.paths_report import ANCESTRY, GROUP_BY, ancestry_of, path_report, paths_analysis, sequence_label
 
 

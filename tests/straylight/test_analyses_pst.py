@@ -7,7 +7,8 @@ import pytest
 from scipy import integrate
 
 from materials import Lambertian
-from straylight.analyses.builtin import Setup, tube_setup
+from straylight.analyses.builtin import tube_setup
+from straylight.analyses.types import Setup
 from straylight.analyses.pst import geometric_direct_ratio, part_area_mm2, pst_sweep
 
 
@@ -95,7 +96,7 @@ def test_same_seed_same_numbers_and_outputs(empty_tube, tmp_path):
 
 
 def test_beam_not_covering_entrance_is_a_clear_error(empty_tube):
-    from straylight.analyses.builtin import Beam, Entrance
+    from straylight.analyses.types import Beam, Entrance
 
     beam = Beam(center_mm=(0, 0, 310), axis=(0, 0, -1), radius_mm=52.0)
     with pytest.raises(ValueError, match="does not cover the entrance"):

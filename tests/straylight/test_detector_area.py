@@ -27,7 +27,7 @@ def disks():
 
 def _with_detector(base, vertices, faces):
     from geometry.mesh import Part, Scene
-    from straylight.analyses.builtin import Setup
+    from straylight.analyses.types import Setup
 
     parts = tuple(p for p in base.scene.parts if p.role != "detector")
     parts += (Part("detector", vertices, faces, None, "detector", {}),)

@@ -124,7 +124,7 @@ def test_an_absorbing_annulus_stops_exactly_its_annulus():
 
 
 def test_pst_divides_by_the_exact_area():
-    from straylight.analyses.builtin import Beam, Setup
+    from straylight.analyses.types import Beam, Setup
     from straylight.analyses.pst import detector_area
 
     det = analytic_part("det", Plane(np.zeros(3), UP, math.inf, 0.0, 5.0, 1.0), None, "detector")

@@ -1,6 +1,6 @@
 """The ``flags`` of a PST point (pst.csv's last column, each pst.json point): what a mission simulator
 reads to know which points to trust (docs/notebook.md, "PST files for other programs")."""
-from straylight.analyses.pst import FLAGS, point_flags
+from straylight.analyses.types import FLAGS, point_flags
 
 
 def test_a_sound_point_has_no_flag():

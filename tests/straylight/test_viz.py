@@ -4,7 +4,7 @@ import pytest
 
 from geometry.mesh import Part, Scene
 from materials import Lambertian
-from straylight.analyses.builtin import Beam, Setup
+from straylight.analyses.types import Beam, Setup
 
 
 @pytest.fixture(scope="module")
