@@ -1,5 +1,5 @@
 """What TLS costs a local cluster of worker processes (issue 27): ``local_cluster(2, processes=True)``
-with its per-run TLS key (``straylight.distribute.run_security``) against the same cluster on plain
+with its per-run TLS key (``straylight.engine.backends.dask.run_security``) against the same cluster on plain
 TCP, alternating, each starting the cluster and tracing the golden tube; prints each run and the
 medians (the first run of each kind is a warm-up). The numbers must be identical.
 
@@ -22,7 +22,7 @@ def main():
     args = ap.parse_args()
     from dask.distributed import Client
 
-    import straylight.distribute as dist
+    import straylight.engine.backends.dask as dist
     from straylight.scene import load_scene
     from straylight.trace import trace
 

@@ -196,7 +196,7 @@ def two_workers(scene, mats, a_deg, n, seed, repeats=1):
     """The same trace on a LocalCluster of 2 processes x 1 thread; start-up timed apart."""
     from dask.distributed import Client
 
-    from straylight.distribute import local_cluster, warm_up, worker_cpu_seconds
+    from straylight.engine.backends.dask import local_cluster, warm_up, worker_cpu_seconds
     from straylight.trace import TraceOptions, make_spec
 
     t = time.perf_counter()
@@ -324,7 +324,7 @@ def main(argv=None):
 
     from dask.distributed import Client
 
-    from straylight.distribute import local_cluster
+    from straylight.engine.backends.dask import local_cluster
 
     with local_cluster(2) as cluster, Client(cluster) as client:  # what trace(..., workers=2) starts
         timed_trace(scene, mats, 30.0, 20_000, args.seed, client=client)  # warm-up

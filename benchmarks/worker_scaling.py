@@ -3,7 +3,7 @@
     .venv/bin/python benchmarks/worker_scaling.py [--scene SCENE.toml] [--rays N] [--seed S] [--repeat R] [--json OUT]
 
 For K = 1 and 2: a LocalCluster of K worker processes with one thread each (bound to 127.0.0.1,
-as ``straylight.distribute.local_cluster(K, processes=True)``), one trace of ``--rays`` rays,
+as ``straylight.engine.backends.dask.local_cluster(K, processes=True)``), one trace of ``--rays`` rays,
 cluster closed: the wall time of all of it (start-up, scene shipped to and built in each worker,
 compiled kernels loaded from numba's cache, tracing, shutdown), counted from after the scene is
 loaded (which any command does first; not counted, but printed). Also the per-process rate: ray
@@ -14,7 +14,7 @@ optionally (``--in-process``) the same trace in this process. Numbers must be id
 run and in-process (printed).
 
 Each run is a fresh Python process of this script (``--one K``): the worker processes are forked
-from a server that imports the engine and loads the kernels once (``straylight.fork_server``),
+from a server that imports the engine and loads the kernels once (``straylight.engine.backends.fork_server``),
 which a second cluster in the same process would reuse; a fresh process gives every run its full
 start-up. As ``straylight trace SCENE --workers K --processes`` does, the server is launched
 before the scene is loaded and loads (~1.5 s of one core) while the scene loads; the part of it
@@ -85,7 +85,7 @@ def whole_run(k, scene, sources, materials, n, seed, options):
     s, {phase: wall s}, the spec)."""
     from dask.distributed import Client
 
-    from straylight.distribute import local_cluster, warm_up, worker_cpu_seconds
+    from straylight.engine.backends.dask import local_cluster, warm_up, worker_cpu_seconds
     from straylight.trace import make_spec, trace
 
     t0 = t = time.perf_counter()
@@ -112,7 +112,7 @@ def warm_startup(k, spec):
     warm): cluster up and warm-up, wall s (then closed)."""
     from dask.distributed import Client
 
-    from straylight.distribute import local_cluster, warm_up
+    from straylight.engine.backends.dask import local_cluster, warm_up
 
     t = time.perf_counter()
     with local_cluster(k, processes=True) as cluster, Client(cluster) as client:
@@ -139,12 +139,12 @@ def load(scene_path):
 
 def one(k, args):
     """``--one K``: one whole run in this (fresh) process; its numbers as JSON on stdout's last line.
-    The worker processes' fork server is launched first (``straylight.fork_server.start``, as
+    The worker processes' fork server is launched first (``straylight.engine.backends.fork_server.start``, as
     ``straylight trace --workers K --processes`` does) and loads while the scene loads, unless
     ``--late-fork-server`` (the cluster launches it); the clock starts after the scene is loaded."""
     t0 = time.perf_counter()
     if not args.late_fork_server:
-        from straylight import fork_server
+        from straylight.engine.backends import fork_server
 
         fork_server.start()
     from straylight.trace import TraceOptions
@@ -188,7 +188,7 @@ def main(argv=None):
     ap.add_argument("--in-process", action="store_true", help="also trace in this process (1 thread)")
     ap.add_argument("--late-fork-server", action="store_true",
                     help="launch the workers' fork server with the cluster, after the scene is loaded (before "
-                         "straylight.fork_server.start was called first: for before/after comparisons)")
+                         "straylight.engine.backends.fork_server.start was called first: for before/after comparisons)")
     ap.add_argument("--json", default=None)
     ap.add_argument("--one", type=int, default=0, help=argparse.SUPPRESS)  # one K in this process (run_fresh)
     args = ap.parse_args(argv)

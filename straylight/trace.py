@@ -16,7 +16,7 @@ next-event estimation, Russian roulette and an exact power ledger. The engine is
     second_vertex          area sampling of the critical surfaces as second vertex (MIS with the walk)
     advance                absorption, roulette, truncation, next ray state
     tallies, results       per-chunk sums, maps, paths; TraceResult
-    scheduling             batches in process, on threads, or on dask (straylight.distribute)
+    scheduling             batches in process, on threads, or on dask (straylight.engine.backends.dask)
 
 The names other modules use are importable from here.
 """
@@ -24,8 +24,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from straylight.distribute import ship_early
-from straylight.engine.batch_pool import shared_pool  # noqa: F401 - re-exported
+from straylight.engine.backends.dask import ship_early
 from straylight.engine.compiled_scene import cached_scene, compiled_scene, detector_samplers
 from straylight.engine.first_vertex import build_table
 from straylight.engine.second_vertex import build_table as build_critical_table
@@ -57,7 +56,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     seed : int, non-negative
     materials : dict name -> Brdf, optional (else ``materials.load_material(name)``)
     options : TraceOptions
-    workers, client, scheduler : run on dask (straylight.distribute); default in-process
+    workers, client, scheduler : run on dask (straylight.engine.backends.dask); default in-process
     security : dask ``Security`` (TLS) for ``scheduler``, or a path to a security YAML
     intersector : an intersector object to use in-process (e.g. ReferenceIntersector)
     threads : int, optional

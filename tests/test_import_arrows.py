@@ -1,5 +1,6 @@
 """The import arrows of STYLE §1 hold: atomicio <- materials <- geometry (names only) <- straylight <- rig,
-with no cycles between files, and the ``straylight`` command finds ``rig`` through its entry point.
+with no cycles between files, straylight.engine below the rest of straylight, and the ``straylight`` command
+finds ``rig`` through its entry point.
 
 Walks every module with ``ast`` (imports inside functions included: a lazy import is still an
 arrow) and fails on a forbidden import or a cycle.
@@ -141,6 +142,29 @@ def test_cycle_finder_sees_a_lazy_cycle(tmp_path):
     (pkg / "c.py").write_text("import pkg.a\n")
     found = cycles(import_graph(module_files(tmp_path, ("pkg",))))
     assert found == [["pkg.a", "pkg.sub", "pkg.sub.b"]]
+
+
+# ------------------------------------------------------------------ the engine sits below the rest of straylight
+
+# the modules of straylight the engine stands on (random streams, path records, detectors, sources,
+# intersectors, run checks): they and the engine import nothing of straylight above them (trace,
+# analyses, cli, design, thermal, checkpoints, progress, ...). The engine's backends (dask, fork server,
+# thread pool) live in straylight/engine/backends (issue 23: the dask code used to sit above the engine).
+ENGINE_FLOOR = ("straylight.rng", "straylight.pcg64", "straylight.paths", "straylight.detectors", "straylight.sources",
+                "straylight.budget", "straylight.run_checks", "straylight.polarization", "straylight.intersect")
+
+
+def _in(name: str, roots) -> bool:
+    return any(name == r or name.startswith(r + ".") for r in roots)
+
+
+def test_the_engine_imports_nothing_of_straylight_above_it():
+    graph = import_graph(module_files())
+    below = ("straylight.engine", *ENGINE_FLOOR)
+    bad = [f"{module} imports {target}" for module, targets in sorted(graph.items()) if _in(module, below)
+           for target in sorted(targets) if _in(target, ("straylight",)) and not _in(target, below)]
+    assert not bad, "the engine (and what it stands on) imports from above it:\n" + "\n".join(bad)
+    assert "straylight.engine.backends.dask" in graph and "straylight.distribute" not in graph
 
 
 # ------------------------------------------------------------------ the command's entry points

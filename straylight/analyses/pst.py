@@ -85,8 +85,8 @@ def detector_area(setup, name: str):
 
 def dask_client(workers: int | None = None, scheduler: str | None = None, security=None):
     """A dask client for a whole sweep (one local cluster, not one per trace), or None in-process:
-    :func:`straylight.distribute.dask_client` (the one builder; 1 worker = this process)."""
-    from straylight.distribute import dask_client as one_builder
+    :func:`straylight.engine.backends.dask.dask_client` (the one builder; 1 worker = this process)."""
+    from straylight.engine.backends.dask import dask_client as one_builder
 
     return one_builder(workers, scheduler, security=security, in_process_below=2)
 

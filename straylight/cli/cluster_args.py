@@ -21,7 +21,7 @@ def add_cluster_args(parser) -> None:
 
 def add_insecure_arg(parser) -> None:
     """``--allow-insecure``: accept a plain-TCP scheduler beyond this machine (refused otherwise:
-    :func:`straylight.distribute.check_scheduler_address`)."""
+    :func:`straylight.engine.backends.dask.check_scheduler_address`)."""
     parser.add_argument("--allow-insecure", action="store_true",
                         help="accept --scheduler tcp://HOST on another machine without TLS (anyone who can reach "
                              "it can run code on its workers); only on a network you trust")
@@ -29,20 +29,20 @@ def add_insecure_arg(parser) -> None:
 
 def start_early(args, in_process_below: int = 1) -> bool:
     """With ``--workers K --processes`` (K >= ``in_process_below``, no ``--scheduler``): launch the
-    worker processes' fork server now (:func:`straylight.fork_server.start`), before the command
+    worker processes' fork server now (:func:`straylight.engine.backends.fork_server.start`), before the command
     loads its scene, so that its ~1.5 s of loading overlaps the scene's; :func:`cluster_client`
     then starts the cluster from it. Returns whether it was launched (or was running). An unencrypted
     ``--scheduler`` beyond this machine is refused here, before the scene is loaded."""
     workers = getattr(args, "workers", None)
     if getattr(args, "scheduler", None):  # an unencrypted remote scheduler is refused before any work
-        from straylight.distribute import check_scheduler_address
+        from straylight.engine.backends.dask import check_scheduler_address
 
         check_scheduler_address(args.scheduler, getattr(args, "allow_insecure", False) or None)
     if not getattr(args, "processes", False) or getattr(args, "scheduler", None) or workers is None:
         return False
     if workers < max(1, int(in_process_below)):
         return False
-    from straylight import fork_server
+    from straylight.engine.backends import fork_server
 
     return fork_server.start()
 
@@ -52,7 +52,7 @@ def cluster_client(args, in_process_below: int = 1):
     """The dask client the options ask for (``--workers K``: a loopback-only local cluster of K threads,
     or K processes with ``--processes``; ``--scheduler``: that scheduler, with TLS if given), or None to
     run in this process (also for ``--workers`` below ``in_process_below``: sweeps run one worker here)."""
-    from straylight.distribute import dask_client, tls_security
+    from straylight.engine.backends.dask import dask_client, tls_security
 
     workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
     security = tls_security(args.tls_ca_file, args.tls_cert, args.tls_key)

@@ -105,7 +105,7 @@ def _one_line_warnings():
 @contextmanager
 def _allow_insecure(allowed: bool):
     """``--allow-insecure`` for this command: the sweeps open their dask clients deep inside
-    (straylight.distribute.dask_client reads STRAYLIGHT_ALLOW_INSECURE_SCHEDULER); restored after."""
+    (straylight.engine.backends.dask.dask_client reads STRAYLIGHT_ALLOW_INSECURE_SCHEDULER); restored after."""
     if not allowed:
         yield
         return

@@ -1,12 +1,12 @@
 """Stage: scheduling. The ray ids are cut into chunks of CHUNK_RAYS (each with its own random
 stream), the chunks into batches (``batch_rays``, default :data:`straylight.engine.spec.AUTO_BATCH_RAYS`),
 and the batches run in this process (one after another, or on a thread pool:
-straylight.engine.batch_pool) or on dask (straylight.distribute). Results come back in chunk
+straylight.engine.backends.threads) or on dask (straylight.engine.backends.dask). Results come back in chunk
 order, so every way gives the same numbers."""
 from __future__ import annotations
 
-from straylight.distribute import run_distributed
-from straylight.engine.batch_pool import run_local, run_threads
+from straylight.engine.backends.dask import run_distributed
+from straylight.engine.backends.threads import run_local, run_threads
 from straylight.engine.spec import AUTO_BATCH_RAYS
 from straylight.rng import batches
 
@@ -19,7 +19,7 @@ def batch_ranges(spec) -> list:
 def run_batches(spec, ranges, workers=None, client=None, scheduler=None, intersector=None, threads=None, security=None,
                 early=None):
     """Batch results for ``ranges``, in order: on dask if ``workers``, ``client`` or ``scheduler``
-    is given (``early``: the spec already sent to ``client``'s workers, straylight.distribute.ship_early),
+    is given (``early``: the spec already sent to ``client``'s workers, straylight.engine.backends.dask.ship_early),
     else on ``threads`` threads, else one after another."""
     if workers is not None or client is not None or scheduler is not None:
         return run_distributed(spec, ranges, workers=workers, client=client, scheduler=scheduler, security=security,

@@ -42,7 +42,7 @@ class ExactBoundaryIntersector:
 
     def __getattr__(self, name):
         """Anything else is the inner intersector's (e.g. embree's ``_scene``, whose first use waits for the
-        BVH build: straylight.distribute warms workers up with it)."""
+        BVH build: straylight.engine.backends.dask warms workers up with it)."""
         if name == "inner":  # not yet set (unpickling): no recursion
             raise AttributeError(name)
         return getattr(self.inner, name)

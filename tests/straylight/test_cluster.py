@@ -72,7 +72,7 @@ def test_workers_2_listens_on_loopback_only(tube, tmp_path):
 def test_local_cluster_of_worker_processes_gives_identical_numbers(tube):
     from dask.distributed import Client
 
-    from straylight.distribute import local_cluster, warm_up
+    from straylight.engine.backends.dask import local_cluster, warm_up
     from straylight.trace import make_spec
 
     rs, reference = tube
@@ -159,8 +159,8 @@ import os, subprocess, sys, time
 from pathlib import Path
 import multiprocessing.forkserver as mp_forkserver
 from dask.distributed import Client
-from straylight import fork_server
-from straylight.distribute import local_cluster
+from straylight.engine.backends import fork_server
+from straylight.engine.backends.dask import local_cluster
 
 if __name__ == "__main__":
     assert fork_server.start()
@@ -183,7 +183,7 @@ if __name__ == "__main__":
 
 
 def test_fork_server_started_early_is_the_one_the_workers_come_from_with_the_nanny_environment(tmp_path):
-    """`straylight.fork_server.start` (called by `trace/pst --workers K --processes` before the scene
+    """`straylight.engine.backends.fork_server.start` (called by `trace/pst --workers K --processes` before the scene
     loads) launches the server the cluster's workers are then forked from, with the environment
     dask's nanny would have given it: one OpenMP/OpenBLAS thread and PYTHONHASHSEED 6640, so the
     workers hash strings as a fresh interpreter with that seed does. In a fresh interpreter: a fork
@@ -198,11 +198,11 @@ def test_fork_server_started_early_is_the_one_the_workers_come_from_with_the_nan
 
 def test_spec_shipped_early_and_tables_sent_apart_give_identical_numbers(tube):
     """With first- and second-vertex sampling the workers get the spec (triangles) before this
-    process builds the tables (straylight.distribute.ship_early) and then only the tables: the
+    process builds the tables (straylight.engine.backends.dask.ship_early) and then only the tables: the
     numbers are those of an in-process trace."""
     from dask.distributed import Client
 
-    from straylight.distribute import local_cluster
+    from straylight.engine.backends.dask import local_cluster
 
     rs, _ = tube
     opts = TraceOptions(batch_rays=3000, first_vertex_sampling=True, second_vertex_sampling=True)
@@ -220,7 +220,7 @@ def test_early_shipment_sends_only_the_fields_that_changed(tube):
     objects (the tables), or everything (None) for a spec of another scene."""
     from dataclasses import replace
 
-    from straylight.distribute import EarlyShipment
+    from straylight.engine.backends.dask import EarlyShipment
     from straylight.trace import make_spec
 
     rs, _ = tube
@@ -240,7 +240,7 @@ def test_fork_server_start_leaves_this_process_environment_as_it_was(monkeypatch
     imported yet: its BLAS threads are left as they would have been)."""
     import multiprocessing.forkserver as mp_forkserver
 
-    from straylight import fork_server
+    from straylight.engine.backends import fork_server
 
     monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
     monkeypatch.setenv("OMP_NUM_THREADS", "3")

@@ -10,7 +10,7 @@ from pathlib import Path
 import dask
 import pytest
 
-from straylight.distribute import check_scheduler_address
+from straylight.engine.backends.dask import check_scheduler_address
 
 SCENE = Path(__file__).resolve().parents[1] / "data" / "engine_golden" / "tube.toml"
 
@@ -22,7 +22,7 @@ def _add_one(x):
 def test_process_cluster_refuses_clients_without_the_run_key():
     from distributed import Client, Security
 
-    from straylight.distribute import local_cluster
+    from straylight.engine.backends.dask import local_cluster
 
     with local_cluster(1, processes=True) as cluster, Client(cluster) as client:
         address = cluster.scheduler_address

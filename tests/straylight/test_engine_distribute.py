@@ -40,7 +40,7 @@ def test_same_numbers_on_a_thread_pool(setup):
 @pytest.mark.parametrize("n_rays,batch,slots", [(400_000, 50_000, 2), (2_000_000, 50_000, 2), (9000, 3000, 2),
                                                (123_456, 20_000, 3), (1000, 50_000, 4)])
 def test_task_plan_covers_every_batch_once_in_order_with_shrinking_tasks(n_rays, batch, slots):
-    from straylight.distribute import TASK_BATCHES, task_plan
+    from straylight.engine.backends.dask import TASK_BATCHES, task_plan
     from straylight.rng import batches
 
     ranges = batches(n_rays, batch)
@@ -60,7 +60,7 @@ def test_the_same_trace_repeated_on_one_client(setup):
     next trace's tasks)."""
     from dask.distributed import Client
 
-    from straylight.distribute import local_cluster
+    from straylight.engine.backends.dask import local_cluster
 
     scene, src, mats, opts, local = setup
     with local_cluster(2) as cluster, Client(cluster) as client:
@@ -70,7 +70,7 @@ def test_the_same_trace_repeated_on_one_client(setup):
 
 
 def test_pooled_plan_keeps_every_batch_in_order_in_runs_the_pool_can_share():
-    from straylight.distribute import pooled_plan
+    from straylight.engine.backends.dask import pooled_plan
 
     ranges = [(k, k + 1) for k in range(37)]
     for pool in (1, 2, 3):

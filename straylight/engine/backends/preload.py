@@ -1,5 +1,5 @@
 """Imported once by the fork server that starts a local cluster's worker processes
-(:func:`straylight.distribute.local_cluster` with ``processes=True``): the engine's modules are
+(:func:`straylight.engine.backends.dask.local_cluster` with ``processes=True``): the engine's modules are
 imported and its compiled kernels loaded from numba's on-disk cache here, so that every worker
 forked from the server starts with them (a spawned worker spent ~1-1.5 s of CPU on this itself, all
 workers at once, before its first ray).
@@ -12,26 +12,26 @@ pre-spawn-environ`` is put into this process's environment before the first work
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
+import numpy as np
+
+from geometry.mesh import Part, Scene
+from materials import Lambertian
+from materials.jit_start import start_numba
+from straylight.engine.compiled_scene import CompiledScene
+from straylight.engine.first_vertex import build_table
+from straylight.engine.options import TraceOptions
+from straylight.engine.spec import make_spec
+from straylight.engine.walk import run_batch
+from straylight.intersect.reference import ReferenceIntersector
+from straylight.sources import CollimatedDisk
+
 
 def load_kernels() -> None:
     """Trace one chunk of a tiny scene (a black square facing a detector square) in this process:
     the compiled kernels of the usual options (NEE with and without first-vertex sampling, plain walk)
     are loaded from numba's cache."""
-    from dataclasses import replace
-
-    import numpy as np
-
-    from geometry.mesh import Part, Scene
-    from materials import Lambertian
-    from straylight.engine.compiled_scene import CompiledScene
-    from straylight.engine.first_vertex import build_table
-    from straylight.engine.options import TraceOptions
-    from straylight.engine.spec import make_spec
-    from straylight.engine.walk import run_batch
-    from straylight.intersect.reference import ReferenceIntersector
-    from materials.jit_start import start_numba
-    from straylight.sources import CollimatedDisk
-
     start_numba()  # as compiled_scene does before the first kernel: numba's target without scipy.linalg
 
     square = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], dtype=np.float64)
@@ -39,7 +39,7 @@ def load_kernels() -> None:
     wall = Part("wall", square + [0, 0, 5], faces[:, ::-1], material="black")
     detector = Part("detector", square, faces, role="detector")
     scene = Scene((wall, detector))
-    source = CollimatedDisk([0, 0, 4], [0, 0, 1], [0, 0, 1], 5.0)
+    source = CollimatedDisk(np.array([0.0, 0.0, 4.0]), np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]), 5.0)
     for nee, vertex in ((True, True), (True, False), (False, False)):  # the CLI's default first: NEE, vertex sampling
         options = TraceOptions(nee=nee, first_vertex_sampling=vertex, batch_rays=1000)
         spec = make_spec(scene, [source], 100, 0, {"black": Lambertian(0.5)}, options)

@@ -9,13 +9,24 @@ keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
 from __future__ import annotations
 
+import asyncio
+import datetime
+import ipaddress
+import logging
+import multiprocessing
+import os
+import socket
 import sys
+import time
 from contextlib import contextmanager
+from dataclasses import fields, replace
+from pathlib import Path
 
 import numpy as np
 
-from straylight import fork_server
-from straylight.engine.batch_pool import run_threads
+from straylight.engine.backends import fork_server
+from straylight.engine.backends.threads import run_threads
+from straylight.engine.compiled_scene import compiled_scene
 from straylight.engine.walk import run_batch
 
 TASK_BATCHES = 5  # at most this many batches per dask task
@@ -42,8 +53,6 @@ def _joined(spec, changed):
     as shipped). See :func:`ship_early`."""
     if not changed:
         return spec
-    from dataclasses import replace
-
     return replace(spec, **changed)
 
 
@@ -55,7 +64,7 @@ def _packed(res: dict) -> dict:
     so the client adds the same numbers in the same order)."""
     maps = res["maps"]
     counts = np.full((len(maps), len(maps[0]) if maps else 0), -1, dtype=np.int64)
-    parts = ([], [], [])
+    parts: tuple[list, list, list] = ([], [], [])
     for c, row in enumerate(maps):
         for j, entry in enumerate(row):
             if entry is not None:
@@ -85,7 +94,7 @@ def _unpacked(res: dict) -> dict:
 
 def _pooled_task(spec, ranges, n_threads, changed=None):
     """Queue whole batches on the worker's shared pool of ``n_threads`` threads
-    (:func:`straylight.engine.batch_pool.shared_pool`) and return their results in batch order. The worker runs
+    (:func:`straylight.engine.backends.threads.shared_pool`) and return their results in batch order. The worker runs
     ``n_threads`` such tasks at once, so the next task's batches are already queued when this one's
     last batch runs: the pool's threads never wait at task ends."""
     return list(run_threads(_joined(spec, changed), ranges, None, int(n_threads)))
@@ -170,7 +179,7 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
     with dask.config.set(LEAN_CONFIG):
         cluster = LocalCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
                                dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker)
-        cluster.straylight_threads = int(n_workers)
+        cluster.straylight_threads = int(n_workers)  # type: ignore[attr-defined]  # read by _run_on
         return cluster
 
 
@@ -184,8 +193,6 @@ def run_security():
     ECDSA P-256 key instead of RSA-2048 (made in ~1 ms instead of 0.1-0.4 s, and every TLS handshake
     between the cluster's processes signs faster). ``require_encryption``: every connection is TLS
     and must present that certificate, so nothing without the key talks to the scheduler."""
-    import datetime
-
     from distributed.security import Security
 
     try:
@@ -222,8 +229,6 @@ def check_scheduler_address(address, allow_insecure=None) -> str | None:
     this machine's; anything else is a ValueError naming the address unless ``allow_insecure`` (the
     ``--allow-insecure`` flag; None: the environment variable ``STRAYLIGHT_ALLOW_INSECURE_SCHEDULER=1``),
     which returns a warning to print instead. Returns None when the address is fine."""
-    import os
-
     text = str(address)
     protocol, _, rest = text.rpartition("://")
     protocol = protocol or "tcp"
@@ -253,9 +258,6 @@ def _address_host(rest: str):
 
 def _is_loopback(host: str) -> bool:
     """Does ``host`` name this machine only (every address it resolves to is a loopback address)?"""
-    import ipaddress
-    import socket
-
     try:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
@@ -264,20 +266,18 @@ def _is_loopback(host: str) -> bool:
         infos = socket.getaddrinfo(host, None)
     except OSError:
         return False
-    addresses = {info[4][0].split("%")[0] for info in infos}
+    addresses = {str(info[4][0]).split("%")[0] for info in infos}
     return bool(addresses) and all(ipaddress.ip_address(a).is_loopback for a in addresses)
 
 
 def _fork_server_config() -> dict:
     """Start local worker processes from a fork server that has imported dask and the engine and
-    loaded the compiled kernels once (:mod:`straylight.worker_preload`), instead of spawning fresh
+    loaded the compiled kernels once (:mod:`straylight.engine.backends.preload`), instead of spawning fresh
     interpreters that each import and load all of it (~1.5 s CPU per worker, K of them at once).
-    The server is started on first use (or earlier, by :func:`straylight.fork_server.start`, so
+    The server is started on first use (or earlier, by :func:`straylight.engine.backends.fork_server.start`, so
     that it loads while the caller loads its scene) and kept for this process's later clusters.
     Set for this cluster's start-up unless dask's start method was configured otherwise
     (``distributed.worker.multiprocessing-method``). Returns the dask config to start with."""
-    import multiprocessing
-
     import distributed.utils
 
     if not fork_server.wanted():
@@ -297,9 +297,6 @@ def _process_cluster_class():
     command's wall time. The nannies kill their processes after :data:`WORKER_STOP_S` (each holds
     nothing the client still needs: results are gathered before the cluster is closed); the
     scheduler and the nannies then close as usual."""
-    import asyncio
-    import logging
-
     from dask.distributed import LocalCluster
     from distributed.core import Status
 
@@ -324,8 +321,6 @@ def tls_security(ca_file=None, cert=None, key=None):
     """A dask ``Security`` for TLS from PEM files (as ``dask scheduler/worker --tls-ca-file --tls-cert
     --tls-key``), or None when no file is given (then dask's own configuration applies, e.g.
     ``distributed.comm.tls`` in ~/.config/dask/*.yaml). Missing files are an error naming the flag."""
-    from pathlib import Path
-
     given = {"--tls-ca-file": ca_file, "--tls-cert": cert, "--tls-key": key}
     if not any(given.values()):
         return None
@@ -376,8 +371,6 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
 
 
 def _warm_task(spec):
-    import time
-
     run_batch(spec, 0, 1)
     return time.process_time()
 
@@ -401,8 +394,6 @@ def warm_up(client, spec) -> dict:
 def _build_task(spec):
     """Build this worker's scene of ``spec`` now (embree BVH, triangle planes, detector tables:
     :func:`straylight.engine.compiled_scene.compiled_scene`, kept for the trace's tasks)."""
-    from straylight.engine.compiled_scene import compiled_scene
-
     compiled_scene(spec).isect._scene  # waits for the BVH build thread
 
 
@@ -417,8 +408,6 @@ class EarlyShipment:
         """{field: value} of ``spec`` where it differs from the shipped spec (compared by identity:
         a field holding the same object is the same), or None if ``spec`` is of another scene (then
         it is shipped whole)."""
-        from dataclasses import fields
-
         if spec.token != self.spec.token or type(spec) is not type(self.spec):
             return None
         return {f.name: getattr(spec, f.name) for f in fields(spec) if getattr(spec, f.name) is not getattr(self.spec, f.name)}
@@ -444,8 +433,6 @@ def ship_early(client, spec) -> EarlyShipment:
 
 def worker_cpu_seconds(client) -> dict:
     """{worker address: CPU seconds used by that worker process so far} (``time.process_time``)."""
-    import time
-
     return client.run(time.process_time)
 
 

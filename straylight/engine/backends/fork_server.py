@@ -1,8 +1,8 @@
 """The fork server of a local cluster's worker processes, started early (issue 17, start-up).
 
-A local cluster of worker processes (``straylight.distribute.local_cluster(K, processes=True)``)
+A local cluster of worker processes (``straylight.engine.backends.dask.local_cluster(K, processes=True)``)
 forks its workers from a server process that imports dask and the engine and loads the compiled
-kernels once (:mod:`straylight.worker_preload`): ~1.5 s of one core before the first worker can
+kernels once (:mod:`straylight.engine.backends.preload`): ~1.5 s of one core before the first worker can
 start, which dask's nanny would start only when the cluster starts, after the scene is loaded.
 :func:`start` launches that server at once (it returns at once; the server loads in its own
 process), so a command that knows it will open such a cluster (``straylight trace --workers K
@@ -19,10 +19,14 @@ settings it reads come from distributed's own ``distributed.yaml`` unless the us
 """
 from __future__ import annotations
 
+import importlib.util
+import multiprocessing
 import os
 import sys
+from multiprocessing import forkserver
+from pathlib import Path
 
-PRELOAD = ["distributed", "straylight.worker_preload"]
+PRELOAD = ["distributed", "straylight.engine.backends.preload"]
 NANNY_HASH_SEED = "6640"  # the PYTHONHASHSEED dask's nanny sets when none is given (distributed.nanny.Nanny)
 _UNSET = object()
 
@@ -30,16 +34,12 @@ _UNSET = object()
 def _distributed_default(key: str):
     """The default of a ``distributed.*`` setting from distributed's ``distributed.yaml`` (what
     ``import distributed`` gives dask's config), read without importing distributed; None if absent."""
-    import importlib.util
-    from pathlib import Path
-
-    import yaml
+    import dask.config
 
     spec = importlib.util.find_spec("distributed")
     if spec is None or not spec.origin:
         return None
-    with open(Path(spec.origin).parent / "distributed.yaml") as f:
-        node = yaml.safe_load(f)
+    node = next(iter(dask.config.collect_yaml([str(Path(spec.origin).parent / "distributed.yaml")])), None)
     for part in key.split("."):
         if not isinstance(node, dict) or part not in node:
             return None
@@ -58,7 +58,7 @@ def config(key: str):
 def wanted() -> bool:
     """Will a local process cluster start its workers from our fork server? Yes unless dask's start
     method was configured otherwise (``distributed.worker.multiprocessing-method``) or the platform
-    cannot fork. :func:`straylight.distribute.local_cluster` asks the same."""
+    cannot fork. :func:`straylight.engine.backends.dask.local_cluster` asks the same."""
     return sys.platform != "win32" and config("distributed.worker.multiprocessing-method") == "spawn"
 
 
@@ -81,9 +81,6 @@ def start() -> bool:
     starts, as before)."""
     if not wanted():
         return False
-    import multiprocessing
-    from multiprocessing import forkserver
-
     env = nanny_environ()
     saved = {k: os.environ.get(k) for k in env}
     os.environ.update(env)  # for the server only: as the nanny sets it before it starts a worker process
