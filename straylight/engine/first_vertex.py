@@ -37,6 +37,7 @@ from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE
 from straylight.engine.vec3 import power_heuristic_rows
+from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS, check_seed, chunk_bounds
 from straylight.sources import CollimatedDisk, PointSource, orthonormal_basis
@@ -425,13 +426,4 @@ class FirstVertexWeights:
         single = np.flatnonzero((rays.last_event[rec] == EVENT_SCATTER) & (rays.depth[rec] == 1))
         if len(single) == 0:
             return rec, rec_w
-        i = rec[single]
-        r = rays.ray[i]
-        moved = rec_w[single] * (1.0 - self.w_first[r])
-        tallies, rows = event.tallies, event.rows
-        tallies.subtract(rows.detector_direct + event.scene.arrays.detector_of_part[event.hits.part[i]], r, moved)
-        tallies.add(rows.nee_exchange + rays.last_part[i], r, moved)
-        rec_w = rec_w.copy()
-        rec_w[single] -= moved
-        keep = rec_w > 0
-        return rec[keep], rec_w[keep]
+        return keep_walk_share(event, rec, rec_w, single, self.w_first[rays.ray[rec[single]]])

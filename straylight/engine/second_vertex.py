@@ -57,6 +57,7 @@ from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.targets import target_pdf
 from straylight.engine.vec3 import power_heuristic_rows
+from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
 from straylight.rng import check_seed
 from straylight.sources import orthonormal_basis
@@ -293,16 +294,7 @@ class SecondVertexShares:
                                & (self.share[r_all] < 1.0))
         if len(after) == 0:
             return rec, rec_w
-        i = rec[after]
-        r = rays.ray[i]
-        moved = rec_w[after] * (1.0 - self.share[r])
-        tallies, rows = event.tallies, event.rows
-        tallies.subtract(rows.detector_direct + event.scene.arrays.detector_of_part[event.hits.part[i]], r, moved)
-        tallies.add(rows.nee_exchange + rays.last_part[i], r, moved)
-        rec_w = rec_w.copy()
-        rec_w[after] -= moved
-        keep = rec_w > 0
-        return rec[keep], rec_w[keep]
+        return keep_walk_share(event, rec, rec_w, after, self.share[r_all[after]])
 
 
 def _brdf_pdf(spec, mat, wi, wo, with_pdf=True):
