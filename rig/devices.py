@@ -10,8 +10,9 @@
 | lock-in | :class:`LockIn` | ``lockin_mean_v``, ``lockin_std_v``, ``lockin_n`` | SR830 ``OUTP? 1`` |
 
 A backend is any object with the methods the device calls (see :class:`AxisBackend`,
-:class:`LockinBackend`); :mod:`rig.sim` provides simulated ones, :func:`real_backends` wraps the
-drivers. Backends with ``synchronous = True`` (the simulation) complete moves and readings in
+:class:`LockinBackend`); :mod:`rig.sim` provides simulated ones; each PyVISA driver in :mod:`rig.drivers`
+carries its own adapter (``Esp301Axis``, ``Sr830Lockin``, ``Sr830Laser``, ``Sr830Chopper``), which
+:func:`real_devices` assembles. Backends with ``synchronous = True`` (the simulation) complete moves and readings in
 the calling thread, in simulated time; the others run in a worker thread.
 
 Soft limits are checked in ``set`` before any command is sent (:class:`SoftLimitError`); a
@@ -32,7 +33,9 @@ from ophyd import Device, Kind, Signal
 from ophyd.status import DeviceStatus
 from ophyd.utils import LimitError
 
-from rig.drivers.sr830 import OVERLOAD_BITS, REFERENCE_UNLOCK, SENSITIVITY_V
+from rig.drivers.esp301 import Esp301Axis
+from rig.drivers.sr830 import (OVERLOAD_BITS, REFERENCE_UNLOCK, SENSITIVITY_V, Sr830Chopper, Sr830Laser,
+                              Sr830Lockin)
 
 log = logging.getLogger(__name__)
 
@@ -433,82 +436,7 @@ def sim_devices(sim_rig, **kwargs) -> RigDevices:
                         backend=sim_rig, **kwargs)
 
 
-# --- real hardware ---------------------------------------------------------------------------
-class Esp301Axis:
-    """AxisBackend over one axis of an :class:`rig.drivers.esp301.Esp301`."""
-
-    synchronous = False
-
-    def __init__(self, driver, axis: int):
-        self.driver = driver
-        self.axis = axis
-
-    def move(self, position_deg):
-        self.driver.move_absolute(self.axis, position_deg)
-
-    def position(self):
-        return self.driver.position(self.axis)
-
-    def done(self):
-        return self.driver.motion_done(self.axis)
-
-    def stop(self):
-        self.driver.stop(self.axis)
-
-    def sleep(self, seconds):
-        time.sleep(seconds)
-
-
-class Sr830Lockin:
-    """LockinBackend over an :class:`rig.drivers.sr830.Sr830`."""
-
-    synchronous = False
-
-    def __init__(self, driver):
-        self.driver = driver
-
-    sensitivity_v = property(lambda self: self.driver.sensitivity_v,
-                             lambda self, v: setattr(self.driver, "sensitivity_v", v))
-    time_constant_s = property(lambda self: self.driver.time_constant_s,
-                               lambda self, v: setattr(self.driver, "time_constant_s", v))
-
-    def output(self, which="x"):
-        return self.driver.output(which)
-
-    def settle_time_s(self):
-        return self.driver.settle_time_s()
-
-    def status_flags(self):
-        return self.driver.status_flags()
-
-    def sleep(self, seconds):
-        time.sleep(seconds)
-
-
-class Sr830Laser:
-    """Laser power monitor on the lock-in's AUX IN ``channel``: P = V x watts_per_volt."""
-
-    synchronous = False
-
-    def __init__(self, driver, watts_per_volt: float, channel: int = 1):
-        self.driver = driver
-        self.watts_per_volt = float(watts_per_volt)
-        self.channel = channel
-
-    def power_w(self):
-        return self.driver.aux_in_v(self.channel) * self.watts_per_volt
-
-
-class Sr830Chopper:
-    synchronous = False
-
-    def __init__(self, driver):
-        self.driver = driver
-
-    def frequency_hz(self):
-        return self.driver.frequency_hz()
-
-
+# --- real hardware (each driver's adapter lives beside it in rig/drivers/) --------------------
 def real_devices(motion, lockin, *, axes=(1, 2, 3), laser_watts_per_volt=0.002, move_timeout_s=30.0,
                  limits=None) -> RigDevices:
     """Devices over real drivers: ``motion`` an Esp301, ``lockin`` an Sr830."""

@@ -4,6 +4,8 @@ Command set (ESP301 user's manual, section 3): ``xxPAnn`` move absolute, ``xxTP?
 position, ``xxMD?`` motion done (1 = stopped), ``xxVAnn`` / ``xxVA?`` velocity, ``xxST`` stop,
 ``TB?`` oldest error as ``code, timestamp, message`` (code 0 = no error). Set commands are not
 acknowledged; only queries reply.
+
+:class:`Esp301Axis` adapts one axis to the devices' ``AxisBackend`` (:mod:`rig.devices`).
 """
 from __future__ import annotations
 
@@ -84,3 +86,28 @@ class Esp301(VisaInstrument):
                     f"{self.where}: axis {axis} still moving after {timeout_s:g} s (stalled?); sent {axis}ST")
             sleep(poll_s)
         return self.position(axis)
+
+
+class Esp301Axis:
+    """AxisBackend over one axis of an :class:`Esp301`."""
+
+    synchronous = False
+
+    def __init__(self, driver, axis: int):
+        self.driver = driver
+        self.axis = axis
+
+    def move(self, position_deg):
+        self.driver.move_absolute(self.axis, position_deg)
+
+    def position(self):
+        return self.driver.position(self.axis)
+
+    def done(self):
+        return self.driver.motion_done(self.axis)
+
+    def stop(self):
+        self.driver.stop(self.axis)
+
+    def sleep(self, seconds):
+        time.sleep(seconds)

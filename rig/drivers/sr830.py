@@ -8,8 +8,14 @@ Command set (SR830 manual, chapter 5): ``OUTP? i`` (1 X, 2 Y, 3 R, 4 theta), ``S
 byte: bit 0 input overload, bit 1 filter overload, bit 2 output overload, bit 3 reference unlock;
 the bits latch until read and reading clears them, so :meth:`Sr830.status_flags` reads the byte
 once and reports every bit).
+
+Adapters to the devices' backends (:mod:`rig.devices`): :class:`Sr830Lockin` (``LockinBackend``),
+:class:`Sr830Laser` (laser power monitor on an AUX input), :class:`Sr830Chopper` (the reference
+frequency).
 """
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
@@ -120,3 +126,55 @@ class Sr830(VisaInstrument):
 def flags_from_status_byte(byte: int) -> list[str]:
     """The :data:`STATUS_BITS` names set in a LIAS? byte, in bit order."""
     return [name for bit, name in STATUS_BITS.items() if int(byte) >> bit & 1]
+
+
+class Sr830Lockin:
+    """LockinBackend over an :class:`Sr830`."""
+
+    synchronous = False
+
+    def __init__(self, driver):
+        self.driver = driver
+
+    sensitivity_v = property(lambda self: self.driver.sensitivity_v,
+                             lambda self, v: setattr(self.driver, "sensitivity_v", v))
+    time_constant_s = property(lambda self: self.driver.time_constant_s,
+                               lambda self, v: setattr(self.driver, "time_constant_s", v))
+
+    def output(self, which="x"):
+        return self.driver.output(which)
+
+    def settle_time_s(self):
+        return self.driver.settle_time_s()
+
+    def status_flags(self):
+        return self.driver.status_flags()
+
+    def sleep(self, seconds):
+        time.sleep(seconds)
+
+
+class Sr830Laser:
+    """Laser power monitor on the lock-in's AUX IN ``channel``: P = V x watts_per_volt."""
+
+    synchronous = False
+
+    def __init__(self, driver, watts_per_volt: float, channel: int = 1):
+        self.driver = driver
+        self.watts_per_volt = float(watts_per_volt)
+        self.channel = channel
+
+    def power_w(self):
+        return self.driver.aux_in_v(self.channel) * self.watts_per_volt
+
+
+class Sr830Chopper:
+    """The chopper's frequency, read as the lock-in's external reference frequency (``FREQ?``)."""
+
+    synchronous = False
+
+    def __init__(self, driver):
+        self.driver = driver
+
+    def frequency_hz(self):
+        return self.driver.frequency_hz()

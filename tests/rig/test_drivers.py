@@ -8,8 +8,10 @@ import time
 import pytest
 
 from rig.drivers import InstrumentError, InstrumentTimeout, ResponseError, open_resource, sim_library
-from rig.drivers.esp301 import Esp301
-from rig.drivers.sr830 import SENSITIVITY_V, TIME_CONSTANT_S, Sr830, sensitivity_index, time_constant_index
+from rig.devices import AxisBackend, LockinBackend
+from rig.drivers.esp301 import Esp301, Esp301Axis
+from rig.drivers.sr830 import (SENSITIVITY_V, TIME_CONSTANT_S, Sr830, Sr830Chopper, Sr830Laser, Sr830Lockin,
+                              sensitivity_index, time_constant_index)
 
 
 def esp(resource="GPIB0::1::INSTR", timeout_s=0.05):
@@ -128,3 +130,41 @@ def test_sr830_read_timeout():
 def test_open_resource_rejects_bad_timeout():
     with pytest.raises(ValueError, match="timeout_s must be > 0"):
         open_resource("GPIB0::1::INSTR", visa_library=sim_library("esp301.yaml"), timeout_s=0)
+
+
+def _protocol_methods(protocol):
+    return {name for name in vars(protocol) if not name.startswith("_")} | set(getattr(protocol, "__annotations__", {}))
+
+
+def test_esp301_axis_adapter_lives_with_its_driver_and_drives_one_axis():
+    """The ESP301's adapter to the devices' AxisBackend (rig/drivers/esp301.py) moves its own axis
+    only and reads it back through the pyvisa-sim controller."""
+    assert Esp301Axis.__module__ == "rig.drivers.esp301"
+    drv = esp()
+    axis = Esp301Axis(drv, 2)
+    assert _protocol_methods(AxisBackend) <= set(dir(axis))
+    assert axis.synchronous is False
+    axis_1_before = drv.position(1)  # pyvisa-sim keeps the controller's state across tests
+    axis.move(61.2)
+    assert axis.done() is True
+    assert axis.position() == pytest.approx(61.2, abs=1e-9)
+    assert drv.position(1) == axis_1_before  # the other axes did not move
+
+
+def test_sr830_adapters_live_with_their_driver_and_read_the_lockin():
+    """The SR830's adapters (rig/drivers/sr830.py): lock-in output and settings, the laser monitor
+    on AUX IN 1 (P = V x watts_per_volt) and the chopper's frequency (the external reference)."""
+    for cls in (Sr830Lockin, Sr830Laser, Sr830Chopper):
+        assert cls.__module__ == "rig.drivers.sr830"
+    drv = lockin()
+    lia = Sr830Lockin(drv)
+    assert _protocol_methods(LockinBackend) <= set(dir(lia))
+    assert lia.output("x") == pytest.approx(1.25e-3)
+    lia.sensitivity_v = 3e-3  # the driver picks the next range up
+    assert lia.sensitivity_v == 5e-3
+    lia.time_constant_s = 0.03
+    assert lia.settle_time_s() == pytest.approx(7 * 0.03)
+    assert lia.status_flags() == []
+    assert Sr830Laser(drv, watts_per_volt=0.002).power_w() == pytest.approx(2.5 * 0.002)
+    assert Sr830Laser(drv, watts_per_volt=0.002, channel=2).channel == 2
+    assert Sr830Chopper(drv).frequency_hz() == pytest.approx(1000.0)
