@@ -10,16 +10,18 @@ uid and ignores read-only mounts).
 edit afterwards (``geometry build -o``, ``design vanes --out``, ``geometry scene -o``) record the
 SHA-256 of every file they wrote in ``.straylight-outputs.json`` in that folder. A later run may
 replace a file whose content is still what it recorded; a file it did not write, or one changed
-since (a hand-edited ``scene.toml``), is refused in one line naming it, unless ``--force``.
+since (a hand-edited ``scene.toml``), is refused in one line naming it, unless ``--force``. Files are
+hashed by :func:`atomicio.digest.file_sha256`, as the tessellation cache hashes CAD files.
 """
 from __future__ import annotations
 
 import fnmatch
-import hashlib
 import json
 import os
 import secrets
 from pathlib import Path
+
+from atomicio.digest import file_matches, file_sha256
 
 MANIFEST = ".straylight-outputs.json"
 
@@ -71,14 +73,6 @@ def check_output_dir(path, what: str = "output folder") -> Path:
     return path
 
 
-def file_sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _manifest(directory: Path) -> dict:
     try:
         doc = json.loads((directory / MANIFEST).read_text(encoding="utf-8"))
@@ -111,7 +105,7 @@ def check_overwrite(directory, names=(), patterns=(), force: bool = False, flag:
         sha = recorded.get(path.name)
         if sha is None:
             bad.append((path, "was not written by straylight"))
-        elif sha != file_sha256(path):
+        elif not file_matches(path, sha):
             bad.append((path, "was changed since straylight wrote it"))
     if bad:
         path, why = bad[0]

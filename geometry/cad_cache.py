@@ -1,8 +1,8 @@
 """On-disk cache of CAD tessellations, so a second run on a big STEP assembly starts at once.
 
-Key: SHA-256 of the file's bytes + chord and angular tolerance + how the file is split
-(``whole`` / ``solids``) + the code version (a hash of the source of the modules that read and
-tessellate CAD, and OpenCascade's version). Editing the file, asking another tolerance or
+Key: SHA-256 of the file's bytes (:func:`atomicio.digest.file_sha256`, as the overwrite guard) + chord
+and angular tolerance + how the file is split (``whole`` / ``solids``) + the code version (a hash of the
+source of the modules that read and tessellate CAD, and OpenCascade's version). Editing the file, asking another tolerance or
 updating the code makes a new entry; nothing is ever served stale.
 
 Where: ``$STRAYLIGHT_CACHE_DIR`` if set, else the user cache directory
@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from atomicio.digest import file_sha256
 from geometry.mesh import Part
 from geometry.tessellate import TessellationReport
 
@@ -86,16 +87,8 @@ def code_version() -> str:
     return h.hexdigest()[:16]
 
 
-def file_digest(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def entry_path(path, *, tolerance_mm: float, angular_tolerance_deg: float, mode: str) -> Path:
-    key = json.dumps([file_digest(path), repr(float(tolerance_mm)), repr(float(angular_tolerance_deg)), mode,
+    key = json.dumps([file_sha256(path), repr(float(tolerance_mm)), repr(float(angular_tolerance_deg)), mode,
                       code_version()])
     return cache_dir() / f"{Path(path).stem[:40]}-{hashlib.sha256(key.encode()).hexdigest()[:32]}.npz"
 

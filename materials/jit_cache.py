@@ -23,6 +23,8 @@ import types
 from functools import lru_cache
 from pathlib import Path
 
+from atomicio.digest import file_sha256
+
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("materials", "geometry", "straylight", "rig")
 _PACKAGE_DIRS = tuple(str(PROJECT_ROOT / p) + os.sep for p in PACKAGES)
@@ -41,7 +43,7 @@ def in_project(path) -> bool:
 
 @lru_cache(maxsize=None)
 def _file_digest(path: str, mtime_ns: int, size: int) -> str:  # keyed on mtime and size: an edit re-hashes
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return file_sha256(path)
 
 
 def file_digest(path) -> str:

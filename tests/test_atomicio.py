@@ -91,3 +91,41 @@ def test_write_json_is_strict_and_numpy_clean(tmp_path):
     assert text.endswith("\n") and "NaN" not in text and "Infinity" not in text
     assert json.loads(text) == {"x": 1.5, "n": 3, "v": [1.0, None], "t": [1, 2], "inf": None, "ok": True}
     assert atomicio.json_safe({"p": tmp_path, "o": complex(1, 2)}) == {"p": str(tmp_path), "o": "(1+2j)"}
+
+
+def test_file_sha256_is_hashlib_over_the_whole_file_in_blocks(tmp_path):
+    """atomicio.digest.file_sha256 reads in blocks: the digest is hashlib's over all the bytes (a file
+    of 2.5 blocks, and an empty one: the known SHA-256 of no bytes, FIPS 180-4 test vector)."""
+    import hashlib
+
+    from atomicio.digest import BLOCK_BYTES, file_matches, file_sha256
+
+    data = np.random.default_rng(0).integers(0, 256, int(2.5 * BLOCK_BYTES), dtype=np.uint8).tobytes()
+    (tmp_path / "big.bin").write_bytes(data)
+    assert file_sha256(tmp_path / "big.bin") == hashlib.sha256(data).hexdigest()
+    (tmp_path / "empty").write_bytes(b"")
+    assert file_sha256(tmp_path / "empty") == "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+    assert file_matches(tmp_path / "big.bin", hashlib.sha256(data).hexdigest())
+    (tmp_path / "big.bin").write_bytes(data[:-1] + bytes([data[-1] ^ 1]))  # one bit changed
+    assert not file_matches(tmp_path / "big.bin", hashlib.sha256(data).hexdigest())
+
+
+def test_guard_and_tessellation_cache_hash_files_with_the_one_helper(tmp_path, monkeypatch):
+    """The overwrite guard's manifest and the tessellation cache's key both come from
+    atomicio.digest.file_sha256: a stand-in for it changes both."""
+    import atomicio.digest
+    import atomicio.guard
+    import geometry.cad_cache
+
+    assert atomicio.guard.file_sha256 is atomicio.digest.file_sha256
+    assert geometry.cad_cache.file_sha256 is atomicio.digest.file_sha256
+    (tmp_path / "scene.toml").write_text("x")
+    atomicio.guard.record_outputs(tmp_path, names=["scene.toml"])
+    manifest = json.loads((tmp_path / atomicio.guard.MANIFEST).read_text())
+    assert manifest["files"]["scene.toml"] == atomicio.digest.file_sha256(tmp_path / "scene.toml")
+    monkeypatch.setenv("STRAYLIGHT_CACHE_DIR", str(tmp_path / "cache"))
+    entry = geometry.cad_cache.entry_path(tmp_path / "scene.toml", tolerance_mm=0.1, angular_tolerance_deg=5.0,
+                                          mode="whole")
+    monkeypatch.setattr(geometry.cad_cache, "file_sha256", lambda path: "0" * 64)
+    assert geometry.cad_cache.entry_path(tmp_path / "scene.toml", tolerance_mm=0.1, angular_tolerance_deg=5.0,
+                                         mode="whole") != entry
