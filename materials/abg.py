@@ -30,6 +30,7 @@ from functools import cached_property
 import numpy as np
 
 from materials.base import Sample, check_polarization, lobe_inputs
+from materials.fit_params import FitParam
 from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
@@ -46,6 +47,12 @@ class Abg:
 
     flags = ComponentFlags.GLOSSY
     reciprocal = True
+    #: fitted parameters (materials.fit_params)
+    fit_params = (
+        FitParam("a", 1e-10, 1e4, True, 1e-3, (1e-5, 1e-1)),
+        FitParam("b", 1e-10, 1.0, True, 1e-4, (1e-6, 1e-2)),
+        FitParam("g", 0.0, 4.0, False, 2.0, (1.0, 3.0)),
+    )
 
     def __post_init__(self):
         set_fields(

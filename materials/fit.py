@@ -23,8 +23,10 @@ harvey_shack       ``harvey_shack.b0``         1e-6 .. 1e8   log
 (shared)           ``n``                       1.05 .. 3     linear
 =================  ==========================  ============  =========
 
-The Lambertian and K-correlation ranges (and ``n``) are the components' own ``FIT_BOUNDS``
-(materials/lambertian.py, materials/kcorrelation.py), which the rig diagnosis uses too.
+Each component declares its own parameters, bounds, scale and starts in its own file (its
+``fit_params``, :mod:`materials.fit_params`); this table is what they declare, and the fit reads
+them only through :func:`materials.fit_params.fit_params` (so does the rig diagnosis). A new
+fittable model is its file with ``fit_params``, nothing here.
 
 A type used twice is numbered: ``k_correlation1.sigma_nm``, ``k_correlation2.sigma_nm``.
 Every component with a refractive index (k_correlation, microfacet) uses the ONE
@@ -52,6 +54,7 @@ ranges); the lowest cost wins.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -66,40 +69,12 @@ import materials.microfacet  # noqa: F401  (registers "microfacet")
 from materials.albedo import directional_hemispherical_reflectance
 from materials.base import directions_from_angles
 from materials.composite import Composite
+from materials.fit_params import FitParam, fit_params, fittable_types
 from materials.material import Material
-from materials.registry import build_component
+from materials.registry import build_component, component_types
 from materials.scan import Scan
 
 LN10 = math.log(10.0)
-
-_KC = materials.kcorrelation.FIT_BOUNDS  # the components' own bounds (one source)
-_LB = materials.lambertian.FIT_BOUNDS
-
-# name, lower, upper, log-scaled, default start, plausible range for random starts
-_PARAMS = {
-    "lambertian": [("rd", *_LB["rd"], None, None)],
-    "k_correlation": [
-        ("sigma_nm", *_KC["sigma_nm"], 5.0, (0.3, 60.0)),
-        ("lc_um", *_KC["lc_um"], 10.0, (0.3, 200.0)),
-        ("s", *_KC["s"], 2.5, (1.5, 4.0)),
-    ],
-    "microfacet": [
-        ("alpha", 1e-3, 2.0, True, 0.3, (0.05, 1.0)),
-        ("weight", 1e-6, 1e3, True, 1.0, (0.05, 20.0)),
-    ],
-    "abg": [
-        ("a", 1e-10, 1e4, True, 1e-3, (1e-5, 1e-1)),
-        ("b", 1e-10, 1.0, True, 1e-4, (1e-6, 1e-2)),
-        ("g", 0.0, 4.0, False, 2.0, (1.0, 3.0)),
-    ],
-    "harvey_shack": [
-        ("b0", 1e-6, 1e8, True, 10.0, (0.1, 1e4)),
-        ("l", 1e-5, 1.0, True, 0.01, (1e-4, 0.1)),
-        ("s", -8.0, 0.0, False, -2.0, (-4.0, -1.0)),
-    ],
-}
-_USES_N = {"k_correlation", "microfacet"}
-_N_DEF = ("n", *_KC["n"], 1.5, (1.3, 1.9))
 RHO_THETA_I_DEG = (0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 85.0)
 
 
@@ -141,23 +116,34 @@ class ModelSpec:
 
     def __init__(self, spec: str, wavelength_nm: float, fixed=None, bounds=None, initial=None):
         types = [t.strip() for t in str(spec).split("+")]
-        if not types or any(t not in _PARAMS for t in types):
-            bad = [t for t in types if t not in _PARAMS]
+        known = fittable_types()
+        if not types or any(t not in known for t in types):
+            bad = [t for t in types if t not in known]
             raise FitError(f"model: unknown component type {bad[0]!r} in {spec!r}; "
-                           f"fit supports {', '.join(_PARAMS)} joined by '+'")
+                           f"fit supports {', '.join(known)} joined by '+'")
         self.spec = "+".join(types)
         self.types = tuple(types)
         self.wavelength_nm = float(wavelength_nm)
         counts = {t: types.count(t) for t in types}
         seen: dict[str, int] = {}
         defs = []
+        shared: dict[str, FitParam] = {}  # one value for the whole model, after the components' own
+        self._shared_keys: list[tuple[str, ...]] = []
         for i, t in enumerate(types):
             seen[t] = seen.get(t, 0) + 1
             prefix = t if counts[t] == 1 else f"{t}{seen[t]}"
-            for key, lo, hi, log, start, plaus in _PARAMS[t]:
-                defs.append(ParamDef(f"{prefix}.{key}", key, i, lo, hi, log, start, plaus))
-        if any(t in _USES_N for t in types):
-            defs.append(ParamDef(*_N_DEF[:1], "n", None, *_N_DEF[1:]))
+            for p in fit_params(t):
+                if p.shared:
+                    if shared.setdefault(p.key, p) != p:
+                        raise FitError(f"model: {t!r} declares the shared parameter {p.key!r} differently "
+                                       f"from another component of {spec!r}")
+                    continue
+                defs.append(ParamDef(f"{prefix}.{p.key}", p.key, i, p.lower, p.upper, p.log, p.start, p.plausible))
+            self._shared_keys.append(tuple(p.key for p in fit_params(t) if p.shared))
+        for key, p in shared.items():
+            defs.append(ParamDef(key, key, None, p.lower, p.upper, p.log, p.start, p.plausible))
+        self._pass_wavelength = tuple("wavelength_nm" in {f.name for f in dataclasses.fields(component_types()[t])}
+                                      for t in types)
         self.all_params = tuple(defs)
         names = [d.name for d in defs]
         fixed = dict(fixed or {})
@@ -214,9 +200,9 @@ class ModelSpec:
             for d in self.all_params:
                 if d.component == i:
                     entry[d.key] = vals[d.name]
-            if t in _USES_N:
-                entry["n"] = vals["n"]
-            if t == "k_correlation":
+            for key in self._shared_keys[i]:
+                entry[key] = vals[key]
+            if self._pass_wavelength[i]:  # a component that scatters by wavelength gets the scan's
                 entry["wavelength_nm"] = self.wavelength_nm
             comps.append(build_component(entry, where=f"{self.spec} component {i}"))
         return comps

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from materials.base import Sample, check_polarization, lobe_inputs
+from materials.fit_params import FitParam
 from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
@@ -41,6 +42,12 @@ class HarveyShack:
 
     flags = ComponentFlags.GLOSSY
     reciprocal = True
+    #: fitted parameters (materials.fit_params)
+    fit_params = (
+        FitParam("b0", 1e-6, 1e8, True, 10.0, (0.1, 1e4)),
+        FitParam("l", 1e-5, 1.0, True, 0.01, (1e-4, 0.1)),
+        FitParam("s", -8.0, 0.0, False, -2.0, (-4.0, -1.0)),
+    )
 
     def __post_init__(self):
         set_fields(

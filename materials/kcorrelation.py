@@ -58,21 +58,10 @@ import numpy as np
 
 from materials.base import MaterialError, Sample, check_polarization, lobe_inputs
 from materials.fresnel import complex_index, polarization_factor, scatter_azimuth
+from materials.fit_params import REFRACTIVE_INDEX, FitParam
 from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_real, lobe_direction, lobe_pdf, lobe_sample, set_fields
-
-#: The fit range of each parameter, ``(lower, upper, log-scaled)``: the one source of these bounds
-#: (materials.fit and the rig diagnosis both read it). sigma from a polished mirror to a rough
-#: black; lc from sub-wavelength to 1 mm; the PSD slope s of measured blacks and optics (1..6);
-#: n of paints, glasses and oxides (the shared index also serves microfacet lobes).
-FIT_BOUNDS = {
-    "sigma_nm": (1e-3, 300.0, True),
-    "lc_um": (0.05, 1000.0, True),
-    "s": (1.0, 6.0, False),
-    "n": (1.05, 3.0, False),
-}
-
 
 def _slope_ratio(s: float, log1p_x: float) -> float:
     """``(s - 2) / [1 - (1 + X)^(1 - s/2)]`` with ``log1p_x = ln(1 + X)``; its limit 2 / ln(1 + X) at s = 2."""
@@ -97,6 +86,14 @@ class KCorrelation:
 
     flags = ComponentFlags.GLOSSY
     reciprocal = True
+    #: fitted parameters (materials.fit_params), with the shared index n: sigma from a polished mirror
+    #: to a rough black; lc from sub-wavelength to 1 mm; the PSD slope s of measured blacks and optics
+    fit_params = (
+        FitParam("sigma_nm", 1e-3, 300.0, True, 5.0, (0.3, 60.0)),
+        FitParam("lc_um", 0.05, 1000.0, True, 10.0, (0.3, 200.0)),
+        FitParam("s", 1.0, 6.0, False, 2.5, (1.5, 4.0)),
+        REFRACTIVE_INDEX,
+    )
 
     def __post_init__(self):
         o = "k_correlation"

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from materials.base import Sample, check_polarization
+from materials.fit_params import FitParam
 from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import (
@@ -27,16 +28,15 @@ from materials.sampling import (
     set_fields,
 )
 
-#: The fit range of the albedo ``(lower, upper, log-scaled)``: the one source (materials.fit, rig diagnosis).
-FIT_BOUNDS = {"rd": (1e-6, 0.99, True)}
-
-
 @register("lambertian")
 @dataclass(frozen=True)
 class Lambertian:
     """Ideal diffuse reflector, f = rd / pi (CONTRACTS §5)."""
 
     rd: float
+
+    #: fitted parameters (materials.fit_params): the albedo, its start from the scan's low quantile
+    fit_params = (FitParam("rd", 1e-6, 0.99, True),)
 
     flags = ComponentFlags.DIFFUSE
     reciprocal = True

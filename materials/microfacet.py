@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from materials.base import MaterialError, Sample, check_polarization
+from materials.fit_params import REFRACTIVE_INDEX, FitParam
 from materials.flags import ComponentFlags
 from materials.registry import register
 
@@ -84,6 +85,12 @@ class Microfacet:
 
     flags = ComponentFlags.GLOSSY
     reciprocal = True  # for unpolarized light; s/p are reciprocal in the plane of incidence only
+    #: fitted parameters (materials.fit_params), with the shared index n
+    fit_params = (
+        FitParam("alpha", 1e-3, 2.0, True, 0.3, (0.05, 1.0)),
+        FitParam("weight", 1e-6, 1e3, True, 1.0, (0.05, 20.0)),
+        REFRACTIVE_INDEX,
+    )
 
     def __post_init__(self):
         object.__setattr__(self, "alpha", _check_number("alpha", self.alpha, 1e-4, 4.0))

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rig.drivers import InstrumentTimeout
-from rig.drivers.sr830 import REFERENCE_UNLOCK, SENSITIVITY_V, TIME_CONSTANT_S
+from rig.drivers.sr830 import REFERENCE_UNLOCK, SENSITIVITY_V
 from rig.instrument import RigConfig
 
 #: HWP angle (deg) selecting each polarization: a half-wave plate at 45 deg turns s into p.

@@ -1,14 +1,16 @@
 """Model space of the diagnosis: optimiser variables with their bounds, a model (material values
 + effect parameters) and a fit. Bounds come from one place per model: the material components'
-``FIT_BOUNDS`` (materials/lambertian.py, materials/kcorrelation.py) and each effect's
-``fit_space`` (its own file in rig/effects/)."""
+``fit_params`` (declared in materials/lambertian.py and materials/kcorrelation.py, read through
+:func:`materials.fit_params.fit_param`, as materials.fit does) and each effect's ``fit_space`` (its
+own file in rig/effects/)."""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
-import materials.kcorrelation as _kc
-import materials.lambertian as _lb
+import materials.kcorrelation  # noqa: F401  (registers "k_correlation" and its fit_params)
+import materials.lambertian  # noqa: F401  (registers "lambertian" and its fit_params)
+from materials.fit_params import fit_param
 from rig.diagnose.fast_material import FitMaterial
 from rig.effects import build_effect, effect_types
 
@@ -40,13 +42,16 @@ def _spec(owner, name, bounds):
 
 
 def material_specs(n_lobes: int):
-    """rd, then (sigma, lc, s) per lobe, then the shared n: bounds from the components' FIT_BOUNDS."""
-    specs = [_spec("material", "rd", _lb.FIT_BOUNDS["rd"])]
-    kc = _kc.FIT_BOUNDS
+    """rd, then (sigma, lc, s) per lobe, then the shared n: bounds from the components' fit_params."""
+    specs = [_spec("material", "rd", fit_param("lambertian", "rd").bounds)]
+
+    def kc(key):
+        return fit_param("k_correlation", key).bounds
+
     for k in range(n_lobes):
-        specs += [_spec("material", f"sigma{k}_nm", kc["sigma_nm"]), _spec("material", f"lc{k}_um", kc["lc_um"]),
-                  _spec("material", f"s{k}", kc["s"])]
-    specs.append(_spec("material", "n", kc["n"]))
+        specs += [_spec("material", f"sigma{k}_nm", kc("sigma_nm")), _spec("material", f"lc{k}_um", kc("lc_um")),
+                  _spec("material", f"s{k}", kc("s"))]
+    specs.append(_spec("material", "n", kc("n")))
     return specs
 
 
