@@ -21,17 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
-from straylight.thermal.walk import (
-    CHUNK_RAYS,
-    EVENT_COLUMNS,
-    MAX_EVENTS,
-    AreaSampler,
-    cast,
-    chunk_rng,
-    emission_directions,
-    interact,
-    roulette,
-)
+from straylight.thermal.sampling import AreaSampler, emission_rays
+from straylight.thermal.walk import CHUNK_RAYS, chunk_rng, walk
 
 DEFAULT_TEMPERATURE_K = 300.0
 
@@ -160,37 +151,17 @@ def _emit_chunk(ts, sides, i, sampler, seed, stream, chunk, n):
     last entry is the escaped fraction)."""
     P = ts.n_parts
     rng = chunk_rng(seed, stream + (2 << 20), chunk)
-    o, nrm = sampler.sample(rng.random((n, 3)))
-    d = emission_directions(sides.eps[i, 0], nrm, rng)
-    o = o + ts.eps_mm * nrm
-    w = np.ones(n)
-    ray = np.arange(n)
+    o, nrm, d = emission_rays(sampler, sides.eps[i, 0], rng.random((n, 3)), rng)
     book = np.zeros((P + 1) * n)  # (part or escaped, ray)
-    terminal = ts.is_role("absorber", "detector")
-    for ev in range(MAX_EVENTS):
-        if len(ray) == 0:
-            break
-        U = rng.random((len(ray), EVENT_COLUMNS))
-        hit = cast(ts, o, d)
-        alive = hit.tri >= 0
-        part = np.where(alive, hit.part, P)
-        term = alive & terminal[np.where(alive, part, 0)]
-        stop = ~alive | term
-        np.add.at(book, part[stop] * n + ray[stop], w[stop])
-        cont = np.flatnonzero(~stop)
-        if len(cont) == 0:
-            break
-        out = interact(ts, sides, hit, cont, d[cont], U[cont])
-        w_thr = w[cont] * out.throughput
-        w_new = roulette(w_thr, 1.0, U[cont, 4])
-        if ev == MAX_EVENTS - 1:
-            w_new = np.zeros_like(w_new)  # truncated: booked to the part hit last
-        np.add.at(book, part[cont] * n + ray[cont], w[cont] - w_new)
-        keep = w_new > 0
-        c = cont[keep]
-        o = hit.point[c] + (ts.eps_mm * out.side[keep])[:, None] * hit.facing[c]
-        d = out.direction[keep]
-        w = w_new[keep]
-        ray = ray[c]
+
+    def ended(ev):  # escaped (booked to P), or all of it to the absorber or detector hit
+        part = np.where(ev.alive, ev.hit.part, P)
+        np.add.at(book, part[ev.ends] * n + ev.ray[ev.ends], ev.w[ev.ends])
+
+    def removed(ev, w_next):  # what the interaction and roulette took (at the event cap: everything)
+        c = ev.cont
+        np.add.at(book, ev.hit.part[c] * n + ev.ray[c], ev.w[c] - w_next)
+
+    walk(ts, sides, rng, o, nrm, d, np.ones(n), ended, removed)
     x = book.reshape(P + 1, n)
     return x.sum(axis=1), (x * x).sum(axis=1)

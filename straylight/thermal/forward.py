@@ -4,7 +4,7 @@ estimation (NEE) toward the detector at every vertex.
 A ray picks an emitting side (every part's front; also the back of a one-sided part) with
 probability Phi_j / Phi (Phi_j = pi B_band(T_j) A_j eps_h,j, that side's emitted band power), a
 uniform point of it and a direction with density
-eps(theta) cos(theta) / (pi eps_h) (exact, by rejection: straylight.thermal.walk), so every ray
+eps(theta) cos(theta) / (pi eps_h) (exact, by rejection: straylight.thermal.sampling), so every ray
 carries Phi. NEE joins each vertex to a uniform point y of the detector's front (area A_d)::
 
     emission vertex:  W eps(theta) cos_x cos_d A_d / (pi eps_h r^2)       (the emission density)
@@ -18,18 +18,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from straylight.thermal.walk import (
-    EVENT_COLUMNS,
-    MAX_EVENTS,
-    AreaSampler,
-    cast,
-    chunk_rng,
-    emission_directions,
-    frame,
-    interact,
-    roulette,
-    to_local,
-)
+from straylight.sources import orthonormal_basis
+from straylight.thermal.interaction import to_local
+from straylight.thermal.sampling import AreaSampler, emission_rays
+from straylight.thermal.walk import chunk_rng, walk
 
 
 class ForwardEstimator:
@@ -69,43 +61,21 @@ class ForwardEstimator:
         for i in np.unique(which):
             p, q = src[i]
             sel = which == i
-            o[sel], nrm[sel] = self._sampler(p).sample(u3[sel])
-            if q == 1:
-                nrm[sel] = -nrm[sel]
-            d[sel] = emission_directions(sides.eps[p, q], nrm[sel], rng)
-        w = np.full(n, total)
-        ray = np.arange(n)
+            o[sel], nrm[sel], d[sel] = emission_rays(self._sampler(p), sides.eps[p, q], u3[sel], rng, back=q == 1)
         # NEE from the emission points
         cos_x, cos_d, r2, ok, _ = self._connect(o, nrm, rng.random((n, 3)))
         th = np.arccos(np.clip(cos_x, 0.0, 1.0))
         e = sides.emissivity(emitter, side, th)
         with np.errstate(divide="ignore", invalid="ignore"):
-            x += np.where(ok, w * e * cos_x * cos_d * self.det_sampler.area_mm2 / (np.pi * eps_h[which] * r2), 0.0)
-        o = o + ts.eps_mm * nrm
-        delta = np.zeros(n, bool)
-        terminal = ts.is_role("absorber", "detector")
-        for _ in range(MAX_EVENTS):
-            if len(ray) == 0:
-                break
-            U = rng.random((len(ray), EVENT_COLUMNS))
-            hit = cast(ts, o, d)
-            alive = hit.tri >= 0
-            part = np.where(alive, hit.part, 0)
-            on_det = alive & (part == self.det) & hit.front & delta
-            np.add.at(x, ray[on_det], w[on_det])
-            cont = np.flatnonzero(alive & ~terminal[part])
-            if len(cont) == 0:
-                break
-            self._nee_scatter(sides, hit, cont, d, w, ray, U, x)
-            out = interact(ts, sides, hit, cont, d[cont], U[cont])
-            w_new = roulette(w[cont] * out.throughput, total, U[cont, 4])
-            keep = w_new > 0
-            c = cont[keep]
-            o = hit.point[c] + (ts.eps_mm * out.side[keep])[:, None] * hit.facing[c]
-            d = out.direction[keep]
-            w = w_new[keep]
-            delta = out.delta[keep]
-            ray = ray[c]
+            x += np.where(ok, total * e * cos_x * cos_d * self.det_sampler.area_mm2 / (np.pi * eps_h[which] * r2), 0.0)
+
+        def pickup(ev):  # the walk's own detector hits after a delta branch, then NEE from the scatter vertices
+            hit = ev.hit
+            on_det = ev.alive & (np.where(ev.alive, hit.part, 0) == self.det) & hit.front & ev.delta
+            np.add.at(x, ev.ray[on_det], ev.w[on_det])
+            self._nee_scatter(sides, hit, ev.cont, ev.d, ev.w, ev.ray, ev.U, x)
+
+        walk(ts, sides, rng, o, nrm, d, np.full(n, total), pickup, w_ref=total)
         s1 = np.bincount(emitter, weights=x, minlength=P)
         s2 = np.bincount(emitter, weights=x * x, minlength=P)
         return s1, s2, float(x.sum()), float((x * x).sum())
@@ -146,7 +116,7 @@ class ForwardEstimator:
         rr = rows[idx]
         side = np.where(hit.front[rr], 0, 1)
         p = hit.part[rr]
-        t, b = frame(nf[idx])
+        t, b = orthonormal_basis(nf[idx])
         wi = to_local(-d[rr], t, b, nf[idx])
         wo = to_local(wdir[idx], t, b, nf[idx])
         f = np.zeros(len(rr))

@@ -259,9 +259,9 @@ def _circumscribed_annulus(vertex, axis, r0, r1, n=PLANE_SEGMENTS):
     """Triangles (m, 3, 3) covering the annulus r0..r1 (normals along ``axis``): the outer polygon
     circumscribes the outer circle and the inner one is inscribed in the hole, so the mesh covers
     the exact annulus; hits outside it are passed through (straylight.thermal.walk.cast)."""
-    from straylight.thermal.walk import frame
+    from straylight.sources import orthonormal_basis
 
-    t, b = frame(axis[None, :])
+    t, b = orthonormal_basis(axis[None, :])
     t, b = t[0], b[0]
     phi = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
     ring = np.cos(phi)[:, None] * t + np.sin(phi)[:, None] * b

@@ -19,16 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from straylight.thermal.walk import (
-    EVENT_COLUMNS,
-    MAX_EVENTS,
-    AreaSampler,
-    cast,
-    chunk_rng,
-    cosine_directions,
-    interact,
-    roulette,
-)
+from straylight.thermal.sampling import AreaSampler, cosine_directions
+from straylight.thermal.walk import chunk_rng, walk
 
 
 def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, seed: int, stream: int, chunk: int,
@@ -43,36 +35,21 @@ def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, see
     u = rng.random((n, 5))
     o, nrm = det_sampler.sample(u[:, :3])
     d = cosine_directions(nrm, u[:, 3:5])
-    o = o + ts.eps_mm * nrm
-    w = np.ones(n)
-    ray = np.arange(n)
     pick = np.zeros(P * n)  # per (part, ray) radiance pickups per unit B
-    terminal = ts.is_role("absorber", "detector")
     emits = ts.temperature_k > 0
-    for _ in range(MAX_EVENTS):
-        if len(ray) == 0:
-            break
-        U = rng.random((len(ray), EVENT_COLUMNS))
-        hit = cast(ts, o, d)
-        alive = hit.tri >= 0
+
+    def pickup(ev):  # the expected emission of the side met: w epsilon(theta)
+        hit = ev.hit
+        alive = ev.alive
         part = hit.part
         front = alive & hit.front
         safe = np.where(alive, part, 0)
         take = alive & emits[safe] & (front | ts.one_sided[safe])
         if take.any():
             e = sides.emissivity(part[take], np.where(front[take], 0, 1), hit.theta[take])
-            np.add.at(pick, part[take] * n + ray[take], w[take] * e)
-        cont = np.flatnonzero(alive & ~terminal[np.where(alive, part, 0)])
-        if len(cont) == 0:
-            break
-        out = interact(ts, sides, hit, cont, d[cont], U[cont])
-        w_new = roulette(w[cont] * out.throughput, 1.0, U[cont, 4])
-        keep = w_new > 0
-        c = cont[keep]
-        o = hit.point[c] + (ts.eps_mm * out.side[keep])[:, None] * hit.facing[c]
-        d = out.direction[keep]
-        w = w_new[keep]
-        ray = ray[c]
+            np.add.at(pick, part[take] * n + ev.ray[take], ev.w[take] * e)
+
+    walk(ts, sides, rng, o, nrm, d, np.ones(n), pickup)
     scale = det_sampler.area_mm2 * 1e-6 * np.pi
     per = pick.reshape(P, n) * scale
     rad = np.atleast_2d(radiance)

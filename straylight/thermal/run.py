@@ -112,7 +112,7 @@ def receiving_triangles(ts, p: int, toward_mm=None) -> np.ndarray:
 
 
 def detector_sampler(ts, p: int, toward_mm=None):
-    from straylight.thermal.walk import AreaSampler
+    from straylight.thermal.sampling import AreaSampler
 
     if p in ts.planes:
         return AreaSampler.of_part(ts, p), np.flatnonzero(ts.triangle_part == p)

@@ -1,6 +1,8 @@
-"""The thermal walks' shared steps, in numpy over Embree: casting rays, the surface interaction
-of a hit (scatter lobes, specular reflection, refraction: the branch rules of the engine's
-``optical_surface``, unpolarized), emission sampling on parts, and Russian roulette.
+"""The one walk of the thermal estimators, in numpy over Embree: from start points, cast, end the
+rays that leave the scene or meet an absorber or detector, let the others interact with the
+surface (straylight.thermal.interaction), play Russian roulette, and go on. What an estimator
+scores along the way (its *pickup*) is passed in: ``at_hit`` sees every event's hits before the
+surface interaction, ``after_scatter`` the weights the interaction and roulette leave.
 
 Per event a ray draws ``EVENT_COLUMNS`` uniforms from its chunk's stream: 0 picks the branch
 (lobes / specular / transmission), 1..3 go to the material's ``sample``, 4 to roulette, 5..7 to
@@ -13,12 +15,12 @@ dielectrics, reverse walks use f(wi, wo) with wi and wo swapped (exact for recip
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from materials.flags import ComponentFlags, flags_of
-from materials.smooth import reflect, refract
+from straylight.thermal.interaction import interact
 
 CHUNK_RAYS = 4096
 EVENT_COLUMNS = 8
@@ -97,106 +99,6 @@ def _outside_planes(ts, tri, o, d):
     return bad
 
 
-def frame(nrm):
-    """Orthonormal tangents (t, b) for unit normals (n, 3) (Duff et al. 2017, branchless)."""
-    sign = np.where(nrm[:, 2] >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + nrm[:, 2])
-    b = nrm[:, 0] * nrm[:, 1] * a
-    t = np.stack([1.0 + sign * nrm[:, 0] ** 2 * a, sign * b, -sign * nrm[:, 0]], axis=1)
-    bb = np.stack([b, sign + nrm[:, 1] ** 2 * a, -nrm[:, 1]], axis=1)
-    return t, bb
-
-
-def to_local(v, t, b, n):
-    return np.stack([np.einsum("ij,ij->i", v, t), np.einsum("ij,ij->i", v, b), np.einsum("ij,ij->i", v, n)], axis=1)
-
-
-def to_world(v, t, b, n):
-    return v[:, :1] * t + v[:, 1:2] * b + v[:, 2:3] * n
-
-
-def cosine_directions(nrm, u2):
-    """Cosine-weighted directions about unit normals ``nrm`` (n, 3) from uniforms (n, 2)."""
-    r = np.sqrt(u2[:, 0])
-    phi = 2 * np.pi * u2[:, 1]
-    local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1.0 - u2[:, 0]))], axis=1)
-    t, b = frame(nrm)
-    return to_world(local, t, b, nrm)
-
-
-@dataclass
-class Outgoing:
-    direction: np.ndarray
-    throughput: np.ndarray
-    side: np.ndarray  # +1 leaves on the incident side, -1 crosses the surface
-    delta: np.ndarray  # bool: a specular or refracted direction (NEE cannot reach it)
-
-
-def interact(ts, sides, hit: Hit, rows, d, u) -> Outgoing:
-    """Continuing hits ``rows`` (of ``hit``; surface or mirror parts) with incoming directions ``d``
-    (n, 3) and uniforms ``u`` (n, EVENT_COLUMNS)."""
-    n = len(rows)
-    out = Outgoing(np.zeros((n, 3)), np.zeros(n), np.ones(n), np.zeros(n, bool))
-    part = hit.part[rows]
-    nf = hit.facing[rows]
-    side = np.where(hit.front[rows], 0, 1)
-    mirror = ts.is_role("mirror")[part]
-    if mirror.any():
-        out.direction[mirror] = reflect(d[mirror], nf[mirror])
-        out.throughput[mirror] = ts.mirror_reflectance
-        out.delta[mirror] = True
-    surf = np.flatnonzero(~mirror)
-    if len(surf) == 0:
-        return out
-    idx = sides.material_index[part[surf], side[surf]]
-    for key in np.unique(idx):  # one call per material and side (a dielectric's back differs)
-        for back in (0, 1):
-            sel = surf[(idx == key) & (side[surf] == back)]
-            if len(sel):
-                _interact_material(sides.models[key], back == 1, d[sel], nf[sel], u[sel], out, sel)
-    return out
-
-
-def _interact_material(m, back, d, nf, u, out, sel):
-    """By the material's declared flags (materials.flags): scatter lobes only, or a smooth interface
-    (specular, and refraction when it transmits) with lobes, branched by expected power."""
-    t, b = frame(nf)
-    wi = to_local(-d, t, b, nf)
-    flags = flags_of(m)
-    coef = m.smooth_coefficients(wi[:, 2], back=bool(back) and bool(flags & ComponentFlags.DELTA_TRANSMISSION)) \
-        if flags & ComponentFlags.DELTA else None
-    if coef is None:  # scatter lobes only
-        s = m.sample(wi, u[:, 1:4], "u")
-        out.direction[sel] = to_world(s.wo, t, b, nf)
-        out.throughput[sel] = np.where(s.wo[:, 2] > 0, s.weight, 0.0)
-        return
-    theta = np.arccos(np.clip(wi[:, 2], 0.0, 1.0))
-    rho = m.lobe_reflectance(theta, "u")
-    R = coef.reflectance("u")
-    T = coef.transmittance("u")
-    tot = rho + R + T
-    x = u[:, 0] * tot
-    lobe = x < rho
-    spec = ~lobe & (x < rho + R)
-    trans = ~lobe & ~spec & (T > 0)
-    thr = np.zeros(len(d))
-    dirs = np.tile(nf[:1] * 0, (len(d), 1))
-    if lobe.any():
-        s = m.sample(wi[lobe], u[lobe, 1:4], "u")
-        dirs[lobe] = to_world(s.wo, t[lobe], b[lobe], nf[lobe])
-        thr[lobe] = np.where(s.wo[:, 2] > 0, s.weight * tot[lobe] / rho[lobe], 0.0)
-    if spec.any():
-        dirs[spec] = reflect(d[spec], nf[spec])
-        thr[spec] = tot[spec]
-    if trans.any():
-        dirs[trans] = refract(d[trans], nf[trans], coef.eta[trans], coef.cos_t[trans])
-        thr[trans] = tot[trans]
-    out.direction[sel] = dirs
-    out.throughput[sel] = thr
-    out.side[sel] = np.where(trans, -1.0, 1.0)
-    out.delta[sel] = spec | trans
-
-
 def roulette(w, w_ref, u):
     """Russian roulette below ``ROULETTE_W * w_ref``: survivors get that weight (unbiased)."""
     thr = ROULETTE_W * w_ref
@@ -206,63 +108,60 @@ def roulette(w, w_ref, u):
     return w
 
 
-# ---------------------------------------------------------------- emission and area sampling
+@dataclass
+class Event:
+    """One event of the rays still walking (one row each), as a pickup sees it."""
+
+    ray: np.ndarray  # (n,) each row's ray number in the chunk (0 .. N-1)
+    d: np.ndarray  # (n, 3) the directions that arrived
+    w: np.ndarray  # (n,) the weights that arrived
+    delta: np.ndarray  # (n,) bool: the ray left its last vertex by a specular or refracted branch
+    hit: Hit
+    ends: np.ndarray  # (n,) bool: escaped, or on an absorber or detector (the walk stops there)
+    cont: np.ndarray  # row indices that interact and go on (the rows not in ``ends``)
+    U: np.ndarray  # (n, EVENT_COLUMNS) this event's uniforms
+
+    @property
+    def alive(self) -> np.ndarray:
+        """(n,) bool: the rows that hit a part."""
+        return self.hit.tri >= 0
 
 
-@dataclass(eq=False)
-class AreaSampler:
-    """Uniform points on a set of triangles (front normals kept)."""
+def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
+         after_scatter: Callable[[Event, np.ndarray], None] | None = None, w_ref: float = 1.0) -> None:
+    """Walk rays from points ``o`` (n, 3) on surfaces of normals ``nrm`` (started ``ts.eps_mm`` off
+    them) along ``d`` with weights ``w`` through ``ts`` (straylight.thermal.model.ThermalScene) with
+    the materials ``sides`` (model.SideTables), drawing each event's uniforms from ``rng``.
 
-    triangles: np.ndarray  # (k, 3, 3)
-    normals: np.ndarray  # (k, 3)
-    area_mm2: float
-    cdf: np.ndarray
-
-    plane: tuple | None = None  # (vertex, unit axis, r0, r1): sample the exact annulus instead
-
-    @classmethod
-    def of_part(cls, ts, p: int) -> AreaSampler:
-        sel = ts.triangle_part == p
-        a = ts.areas_mm2[sel]
-        return cls(ts.triangles_mm[sel], ts.normals[sel], ts.part_area_mm2(p), np.cumsum(a) / a.sum(),
-                   ts.planes.get(p))
-
-    def sample(self, u3):
-        """(points (n, 3), normals (n, 3)) from uniforms (n, 3)."""
-        if self.plane is not None:
-            v, a, r0, r1 = self.plane
-            t, b = frame(a[None, :])
-            r = np.sqrt(r0 * r0 + u3[:, 1] * (r1 * r1 - r0 * r0))
-            phi = 2 * np.pi * u3[:, 2]
-            p = v + (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b
-            return p, np.broadcast_to(a, p.shape).copy()
-        k = np.minimum(np.searchsorted(self.cdf, u3[:, 0], side="right"), len(self.cdf) - 1)
-        s = np.sqrt(u3[:, 1])
-        a, b = 1.0 - s, s * (1.0 - u3[:, 2])
-        tri = self.triangles[k]
-        p = a[:, None] * tri[:, 0] + b[:, None] * tri[:, 1] + (1.0 - a - b)[:, None] * tri[:, 2]
-        return p, self.normals[k]
-
-
-def emission_directions(eps_front, nrm, rng, max_rounds: int = 1000):
-    """Directions with density proportional to eps(theta) cos(theta) about ``nrm`` (n, 3), by
-    rejection from cosine-weighted draws (accept with eps / max eps); ``eps_front``: table on a
-    uniform grid of theta over [0, pi/2] (model.THETA_GRID). All rays of a part then carry the same weight."""
-    grid = np.linspace(0.0, np.pi / 2, len(eps_front))
-    n = len(nrm)
-    e_max = float(eps_front.max())
-    out = np.zeros((n, 3))
-    todo = np.arange(n)
-    for _ in range(max_rounds):
-        if len(todo) == 0:
+    ``at_hit(event)`` scores the hits of every event; ``after_scatter(event, w_next)`` the rows
+    ``event.cont`` after interaction and roulette (``w_next``: their weights now, 0 where the path
+    ends; at the event cap every path ends with 0). Roulette plays below ``ROULETTE_W * w_ref``."""
+    o = o + ts.eps_mm * nrm
+    ray = np.arange(len(w))
+    delta = np.zeros(len(w), bool)
+    terminal = ts.is_role("absorber", "detector")
+    for index in range(MAX_EVENTS):
+        if len(ray) == 0:
             break
-        u = rng.random((len(todo), 3))
-        d = cosine_directions(nrm[todo], u[:, :2])
-        cos = np.einsum("ij,ij->i", d, nrm[todo])
-        e = np.interp(np.arccos(np.clip(cos, 0.0, 1.0)), grid, eps_front)
-        ok = u[:, 2] * e_max < e
-        out[todo[ok]] = d[ok]
-        todo = todo[~ok]
-    if len(todo):
-        raise RuntimeError("emission sampling did not converge (emissivity nearly zero everywhere)")
-    return out
+        U = rng.random((len(ray), EVENT_COLUMNS))
+        hit = cast(ts, o, d)
+        alive = hit.tri >= 0
+        ends = ~alive | terminal[np.where(alive, hit.part, 0)]
+        cont = np.flatnonzero(~ends)
+        ev = Event(ray, d, w, delta, hit, ends, cont, U)
+        at_hit(ev)
+        if len(cont) == 0:
+            break
+        out = interact(ts, sides, hit, cont, d[cont], U[cont])
+        w_next = roulette(w[cont] * out.throughput, w_ref, U[cont, 4])
+        if index == MAX_EVENTS - 1:
+            w_next = np.zeros_like(w_next)  # the cap: every path ends here
+        if after_scatter is not None:
+            after_scatter(ev, w_next)
+        keep = w_next > 0
+        c = cont[keep]
+        o = hit.point[c] + (ts.eps_mm * out.side[keep])[:, None] * hit.facing[c]
+        d = out.direction[keep]
+        w = w_next[keep]
+        delta = out.delta[keep]
+        ray = ray[c]

@@ -1,0 +1,88 @@
+"""Where thermal rays start: uniform points on parts (AreaSampler), cosine-weighted directions,
+and emission directions with density eps(theta) cos(theta) / (pi eps_h)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from straylight.sources import orthonormal_basis
+from straylight.thermal.interaction import to_world
+
+
+def cosine_directions(nrm, u2):
+    """Cosine-weighted directions about unit normals ``nrm`` (n, 3) from uniforms (n, 2)."""
+    r = np.sqrt(u2[:, 0])
+    phi = 2 * np.pi * u2[:, 1]
+    local = np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(0.0, 1.0 - u2[:, 0]))], axis=1)
+    t, b = orthonormal_basis(nrm)
+    return to_world(local, t, b, nrm)
+
+
+@dataclass(eq=False)
+class AreaSampler:
+    """Uniform points on a set of triangles (front normals kept)."""
+
+    triangles: np.ndarray  # (k, 3, 3)
+    normals: np.ndarray  # (k, 3)
+    area_mm2: float
+    cdf: np.ndarray
+
+    plane: tuple | None = None  # (vertex, unit axis, r0, r1): sample the exact annulus instead
+
+    @classmethod
+    def of_part(cls, ts, p: int) -> AreaSampler:
+        sel = ts.triangle_part == p
+        a = ts.areas_mm2[sel]
+        return cls(ts.triangles_mm[sel], ts.normals[sel], ts.part_area_mm2(p), np.cumsum(a) / a.sum(),
+                   ts.planes.get(p))
+
+    def sample(self, u3):
+        """(points (n, 3), normals (n, 3)) from uniforms (n, 3)."""
+        if self.plane is not None:
+            v, a, r0, r1 = self.plane
+            t, b = orthonormal_basis(a[None, :])
+            r = np.sqrt(r0 * r0 + u3[:, 1] * (r1 * r1 - r0 * r0))
+            phi = 2 * np.pi * u3[:, 2]
+            p = v + (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b
+            return p, np.broadcast_to(a, p.shape).copy()
+        k = np.minimum(np.searchsorted(self.cdf, u3[:, 0], side="right"), len(self.cdf) - 1)
+        s = np.sqrt(u3[:, 1])
+        a, b = 1.0 - s, s * (1.0 - u3[:, 2])
+        tri = self.triangles[k]
+        p = a[:, None] * tri[:, 0] + b[:, None] * tri[:, 1] + (1.0 - a - b)[:, None] * tri[:, 2]
+        return p, self.normals[k]
+
+
+def emission_directions(eps_front, nrm, rng, max_rounds: int = 1000):
+    """Directions with density proportional to eps(theta) cos(theta) about ``nrm`` (n, 3), by
+    rejection from cosine-weighted draws (accept with eps / max eps); ``eps_front``: table on a
+    uniform grid of theta over [0, pi/2] (model.THETA_GRID). All rays of a part then carry the same weight."""
+    grid = np.linspace(0.0, np.pi / 2, len(eps_front))
+    n = len(nrm)
+    e_max = float(eps_front.max())
+    out = np.zeros((n, 3))
+    todo = np.arange(n)
+    for _ in range(max_rounds):
+        if len(todo) == 0:
+            break
+        u = rng.random((len(todo), 3))
+        d = cosine_directions(nrm[todo], u[:, :2])
+        cos = np.einsum("ij,ij->i", d, nrm[todo])
+        e = np.interp(np.arccos(np.clip(cos, 0.0, 1.0)), grid, eps_front)
+        ok = u[:, 2] * e_max < e
+        out[todo[ok]] = d[ok]
+        todo = todo[~ok]
+    if len(todo):
+        raise RuntimeError("emission sampling did not converge (emissivity nearly zero everywhere)")
+    return out
+
+
+def emission_rays(sampler: AreaSampler, eps_table, u3, rng, back: bool = False):
+    """(points, normals, directions) of rays emitted from ``sampler``'s front (its back: ``back``)
+    with the emissivity table ``eps_table`` of that side, points from uniforms ``u3`` (n, 3) and
+    directions drawn from ``rng`` (:func:`emission_directions`)."""
+    o, nrm = sampler.sample(u3)
+    if back:
+        nrm = -nrm
+    return o, nrm, emission_directions(eps_table, nrm, rng)
