@@ -10,8 +10,8 @@ incoming beam, to ``theta_i + theta_r`` on the specular side (``phi_r = 0``) or
 
 The paper plan
 --------------
-The seed paper's grid lives in :mod:`rig.points` (the project's one paper plan; rig.synth's
-synthetic scans use it too).
+The seed paper's grid lives in :mod:`rig.points` (the project's one paper plan), with the plans
+of rig.synth's synthetic scans as arrays.
 
 Custom plans (PLAN.json)
 ------------------------

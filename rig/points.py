@@ -1,6 +1,8 @@
 """Scan points: a point and its identity (the key a CSV row, a plan and ``--resume`` agree on),
-and the seed paper's grid, the one paper plan of the project (``straylight rig scan --plan
-paper`` measures it; rig.synth's synthetic scans use it too, with a backscatter wing added).
+the seed paper's grid, the one paper plan of the project (``straylight rig scan --plan
+paper`` measures it), and plans as arrays (:func:`paper_plan`: that grid with a backscatter wing;
+:func:`score_plan`, :func:`compact_plan`, :func:`make_plan`), the plans of :mod:`rig.synth`'s
+synthetic scans.
 
 The paper plan (seed paper section 3): incidence 10, 30, 40, 70, 80 deg; s then p; 3 readings
 per point. Viewing angles, with ``d = theta_r - theta_i`` (zones chosen here; the paper gives
@@ -82,3 +84,75 @@ def paper_viewing_deg(theta_i_deg: float, *, backscatter_step_deg: float | None 
         back = back[np.abs(back + theta_i_deg) >= retro_gap_deg]
         tr = np.concatenate([back, tr])
     return np.unique(np.round(tr, 6))
+
+
+# ----------------------------------------------------------------------------- plans as arrays
+# (theta_i_deg, theta_r_deg signed, polarization) arrays: the synthetic scans' plans (rig.synth)
+
+RETRO_GAP_DEG = 3.0  # the detector cannot view within this of the incident beam
+
+
+def _viewing_grid(theta_i_deg, steps):
+    """Signed viewing angles: ``steps`` is a list of (half_range_deg, step_deg) around
+    specular, finest first, then the off-specular grid; retro and |theta| > 85 removed."""
+    pts = []
+    for half, step in steps[:-1]:
+        k = int(round(half / step))
+        pts.append(theta_i_deg + step * np.arange(-k, k + 1))
+    off_step = steps[-1][1]
+    pts.append(np.arange(-THETA_R_MAX_DEG, THETA_R_MAX_DEG + 1e-9, off_step))
+    tr = np.unique(np.round(np.concatenate(pts), 6))
+    keep = (np.abs(tr) <= THETA_R_MAX_DEG) & (np.abs(tr + theta_i_deg) >= RETRO_GAP_DEG)
+    return tr[keep]
+
+
+def make_plan(theta_i_deg=PAPER_THETA_I_DEG, polarizations=("s", "p"), steps=None):
+    """(theta_i_deg, theta_r_deg (signed), polarization) arrays for a scan.
+
+    ``steps``: [(half_range_deg, step_deg), ..., (None, off_step_deg)], finest first.
+    """
+    if steps is None:
+        steps = [(0.5, 0.05), (2.0, 0.2), (5.0, 0.5), (None, 5.0)]
+    return _plan_arrays(theta_i_deg, polarizations, lambda ti: _viewing_grid(ti, steps))
+
+
+def paper_plan(theta_i_deg=PAPER_THETA_I_DEG, polarizations=("s", "p")):
+    """The seed paper's plan, the project's one (:func:`paper_viewing_deg`: 0.05 deg
+    steps within 0.5 deg of specular, 0.2 to 2.5 deg, 0.5 to 5 deg, 5 deg beyond; specular side
+    0..85 deg), with the backscatter side added every 5 deg (``RETRO_GAP_DEG`` left out around the
+    beam), ~90 points per curve."""
+    return _plan_arrays(theta_i_deg, polarizations, lambda ti: paper_viewing_deg(
+        ti, backscatter_step_deg=5.0, retro_gap_deg=RETRO_GAP_DEG, theta_r_max_deg=THETA_R_MAX_DEG))
+
+
+def _plan_arrays(theta_i_deg, polarizations, viewing_grid):
+    """(theta_i_deg, theta_r_deg, polarization) arrays: ``viewing_grid(theta_i_deg)`` per incidence,
+    repeated for each polarization."""
+    ti_all, tr_all, pol_all = [], [], []
+    for ti in np.atleast_1d(np.asarray(theta_i_deg, float)):
+        if not 0.0 <= ti < 90.0:
+            raise ValueError(f"theta_i_deg: {ti} outside [0, 90)")
+        tr = viewing_grid(float(ti))
+        for pol in polarizations:
+            if pol not in ("s", "p", "u"):
+                raise ValueError(f"polarizations: unknown {pol!r}")
+            ti_all.append(np.full(tr.shape, ti))
+            tr_all.append(tr)
+            pol_all.append(np.full(tr.shape, pol))
+    return np.concatenate(ti_all), np.concatenate(tr_all), np.concatenate(pol_all)
+
+
+#: The incidences of the synthetic score scans: six, two of them (40, 80) held out by default.
+SCORE_INCIDENCES_DEG = (10.0, 25.0, 40.0, 55.0, 70.0, 80.0)
+
+
+def score_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
+    """The score scans' plan: :func:`paper_plan` (the paper's grid with a backscatter wing) at six
+    incidences. The paper's fine steps resolve a blurred core (wide slit, diverging beam) that
+    0.1 / 0.5 deg steps see only as a wider lobe."""
+    return paper_plan(theta_i_deg, polarizations)
+
+
+def compact_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
+    """~60 points per curve: 0.1 deg within 0.5 deg, 0.5 deg to 3 deg, 5 deg beyond."""
+    return make_plan(theta_i_deg, polarizations, steps=[(0.5, 0.1), (3.0, 0.5), (None, 5.0)])

@@ -19,11 +19,11 @@ whose relative standard deviation is 5 % at the scan's peak, rising linearly in
 log10(BRDF) to 30 % four decades below (and above that); ``brdf_std_per_sr`` is the
 sample standard deviation of those readings.
 
-Plans (incidence lists, viewing-angle grids) are plain arrays: :func:`paper_plan` is
-the seed paper's, the project's one paper grid (:mod:`rig.points`) with a backscatter wing, and
-:func:`compact_plan` a ~60-point-per-curve version for fast diagnosis tests.
-
-``python -m rig.synth --score-table`` runs the catalogue sweep of docs/diagnose.md.
+A plan is (theta_i_deg, theta_r_deg, polarization) arrays from :mod:`rig.points`
+(:func:`rig.points.paper_plan`, :func:`rig.points.score_plan`, :func:`rig.points.compact_plan`).
+The score cases below (an injected effect per catalogue entry, :func:`score_case`) are what the
+diagnosis tests and ``benchmarks/diagnose_score.py`` (the catalogue sweep of docs/diagnose.md and
+the CONTRACTS §4.1 speed check) run.
 """
 from __future__ import annotations
 
@@ -34,81 +34,8 @@ from scipy.stats import qmc
 
 from materials.scan import Scan, make_scan
 from rig.instrument import NOMINAL, RigConfig
+from rig.points import score_plan
 from rig.rotations import rotate_about_x, rotate_about_y
-
-PAPER_INCIDENCES_DEG = (10.0, 30.0, 40.0, 70.0, 80.0)
-RETRO_GAP_DEG = 3.0  # the detector cannot view within this of the incident beam
-MAX_VIEW_DEG = 85.0
-
-
-def _viewing_grid(theta_i_deg, steps):
-    """Signed viewing angles: ``steps`` is a list of (half_range_deg, step_deg) around
-    specular, finest first, then the off-specular grid; retro and |theta| > 85 removed."""
-    pts = []
-    for half, step in steps[:-1]:
-        k = int(round(half / step))
-        pts.append(theta_i_deg + step * np.arange(-k, k + 1))
-    off_step = steps[-1][1]
-    pts.append(np.arange(-MAX_VIEW_DEG, MAX_VIEW_DEG + 1e-9, off_step))
-    tr = np.unique(np.round(np.concatenate(pts), 6))
-    keep = (np.abs(tr) <= MAX_VIEW_DEG) & (np.abs(tr + theta_i_deg) >= RETRO_GAP_DEG)
-    return tr[keep]
-
-
-def make_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p"), steps=None):
-    """(theta_i_deg, theta_r_deg (signed), polarization) arrays for a scan.
-
-    ``steps``: [(half_range_deg, step_deg), ..., (None, off_step_deg)], finest first.
-    """
-    if steps is None:
-        steps = [(0.5, 0.05), (2.0, 0.2), (5.0, 0.5), (None, 5.0)]
-    return _plan_arrays(theta_i_deg, polarizations, lambda ti: _viewing_grid(ti, steps))
-
-
-def paper_plan(theta_i_deg=PAPER_INCIDENCES_DEG, polarizations=("s", "p")):
-    """The seed paper's plan, the project's one (:func:`rig.points.paper_viewing_deg`: 0.05 deg
-    steps within 0.5 deg of specular, 0.2 to 2.5 deg, 0.5 to 5 deg, 5 deg beyond; specular side
-    0..85 deg), with the backscatter side added every 5 deg (``RETRO_GAP_DEG`` left out around the
-    beam), ~90 points per curve."""
-    from rig.points import paper_viewing_deg
-
-    return _plan_arrays(theta_i_deg, polarizations, lambda ti: paper_viewing_deg(
-        ti, backscatter_step_deg=5.0, retro_gap_deg=RETRO_GAP_DEG, theta_r_max_deg=MAX_VIEW_DEG))
-
-
-def _plan_arrays(theta_i_deg, polarizations, viewing_grid):
-    """(theta_i_deg, theta_r_deg, polarization) arrays: ``viewing_grid(theta_i_deg)`` per incidence,
-    repeated for each polarization."""
-    ti_all, tr_all, pol_all = [], [], []
-    for ti in np.atleast_1d(np.asarray(theta_i_deg, float)):
-        if not 0.0 <= ti < 90.0:
-            raise ValueError(f"theta_i_deg: {ti} outside [0, 90)")
-        tr = viewing_grid(float(ti))
-        for pol in polarizations:
-            if pol not in ("s", "p", "u"):
-                raise ValueError(f"polarizations: unknown {pol!r}")
-            ti_all.append(np.full(tr.shape, ti))
-            tr_all.append(tr)
-            pol_all.append(np.full(tr.shape, pol))
-    return np.concatenate(ti_all), np.concatenate(tr_all), np.concatenate(pol_all)
-
-
-#: The incidences of the synthetic score scans: six, two of them (40, 80) held out by default.
-SCORE_INCIDENCES_DEG = (10.0, 25.0, 40.0, 55.0, 70.0, 80.0)
-
-
-def score_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
-    """The score scans' plan: :func:`paper_plan` (the paper's grid with a backscatter wing) at six
-    incidences. The paper's fine
-    steps resolve a blurred core (wide slit, diverging beam) that 0.1 / 0.5 deg steps see only
-    as a wider lobe."""
-    return paper_plan(theta_i_deg, polarizations)
-
-
-def compact_plan(theta_i_deg=SCORE_INCIDENCES_DEG, polarizations=("s", "p")):
-    """~60 points per curve: 0.1 deg within 0.5 deg, 0.5 deg to 3 deg, 5 deg beyond."""
-    return make_plan(theta_i_deg, polarizations, steps=[(0.5, 0.1), (3.0, 0.5), (None, 5.0)])
-
 
 # ----------------------------------------------------------------------------- geometry
 
@@ -407,7 +334,7 @@ def truth_material(name: str):
 def score_case(effects: dict, seed: int = 1, n_samples: int = 1024, workers: int = 2, material=None, plan=None,
                executor=None):
     """Synthesize a scan of ``material`` (default :func:`glossy_black`) on ``plan`` (default
-    :func:`score_plan`) with ``effects`` ({name: params}) and diagnose it (on ``executor`` if
+    :func:`rig.points.score_plan`) with ``effects`` ({name: params}) and diagnose it (on ``executor`` if
     given, else ``workers`` processes). Returns (scan, Diagnosis, json document)."""
     from rig.diagnose import diagnose, to_json
     from rig.effects import build_effect
@@ -417,98 +344,3 @@ def score_case(effects: dict, seed: int = 1, n_samples: int = 1024, workers: int
                       truth, seed=seed, n_samples=n_samples)
     d = diagnose(scan, executor=executor) if executor is not None else diagnose(scan, workers=workers)
     return scan, d, to_json(d)
-
-
-def default_cases(strengths=None):
-    """[(label, {name: params})]: clean, each catalogue effect alone, and :data:`PAIRS`."""
-    strengths = SCORE_CASES if strengths is None else strengths
-    return ([("clean", {})] + [(n, {n: p}) for n, p in strengths.items()]
-            + [(f"{a} + {b}", {a: strengths[a], b: strengths[b]}) for a, b in PAIRS])
-
-
-def score_table(cases=None, seed: int = 1, material=None, workers: int = 2, verbose: bool = False) -> str:
-    """Markdown table: each case's injected effects, their ranks among the candidates when
-    tried alone, what was selected, the held-out gap before/after, how much of it was closed
-    and the final gap over the noise level, and the wall time (synthetic scan included).
-    ``verbose`` prints each row as it is done."""
-    import time
-
-    from concurrent.futures import ProcessPoolExecutor
-
-    cases = cases if cases is not None else default_cases()
-    pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 else None
-    rows = ["| injected | rank of injected | selected | held-out gap before | after | noise | fall | after / noise | time (s) |",
-            "|---|---|---|---|---|---|---|---|---|"]
-    if verbose:
-        print("\n".join(rows), flush=True)
-    for label, effects in cases:
-        t0 = time.perf_counter()
-        _, _, doc = score_case(effects, seed=seed, material=material, workers=1, executor=pool)
-        dt = time.perf_counter() - t0
-        names = [c["name"] for c in doc["candidates"]]
-        ranks = ", ".join(str(names.index(n) + 1) for n in effects) or "-"
-        sel = ", ".join(doc["selected_effects"]) or "none"
-        before, after = doc["baseline"]["heldout_gap"], doc["final"]["heldout_gap"]
-        noise = doc["noise_level"]["heldout_gap"]
-        rows.append(f"| {label} | {ranks} | {sel} | {before:.3f} | {after:.3f} | {noise:.3f} | "
-                    f"{1 - after / before:.0%} | {after / noise:.2f} | {dt:.0f} |")
-        if verbose:
-            print(rows[-1], flush=True)
-    if pool is not None:
-        pool.shutdown()
-    return "\n".join(rows)
-
-
-def bench(workers: int = 2, seed: int = 1) -> dict:
-    """CONTRACTS §4.1 speed check: a compact-plan scan (2 polarizations, 6 incidences, ~54
-    points per curve) with two injected effects, diagnosed with every catalogue effect as a
-    candidate. Returns wall and CPU seconds of the diagnosis alone."""
-    import time
-
-    from rig.diagnose import diagnose
-    from rig.effects import build_effect
-
-    truth = [build_effect(n, **SCORE_CASES[n]) for n in PAIRS[1]]
-    scan = synth_scan(glossy_black(), compact_plan(), truth, seed=seed, n_samples=1024)
-    def cpu():  # this process and its finished worker processes
-        import resource
-
-        ch = resource.getrusage(resource.RUSAGE_CHILDREN)
-        return time.process_time() + ch.ru_utime + ch.ru_stime
-
-    c0, w0 = cpu(), time.perf_counter()
-    d = diagnose(scan, workers=workers)
-    return {"points": int(len(scan.brdf_per_sr)), "workers": workers, "wall_s": round(time.perf_counter() - w0, 1),
-            "cpu_s": round(cpu() - c0, 1), "selected": list(d.selected),
-            "phases_s": {k: round(v, 1) for k, v in d.timings.items()}}
-
-
-if __name__ == "__main__":
-    import argparse
-    import json
-
-    parser = argparse.ArgumentParser(description="rig.synth: synthetic scans and the diagnosis score table")
-    parser.add_argument("--score-table", action="store_true",
-                        help="run the catalogue sweep at visible strengths and at the detection limit; print both tables")
-    parser.add_argument("--bench", action="store_true", help="time one CONTRACTS 4.1-sized diagnosis")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--material", default="glossy_black",
-                        help="truth material: glossy_black (default), broad_black or a materials preset")
-    parser.add_argument("--strengths", choices=("visible", "limit", "both"), default="both")
-    parser.add_argument("--only", nargs="+", help="score only these cases (effect names or 'clean')")
-    args = parser.parse_args()
-    if args.bench:
-        print(json.dumps(bench(args.workers, args.seed)))
-    if args.score_table:
-        mat = truth_material(args.material)
-        tables = {"visible": SCORE_CASES, "limit": DETECTION_LIMIT_CASES}
-        for key in (("visible", "limit") if args.strengths == "both" else (args.strengths,)):
-            strengths = tables[key]
-            cases = default_cases(strengths)
-            if args.only:
-                cases = [(n, {} if n == "clean" else {n: strengths[n]}) for n in args.only]
-            elif key == "limit":
-                cases = cases[1:]  # clean is the same scan in both tables
-            print(f"\n{key} strengths, material {args.material}, seed {args.seed}:")
-            score_table(cases, seed=args.seed, material=mat, workers=args.workers, verbose=True)

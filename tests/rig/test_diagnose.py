@@ -102,7 +102,8 @@ def test_cli_writes_json_and_report(tmp_path):
     from straylight.cli.main import main
 
     from rig.effects import build_effect
-    from rig.synth import compact_plan, glossy_black, synth_scan
+    from rig.points import compact_plan
+    from rig.synth import glossy_black, synth_scan
 
     scan = synth_scan(glossy_black(), compact_plan(), [build_effect("stray_background", **SCORE_CASES["stray_background"])],
                       seed=1, n_samples=1024)

@@ -5,7 +5,8 @@ from rig.diagnose import Problem, fit_baseline
 from rig.diagnose.params import Model
 from rig.diagnose.twins import check_twins
 from rig.effects import build_effect
-from rig.synth import compact_plan, glossy_black, synth_scan
+from rig.points import compact_plan
+from rig.synth import glossy_black, synth_scan
 
 
 def test_wrong_offset_is_replaced_by_its_twin():

@@ -78,7 +78,8 @@ def test_executor_gives_the_serial_results():
     from concurrent.futures import ProcessPoolExecutor
 
     from rig.diagnose import fit_baseline, fit_many
-    from rig.synth import compact_plan, glossy_black, synth_scan
+    from rig.points import compact_plan
+    from rig.synth import glossy_black, synth_scan
 
     scan = synth_scan(glossy_black(), compact_plan(theta_i_deg=(10.0, 40.0, 70.0), polarizations=("s",)), [],
                       seed=3, n_samples=256)
