@@ -15,6 +15,16 @@ LWN "Ensuring data reaches disk"):
 3. ``os.replace`` moves it over the target (atomic on POSIX and Windows);
 4. the folder is ``fsync``-ed, so the rename itself survives a power cut.
 
+Logs that grow as a run goes (a scan's CSV rows as they are measured, its bluesky document log)
+are appended, not replaced: :func:`append_text` and :func:`append_json_line` write whole lines in
+one ``write``, then flush and fsync, so every earlier line survives a crash.
+
+JSON goes through :func:`dumps_json` / :func:`write_json` only (``tests/test_result_writers.py``
+checks that no other module writes a result file by hand). Their options keep each file's
+established bytes: ``indent``, ``sort_keys``, ``final_newline``, and ``allow_nan`` for the formats
+that have always written non-finite numbers as ``NaN`` / ``Infinity`` (Python's default) instead of
+strict JSON's ``null``.
+
 The reading side (:mod:`atomicio.inputs`): every file a user names is checked to be a regular
 file of sane size before it is read, and read without blocking (``/dev/zero`` or a FIFO in a
 scene is a one-line error, not a hang).
@@ -33,7 +43,8 @@ import secrets
 import stat
 from pathlib import Path
 
-__all__ = ["write_text", "write_bytes", "write_json", "json_safe", "atomic_open", "write_figure"]
+__all__ = ["write_text", "write_bytes", "write_json", "dumps_json", "json_safe", "atomic_open", "write_figure",
+           "append_text", "append_json_line"]
 
 
 def _fsync_directory(directory: Path) -> None:
@@ -104,34 +115,67 @@ def write_bytes(path, data: bytes, *, fsync: bool = True) -> Path:
     return Path(path)
 
 
-def json_safe(obj):
+def json_safe(obj, *, nan_as_null: bool = True):
     """``obj`` made JSON-clean, recursively: numpy scalars/arrays to Python, tuples/sets to lists,
-    Paths to strings, NaN and +-inf to ``None`` (strict JSON has no NaN), any other object to its
-    ``str``. The project's one JSON sanitiser."""
+    Paths to strings, NaN and +-inf to ``None`` (strict JSON has no NaN; kept as floats with
+    ``nan_as_null=False``), any other object to its ``str``. The project's one JSON sanitiser."""
     if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
+        return {str(k): json_safe(v, nan_as_null=nan_as_null) for k, v in obj.items()}
     if isinstance(obj, (list, tuple, set, frozenset)):
-        return [json_safe(v) for v in obj]
+        return [json_safe(v, nan_as_null=nan_as_null) for v in obj]
     if isinstance(obj, bool) or obj is None or isinstance(obj, str):
         return obj
     if isinstance(obj, int):
         return int(obj)
     if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
+        return obj if math.isfinite(obj) or not nan_as_null else None
     if isinstance(obj, os.PathLike):
         return os.fspath(obj)
     tolist = getattr(obj, "tolist", None)  # numpy scalars and arrays, without importing numpy
     if callable(tolist):
-        return json_safe(tolist())
+        return json_safe(tolist(), nan_as_null=nan_as_null)
     item = getattr(obj, "item", None)
     if callable(item):
-        return json_safe(item())
+        return json_safe(item(), nan_as_null=nan_as_null)
     return str(obj)  # anything else (an enum, a model object): its text, as json.dumps(default=str)
 
 
-def write_json(path, obj, *, indent: int | None = 2, fsync: bool = True) -> Path:
-    """Write ``json_safe(obj)`` as strict JSON (no NaN) with a final newline, atomically."""
-    return write_text(path, json.dumps(json_safe(obj), indent=indent, allow_nan=False) + "\n", fsync=fsync)
+def dumps_json(obj, *, indent: int | None = 2, sort_keys: bool = False, allow_nan: bool = False) -> str:
+    """``json_safe(obj)`` as JSON text (``json.dumps``' separators). ``allow_nan=False``: strict JSON,
+    non-finite numbers as ``null``; True: as ``NaN`` / ``Infinity`` (module doc)."""
+    return json.dumps(json_safe(obj, nan_as_null=not allow_nan), indent=indent, sort_keys=sort_keys,
+                      allow_nan=allow_nan)
+
+
+def write_json(path, obj, *, indent: int | None = 2, sort_keys: bool = False, allow_nan: bool = False,
+               final_newline: bool = True, fsync: bool = True) -> Path:
+    """Write :func:`dumps_json` of ``obj`` atomically, with a final newline unless ``final_newline`` is
+    False (formats that have always ended without one keep their bytes)."""
+    return write_text(path, dumps_json(obj, indent=indent, sort_keys=sort_keys, allow_nan=allow_nan)
+                      + ("\n" if final_newline else ""), fsync=fsync)
+
+
+def append_text(path, text: str, *, fsync: bool = True, encoding: str = "utf-8") -> Path:
+    """Append ``text`` (whole lines) to ``path`` in one ``write``, then flush and (``fsync``) fsync it:
+    a log that grows as a run goes. The file (and its folder) is created if missing, with the
+    user's umask. Returns the path."""
+    path = Path(path)
+    if str(path.parent):
+        path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a", encoding=encoding, newline="") as fh:
+        fh.write(text)
+        fh.flush()
+        if fsync:
+            os.fsync(fh.fileno())
+    return path
+
+
+def append_json_line(path, obj, *, encoder=None, fsync: bool = True) -> Path:
+    """Append ``obj`` as one line of JSON (JSON lines) with :func:`append_text`. ``encoder``: a
+    ``json.JSONEncoder`` subclass that knows the objects' types (bluesky documents use
+    event-model's ``NumpyEncoder``); without one, :func:`json_safe` with NaN kept."""
+    text = json.dumps(obj, cls=encoder) if encoder is not None else json.dumps(json_safe(obj, nan_as_null=False))
+    return append_text(path, text + "\n", fsync=fsync)
 
 
 def write_figure(fig, path, *, fsync: bool = False, **savefig_kwargs) -> Path:

@@ -21,6 +21,7 @@ import os
 import secrets
 from pathlib import Path
 
+import atomicio
 from atomicio.digest import file_matches, file_sha256
 
 MANIFEST = ".straylight-outputs.json"
@@ -116,10 +117,8 @@ def check_overwrite(directory, names=(), patterns=(), force: bool = False, flag:
 def record_outputs(directory, names=(), patterns=()) -> None:
     """Record the SHA-256 of the outputs just written (by name or glob pattern) in the folder's
     manifest, so the next run may replace them while they are unchanged."""
-    from atomicio import write_text
-
     directory = Path(directory)
     files = _manifest(directory)
     for path in _candidates(directory, names, patterns):
         files[path.name] = file_sha256(path)
-    write_text(directory / MANIFEST, json.dumps({"files": files}, indent=1, sort_keys=True) + "\n", fsync=False)
+    atomicio.write_json(directory / MANIFEST, {"files": files}, indent=1, sort_keys=True, fsync=False)

@@ -28,6 +28,7 @@ import tempfile
 import traceback
 from pathlib import Path
 
+import atomicio
 from geometry.mesh import GeometryError
 
 ENV_ISOLATE = "STRAYLIGHT_CAD_ISOLATE"
@@ -98,15 +99,15 @@ def _child(run, path: str, target: str, error: str, tolerance_mm: float, angular
                                   split=split)
         cad_cache.store(Path(target), out, strict=True)
     except GeometryError as exc:
-        Path(error).write_text(str(exc))
+        atomicio.write_text(error, str(exc), fsync=False)
         os._exit(3)
     except MemoryError:
-        Path(error).write_text(f"{path}: out of memory reading and tessellating the file "
-                                                f"(limit {memory_mb} MB, {ENV_MEMORY})")
+        atomicio.write_text(error, f"{path}: out of memory reading and tessellating the file "
+                                   f"(limit {memory_mb} MB, {ENV_MEMORY})", fsync=False)
         os._exit(4)
     except BaseException as exc:  # noqa: BLE001 - report any failure as one line
-        Path(error).write_text(f"{path}: cannot read and tessellate the file: "
-                                                f"{type(exc).__name__}: {exc}".splitlines()[0])
+        atomicio.write_text(error, f"{path}: cannot read and tessellate the file: "
+                                   f"{type(exc).__name__}: {exc}".splitlines()[0], fsync=False)
         traceback.print_exc(file=sys.stderr) if os.environ.get("STRAYLIGHT_DEBUG") else None
         os._exit(5)
     os._exit(0)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 
 import re
+import tempfile
 import tomllib
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -64,26 +65,33 @@ def _once(key, read):
     return memo[key]
 
 
+def _write_through_scratch(path: Path, write) -> Path:
+    """``write(scratch)`` (a library writer that wants a file name: CadQuery's STEP exporter) into a
+    scratch folder beside ``path``, then its bytes to ``path`` atomically (:mod:`atomicio`)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=path.parent, prefix=".export-") as scratch:
+        tmp = Path(scratch) / path.name
+        write(tmp)
+        return atomicio.write_bytes(path, tmp.read_bytes())
+
+
 def export_step(shape, path) -> Path:
-    """Write a CadQuery shape (or a :class:`geometry.parts.ShapePart`) to a STEP file."""
+    """Write a CadQuery shape (or a :class:`geometry.parts.ShapePart`) to a STEP file, atomically."""
     import cadquery as cq
 
-    path = Path(path)
     shape = getattr(shape, "shape", shape)
-    cq.exporters.export(shape, str(path), exportType="STEP")
-    return path
+    return _write_through_scratch(Path(path), lambda tmp: cq.exporters.export(shape, str(tmp), exportType="STEP"))
 
 
 def export_assembly_step(shape_parts: dict, path) -> Path:
-    """Write all CadQuery parts into one STEP file as a named assembly (for CAD tools)."""
+    """Write all CadQuery parts into one STEP file as a named assembly (for CAD tools), atomically."""
     import cadquery as cq
 
     path = Path(path)
     assembly = cq.Assembly(name=path.stem)
     for name, part in shape_parts.items():
         assembly.add(getattr(part, "shape", part), name=name)
-    assembly.export(str(path), exportType="STEP")
-    return path
+    return _write_through_scratch(path, lambda tmp: assembly.export(str(tmp), exportType="STEP"))
 
 
 def _write_ply64(part: Part, path: Path):
@@ -102,13 +110,14 @@ def _write_ply64(part: Part, path: Path):
 
 
 def export_mesh(part: Part, path) -> Path:
-    """Write a part's triangles to STL (binary, float32), PLY (float64, lossless) or OBJ."""
+    """Write a part's triangles to STL (binary, float32), PLY (float64, lossless) or OBJ, atomically."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".ply":
         _write_ply64(part, path)
     elif suffix in (".stl", ".obj"):
-        part.to_trimesh().export(str(path), file_type=suffix[1:])
+        data = part.to_trimesh().export(file_type=suffix[1:])  # bytes (STL) or text (OBJ), as trimesh writes them
+        atomicio.write_bytes(path, data if isinstance(data, bytes) else data.encode("utf-8"))
     else:
         raise GeometryError(f"{path}: unsupported mesh format {suffix!r}; use one of .stl, .ply, .obj")
     return path

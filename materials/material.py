@@ -27,9 +27,9 @@ from typing import Optional
 
 import numpy as np
 
+import atomicio
 from atomicio.inputs import InputFileError, read_input_text
 from materials.albedo import directional_hemispherical_reflectance
-from materials.atomic import atomic_write_text
 from materials.base import MaterialError, Sample
 from materials.composite import _TABLE_THETA, Composite
 from materials.flags import ComponentFlags, flags_of, union
@@ -345,9 +345,8 @@ def load_material(source, name: Optional[str] = None, check_energy: bool = True)
 
 
 def save_material(path, material: Material, check_energy: bool = True) -> Path:
-    """Write a material file atomically (temp file in the same directory + os.replace)."""
+    """Write a material file atomically (:func:`atomicio.write_json`)."""
     path = Path(path)
     if check_energy:
         material.check_energy(str(path))
-    text = json.dumps(material.to_dict(), indent=2) + "\n"
-    return atomic_write_text(path, text, fsync=False)
+    return atomicio.write_json(path, material.to_dict(), fsync=False)

@@ -16,6 +16,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+import atomicio
 from materials.albedo import directional_hemispherical_reflectance
 from materials.base import directions_from_angles
 
@@ -32,8 +33,7 @@ def _save(fig, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
-    fig.savefig(path, dpi=110)
-    return path
+    return atomicio.write_figure(fig, path, dpi=110)
 
 
 def plot_fit(scan, result, path, title: str | None = None) -> Path:

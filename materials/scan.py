@@ -20,15 +20,14 @@ import csv
 import dataclasses
 import io
 import math
-import os
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
+import atomicio
 from atomicio.inputs import InputFileError, read_input_text
-from materials.atomic import atomic_write_text
 
 CSV_COLUMNS = (
     "wavelength_nm",
@@ -362,14 +361,11 @@ def append_rows(path, metadata: dict | None = None, **columns) -> None:
     text = format_rows(**columns)
     if not path.exists() or path.stat().st_size == 0:
         text = header_text(metadata) + text
-    with open(path, "a", encoding="utf-8", newline="") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
+    atomicio.append_text(path, text)
 
 
 def write_scan(path, scan: Scan) -> Path:
-    """Write ``scan`` (metadata, header, rows) atomically: a temp file, then ``os.replace``."""
+    """Write ``scan`` (metadata, header, rows) atomically (:func:`atomicio.write_text`)."""
     path = Path(path)
     text = header_text(scan.metadata) + _rows_text(scan)
-    return atomic_write_text(path, text)
+    return atomicio.write_text(path, text)

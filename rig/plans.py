@@ -349,7 +349,6 @@ def brdf_scan(devices=None, points=(), *, n_readings: int = PAPER_N_READINGS, md
                                  resume_thresh=resume_fraction * nominal_w, sleep=0.0)
         plan = bpp.suspend_wrapper(plan, suspender)
         plan = bpp.subs_wrapper(plan, files.callbacks())
-        plan = bpp.finalize_wrapper(plan, files.close_plan())
     return plan
 
 

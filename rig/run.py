@@ -82,13 +82,9 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
                **(md or {})}
     # settings that decide the numbers must be those of the file being continued (a resume with
     # another --seed would mix two noise streams under the first run's header)
-    try:
-        files.check_resume(**{k: full_md[k] for k in ("sample", "plan_name", "backend", "seed") if k in full_md})
-        if resume and done:
-            files.check_resume_log(full_md, RESUME_KEYS)
-    except Exception:
-        files.log.close()
-        raise
+    files.check_resume(**{k: full_md[k] for k in ("sample", "plan_name", "backend", "seed") if k in full_md})
+    if resume and done:
+        files.check_resume_log(full_md, RESUME_KEYS)
     stop_reason = StopReason()
     nominal_w = float(nominal_power_w) if nominal_power_w is not None else devices.laser.power_w.get()
     plan = brdf_scan(devices, spec.points, n_readings=spec.n_readings, md=full_md, files=files,
@@ -141,7 +137,6 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
             devices.laser.stop_monitor()
         for token in tokens:
             RE.unsubscribe(token)
-        files.log.close()
         if bar is not None:
             bar.close()
     outcome = ScanOutcome(csv_path=csv_path, log_path=files.log_path, exit_status=status,

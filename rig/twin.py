@@ -39,6 +39,7 @@ from functools import lru_cache
 
 import numpy as np
 
+import atomicio
 from rig.instrument import NOMINAL, RigConfig
 from rig.rotations import matrix_about_x, matrix_about_y
 
@@ -516,6 +517,6 @@ def plot_twin_scan(scan: TwinScan, material, config: RigConfig, path, title: str
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path)
+    atomicio.write_figure(fig, path)
     plt.close(fig)
     return fig

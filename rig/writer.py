@@ -20,12 +20,11 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
-from atomicio import write_text as atomic_write_text
+import atomicio
 from materials.scan import format_rows, header_text, read_scan
 from rig.instrument import RigConfig
 from rig.points import point_key
@@ -38,29 +37,18 @@ class ResumeError(ValueError):
 class DocumentLog:
     """Append each document as one ``[name, doc]`` JSON array per line, the form bluesky's own
     tools read (suitcase-jsonl writes it, ``event_model``'s ``NumpyEncoder`` serialises numpy
-    values), flushed and (``fsync=True``) fsynced per document. The file is opened at the first
-    document (appending: a resumed scan adds its run after the earlier ones) and created with the
-    user's umask."""
+    values), flushed and (``fsync=True``) fsynced per document (:func:`atomicio.append_json_line`:
+    no handle stays open, so there is nothing to close). The file is created at the first document
+    (appending: a resumed scan adds its run after the earlier ones) with the user's umask."""
 
     def __init__(self, path, fsync: bool = True):
         self.path = Path(path)
         self.fsync = fsync
-        self._fh = None
 
     def __call__(self, name, doc):
         from event_model import NumpyEncoder
 
-        if self._fh is None:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._fh = open(self.path, "a", encoding="utf-8")
-        self._fh.write(json.dumps([name, doc], cls=NumpyEncoder) + "\n")
-        self._fh.flush()
-        if self.fsync:
-            os.fsync(self._fh.fileno())
-
-    def close(self):
-        if self._fh is not None and not self._fh.closed:
-            self._fh.close()
+        atomicio.append_json_line(self.path, [name, doc], encoder=NumpyEncoder, fsync=self.fsync)
 
 
 def read_log(path) -> list[tuple[str, dict]]:
@@ -222,7 +210,7 @@ class CsvScanWriter:
         self.n_written += 1
 
     def _commit(self):
-        atomic_write_text(self.path, self._text, fsync=self.fsync)
+        atomicio.write_text(self.path, self._text, fsync=self.fsync)
 
 
 def log_path_for(csv_path) -> Path:
@@ -272,8 +260,3 @@ class ScanFiles:
 
     def callbacks(self) -> list:
         return [self.log, self.csv, *self.after]
-
-    def close_plan(self):
-        """A (message-free) plan that closes the log: ``finalize_wrapper`` runs it at the end."""
-        self.log.close()
-        yield from ()

@@ -86,8 +86,8 @@ class PointStore:
             for old in self.folder.glob("point_*.json"):
                 old.unlink()
         self.folder.mkdir(parents=True, exist_ok=True)
-        atomicio.write_text(meta, json.dumps({"fingerprint_sha256": digest, "parameters": _parameters(fingerprint)},
-                                             indent=1) + "\n")
+        atomicio.write_json(meta, {"fingerprint_sha256": digest, "parameters": _parameters(fingerprint)}, indent=1,
+                            allow_nan=True)
 
     def get(self, index: int):
         """The record of point ``index``, or None if it was not finished. A point whose checksum does
@@ -111,7 +111,7 @@ class PointStore:
         values = json.loads(json.dumps(record))  # what a reader will get back (tuples as lists...)
         doc = {"index": int(index), "run_sha256": self.digest, "values": values,
                "sha256": point_checksum(self.digest, index, values)}
-        atomicio.write_text(self.folder / _POINT.format(int(index)), json.dumps(doc) + "\n")
+        atomicio.write_json(self.folder / _POINT.format(int(index)), doc, indent=None, allow_nan=True)
 
     @property
     def n_done(self) -> int:

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 import atomicio
-from materials.atomic import atomic_write_text
 
 
 @pytest.fixture
@@ -27,7 +26,7 @@ def test_new_file_gets_the_users_umask(tmp_path, umask_022):
     # what open(path, "w") gives any other program under umask 022: 0o666 & ~0o022
     expected = 0o666 & ~0o022
     for write in (lambda p: atomicio.write_text(p, "x"), lambda p: atomicio.write_bytes(p, b"x"),
-                  lambda p: atomicio.write_json(p, {"a": 1}), lambda p: atomic_write_text(p, "x")):
+                  lambda p: atomicio.write_json(p, {"a": 1}), lambda p: atomicio.append_text(p, "x")):
         path = tmp_path / f"f{len(list(tmp_path.iterdir()))}.txt"
         write(path)
         assert _mode(path) == expected == 0o644
@@ -129,3 +128,51 @@ def test_guard_and_tessellation_cache_hash_files_with_the_one_helper(tmp_path, m
     monkeypatch.setattr(geometry.cad_cache, "file_sha256", lambda path: "0" * 64)
     assert geometry.cad_cache.entry_path(tmp_path / "scene.toml", tolerance_mm=0.1, angular_tolerance_deg=5.0,
                                          mode="whole") != entry
+
+
+def _doc():
+    """A result document like the project's: nested, numpy numbers, a tuple, NaN and infinities."""
+    return {"rays": 1000, "seed": 1, "emitted_w": np.float64(1.0), "angles_deg": (0.0, 5.5),
+            "detectors": {"fp": {"power_w": 1.2e-6, "stderr_w": float("nan")}},
+            "points": [{"pst": 3.4e-5, "pst_stderr": float("inf")}, {"pst": -float("inf"), "name": "é"}],
+            "flags": [True, False, None], "empty": {}}
+
+
+def test_write_json_keeps_the_bytes_of_each_former_hand_written_writer(tmp_path):
+    """The writers moved onto atomicio.write_json keep their files' bytes: each option set against the
+    standard library's json.dumps call the module used before (the independent reference)."""
+    from event_model import NumpyEncoder
+
+    doc = _doc()
+    plain = {k: (list(v) if isinstance(v, tuple) else v) for k, v in doc.items()} | {"emitted_w": 1.0}
+    cases = [  # (before, after)
+        (json.dumps(plain, indent=2), dict(allow_nan=True, final_newline=False)),  # pst/critical/paths/sweep, geometry --json
+        (json.dumps(plain, indent=2) + "\n", dict(allow_nan=True)),  # trace, material, twin, ghosts, telescope
+        (json.dumps(plain, indent=1) + "\n", dict(indent=1, allow_nan=True)),  # checkpoint run.json
+        (json.dumps(plain) + "\n", dict(indent=None, allow_nan=True)),  # checkpoint point files
+    ]
+    for i, (before, kwargs) in enumerate(cases):
+        atomicio.write_json(tmp_path / f"{i}.json", doc, **kwargs)
+        assert (tmp_path / f"{i}.json").read_bytes() == before.encode("utf-8"), kwargs
+    files = {"b.txt": "ab" * 32, "a.txt": "cd" * 32}  # the overwrite guard's manifest: sorted, indent 1
+    atomicio.write_json(tmp_path / "m.json", {"files": files}, indent=1, sort_keys=True)
+    assert (tmp_path / "m.json").read_text() == json.dumps({"files": files}, indent=1, sort_keys=True) + "\n"
+    params = {"tube_radius_mm": 50.0, "n_vanes": 7}  # geometry/parts/assembly.py params.json: no final newline
+    atomicio.write_json(tmp_path / "p.json", params, final_newline=False)
+    assert (tmp_path / "p.json").read_text() == json.dumps(params, indent=2)
+    for _ in range(2):  # the bluesky document log: one [name, doc] per line, event-model's encoder
+        atomicio.append_json_line(tmp_path / "log.jsonl", ["event", {"x": np.float64(0.5), "v": np.arange(2)}],
+                                  encoder=NumpyEncoder)
+    line = json.dumps(["event", {"x": np.float64(0.5), "v": np.arange(2)}], cls=NumpyEncoder) + "\n"
+    assert (tmp_path / "log.jsonl").read_text() == 2 * line
+
+
+def test_append_text_appends_whole_lines_durably(tmp_path, monkeypatch):
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd)))
+    path = tmp_path / "new" / "rows.csv"  # the folder is created
+    atomicio.append_text(path, "a,b\n")
+    atomicio.append_text(path, "1,2\n3,4\n")
+    atomicio.append_text(path, "5,6\n", fsync=False)
+    assert path.read_text() == "a,b\n1,2\n3,4\n5,6\n" and len(synced) == 2

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
 from geometry.mesh import GeometryError
 from geometry.parts import ShapePart, require_positive
 
@@ -325,5 +326,5 @@ def export_hooked_tube(directory, params: HookedTubeParams | None = None, *,
     export_assembly_step(shape_parts, directory / "assembly.step")
     scene = hooked_tube_scene(p, tolerance_mm=tolerance_mm, material=material)
     path = save_scene(scene, directory, mesh_format=mesh_format, sources=[collimated_source(p)])
-    (directory / "params.json").write_text(__import__("json").dumps(asdict(p), indent=2))
+    atomicio.write_json(directory / "params.json", asdict(p), final_newline=False)
     return path

@@ -14,7 +14,6 @@ only through a mirror.
 from __future__ import annotations
 
 import csv
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -131,7 +130,7 @@ class CriticalReport(TableRepr):
 
     def write_json(self, path) -> Path:
         path = Path(path)
-        atomicio.write_text(path, json.dumps(self.to_json_dict(), indent=2))
+        atomicio.write_json(path, self.to_json_dict(), allow_nan=True, final_newline=False)
         return path
 
     def write_csv(self, path) -> Path:

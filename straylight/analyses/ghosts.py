@@ -78,12 +78,11 @@ class GhostTable:
         return "\n".join(lines) + "\n"
 
     def write(self, directory) -> None:
-        import json
         from pathlib import Path
 
         d = Path(directory)
         atomicio.write_text(d / "ghosts.md", self.markdown())
-        atomicio.write_text(d / "ghosts.json", json.dumps(self.to_json_dict(), indent=2) + "\n")
+        atomicio.write_json(d / "ghosts.json", self.to_json_dict(), allow_nan=True)
 
 
 def ghost_table(paths, detector: str, total_w: float | None = None, nominal=None) -> GhostTable:

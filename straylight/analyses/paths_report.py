@@ -21,7 +21,6 @@ standard error over the total (the total's own error is quoted separately).
 from __future__ import annotations
 
 import csv
-import json
 import math
 import re
 from dataclasses import dataclass, field
@@ -155,7 +154,7 @@ class PathReport(TableRepr):
 
     def write_json(self, path, top: int | None = None) -> Path:
         path = Path(path)
-        atomicio.write_text(path, json.dumps(self.to_json_dict(top), indent=2))
+        atomicio.write_json(path, self.to_json_dict(top), allow_nan=True, final_newline=False)
         return path
 
     def plot(self, path=None, top: int = 15, ax=None):

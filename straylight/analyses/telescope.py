@@ -18,7 +18,6 @@ its Monte Carlo standard error; contributions are per-ray exact (straylight.path
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -156,11 +155,11 @@ def run_telescope_study(out_dir, cfg: TelescopeStudy | None = None, progress: bo
                "rays_per_trace": cfg.rays, "points": points,
                "ghosts": ghosts.to_json_dict() if ghosts is not None else None,
                "method": __doc__.strip(), "timings_s": cfg.timings_s}
-    atomicio.write_text(out / "results.json", json.dumps(results, indent=2, default=float) + "\n")
-    atomicio.write_text(out / "pst.json", json.dumps(
-        {"detector": det, "detector_area_mm2": area,
-         "points": [{k: v for k, v in p.items() if k != "contributions"} | {"azimuth_deg": 0.0} for p in points]},
-        indent=2) + "\n")
+    atomicio.write_json(out / "results.json", results, allow_nan=True)
+    atomicio.write_json(out / "pst.json", {
+        "detector": det, "detector_area_mm2": area,
+        "points": [{k: v for k, v in p.items() if k != "contributions"} | {"azimuth_deg": 0.0} for p in points]},
+        allow_nan=True)
     if ghosts is not None:
         ghosts.write(out)
     _plot(points, out / "pst.png", setup.description)
@@ -202,7 +201,7 @@ def _plot(points, path, title):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    atomicio.write_figure(fig, path, dpi=120)
     plt.close(fig)
 
 

@@ -8,7 +8,6 @@
 from __future__ import annotations
 
 import csv
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -272,7 +271,7 @@ class PstResult(TableRepr):
 
     def write_json(self, path) -> Path:
         path = Path(path)
-        atomicio.write_text(path, json.dumps(self.to_json_dict(), indent=2))
+        atomicio.write_json(path, self.to_json_dict(), allow_nan=True, final_newline=False)
         return path
 
     def write_csv(self, path) -> Path:
@@ -373,7 +372,7 @@ class SweepResult:
 
     def write_json(self, path) -> Path:
         path = Path(path)
-        atomicio.write_text(path, json.dumps(self.to_json_dict(), indent=2))
+        atomicio.write_json(path, self.to_json_dict(), allow_nan=True, final_newline=False)
         return path
 
     def write_csv(self, path) -> Path:

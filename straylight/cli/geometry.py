@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import warnings
 
 TUBE_ALIASES = {"vane_count": "--vanes"}
@@ -141,8 +140,8 @@ def _finish(args, shape_parts, scene, tables: dict | None = None) -> int:
     if args.json:
         import atomicio
 
-        atomicio.write_text(args.json, json.dumps({"scene": str(path), "tessellation": [r.as_dict() for r in scene_report(scene)],
-                                                   "checks": checks.as_dict()}, indent=2))
+        atomicio.write_json(args.json, {"scene": str(path), "tessellation": [r.as_dict() for r in scene_report(scene)],
+                                        "checks": checks.as_dict()}, allow_nan=True, final_newline=False)
     return 0 if checks.ok else 1
 
 
@@ -197,7 +196,7 @@ def _check(args) -> int:
     if args.json:
         import atomicio
 
-        atomicio.write_text(args.json, json.dumps(checks.as_dict(), indent=2))
+        atomicio.write_json(args.json, checks.as_dict(), allow_nan=True, final_newline=False)
     if checks.overlaps:  # solids that overlap make a scene whose numbers mean nothing: never exit 0
         import sys
 

@@ -10,18 +10,14 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 
 def _models():
     # registering every component type the library ships, before any material file is read
     import materials.kcorrelation  # noqa: F401
     import materials.lambertian  # noqa: F401
     import materials.microfacet  # noqa: F401
-
-
-def _write_json(path, data) -> None:
-    import atomicio
-
-    atomicio.write_text(path, json.dumps(data, indent=2) + "\n")
 
 
 def _angle(name, value, lo=-90.0, hi=90.0):
@@ -81,7 +77,7 @@ def cmd_eval(args) -> int:
         print(f"theta_r = {t:8.3f} deg  BRDF = {f:.6g} 1/sr")
     print(f"dhr(theta_i = {theta_i_deg:g} deg, {args.polarization}) = {dhr:.6g}")
     if args.json:
-        _write_json(args.json, out)
+        atomicio.write_json(args.json, out, allow_nan=True)
     return 0
 
 
@@ -109,7 +105,7 @@ def cmd_fit(args) -> int:
 
         print(f"wrote {plot_fit(scan, result, args.plot)}")
     if args.json:
-        _write_json(args.json, result.to_json())
+        atomicio.write_json(args.json, result.to_json(), allow_nan=True)
     return 0
 
 
@@ -130,8 +126,8 @@ def cmd_show(args) -> int:
 
         print(f"wrote {plot_material(material, args.plot)}")
     if args.json:
-        _write_json(args.json, {"material": material.to_dict(), "theta_i_deg": theta.tolist(),
-                                "rho": {p: v.tolist() for p, v in rho.items()}})
+        atomicio.write_json(args.json, {"material": material.to_dict(), "theta_i_deg": theta.tolist(),
+                                        "rho": {p: v.tolist() for p, v in rho.items()}}, allow_nan=True)
     return 0
 
 
@@ -170,7 +166,7 @@ def cmd_z307(args) -> int:
         scan = read_z307(wavelength_nm=args.wavelength_nm, dataset=args.dataset)
         print(f"wrote {plot_fit(scan, result, args.plot, title=f'Aeroglaze Z307, {result.model}')}")
     if args.json:
-        _write_json(args.json, {m: r.to_json() for m, r in rows})
+        atomicio.write_json(args.json, {m: r.to_json() for m, r in rows}, allow_nan=True)
     return 0
 
 

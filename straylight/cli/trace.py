@@ -5,7 +5,6 @@ standard errors (plus the ledger) to OUT.json.
 """
 from __future__ import annotations
 
-import json
 import sys
 import warnings
 
@@ -107,5 +106,5 @@ def _run(args, rs, options, precision, client) -> int:
                             "max_vov": precision.max_vov, **run.summary()}
         print(f"straylight: trace: stopped by {run.stop_reason} after {run.result.n_rays} rays "
               f"({run.seconds:.1f} s)", file=sys.stderr)
-    atomicio.write_text(args.json, json.dumps(doc, indent=2) + "\n")
+    atomicio.write_json(args.json, doc, allow_nan=True)
     return 0

@@ -124,13 +124,7 @@ def write_scene(spec, vanes, material, directory) -> Path:
 
 def write_step(spec, vanes, path) -> Path:
     """The CadQuery assembly (wall, vanes, end plate, detector; named) as one STEP file, written
-    atomically (CadQuery writes a scratch file beside it, which then replaces ``path`` in one step)."""
-    import tempfile
-
-    from atomicio import write_bytes
+    atomically (:func:`geometry.io.export_assembly_step`)."""
     from geometry.io import export_assembly_step
 
-    path = Path(path)
-    with tempfile.TemporaryDirectory(dir=path.parent, prefix=".step-") as scratch:
-        tmp = export_assembly_step(shape_parts(spec, vanes), Path(scratch) / path.name)
-        return write_bytes(path, tmp.read_bytes())
+    return export_assembly_step(shape_parts(spec, vanes), Path(path))

@@ -58,7 +58,6 @@ def test_soft_limit_inside_a_running_plan_keeps_earlier_points(tmp_path, referen
     with pytest.raises(Exception) as info:
         RE(brdf_scan(dev, points, md=md, check_limits=False))
     assert "outside the soft limits" in str(info.value)
-    log.close()
     assert sim.axes["arm"].position() != 2.0
     assert len(read_scan(path)) == 4
     assert last_stop(tmp_path / "s.log.jsonl")["exit_status"] == "fail"
@@ -139,11 +138,9 @@ def test_operator_pause_resume_and_abort(tmp_path, reference):
         assert 5 <= n_saved < len(SPEC.points)
         if action == "resume":
             RE.resume()
-            log.close()
             assert_same_scan(read_scan(path), reference)
         else:
             RE.abort("operator")
-            log.close()
             assert len(read_scan(path)) == n_saved
             assert last_stop(tmp_path / "abort.log.jsonl")["exit_status"] == "abort"
             run(dev, path, resume=True)

@@ -91,10 +91,8 @@ def test_resume_refuses_another_sample(tmp_path):
 def test_document_log_appends_and_serialises_numpy(tmp_path):
     log = DocumentLog(tmp_path / "l.jsonl")
     log("start", {"uid": "a", "x": np.float64(1.5), "arr": np.arange(3)})
-    log.close()
     log = DocumentLog(tmp_path / "l.jsonl")
     log("stop", {"uid": "b"})
-    log.close()
     assert read_log(tmp_path / "l.jsonl") == [("start", {"uid": "a", "x": 1.5, "arr": [0, 1, 2]}), ("stop", {"uid": "b"})]
 
 
