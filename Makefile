@@ -31,6 +31,7 @@ lint: $(STAMP)
 test-latest:
 	.ci/latest
 
+## test-slow: only the long physics checks marked @pytest.mark.slow (the default suite deselects them)
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m slow
 
