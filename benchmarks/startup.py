@@ -92,7 +92,7 @@ def child(toml: str, rays: int) -> dict:
     import numpy as np
 
     import straylight.trace  # noqa: F401
-    from straylight.engine.compiled_scene import compiled_scene
+    from straylight.engine.runtime import runtime
     from straylight.engine.spec import make_spec
     from straylight.scene import load_scene
 
@@ -103,7 +103,7 @@ def child(toml: str, rays: int) -> dict:
     mark("load")
     n_tri = int(sum(p.n_triangles for p in rs.scene.parts))
     spec = make_spec(rs.scene, rs.sources, 1000, 1, materials=rs.materials)
-    comp = compiled_scene(spec)  # kept for the trace below (same geometry: same per-process scene)
+    comp = runtime().scene(spec)  # kept for the trace below (same geometry: same per-process scene)
     comp.isect.first_triangle(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))  # embree builds its BVH on first use
     mark("bvh")
     rs.trace(1000, seed=1)  # loads the compiled kernels from numba's cache, then traces

@@ -8,8 +8,8 @@ BLAS is there by importing ``scipy.linalg.cython_blas`` (``numba.np.arraymath._H
 import runs all of ``scipy.linalg`` and scipy's array-API layer (which loads ``numpy.f2py``):
 0.2-0.3 s of CPU per process, a fifth of a cached start-up's budget, for nothing the tracer uses.
 
-:func:`start_numba` initialises the target with ``import scipy.linalg`` made to fail, so numba records
-"no BLAS" for ``_HAVE_BLAS``. What that changes, in numba 0.5x-0.6x: ``np.correlate`` and
+:func:`start_numba` initialises the target with ``import scipy.linalg`` made to fail (``sys.modules``
+holds None for it meanwhile), so numba records "no BLAS" for ``_HAVE_BLAS``. What that changes, in numba 0.5x-0.6x: ``np.correlate`` and
 ``np.convolve`` in jitted code use numba's own loop instead of BLAS ``dot`` (no kernel of this
 project calls them). ``np.dot``, ``@`` and ``np.linalg`` in jitted code are unaffected: they
 check for BLAS again when they are compiled, and then import scipy for real. Nothing is done when
@@ -29,41 +29,30 @@ _DONE: list = []
 _LOCK = threading.Lock()
 
 
-class _NoScipyBlas:
-    """A meta-path finder that makes ``import scipy.linalg`` (and so its ``cython_blas``) fail while installed,
-    in the thread that starts numba only (another thread of the process imports it as usual)."""
-
-    def __init__(self):
-        self.thread = threading.get_ident()
-
-    def find_spec(self, name, path=None, target=None):
-        if name == _BLOCKED and threading.get_ident() == self.thread:
-            raise ImportError(f"{_BLOCKED} is not imported while numba starts (materials.jit_start)")
-        return None
-
-
 def start_numba() -> None:
-    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg."""
+    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg.
+
+    ``sys.modules["scipy.linalg"]`` is None while the target starts: Python's import system then
+    raises ModuleNotFoundError for it (the documented way to block an import; no import hook). That
+    holds for the whole process for these ~0.1 s, so the engine starts numba before it starts threads:
+    :meth:`straylight.engine.runtime.Runtime.start`, the first thing a command or a dask worker does."""
     if _DONE:
         return
     with _LOCK:
         if _DONE:
             return
-        _DONE.append(True)
         from numba.core.registry import cpu_target
 
-        if "scipy.linalg" in sys.modules or "numba.np.arraymath" in sys.modules:
+        if _BLOCKED in sys.modules or "numba.np.arraymath" in sys.modules:
             cpu_target.target_context.refresh()  # nothing to save: scipy is loaded, or the target is up
-            return
-        finder = _NoScipyBlas()
-        sys.meta_path.insert(0, finder)
-        installed = True
-        try:
-            cpu_target.target_context.refresh()
-        except Exception:  # noqa: BLE001 - an unforeseen numba: start it the normal way
-            sys.meta_path.remove(finder)
-            installed = False
-            cpu_target.target_context.refresh()
-        finally:
-            if installed:
-                sys.meta_path.remove(finder)
+        else:
+            sys.modules[_BLOCKED] = None  # type: ignore[assignment]
+            try:
+                cpu_target.target_context.refresh()
+            except Exception:  # noqa: BLE001 - an unforeseen numba: start it the normal way
+                del sys.modules[_BLOCKED]
+                cpu_target.target_context.refresh()
+            finally:
+                if _BLOCKED in sys.modules and sys.modules[_BLOCKED] is None:
+                    del sys.modules[_BLOCKED]
+        _DONE.append(True)

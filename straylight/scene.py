@@ -177,9 +177,9 @@ def load_scene(path, check_watertight: bool = True, sources: bool = True) -> Res
         if check_watertight and part.role != "detector" and part.meta.get("kind") != "sheet" \
                 and not _watertight(part):
             notes.append(f"{where}: mesh is not watertight (light may enter the solid through gaps)")
-    from materials.jit_start import start_numba
+    from straylight.engine.runtime import runtime
 
-    start_numba()  # the sources' probe below is the first compiled code; without scipy.linalg (jit_start)
+    runtime()  # started: the sources' probe below is the first compiled code (numba without scipy.linalg)
     entries = doc.get("source", []) if sources else []
     if sources and (not isinstance(entries, list) or not entries):
         raise SceneFileError(f"{path}: no [[source]] entries")

@@ -25,13 +25,13 @@ from __future__ import annotations
 from dataclasses import replace
 
 from straylight.engine.backends.dask import ship_early
-from straylight.engine.compiled_scene import cached_scene, compiled_scene, detector_samplers
+from straylight.engine.compiled_scene import detector_samplers
 from straylight.engine.first_vertex import build_table
 from straylight.engine.second_vertex import build_table as build_critical_table
 from straylight.engine.second_vertex import unsupported as second_vertex_unsupported
-from straylight.engine.table_cache import last_table
 from straylight.engine.options import TraceError, TraceOptions  # noqa: F401 - re-exported
 from straylight.engine.results import BatchTotals, Tally, TraceResult  # noqa: F401 - re-exported
+from straylight.engine.runtime import runtime
 from straylight.engine.scheduling import batch_ranges, run_batches
 from straylight.engine.roles import ROLE_CODES  # noqa: F401 - re-exported
 from straylight.engine.spec import (  # noqa: F401 - re-exported
@@ -88,12 +88,13 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
               and second_vertex_unsupported(spec) is None)
     # on dask, the workers get the spec and build their scenes while this process builds the tables
     early = ship_early(client, spec) if client is not None and (first or second) else None
+    rt = runtime()  # this process's compiled scene and kept tables
     try:
         if first:
-            spec = replace(spec, vertex_table=last_table("first", spec, lambda: build_table(spec, compiled_scene(spec))))
+            spec = replace(spec, vertex_table=rt.table("first", spec, lambda: build_table(spec, rt.scene(spec))))
         if second:
-            spec = replace(spec, critical_table=last_table(
-                "second", spec, lambda: build_critical_table(spec, compiled_scene(spec, intersector)),
+            spec = replace(spec, critical_table=rt.table(
+                "second", spec, lambda: build_critical_table(spec, rt.scene(spec, intersector)),
                 cache=intersector is None))
     except BaseException:
         if early is not None:
@@ -105,7 +106,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     with progress_bar(total=n_chunks(spec.n_rays), unit="chunk", enabled=opt.progress) as bar:
         for res in results:  # in chunk order
             bar.update(totals.add(res))
-    here = cached_scene(spec)  # this process's scene, if it traced here; else the detectors alone
+    here = rt.cached_scene(spec)  # this process's scene, if it traced here; else the detectors alone
     result = totals.result(spec, here.detectors if here is not None else detector_samplers(spec))
     from straylight.run_checks import check_truncation
 

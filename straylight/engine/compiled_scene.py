@@ -1,12 +1,12 @@
 """Stage 2, the scene as the kernels see it: triangle planes, detector samplers and the embree
-scene, built once per process and scene (:func:`compiled_scene`), with per-thread scratch buffers.
+scene, built once per process and scene (kept by :meth:`straylight.engine.runtime.Runtime.scene`),
+with per-thread scratch buffers.
 
 Detector sampling tables come from :class:`straylight.detectors.DetectorGeometry` through its
 public ``alias_table`` and ``vertex_and_edges_mm``; :func:`detector_samplers` builds them without
 any intersector (the result builder needs only them)."""
 from __future__ import annotations
 
-import ctypes
 import threading
 from typing import NamedTuple
 
@@ -18,7 +18,6 @@ from straylight.intersect._plane import triangle_planes
 from straylight.intersect.embree import EmbreeIntersector
 from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts
 from straylight.intersect.reference import ReferenceIntersector
-from materials.jit_start import start_numba
 
 
 class SceneArrays(NamedTuple):
@@ -133,48 +132,3 @@ class CompiledScene:
             obj = factory()
             setattr(self._local, name, obj)
         return obj
-
-
-_MALLOC_TUNED = []
-
-
-def keep_freed_memory():
-    """glibc only, once per process: serve blocks up to 32 MB from the heap and keep up to 256 MB of
-    freed heap (mallopt M_MMAP_THRESHOLD, M_TRIM_THRESHOLD). The engine frees and reallocates
-    MB-sized arrays every event; with glibc's defaults many came back as fresh pages (6k-50k page
-    faults per 4e5-ray trace, up to 10 % of its CPU), now ~100. Elsewhere: nothing."""
-    if _MALLOC_TUNED:
-        return
-    _MALLOC_TUNED.append(True)
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(-3, 32 * 1024 * 1024)  # M_MMAP_THRESHOLD (its maximum on 64-bit)
-        libc.mallopt(-1, 256 * 1024 * 1024)  # M_TRIM_THRESHOLD
-    except (OSError, AttributeError):
-        pass
-
-
-_CACHE: dict = {}  # token -> CompiledScene; one embree scene per process and scene (cache only)
-_CACHE_LOCK = threading.Lock()
-
-
-def compiled_scene(spec: TraceSpec, intersector=None) -> CompiledScene:
-    """This process's :class:`CompiledScene` of ``spec`` (built on first use, one scene kept);
-    with an ``intersector`` a fresh one around it (not cached)."""
-    keep_freed_memory()
-    start_numba()  # before the first kernel: numba's target without scipy.linalg (materials.jit_start)
-    if intersector is not None:
-        return CompiledScene(spec, intersector)
-    comp = _CACHE.get(spec.token)
-    if comp is None:
-        with _CACHE_LOCK:  # threads of one worker may start their first batch together: build once
-            comp = _CACHE.get(spec.token)
-            if comp is None:
-                _CACHE.clear()  # keep one scene per process
-                comp = _CACHE[spec.token] = CompiledScene(spec)
-    return comp
-
-
-def cached_scene(spec: TraceSpec):
-    """This process's scene of ``spec`` if it traced here, else None."""
-    return _CACHE.get(spec.token)

@@ -299,6 +299,7 @@ class DetectorRecords:
         self.record_paths = record_paths
         self.map_rows = []
         self.path_rows = []
+        self.polarization = None  # the batch's PolarizationState, made on first use (engine.interactions.stokes)
 
     def add(self, j, ray, points_mm, power_w, keys, events, depth):
         """Contributions ``power_w`` of rays ``ray`` (index in the batch) at ``points_mm`` on detector

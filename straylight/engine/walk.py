@@ -10,7 +10,6 @@ from __future__ import annotations
 import numpy as np
 
 from straylight.engine.advance import ADVANCE_WRITES_PER_RAY, next_rays
-from straylight.engine.compiled_scene import compiled_scene
 from straylight.engine import diffraction as diffraction_step
 from straylight.engine.draws import event_columns, event_uniforms
 from straylight.engine.emission import emit_batch
@@ -21,6 +20,7 @@ from straylight.engine.interactions import Capability, PartCapabilities, part_ki
 from straylight.engine.kernel_sets import COMPILED, NUMPY
 from straylight.engine.options import TraceError, walk_settings
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
+from straylight.engine.runtime import runtime
 from straylight.engine.second_vertex import SecondVertexShares
 from straylight.engine.spec import TraceSpec
 from straylight.engine.tallies import DetectorRecords, batch_sums
@@ -70,7 +70,7 @@ def _record_walk_hits(event, rec, rec_w):
 def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernels) -> dict:
     """Trace chunks ``first_chunk .. stop_chunk-1`` with the kernel set ``kernels``; returns per-chunk
     sums (straylight.engine.tallies.batch_sums)."""
-    scene = compiled_scene(spec, intersector)
+    scene = runtime().scene(spec, intersector)
     opt = spec.options
     rows = spec.rows
     n = min(stop_chunk * CHUNK_RAYS, spec.n_rays) - first_chunk * CHUNK_RAYS

@@ -88,9 +88,9 @@ def test_local_cluster_of_worker_processes_gives_identical_numbers(tube):
 
 
 def _has_scene(token):
-    from straylight.engine.compiled_scene import _CACHE
+    from straylight.engine.runtime import runtime
 
-    return token in _CACHE
+    return token in runtime().scene_tokens()
 
 
 def _start(cmd, log):

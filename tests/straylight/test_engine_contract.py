@@ -28,7 +28,7 @@ import pytest
 from geometry.mesh import Part, Scene
 from materials import load_material
 from straylight.engine import second_vertex
-from straylight.engine.compiled_scene import compiled_scene
+from straylight.engine.runtime import runtime
 from straylight.engine.estimators import ANALOG, ESTIMATORS, options_for
 from straylight.engine.interactions import INTERACTIONS, Capability, kind_for
 from straylight.sources import CollimatedDisk
@@ -173,7 +173,7 @@ def engaged(case_name, estimator, on) -> bool:
         spec = make_spec(case.scene, _source(), 1000, 0, case.materials, TraceOptions(**options_for(estimator)))
         if second_vertex.unsupported(spec) is not None:
             return False
-        table = second_vertex.build_table(spec, compiled_scene(spec))
+        table = second_vertex.build_table(spec, runtime().scene(spec))
         subj = spec.part_names.index("subject")
         return bool(table.from_part[subj]) and on.shadow_rays > _run(case_name, {**ANALOG, "nee": True},
                                                                       SEED_ON).shadow_rays
@@ -235,7 +235,7 @@ def test_compiled_equals_reference(kind, estimator):
     est = EST[estimator]
     spec = make_spec(case.scene, _source(), N_REF, 5, case.materials, TraceOptions(**_estimator_options(est)))
     if est.capability == Capability.SECOND_VERTEX and second_vertex.unsupported(spec) is None:
-        spec = replace(spec, critical_table=second_vertex.build_table(spec, compiled_scene(spec)))
+        spec = replace(spec, critical_table=second_vertex.build_table(spec, runtime().scene(spec)))
     n_chunks = 1
     a, b = run_batch(spec, 0, n_chunks), run_batch_reference(spec, 0, n_chunks)
     assert set(a) == set(b)

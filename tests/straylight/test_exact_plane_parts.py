@@ -177,7 +177,7 @@ def test_a_plane_with_its_own_cad_mesh_is_still_the_exact_disk():
 
 
 def test_the_exact_boundary_wrapper_passes_other_attributes_to_its_intersector():
-    """straylight.engine.backends.dask warms a worker up with ``compiled_scene(spec).isect._scene`` (embree's BVH)."""
+    """straylight.engine.backends.dask warms a worker up with ``runtime().scene(spec).isect._scene`` (embree's BVH)."""
     from straylight.engine.compiled_scene import CompiledScene
     from straylight.engine.spec import make_spec
     from straylight.intersect.exact_boundary import ExactBoundaryIntersector

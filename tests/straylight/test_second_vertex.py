@@ -12,7 +12,7 @@ import pytest
 
 from engine_helpers import StandInLambertian, baffled_tube_scene, icosphere_ports_scene
 from straylight.engine import first_vertex
-from straylight.engine.compiled_scene import compiled_scene
+from straylight.engine.runtime import runtime
 from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.second_vertex import build_table
 from straylight.sources import CollimatedDisk, PointSource
@@ -104,7 +104,7 @@ def test_same_numbers_for_any_batch_size_and_thread_count():
 def test_compiled_and_numpy_walks_bit_identical():
     scene, src = baffled_tube_scene(), _tube_source(30.0)
     spec = make_spec(scene, src, 3000, seed=3, materials=BLACK, options=SV)
-    spec = replace(spec, critical_table=build_table(spec, compiled_scene(spec)))
+    spec = replace(spec, critical_table=build_table(spec, runtime().scene(spec)))
     a, b = run_batch(spec, 0, 3), run_batch_reference(spec, 0, 3)
     for key in a:
         va, vb = a[key], b[key]
@@ -115,7 +115,7 @@ def test_compiled_and_numpy_walks_bit_identical():
 def test_critical_table_is_a_density_on_scatter_surfaces():
     scene, src = baffled_tube_scene(), _tube_source(30.0)
     spec = make_spec(scene, src, 1000, seed=1, materials=BLACK, options=SV)
-    table = build_table(spec, compiled_scene(spec))
+    table = build_table(spec, runtime().scene(spec))
     tri = spec.triangles_mm
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     assert (table.p_area * area).sum() == pytest.approx(1.0, rel=1e-12)
@@ -137,7 +137,7 @@ def test_may_see_detector_rejects_only_dark_triangles(source):
     src = _tube_source(30.0) if source == "collimated" else PointSource([0, 20, 290], 1.0, axis=[0, 0, -1],
                                                                         half_angle_deg=80.0)
     spec = make_spec(scene, src, 1000, seed=1, materials=BLACK, options=TraceOptions(first_vertex_sampling=True))
-    comp = compiled_scene(spec)
+    comp = runtime().scene(spec)
     surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == ROLE_SURFACE)
     ok = first_vertex._may_see_detector(spec, comp, src, surf)
     dropped = surf[~ok]
@@ -167,18 +167,17 @@ def test_tables_are_built_once_per_seed_and_reused_without_changing_numbers(monk
     """The rounds of --target-rel-error trace the same scene, sources and seed again: the kept
     tables give exactly the numbers a fresh build gives."""
     import straylight.trace as trace_module
-    from straylight.engine import table_cache
 
     scene, src = baffled_tube_scene(), _tube_source(30.0)
     opts = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True)
     built = []
     real = trace_module.build_critical_table
     monkeypatch.setattr(trace_module, "build_critical_table", lambda spec, comp: built.append(1) or real(spec, comp))
-    table_cache._LAST.clear()
+    runtime().forget_tables()
     a = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts)
     b = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, first_chunk=3)
     assert len(built) == 1
-    table_cache._LAST.clear()
+    runtime().forget_tables()
     c = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, first_chunk=3)
     assert len(built) == 2
     assert c.detectors["detector"].power_w == b.detectors["detector"].power_w
@@ -193,7 +192,7 @@ def test_two_stage_probe_table_leaves_no_hole_in_a_face_it_saw(monkeypatch):
     scatter keeps a share of the face's density (FACE_SHARE), so no sliver its probes missed is q = 0."""
     scene, src = baffled_tube_scene(), _tube_source(20.0)
     spec = make_spec(scene, src, 1000, seed=5, materials=BLACK, options=TraceOptions(first_vertex_sampling=True))
-    comp = compiled_scene(spec)
+    comp = runtime().scene(spec)
     n_surf = int((spec.part_roles[spec.triangle_part] == ROLE_SURFACE).sum())
     monkeypatch.setattr(first_vertex, "PROBE_BUDGET", 2 * n_surf)
     table = first_vertex.build_table(spec, comp)

@@ -19,16 +19,16 @@ def _spec(scene, sources, n, seed, materials, options):
     """make_spec plus the sampling tables trace() adds (straylight.trace.trace)."""
     from dataclasses import replace
 
-    from straylight.engine.compiled_scene import compiled_scene
+    from straylight.engine.runtime import runtime
     from straylight.engine.first_vertex import build_table
     from straylight.engine.second_vertex import build_table as build_critical_table
     from straylight.trace import make_spec
 
     spec = make_spec(scene, sources, n, seed, materials, options)
     if options.first_vertex_sampling:
-        spec = replace(spec, vertex_table=build_table(spec, compiled_scene(spec)))
+        spec = replace(spec, vertex_table=build_table(spec, runtime().scene(spec)))
     if options.second_vertex_sampling:
-        spec = replace(spec, critical_table=build_critical_table(spec, compiled_scene(spec)))
+        spec = replace(spec, critical_table=build_critical_table(spec, runtime().scene(spec)))
     return spec
 
 

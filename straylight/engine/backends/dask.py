@@ -3,7 +3,7 @@
 A LocalCluster of one in-process worker whose tasks share a pool of ``workers`` threads by
 default (:func:`local_cluster`), an existing ``Client``, or ``Client(scheduler_address)``. The
 :class:`straylight.engine.spec.TraceSpec` (triangle array, materials, sources) is broadcast once; each worker process
-builds its embree scene from the triangles on first use and keeps it (``straylight.engine.compiled_scene``), so no embree object is
+builds its embree scene from the triangles on first use and keeps it (its :class:`straylight.engine.runtime.Runtime`), so no embree object is
 ever pickled. Each task is a run of whole chunks (:func:`task_plan`) whose random streams are
 keyed by chunk id, so the same seed gives the same numbers for any worker count.
 """
@@ -13,7 +13,6 @@ import asyncio
 import datetime
 import ipaddress
 import logging
-import multiprocessing
 import os
 import socket
 import sys
@@ -26,7 +25,7 @@ import numpy as np
 
 from straylight.engine.backends import fork_server
 from straylight.engine.backends.threads import run_threads
-from straylight.engine.compiled_scene import compiled_scene
+from straylight.engine.runtime import runtime
 from straylight.engine.walk import run_batch
 
 TASK_BATCHES = 5  # at most this many batches per dask task
@@ -94,7 +93,7 @@ def _unpacked(res: dict) -> dict:
 
 def _pooled_task(spec, ranges, n_threads, changed=None):
     """Queue whole batches on the worker's shared pool of ``n_threads`` threads
-    (:func:`straylight.engine.backends.threads.shared_pool`) and return their results in batch order. The worker runs
+    (:meth:`straylight.engine.runtime.Runtime.pool`) and return their results in batch order. The worker runs
     ``n_threads`` such tasks at once, so the next task's batches are already queued when this one's
     last batch runs: the pool's threads never wait at task ends."""
     return list(run_threads(_joined(spec, changed), ranges, None, int(n_threads)))
@@ -176,14 +175,12 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
                                                host=LOOPBACK, dashboard_address=None, scheduler_kwargs=scheduler_kwargs,
                                                protocol="tls://", security=security)
         return cluster  # Client(cluster) takes the cluster's security (dask's Client does)
+    runtime()  # this process's, started before the cluster's threads are (its in-process worker shares it)
     with dask.config.set(LEAN_CONFIG):
         cluster = LocalCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
                                dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker)
         cluster.straylight_threads = int(n_workers)  # type: ignore[attr-defined]  # read by _run_on
         return cluster
-
-
-FORK_SERVER_PRELOAD = fork_server.PRELOAD
 
 
 def run_security():
@@ -274,17 +271,15 @@ def _fork_server_config() -> dict:
     """Start local worker processes from a fork server that has imported dask and the engine and
     loaded the compiled kernels once (:mod:`straylight.engine.backends.preload`), instead of spawning fresh
     interpreters that each import and load all of it (~1.5 s CPU per worker, K of them at once).
-    The server is started on first use (or earlier, by :func:`straylight.engine.backends.fork_server.start`, so
-    that it loads while the caller loads its scene) and kept for this process's later clusters.
-    Set for this cluster's start-up unless dask's start method was configured otherwise
-    (``distributed.worker.multiprocessing-method``). Returns the dask config to start with."""
-    import distributed.utils
-
-    if not fork_server.wanted():
+    The server is launched here with the engine's preload list (:func:`straylight.engine.backends.fork_server.start`;
+    a no-op if the command launched it earlier, so that it loaded while the scene loaded) before the
+    cluster starts, and kept for this process's later clusters: dask's own preload list, which it
+    sets when its nanny first asks for the forkserver context, no longer reaches a running server
+    (``multiprocessing.set_forkserver_preload`` applies to the next server launched).
+    Not done when dask's start method was configured otherwise (``distributed.worker.multiprocessing-method``).
+    Returns the dask config to start the cluster with."""
+    if not fork_server.start():
         return {}  # the user's choice (or no fork on this platform)
-    if not getattr(distributed.utils, "_forkserver_preload_set", True):
-        multiprocessing.get_context("forkserver").set_forkserver_preload(FORK_SERVER_PRELOAD)
-        distributed.utils._forkserver_preload_set = True  # dask would set its own list on first use
     return {"distributed.worker.multiprocessing-method": "forkserver"}
 
 
@@ -375,12 +370,22 @@ def _warm_task(spec):
     return time.process_time()
 
 
+def register_runtime(client) -> None:
+    """Have every worker of ``client``, and any that joins later, set up its process's Runtime
+    (:class:`straylight.engine.backends.worker_plugin.RuntimePlugin`, registered with distributed's
+    public ``Client.register_plugin``; idempotent: once per cluster, a later registration is a no-op)."""
+    from straylight.engine.backends.worker_plugin import RuntimePlugin
+
+    client.register_plugin(RuntimePlugin())
+
+
 def warm_up(client, spec) -> dict:
     """Build the scene (embree + compiled kernels) in every worker of ``client`` now, by tracing the
     first chunk of ``spec`` on each (so that start-up is not charged to the first real tasks).
     Returns {worker address: process CPU seconds so far}. The spec is scattered once to every
     worker and the chunk runs as a task there: sent as an argument of ``client.run`` it went
     through the scheduler to each worker (0.36M triangles: ~0.7 s, vs ~0.1 s scattered)."""
+    register_runtime(client)
     future = client.scatter(spec, broadcast=True, hash=False)
     workers = sorted(client.scheduler_info().get("workers", {}))
     tasks = [client.submit(_warm_task, future, workers=[w], allow_other_workers=False, pure=False) for w in workers]
@@ -393,8 +398,8 @@ def warm_up(client, spec) -> dict:
 
 def _build_task(spec):
     """Build this worker's scene of ``spec`` now (embree BVH, triangle planes, detector tables:
-    :func:`straylight.engine.compiled_scene.compiled_scene`, kept for the trace's tasks)."""
-    compiled_scene(spec).isect._scene  # waits for the BVH build thread
+    :meth:`straylight.engine.runtime.Runtime.scene`, kept for the trace's tasks)."""
+    runtime().scene(spec).isect._scene  # waits for the BVH build thread
 
 
 class EarlyShipment:
@@ -424,6 +429,7 @@ def ship_early(client, spec) -> EarlyShipment:
     this process's own scene; ``straylight.trace.trace``). A trace of a spec that differs from
     ``spec`` only in small fields (the tables) then ships just those fields
     (:func:`run_distributed` ``early=``): the triangles (27 MB for 0.36M triangles) travel once."""
+    register_runtime(client)
     future = client.scatter(spec, broadcast=True, hash=False)
     workers = sorted(client.scheduler_info().get("workers", {}))
     builds = [client.submit(_build_task, future, workers=[w], allow_other_workers=False, pure=False)
@@ -459,6 +465,7 @@ def run_distributed(spec, ranges, workers=None, client=None, scheduler=None, sec
 def _run_on(client, spec, ranges, early=None):
     from dask.distributed import as_completed
 
+    register_runtime(client)
     changed = early.changed(spec) if early is not None else None
     if changed is None:
         # a fresh key for every trace (hash=False): with the content's hash as key, a trace repeated

@@ -18,10 +18,9 @@ import numpy as np
 
 from geometry.mesh import Part, Scene
 from materials import Lambertian
-from materials.jit_start import start_numba
-from straylight.engine.compiled_scene import CompiledScene
 from straylight.engine.first_vertex import build_table
 from straylight.engine.options import TraceOptions
+from straylight.engine.runtime import runtime
 from straylight.engine.spec import make_spec
 from straylight.engine.walk import run_batch
 from straylight.intersect.reference import ReferenceIntersector
@@ -32,7 +31,7 @@ def load_kernels() -> None:
     """Trace one chunk of a tiny scene (a black square facing a detector square) in this process:
     the compiled kernels of the usual options (NEE with and without first-vertex sampling, plain walk)
     are loaded from numba's cache."""
-    start_numba()  # as compiled_scene does before the first kernel: numba's target without scipy.linalg
+    rt = runtime()  # the server's Runtime, started: numba's target without scipy.linalg, the allocator tuned
 
     square = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], dtype=np.float64)
     faces = np.array([[0, 1, 2], [0, 2, 3]])
@@ -45,7 +44,7 @@ def load_kernels() -> None:
         spec = make_spec(scene, [source], 100, 0, {"black": Lambertian(0.5)}, options)
         isect = ReferenceIntersector(spec.triangles_mm)
         if vertex:
-            spec = replace(spec, vertex_table=build_table(spec, CompiledScene(spec, isect)))
+            spec = replace(spec, vertex_table=build_table(spec, rt.scene(spec, isect)))
         run_batch(spec, 0, 1, isect)
 
 

@@ -48,10 +48,10 @@ def source_polarization(spec):
 
 def batch_state(event) -> PolarizationState:
     """The batch's polarization state, created on first use."""
-    st = getattr(event.records, "_optics_state", None)
+    st = event.records.polarization
     if st is None:
         st = PolarizationState(event.tallies.n_rays, source_polarization(event.spec))
-        event.records._optics_state = st
+        event.records.polarization = st
     return st
 
 
@@ -77,7 +77,7 @@ def active_state(event):
     """The batch's state if any ray can be polarized (:func:`tracks_polarization`, or a Fresnel
     interface met already), else None: a scene of unpolarized sources and non-polarizing materials
     pays a few attribute look-ups per interaction call."""
-    st = getattr(event.records, "_optics_state", None)
+    st = event.records.polarization
     if st is not None:
         return st
     if tracks_polarization(event.spec):
