@@ -23,7 +23,7 @@ from __future__ import annotations
 import csv
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -275,13 +275,14 @@ def paths_analysis(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 1
                    nee: bool = True, group_by: str = "sequence", ancestry=None, path_depth: int = 12,
                    workers=None, scheduler=None, client=None, progress: bool = True):
     """Trace the setup's beam at one tilt with path recording and return (PathReport, TraceResult)."""
+    from straylight.analyses.estimators import estimator_options
     from straylight.analyses.pst import detector_name
     from straylight.trace import TraceOptions, trace
 
     det = detector_name(setup.scene, setup.detector)
-    opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee), vertex_lobe_sampling=bool(nee), record_paths=True,
-                        path_depth=path_depth,
-                        progress=progress)
+    # the estimators `pst` traces (the variance split is the one of pst's error bars), or the plain walk
+    opts = replace(estimator_options("default") if nee else TraceOptions(nee=False), record_paths=True,
+                   path_depth=path_depth, progress=progress)
     if workers is not None and workers > 1 or scheduler or client is not None:
         from straylight.analyses.pst import dask_client
 
