@@ -2,18 +2,22 @@
 
     .venv/bin/python benchmarks/newtonian_pst.py [--quick] [--angles-deg 0 5 10 15 20 30 45 60]
         [--seeds 1 2 3 4 5] [--baseline-angles-deg 10 15 20] [--baseline-seeds 1 2] [--max-seconds 120]
-        [--workers K] [--json OUT.json]
+        [--workers K] [--instrument newtonian|guide_scope] [--estimators-after default]
+        [--estimators-before baseline ...] [--json OUT.json]
 
 For each angle and seed it runs, as a user would (one process per point, start-up included),
 
     straylight pst SCENE --angles-deg A --target-rel-error 0.02 --seed S --max-seconds M --out DIR
         [--estimators baseline] [--workers K]
 
-on the Newtonian of ``benchmarks/newtonian.py`` (built once, then read from its cache folder), and
+on the Newtonian of ``benchmarks/newtonian.py`` (or, ``--instrument guide_scope``, the refractor with a
+lens of ``benchmarks/guide_scope.py``; built once, then read from its cache folder), and
 reports wall seconds, CPU seconds of the command (its own and its children's, from
 ``getrusage(RUSAGE_CHILDREN)``), rays, relative error, VOV and the stop reason from ``pst.json``.
-"after" is the default estimator set, "before" ``--estimators baseline`` (the set before issue 26),
-in the same run. The machine is shared: compare CPU seconds and rays; wall time depends on the
+"after" is the default estimator set (or ``--estimators-after NAME``), "before" ``--estimators
+baseline`` (the set before issue 26; or the sets ``--estimators-before NAME ...``: ``lobes`` is the
+default with the engine's roulette threshold), in the same run; the table names each set. The
+machine is shared: compare CPU seconds and rays; wall time depends on the
 neighbours. ``--quick``: seeds 1 2, baseline at 15 and 20 deg, seed 1, capped at 60 s.
 """
 from __future__ import annotations
@@ -68,12 +72,12 @@ def table(rows) -> str:
     """Markdown: one line per (angle, estimator set) with medians and ranges over the seeds."""
     out = ["| angle | estimators | seeds | reached 2 % & VOV <= 0.1 | rays (median; range) | wall s (median; max) "
            "| CPU s (median; max) | rel. error | VOV (max) |", "|---|---|---|---|---|---|---|---|---|"]
-    keys = sorted({(r["angle_deg"], r["estimators"]) for r in rows}, key=lambda k: (k[0], k[1] != "baseline"))
+    keys = sorted({(r["angle_deg"], r["estimators"]) for r in rows}, key=lambda k: (k[0], k[1] == "default", k[1]))
     for a, est in keys:
         sel = [r for r in rows if r["angle_deg"] == a and r["estimators"] == est]
         ok = sum(r["stop_reason"] == "target" for r in sel)
         rays = [r["rays"] for r in sel]
-        out.append(f"| {a:g} | {'before' if est == 'baseline' else 'after'} | {len(sel)} | {ok}/{len(sel)} "
+        out.append(f"| {a:g} | {est} | {len(sel)} | {ok}/{len(sel)} "
                    f"| {_median(rays):.3g}; {min(rays):.3g}-{max(rays):.3g} "
                    f"| {_median([r['wall_s'] for r in sel]):.1f}; {max(r['wall_s'] for r in sel):.1f} "
                    f"| {_median([r['cpu_s'] for r in sel]):.1f}; {max(r['cpu_s'] for r in sel):.1f} "
@@ -91,6 +95,10 @@ def main(argv=None) -> int:
     ap.add_argument("--baseline-seeds", type=int, nargs="+", default=None)
     ap.add_argument("--max-seconds", type=float, default=None, help="cap per point (pst --max-seconds)")
     ap.add_argument("--workers", type=int, default=None, help="pst --workers K (default: in-process)")
+    ap.add_argument("--instrument", choices=("newtonian", "guide_scope"), default="newtonian")
+    ap.add_argument("--estimators-after", default="default", help="the estimator set timed as 'after'")
+    ap.add_argument("--estimators-before", nargs="+", default=["baseline"],
+                    help="the estimator sets timed as 'before' at --baseline-angles-deg (straylight.analyses.estimators)")
     ap.add_argument("--json", default=None)
     args = ap.parse_args(argv)
     quick = args.quick
@@ -99,13 +107,16 @@ def main(argv=None) -> int:
     base_seeds = args.baseline_seeds or ([1] if quick else [1, 2])
     max_s = args.max_seconds or (60.0 if quick else 120.0)
     sys.path.insert(0, str(HERE))
-    from newtonian import build
+    if args.instrument == "guide_scope":
+        from guide_scope import build
+    else:
+        from newtonian import build
 
     scene = build()
     print(f"scene: {scene}; load {os.getloadavg()[0]:.1f}", file=sys.stderr)
     rows = []
-    plan = [(a, s, "default") for a in args.angles_deg for s in seeds]
-    plan += [(a, s, "baseline") for a in base_angles for s in base_seeds]
+    plan = [(a, s, args.estimators_after) for a in args.angles_deg for s in seeds]
+    plan += [(a, s, est) for est in args.estimators_before for a in base_angles for s in base_seeds]
     for a, s, est in plan:
         row = run_point(scene, a, s, est, max_s, args.workers)
         rows.append(row)
