@@ -29,14 +29,12 @@ that the lens then focuses (only the walk reaches the sensor through the glass).
 """
 from __future__ import annotations
 
-import argparse
-import hashlib
-import json
 import math
-import os
 import sys
-import time
 from pathlib import Path
+
+import scene_cache
+from scene_cache import build_once, cache_dir
 
 MATERIAL = "z302_sample_b"
 GLASS = {"name": "n_bk7", "wavelength_nm": 532.0, "components": [{"type": "dielectric", "n": 1.5195}]}
@@ -139,12 +137,11 @@ def source() -> dict:
 
 def default_dir(tolerance_mm: float = TOLERANCE_MM) -> Path:
     """Cache folder keyed on the parameters, the tolerance and this file's geometry code."""
-    key = json.dumps({"f": FOCAL_MM, "lens": [LENS_RADIUS_MM, LENS_THICKNESS_MM], "glass": GLASS,
-                      "det": DETECTOR_RADIUS_MM, "tube": [TUBE_INNER_MM, TUBE_OUTER_MM, TOP_Z_MM, CAMERA_Z_MM],
-                      "vanes": [VANE_Z_MM, SHIELD_VANE_Z_MM, SHIELD_HOLE_MM, VANE_THICKNESS_MM, VANE_CLEARANCE_MM],
-                      "tolerance_mm": tolerance_mm, "v": 1}, sort_keys=True)
-    root = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "straylight" / "benchmarks"
-    return root / f"guide_scope-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
+    return cache_dir("guide_scope", {
+        "f": FOCAL_MM, "lens": [LENS_RADIUS_MM, LENS_THICKNESS_MM], "glass": GLASS, "det": DETECTOR_RADIUS_MM,
+        "tube": [TUBE_INNER_MM, TUBE_OUTER_MM, TOP_Z_MM, CAMERA_Z_MM],
+        "vanes": [VANE_Z_MM, SHIELD_VANE_Z_MM, SHIELD_HOLE_MM, VANE_THICKNESS_MM, VANE_CLEARANCE_MM],
+        "tolerance_mm": tolerance_mm, "v": 1})
 
 
 def build(directory=None, tolerance_mm: float = TOLERANCE_MM, quiet: bool = False) -> Path:
@@ -154,41 +151,24 @@ def build(directory=None, tolerance_mm: float = TOLERANCE_MM, quiet: bool = Fals
     import tomli_w
 
     import atomicio
-
-    directory = Path(directory) if directory is not None else default_dir(tolerance_mm)
-    scene_toml = directory / "scene.toml"
-    if scene_toml.is_file():
-        return scene_toml
     from geometry.io import save_scene
     from geometry.tessellate import tessellate_parts
 
-    t0 = time.perf_counter()
-    scene = tessellate_parts(mechanical_parts(), tolerance_mm=tolerance_mm, material=MATERIAL)
-    tmp = directory.with_name(directory.name + f".tmp{os.getpid()}")
-    path = save_scene(scene, tmp, sources=[source()])
-    doc = tomllib.loads(path.read_text())
-    doc["material"] = {GLASS["name"]: {k: v for k, v in GLASS.items() if k != "name"}}
-    doc["part"] += optical_entries()
-    doc["analysis"] = {"detector": "detector",
-                       "entrance": {"center_mm": [0.0, 0.0, TOP_Z_MM], "normal": [0.0, 0.0, 1.0],
-                                    "radius_mm": TUBE_INNER_MM}}
-    atomicio.write_text(path, tomli_w.dumps(doc))
-    tmp.replace(directory) if not directory.exists() else None
-    if not quiet:
-        tris = sum(part.n_triangles for part in scene.parts)
-        print(f"built the guide scope ({len(doc['part'])} parts, {tris} mechanical triangles) in "
-              f"{time.perf_counter() - t0:.0f} s: {scene_toml}", file=sys.stderr)
-    return scene_toml
+    def write(tmp):
+        scene = tessellate_parts(mechanical_parts(), tolerance_mm=tolerance_mm, material=MATERIAL)
+        path = save_scene(scene, tmp, sources=[source()])
+        doc = tomllib.loads(path.read_text())
+        doc["material"] = {GLASS["name"]: {k: v for k, v in GLASS.items() if k != "name"}}
+        doc["part"] += optical_entries()
+        doc["analysis"] = {"detector": "detector",
+                           "entrance": {"center_mm": [0.0, 0.0, TOP_Z_MM], "normal": [0.0, 0.0, 1.0],
+                                        "radius_mm": TUBE_INNER_MM}}
+        atomicio.write_text(path, tomli_w.dumps(doc))
+        return (f"the guide scope ({len(doc['part'])} parts, {sum(p.n_triangles for p in scene.parts)} mechanical "
+                f"triangles)")
 
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--dir", default=None, help="output folder (default: a cache folder keyed on the parameters)")
-    ap.add_argument("--tolerance-mm", type=float, default=TOLERANCE_MM)
-    args = ap.parse_args(argv)
-    print(build(args.dir, args.tolerance_mm))
-    return 0
+    return build_once(Path(directory) if directory is not None else default_dir(tolerance_mm), write, quiet)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(scene_cache.main(build, __doc__.splitlines()[0], TOLERANCE_MM))

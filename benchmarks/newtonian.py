@@ -26,14 +26,13 @@ At the default chord tolerance (0.004 mm) the scene has about 0.4M triangles.
 """
 from __future__ import annotations
 
-import argparse
-import hashlib
 import json
-import os
 import sys
-import time
 from dataclasses import asdict, replace
 from pathlib import Path
+
+import scene_cache
+from scene_cache import build_once, cache_dir
 
 PRIMARY_Z_MM = 12.0
 PRIMARY_RADIUS_MM = 60.0
@@ -137,43 +136,24 @@ def source(p=None) -> dict:
 
 def default_dir(tolerance_mm: float = TOLERANCE_MM) -> Path:
     """Cache folder keyed on the parameters, the tolerance and this file's geometry code."""
-    key = json.dumps({"params": asdict(params()), "tolerance_mm": tolerance_mm, "cell": [PRIMARY_Z_MM, CLIP_REACH_MM,
-                      CLIP_WIDTH_MM, CLIP_GAP_MM, CLIP_THICKNESS_MM, BASE_Z_MM, CELL_INNER_RADIUS_MM], "v": 1},
-                     sort_keys=True)
-    root = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "straylight" / "benchmarks"
-    return root / f"newtonian-{hashlib.sha256(key.encode()).hexdigest()[:12]}"
+    return cache_dir("newtonian", {"params": asdict(params()), "tolerance_mm": tolerance_mm, "cell": [
+        PRIMARY_Z_MM, CLIP_REACH_MM, CLIP_WIDTH_MM, CLIP_GAP_MM, CLIP_THICKNESS_MM, BASE_Z_MM, CELL_INNER_RADIUS_MM],
+        "v": 1})
 
 
 def build(directory=None, tolerance_mm: float = TOLERANCE_MM, quiet: bool = False) -> Path:
     """Write the scene once (meshes + scene.toml) and return the scene.toml path; reuse it after."""
-    directory = Path(directory) if directory is not None else default_dir(tolerance_mm)
-    scene_toml = directory / "scene.toml"
-    if scene_toml.is_file():
-        return scene_toml
     from geometry.io import save_scene
     from geometry.tessellate import tessellate_parts
 
-    t0 = time.perf_counter()
-    scene = tessellate_parts(newtonian_parts(), tolerance_mm=tolerance_mm, material=MATERIAL)
-    tmp = directory.with_name(directory.name + f".tmp{os.getpid()}")
-    save_scene(scene, tmp, sources=[source()])
-    (tmp / "params.json").write_text(json.dumps(asdict(params()), indent=2))
-    tmp.replace(directory) if not directory.exists() else None
-    if not quiet:
-        tris = sum(part.n_triangles for part in scene.parts)
-        print(f"built the Newtonian ({len(scene.parts)} parts, {tris} triangles) in {time.perf_counter() - t0:.0f} s: "
-              f"{scene_toml}", file=sys.stderr)
-    return scene_toml
+    def write(tmp):
+        scene = tessellate_parts(newtonian_parts(), tolerance_mm=tolerance_mm, material=MATERIAL)
+        save_scene(scene, tmp, sources=[source()])
+        (tmp / "params.json").write_text(json.dumps(asdict(params()), indent=2))
+        return f"the Newtonian ({len(scene.parts)} parts, {sum(p.n_triangles for p in scene.parts)} triangles)"
 
-
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--dir", default=None, help="output folder (default: a cache folder keyed on the parameters)")
-    ap.add_argument("--tolerance-mm", type=float, default=TOLERANCE_MM)
-    args = ap.parse_args(argv)
-    print(build(args.dir, args.tolerance_mm))
-    return 0
+    return build_once(Path(directory) if directory is not None else default_dir(tolerance_mm), write, quiet)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(scene_cache.main(build, __doc__.splitlines()[0], TOLERANCE_MM))
