@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from atomicio.digest import file_sha256
 from straylight.checkpoints import restore_grid_point, save_grid_point
 
 PART_KEYS = ("role", "material")
@@ -214,7 +215,6 @@ def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: i
     with the model file's content in the fingerprint); ``resume`` reads back the points an interrupted
     run of the same sweep finished, and a design whose points are all done is not built again.
     """
-    import hashlib
     from contextlib import nullcontext
 
     from straylight.analyses.pst import dask_client, point_seed, pst_sweep
@@ -234,7 +234,7 @@ def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: i
     out = {k: np.full(shape, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "sec")}
     out_dir = Path(out_dir)
     store = _point_store(checkpoint_dir, resume, {
-        "sweep": "model_sweep", "model": model, "model_sha256": hashlib.sha256(Path(where).read_bytes()).hexdigest(),
+        "sweep": "model_sweep", "model": model, "model_sha256": file_sha256(where),
         "parameter": parameter, "values": values, "off_axis": off_axis, "rays": int(n_rays), "seed": int(seed),
         "nee": bool(nee), "precision": None if precision is None else dict(precision.__dict__)})
     with (dask_client(workers, scheduler) if client is None else nullcontext(client)) as cl:
