@@ -20,12 +20,14 @@ from typing import Any
 
 import numpy as np
 
+from materials.flags import ComponentFlags, flags_of
 from materials.wavelength import (
     at_wavelength,
     emissivity,
     hemispherical_emissivity,
     wavelength_dependent,
 )
+from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts
 
 THETA_GRID = np.linspace(0.0, np.pi / 2, 181)  # 0.5 deg: the tables are interpolated linearly in theta
 MAX_SUB_BANDS = 16
@@ -60,7 +62,7 @@ class ThermalScene:
     areas_mm2: np.ndarray  # (T,)
     eps_mm: float
     mirror_reflectance: float = 1.0
-    planes: dict = field(default_factory=dict)  # part -> (vertex, unit axis, r0, r1): exact analytic disks
+    planes: dict = field(default_factory=dict)  # part -> geometry.analytic.Plane: exact disks and annuli
     one_sided: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))  # (P,) analytic or open-sheet parts
     _isect: object = field(default=None, repr=False)
     _sides: dict = field(default_factory=dict, repr=False)
@@ -74,7 +76,10 @@ class ThermalScene:
         if self._isect is None:
             from straylight.intersect.embree import EmbreeIntersector
 
-            self._isect = EmbreeIntersector(self.triangles_mm)
+            isect = EmbreeIntersector(self.triangles_mm)
+            # hits on analytic planes count inside their exact boundary only (as in the engine)
+            self._isect = ExactBoundaryIntersector(isect, self.triangle_part, self.planes, self.eps_mm) \
+                if self.planes else isect
         return self._isect
 
     def is_role(self, *roles) -> np.ndarray:
@@ -86,8 +91,7 @@ class ThermalScene:
 
     def part_area_mm2(self, p: int) -> float:
         if p in self.planes:
-            _, _, r0, r1 = self.planes[p]
-            return float(np.pi * (r1 * r1 - r0 * r0))
+            return float(self.planes[p].area_mm2)
         return float(self.areas_mm2[self.triangle_part == p].sum())
 
     def side_materials(self, p: int) -> tuple:
@@ -181,8 +185,6 @@ def _side_tables(ts: ThermalScene, wavelength_um: float) -> SideTables:
 
 def _back_emissivity(material):
     """1 - rho - T seen from inside a transmitting (dielectric) medium, None for other materials."""
-    from materials.flags import ComponentFlags, flags_of
-
     if not flags_of(material) & ComponentFlags.DELTA_TRANSMISSION:  # only a dielectric has a medium behind it
         return None
     c = np.cos(THETA_GRID)
@@ -192,22 +194,14 @@ def _back_emissivity(material):
 
 
 def thermal_scene(scene, materials: dict, mirror_reflectance: float = 1.0) -> ThermalScene:
-    """Arrays of ``scene`` (geometry.Scene) with resolved ``materials`` for the thermal walks."""
-    from straylight.engine.spec import scene_epsilon
+    """Arrays of ``scene`` (geometry.Scene) with resolved ``materials`` for the thermal walks: the
+    scene's own triangles (an analytic plane part's mesh covers its exact disk: the intersector
+    counts the hits inside it only, :attr:`ThermalScene.intersector`)."""
+    from straylight.engine.spec import scene_epsilon  # the engine's offset rule (a heavy module: numba kernels)
 
-    tris, parts, planes = [], [], {}
-    for p, prt in enumerate(scene.parts):
-        surf: Any = getattr(prt, "surface", None)
-        if getattr(surf, "kind", None) == "plane":
-            planes[p] = (np.asarray(surf.vertex_mm, float), np.asarray(surf.axis, float) / np.linalg.norm(surf.axis),
-                         float(surf.inner_radius_mm), float(surf.outer_radius_mm))
-            t = _circumscribed_annulus(*planes[p])
-        else:
-            t = prt.vertices_mm[prt.faces]
-        tris.append(t)
-        parts.append(np.full(len(t), p, dtype=np.int64))
-    tri = np.concatenate(tris)
-    part = np.concatenate(parts)
+    tri = np.asarray(scene.triangles_mm, dtype=np.float64)
+    part = np.asarray(scene.triangle_part, dtype=np.int64)
+    planes = plane_parts(tuple(getattr(p, "surface", None) for p in scene.parts))
     tri = _detectors_face_the_scene(scene, tri, part, planes)
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     twice = np.linalg.norm(cross, axis=1)
@@ -230,9 +224,6 @@ def _one_sided(part) -> bool:
     return not bool(part.meta.get("watertight", part.is_watertight))
 
 
-PLANE_SEGMENTS = 256
-
-
 def _detectors_face_the_scene(scene, tri, part, planes):
     """An open (sheet) detector mesh whose area-weighted normal points away from the centre of the
     other parts' bounding box is turned round (vertex order reversed), so that its front, the side
@@ -253,25 +244,6 @@ def _detectors_face_the_scene(scene, tri, part, planes):
             out = out.copy() if out is tri else out
             out[mine] = t[:, ::-1]
     return out
-
-
-def _circumscribed_annulus(vertex, axis, r0, r1, n=PLANE_SEGMENTS):
-    """Triangles (m, 3, 3) covering the annulus r0..r1 (normals along ``axis``): the outer polygon
-    circumscribes the outer circle and the inner one is inscribed in the hole, so the mesh covers
-    the exact annulus; hits outside it are passed through (straylight.thermal.walk.cast)."""
-    from straylight.sources import orthonormal_basis
-
-    t, b = orthonormal_basis(axis[None, :])
-    t, b = t[0], b[0]
-    phi = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
-    ring = np.cos(phi)[:, None] * t + np.sin(phi)[:, None] * b
-    outer = vertex + r1 / np.cos(np.pi / n) * ring
-    j = np.roll(np.arange(n), -1)
-    if r0 <= 0:
-        c = np.broadcast_to(vertex, outer.shape)
-        return np.stack([c, outer, outer[j]], axis=1)
-    inner = vertex + r0 * ring
-    return np.concatenate([np.stack([inner, outer, outer[j]], axis=1), np.stack([inner, outer[j], inner[j]], axis=1)])
 
 
 def temperatures_with(ts: ThermalScene, settings) -> np.ndarray:

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from straylight.detectors import Disk
 from straylight.sources import orthonormal_basis
 from straylight.thermal.interaction import to_world
 
@@ -28,24 +29,21 @@ class AreaSampler:
     area_mm2: float
     cdf: np.ndarray
 
-    plane: tuple | None = None  # (vertex, unit axis, r0, r1): sample the exact annulus instead
+    disk: Disk | None = None  # an analytic plane part: sample its exact disk or annulus instead
 
     @classmethod
     def of_part(cls, ts, p: int) -> AreaSampler:
         sel = ts.triangle_part == p
         a = ts.areas_mm2[sel]
         return cls(ts.triangles_mm[sel], ts.normals[sel], ts.part_area_mm2(p), np.cumsum(a) / a.sum(),
-                   ts.planes.get(p))
+                   Disk.of_plane(ts.planes[p]) if p in ts.planes else None)
 
     def sample(self, u3):
         """(points (n, 3), normals (n, 3)) from uniforms (n, 3)."""
-        if self.plane is not None:
-            v, a, r0, r1 = self.plane
-            t, b = orthonormal_basis(a[None, :])
-            r = np.sqrt(r0 * r0 + u3[:, 1] * (r1 * r1 - r0 * r0))
-            phi = 2 * np.pi * u3[:, 2]
-            p = v + (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b
-            return p, np.broadcast_to(a, p.shape).copy()
+        if self.disk is not None:
+            from straylight.engine.disk_sampling import sample_annulus  # a numba kernel: compiled on first use
+
+            return sample_annulus(self.disk, u3[:, 1], u3[:, 2]), np.tile(self.disk.normal, (len(u3), 1))
         k = np.minimum(np.searchsorted(self.cdf, u3[:, 0], side="right"), len(self.cdf) - 1)
         s = np.sqrt(u3[:, 1])
         a, b = 1.0 - s, s * (1.0 - u3[:, 2])

@@ -52,18 +52,10 @@ class Hit:
 
 
 def cast(ts, o, d) -> Hit:
-    """First hits of rays (o, d); distances from the triangle planes in float64. A hit on an
-    analytic plane part outside its exact annulus passes through (the mesh circumscribes it)."""
+    """First hits of rays (o, d) by the scene's intersector (which counts a hit on an analytic plane
+    part only inside its exact boundary: straylight.intersect.exact_boundary); distances from the
+    triangle planes in float64."""
     tri = np.asarray(ts.intersector.first_triangle(o, d), dtype=np.int64)
-    if ts.planes:
-        o = np.array(o, dtype=np.float64)
-        for _ in range(8):
-            bad = _outside_planes(ts, tri, o, d)
-            if not bad.any():
-                break
-            t = _plane_t(ts, tri[bad], o[bad], d[bad])
-            o[bad] = o[bad] + (t + ts.eps_mm)[:, None] * d[bad]
-            tri[bad] = np.asarray(ts.intersector.first_triangle(o[bad], d[bad]), dtype=np.int64)
     ok = tri >= 0
     k = np.where(ok, tri, 0)
     n = ts.normals[k]
@@ -75,28 +67,6 @@ def cast(ts, o, d) -> Hit:
     facing = np.where((cos < 0)[:, None], n, -n)
     return Hit(tri=np.where(ok, tri, -1), part=np.where(ok, ts.triangle_part[k], -1), point=point, cos=cos,
                facing=facing)
-
-
-def _plane_t(ts, tri, o, d):
-    n = ts.normals[tri]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ts.plane_d[tri] - np.einsum("ij,ij->i", n, o)) / np.einsum("ij,ij->i", d, n)
-    return np.where(np.isfinite(t), np.maximum(t, 0.0), 0.0)
-
-
-def _outside_planes(ts, tri, o, d):
-    """Rays whose hit lies on an analytic plane part's mesh but outside its exact annulus."""
-    bad = np.zeros(len(tri), bool)
-    hit = tri >= 0
-    part = np.where(hit, ts.triangle_part[np.where(hit, tri, 0)], -1)
-    for p, (v, a, r0, r1) in ts.planes.items():
-        sel = np.flatnonzero(part == p)
-        if len(sel) == 0:
-            continue
-        x = o[sel] + _plane_t(ts, tri[sel], o[sel], d[sel])[:, None] * d[sel] - v
-        r = np.linalg.norm(x - np.outer(x @ a, a), axis=1)
-        bad[sel] = (r > r1) | (r < r0)
-    return bad
 
 
 def roulette(w, w_ref, u):
