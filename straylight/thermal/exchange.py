@@ -17,9 +17,13 @@ from __future__ import annotations
 import csv
 import io
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+import atomicio
+from straylight.analyses.tables import data_frame, plot_matrix
+from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
 from straylight.thermal.sampling import AreaSampler, emission_rays
 from straylight.thermal.walk import CHUNK_RAYS, chunk_rng, walk
@@ -55,16 +59,12 @@ class ExchangeResult:
 
     def to_pandas(self):
         """D_ij as a DataFrame: rows emitting parts, columns absorbing parts and ``escaped`` (pandas is optional)."""
-        from straylight.analyses.tables import data_frame
-
         rows = [{"part": n, **dict(zip(self.names, map(float, d))), "escaped": float(e)}
                 for n, d, e in zip(self.names, self.d, self.escaped)]
         return data_frame(rows, ["part", *self.names, "escaped"]).set_index("part")
 
     def plot(self, path=None, ax=None):
         """The matrix D_ij (log colour scale)."""
-        from straylight.analyses.tables import plot_matrix
-
         return plot_matrix(self.d, self.names, f"distribution factors D_ij, {self.band_um[0]:g}-{self.band_um[1]:g} um",
                            path, ax)
 
@@ -78,10 +78,6 @@ class ExchangeResult:
         return buf.getvalue()
 
     def write(self, directory) -> None:
-        from pathlib import Path
-
-        import atomicio
-
         directory = Path(directory)
         atomicio.write_json(directory / "exchange.json", self.to_json_dict())
         atomicio.write_text(directory / "couplings.csv", self.couplings_csv())
@@ -101,8 +97,6 @@ class ExchangeResult:
 
 def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
     """D_ij of every part of ``ts`` (straylight.thermal.model.ThermalScene) in the band."""
-    from straylight.thermal.model import sub_bands
-
     lo, hi = check_band(*band_um)
     P = ts.n_parts
     temps = np.where(ts.temperature_k > 0, ts.temperature_k, DEFAULT_TEMPERATURE_K)

@@ -17,6 +17,8 @@ against Stefan-Boltzmann (tests/straylight/test_thermal_planck.py, benchmarks/th
 """
 from __future__ import annotations
 
+from math import factorial
+
 import numpy as np
 from scipy import constants
 
@@ -39,8 +41,6 @@ def spectral_radiance_w_m2_sr_um(wavelength_um, temperature_k):
 
 def _fraction_below(x):
     """Blackbody fraction F(0 -> lambda) at x = c2 / (lambda T) (array)."""
-    from math import factorial
-
     from scipy.special import bernoulli
 
     x = np.asarray(x, float)

@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
+from straylight.thermal.model import thermal_scene
+from straylight.thermal.run import thermal
 
 STUDY_TARGET_REL_ERROR = 0.01
 STUDY_MAX_SECONDS = 120.0
@@ -22,9 +24,6 @@ def has_temperatures(scene) -> bool:
 
 def thermal_step(setup, out_dir, band_um=(8.0, 12.0), seed: int = 0):
     """Trace and write the budget for ``setup.detector``; None when no part has a temperature."""
-    from straylight.thermal.model import thermal_scene
-    from straylight.thermal.run import thermal
-
     if not has_temperatures(setup.scene):
         return None
     out = Path(out_dir)

@@ -14,7 +14,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from straylight.analyses.tables import plot_thermal, thermal_frame
+from straylight.detectors import DetectorGeometry
+from straylight.thermal.forward import ForwardEstimator
+from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
+from straylight.thermal.reverse import reverse_chunk
+from straylight.thermal.sampling import AreaSampler
+from straylight.thermal.walk import CHUNK_RAYS
 
 METHODS = ("reverse", "forward")
 DEFAULT_MAX_RAYS = 50_000_000
@@ -69,14 +76,10 @@ class ThermalResult:
 
     def to_pandas(self):
         """One row per (detector, emitting part): power and error (pandas is optional; straylight.analyses.tables)."""
-        from straylight.analyses.tables import thermal_frame
-
         return thermal_frame(self)
 
     def plot(self, path=None, ax=None):
         """Bars of each emitting part's power on each detector, 1-sigma error bars (log scale)."""
-        from straylight.analyses.tables import plot_thermal
-
         return plot_thermal(self, path, ax)
 
     def details(self) -> dict:
@@ -95,8 +98,6 @@ def receiving_triangles(ts, p: int, toward_mm=None) -> np.ndarray:
     """Triangle ids of detector part ``p`` that receive (CONTRACTS 4.5 area rule): every triangle of an
     open part; a closed part's faces whose outward normal is within 60 deg of its front (the normal
     of its plane of least spread, turned toward ``toward_mm``: the scene's centre by default)."""
-    from straylight.detectors import DetectorGeometry
-
     ids = np.flatnonzero(ts.triangle_part == p)
     part = ts.scene.parts[p]
     if not part.meta.get("watertight", part.is_watertight):
@@ -112,8 +113,6 @@ def receiving_triangles(ts, p: int, toward_mm=None) -> np.ndarray:
 
 
 def detector_sampler(ts, p: int, toward_mm=None):
-    from straylight.thermal.sampling import AreaSampler
-
     if p in ts.planes:
         return AreaSampler.of_part(ts, p), np.flatnonzero(ts.triangle_part == p)
     ids = receiving_triangles(ts, p, toward_mm)
@@ -159,8 +158,6 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     (emission from the parts with next-event estimation). ``sweep``: further temperature sets
     ((P,) arrays, kelvin) evaluated on the same reverse paths (``ThermalResult.sweep``: per detector
     a list of (power, stderr)); the precision target applies to the scene's own temperatures."""
-    from straylight.thermal.model import sub_bands
-
     lo, hi = check_band(*band_um)
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -259,8 +256,6 @@ class _DetectorRun:
 
     def round(self, rays_now: int) -> None:
         """About ``rays_now`` more rays, shared by the sub-bands (whole chunks, then a remainder)."""
-        from straylight.thermal.walk import CHUNK_RAYS
-
         active = np.array([self.rad_sets[k].max() > 0 for k in range(len(self.bands))])
         counts = split_rays(int(rays_now), np.where(active, self.share, 0.0), self.min_rays)
         for k, (_, _, lam) in enumerate(self.bands):
@@ -289,10 +284,6 @@ class _DetectorRun:
 def _estimator(method, ts, p, sampler):
     """chunk function (sides, radiance (P,), seed, stream, chunk, n) -> (S1, S2, T1, T2)."""
     if method == "reverse":
-        from straylight.thermal.reverse import reverse_chunk
-
         return lambda sides, rad, seed, stream, chunk, n: reverse_chunk(ts, sides, sampler, rad, seed, stream,
                                                                         chunk, n)
-    from straylight.thermal.forward import ForwardEstimator
-
     return ForwardEstimator(ts, p, sampler)
