@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from straylight.analyses.tables import plot_thermal, thermal_frame
-from straylight.detectors import DetectorGeometry
+from straylight.detectors import FRONT_FACE_COS, DetectorGeometry
 from straylight.thermal.forward import ForwardEstimator
 from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
@@ -28,7 +28,6 @@ DEFAULT_MAX_RAYS = 50_000_000
 DEFAULT_MAX_SECONDS = 600.0
 ZERO_POWER_RAYS = 100_000  # --target-rel-error gives up on a detector that nothing reaches after this
 MIN_ROUND_RAYS = 512  # first round of --target-rel-error, and the smallest later round (per sub-band)
-FRONT_FACE_COS = 0.5  # as straylight.detectors: a closed detector's faces within 60 deg of its front
 
 
 @dataclass
