@@ -24,6 +24,7 @@ def main():
 
     import straylight.engine.backends.dask as dist
     from straylight.scene import load_scene
+    from straylight.execution import Execution
     from straylight.trace import trace
 
     rs = load_scene(TUBE)
@@ -51,7 +52,8 @@ def main():
                 t0 = time.perf_counter()
                 with dist.local_cluster(2, processes=True) as cluster, Client(cluster) as client:
                     t1 = time.perf_counter()
-                    res = trace(rs.scene, rs.sources, args.rays, 1, materials=rs.materials, client=client)
+                    res = trace(rs.scene, rs.sources, args.rays, 1, materials=rs.materials,
+                                execution=Execution(client=client))
                     t2 = time.perf_counter()
                 t3 = time.perf_counter()
                 assert cluster.scheduler_address.startswith("tls://" if mode == "tls" else "tcp://")

@@ -17,6 +17,7 @@ import time
 
 from straylight.design import construct_vanes, layout_at, model
 from straylight.design.evaluate import log_objective, pst_points
+from straylight.execution import Execution
 
 
 def main():
@@ -32,7 +33,8 @@ def main():
     angles = [20.0, 25.0, 30.0]
 
     def j(layout, seed):
-        return log_objective(pst_points(a.spec, layout.vanes, mats, angles, args.rays, seed, threads=args.threads))
+        return log_objective(pst_points(a.spec, layout.vanes, mats, angles, args.rays, seed,
+                                          execution=Execution(threads=args.threads)))
 
     t0 = time.perf_counter()
     same, indep, se = [], [], []

@@ -47,7 +47,7 @@ def run_point(setup, angle_deg, rays, seed, options):
     from straylight.analyses.pst import pst_sweep
 
     c0 = time.process_time()
-    res = pst_sweep(setup, np.radians([angle_deg]), n_rays=rays, seed=seed, options=options, progress=False)
+    res = pst_sweep(setup, np.radians([angle_deg]), n_rays=rays, seed=seed, options=options)
     cpu = time.process_time() - c0
     row = res.rows()[0]
     return {"pst": row["pst"], "pst_stderr": row["pst_stderr"], "cpu_s": cpu}

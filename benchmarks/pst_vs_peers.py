@@ -108,7 +108,7 @@ def run_ours(setup, angle_deg: float, n_rays: int, seed: int, nee: bool = True) 
     from straylight.analyses.pst import pst_sweep
 
     t0, c0 = time.perf_counter(), time.process_time()
-    res = pst_sweep(setup, np.radians([angle_deg]), n_rays=n_rays, seed=seed, nee=nee, progress=False,
+    res = pst_sweep(setup, np.radians([angle_deg]), n_rays=n_rays, seed=seed, nee=nee,
                     options=None if nee else estimator_options("baseline"))  # plain walk: roulette below 1e-3
     seconds, cpu_seconds = time.perf_counter() - t0, time.process_time() - c0
     return {"tracer": "straylight" + ("" if nee else " (plain walk)"), "angle_deg": angle_deg,

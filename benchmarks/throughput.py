@@ -102,14 +102,14 @@ def raw_rates(scene, n=1_000_000):
 
 def timed_trace(scene, mats, a_deg, n, seed, nee=True, client=None, threads=None, workers=None):
     """Trace; returns (result, wall s, CPU s of this process)."""
+    from straylight.execution import Execution
     from straylight.trace import TraceOptions, trace
 
     opts = TraceOptions(nee=nee, max_events=20 if not nee else 1000)
     t = time.perf_counter()
     c = time.process_time()
-    res = trace(scene, SCENE_SOURCES or source(a_deg), n, seed, materials=mats, options=opts, client=client,
-                threads=threads,
-                workers=workers)
+    res = trace(scene, SCENE_SOURCES or source(a_deg), n, seed, materials=mats, options=opts,
+                execution=Execution(client=client, threads=threads, workers=workers))
     return res, time.perf_counter() - t, time.process_time() - c
 
 

@@ -61,7 +61,7 @@ def _point(setup, angle_deg, seed, n_rays=None, precision=None, options=None):
     from straylight.analyses.pst import pst_sweep
 
     t0, c0 = time.perf_counter(), time.process_time()
-    r = pst_sweep(setup, [math.radians(angle_deg)], n_rays=n_rays or 1, seed=seed, progress=False,
+    r = pst_sweep(setup, [math.radians(angle_deg)], n_rays=n_rays or 1, seed=seed,
                   precision=precision, options=options)
     row = r.rows()[0]
     row["wall_s"] = time.perf_counter() - t0

@@ -57,7 +57,7 @@ def main(argv=None) -> int:
         per = {}
         for nee in (True, False):
             t0, c0 = time.perf_counter(), time.process_time()
-            res = pst_sweep(setup, np.radians([a]), n_rays=rays[nee], seed=args.seed, nee=nee, progress=False,
+            res = pst_sweep(setup, np.radians([a]), n_rays=rays[nee], seed=args.seed, nee=nee,
                             options=None if nee else estimator_options("baseline"))  # plain: roulette below 1e-3
             wall, t = time.perf_counter() - t0, time.process_time() - c0
             value, se = float(res.entrance_ratio[0]), float(res.entrance_ratio_stderr[0])

@@ -86,6 +86,7 @@ def whole_run(k, scene, sources, materials, n, seed, options):
     from dask.distributed import Client
 
     from straylight.engine.backends.dask import local_cluster, warm_up, worker_cpu_seconds
+    from straylight.execution import Execution
     from straylight.trace import make_spec, trace
 
     t0 = t = time.perf_counter()
@@ -99,7 +100,7 @@ def whole_run(k, scene, sources, materials, n, seed, options):
         phases["warm-up"] = time.perf_counter() - t
         start_s = time.perf_counter() - t0
         before = worker_cpu_seconds(client)
-        res = trace(scene, sources, n, seed, materials=materials, options=options, client=client)
+        res = trace(scene, sources, n, seed, materials=materials, options=options, execution=Execution(client=client))
         after = worker_cpu_seconds(client)
         t_close = time.perf_counter()
     end = time.perf_counter()

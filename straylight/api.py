@@ -158,8 +158,9 @@ def _angle_rad(value_deg: float, name: str) -> float:
 @dataclass(frozen=True, eq=False)
 class Instrument:
     """A loaded instrument (:class:`~straylight.analyses.types.Setup`: scene, materials, beam, entrance,
-    detector) and the analyses that run on it. ``client``/``workers``/``scheduler`` on each call choose
-    where it runs (default: this process); they never change the numbers."""
+    detector) and the analyses that run on it. ``execution`` on each call (:class:`straylight.execution.Execution`:
+    threads, workers, scheduler, client, progress) chooses where it runs (default: this process, quiet);
+    it never changes the numbers."""
 
     setup: Setup = field(repr=False)
     source: str = ""
@@ -181,8 +182,8 @@ class Instrument:
 
     def pst(self, angles_deg, azimuths_deg=(0.0,), *, rays: int = 100_000, seed: int = 0,
             target_rel_error: float | None = None, max_rays=None, max_seconds=None, max_vov=None, nee: bool = True,
-            workers=None, scheduler=None, client=None, progress: bool = False, checkpoint_dir=None,
-            resume: bool = False, diffraction: bool = True, wavelength_nm: float | None = None,
+            execution=None, checkpoint_dir=None, resume: bool = False, diffraction: bool = True,
+            wavelength_nm: float | None = None,
             estimators: str = "default"):
         """Point source transmittance at every (angle, azimuth): a :class:`~straylight.analyses.types.PstResult`.
 
@@ -209,32 +210,28 @@ class Instrument:
         options = estimator_options(estimators, TraceOptions(diffraction="scene" if diffraction else "off"))
         return pst_sweep(setup, np.radians(np.atleast_1d(np.asarray(angles_deg, dtype=float))), np.radians(np.atleast_1d(azimuths_deg)),
                          n_rays=int(rays) if precision is None else 1, seed=int(seed), nee=nee, options=options,
-                         workers=workers,
-                         scheduler=scheduler, client=client, progress=progress, precision=precision,
-                         checkpoint_dir=checkpoint_dir, resume=resume)
+                         execution=execution, precision=precision, checkpoint_dir=checkpoint_dir, resume=resume)
 
     def paths(self, angle_deg: float, azimuth_deg: float = 0.0, *, rays: int = 100_000, seed: int = 0,
-              nee: bool = True, group_by: str = "sequence", ancestry=None, workers=None, scheduler=None, client=None,
-              progress: bool = False):
+              nee: bool = True, group_by: str = "sequence", ancestry=None, execution=None):
         """Stray-light paths to the detector, ranked: a :class:`~straylight.analyses.paths_report.PathReport`
         whose ``trace`` is the :class:`~straylight.trace.TraceResult` (absorbed power per part, maps...)."""
         from straylight.analyses.paths_report import paths_analysis
 
         report, res = paths_analysis(self.setup, _angle_rad(angle_deg, "angle_deg"), math.radians(azimuth_deg),
                                      n_rays=int(rays), seed=int(seed), nee=nee, group_by=group_by,
-                                     ancestry=ancestry, workers=workers, scheduler=scheduler, client=client,
-                                     progress=progress)
+                                     ancestry=ancestry, execution=execution)
         return replace(report, trace=res)
 
     def critical(self, angle_deg: float, azimuth_deg: float = 0.0, *, rays: int = 100_000, seed: int = 0,
-                 client=None, progress: bool = False):
+                 execution=None):
         """Critical and illuminated parts: a :class:`~straylight.analyses.critical.CriticalReport`."""
         from straylight.analyses.critical import critical_objects
 
         if int(rays) < 2:
             raise ValueError(f"rays must be >= 2, got {rays}")
         return critical_objects(self.setup, _angle_rad(angle_deg, "angle_deg"), math.radians(azimuth_deg),
-                                n_rays=int(rays), seed=int(seed), client=client, progress=progress)
+                                n_rays=int(rays), seed=int(seed), execution=execution)
 
     def view3d(self, path, angle_deg: float = 20.0, azimuth_deg: float = 0.0, *, rays: int = 50_000, seed: int = 0,
                paths=None, max_triangles: int | None = None) -> Path:

@@ -9,7 +9,12 @@ Every file is checked before it is trusted (issue 27): ``run.json`` holds the fi
 and the run's parameters in readable form; each point holds its values, its index, the run's digest
 and a SHA-256 of the three. A point edited by hand (a PST x1000, a NaN), truncated, or copied from
 another run is refused on ``--resume`` with a one-line error naming the file; so is a point or
-``run.json`` that is not valid JSON."""
+``run.json`` that is not valid JSON.
+
+``run.json`` also names the layout of the points (:data:`FORMAT`): since the one grid runner
+(:mod:`straylight.analyses.grid`, issue 23) a point holds what that runner keeps (values, rays,
+seconds, diagnostics, tag). A folder written by an earlier version is refused on ``--resume`` in one
+line that says so."""
 from __future__ import annotations
 
 import hashlib
@@ -24,6 +29,7 @@ import atomicio
 
 _POINT = "point_{:06d}.json"
 _RUN = "run.json"
+FORMAT = 2  # 1 (no "format" key): each sweep's own point layout; 2: straylight.analyses.grid.PointRun records
 
 
 def _plain(obj):
@@ -79,6 +85,10 @@ class PointStore:
             stored = doc.get("fingerprint_sha256") if isinstance(doc, dict) else None
             if not isinstance(stored, str):
                 raise ValueError(f"--resume: {meta} has no fingerprint_sha256; remove {self.folder}")
+            if doc.get("format", 1) != FORMAT:
+                raise ValueError(f"--resume: {self.folder} was written by another version of straylight (checkpoint "
+                                 f"format {doc.get('format', 1)}, this one reads {FORMAT}); remove it or run without "
+                                 f"--resume")
             if stored != digest:
                 raise ValueError(f"--resume: {self.folder} holds points of a different run (scene, angles, rays, "
                                  f"seed or options changed); remove it or run without --resume")
@@ -86,8 +96,8 @@ class PointStore:
             for old in self.folder.glob("point_*.json"):
                 old.unlink()
         self.folder.mkdir(parents=True, exist_ok=True)
-        atomicio.write_json(meta, {"fingerprint_sha256": digest, "parameters": _parameters(fingerprint)}, indent=1,
-                            allow_nan=True)
+        atomicio.write_json(meta, {"format": FORMAT, "fingerprint_sha256": digest,
+                                   "parameters": _parameters(fingerprint)}, indent=1, allow_nan=True)
 
     def get(self, index: int):
         """The record of point ``index``, or None if it was not finished. A point whose checksum does
@@ -125,19 +135,3 @@ class PointStore:
     def remove_folder(folder) -> None:
         shutil.rmtree(folder, ignore_errors=True)
 
-
-def restore_grid_point(store, k: int, out: dict, i: int, j: int) -> bool:
-    """Fill ``out[key][i, j]`` (a sweep's grid of arrays) from point ``k`` of ``store`` if an
-    earlier run finished it; True if so (False without a store)."""
-    saved = store.get(k) if store is not None else None
-    if saved is None:
-        return False
-    for key in out:
-        out[key][i, j] = saved[key]
-    return True
-
-
-def save_grid_point(store, k: int, out: dict, i: int, j: int) -> None:
-    """Record ``out[key][i, j]`` as point ``k`` of ``store`` (nothing without a store)."""
-    if store is not None:
-        store.put(k, {key: float(out[key][i, j]) for key in out})

@@ -1,11 +1,13 @@
 """Where and how a trace runs: :class:`Execution` (issue 23), one object instead of six keywords.
 
-``trace(..., execution=Execution(workers=2))`` runs exactly as ``trace(..., workers=2)``: the
-numbers never depend on it (same seed, same results in process, on threads or on dask). The
-keywords stay accepted; giving the same field both ways with different values is an error.
+``trace(..., execution=Execution(threads=2))``, ``pst_sweep(..., execution=...)``: every analysis takes
+one ``Execution`` and no execution keywords. The numbers never depend on it (same seed, same results in
+process, on threads or on dask). The command line builds it once from its flags
+(:func:`straylight.cli.cluster_args.execution`).
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, fields, replace
 
 from straylight.engine.options import TraceError
@@ -17,7 +19,7 @@ FIELDS = ("workers", "client", "scheduler", "threads", "security", "progress")
 class Execution:
     """How to run: in this process (default), on ``threads`` threads, on a local dask cluster of
     ``workers`` processes, on a running ``scheduler`` (address; ``security``: TLS for it) or an
-    existing dask ``client``; ``progress``: a progress bar on stderr."""
+    existing dask ``client``; ``progress``: progress on stderr (a bar on a terminal, lines in a log)."""
 
     workers: int | None = None
     client: object = None
@@ -34,22 +36,34 @@ class Execution:
         if self.client is not None and self.scheduler is not None:
             raise TraceError("execution: give a dask client or a scheduler address, not both")
 
-    @classmethod
-    def merged(cls, execution: "Execution | None" = None, **keywords) -> "Execution":
-        """``execution`` with the execution keywords of an older call signature applied (None or
-        False: not given). The same field given both ways with different values is an error."""
-        base = execution if execution is not None else cls()
-        given = {k: v for k, v in keywords.items() if v is not None and v is not False}
-        unknown = sorted(set(given) - set(FIELDS))
-        if unknown:
-            raise TraceError(f"execution: unknown field(s) {', '.join(unknown)}")
-        default = cls()
-        for k, v in given.items():
-            mine = getattr(base, k)
-            if execution is not None and mine != getattr(default, k) and mine is not v and mine != v:
-                raise TraceError(f"execution: {k} given twice ({mine!r} in the Execution, {v!r} as a keyword)")
-        return replace(base, **given) if given else base
-
     def trace_keywords(self) -> dict:
-        """The keywords :func:`straylight.trace.trace` passes on to the batch scheduler."""
+        """The keywords the batch scheduler (:func:`straylight.engine.scheduling.run_batches`) takes."""
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "progress"}
+
+    def quiet(self) -> Execution:
+        """The same, without progress output (a step inside a larger run that shows its own)."""
+        return replace(self, progress=False) if self.progress else self
+
+    @contextmanager
+    def opened(self, in_process_below: int = 2):
+        """This execution with one dask client open for a whole run of many traces (one local cluster,
+        not one per trace): ``workers`` or ``scheduler`` become a ``client``; ``workers`` below
+        ``in_process_below`` run in this process (:func:`straylight.engine.backends.dask.dask_client`). A given
+        client, or nothing to start, is yielded as it is."""
+        if self.client is not None or (self.workers is None and self.scheduler is None):
+            yield self
+            return
+        from straylight.engine.backends.dask import dask_client  # the engine and dask: only when a cluster is asked for
+
+        with dask_client(self.workers, self.scheduler, security=self.security,
+                         in_process_below=in_process_below) as client:
+            yield replace(self, client=client, workers=None, scheduler=None)
+
+
+def as_execution(execution: Execution | None) -> Execution:
+    """``execution``, or the default (this process, no progress) for None."""
+    if execution is None:
+        return Execution()
+    if not isinstance(execution, Execution):
+        raise TraceError(f"execution must be a straylight.execution.Execution, got {type(execution).__name__}")
+    return execution

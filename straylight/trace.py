@@ -38,14 +38,13 @@ from straylight.engine.spec import (  # noqa: F401 - re-exported
     AUTO_BATCH_RAYS, TraceSpec, make_spec, scene_epsilon)
 from straylight.engine.tallies import chunk_maps  # noqa: F401 - re-exported
 from straylight.engine.walk import run_batch, run_batch_reference  # noqa: F401 - re-exported
-from straylight.execution import Execution
+from straylight.execution import Execution, as_execution
 from straylight.progress import progress_bar
 from straylight.rng import n_chunks
 
 
-def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=None, client=None,
-          scheduler=None, intersector=None, threads=None, security=None, first_chunk=0,
-          execution: Execution | None = None) -> TraceResult:
+def trace(scene, sources, n_rays, seed=0, materials=None, options=None, execution: Execution | None = None,
+          intersector=None, first_chunk=0) -> TraceResult:
     """Trace ``n_rays`` rays from ``sources`` through ``scene``; see docs/engine.md.
 
     Parameters
@@ -56,27 +55,17 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     seed : int, non-negative
     materials : dict name -> Brdf, optional (else ``materials.load_material(name)``)
     options : TraceOptions
-    workers, client, scheduler : run on dask (straylight.engine.backends.dask); default in-process
-    security : dask ``Security`` (TLS) for ``scheduler``, or a path to a security YAML
-    intersector : an intersector object to use in-process (e.g. ReferenceIntersector)
-    threads : int, optional
-        in-process thread pool of this size (embree and the compiled kernels release the GIL;
-        materials, sources and bookkeeping do not); same numbers as any other way of running
     execution : straylight.execution.Execution, optional
-        where and how to run, in one object (workers, client, scheduler, threads, security,
-        progress); the keywords above are the same fields (giving one both ways differently is an error)
+        where and how to run (default: in this process): ``threads`` (an in-process thread pool: embree
+        and the compiled kernels release the GIL), ``workers``/``client``/``scheduler``/``security`` (dask,
+        straylight.engine.backends.dask), ``progress`` (a bar on stderr); the numbers never depend on it
+    intersector : an intersector object to use in-process (e.g. ReferenceIntersector)
     first_chunk : int, optional
         trace the ray ids from ``first_chunk * CHUNK_RAYS`` on: the random streams of chunks
         ``first_chunk, first_chunk + 1, ...`` (continues an earlier trace of ``first_chunk`` whole
         chunks with the same seed; :func:`straylight.analyses.precision.merge_results` pools them exactly)
     """
-    if threads is not None and (isinstance(threads, bool) or int(threads) < 1):
-        raise TraceError(f"threads must be a positive integer, got {threads!r}")
-    ex = Execution.merged(execution, workers=workers, client=client, scheduler=scheduler, threads=threads,
-                          security=security)
-    workers, client, scheduler, threads, security = ex.workers, ex.client, ex.scheduler, ex.threads, ex.security
-    if ex.progress:
-        options = replace(options or TraceOptions(), progress=True)
+    ex = as_execution(execution)
     spec = make_spec(scene, sources, n_rays, seed, materials, options)
     if first_chunk:
         if isinstance(first_chunk, bool) or int(first_chunk) < 0:
@@ -87,7 +76,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
     second = (opt.second_vertex_sampling and opt.nee and len(spec.detector_parts)
               and second_vertex_unsupported(spec) is None)
     # on dask, the workers get the spec and build their scenes while this process builds the tables
-    early = ship_early(client, spec) if client is not None and (first or second) else None
+    early = ship_early(ex.client, spec) if ex.client is not None and (first or second) else None
     rt = runtime()  # this process's compiled scene and kept tables
     try:
         if first:
@@ -100,10 +89,9 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, workers=
         if early is not None:
             early.release()
         raise
-    results = run_batches(spec, batch_ranges(spec), workers=workers, client=client, scheduler=scheduler,
-                          intersector=intersector, threads=threads, security=security, early=early)
+    results = run_batches(spec, batch_ranges(spec), intersector=intersector, early=early, **ex.trace_keywords())
     totals = BatchTotals(spec)
-    with progress_bar(total=n_chunks(spec.n_rays), unit="chunk", enabled=opt.progress) as bar:
+    with progress_bar(total=n_chunks(spec.n_rays), unit="chunk", enabled=ex.progress) as bar:
         for res in results:  # in chunk order
             bar.update(totals.add(res))
     here = rt.cached_scene(spec)  # this process's scene, if it traced here; else the detectors alone

@@ -21,7 +21,11 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
+from straylight.analyses.grid import point_seed
+from straylight.analyses.pst import detector_name
 from straylight.analyses.tables import TableRepr
+from straylight.execution import Execution, as_execution
+from straylight.trace import TraceOptions, trace
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,20 +191,20 @@ class CriticalReport(TableRepr):
 
 
 def critical_objects(setup, off_axis: float = 0.0, azimuth: float = 0.0, n_rays: int = 100_000, seed: int = 0,
-                     client=None, progress: bool = False) -> CriticalReport:
-    """Forward trace of the beam and reverse trace from the detector; see the module docstring."""
-    from straylight.analyses.pst import detector_name, point_seed
-    from straylight.trace import TraceOptions, trace
-
+                     execution: Execution | None = None) -> CriticalReport:
+    """Forward trace of the beam and reverse trace from the detector; see the module docstring.
+    ``execution``: where both traces run (one dask cluster for the two when it names workers or a
+    scheduler) and whether to show progress."""
     det = detector_name(setup.scene, setup.detector)
     part = setup.scene.part(det)
     both = bool(getattr(part, "meta", {}).get("kind") == "solid")
-    opts = TraceOptions(nee=False, progress=progress)
-    fwd = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], n_rays=int(n_rays), seed=point_seed(seed, 0),
-                materials=setup.materials, options=opts, client=client)
+    opts = TraceOptions(nee=False)
     src = LambertianPart(part.vertices_mm[part.faces], power_w=1.0, both_sides=both)
-    rev = trace(setup.scene, [src], n_rays=int(n_rays), seed=point_seed(seed, 1), materials=setup.materials,
-                options=opts, client=client)
+    with as_execution(execution).opened() as ex:
+        fwd = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], n_rays=int(n_rays),
+                    seed=point_seed(seed, 0), materials=setup.materials, options=opts, execution=ex)
+        rev = trace(setup.scene, [src], n_rays=int(n_rays), seed=point_seed(seed, 1), materials=setup.materials,
+                    options=opts, execution=ex)
     rows = []
     for name in setup.scene.part_names:
         if setup.scene.part(name).role == "detector":

@@ -31,13 +31,16 @@ import importlib.util
 import inspect
 import re
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
 from atomicio.digest import file_sha256
-from straylight.checkpoints import restore_grid_point, save_grid_point
+from straylight.analyses.grid import GridPoint, open_checkpoint, point_seed, run_grid
+from straylight.analyses.pst import detector_area, detector_name, pst_job, pst_options
+from straylight.analyses.scene_setup import scene_setup
+from straylight.analyses.sweep import grid_points, sweep_result
+from straylight.execution import Execution
 
 PART_KEYS = ("role", "material")
 SCENE_KEYS = ("material", "parts", "source", "analysis", "tolerance_mm")
@@ -204,25 +207,19 @@ def design_scene(model: str, params: dict, directory) -> Path:
 
 
 def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: int = 50_000, seed: int = 0,
-                nee: bool = True, client=None, progress: bool = True, precision=None, workers: int | None = None,
-                scheduler: str | None = None, checkpoint_dir=None, resume: bool = False):
+                nee: bool = True, execution: Execution | None = None, precision=None, checkpoint_dir=None,
+                resume: bool = False):
     """PST at ``off_axis`` (radians) of each design ``build(parameter=value)``.
 
-    Each design's scene folder is ``out_dir/<parameter>=<value>/``; each (design, angle) point has
-    its own seed (``point_seed(seed, i * n_angles + j)``) as in the built-in tube's sweep.
-    ``client`` (else one of ``workers``/``scheduler`` for the sweep, or this process): where to trace.
+    Each design's scene folder is ``out_dir/<parameter>=<value>/``; the (design, angle) points run on
+    the grid runner (:func:`straylight.analyses.grid.run_grid`), point k = i * n_angles + j traced with
+    the seed ``point_seed(point_seed(seed, k), 0)`` (the seed of a one-angle ``pst`` sweep seeded
+    ``point_seed(seed, k)``: the numbers of the sweeps before the grid runner). ``execution``: where to
+    run and whether to show progress; ``precision``: trace each point to a target relative error.
     ``checkpoint_dir``: each finished point is written there (:class:`straylight.checkpoints.PointStore`,
     with the model file's content in the fingerprint); ``resume`` reads back the points an interrupted
     run of the same sweep finished, and a design whose points are all done is not built again.
     """
-    from contextlib import nullcontext
-
-    from straylight.analyses.pst import dask_client, point_seed, pst_sweep
-    from straylight.analyses.scene_setup import scene_setup
-    from straylight.analyses.sweep import _point_store
-    from straylight.analyses.types import SweepResult
-    from straylight.progress import progress_bar
-
     fn, _ = load_model(model)
     where = model.rsplit(":", 1)[0]
     check_parameter(fn, parameter, where)
@@ -230,34 +227,28 @@ def model_sweep(model: str, parameter: str, values, off_axis, out_dir, n_rays: i
     if len(values) == 0:
         raise ModelError("the sweep needs at least one value")
     off_axis = np.atleast_1d(np.asarray(off_axis, dtype=np.float64))
-    shape = (len(values), len(off_axis))
-    out = {k: np.full(shape, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "sec")}
     out_dir = Path(out_dir)
-    store = _point_store(checkpoint_dir, resume, {
+    opts = pst_options(nee)
+    store = open_checkpoint(checkpoint_dir, {
         "sweep": "model_sweep", "model": model, "model_sha256": file_sha256(where),
         "parameter": parameter, "values": values, "off_axis": off_axis, "rays": int(n_rays), "seed": int(seed),
-        "nee": bool(nee), "precision": None if precision is None else dict(precision.__dict__)})
-    with (dask_client(workers, scheduler) if client is None else nullcontext(client)) as cl:
-        bar = progress_bar(total=len(values) * len(off_axis), desc=f"sweep {parameter}", unit="point",
-                           enabled=progress)
-        for i, v in enumerate(values):
-            setup = None
-            for j, a in enumerate(off_axis):
-                k = i * len(off_axis) + j
-                if restore_grid_point(store, k, out, i, j):  # finished by an earlier run of this sweep
-                    bar.update()
-                    continue
-                if setup is None:  # built only when one of its points is still to trace
-                    bar.set_postfix_str(f"{parameter}={v:g}")
-                    setup = scene_setup(design_scene(model, {parameter: _value(v)}, out_dir / f"{parameter}={v:g}"))
-                t0 = time.perf_counter()
-                res = pst_sweep(setup, [a], n_rays=n_rays, seed=point_seed(seed, k), nee=nee, client=cl,
-                                progress=False, precision=precision)
-                out["sec"][i, j] = time.perf_counter() - t0
-                out["pst"][i, j], out["pst_se"][i, j] = res.pst[0], res.pst_stderr[0]
-                out["ratio"][i, j], out["ratio_se"][i, j] = res.entrance_ratio[0], res.entrance_ratio_stderr[0]
-                save_grid_point(store, k, out, i, j)
-                bar.update()
-        bar.close()
-    return SweepResult(parameter, values, np.round(np.degrees(off_axis), 9), out["pst"], out["pst_se"],
-                       out["ratio"], out["ratio_se"], out["sec"], int(n_rays), int(seed), f"model {model}")
+        "nee": bool(nee), "precision": None if precision is None else dict(precision.__dict__)}, resume)
+    built: dict = {}
+
+    def setup_of(i: int):
+        if i not in built:  # built only when one of its points is still to trace
+            v = values[i]
+            setup = scene_setup(design_scene(model, {parameter: _value(v)}, out_dir / f"{parameter}={v:g}"))
+            det = detector_name(setup.scene, setup.detector)
+            built[i] = (setup, det, detector_area(setup, det).area_mm2)
+        return built[i]
+
+    def job(point: GridPoint):
+        i, j = divmod(point.key, len(off_axis))
+        setup, det, area = setup_of(i)
+        return pst_job(setup, det, area, off_axis[j], 0.0, opts)
+
+    points = grid_points(values, off_axis, seed, parameter, seed_of=lambda s, k: point_seed(point_seed(s, k), 0))
+    runs = run_grid(points, job, execution, rays=int(n_rays), precision=precision, checkpoint=store,
+                    desc=f"sweep {parameter}")
+    return sweep_result(parameter, values, off_axis, runs, int(n_rays), int(seed), f"model {model}")

@@ -29,7 +29,11 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
+from straylight.analyses.estimators import estimator_options
+from straylight.analyses.pst import detector_name
 from straylight.analyses.tables import TableRepr
+from straylight.execution import Execution, as_execution
+from straylight.trace import TraceOptions, trace
 
 ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more", "diffracted")
 GROUP_BY = ("sequence", "family", "first_part", "last_part", "ancestry")
@@ -273,25 +277,17 @@ def path_report(paths, detector: str | None = None, total=None, group_by: str = 
 
 def paths_analysis(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 100_000, seed: int = 0,
                    nee: bool = True, group_by: str = "sequence", ancestry=None, path_depth: int = 12,
-                   workers=None, scheduler=None, client=None, progress: bool = True):
-    """Trace the setup's beam at one tilt with path recording and return (PathReport, TraceResult)."""
-    from straylight.analyses.estimators import estimator_options
-    from straylight.analyses.pst import detector_name
-    from straylight.trace import TraceOptions, trace
-
+                   execution: Execution | None = None):
+    """Trace the setup's beam at one tilt with path recording and return (PathReport, TraceResult).
+    ``execution``: where to run (a dask cluster for this trace when it names workers or a scheduler)
+    and whether to show progress."""
     det = detector_name(setup.scene, setup.detector)
     # the estimators `pst` traces (the variance split is the one of pst's error bars), or the plain walk
     opts = replace(estimator_options("default") if nee else TraceOptions(nee=False), record_paths=True,
-                   path_depth=path_depth, progress=progress)
-    if workers is not None and workers > 1 or scheduler or client is not None:
-        from straylight.analyses.pst import dask_client
-
-        with dask_client(workers, scheduler) as cl:
-            res = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], n_rays=int(n_rays), seed=seed,
-                        materials=setup.materials, options=opts, client=client or cl)
-    else:
+                   path_depth=path_depth)
+    with as_execution(execution).opened() as ex:
         res = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], n_rays=int(n_rays), seed=seed,
-                    materials=setup.materials, options=opts)
+                    materials=setup.materials, options=opts, execution=ex)
     title = f"Stray-light paths at {math.degrees(off_axis):g} deg off axis (1-sigma bars)"
     report = path_report(res.paths, det, res.detectors[det], group_by=group_by, ancestry=ancestry, title=title)
     return report, res

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from straylight.execution import Execution
 from straylight.rng import CHUNK_RAYS
 
 DEFAULT_FIRST_RAYS = 20_000
@@ -222,10 +223,10 @@ def _chunk_rays(n: int) -> int:
 
 
 def trace_to_precision(scene, sources, seed, precision: Precision, materials=None, options=None,
-                       detectors=None, progress=None, **where) -> PrecisionRun:
+                       detectors=None, on_round=None, execution: Execution | None = None) -> PrecisionRun:
     """Trace in growing rounds until every detector in ``detectors`` (default: all) reaches the
-    target (see the module docstring). ``where``: workers / client / scheduler / threads of trace().
-    ``progress``: a callable(str) told about each round (e.g. a tqdm bar's set_postfix_str)."""
+    target (see the module docstring). ``execution``: where each round runs (:func:`straylight.trace.trace`).
+    ``on_round``: a callable(str) told about each round (e.g. a tqdm bar's set_postfix_str)."""
     from straylight.trace import trace
 
     t0 = time.perf_counter()
@@ -237,7 +238,7 @@ def trace_to_precision(scene, sources, seed, precision: Precision, materials=Non
     rel = {}
     while True:
         res = trace(scene, sources, next_n, seed, materials=materials, options=options,
-                    first_chunk=n_done // CHUNK_RAYS, **where)
+                    first_chunk=n_done // CHUNK_RAYS, execution=execution)
         results.append(res)
         n_done += next_n
         merged = merge_results(results)
@@ -246,8 +247,8 @@ def trace_to_precision(scene, sources, seed, precision: Precision, materials=Non
         err, vov = _worst(rel)
         rounds.append((n_done, err, vov))
         elapsed = time.perf_counter() - t0
-        if progress is not None:
-            progress(f"{n_done:.3g} rays, rel. error {err:.2%}, VOV {vov:.2g}" if math.isfinite(err)
+        if on_round is not None:
+            on_round(f"{n_done:.3g} rays, rel. error {err:.2%}, VOV {vov:.2g}" if math.isfinite(err)
                      else f"{n_done:.3g} rays, nothing detected yet")
         if math.isfinite(err) and err <= precision.target_rel_error and vov <= precision.max_vov:
             stop = "target"

@@ -24,13 +24,14 @@ import math
 import platform
 import sys
 import time
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 import atomicio
+from straylight.analyses.grid import point_seed
+from straylight.execution import Execution, as_execution
 
 DEFAULT_ANGLES_DEG = (0.0, 2.0, 5.0, 8.0, 10.0, 12.0, 14.0, 16.0, 20.0, 25.0, 30.0, 40.0, 50.0, 60.0)
 DEFAULT_SWEEP_ANGLES_DEG = (20.0, 30.0)
@@ -43,15 +44,12 @@ class StudyConfig:
 
     rays: int = 200_000
     seed: int = 0
-    workers: int | None = None
-    scheduler: str | None = None
     material: str = "z302_sample_b"
     angles_deg: tuple = DEFAULT_ANGLES_DEG
     sweep_parameter: str = "vane_count"
     sweep_values: tuple = tuple(range(10))
     sweep_angles_deg: tuple = DEFAULT_SWEEP_ANGLES_DEG
     path_angle_deg: float = DEFAULT_PATH_ANGLE_DEG
-    progress: bool = True
     scene: str | None = None  # SCENE.toml: the user's instrument instead of the built-in tube
     detector: str | None = None  # overrides the scene's [analysis] detector
     sweep: bool = True  # the design sweep (built-in tube parameters, or a --model file's)
@@ -109,11 +107,12 @@ def benchmark_direct_ratio(off_axis, params: dict) -> np.ndarray:
 POINTS_DIR = "study.points"  # finished sweep points of an unfinished study (straylight.checkpoints)
 
 
-def run_study(out_dir, config: StudyConfig | None = None, resume: bool = False, client=None) -> StudyResult:
+def run_study(out_dir, config: StudyConfig | None = None, resume: bool = False,
+              execution: Execution | None = None) -> StudyResult:
     """Run every step and write the report folder; returns what was written and the key numbers.
 
-    ``client``: a dask client every step runs on (else one of ``config.workers``/``config.scheduler``
-    per step that traces, or this process).
+    ``execution``: where every step runs (one dask cluster for the whole study when it names workers
+    or a scheduler) and whether to show progress (:class:`straylight.execution.Execution`).
 
     Each finished point of the PST and design sweeps is kept in ``out_dir/study.points`` until the
     report is written; ``resume`` reads those back instead of tracing them again (same numbers).
@@ -124,7 +123,7 @@ def run_study(out_dir, config: StudyConfig | None = None, resume: bool = False, 
     out.mkdir(parents=True, exist_ok=True)
     done: list[str] = []
     try:
-        return _run_study(out, cfg, resume, done, client)
+        return _run_study(out, cfg, resume, done, as_execution(execution))
     except KeyboardInterrupt:
         write_partial_report(out, cfg, done)
         raise
@@ -169,23 +168,29 @@ def _config_dict(cfg: StudyConfig) -> dict:
             for k, v in cfg.__dict__.items()}
 
 
-def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None) -> StudyResult:
+def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Execution) -> StudyResult:
+    with ex.opened() as here:  # one cluster (or none) for every step
+        return _study_steps(out, cfg, resume, done, here)
+
+
+def _study_steps(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Execution) -> StudyResult:
     from straylight import viz
     from straylight.analyses.builtin import tube_setup
     from straylight.analyses.critical import critical_objects
     from straylight.analyses.paths_report import paths_analysis
-    from straylight.analyses.pst import dask_client, point_seed, pst_sweep
+    from straylight.analyses.pst import pst_sweep
     from straylight.analyses.sweep import design_sweep
 
     from straylight.checkpoints import PointStore
+
+    progress = ex.progress
 
     points = out / POINTS_DIR
     if not resume:
         PointStore.remove_folder(points)
     # settings first: a resume with other settings is refused before any work (the sweeps' own stores
     # check the scene and everything else that decides their numbers)
-    PointStore(points / "study", {k: v for k, v in _config_dict(cfg).items()
-                                  if k not in ("progress", "workers", "scheduler")}, resume=resume)
+    PointStore(points / "study", _config_dict(cfg), resume=resume)
     result = StudyResult(out, cfg)
     t_all = time.perf_counter()
 
@@ -194,64 +199,62 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
         from straylight.analyses.model import design_scene
         from straylight.analyses.scene_setup import scene_setup
 
-        _step(f"building {cfg.model} with its default parameters", cfg.progress)
+        _step(f"building {cfg.model} with its default parameters", progress)
         setup = scene_setup(design_scene(cfg.model, {}, out / "model_scene"), detector=cfg.detector)
     elif cfg.scene is not None:
         from straylight.analyses.scene_setup import scene_setup
 
-        _step(f"loading {cfg.scene}", cfg.progress)
+        _step(f"loading {cfg.scene}", progress)
         setup = scene_setup(cfg.scene, detector=cfg.detector)
     else:
-        _step("building the tube (CadQuery, tessellation)", cfg.progress)
+        _step("building the tube (CadQuery, tessellation)", progress)
         setup = tube_setup(material=cfg.material)
     result.timings_s["geometry"] = time.perf_counter() - t0
     done.append("geometry")
 
-    with (dask_client(cfg.workers, cfg.scheduler) if given is None else nullcontext(given)) as client:
-        each = (f"{cfg.rays} rays" if cfg.precision is None else
-                f"to {cfg.precision.target_rel_error:.0%} rel. error"
-                + (f" (at most {cfg.precision.max_seconds:g} s)" if cfg.precision.max_seconds < float("inf") else ""))
-        _step(f"PST sweep, {len(cfg.angles_deg)} angles, each {each}", cfg.progress)
-        t0 = time.perf_counter()
-        pst = pst_sweep(setup, np.radians(cfg.angles_deg), n_rays=cfg.rays, seed=point_seed(cfg.seed, 1),
-                        precision=cfg.precision, client=client, progress=cfg.progress,
-                        checkpoint_dir=points / "pst", resume=resume)
-        result.timings_s["pst"] = time.perf_counter() - t0
-        pst.write_csv(out / "pst.csv")
-        pst.write_json(out / "pst.json")
-        _pst_plot(pst, setup, out / "pst.png", cfg.material)
-        pst.plot(out / "entrance_ratio.png", quantity="entrance_ratio")
-        done.append("pst")
+    each = (f"{cfg.rays} rays" if cfg.precision is None else
+            f"to {cfg.precision.target_rel_error:.0%} rel. error"
+            + (f" (at most {cfg.precision.max_seconds:g} s)" if cfg.precision.max_seconds < float("inf") else ""))
+    _step(f"PST sweep, {len(cfg.angles_deg)} angles, each {each}", progress)
+    t0 = time.perf_counter()
+    pst = pst_sweep(setup, np.radians(cfg.angles_deg), n_rays=cfg.rays, seed=point_seed(cfg.seed, 1),
+                    precision=cfg.precision, execution=ex, checkpoint_dir=points / "pst", resume=resume)
+    result.timings_s["pst"] = time.perf_counter() - t0
+    pst.write_csv(out / "pst.csv")
+    pst.write_json(out / "pst.json")
+    _pst_plot(pst, setup, out / "pst.png", cfg.material)
+    pst.plot(out / "entrance_ratio.png", quantity="entrance_ratio")
+    done.append("pst")
 
-        _step(f"paths at {cfg.path_angle_deg:g} deg, {cfg.path_rays} rays", cfg.progress)
-        t0 = time.perf_counter()
-        report, trace_res = paths_analysis(setup, math.radians(cfg.path_angle_deg), n_rays=cfg.path_rays,
-                                           seed=point_seed(cfg.seed, 2), client=client, progress=cfg.progress)
-        result.timings_s["paths"] = time.perf_counter() - t0
-        atomicio.write_text(out / "paths.md", report.markdown(20))
-        report.write_csv(out / "paths.csv")
-        report.write_json(out / "paths.json")
-        report.plot(out / "paths.png", top=15)
-        viz.plot_detector_map(trace_res.maps[setup.detector], out / "detector_map.png",
-                              title=f"Detector irradiance at {cfg.path_angle_deg:g} deg off axis "
-                                    f"({cfg.path_rays:.2g} rays, 1 W beam)", rebin=4)
-        done.append("paths")
+    _step(f"paths at {cfg.path_angle_deg:g} deg, {cfg.path_rays} rays", progress)
+    t0 = time.perf_counter()
+    report, trace_res = paths_analysis(setup, math.radians(cfg.path_angle_deg), n_rays=cfg.path_rays,
+                                       seed=point_seed(cfg.seed, 2), execution=ex)
+    result.timings_s["paths"] = time.perf_counter() - t0
+    atomicio.write_text(out / "paths.md", report.markdown(20))
+    report.write_csv(out / "paths.csv")
+    report.write_json(out / "paths.json")
+    report.plot(out / "paths.png", top=15)
+    viz.plot_detector_map(trace_res.maps[setup.detector], out / "detector_map.png",
+                          title=f"Detector irradiance at {cfg.path_angle_deg:g} deg off axis "
+                                f"({cfg.path_rays:.2g} rays, 1 W beam)", rebin=4)
+    done.append("paths")
 
-        _step(f"critical and illuminated objects at {cfg.path_angle_deg:g} deg", cfg.progress)
-        t0 = time.perf_counter()
-        crit = critical_objects(setup, math.radians(cfg.path_angle_deg), n_rays=cfg.critical_rays,
-                                seed=point_seed(cfg.seed, 3), client=client)
-        result.timings_s["critical"] = time.perf_counter() - t0
-        crit.write_json(out / "critical.json")
-        crit.write_csv(out / "critical.csv")
-        atomicio.write_text(out / "critical.md", crit.markdown())
-        crit.plot(out / "critical.png")
-        done.append("critical")
+    _step(f"critical and illuminated objects at {cfg.path_angle_deg:g} deg", progress)
+    t0 = time.perf_counter()
+    crit = critical_objects(setup, math.radians(cfg.path_angle_deg), n_rays=cfg.critical_rays,
+                            seed=point_seed(cfg.seed, 3), execution=ex.quiet())
+    result.timings_s["critical"] = time.perf_counter() - t0
+    crit.write_json(out / "critical.json")
+    crit.write_csv(out / "critical.csv")
+    atomicio.write_text(out / "critical.md", crit.markdown())
+    crit.plot(out / "critical.png")
+    done.append("critical")
 
     from straylight.thermal.report import has_temperatures, thermal_step
 
     if has_temperatures(setup.scene):  # parts at a temperature: the self-emission budget (issue 24)
-        _step(f"self-emission budget, {cfg.thermal_band_um[0]:g}-{cfg.thermal_band_um[1]:g} um", cfg.progress)
+        _step(f"self-emission budget, {cfg.thermal_band_um[0]:g}-{cfg.thermal_band_um[1]:g} um", progress)
         t0 = time.perf_counter()
         thermal_step(setup, out, cfg.thermal_band_um, seed=point_seed(cfg.seed, 7))
         result.timings_s["thermal"] = time.perf_counter() - t0
@@ -261,31 +264,29 @@ def _run_study(out: Path, cfg: StudyConfig, resume: bool, done: list, given=None
     if cfg.sweep and cfg.model is not None and cfg.sweep_values:
         from straylight.analyses.model import model_sweep
 
-        _step(f"design sweep of {cfg.model}: {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
+        _step(f"design sweep of {cfg.model}: {cfg.sweep_parameter} over {list(cfg.sweep_values)}", progress)
         t0 = time.perf_counter()
         sweep = model_sweep(cfg.model, cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
                             out / "designs", n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4),
-                            progress=cfg.progress, client=given, workers=cfg.workers, scheduler=cfg.scheduler,
-                            checkpoint_dir=points / "sweep", resume=resume)
+                            execution=ex, checkpoint_dir=points / "sweep", resume=resume)
         result.timings_s["sweep"] = time.perf_counter() - t0
         sweep.write_csv(out / "sweep.csv")
         sweep.write_json(out / "sweep.json")
         sweep.plot(out / "sweep.png")
         done.append("sweep")
     elif cfg.sweep and cfg.scene is None and cfg.model is None:
-        _step(f"design sweep of {cfg.sweep_parameter} over {list(cfg.sweep_values)}", cfg.progress)
+        _step(f"design sweep of {cfg.sweep_parameter} over {list(cfg.sweep_values)}", progress)
         t0 = time.perf_counter()
         sweep = design_sweep(cfg.sweep_parameter, cfg.sweep_values, np.radians(cfg.sweep_angles_deg),
                              n_rays=cfg.sweep_rays, seed=point_seed(cfg.seed, 4), material=cfg.material,
-                             workers=cfg.workers, scheduler=cfg.scheduler, client=given, progress=cfg.progress,
-                             checkpoint_dir=points / "sweep", resume=resume)
+                             execution=ex, checkpoint_dir=points / "sweep", resume=resume)
         result.timings_s["sweep"] = time.perf_counter() - t0
         sweep.write_csv(out / "sweep.csv")
         sweep.write_json(out / "sweep.json")
         sweep.plot(out / "sweep.png")
         done.append("sweep")
 
-    _step("3-D views", cfg.progress)
+    _step("3-D views", progress)
     t0 = time.perf_counter()
     a = math.radians(cfg.path_angle_deg)
     walks = viz.trace_ray_paths(setup, a, n_rays=4000, seed=point_seed(cfg.seed, 5))

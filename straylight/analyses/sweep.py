@@ -7,90 +7,77 @@ the user's seed, so points are independent and the sweep is reproducible.
 from __future__ import annotations
 
 import math
-import time
-from contextlib import nullcontext
 
 import numpy as np
 
-from straylight.analyses.pst import dask_client, point_seed
+from geometry.parts.tube import TubeParams
+from straylight.analyses.builtin import tube_setup
+from straylight.analyses.grid import GridPoint, open_checkpoint, point_seed, run_grid
+from straylight.analyses.pst import detector_area, pst_job
 from straylight.analyses.types import SweepResult
-from straylight.checkpoints import restore_grid_point, save_grid_point
-from straylight.progress import progress_bar
+from straylight.execution import Execution
+from straylight.trace import TraceOptions
+
 
 def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math.radians(20), math.radians(30)),
                  n_rays: int = 50_000, seed: int = 0, material="z302_sample_b", base_params: dict | None = None,
-                 nee: bool = True, workers: int | None = None, scheduler: str | None = None, client=None,
-                 progress: bool = True, checkpoint_dir=None, resume: bool = False) -> SweepResult:
+                 nee: bool = True, execution: Execution | None = None, precision=None, checkpoint_dir=None,
+                 resume: bool = False) -> SweepResult:
     """PST of the built-in tube at ``off_axis`` (radians) for each value of one ``TubeParams`` field.
 
-    ``checkpoint_dir``: each finished (design, angle) point is written there
-    (:class:`straylight.checkpoints.PointStore`); ``resume`` reads back the points an interrupted
-    run of the same sweep finished (same numbers: every point has its own seed). ``client``: a dask
-    client to run on (else one of ``workers``/``scheduler`` for the sweep, or this process)."""
-
-    from geometry.parts.tube import TubeParams
-    from straylight.analyses.builtin import tube_setup
-    from straylight.trace import TraceOptions, trace
-
+    The (design, angle) points run on the grid runner (:func:`straylight.analyses.grid.run_grid`):
+    point k = i * n_angles + j has the seed ``point_seed(seed, k)``; a design is built only when one of
+    its points is still to trace. ``execution``: where to run and whether to show progress.
+    ``precision``: trace each point to a target relative error instead of ``n_rays``.
+    ``checkpoint_dir``: each finished point is written there (:class:`straylight.checkpoints.PointStore`);
+    ``resume`` reads back the points an interrupted run of the same sweep finished (same numbers)."""
     if parameter not in TubeParams.names():
         raise ValueError(f"unknown design parameter {parameter!r}; one of {', '.join(TubeParams.names())}")
     values = np.asarray(list(values), dtype=np.float64)
     if len(values) == 0:
         raise ValueError("the sweep needs at least one value")
     off_axis = np.atleast_1d(np.asarray(off_axis, dtype=np.float64))
-    shape = (len(values), len(off_axis))
-    out = {k: np.full(shape, np.nan) for k in ("pst", "pst_se", "ratio", "ratio_se", "sec")}
     opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee), second_vertex_sampling=bool(nee),
                         vertex_lobe_sampling=bool(nee))
     label = material if isinstance(material, str) else repr(material)
-    store = _point_store(checkpoint_dir, resume, {
+    store = open_checkpoint(checkpoint_dir, {
         "sweep": "design_sweep", "parameter": parameter, "values": values, "off_axis": off_axis,
-        "rays": int(n_rays), "seed": int(seed), "material": material, "base_params": base_params, "nee": bool(nee)})
-    with (dask_client(workers, scheduler) if client is None else nullcontext(client)) as client:
-        bar = progress_bar(total=len(values) * len(off_axis), desc=f"sweep {parameter}", unit="point",
-                           enabled=progress)
-        for i, v in enumerate(values):
+        "rays": int(n_rays), "seed": int(seed), "material": material, "base_params": base_params, "nee": bool(nee),
+        "precision": precision}, resume)
+    built: dict = {}
+
+    def setup_of(i: int):
+        if i not in built:  # built only when one of its points is still to trace
             params = dict(base_params or {})
-            params[parameter] = int(v) if parameter == "vane_count" else float(v)
-            setup = None
-            for j, a in enumerate(off_axis):
-                k = i * len(off_axis) + j
-                if restore_grid_point(store, k, out, i, j):  # finished by an earlier run of this sweep
-                    bar.update()
-                    continue
-                if setup is None:  # built only when one of its points is still to trace
-                    setup = tube_setup(material=material, **params)
-                    area = _area(setup)
-                bar.set_postfix_str(f"{parameter}={v:g}, {math.degrees(a):g} deg")
-                t0 = time.perf_counter()
-                res = trace(setup.scene, [setup.beam.source(a)], n_rays=int(n_rays),
-                            seed=point_seed(seed, i * len(off_axis) + j), materials=setup.materials,
-                            options=opts, client=client)
-                out["sec"][i, j] = time.perf_counter() - t0
-                t = res.detectors[setup.detector]
-                e_in = setup.beam.irradiance_w_per_mm2(a)
-                p_ent = setup.entrance.power_w(setup.beam, a)
-                out["pst"][i, j], out["pst_se"][i, j] = t.power_w / area / e_in, t.stderr_w / area / e_in
-                out["ratio"][i, j], out["ratio_se"][i, j] = t.power_w / p_ent, t.stderr_w / p_ent
-                save_grid_point(store, k, out, i, j)
-                bar.update()
-        bar.close()
-    return SweepResult(parameter, values, np.round(np.degrees(off_axis), 9), out["pst"], out["pst_se"],
-                       out["ratio"], out["ratio_se"], out["sec"], int(n_rays), int(seed), label)
+            params[parameter] = int(values[i]) if parameter == "vane_count" else float(values[i])
+            setup = tube_setup(material=material, **params)
+            built[i] = (setup, detector_area(setup, setup.detector).area_mm2)
+        return built[i]
+
+    def job(point: GridPoint):
+        i, j = divmod(point.key, len(off_axis))
+        setup, area = setup_of(i)
+        return pst_job(setup, setup.detector, area, off_axis[j], 0.0, opts)
+
+    runs = run_grid(grid_points(values, off_axis, seed, parameter), job, execution, rays=int(n_rays),
+                    precision=precision, checkpoint=store, desc=f"sweep {parameter}")
+    return sweep_result(parameter, values, off_axis, runs, int(n_rays), int(seed), label)
 
 
-def _point_store(folder, resume: bool, fingerprint: dict):
-    """The sweep's :class:`straylight.checkpoints.PointStore` in ``folder`` (None: no checkpoints)."""
-    if folder is None:
-        if resume:
-            raise ValueError("resume needs a checkpoint folder")
-        return None
-    from straylight.checkpoints import PointStore
-
-    return PointStore(folder, fingerprint, resume=resume)
+def grid_points(values, off_axis, seed: int, parameter: str, seed_of=point_seed) -> list[GridPoint]:
+    """The (design value, angle) points of a design sweep, k = i * n_angles + j, seed ``seed_of(seed, k)``."""
+    n = len(off_axis)
+    return [GridPoint(i * n + j, seed_of(seed, i * n + j), f"{parameter}={v:g}, {math.degrees(a):g} deg")
+            for i, v in enumerate(values) for j, a in enumerate(off_axis)]
 
 
-def _area(setup) -> float:
-    from straylight.analyses.pst import detector_area
+def sweep_result(parameter, values, off_axis, runs, rays: int, seed: int, material: str) -> SweepResult:
+    """The (n_values, n_angles) arrays of a design sweep from its grid's :class:`PointRun` list."""
+    shape = (len(values), len(off_axis))
 
-    return detector_area(setup, setup.detector).area_mm2
+    def grid(key):
+        return np.array([r.values[key] for r in runs], dtype=np.float64).reshape(shape)
+
+    return SweepResult(parameter, values, np.round(np.degrees(off_axis), 9), grid("pst"), grid("pst_stderr"),
+                       grid("entrance_ratio"), grid("entrance_ratio_stderr"),
+                       np.array([r.seconds for r in runs]).reshape(shape), rays, seed, material)

@@ -20,12 +20,15 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 import atomicio
+from straylight.analyses.ghosts import ghost_table
+from straylight.execution import Execution, as_execution
+from straylight.trace import TraceOptions, trace
 
 CONTRIBUTIONS = ("nominal", "ghost", "mirror scatter", "vanes", "baffles and tube", "direct")
 MIRRORS = ("primary", "secondary")
@@ -92,24 +95,26 @@ class TelescopeStudy:
     seed: int = 0
     angles_deg: tuple = (0.0, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0)
     ghost_angle_deg: float = 0.0
-    workers: int | None = None
     timings_s: dict = field(default_factory=dict)
 
 
-def _trace(setup, angle, cfg, progress=False):
-    from straylight.trace import TraceOptions, trace
-
-    opts = TraceOptions(nee=True, record_paths=True, path_depth=16, progress=progress)
+def _trace(setup, angle, cfg, execution: Execution):
+    opts = TraceOptions(nee=True, record_paths=True, path_depth=16)
     return trace(setup.scene, [setup.beam.source(math.radians(angle))], int(cfg.rays), seed=cfg.seed,
-                 materials=setup.materials, options=opts, workers=cfg.workers)
+                 materials=setup.materials, options=opts, execution=execution)
 
 
-def run_telescope_study(out_dir, cfg: TelescopeStudy | None = None, progress: bool = True) -> dict:
+def run_telescope_study(out_dir, cfg: TelescopeStudy | None = None, execution: Execution | None = None) -> dict:
     """Trace A, B, C at every angle, write DIR/results.json, pst.json, ghosts.md/json, pst.png and
-    index.html; returns the results dict."""
-    from straylight.analyses.ghosts import ghost_table
-
+    index.html; returns the results dict. ``execution``: where the traces run (one dask cluster for
+    the study when it names workers or a scheduler); its ``progress`` prints a line per angle."""
     cfg = cfg or TelescopeStudy()
+    with as_execution(execution).opened() as ex:
+        return _telescope_study(out_dir, cfg, ex)
+
+
+def _telescope_study(out_dir, cfg: TelescopeStudy, ex: Execution) -> dict:
+    progress = ex.progress
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
@@ -123,7 +128,7 @@ def run_telescope_study(out_dir, cfg: TelescopeStudy | None = None, progress: bo
     for angle in cfg.angles_deg:
         t0 = time.perf_counter()
         E = setup.beam.irradiance_w_per_mm2(math.radians(angle))
-        runs = {k: _trace(s, angle, cfg) for k, s in setups.items()}
+        runs = {k: _trace(s, angle, cfg, ex.quiet()) for k, s in setups.items()}
         a = runs["A"]
         total = a.detectors[det]
         split = _split(a, det)

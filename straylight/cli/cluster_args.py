@@ -1,9 +1,13 @@
-"""Command-line options for running on dask, shared by trace, pst and study: ``--processes``,
-``--dashboard`` and the TLS files of a secured scheduler (``--tls-ca-file``, ``--tls-cert``, ``--tls-key``, as
-``dask scheduler`` / ``dask worker`` take them). See docs/cluster.md."""
+"""Where a command runs: the one place the command line turns its flags into an
+:class:`straylight.execution.Execution` (:func:`execution`), and the options for running on dask,
+shared by trace, pst and study: ``--processes``, ``--dashboard`` and the TLS files of a secured
+scheduler (``--tls-ca-file``, ``--tls-cert``, ``--tls-key``, as ``dask scheduler`` / ``dask worker`` take
+them). See docs/cluster.md."""
 from __future__ import annotations
 
 from contextlib import contextmanager
+
+from straylight.execution import Execution
 
 
 def add_cluster_args(parser) -> None:
@@ -55,18 +59,32 @@ def cluster_client(args, in_process_below: int = 1):
     from straylight.engine.backends.dask import dask_client, tls_security
 
     workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
-    security = tls_security(args.tls_ca_file, args.tls_cert, args.tls_key)
+    dashboard, processes = getattr(args, "dashboard", False), getattr(args, "processes", False)
+    security = tls_security(getattr(args, "tls_ca_file", None), getattr(args, "tls_cert", None),
+                            getattr(args, "tls_key", None))
     if security is not None and not scheduler:
         raise ValueError("--tls-ca-file/--tls-cert/--tls-key apply to --scheduler only (a local cluster uses no network)")
-    if args.dashboard and not workers:
+    if dashboard and not workers:
         raise ValueError("--dashboard needs --workers K (a remote scheduler serves its own dashboard)")
-    if args.processes and not workers:
+    if processes and not workers:
         raise ValueError("--processes needs --workers K (the number of worker processes)")
     if workers is not None and workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
     if getattr(args, "allow_insecure", False) and not scheduler:
         raise ValueError("--allow-insecure applies to --scheduler only")
-    with dask_client(workers, scheduler, security=security, dashboard=args.dashboard,
-                     in_process_below=in_process_below, processes=args.processes,
+    with dask_client(workers, scheduler, security=security, dashboard=dashboard,
+                     in_process_below=in_process_below, processes=processes,
                      allow_insecure=getattr(args, "allow_insecure", False) or None) as client:
         yield client
+
+
+@contextmanager
+def execution(args, in_process_below: int = 1):
+    """The :class:`straylight.execution.Execution` of a command, from its flags: ``--threads K``,
+    ``--workers K`` / ``--scheduler`` (a dask client opened here for the whole command:
+    :func:`cluster_client`), progress on stderr. Every command that traces builds it here, once."""
+    threads = getattr(args, "threads", None)
+    if threads is not None and threads < 1:
+        raise ValueError(f"--threads must be >= 1, got {threads}")
+    with cluster_client(args, in_process_below=in_process_below) as client:
+        yield Execution(client=client, threads=threads, progress=True)

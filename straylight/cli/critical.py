@@ -23,7 +23,7 @@ def add_parser(subparsers):
 
 
 def run(args) -> int:
-    from straylight.analyses.pst import dask_client
+    from straylight.cli.cluster_args import execution
     from straylight.cli.pst import check_angle_deg, load_instrument
 
     check_angle_deg(args.angle_deg)
@@ -32,9 +32,8 @@ def run(args) -> int:
     inst = load_instrument(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    with dask_client(args.workers, args.scheduler) as client:
-        report = inst.critical(args.angle_deg, args.azimuth_deg, rays=args.rays, seed=args.seed, client=client,
-                               progress=True)
+    with execution(args, in_process_below=2) as ex:
+        report = inst.critical(args.angle_deg, args.azimuth_deg, rays=args.rays, seed=args.seed, execution=ex)
     report.write_json(out / "critical.json")
     report.write_csv(out / "critical.csv")
     import atomicio

@@ -60,9 +60,12 @@ def run(args) -> int:
 
     if not args.resume:  # a resume continues writing this folder
         check_overwrite(args.out, patterns=DESIGN_OUTPUTS, force=args.force)
-    doc = design_vanes(spec, args.out, material=args.material, rays=args.rays, seed=args.seed,
-                       refine_rays=args.refine_rays, refine_evals=args.refine_evals, threads=args.threads,
-                       resume=args.resume)
+    from straylight.cli.cluster_args import execution
+
+    with execution(args) as ex:  # --threads K in this process
+        doc = design_vanes(spec, args.out, material=args.material, rays=args.rays, seed=args.seed,
+                           refine_rays=args.refine_rays, refine_evals=args.refine_evals, execution=ex,
+                           resume=args.resume)
     print(f"{len(doc['vanes'])} vanes ({doc['design_source']}):")
     for v in doc["vanes"]:
         print(f"  z {v['z_mm']:8.2f} mm  inner radius {v['inner_radius_mm']:7.3f} mm")

@@ -41,9 +41,11 @@ def run(args) -> int:
     inst = load_instrument(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    report = inst.paths(args.angle_deg, args.azimuth_deg, rays=args.rays, seed=args.seed, nee=not args.no_nee,
-                        group_by=args.group_by, ancestry=args.ancestry, workers=args.workers,
-                        scheduler=args.scheduler, progress=True)
+    from straylight.cli.cluster_args import execution
+
+    with execution(args, in_process_below=2) as ex:
+        report = inst.paths(args.angle_deg, args.azimuth_deg, rays=args.rays, seed=args.seed, nee=not args.no_nee,
+                            group_by=args.group_by, ancestry=args.ancestry, execution=ex)
     res = report.trace
     import atomicio
 

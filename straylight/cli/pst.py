@@ -158,12 +158,12 @@ def run(args) -> int:
     setup = inst.setup
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from straylight.cli.cluster_args import cluster_client
+    from straylight.cli.cluster_args import execution
 
-    with cluster_client(args, in_process_below=2) as client:  # one worker: this process
+    with execution(args, in_process_below=2) as ex:  # one worker: this process
         res = inst.pst(args.angles_deg, args.azimuths_deg, rays=args.rays, seed=args.seed, nee=not args.no_nee,
                        target_rel_error=args.target_rel_error, max_rays=args.max_rays, max_seconds=args.max_seconds,
-                       max_vov=args.max_vov, client=client, progress=True, checkpoint_dir=out / "pst.points",
+                       max_vov=args.max_vov, execution=ex, checkpoint_dir=out / "pst.points",
                        resume=args.resume, diffraction=args.diffraction == "on", wavelength_nm=args.wavelength_nm,
                        estimators=args.estimators)
     res.write_csv(out / "pst.csv")

@@ -90,7 +90,7 @@ def run(args) -> int:
         raise ValueError("--material applies to the built-in tube; a scene file names its own materials")
     if args.scene is None and args.model is None and args.detector is not None:
         raise ValueError("--detector applies to a scene file or a model")
-    cfg = StudyConfig(rays=args.rays, seed=args.seed, workers=args.workers, scheduler=args.scheduler,
+    cfg = StudyConfig(rays=args.rays, seed=args.seed,
                       material=args.material or "z302_sample_b", scene=args.scene, detector=args.detector,
                       sweep=not args.no_sweep, precision=precision, model=args.model)
     if args.angles_deg:
@@ -120,10 +120,10 @@ def run(args) -> int:
             check_parameter(fn, args.sweep_parameter, args.model.rsplit(":", 1)[0])
         else:
             cfg.sweep_values = ()  # a model is swept only over the values given
-    from straylight.cli.cluster_args import cluster_client
+    from straylight.cli.cluster_args import execution
 
-    with cluster_client(args, in_process_below=2) as client:  # one cluster for every step; one worker: this process
-        result = run_study(args.out, cfg, resume=args.resume, client=client)
+    with execution(args, in_process_below=2) as ex:  # one cluster for every step; one worker: this process
+        result = run_study(args.out, cfg, resume=args.resume, execution=ex)
     print(f"study written to {result.out_dir}/index.html ({result.timings_s['total']:.0f} s)")
     return 0
 
@@ -131,14 +131,16 @@ def run(args) -> int:
 def _cassegrain(args) -> int:
     """The telescope study (straylight.analyses.telescope): PST with its contributions, ghosts."""
     from straylight.analyses.telescope import TelescopeStudy, run_telescope_study
+    from straylight.cli.cluster_args import execution
 
     if args.rays is None:
         args.rays = DEFAULT_RAYS
     if args.rays < 100:
         raise ValueError(f"--rays must be at least 100, got {args.rays}")
-    cfg = TelescopeStudy(rays=args.rays, seed=args.seed, workers=args.workers)
+    cfg = TelescopeStudy(rays=args.rays, seed=args.seed)
     if args.angles_deg:
         cfg.angles_deg = tuple(args.angles_deg)
-    run_telescope_study(args.out, cfg)
+    with execution(args, in_process_below=2) as ex:
+        run_telescope_study(args.out, cfg, execution=ex)
     print(f"study written to {args.out}/index.html ({cfg.timings_s['total']:.0f} s)")
     return 0

@@ -75,22 +75,22 @@ def run(args) -> int:
         vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     # progress: a bar on a terminal, a plain line every few seconds in a log (straylight.progress)
     options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
-                           progress=True, first_vertex_sampling=vertex,
+                           first_vertex_sampling=vertex,
                            scatter_polarization=args.scatter_polarization,
                            diffraction="scene" if args.diffraction == "on" else "off")
-    from straylight.cli.cluster_args import cluster_client
+    from straylight.cli.cluster_args import execution
 
-    with cluster_client(args) as client:
-        return _run(args, rs, options, precision, client)
+    with execution(args) as ex:
+        return _run(args, rs, options, precision, ex)
 
 
-def _run(args, rs, options, precision, client) -> int:
+def _run(args, rs, options, precision, ex) -> int:
     import atomicio
     from straylight.trace import trace
 
     if precision is None:
         res = trace(rs.scene, rs.sources, args.rays, args.seed, materials=rs.materials, options=options,
-                    client=client, threads=args.threads)
+                    execution=ex)
         doc = res.to_json_dict()
     else:
         from straylight.analyses.precision import trace_to_precision
@@ -98,8 +98,8 @@ def _run(args, rs, options, precision, client) -> int:
         if not any(p.role == "detector" for p in rs.scene.parts):
             raise ValueError(f"{args.scene}: --target-rel-error needs a detector part (its power is the target)")
         run = trace_to_precision(rs.scene, rs.sources, args.seed, precision, materials=rs.materials,
-                                 options=options, client=client, threads=args.threads,
-                                 progress=lambda msg: print(f"straylight: trace: {msg}", file=sys.stderr))
+                                 options=options, execution=ex,
+                                 on_round=lambda msg: print(f"straylight: trace: {msg}", file=sys.stderr))
         doc = run.result.to_json_dict()
         doc["precision"] = {"target_rel_error": precision.target_rel_error, "max_rays": int(precision.max_rays),
                             "max_seconds": precision.max_seconds if precision.max_seconds != float("inf") else None,

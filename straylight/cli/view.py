@@ -42,10 +42,12 @@ def run(args) -> int:
     paths = viz.trace_ray_paths(setup, a, n_rays=args.rays, seed=args.seed) if args.rays > 0 else None
     absorbed = None
     if args.color_by == "absorbed":
-        from straylight.trace import TraceOptions, trace
+        from straylight.cli.cluster_args import execution
+        from straylight.trace import trace
 
-        res = trace(setup.scene, [setup.beam.source(a)], n_rays=args.trace_rays, seed=args.seed,
-                    materials=setup.materials, options=TraceOptions(progress=True))
+        with execution(args) as ex:  # this process, progress on stderr
+            res = trace(setup.scene, [setup.beam.source(a)], n_rays=args.trace_rays, seed=args.seed,
+                        materials=setup.materials, execution=ex)
         absorbed = {k: v.power_w for k, v in res.absorbed.items()}
     out = viz.render_scene(setup.scene, args.png, color_by=args.color_by, absorbed_w=absorbed, ray_paths=paths,
                            title=f"{setup.description}; beam {args.angle_deg:g} deg off axis")

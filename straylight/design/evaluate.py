@@ -15,7 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from straylight.analyses.estimators import estimator_options
+from straylight.analyses.grid import GridPoint, point_seed, run_grid
+from straylight.analyses.pst import part_area_mm2, pst_job
+from straylight.analyses.types import Setup
 from straylight.design import model
+from straylight.execution import Execution, as_execution
 
 
 @dataclass(frozen=True)
@@ -33,35 +38,25 @@ class PstPoint:
 
 
 def pst_points(spec, vanes, material_models: dict, angles_deg, rays: int, seed: int,
-               threads: int | None = None, store=None, slot: int = 0) -> list[PstPoint]:
+               execution: Execution | None = None, store=None, slot: int = 0) -> list[PstPoint]:
     """PST of the tube with ``vanes`` at each off-axis angle (same definition and seeds as ``straylight pst``).
 
-    ``store``: a :class:`straylight.checkpoints.PointStore`; angle i is kept there as point
-    ``slot * 1000 + i`` with the layout's vane heights, and read back if an earlier run finished it."""
-    from straylight.analyses.estimators import estimator_options
-    from straylight.analyses.pst import part_area_mm2, point_seed
-    from straylight.trace import trace
-
+    The angles run on the grid runner (:func:`straylight.analyses.grid.run_grid`, quietly: the
+    optimiser shows its own progress). ``store``: a :class:`straylight.checkpoints.PointStore`; angle i
+    is kept there as point ``slot * 1000 + i``, tagged with the layout's vane heights, and read back if
+    an earlier run finished it for the same layout."""
     sc = model.scene(spec, vanes)
     bm = model.beam(spec)
     area = part_area_mm2(sc, "detector")
+    setup = Setup(sc, material_models, bm, None, "detector")
     opts = estimator_options("default")  # the estimator set `straylight pst` traces: same seed, same numbers
-    out = []
     z_mm = [float(v.z_mm) for v in vanes]
-    for i, a_deg in enumerate(angles_deg):
-        saved = store.get(slot * 1000 + i) if store is not None else None
-        if saved is not None and saved["z_mm"] == z_mm:  # finished by an earlier run
-            out.append(PstPoint(float(a_deg), saved["pst"], saved["pst_stderr"], int(saved["rays"])))
-            continue
-        a = math.radians(float(a_deg))
-        res = trace(sc, [bm.source(a, 0.0)], n_rays=int(rays), seed=point_seed(seed, i), materials=material_models,
-                    options=opts, threads=threads)
-        tally = res.detectors["detector"]
-        e_in = bm.irradiance_w_per_mm2(a)
-        out.append(PstPoint(float(a_deg), tally.power_w / area / e_in, tally.stderr_w / area / e_in, int(rays)))
-        if store is not None:
-            store.put(slot * 1000 + i, {**out[-1].to_dict(), "z_mm": z_mm})
-    return out
+    off_axis = {slot * 1000 + i: math.radians(float(a)) for i, a in enumerate(angles_deg)}
+    points = [GridPoint(slot * 1000 + i, point_seed(seed, i), f"{float(a):g} deg", tag=z_mm)
+              for i, a in enumerate(angles_deg)]
+    runs = run_grid(points, lambda p: pst_job(setup, "detector", area, off_axis[p.key], 0.0, opts),
+                    as_execution(execution).quiet(), rays=int(rays), checkpoint=store, desc="PST of a layout")
+    return [PstPoint(float(a), r.values["pst"], r.values["pst_stderr"], int(r.rays)) for a, r in zip(angles_deg, runs)]
 
 
 def log_objective(points) -> tuple[float, float]:

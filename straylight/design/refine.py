@@ -24,6 +24,8 @@ import numpy as np
 
 from straylight.design.construction import GAP_MM
 from straylight.design.evaluate import log_objective, pst_points
+from straylight.execution import Execution, as_execution
+from straylight.progress import progress_bar
 
 INFEASIBLE = "infeasible"
 
@@ -92,16 +94,18 @@ def feasible(spec, z_mm) -> str | None:
 
 
 def refine(spec, start_z_mm, material_models: dict, angles_deg, *, rays: int, seed: int, max_evals: int = 40,
-           xatol_mm: float = 0.5, threads: int | None = None, progress: bool = True, also_z_mm=None) -> Refinement:
+           xatol_mm: float = 0.5, execution: Execution | None = None, also_z_mm=None) -> Refinement:
     """Minimise J over the vane positions from ``start_z_mm``; see the module docstring.
+
+    execution : where the layouts are traced (:class:`straylight.execution.Execution`); its ``progress``
+        shows the optimiser's bar
 
     also_z_mm : another layout of the same count (the evenly spaced one) made a vertex of the
         initial simplex, so the search spans both.
     """
     from scipy.optimize import minimize
 
-    from straylight.progress import progress_bar
-
+    ex = as_execution(execution)
     x0 = np.sort(np.asarray(start_z_mm, dtype=float))
     n = len(x0)
     history: list[Evaluation] = []
@@ -109,7 +113,7 @@ def refine(spec, start_z_mm, material_models: dict, angles_deg, *, rays: int, se
     def evaluate(x):
         t0 = time.perf_counter()
         vanes = [spec.vane_at(z) for z in np.sort(x)]
-        pts = pst_points(spec, vanes, material_models, angles_deg, rays, seed, threads=threads)
+        pts = pst_points(spec, vanes, material_models, angles_deg, rays, seed, execution=ex)
         j, se = log_objective(pts)
         return j, se, pts, time.perf_counter() - t0
 
@@ -120,7 +124,7 @@ def refine(spec, start_z_mm, material_models: dict, angles_deg, *, rays: int, se
     if n == 0 or not math.isfinite(j0):
         result.stop_reason = "nothing to refine (no vanes, or no light on the detector)"
         return result
-    bar = progress_bar(total=max_evals, desc="refining vanes", unit="layout", enabled=progress)
+    bar = progress_bar(total=max_evals, desc="refining vanes", unit="layout", enabled=ex.progress)
     bar.update(1)
     best = {"j": j0, "x": x0.copy()}
     penalty = j0 + 10.0

@@ -20,9 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
+from atomicio import write_json
+from straylight.checkpoints import PointStore
 from straylight.design import model
 from straylight.design.construction import BaffleSpec, construct, evenly_spaced, layout_at
 from straylight.design.evaluate import log_objective, pst_points
+from straylight.design.refine import refine
+from straylight.design.report import write_report
+from straylight.execution import Execution, as_execution
 
 PST_DEFINITION = "(detector power / detector area) / beam irradiance normal to the rays (CONTRACTS 4.5)"
 
@@ -38,18 +43,22 @@ def optimiser_seed(seed: int) -> int:
 
 
 def design_vanes(spec: BaffleSpec, out, *, material="z302_sample_b", rays: int = 100_000, seed: int = 0,
-                 refine_rays: int | None = None, refine_evals: int = 40, threads: int | None = None,
-                 progress: bool = True, log=print, resume: bool = False) -> dict:
+                 refine_rays: int | None = None, refine_evals: int = 40, execution: Execution | None = None,
+                 log=print, resume: bool = False) -> dict:
     """Design the vanes of ``spec``'s tube and write DIR (see the module docstring); returns design.json's dict.
+
+    ``execution``: where the layouts are traced (threads, dask...; never a different number) and
+    whether the optimiser shows progress (:class:`straylight.execution.Execution`).
 
     The final PST evaluations are kept point by point in DIR/design.points until design.json is
     written; ``resume`` reads back those an interrupted run finished (the optimiser is re-run: it is
     seeded, so it ends at the same layout)."""
-    from atomicio import write_json
+    with as_execution(execution).opened() as ex:  # one cluster (or none) for every layout traced
+        return _design_vanes(spec, Path(out), material, rays, seed, refine_rays, refine_evals, ex, log, resume)
 
-    from straylight.design.refine import refine
-    from straylight.design.report import write_report
 
+def _design_vanes(spec, out: Path, material, rays, seed, refine_rays, refine_evals, execution: Execution, log,
+                  resume) -> dict:
     if isinstance(rays, bool) or int(rays) < 1:
         raise ValueError(f"rays must be a positive integer, got {rays!r}")
     out = Path(out)
@@ -61,25 +70,23 @@ def design_vanes(spec: BaffleSpec, out, *, material="z302_sample_b", rays: int =
         + ", ".join(f"{v.z_mm:.1f}" for v in built.vanes) + " mm"
         + ("" if built.complete else f" (incomplete: {'; '.join(built.notes)})"))
     angles = band_angles(spec)
-    from straylight.checkpoints import PointStore
-
     # checked before the optimiser runs: a resume with other settings is refused at once
     store = PointStore(out / "design.points", {
         "spec": built.to_dict()["spec"], "material": material, "angles": angles, "rays": int(rays),
-        "seed": int(seed), "threads": threads}, resume=resume)
+        "seed": int(seed)}, resume=resume)
     refine_rays = int(refine_rays or max(2_000, int(rays) // 5))
     refinement = None
     if refine_evals > 0 and built.vanes:
         refinement = refine(spec, [v.z_mm for v in built.vanes], models, angles, rays=refine_rays,
-                            seed=optimiser_seed(seed), max_evals=int(refine_evals), threads=threads,
-                            progress=progress, also_z_mm=[v.z_mm for v in evenly_spaced(spec, len(built.vanes)).vanes])
+                            seed=optimiser_seed(seed), max_evals=int(refine_evals), execution=execution,
+                            also_z_mm=[v.z_mm for v in evenly_spaced(spec, len(built.vanes)).vanes])
         log(f"refinement: {refinement.stop_reason}; J {refinement.start_objective:.3f} -> "
             f"{refinement.best_objective:.3f} (+- {refinement.start_objective_stderr:.3f})")
 
     slots = iter(range(4))
 
     def traced(layout):
-        return pst_points(spec, layout.vanes, models, angles, int(rays), int(seed), threads=threads, store=store,
+        return pst_points(spec, layout.vanes, models, angles, int(rays), int(seed), execution=execution, store=store,
                           slot=next(slots))
 
     built_pst = traced(built)

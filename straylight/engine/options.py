@@ -24,7 +24,6 @@ class TraceOptions:
     map_bins: tuple = (64, 64)
     polarization: str = "u"
     detector_sides: str = "both"
-    progress: bool = False
     mirror_reflectance: float = 1.0
     target_parts: tuple = ()
     nee_samples: int = 1

@@ -16,7 +16,7 @@ def grey_tube_30deg():
     every detected watt was scattered at least once."""
     base = tube_setup(material=Lambertian(rd=0.0), vane_count=0)
     setup = Setup(base.scene, {"coating": Lambertian(rd=0.5)}, base.beam, base.entrance, "detector")
-    return paths_analysis(setup, math.radians(30.0), n_rays=20_000, seed=2, progress=False)
+    return paths_analysis(setup, math.radians(30.0), n_rays=20_000, seed=2)
 
 
 @pytest.mark.parametrize("group_by", GROUP_BY)
@@ -51,7 +51,7 @@ def test_ancestry_past_cutoff_is_all_scattered(grey_tube_30deg):
 def test_black_tube_on_axis_is_all_direct():
     """Black walls at 0 deg: only unscattered light is detected (49 % of the entrance power)."""
     setup = tube_setup(material=Lambertian(rd=0.0), vane_count=0)
-    report, res = paths_analysis(setup, 0.0, n_rays=5_000, seed=1, progress=False)
+    report, res = paths_analysis(setup, 0.0, n_rays=5_000, seed=1)
     assert report.total_w > 0
     assert report.ancestry_w["direct"][0] == pytest.approx(report.total_w, rel=1e-12)
     assert report.rows[0].label == "source -> detector"

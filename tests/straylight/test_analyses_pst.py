@@ -53,7 +53,7 @@ def test_black_empty_tube_gives_geometric_transmission_and_zero_past_cutoff(empt
     """
     r_det = math.sqrt(part_area_mm2(empty_tube.scene, "detector") / math.pi)
     angles_deg = np.array([0.0, 5.0, 10.0, 20.0])
-    res = pst_sweep(empty_tube, np.radians(angles_deg), n_rays=60_000, seed=3, progress=False)
+    res = pst_sweep(empty_tube, np.radians(angles_deg), n_rays=60_000, seed=3)
     for a_deg, got, se in zip(angles_deg[:3], res.entrance_ratio[:3], res.entrance_ratio_stderr[:3]):
         expected = lens_area_quad(50.0, r_det, 300.0 * math.tan(math.radians(a_deg))) / (math.pi * 50.0**2)
         assert got > 0 and se > 0  # sanity: the geometry couples
@@ -71,8 +71,8 @@ def test_nee_agrees_with_plain_walk_on_scattered_light(empty_tube):
     Next-event estimation and the plain random walk estimate the same expectation:
     their difference must lie within 4 combined standard errors, and NEE must be more precise."""
     setup = with_material(empty_tube, Lambertian(rd=0.9))
-    nee = pst_sweep(setup, np.radians([20.0]), n_rays=40_000, seed=5, nee=True, progress=False)
-    plain = pst_sweep(setup, np.radians([20.0]), n_rays=40_000, seed=6, nee=False, progress=False)
+    nee = pst_sweep(setup, np.radians([20.0]), n_rays=40_000, seed=5, nee=True)
+    plain = pst_sweep(setup, np.radians([20.0]), n_rays=40_000, seed=6, nee=False)
     assert nee.entrance_ratio[0] > 0 and plain.entrance_ratio[0] > 0
     combined = math.hypot(nee.entrance_ratio_stderr[0], plain.entrance_ratio_stderr[0])
     assert abs(nee.entrance_ratio[0] - plain.entrance_ratio[0]) < 4 * combined
@@ -81,8 +81,8 @@ def test_nee_agrees_with_plain_walk_on_scattered_light(empty_tube):
 
 def test_same_seed_same_numbers_and_outputs(empty_tube, tmp_path):
     setup = with_material(empty_tube, Lambertian(rd=0.5))
-    a = pst_sweep(setup, np.radians([0.0, 25.0]), n_rays=5_000, seed=11, progress=False)
-    b = pst_sweep(setup, np.radians([0.0, 25.0]), n_rays=5_000, seed=11, progress=False)
+    a = pst_sweep(setup, np.radians([0.0, 25.0]), n_rays=5_000, seed=11)
+    b = pst_sweep(setup, np.radians([0.0, 25.0]), n_rays=5_000, seed=11)
     np.testing.assert_array_equal(a.pst, b.pst)
     assert a.pst[1] > 0  # scattered light at 25 deg
     a.write_csv(tmp_path / "pst.csv")
@@ -107,7 +107,7 @@ def test_azimuth_does_not_matter_for_an_axisymmetric_tube(empty_tube):
     """Turning the tilt about the tube axis (azimuth 0 vs 90 deg) must give the same PST within errors
     (rotational symmetry; the tessellation breaks it only at the 0.1 % level)."""
     setup = with_material(empty_tube, Lambertian(rd=0.5))
-    res = pst_sweep(setup, np.radians([25.0]), np.radians([0.0, 90.0]), n_rays=20_000, seed=8, progress=False)
+    res = pst_sweep(setup, np.radians([25.0]), np.radians([0.0, 90.0]), n_rays=20_000, seed=8)
     assert list(res.azimuth_deg) == [0.0, 90.0]
     assert res.pst[0] > 0 and res.pst[1] > 0
     assert abs(res.pst[0] - res.pst[1]) < 4 * math.hypot(*res.pst_stderr)

@@ -9,8 +9,7 @@ from straylight.analyses.report import StudyConfig, run_study
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
     out = tmp_path_factory.mktemp("report")
-    cfg = StudyConfig(rays=2000, seed=1, angles_deg=(0.0, 10.0, 20.0), sweep_values=(0, 7), sweep_angles_deg=(20.0,),
-                      progress=False)
+    cfg = StudyConfig(rays=2000, seed=1, angles_deg=(0.0, 10.0, 20.0), sweep_values=(0, 7), sweep_angles_deg=(20.0,))
     return run_study(out, cfg)
 
 

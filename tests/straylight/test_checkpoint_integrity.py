@@ -81,12 +81,12 @@ def test_pst_resume_refuses_a_hand_edited_point(tmp_path, capsys):
 
     out = tmp_path / "out"
     points = out / "pst.points"
-    pst_sweep(scene_setup(str(SCENE)), np.radians([0.0, 10.0]), n_rays=2000, seed=4, progress=False,
+    pst_sweep(scene_setup(str(SCENE)), np.radians([0.0, 10.0]), n_rays=2000, seed=4,
               checkpoint_dir=points)
     # the CLI sweep's fingerprint is the same as this call's (same setup, options, rays, seed)
     path = points / "point_000001.json"
     doc = json.loads(path.read_text())
-    doc["values"]["pst"] *= 1000
+    doc["values"]["values"]["pst"] *= 1000  # the PST the grid runner kept for this point
     path.write_text(json.dumps(doc))
     code = main(["pst", str(SCENE), "--angles-deg", "0", "10", "--rays", "2000", "--seed", "4",
                  "--out", str(out), "--resume"])

@@ -19,6 +19,7 @@ from pathlib import Path
 import psutil
 import pytest
 
+from straylight.execution import Execution
 from straylight.scene import load_scene
 from straylight.trace import TraceOptions, trace
 
@@ -62,7 +63,7 @@ def test_workers_2_listens_on_loopback_only(tube, tmp_path):
     before = set(listening_addresses())
     with cluster_client(args) as client:
         opened = set(listening_addresses()) - before
-        res = trace(rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, client=client)
+        res = trace(rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, execution=Execution(client=client))
         opened |= set(listening_addresses()) - before
     assert client is not None and client.cluster.straylight_threads == 2
     assert not _non_loopback(opened), f"sockets open beyond this machine: {_non_loopback(opened)}"
@@ -83,7 +84,7 @@ def test_local_cluster_of_worker_processes_gives_identical_numbers(tube):
         cpu = warm_up(client, spec)  # every worker builds its scene (the spec scattered, one task each)
         assert sorted(cpu) == sorted(client.scheduler_info()["workers"]) and min(cpu.values()) > 0
         assert client.run(_has_scene, spec.token) == {w: True for w in cpu}
-        res = trace(rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, client=client)
+        res = trace(rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, execution=Execution(client=client))
     assert res.to_json_dict() == reference
 
 
@@ -133,7 +134,7 @@ def test_killed_dask_worker_process_gives_identical_numbers(tube, tmp_path):
             assert sorted(pid_of.values()) == sorted(p.pid for p in procs[1:])
             done = {}
             runner = threading.Thread(target=lambda: done.update(res=trace(
-                rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, client=client)))
+                rs.scene, rs.sources, 30_000, 5, materials=rs.materials, options=OPTIONS, execution=Execution(client=client))))
             runner.start()
             victim = None
             deadline = time.monotonic() + 120
@@ -208,8 +209,8 @@ def test_spec_shipped_early_and_tables_sent_apart_give_identical_numbers(tube):
     opts = TraceOptions(batch_rays=3000, first_vertex_sampling=True, second_vertex_sampling=True)
     local = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts)
     with local_cluster(2, processes=True) as cluster, Client(cluster) as client:
-        res = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts, client=client)
-        again = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts, client=client)
+        res = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts, execution=Execution(client=client))
+        again = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts, execution=Execution(client=client))
     assert local.detectors and all(d.power_w > 0 for d in local.detectors.values())
     assert res.to_json_dict() == local.to_json_dict()
     assert again.to_json_dict() == local.to_json_dict()

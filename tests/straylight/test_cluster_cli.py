@@ -17,6 +17,7 @@ import psutil
 import pytest
 
 from straylight.cli.main import main
+from straylight.execution import Execution
 from test_cluster import GOLDEN, OPTIONS, _non_loopback, listening_addresses
 
 SCENE = GOLDEN / "tube.toml"
@@ -38,7 +39,7 @@ def test_processes_flag_runs_worker_processes_with_identical_numbers(tmp_path):
         assert len(pids) == 2 and os.getpid() not in pids.values()  # two processes, not this one
         assert all(w["nthreads"] == 1 for w in client.scheduler_info()["workers"].values())
         assert not _non_loopback(listening_addresses())
-        res = trace(rs.scene, rs.sources, 20_000, 5, materials=rs.materials, options=OPTIONS, client=client)
+        res = trace(rs.scene, rs.sources, 20_000, 5, materials=rs.materials, options=OPTIONS, execution=Execution(client=client))
     assert res.to_json_dict() == reference
     alive = [p for p in pids.values() if psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE]
     assert not alive, f"worker processes left running after the command: {alive}"

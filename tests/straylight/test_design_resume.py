@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 
-import straylight.trace as trace_mod
+import straylight.analyses.grid as trace_mod  # the grid runner traces every point
 from straylight.cli.main import main
 
 ARGS = ["design", "vanes", "--tube-radius-mm", "50", "--tube-length-mm", "300", "--stop-radius-mm", "35",

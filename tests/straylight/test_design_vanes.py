@@ -128,7 +128,7 @@ def test_refine_stops_on_the_error_rule_and_finds_the_minimum(monkeypatch):
 
     target = np.array([60.0, 130.0, 240.0])
 
-    def fake(spec, vanes, models, angles, rays, seed, threads=None):
+    def fake(spec, vanes, models, angles, rays, seed, execution=None):
         z = np.array([v.z_mm for v in vanes])
         lnp = float(np.sum(((z - target) / 20.0) ** 2)) - 12.0
         return [PstPoint(a, math.exp(lnp), 0.01 * math.exp(lnp), rays) for a in angles]
@@ -136,7 +136,7 @@ def test_refine_stops_on_the_error_rule_and_finds_the_minimum(monkeypatch):
     monkeypatch.setattr(refine_mod, "pst_points", fake)
     spec = BaffleSpec(50, 300, 35, 0, 20)
     res = refine_mod.refine(spec, [50.0, 140.0, 230.0], {}, [20, 25, 30], rays=10, seed=0, max_evals=200,
-                            progress=False, also_z_mm=[75.0, 150.0, 225.0])
+                            also_z_mm=[75.0, 150.0, 225.0])
     assert res.stop_reason.startswith("converged")
     assert res.fatol == pytest.approx(0.01 / math.sqrt(3))
     assert np.allclose(res.best_z_mm, target, atol=20 * math.sqrt(res.fatol) + 0.5)

@@ -55,8 +55,8 @@ def test_thin_solid_detector_reads_the_pst_of_its_front_disk(disks):
     lam = load_material({"components": [{"type": "lambertian", "rd": 0.05}]}, name="benchmark_lambertian_5pc")
     base = tube_setup(material=lam)
     v, f, front = disks
-    runs = [pst_sweep(_with_detector(base, v, faces), np.radians([0.0, 20.0]), n_rays=20_000, seed=1,
-                      progress=False) for faces in (f, front)]
+    runs = [pst_sweep(_with_detector(base, v, faces), np.radians([0.0, 20.0]), n_rays=20_000, seed=1)
+            for faces in (f, front)]
     solid, disk = runs
     assert solid.detector_area_mm2 == pytest.approx(disk.detector_area_mm2, rel=1e-12)
     assert "closed part" in solid.detector_area_rule and "open part" in disk.detector_area_rule

@@ -7,6 +7,7 @@ from engine_helpers import baffled_tube_scene
 from materials import Lambertian
 from straylight.sources import CollimatedDisk
 from straylight.trace import TraceOptions, trace
+from straylight.execution import Execution
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +23,7 @@ def setup():
 @pytest.mark.parametrize("workers", [1, 2])
 def test_same_numbers_on_any_worker_count(setup, workers):
     scene, src, mats, opts, local = setup
-    res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, workers=workers)
+    res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, execution=Execution(workers=workers))
     assert local.detectors["detector"].power_w > 0
     assert res.to_json_dict() == local.to_json_dict()
     assert (res.paths.key == local.paths.key).all()
@@ -31,7 +32,7 @@ def test_same_numbers_on_any_worker_count(setup, workers):
 def test_same_numbers_on_a_thread_pool(setup):
     """threads=2: batches run concurrently in one process (embree and the kernels release the GIL)."""
     scene, src, mats, opts, local = setup
-    res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, threads=2)
+    res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, execution=Execution(threads=2))
     assert local.detectors["detector"].power_w > 0
     assert res.to_json_dict() == local.to_json_dict()
     assert (res.paths.key == local.paths.key).all()
@@ -65,7 +66,7 @@ def test_the_same_trace_repeated_on_one_client(setup):
     scene, src, mats, opts, local = setup
     with local_cluster(2) as cluster, Client(cluster) as client:
         for _ in range(4):
-            res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, client=client)
+            res = trace(scene, src, 9000, seed=5, materials=mats, options=opts, execution=Execution(client=client))
             assert res.to_json_dict() == local.to_json_dict()
 
 

@@ -57,7 +57,7 @@ def test_model_sweep_matches_the_geometric_pst(model, tmp_path):
 
     angles = np.radians([0.0, 20.0])
     sweep = model_sweep(model, "hole_radius_mm", [5.0, 8.0], angles, tmp_path / "designs", n_rays=20_000,
-                        seed=3, progress=False)
+                        seed=3)
     for i, radius in enumerate((5.0, 8.0)):
         scene = tmp_path / "designs" / f"hole_radius_mm={radius:g}" / "scene.toml"
         assert scene.is_file()

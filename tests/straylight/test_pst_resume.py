@@ -41,7 +41,7 @@ def test_interrupted_sweep_resumed_gives_the_same_json(tmp_path, capsys):
     assert proc.returncode == -signal.SIGKILL, "the sweep finished before it could be interrupted"
     done = sorted(points.glob("point_*.json"))
     assert 1 <= len(done) < 4 and not (out / "pst.json").exists()
-    seconds_done = [json.loads(p.read_text())["values"]["sec"] for p in done]
+    seconds_done = [json.loads(p.read_text())["values"]["seconds"] for p in done]
 
     # another seed: refused in one line, the points are kept
     assert main(ARGS[:-1] + ["5", "--out", str(out), "--resume"]) == 2

@@ -57,8 +57,7 @@ def report(tmp_path_factory):
     from straylight.analyses.report import StudyConfig, run_study
 
     out = tmp_path_factory.mktemp("report")
-    cfg = StudyConfig(rays=500, seed=2, angles_deg=(0.0, 20.0), scene=str(GOLDEN / "tube.toml"), sweep=False,
-                      progress=False)
+    cfg = StudyConfig(rays=500, seed=2, angles_deg=(0.0, 20.0), scene=str(GOLDEN / "tube.toml"), sweep=False)
     run_study(out, cfg)
     return out
 

@@ -17,6 +17,7 @@ from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.second_vertex import build_table
 from straylight.sources import CollimatedDisk, PointSource
 from straylight.trace import TraceOptions, make_spec, run_batch, run_batch_reference, trace
+from straylight.execution import Execution
 
 BLACK = {"black": StandInLambertian(0.05)}
 SV = TraceOptions(second_vertex_sampling=True)
@@ -91,7 +92,7 @@ def test_same_numbers_for_any_batch_size_and_thread_count():
     opts = TraceOptions(second_vertex_sampling=True, first_vertex_sampling=True, record_paths=True, batch_rays=1000)
     ref = trace(scene, src, 12345, seed=9, materials=BLACK, options=opts)
     for batch, threads in ((10000, None), (2000, 2)):
-        got = trace(scene, src, 12345, seed=9, materials=BLACK, options=replace(opts, batch_rays=batch), threads=threads)
+        got = trace(scene, src, 12345, seed=9, materials=BLACK, options=replace(opts, batch_rays=batch), execution=Execution(threads=threads))
         assert got.detectors["detector"].power_w == ref.detectors["detector"].power_w
         assert got.detectors["detector"].stderr_w == ref.detectors["detector"].stderr_w
         assert np.array_equal(got.maps["detector"].power_w, ref.maps["detector"].power_w)

@@ -16,6 +16,7 @@ from engine_helpers import disk_part
 from geometry.mesh import Part, Scene
 from straylight.sources import CollimatedDisk
 from straylight.trace import TraceOptions, trace
+from straylight.execution import Execution
 
 ANALOG = TraceOptions(nee=False)
 FV = TraceOptions(first_vertex_sampling=True)
@@ -106,7 +107,7 @@ def test_same_numbers_for_any_batch_size_and_thread_count(glossy):
 
     scene, src = _plate_scene(), _beam()
     ref = trace(scene, src, 5_432, seed=9, materials=glossy, options=replace(LOBE, batch_rays=1000))
-    got = trace(scene, src, 5_432, seed=9, materials=glossy, options=replace(LOBE, batch_rays=3000), threads=2)
+    got = trace(scene, src, 5_432, seed=9, materials=glossy, options=replace(LOBE, batch_rays=3000), execution=Execution(threads=2))
     assert got.detectors["det"] == ref.detectors["det"]
     assert ref.detectors["det"].power_w > 0
 

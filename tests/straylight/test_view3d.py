@@ -24,7 +24,7 @@ def traced():
     from straylight.analyses.scene_setup import scene_setup
 
     setup = scene_setup(GOLDEN / "tube.toml")
-    report, res = paths_analysis(setup, math.radians(20), n_rays=4000, seed=3, progress=False)
+    report, res = paths_analysis(setup, math.radians(20), n_rays=4000, seed=3)
     return setup, report, res
 
 
