@@ -200,7 +200,7 @@ def two_workers(scene, mats, a_deg, n, seed, repeats=1):
     from straylight.trace import TraceOptions, make_spec
 
     t = time.perf_counter()
-    cluster = local_cluster(2, processes=True)  # 2 processes (trace(..., workers=2) now uses threads)
+    cluster = local_cluster(2, processes=True)  # 2 processes (Execution(workers=2) now uses threads)
     client = Client(cluster)
     start_s = time.perf_counter() - t
     t = time.perf_counter()
@@ -326,7 +326,7 @@ def main(argv=None):
 
     from straylight.engine.backends.dask import local_cluster
 
-    with local_cluster(2) as cluster, Client(cluster) as client:  # what trace(..., workers=2) starts
+    with local_cluster(2) as cluster, Client(cluster) as client:  # what Execution(workers=2) starts
         timed_trace(scene, mats, 30.0, 20_000, args.seed, client=client)  # warm-up
         druns = [timed_trace(scene, mats, 30.0, args.rays, args.seed, client=client) for _ in range(args.repeats)]
     el_d = min(r[1] for r in druns)
@@ -340,12 +340,12 @@ def main(argv=None):
           f"speed-up x{el / el_d:.2f} by wall time; {rate_d / 1e6:.2f} M/wall-s = {rate_d / raw2:.0%} of 2-thread raw "
           f"(wall); CPU {cpu_d:.2f} s in all = x{cpu_d / cpu1:.2f} of 1 worker; identical numbers: {same_d}")
 
-    # as a user runs it: trace(..., workers=K) = `straylight trace --workers K`, each call starting and
+    # as a user runs it: trace(..., execution=Execution(workers=K)) = `straylight trace --workers K`, each call starting and
     # closing its own LocalCluster (start-up, scatter and shutdown included; dask already imported)
     user = {k: min(timed_trace(scene, mats, 30.0, args.rays, args.seed, workers=k)[1] for _ in range(args.repeats))
             for k in (1, 2)}
     out.update(user_wall_s_workers1=user[1], user_wall_s_workers2=user[2], speedup_user_wall=user[1] / user[2])
-    print(f"as a user runs it (trace(..., workers=K) = --workers K, cluster start-up and shutdown included): "
+    print(f"as a user runs it (Execution(workers=K) = --workers K, cluster start-up and shutdown included): "
           f"--workers 1 {user[1]:.2f} s, --workers 2 {user[2]:.2f} s: x{user[1] / user[2]:.2f} "
           f"(in-process 1 worker {el:.2f} s: x{el / user[2]:.2f})")
 
@@ -354,7 +354,7 @@ def main(argv=None):
     same_t = truns[0][0].to_json_dict() == res.to_json_dict()
     out.update(trace_s_2threads=el_t, trace_cpu_s_2threads=cpu_t, speedup_2threads_wall=el / el_t,
                same_numbers_2threads=same_t)
-    print(f"full trace at 30 deg, 2 threads in one process (trace(..., threads=2)): {casts / el_t / 1e6:.2f} M/wall-s, "
+    print(f"full trace at 30 deg, 2 threads in one process (Execution(threads=2)): {casts / el_t / 1e6:.2f} M/wall-s, "
           f"speed-up x{el / el_t:.2f} by wall time (raw embreex 2 threads: x{raw2 / raw1:.2f}); CPU {cpu_t:.2f} s "
           f"in all (1 thread: {cpu1:.2f} s); identical numbers: {same_t}")
 

@@ -339,7 +339,7 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
     this process). Closed on exit.
 
     ``in_process_below``: worker counts below it run in-process (sweeps pass 2: one worker is just
-    this process); ``trace(workers=1)`` passes 1 and gets a one-thread cluster.
+    this process); ``trace(..., execution=Execution(workers=1))`` passes 1 and gets a one-thread cluster.
 
     A ``scheduler`` reached unencrypted beyond this machine is refused unless ``allow_insecure``
     (:func:`check_scheduler_address`; then a warning on stderr)."""
