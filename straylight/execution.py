@@ -40,6 +40,13 @@ class Execution:
         """The keywords the batch scheduler (:func:`straylight.engine.scheduling.run_batches`) takes."""
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "progress"}
 
+    def describe(self) -> dict:
+        """Where it runs, for a report: threads, workers and the scheduler's address (a client's own)."""
+        scheduler = self.scheduler
+        if self.client is not None:
+            scheduler = getattr(getattr(self.client, "scheduler", None), "address", None)
+        return {"threads": self.threads, "workers": self.workers, "scheduler": scheduler}
+
     def quiet(self) -> Execution:
         """The same, without progress output (a step inside a larger run that shows its own)."""
         return replace(self, progress=False) if self.progress else self

@@ -323,6 +323,7 @@ def _study_steps(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Exec
         "thermal": json.loads((out / "thermal.json").read_text()) if "thermal" in done else None,
         "timings_s": result.timings_s,
         "config": _config_dict(cfg),
+        "execution": ex.describe(),
         "software": {"python": platform.python_version(), "numpy": np.__version__},
     }
     atomicio.write_json(out / "results.json", result.summary)

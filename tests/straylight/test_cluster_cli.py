@@ -120,9 +120,9 @@ def test_study_on_a_tls_scheduler_gives_the_in_process_numbers(tls_scheduler, tm
     assert main(argv + ["--out", str(tmp_path / "tls")] + _tls_args(tls_scheduler)) == 0
     here, tls = (json.loads((tmp_path / d / "results.json").read_text().replace(str(tmp_path / d), "OUT"))
                  for d in ("here", "tls"))
-    assert tls["config"]["scheduler"] == tls_scheduler[0]
+    assert tls["execution"]["scheduler"] == tls_scheduler[0]
     for doc in (here, tls):
-        doc.pop("timings_s"), doc.pop("config")
+        doc.pop("timings_s"), doc.pop("config"), doc.pop("execution")
         doc["pst"] = _without_seconds(doc["pst"])
     assert tls == here
     assert Path(tmp_path / "tls" / "index.html").is_file()
