@@ -96,3 +96,16 @@ def test_every_analysis_entry_point_takes_an_execution_and_no_execution_keywords
             for part in qual.split("."):
                 obj = getattr(obj, part)
             assert "execution" in inspect.signature(obj).parameters, f"{name}.{qual} takes no execution"
+
+
+def test_the_command_line_builds_its_execution_in_one_place():
+    """Only straylight/cli/cluster_args.py turns flags into an Execution or a dask client; every
+    command that traces goes through its ``execution(args)``."""
+    from pathlib import Path
+
+    cli = Path(straylight.analyses.__file__).resolve().parents[1] / "cli"
+    elsewhere = [f"{p.name}: {word}" for p in sorted(cli.glob("*.py")) if p.name != "cluster_args.py"
+                 for word in ("Execution(", "dask_client(", "cluster_client(") if word in p.read_text()]
+    assert elsewhere == []
+    users = sorted(p.name for p in cli.glob("*.py") if "cluster_args import execution" in p.read_text())
+    assert {"trace.py", "pst.py", "study.py", "paths.py", "critical.py", "design.py"} <= set(users)
