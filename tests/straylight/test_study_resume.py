@@ -27,15 +27,15 @@ def test_interrupted_study_resumes_to_the_same_numbers(tmp_path, monkeypatch, ca
 
     # Ctrl-C while the sweep builds its second design (its first design's points are finished)
     out = tmp_path / "resumed"
-    real_area, calls = sweep_mod._area, []
+    real_build, calls = sweep_mod.tube_setup, []
 
-    def interrupt_second_design(setup):
+    def interrupt_second_design(**params):
         calls.append(1)
         if len(calls) == 2:
             raise KeyboardInterrupt
-        return real_area(setup)
+        return real_build(**params)
 
-    monkeypatch.setattr(sweep_mod, "_area", interrupt_second_design)
+    monkeypatch.setattr(sweep_mod, "tube_setup", interrupt_second_design)
     assert main(ARGS + ["--out", str(out)]) == 130
     monkeypatch.undo()
     partial = json.loads((out / "results.json").read_text())
