@@ -23,3 +23,6 @@ class Capability(enum.Flag):
     #: it turns unpolarized light into polarized light (Fresnel interfaces): estimators that
     #: evaluate their vertices unpolarized must stay out of scenes with it
     POLARIZES = enum.auto()
+    #: a reflection at its interfaces that goes straight into a detector may be counted by its
+    #: expected value instead of the walk's branch (straylight.engine.reflection_split)
+    REFLECTION_SPLIT = enum.auto()

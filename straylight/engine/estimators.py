@@ -15,7 +15,7 @@ from straylight.engine.capabilities import Capability
 
 #: TraceOptions of the analog walk: no NEE, no vertex sampling, no target mixture
 ANALOG = {"nee": False, "first_vertex_sampling": False, "second_vertex_sampling": False, "vertex_lobe_sampling": False,
-          "second_vertex_lobe_sampling": False, "target_parts": ()}
+          "second_vertex_lobe_sampling": False, "reflection_split": False, "target_parts": ()}
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,8 @@ ESTIMATORS = (
     # second-vertex sampling whose critical point also leaves along its lobe's own draw (issue 26)
     Estimator("second_vertex_lobe", {"nee": True, "second_vertex_sampling": True, "second_vertex_lobe_sampling": True},
               Capability.SECOND_VERTEX, requires=("nee",)),
+    # an interface's reflection straight into a detector counted by its expected value (issue 26)
+    Estimator("reflection_split", {"reflection_split": True}, Capability.REFLECTION_SPLIT),
     Estimator("target_mis", {"nee": True, "target_fraction": 0.5}, Capability.TARGET_MIS, target=True,
               requires=("nee",), diffraction=True),
 )

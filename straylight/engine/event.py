@@ -58,6 +58,7 @@ class Event:
     columns: object  # straylight.engine.draws.EventColumns
     first_vertex: object = None  # straylight.engine.first_vertex.FirstVertexWeights or None
     second_vertex: object = None  # straylight.engine.second_vertex.SecondVertexShares or None
+    reflection_split: object = None  # straylight.engine.reflection_split.ReflectionSplit or None
     capabilities: object = None  # straylight.engine.interactions.registry.PartCapabilities of the parts
     shadow_rays: int = 0  # shadow rays cast by the interactions in this event
 

@@ -32,6 +32,7 @@ class TraceOptions:
     second_vertex_sampling: bool = False
     vertex_lobe_sampling: bool = False  # first-vertex sampling also joins x to the detector by the lobe's own draw
     second_vertex_lobe_sampling: bool = False  # second-vertex sampling also leaves B by the lobe's own draw
+    reflection_split: bool = False  # interface reflections into a detector counted by expected value
     scatter_polarization: str = "auto"  # "auto": scatter follows polarized light only; "on": always
     diffraction: str = "scene"  # "scene": parts marked diffraction = "edges" diffract (HURB); "off": none do
     hurb_gamma: float = 0.7978845608028654  # HURB uncertainty factor sqrt(2/pi) (straylight.engine.hurb)

@@ -21,6 +21,7 @@ from straylight.engine.kernel_sets import COMPILED, NUMPY
 from straylight.engine.options import TraceError, walk_settings
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
 from straylight.engine.runtime import runtime
+from straylight.engine.reflection_split import ReflectionSplit
 from straylight.engine.second_vertex import SecondVertexShares
 from straylight.engine.spec import TraceSpec
 from straylight.engine.tallies import DetectorRecords, batch_sums
@@ -94,6 +95,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
     second_vertex = SecondVertexShares(n) if second_lobe and rows.n_detectors > 0 else None
+    reflection_split = ReflectionSplit(n) if opt.reflection_split and rows.n_detectors > 0 else None
     segments = shadow_rays = 0
     max_events = int(opt.max_events)
     diff = spec.diffraction
@@ -120,12 +122,15 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, tallies.kernel_arg))
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
-                      first_vertex=first_vertex, second_vertex=second_vertex, capabilities=capabilities)
+                      first_vertex=first_vertex, second_vertex=second_vertex, reflection_split=reflection_split,
+                      capabilities=capabilities)
         rec, rec_w = hit.detected, hit.detected_w
         if len(rec) and first_vertex is not None:
             rec, rec_w = first_vertex.share_single_scatter(event, rec, rec_w)
         if len(rec) and second_vertex is not None:
             rec, rec_w = second_vertex.share_after_vertex(event, rec, rec_w)
+        if len(rec) and reflection_split is not None:
+            rec, rec_w = reflection_split.share_after_reflection(event, rec, rec_w)
         if len(rec):
             _record_walk_hits(event, rec, rec_w)
         cont = hit.continuing

@@ -111,7 +111,9 @@ def _matte_case():
 def _coated_mirror_case():
     return Case(_parts("surface", "subject_material"),
                 {"subject_material": load_material(COATED_MIRROR, "coated_mirror")}, "surface",
-                Capability.NEE | Capability.POLARIZES)  # NEE from the lobes; no area sampling of a Fresnel surface
+                # NEE from the lobes; no area sampling of a Fresnel surface; its reflections into the
+                # detector (light the wall scatters, reflected by the floor) counted by expected value
+                Capability.NEE | Capability.POLARIZES | Capability.REFLECTION_SPLIT)
 
 
 def _mirror_case():
@@ -165,9 +167,9 @@ def _last_vertex_counts(res, part_index: int) -> int:
 def engaged(case_name, estimator, on) -> bool:
     """Whether ``estimator`` acted on the subject part in the run ``on`` (measured, not declared)."""
     case = CONTRACT_SCENES[case_name]()
-    if estimator.capability in (Capability.NEE, Capability.FIRST_VERTEX):
-        # NEE / first-vertex estimates move power through the vertex part's nee_exchange row
-        # (the first-vertex run has NEE off: nothing else writes that row)
+    if estimator.capability in (Capability.NEE, Capability.FIRST_VERTEX, Capability.REFLECTION_SPLIT):
+        # NEE / first-vertex / reflection-split estimates move power through the vertex part's
+        # nee_exchange row (the first-vertex and reflection-split runs have NEE off: nothing else writes it)
         return on.ledger["nee_exchange"]["subject"].power_w != 0.0
     if estimator.capability == Capability.SECOND_VERTEX:
         spec = make_spec(case.scene, _source(), 1000, 0, case.materials, TraceOptions(**options_for(estimator)))

@@ -60,7 +60,7 @@ class OpticalSurface(Interaction):
     selected_by = ComponentFlags.DELTA  # a material with a specular or dielectric component
     # NEE from its scatter lobes; no area sampling (exact normals, the Fresnel split is the walk's);
     # its Fresnel interfaces polarize
-    capabilities = Capability.NEE | Capability.POLARIZES
+    capabilities = Capability.NEE | Capability.POLARIZES | Capability.REFLECTION_SPLIT
 
     def interact(self, event, selection):
         spec, hit, rays = event.spec, event.hits, event.rays
@@ -157,6 +157,14 @@ class OpticalSurface(Interaction):
         S_new[:, 0] = 1.0
         e1_new = s.copy()
 
+        # --- reflections straight into a detector, counted by their expected value (reflection_split)
+        split = event.reflection_split
+        if split is not None and self.allows(Capability.REFLECTION_SPLIT):
+            can = np.flatnonzero(live & (E_r > 0))
+            if len(can):
+                at = np.where(refined[can, None], exact[can], hit.point_mm[rows[can]])
+                split.connect(event, rows[can], at, facing[can], reflect(d[can], facing[can]),
+                              rays.weight_w[rows[can]] * E_r[can] * bulk[can], refl[can])
         # --- lobes: NEE from every vertex whose material scatters, and the lobe branch
         has_lobes = live & ((rho_s > 0) | (rho_p > 0))
         if np.any(has_lobes):
