@@ -275,7 +275,8 @@ def _fork_server_config() -> dict:
     a no-op if the command launched it earlier, so that it loaded while the scene loaded) before the
     cluster starts, and kept for this process's later clusters: dask's own preload list, which it
     sets when its nanny first asks for the forkserver context, no longer reaches a running server
-    (``multiprocessing.set_forkserver_preload`` applies to the next server launched).
+    (``multiprocessing.set_forkserver_preload`` applies to the next server launched). dask then
+    still imports its optional packages here (pandas if installed: ~0.15-0.2 CPU-s, once).
     Not done when dask's start method was configured otherwise (``distributed.worker.multiprocessing-method``).
     Returns the dask config to start the cluster with."""
     if not fork_server.start():
