@@ -168,6 +168,14 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
             kwargs.update(dashboard=False, dashboard_address=http)
             super().__init__(*args, **kwargs)
 
+    class PooledCluster(LocalCluster):
+        """An in-process cluster whose tasks queue their batches on the worker's shared pool of
+        ``straylight_threads`` threads (read by :func:`_run_on`)."""
+
+        def __init__(self, *args, straylight_threads: int, **kwargs):
+            self.straylight_threads = int(straylight_threads)
+            super().__init__(*args, **kwargs)
+
     if processes:
         security = run_security()
         with dask.config.set({**LEAN_CONFIG, **_fork_server_config()}):
@@ -177,10 +185,9 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
         return cluster  # Client(cluster) takes the cluster's security (dask's Client does)
     runtime()  # this process's, started before the cluster's threads are (its in-process worker shares it)
     with dask.config.set(LEAN_CONFIG):
-        cluster = LocalCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
-                               dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker)
-        cluster.straylight_threads = int(n_workers)  # type: ignore[attr-defined]  # read by _run_on
-        return cluster
+        return PooledCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
+                             dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker,
+                             straylight_threads=int(n_workers))
 
 
 def run_security():
