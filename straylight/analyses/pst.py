@@ -91,11 +91,11 @@ def sweep_diffraction(scene, wavelength_nm, options) -> dict | None:
             "band_wavelengths": float(options.diffraction_band_wavelengths) if on else None}
 
 
-def pst_options(nee: bool = True, options=None):
+def pst_options(nee: bool = True, options=None, materials=None):
     """The trace options of a PST point: ``options`` (default: the ``default`` estimator set,
-    :mod:`straylight.analyses.estimators`) with next-event estimation, and the vertex sampling that
-    builds on it, on or off."""
-    opts = options or estimator_options("default")
+    :mod:`straylight.analyses.estimators`, for the scene's ``materials``) with next-event estimation,
+    and the vertex sampling that builds on it, on or off."""
+    opts = options or estimator_options("default", materials=materials)
     return replace(opts, nee=bool(nee), first_vertex_sampling=bool(nee) and opts.first_vertex_sampling,
                    second_vertex_sampling=bool(nee) and opts.second_vertex_sampling)
 
@@ -147,7 +147,7 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     det = detector_name(setup.scene, setup.detector)
     sens = detector_area(setup, det)
     area = sens.area_mm2
-    opts = pst_options(nee, options)
+    opts = pst_options(nee, options, setup.materials)
     pairs = [(a, phi) for phi in azimuth for a in off_axis]
     if keep_traces and checkpoint_dir is not None:
         raise ValueError("checkpoints keep numbers, not traces: keep_traces cannot be combined with them")
