@@ -63,10 +63,11 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args(argv)
     from straylight.analyses.estimators import estimator_options
-    from straylight.trace import TraceOptions
+    from straylight.trace import PhysicsOptions, TraceOptions
 
     rays = args.rays or (20_000 if args.quick else 400_000)
-    on = estimator_options("default", TraceOptions(diffraction="scene"))  # what `straylight pst` traces
+    # what `straylight pst` traces
+    on = estimator_options("default", TraceOptions(physics=PhysicsOptions(diffraction="scene")))
     off = replace(on, diffraction="off")
     off_plain = replace(off, first_vertex_sampling=False, second_vertex_sampling=False, vertex_lobe_sampling=False)
     rows = []

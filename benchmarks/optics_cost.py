@@ -26,7 +26,7 @@ from geometry.mesh import Part
 from geometry.parts.cassegrain import CassegrainParams, cassegrain_scene
 from materials import load_material
 from straylight.analyses.types import Beam
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, PhysicsOptions, TraceOptions, trace
 
 
 def variants():
@@ -54,8 +54,8 @@ def main(argv=None):
     beam = Beam(center_mm=(0, 0, p.tube_front_mm + 10), axis=(0, 0, -1), radius_mm=p.tube_radius_mm + 1,
                 pivot_mm=(0, 0, p.tube_front_mm))
     src = beam.source(math.radians(a.angle_deg))
-    opts = TraceOptions(nee=False, mirror_reflectance=float(
-        mats["aluminium_mirror"].smooth_coefficients(np.array([1.0])).reflectance("u")[0]))
+    opts = TraceOptions(estimator=EstimatorOptions(nee=False), physics=PhysicsOptions(mirror_reflectance=float(
+        mats["aluminium_mirror"].smooth_coefficients(np.array([1.0])).reflectance("u")[0])))
     best = {k: math.inf for k in scenes}
     det = {}
     segs = {}

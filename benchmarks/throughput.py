@@ -103,9 +103,9 @@ def raw_rates(scene, n=1_000_000):
 def timed_trace(scene, mats, a_deg, n, seed, nee=True, client=None, threads=None, workers=None):
     """Trace; returns (result, wall s, CPU s of this process)."""
     from straylight.execution import Execution
-    from straylight.trace import TraceOptions, trace
+    from straylight.trace import EstimatorOptions, PhysicsOptions, TraceOptions, trace
 
-    opts = TraceOptions(nee=nee, max_events=20 if not nee else 1000)
+    opts = TraceOptions(estimator=EstimatorOptions(nee=nee), physics=PhysicsOptions(max_events=20 if not nee else 1000))
     t = time.perf_counter()
     c = time.process_time()
     res = trace(scene, SCENE_SOURCES or source(a_deg), n, seed, materials=mats, options=opts,

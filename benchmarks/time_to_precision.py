@@ -122,12 +122,13 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     setup, label = _setup(args)
-    from straylight.trace import TraceOptions
+    from straylight.trace import EstimatorOptions, TraceOptions
 
     variants = [("default", None)]
     if args.compare:
-        variants = [("before", TraceOptions(first_vertex_sampling=True, second_vertex_sampling=False)),
-                    ("after", TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True))]
+        variants = [("before", TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True))),
+                    ("after", TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True,
+                                                                      second_vertex_sampling=True)))]
     print(f"# time to {args.target:.0%} on {label}\n")
     out = {"scene": label, "target": args.target, "fixed_rays": args.fixed_rays, "points": []}
     for a in args.angles_deg:

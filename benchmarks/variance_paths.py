@@ -54,12 +54,12 @@ def run(setup, angle_deg, seed, estimators, n_rays, top, rr_threshold=None):
     from straylight.analyses.paths_report import path_report
     from straylight.analyses.precision import reliability
     from straylight.analyses.pst import detector_name, point_seed
-    from straylight.trace import TraceOptions, trace
+    from straylight.trace import OutputOptions, TraceOptions, trace
 
     det = detector_name(setup.scene, setup.detector)
-    opts = replace(estimator_options(estimators, TraceOptions()), record_paths=True, path_depth=8)
+    opts = replace(estimator_options(estimators, TraceOptions()), output=OutputOptions(record_paths=True, path_depth=8))
     if rr_threshold is not None:
-        opts = replace(opts, rr_threshold=rr_threshold)
+        opts = replace(opts, estimator=replace(opts.estimator, rr_threshold=rr_threshold))
     a = math.radians(angle_deg)
     c0 = time.process_time()
     res = trace(setup.scene, [setup.beam.source(a, 0.0)], n_rays=int(n_rays), seed=point_seed(seed, 0),
@@ -67,7 +67,7 @@ def run(setup, angle_deg, seed, estimators, n_rays, top, rr_threshold=None):
     cpu = time.process_time() - c0
     tally = res.detectors[det]
     rel = reliability(*res.detector_chunks[det], res.n_rays)
-    print(f"\n## {angle_deg:g} deg, seed {seed}, {estimators} (rr_threshold {opts.rr_threshold:g}): {n_rays:.3g} rays, {cpu:.1f} CPU s, "
+    print(f"\n## {angle_deg:g} deg, seed {seed}, {estimators} (rr_threshold {opts.estimator.rr_threshold:g}): {n_rays:.3g} rays, {cpu:.1f} CPU s, "
           f"rel. error {tally.stderr_w / tally.power_w:.2%}, VOV {rel.vov:.3g}, "
           f"largest chunk share {rel.max_chunk_share:.2f}")
     rep = path_report(res.paths, det, tally, group_by="family")
@@ -96,7 +96,7 @@ def run(setup, angle_deg, seed, estimators, n_rays, top, rr_threshold=None):
         desc = "; ".join(f"{lab} ({v / x[k]:.0%})" for lab, v in big)
         print(f"  ray {uniq[k]}: {x[k] * x[k] / var:.1%} of the variance, x = {x[k]:.3g} W "
               f"(mean per ray {s1 / n:.3g}): {desc}")
-    return {"seed": seed, "estimators": estimators, "rr": opts.rr_threshold, "cpu_s": cpu, "segments": res.segments, "rel": tally.stderr_w / tally.power_w,
+    return {"seed": seed, "estimators": estimators, "rr": opts.estimator.rr_threshold, "cpu_s": cpu, "segments": res.segments, "rel": tally.stderr_w / tally.power_w,
             "vov": rel.vov, "power_w": tally.power_w}
 
 

@@ -315,7 +315,7 @@ def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: floa
         source, an unpolarized remainder apart), and the reading is normalised to the power that
         reaches the sample (``TwinPoint.incident_w``; ``detector_w`` is per watt of laser).
     """
-    from straylight.trace import TraceOptions
+    from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions
 
     if polarization not in POLARIZATIONS:
         raise TwinError(f"polarization must be s, p or u, got {polarization!r}")
@@ -334,8 +334,9 @@ def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: floa
         from materials.lambertian import Lambertian
 
         materials["black"] = Lambertian(twin.holder_rd)
-    base = dict(polarization=polarization, detector_sides="front",
-                mirror_reflectance=float(material.reflectance) if mirror else 1.0)
+    output = OutputOptions(detector_sides="front")
+    physics = PhysicsOptions(polarization=polarization,
+                             mirror_reflectance=float(material.reflectance) if mirror else 1.0)
     s = point_seed(seed, theta_i_deg, theta_r_deg, phi_r_deg, polarization)
     beams = [(beam, None)]
     incident = beam.power_w
@@ -349,7 +350,8 @@ def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: floa
         pilot_seed = point_seed(s, 0.0, 0.0, 0.0, "u")  # an independent stream
         var = {}
         for est in ("nee", "walk"):
-            _, err = _trace_detector(scene, beam, n_pilot, pilot_seed, materials, TraceOptions(nee=est == "nee", **base))
+            _, err = _trace_detector(scene, beam, n_pilot, pilot_seed, materials, TraceOptions(
+                estimator=EstimatorOptions(nee=est == "nee"), output=output, physics=physics))
             var[est] = err
         # a pilot that saw nothing says nothing: prefer NEE, which sees every scatter vertex
         estimator = "walk" if 0 < var["walk"] < var["nee"] else "nee"
@@ -358,7 +360,8 @@ def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: floa
         if incident <= 0:
             break
         p, e = _trace_detector(scene, b, n_rays, s if k == 0 else point_seed(s, float(k), 0.0, 0.0, "u"), materials,
-                               TraceOptions(nee=estimator == "nee", **base))
+                               TraceOptions(estimator=EstimatorOptions(nee=estimator == "nee"), output=output,
+                                            physics=physics))
         power, var = power + p, var + e * e
     err = math.sqrt(var)
     scale = 1.0 / (incident * config.solid_angle_sr * math.cos(theta_r)) if incident > 0 else 0.0

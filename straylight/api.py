@@ -199,7 +199,7 @@ class Instrument:
 
         from straylight.analyses.estimators import estimator_options
         from straylight.analyses.pst import pst_sweep
-        from straylight.trace import TraceOptions
+        from straylight.trace import PhysicsOptions, TraceOptions
 
         precision = precision_target(target_rel_error, max_rays, max_seconds, max_vov)
         setup = self.setup
@@ -207,7 +207,8 @@ class Instrument:
             if not float(wavelength_nm) > 0:
                 raise ValueError(f"wavelength_nm must be > 0, got {wavelength_nm}")
             setup = replace(setup, beam=replace(setup.beam, wavelength_nm=float(wavelength_nm)))
-        options = estimator_options(estimators, TraceOptions(diffraction="scene" if diffraction else "off"))
+        physics = PhysicsOptions(diffraction="scene" if diffraction else "off")
+        options = estimator_options(estimators, TraceOptions(physics=physics))
         return pst_sweep(setup, np.radians(np.atleast_1d(np.asarray(angles_deg, dtype=float))), np.radians(np.atleast_1d(azimuths_deg)),
                          n_rays=int(rays) if precision is None else 1, seed=int(seed), nee=nee, options=options,
                          execution=execution, precision=precision, checkpoint_dir=checkpoint_dir, resume=resume)

@@ -37,7 +37,7 @@ def truncation_message(truncated_w: float, emitted_w: float, max_events: int) ->
     if not emitted_w > 0 or not truncated_w > TRUNCATION_WARN_FRACTION * emitted_w:
         return None
     return (f"max_events = {max_events} stopped {truncated_w / emitted_w:.1%} of the emitted power "
-            f"({truncated_w:.3g} W, counted as absorbed): raise --max-events (TraceOptions.max_events)")
+            f"({truncated_w:.3g} W, counted as absorbed): raise --max-events (PhysicsOptions.max_events)")
 
 
 def check_truncation(result, max_events: int) -> None:

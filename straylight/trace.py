@@ -29,7 +29,13 @@ from straylight.engine.compiled_scene import detector_samplers
 from straylight.engine.first_vertex import build_table
 from straylight.engine.second_vertex import build_table as build_critical_table
 from straylight.engine.second_vertex import unsupported as second_vertex_unsupported
-from straylight.engine.options import TraceError, TraceOptions  # noqa: F401 - re-exported
+from straylight.engine.options import (  # noqa: F401 - re-exported
+    EstimatorOptions,
+    OutputOptions,
+    PhysicsOptions,
+    TraceError,
+    TraceOptions,
+)
 from straylight.engine.results import BatchTotals, Tally, TraceResult  # noqa: F401 - re-exported
 from straylight.engine.runtime import runtime
 from straylight.engine.scheduling import batch_ranges, run_batches
@@ -72,8 +78,8 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
             raise TraceError(f"first_chunk must be a non-negative integer, got {first_chunk!r}")
         spec = replace(spec, chunk_offset=int(first_chunk))
     opt = spec.options
-    first = opt.first_vertex_sampling and intersector is None and len(spec.detector_parts)
-    second = (opt.second_vertex_sampling and opt.nee and len(spec.detector_parts)
+    first = opt.estimator.first_vertex_sampling and intersector is None and len(spec.detector_parts)
+    second = (opt.estimator.second_vertex_sampling and opt.estimator.nee and len(spec.detector_parts)
               and second_vertex_unsupported(spec) is None)
     # on dask, the workers get the spec and build their scenes while this process builds the tables
     early = ship_early(ex.client, spec) if ex.client is not None and (first or second) else None
@@ -98,5 +104,5 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
     result = totals.result(spec, here.detectors if here is not None else detector_samplers(spec))
     from straylight.run_checks import check_truncation
 
-    check_truncation(result, opt.max_events)  # power cut by max_events is not round-off: say so
+    check_truncation(result, opt.physics.max_events)  # power cut by max_events is not round-off: say so
     return result

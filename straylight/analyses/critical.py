@@ -25,7 +25,7 @@ from straylight.analyses.grid import point_seed
 from straylight.analyses.pst import detector_name
 from straylight.analyses.tables import TableRepr
 from straylight.execution import Execution, as_execution
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, TraceOptions, trace
 
 
 @dataclass(frozen=True, eq=False)
@@ -198,7 +198,7 @@ def critical_objects(setup, off_axis: float = 0.0, azimuth: float = 0.0, n_rays:
     det = detector_name(setup.scene, setup.detector)
     part = setup.scene.part(det)
     both = bool(getattr(part, "meta", {}).get("kind") == "solid")
-    opts = TraceOptions(nee=False)
+    opts = TraceOptions(estimator=EstimatorOptions(nee=False))
     src = LambertianPart(part.vertices_mm[part.faces], power_w=1.0, both_sides=both)
     with as_execution(execution).opened() as ex:
         fwd = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], n_rays=int(n_rays),

@@ -31,35 +31,35 @@ from __future__ import annotations
 from dataclasses import replace
 
 from materials.flags import ComponentFlags, flags_of
+from straylight.engine.options import EstimatorOptions, TraceOptions
 
 #: Russian roulette threshold of the default set, relative to a ray's start weight
 ANALYSIS_RR_THRESHOLD = 1e-5
 
-_LOBES = {"first_vertex_sampling": True, "second_vertex_sampling": True, "vertex_lobe_sampling": True,
-          "second_vertex_lobe_sampling": True}
+#: the sets: presets of the estimator options (NEE on, the engine's other defaults unless named)
+_LOBES = EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
+                          second_vertex_lobe_sampling=True)
 ESTIMATOR_SETS = {
-    "default": {**_LOBES, "rr_threshold": ANALYSIS_RR_THRESHOLD, "reflection_split": True},
-    "lobes": dict(_LOBES),
-    "roulette": {**_LOBES, "rr_threshold": ANALYSIS_RR_THRESHOLD},
-    "first_lobe": {**_LOBES, "second_vertex_lobe_sampling": False},
-    "baseline": {"first_vertex_sampling": True, "second_vertex_sampling": True, "vertex_lobe_sampling": False,
-                 "second_vertex_lobe_sampling": False},
+    "default": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD, reflection_split=True),
+    "lobes": _LOBES,
+    "roulette": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD),
+    "first_lobe": replace(_LOBES, second_vertex_lobe_sampling=False),
+    "baseline": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True),
 }
 
 
-def estimator_options(name: str = "default", options=None, materials=None):
-    """``options`` (default ``TraceOptions()``) with the estimator set ``name`` switched on (the sets
-    without an ``rr_threshold`` keep the one of ``options``). ``materials`` (the scene's models, a dict
-    or a list; optional): when none declares a peaked lobe (``ComponentFlags.GLOSSY``), the roulette
-    threshold stays the engine's, as the lobe draws stay off there: the survivor tail comes from narrow
-    lobes, and on the Lambertian benchmark tube the lower threshold cost ~25 % CPU for nothing."""
-    from straylight.trace import TraceOptions
-
+def estimator_options(name: str = "default", options: TraceOptions | None = None, materials=None) -> TraceOptions:
+    """``options`` (default ``TraceOptions()``) with the estimator options of the set ``name``.
+    ``materials`` (the scene's models, a dict or a list; optional): when none declares a peaked lobe
+    (``ComponentFlags.GLOSSY``), the roulette threshold stays the one of ``options`` (the engine's),
+    as the lobe draws stay off there: the survivor tail comes from narrow lobes, and on the Lambertian
+    benchmark tube the lower threshold cost ~25 % CPU for nothing."""
     if name not in ESTIMATOR_SETS:
         raise ValueError(f"unknown estimator set {name!r}; known: {', '.join(ESTIMATOR_SETS)}")
-    chosen = dict(ESTIMATOR_SETS[name])
-    if materials is not None and "rr_threshold" in chosen:
+    options = options or TraceOptions()
+    chosen = ESTIMATOR_SETS[name]
+    if materials is not None:
         models = list(materials.values()) if isinstance(materials, dict) else list(materials)
         if not any(flags_of(m) & ComponentFlags.GLOSSY for m in models if not isinstance(m, str)):
-            del chosen["rr_threshold"]
-    return replace(options or TraceOptions(), **chosen)
+            chosen = replace(chosen, rr_threshold=options.estimator.rr_threshold)
+    return replace(options, estimator=chosen)

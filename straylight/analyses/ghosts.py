@@ -86,7 +86,7 @@ class GhostTable:
 
 
 def ghost_table(paths, detector: str, total_w: float | None = None, nominal=None) -> GhostTable:
-    """Ranked specular paths at ``detector`` from path records (``TraceOptions(record_paths=True)``).
+    """Ranked specular paths at ``detector`` from path records (``OutputOptions(record_paths=True)``).
 
     nominal : the design sequence (tuple of part names); default: the most powerful specular path
     """

@@ -33,7 +33,7 @@ from straylight.analyses.estimators import estimator_options
 from straylight.analyses.pst import detector_name
 from straylight.analyses.tables import TableRepr
 from straylight.execution import Execution, as_execution
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 
 ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more", "diffracted")
 GROUP_BY = ("sequence", "family", "first_part", "last_part", "ancestry")
@@ -207,7 +207,7 @@ def path_report(paths, detector: str | None = None, total=None, group_by: str = 
 
     Parameters
     ----------
-    paths : straylight.paths.PathRecords (``trace(..., options=TraceOptions(record_paths=True))``)
+    paths : straylight.paths.PathRecords (``trace(..., options=TraceOptions(output=OutputOptions(record_paths=True)))``)
     detector : detector part name (default: the only detector in the records)
     total : Tally of the detector from the same trace (power_w, stderr_w); default: the sum of records
     group_by : "sequence" (exact parts and events), "family" (the sequence with numbered parts of one
@@ -283,8 +283,8 @@ def paths_analysis(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 1
     and whether to show progress."""
     det = detector_name(setup.scene, setup.detector)
     # the estimators `pst` traces (the variance split is the one of pst's error bars), or the plain walk
-    opts = replace(estimator_options("default") if nee else TraceOptions(nee=False), record_paths=True,
-                   path_depth=path_depth)
+    opts = replace(estimator_options("default") if nee else TraceOptions(estimator=EstimatorOptions(nee=False)),
+                   output=OutputOptions(record_paths=True, path_depth=path_depth))
     with as_execution(execution).opened() as ex:
         res = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], n_rays=int(n_rays), seed=seed,
                     materials=setup.materials, options=opts, execution=ex)

@@ -85,10 +85,10 @@ def sweep_diffraction(scene, wavelength_nm, options) -> dict | None:
     parts = [scene.parts[i].name for i in diffracting_parts(scene)]
     if not parts:
         return None
-    on = options.diffraction != "off"
+    on = options.physics.diffraction != "off"
     return {"on": on, "method": METHOD if on else None, "parts": parts, "wavelength_nm": wavelength_nm,
-            "hurb_gamma": float(options.hurb_gamma) if on else None,
-            "band_wavelengths": float(options.diffraction_band_wavelengths) if on else None}
+            "hurb_gamma": float(options.physics.hurb_gamma) if on else None,
+            "band_wavelengths": float(options.physics.diffraction_band_wavelengths) if on else None}
 
 
 def pst_options(nee: bool = True, options=None, materials=None):
@@ -96,8 +96,10 @@ def pst_options(nee: bool = True, options=None, materials=None):
     :mod:`straylight.analyses.estimators`, for the scene's ``materials``) with next-event estimation,
     and the vertex sampling that builds on it, on or off."""
     opts = options or estimator_options("default", materials=materials)
-    return replace(opts, nee=bool(nee), first_vertex_sampling=bool(nee) and opts.first_vertex_sampling,
-                   second_vertex_sampling=bool(nee) and opts.second_vertex_sampling)
+    est = opts.estimator
+    return replace(opts, estimator=replace(est, nee=bool(nee),
+                                           first_vertex_sampling=bool(nee) and est.first_vertex_sampling,
+                                           second_vertex_sampling=bool(nee) and est.second_vertex_sampling))
 
 
 def pst_job(setup: Setup, detector: str, area_mm2: float, off_axis: float, azimuth: float, options) -> TraceJob:

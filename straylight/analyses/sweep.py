@@ -16,7 +16,7 @@ from straylight.analyses.grid import GridPoint, open_checkpoint, point_seed, run
 from straylight.analyses.pst import detector_area, pst_job
 from straylight.analyses.types import SweepResult
 from straylight.execution import Execution
-from straylight.trace import TraceOptions
+from straylight.trace import EstimatorOptions, TraceOptions
 
 
 def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math.radians(20), math.radians(30)),
@@ -37,8 +37,8 @@ def design_sweep(parameter: str = "vane_count", values=range(10), off_axis=(math
     if len(values) == 0:
         raise ValueError("the sweep needs at least one value")
     off_axis = np.atleast_1d(np.asarray(off_axis, dtype=np.float64))
-    opts = TraceOptions(nee=nee, first_vertex_sampling=bool(nee), second_vertex_sampling=bool(nee),
-                        vertex_lobe_sampling=bool(nee))
+    opts = TraceOptions(estimator=EstimatorOptions(nee=nee, first_vertex_sampling=bool(nee),
+                                                   second_vertex_sampling=bool(nee), vertex_lobe_sampling=bool(nee)))
     label = material if isinstance(material, str) else repr(material)
     store = open_checkpoint(checkpoint_dir, {
         "sweep": "design_sweep", "parameter": parameter, "values": values, "off_axis": off_axis,

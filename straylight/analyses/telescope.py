@@ -28,7 +28,7 @@ import numpy as np
 import atomicio
 from straylight.analyses.ghosts import ghost_table
 from straylight.execution import Execution, as_execution
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 
 CONTRIBUTIONS = ("nominal", "ghost", "mirror scatter", "vanes", "baffles and tube", "direct")
 MIRRORS = ("primary", "secondary")
@@ -99,7 +99,7 @@ class TelescopeStudy:
 
 
 def _trace(setup, angle, cfg, execution: Execution):
-    opts = TraceOptions(nee=True, record_paths=True, path_depth=16)
+    opts = TraceOptions(estimator=EstimatorOptions(nee=True), output=OutputOptions(record_paths=True, path_depth=16))
     return trace(setup.scene, [setup.beam.source(math.radians(angle))], int(cfg.rays), seed=cfg.seed,
                  materials=setup.materials, options=opts, execution=execution)
 

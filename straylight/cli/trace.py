@@ -54,7 +54,7 @@ def run(args) -> int:
     start_early(args)  # worker processes: their fork server loads while the scene loads
     from straylight.scene import SceneWarning, load_scene
     from straylight.cli.pst import precision_from_args
-    from straylight.trace import TraceOptions
+    from straylight.trace import EstimatorOptions, PhysicsOptions, TraceOptions
 
     precision = precision_from_args(args)
     if precision is None and args.rays < 1:
@@ -74,10 +74,11 @@ def run(args) -> int:
     if vertex is None:
         vertex = not args.no_nee and unsupported(tuple(rs.sources)) is None
     # progress: a bar on a terminal, a plain line every few seconds in a log (straylight.progress)
-    options = TraceOptions(nee=not args.no_nee, max_events=args.max_events, batch_rays=args.batch_rays,
-                           first_vertex_sampling=vertex,
-                           scatter_polarization=args.scatter_polarization,
-                           diffraction="scene" if args.diffraction == "on" else "off")
+    options = TraceOptions(estimator=EstimatorOptions(nee=not args.no_nee, first_vertex_sampling=vertex),
+                           physics=PhysicsOptions(max_events=args.max_events,
+                                                  scatter_polarization=args.scatter_polarization,
+                                                  diffraction="scene" if args.diffraction == "on" else "off"),
+                           batch_rays=args.batch_rays)
     from straylight.cli.cluster_args import execution
 
     with execution(args) as ex:

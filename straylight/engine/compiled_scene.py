@@ -69,7 +69,7 @@ class TargetSampler:
     (straylight.engine.targets); its own intersector over the target triangles."""
 
     def __init__(self, spec: TraceSpec, reference: bool):
-        idx = [spec.part_names.index(name) for name in spec.options.target_parts]
+        idx = [spec.part_names.index(name) for name in spec.options.estimator.target_parts]
         ttri = spec.triangles_mm[np.isin(spec.triangle_part, idx)]
         self.geometry = DetectorGeometry.from_triangles(ttri)
         self.isect = ReferenceIntersector(ttri) if reference else EmbreeIntersector(ttri)
@@ -113,7 +113,8 @@ class CompiledScene:
             det_disk_r2=_disk_rows(dets, "r2", 2), det_disk_centre=_disk_rows(dets, "centre_mm", 3),
             det_disk_u=_disk_rows(dets, "u_axis", 3), det_disk_v=_disk_rows(dets, "v_axis", 3),
             det_disk_normal=_disk_rows(dets, "normal", 3))
-        self.target = TargetSampler(spec, reference=intersector is not None) if spec.options.target_parts else None
+        targets = spec.options.estimator.target_parts
+        self.target = TargetSampler(spec, reference=intersector is not None) if targets else None
         self._local = threading.local()  # per-thread scratch (dask may run several threads per process)
 
     def scratch(self, name, size):

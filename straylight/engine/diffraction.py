@@ -80,9 +80,9 @@ def _rims(part):
 
 
 def scene_diffraction(scene, sources, materials, options) -> Diffraction | None:
-    """The trace's :class:`Diffraction`, or None when no part diffracts or ``options.diffraction`` is
+    """The trace's :class:`Diffraction`, or None when no part diffracts or ``options.physics.diffraction`` is
     ``"off"``."""
-    if options.diffraction == "off":
+    if options.physics.diffraction == "off":
         return None
     marked = diffracting_parts(scene)
     if not marked:
@@ -91,7 +91,7 @@ def scene_diffraction(scene, sources, materials, options) -> Diffraction | None:
         if scene.parts[i].role == "detector":
             raise TraceError(f"part {scene.parts[i].name!r}: a detector cannot diffract (diffraction = \"edges\")")
     wavelength_nm = trace_wavelength_nm(sources, materials)
-    band_mm = float(options.diffraction_band_wavelengths) * wavelength_nm * 1e-6
+    band_mm = float(options.physics.diffraction_band_wavelengths) * wavelength_nm * 1e-6
     segments, rims = [], []
     for i in marked:
         part = scene.parts[i]
@@ -100,7 +100,7 @@ def scene_diffraction(scene, sources, materials, options) -> Diffraction | None:
         else:
             segments.append((i, sharp_edges(part.vertices_mm, part.faces)))
     return Diffraction(edges=edge_table(segments, rims, band_mm), wavelength_nm=wavelength_nm,
-                       gamma=float(options.hurb_gamma))
+                       gamma=float(options.physics.hurb_gamma))
 
 
 def hit_distance(scene, rays, tri) -> np.ndarray:

@@ -1,6 +1,6 @@
 """Area sampling of single-scatter vertices, combined with the forward walk by MIS.
 
-With ``TraceOptions(first_vertex_sampling=True)`` the single-scatter paths
+With ``EstimatorOptions(first_vertex_sampling=True)`` the single-scatter paths
 
     source -> (straight) -> surface point x (one BRDF scatter) -> (straight) -> detector
 
@@ -158,7 +158,7 @@ def _single_scatter(spec, comp, src, t, x, u_det, j, lobe_mis=False):
     wo = v / np.where(dist > 0, dist, 1.0)[:, None]
     cos_o = np.einsum("ij,ij->i", wo, nf[lit])
     cos_z = -np.einsum("ij,ij->i", wo, n_det[lit])
-    if spec.options.detector_sides == "both":
+    if spec.options.output.detector_sides == "both":
         cos_z = np.abs(cos_z)
     good = (cos_o > 0) & (cos_z > 0) & (dist > 2 * eps)
     lit, v, d2, dist, wo, cos_o, cos_z = (a[good] for a in (lit, v, d2, dist, wo, cos_o, cos_z))
@@ -179,7 +179,7 @@ def _single_scatter(spec, comp, src, t, x, u_det, j, lobe_mis=False):
     wo_loc = _local(wo, tb, bb, nf[lit])
     mat = spec.part_material[spec.triangle_part[t[lit]]]
     f = np.empty(len(lit))
-    pol = spec.options.polarization
+    pol = spec.options.physics.polarization
     for rows, fv in by_material(spec.materials, mat, lambda model, rows: model.brdf(wi_loc[rows], wo_loc[rows], pol)):
         f[rows] = fv
     value[lit] = e_x[lit] * f * cos_o * cos_z / d2
@@ -224,7 +224,7 @@ def lobe_connection(spec, comp, src, t, x, u3, j):
     wo = np.empty((len(lit), 3))
     weight = np.empty(len(lit))
     pdf = np.empty(len(lit))
-    pol = spec.options.polarization
+    pol = spec.options.physics.polarization
     for rows, smp in by_material(spec.materials, mat, lambda model, rows: model.sample(wi_loc[rows], u3[lit][rows], pol)):
         wo[rows], weight[rows], pdf[rows] = smp.wo, smp.weight, smp.pdf_per_sr
     ok = (wo[:, 2] > 0) & (weight > 0) & (pdf > 0)
@@ -243,7 +243,7 @@ def lobe_connection(spec, comp, src, t, x, u3, j):
     if len(lit) == 0:
         return (*empty[:3], shadows)
     cos_in = np.einsum("ij,ij->i", d, comp.normals[tri])
-    front = np.ones(len(lit), dtype=bool) if spec.options.detector_sides == "both" else cos_in < 0
+    front = np.ones(len(lit), dtype=bool) if spec.options.output.detector_sides == "both" else cos_in < 0
     ac = np.abs(cos_in)
     front &= ac > 0
     lit, origin, d, weight, pdf, dist, ac = (a[front] for a in (lit, origin, d, weight, pdf, dist, ac))
@@ -342,7 +342,7 @@ def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, tallies, rows, r
     D = len(comp.det_parts)
     u_all = np.concatenate([vertex_rng(spec.seed, spec.chunk_offset + first_chunk + c).random((sizes[c], 6 * D))
                             for c in range(len(sizes))])
-    lobe = bool(spec.options.vertex_lobe_sampling)
+    lobe = bool(spec.options.estimator.vertex_lobe_sampling)
     if lobe:
         u_lobe = np.concatenate([np.random.default_rng([check_seed(spec.seed), spec.chunk_offset + first_chunk + c,
                                                         LOBE_STREAM]).random((sizes[c], 3 * D))

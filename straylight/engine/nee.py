@@ -268,7 +268,7 @@ def estimate(event, verts, frame, w_vertex, evaluate=None):
 
 def _estimate(event, verts, frame, w_vertex, evaluate):
     spec, kern, settings, hit = event.spec, event.kernels, event.settings, event.hits
-    pol = spec.options.polarization
+    pol = spec.options.physics.polarization
     n_jk = len(event.scene.det_parts) * settings.nee_samples
     pairs = NeePairs(*kern.nee_pairs(verts, frame, hit, event.uniforms, event.columns.nee, event.scene.arrays,
                                      settings))
@@ -301,7 +301,7 @@ def _estimate(event, verts, frame, w_vertex, evaluate):
                 f_jk[rows] = fv
                 pdf_jk[rows] = pv
         if target is not None:
-            q = float(spec.options.target_fraction)
+            q = float(spec.options.estimator.target_fraction)
             at = verts[pairs.vertex[sel]]
             if mixed is None:
                 pdf_jk = (1 - q) * pdf_jk + q * target_pdf(target, hit.point_mm[at], hit.facing_normal[at],

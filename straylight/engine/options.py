@@ -1,7 +1,12 @@
-"""Stage 0, what the user asks for: :class:`TraceOptions` and :class:`TraceError`."""
+"""Stage 0, what the user asks for: :class:`TraceOptions` and :class:`TraceError`.
+
+The options come in three groups, each validating its own fields: how the power is estimated
+(:class:`EstimatorOptions`: never changes the expectation, only the variance), what is recorded
+(:class:`OutputOptions`) and what light does (:class:`PhysicsOptions`: changes the answer).
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -12,58 +17,93 @@ class TraceError(ValueError):
 
 
 @dataclass(frozen=True)
-class TraceOptions:
-    """Options of :func:`straylight.trace.trace` (see docs/engine.md)."""
+class EstimatorOptions:
+    """How the detectors' power is estimated (the variance-reduction strategies,
+    straylight.engine.estimators; all off is the analog walk). Same expectation either way."""
 
     nee: bool = True
-    max_events: int = 1000
-    rr_threshold: float = 1e-3
-    batch_rays: int | None = None  # None: straylight.engine.spec.AUTO_BATCH_RAYS
-    record_paths: bool = False
-    path_depth: int = 12
-    map_bins: tuple = (64, 64)
-    polarization: str = "u"
-    detector_sides: str = "both"
-    mirror_reflectance: float = 1.0
-    target_parts: tuple = ()
     nee_samples: int = 1
+    rr_threshold: float = 1e-3
+    target_parts: tuple = ()
     target_fraction: float = 0.5
     first_vertex_sampling: bool = False
     second_vertex_sampling: bool = False
     vertex_lobe_sampling: bool = False  # first-vertex sampling also joins x to the detector by the lobe's own draw
     second_vertex_lobe_sampling: bool = False  # second-vertex sampling also leaves B by the lobe's own draw
     reflection_split: bool = False  # interface reflections into a detector counted by expected value
-    scatter_polarization: str = "auto"  # "auto": scatter follows polarized light only; "on": always
-    diffraction: str = "scene"  # "scene": parts marked diffraction = "edges" diffract (HURB); "off": none do
-    hurb_gamma: float = 0.7978845608028654  # HURB uncertainty factor sqrt(2/pi) (straylight.engine.hurb)
-    diffraction_band_wavelengths: float = 100.0  # rays passing an edge closer than this many wavelengths bend
 
     def __post_init__(self):
-        if int(self.max_events) < 1:
-            raise TraceError(f"max_events must be >= 1, got {self.max_events}")
         if not (0.0 <= float(self.rr_threshold) < 1.0):
             raise TraceError(f"rr_threshold must be in [0, 1), got {self.rr_threshold}")
         if int(self.nee_samples) < 1:
             raise TraceError(f"nee_samples must be >= 1, got {self.nee_samples}")
-        if self.batch_rays is not None and int(self.batch_rays) < 1:
-            raise TraceError(f"batch_rays must be >= 1, got {self.batch_rays}")
+        if not (0.0 < float(self.target_fraction) < 1.0):
+            raise TraceError(f"target_fraction must be in (0, 1), got {self.target_fraction}")
+        if isinstance(self.target_parts, str):
+            object.__setattr__(self, "target_parts", (self.target_parts,))
+        object.__setattr__(self, "target_parts", tuple(self.target_parts))
+
+
+@dataclass(frozen=True)
+class OutputOptions:
+    """What the trace records beside the detector totals."""
+
+    record_paths: bool = False
+    path_depth: int = 12
+    map_bins: tuple = (64, 64)
+    detector_sides: str = "both"  # "both": detectors count light from both sides; "front": the front only
+
+    def __post_init__(self):
+        if self.detector_sides not in ("both", "front"):
+            raise TraceError(f"detector_sides must be 'both' or 'front', got {self.detector_sides!r}")
+        if len(tuple(self.map_bins)) != 2 or min(self.map_bins) < 1:
+            raise TraceError(f"map_bins must be two positive integers, got {self.map_bins!r}")
+
+
+@dataclass(frozen=True)
+class PhysicsOptions:
+    """What light does in the trace. ``mirror_reflectance`` is the reflectance of parts of role
+    ``mirror`` (CONTRACTS §6.3: "a specular surface with the trace's mirror reflectance"); a mirror
+    with its own reflectance is a surface part with a specular material."""
+
+    max_events: int = 1000
+    polarization: str = "u"
+    scatter_polarization: str = "auto"  # "auto": scatter follows polarized light only; "on": always
+    diffraction: str = "scene"  # "scene": parts marked diffraction = "edges" diffract (HURB); "off": none do
+    hurb_gamma: float = 0.7978845608028654  # HURB uncertainty factor sqrt(2/pi) (straylight.engine.hurb)
+    diffraction_band_wavelengths: float = 100.0  # rays passing an edge closer than this many wavelengths bend
+    mirror_reflectance: float = 1.0
+
+    def __post_init__(self):
+        if int(self.max_events) < 1:
+            raise TraceError(f"max_events must be >= 1, got {self.max_events}")
         if self.scatter_polarization not in ("auto", "on"):
             raise TraceError(f"scatter_polarization must be 'auto' or 'on', got {self.scatter_polarization!r}")
         if self.diffraction not in ("scene", "off"):
             raise TraceError(f"diffraction must be 'scene' or 'off', got {self.diffraction!r}")
         if not (float(self.hurb_gamma) > 0.0 and float(self.diffraction_band_wavelengths) > 0.0):
             raise TraceError("hurb_gamma and diffraction_band_wavelengths must be > 0")
-        if self.detector_sides not in ("both", "front"):
-            raise TraceError(f"detector_sides must be 'both' or 'front', got {self.detector_sides!r}")
-        if len(tuple(self.map_bins)) != 2 or min(self.map_bins) < 1:
-            raise TraceError(f"map_bins must be two positive integers, got {self.map_bins!r}")
-        if not (0.0 < float(self.target_fraction) < 1.0):
-            raise TraceError(f"target_fraction must be in (0, 1), got {self.target_fraction}")
-        if isinstance(self.target_parts, str):
-            object.__setattr__(self, "target_parts", (self.target_parts,))
-        object.__setattr__(self, "target_parts", tuple(self.target_parts))
         if not (0.0 <= float(self.mirror_reflectance) <= 1.0):
             raise TraceError(f"mirror_reflectance must be in [0, 1], got {self.mirror_reflectance}")
+
+
+@dataclass(frozen=True)
+class TraceOptions:
+    """Options of :func:`straylight.trace.trace` (see docs/engine.md, "Options"): the three groups
+    and ``batch_rays`` (rays per in-memory batch; never changes results)."""
+
+    estimator: EstimatorOptions = field(default_factory=EstimatorOptions)
+    output: OutputOptions = field(default_factory=OutputOptions)
+    physics: PhysicsOptions = field(default_factory=PhysicsOptions)
+    batch_rays: int | None = None  # None: straylight.engine.spec.AUTO_BATCH_RAYS
+
+    def __post_init__(self):
+        for name, kind in (("estimator", EstimatorOptions), ("output", OutputOptions), ("physics", PhysicsOptions)):
+            if not isinstance(getattr(self, name), kind):
+                raise TraceError(f"TraceOptions.{name} must be a {kind.__name__}, "
+                                 f"got {type(getattr(self, name)).__name__}")
+        if self.batch_rays is not None and int(self.batch_rays) < 1:
+            raise TraceError(f"batch_rays must be >= 1, got {self.batch_rays}")
 
 
 class WalkSettings(NamedTuple):
@@ -80,7 +120,8 @@ class WalkSettings(NamedTuple):
 
 
 def walk_settings(options: TraceOptions, eps_mm: float, start_weight_w: float, nee_part) -> WalkSettings:
-    return WalkSettings(both_sides=options.detector_sides == "both", nee=bool(options.nee),
-                        nee_samples=int(options.nee_samples), roulette_w=float(options.rr_threshold) * start_weight_w,
-                        eps_mm=float(eps_mm), record_paths=bool(options.record_paths),
+    est, out = options.estimator, options.output
+    return WalkSettings(both_sides=out.detector_sides == "both", nee=bool(est.nee),
+                        nee_samples=int(est.nee_samples), roulette_w=float(est.rr_threshold) * start_weight_w,
+                        eps_mm=float(eps_mm), record_paths=bool(out.record_paths),
                         nee_part=np.ascontiguousarray(nee_part, dtype=np.bool_))

@@ -9,7 +9,7 @@ guide scope (benchmarks/guide_scope.py) at 5 deg such paths, light scattered up 
 the lens and reflected by the lens's flat back face onto the 3 mm sensor, held 99.9 % of the
 variance: a couple of rays in 1e5.
 
-With ``TraceOptions(reflection_split=True)`` every interface hit where the reflection has power
+With ``EstimatorOptions(reflection_split=True)`` every interface hit where the reflection has power
 casts the reflected ray once more (same direction, from the refined point); when its first hit is
 a detector (on a counted side), the reflection's expected contribution
 

@@ -89,7 +89,8 @@ def build_result(spec: TraceSpec, detector_geometry, s1, s2, map_sums, paths_pie
         return Tally(tot, float(np.sqrt(np.sum(err[rows] ** 2))))
 
     detectors = {names[p]: tally(rows.detector_total + j) for j, p in enumerate(det_parts)}
-    show_abs = [i for i in range(P) if spec.part_roles[i] != ROLE_DETECTOR or spec.options.detector_sides == "front"]
+    front = spec.options.output.detector_sides == "front"
+    show_abs = [i for i in range(P) if spec.part_roles[i] != ROLE_DETECTOR or front]
     absorbed = {names[i]: tally(rows.ledger_absorbed + i) for i in show_abs}
     escaped = tally(rows.escaped)
     emitted = float(sum(s.power_w for s in spec.sources))
@@ -109,7 +110,7 @@ def build_result(spec: TraceSpec, detector_geometry, s1, s2, map_sums, paths_pie
         "balance_residual_w": float(residual),
     }
     maps = {}
-    bins = tuple(int(b) for b in spec.options.map_bins)
+    bins = tuple(int(b) for b in spec.options.output.map_bins)
     for j, p in enumerate(det_parts):
         geo = detector_geometry[j]
         m1, m2 = map_sums[j]
@@ -117,8 +118,8 @@ def build_result(spec: TraceSpec, detector_geometry, s1, s2, map_sums, paths_pie
         maps[names[p]] = IrradianceMap(eu, ev, m1.reshape(bins), stderr_from_sums(m1, m2, N).reshape(bins),
                                        geo.origin_mm, geo.axis_u, geo.axis_v, geo.normal)
     paths = None
-    if spec.options.record_paths:
-        paths = PathRecords.concatenate(paths_pieces, names, N, int(spec.options.path_depth))
+    if spec.options.output.record_paths:
+        paths = PathRecords.concatenate(paths_pieces, names, N, int(spec.options.output.path_depth))
     return TraceResult(
         n_rays=N, seed=spec.seed, emitted_w=emitted, detectors=detectors, maps=maps, absorbed=absorbed,
         escaped=escaped,
@@ -136,7 +137,7 @@ class BatchTotals:
         rows = spec.n_rows
         self.s1 = np.zeros(rows)
         self.s2 = np.zeros(rows)
-        bins = tuple(int(b) for b in spec.options.map_bins)
+        bins = tuple(int(b) for b in spec.options.output.map_bins)
         nb = bins[0] * bins[1]
         self.n_detectors = len(spec.detector_parts)
         self.map_sums = [(np.zeros(nb), np.zeros(nb)) for _ in range(self.n_detectors)]

@@ -54,7 +54,7 @@ def _table_key(spec: TraceSpec) -> tuple:
     alive by the entry so their ids stay theirs), detector sides and polarization."""
     opt = spec.options
     return (spec.token, spec.seed, tuple(id(s) for s in spec.sources), tuple(id(m) for m in spec.materials),
-            opt.detector_sides, opt.polarization)
+            opt.output.detector_sides, opt.physics.polarization)
 
 
 class Runtime:

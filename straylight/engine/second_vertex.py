@@ -1,6 +1,6 @@
 """Second-vertex sampling: area sampling of the surfaces the detector sees, combined with the walk by MIS.
 
-With ``TraceOptions(second_vertex_sampling=True)`` the paths
+With ``EstimatorOptions(second_vertex_sampling=True)`` the paths
 
     ... -> scatter vertex A -> (straight) -> surface point B -> (NEE) -> detector point z
 
@@ -181,7 +181,7 @@ def _seen_scores(spec, comp, tris, m, rng) -> np.ndarray:
     x = _points(spec.triangles_mm, t, u[:, 0], u[:, 1])
     n = comp.normals[t]
     g2 = np.zeros(len(t))
-    both = spec.options.detector_sides == "both"
+    both = spec.options.output.detector_sides == "both"
     for j in range(len(comp.det_parts)):
         z, w, d2, d, cz = _detector_link(comp.detectors[j], u[:, 2:5], x, both)
         cx = _dot(w, n)
@@ -300,7 +300,7 @@ class SecondVertexShares:
 def _brdf_pdf(spec, mat, wi, wo, with_pdf=True):
     f = np.empty(len(wi))
     pdf = np.empty(len(wi))
-    pol = spec.options.polarization
+    pol = spec.options.physics.polarization
     for rows, (fv, pv) in by_material(spec.materials, mat, lambda model, rows: (
             model.brdf(wi[rows], wo[rows], pol), model.pdf(wi[rows], wo[rows], pol) if with_pdf else 0.0)):
         f[rows] = fv
@@ -314,7 +314,7 @@ def _mixture_pdf(event, pdf, p, nf, dirs, part):
     target = event.scene.target
     if target is None:
         return pdf
-    q = float(event.spec.options.target_fraction)
+    q = float(event.spec.options.estimator.target_fraction)
     mixed = event.capabilities.at(Capability.TARGET_MIS, part)
     if mixed.all():
         return (1 - q) * pdf + q * target_pdf(target, p, nf, dirs, event.spec.eps)
@@ -430,7 +430,7 @@ def _lobe_terms(event, i, y, nf_y, tb_y, bb_y, wi_y, mat_y, part_y, base):
     u = event.uniforms[i, col:col + 3]
     wo = np.empty((len(i), 3))
     weight = np.empty(len(i))
-    pol = spec.options.polarization
+    pol = spec.options.physics.polarization
     for rows, smp in by_material(spec.materials, mat_y, lambda model, rows: model.sample(wi_y[rows], u[rows], pol)):
         wo[rows], weight[rows] = smp.wo, smp.weight
     ok = np.flatnonzero((wo[:, 2] > 0) & (weight > 0))

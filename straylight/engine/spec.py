@@ -112,16 +112,16 @@ AUTO_BATCH_RAYS = 50_000  # rays per in-memory batch unless set (batch_rays): en
 
 
 def _check_targets(scene, options):
-    for name in options.target_parts:
+    for name in options.estimator.target_parts:
         if name not in scene.part_names:
             raise TraceError(f"target part {name!r} not in the scene; parts: {', '.join(scene.part_names)}")
-    if options.target_parts:
-        ttri = np.concatenate([scene.part(n).vertices_mm[scene.part(n).faces] for n in options.target_parts])
+    if options.estimator.target_parts:
+        ttri = np.concatenate([scene.part(n).vertices_mm[scene.part(n).faces] for n in options.estimator.target_parts])
         geo = DetectorGeometry.from_triangles(ttri)
         off = np.abs((ttri.reshape(-1, 3) - geo.origin_mm) @ geo.normal).max()
         size = float(np.ptp(ttri.reshape(-1, 3), axis=0).max())
         if off > 1e-6 * max(size, 1.0):
-            raise TraceError(f"target parts {', '.join(options.target_parts)} must be flat (coplanar): "
+            raise TraceError(f"target parts {', '.join(options.estimator.target_parts)} must be flat (coplanar): "
                              f"vertices lie up to {off:.3g} mm off their plane")
 
 
@@ -148,7 +148,7 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
 
     diffraction = scene_diffraction(scene, sources, models, options)
     options = vertex_strategies_off(options, diffraction)
-    if options.first_vertex_sampling:
+    if options.estimator.first_vertex_sampling:
         from straylight.engine.first_vertex import unsupported
 
         why = unsupported(tuple(sources))
@@ -160,7 +160,7 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     h = hashlib.sha1(memoryview(tri).cast("B"))  # the bytes of tri.tobytes(), without copying them
     h.update(tri_part.tobytes())
     h.update(roles.tobytes())  # detector geometry depends on the roles,
-    h.update(repr(options.target_parts).encode())  # and the target sampler on the targets
+    h.update(repr(options.estimator.target_parts).encode())  # and the target sampler on the targets
     surfaces = tuple(getattr(p, "surface", None) for p in scene.parts)
     h.update(repr([None if s is None else s.to_dict() for s in surfaces]).encode())  # exact plane boundaries
     if diffraction is not None:

@@ -31,7 +31,7 @@ def target_pdf(target, p, nf, dirs, eps):
 def target_mixture(spec, target, ut, p, nf, frame, wo_world):
     """Directions, weights and densities of the mixture (``ut``: the 4 target uniforms per vertex;
     ``frame``: the vertices' LocalFrames; ``wo_world``: the material's draws)."""
-    q = float(spec.options.target_fraction)
+    q = float(spec.options.estimator.target_fraction)
     use_t = ut[:, 0] < q
     wo_world = wo_world.copy()
     if use_t.any():
@@ -42,7 +42,7 @@ def target_mixture(spec, target, ut, p, nf, frame, wo_world):
     wo_loc = np.stack([_dot(wo_world, tb), _dot(wo_world, bb), _dot(wo_world, nf)], axis=-1)
     f = np.zeros(len(p))
     pdf_b = np.zeros(len(p))
-    pol = spec.options.polarization
+    pol = spec.options.physics.polarization
     for rows, (fv, pv) in by_material(spec.materials, frame.material, lambda model, rows: (
             model.brdf(wi_loc[rows], wo_loc[rows], pol), model.pdf(wi_loc[rows], wo_loc[rows], pol))):
         f[rows] = fv

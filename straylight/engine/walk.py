@@ -85,19 +85,19 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         tallies = scene.thread_local("tallies", lambda: kernels.tallies(rows.n_per_ray, n)).reset(rows.n_per_ray, n)
     else:
         tallies = kernels.tallies(rows.n_per_ray, n)
-    second_lobe = spec.critical_table is not None and bool(opt.second_vertex_lobe_sampling)
-    columns = event_columns(rows.n_detectors, opt.nee_samples, scene.target is not None,
+    second_lobe = spec.critical_table is not None and bool(opt.estimator.second_vertex_lobe_sampling)
+    columns = event_columns(rows.n_detectors, opt.estimator.nee_samples, scene.target is not None,
                             spec.critical_table is not None, second_lobe)
     ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
-    rays = emitted_rays(*emit_batch(spec, draws, n, ubuf), w0, opt.path_depth, settings.record_paths)
-    records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.map_bins),
+    rays = emitted_rays(*emit_batch(spec, draws, n, ubuf), w0, opt.output.path_depth, settings.record_paths)
+    records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.output.map_bins),
                               settings.record_paths)
     first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
     second_vertex = SecondVertexShares(n) if second_lobe and rows.n_detectors > 0 else None
-    reflection_split = ReflectionSplit(n) if opt.reflection_split and rows.n_detectors > 0 else None
+    reflection_split = ReflectionSplit(n) if opt.estimator.reflection_split and rows.n_detectors > 0 else None
     segments = shadow_rays = 0
-    max_events = int(opt.max_events)
+    max_events = int(opt.physics.max_events)
     diff = spec.diffraction
     skip = None  # per live ray: the edge ids it was just diffracted at (diffraction only)
     for ev in range(max_events):
@@ -154,7 +154,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
                 rays, skip = diffraction_step.merge(rays, skip, bent, bent_skip)
     if first_vertex is not None:
         shadow_rays += run_vertex_pass(spec, scene, spec.vertex_table, first_chunk, stop_chunk, tallies, rows, records,
-                                       settings.record_paths, int(opt.path_depth))
+                                       settings.record_paths, int(opt.output.path_depth))
     return batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays)
 
 

@@ -21,7 +21,7 @@ import pytest
 
 from straylight.execution import Execution
 from straylight.scene import load_scene
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, TraceOptions, trace
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "engine_golden"
 OPTIONS = TraceOptions(batch_rays=1000)  # many small tasks, so a kill lands mid-trace
@@ -206,7 +206,7 @@ def test_spec_shipped_early_and_tables_sent_apart_give_identical_numbers(tube):
     from straylight.engine.backends.dask import local_cluster
 
     rs, _ = tube
-    opts = TraceOptions(batch_rays=3000, first_vertex_sampling=True, second_vertex_sampling=True)
+    opts = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True), batch_rays=3000)
     local = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts)
     with local_cluster(2, processes=True) as cluster, Client(cluster) as client:
         res = trace(rs.scene, rs.sources, 12_000, 7, materials=rs.materials, options=opts, execution=Execution(client=client))

@@ -13,7 +13,7 @@ import trimesh
 
 from geometry.edges import sharp_edges
 from straylight.scene import SceneFileError, load_scene
-from straylight.trace import TraceOptions
+from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")  # open analytic planes are not watertight
 
@@ -87,7 +87,7 @@ def test_missing_wavelength_is_refused(tmp_path):
 
 def test_diffraction_off_is_the_geometric_trace(tmp_path):
     """--diffraction off traces exactly as a scene without the key (same bits)."""
-    a = load_scene(write_scene(tmp_path)).trace(3000, seed=2, options=TraceOptions(diffraction="off"))
+    a = load_scene(write_scene(tmp_path)).trace(3000, seed=2, options=TraceOptions(physics=PhysicsOptions(diffraction="off")))
     b = load_scene(write_scene(tmp_path, diffraction="")).trace(3000, seed=2)
     assert a.detectors["screen"].power_w == b.detectors["screen"].power_w
     assert a.absorbed["stop"].power_w == b.absorbed["stop"].power_w
@@ -96,7 +96,7 @@ def test_diffraction_off_is_the_geometric_trace(tmp_path):
 def test_diffraction_same_numbers_any_batch_size_and_ledger_closes(tmp_path):
     """Seeds and batch sizes (CONTRACTS §1) with diffraction, scatter and NEE on; the ledger closes."""
     rs = load_scene(write_scene(tmp_path))
-    runs = [rs.trace(5000, seed=4, options=TraceOptions(batch_rays=b, record_paths=True)) for b in (1000, 5000)]
+    runs = [rs.trace(5000, seed=4, options=TraceOptions(output=OutputOptions(record_paths=True), batch_rays=b)) for b in (1000, 5000)]
     assert runs[0].detectors["screen"].power_w == runs[1].detectors["screen"].power_w
     assert runs[0].detectors["screen"].stderr_w == runs[1].detectors["screen"].stderr_w
     for r in runs:
@@ -151,8 +151,8 @@ def test_next_event_estimation_from_bends_agrees_with_the_analog_walk(tmp_path):
     path = tmp_path / "off.toml"
     path.write_text(OFF_AXIS_SCENE)
     rs = load_scene(path)
-    nee = rs.trace(20_000, seed=7, options=TraceOptions(nee=True))
-    walk = rs.trace(20_000, seed=8, options=TraceOptions(nee=False))
+    nee = rs.trace(20_000, seed=7, options=TraceOptions(estimator=EstimatorOptions(nee=True)))
+    walk = rs.trace(20_000, seed=8, options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     a, b = nee.detectors["spot"], walk.detectors["spot"]
     assert b.power_w > 0 and nee.ledger["detector_nee"]["spot"].power_w > 0
     assert abs(a.power_w - b.power_w) <= 4 * np.hypot(a.stderr_w, b.stderr_w), (a, b)
@@ -167,7 +167,7 @@ def test_compiled_walk_equals_numpy_reference_with_diffraction(tmp_path):
     path = tmp_path / "off.toml"
     path.write_text(OFF_AXIS_SCENE)
     rs = load_scene(path)
-    spec = make_spec(rs.scene, rs.sources, 2000, 3, rs.materials, TraceOptions(record_paths=True))
+    spec = make_spec(rs.scene, rs.sources, 2000, 3, rs.materials, TraceOptions(output=OutputOptions(record_paths=True)))
     a, b = run_batch(spec, 0, 2), run_batch_reference(spec, 0, 2)
     assert set(a) == set(b)
     for key in a:

@@ -32,7 +32,7 @@ from straylight.engine.runtime import runtime
 from straylight.engine.estimators import ANALOG, ESTIMATORS, options_for
 from straylight.engine.interactions import INTERACTIONS, Capability, kind_for
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, make_spec, run_batch, run_batch_reference, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, make_spec, run_batch, run_batch_reference, trace
 
 N_RAYS = 30_000  # per run with an estimator on
 N_ANALOG = 120_000  # the analog walk (one run per kind, the noisiest side of each comparison)
@@ -142,13 +142,13 @@ def test_every_registered_kind_has_a_contract_scene():
 _RUNS: dict = {}
 
 
-def _run(case_name, options: dict, seed: int, n_rays: int = N_RAYS):
+def _run(case_name, estimator: EstimatorOptions, seed: int, n_rays: int = N_RAYS, record_paths: bool = False):
     """trace() of a contract scene (memoised per process: the analog runs are shared)."""
-    key = (case_name, tuple(sorted((k, repr(v)) for k, v in options.items())), seed, n_rays)
+    options = TraceOptions(estimator=estimator, output=OutputOptions(record_paths=record_paths))
+    key = (case_name, options, seed, n_rays)
     if key not in _RUNS:
         case = CONTRACT_SCENES[case_name]()
-        _RUNS[key] = trace(case.scene, _source(), n_rays, seed=seed, materials=case.materials,
-                           options=TraceOptions(**options))
+        _RUNS[key] = trace(case.scene, _source(), n_rays, seed=seed, materials=case.materials, options=options)
     return _RUNS[key]
 
 
@@ -172,17 +172,17 @@ def engaged(case_name, estimator, on) -> bool:
         # nee_exchange row (the first-vertex and reflection-split runs have NEE off: nothing else writes it)
         return on.ledger["nee_exchange"]["subject"].power_w != 0.0
     if estimator.capability == Capability.SECOND_VERTEX:
-        spec = make_spec(case.scene, _source(), 1000, 0, case.materials, TraceOptions(**options_for(estimator)))
+        spec = make_spec(case.scene, _source(), 1000, 0, case.materials, TraceOptions(estimator=options_for(estimator)))
         if second_vertex.unsupported(spec) is not None:
             return False
         table = second_vertex.build_table(spec, runtime().scene(spec))
         subj = spec.part_names.index("subject")
-        return bool(table.from_part[subj]) and on.shadow_rays > _run(case_name, {**ANALOG, "nee": True},
+        return bool(table.from_part[subj]) and on.shadow_rays > _run(case_name, replace(ANALOG, nee=True),
                                                                       SEED_ON).shadow_rays
     if estimator.capability == Capability.TARGET_MIS:
         # walk hits only (NEE off in both runs): target sampling multiplies those after a subject vertex
-        alone = _run(case_name, {**options_for(estimator, "detector"), "nee": False, "record_paths": True}, SEED_ON)
-        off = _run(case_name, {**ANALOG, "record_paths": True}, SEED_ON)
+        alone = _run(case_name, replace(options_for(estimator, "detector"), nee=False), SEED_ON, record_paths=True)
+        off = _run(case_name, ANALOG, SEED_ON, record_paths=True)
         subj = case.scene.part_names.index("subject")
         return _last_vertex_counts(alone, subj) > TARGET_ENGAGED_RATIO * max(_last_vertex_counts(off, subj), 1)
     raise AssertionError(f"no engagement measure for {estimator.name}: add one to engaged()")
@@ -197,7 +197,7 @@ def contract_failures(case_name, estimator) -> list:
     case = CONTRACT_SCENES[case_name]()
     out = []
     on = _run(case_name, _estimator_options(estimator), SEED_ON)
-    analog = _run(case_name, dict(ANALOG), SEED_ANALOG, N_ANALOG)
+    analog = _run(case_name, ANALOG, SEED_ANALOG, N_ANALOG)
     if _ledger_error(on) > 1e-9:
         out.append(f"ledger does not close: {_ledger_error(on):.3g}")
     a, b = on.detectors["detector"], analog.detectors["detector"]
@@ -227,7 +227,7 @@ def test_contract(kind, estimator):
 
 @pytest.mark.parametrize("kind", KIND_NAMES)
 def test_analog_walk_ledger_closes(kind):
-    assert _ledger_error(_run(kind, dict(ANALOG), SEED_ANALOG, N_ANALOG)) <= 1e-9
+    assert _ledger_error(_run(kind, ANALOG, SEED_ANALOG, N_ANALOG)) <= 1e-9
 
 
 @pytest.mark.parametrize("estimator", sorted(e.name for e in ESTIMATORS if e.reference))
@@ -235,7 +235,7 @@ def test_analog_walk_ledger_closes(kind):
 def test_compiled_equals_reference(kind, estimator):
     case = CONTRACT_SCENES[kind]()
     est = EST[estimator]
-    spec = make_spec(case.scene, _source(), N_REF, 5, case.materials, TraceOptions(**_estimator_options(est)))
+    spec = make_spec(case.scene, _source(), N_REF, 5, case.materials, TraceOptions(estimator=_estimator_options(est)))
     if est.capability == Capability.SECOND_VERTEX and second_vertex.unsupported(spec) is None:
         spec = replace(spec, critical_table=second_vertex.build_table(spec, runtime().scene(spec)))
     n_chunks = 1

@@ -16,7 +16,7 @@ from geometry.mesh import Part, Scene
 from straylight.intersect import EmbreeIntersector, ReferenceIntersector
 from straylight.rng import SeedError
 from straylight.sources import CollimatedDisk, LambertianDisk, PointSource
-from straylight.trace import TraceError, TraceOptions, scene_epsilon, trace
+from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceError, TraceOptions, scene_epsilon, trace
 
 BLACK = {"black": StandInLambertian(0.05)}
 
@@ -91,14 +91,14 @@ PLATE_SRC = CollimatedDisk([0, 0, 50], [0, 0, -1], [0.3, 0, -1], 15.0, power_w=2
 
 
 def test_nee_and_plain_random_walk_agree_within_errors():
-    on = trace(_plate_scene(), PLATE_SRC, 40000, seed=11, materials=PLATE_MATS, options=TraceOptions(nee=True))
-    off = trace(_plate_scene(), PLATE_SRC, 40000, seed=11, materials=PLATE_MATS, options=TraceOptions(nee=False))
+    on = trace(_plate_scene(), PLATE_SRC, 40000, seed=11, materials=PLATE_MATS, options=TraceOptions(estimator=EstimatorOptions(nee=True)))
+    off = trace(_plate_scene(), PLATE_SRC, 40000, seed=11, materials=PLATE_MATS, options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     a, b = on.detectors["det"], off.detectors["det"]
     assert a.power_w > 0 and b.power_w > 0
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)
     assert a.stderr_w < 0.5 * b.stderr_w  # NEE is the point: much smaller error at equal rays
     split = trace(_plate_scene(), PLATE_SRC, 20000, seed=16, materials=PLATE_MATS,
-                  options=TraceOptions(nee=True, nee_samples=3)).detectors["det"]
+                  options=TraceOptions(estimator=EstimatorOptions(nee=True, nee_samples=3))).detectors["det"]
     assert abs(split.power_w - b.power_w) < 4 * math.hypot(split.stderr_w, b.stderr_w)
 
 
@@ -106,22 +106,22 @@ def test_power_ledger_closes_with_mirror_absorber_roulette_and_truncation():
     mirror = annulus_part("mirror", 60.0, 0.0001, 30.0, 64, role="mirror", facing=-1)
     stop = annulus_part("stop", 45.0, 20.0, 35.0, 64, role="absorber")
     scene = _plate_scene((mirror, stop))
-    for opts in (TraceOptions(), TraceOptions(nee=False), TraceOptions(max_events=2), TraceOptions(nee_samples=2),
-                 TraceOptions(rr_threshold=0.4, mirror_reflectance=0.7)):
+    for opts in (TraceOptions(), TraceOptions(estimator=EstimatorOptions(nee=False)), TraceOptions(physics=PhysicsOptions(max_events=2)), TraceOptions(estimator=EstimatorOptions(nee_samples=2)),
+                 TraceOptions(estimator=EstimatorOptions(rr_threshold=0.4), physics=PhysicsOptions(mirror_reflectance=0.7))):
         res = trace(scene, [PLATE_SRC, PointSource([0, 0, 20], 1.0)], 5000, seed=4, materials=PLATE_MATS,
                     options=opts)
         assert res.emitted_w == 3.0
         assert abs(res.emitted_w - _total(res)) <= 1e-9 * res.emitted_w
         assert res.absorbed["stop"].power_w > 0 and res.absorbed["mirror"].power_w >= 0
     assert trace(scene, PLATE_SRC, 5000, seed=4, materials=PLATE_MATS,
-                 options=TraceOptions(max_events=2)).ledger["truncated_w"].power_w > 0
+                 options=TraceOptions(physics=PhysicsOptions(max_events=2))).ledger["truncated_w"].power_w > 0
 
 
 def test_russian_roulette_is_unbiased_and_reported():
     plain = trace(_plate_scene(), PLATE_SRC, 40000, seed=8, materials=PLATE_MATS,
-                  options=TraceOptions(rr_threshold=0.0))
+                  options=TraceOptions(estimator=EstimatorOptions(rr_threshold=0.0)))
     rr = trace(_plate_scene(), PLATE_SRC, 40000, seed=9, materials=PLATE_MATS,
-               options=TraceOptions(rr_threshold=0.6))
+               options=TraceOptions(estimator=EstimatorOptions(rr_threshold=0.6)))
     assert plain.ledger["roulette_w"].power_w == 0.0
     assert rr.ledger["roulette_w"].stderr_w > 0  # roulette did act
     a, b = plain.absorbed["floor"], rr.absorbed["floor"]
@@ -137,7 +137,7 @@ def test_mirror_sends_the_whole_beam_to_the_detector():
     det = Part("det", np.array([[-100, -30, -30], [-100, 30, -30], [-100, 30, 30], [-100, -30, 30]], float),
                np.array([[0, 1, 2], [0, 2, 3]]), role="detector")
     src = CollimatedDisk([0, 0, 50], [0, 0, -1], [0, 0, -1], 5.0, power_w=1.0)
-    res = trace(Scene((mirror, det)), src, 2000, seed=1, options=TraceOptions(mirror_reflectance=0.9))
+    res = trace(Scene((mirror, det)), src, 2000, seed=1, options=TraceOptions(physics=PhysicsOptions(mirror_reflectance=0.9)))
     assert res.detectors["det"].power_w == pytest.approx(0.9, rel=1e-12)
     assert res.absorbed["mirror"].power_w == pytest.approx(0.1, rel=1e-12)
 
@@ -156,10 +156,10 @@ def test_point_source_inverse_square_solid_angle():
 def test_same_seed_same_numbers_for_any_batch_size(batch):
     scene = baffled_tube_scene()
     src = CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(0.35), 0, -math.cos(0.35)], 60.0)
-    opts = TraceOptions(batch_rays=batch, record_paths=True)
+    opts = TraceOptions(output=OutputOptions(record_paths=True), batch_rays=batch)
     # 12345 rays: the last chunk is partial
     res = trace(scene, src, 12345, seed=21, materials=BLACK, options=opts)
-    ref = trace(scene, src, 12345, seed=21, materials=BLACK, options=TraceOptions(batch_rays=3000, record_paths=True))
+    ref = trace(scene, src, 12345, seed=21, materials=BLACK, options=TraceOptions(output=OutputOptions(record_paths=True), batch_rays=3000))
     assert res.detectors["detector"].power_w > 0
     assert res.to_json_dict() == ref.to_json_dict()
     np.testing.assert_array_equal(res.maps["detector"].power_w, ref.maps["detector"].power_w)
@@ -176,7 +176,7 @@ def test_different_seeds_differ():
 
 def test_path_records_group_to_the_detector_total():
     src = CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(0.35), 0, -math.cos(0.35)], 60.0)
-    res = trace(baffled_tube_scene(), src, 5000, seed=3, materials=BLACK, options=TraceOptions(record_paths=True))
+    res = trace(baffled_tube_scene(), src, 5000, seed=3, materials=BLACK, options=TraceOptions(output=OutputOptions(record_paths=True)))
     groups = res.paths.group()
     assert len(groups) >= 5
     total = sum(g.power_w for g in groups)
@@ -194,7 +194,7 @@ def test_path_records_group_to_the_detector_total():
 
 
 def test_irradiance_map_sums_to_detector_power():
-    res = trace(_plate_scene(), PLATE_SRC, 10000, seed=3, materials=PLATE_MATS, options=TraceOptions(map_bins=(8, 8)))
+    res = trace(_plate_scene(), PLATE_SRC, 10000, seed=3, materials=PLATE_MATS, options=TraceOptions(output=OutputOptions(map_bins=(8, 8))))
     m = res.maps["det"]
     assert m.power_w.shape == (8, 8)
     assert m.power_w.sum() == pytest.approx(res.detectors["det"].power_w, rel=1e-12)
@@ -206,7 +206,7 @@ def test_front_only_detector_ignores_light_from_behind():
     det = disk_part("det", 0.0, 10.0, 64, role="detector", facing=-1)  # faces -z, light comes from +z
     src = CollimatedDisk([0, 0, 10], [0, 0, -1], [0, 0, -1], 5.0)
     both = trace(Scene((det,)), src, 1000, seed=1)
-    front = trace(Scene((det,)), src, 1000, seed=1, options=TraceOptions(detector_sides="front"))
+    front = trace(Scene((det,)), src, 1000, seed=1, options=TraceOptions(output=OutputOptions(detector_sides="front")))
     assert both.detectors["det"].power_w == pytest.approx(1.0)
     assert front.detectors["det"].power_w == 0.0 and front.absorbed["det"].power_w == pytest.approx(1.0)
 
@@ -218,7 +218,7 @@ def test_bad_requests_are_one_line_value_errors():
     with pytest.raises(TraceError, match="n_rays"):
         trace(scene, PLATE_SRC, 0, materials=PLATE_MATS)
     with pytest.raises(TraceError, match="max_events"):
-        TraceOptions(max_events=0)
+        TraceOptions(physics=PhysicsOptions(max_events=0))
     bare = Scene((Part("floor", np.eye(3), np.array([[0, 1, 2]]), role="surface"),))
     with pytest.raises(TraceError, match="floor"):
         trace(bare, PLATE_SRC, 100)
@@ -226,16 +226,16 @@ def test_bad_requests_are_one_line_value_errors():
 
 def test_target_importance_sampling_is_unbiased_and_helps():
     """One-sample MIS toward the detector (no NEE) against the plain walk, same scene, 4 sigma."""
-    plain = trace(_plate_scene(), PLATE_SRC, 40000, seed=12, materials=PLATE_MATS, options=TraceOptions(nee=False))
+    plain = trace(_plate_scene(), PLATE_SRC, 40000, seed=12, materials=PLATE_MATS, options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     mis = trace(_plate_scene(), PLATE_SRC, 40000, seed=13, materials=PLATE_MATS,
-                options=TraceOptions(nee=False, target_parts=("det",), target_fraction=0.5))
+                options=TraceOptions(estimator=EstimatorOptions(nee=False, target_parts=("det",), target_fraction=0.5)))
     a, b = plain.detectors["det"], mis.detectors["det"]
     assert a.power_w > 0 and b.power_w > 0
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)
     assert b.stderr_w < 0.5 * a.stderr_w
     assert abs(mis.emitted_w - _total(mis)) <= 1e-9 * mis.emitted_w
     with pytest.raises(TraceError, match="target part 'nope'"):
-        trace(_plate_scene(), PLATE_SRC, 10, materials=PLATE_MATS, options=TraceOptions(target_parts=("nope",)))
+        trace(_plate_scene(), PLATE_SRC, 10, materials=PLATE_MATS, options=TraceOptions(estimator=EstimatorOptions(target_parts=("nope",))))
 
 
 def test_source_on_a_detector_does_not_hit_it_backward_trace():
@@ -262,8 +262,8 @@ def test_nee_agrees_with_the_walk_on_a_glossy_material():
     det = disk_part("det", 30.0, 6.0, 64, role="detector")
     det = Part("det", det.vertices_mm + np.array([30.0, 0.0, 0.0]), det.faces, role="detector")
     scene = Scene((floor, det))
-    on = trace(scene, PLATE_SRC, 20000, seed=14, materials=mats, options=TraceOptions(nee=True))
-    off = trace(scene, PLATE_SRC, 20000, seed=15, materials=mats, options=TraceOptions(nee=False))
+    on = trace(scene, PLATE_SRC, 20000, seed=14, materials=mats, options=TraceOptions(estimator=EstimatorOptions(nee=True)))
+    off = trace(scene, PLATE_SRC, 20000, seed=15, materials=mats, options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     a, b = on.detectors["det"], off.detectors["det"]
     assert a.power_w > 0 and b.power_w > 0
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)

@@ -6,7 +6,7 @@ import pytest
 from engine_helpers import baffled_tube_scene
 from materials import Lambertian
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import OutputOptions, TraceOptions, trace
 from straylight.execution import Execution
 
 
@@ -15,7 +15,7 @@ def setup():
     scene = baffled_tube_scene()
     src = CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(0.35), 0, -math.cos(0.35)], 60.0)
     mats = {"black": Lambertian(0.05)}  # importable by worker processes (test helpers are not)
-    opts = TraceOptions(batch_rays=3000, record_paths=True)
+    opts = TraceOptions(output=OutputOptions(record_paths=True), batch_rays=3000)
     local = trace(scene, src, 9000, seed=5, materials=mats, options=opts)
     return scene, src, mats, opts, local
 

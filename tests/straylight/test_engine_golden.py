@@ -37,12 +37,13 @@ TWIN_CASES = {
 TWIN_KEYS = ("theta_i_deg", "theta_r_deg", "polarization", "twin_brdf_per_sr", "twin_stderr_per_sr", "estimator")
 # trace(...) through the Python API: options the command line does not reach
 API_CASES = {
-    "api_mixed_paths": ("tube_mixed.toml", 30000, 11, dict(record_paths=True, nee_samples=2, detector_sides="front",
-                                                           rr_threshold=0.02, max_events=7, map_bins=(8, 8))),
-    "api_mixed_target": ("tube_mixed.toml", 20000, 12, dict(target_parts=("detector",), target_fraction=0.3,
-                                                            map_bins=(4, 6))),
-    "api_tube_vertex_paths": ("tube.toml", 30000, 13, dict(first_vertex_sampling=True, record_paths=True,
-                                                           path_depth=3, map_bins=(5, 5))),
+    "api_mixed_paths": ("tube_mixed.toml", 30000, 11, dict(
+        estimator=dict(nee_samples=2, rr_threshold=0.02),
+        output=dict(record_paths=True, detector_sides="front", map_bins=(8, 8)), physics=dict(max_events=7))),
+    "api_mixed_target": ("tube_mixed.toml", 20000, 12, dict(
+        estimator=dict(target_parts=("detector",), target_fraction=0.3), output=dict(map_bins=(4, 6)))),
+    "api_tube_vertex_paths": ("tube.toml", 30000, 13, dict(
+        estimator=dict(first_vertex_sampling=True), output=dict(record_paths=True, path_depth=3, map_bins=(5, 5)))),
 }
 
 
@@ -96,11 +97,14 @@ def run_twin(name, out_dir) -> dict:
 
 def run_api(name) -> dict:
     from straylight.scene import load_scene
-    from straylight.trace import TraceOptions, trace
+    from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions, trace
 
-    scene, n, seed, opts = API_CASES[name]
+    scene, n, seed, groups = API_CASES[name]  # the options by group
     rs = load_scene(GOLDEN / scene)
-    return api_summary(trace(rs.scene, rs.sources, n, seed, materials=rs.materials, options=TraceOptions(**opts)))
+    opts = TraceOptions(estimator=EstimatorOptions(**groups.get("estimator", {})),
+                        output=OutputOptions(**groups.get("output", {})),
+                        physics=PhysicsOptions(**groups.get("physics", {})))
+    return api_summary(trace(rs.scene, rs.sources, n, seed, materials=rs.materials, options=opts))
 
 
 def _twin_numbers(doc):

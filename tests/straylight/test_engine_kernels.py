@@ -13,7 +13,7 @@ from geometry.mesh import Part, Scene
 from straylight.engine.tally_store import DenseTallies, LoggedTallies, tally_add
 from straylight.engine.tally_rows import TallyRows
 from straylight.sources import CollimatedDisk, PointSource
-from straylight.trace import TraceOptions, make_spec, run_batch, run_batch_reference
+from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions, make_spec, run_batch, run_batch_reference
 
 
 def _same(a, b, where=""):
@@ -46,11 +46,11 @@ def _plate_scene():
 
 PLATE_SOURCES = [CollimatedDisk([0, 0, 50], [0, 0, -1], [0.3, 0, -1], 15.0, power_w=2.0), PointSource([0, 0, 20], 1.0)]
 CASES = {
-    "nee_paths_two_detectors": TraceOptions(record_paths=True),
-    "no_nee": TraceOptions(nee=False, record_paths=True),
-    "nee_samples_roulette_mirror": TraceOptions(nee_samples=2, rr_threshold=0.4, mirror_reflectance=0.7),
-    "front_truncated": TraceOptions(detector_sides="front", max_events=2, record_paths=True),
-    "target": TraceOptions(target_parts=("det",), record_paths=True),
+    "nee_paths_two_detectors": TraceOptions(output=OutputOptions(record_paths=True)),
+    "no_nee": TraceOptions(estimator=EstimatorOptions(nee=False), output=OutputOptions(record_paths=True)),
+    "nee_samples_roulette_mirror": TraceOptions(estimator=EstimatorOptions(nee_samples=2, rr_threshold=0.4), physics=PhysicsOptions(mirror_reflectance=0.7)),
+    "front_truncated": TraceOptions(output=OutputOptions(detector_sides="front", record_paths=True), physics=PhysicsOptions(max_events=2)),
+    "target": TraceOptions(estimator=EstimatorOptions(target_parts=("det",)), output=OutputOptions(record_paths=True)),
 }
 
 
@@ -76,7 +76,7 @@ def test_compiled_batch_matches_reference_with_two_real_materials():
     mats = {names[0]: Lambertian(0.05), "glossy": load_material("z302_sample_a")}
     src = CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(0.35), 0, -math.cos(0.35)], 60.0)
     spec = make_spec(Scene(tuple(parts)), src, 2000, seed=3, materials=mats,
-                     options=TraceOptions(record_paths=True, polarization="s"))
+                     options=TraceOptions(output=OutputOptions(record_paths=True), physics=PhysicsOptions(polarization="s")))
     fast, ref = run_batch(spec, 0, 2), run_batch_reference(spec, 0, 2)
     assert fast["paths"] is not None and len(fast["paths"]["ray"]) > 0
     _same(fast, ref)

@@ -8,7 +8,7 @@ import pytest
 
 from geometry.analytic import Plane, analytic_part
 from geometry.mesh import Part, Scene
-from straylight.engine.options import TraceOptions
+from straylight.engine.options import EstimatorOptions, OutputOptions, TraceOptions
 from straylight.sources import CollimatedDisk
 from straylight.trace import trace
 
@@ -86,7 +86,7 @@ def test_first_vertex_sampling_also_sees_the_exact_disk():
     expected = 0.5 * coaxial_disks_view_factor(3.0, 5.0, 20.0)
     disk = Plane(np.array([0.0, 0.0, 20.0]), -UP, math.inf, 0.0, 5.0, 0.0)
     scene, beam = _floor_and_detector(analytic_part("det", disk, None, "detector", tolerance_mm=0.05))
-    res = trace(scene, [beam], 20_000, seed=6, materials=_grey(), options=TraceOptions(first_vertex_sampling=True))
+    res = trace(scene, [beam], 20_000, seed=6, materials=_grey(), options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)))
     d = res.detectors["det"]
     assert d.stderr_w < 0.002 * expected
     assert abs(d.power_w - expected) < 4 * d.stderr_w, (d.power_w, expected, d.stderr_w)
@@ -155,7 +155,7 @@ def test_compiled_walk_is_bit_identical_to_the_numpy_twin_with_analytic_detector
     beam = CollimatedDisk(center_mm=[0.0, 0.0, 10.0], normal=[0.0, 0.0, -1.0], direction=[0.0, 0.0, -1.0],
                           radius_mm=3.0, power_w=1.0)
     spec = make_spec(Scene((floor, d1, d2, d3)), [beam], 3500, seed=9, materials={"grey": StandInLambertian(0.5)},
-                     options=TraceOptions(record_paths=True, nee_samples=2))
+                     options=TraceOptions(estimator=EstimatorOptions(nee_samples=2), output=OutputOptions(record_paths=True)))
     fast, ref = run_batch(spec, 1, 4), run_batch_reference(spec, 1, 4)
     assert np.abs(fast["s1"]).sum() > 0
     _same(fast, ref)

@@ -13,10 +13,10 @@ import pytest
 from engine_helpers import StandInLambertian, baffled_tube_scene, disk_part
 from geometry.mesh import Part, Scene
 from straylight.sources import CollimatedDisk, LambertianDisk, PointSource
-from straylight.trace import TraceError, TraceOptions, make_spec, run_batch_reference, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceError, TraceOptions, make_spec, run_batch_reference, trace
 from straylight.execution import Execution
 
-FV = TraceOptions(first_vertex_sampling=True)
+FV = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True))
 BLACK = {"black": StandInLambertian(0.05)}
 RHO = 0.5
 
@@ -94,9 +94,9 @@ def test_same_numbers_for_any_batch_size_and_thread_count():
     scene = baffled_tube_scene()
     src = _tube_source(30.0)
     ref = trace(scene, src, 12345, seed=9, materials=BLACK,
-                options=TraceOptions(first_vertex_sampling=True, batch_rays=1000, record_paths=True))
-    for opts, threads in ((TraceOptions(first_vertex_sampling=True, batch_rays=10000, record_paths=True), None),
-                          (TraceOptions(first_vertex_sampling=True, batch_rays=2000, record_paths=True), 2)):
+                options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True), output=OutputOptions(record_paths=True), batch_rays=1000))
+    for opts, threads in ((TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True), output=OutputOptions(record_paths=True), batch_rays=10000), None),
+                          (TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True), output=OutputOptions(record_paths=True), batch_rays=2000), 2)):
         got = trace(scene, src, 12345, seed=9, materials=BLACK, options=opts, execution=Execution(threads=threads))
         assert got.detectors["detector"].power_w == ref.detectors["detector"].power_w
         assert got.detectors["detector"].stderr_w == ref.detectors["detector"].stderr_w

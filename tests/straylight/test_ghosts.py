@@ -13,7 +13,7 @@ from geometry.analytic import Plane, analytic_part
 from materials import load_material
 from straylight.analyses.ghosts import ghost_table, two_bounce_pair
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 
 
 def test_two_bounce_pattern():
@@ -31,7 +31,7 @@ def test_window_ghost_power():
     det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
     src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
     res = trace(Scene((top, bottom, det)), [src], 400_000, seed=3, materials={"glass": glass},
-                options=TraceOptions(nee=False, record_paths=True))
+                options=TraceOptions(estimator=EstimatorOptions(nee=False), output=OutputOptions(record_paths=True)))
     table = ghost_table(res.paths, "det", res.detectors["det"].power_w)
     R = 0.04
     nominal, ghost = table.rows[0], table.rows[1]

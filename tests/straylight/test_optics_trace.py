@@ -18,7 +18,7 @@ from geometry.analytic import Conic, Plane, analytic_part
 from materials import load_material
 from straylight.polarization import SourcePolarization, attach
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, TraceOptions, trace
 
 N_GLASS = 1.5
 GLASS = load_material({"name": "glass", "components": [{"type": "dielectric", "n": N_GLASS}]})
@@ -50,7 +50,7 @@ def _fresnel(theta, n=N_GLASS):
 
 def _run(theta_deg, pol=None, n=400_000, seed=1):
     res = trace(_plate_scene(), [_beam(theta_deg, pol)], n, seed=seed, materials={"glass": GLASS},
-                options=TraceOptions(nee=False))
+                options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     absorbed = sum(t.power_w for t in res.absorbed.values())
     balance = res.emitted_w - res.detectors["det"].power_w - res.escaped.power_w - absorbed
     assert abs(balance) < 1e-9 * res.emitted_w  # power balance
@@ -95,7 +95,7 @@ def test_bulk_absorption_of_a_thick_window():
     glass = load_material({"name": "glass", "components": [{"type": "dielectric", "n": N_GLASS,
                                                             "absorption_per_mm": 0.05}]})
     res = trace(_plate_scene(), [_beam(0.0)], 300_000, seed=4, materials={"glass": glass},
-                options=TraceOptions(nee=False))
+                options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     R = ((N_GLASS - 1) / (N_GLASS + 1)) ** 2
     tau = math.exp(-0.5)
     det = res.detectors["det"]
@@ -111,7 +111,7 @@ def test_paraboloid_focuses_on_a_0p02_mm_detector():
     det = analytic_part("focus", Plane(np.array([0, 0, 1000.0]), -UP, math.inf, 0.0, 0.02, 0.0), None, "detector")
     src = CollimatedDisk(center_mm=np.array([0, 0, 1500.0]), normal=-UP, direction=-UP, radius_mm=99.0)
     n = 200_000
-    res = trace(Scene((prim, det)), [src], n, seed=5, materials={"m": mirror}, options=TraceOptions(nee=False))
+    res = trace(Scene((prim, det)), [src], n, seed=5, materials={"m": mirror}, options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     frac = (99.0**2 - 20.0**2) / 99.0**2
     got = res.detectors["focus"]
     err = 0.9 * math.sqrt(frac * (1 - frac) / n)  # binomial: which rays meet the mirror
@@ -130,7 +130,7 @@ def test_window_from_a_closed_cad_mesh():
     slab = Part("slab", np.asarray(box.vertices), np.asarray(box.faces), "glass")
     det = analytic_part("det", Plane(np.array([0, 0, -20.0]), UP, math.inf, 0.0, 900.0, 0.0), None, "detector")
     res = trace(Scene((slab, det)), [_beam(0.0)], 200_000, seed=6, materials={"glass": GLASS},
-                options=TraceOptions(nee=False))
+                options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     R = ((N_GLASS - 1) / (N_GLASS + 1)) ** 2
     got = res.detectors["det"]
     assert abs(got.power_w - (1 - R) / (1 + R)) < 4 * got.stderr_w

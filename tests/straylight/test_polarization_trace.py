@@ -30,7 +30,7 @@ from materials.mueller import interface_mueller
 from materials.smooth import Specular
 from straylight.polarization import SourcePolarization, attach
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions, trace
 
 AL_532 = complex(0.96, 6.69)
 N_GLASS = 1.5
@@ -111,7 +111,7 @@ def _fold(mirror_kind, analyser_gamma_deg):
 def _fold_power(mirror_kind, e_field, gamma_deg, n=100_000, seed=3, mirror_r=1.0):
     scene, s_a = _fold(mirror_kind, gamma_deg)
     res = trace(scene, [_beam([0, 0, -1], e_field)], n, seed=seed, materials={"glass": GLASS, "al": ALUMINIUM},
-                options=TraceOptions(nee=False, mirror_reflectance=mirror_r))
+                options=TraceOptions(estimator=EstimatorOptions(nee=False), physics=PhysicsOptions(mirror_reflectance=mirror_r)))
     t = res.detectors["det"]
     return t.power_w / res.emitted_w, t.stderr_w / res.emitted_w, s_a
 
@@ -165,7 +165,7 @@ def test_aluminium_mirror_reflects_rs_rp_and_their_mean(pol):
     mirror = analytic_part("m", Plane(np.zeros(3), n_m, math.inf, 0.0, 15.0, 0.0), "al")
     e = {"s": [0.0, 1.0, 0.0], "p": [1.0, 0.0, 0.0], "u": None}[pol]
     res = trace(Scene((mirror, _detector_after(np.zeros(3), [1.0, 0, 0]))), [_beam([0, 0, -1], e)], 2000, seed=1,
-                materials={"al": ALUMINIUM}, options=TraceOptions(nee=False))
+                materials={"al": ALUMINIUM}, options=TraceOptions(estimator=EstimatorOptions(nee=False)))
     rs, rp = _textbook_r(math.radians(45.0), AL_532)
     want = {"s": abs(rs) ** 2, "p": abs(rp) ** 2, "u": (abs(rs) ** 2 + abs(rp) ** 2) / 2}[pol]
     assert math.isclose(res.detectors["det"].power_w / res.emitted_w, want, rel_tol=1e-12)
@@ -191,7 +191,7 @@ def _scatter_reading(theta_i_deg, theta_r_deg, pol, n=4000, seed=5, option="u"):
     out = np.array([math.sin(tr), 0.0, math.cos(tr)])
     det = _detector_after(np.zeros(3), out, distance=ARM_MM, radius=DET_R_MM)
     res = trace(Scene((sample, det)), [_beam(d, e, center=-80 * d, radius=0.3)], n, seed=seed,
-                materials={"rr": SAMPLE}, options=TraceOptions(polarization=option, detector_sides="front"))
+                materials={"rr": SAMPLE}, options=TraceOptions(output=OutputOptions(detector_sides="front"), physics=PhysicsOptions(polarization=option)))
     area = math.pi * DET_R_MM**2  # an analytic detector disk is traced exactly (CONTRACTS 6.4)
     omega = area / ARM_MM**2
     scale = 1.0 / (res.emitted_w * omega * math.cos(tr))
@@ -241,8 +241,7 @@ def _analysed_scatter(orientation, n=60_000, seed=11, scatter_polarization="on")
     sample = analytic_part("sample", Plane(np.zeros(3), np.array([0, 0, 1.0]), math.inf, 0.0, 30.0, 0.0), "rr")
     res = trace(Scene((sample, analyser, det, baffle)), [_beam(d, None, center=-80 * d, radius=0.3)], n, seed=seed,
                 materials={"rr": SAMPLE, "glass": GLASS},
-                options=TraceOptions(nee=False, detector_sides="front", target_parts=("analyser",), rr_threshold=0.0,
-                                     scatter_polarization=scatter_polarization))
+                options=TraceOptions(estimator=EstimatorOptions(nee=False, target_parts=("analyser",), rr_threshold=0.0), output=OutputOptions(detector_sides="front"), physics=PhysicsOptions(scatter_polarization=scatter_polarization)))
     area = math.pi * 1.0**2  # the analytic 1 mm analyser disk, traced exactly (CONTRACTS 6.4)
     per_brdf = 0.5 * _rs_brewster() * math.cos(tr) * area * math.cos(THETA_B) / 100.0**2
     t = res.detectors["det"]
@@ -282,8 +281,9 @@ def test_second_vertex_sampling_stays_out_of_polarized_traces():
                         "detector")
     beam = [_beam(np.array([0, 0, -1.0]), None, center=np.array([0, 0, 80.0]), radius=0.3)]
 
-    def why(**kw):
-        return unsupported(make_spec(Scene((sample, det)), beam, 10, 1, {"rr": SAMPLE}, TraceOptions(**kw)))
+    def why(**physics):
+        return unsupported(make_spec(Scene((sample, det)), beam, 10, 1, {"rr": SAMPLE},
+                                     TraceOptions(physics=PhysicsOptions(**physics))))
 
     assert why() is None
     assert "polarized" in why(scatter_polarization="on")
@@ -291,7 +291,7 @@ def test_second_vertex_sampling_stays_out_of_polarized_traces():
 
 def test_scatter_polarization_option_is_checked():
     with pytest.raises(ValueError, match="scatter_polarization"):
-        TraceOptions(scatter_polarization="yes")
+        TraceOptions(physics=PhysicsOptions(scatter_polarization="yes"))
 
 
 # ------------------------------------------------------------------ the engine goldens
@@ -345,7 +345,7 @@ def test_out_of_plane_scatter_reads_s2_through_the_cross_terms(sign):
     sample = analytic_part("sample", Plane(np.zeros(3), np.array([0, 0, 1.0]), math.inf, 0.0, 30.0, 0.0), "rr")
     det = _detector_after(np.zeros(3), out, distance=ARM_MM, radius=DET_R_MM)
     res = trace(Scene((sample, det)), [_beam(d, e, center=-80 * d, radius=0.3)], 4000, seed=9,
-                materials={"rr": SAMPLE}, options=TraceOptions(detector_sides="front"))
+                materials={"rr": SAMPLE}, options=TraceOptions(output=OutputOptions(detector_sides="front")))
     area = math.pi * DET_R_MM**2  # an analytic detector disk is traced exactly (CONTRACTS 6.4)
     scale = 1.0 / (res.emitted_w * area / ARM_MM**2 * math.cos(tr))
     got, err = res.detectors["det"].power_w * scale, res.detectors["det"].stderr_w * scale

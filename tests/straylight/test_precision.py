@@ -19,10 +19,10 @@ def tube():
 
 
 def _trace(tube, n, first_chunk=0, angle_deg=20.0, seed=3):
-    from straylight.trace import TraceOptions, trace
+    from straylight.trace import EstimatorOptions, TraceOptions, trace
 
     return trace(tube.scene, [tube.beam.source(math.radians(angle_deg))], n, seed, materials=tube.materials,
-                 options=TraceOptions(first_vertex_sampling=True), first_chunk=first_chunk)
+                 options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)), first_chunk=first_chunk)
 
 
 def test_rounds_continue_the_streams_and_merge_to_one_trace(tube):
@@ -65,9 +65,9 @@ def test_reliability_matches_the_exponential_kurtosis():
 
 def test_trace_to_precision_stops_on_target_and_is_reproducible(tube):
     src = [tube.beam.source(0.0)]
-    from straylight.trace import TraceOptions
+    from straylight.trace import EstimatorOptions, TraceOptions
 
-    opts = TraceOptions(first_vertex_sampling=True)
+    opts = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True))
     target = Precision(0.002, first_rays=2000)
     runs = [trace_to_precision(tube.scene, src, 5, target, materials=tube.materials, options=opts,
                                detectors=["detector"]) for _ in range(2)]
@@ -82,11 +82,11 @@ def test_trace_to_precision_stops_on_target_and_is_reproducible(tube):
 
 
 def test_caps_say_what_stopped_the_run(tube):
-    from straylight.trace import TraceOptions
+    from straylight.trace import EstimatorOptions, TraceOptions
 
     run = trace_to_precision(tube.scene, [tube.beam.source(math.radians(20))], 1,
                              Precision(0.001, max_rays=3000, first_rays=2000), materials=tube.materials,
-                             options=TraceOptions(first_vertex_sampling=True), detectors=["detector"])
+                             options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)), detectors=["detector"])
     assert run.stop_reason == "max_rays" and run.result.n_rays == 3000
 
 

@@ -1,4 +1,4 @@
-"""Reflections into a detector counted by their expected value (TraceOptions.reflection_split,
+"""Reflections into a detector counted by their expected value (EstimatorOptions.reflection_split,
 straylight.engine.reflection_split; issue 26, the optics path).
 
 Scene: a beam lights a grey Lambertian floor; a flat glass plate (n = 2, uncoated: ~11 % reflected
@@ -17,10 +17,10 @@ import pytest
 from engine_helpers import StandInLambertian, disk_part
 from geometry.mesh import Part, Scene
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 
-ANALOG = TraceOptions(nee=False)
-SPLIT = TraceOptions(nee=False, reflection_split=True, detector_sides="front")
+ANALOG = TraceOptions(estimator=EstimatorOptions(nee=False))
+SPLIT = TraceOptions(estimator=EstimatorOptions(nee=False, reflection_split=True), output=OutputOptions(detector_sides="front"))
 
 
 @pytest.fixture(scope="module")
@@ -44,8 +44,8 @@ def test_reflection_split_agrees_with_the_analog_walk_and_cuts_the_error(scene):
     from dataclasses import replace
 
     sc, src, mats = scene
-    analog = trace(sc, src, 400_000, seed=51, materials=mats, options=replace(ANALOG, detector_sides="front"))
-    walk = trace(sc, src, 40_000, seed=52, materials=mats, options=replace(SPLIT, reflection_split=False))
+    analog = trace(sc, src, 400_000, seed=51, materials=mats, options=replace(ANALOG, output=OutputOptions(detector_sides="front")))
+    walk = trace(sc, src, 40_000, seed=52, materials=mats, options=replace(SPLIT, estimator=replace(SPLIT.estimator, reflection_split=False)))
     split = trace(sc, src, 40_000, seed=52, materials=mats, options=SPLIT)
     a, w, s = analog.detectors["det"], walk.detectors["det"], split.detectors["det"]
     assert a.power_w > 0 and s.power_w > 0 and w.power_w > 0  # light reaches the detector only via the plate

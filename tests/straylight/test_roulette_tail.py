@@ -15,7 +15,7 @@ import pytest
 from straylight.analyses.estimators import ANALYSIS_RR_THRESHOLD, estimator_options
 from straylight.analyses.precision import reliability
 from straylight.analyses.pst import detector_name, point_seed
-from straylight.trace import TraceOptions, trace
+from straylight.trace import OutputOptions, TraceOptions, trace
 
 N_RAYS = 100_000
 
@@ -28,7 +28,7 @@ def tube():
 
 
 def _run(setup, name):
-    opts = estimator_options(name, TraceOptions(record_paths=True, path_depth=4))
+    opts = estimator_options(name, TraceOptions(output=OutputOptions(record_paths=True, path_depth=4)))
     res = trace(setup.scene, [setup.beam.source(math.radians(50.0), 0.0)], N_RAYS, seed=point_seed(1, 0),
                 materials=setup.materials, options=opts)
     det = detector_name(setup.scene, setup.detector)
@@ -40,7 +40,7 @@ def test_the_default_roulette_removes_the_survivor_tail_at_50_deg(tube):
     w0 = tube.beam.power_w / N_RAYS  # every ray's start weight
     old, old_rel, old_max, old_opts = _run(tube, "lobes")
     new, new_rel, new_max, new_opts = _run(tube, "default")
-    assert old_opts.rr_threshold == 1e-3 and new_opts.rr_threshold == ANALYSIS_RR_THRESHOLD < 1e-4
+    assert old_opts.estimator.rr_threshold == 1e-3 and new_opts.estimator.rr_threshold == ANALYSIS_RR_THRESHOLD < 1e-4
     # before: one ray carries a survivor's weight (>= 0.5e-3 w0 after its last lobe) and the error lies
     assert old_max >= 0.5e-3 * w0 and old_rel.vov > 0.5, (old_max / w0, old_rel)
     # after: no ray near that, the error estimate passes the reliability gate's order (VOV 0.18 measured)

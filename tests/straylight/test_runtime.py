@@ -16,7 +16,7 @@ from materials import Lambertian
 from straylight.engine.runtime import Runtime, runtime
 from straylight.execution import Execution
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, TraceOptions, trace
 
 ROOT = Path(__file__).resolve().parents[2]
 SQUARE = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], dtype=np.float64)
@@ -37,7 +37,7 @@ def test_one_runtime_per_process_builds_the_scene_once_and_keeps_its_pool(monkey
     real = runtime_module.CompiledScene
     monkeypatch.setattr(runtime_module, "CompiledScene", lambda *a: built.append(1) or real(*a))
     scene, sources = _box(5.25)  # a geometry no other test traces: its scene is not kept yet
-    options = TraceOptions(first_vertex_sampling=False, batch_rays=1000)
+    options = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=False), batch_rays=1000)
     rt = runtime()
     a = trace(scene, sources, 4000, seed=3, materials={"black": Lambertian(0.5)}, options=options,
               execution=Execution(threads=2))

@@ -16,11 +16,11 @@ from straylight.engine.runtime import runtime
 from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.second_vertex import build_table
 from straylight.sources import CollimatedDisk, PointSource
-from straylight.trace import TraceOptions, make_spec, run_batch, run_batch_reference, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, make_spec, run_batch, run_batch_reference, trace
 from straylight.execution import Execution
 
 BLACK = {"black": StandInLambertian(0.05)}
-SV = TraceOptions(second_vertex_sampling=True)
+SV = TraceOptions(estimator=EstimatorOptions(second_vertex_sampling=True))
 
 
 def _tube_source(angle_deg):
@@ -45,7 +45,7 @@ def test_integrating_sphere_throughput_with_second_vertex():
     expected = rho * f_d / (1 - rho * (1 - f))
     src = CollimatedDisk([0, 0, 0.97 * R], [0, 0, -1], [0, 0, -1], 2.0)
     res = trace(scene, src, 3000, seed=2, materials={"wall": StandInLambertian(rho)},
-                options=TraceOptions(batch_rays=3000, second_vertex_sampling=True))
+                options=TraceOptions(estimator=EstimatorOptions(second_vertex_sampling=True), batch_rays=3000))
     port = res.detectors["port"]
     assert abs(port.power_w - expected) < 3.5 * port.stderr_w, (port, expected)
     assert port.stderr_w < 0.02 * expected
@@ -58,8 +58,8 @@ def test_agrees_with_plain_nee_on_the_baffled_tube(first):
     """30 deg: only scattered light arrives; double scatter vane -> vane -> detector is part of it."""
     scene, src = baffled_tube_scene(), _tube_source(30.0)
     on = trace(scene, src, 40000, seed=4, materials=BLACK,
-               options=TraceOptions(second_vertex_sampling=True, first_vertex_sampling=first))
-    off = trace(scene, src, 40000, seed=4, materials=BLACK, options=TraceOptions(first_vertex_sampling=first))
+               options=TraceOptions(estimator=EstimatorOptions(second_vertex_sampling=True, first_vertex_sampling=first)))
+    off = trace(scene, src, 40000, seed=4, materials=BLACK, options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=first)))
     a, b = on.detectors["detector"], off.detectors["detector"]
     assert a.power_w > 0 and b.power_w > 0
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)
@@ -73,7 +73,7 @@ def test_double_scatter_share_agrees_with_the_walk():
     scene, src = baffled_tube_scene(), _tube_source(30.0)
 
     def run(opts):
-        return trace(scene, src, 40000, seed=8, materials=BLACK, options=replace(opts, record_paths=True))
+        return trace(scene, src, 40000, seed=8, materials=BLACK, options=replace(opts, output=replace(opts.output, record_paths=True)))
 
     def share(res):
         p = res.paths
@@ -89,7 +89,7 @@ def test_double_scatter_share_agrees_with_the_walk():
 
 def test_same_numbers_for_any_batch_size_and_thread_count():
     scene, src = baffled_tube_scene(), _tube_source(30.0)
-    opts = TraceOptions(second_vertex_sampling=True, first_vertex_sampling=True, record_paths=True, batch_rays=1000)
+    opts = TraceOptions(estimator=EstimatorOptions(second_vertex_sampling=True, first_vertex_sampling=True), output=OutputOptions(record_paths=True), batch_rays=1000)
     ref = trace(scene, src, 12345, seed=9, materials=BLACK, options=opts)
     for batch, threads in ((10000, None), (2000, 2)):
         got = trace(scene, src, 12345, seed=9, materials=BLACK, options=replace(opts, batch_rays=batch), execution=Execution(threads=threads))
@@ -137,7 +137,7 @@ def test_may_see_detector_rejects_only_dark_triangles(source):
     scene = baffled_tube_scene()
     src = _tube_source(30.0) if source == "collimated" else PointSource([0, 20, 290], 1.0, axis=[0, 0, -1],
                                                                         half_angle_deg=80.0)
-    spec = make_spec(scene, src, 1000, seed=1, materials=BLACK, options=TraceOptions(first_vertex_sampling=True))
+    spec = make_spec(scene, src, 1000, seed=1, materials=BLACK, options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)))
     comp = runtime().scene(spec)
     surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == ROLE_SURFACE)
     ok = first_vertex._may_see_detector(spec, comp, src, surf)
@@ -153,10 +153,10 @@ def test_two_stage_probe_table_agrees_with_plain_nee(monkeypatch):
     """Forced on the small tube (budget below 8 probes per triangle): same answer as plain NEE, and
     still a smaller error."""
     scene, src = baffled_tube_scene(), _tube_source(20.0)
-    spec = make_spec(scene, src, 1000, seed=5, materials=BLACK, options=TraceOptions(first_vertex_sampling=True))
+    spec = make_spec(scene, src, 1000, seed=5, materials=BLACK, options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)))
     n_surf = int((spec.part_roles[spec.triangle_part] == ROLE_SURFACE).sum())
     monkeypatch.setattr(first_vertex, "PROBE_BUDGET", 2 * n_surf)
-    on = trace(scene, src, 60000, seed=5, materials=BLACK, options=TraceOptions(first_vertex_sampling=True))
+    on = trace(scene, src, 60000, seed=5, materials=BLACK, options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)))
     off = trace(scene, src, 60000, seed=5, materials=BLACK, options=TraceOptions())
     a, b = on.detectors["detector"], off.detectors["detector"]
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)
@@ -170,7 +170,7 @@ def test_tables_are_built_once_per_seed_and_reused_without_changing_numbers(monk
     import straylight.trace as trace_module
 
     scene, src = baffled_tube_scene(), _tube_source(30.0)
-    opts = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True)
+    opts = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True))
     built = []
     real = trace_module.build_critical_table
     monkeypatch.setattr(trace_module, "build_critical_table", lambda spec, comp: built.append(1) or real(spec, comp))
@@ -192,7 +192,7 @@ def test_two_stage_probe_table_leaves_no_hole_in_a_face_it_saw(monkeypatch):
     """Large-scene table: every triangle of a face (part, quantised normal) where a probe saw single
     scatter keeps a share of the face's density (FACE_SHARE), so no sliver its probes missed is q = 0."""
     scene, src = baffled_tube_scene(), _tube_source(20.0)
-    spec = make_spec(scene, src, 1000, seed=5, materials=BLACK, options=TraceOptions(first_vertex_sampling=True))
+    spec = make_spec(scene, src, 1000, seed=5, materials=BLACK, options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)))
     comp = runtime().scene(spec)
     n_surf = int((spec.part_roles[spec.triangle_part] == ROLE_SURFACE).sum())
     monkeypatch.setattr(first_vertex, "PROBE_BUDGET", 2 * n_surf)

@@ -50,7 +50,7 @@ def test_truncated_power_above_one_percent_is_a_console_warning(tmp_path, capsys
     lines = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
     assert lines == [f"straylight: warning: max_events = 1 stopped {share:.1%} of the emitted power "
                      f"({doc['ledger']['truncated_w']:.3g} W, counted as absorbed): raise --max-events "
-                     f"(TraceOptions.max_events)"]
+                     f"(PhysicsOptions.max_events)"]
 
 
 def test_default_max_events_is_silent(tmp_path):

@@ -11,6 +11,7 @@ from straylight.engine.tallies import chunk_sums_numpy
 from straylight.engine.tally_store import DenseTallies, LoggedTallies
 from straylight.engine.walk import walk
 from straylight.rng import CHUNK_RAYS
+from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "engine_golden"
 
@@ -25,9 +26,9 @@ def _spec(scene, sources, n, seed, materials, options):
     from straylight.trace import make_spec
 
     spec = make_spec(scene, sources, n, seed, materials, options)
-    if options.first_vertex_sampling:
+    if options.estimator.first_vertex_sampling:
         spec = replace(spec, vertex_table=build_table(spec, runtime().scene(spec)))
-    if options.second_vertex_sampling:
+    if options.estimator.second_vertex_sampling:
         spec = replace(spec, critical_table=build_critical_table(spec, runtime().scene(spec)))
     return spec
 
@@ -49,23 +50,26 @@ class _CheckedLog(LoggedTallies):
 
 
 @pytest.mark.parametrize("opts", [
-    dict(),
-    dict(max_events=2, nee_samples=2, detector_sides="front"),
-    dict(first_vertex_sampling=True),
-    dict(first_vertex_sampling=True, max_events=1),  # vertex parts the walk barely reaches
-    dict(second_vertex_sampling=True, max_events=1),
-    dict(nee=False, rr_threshold=0.3),
-    dict(second_vertex_sampling=True),
-])
+    TraceOptions(),
+    TraceOptions(estimator=EstimatorOptions(nee_samples=2), output=OutputOptions(detector_sides="front"),
+                 physics=PhysicsOptions(max_events=2)),
+    TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)),
+    # vertex parts the walk barely reaches
+    TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True), physics=PhysicsOptions(max_events=1)),
+    TraceOptions(estimator=EstimatorOptions(second_vertex_sampling=True), physics=PhysicsOptions(max_events=1)),
+    TraceOptions(estimator=EstimatorOptions(nee=False, rr_threshold=0.3)),
+    TraceOptions(estimator=EstimatorOptions(second_vertex_sampling=True)),
+], ids=["default", "front_truncated", "first_vertex", "first_vertex_1", "second_vertex_1", "walk_roulette",
+        "second_vertex"])
 def test_logged_sums_on_real_batches_equal_the_dense_matrix(opts):
     """On real batches of the compiled walk (every writer: hits, NEE, advance, first- and second-vertex
     sampling), the sums from the tally log equal np.add.reduceat on the dense matrix of its writes."""
     from straylight.scene import load_scene
-    from straylight.trace import TraceOptions
 
     rs = load_scene(GOLDEN / "tube_mixed.toml")
-    sources = rs.sources[:1] if opts.get("first_vertex_sampling") or opts.get("second_vertex_sampling") else rs.sources
-    spec = _spec(rs.scene, sources, 6 * CHUNK_RAYS, 3, rs.materials, TraceOptions(**opts))
+    est = opts.estimator
+    sources = rs.sources[:1] if est.first_vertex_sampling or est.second_vertex_sampling else rs.sources
+    spec = _spec(rs.scene, sources, 6 * CHUNK_RAYS, 3, rs.materials, opts)
     _CheckedLog.seen = []
     walk(spec, 0, 6, None, COMPILED._replace(tallies=_CheckedLog))
     writes, nonzero, size = _CheckedLog.seen[0]

@@ -1,4 +1,4 @@
-"""First-vertex sampling with the lobe's own draw (TraceOptions.vertex_lobe_sampling, issue 26):
+"""First-vertex sampling with the lobe's own draw (EstimatorOptions.vertex_lobe_sampling, issue 26):
 unbiased against an analog walk (no NEE, no vertex sampling: every path is a BRDF-sampled walk),
 exact ledger, reproducible, and a real variance reduction on a narrow glossy lobe.
 
@@ -15,12 +15,12 @@ import pytest
 from engine_helpers import disk_part
 from geometry.mesh import Part, Scene
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 from straylight.execution import Execution
 
-ANALOG = TraceOptions(nee=False)
-FV = TraceOptions(first_vertex_sampling=True)
-LOBE = TraceOptions(first_vertex_sampling=True, vertex_lobe_sampling=True)
+ANALOG = TraceOptions(estimator=EstimatorOptions(nee=False))
+FV = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True))
+LOBE = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True, vertex_lobe_sampling=True))
 
 
 @pytest.fixture(scope="module")
@@ -112,9 +112,8 @@ def test_same_numbers_for_any_batch_size_and_thread_count(glossy):
     assert ref.detectors["det"].power_w > 0
 
 
-SV = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True)
-SV_LOBE = TraceOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
-                       second_vertex_lobe_sampling=True)
+SV = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True))
+SV_LOBE = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True, second_vertex_lobe_sampling=True))
 
 
 def _two_vertex_scene():
@@ -148,9 +147,9 @@ def test_second_vertex_lobe_agrees_with_the_analog_walk_and_tames_the_double_sca
 
     mats = {**glossy, "grey": StandInLambertian(0.5)}
     scene, src = _two_vertex_scene()
-    analog = trace(scene, src, 400_000, seed=31, materials=mats, options=replace(ANALOG, record_paths=True))
-    sv = trace(scene, src, 40_000, seed=32, materials=mats, options=replace(SV, record_paths=True))
-    lobe = trace(scene, src, 40_000, seed=32, materials=mats, options=replace(SV_LOBE, record_paths=True))
+    analog = trace(scene, src, 400_000, seed=31, materials=mats, options=replace(ANALOG, output=OutputOptions(record_paths=True)))
+    sv = trace(scene, src, 40_000, seed=32, materials=mats, options=replace(SV, output=OutputOptions(record_paths=True)))
+    lobe = trace(scene, src, 40_000, seed=32, materials=mats, options=replace(SV_LOBE, output=OutputOptions(record_paths=True)))
     _agree(analog.detectors["det"], lobe.detectors["det"])
     assert abs(lobe.ledger["balance_residual_w"]) < 1e-9
     (pa, ea), (ps, es), (pl, el) = _via_b(analog), _via_b(sv), _via_b(lobe)

@@ -19,7 +19,7 @@ from scipy.special import fresnel, j0, j1
 from geometry.analytic import analytic_part, surface_from_dict
 from geometry.mesh import Part, Scene
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import OutputOptions, PhysicsOptions, TraceOptions, trace
 
 LAM_NM = 500.0
 K_PER_MM = 2 * np.pi / (LAM_NM * 1e-6)
@@ -72,7 +72,7 @@ def test_circular_aperture_encircled_energy_matches_airy():
     r_src = 0.06
     src = CollimatedDisk([0, 0, 1.0], [0, 0, -1], [0, 0, -1], r_src, power_w=1.0, wavelength_nm=LAM_NM)
     n = 120_000
-    res = trace(scene, [src], n, seed=3, options=TraceOptions(diffraction_band_wavelengths=200))
+    res = trace(scene, [src], n, seed=3, options=TraceOptions(physics=PhysicsOptions(diffraction_band_wavelengths=200)))
     assert abs(res.ledger["balance_residual_w"]) < 1e-9
     through = (a / r_src) ** 2  # HURB bends the light that passes; it never changes how much passes
     det = np.array([res.detectors[f"ring{i}"].power_w for i in range(len(x))])
@@ -114,7 +114,7 @@ def knife_edge_run():
     src = CollimatedDisk([0, 0, 1.0], [0, 0, -1], [0, 0, -1], r_src, power_w=1.0, wavelength_nm=LAM_NM)
     n = 300_000
     # band 4000 wavelengths = 2 mm = 13 Fresnel units: every ray that matters for this pattern bends
-    res = trace(scene, [src], n, seed=5, options=TraceOptions(diffraction_band_wavelengths=4000, record_paths=True))
+    res = trace(scene, [src], n, seed=5, options=TraceOptions(output=OutputOptions(record_paths=True), physics=PhysicsOptions(diffraction_band_wavelengths=4000)))
     per_w = src.power_w / (np.pi * r_src**2) * 2 * r_src * f_mm  # power per unit w near x = 0
     return res, bounds, per_w, n
 

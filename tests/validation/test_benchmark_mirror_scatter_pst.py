@@ -21,7 +21,7 @@ from geometry import Scene
 from geometry.analytic import Conic, Plane, analytic_part
 from materials import load_material
 from straylight.sources import CollimatedDisk
-from straylight.trace import TraceOptions, trace
+from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 
 R_MM, F_MM, AP_MM, DET_MM, BEAM_MM = 2000.0, 1000.0, 100.0, 1.0, 104.0
 MIRROR = {"name": "rough_al", "wavelength_nm": 532.0, "components": [
@@ -87,7 +87,7 @@ def test_rough_paraboloid_pst_matches_quadrature(theta_deg):
                          radius_mm=BEAM_MM)
     E = 1.0 / (np.pi * BEAM_MM**2 * math.cos(theta))  # irradiance normal to the rays of a 1 W beam
     res = trace(Scene((prim, det)), [src], 200_000, seed=11, materials={"rough_al": material},
-                options=TraceOptions(detector_sides="front"))
+                options=TraceOptions(output=OutputOptions(detector_sides="front")))
     # an analytic detector disk is traced exactly (CONTRACTS 6.4); irradiance on it is uniform to
     # 1e-3, so PST per unit of its area is the quadrature's per unit disk area
     a_det = math.pi * DET_MM**2
@@ -98,6 +98,6 @@ def test_rough_paraboloid_pst_matches_quadrature(theta_deg):
     assert abs(pst - ref) < 3 * err, (pst, err, ref)
     if theta_deg == 2.0:  # first-vertex sampling (pst's default) leaves optical parts to the walk: same answer
         fv = trace(Scene((prim, det)), [src], 50_000, seed=12, materials={"rough_al": material},
-                   options=TraceOptions(detector_sides="front", first_vertex_sampling=True))
+                   options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True), output=OutputOptions(detector_sides="front")))
         pst_fv = fv.detectors["det"].power_w / a_det / E
         assert abs(pst_fv - ref) < 3 * fv.detectors["det"].stderr_w / a_det / E

@@ -19,7 +19,7 @@ import numpy as np
 from geometry.mesh import Part, Scene
 from materials import Lambertian
 from straylight.engine.first_vertex import build_table
-from straylight.engine.options import TraceOptions
+from straylight.engine.options import EstimatorOptions, TraceOptions
 from straylight.engine.runtime import runtime
 from straylight.engine.spec import make_spec
 from straylight.engine.walk import run_batch
@@ -40,7 +40,7 @@ def load_kernels() -> None:
     scene = Scene((wall, detector))
     source = CollimatedDisk(np.array([0.0, 0.0, 4.0]), np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0]), 5.0)
     for nee, vertex in ((True, True), (True, False), (False, False)):  # the CLI's default first: NEE, vertex sampling
-        options = TraceOptions(nee=nee, first_vertex_sampling=vertex, batch_rays=1000)
+        options = TraceOptions(estimator=EstimatorOptions(nee=nee, first_vertex_sampling=vertex), batch_rays=1000)
         spec = make_spec(scene, [source], 100, 0, {"black": Lambertian(0.5)}, options)
         isect = ReferenceIntersector(spec.triangles_mm)
         if vertex:

@@ -130,7 +130,7 @@ class BrdfScatter(Interaction):
         wo = np.empty((n, 3))
         weight = np.empty(n)
         pdf = np.empty(n)
-        pol = spec.options.polarization
+        pol = spec.options.physics.polarization
         for rows, smp in by_material(spec.materials, frame.material,
                                      lambda model, rows: model.sample(frame.wi_local[rows], frame.u_sample[rows], pol)):
             wo[rows] = smp.wo

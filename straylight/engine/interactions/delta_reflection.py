@@ -1,5 +1,5 @@
 """``delta_reflection``: mirror parts reflect specularly about the (incident-side) normal,
-d' = d - 2 (d . n) n, with weight x ``TraceOptions.mirror_reflectance``; a delta event (no NEE,
+d' = d - 2 (d . n) n, with weight x ``PhysicsOptions.mirror_reflectance``; a delta event (no NEE,
 pdf 0: a later walk hit on a detector counts fully).
 
 Polarization (CONTRACTS §6.3: role ``mirror`` is a ``specular`` surface with the trace's mirror
@@ -50,7 +50,7 @@ class DeltaReflection(Interaction):
     def interact(self, event, selection):
         rows = np.ascontiguousarray(event.vertex_rows(selection))
         direction = event.kernels.reflect(rows, event.rays.direction, event.hits.facing_normal, np.empty((len(rows), 3)))
-        reflectance = np.full(len(rows), float(event.spec.options.mirror_reflectance))
+        reflectance = np.full(len(rows), float(event.spec.options.physics.mirror_reflectance))
         st = active_state(event)
         if st is not None and len(rows):
             carry_polarization(st, event, rows)

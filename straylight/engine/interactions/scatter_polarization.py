@@ -107,7 +107,7 @@ def arriving(event, verts, frame):
     """:class:`Arriving` for the vertices ``verts`` (rows of the event), or None when nothing there
     can be polarized (no state in the batch, or no polarized ray and no polarizing material)."""
     spec = event.spec
-    if spec.options.polarization != "u":
+    if spec.options.physics.polarization != "u":
         return None
     st = active_state(event)
     if st is None:

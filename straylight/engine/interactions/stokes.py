@@ -68,7 +68,7 @@ def tracks_polarization(spec) -> bool:
     assembly, whose second scatter then sees partially polarized light)."""
     if any(getattr(s, "polarization", UNPOLARIZED).is_linear for s in spec.sources):
         return True
-    if getattr(spec.options, "scatter_polarization", "auto") != "on":
+    if spec.options.physics.scatter_polarization != "on":
         return False
     return any(is_polarizing(m) for m in spec.materials)
 
