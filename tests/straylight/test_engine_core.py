@@ -224,6 +224,25 @@ def test_bad_requests_are_one_line_value_errors():
         trace(bare, PLATE_SRC, 100)
 
 
+def test_each_option_group_checks_its_own_fields():
+    """The options come in groups (estimator / output / physics), each refusing its own bad values by
+    name; a group in the wrong slot, or a flat keyword of the old single class, is refused."""
+    for make, field in ((lambda: EstimatorOptions(rr_threshold=1.0), "rr_threshold"),
+                        (lambda: EstimatorOptions(nee_samples=0), "nee_samples"),
+                        (lambda: EstimatorOptions(target_fraction=1.0), "target_fraction"),
+                        (lambda: OutputOptions(detector_sides="back"), "detector_sides"),
+                        (lambda: OutputOptions(map_bins=(8,)), "map_bins"),
+                        (lambda: PhysicsOptions(mirror_reflectance=1.5), "mirror_reflectance"),
+                        (lambda: PhysicsOptions(diffraction="on"), "diffraction"),
+                        (lambda: TraceOptions(batch_rays=0), "batch_rays"),
+                        (lambda: TraceOptions(physics=OutputOptions()), "physics")):
+        with pytest.raises(TraceError, match=field):
+            make()
+    with pytest.raises(TypeError):
+        TraceOptions(nee=False)  # type: ignore[call-arg]
+    assert EstimatorOptions(target_parts="det").target_parts == ("det",)
+
+
 def test_target_importance_sampling_is_unbiased_and_helps():
     """One-sample MIS toward the detector (no NEE) against the plain walk, same scene, 4 sigma."""
     plain = trace(_plate_scene(), PLATE_SRC, 40000, seed=12, materials=PLATE_MATS, options=TraceOptions(estimator=EstimatorOptions(nee=False)))
