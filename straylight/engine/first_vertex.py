@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from straylight.engine.face_groups import face_groups
 from straylight.engine.interactions.registry import Capability, parts_with
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
@@ -48,14 +49,6 @@ LOBE_STREAM = 0x4C4F4245  # the lobe draws of vertex_lobe_sampling (so the other
 PROBES_PER_TRIANGLE = 8
 PROBE_BUDGET = 400_000
 FACE_SHARE = 0.25  # large scenes: share of each face's mean density every triangle of the face keeps
-
-
-def _face_groups(spec, comp, tris):
-    """A group id per triangle: its part and its normal quantised to 1/8 (one flat face of a part,
-    or a band of a curved one)."""
-    key = np.concatenate([spec.triangle_part[tris][:, None].astype(np.int64),
-                          np.round(comp.normals[tris] * 8).astype(np.int64)], axis=1)
-    return np.unique(key, axis=0, return_inverse=True)[1].ravel()
 
 
 @dataclass(frozen=True, eq=False)
@@ -312,7 +305,7 @@ def build_table(spec, comp) -> VertexTable:
         first = _probe_scores(spec, comp, src, surf, 1, rng)
         parts = np.unique(spec.triangle_part[surf[first > 0]])
         surf = surf[np.isin(spec.triangle_part[surf], parts)]
-        face = _face_groups(spec, comp, surf)
+        face = face_groups(spec, comp, surf)
     # at most PROBE_BUDGET probes in all (a million-triangle scene gets one per triangle)
     m = int(min(PROBES_PER_TRIANGLE, max(1, PROBE_BUDGET // max(len(surf), 1))))
     score = area[surf] * _probe_scores(spec, comp, src, surf, m, rng)

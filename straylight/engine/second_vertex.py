@@ -50,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from straylight.engine.face_groups import face_groups
 from straylight.engine.interactions.registry import Capability, kinds_with, parts_with
 from straylight.engine.interactions.stokes import tracks_polarization
 from straylight.engine.lobes import lobe_materials
@@ -195,14 +196,6 @@ def _seen_scores(spec, comp, tris, m, rng) -> np.ndarray:
     return np.sqrt(g2.reshape(len(tris), m).mean(axis=1))
 
 
-def _face_groups(spec, comp, tris):
-    """A group id per triangle: its part and its normal quantised to 1/8 (one flat face of a part,
-    or a band of a curved one)."""
-    key = np.concatenate([spec.triangle_part[tris][:, None].astype(np.int64),
-                          np.round(comp.normals[tris] * 8).astype(np.int64)], axis=1)
-    return np.unique(key, axis=0, return_inverse=True)[1].ravel()
-
-
 def build_table(spec, comp) -> CriticalTable:
     """q_t proportional to A_t x (how well the detector sees t) x (direct irradiance on t's part):
     the second vertices that matter are surfaces the detector sees *near* lit ones (on the hooked-vane
@@ -224,7 +217,7 @@ def build_table(spec, comp) -> CriticalTable:
     if len(tris) == 0:
         return empty
     seen = _seen_scores(spec, comp, tris, 1, rng)
-    group = _face_groups(spec, comp, tris)
+    group = face_groups(spec, comp, tris)
     hit_groups = np.unique(group[seen > 0])
     tris = tris[np.isin(group, hit_groups)]
     if len(tris) == 0:
