@@ -24,6 +24,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import plyfile
 
 import atomicio
 
@@ -181,6 +182,9 @@ def load_part(path, *, name: str | None = None, material: str | None = None, rol
 
 def _read_mesh(path: Path, suffix: str):
     """(vertices (v, 3) float64, faces (m, 3) int64) of an STL/OBJ/PLY file, exact duplicates merged."""
+    triangles = _read_triangle_ply(path) if suffix == ".ply" else None
+    if triangles is not None:
+        return _merge_exact(*triangles)
     import trimesh
 
     try:
@@ -193,6 +197,28 @@ def _read_mesh(path: Path, suffix: str):
     if faces.ndim != 2 or len(faces) == 0:
         raise GeometryError(f"{path}: the file holds no triangles")
     return _merge_exact(vertices, faces)
+
+
+def _read_triangle_ply(path: Path):
+    """(vertices, faces) of a PLY file holding only vertices (x, y, z) and triangles (``vertex_indices``),
+    as :func:`save_scene` writes them, read by plyfile without trimesh (whose import costs ~2 s of every
+    command's start-up); None for any other PLY (ASCII, polygons, more elements or properties: trimesh
+    reads those). The same numbers as trimesh's reader: the file's doubles and indices as stored."""
+    try:
+        ply = plyfile.PlyData.read(str(path), known_list_len={"face": {"vertex_indices": 3}})
+    except Exception:  # noqa: BLE001 - not a fixed-size triangle PLY (or not readable): trimesh decides
+        return None
+    names = [e.name for e in ply.elements]
+    if ply.text or names != ["vertex", "face"] or [p.name for p in ply["face"].properties] != ["vertex_indices"]:
+        return None
+    vertex = ply["vertex"].data
+    if not {"x", "y", "z"} <= set(vertex.dtype.names or ()):
+        return None
+    vertices = np.stack([np.asarray(vertex[k], dtype=np.float64) for k in ("x", "y", "z")], axis=1)
+    faces = np.asarray(ply["face"].data["vertex_indices"], dtype=np.int64).reshape(-1, 3)
+    if len(faces) == 0 or (faces.size and (faces.min() < 0 or faces.max() >= len(vertices))):
+        return None
+    return vertices, faces
 
 
 class _Instances:

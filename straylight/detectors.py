@@ -200,6 +200,20 @@ class SensitiveArea:
     rule: str
 
 
+MERGE_DIGITS = 8  # trimesh's tol.merge = 1e-8: vertices equal to 8 decimals are one vertex
+
+
+def is_watertight_merged(vertices_mm, faces) -> bool:
+    """``trimesh.Trimesh(vertices_mm, faces, process=True).is_watertight`` without importing trimesh (~2 s
+    of start-up): vertices merged as trimesh's ``merge_vertices`` does (coordinates x 10^8 rounded to
+    integers), then every edge shared by exactly two triangles (trimesh's ``graph.is_watertight``)."""
+    key = (np.asarray(vertices_mm, dtype=np.float64) * 10**MERGE_DIGITS).round().astype(np.int64)
+    merged = np.unique(key, axis=0, return_inverse=True)[1].ravel()[np.asarray(faces, dtype=np.int64)]
+    edges = np.sort(merged[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    counts = np.unique(edges, axis=0, return_counts=True)[1]
+    return bool(np.all(counts == 2))
+
+
 def sensitive_area(vertices_mm, faces, toward_mm=None) -> SensitiveArea:
     """Area of a detector part that light can reach from the instrument's side.
 
@@ -212,8 +226,6 @@ def sensitive_area(vertices_mm, faces, toward_mm=None) -> SensitiveArea:
       faces point away from the light and the rim of a thin disk is at 90 deg, so a 0.5 mm
       thick disk counts exactly its front disk, as the one-sided disk of its front face would.
     """
-    import trimesh
-
     v = np.asarray(vertices_mm, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     tri = v[f]
@@ -222,7 +234,7 @@ def sensitive_area(vertices_mm, faces, toward_mm=None) -> SensitiveArea:
     total = float(0.5 * twice.sum())
     if total <= 0:
         raise ValueError("detector part has zero area")
-    closed = bool(trimesh.Trimesh(v, f, process=True).is_watertight)
+    closed = is_watertight_merged(v, f)
     if not closed:
         return SensitiveArea(total, total, False, "open part: the area of all its triangles")
     geo = DetectorGeometry.from_triangles(tri)

@@ -90,3 +90,37 @@ def test_assembly_step_holds_every_solid(tmp_path):
     assert len(back.solids().vals()) == 9  # wall, 7 vanes, end plate (the detector is a face)
     # 9 solids x 4 faces each + the detector disk
     assert len(back.faces().vals()) == 37
+
+
+def test_triangle_ply_is_read_without_trimesh_to_the_same_numbers(reference, tmp_path, monkeypatch):
+    """The plyfile reader of save_scene's PLY files gives trimesh's vertices and faces bit for bit."""
+    import geometry.io as gio
+
+    path = save_scene(reference, tmp_path)
+    files = sorted(tmp_path.glob("*.ply"))
+    assert files and all(gio._read_triangle_ply(f) is not None for f in files)  # the fast path is taken
+    fast = [gio._read_mesh(f, ".ply") for f in files]
+    monkeypatch.setattr(gio, "_read_triangle_ply", lambda p: None)  # trimesh reads them instead
+    for f, (v, t) in zip(files, fast):
+        v_ref, t_ref = gio._read_mesh(f, ".ply")
+        assert v.dtype == v_ref.dtype and t.dtype == t_ref.dtype
+        assert np.array_equal(v, v_ref) and np.array_equal(t, t_ref), f.name
+    assert load_scene(path).part_names == reference.part_names
+
+
+@pytest.mark.parametrize("lengths", [(4, 4), (3, 4)])
+def test_polygon_ply_is_left_to_trimesh(tmp_path, lengths):
+    """A PLY with quads (even after a triangle) is not a fixed triangle file: left to trimesh, which
+    triangulates quads (and refuses mixed binary lists itself)."""
+    import plyfile
+
+    import geometry.io as gio
+
+    v = np.array([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])
+    f = np.empty(2, dtype=[("vertex_indices", object)])
+    f["vertex_indices"] = [np.array([0, 1, 2, 3][:n], np.int32) for n in lengths]
+    plyfile.PlyData([plyfile.PlyElement.describe(v, "vertex"), plyfile.PlyElement.describe(f, "face")]).write(
+        str(tmp_path / "quad.ply"))
+    assert gio._read_triangle_ply(tmp_path / "quad.ply") is None
+    if lengths == (4, 4):
+        assert load_part(tmp_path / "quad.ply").n_triangles == 4
