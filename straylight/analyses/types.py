@@ -288,14 +288,19 @@ class PstResult(TableRepr):
         Zero values (no light reached the detector) cannot sit on a log axis: they are drawn
         as open triangles on the bottom edge and named in the legend.
         """
-        import matplotlib.pyplot as plt
-
         if quantity not in ("pst", "entrance_ratio"):
             raise ValueError(f"quantity must be 'pst' or 'entrance_ratio', got {quantity!r}")
         y, e = getattr(self, quantity), getattr(self, quantity + "_stderr")
         own = ax is None
-        if own:
+        if own and path is None:  # a figure for the caller to show: pyplot's
+            import matplotlib.pyplot as plt
+
             fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
+        elif own:  # a file only: matplotlib's Figure API, without pyplot's import and figure manager
+            from matplotlib.figure import Figure
+
+            fig = Figure(figsize=(7, 4.5), dpi=120)
+            ax = fig.subplots()
         doubtful = np.array([bool(set(r[FLAG_COLUMN].split(";")) & UNTRUSTED_FLAGS) for r in self.flagged_rows()])
         for phi in np.unique(self.azimuth_deg):
             sel = self.azimuth_deg == phi
@@ -328,7 +333,6 @@ class PstResult(TableRepr):
             fig.tight_layout()
             if path is not None:
                 atomicio.write_figure(fig, path)
-                plt.close(fig)
         return ax
 
 
@@ -417,5 +421,4 @@ class SweepResult:
             fig.tight_layout()
             if path is not None:
                 atomicio.write_figure(fig, path)
-                plt.close(fig)
         return ax

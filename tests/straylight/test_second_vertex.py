@@ -12,6 +12,7 @@ import pytest
 
 from engine_helpers import StandInLambertian, baffled_tube_scene, icosphere_ports_scene
 from straylight.engine import first_vertex
+from straylight.engine.face_groups import face_groups
 from straylight.engine.runtime import runtime
 from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.second_vertex import build_table
@@ -200,7 +201,7 @@ def test_two_stage_probe_table_leaves_no_hole_in_a_face_it_saw(monkeypatch):
     surf = np.flatnonzero(spec.part_roles[spec.triangle_part] == ROLE_SURFACE)
     surf = surf[first_vertex._may_see_detector(spec, comp, src, surf)]
     surf = surf[np.isin(spec.triangle_part[surf], np.unique(spec.triangle_part[table.tri]))]
-    face = first_vertex._face_groups(spec, comp, surf)
+    face = face_groups(spec, comp, surf)
     seen_faces = np.unique(face[table.p_area[surf] > 0])
     in_seen = np.isin(face, seen_faces)
     assert in_seen.sum() > len(table.tri) * 0.99 and (table.p_area[surf[in_seen]] > 0).all()
