@@ -26,3 +26,6 @@ class Capability(enum.Flag):
     #: a reflection at its interfaces that goes straight into a detector may be counted by its
     #: expected value instead of the walk's branch (straylight.engine.reflection_split)
     REFLECTION_SPLIT = enum.auto()
+    #: its reflections and transmissions may be followed by splitting, both branches with their
+    #: expected weights, through runs of such interfaces into a detector (straylight.engine.delta_chain)
+    DELTA_CHAIN = enum.auto()

@@ -17,7 +17,7 @@ from straylight.engine.options import EstimatorOptions
 #: the estimator options of the analog walk: no NEE, no vertex sampling, no target mixture
 ANALOG = EstimatorOptions(nee=False, first_vertex_sampling=False, second_vertex_sampling=False,
                           vertex_lobe_sampling=False, second_vertex_lobe_sampling=False, reflection_split=False,
-                          target_parts=())
+                          delta_chain=0, target_parts=())
 
 
 @dataclass(frozen=True)
@@ -57,6 +57,8 @@ ESTIMATORS = (
               Capability.SECOND_VERTEX, requires=("nee",)),
     # an interface's reflection straight into a detector counted by its expected value (issue 26)
     Estimator("reflection_split", replace(ANALOG, reflection_split=True), Capability.REFLECTION_SPLIT),
+    # runs of up to 4 interfaces into a detector (a singlet's two-reflection ghost) followed by splitting
+    Estimator("delta_chain", replace(ANALOG, delta_chain=4), Capability.DELTA_CHAIN),
     Estimator("target_mis", replace(ANALOG, nee=True, target_fraction=0.5), Capability.TARGET_MIS, target=True,
               requires=("nee",), diffraction=True),
 )

@@ -59,6 +59,7 @@ class Event:
     first_vertex: object = None  # straylight.engine.first_vertex.FirstVertexWeights or None
     second_vertex: object = None  # straylight.engine.second_vertex.SecondVertexShares or None
     reflection_split: object = None  # straylight.engine.reflection_split.ReflectionSplit or None
+    delta_chain: object = None  # straylight.engine.delta_chain.DeltaChains or None
     capabilities: object = None  # straylight.engine.interactions.registry.PartCapabilities of the parts
     shadow_rays: int = 0  # shadow rays cast by the interactions in this event
 

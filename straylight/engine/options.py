@@ -31,6 +31,7 @@ class EstimatorOptions:
     vertex_lobe_sampling: bool = False  # first-vertex sampling also joins x to the detector by the lobe's own draw
     second_vertex_lobe_sampling: bool = False  # second-vertex sampling also leaves B by the lobe's own draw
     reflection_split: bool = False  # interface reflections into a detector counted by expected value
+    delta_chain: int = 0  # > 0: runs of up to this many interfaces into a detector followed by splitting
 
     def __post_init__(self):
         if not (0.0 <= float(self.rr_threshold) < 1.0):
@@ -42,6 +43,10 @@ class EstimatorOptions:
         if isinstance(self.target_parts, str):
             object.__setattr__(self, "target_parts", (self.target_parts,))
         object.__setattr__(self, "target_parts", tuple(self.target_parts))
+        if int(self.delta_chain) < 0:
+            raise TraceError(f"delta_chain must be >= 0 (interfaces per split tree), got {self.delta_chain}")
+        if int(self.delta_chain) > 0 and self.reflection_split:
+            raise TraceError("delta_chain includes reflection_split (its one-reflection paths): turn one of them off")
 
 
 @dataclass(frozen=True)

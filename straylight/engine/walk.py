@@ -22,6 +22,7 @@ from straylight.engine.options import TraceError, walk_settings
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
 from straylight.engine.runtime import runtime
 from straylight.engine.reflection_split import ReflectionSplit
+from straylight.engine.delta_chain import DeltaChains
 from straylight.engine.second_vertex import SecondVertexShares
 from straylight.engine.spec import TraceSpec
 from straylight.engine.tallies import DetectorRecords, batch_sums
@@ -96,6 +97,9 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         if spec.vertex_table is not None and rows.n_detectors > 0 else None
     second_vertex = SecondVertexShares(n) if second_lobe and rows.n_detectors > 0 else None
     reflection_split = ReflectionSplit(n) if opt.estimator.reflection_split and rows.n_detectors > 0 else None
+    delta_chain = DeltaChains(n, opt.estimator.delta_chain) \
+        if int(opt.estimator.delta_chain) > 0 and rows.n_detectors > 0 else None
+    splits = None if delta_chain is None else capabilities.parts(Capability.DELTA_CHAIN)
     segments = shadow_rays = 0
     max_events = int(opt.physics.max_events)
     diff = spec.diffraction
@@ -123,6 +127,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
                       first_vertex=first_vertex, second_vertex=second_vertex, reflection_split=reflection_split,
+                      delta_chain=delta_chain,
                       capabilities=capabilities)
         rec, rec_w = hit.detected, hit.detected_w
         if len(rec) and first_vertex is not None:
@@ -131,9 +136,13 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             rec, rec_w = second_vertex.share_after_vertex(event, rec, rec_w)
         if len(rec) and reflection_split is not None:
             rec, rec_w = reflection_split.share_after_reflection(event, rec, rec_w)
+        if len(rec) and delta_chain is not None:
+            rec, rec_w = delta_chain.share_after_chain(event, rec, rec_w)
         if len(rec):
             _record_walk_hits(event, rec, rec_w)
         cont = hit.continuing
+        if delta_chain is not None:
+            delta_chain.leave_run(event, cont[~splits[hit.part[cont]]])
         if len(cont) == 0:
             if bent is not None:
                 rays, skip = bent, bent_skip

@@ -112,8 +112,9 @@ def _coated_mirror_case():
     return Case(_parts("surface", "subject_material"),
                 {"subject_material": load_material(COATED_MIRROR, "coated_mirror")}, "surface",
                 # NEE from the lobes; no area sampling of a Fresnel surface; its reflections into the
-                # detector (light the wall scatters, reflected by the floor) counted by expected value
-                Capability.NEE | Capability.POLARIZES | Capability.REFLECTION_SPLIT)
+                # detector (light the wall scatters, reflected by the floor) counted by expected value,
+                # alone or as runs of interfaces followed by splitting
+                Capability.NEE | Capability.POLARIZES | Capability.REFLECTION_SPLIT | Capability.DELTA_CHAIN)
 
 
 def _mirror_case():
@@ -167,9 +168,10 @@ def _last_vertex_counts(res, part_index: int) -> int:
 def engaged(case_name, estimator, on) -> bool:
     """Whether ``estimator`` acted on the subject part in the run ``on`` (measured, not declared)."""
     case = CONTRACT_SCENES[case_name]()
-    if estimator.capability in (Capability.NEE, Capability.FIRST_VERTEX, Capability.REFLECTION_SPLIT):
-        # NEE / first-vertex / reflection-split estimates move power through the vertex part's
-        # nee_exchange row (the first-vertex and reflection-split runs have NEE off: nothing else writes it)
+    if estimator.capability in (Capability.NEE, Capability.FIRST_VERTEX, Capability.REFLECTION_SPLIT,
+                                Capability.DELTA_CHAIN):
+        # NEE / first-vertex / reflection-split / delta-chain estimates move power through the vertex part's
+        # nee_exchange row (the runs other than NEE's have NEE off: nothing else writes it)
         return on.ledger["nee_exchange"]["subject"].power_w != 0.0
     if estimator.capability == Capability.SECOND_VERTEX:
         spec = make_spec(case.scene, _source(), 1000, 0, case.materials, TraceOptions(estimator=options_for(estimator)))

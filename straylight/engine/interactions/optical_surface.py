@@ -19,7 +19,9 @@ Selected for surface parts whose material has a ``specular`` or ``dielectric`` c
    and the weight is multiplied by E_x / P_x = E_l + E_r + E_t (the lobe branch by the lobe
    sample's own ``f cos / pdf`` over P_l, times f_pol / f_u): unbiased, and the weight of a ghost
    does not shrink with every reflection, so Russian roulette (which stays unbiased) never sees
-   it as weak. Splitting would need several outgoing rays per hit, which the walk does not carry.
+   it as weak. Splitting would need several outgoing rays per hit, which the walk does not carry;
+   ``delta_chain`` splits next to it (straylight.engine.delta_chain: runs of interfaces into a
+   detector, the walk's own such hits dropped).
 4. **Next-event estimation** from every hit toward the detectors for the lobes (with their s/p
    factors for this ray's polarization; MIS with the lobe branch uses the lobes' own pdf on both
    sides, so the weights sum to one).
@@ -53,6 +55,60 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
+def refine_on_surfaces(spec, part, origin, d, distance_mm, last_part, front, facing):
+    """Mesh hits (``origin + distance_mm d`` on ``part``) refined onto the parts' analytic surfaces:
+    (front, facing normal, exact point, refined, passing). ``front`` and ``facing`` (the facet's)
+    are updated in place where refined; a hit that refines outside the clear aperture or back onto
+    the ray's own origin on its last part passes through (``passing``)."""
+    m = len(part)
+    exact = np.zeros((m, 3))
+    refined = np.zeros(m, bool)
+    passing = np.zeros(m, bool)
+    surfaces = spec.part_surfaces or ()
+    for p in np.unique(part):
+        surf = surfaces[p] if p < len(surfaces) else None
+        if surf is None:
+            continue
+        g = np.flatnonzero(part == p)
+        t, n_front, ok = surf.refine_hits(origin[g], d[g], distance_mm[g])
+        bad = ~ok | ((last_part[g] == p) & (t < SELF_HIT_MM))
+        passing[g[bad]] = True
+        good = g[~bad]
+        nf = n_front[~bad]
+        exact[good] = origin[g[~bad]] + t[~bad, None] * d[good]
+        fr = _dot(d[good], nf) < 0
+        front[good] = fr
+        facing[good] = np.where(fr[:, None], nf, -nf)
+        refined[good] = True
+    return front, facing, exact, refined, passing
+
+
+def side_material(spec, part, front):
+    """Material index of the side of ``part`` that was hit; a dielectric's back is its medium."""
+    m_front = spec.part_material[part]
+    back_idx = spec.part_back_material[part] if spec.part_back_material is not None else np.full(len(part), -1)
+    return np.where(front | (back_idx < 0), m_front, back_idx)
+
+
+def smooth_coefficients_into(model, g, back, cos_i, distance_mm, out):
+    """Fresnel amplitudes of the rows ``g`` (all of material ``model``) into
+    ``out = (r_s, r_p, t_s, t_p, cos_t, eta, bulk)`` (``Material.smooth_coefficients``); ``bulk``
+    = exp(-alpha d) for a ray arriving on the back of an absorbing ``dielectric`` (d = ``distance_mm``)."""
+    smooth = getattr(model, "smooth", None)
+    if smooth is None:
+        return
+    rs, rp, ts, tp, cos_t, eta, bulk = out
+    for side in (False, True):
+        gg = g[back[g] == side]
+        if len(gg) == 0:
+            continue
+        c = model.smooth_coefficients(cos_i[gg], back=side)
+        rs[gg], rp[gg], ts[gg], tp[gg] = c.r_s, c.r_p, c.t_s, c.t_p
+        cos_t[gg], eta[gg] = c.cos_t, c.eta
+        if side and isinstance(smooth, Dielectric) and smooth.attenuation_per_mm > 0:
+            bulk[gg] = np.exp(-smooth.attenuation_per_mm * distance_mm[gg])
+
+
 @register_interaction
 class OpticalSurface(Interaction):
     name = "optical_surface"
@@ -60,7 +116,7 @@ class OpticalSurface(Interaction):
     selected_by = ComponentFlags.DELTA  # a material with a specular or dielectric component
     # NEE from its scatter lobes; no area sampling (exact normals, the Fresnel split is the walk's);
     # its Fresnel interfaces polarize
-    capabilities = Capability.NEE | Capability.POLARIZES | Capability.REFLECTION_SPLIT
+    capabilities = Capability.NEE | Capability.POLARIZES | Capability.REFLECTION_SPLIT | Capability.DELTA_CHAIN
 
     def interact(self, event, selection):
         spec, hit, rays = event.spec, event.hits, event.rays
@@ -71,34 +127,12 @@ class OpticalSurface(Interaction):
         st = batch_state(event)
         d = rays.direction[rows]
         part = hit.part[rows]
-        front = hit.cos_in[rows] < 0  # facet side, replaced below on analytic parts
-        facing = hit.facing_normal[rows].copy()
-        exact = np.zeros((m, 3))
-        refined = np.zeros(m, bool)
-        passing = np.zeros(m, bool)
-        surfaces = spec.part_surfaces or ()
-        for p in np.unique(part):
-            surf = surfaces[p] if p < len(surfaces) else None
-            if surf is None:
-                continue
-            g = np.flatnonzero(part == p)
-            i = rows[g]
-            t, n_front, ok = surf.refine_hits(rays.origin_mm[i], d[g], hit.distance_mm[i])
-            bad = ~ok | ((rays.last_part[i] == p) & (t < SELF_HIT_MM))
-            passing[g[bad]] = True
-            good = g[~bad]
-            nf = n_front[~bad]
-            exact[good] = rays.origin_mm[i[~bad]] + t[~bad, None] * d[good]
-            fr = _dot(d[good], nf) < 0
-            front[good] = fr
-            facing[good] = np.where(fr[:, None], nf, -nf)
-            refined[good] = True
+        front, facing, exact, refined, passing = refine_on_surfaces(
+            spec, part, rays.origin_mm[rows], d, hit.distance_mm[rows], rays.last_part[rows],
+            hit.cos_in[rows] < 0, hit.facing_normal[rows].copy())
         live = ~passing
         hit.facing_normal[rows[live]] = facing[live]
-        # material of the side that was hit; a dielectric's back is its medium
-        m_front = spec.part_material[part]
-        back_idx = spec.part_back_material[part] if spec.part_back_material is not None else np.full(m, -1)
-        mat = np.where(front | (back_idx < 0), m_front, back_idx)
+        mat = side_material(spec, part, front)
         back = ~front
         cos_i = np.clip(-_dot(d, facing), 0.0, 1.0)
         theta = np.arccos(cos_i)
@@ -125,18 +159,7 @@ class OpticalSurface(Interaction):
             if getattr(model, "composite", None) is not None:
                 rho_s[g] = model.lobe_reflectance(theta[g], "s")
                 rho_p[g] = model.lobe_reflectance(theta[g], "p")
-            smooth = getattr(model, "smooth", None)
-            if smooth is None:
-                continue
-            for side in (False, True):
-                gg = g[back[g] == side]
-                if len(gg) == 0:
-                    continue
-                c = model.smooth_coefficients(cos_i[gg], back=side)
-                rs[gg], rp[gg], ts[gg], tp[gg] = c.r_s, c.r_p, c.t_s, c.t_p
-                cos_t[gg], eta[gg] = c.cos_t, c.eta
-                if side and isinstance(smooth, Dielectric) and smooth.attenuation_per_mm > 0:
-                    bulk[gg] = np.exp(-smooth.attenuation_per_mm * hit.distance_mm[rows[gg]])
+            smooth_coefficients_into(model, g, back, cos_i, hit.distance_mm[rows], (rs, rp, ts, tp, cos_t, eta, bulk))
         E_l = np.where(live, _mix(rho_s, rho_p, S), 0.0)
         E_r = np.where(live, _mix(np.abs(rs) ** 2, np.abs(rp) ** 2, S), 0.0)
         E_t = np.where(live, _mix(np.abs(ts) ** 2, np.abs(tp) ** 2, S), 0.0)
@@ -165,6 +188,15 @@ class OpticalSurface(Interaction):
                 at = np.where(refined[can, None], exact[can], hit.point_mm[rows[can]])
                 split.connect(event, rows[can], at, facing[can], reflect(d[can], facing[can]),
                               rays.weight_w[rows[can]] * E_r[can] * bulk[can], refl[can])
+        # --- runs of interfaces into a detector, followed by splitting (delta_chain)
+        chains = event.delta_chain
+        if chains is not None and self.allows(Capability.DELTA_CHAIN):
+            root = np.flatnonzero(live & (E_r + E_t > 0) & chains.starts(event, rows))
+            if len(root):
+                at = np.where(refined[root, None], exact[root], hit.point_mm[rows[root]])
+                chains.split(event, rows[root], at, facing[root], d[root], s[root], S[root],
+                             tuple(x[root] for x in (rs, rp, ts, tp, cos_t, eta, bulk)))
+            chains.advance(event, rows, refl | trans, passing)
         # --- lobes: NEE from every vertex whose material scatters, and the lobe branch
         has_lobes = live & ((rho_s > 0) | (rho_p > 0))
         if np.any(has_lobes):

@@ -1,0 +1,226 @@
+"""Chains of interfaces into a detector, followed by splitting (issue 26: the lens's own ghosts).
+
+At a Fresnel interface (``optical_surface`` parts) the walk picks one branch, lobe, reflection or
+transmission, with probability proportional to its power (docs/engine.md, "Branch by probability,
+not splitting"). A ghost that needs two reflections inside a lens ("vane -> front (T) -> back (R)
+-> front (R) -> back (T) -> sensor") is then followed by ~R^2 = 1.6e-3 of the rays that enter the
+lens, each with ~600x the weight it carries: on the guide scope (benchmarks/guide_scope.py) at
+5-20 deg such paths hold 71-99 % of the power, and runs that draw none of them report a PST 100x
+low with a small error bar.
+
+With ``TraceOptions(delta_chain=K)`` (K >= 1) the walk's first interface hit of every run of
+interface hits (the ray did not arrive from one) starts a *split tree*: both the reflected and
+the transmitted ray are cast, and at every further interface (a part whose kind declares
+``Capability.DELTA_CHAIN``) both again, up to K interfaces in all, each branch carrying its expected
+weight
+
+    w x prod_i (M_i S_i)_0 x bulk_i
+
+(M_i the Mueller matrix of the interface's reflection or transmission on the branch's Stokes vector
+S_i, as ``optical_surface`` applies it; bulk_i the medium's attenuation on the way to it). A branch
+that hits a detector (on a counted side) after k <= K interfaces scores there; one that hits
+anything else (a scatter surface, an absorber, a mirror of another kind) or escapes stops. Exactly
+these paths, "interface^k -> detector" with k <= K starting at the run's first interface, are
+dropped from the walk (their weight moved to the NEE-exchange row of the interface's part, so the
+ledger stays exact): the tree's score is the expectation of the dropped walk hits over every branch
+choice along the run (a conditional expectation), so the sum is unbiased, and the branch noise leaves
+the lens's ghosts and its direct image. Walk hits after more than K interfaces are kept. Cost: at
+most 2 + 4 + ... + 2^K casts per run start (~2 per interface level in a singlet: one branch leaves
+the lens and stops at the tube).
+
+Roulette, which is unbiased, keeps the walk's side an unbiased estimate of what the tree covers; a
+walk truncated by ``max_events`` would not reach the detector where the tree does (the tree follows
+the physics there).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.smooth import reflect, refract
+from straylight.engine.capabilities import Capability
+from straylight.engine.interactions.optical_surface import refine_on_surfaces, side_material, smooth_coefficients_into
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SPECULAR
+from straylight.engine.roles import ROLE_DETECTOR
+from straylight.engine.walk_shares import keep_walk_share
+from straylight.paths import mix_key
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+class Branches:
+    """Rays of the split trees in flight: event row of the tree's root, origin, direction, weight,
+    Stokes vector (S0 = 1) and its frame e1, interfaces met, last part, path key, event codes."""
+
+    def __init__(self, row, origin, d, w, S, e1, k, last_part, key, codes):
+        self.row, self.origin, self.d, self.w, self.S, self.e1 = row, origin, d, w, S, e1
+        self.k, self.last_part, self.key, self.codes = k, last_part, key, codes
+
+    def take(self, sel):
+        return Branches(self.row[sel], self.origin[sel], self.d[sel], self.w[sel], self.S[sel], self.e1[sel],
+                        self.k[sel], self.last_part[sel], self.key[sel], self.codes[sel])
+
+
+class DeltaChains:
+    """Per batch: each ray's count of interface branches (reflection or transmission at a
+    ``DELTA_CHAIN`` part) since its run of them started (0: not in a run)."""
+
+    def __init__(self, n_rays_in_batch, max_interfaces):
+        self.run = np.zeros(n_rays_in_batch, dtype=np.int64)
+        self.k_max = int(max_interfaces)
+
+    # ------------------------------------------------------------------ the walk's side
+
+    def starts(self, event, rows):
+        """Of the interface hits ``rows``, which start a run (the ray did not come from one)."""
+        return self.run[event.rays.ray[rows]] == 0
+
+    def advance(self, event, rows, specular, passing):
+        """After the interface hits ``rows``: a reflection or transmission extends the run, a lobe
+        (or an absorbed ray) ends it, a pass-through leaves it as it is."""
+        r = event.rays.ray[rows]
+        self.run[r] = np.where(passing, self.run[r], np.where(specular, self.run[r] + 1, 0))
+
+    def leave_run(self, event, rows):
+        """Continuing hits ``rows`` on parts whose kind does not split end their run."""
+        if len(rows):
+            self.run[event.rays.ray[rows]] = 0
+
+    def share_after_chain(self, event, rec, rec_w):
+        """The walk's detector hits after 1..K interfaces of a run, which the tree counted, are dropped
+        (their weight to the NEE exchange: the ledger stays exact)."""
+        k = self.run[event.rays.ray[rec]]
+        drop = np.flatnonzero((k >= 1) & (k <= self.k_max))
+        if len(drop) == 0:
+            return rec, rec_w
+        return keep_walk_share(event, rec, rec_w, drop, np.zeros(len(drop)))
+
+    # ------------------------------------------------------------------ the trees
+
+    def split(self, event, rows, at, facing, d, s, S, fresnel):
+        """Start trees at the interface hits ``rows`` (run starts): ``at`` the (refined) points,
+        ``facing`` the normals on the incident side, ``d`` the arriving directions, ``s`` the s
+        vectors and ``S`` the arriving Stokes vectors in the s/p basis, ``fresnel = (r_s, r_p, t_s,
+        t_p, cos_t, eta, bulk)`` of each hit."""
+        rays, spec = event.rays, event.spec
+        part = event.hits.part[rows].astype(np.int64)
+        w = rays.weight_w[rows]
+        key = rays.path_key[rows] if event.settings.record_paths else np.zeros(len(rows), np.uint64)
+        codes = np.full((len(rows), self.k_max), -1, dtype=np.int64)
+        live = self._children(spec, Branches(np.asarray(rows), at, d, w, S, s, np.zeros(len(rows), np.int64),
+                                             part, key, codes), facing, s, S, fresnel, event)
+        for _ in range(event.spec.options.physics.max_events):  # each step splits or passes a hit: the walk's own bound
+            if live is None or len(live.w) == 0:
+                break
+            live = self._step(event, live)
+
+    def _children(self, spec, b, facing, s, S, fresnel, event):
+        """The reflected and transmitted branches of the interface hits of ``b`` (at ``b.origin``)."""
+        rs, rp, ts, tp, cos_t, eta, bulk = fresnel
+        eps = 2.0 * event.settings.eps_mm
+        out = []
+        code = b.last_part * 4 + EVENT_SPECULAR
+        codes = b.codes.copy()
+        codes[np.arange(len(b.w)), b.k] = code
+        key = mix_key(b.key, code) if event.settings.record_paths else b.key
+        for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
+            So = np.einsum("nij,nj->ni", interface_mueller(a_s, a_p), S)
+            w = b.w * So[:, 0] * bulk
+            g = np.flatnonzero(w > 0)
+            if len(g) == 0:
+                continue
+            if sign > 0:
+                d_out = reflect(b.d[g], facing[g])
+            else:
+                d_out = refract(b.d[g], facing[g], eta[g], cos_t[g])
+            out.append(Branches(b.row[g], np.ascontiguousarray(b.origin[g] + sign * eps * facing[g]),
+                                np.ascontiguousarray(d_out), w[g], So[g] / So[g, :1], s[g], b.k[g] + 1,
+                                b.last_part[g], key[g], codes[g]))
+        if not out:
+            return None
+        return Branches(*(np.concatenate([getattr(o, f) for o in out])
+                          for f in ("row", "origin", "d", "w", "S", "e1", "k", "last_part", "key", "codes")))
+
+    def _step(self, event, b):
+        """Cast the branches ``b``: score those that reach a detector, split those that meet another
+        interface (if fewer than K were met), pass those that refine outside a clear aperture."""
+        spec, scene = event.spec, event.scene
+        tri, dist = scene.isect.intersect(b.origin, b.d)
+        event.shadow_rays += len(b.w)
+        tri, dist = np.asarray(tri), np.asarray(dist, dtype=np.float64)
+        hit = np.flatnonzero(tri >= 0)
+        b, tri, dist = b.take(hit), tri[hit], dist[hit]
+        part = spec.triangle_part[tri].astype(np.int64)
+        cos_in = _dot(b.d, scene.normals[tri])
+        # the hit distance in float64 from the triangle's plane, as the walk's hit stage takes it
+        flat = np.abs(cos_in) >= 1e-12
+        dist = np.where(flat, (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], b.origin))
+                        / np.where(flat, cos_in, 1.0), dist)
+        det = spec.part_roles[part] == ROLE_DETECTOR
+        if event.settings.both_sides:
+            counted = det
+        else:  # a front-only detector counts light against its normals
+            counted = det & (cos_in < 0)
+        sc = np.flatnonzero(counted)
+        if len(sc):
+            self._score(event, b.take(sc), part[sc], b.origin[sc] + dist[sc, None] * b.d[sc])
+        go = np.flatnonzero(~det & event.capabilities.at(Capability.DELTA_CHAIN, part))
+        if len(go) == 0:
+            return None
+        b, part, dist, cos_in = b.take(go), part[go], dist[go], cos_in[go]
+        front0 = cos_in < 0
+        facing0 = np.where(front0[:, None], scene.normals[tri[go]], -scene.normals[tri[go]])
+        front, facing, exact, refined, passing = refine_on_surfaces(spec, part, b.origin, b.d, dist, b.last_part,
+                                                                    front0, facing0)
+        at = np.where(refined[:, None], exact, b.origin + dist[:, None] * b.d)
+        through = np.flatnonzero(passing)
+        carried = None
+        if len(through):  # the walk passes such a hit unchanged: so does the branch
+            carried = b.take(through)
+            carried.origin = np.ascontiguousarray(at[through] + 2.0 * event.settings.eps_mm * carried.d)
+            carried.last_part = part[through]
+        live = np.flatnonzero(~passing & (b.k < self.k_max))  # the walk's hits after K + 1 interfaces stay its own
+        b, part, at, facing, dist = b.take(live), part[live], at[live], facing[live], dist[live]
+        mat = side_material(spec, part, front[live])
+        back = ~front[live]
+        cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
+        m = len(part)
+        rs, rp, ts, tp = (np.zeros(m, complex) for _ in range(4))
+        cos_t, eta, bulk = np.zeros(m), np.ones(m), np.ones(m)
+        for k in np.unique(mat):
+            g = np.flatnonzero(mat == k)
+            smooth_coefficients_into(spec.materials[k], g, back, cos_i, dist, (rs, rp, ts, tp, cos_t, eta, bulk))
+        s = s_vector(b.d, facing)
+        S = rotate_stokes(b.S, b.e1, s, b.d)
+        b.origin, b.last_part = at, part
+        children = self._children(spec, b, facing, s, S, (rs, rp, ts, tp, cos_t, eta, bulk), event)
+        parts = [x for x in (children, carried) if x is not None and len(x.w)]
+        if not parts:
+            return None
+        if len(parts) == 1:
+            return parts[0]
+        return Branches(*(np.concatenate([getattr(o, f) for o in parts])
+                          for f in ("row", "origin", "d", "w", "S", "e1", "k", "last_part", "key", "codes")))
+
+    def _score(self, event, b, part, z):
+        """Count the branches ``b`` that reached detector parts ``part`` at points ``z``."""
+        rays = event.rays
+        j_of = event.scene.arrays.detector_of_part[part]
+        start_part = event.hits.part[b.row].astype(np.int64)
+        for j in np.unique(j_of):
+            m = np.flatnonzero(j_of == j)
+            i = b.row[m]
+            r = rays.ray[i]
+            event.tallies.add(event.rows.detector_nee + int(j), r, b.w[m])
+            event.tallies.subtract(event.rows.nee_exchange + start_part[m], r, b.w[m])
+            keys = events = None
+            depth = rays.depth[i]
+            if event.settings.record_paths:
+                keys = mix_key(b.key[m], event.scene.det_parts[int(j)] * 4 + EVENT_DETECTOR)
+                events = rays.history[i]
+                for step in range(self.k_max):
+                    at = np.flatnonzero((b.codes[m, step] >= 0) & (depth + step < events.shape[1]))
+                    events[at, depth[at] + step] = b.codes[m[at], step]
+            event.records.add(int(j), r, z[m], b.w[m], keys, events, depth + b.k[m])

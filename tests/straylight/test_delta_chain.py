@@ -1,0 +1,84 @@
+"""Runs of interfaces into a detector followed by splitting (TraceOptions.delta_chain,
+straylight.engine.delta_chain; issue 26, the lens's own ghosts).
+
+Scene: a collimated beam meets a 10 mm thick uncoated glass slab (n = 1.5, two flat faces) at
+45 deg; a small detector below the slab sits where only the two-reflection ghost lands
+("top (T) -> bottom (R) -> top (R) -> bottom (T)": displaced 3 x 10 tan(theta_t) in x, the direct
+beam 1 x and the next ghost 5 x, both off the detector). Its power is, from the Fresnel equations
+(Born & Wolf, Principles of Optics, §1.5.2; the plane of incidence is the same at every face, so s
+and p stay apart),
+
+    P_det / P = 1/2 sum_{s,p} (1 - R)^2 R^2,   r_s = (cos i - n cos t) / (cos i + n cos t),
+                                                r_p = (n cos i - cos t) / (n cos i + cos t).
+
+The analog walk reaches the detector with probability ~R^2 per ray (a few hundred in 1e5); the
+split tree follows it from every ray, so its estimate is the formula to rounding."""
+import math
+
+import numpy as np
+import pytest
+
+from engine_helpers import disk_part
+from geometry.mesh import Part, Scene
+from materials import load_material
+from straylight.sources import CollimatedDisk
+from straylight.trace import EstimatorOptions, TraceError, TraceOptions, trace
+
+N = 1.5
+THICK_MM = 10.0
+ANALOG = TraceOptions(estimator=EstimatorOptions(nee=False))
+CHAIN = TraceOptions(estimator=EstimatorOptions(nee=False, delta_chain=4))
+
+
+def _ghost_fraction():
+    """The formula of the module docstring at 45 deg."""
+    ci = math.cos(math.radians(45.0))
+    st = math.sin(math.radians(45.0)) / N
+    ct = math.sqrt(1.0 - st * st)
+    rs = ((ci - N * ct) / (ci + N * ct)) ** 2
+    rp = ((N * ci - ct) / (N * ci + ct)) ** 2
+    return 0.5 * sum((1.0 - r) ** 2 * r ** 2 for r in (rs, rp))
+
+
+@pytest.fixture(scope="module")
+def slab():
+    v_top = np.array([[-100.0, -100.0, 0.0], [100.0, -100.0, 0.0], [100.0, 100.0, 0.0], [-100.0, 100.0, 0.0]])
+    top = Part("top", v_top, np.array([[0, 1, 2], [0, 2, 3]]), material="glass", role="surface")  # +z: air side
+    bottom = Part("bottom", v_top - [0.0, 0.0, THICK_MM], np.array([[0, 2, 1], [0, 3, 2]]), material="glass",
+                  role="surface")  # -z: air side
+    shift = THICK_MM * math.tan(math.asin(math.sin(math.radians(45.0)) / N))
+    det = disk_part("det", -20.0, 4.0, 64, role="detector")
+    det = Part("det", det.vertices_mm + np.array([3 * shift + 10.0, 0.0, 0.0]), det.faces, role="detector")
+    d = np.array([math.sqrt(0.5), 0.0, -math.sqrt(0.5)])
+    src = CollimatedDisk(center_mm=[-20.0, 0.0, 20.0], normal=d, direction=d, radius_mm=2.0)
+    mats = {"glass": load_material({"components": [{"type": "dielectric", "n": N}]}, "glass")}
+    return Scene((top, bottom, det)), src, mats
+
+
+def test_the_split_tree_gives_the_fresnel_ghost_and_the_analog_walk_agrees(slab):
+    sc, src, mats = slab
+    want = _ghost_fraction()
+    chain = trace(sc, src, 2_000, seed=7, materials=mats, options=CHAIN)
+    analog = trace(sc, src, 150_000, seed=8, materials=mats, options=ANALOG)
+    c, a = chain.detectors["det"], analog.detectors["det"]
+    assert c.power_w / chain.emitted_w == pytest.approx(want, rel=1e-9)
+    assert abs(chain.ledger["balance_residual_w"]) < 1e-9
+    assert a.power_w > 0
+    assert abs(a.power_w / analog.emitted_w - want) <= 4 * a.stderr_w / analog.emitted_w, (a, want)
+
+
+def test_a_tree_shorter_than_the_ghost_leaves_it_to_the_walk(slab):
+    """With K = 3 the ghost (4 interfaces) is the walk's: same mean, the walk's noise."""
+    sc, src, mats = slab
+    short = trace(sc, src, 150_000, seed=9, materials=mats, options=TraceOptions(estimator=EstimatorOptions(nee=False, delta_chain=3)))
+    s = short.detectors["det"]
+    assert s.stderr_w > 0
+    assert abs(s.power_w / short.emitted_w - _ghost_fraction()) <= 4 * s.stderr_w / short.emitted_w
+    assert abs(short.ledger["balance_residual_w"]) < 1e-9
+
+
+def test_delta_chain_and_reflection_split_are_not_both_on():
+    with pytest.raises(TraceError, match="delta_chain"):
+        EstimatorOptions(delta_chain=4, reflection_split=True)
+    with pytest.raises(TraceError, match="delta_chain"):
+        EstimatorOptions(delta_chain=-1)
