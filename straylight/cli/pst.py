@@ -100,7 +100,8 @@ def add_parser(subparsers):
 
     p.add_argument("--estimators", choices=tuple(ESTIMATOR_SETS), default="default",
                    help="estimator set (straylight.analyses.estimators): 'baseline' is the set before issue 26, "
-                        "'first_lobe' without the second-vertex lobe draw, for timing before and after")
+                        "'first_lobe' without the second-vertex lobe draw, 'split' with single reflections "
+                        "into the detector instead of the lens-ghost trees (delta_chain), for timing before and after")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)
     p.add_argument("--entrance-radius-mm", type=float, default=None)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads "
