@@ -208,7 +208,7 @@ class Instrument:
                 raise ValueError(f"wavelength_nm must be > 0, got {wavelength_nm}")
             setup = replace(setup, beam=replace(setup.beam, wavelength_nm=float(wavelength_nm)))
         physics = PhysicsOptions(diffraction="scene" if diffraction else "off")
-        options = estimator_options(estimators, TraceOptions(physics=physics))
+        options = estimator_options(estimators, TraceOptions(physics=physics), materials=setup.materials)
         return pst_sweep(setup, np.radians(np.atleast_1d(np.asarray(angles_deg, dtype=float))), np.radians(np.atleast_1d(azimuths_deg)),
                          n_rays=int(rays) if precision is None else 1, seed=int(seed), nee=nee, options=options,
                          execution=execution, precision=precision, checkpoint_dir=checkpoint_dir, resume=resume)

@@ -283,7 +283,7 @@ def paths_analysis(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 1
     and whether to show progress."""
     det = detector_name(setup.scene, setup.detector)
     # the estimators `pst` traces (the variance split is the one of pst's error bars), or the plain walk
-    opts = replace(estimator_options("default") if nee else TraceOptions(estimator=EstimatorOptions(nee=False)),
+    opts = replace(estimator_options("default", materials=setup.materials) if nee else TraceOptions(estimator=EstimatorOptions(nee=False)),
                    output=OutputOptions(record_paths=True, path_depth=path_depth))
     with as_execution(execution).opened() as ex:
         res = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], n_rays=int(n_rays), seed=seed,

@@ -49,7 +49,7 @@ def pst_points(spec, vanes, material_models: dict, angles_deg, rays: int, seed: 
     bm = model.beam(spec)
     area = part_area_mm2(sc, "detector")
     setup = Setup(sc, material_models, bm, None, "detector")
-    opts = estimator_options("default")  # the estimator set `straylight pst` traces: same seed, same numbers
+    opts = estimator_options("default", materials=material_models)  # what `straylight pst` traces: same seed, same numbers
     z_mm = [float(v.z_mm) for v in vanes]
     off_axis = {slot * 1000 + i: math.radians(float(a)) for i, a in enumerate(angles_deg)}
     points = [GridPoint(slot * 1000 + i, point_seed(seed, i), f"{float(a):g} deg", tag=z_mm)
