@@ -25,8 +25,14 @@ import tempfile
 from pathlib import Path
 
 ENV_DIR = "STRAYLIGHT_CACHE_DIR"
+ENV_SWITCH = "STRAYLIGHT_CACHE"  # off / 0 / no / false: no tessellation or energy-check cache
 NUMBA_ENV = "NUMBA_CACHE_DIR"
 _CHOSEN: dict = {}
+
+
+def enabled() -> bool:
+    """The project's own caches (tessellations, energy checks) are used unless ``$STRAYLIGHT_CACHE`` is off."""
+    return os.environ.get(ENV_SWITCH, "on").strip().lower() not in ("off", "0", "no", "false")
 
 
 def _usable(path: Path) -> bool:

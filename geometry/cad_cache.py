@@ -26,28 +26,23 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-import os
 import warnings
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from atomicio.cache_dirs import ENV_SWITCH, enabled  # noqa: F401 - ENV_SWITCH: the switch this cache obeys
 from atomicio.digest import file_sha256
 from geometry.mesh import Part
 from geometry.tessellate import TessellationReport
 
 ENV_DIR = "STRAYLIGHT_CACHE_DIR"
-ENV_SWITCH = "STRAYLIGHT_CACHE"
 _CODE_FILES = ("cad.py", "cad_cache.py", "cad_child.py", "tessellate.py", "mesh.py")
 
 
 class CacheWarning(UserWarning):
     """A cache entry that could not be used (damaged, or from an incompatible writer): it is rebuilt."""
-
-
-def enabled() -> bool:
-    return os.environ.get(ENV_SWITCH, "on").strip().lower() not in ("off", "0", "no", "false")
 
 
 def cache_dir() -> Path:

@@ -32,6 +32,7 @@ from atomicio.inputs import InputFileError, read_input_text
 from materials.albedo import directional_hemispherical_reflectance
 from materials.base import MaterialError, Sample
 from materials.composite import _TABLE_THETA, Composite
+from materials.energy_checked import check_key, passed_before, remember_pass
 from materials.flags import ComponentFlags, flags_of, union
 from materials.registry import build_component
 from materials.sampling import check_real
@@ -201,6 +202,9 @@ class Material:
         theta = np.deg2rad(ENERGY_CHECK_THETA_I_DEG)
         if self.composite is None:
             return  # a delta component alone: R + T <= 1 by construction (Fresnel, r <= 1, weight <= 1)
+        key = check_key(self)
+        if passed_before(key):  # the same material passed before (materials.energy_checked)
+            return
         for pol in ("s", "p"):
             # a coarse grid (<~1 % for beta-centred lobes, ~10 % for grazing microfacet lobes
             # at 89 deg), refined with the default grid wherever it comes near 1
@@ -215,6 +219,7 @@ class Material:
                     f"hemispherical reflectance {rho[k]:.4f} >= 1 at theta_i = "
                     f"{ENERGY_CHECK_THETA_I_DEG[k]:g} deg ({pol}-polarized)"
                 )
+        remember_pass(key)
 
     def to_dict(self) -> dict:
         """The material-file dict (CONTRACTS §5); component wavelengths equal to the material's are omitted."""
