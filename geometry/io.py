@@ -3,7 +3,8 @@
 - STEP export per CadQuery part (``cadquery.exporters``); STL / PLY / OBJ export per
   tessellated part (trimesh; PLY is written with float64 vertices, so it is lossless).
 - :func:`load_part` reads STL, OBJ, PLY (trimesh, ``process=False``: face order is kept;
-  exactly coincident vertices, as in STL triangle soup, are merged) and STEP / IGES from any
+  exactly coincident vertices, as in STL triangle soup, are merged; a triangle-only binary PLY
+  through plyfile, the same numbers without importing trimesh) and STEP / IGES from any
   CAD tool (:mod:`geometry.cad`: names and units kept; tessellated at ``tolerance_mm`` and
   cached, :mod:`geometry.cad_cache`); :func:`load_cad_parts` gives one part per solid
   (``split = "solids"``, CONTRACTS §6.2).
