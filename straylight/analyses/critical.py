@@ -13,17 +13,15 @@ only through a mirror.
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 import atomicio
 from straylight.analyses.grid import point_seed
 from straylight.analyses.pst import detector_name
-from straylight.analyses.tables import TableRepr
+from straylight.analyses.tables import ResultFiles, TableRepr
 from straylight.execution import Execution, as_execution
 from straylight.trace import EstimatorOptions, TraceOptions, trace
 
@@ -99,7 +97,7 @@ class ObjectRow:
 
 
 @dataclass(frozen=True, eq=False)
-class CriticalReport(TableRepr):
+class CriticalReport(TableRepr, ResultFiles):
     """Per-part fractions; ``ranking`` lists the parts both illuminated and critical, best first.
 
     rows : every non-detector part (fractions of the source power / of the detector's emission)
@@ -132,19 +130,9 @@ class CriticalReport(TableRepr):
         return data_frame([r.__dict__ for r in sorted(self.rows, key=lambda r: -r.score)],
                           tuple(ObjectRow.__dataclass_fields__))
 
-    def write_json(self, path) -> Path:
-        path = Path(path)
-        atomicio.write_json(path, self.to_json_dict(), allow_nan=True, final_newline=False)
-        return path
-
-    def write_csv(self, path) -> Path:
-        path = Path(path)
-        with atomicio.atomic_open(path, "w") as fh:
-            w = csv.writer(fh)
-            w.writerow(list(ObjectRow.__dataclass_fields__))
-            for r in sorted(self.rows, key=lambda r: -r.score):
-                w.writerow(list(r.__dict__.values()))
-        return path
+    def csv_table(self) -> tuple:
+        """critical.csv: every part, by decreasing score."""
+        return list(ObjectRow.__dataclass_fields__), [r.__dict__ for r in sorted(self.rows, key=lambda r: -r.score)]
 
     def markdown(self) -> str:
         lines = [f"Critical (seen from `{self.detector}`) and illuminated (lit by the beam at "

@@ -34,6 +34,26 @@ class TableRepr:
         return frame.to_html(max_rows=30)
 
 
+class ResultFiles:
+    """Mixin for results written as JSON and CSV: ``to_json_dict()`` and ``csv_table()`` ->
+    (columns, rows as dicts) are the result's own; the files are written atomically (atomicio), the
+    JSON with NaN kept as NaN and no final newline, the CSV with missing cells empty."""
+
+    def write_json(self, path) -> Path:
+        path = Path(path)
+        atomicio.write_json(path, self.to_json_dict(), allow_nan=True, final_newline=False)
+        return path
+
+    def write_csv(self, path) -> Path:
+        path = Path(path)
+        columns, rows = self.csv_table()
+        with atomicio.atomic_open(path, "w") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(columns), restval="")
+            writer.writeheader()
+            writer.writerows(rows)
+        return path
+
+
 PST_TABLE = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "rel_error", "vov", "entrance_ratio",
              "entrance_ratio_stderr", "geometric_direct_entrance_ratio", "rays", "stop_reason", "seconds", "flags")
 PATHS_TABLE = ("rank", "path", "ancestry", "fraction", "fraction_stderr", "power_w", "stderr_w", "n_records",

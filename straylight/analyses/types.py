@@ -7,15 +7,13 @@
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 import atomicio
-from straylight.analyses.tables import TableRepr
+from straylight.analyses.tables import ResultFiles, TableRepr
 from straylight.sources import MIN_RADIUS_MM, CollimatedDisk
 
 DEFAULT_VOV_LIMIT = 0.1  # straylight.analyses.precision.DEFAULT_MAX_VOV: MCNP's reliability check
@@ -196,7 +194,7 @@ class Setup:
 
 
 @dataclass(frozen=True, eq=False)
-class PstResult(TableRepr):
+class PstResult(TableRepr, ResultFiles):
     """A PST sweep; arrays have one entry per (off-axis, azimuth) point, in sweep order.
 
     off_axis_deg, azimuth_deg : (n,) the tilts
@@ -269,18 +267,9 @@ class PstResult(TableRepr):
                           "detector_w": "W", "detector_stderr_w": "W", "detector_area_mm2": "mm^2"},
                 "flags": FLAGS, "points": clean}
 
-    def write_json(self, path) -> Path:
-        path = Path(path)
-        atomicio.write_json(path, self.to_json_dict(), allow_nan=True, final_newline=False)
-        return path
-
-    def write_csv(self, path) -> Path:
-        path = Path(path)
-        with atomicio.atomic_open(path, "w") as fh:
-            writer = csv.DictWriter(fh, fieldnames=CSV_COLUMNS + DIAGNOSTIC_COLUMNS + (FLAG_COLUMN,), restval="")
-            writer.writeheader()
-            writer.writerows(self.flagged_rows())
-        return path
+    def csv_table(self) -> tuple:
+        """pst.csv: the CONTRACTS columns, the diagnostics, the flags."""
+        return CSV_COLUMNS + DIAGNOSTIC_COLUMNS + (FLAG_COLUMN,), self.flagged_rows()
 
     def plot(self, path=None, quantity: str = "pst", ax=None, label_prefix: str = ""):
         """Log-scale plot of ``quantity`` ("pst" or "entrance_ratio") vs off-axis angle, 1-sigma bars.
@@ -347,7 +336,7 @@ PARAMETER_LABELS = {
 
 
 @dataclass(frozen=True, eq=False)
-class SweepResult:
+class SweepResult(ResultFiles):
     """PST over (design value, off-axis angle); arrays are (n_values, n_angles)."""
 
     parameter: str
@@ -374,19 +363,10 @@ class SweepResult:
                 "off_axis_deg": [float(a) for a in self.off_axis_deg], "rays_per_point": self.rays,
                 "seed": self.seed, "material": self.material, "points": self.rows()}
 
-    def write_json(self, path) -> Path:
-        path = Path(path)
-        atomicio.write_json(path, self.to_json_dict(), allow_nan=True, final_newline=False)
-        return path
-
-    def write_csv(self, path) -> Path:
-        path = Path(path)
+    def csv_table(self) -> tuple:
+        """sweep.csv: one row per (value, angle)."""
         rows = self.rows()
-        with atomicio.atomic_open(path, "w") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-        return path
+        return list(rows[0]), rows
 
     def best(self, angle_index: int = -1) -> float:
         """Design value with the lowest PST at one angle (ties: the first)."""
