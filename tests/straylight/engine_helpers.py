@@ -1,12 +1,16 @@
 """Small scenes and a Lambertian stand-in for the engine tests (built from numpy / trimesh)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from geometry.analytic import Plane, analytic_part
 from geometry.mesh import Part, Scene
+from materials import load_material
 from materials.base import Sample
+from straylight.sources import CollimatedDisk
 
 
 @dataclass(frozen=True)
@@ -128,3 +132,16 @@ def icosphere_ports_scene(radius_mm, port_fractions, subdivisions=5, material="w
     wall = owner < 0
     parts.insert(0, Part("wall", m.vertices, m.faces[wall], material=material, role="surface"))
     return Scene(tuple(parts)), fractions
+
+
+def window_scene():
+    """An uncoated glass window (n = 1.5, analytic faces "top" at z = 10 and "bottom" at z = 0) over a
+    detector disk "det" at z = -20, lit at normal incidence by a 5 mm collimated beam: (scene, source,
+    materials). Nominal image (1 - R)^2, two-bounce ghost (1 - R)^2 R^2 with R = 0.04."""
+    up = np.array([0.0, 0.0, 1.0])
+    glass = load_material({"name": "glass", "components": [{"type": "dielectric", "n": 1.5}]})
+    top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, 100.0, 0.0), "glass")
+    bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, 100.0, 0.0), "glass")
+    det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
+    src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
+    return Scene((top, bottom, det)), src, {"glass": glass}

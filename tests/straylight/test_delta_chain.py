@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from engine_helpers import disk_part
+from engine_helpers import disk_part, window_scene
 from geometry.mesh import Part, Scene
 from materials import load_material
 from straylight.sources import CollimatedDisk
@@ -89,17 +89,11 @@ def test_the_trees_on_exact_surfaces_give_the_ghost_table_of_a_window():
     the split trees' path records group into the nominal image (1 - R)^2 and the two-bounce ghost
     (1 - R)^2 R^2 (Born & Wolf §7.6.1), each to rounding from 2000 rays (the analog walk needs 4e5
     rays for a few per cent on the ghost)."""
-    from geometry.analytic import Plane, analytic_part
     from straylight.analyses.ghosts import ghost_table
     from straylight.trace import OutputOptions
 
-    up = np.array([0.0, 0.0, 1.0])
-    glass = load_material({"name": "glass", "components": [{"type": "dielectric", "n": 1.5}]})
-    top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, 100.0, 0.0), "glass")
-    bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, 100.0, 0.0), "glass")
-    det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
-    src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
-    res = trace(Scene((top, bottom, det)), [src], 2_000, seed=3, materials={"glass": glass},
+    scene, src, mats = window_scene()
+    res = trace(scene, [src], 2_000, seed=3, materials=mats,
                 options=TraceOptions(estimator=EstimatorOptions(nee=False, delta_chain=4),
                                      output=OutputOptions(record_paths=True)))
     table = ghost_table(res.paths, "det", res.detectors["det"].power_w)

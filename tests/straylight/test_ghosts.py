@@ -4,15 +4,8 @@ Reference: incoherent plate (Born & Wolf §7.6.1), normal incidence, R = ((n-1)/
 transmission carries (1-R)^2, the two-bounce ghost (reflect at the bottom, then the top) (1-R)^2 R^2,
 the next ghost (1-R)^2 R^4.
 """
-import math
-
-import numpy as np
-
-from geometry import Scene
-from geometry.analytic import Plane, analytic_part
-from materials import load_material
+from engine_helpers import window_scene
 from straylight.analyses.ghosts import ghost_table, two_bounce_pair
-from straylight.sources import CollimatedDisk
 from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 
 
@@ -24,13 +17,8 @@ def test_two_bounce_pattern():
 
 
 def test_window_ghost_power():
-    up = np.array([0.0, 0.0, 1.0])
-    glass = load_material({"name": "glass", "components": [{"type": "dielectric", "n": 1.5}]})
-    top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, 100.0, 0.0), "glass")
-    bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, 100.0, 0.0), "glass")
-    det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
-    src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
-    res = trace(Scene((top, bottom, det)), [src], 400_000, seed=3, materials={"glass": glass},
+    scene, src, mats = window_scene()
+    res = trace(scene, [src], 400_000, seed=3, materials=mats,
                 options=TraceOptions(estimator=EstimatorOptions(nee=False), output=OutputOptions(record_paths=True)))
     table = ghost_table(res.paths, "det", res.detectors["det"].power_w)
     R = 0.04
