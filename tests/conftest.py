@@ -6,7 +6,39 @@ os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
 os.environ.setdefault("STRAYLIGHT_CACHE", "off")
 
 
+import shutil  # noqa: E402
+import stat  # noqa: E402
+from pathlib import Path  # noqa: E402
+
 import pytest  # noqa: E402
+
+NOBODY_UID = 65534
+CHECKOUT = Path(__file__).resolve().parent.parent
+
+
+def _closed_to_others(path: Path) -> Path | None:
+    """The first folder from ``path`` up that other users cannot enter (None: all can)."""
+    for folder in (path, *path.parents):
+        if not folder.stat().st_mode & stat.S_IXOTH:
+            return folder
+    return None
+
+
+@pytest.fixture
+def as_nobody():
+    """``as_nobody(cmd, why)``: ``cmd`` run as the unprivileged user ``nobody`` (the tests run as root,
+    to whom nothing is read-only); skips, saying ``why`` the test needs it, where setpriv is missing or
+    the checkout sits in a folder other users cannot enter (``mktemp -d`` makes mode 0700 folders)."""
+    def wrap(cmd, why: str):
+        setpriv = shutil.which("setpriv")
+        if setpriv is None:
+            pytest.skip(f"running as root without setpriv: {why}")
+        closed = _closed_to_others(CHECKOUT)
+        if closed is not None:
+            pytest.skip(f"{closed} is closed to other users (mode {stat.S_IMODE(closed.stat().st_mode):o}), "
+                        f"so nobody cannot import the checkout: {why}")
+        return [setpriv, f"--reuid={NOBODY_UID}", f"--regid={NOBODY_UID}", "--clear-groups", *cmd]
+    return wrap
 
 
 @pytest.fixture

@@ -30,7 +30,7 @@ def shared_tmp():
     shutil.rmtree(path, ignore_errors=True)
 
 
-def test_read_only_install_and_home_still_trace_materials(shared_tmp):
+def test_read_only_install_and_home_still_trace_materials(shared_tmp, as_nobody):
     """Run as another user where the tests run as root (then the checkout is a read-only install for
     it, and HOME does not exist); else with HOME a read-only folder."""
     model = shared_tmp / "model.json"
@@ -41,10 +41,7 @@ def test_read_only_install_and_home_still_trace_materials(shared_tmp):
     cmd = [sys.executable, "-m", "straylight.cli.main", "material", "eval", str(model), "--theta-i-deg", "30",
            "--theta-r-deg", "10", "--polarization", "s", "--json", str(shared_tmp / "out.json")]
     if os.geteuid() == 0:
-        setpriv = shutil.which("setpriv")
-        if setpriv is None:
-            pytest.skip("running as root without setpriv: nothing is read-only to root (issue 27)")
-        cmd = [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
+        cmd = as_nobody(cmd, "nothing is read-only to root (issue 27)")
         env["HOME"] = "/nonexistent"
         uid = 65534
     else:

@@ -38,7 +38,7 @@ def open_tmp():
     shutil.rmtree(path, ignore_errors=True)
 
 
-def test_trace_json_into_a_read_only_folder_fails_at_once(open_tmp):
+def test_trace_json_into_a_read_only_folder_fails_at_once(open_tmp, as_nobody):
     """As another user where the tests run as root (root writes anywhere): a folder the user cannot write."""
     tmp_path = open_tmp
     folder = tmp_path / "ro"
@@ -47,10 +47,7 @@ def test_trace_json_into_a_read_only_folder_fails_at_once(open_tmp):
     cmd = [sys.executable, "-m", "straylight.cli.main", "trace", str(tmp_path / "missing.toml"), "--rays", "1000",
            "--json", str(folder / "out.json")]
     if os.geteuid() == 0:
-        setpriv = shutil.which("setpriv")
-        if setpriv is None:
-            pytest.skip("running as root without setpriv: no folder is read-only to root (issue 27)")
-        cmd = [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
+        cmd = as_nobody(cmd, "no folder is read-only to root (issue 27)")
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), "HOME": str(folder),
            "STRAYLIGHT_CACHE": "off", "NUMBA_CACHE_DIR": str(folder)}
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=env, cwd=str(folder))
