@@ -1,4 +1,4 @@
-"""README "Edge diffraction (HURB)" stays true: its commands run as written (few rays), in a shell, and
+"""The user guide's "Edge diffraction (HURB)" (docs/guide.md) stays true: its commands run as written (few rays), in a shell, and
 the scene they make diffracts where the section says (issue 25, CONTRACTS §6.5)."""
 import json
 import os
@@ -11,7 +11,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _commands() -> str:
-    text = (ROOT / "README.md").read_text()
+    text = (ROOT / "docs" / "guide.md").read_text()
     start = text.index("### Edge diffraction (HURB)")
     section = text[start:text.index("\n### ", start + 1)]
     block = re.findall(r"```bash\n(.*?)```", section, re.DOTALL)[0]

@@ -1,4 +1,4 @@
-"""README "Your own instrument" stays true: its commands run (with few rays) on the real third-party part
+"""The user guide's "Your own instrument" (docs/guide.md) stays true: its commands run (with few rays) on the real third-party part
 it names, and its TOML excerpt is the example scene file's (issue 22)."""
 import json
 import math
@@ -13,7 +13,7 @@ EXAMPLE = ROOT / "examples" / "own_instrument" / "instrument.toml"
 
 
 def _section() -> str:
-    text = (ROOT / "README.md").read_text()
+    text = (ROOT / "docs" / "guide.md").read_text()
     start = text.index("### Your own instrument\n")
     return text[start:text.index("\n### ", start + 1)]
 
