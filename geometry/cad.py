@@ -6,11 +6,12 @@ to products and instances, and returns one :class:`CadSolid` per solid in file o
 the assembly (instance locations applied) and in **millimetres** whatever unit the file uses
 (OpenCascade converts to its session unit, mm).
 
-Names (CONTRACTS §6.2): a solid takes the name of the instance that places it, else of its
-product (label), and also answers to its product's name (``CadSolid.aliases``: Fusion's ``lens:1`` is
-also ``lens``); a part with several solids gives each the part's name; a solid without a
-name (or with only a writer's placeholder, see ``_PLACEHOLDERS``) is ``solid<k>`` (k from 1, in
-file order); repeated names get ``_2``, ``_3``. Surface models (IGES files usually hold faces,
+Names (CONTRACTS §6.2): a solid takes its product's name (the component, Fusion's ``lens v1``) and also
+answers to its instance's name (``CadSolid.aliases``: ``lens v1:1``); a component written without a name
+takes the name of the nearest named component above it; the bodies of a multi-body component are
+``component/body`` (of a one-part file, their body names); a solid without any name (or with only a
+writer's placeholder, see ``_PLACEHOLDERS``) is ``solid<k>`` (k from 1, in file order); repeated names
+get ``_2``, ``_3``; no alias is another solid's name. Surface models (IGES files usually hold faces,
 not solids) are sewn: closed shells become solids, open ones stay sheets.
 
 Every failure is a one-line :class:`geometry.mesh.GeometryError` naming the file.
@@ -181,10 +182,14 @@ def _sub_solids(shape):
     return found
 
 
-def _walk(shape_tool, label, location, name, out, aliases=()):
+def _walk(shape_tool, label, location, name, out, aliases=(), inherited=None):
     """Depth-first over an XDE label: assemblies recurse into their components (locations composed),
-    simple shapes contribute their solids with ``name`` (and ``aliases``: the product's name of an
-    instance named on its own, as Fusion's ``lens:1`` of product ``lens``)."""
+    simple shapes contribute their solids as ``(shape, kind, name, aliases, label)``.
+
+    A component is named by its product (CONTRACTS 6.2), its instance name (Fusion's ``lens:1``) an
+    alias; a component without either name takes the name of the nearest named component above it
+    (``inherited``: CAD tools write a component's own bodies as an unnamed product next to its
+    sub-components); the bodies of a multi-body part are ``<component>/<body>``."""
     from OCP.TDF import TDF_Label, TDF_LabelSequence
     from OCP.XCAFDoc import XCAFDoc_ShapeTool
 
@@ -196,23 +201,32 @@ def _walk(shape_tool, label, location, name, out, aliases=()):
             referred = TDF_Label()
             XCAFDoc_ShapeTool.GetReferredShape_s(component, referred)
             child_location = location.Multiplied(XCAFDoc_ShapeTool.GetLocation_s(component))
-            child_name = _instance_name(component, referred)
-            product = _label_name(referred)
-            _walk(shape_tool, referred, child_location, child_name, out,
-                  (product,) if product and product != child_name else ())
+            product, instance = _label_name(referred), _label_name(component)
+            child_name = product or instance
+            child_aliases = (instance,) if instance and instance != child_name else ()
+            if child_name is None:
+                child_name, child_aliases = (name, aliases) if name else (inherited, ())
+            _walk(shape_tool, referred, child_location, child_name, out, child_aliases,
+                  child_name or name or inherited)
         return
     shape = XCAFDoc_ShapeTool.GetShape_s(label)
     if shape.IsNull():
         return
+    root = name is None and inherited is None  # the file's own top shape, not a component of an assembly
     if name is None:
-        name = _label_name(label)
+        name = _label_name(label) or inherited
     subs = _sub_solids(shape)
     for sub, kind in subs:
         body = _body_name(shape_tool, label, sub) if len(subs) > 1 else None
-        if body and body != name:  # a named body of a multi-body part (Fusion, Onshape): the body's name first
-            out.append((sub.Moved(location), kind, body, tuple(a for a in (name, *aliases) if a)))
+        if body and name and root and body != name:  # a one-part file's bodies: their own names
+            out.append((sub.Moved(location), kind, body, (f"{name}/{body}", name)))
+        elif body and name and body != name:  # a named body of a multi-body component: component/body
+            out.append((sub.Moved(location), kind, f"{name}/{body}",
+                        tuple(f"{a}/{body}" for a in aliases if a) + (name,)))
+        elif body and not name:
+            out.append((sub.Moved(location), kind, body, ()))
         else:
-            out.append((sub.Moved(location), kind, name, tuple(aliases)))
+            out.append((sub.Moved(location), kind, name, tuple(a for a in aliases if a)))
 
 
 def _body_name(shape_tool, label, sub) -> str | None:
@@ -227,11 +241,6 @@ def _body_name(shape_tool, label, sub) -> str | None:
     except Exception:  # noqa: BLE001 - a missing body name is not an error
         return None
     return None
-
-
-def _instance_name(component, referred) -> str | None:
-    """An instance's own name if the file gives one, else its product's."""
-    return _label_name(component) or _label_name(referred)
 
 
 def unique_names(names) -> list[str]:
@@ -274,9 +283,23 @@ def read_cad(path) -> list[CadSolid]:
     del reader
     if not found:
         raise GeometryError(f"{path}: the file holds no solid, shell or face")
+    return named_solids(found)
+
+
+def named_solids(found) -> list[CadSolid]:
+    """:class:`CadSolid` s of ``[(shape, kind, name, aliases)]`` with unique names (``unique_names``) and
+    aliases: the other names the file gives (instance names, a multi-body part's component), none equal to
+    another solid's name. ``label`` keeps the name before suffixes (``BOLT`` for ``BOLT_2``)."""
     names = unique_names([name for _, _, name, _ in found])
-    return [CadSolid(n, shape, kind, label, tuple(a for a in aliases if a != n))
-            for n, (shape, kind, label, aliases) in zip(names, found)]
+    taken = set(names)
+    out = []
+    for n, (shape, kind, label, aliases) in zip(names, found):
+        kept = []
+        for a in aliases:
+            if a and a != n and a not in taken and a not in kept:
+                kept.append(a)
+        out.append(CadSolid(n, shape, kind, label, tuple(kept)))
+    return out
 
 
 def compound_of(shapes):

@@ -60,8 +60,14 @@ def cad_scene_doc(cad_path, scene_path, *, detector: str | None = None, material
     if detector is None and detector_disk is None:
         guesses = [s for s in solids if s == "detector"] or [s for s in solids if "detector" in s.lower()]
         detector = guesses[0] if len(guesses) == 1 else None
-    if detector is not None and detector not in solids:
-        raise GeometryError(f"{cad_path}: no solid named {detector!r}; its solids: {', '.join(solids)}")
+    if detector is not None and detector not in solids:  # an instance name (CONTRACTS 6.2) names its solid
+        hits = [p.meta["solid"] for p in parts if detector in p.meta.get("aliases", ())]
+        if len(hits) != 1:
+            listed = ", ".join(p.meta["solid"] + (f" ({', '.join(p.meta['aliases'])})" if p.meta.get("aliases") else "")
+                               for p in parts)
+            raise GeometryError(f"{cad_path}: no solid named {detector!r}; its solids (other names in brackets): "
+                                f"{listed}")
+        detector = hits[0]
     vertices = np.concatenate([p.vertices_mm for p in parts])
     along = vertices @ a
     centre = (vertices.min(axis=0) + vertices.max(axis=0)) / 2  # bounding-box centre

@@ -352,7 +352,8 @@ def load_cad_parts(path, *, name: str | None = None, material: str | None = None
         if solid_role not in ROLES:
             raise GeometryError(f"{path}: solid {solid!r}: unknown role {solid_role!r}; expected one of "
                                 f"{', '.join(ROLES)}")
-        meta = dict(part.meta, solid=solid, label=label)
+        meta = dict(part.meta, solid=solid, label=label,
+                    part_aliases=[f"{name}/{a}" for a in part.meta.get("aliases", [])])
         if "temperature_k" in tags:
             meta["temperature_k"] = check_temperature(tags["temperature_k"], f"{path}: solid {solid!r}")
         parts.append(Part(f"{name}/{solid}", part.vertices_mm, part.faces, tags.get("material", material),
@@ -361,24 +362,28 @@ def load_cad_parts(path, *, name: str | None = None, material: str | None = None
 
 
 def _solid_overrides(path: Path, items, overrides: dict) -> dict:
-    """{solid name: override table}: a key names a solid by its own name, else by its product's name
-    (``meta["aliases"]``: every instance of that product); an exact name wins over a product name."""
+    """{solid name: override table}. A key names every solid that answers to it (CONTRACTS 6.2): its own
+    name, an alias (the instance name, ``lens:1``) or its product's name before the ``_2`` of a repeat
+    (``BOLT`` sets ``BOLT``, ``BOLT_2``...); a solid's own name wins over the other keys."""
     names = [solid for solid, _, _, _ in items]
     aliases = {solid: list(part.meta.get("aliases", [])) for solid, _, _, part in items}
-    out, unknown = {}, []
+    labels = {solid: label for solid, _, label, _ in items}
+    out, unknown, exact = {}, [], set()
     for key in overrides:
         if key in names:
             out[key] = overrides[key]
-            continue
-        matched = [solid for solid in names if key in aliases[solid]]
+            exact.add(key)
+    for key in overrides:
+        matched = [solid for solid in names if key == solid or key in aliases[solid] or key == labels[solid]]
         if not matched:
             unknown.append(key)
         for solid in matched:
-            out.setdefault(solid, overrides[key])
+            if solid not in exact:
+                out.setdefault(solid, overrides[key])
     if unknown:
         listed = ", ".join(f"{n} ({', '.join(aliases[n])})" if aliases[n] else n for n in names)
         raise GeometryError(f"{path}: no solid named {', '.join(map(repr, sorted(unknown)))} in the file; its "
-                            f"solids (product names in brackets): {listed}")
+                            f"solids (other names in brackets): {listed}")
     return out
 
 

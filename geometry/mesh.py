@@ -96,10 +96,31 @@ class Scene:
         return tuple(p.name for p in self.parts)
 
     def part(self, name: str) -> Part:
+        """The part ``name`` names: its own name, or an alias of exactly one part (see :meth:`resolve`)."""
+        name = self.resolve(name)
         for p in self.parts:
             if p.name == name:
                 return p
-        raise GeometryError(f"no part named {name!r}; parts: {', '.join(self.part_names)}")
+        raise AssertionError(name)  # resolve() returned a part name
+
+    def names_of(self, part: Part) -> tuple[str, ...]:
+        """Every name ``part`` answers to: its own, then its aliases (a CAD solid's instance name, CONTRACTS 6.2)."""
+        return (part.name, *(str(a) for a in part.meta.get("part_aliases", ())))
+
+    def resolve(self, name: str) -> str:
+        """The part name that ``name`` means: a part's own name, else an alias that only one part has (the
+        instance name ``scope/lens:1`` of the part ``scope/lens``). Unknown or ambiguous: a GeometryError
+        listing the names."""
+        if name in self.part_names:
+            return name
+        hits = [p.name for p in self.parts if name in self.names_of(p)[1:]]
+        if len(hits) == 1:
+            return hits[0]
+        if hits:
+            raise GeometryError(f"{name!r} names {len(hits)} parts ({', '.join(hits)}); use one of these names")
+        listed = ", ".join(p.name + (f" ({', '.join(self.names_of(p)[1:])})" if self.names_of(p)[1:] else "")
+                           for p in self.parts)
+        raise GeometryError(f"no part named {name!r}; parts (other names in brackets): {listed}")
 
     @cached_property
     def triangles_mm(self) -> np.ndarray:

@@ -46,6 +46,12 @@ def detector_name(scene, name: str | None = None) -> str:
     """``name`` if it is a detector part, or the scene's only detector."""
     detectors = [p.name for p in scene.parts if p.role == "detector"]
     if name is not None:
+        from geometry.mesh import GeometryError
+
+        try:  # a CAD solid answers to its product and instance names alike (CONTRACTS 6.2)
+            name = scene.resolve(name) if hasattr(scene, "resolve") else name
+        except GeometryError as exc:
+            raise ValueError(f"detector {name!r}: {exc}; detectors: {', '.join(detectors) or 'none'}") from None
         if name not in detectors:
             raise ValueError(f"detector {name!r} is not a detector part; detectors: {', '.join(detectors) or 'none'}")
         return name

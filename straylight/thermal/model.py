@@ -87,7 +87,7 @@ class ThermalScene:
         return np.array([r in roles for r in self.roles], dtype=bool)
 
     def part_index(self, name: str) -> int:
-        return self.part_names.index(name)
+        return self.part_names.index(self.scene.resolve(name) if name not in self.part_names else name)
 
     def part_area_mm2(self, p: int) -> float:
         if p in self.planes:
@@ -266,7 +266,8 @@ def temperatures_with(ts: ThermalScene, settings) -> np.ndarray:
             raise ValueError(f"--temperature-k {item!r}: {value!r} is not a number") from None
         if not (0 <= k < float("inf")):
             raise ValueError(f"--temperature-k {item!r}: a temperature must be >= 0 K")
-        hit = [i for i, n in enumerate(ts.part_names) if fnmatch.fnmatchcase(n, pattern)]
+        hit = [i for i, part in enumerate(ts.scene.parts)  # its own name or an alias (CONTRACTS 6.2)
+               if any(fnmatch.fnmatchcase(n, pattern) for n in ts.scene.names_of(part))]
         if not hit:
             raise ValueError(f"--temperature-k {item!r}: no part named {pattern!r}; parts: {', '.join(ts.part_names)}")
         temps[hit] = k

@@ -18,7 +18,8 @@ from geometry.io import load_cad_parts, load_part, load_scene
 from geometry.mesh import GeometryError
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "cad"
-BENCH = ["housing", "lens_1", "vane", "vane_2", "bspline_revolved", "offset_shell", "solid7", "detector"]
+# products name the solids (CONTRACTS 6.2); "housing" and "lens_1" are the instance names (aliases)
+BENCH = ["housing_product", "lens_product", "vane", "vane_2", "bspline_revolved", "offset_shell", "solid7", "detector"]
 NAMES = {
     "gmsh_parts.step": [f"solid{k}" for k in range(1, 7)],
     "gmsh_parts.iges": [f"solid{k}" for k in range(1, 7)],
@@ -86,9 +87,9 @@ def test_units_inch_and_metre_files_give_the_same_millimetres():
         r = np.hypot(v[:, 0], v[:, 1])
         assert r.max() == pytest.approx(29.9, abs=1e-6) and r.min() == pytest.approx(20.0, abs=1e-6)
         assert (v[:, 2].min(), v[:, 2].max()) == pytest.approx((40.0, 41.0), abs=1e-6)
-        z = parts["a/housing"].vertices_mm[:, 2]
+        z = parts["a/housing_product"].vertices_mm[:, 2]
         assert (z.min(), z.max()) == pytest.approx((0.0, 60.0), abs=1e-6)
-    assert np.allclose(inch["a/lens_1"].vertices_mm, metre["a/lens_1"].vertices_mm, atol=1e-6)
+    assert np.allclose(inch["a/lens_product"].vertices_mm, metre["a/lens_product"].vertices_mm, atol=1e-6)
     # IGES written in inch: same mm
     iges = {p.name: p for p in load_cad_parts(DATA / "ocp_bench.iges", name="a", tolerance_mm=TOL)}
     r = np.hypot(*iges["a/bench_4"].vertices_mm[:, :2].T)

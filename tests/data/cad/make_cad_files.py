@@ -5,6 +5,7 @@ Three writers, none of them this project's own export path (geometry.io.export_a
     python make_cad_files.py gmsh        # needs `pip install gmsh` (gmsh's own OpenCASCADE build)
     python make_cad_files.py ocp         # OCP's XDE writers directly (STEPCAFControl_Writer / IGESCAFControl_Writer)
     python make_cad_files.py cadquery    # CadQuery geometry (splines, ellipses, tori, fillets), cq.Assembly
+    python make_cad_files.py fusion      # OCP's XDE writer, laid out as Fusion 360 writes an assembly
 
 Files and what the tests know about them (ground truth is set here, by construction):
 
@@ -24,6 +25,18 @@ ocp_bench_inch.step  (XDE, unit INCH), ocp_bench_m.step (unit METRE), ocp_bench.
     of a B-spline-faced loft: offset surfaces), one solid with no name at all (-> solid<k>), and
     "detector" (thin disk r 20, z -0.5..0). All lengths are written in mm in the model, the file
     stores them in inch / metre: the reader must give the same millimetres back.
+fusion_like_scope.step  (XDE, laid out as Fusion 360 exports: products "<component> v<k>", instances
+    "<component> v<k>:<n>", bodies "Body<k>"; a small camera tube looking toward +z):
+    top "guide v7" with
+    "ar0130 v4:1" of product "ar0130 v4": the sensor (box 6 x 6 x 0.5 at z = 2);
+    "Chip Mount v2:1" of "Chip Mount v2": an assembly whose own body (a ring z = 0..2) is an unnamed
+        product beside its sub-component "lens v1:1" of "lens v1" (a disk r 12, z 40..44): the ring
+        takes the component's name, "Chip Mount v2";
+    "Tube v3:1" of "Tube v3": two bodies "Body2" (the wall r 20..22, z 0..80) and "Body3" (a flange ring)
+        -> "Tube v3/Body2", "Tube v3/Body3";
+    "Cap v1:1" of "Cap v1": two bodies "Body2" and "Body1" (rings at z = 80..82 and 82..84)
+        -> "Cap v1/Body2", "Cap v1/Body1" (no clash with the tube's Body2);
+    "Vane v1:1", "Vane v1:2" of one product "Vane v1" (rings at z = 20, 60) -> "Vane v1", "Vane v1_2".
 cq_features.step  (CadQuery: cq.Assembly with names "spline_sweep", "ellipse_boss", "torus",
     "filleted_block", "detector")
 """
@@ -170,5 +183,78 @@ def make_cadquery():
     assembly.export(str(HERE / "cq_features.step"), exportType="STEP")
 
 
+def make_fusion_like():
+    import cadquery as cq
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.STEPCAFControl import STEPCAFControl_Writer
+    from OCP.STEPControl import STEPControl_AsIs
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDataStd import TDataStd_Name
+    from OCP.TDocStd import TDocStd_Document
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
+    from OCP.gp import gp_Trsf, gp_Vec
+
+    def ring(r_in, r_out, z0, dz):
+        return cq.Workplane("XY").circle(r_out).circle(r_in).extrude(dz).translate((0, 0, z0)).val()
+
+    def name(label, text):
+        TDataStd_Name.Set_s(label, TCollection_ExtendedString(text))
+
+    def moved(dz):
+        t = gp_Trsf()
+        t.SetTranslation(gp_Vec(0, 0, dz))
+        return TopLoc_Location(t)
+
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+    tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    top = tool.NewShape()
+    name(top, "guide v7")
+
+    def component(parent, shape_or_label, product, instance, location=None):
+        label = shape_or_label if not hasattr(shape_or_label, "wrapped") else tool.AddShape(shape_or_label.wrapped,
+                                                                                             False)
+        if product is not None:
+            name(label, product)
+        comp = tool.AddComponent(parent, label, location or TopLoc_Location())
+        if instance is not None:
+            name(comp, instance)
+        return label
+
+    def bodies(shapes):
+        """A product holding several bodies (named below, in the file's text)."""
+        return tool.AddShape(cq.Compound.makeCompound(shapes).wrapped, False)
+
+    sensor = cq.Workplane("XY").box(6, 6, 0.5).translate((0, 0, 2.25)).val()
+    component(top, sensor, "ar0130 v4", "ar0130 v4:1")
+    mount = tool.NewShape()
+    name(mount, "Chip Mount v2")
+    component(mount, ring(4, 19.9, 0, 2), None, None)  # the component's own body: an unnamed product
+    lens = cq.Workplane("XY").circle(12).extrude(4).translate((0, 0, 40)).val()
+    component(mount, lens, "lens v1", "lens v1:1")
+    name(tool.AddComponent(top, mount, TopLoc_Location()), "Chip Mount v2:1")
+    component(top, bodies([ring(20, 22, 0, 80), ring(22, 26, 0, 2)]), "Tube v3", "Tube v3:1")
+    component(top, bodies([ring(14, 22, 80, 2), ring(20, 22, 82, 2)]), "Cap v1", "Cap v1:1")
+    vane = tool.AddShape(ring(10, 19.9, 0, 1).wrapped, False)
+    name(vane, "Vane v1")
+    for k, dz in enumerate((20.0, 60.0), 1):
+        comp = tool.AddComponent(top, vane, moved(dz))
+        name(comp, f"Vane v1:{k}")
+    tool.UpdateAssemblies()
+    writer = STEPCAFControl_Writer()
+    writer.SetNameMode(True)
+    writer.Transfer(doc, STEPControl_AsIs)
+    path = HERE / "fusion_like_scope.step"
+    assert writer.Write(str(path)) == IFSelect_RetDone
+    # Fusion names every body (MANIFOLD_SOLID_BREP('Body1', ...)); OCCT's writer leaves them empty: name them
+    # in file order (sensor, mount ring, lens, tube x2, cap x2, vane)
+    text = path.read_text()
+    for body in ("Body1", "Body1", "Body1", "Body2", "Body3", "Body2", "Body1", "Body1"):
+        assert "MANIFOLD_SOLID_BREP(''" in text
+        text = text.replace("MANIFOLD_SOLID_BREP(''", f"MANIFOLD_SOLID_BREP('{body}'", 1)
+    assert "MANIFOLD_SOLID_BREP(''" not in text
+    path.write_text(text)
+
+
 if __name__ == "__main__":
-    {"gmsh": make_gmsh, "ocp": make_ocp, "cadquery": make_cadquery}[sys.argv[1]]()
+    {"gmsh": make_gmsh, "ocp": make_ocp, "cadquery": make_cadquery, "fusion": make_fusion_like}[sys.argv[1]]()
