@@ -56,11 +56,35 @@ class PartCheck:
 
 
 @dataclass(frozen=True)
+class Overlap:
+    """Two solids that interpenetrate (CONTRACTS 6.2): the intersection's volume, its depth (how far a surface
+    of one lies inside the other) and the chord tolerance it is compared with. ``changes_trace``: a detector or
+    a transparent (``dielectric``) part is involved, or the depth is beyond the tolerance; otherwise it is an
+    interference among opaque parts that no ray can tell from touching faces (``why`` says which)."""
+
+    a: str
+    b: str
+    volume_mm3: float
+    depth_mm: float
+    tolerance_mm: float
+    changes_trace: bool
+    why: str
+
+    def as_dict(self) -> dict:
+        return {"a": self.a, "b": self.b, "volume_mm3": self.volume_mm3, "depth_mm": self.depth_mm,
+                "tolerance_mm": self.tolerance_mm, "changes_trace": self.changes_trace, "why": self.why}
+
+    def line(self) -> str:
+        return (f"overlap {self.a} / {self.b}: {self.volume_mm3:.3g} mm^3, depth {self.depth_mm:.3g} mm "
+                f"({self.why})")
+
+
+@dataclass(frozen=True)
 class SceneCheck:
     """Result of :func:`check_scene`: one :class:`PartCheck` per part and the overlapping solid pairs."""
 
     parts: tuple[PartCheck, ...]
-    overlaps: tuple[tuple[str, str, float], ...] = ()
+    overlaps: tuple[Overlap, ...] = ()
     overlap_tolerance_mm3: float = 0.0
     problems: tuple[str, ...] = field(default=())
 
@@ -68,9 +92,13 @@ class SceneCheck:
     def ok(self) -> bool:
         return not self.problems
 
+    @property
+    def trace_changing_overlaps(self) -> tuple[Overlap, ...]:
+        return tuple(o for o in self.overlaps if o.changes_trace)
+
     def as_dict(self) -> dict:
         return {"ok": self.ok, "parts": [p.as_dict() for p in self.parts],
-                "overlaps": [{"a": a, "b": b, "volume_mm3": v} for a, b, v in self.overlaps],
+                "overlaps": [o.as_dict() for o in self.overlaps],
                 "overlap_tolerance_mm3": self.overlap_tolerance_mm3, "problems": list(self.problems)}
 
     def format(self) -> str:
@@ -84,8 +112,7 @@ class SceneCheck:
                          f"{p.material or '-'}" + (f"  (also: {', '.join(p.also)})" if p.also else ""))
         lines.append(f"{'total':<{w}} {'':<8} {'':<6} {sum(p.n_triangles for p in self.parts):>9d} "
                      f"({len(self.parts)} parts)")
-        for a, b, v in self.overlaps:
-            lines.append(f"overlap {a} / {b}: {v:.3g} mm^3")
+        lines.extend(o.line() for o in self.overlaps)
         lines.extend(f"PROBLEM: {message}" for message in self.problems)
         lines.append("checks: ok" if self.ok else f"checks: {len(self.problems)} problem(s)")
         return "\n".join(lines)
@@ -160,6 +187,11 @@ def check_part(part: Part) -> PartCheck:
 
 def overlap_volumes(scene: Scene, names=None) -> list[tuple[str, str, float]]:
     """Intersection volume (mm^3) of every pair of valid solid parts whose bounding boxes overlap."""
+    return [(a, b, v) for a, b, v, _ in _intersections(scene, names)]
+
+
+def _intersections(scene: Scene, names=None):
+    """[(name a, name b, volume mm^3, intersection Manifold)] of the valid solids whose bounding boxes overlap."""
     solids = []
     for part in scene.parts:
         if names is not None and part.name not in names:
@@ -171,26 +203,94 @@ def overlap_volumes(scene: Scene, names=None) -> list[tuple[str, str, float]]:
     for i, (name_a, a, lo_a, hi_a) in enumerate(solids):
         for name_b, b, lo_b, hi_b in solids[i + 1:]:
             if np.all(lo_a < hi_b) and np.all(lo_b < hi_a):
-                out.append((name_a, name_b, float((a ^ b).volume())))
+                inter = a ^ b
+                out.append((name_a, name_b, float(inter.volume()), inter))
     return out
 
 
+def overlap_depth_mm(a: Part, b: Part, intersection) -> float:
+    """How deep the two solids interpenetrate: the largest distance from a point of their intersection's surface
+    (a manifold3d.Manifold; its vertices, edge midpoints and triangle centroids) to the surface of ``a`` or of
+    ``b`` (each point lies on one of the two surfaces; its distance to the other is how far that surface runs
+    inside the other solid). A thin press-fit ring
+    gives its radial interference, two tessellations of one cylinder their sagitta. Distances by trimesh's
+    closest-point query on the triangles near the intersection."""
+    import trimesh
+
+    mesh = intersection.to_mesh64()
+    vertices = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+    faces = np.asarray(mesh.tri_verts, dtype=np.int64)
+    if len(vertices) == 0 or len(faces) == 0:
+        return 0.0
+    tri = vertices[faces]  # vertices, edge midpoints and centroids: a vertex on an edge of both solids is 0 from both
+    points = np.concatenate([vertices, tri.mean(axis=1), (tri + np.roll(tri, 1, axis=1)).reshape(-1, 3) / 2])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    reach = float(np.linalg.norm(hi - lo)) + 1e-9
+    distances = []
+    for part in (a, b):
+        tri = part.vertices_mm[part.faces]
+        near = np.all((tri.min(axis=1) <= hi + reach) & (tri.max(axis=1) >= lo - reach), axis=1)
+        if not near.any():
+            return reach
+        sub = trimesh.Trimesh(part.vertices_mm, part.faces[near], process=False)
+        _, d, _ = trimesh.proximity.closest_point(sub, points)
+        distances.append(np.asarray(d, dtype=float))
+    depth = np.minimum(np.maximum(distances[0], distances[1]), reach)
+    return float(depth.max())
+
+
+def _chord_tolerance_mm(part: Part, default_mm: float) -> float:
+    report = part.meta.get("tessellation")
+    value = getattr(report, "tolerance_mm", None)
+    return float(value) if value is not None else float(default_mm)
+
+
 def check_scene(scene: Scene, *, overlaps: bool = True, overlap_tolerance_mm3: float | None = None,
-                strict: bool = False) -> SceneCheck:
+                strict: bool = False, transparent=(), chord_tolerance_mm: float | None = None) -> SceneCheck:
     """Check every part; warn (or raise, ``strict=True``) naming each part that fails.
 
     overlap_tolerance_mm3 : intersection volume above which two solids count as overlapping.
         Default: 1e-3 mm^3, well below the volume of any real interference yet above the
         slivers left where two tessellated cylinders of the same radius touch.
+    transparent : names of the parts whose material transmits (``dielectric``): an overlap with one of them
+        changes the trace (the glass's surface runs inside another part).
+    chord_tolerance_mm : the depth an overlap of two opaque parts may have and not count as a problem
+        (CONTRACTS 6.2): default the larger tessellation tolerance of the two parts (a CAD part's
+        ``tolerance_mm``), else 0.05 mm (the default chord tolerance).
+
+    An overlap is a problem only where it would change a trace: a detector or a transparent part is in it,
+    or it is deeper than the chord tolerance. Other overlaps (press fits, touching faces of a vendor's CAD)
+    are listed with their volume and depth, not counted as problems.
     """
+    from geometry.tessellate import DEFAULT_TOLERANCE_MM
+
     tolerance = 1e-3 if overlap_tolerance_mm3 is None else float(overlap_tolerance_mm3)
     parts = tuple(check_part(p) for p in scene.parts)
     problems = [m for p in parts for m in p.problems]
     found = []
     if overlaps:
         valid = {p.name for p in parts if p.kind == "solid" and p.ok}
-        found = [o for o in overlap_volumes(scene, valid) if o[2] > tolerance]
-        problems += [f"parts {a!r} and {b!r} overlap by {v:.3g} mm^3" for a, b, v in found]
+        glass = set(transparent)
+        for name_a, name_b, volume, inter in _intersections(scene, valid):
+            if volume <= tolerance:
+                continue
+            a, b = scene.part(name_a), scene.part(name_b)
+            chord = chord_tolerance_mm if chord_tolerance_mm is not None else \
+                max(_chord_tolerance_mm(a, DEFAULT_TOLERANCE_MM), _chord_tolerance_mm(b, DEFAULT_TOLERANCE_MM))
+            depth = overlap_depth_mm(a, b, inter)
+            detector = [p.name for p in (a, b) if p.role == "detector"]
+            clear = [p.name for p in (a, b) if p.name in glass]
+            if detector:
+                why = f"{detector[0]} is a detector: changes the trace"
+            elif clear:
+                why = f"{clear[0]} is transparent (dielectric): changes the trace"
+            elif depth > chord:
+                why = f"deeper than the chord tolerance {chord:g} mm: changes the trace"
+            else:
+                why = f"opaque parts within the chord tolerance {chord:g} mm: no ray can tell, ignored"
+            found.append(Overlap(name_a, name_b, volume, depth, chord, bool(detector or clear or depth > chord), why))
+        problems += [f"parts {o.a!r} and {o.b!r} overlap by {o.volume_mm3:.3g} mm^3, depth {o.depth_mm:.3g} mm ({o.why})"
+                     for o in found if o.changes_trace]
     result = SceneCheck(parts, tuple(found), tolerance, tuple(problems))
     if problems:
         if strict:

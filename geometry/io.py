@@ -432,12 +432,33 @@ def read_scene_toml(path) -> dict:
     from atomicio.inputs import InputFileError, read_input_text
 
     path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in CAD_SUFFIXES + MESH_SUFFIXES:
+        kind = "STEP" if suffix in STEP_SUFFIXES else "IGES" if suffix in CAD_SUFFIXES else suffix[1:].upper()
+        raise GeometryError(f"{path}: a {kind} file, not a scene TOML: `straylight geometry check` and `view` take it "
+                            f"as it is; the analyses need a scene file: straylight geometry scene {path} -o scene.toml")
     try:
         return tomllib.loads(read_input_text(path, "scene file"))
     except FileNotFoundError:
         raise GeometryError(f"{path}: scene file not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError, InputFileError) as exc:
-        raise GeometryError(f"{path}: {exc}" if not isinstance(exc, InputFileError) else str(exc)) from exc
+    except UnicodeDecodeError as exc:
+        raise GeometryError(f"{path}: not a scene TOML file (reading it as TOML: not UTF-8 text: {exc})") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise GeometryError(f"{path}: not a valid scene TOML file (reading it as TOML: {exc})") from exc
+    except InputFileError as exc:
+        raise GeometryError(str(exc)) from exc
+
+
+def load_scene_or_file(path, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM) -> Scene:
+    """A scene TOML's parts (:func:`load_scene`), or a STEP/IGES/STL/OBJ/PLY file as a one-file scene: a CAD
+    file one part per solid, named ``<file stem>/<solid name>`` (CONTRACTS 6.2), a mesh file one part."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in CAD_SUFFIXES:
+        return Scene(tuple(load_cad_parts(path, name=path.stem, tolerance_mm=tolerance_mm)))
+    if suffix in MESH_SUFFIXES:
+        return Scene((load_part(path, name=path.stem),))
+    return load_scene(path)
 
 
 def load_scene(path) -> Scene:

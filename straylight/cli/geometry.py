@@ -66,10 +66,14 @@ def add_parser(subparsers):
     rig.add_argument("--black-material", default=None)
     _common(rig, 0.01)
     rig.set_defaults(func=_build_reflectometer)
-    check = group.add_parser("check", help="check a scene's meshes (watertight, winding, overlaps)")
-    check.add_argument("scene", help="scene TOML")
+    check = group.add_parser("check", help="check a scene's meshes (watertight, winding, overlaps)",
+                             description="Check every part's mesh and every overlap of two solids (its volume and "
+                                         "depth). Exit 1 where an overlap would change a trace (a detector or a "
+                                         "dielectric part in it, or deeper than the chord tolerance); small "
+                                         "interferences of opaque parts are listed and exit 0.")
+    check.add_argument("scene", metavar="SCENE", help="scene TOML, or a STEP/IGES/STL/OBJ/PLY file as a one-file scene")
     check.add_argument("--strict", action="store_true",
-                       help="exit 1 if any check fails (overlapping solids always exit 1)")
+                       help="exit 1 if any check fails (overlaps that change a trace always exit 1)")
     check.add_argument("--json", metavar="PATH")
     check.set_defaults(func=_check)
     scene = group.add_parser("scene", help="write a scene file for your own STEP/IGES assembly (one part per solid)")
@@ -186,24 +190,62 @@ def _build_reflectometer(args) -> int:
 
 
 def _check(args) -> int:
-    from geometry.checks import check_scene
-    from geometry.io import load_scene
+    import sys
 
+    from geometry.checks import check_scene
+
+    scene, transparent, note = _scene_to_check(args.scene)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        checks = check_scene(load_scene(args.scene))
+        checks = check_scene(scene, transparent=transparent)
     print(checks.format())
+    if note:
+        print(note)
     if args.json:
         import atomicio
 
         atomicio.write_json(args.json, checks.as_dict(), allow_nan=True, final_newline=False)
-    if checks.overlaps:  # solids that overlap make a scene whose numbers mean nothing: never exit 0
-        import sys
-
-        print(f"straylight: geometry check: {len(checks.overlaps)} pair(s) of solids overlap "
-              f"(first: {checks.overlaps[0][0]} / {checks.overlaps[0][1]}); fix the geometry", file=sys.stderr)
+    changing = checks.trace_changing_overlaps
+    if changing:  # overlaps a ray would notice make numbers that mean nothing: never exit 0
+        first = changing[0]
+        print(f"straylight: geometry check: {len(changing)} overlap(s) change the trace (first: {first.a} / "
+              f"{first.b}, {first.volume_mm3:.3g} mm^3, depth {first.depth_mm:.3g} mm: {first.why}); move or trim "
+              f"the parts", file=sys.stderr)
         return 1
     return 1 if (args.strict and not checks.ok) else 0
+
+
+def _scene_to_check(path):
+    """(geometry Scene, names of its transparent parts, a note or None) of a scene TOML or a CAD/mesh file.
+
+    Transparent: a part whose material (or back material) transmits (a ``dielectric`` component); that needs
+    the materials resolved, which a scene whose materials do not load cannot give (then: none, and a note)."""
+    from pathlib import Path
+
+    from geometry.io import CAD_SUFFIXES, MESH_SUFFIXES, load_scene_or_file
+
+    if Path(path).suffix.lower() in CAD_SUFFIXES + MESH_SUFFIXES:
+        return load_scene_or_file(path), frozenset(), None
+    from geometry.mesh import GeometryError
+    from straylight.scene import load_scene
+
+    try:
+        rs = load_scene(path, sources=False, check_watertight=False)  # the check reports watertightness itself
+    except GeometryError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - materials or sources that do not load: check the meshes all the same
+        from geometry.io import load_scene as load_geometry
+
+        return load_geometry(path), frozenset(), (f"note: materials not resolved ({str(exc).splitlines()[0]}); "
+                                                  f"overlaps with glass parts are not told apart")
+    from materials.flags import ComponentFlags, flags_of
+
+    def transmits(name) -> bool:
+        model = rs.materials.get(name) if name is not None else None
+        return model is not None and bool(flags_of(model) & ComponentFlags.DELTA_TRANSMISSION)
+
+    clear = {p.name for p in rs.scene.parts if transmits(p.material) or transmits(getattr(p, "back_material", None))}
+    return rs.scene, frozenset(clear), None
 
 
 def _scene(args) -> int:

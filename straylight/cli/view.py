@@ -3,6 +3,9 @@
     straylight view --builtin tube [--angle-deg 20] [--rays 200] [--color-by part|absorbed] [--png out.png]
     straylight view SCENE.toml --png scene.png
     straylight view SCENE.toml --html view.html [--angle-deg 20] [--trace-rays 50000]   # interactive, in a browser
+    straylight view ASSEMBLY.step [--png parts.png]    # a STEP/IGES/STL file as it is: its parts, no rays
+
+Without a display (and without --png) the picture goes to scene.png, and the command says so.
 """
 from __future__ import annotations
 
@@ -26,11 +29,34 @@ def add_parser(subparsers):
     p.set_defaults(func=run)
 
 
+def _written(out, args) -> None:
+    if out is None:
+        return
+    if args.png is None:  # no display: the window could not open
+        print(f"no display: wrote the picture to {out} (choose the file with --png FILE; --html FILE for the "
+              f"interactive view in a browser)")
+    else:
+        print(f"written {out}")
+
+
 def run(args) -> int:
+    from pathlib import Path
+
     from straylight import viz
     from straylight.cli.pst import check_angle_deg, load_instrument
 
     check_angle_deg(args.angle_deg)
+    if args.scene is not None and args.builtin is None:
+        from geometry.io import CAD_SUFFIXES, MESH_SUFFIXES, load_scene_or_file
+
+        if Path(args.scene).suffix.lower() in CAD_SUFFIXES + MESH_SUFFIXES:  # a one-file scene: parts, no beam
+            if args.html is not None:
+                raise ValueError(f"{args.scene}: --html traces the scene's beam; a CAD file has none: write a scene "
+                                 f"with `straylight geometry scene {args.scene} -o scene.toml`")
+            scene = load_scene_or_file(args.scene)
+            _written(viz.render_scene(scene, args.png, title=f"{Path(args.scene).name}: {len(scene.parts)} parts"),
+                     args)
+            return 0
     inst = load_instrument(args)
     setup = inst.setup
     if args.html is not None:
@@ -51,6 +77,5 @@ def run(args) -> int:
         absorbed = {k: v.power_w for k, v in res.absorbed.items()}
     out = viz.render_scene(setup.scene, args.png, color_by=args.color_by, absorbed_w=absorbed, ray_paths=paths,
                            title=f"{setup.description}; beam {args.angle_deg:g} deg off axis")
-    if out is not None:
-        print(f"written {out}")
+    _written(out, args)
     return 0

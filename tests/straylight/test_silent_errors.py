@@ -122,6 +122,7 @@ def test_geometry_check_exits_1_when_solids_overlap(tmp_path, capsys):
                      '[[part]]\nname = "b"\nmesh = "b.stl"\nrole = "absorber"\n')
     assert main(["geometry", "check", str(scene)]) == 1
     captured = capsys.readouterr()
-    assert "overlap a / b: 500 mm^3" in captured.out
+    assert "overlap a / b: 500 mm^3, depth 5 mm" in captured.out
     assert captured.err.strip().splitlines() == [
-        "straylight: geometry check: 1 pair(s) of solids overlap (first: a / b); fix the geometry"]
+        "straylight: geometry check: 1 overlap(s) change the trace (first: a / b, 500 mm^3, depth 5 mm: deeper than "
+        "the chord tolerance 0.05 mm: changes the trace); move or trim the parts"]
