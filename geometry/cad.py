@@ -220,7 +220,7 @@ def _walk(shape_tool, label, location, name, out, aliases=(), inherited=None):
         body = _body_name(shape_tool, label, sub) if len(subs) > 1 else None
         if body and name and root and body != name:  # a one-part file's bodies: their own names
             out.append((sub.Moved(location), kind, body, (f"{name}/{body}", name)))
-        elif body and name and body != name:  # a named body of a multi-body component: component/body
+        elif body and name:  # a named body of a multi-body component: component/body (Sensor/Sensor too)
             out.append((sub.Moved(location), kind, f"{name}/{body}",
                         tuple(f"{a}/{body}" for a in aliases if a) + (name,)))
         elif body and not name:

@@ -13,6 +13,7 @@ from geometry.mesh import GeometryError
 DATA = Path(__file__).resolve().parents[1] / "data" / "cad"
 INVENTOR = DATA / "third_party" / "trj2_as1-in-203.stp"  # instances PLATE_1, BOLT_1... of products PLATE, BOLT...
 FUSION = DATA / "fusion_like_scope.step"
+ADAFRUIT = DATA / "third_party" / "adafruit_2831_photo_transistor.step"  # Fusion 360: components with two bodies each
 
 FUSION_NAMES = {  # name -> aliases, by construction (make_cad_files.py make_fusion_like)
     "ar0130 v4": ("ar0130 v4:1",),
@@ -46,6 +47,17 @@ def test_fusion_layout_names_products_components_and_bodies():
     assert {s.name: s.aliases for s in solids} == FUSION_NAMES
     names = [s.name for s in solids] + [a for s in solids for a in s.aliases]
     assert not any(n.startswith("solid") for n in names)
+
+
+def test_a_real_fusion_file_names_bodies_component_slash_body():
+    from geometry.cad import read_cad
+
+    text = ADAFRUIT.read_text(encoding="latin-1")
+    for what in ("'Sensor:1'", "PRODUCT('Leads'", "MANIFOLD_SOLID_BREP('Base'", "MANIFOLD_SOLID_BREP('Emitter'"):
+        assert what in text
+    assert {s.name: s.aliases for s in read_cad(ADAFRUIT)} == {
+        "Sensor/Base": ("Sensor:1/Base", "Sensor"), "Sensor/Sensor": ("Sensor:1/Sensor", "Sensor"),
+        "Leads/Collector": ("Leads:1/Collector", "Leads"), "Leads/Emitter": ("Leads:1/Emitter", "Leads")}
 
 
 def test_inventor_products_name_the_solids_and_instances_are_aliases():
