@@ -37,13 +37,100 @@ def command_entry_points() -> list:
     return sorted(entry_points(group=COMMAND_GROUP), key=lambda ep: ep.name)
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with a suggestion for a mistyped flag (``--rayz`` -> did you mean ``--rays``?), as Python
+    3.14's ``suggest_on_error`` does for choices; here by difflib over the parser's own option strings."""
+
+    def error(self, message):
+        import difflib
+
+        if "unrecognized arguments:" in message:
+            options = _option_strings(self)
+            hints = []
+            for word in message.split("unrecognized arguments:", 1)[1].split():
+                if word.startswith("-"):
+                    close = difflib.get_close_matches(word.split("=", 1)[0], sorted(set(options)), n=1, cutoff=0.6)
+                    if close:
+                        hints.append(f"{word}: did you mean {close[0]}?")
+            if hints:
+                message += " (" + "; ".join(hints) + ")"
+        super().error(message)
+
+
+def _option_strings(parser) -> list:
+    """Every option string of ``parser`` and of its subcommands, at any depth."""
+    out = []
+    for action in parser._actions:
+        out += action.option_strings
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                out += _option_strings(sub)
+    return out
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("straylight")
+    except Exception:  # noqa: BLE001 - a source checkout without an install
+        return "unknown (not installed)"
+
+
+RAY_COUNT_FLAGS = ("rays", "trace_rays", "refine_rays")
+
+
+def ray_count(text: str) -> int:
+    """A ray count as people write it: 100000, 100_000, 1e5 (a whole number)."""
+    try:
+        value = float(str(text).replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of rays (100000, 1e5), got {text!r}") from None
+    import math
+
+    if not math.isfinite(value) or value != int(value):
+        raise argparse.ArgumentTypeError(f"expected a whole number of rays (100000, 1e5), got {text!r}")
+    return int(value)
+
+
+def _ray_counts_as_numbers(parser) -> None:
+    """Every ``--rays``-like flag of every subcommand reads 1e5 as well as 100000."""
+    for action in parser._actions:
+        if action.dest in RAY_COUNT_FLAGS and action.type is int:
+            action.type = ray_count
+        for sub in getattr(action, "choices", None).values() if isinstance(action, argparse._SubParsersAction) else ():
+            _ray_counts_as_numbers(sub)
+
+
+def plain_help(text):
+    """A help text as the terminal shows it: no reST markup (``name`` -> name)."""
+    if not text or text is argparse.SUPPRESS:
+        return text
+    return text.replace("``", "").replace("`", "")
+
+
+def _plain_texts(parser) -> None:
+    """Every description and help text of ``parser`` and its subcommands through :func:`plain_help`."""
+    parser.description = plain_help(parser.description)
+    parser.epilog = plain_help(parser.epilog)
+    for action in parser._actions:
+        action.help = plain_help(action.help)
+        if isinstance(action, argparse._SubParsersAction):
+            for choice in action._choices_actions:
+                choice.help = plain_help(choice.help)
+            for sub in action.choices.values():
+                _plain_texts(sub)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="straylight",
-        description="Stray-light analysis: materials, tracing, baffle studies, reflectometer.",
+        description="Stray-light analysis: materials, tracing, baffle studies, reflectometer. "
+                    "Formats and commands: docs/reference/ in the project.",
     )
-    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    parser.add_argument("--version", action="version", version=f"straylight {_version()}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors (also after the command)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in OWN_GROUPS:
         importlib.import_module(name).add_parser(sub)
     for ep in command_entry_points():
@@ -52,6 +139,8 @@ def build_parser() -> argparse.ArgumentParser:
         except Exception as exc:
             raise ImportError(f"straylight command group {ep.name!r} ({ep.value}) failed to load: {exc}") from exc
         add_parser(sub)
+    _ray_counts_as_numbers(parser)
+    _plain_texts(parser)
     return parser
 
 
@@ -68,8 +157,11 @@ def _check_requests(args) -> None:
     for flag in ("out", "report"):
         if isinstance(getattr(args, flag, None), str):
             check_output_dir(getattr(args, flag), f"--{flag} folder")
-    for flag in ("rays", "refine_rays"):
+    for flag in RAY_COUNT_FLAGS:
         value = getattr(args, flag, None)
+        none_ok = args.command == "view" and flag == "rays"  # view --rays 0: draw no ray
+        if isinstance(value, int) and not isinstance(value, bool) and (value < 0 or (value == 0 and not none_ok)):
+            raise ValueError(f"--{flag.replace('_', '-')} must be at least 1, got {value}")
         if isinstance(value, int) and value > 0:
             from straylight.budget import check_ray_budget
 
@@ -81,6 +173,12 @@ def _check_requests(args) -> None:
 
             check_worker_budget(value, processes=flag == "workers" and bool(getattr(args, "processes", False)),
                                 what="--" + flag)
+    for flag in ("angle_deg", "angles_deg"):  # off-axis angles of the beam: in (-90, 90) deg
+        values = getattr(args, flag, None)
+        for value in values if isinstance(values, list) else [values] if isinstance(values, float) else []:
+            if not -90 < value < 90:
+                raise ValueError(f"--{flag.replace('_', '-')} must be in (-90, 90) deg (off-axis angles of the beam), "
+                                 f"got {value:g}")
     tolerance = getattr(args, "tolerance_mm", None)
     if isinstance(tolerance, float):
         from geometry.limits import check_tolerance_mm
@@ -125,7 +223,11 @@ def _allow_insecure(allowed: bool):
 
 def main(argv=None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv  # anywhere: `straylight pst ... --debug` as well as `straylight --debug pst ...`
+    argv = [a for a in argv if a != "--debug"]
     args = parser.parse_args(argv)
+    args.debug = debug
     if not getattr(args, "func", None):
         parser.print_help()
         return 0 if args.command is None else 2

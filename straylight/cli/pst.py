@@ -99,7 +99,8 @@ def add_parser(subparsers):
     from straylight.analyses.estimators import ESTIMATOR_SETS
 
     p.add_argument("--estimators", choices=tuple(ESTIMATOR_SETS), default="default",
-                   help="estimator set (straylight.analyses.estimators): 'baseline' is the set before issue 26, "
+                   help="estimator set (straylight.analyses.estimators): 'baseline' the first estimators (no second-vertex "
+                        "lobe, no lens-ghost trees), "
                         "'first_lobe' without the second-vertex lobe draw, 'split' with single reflections "
                         "into the detector instead of the lens-ghost trees (delta_chain), for timing before and after")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)

@@ -17,7 +17,10 @@ from pathlib import Path
 
 def add_parser(subparsers):
     p = subparsers.add_parser("thermal", help="detector self-emission in a band (Planck, Kirchhoff, narcissus)",
-                              description=__doc__.splitlines()[0])
+                              description="straylight thermal: the thermal self-emission of the instrument's parts "
+                                          "(those with temperature_k) that reaches each detector in a wavelength "
+                                          "band, split by emitting part; writes DIR/thermal.json and "
+                                          "DIR/thermal_details.json.")
     p.add_argument("scene", help="scene file (CONTRACTS §6, parts with temperature_k)")
     _band(p)
     g = p.add_mutually_exclusive_group(required=True)
@@ -38,7 +41,10 @@ def add_parser(subparsers):
     p.set_defaults(func=run_thermal)
 
     e = subparsers.add_parser("exchange", help="radiative distribution factors D_ij and couplings (Mahan)",
-                              description=__doc__.splitlines()[0])
+                              description="straylight exchange: radiative exchange between the parts in a band: "
+                                          "Mahan's distribution factors D_ij, escaped fractions and band "
+                                          "emissivities (DIR/exchange.json), and the couplings eps_i A_i D_ij "
+                                          "for thermal solvers (DIR/couplings.csv).")
     e.add_argument("scene", help="scene file (CONTRACTS §6)")
     _band(e)
     e.add_argument("--rays", type=int, required=True, help="rays in all (shared by the emitting parts)")

@@ -29,7 +29,7 @@ def test_paths_cli(tmp_path):
 
 @pytest.mark.parametrize("argv, message", [
     (["pst", "--out", "x"], "either SCENE.toml or --builtin tube"),
-    (["pst", "--builtin", "tube", "--vanes", "0", "--angles-deg", "95", "--out", "x"], "below 90 deg"),
+    (["pst", "--builtin", "tube", "--vanes", "0", "--angles-deg", "95", "--out", "x"], "must be in (-90, 90) deg"),
     (["paths", "--builtin", "tube", "--vanes", "0", "--angle-deg", "20", "--detector", "wall", "--out", "x"],
      "not a detector part"),
     (["study", "--out", "x", "--rays", "5"], "--rays must be at least 100"),

@@ -1,0 +1,76 @@
+"""What a new user meets first on the command line (issue 38): --version, requests refused before any work,
+ray counts written as 1e5, --debug after the command, a suggestion for a mistyped flag, help texts without
+reST markup, distinct descriptions, the licence in SPDX form."""
+import argparse
+import time
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from straylight.cli.main import build_parser, main
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.startswith("straylight ")
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--angles-deg", "95"], "--angles-deg must be in (-90, 90) deg"),
+    (["--rays", "0"], "--rays must be at least 1, got 0"),
+    (["--rays", "-5"], "--rays must be at least 1, got -5"),
+])
+def test_bad_requests_are_refused_before_the_scene_is_read(tmp_path, capsys, argv, message):
+    start = time.perf_counter()
+    code = main(["pst", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "out"), *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and "missing.toml" not in err  # refused before the scene is opened
+    assert time.perf_counter() - start < 5
+
+
+def test_ray_counts_as_people_write_them(capsys):
+    parser = build_parser()
+    for text, value in (("1e5", 100_000), ("100_000", 100_000), ("250000", 250_000)):
+        assert parser.parse_args(["pst", "--builtin", "tube", "--rays", text, "--out", "x"]).rays == value
+    with pytest.raises(SystemExit):
+        parser.parse_args(["pst", "--builtin", "tube", "--rays", "1.5", "--out", "x"])
+    assert "expected a whole number of rays" in capsys.readouterr().err
+
+
+def test_debug_after_the_command_shows_the_traceback(tmp_path):
+    with pytest.raises(Exception, match="scene file not found"):
+        main(["geometry", "check", str(tmp_path / "missing.toml"), "--debug"])
+    assert main(["geometry", "check", str(tmp_path / "missing.toml")]) == 2
+
+
+def test_a_mistyped_flag_gets_a_suggestion(capsys):
+    with pytest.raises(SystemExit):
+        main(["pst", "--builtin", "tube", "--rayz", "10", "--out", "x"])
+    assert "--rayz: did you mean --rays?" in capsys.readouterr().err
+
+
+def _parsers(parser, path=()):
+    yield path, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _parsers(sub, (*path, name))
+
+
+def test_help_texts_have_no_rest_markup_and_thermal_and_exchange_differ():
+    parsers = dict(_parsers(build_parser()))
+    for path, parser in parsers.items():
+        text = parser.format_help()
+        assert "`" not in text, (path, [line for line in text.splitlines() if "`" in line])
+        assert "issue 26" not in text, path
+    assert parsers[("thermal",)].description != parsers[("exchange",)].description
+
+
+def test_licence_is_an_spdx_expression():
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert project["project"]["license"] == "MIT"
+    assert int(project["build-system"]["requires"][0].split(">=")[1]) >= 77  # setuptools reads PEP 639 from 77
