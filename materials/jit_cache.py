@@ -12,6 +12,10 @@ extension point (``NUMBA_CACHE_LOCATOR_CLASSES``; ``numba/core/caching.py``). Th
 ``UserWideCacheLocator``, with one change: the source stamp that numba compares before using a
 cached index is ``(numba's stamp of the kernel's file, dependency_key(kernel))``. A changed
 helper or constant changes the stamp; numba then drops the stale index and compiles again.
+The cache is keyed by content, not by where the checkout sits: numba's stamp is a SHA-256 of the
+file, :func:`dependency_key` names files by their package path, and the cache folder of a kernel
+is its package path (:func:`cache_subpath`) instead of a hash of its absolute folder, so a second
+clone of the project finds the kernels the first one compiled.
 Functions outside this project's packages keep numba's locators and behaviour.
 """
 from __future__ import annotations
@@ -39,6 +43,23 @@ _NUMBA_DEFAULT_LOCATORS = ("numba.core.caching.UserProvidedCacheLocator", "numba
 def in_project(path) -> bool:
     """Whether ``path`` is a source file of this project's packages."""
     return os.path.abspath(str(path)).startswith(_PACKAGE_DIRS)
+
+
+def project_relative(path) -> str:
+    """``path`` from its package folder on (``straylight/engine/hits.py``), whatever folder the checkout sits
+    in: what the kernel cache is keyed by, so that a second clone (or a moved checkout) finds the kernels
+    the first one compiled (numba's own key is the file's absolute folder). Other paths: absolute."""
+    parts = Path(os.path.abspath(str(path))).parts
+    for k in range(len(parts) - 1, -1, -1):
+        if parts[k] in PACKAGES:
+            return "/".join(parts[k:])
+    return os.path.abspath(str(path))
+
+
+def cache_subpath(py_file) -> str:
+    """The folder (inside NUMBA_CACHE_DIR) of a project file's cached kernels: its package path
+    (``straylight_engine``), not a hash of the checkout's absolute folder."""
+    return project_relative(os.path.dirname(os.path.abspath(str(py_file)))).replace("/", "_")
 
 
 @lru_cache(maxsize=None)
@@ -121,7 +142,7 @@ def dependency_key(py_func) -> str:
     files, constants = dependencies(py_func)
     h = hashlib.sha256()
     for f in files:
-        h.update(f.encode())
+        h.update(project_relative(f).encode())  # not the checkout's folder: clones share the cache
         h.update(file_digest(f).encode())
     for k in sorted(constants):
         h.update(f"{k}={constants[k]}".encode())
@@ -145,6 +166,10 @@ def _locator(base):
             if not in_project(py_file):
                 return None
             return super().from_function(py_func, py_file)
+
+        @classmethod
+        def get_suitable_cache_subpath(cls, py_file):  # keyed by content and package path, not by checkout
+            return cache_subpath(py_file)
 
     Locator.__name__ = Locator.__qualname__ = "Project" + base.__name__.replace("CacheLocator", "Locator")
     return Locator

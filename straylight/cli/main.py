@@ -186,6 +186,16 @@ def _check_requests(args) -> None:
         check_tolerance_mm(tolerance, "--tolerance-mm")
 
 
+def _announce_first_compile(args) -> None:
+    """Say so when this run compiles the tracer's kernels (straylight.compile_notice)."""
+    from straylight.compile_notice import TRACING_COMMANDS, first_compile_notice
+
+    if args.command in TRACING_COMMANDS:
+        notice = first_compile_notice()
+        if notice:
+            print(f"straylight: {notice}", file=sys.stderr, flush=True)
+
+
 @contextmanager
 def _one_line_warnings():
     """Warnings raised under a command (truncated power, float32 precision, geometry) print as
@@ -233,6 +243,7 @@ def main(argv=None) -> int:
         return 0 if args.command is None else 2
     try:
         _check_requests(args)
+        _announce_first_compile(args)
         with _allow_insecure(getattr(args, "allow_insecure", False)), _one_line_warnings():
             return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -138,3 +138,41 @@ def test_project_kernels_use_the_keyed_cache():
                         and node.value.id == "numba":
                     bad.append(f"{rel}:{node.lineno}: numba.njit")
     assert not bad, "use materials.jit_cache.njit for cached kernels:\n" + "\n".join(bad)
+
+
+RUN_CLONE = '''
+import json, sys
+sys.path.insert(0, {tmp!r})
+import materials.jit_cache as jc
+jc._PACKAGE_DIRS = jc._PACKAGE_DIRS + ({pkg!r},)
+jc.PACKAGES = jc.PACKAGES + ("probe_pkg",)
+from probe_pkg.kernel import kernel
+print(json.dumps({{"value": kernel(1.0), "hits": sum(kernel.stats.cache_hits.values())}}))
+'''
+
+
+def test_a_second_clone_finds_the_kernels_the_first_compiled(tmp_path):
+    """The cache is keyed by content and package path, not by the checkout's folder (issue 38: every clone
+    paid the first compile again)."""
+    cache = tmp_path / "numba_cache"
+    results = []
+    for clone in ("clone_a", "deeper/clone_b"):
+        root = tmp_path / clone
+        root.mkdir(parents=True)
+        pkg = _write_probe(root, 2.0, 1.0)
+        env = dict(os.environ, PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=str(cache))
+        env.pop("NUMBA_CACHE_LOCATOR_CLASSES", None)
+        out = subprocess.run([sys.executable, "-c", RUN_CLONE.format(tmp=str(root), pkg=str(pkg) + os.sep)],
+                             env=env, capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr[-3000:]
+        results.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    assert results[0] == {"value": 4.0, "hits": 0}  # compiled in the first clone
+    assert results[1]["value"] == 4.0 and results[1]["hits"] >= 1  # served from the cache in the second
+    assert [p.name for p in cache.iterdir()] == ["probe_pkg"]  # one folder, named by the package path
+
+
+def test_cache_folders_are_named_by_package_path():
+    a = jit_cache.cache_subpath("/home/a/straylight/straylight/engine/hits.py")
+    b = jit_cache.cache_subpath("/tmp/x/y/clone/straylight/engine/hits.py")
+    assert a == b == "straylight_engine"
+    assert jit_cache.project_relative("/srv/checkout/materials/lambertian.py") == "materials/lambertian.py"
