@@ -181,6 +181,14 @@ def run(args) -> int:
               f"+- {row['pst_stderr']:.2e} ({rel:.1%}; VOV {vov if vov is not None else float('nan'):.2g}){stop}"
               + (f"  [{row['flags'].replace(';', ', ')}: the error bar is not reliable]"
                  if {"unreliable_error", "target_not_reached"} & set(row["flags"].split(";")) else ""))
+    if len(res.pst) and not any(float(v) > 0 for v in res.pst):  # nothing reached the detector: say what blocks it
+        from straylight.analyses.blockers import zero_light_hints
+
+        hints = zero_light_hints(setup)
+        print("no light reached the detector at any angle" + (": " if hints else
+              " (no opaque optic or closed detector found; check the source's direction and the entrance)"))
+        for hint in hints:
+            print(f"  - {hint}")
     from straylight.checkpoints import PointStore
 
     PointStore.remove_folder(out / "pst.points")  # the sweep's results are written
