@@ -38,6 +38,16 @@ DEFAULT_MEMORY_MB = 8000
 DEFAULT_TIMEOUT_S = 900.0
 
 
+def progress_interval_s() -> float:
+    """Seconds between the progress lines of a long read (``STRAYLIGHT_PROGRESS_INTERVAL_S``, default 5, as the
+    tracer's progress lines)."""
+    try:
+        value = float(os.environ.get("STRAYLIGHT_PROGRESS_INTERVAL_S", "5"))
+    except ValueError:
+        return 5.0
+    return value if value > 0 else 5.0
+
+
 def isolated() -> bool:
     return os.environ.get(ENV_ISOLATE, "on").strip().lower() not in ("off", "0", "no", "false")
 
@@ -199,9 +209,16 @@ def tessellate_isolated(run, path, entry: Path | None, *, tolerance_mm: float, a
         start = time.monotonic()
         if fork:
             process.start()
+        every_s = progress_interval_s()
+        next_line = start + every_s
         try:
             while process.is_alive():
                 process.join(0.2)
+                now = time.monotonic()
+                if now >= next_line:  # a line, not a redrawn bar: it reaches a log file as well as a terminal
+                    next_line = now + every_s
+                    print(f"reading and meshing {path.name}: {now - start:.0f} s (OpenCascade; once per file and "
+                          f"tolerance, then cached)", file=sys.stderr, flush=True)
                 if time.monotonic() - start > timeout_s:
                     process.kill()
                     process.join()

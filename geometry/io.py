@@ -267,6 +267,7 @@ def _tessellate_cad(path: Path, tolerance_mm: float, angular_tolerance_deg: floa
     entry = cad_cache.entry_path(path, tolerance_mm=tolerance_mm, angular_tolerance_deg=angular_tolerance_deg,
                                  mode=mode) if cad_cache.enabled() else None
     cached = cad_cache.load(entry) if entry is not None else None
+    fresh = cached is None
     if cached is None:
         from geometry import cad_child
 
@@ -280,7 +281,7 @@ def _tessellate_cad(path: Path, tolerance_mm: float, angular_tolerance_deg: floa
                 cad_cache.store(entry, cached)
     from geometry.tessellate import warn_reports
 
-    warn_reports(path, cached)
+    warn_reports(path, cached, fresh=fresh)
     return cached
 
 

@@ -575,13 +575,27 @@ def tessellate(shape, *, name: str = "part", tolerance_mm: float = DEFAULT_TOLER
     return Part(name, vertices, faces, material, role, meta)
 
 
-def warn_reports(path, items) -> None:
-    """One :class:`TessellationWarning` per solid of a CAD file whose report says it stopped short of its
-    tolerance or is open (from a fresh or a cached tessellation alike): [(name, kind, label, Part)]."""
+def warn_reports(path, items, *, fresh: bool = True) -> None:
+    """One :class:`TessellationWarning` for a CAD file some of whose solids stopped short of their tolerance or
+    are open: [(name, kind, label, Part)]. It names each such solid with its chord error and faces (the
+    report's note) and says what to do; it is said when the file is tessellated (``fresh``), not again when
+    the same meshes come from the cache (the reports are kept with them: ``straylight geometry check``
+    lists each solid's chord error)."""
+    if not fresh:
+        return
+    bad = []
     for name, _, _, part in items:
         report = part.meta.get("tessellation")
         if report is not None and (report.stopped or report.n_open_edges) and report.note:
-            warnings.warn(f"{path}: solid {name!r}: {report.note}", TessellationWarning, stacklevel=3)
+            bad.append((name, report))
+    if not bad:
+        return
+    asked = max(r.tolerance_mm for _, r in bad)
+    listed = "; ".join(f"{name!r} {r.max_chord_error_mm:.3g} mm ({r.note})" for name, r in bad)
+    warnings.warn(f"{path}: {len(bad)} solid(s) not meshed within {asked:g} mm: {listed}. The trace uses these "
+                  f"meshes as they are; to do better ask a coarser tolerance_mm (the error then stays within it), "
+                  f"or re-export the named faces from the CAD tool. Said once: the meshes and this report are "
+                  f"cached", TessellationWarning, stacklevel=3)
 
 
 def tessellate_parts(parts, *, tolerance_mm: float = DEFAULT_TOLERANCE_MM,

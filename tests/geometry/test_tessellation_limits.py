@@ -79,3 +79,45 @@ def test_open_solid_left_open_is_reported_with_its_faces():
     report = part.meta["tessellation"]
     assert report.n_open_edges > 0 and not part.is_watertight
     assert "power ledger still closes" in report.note
+
+
+def test_a_stalled_file_is_reported_once_with_its_faces_and_what_to_do(tmp_path, monkeypatch):
+    """One warning per file on the run that meshes it (naming the solid, its chord error and face 79, and what
+    to do); none when the same meshes come from the cache (issue 38: the warning repeated on every command)."""
+    import warnings
+
+    from geometry.cad_child import ENV_ISOLATE
+    from geometry.io import tessellate_cad
+
+    monkeypatch.setenv("STRAYLIGHT_CACHE", "on")
+    monkeypatch.setenv("STRAYLIGHT_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv(ENV_ISOLATE, "off")
+    with warnings.catch_warnings(record=True) as cold:
+        warnings.simplefilter("always")
+        tessellate_cad(FEATURETYPE, tolerance_mm=0.05)
+    messages = [str(w.message) for w in cold if issubclass(w.category, TessellationWarning)]
+    assert len(messages) == 1, messages
+    assert "1 solid(s) not meshed within 0.05 mm" in messages[0] and "face 79 (BSplineSurface)" in messages[0]
+    assert "coarser tolerance_mm" in messages[0] and "Said once" in messages[0]
+    with warnings.catch_warnings(record=True) as warm:
+        warnings.simplefilter("always")
+        items = tessellate_cad(FEATURETYPE, tolerance_mm=0.05)
+    assert not [w for w in warm if issubclass(w.category, TessellationWarning)]
+    assert not items[0][3].meta["tessellation"].within_tolerance  # the report is kept with the cached mesh
+
+
+def test_a_long_read_prints_progress_lines_that_reach_a_log(tmp_path, monkeypatch, capfd):
+    """A file meshed in the child process: a plain line every interval on stderr (a log file gets them too)."""
+    from geometry.cad_child import ENV_ISOLATE
+    from geometry.io import tessellate_cad
+
+    monkeypatch.setenv("STRAYLIGHT_CACHE", "off")
+    monkeypatch.setenv(ENV_ISOLATE, "on")
+    monkeypatch.setenv("STRAYLIGHT_PROGRESS_INTERVAL_S", "0.2")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        tessellate_cad(FEATURETYPE, tolerance_mm=0.05)
+    lines = [line for line in capfd.readouterr().err.splitlines() if line.startswith("reading and meshing")]
+    assert lines and all("featuretype.STEP" in line for line in lines), lines
