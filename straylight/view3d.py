@@ -7,8 +7,10 @@ the npm package ``three``, MIT licence), the viewer script (``viewer/view3d.js``
 - every part as a triangle mesh, coloured by the power it absorbed (or that arrived on it, or one
   colour per part) in the trace at this angle, log scale; the detector in yellow;
 - the entrance disk;
-- the ranked paths of the path report, each with a few sample rays (:func:`path_samples`),
-  selectable one by one.
+- the ranked paths of the path report, each with a few sample rays (:func:`path_samples`), each in its
+  own colour (the panel's swatches are the legend), the first five with rays drawn on opening;
+- the instrument cut open along its axis (the half toward the camera clipped away; a check box puts it
+  back) and the detector marked with a box and a label, so the page opens showing the light.
 
 A person rotates (left drag), zooms (wheel), pans (right drag) and hides parts with the panel's
 check boxes. Large assemblies are decimated for the view only (:func:`view_meshes`, VTK's quadric
@@ -173,6 +175,15 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
             for r in report.rows[:top]]
 
 
+def cut_open_faces(mesh: ViewMesh, cut_y_mm: float) -> np.ndarray:
+    """The faces the cut-open view keeps: a detector whole; any other part without the triangles lying wholly
+    on the camera's side (y > ``cut_y_mm``, the page looks from +y), so the instrument opens toward the viewer."""
+    if mesh.role == "detector" or len(mesh.faces) == 0:
+        return mesh.faces
+    y = np.asarray(mesh.vertices_mm, dtype=np.float64)[np.asarray(mesh.faces, dtype=np.int64), 1]
+    return np.ascontiguousarray(mesh.faces[~np.all(y > cut_y_mm, axis=1)])
+
+
 def _b64(array) -> str:
     return base64.b64encode(np.ascontiguousarray(array).astype(array.dtype.newbyteorder("<")).tobytes()).decode()
 
@@ -181,7 +192,9 @@ def view_data(setup, absorbed_w: dict, incident_w: dict, samples=(), title: str 
               max_triangles: int = DEFAULT_MAX_TRIANGLES) -> dict:
     """The JSON the page reads: parts (base64 little-endian float32 / uint32), entrance, paths, bounds."""
     meshes = view_meshes(setup.scene, max_triangles)
+    cut_y = float(np.mean(np.asarray(setup.scene.bounds_mm, dtype=float)[:, 1]))
     parts = [{"name": m.name, "role": m.role, "vertices_f32": _b64(m.vertices_mm), "faces_u32": _b64(m.faces),
+              "cut_faces_u32": _b64(cut_open_faces(m, cut_y)),
               "triangles": len(m.faces), "triangles_traced": m.triangles_traced,
               "absorbed_w": float(absorbed_w.get(m.name, 0.0)), "incident_w": float(incident_w.get(m.name, 0.0))}
              for m in meshes]
@@ -212,6 +225,8 @@ html, body {{ margin: 0; height: 100%; font-family: sans-serif; font-size: 13px;
 #view3d-canvas-host {{ flex: 1; position: relative; min-width: 200px; }}
 #view3d-canvas-host canvas {{ display: block; }}
 .view3d-row {{ display: flex; gap: 4px; align-items: center; white-space: nowrap; cursor: pointer; }}
+.view3d-label {{ position: absolute; pointer-events: none; background: rgba(255,255,255,0.85); color: #a000a0;
+  font-weight: bold; padding: 1px 4px; border: 1px solid #c000c0; white-space: nowrap; }}
 .view3d-swatch {{ display: inline-block; width: 12px; height: 12px; border: 1px solid #888; flex: none; }}
 h3 {{ margin: 8px 0 4px; font-size: 13px; }} #view3d-scale, .view3d-note {{ color: #555; font-size: 11px; }}
 </style></head><body>
@@ -223,8 +238,10 @@ h3 {{ margin: 8px 0 4px; font-size: 13px; }} #view3d-scale, .view3d-note {{ colo
 <select id="view3d-color"><option value="absorbed">absorbed power per part</option>
 <option value="incident">incident power per part</option><option value="part">one colour per part</option></select>
 <div id="view3d-scale"></div>
+<label class="view3d-row"><input type="checkbox" id="view3d-cut" checked> cut open (the half toward you removed)</label>
 <h3>Parts (untick to hide)</h3><div id="view3d-parts"></div>
-<h3>Ranked stray-light paths (tick to draw sample rays)</h3><div id="view3d-paths"></div>
+<h3>Ranked stray-light paths (the colour swatch is the ray colour; the main ones are drawn)</h3>
+<div id="view3d-paths"></div>
 <div class="view3d-note">Sample rays show where a path runs; its share of the detector power is the
 percentage (from the trace). Meshes may be decimated for display only.</div>
 </div>
@@ -262,7 +279,8 @@ def write_view3d(path, setup, trace_result, report=None, off_axis: float = 0.0, 
 def report_section(name: str = "view3d.html") -> str:
     """The index.html block that embeds the view (an iframe of the standalone page, and a link to it)."""
     n = html.escape(name)
-    return (f'<h2>Interactive 3-D view</h2>\n<p>Rotate, zoom and hide parts; tick a ranked path to draw sample rays '
+    return (f'<h2>Interactive 3-D view</h2>\n<p>The instrument cut open, the main stray-light paths drawn (one colour each, '
+            f'legend in the panel), the detector marked. Rotate, zoom, hide parts, tick paths '
             f'(<a href="{n}">open in its own window</a>).</p>\n'
             f'<iframe id="view3d-frame" src="{n}" title="interactive 3-D view" '
             f'style="width:100%; height:640px; border:1px solid #ccc"></iframe>')

@@ -2,6 +2,9 @@
 // Reads the JSON in <script id="view3d-data">: parts (base64 float32 vertices in mm, uint32 faces,
 // absorbed and incident power), the entrance disk, and ranked path groups with sample polylines.
 // Mouse: left drag rotates, wheel zooms, right drag pans. The panel hides parts and selects paths.
+// It opens showing the light: the instrument cut open along its axis (the half toward the camera clipped away;
+// "cut open" in the panel), the main ranked paths drawn, each in its own colour (the swatches are the legend),
+// and the detector marked (yellow, with a label).
 // window.view3d is the page's small API (used by the browser test and by hand in the console).
 (function () {
   "use strict";
@@ -50,17 +53,53 @@
 
   // parts
   const parts = {};
+  const labels = [];  // HTML labels over the canvas (the detector's), placed on every render
   data.parts.forEach(function (p, k) {
     const g = new THREE.BufferGeometry();
     g.setAttribute("position", new THREE.BufferAttribute(decode(p.vertices_f32, Float32Array), 3));
     g.setIndex(new THREE.BufferAttribute(decode(p.faces_u32, Uint32Array), 1));
     g.computeVertexNormals();
+    // the cut-open view: the triangles beyond the plane through the centre (py writes them: cut_faces_u32)
+    const whole = new THREE.BufferAttribute(decode(p.faces_u32, Uint32Array), 1);
+    const opened = p.cut_faces_u32 ? new THREE.BufferAttribute(decode(p.cut_faces_u32, Uint32Array), 1) : whole;
+    g.setIndex(opened);
     const m = new THREE.MeshLambertMaterial({side: THREE.DoubleSide, transparent: false});
     const mesh = new THREE.Mesh(g, m);
     mesh.name = p.name;
     scene.add(mesh);
-    parts[p.name] = {mesh: mesh, info: p, index: k};
+    parts[p.name] = {mesh: mesh, info: p, index: k, whole: whole, opened: opened};
+    if (p.role === "detector") markDetector(g, p.name);
   });
+
+  // the detector's mark: its bounding box outlined in magenta over everything, and a label beside it
+  function markDetector(g, name) {
+    g.computeBoundingBox();
+    const b = g.boundingBox, pad = size * 0.01;
+    const x = [b.min.x - pad, b.max.x + pad], y = [b.min.y - pad, b.max.y + pad], z = [b.min.z - pad, b.max.z + pad];
+    const c = [];
+    for (let i = 0; i < 8; i++) c.push([x[i & 1], y[(i >> 1) & 1], z[(i >> 2) & 1]]);
+    const edges = [[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [5, 7], [0, 4], [1, 5], [2, 6], [3, 7]];
+    const pts = [];
+    edges.forEach(function (e) { pts.push(...c[e[0]], ...c[e[1]]); });
+    const lg = new THREE.BufferGeometry();
+    lg.setAttribute("position", new THREE.BufferAttribute(new Float32Array(pts), 3));
+    const box = new THREE.LineSegments(lg, new THREE.LineBasicMaterial({color: 0xc000c0, depthTest: false}));
+    box.renderOrder = 10;
+    box.name = "detector mark: " + name;
+    scene.add(box);
+    const div = document.createElement("div");
+    div.className = "view3d-label";
+    div.textContent = "detector: " + name;
+    host.appendChild(div);
+    labels.push({div: div, at: new THREE.Vector3(b.max.x + pad, (b.min.y + b.max.y) / 2, b.max.z + pad)});
+  }
+  function placeLabels(w, h) {
+    labels.forEach(function (l) {
+      const q = l.at.clone().project(camera);
+      l.div.style.left = Math.round((q.x + 1) / 2 * w + 6) + "px";
+      l.div.style.top = Math.round((1 - q.y) / 2 * h - 10) + "px";
+    });
+  }
 
   // entrance disk (a translucent ring outline and fill)
   if (data.entrance) {
@@ -79,8 +118,14 @@
     parts["entrance"] = {mesh: ring, info: {name: "entrance", role: "entrance"}, index: -1};
   }
 
-  // path groups: one LineSegments object per ranked group
+  // path groups: one LineSegments object per ranked group, each in its own colour; the main ones (the first
+  // SHOWN_PATHS ranks with sample rays) are drawn on opening
+  const PATH_COLORS = ["#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#17becf", "#8c564b", "#e377c2",
+                       "#bcbd22", "#7f7f7f"];
+  const SHOWN_PATHS = 5;
+  function pathColor(rank) { return PATH_COLORS[(rank - 1) % PATH_COLORS.length]; }
   const paths = {};
+  let shown = 0;
   data.paths.forEach(function (grp) {
     const segs = [];
     grp.polylines.forEach(function (line) {
@@ -88,8 +133,9 @@
     });
     const g = new THREE.BufferGeometry();
     g.setAttribute("position", new THREE.BufferAttribute(new Float32Array(segs), 3));
-    const obj = new THREE.LineSegments(g, new THREE.LineBasicMaterial({color: 0xd62728}));
-    obj.visible = false;
+    const obj = new THREE.LineSegments(g, new THREE.LineBasicMaterial({color: pathColor(grp.rank)}));
+    obj.visible = grp.polylines.length > 0 && shown < SHOWN_PATHS;
+    if (obj.visible) shown += 1;
     obj.name = "path " + grp.rank;
     scene.add(obj);
     paths[grp.rank] = {obj: obj, info: grp};
@@ -134,6 +180,7 @@
     }
     sun.position.copy(camera.position);
     renderer.render(scene, camera);
+    placeLabels(w, h);
   }
   controls.addEventListener("change", render);
   window.addEventListener("resize", render);
@@ -165,15 +212,28 @@
     const box = document.createElement("input");
     box.type = "checkbox"; box.dataset.path = grp.rank;
     box.disabled = grp.polylines.length === 0;
+    box.checked = paths[grp.rank].obj.visible;
     box.addEventListener("change", function () { paths[grp.rank].obj.visible = box.checked; render(); });
+    const sw = document.createElement("span");
+    sw.className = "view3d-swatch"; sw.dataset.pathSwatch = grp.rank;
+    sw.style.background = pathColor(grp.rank);
     const txt = document.createElement("span");
     txt.textContent = "#" + grp.rank + " " + (100 * grp.fraction).toFixed(2) + "%  " +
       grp.label.replace(/^source -> /, "") + (grp.polylines.length ? "" : "  (no sample found)");
     txt.title = grp.label + ": " + (100 * grp.fraction).toFixed(3) + " % +- " + (100 * grp.fraction_stderr).toFixed(3) +
       " % of the detector power; " + grp.polylines.length + " sample rays drawn";
-    row.append(box, txt);
+    row.append(box, sw, txt);
     plist.appendChild(row);
   });
+  const cutBox = document.getElementById("view3d-cut");
+  if (cutBox) {
+    cutBox.addEventListener("change", function () {
+      Object.values(parts).forEach(function (p) {
+        if (p.index >= 0) p.mesh.geometry.setIndex(cutBox.checked ? p.opened : p.whole);
+      });
+      render();
+    });
+  }
   const select = document.getElementById("view3d-color");
   select.addEventListener("change", function () { colorParts(select.value); });
 
@@ -189,6 +249,10 @@
     hidePart: function (name) { setBox('input[data-part="' + CSS.escape(name) + '"]', false); },
     showPart: function (name) { setBox('input[data-part="' + CSS.escape(name) + '"]', true); },
     isVisible: function (name) { return parts[name].mesh.visible; },
+    shownPaths: function () { return Object.keys(paths).filter(function (r) { return paths[r].obj.visible; })
+      .map(Number); },
+    pathColor: pathColor,
+    cutOpen: function (on) { setBox("#view3d-cut", on !== false); },
     showPath: function (rank, on) { setBox('input[data-path="' + rank + '"]', on !== false); },
     colorBy: function (mode) { select.value = mode; colorParts(mode); },
     render: render,

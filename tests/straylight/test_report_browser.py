@@ -123,13 +123,47 @@ def test_report_3d_view_in_a_browser(driver, report):
     assert driver.execute_script("return window.view3d.isVisible('wall')") is True
     assert _changed(before, _shot(canvas)) < 0.002, "showing the wall again did not restore the view"
 
-    # 3. ticking the first ranked path draws its sample rays (red), inside the tube with the wall hidden
+    # 3. the first ranked path is drawn on opening in its own colour (red); unticking it removes its rays
     box.click()
 
     def red(img):
         r, g, b = img[..., 0], img[..., 1], img[..., 2]
         return int(np.sum((r > 170) & (g < 90) & (b < 90)))
 
-    plain = red(_shot(canvas))
+    assert 1 in driver.execute_script("return window.view3d.shownPaths()")
+    drawn = red(_shot(canvas))
     driver.find_element(By.CSS_SELECTOR, 'input[data-path="1"]').click()
-    assert red(_shot(canvas)) > plain + 50
+    assert red(_shot(canvas)) < drawn - 50
+    driver.find_element(By.CSS_SELECTOR, 'input[data-path="1"]').click()
+
+
+def test_the_view_opens_showing_the_light(driver, report):
+    """Issue 38: on opening, with nothing clicked, the instrument is cut open, the main paths' rays are drawn
+    (each path its own colour, a swatch per path in the panel) and the detector is marked. The screenshot on
+    opening is kept in the report folder (view3d_opening.png) for a person to look at."""
+    from selenium.webdriver.common.by import By
+
+    canvas = _open_view(driver, report)
+    opening = _shot(canvas)
+    (report / "view3d_opening.png").write_bytes(canvas.screenshot_as_png)
+    shown = driver.execute_script("return window.view3d.shownPaths()")
+    assert shown and shown[0] == 1
+    colours = {driver.execute_script("return window.view3d.pathColor(arguments[0])", r) for r in shown}
+    assert len(colours) == len(shown)  # distinct colours
+    swatches = driver.find_elements(By.CSS_SELECTOR, "[data-path-swatch]")
+    assert len(swatches) == len(driver.execute_script("return window.view3d.paths"))
+    label = driver.find_element(By.CSS_SELECTOR, ".view3d-label")
+    assert label.text.startswith("detector: ") and label.is_displayed()
+    for rank in shown:  # untick every drawn path: what changes is the rays
+        driver.find_element(By.CSS_SELECTOR, f'input[data-path="{rank}"]').click()
+    without = _shot(canvas)
+    assert _changed(opening, without) > 0.002, "no rays were drawn on opening"
+    for rank in shown:
+        driver.find_element(By.CSS_SELECTOR, f'input[data-path="{rank}"]').click()
+    # cut open: closing the cut (the whole wall) hides more of the inside
+    whole = driver.find_element(By.ID, "view3d-cut")
+    assert whole.is_selected()
+    whole.click()
+    closed = _shot(canvas)
+    assert _changed(opening, closed) > 0.02, "the cut-open view looks like the closed one"
+    whole.click()
