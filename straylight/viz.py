@@ -119,6 +119,24 @@ def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 
              if with_triangles else ())) for i in range(n_rays) if len(pts[i]) > 1]
 
 
+LEGEND_WIDTH = 0.2  # fraction of the picture's width the part legend takes, at its right edge
+
+
+def _leave_room_right(pl, fraction: float, window_size) -> None:
+    """Move a parallel-projection camera so that the scene fits in the left ``1 - fraction`` of the picture
+    (the legend's strip stays free of parts and rays)."""
+    cam = pl.camera
+    aspect = window_size[0] / window_size[1]
+    scale = cam.parallel_scale / (1.0 - fraction)  # the scene's width now fits the narrower strip
+    cam.parallel_scale = scale
+    pos, focal, up = (np.asarray(x, dtype=float) for x in (cam.position, cam.focal_point, cam.up))
+    right = np.cross(focal - pos, up)
+    right /= np.linalg.norm(right)
+    shift = right * fraction * scale * aspect  # half-width is scale * aspect: move the view right by fraction of it
+    cam.position = tuple(pos + shift)
+    cam.focal_point = tuple(focal + shift)
+
+
 def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict | None = None, ray_paths=None,
                  cutaway: bool = True, window_size=(1200, 800), title: str | None = None, camera=None):
     """Draw the scene (and ray paths); write a PNG to ``path`` or open a window.
@@ -187,9 +205,10 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
             if hit.any():
                 pl.add_mesh(poly.extract_cells(np.flatnonzero(hit)), color="red", line_width=3.0)
                 legend.append(["rays reaching the detector", "red"])
-    if legend and color_by == "part":
-        pl.add_legend(legend, bcolor="white", face="rectangle", loc="center right",
-                      size=(0.2, min(0.035 * len(legend), 0.5)))
+    legend_shown = bool(legend and color_by == "part")
+    if legend_shown:  # in the right-hand strip that the camera below leaves free of the scene
+        pl.add_legend(legend, bcolor="white", face="rectangle", loc="upper right",
+                      size=(LEGEND_WIDTH, min(0.035 * len(legend), 0.5)))
     if title:
         import textwrap
 
@@ -204,6 +223,8 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
         pl.camera_position = [tuple(center + dist * view / np.linalg.norm(view)), tuple(center), (0.0, 0.0, 1.0)]
         pl.enable_parallel_projection()
         pl.reset_camera()
+        if legend_shown:
+            _leave_room_right(pl, LEGEND_WIDTH, window_size)
     else:
         pl.camera_position = camera
     if off_screen:

@@ -397,12 +397,16 @@ def _short_name(setup) -> str:
     return "Baffled tube" if setup.params else str(setup.description).replace("scene ", "Scene ", 1)
 
 
-def _pst_plot(pst, setup, path, material: str = ""):
-    """PST plot with the unscattered (geometric) transmission drawn for comparison."""
+def _pst_plot(pst, setup, path, material: str = "") -> bool:
+    """PST plot with the unscattered (geometric) transmission drawn for comparison (when the scene gives it;
+    returns whether it did), and below it each point's relative 1-sigma error in %: on a log axis spanning many
+    decades a 2 % error bar is thinner than its marker, so the panel shows the bars' size."""
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 4.8), dpi=120)
+    fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(7.5, 6.0), dpi=120, sharex=True,
+                                     gridspec_kw={"height_ratios": [3, 1]})
     pst.plot(ax=ax, label_prefix="Monte Carlo ")
+    drawn = False
     a = np.linspace(0.0, max(pst.off_axis_deg), 400)
     direct = benchmark_direct_ratio(np.radians(a), setup.params)
     if np.any(direct > 0) and setup.entrance is not None:
@@ -411,17 +415,29 @@ def _pst_plot(pst, setup, path, material: str = ""):
         conv = math.pi * r_e**2 * np.cos(np.radians(a)) / pst.detector_area_mm2
         ok = direct > 0
         ax.plot(a[ok], (direct * conv)[ok], "k--", lw=1, label="unscattered (geometric) transmission")
+        drawn = True
     ax.legend(fontsize=8)
+    ax.set_xlabel("")
+    pos = pst.pst > 0
+    rel = np.where(pos, pst.pst_stderr / np.where(pos, pst.pst, 1.0), np.nan) * 100
+    ax_err.plot(pst.off_axis_deg[pos], rel[pos], "o", ms=4)
+    ax_err.vlines(pst.off_axis_deg[pos], 0, rel[pos], lw=2)
+    ax_err.set_ylim(0, max(1.0, float(np.nanmax(rel)) * 1.2) if np.any(pos) else 1.0)
+    ax_err.set_ylabel("1 sigma (%)", fontsize=8)
+    ax_err.set_xlabel("off-axis angle (deg)")
+    ax_err.grid(True, alpha=0.3)
     prm = setup.params or {}
     what, extra = ((f"the baffled tube: {prm.get('vane_count', '?')} vanes "
                     f"(hole r = {prm.get('vane_inner_radius_mm', float('nan')):g} mm)", f"coating {material}; ")
                    if prm else (setup.description, ""))
     rays = (f"{pst.rays:.2g} rays per angle" if pst.precision is None
             else f"traced to {pst.precision['target_rel_error']:.1%} rel. error (or a cap)")
-    ax.set_title(f"Point source transmittance of {what}\n{extra}{rays}, 1-sigma error bars", fontsize=9)
+    ax.set_title(f"Point source transmittance of {what}\n{extra}{rays}; 1-sigma error bars, their size in % "
+                 f"below", fontsize=9)
     fig.tight_layout()
     atomicio.write_figure(fig, path)
     plt.close(fig)
+    return drawn
 
 
 def _reliability_word(row) -> str:
@@ -480,10 +496,24 @@ def _md_table(header, rows) -> str:
     return "\n".join(lines)
 
 
+def _without_empty_columns(header, rows):
+    """(header, rows) without the columns whose every cell is "-" (nothing to say for this instrument)."""
+    rows = [tuple(r) for r in rows]
+    keep = [k for k in range(len(header)) if not rows or any(str(r[k]) != "-" for r in rows)]
+    return tuple(header[k] for k in keep), [tuple(r[k] for k in keep) for r in rows]
+
+
+def _inline_html(text: str) -> str:
+    """A Markdown list line as HTML inside <li>: no leading "- ", `code` as <code>, the rest escaped."""
+    text = text[2:] if text.startswith("- ") else text
+    parts = text.split("`")
+    return "".join(f"<code>{html.escape(p)}</code>" if k % 2 else html.escape(p) for k, p in enumerate(parts))
+
+
 def _html_table(header, rows) -> str:
     head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+    return f'<div class="table-wrap"><table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table></div>'
 
 
 def _findings(pst, report, crit, sweep, builtin: bool = True) -> list[str]:
@@ -521,7 +551,7 @@ def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Pat
     lines += [f"- {f}" for f in _findings(pst, report, crit, sweep, _builtin(result))]
     note = _pst_reliability_note(pst)
     lines += ["", "## Point source transmittance", "", "![PST](pst.png)", "", *([note, ""] if note else []),
-              _md_table(PST_HEADER, _pst_table_rows(pst, direct)), "",
+              _md_table(*_without_empty_columns(PST_HEADER, _pst_table_rows(pst, direct))), "",
               "## Stray-light paths", "", "![paths](paths.png)", "", report.markdown(15), "",
               "## Critical and illuminated objects", "", "![critical](critical.png)", "", crit.markdown(), "",
               *(["## Design sweep", "", "![sweep](sweep.png)", ""] if sweep is not None else []),
@@ -537,7 +567,7 @@ def _method_lines(result: StudyResult) -> list[str]:
     t = result.timings_s
     return [
         "- PST = detector irradiance / beam irradiance normal to the rays; the entrance ratio is detector "
-        "power / beam power crossing the entrance disk (shared/BENCHMARK.md).",
+        "power / beam power crossing the entrance disk (docs/reference/outputs.md).",
         "- Forward Monte Carlo with next-event estimation toward the detector (docs/engine.md); error bars "
         "are 1 standard error of the mean over rays.",
         (f"- PST points traced to a relative standard error of {cfg.precision.target_rel_error:.1%} with a "
@@ -592,8 +622,10 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 <h2>Findings</h2>
 <ul>{''.join(f'<li>{html.escape(f)}</li>' for f in _findings(pst, report, crit, sweep, _builtin(result)))}</ul>
 <h2>Point source transmittance</h2>
-{img('pst.png', 'PST vs off-axis angle, with the unscattered (geometric) transmission')}
-{_html_warning(_pst_reliability_note(pst))}{_html_table(PST_HEADER, _pst_table_rows(pst, direct))}{csv('pst')}
+{img('pst.png', 'PST vs off-axis angle, 1-sigma error bars (their size in % in the lower panel)'
+    + (', with the unscattered (geometric) transmission'
+       if any(x for x in result.summary.get('geometric_direct_entrance_ratio') or [] if x) else ''))}
+{_html_warning(_pst_reliability_note(pst))}{_html_table(*_without_empty_columns(PST_HEADER, _pst_table_rows(pst, direct)))}{csv('pst')}
 <p>Entrance-normalised ratio: <a href="entrance_ratio.png">entrance_ratio.png</a>; numbers in
 <a href="pst.csv">pst.csv</a>.</p>
 <h2>Stray-light paths at {crit.off_axis_deg:g} deg</h2>
@@ -612,7 +644,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 {img('view_absorbed.png', 'Cut-away view coloured by absorbed power per part')}
 {img('detector_map.png', 'Detector irradiance map', '60%')}
 <h2>Method</h2>
-<ul>{''.join(f'<li>{html.escape(x)}</li>' for x in _method_lines(result))}</ul>
+<ul>{''.join(f'<li>{_inline_html(x)}</li>' for x in _method_lines(result))}</ul>
 """
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(_title(result))}</title>
@@ -620,7 +652,9 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 body {{ font-family: sans-serif; max-width: 1000px; margin: 2em auto; padding: 0 1em; color: #222; }}
 table {{ border-collapse: collapse; margin: 0.8em 0; font-size: 0.9em; }}
 th, td {{ border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: right; }}
-td:nth-child(2) {{ text-align: left; }}
+td {{ white-space: nowrap; }}  /* numbers such as 1.2e-05 never break at their minus sign */
+td:nth-child(2) {{ text-align: left; white-space: normal; }}
+.table-wrap {{ overflow-x: auto; }}
 figure {{ margin: 1em 0; }} figcaption {{ font-size: 0.85em; color: #555; }}
 </style></head><body>{body}</body></html>
 """
