@@ -118,9 +118,9 @@ def write_cad_scene(cad_path, scene_path, **kwargs) -> tuple[Path, list]:
     doc, parts = cad_scene_doc(cad_path, scene_path, **kwargs)
     scene_path = Path(scene_path)
     header = (f"# scene for {Path(cad_path).name}: written by `straylight geometry scene`; edit freely\n"
-              f"# (CONTRACTS §6.2: [part.solids.\"NAME\"] sets material/role per solid)\n")
+              f"# (docs/reference/scene.md: [part.solids.\"NAME\"] sets material/role per solid; a product or instance name)\n")
     if detector_of(doc) is None:
-        header += ("# NO DETECTOR YET: the analyses need one. Add a detector disk (CONTRACTS §6.4), e.g.\n"
+        header += ("# NO DETECTOR YET: the analyses need one. Add a detector disk (docs/reference/scene.md), e.g.\n"
                    "# [[part]]\n# name = \"detector\"\n# role = \"detector\"\n"
                    "# surface = {type = \"plane\", vertex_mm = [X, Y, Z], axis = [NX, NY, NZ], outer_radius_mm = R}\n"
                    "# or mark a solid: [part.solids.\"NAME\"] role = \"detector\"\n")

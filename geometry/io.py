@@ -512,7 +512,7 @@ def _load_entries(entries: list, path: Path) -> list[Part]:
             parts.append(_analytic_entry(entry, path, where, float(tolerance_mm), placement))
             continue
         if "back_material" in entry:
-            raise GeometryError(f"{where}: 'back_material' needs an analytic 'surface' (CONTRACTS §6.1)")
+            raise GeometryError(f"{where}: 'back_material' needs an analytic 'surface' (docs/reference/scene.md)")
         if "split" in entry or "solids" in entry:
             placed = _split_entry(entry, path, where, float(tolerance_mm))
         else:

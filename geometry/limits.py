@@ -36,7 +36,7 @@ def check_tolerance_mm(value, where: str = "tolerance_mm") -> float:
         raise ToleranceError(f"{where}: chord tolerance must be a positive number of mm, got {value!r}")
     if t < MIN_TOLERANCE_MM:
         raise ToleranceError(f"{where}: chord tolerance {t:g} mm is below {MIN_TOLERANCE_MM:g} mm (10 nm): it would "
-                             f"mesh without bound; exact optical shapes come from analytic surfaces (CONTRACTS §6.1)")
+                             f"mesh without bound; exact optical shapes come from analytic surfaces (docs/reference/scene.md)")
     return t
 
 

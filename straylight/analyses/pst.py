@@ -38,7 +38,7 @@ def part_area_mm2(scene, name: str) -> float:
 
 NO_DETECTOR = ("the scene has no detector part: add one, e.g. the exact disk [[part]] name = \"detector\", "
                "role = \"detector\", surface = {type = \"plane\", vertex_mm = [X, Y, Z], axis = [NX, NY, NZ], "
-               "outer_radius_mm = R} (CONTRACTS 6.4; `straylight geometry scene --detector-disk` writes it), "
+               "outer_radius_mm = R} (docs/reference/scene.md; straylight geometry scene --detector-disk writes it), "
                "or mark a solid with [part.solids.\"NAME\"] role = \"detector\"")
 
 

@@ -275,5 +275,5 @@ def _scene(args) -> int:
     print(f"scene: {path}")
     if detector is None:
         print("no detector yet: the analyses need one; write the scene again with --detector-disk X Y Z NX NY NZ R "
-              "(or --detector SOLID), or add a detector part to it (CONTRACTS 6.4)")
+              "(or --detector SOLID), or add a detector part to it (docs/reference/scene.md)")
     return 0

@@ -102,11 +102,27 @@ def _ray_counts_as_numbers(parser) -> None:
             _ray_counts_as_numbers(sub)
 
 
+REFERENCE_PAGES = {"1": "conventions.md", "2": "scan-csv.md", "3": "effects.md", "4": "commands.md",
+                   "5": "material.md", "6": "scene.md", "7": "scene.md", "8": "commands.md"}
+"""The page of docs/reference/ that says, in the project's own words, what a section of the specification says."""
+
+
+def reference_page(text: str) -> str:
+    """``text`` with every "CONTRACTS section N" / "CONTRACTS §N.M" pointing at the project's own reference page
+    (docs/reference/), which users have; the specification itself is not shipped."""
+    import re
+
+    def page(match):
+        return "docs/reference/" + REFERENCE_PAGES.get(match.group(1), "README.md")
+
+    return re.sub(r"CONTRACTS\s*(?:section\s*)?§?\s*(\d+)(?:\.\d+)*", page, text)
+
+
 def plain_help(text):
-    """A help text as the terminal shows it: no reST markup (``name`` -> name)."""
+    """A help text as the terminal shows it: no reST markup (``name`` -> name), references to docs/reference/."""
     if not text or text is argparse.SUPPRESS:
         return text
-    return text.replace("``", "").replace("`", "")
+    return reference_page(text.replace("``", "").replace("`", ""))
 
 
 def _plain_texts(parser) -> None:

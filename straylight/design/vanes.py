@@ -29,7 +29,7 @@ from straylight.design.refine import refine
 from straylight.design.report import write_report
 from straylight.execution import Execution, as_execution
 
-PST_DEFINITION = "(detector power / detector area) / beam irradiance normal to the rays (CONTRACTS 4.5)"
+PST_DEFINITION = "(detector power / detector area) / beam irradiance normal to the rays (docs/reference/outputs.md)"
 
 
 def band_angles(spec: BaffleSpec) -> list[float]:
