@@ -177,7 +177,7 @@ def _check_requests(args) -> None:
         value = getattr(args, flag, None)
         none_ok = args.command == "view" and flag == "rays"  # view --rays 0: draw no ray
         if isinstance(value, int) and not isinstance(value, bool) and (value < 0 or (value == 0 and not none_ok)):
-            raise ValueError(f"--{flag.replace('_', '-')} must be at least 1, got {value}")
+            raise ValueError(f"--{flag.replace('_', '-')} must be >= 1, got {value}")
         if isinstance(value, int) and value > 0:
             from straylight.budget import check_ray_budget
 

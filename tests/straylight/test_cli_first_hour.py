@@ -21,8 +21,8 @@ def test_version(capsys):
 
 @pytest.mark.parametrize("argv, message", [
     (["--angles-deg", "95"], "--angles-deg must be in (-90, 90) deg"),
-    (["--rays", "0"], "--rays must be at least 1, got 0"),
-    (["--rays", "-5"], "--rays must be at least 1, got -5"),
+    (["--rays", "0"], "--rays must be >= 1, got 0"),
+    (["--rays", "-5"], "--rays must be >= 1, got -5"),
 ])
 def test_bad_requests_are_refused_before_the_scene_is_read(tmp_path, capsys, argv, message):
     start = time.perf_counter()
