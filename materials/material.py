@@ -198,13 +198,21 @@ class Material:
         return directional_hemispherical_reflectance(self.composite, theta_i, polarization)
 
     def check_energy(self, where: Optional[str] = None) -> None:
-        """Raise MaterialError if rho(theta_i) >= 1 at any integer theta_i in 0..89 deg (s or p)."""
-        theta = np.deg2rad(ENERGY_CHECK_THETA_I_DEG)
+        """Raise MaterialError if rho(theta_i) >= 1 at any integer theta_i in 0..89 deg (s or p), or at
+        a table's own incidence nodes and the midpoints between them (issue #39: a spike between nodes)."""
         if self.composite is None:
             return  # a delta component alone: R + T <= 1 by construction (Fresnel, r <= 1, weight <= 1)
         key = check_key(self)
         if passed_before(key):  # the same material passed before (materials.energy_checked)
             return
+        for c in self.lobes:  # tables check their own nodes, the midpoints and every sample rotation
+            table_check = getattr(c, "check_energy_table", None)
+            if table_check is not None:
+                table_check(where or f"material {self.name!r}")
+        nodes = [np.asarray(c.check_nodes_deg(), float) for c in self.lobes if hasattr(c, "check_nodes_deg")]
+        theta_deg = np.unique(np.concatenate([ENERGY_CHECK_THETA_I_DEG, *nodes])) if nodes else ENERGY_CHECK_THETA_I_DEG
+        theta_deg = theta_deg[theta_deg < 90.0]
+        theta = np.deg2rad(theta_deg)
         for pol in ("s", "p"):
             # a coarse grid (<~1 % for beta-centred lobes, ~10 % for grazing microfacet lobes
             # at 89 deg), refined with the default grid wherever it comes near 1
@@ -217,7 +225,7 @@ class Material:
                 raise MaterialError(
                     f"{where or 'material ' + repr(self.name)}: not energy-conserving: directional-"
                     f"hemispherical reflectance {rho[k]:.4f} >= 1 at theta_i = "
-                    f"{ENERGY_CHECK_THETA_I_DEG[k]:g} deg ({pol}-polarized)"
+                    f"{theta_deg[k]:g} deg ({pol}-polarized)"
                 )
         remember_pass(key)
 

@@ -159,6 +159,11 @@ class Tabulated:
             out.setdefault("p", base)
         return out
 
+    def check_nodes_deg(self) -> np.ndarray:
+        """Incidences the energy check adds to its 1-deg grid: the table's nodes and their midpoints."""
+        ti = np.asarray(self.theta_i_deg)
+        return np.unique(np.concatenate([ti, 0.5 * (ti[1:] + ti[:-1])]))
+
     def in_plane_equivalent(self, wi, wo) -> tuple[np.ndarray, np.ndarray]:
         """(theta_i, signed theta_r) radians of the in-plane point with the same |beta - beta0|."""
         wi = np.asarray(wi, float)

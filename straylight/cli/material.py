@@ -1,4 +1,4 @@
-"""``straylight material``: eval (CONTRACTS §4.2), fit, show, z307.
+"""``straylight material``: eval (CONTRACTS §4.2), fit, show, z307, import and export (§5.2).
 
 Thin layer: parse, convert degrees to radians, call the materials library, write JSON.
 """
@@ -18,6 +18,7 @@ def _models():
     import materials.kcorrelation  # noqa: F401
     import materials.lambertian  # noqa: F401
     import materials.microfacet  # noqa: F401
+    import materials.bsdf_table  # noqa: F401
 
 
 def _angle(name, value, lo=-90.0, hi=90.0):
@@ -60,9 +61,20 @@ def cmd_eval(args) -> int:
     if phi.size not in (1, theta_r_deg.size):
         raise ValueError(f"--phi-r-deg: give one value or one per --theta-r-deg ({theta_r_deg.size})")
     phi_r = np.radians(phi) + np.where(theta_r_deg < 0, np.pi, 0.0)  # negative theta_r: mirror side
-    brdf = brdf_angles(material, np.radians(theta_i_deg), np.radians(np.abs(theta_r_deg)), phi_r,
+    model = material
+    rotation = getattr(args, "rotation_deg", None)
+    if rotation is not None:  # an anisotropic table seen at this sample rotation (materials.bsdf_table)
+        from materials.bsdf_table import rotated
+
+        model = rotated(material, rotation)
+    brdf = brdf_angles(model, np.radians(theta_i_deg), np.radians(np.abs(theta_r_deg)), phi_r,
                        args.polarization)
-    dhr = float(material.albedo(np.radians(theta_i_deg), args.polarization))
+    if rotation is None:
+        dhr = float(material.albedo(np.radians(theta_i_deg), args.polarization))
+    else:
+        from materials.albedo import directional_hemispherical_reflectance
+
+        dhr = float(directional_hemispherical_reflectance(model, np.radians(theta_i_deg), args.polarization))
     smooth = material.smooth_coefficients(np.cos(np.radians([theta_i_deg]))) \
         if getattr(material, "smooth", None) is not None else None
     if smooth is not None:  # the specular part (delta lobe, not in brdf_per_sr) belongs to the dhr too
@@ -76,8 +88,61 @@ def cmd_eval(args) -> int:
     for t, f in zip(theta_r_deg, brdf):
         print(f"theta_r = {t:8.3f} deg  BRDF = {f:.6g} 1/sr")
     print(f"dhr(theta_i = {theta_i_deg:g} deg, {args.polarization}) = {dhr:.6g}")
+    if rotation is not None:
+        out["rotation_deg"] = rotation
     if args.json:
         atomicio.write_json(args.json, out, allow_nan=True)
+    return 0
+
+
+# ---------------------------------------------------------------------- import / export (CONTRACTS 5.2)
+def cmd_import(args) -> int:
+    _models()
+    from materials.bsdf_files import import_file
+    from materials.material import save_material
+
+    material, report = import_file(args.file, name=args.name)
+    save_material(args.output, material, check_energy=False)  # import_file checked every rotation and node
+    what = "BTDF" if report["scatter"] == "btdf" else "BRDF"
+    rot = report["rotation_deg"]
+    print(f"{args.file}: {report['format']} tabulated {what}, symmetry {report['symmetry']}, "
+          f"{len(report['theta_i_deg'])} incidences ({', '.join(f'{t:g}' for t in report['theta_i_deg'])} deg)"
+          + (f", {len(rot)} sample rotations" if len(rot) > 1 else ""))
+    label = "DHT" if report["scatter"] == "btdf" else "DHR"
+    tis = report["tis_in_file"]
+    nt = len(report["theta_i_deg"])
+    for r, row in enumerate(report["dhr"][:1] if len(report["dhr"]) > 4 else report["dhr"]):
+        for j, (t, v) in enumerate(zip(report["theta_i_deg"], row)):
+            line = f"  theta_i = {t:5.1f} deg: {label} {v:.5f}"
+            if tis and len(tis) > r * nt + j:
+                line += f"   (file's TIS line: {tis[r * nt + j]:g}, kept as reported, not used)"
+            print(line + (f"  [rotation {rot[r]:g} deg]" if len(rot) > 1 else ""))
+    print(f"wrote {args.output}")
+    if args.json:
+        atomicio.write_json(args.json, report, allow_nan=True)
+    return 0
+
+
+def cmd_export(args) -> int:
+    _models()
+    from materials.bsdf_files import _tables, export_fred, export_zemax
+    from materials.material import load_material
+
+    material = load_material(args.model)
+    if material.smooth is not None:
+        print(f"note: {material.name}: its {material.smooth.type_name} (delta) component is not a BSDF table "
+              "and is not written; only the scatter lobes are", file=sys.stderr)
+    if material.composite is None:
+        raise ValueError(f"{args.model}: the material has no scatter lobes to export")
+    if args.format == "zemax":
+        text = export_zemax(material, aoi_deg=args.aoi_deg, radial_deg=args.radial_deg)
+    else:
+        if any(t.anisotropic for t in _tables(material)):
+            print("note: FRED's tabulated BSDF is isotropic: the table is written at sample rotation 0",
+                  file=sys.stderr)
+        text = export_fred(material, aoi_deg=args.aoi_deg)
+    atomicio.write_text(args.output, text)
+    print(f"wrote {args.output} ({args.format})")
     return 0
 
 
@@ -183,7 +248,26 @@ def add_parser(subparsers) -> None:
                    help="viewing azimuth, deg; 0 = specular half-plane (one value or one per theta_r)")
     e.add_argument("--polarization", choices=("s", "p", "u"), required=True)
     e.add_argument("--json", metavar="OUT.json", help="write brdf_per_sr, theta_r_deg, dhr here")
+    e.add_argument("--rotation-deg", type=float, default=None,
+                   help="sample rotation of an anisotropic imported table (Zemax SampleRotation), deg")
     e.set_defaults(func=cmd_eval)
+
+    im = sub.add_parser("import", help="read a Zemax tabular .bsdf or FRED tabulated BSDF file into a material "
+                                       "(CONTRACTS 5.2)")
+    im.add_argument("file", metavar="FILE", help="the BSDF file (recognised by its content)")
+    im.add_argument("-o", "--output", required=True, metavar="MATERIAL.json")
+    im.add_argument("--name", help="material name (default: the file's stem)")
+    im.add_argument("--json", metavar="REPORT.json", help="format, incidences, DHR and the file's TIS lines")
+    im.set_defaults(func=cmd_import)
+
+    ex = sub.add_parser("export", help="write a material as a Zemax tabular BSDF or FRED tabulated BSDF file "
+                                       "(CONTRACTS 5.2)")
+    ex.add_argument("model", metavar="MATERIAL", help="material JSON file or preset name")
+    ex.add_argument("--format", choices=("zemax", "fred"), required=True)
+    ex.add_argument("-o", "--output", required=True, metavar="FILE")
+    ex.add_argument("--aoi-deg", type=float, nargs="+", help="incidence (specular) angles, deg")
+    ex.add_argument("--radial-deg", type=float, nargs="+", help="Zemax radial angles from specular, deg")
+    ex.set_defaults(func=cmd_export)
 
     f = sub.add_parser("fit", help="fit a model to a measured scan CSV (CONTRACTS 2)")
     f.add_argument("scan", metavar="SCAN.csv")

@@ -1,0 +1,462 @@
+"""Tabulated BSDF files in and out: Zemax/Radiant ``.bsdf`` and FRED tabulated BSDF (CONTRACTS §5.2).
+
+Formats (docs/bsdf-files.md has the coordinate figure):
+
+* Zemax/Radiant tabular BSDF (Radiant "BSDF data interchange" format, read by OpticStudio's BSDF
+  scatter model): keyword lines ``Source``, ``Symmetry`` (PlaneSymmetrical | Asymmetrical |
+  Asymmetrical4D), ``SpectralContent`` (Monochrome), ``ScatterType`` (BRDF | BTDF),
+  ``SampleRotation N`` + N values, ``AngleOfIncidence N`` + N values (the *specular* angle),
+  ``ScatterAzimuth N`` + N values, ``ScatterRadial N`` + N values, then ``DataBegin`` ...
+  ``DataEnd`` with, per rotation and incidence, an optional ``TIS value`` line and N_azimuth rows
+  of N_radial values. Radial R is the angle from the specular (or directly transmitted)
+  direction; azimuth A = 0 points from it toward the sample normal, A = 90 toward -y of the
+  incidence frame (y = z x specular azimuth). Files seen in the wild omit value lines
+  (``SampleRotation 1`` alone means rotation 0; ``ScatterAzimuth 2`` alone in a
+  PlaneSymmetrical file means 0 and 180) and use tabs or runs of spaces: both are read.
+* FRED tabulated BSDF: ``type bsdf_data``, ``format angles=deg|sin bsdf=value|log scale=S``
+  (``exclude=``, ``num=`` are FRED interpolation hints: read and ignored), then blocks: a
+  two-number line (specular theta0, azimuth f0; or a0, b0 with angles=sin) and rows
+  ``theta f bsdf`` (or ``a b bsdf``), tab, comma or space separated. theta < 0 with f = 0 is the
+  backscatter side. FRED's model is isotropic: blocks are turned so that f0 = 0 and mirrored.
+
+The file's values are used as they are (``scale`` is the file's own instruction and is applied);
+``TIS`` lines are kept in the material (``tis``) and reported, never used to rescale.
+"""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from materials.base import MaterialError
+
+ZEMAX_KEYS = ("Source", "Symmetry", "SpectralContent", "ScatterType", "SampleRotation", "AngleOfIncidence",
+              "ScatterAzimuth", "ScatterRadial")
+_NUM = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eEdD][+-]?\d+)?$")
+
+
+class BsdfFileError(MaterialError):
+    """A BSDF file that cannot be read or is refused; the message names the file and the line."""
+
+
+def _is_num(tok: str) -> bool:
+    return bool(_NUM.match(tok))
+
+
+def _num(tok: str, where: str) -> float:
+    if not _is_num(tok):
+        raise BsdfFileError(f"{where}: expected a number, got {tok!r}")
+    return float(tok.replace("d", "e").replace("D", "e"))
+
+
+def _tokens(line: str) -> list[str]:
+    return [t for t in re.split(r"[\s,;]+", line.strip()) if t]
+
+
+def read_text(path) -> str:
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise BsdfFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if b"\x00" in raw[:4096]:
+        raise BsdfFileError(f"{path}: a binary file, not a Zemax tabular BSDF or a FRED tabulated BSDF text")
+    for enc in ("utf-8-sig", "latin-1"):
+        try:
+            return raw.decode(enc)
+        except UnicodeDecodeError:
+            continue
+    raise BsdfFileError(f"{path}: not text")  # pragma: no cover - latin-1 decodes anything
+
+
+def detect(text: str) -> str:
+    """'zemax', 'fred', 'speos' or 'unknown', from the content (never the extension)."""
+    lines = [ln.strip() for ln in text.splitlines()[:400]]
+    body = [ln for ln in lines if ln and not ln.startswith(("#", "!", ";", "//"))]
+    if body and re.match(r"^type\s+bsdf_data\b", body[0], re.I):
+        return "fred"
+    first = {(_tokens(ln) or [""])[0].lower() for ln in body}
+    if {"symmetry", "scattertype"} & first and {"angleofincidence", "scatterradial"} & first:
+        return "zemax"
+    head = text[:2048]
+    if "OPTIS" in head or re.search(r"BSDF surface file", head, re.I) or head.lstrip().startswith("SPEOS"):
+        return "speos"
+    return "unknown"
+
+
+# ---------------------------------------------------------------------------------------- Zemax
+
+
+def _zemax_direction(theta_spec, az, rad):
+    """(theta_r, phi_r) radians in the incidence frame of the node at azimuth az, radial rad
+    about the specular direction (theta_spec); and the node's cos theta_r."""
+    s = np.array([math.sin(theta_spec), 0.0, math.cos(theta_spec)])
+    e1 = np.array([-math.cos(theta_spec), 0.0, math.sin(theta_spec)])  # toward the normal
+    e2 = np.array([0.0, -1.0, 0.0])  # s x e1
+    a, r = np.meshgrid(az, rad, indexing="ij")
+    w = (np.cos(r)[..., None] * s + np.sin(r)[..., None] * (np.cos(a)[..., None] * e1 + np.sin(a)[..., None] * e2))
+    return np.arccos(np.clip(w[..., 2], -1, 1)), np.arctan2(w[..., 1], w[..., 0]), w[..., 2]
+
+
+def parse_zemax(text: str, path="file") -> dict:
+    """The component dict (materials.bsdf_table) of a Zemax/Radiant tabular BSDF text."""
+    lines = text.splitlines()
+    head: dict = {}
+    counts: dict = {}
+    values: dict = {}
+    i = 0
+    n = len(lines)
+    while i < n:
+        toks = _tokens(lines[i])
+        if not toks or toks[0].startswith("#"):
+            i += 1
+            continue
+        key = toks[0]
+        kl = key.lower()
+        if kl == "databegin":
+            break
+        match = next((k for k in ZEMAX_KEYS if k.lower() == kl), None)
+        if match in ("Source", "Symmetry", "SpectralContent", "ScatterType"):
+            head[match] = toks[1] if len(toks) > 1 else ""
+        elif match is not None:
+            if len(toks) < 2:
+                raise BsdfFileError(f"{path}:{i + 1}: {key} needs a count")
+            cnt = int(_num(toks[1], f"{path}:{i + 1}"))
+            if cnt < 1:
+                raise BsdfFileError(f"{path}:{i + 1}: {key} count must be >= 1")
+            counts[match] = cnt
+            vals = [_num(t, f"{path}:{i + 1}") for t in toks[2:]]
+            j = i + 1
+            while len(vals) < cnt and j < n:
+                nt = _tokens(lines[j])
+                if not nt:
+                    j += 1
+                    continue
+                if not _is_num(nt[0]):
+                    break
+                vals += [_num(t, f"{path}:{j + 1}") for t in nt]
+                j += 1
+            if vals and len(vals) != cnt:
+                raise BsdfFileError(f"{path}:{i + 1}: {key} says {cnt} values, found {len(vals)}")
+            values[match] = vals or None
+            i = j
+            continue
+        elif kl in ("monochrome",):
+            pass
+        elif kl.startswith("tristimulus") or kl in ("spectral", "xyz"):
+            raise BsdfFileError(f"{path}:{i + 1}: only Monochrome data are supported (found {key})")
+        i += 1
+    else:
+        raise BsdfFileError(f"{path}: no DataBegin line")
+    data_start = i + 1
+    sym = head.get("Symmetry", "PlaneSymmetrical")
+    if sym.lower() not in ("planesymmetrical", "asymmetrical", "asymmetrical4d"):
+        raise BsdfFileError(f"{path}: Symmetry {sym!r} is not supported (PlaneSymmetrical, Asymmetrical, Asymmetrical4D)")
+    stype = head.get("ScatterType", "BRDF").upper()
+    if stype not in ("BRDF", "BTDF"):
+        raise BsdfFileError(f"{path}: ScatterType {stype!r}: expected BRDF or BTDF")
+    spectral = head.get("SpectralContent", "Monochrome")
+    if spectral.lower() != "monochrome":
+        raise BsdfFileError(f"{path}: SpectralContent {spectral!r}: only Monochrome data are supported")
+    for key in ("AngleOfIncidence", "ScatterRadial", "ScatterAzimuth"):
+        if key not in counts:
+            raise BsdfFileError(f"{path}: no {key} line")
+    plane = sym.lower() == "planesymmetrical"
+    n_rot = counts.get("SampleRotation", 1)
+    rot = values.get("SampleRotation") or ([0.0] if n_rot == 1 else list(np.linspace(0.0, 360.0, n_rot, endpoint=False)))
+    aoi = values.get("AngleOfIncidence")
+    rad = values.get("ScatterRadial")
+    if aoi is None or rad is None:
+        raise BsdfFileError(f"{path}: AngleOfIncidence and ScatterRadial need their values")
+    n_az = counts["ScatterAzimuth"]
+    az = values.get("ScatterAzimuth") or list(np.linspace(0.0, 180.0 if plane else 360.0, n_az,
+                                                              endpoint=plane))
+    if any(a < 0 or a >= 90 for a in aoi):
+        raise BsdfFileError(f"{path}: AngleOfIncidence values must lie in [0, 90), got {aoi}")
+    # data: numbers in order, with 'TIS v' markers
+    per_block = n_az * len(rad)
+    n_blocks = len(rot) * len(aoi)
+    nums: list[float] = []
+    tis: list[float] = []
+    ended = False
+    for k in range(data_start, n):
+        toks = _tokens(lines[k])
+        if not toks or toks[0].startswith("#"):
+            continue
+        if toks[0].lower() == "dataend":
+            ended = True
+            break
+        if toks[0].lower() == "tis":
+            if len(toks) > 1:
+                tis.append(_num(toks[1], f"{path}:{k + 1}"))
+            continue
+        if toks[0].lower() in ("monochrome", "databegin"):
+            continue
+        nums += [_num(t, f"{path}:{k + 1}") for t in toks]
+    if len(nums) != per_block * n_blocks:
+        raise BsdfFileError(
+            f"{path}: the data hold {len(nums)} values, expected {n_blocks} blocks x {n_az} azimuths x "
+            f"{len(rad)} radial angles = {per_block * n_blocks}" + ("" if ended else " (no DataEnd line)"))
+    data = np.asarray(nums).reshape(len(rot), len(aoi), n_az, len(rad))
+    if np.any(~np.isfinite(data)) or np.any(data < 0):
+        bad = np.argwhere(~(data >= 0))[0]
+        raise BsdfFileError(f"{path}: negative or non-finite BSDF value at rotation {rot[bad[0]]:g} deg, "
+                            f"incidence {aoi[bad[1]]:g} deg, azimuth {az[bad[2]]:g}, radial {rad[bad[3]]:g}")
+    blocks = []
+    for r in range(len(rot)):
+        for j, a in enumerate(aoi):
+            th, ph, cz = _zemax_direction(math.radians(a), np.radians(az), np.radians(rad))
+            keep = cz > 1e-6
+            blocks.append({"theta_r_deg": np.degrees(th[keep]).tolist(), "phi_r_deg": np.degrees(ph[keep]).tolist(),
+                           "bsdf_per_sr": data[r, j][keep].tolist()})
+    order = np.argsort(rot)
+    if len(rot) > 1:
+        blocks = [blocks[o * len(aoi) + j] for o in order for j in range(len(aoi))]
+        rot = [rot[o] for o in order]
+        tis = [tis[o * len(aoi) + j] for o in order for j in range(len(aoi))] if len(tis) == n_blocks else tis
+    comp = {"type": "bsdf_table", "scatter": stype.lower(), "symmetry": "plane" if plane else "none",
+            "rotation_deg": [float(v) for v in rot], "theta_i_deg": [float(v) for v in aoi], "blocks": blocks}
+    if tis:
+        comp["tis"] = tis
+    return comp
+
+
+# ---------------------------------------------------------------------------------------- FRED
+
+
+def parse_fred(text: str, path="file") -> dict:
+    """The component dict of a FRED tabulated BSDF text (isotropic: symmetry 'plane')."""
+    lines = text.splitlines()
+    fmt = {"angles": "deg", "bsdf": "value", "scale": "1"}
+    blocks: list = []
+    seen_type = False
+    for k, line in enumerate(lines):
+        s = line.strip()
+        if not s or s.startswith(("#", "!", ";", "//")):
+            continue
+        low = s.lower()
+        if low.startswith("type"):
+            if not re.match(r"^type\s+bsdf_data\b", low):
+                raise BsdfFileError(f"{path}:{k + 1}: expected 'type bsdf_data'")
+            seen_type = True
+            continue
+        if low.startswith("format"):
+            for part in s.split()[1:]:
+                if "=" in part:
+                    key, val = part.split("=", 1)
+                    fmt[key.lower()] = val
+            continue
+        toks = _tokens(s)
+        nums = [_num(t, f"{path}:{k + 1}") for t in toks]
+        if len(nums) == 2:
+            blocks.append((nums, [], k + 1))
+        elif len(nums) == 3:
+            if not blocks:
+                raise BsdfFileError(f"{path}:{k + 1}: a data row before the first specular-angle line")
+            blocks[-1][1].append(nums)
+        else:
+            raise BsdfFileError(f"{path}:{k + 1}: expected 2 numbers (specular direction) or 3 (theta, f, bsdf)")
+    if not seen_type:
+        raise BsdfFileError(f"{path}: no 'type bsdf_data' line")
+    angles = fmt["angles"].lower()
+    kind = fmt["bsdf"].lower()
+    if angles not in ("deg", "sin") or kind not in ("value", "log"):
+        raise BsdfFileError(f"{path}: format angles={fmt['angles']} bsdf={fmt['bsdf']}: expected angles=deg|sin, bsdf=value|log")
+    try:
+        scale = float(fmt["scale"])
+    except ValueError:
+        raise BsdfFileError(f"{path}: format scale={fmt['scale']!r} is not a number") from None
+    if not blocks:
+        raise BsdfFileError(f"{path}: no data blocks")
+    merged: dict = {}
+    for (h0, h1), rows, line_no in blocks:
+        if not rows:
+            raise BsdfFileError(f"{path}:{line_no}: specular direction with no data rows")
+        r = np.asarray(rows, float)
+        if angles == "deg":
+            th0, f0 = math.radians(h0), math.radians(h1)
+            th, f = np.radians(r[:, 0]), np.radians(r[:, 1])
+            sx, sy = np.sin(th) * np.cos(f), np.sin(th) * np.sin(f)
+            b0 = math.sin(th0)
+        else:  # a = sin f sin theta, b = cos f sin theta
+            a0, bb0 = h0, h1
+            b0, f0 = math.hypot(a0, bb0), math.atan2(a0, bb0)
+            sx, sy = r[:, 1], r[:, 0]
+            th0 = math.asin(min(b0, 1.0))
+        if b0 < 0:  # a negative specular angle: the same incidence seen from the other side
+            b0, f0, th0 = -b0, f0 + math.pi, -th0
+        cf, sf = math.cos(f0), math.sin(f0)
+        x, y = cf * sx + sf * sy, -sf * sx + cf * sy
+        rho = np.hypot(x, y)
+        if np.any(rho >= 1.0):
+            raise BsdfFileError(f"{path}:{line_no}: a scatter direction at or beyond the horizon (90 deg)")
+        vals = (10.0 ** r[:, 2] if kind == "log" else r[:, 2]) * scale
+        if np.any(~np.isfinite(vals)) or np.any(vals < 0):
+            raise BsdfFileError(f"{path}:{line_no}: negative or non-finite BSDF values in this block")
+        ti = round(math.degrees(th0), 9)
+        if not 0 <= ti < 90:
+            raise BsdfFileError(f"{path}:{line_no}: specular angle {ti:g} deg outside [0, 90)")
+        ent = merged.setdefault(ti, ([], [], []))
+        ent[0].extend(np.degrees(np.arcsin(rho)).tolist())
+        ent[1].extend(np.degrees(np.arctan2(y, x)).tolist())
+        ent[2].extend(vals.tolist())
+    tis = sorted(merged)
+    return {"type": "bsdf_table", "scatter": "brdf", "symmetry": "plane", "rotation_deg": [0.0],
+            "theta_i_deg": tis,
+            "blocks": [{"theta_r_deg": merged[t][0], "phi_r_deg": merged[t][1], "bsdf_per_sr": merged[t][2]}
+                       for t in tis]}
+
+
+# ---------------------------------------------------------------------------------------- import
+
+
+def import_file(path, name=None):
+    """(Material, report dict) from a Zemax or FRED file; refuses other files and non-physical data."""
+    from materials.material import Material
+    from materials.registry import build_component
+
+    import materials.bsdf_table  # noqa: F401 - registers the component
+
+    path = Path(path)
+    text = read_text(path)
+    kind = detect(text)
+    if kind == "speos":
+        raise BsdfFileError(f"{path}: a Speos/OPTIS BSDF file: not supported (import reads Zemax tabular .bsdf "
+                            "and FRED tabulated BSDF text)")
+    if kind == "unknown":
+        raise BsdfFileError(f"{path}: not a Zemax tabular BSDF (Symmetry/ScatterType/AngleOfIncidence/DataBegin) "
+                            "nor a FRED tabulated BSDF ('type bsdf_data')")
+    comp = parse_zemax(text, path) if kind == "zemax" else parse_fred(text, path)
+    table = build_component(comp, where=str(path))
+    table.check_energy_table(str(path))
+    material = Material(name=name or path.stem, wavelength_nm=None, components=(table,),
+                        provenance=f"imported from {path.name} ({'Zemax tabular BSDF' if kind == 'zemax' else 'FRED tabulated BSDF'})")
+    report = {"format": kind, "scatter": table.scatter, "symmetry": table.symmetry,
+              "rotation_deg": list(table.rotation_deg), "theta_i_deg": list(table.theta_i_deg),
+              "tis_in_file": list(table.tis) if table.tis else None,
+              "dhr": [table.dhr(list(table.theta_i_deg), r).tolist() for r in table._rotations]}
+    return material, report
+
+
+# ---------------------------------------------------------------------------------------- export
+
+DEFAULT_AOI_DEG = (0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 85.0)
+DEFAULT_RADIAL_DEG = (0.0, 0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 7.5, 10.0, 12.5, 15.0,
+                      17.5, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0, 110.0, 120.0,
+                      130.0, 140.0, 150.0, 160.0, 170.0, 180.0)
+
+
+def _lobe_radial_deg(material) -> list[float]:
+    """Radial angles that resolve the material's narrowest in-plane lobe: the default set plus
+    fractions of its half-width at half maximum at a few incidences."""
+    from materials.base import brdf_angles
+
+    extra = []
+    fine = np.radians(np.concatenate([np.linspace(0.0, 2.0, 201), np.linspace(2.0, 89.0, 175)]))
+    for ti in (0.0, 30.0, 60.0):
+        t = math.radians(ti)
+        f = brdf_angles(material, t, np.abs(t + fine), np.where(t + fine >= 0, 0.0, np.pi))
+        if f.max() <= 0:
+            continue
+        half = fine[np.nonzero(f >= 0.5 * f.max())[0][-1]]
+        hw = math.degrees(max(half, 1e-4))
+        extra += [hw * k for k in (0.25, 0.5, 1.0, 2.0, 4.0)]
+    out = sorted({round(v, 4) for v in list(DEFAULT_RADIAL_DEG) + [e for e in extra if e < 180]})
+    return out
+
+
+def _dhr(material, theta_i_deg):
+    return np.asarray(material.albedo(np.radians(theta_i_deg), "u"), float)
+
+
+def _tables(material):
+    return [c for c in material.components if getattr(c, "type_name", "") == "bsdf_table"]
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.6e}"
+
+
+def _f_at(material, theta_i_deg, az_deg, rad_deg, rotation_deg=None):
+    """Material BRDF on a Zemax (azimuth x radial) grid about the specular direction (0 below the horizon)."""
+    from materials.bsdf_table import rotated
+
+    th, ph, cz = _zemax_direction(math.radians(theta_i_deg), np.radians(az_deg), np.radians(rad_deg))
+    model = material if rotation_deg is None else rotated(material, rotation_deg)
+    ti = math.radians(theta_i_deg)
+    wi = np.tile([-math.sin(ti), 0.0, math.cos(ti)], (th.size, 1))
+    wo = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1).reshape(-1, 3)
+    f = model.brdf(wi, wo, "u").reshape(th.shape)
+    return np.where(cz > 1e-9, f, 0.0)
+
+
+def export_zemax(material, aoi_deg=None, radial_deg=None, azimuth_deg=None) -> str:
+    """Zemax tabular BSDF text: PlaneSymmetrical for an isotropic material, Asymmetrical4D for an
+    imported anisotropic table (its rotations). TIS lines: the material's own DHR at each incidence."""
+    tables = _tables(material)
+    aniso = any(t.anisotropic or t.symmetry == "none" for t in tables)
+    stype = "BTDF" if tables and all(t.scatter == "btdf" for t in tables) else "BRDF"
+    aoi = list(aoi_deg) if aoi_deg else (sorted({*DEFAULT_AOI_DEG, *[a for t in tables for a in t.theta_i_deg]}))
+    rad = list(radial_deg) if radial_deg else _lobe_radial_deg(material)
+    az = list(azimuth_deg) if azimuth_deg else (list(np.arange(0.0, 360.0, 10.0)) if aniso else list(np.arange(0.0, 181.0, 10.0)))
+    rots = [float(r) for r in tables[0]._rotations] if aniso and tables else [0.0]
+
+    def row(vals):
+        return "\t".join(f"{v:g}" for v in vals)
+
+    out = ["# written by straylight material export", f"# material: {material.name}",
+           "# TIS: the material's directional-hemispherical reflectance at each incidence (hemisphere quadrature)",
+           "Source\tMeasured" if tables else "Source\tModeled",
+           f"Symmetry\t{'Asymmetrical4D' if aniso else 'PlaneSymmetrical'}", "SpectralContent\tMonochrome",
+           f"ScatterType\t{stype}", f"SampleRotation\t{len(rots)}", row(rots), f"AngleOfIncidence\t{len(aoi)}",
+           row(aoi), f"ScatterAzimuth\t{len(az)}", row(az), f"ScatterRadial\t{len(rad)}", row(rad), "",
+           "Monochrome", "DataBegin"]
+    for r in rots:
+        for a in aoi:
+            if aniso:
+                tis = float(material_dhr_rotated(material, a, r))
+                grid = _f_at(material, a, az, rad, r)
+            else:
+                tis = float(_dhr(material, [a])[0])
+                grid = _f_at(material, a, az, rad)
+            out.append(f"TIS\t{tis:.6g}")
+            out += ["\t".join(_fmt(v) for v in line) for line in grid]
+    out.append("DataEnd")
+    return "\n".join(out) + "\n"
+
+
+def material_dhr_rotated(material, theta_i_deg, rotation_deg):
+    from materials.albedo import directional_hemispherical_reflectance
+    from materials.bsdf_table import rotated
+
+    return directional_hemispherical_reflectance(rotated(material, rotation_deg), math.radians(theta_i_deg), "u")
+
+
+def export_fred(material, aoi_deg=None, scatter_deg=None) -> str:
+    """FRED tabulated BSDF text: in-plane scans (theta from -89.5 to 89.5, denser near specular)
+    at each specular angle. FRED's tabulated model is isotropic: an anisotropic table is written at
+    its rotation 0 (the caller warns)."""
+    from materials.base import brdf_angles
+
+    tables = _tables(material)
+    aoi = list(aoi_deg) if aoi_deg else sorted({*DEFAULT_AOI_DEG, *[a for t in tables for a in t.theta_i_deg]})
+    out = ["type bsdf_data", "format angles=deg bsdf=value scale=1"]
+    for a in aoi:
+        if scatter_deg:
+            th = np.asarray(sorted(scatter_deg), float)
+        else:
+            offs = np.array([0.0] + [s * o for o in (0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1, 1.5, 2, 3, 4, 5, 7.5)
+                                     for s in (-1, 1)])
+            th = np.unique(np.round(np.concatenate([np.linspace(-89.5, 89.5, 180), a + offs]), 4))
+            th = th[(th >= -89.5) & (th <= 89.5)]
+        model = material
+        if tables and tables[0].anisotropic:
+            from materials.bsdf_table import rotated
+
+            model = rotated(material, 0.0)
+        f = brdf_angles(model, math.radians(a), np.radians(np.abs(th)), np.where(th >= 0, 0.0, np.pi))
+        out.append(f"{a:g}\t0")
+        out += [f"{t:g}\t0\t{v:.6e}" for t, v in zip(th, f)]
+    return "\n".join(out) + "\n"

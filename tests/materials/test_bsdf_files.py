@@ -1,0 +1,371 @@
+"""Zemax / FRED tabulated BSDF files in and out (CONTRACTS §5.2; materials.bsdf_files, materials.bsdf_table).
+
+Real files: ua-loft/bsdf-tools (MIT), tests/data/bsdf/LICENSES.md. Golden values:
+- nodes: the files' own numbers;
+- DHR: the file's BSDF x cos integrated independently of the model, by the trapezoid rule over the
+  file's own grid (Zemax: d Omega = sin R dR dA about the specular pole, nodes below the horizon
+  count 0; FRED: d Omega = sin theta d theta d f about the normal);
+- Lambertian export: rd / pi and TIS rd (analytic).
+"""
+from __future__ import annotations
+
+import gzip
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from materials.bsdf_files import BsdfFileError, detect, import_file, parse_zemax, read_text
+from materials.base import MaterialError
+from straylight.cli.main import main
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "bsdf"
+ZEMAX = ["AnoBlackEC1onAlum.bsdf", "ValidationTest_of_TIS_via_BrownVinyl.bsdf", "aeroglaze.bsdf"]
+FRED = ["AnoBlackEC1onAlum.txt", "AnoBlackEC1onAlum_fullAz.txt", "aeroglaze_bsdf_final.txt"]
+
+
+@pytest.fixture(scope="module")
+def imx455(tmp_path_factory):
+    """The Asymmetrical4D image-sensor file (stored gzipped here), imported once."""
+    path = tmp_path_factory.mktemp("imx") / "IMX455.bsdf"
+    path.write_bytes(gzip.decompress((DATA / "IMX455.bsdf.gz").read_bytes()))
+    material, report = import_file(path)
+    return path, material, report
+
+
+def _run(*argv):
+    return main([str(a) for a in argv])
+
+
+def _eval(tmp_path, material_json, theta_i, theta_r, rotation=None):
+    out = tmp_path / "eval.json"
+    extra = [] if rotation is None else ["--rotation-deg", rotation]
+    assert _run("material", "eval", material_json, "--theta-i-deg", theta_i, "--theta-r-deg", *theta_r,
+                "--polarization", "u", "--json", out, *extra) == 0
+    return json.loads(out.read_text())
+
+
+def _zemax_grid(path):
+    """(aoi, az, rad, data[rot, aoi, az, rad]) read straight from the text (independent of the importer)."""
+    lines = read_text(path).splitlines()
+
+    def values(key):
+        for i, line in enumerate(lines):
+            tok = line.split()
+            if tok and tok[0] == key:
+                return [float(v) for v in lines[i + 1].split()]
+
+    aoi, az, rad = values("AngleOfIncidence"), values("ScatterAzimuth"), values("ScatterRadial")
+    start = next(i for i, line in enumerate(lines) if line.startswith("DataBegin"))
+    nums = []
+    for line in lines[start + 1:]:
+        tok = line.split()
+        if not tok or tok[0] == "TIS":
+            continue
+        if tok[0] == "DataEnd":
+            break
+        nums += [float(v) for v in tok]
+    return aoi, az, rad, np.asarray(nums).reshape(-1, len(aoi), len(az), len(rad))
+
+
+# ------------------------------------------------------------------------------------ recognition
+
+
+@pytest.mark.parametrize("name", ZEMAX + FRED)
+def test_every_zemax_and_fred_file_imports(name, tmp_path):
+    out = tmp_path / "m.json"
+    assert _run("material", "import", DATA / name, "-o", out) == 0
+    data = json.loads(out.read_text())
+    (comp,) = data["components"]
+    assert comp["type"] == "bsdf_table"
+    assert detect(read_text(DATA / name)) == ("zemax" if name in ZEMAX else "fred")
+
+
+def test_recognised_by_content_not_extension(tmp_path):
+    fred_as_bsdf = tmp_path / "looks_like_zemax.bsdf"
+    fred_as_bsdf.write_text((DATA / "AnoBlackEC1onAlum.txt").read_text())
+    _, report = import_file(fred_as_bsdf)
+    assert report["format"] == "fred"
+
+
+def test_speos_and_other_files_refused_in_one_line(tmp_path, capsys):
+    assert _run("material", "import", DATA / "test_speos.rtd", "-o", tmp_path / "x.json") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Speos" in err[0] and "not supported" in err[0]
+    junk = tmp_path / "notes.bsdf"
+    junk.write_text("hello\nworld\n")
+    assert _run("material", "import", junk, "-o", tmp_path / "y.json") == 2
+    assert "nor a FRED" in capsys.readouterr().err
+    assert not (tmp_path / "x.json").exists()
+
+
+def test_truncated_zemax_file_names_the_count(tmp_path):
+    text = (DATA / "AnoBlackEC1onAlum.bsdf").read_text().splitlines()
+    bad = tmp_path / "cut.bsdf"
+    bad.write_text("\n".join(text[:-5]))
+    with pytest.raises(BsdfFileError, match="expected 4 blocks x 19 azimuths x 12 radial"):
+        import_file(bad)
+
+
+# ------------------------------------------------------------------------------------ nodes
+
+
+def test_zemax_in_plane_nodes_come_back_from_eval(tmp_path):
+    path = DATA / "AnoBlackEC1onAlum.bsdf"
+    out = tmp_path / "m.json"
+    assert _run("material", "import", path, "-o", out) == 0
+    aoi, az, rad, data = _zemax_grid(path)
+    for j, ti in enumerate(aoi):
+        # azimuth 0: toward the normal (theta_r = ti - R, negative = backscatter side); 180: away
+        thr, want = [], []
+        for a_idx, sign in ((az.index(0.0), -1.0), (az.index(180.0), 1.0)):
+            for k, r in enumerate(rad):
+                t = ti + sign * r
+                if -89.0 <= t <= 89.0:
+                    thr.append(t)
+                    want.append(data[0, j, a_idx, k])
+        got = _eval(tmp_path, out, ti, thr)["brdf_per_sr"]
+        np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-9, err_msg=f"incidence {ti}")
+
+
+@pytest.mark.parametrize("name", ["AnoBlackEC1onAlum_fullAz.txt", "aeroglaze_bsdf_final.txt"])
+def test_fred_in_plane_nodes_come_back_from_eval(name, tmp_path):
+    path = DATA / name
+    out = tmp_path / "m.json"
+    assert _run("material", "import", path, "-o", out) == 0
+    blocks: dict = {}
+    for line in path.read_text().splitlines()[2:]:
+        tok = [float(v) for v in line.split()]
+        if len(tok) == 2:
+            cur = blocks.setdefault(tok[0], {})
+        elif tok[1] in (0.0, 180.0):  # in the plane of incidence
+            cur[tok[0] if tok[1] == 0.0 else -tok[0]] = tok[2]
+    for ti, rows in blocks.items():
+        thr = sorted(rows)
+        got = _eval(tmp_path, out, ti, thr)["brdf_per_sr"]
+        np.testing.assert_allclose(got, [rows[t] for t in thr], rtol=1e-3, atol=1e-9, err_msg=f"incidence {ti}")
+
+
+# ------------------------------------------------------------------------------------ DHR
+
+
+def _zemax_trapezoid_dhr(path):
+    aoi, az, rad, data = _zemax_grid(path)
+    a, r = np.meshgrid(np.radians(az), np.radians(rad), indexing="ij")
+    out = []
+    for j, ti in enumerate(aoi):
+        t = math.radians(ti)
+        cos_r = np.cos(r) * math.cos(t) + np.sin(r) * np.cos(a) * math.sin(t)  # node's cos theta_r
+        integrand = np.where(cos_r > 0, data[0, j] * cos_r, 0.0) * np.sin(r)
+        out.append(2.0 * np.trapezoid(np.trapezoid(integrand, np.radians(rad), axis=1), np.radians(az)))
+    return aoi, np.asarray(out)
+
+
+@pytest.mark.parametrize("name", ["AnoBlackEC1onAlum.bsdf", "ValidationTest_of_TIS_via_BrownVinyl.bsdf"])
+def test_zemax_dhr_matches_an_independent_trapezoid(name, tmp_path):
+    """Trapezoid over the file's own (azimuth, radial) grid, x2 for the mirrored half (PlaneSymmetrical).
+    The model interpolates log10 between nodes (the trapezoid: linear) and cuts at the true horizon,
+    so they agree to the grid's own resolution (8 %); the file's TIS line is not this quantity."""
+    aoi, want = _zemax_trapezoid_dhr(DATA / name)
+    _, report = import_file(DATA / name)
+    np.testing.assert_allclose(report["dhr"][0], want, rtol=0.08)
+    out = tmp_path / "m.json"
+    assert _run("material", "import", DATA / name, "-o", out) == 0
+    assert _eval(tmp_path, out, aoi[1], [0.0])["dhr"] == pytest.approx(report["dhr"][0][1], rel=1e-3)
+
+
+def test_fred_dhr_matches_an_independent_trapezoid():
+    """FRED full-azimuth grid: trapezoid in (theta, f) about the normal, with sin theta cos theta; the
+    outermost ring (80 deg) held to the horizon as the model holds it."""
+    path = DATA / "AnoBlackEC1onAlum_fullAz.txt"
+    blocks: dict = {}
+    for line in path.read_text().splitlines()[2:]:
+        tok = [float(v) for v in line.split()]
+        if len(tok) == 2:
+            cur = blocks.setdefault(tok[0], [])
+        else:
+            cur.append(tok)
+    want = []
+    for ti, rows in blocks.items():
+        rows = np.asarray(rows)
+        th = np.unique(rows[:, 0])
+        f = np.unique(rows[rows[:, 0] > 0, 1])
+        grid = np.zeros((len(th) + 1, len(f) + 1))
+        for t, p, v in rows:
+            i = np.searchsorted(th, t)
+            if t == 0:
+                grid[i, :] = v
+            else:
+                grid[i, np.searchsorted(f, p)] = v
+        grid[:, -1] = grid[:, 0]
+        grid[-1] = grid[-2]
+        thr = np.radians(np.append(th, 90.0))
+        integrand = grid * (np.sin(thr) * np.cos(thr))[:, None]
+        want.append(np.trapezoid(np.trapezoid(integrand, np.radians(np.append(f, 360.0)), axis=1), thr))
+    _, report = import_file(path)
+    assert list(blocks) == report["theta_i_deg"]
+    np.testing.assert_allclose(report["dhr"][0], want, rtol=0.08)
+
+
+def test_tis_lines_reported_not_used(tmp_path):
+    _, report = import_file(DATA / "AnoBlackEC1onAlum.bsdf")
+    assert report["tis_in_file"] == [0.038655, 0.039136, 0.047596, 0.106539]
+    assert abs(report["dhr"][0][0] - 0.038655) > 0.005  # a different definition; values not rescaled to it
+
+
+# ------------------------------------------------------------------------------------ refusals
+
+
+def _zemax_text(aoi, values_per_aoi, radial=(0, 10, 20, 30, 40, 50, 60, 70, 80, 90)):
+    az = list(range(0, 181, 30))
+    lines = ["Source\tMeasured", "Symmetry\tPlaneSymmetrical", "SpectralContent\tMonochrome", "ScatterType\tBRDF",
+             "SampleRotation\t1", "0", f"AngleOfIncidence\t{len(aoi)}", "\t".join(map(str, aoi)),
+             f"ScatterAzimuth\t{len(az)}", "\t".join(map(str, az)), f"ScatterRadial\t{len(radial)}",
+             "\t".join(map(str, radial)), "Monochrome", "DataBegin"]
+    for v in values_per_aoi:
+        lines.append("TIS\t0.5")
+        lines += ["\t".join([f"{v:.6e}"] * len(radial))] * len(az)
+    lines.append("DataEnd")
+    return "\n".join(lines) + "\n"
+
+
+def test_non_physical_file_refused_naming_the_incidence(tmp_path, capsys):
+    bad = tmp_path / "hot.bsdf"
+    bad.write_text(_zemax_text([10, 40, 70], [0.05, 0.5, 0.05]))  # 0.5/sr x pi > 1 at 40 deg
+    assert _run("material", "import", bad, "-o", tmp_path / "hot.json") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not physical" in err[0] and "incidence 40 deg" in err[0] and "never rescaled" in err[0]
+    assert not (tmp_path / "hot.json").exists()
+
+
+def test_spike_between_incidence_nodes_does_not_pass(tmp_path):
+    """Issue #39: a tabulated material whose node at 62.5 deg (off the 1-deg grid) is a spike."""
+    from materials.material import material_from_dict
+
+    ti = [60.0, 62.5, 65.0]
+    tr = list(np.linspace(-85, 85, 35))
+    rows = [[0.01] * len(tr), [100.0] * len(tr), [0.01] * len(tr)]
+    with pytest.raises(MaterialError, match="62.5 deg"):
+        material_from_dict({"name": "spike", "components": [
+            {"type": "tabulated", "theta_i_deg": ti, "theta_r_deg": tr, "brdf_per_sr": rows}]})
+    spike = {"type": "bsdf_table", "theta_i_deg": ti, "blocks": [
+        {"theta_r_deg": [0.0, 30.0, 60.0, 30.0], "phi_r_deg": [0.0, 0.0, 0.0, 90.0], "bsdf_per_sr": [v] * 4}
+        for v in (0.01, 100.0, 0.01)]}
+    with pytest.raises(MaterialError, match="incidence 62.5 deg"):
+        material_from_dict({"name": "spike2", "components": [spike]})
+
+
+# ------------------------------------------------------------------------------------ export
+
+
+def test_lambertian_exports_rd_over_pi_with_tis_rd(tmp_path):
+    mat = tmp_path / "lam.json"
+    mat.write_text(json.dumps({"name": "lam", "components": [{"type": "lambertian", "rd": 0.03}]}))
+    out = tmp_path / "lam.bsdf"
+    assert _run("material", "export", mat, "--format", "zemax", "-o", out) == 0
+    text = out.read_text()
+    assert "Symmetry\tPlaneSymmetrical" in text
+    aoi, az, rad, data = _zemax_grid(out)
+    tis = [float(line.split()[1]) for line in text.splitlines() if line.startswith("TIS")]
+    np.testing.assert_allclose(tis, 0.03, rtol=1e-5)
+    a, r = np.meshgrid(np.radians(az), np.radians(rad), indexing="ij")
+    for j, ti in enumerate(aoi):
+        t = math.radians(ti)
+        cos_r = np.cos(r) * math.cos(t) + np.sin(r) * np.cos(a) * math.sin(t)
+        above = cos_r > 1e-9
+        np.testing.assert_allclose(data[0, j][above], 0.03 / math.pi, rtol=1e-6)
+        assert np.all(data[0, j][~above] == 0.0)
+    fred = tmp_path / "lam.txt"
+    assert _run("material", "export", mat, "--format", "fred", "-o", fred) == 0
+    vals = [float(line.split()[2]) for line in fred.read_text().splitlines()[2:] if len(line.split()) == 3]
+    np.testing.assert_allclose(vals, 0.03 / math.pi, rtol=1e-6)
+
+
+@pytest.mark.parametrize("fmt", ["zemax", "fred"])
+def test_fitted_model_export_import_round_trip(fmt, tmp_path):
+    """The preset z302_sample_b (a fit of the paper's model) written and read back: in-plane within 5 %."""
+    from materials.base import brdf_angles
+    from materials.material import load_material
+
+    out = tmp_path / f"z302.{fmt}"
+    assert _run("material", "export", "z302_sample_b", "--format", fmt, "-o", out) == 0
+    back = tmp_path / "back.json"
+    assert _run("material", "import", out, "-o", back) == 0
+    orig = load_material("z302_sample_b")
+    for ti in (10.0, 30.0, 60.0):
+        thr = np.array([-70, -40, -10, 0, 5, 20, ti - 3, ti - 1, ti + 1, ti + 3, 50, 75], float)
+        thr = thr[np.abs(thr) < 89]
+        want = brdf_angles(orig, math.radians(ti), np.radians(np.abs(thr)), np.where(thr >= 0, 0, np.pi))
+        got = _eval(tmp_path, back, ti, thr)["brdf_per_sr"]
+        np.testing.assert_allclose(got, want, rtol=0.05, err_msg=f"{fmt} incidence {ti}")
+
+
+def test_export_of_imported_table_is_readable_again(tmp_path):
+    src = DATA / "AnoBlackEC1onAlum.bsdf"
+    mat = tmp_path / "m.json"
+    assert _run("material", "import", src, "-o", mat) == 0
+    out = tmp_path / "again.bsdf"
+    assert _run("material", "export", mat, "--format", "zemax", "--aoi-deg", "10", "30", "50", "70",
+                "--radial-deg", "0", "5", "10", "15", "20", "30", "40", "50", "60", "70", "80", "90", "-o", out) == 0
+    _, az0, rad0, data0 = _zemax_grid(src)
+    _, az1, rad1, data1 = _zemax_grid(out)
+    assert rad0 == rad1
+    # the original nodes at the exported azimuths come back (0 and 180 are on both grids)
+    for a in (0.0, 180.0):
+        np.testing.assert_allclose(data1[0, :, az1.index(a)], data0[0, :, az0.index(a)], rtol=1e-3, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------ anisotropic
+
+
+def test_anisotropic_nodes_by_rotation(imx455, tmp_path):
+    """IMX455 (Asymmetrical4D): the nodes of rotations 0, 30 and 90 come back at those rotations, on
+    both sides of the specular direction; the scatter changes with the rotation as the file says."""
+    from materials.base import brdf_angles
+    from materials.bsdf_table import rotated
+    from materials.material import save_material
+
+    path, material, report = imx455
+    assert report["symmetry"] == "none" and len(report["rotation_deg"]) == 37
+    aoi, az, rad, data = _zemax_grid(path)
+    rots = report["rotation_deg"]
+    ti = 30.0
+    j = aoi.index(ti)
+    for rot in (0.0, 30.0, 90.0):
+        r = rots.index(rot)
+        thr, want = [], []
+        for k, rr in enumerate(rad):
+            for a_deg, sign in ((0.0, -1.0), (180.0, 1.0)):
+                t = ti + sign * rr
+                if -85 <= t <= 85 and rr > 0:
+                    thr.append(t)
+                    want.append(data[r, j, az.index(a_deg), k])
+        thr = np.asarray(thr)
+        got = brdf_angles(rotated(material, rot), math.radians(ti), np.radians(np.abs(thr)),
+                          np.where(thr >= 0, 0.0, np.pi))
+        np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-9, err_msg=f"rotation {rot}")
+    # out of plane too (azimuth 90 of the file: -y of the incidence frame)
+    k = rad.index(20.0)
+    th, ph = np.radians(ti), np.radians(20.0)
+    wo = np.array([[math.cos(ph) * math.sin(th), -math.sin(ph), math.cos(ph) * math.cos(th)]])
+    wi = np.array([[-math.sin(th), 0.0, math.cos(th)]])
+    got = rotated(material, 30.0).brdf(wi, wo)[0]
+    assert got == pytest.approx(data[rots.index(30.0), j, az.index(90.0), k], rel=1e-3)
+    # the CLI's --rotation-deg, and a visible change with rotation
+    mat = tmp_path / "imx.json"
+    save_material(mat, material, check_energy=False)
+    a = _eval(tmp_path, mat, ti, [-10.0, 10.0, 50.0], rotation=30.0)["brdf_per_sr"]
+    want30 = brdf_angles(rotated(material, 30.0), math.radians(ti), np.radians([10.0, 10.0, 50.0]),
+                         np.array([np.pi, 0.0, 0.0]))
+    np.testing.assert_allclose(a, want30, rtol=1e-9)
+    b = brdf_angles(rotated(material, 90.0), math.radians(ti), np.radians([10.0, 10.0, 50.0]),
+                    np.array([np.pi, 0.0, 0.0]))
+    assert not np.allclose(a, b, rtol=0.05)
+
+
+def test_zemax_missing_value_lines_use_defaults():
+    comp = parse_zemax((DATA / "aeroglaze.bsdf").read_text(), "aeroglaze.bsdf")
+    assert comp["rotation_deg"] == [0.0] and comp["theta_i_deg"] == [10.0, 30.0, 50.0, 70.0]
+    assert comp["symmetry"] == "plane"
