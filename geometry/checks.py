@@ -240,9 +240,15 @@ def overlap_depth_mm(a: Part, b: Part, intersection) -> float:
 
 
 def _chord_tolerance_mm(part: Part, default_mm: float) -> float:
+    """The chord tolerance a part's mesh holds: the tolerance asked, or the chord error reached where meshing
+    stopped short of it (a stalled B-spline face: touching faces then overlap by up to that error); a mesh
+    given as it is (STL...) has ``default_mm``."""
     report = part.meta.get("tessellation")
-    value = getattr(report, "tolerance_mm", None)
-    return float(value) if value is not None else float(default_mm)
+    asked = getattr(report, "tolerance_mm", None)
+    if asked is None:
+        return float(default_mm)
+    reached = getattr(report, "max_chord_error_mm", None)
+    return max(float(asked), float(reached) if reached is not None and reached == reached else 0.0)
 
 
 def check_scene(scene: Scene, *, overlaps: bool = True, overlap_tolerance_mm3: float | None = None,
@@ -255,8 +261,9 @@ def check_scene(scene: Scene, *, overlaps: bool = True, overlap_tolerance_mm3: f
     transparent : names of the parts whose material transmits (``dielectric``): an overlap with one of them
         changes the trace (the glass's surface runs inside another part).
     chord_tolerance_mm : the depth an overlap of two opaque parts may have and not count as a problem
-        (CONTRACTS 6.2): default the larger tessellation tolerance of the two parts (a CAD part's
-        ``tolerance_mm``), else 0.05 mm (the default chord tolerance).
+        (CONTRACTS 6.2): default the larger chord tolerance of the two parts' meshes (a CAD part's
+        ``tolerance_mm``, or the chord error its mesh reached where meshing stopped short), else 0.05 mm
+        (the default chord tolerance).
 
     An overlap is a problem only where it would change a trace: a detector or a transparent part is in it,
     or it is deeper than the chord tolerance. Other overlaps (press fits, touching faces of a vendor's CAD)

@@ -96,3 +96,22 @@ def test_view_takes_a_cad_file_directly(tmp_path):
                           "view", str(step), "--png", str(png)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and f"written {png}" in out.stdout, out.stdout + out.stderr
     assert Image.open(png).size == (1200, 800)
+
+
+def test_a_mesh_that_stopped_short_is_held_to_the_error_it_reached():
+    """Two touching faces of a stalled B-spline mesh (0.31 mm reached, 0.05 mm asked) overlap by up to the error
+    reached: an overlap 0.2 mm deep between such opaque parts is harmless; with 0.05 mm reached it is not."""
+    from dataclasses import replace
+
+    from geometry.tessellate import TessellationReport
+
+    report = TessellationReport("a", 0.05, 10.0, 12, 8, 6, 0.31, "sampled", 0.05, 0, "stalled", "")
+    a = box("a")
+    a = Part("a", a.vertices_mm, a.faces, meta={"tessellation": report})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        (o,) = check_scene(Scene((a, box("b", dx=0.8)))).overlaps
+        assert o.tolerance_mm == pytest.approx(0.31) and not o.changes_trace
+        tight = Part("a", a.vertices_mm, a.faces, meta={"tessellation": replace(report, max_chord_error_mm=0.04)})
+        (o,) = check_scene(Scene((tight, box("b", dx=0.8)))).overlaps
+    assert o.tolerance_mm == 0.05 and o.changes_trace
