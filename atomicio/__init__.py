@@ -19,11 +19,13 @@ Logs that grow as a run goes (a scan's CSV rows as they are measured, its bluesk
 are appended, not replaced: :func:`append_text` and :func:`append_json_line` write whole lines in
 one ``write``, then flush and fsync, so every earlier line survives a crash.
 
-JSON goes through :func:`dumps_json` / :func:`write_json` only (``tests/test_result_writers.py``
-checks that no other module writes a result file by hand). Their options keep each file's
-established bytes: ``indent``, ``sort_keys``, ``final_newline``, and ``allow_nan`` for the formats
-that have always written non-finite numbers as ``NaN`` / ``Infinity`` (Python's default) instead of
-strict JSON's ``null``.
+JSON goes through :func:`dumps_json` / :func:`write_json` / :func:`append_json_line` only
+(``tests/test_result_writers.py`` checks that no other module writes a result file by hand). Every
+JSON file is strict JSON (RFC 8259, CONTRACTS 1): a number that is not finite is written as ``null``,
+never ``NaN`` / ``Infinity``, so browsers, ``jq`` and other languages read it. Their options keep each
+file's established bytes: ``indent``, ``sort_keys``, ``final_newline``. (``allow_nan`` is still
+accepted for callers written before issue 38 and ignored: there is no non-strict output.)
+Readers of the project's own older files keep accepting ``NaN`` (Python's ``json.loads`` does).
 
 The reading side (:mod:`atomicio.inputs`): every file a user names is checked to be a regular
 file of sane size before it is read, and read without blocking (``/dev/zero`` or a FIFO in a
@@ -141,10 +143,10 @@ def json_safe(obj, *, nan_as_null: bool = True):
 
 
 def dumps_json(obj, *, indent: int | None = 2, sort_keys: bool = False, allow_nan: bool = False) -> str:
-    """``json_safe(obj)`` as JSON text (``json.dumps``' separators). ``allow_nan=False``: strict JSON,
-    non-finite numbers as ``null``; True: as ``NaN`` / ``Infinity`` (module doc)."""
-    return json.dumps(json_safe(obj, nan_as_null=not allow_nan), indent=indent, sort_keys=sort_keys,
-                      allow_nan=allow_nan)
+    """``json_safe(obj)`` as strict JSON text (``json.dumps``' separators): non-finite numbers as
+    ``null`` (CONTRACTS 1). ``allow_nan`` is ignored (module doc)."""
+    del allow_nan  # strict JSON always (issue 38)
+    return json.dumps(json_safe(obj, nan_as_null=True), indent=indent, sort_keys=sort_keys, allow_nan=False)
 
 
 def write_json(path, obj, *, indent: int | None = 2, sort_keys: bool = False, allow_nan: bool = False,
@@ -171,10 +173,13 @@ def append_text(path, text: str, *, fsync: bool = True, encoding: str = "utf-8")
 
 
 def append_json_line(path, obj, *, encoder=None, fsync: bool = True) -> Path:
-    """Append ``obj`` as one line of JSON (JSON lines) with :func:`append_text`. ``encoder``: a
-    ``json.JSONEncoder`` subclass that knows the objects' types (bluesky documents use
-    event-model's ``NumpyEncoder``); without one, :func:`json_safe` with NaN kept."""
-    text = json.dumps(obj, cls=encoder) if encoder is not None else json.dumps(json_safe(obj, nan_as_null=False))
+    """Append ``obj`` as one line of strict JSON (JSON lines; non-finite numbers as ``null``) with
+    :func:`append_text`. ``encoder``: a ``json.JSONEncoder`` subclass that knows the objects' types
+    (bluesky documents use event-model's ``NumpyEncoder``); its output is then made strict by
+    :func:`json_safe`."""
+    if encoder is not None:
+        obj = json.loads(json.dumps(obj, cls=encoder))
+    text = json.dumps(json_safe(obj, nan_as_null=True), allow_nan=False)
     return append_text(path, text + "\n", fsync=fsync)
 
 

@@ -33,7 +33,7 @@ def check_key(material) -> str | None:
     if not enabled():
         return None
     try:
-        text = json.dumps(material.to_dict(), sort_keys=True, allow_nan=True)
+        text = json.dumps(material.to_dict(), sort_keys=True, allow_nan=True)  # a key, not a file
     except (TypeError, ValueError):
         return None
     return hashlib.sha256((_code_digest() + "\n" + text).encode()).hexdigest()

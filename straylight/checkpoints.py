@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import re
 import shutil
 from pathlib import Path
@@ -71,6 +72,61 @@ def read_json(path, what: str = "checkpoint"):
                          f"remove it to trace that point again") from None
 
 
+def _strip_non_finite(obj, where: list, found: list):
+    """``obj`` with every non-finite float replaced by None; each one's path and ``repr`` appended to ``found``."""
+    if isinstance(obj, dict):
+        return {k: _strip_non_finite(v, where + [k], found) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_strip_non_finite(v, where + [i], found) for i, v in enumerate(obj)]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        found.append([where, repr(obj)])
+        return None
+    return obj
+
+
+def _restore_non_finite(values, non_finite, path):
+    """Put back the non-finite numbers :func:`_strip_non_finite` took out (``nan``, ``inf``, ``-inf``)."""
+    for entry in non_finite or ():
+        try:
+            where, text = entry
+            target = values
+            for key in where[:-1]:
+                target = target[key]
+            if text not in ("nan", "inf", "-inf"):
+                raise ValueError(text)
+            target[where[-1]] = float(text)
+        except (ValueError, TypeError, KeyError, IndexError):
+            raise ValueError(f"--resume: {path} has a damaged non_finite list; remove it to trace that point "
+                             f"again") from None
+    return values
+
+
+#: Ranges a finished point's numbers must lie in (a checksum proves only that the file was written by
+#: this code's recipe, not that its numbers are possible): name -> (low, high), None = unbounded.
+VALUE_BOUNDS = {"pst": (0.0, None), "pst_stderr": (0.0, None), "power_w": (0.0, None), "rays": (0, None),
+                "seconds": (0.0, None), "dhr": (0.0, 1.0), "transmission": (0.0, 1.0), "pst_normalized": (0.0, None)}
+
+
+def check_point_values(values, path) -> None:
+    """Refuse (one-line ValueError naming the file, the value and its range) a restored point whose
+    numbers are impossible: a negative PST, power or ray count, a reflectance above 1 (issue 39)."""
+    def walk(obj, where):
+        if isinstance(obj, dict):
+            for k, v in obj.items():
+                bounds = VALUE_BOUNDS.get(k)
+                if bounds is not None and isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
+                    low, high = bounds
+                    if (low is not None and v < low) or (high is not None and v > high):
+                        rng = f">= {low}" if high is None else f"in [{low}, {high}]"
+                        raise ValueError(f"--resume: {path}: {'.'.join(map(str, where + [k]))} = {v!r} is impossible "
+                                         f"(must be {rng}); remove it to trace that point again")
+                walk(v, where + [k])
+        elif isinstance(obj, list):
+            for i, v in enumerate(obj):
+                walk(v, where + [i])
+    walk(values, [])
+
+
 class PointStore:
     """Finished points of one sweep in ``folder``. ``resume=False`` starts afresh (old points are
     removed); ``resume=True`` keeps them, after checking they belong to a run with the same
@@ -97,7 +153,7 @@ class PointStore:
                 old.unlink()
         self.folder.mkdir(parents=True, exist_ok=True)
         atomicio.write_json(meta, {"format": FORMAT, "fingerprint_sha256": digest,
-                                   "parameters": _parameters(fingerprint)}, indent=1, allow_nan=True)
+                                   "parameters": _parameters(fingerprint)}, indent=1)
 
     def get(self, index: int):
         """The record of point ``index``, or None if it was not finished. A point whose checksum does
@@ -111,17 +167,27 @@ class PointStore:
                              f"remove it to trace that point again")
         if doc["run_sha256"] != self.digest or doc["index"] != int(index):
             raise ValueError(f"--resume: {path} belongs to another run or point; remove it to trace that point again")
-        if doc["sha256"] != point_checksum(self.digest, index, doc["values"]):
+        nf = doc.get("non_finite")
+        summed = doc["values"] if not nf else [doc["values"], nf]
+        if doc["sha256"] != point_checksum(self.digest, index, summed):
             raise ValueError(f"--resume: {path} was changed after it was written (checksum mismatch: edited or "
                              f"damaged); remove it to trace that point again")
-        return doc["values"]
+        values = _restore_non_finite(doc["values"], doc.get("non_finite", []), path)
+        check_point_values(values, path)
+        return values
 
     def put(self, index: int, record: dict) -> None:
-        """Record point ``index`` with its checksum (atomically: a killed run leaves whole points only)."""
+        """Record point ``index`` with its checksum (atomically: a killed run leaves whole points only).
+        The file is strict JSON: a non-finite number is ``null`` there, its place and value listed under
+        ``non_finite`` (checksummed with the values) so :meth:`get` gives the record back exactly."""
         values = json.loads(json.dumps(record))  # what a reader will get back (tuples as lists...)
+        non_finite: list = []
+        values = _strip_non_finite(values, [], non_finite)
         doc = {"index": int(index), "run_sha256": self.digest, "values": values,
-               "sha256": point_checksum(self.digest, index, values)}
-        atomicio.write_json(self.folder / _POINT.format(int(index)), doc, indent=None, allow_nan=True)
+               "sha256": point_checksum(self.digest, index, values if not non_finite else [values, non_finite])}
+        if non_finite:
+            doc["non_finite"] = non_finite
+        atomicio.write_json(self.folder / _POINT.format(int(index)), doc, indent=None)
 
     @property
     def n_done(self) -> int:

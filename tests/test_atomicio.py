@@ -145,11 +145,14 @@ def test_write_json_keeps_the_bytes_of_each_former_hand_written_writer(tmp_path)
 
     doc = _doc()
     plain = {k: (list(v) if isinstance(v, tuple) else v) for k, v in doc.items()} | {"emitted_w": 1.0}
-    cases = [  # (before, after)
+    # strict JSON (CONTRACTS 1, issue 38): the same bytes with every non-finite number as null
+    plain["detectors"] = {"fp": {"power_w": 1.2e-6, "stderr_w": None}}
+    plain["points"] = [{"pst": 3.4e-5, "pst_stderr": None}, {"pst": None, "name": "é"}]
+    cases = [  # (before, after); allow_nan=True (the former non-strict writers) is strict now too
         (json.dumps(plain, indent=2), dict(allow_nan=True, final_newline=False)),  # pst/critical/paths/sweep, geometry --json
-        (json.dumps(plain, indent=2) + "\n", dict(allow_nan=True)),  # trace, material, twin, ghosts, telescope
-        (json.dumps(plain, indent=1) + "\n", dict(indent=1, allow_nan=True)),  # checkpoint run.json
-        (json.dumps(plain) + "\n", dict(indent=None, allow_nan=True)),  # checkpoint point files
+        (json.dumps(plain, indent=2) + "\n", dict()),  # trace, material, twin, ghosts, telescope
+        (json.dumps(plain, indent=1) + "\n", dict(indent=1)),  # checkpoint run.json
+        (json.dumps(plain) + "\n", dict(indent=None)),  # checkpoint point files
     ]
     for i, (before, kwargs) in enumerate(cases):
         atomicio.write_json(tmp_path / f"{i}.json", doc, **kwargs)
@@ -165,6 +168,9 @@ def test_write_json_keeps_the_bytes_of_each_former_hand_written_writer(tmp_path)
                                   encoder=NumpyEncoder)
     line = json.dumps(["event", {"x": np.float64(0.5), "v": np.arange(2)}], cls=NumpyEncoder) + "\n"
     assert (tmp_path / "log.jsonl").read_text() == 2 * line
+    atomicio.append_json_line(tmp_path / "nan.jsonl", ["event", {"x": np.float64("nan"), "v": np.array([np.inf])}],
+                              encoder=NumpyEncoder)
+    assert (tmp_path / "nan.jsonl").read_text() == '["event", {"x": null, "v": [null]}]\n'
 
 
 def test_append_text_appends_whole_lines_durably(tmp_path, monkeypatch):

@@ -79,7 +79,7 @@ def run_twin_command(args) -> int:
                 "rig": {k: getattr(config, k) for k in ("wavelength_nm",) + tuple(f for f, _ in RIG_OPTIONS)},
                 "twin": {k: getattr(twin, k) for k in twin.__dataclass_fields__}})
     path = Path(args.json)
-    atomicio.write_json(path, out, allow_nan=True)
+    atomicio.write_json(path, out)
     print(f"{'theta_i':>8} {'theta_r':>8} pol {'twin 1/sr':>11} {'stderr':>10} {'model 1/sr':>11} {'z':>6}  est")
     for pt in out["points"]:
         model = "-" if pt["model_brdf_per_sr"] is None else f"{pt['model_brdf_per_sr']:.4e}"

@@ -82,7 +82,7 @@ class GhostTable:
 
         d = Path(directory)
         atomicio.write_text(d / "ghosts.md", self.markdown())
-        atomicio.write_json(d / "ghosts.json", self.to_json_dict(), allow_nan=True)
+        atomicio.write_json(d / "ghosts.json", self.to_json_dict())
 
 
 def ghost_table(paths, detector: str, total_w: float | None = None, nominal=None) -> GhostTable:

@@ -158,7 +158,7 @@ class PathReport(TableRepr):
 
     def write_json(self, path, top: int | None = None) -> Path:
         path = Path(path)
-        atomicio.write_json(path, self.to_json_dict(top), allow_nan=True, final_newline=False)
+        atomicio.write_json(path, self.to_json_dict(top), final_newline=False)
         return path
 
     def plot(self, path=None, top: int = 15, ax=None):

@@ -37,11 +37,11 @@ class TableRepr:
 class ResultFiles:
     """Mixin for results written as JSON and CSV: ``to_json_dict()`` and ``csv_table()`` ->
     (columns, rows as dicts) are the result's own; the files are written atomically (atomicio), the
-    JSON with NaN kept as NaN and no final newline, the CSV with missing cells empty."""
+    JSON strict (a non-finite number as null, CONTRACTS 1) with no final newline, the CSV with missing cells empty."""
 
     def write_json(self, path) -> Path:
         path = Path(path)
-        atomicio.write_json(path, self.to_json_dict(), allow_nan=True, final_newline=False)
+        atomicio.write_json(path, self.to_json_dict(), final_newline=False)
         return path
 
     def write_csv(self, path) -> Path:

@@ -160,11 +160,10 @@ def _telescope_study(out_dir, cfg: TelescopeStudy, ex: Execution) -> dict:
                "rays_per_trace": cfg.rays, "points": points,
                "ghosts": ghosts.to_json_dict() if ghosts is not None else None,
                "method": __doc__.strip(), "timings_s": cfg.timings_s}
-    atomicio.write_json(out / "results.json", results, allow_nan=True)
+    atomicio.write_json(out / "results.json", results)
     atomicio.write_json(out / "pst.json", {
         "detector": det, "detector_area_mm2": area,
-        "points": [{k: v for k, v in p.items() if k != "contributions"} | {"azimuth_deg": 0.0} for p in points]},
-        allow_nan=True)
+        "points": [{k: v for k, v in p.items() if k != "contributions"} | {"azimuth_deg": 0.0} for p in points]})
     if ghosts is not None:
         ghosts.write(out)
     _plot(points, out / "pst.png", setup.description)

@@ -145,7 +145,7 @@ def _finish(args, shape_parts, scene, tables: dict | None = None) -> int:
         import atomicio
 
         atomicio.write_json(args.json, {"scene": str(path), "tessellation": [r.as_dict() for r in scene_report(scene)],
-                                        "checks": checks.as_dict()}, allow_nan=True, final_newline=False)
+                                        "checks": checks.as_dict()}, final_newline=False)
     return 0 if checks.ok else 1
 
 
@@ -204,7 +204,7 @@ def _check(args) -> int:
     if args.json:
         import atomicio
 
-        atomicio.write_json(args.json, checks.as_dict(), allow_nan=True, final_newline=False)
+        atomicio.write_json(args.json, checks.as_dict(), final_newline=False)
     changing = checks.trace_changing_overlaps
     if changing:  # overlaps a ray would notice make numbers that mean nothing: never exit 0
         first = changing[0]

@@ -91,7 +91,7 @@ def cmd_eval(args) -> int:
     if rotation is not None:
         out["rotation_deg"] = rotation
     if args.json:
-        atomicio.write_json(args.json, out, allow_nan=True)
+        atomicio.write_json(args.json, out)
     return 0
 
 
@@ -170,7 +170,7 @@ def cmd_fit(args) -> int:
 
         print(f"wrote {plot_fit(scan, result, args.plot)}")
     if args.json:
-        atomicio.write_json(args.json, result.to_json(), allow_nan=True)
+        atomicio.write_json(args.json, result.to_json())
     return 0
 
 
@@ -192,7 +192,7 @@ def cmd_show(args) -> int:
         print(f"wrote {plot_material(material, args.plot)}")
     if args.json:
         atomicio.write_json(args.json, {"material": material.to_dict(), "theta_i_deg": theta.tolist(),
-                                        "rho": {p: v.tolist() for p, v in rho.items()}}, allow_nan=True)
+                                        "rho": {p: v.tolist() for p, v in rho.items()}})
     return 0
 
 
@@ -231,7 +231,7 @@ def cmd_z307(args) -> int:
         scan = read_z307(wavelength_nm=args.wavelength_nm, dataset=args.dataset)
         print(f"wrote {plot_fit(scan, result, args.plot, title=f'Aeroglaze Z307, {result.model}')}")
     if args.json:
-        atomicio.write_json(args.json, {m: r.to_json() for m, r in rows}, allow_nan=True)
+        atomicio.write_json(args.json, {m: r.to_json() for m, r in rows})
     return 0
 
 

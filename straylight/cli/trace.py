@@ -107,5 +107,5 @@ def _run(args, rs, options, precision, ex) -> int:
                             "max_vov": precision.max_vov, **run.summary()}
         print(f"straylight: trace: stopped by {run.stop_reason} after {run.result.n_rays} rays "
               f"({run.seconds:.1f} s)", file=sys.stderr)
-    atomicio.write_json(args.json, doc, allow_nan=True)
+    atomicio.write_json(args.json, doc)
     return 0
