@@ -60,7 +60,12 @@ def test_every_scene_key_source_and_surface_is_described():
 
 
 def test_every_material_component_and_key_is_described():
+    import importlib
+    import pkgutil
+
     import materials  # noqa: F401 - registers the components
+    for module in pkgutil.iter_modules(materials.__path__):  # and those registered by their own module
+        importlib.import_module(f"materials.{module.name}")
     from materials.material import TOP_LEVEL_KEYS
     from materials.registry import component_types
 
