@@ -74,3 +74,13 @@ def test_licence_is_an_spdx_expression():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())
     assert project["project"]["license"] == "MIT"
     assert int(project["build-system"]["requires"][0].split(">=")[1]) >= 77  # setuptools reads PEP 639 from 77
+
+
+def test_view_without_a_display_says_where_the_picture_went(tmp_path, monkeypatch, capsys):
+    step = ROOT / "tests" / "data" / "cad" / "fusion_like_scope.step"
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert main(["view", str(step)]) == 0
+    assert "no display: wrote the picture to scene.png" in capsys.readouterr().out
+    assert (tmp_path / "scene.png").is_file()
