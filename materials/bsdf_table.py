@@ -280,8 +280,17 @@ class BsdfTable:
         by = -s * wo[:, 0] + c * wo[:, 1]
         theta_i_deg = np.degrees(np.arctan2(sin_i, wi[:, 2]))
         d = np.stack([bx - sin_i, by], axis=-1)
-        rotation = np.degrees(phi_s) - 90.0
+        rotation = np.degrees(phi_s) - 90.0 - getattr(self, "_frame_offset_deg", 0.0)
         return rotation, theta_i_deg, d
+
+    def oriented(self, offset_deg: float) -> "BsdfTable":
+        """This table on a part whose sample x axis lies at azimuth ``offset_deg`` in the tracer's
+        local frame (straylight.engine.spec.orient_materials); the material file is unchanged."""
+        import copy
+
+        out = copy.copy(self)  # shares the built interpolants
+        object.__setattr__(out, "_frame_offset_deg", float(offset_deg))
+        return out
 
     def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
         """Interpolated BSDF in 1/sr (no cos), (n,). For ``btdf`` tables wo is the transmitted
@@ -313,7 +322,7 @@ class BsdfTable:
         grid = np.unique(np.concatenate([ti, quarter] + ([] if self.anisotropic else [np.arange(0.0, 90.0, 1.0)])))
         kind = "transmittance" if self.scatter == "btdf" else "reflectance"
         for r in self._rotations:
-            rho = self.dhr(grid, r, 32, 48)
+            rho = self.dhr(grid, r, 24, 36)
             near = (rho > 0.8) & (rho < 1.25)
             if np.any(near):
                 rho[near] = self.dhr(grid[near], r, 48, 96)

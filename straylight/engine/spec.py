@@ -88,6 +88,50 @@ def resolve_materials(scene, materials):
         models.append(model)
     part_material = np.array([index.get(p.material, -1) if p.role == "surface" else -1 for p in scene.parts],
                              dtype=np.int64)
+    return orient_materials(scene, part_material, models)
+
+
+def _anisotropic(model) -> bool:
+    return any(getattr(c, "anisotropic", False) or getattr(c, "symmetry", "plane") == "none"
+               for c in getattr(model, "components", ()))
+
+
+def orient_materials(scene, part_material, models):
+    """Anisotropic materials (an imported table with sample rotations, materials.bsdf_table) get one
+    copy per surface part, told where the part's sample x axis lies in the tracer's local frame.
+
+    The sample x axis is the part's own +x (its ``rotate_deg`` applied; docs/bsdf-files.md),
+    projected on the part's plane (area-weighted mean of its outward triangle normals; its +y when
+    +x is along the normal). The tracer's local frame at a hit is the Duff et al. basis of the
+    facing normal (straylight.engine.interactions.brdf_scatter.frames), constant over a flat part, so
+    the offset is exact there; a curved part uses its mean normal, and the back side of a part
+    sees the front's orientation (an anisotropic sample is measured on one side).
+    """
+    models = list(models)
+    if not any(_anisotropic(m) for m in models):
+        return part_material, tuple(models)
+    from straylight.sources import orthonormal_basis
+
+    part_material = part_material.copy()
+    for k, p in enumerate(scene.parts):
+        idx = int(part_material[k])
+        if idx < 0 or not _anisotropic(models[idx]):
+            continue
+        tri = p.vertices_mm[p.faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]).sum(axis=0)
+        if not np.linalg.norm(n) > 0:
+            continue
+        n = n / np.linalg.norm(n)
+        rot = np.asarray(p.meta.get("placement", {}).get("rotation", np.eye(3)), float)
+        x = rot[:, 0] - np.dot(rot[:, 0], n) * n
+        if np.linalg.norm(x) < 1e-6:
+            x = rot[:, 1] - np.dot(rot[:, 1], n) * n
+        t, b = orthonormal_basis(n)
+        offset_deg = float(np.degrees(np.arctan2(np.dot(x, b), np.dot(x, t))))
+        base = models[idx]
+        comps = tuple(c.oriented(offset_deg) if hasattr(c, "oriented") else c for c in base.components)
+        part_material[k] = len(models)
+        models.append(replace(base, components=comps))
     return part_material, tuple(models)
 
 
