@@ -72,9 +72,21 @@ class PathRecords:
     events: np.ndarray
     part_names: tuple
     n_rays: int
+    aliases: tuple = ()  # ((other name, part name), ...): a CAD solid's instance name (CONTRACTS 6.2)
 
     def __len__(self) -> int:
         return len(self.ray)
+
+    def resolve(self, name: str) -> str:
+        """The part name ``name`` means in these records: a part's own name, or an alias only one part has."""
+        if name in self.part_names:
+            return name
+        hits = sorted({part for alias, part in self.aliases if alias == name})
+        if len(hits) == 1:
+            return hits[0]
+        if hits:
+            raise ValueError(f"{name!r} names {len(hits)} parts ({', '.join(hits)}); use one of these names")
+        return name  # unknown: the caller says what the records hold
 
     @classmethod
     def concatenate(cls, pieces, part_names, n_rays, path_depth):

@@ -105,4 +105,8 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
     from straylight.run_checks import check_truncation
 
     check_truncation(result, opt.physics.max_events)  # power cut by max_events is not round-off: say so
+    if result.paths is not None and hasattr(scene, "names_of"):  # path records answer to every name of a part
+        aliases = tuple((alias, p.name) for p in scene.parts for alias in scene.names_of(p)[1:])
+        if aliases:
+            result = replace(result, paths=replace(result.paths, aliases=aliases))
     return result

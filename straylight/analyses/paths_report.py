@@ -222,6 +222,8 @@ def path_report(paths, detector: str | None = None, total=None, group_by: str = 
         raise ValueError(f"unknown ancestry {', '.join(bad)}; expected {', '.join(ANCESTRY)}")
     det_index = sorted(set(np.asarray(paths.detector).tolist()))
     names = [paths.part_names[i] for i in det_index]
+    if detector is not None and hasattr(paths, "resolve"):
+        detector = paths.resolve(detector)  # an instance name answers too (CONTRACTS 6.2)
     if detector is None:
         if len(names) > 1:
             raise ValueError(f"records cover several detectors ({', '.join(names)}); name one")

@@ -132,3 +132,19 @@ def test_geometry_check_shows_both_names(tmp_path):
                          capture_output=True, text=True, timeout=300)
     line = next(line for line in out.stdout.splitlines() if line.startswith("as1/PLATE "))
     assert "detector" in line and "(also: PLATE_1)" in line, out.stdout + out.stderr
+
+
+def test_path_records_answer_to_instance_names(tmp_path):
+    """Path queries (CONTRACTS 6.2): a path report asked for the detector by its instance name finds the
+    records of the part named by its product."""
+    from straylight.analyses.paths_report import path_report
+    from straylight.analyses.scene_setup import scene_setup
+    from straylight.trace import OutputOptions, TraceOptions, trace
+
+    setup = scene_setup(_scene(tmp_path, '[part.solids."ar0130 v4"]\nrole = "detector"\n'))
+    res = trace(setup.scene, [setup.beam.source(0.0)], 20_000, seed=3, materials=setup.materials,
+                options=TraceOptions(output=OutputOptions(record_paths=True)))
+    assert res.paths.resolve("scope/ar0130 v4:1") == "scope/ar0130 v4"
+    by_instance = path_report(res.paths, detector="scope/ar0130 v4:1")
+    by_product = path_report(res.paths, detector="scope/ar0130 v4")
+    assert by_instance.total_w == by_product.total_w > 0
