@@ -148,3 +148,14 @@ def test_path_records_answer_to_instance_names(tmp_path):
     by_instance = path_report(res.paths, detector="scope/ar0130 v4:1")
     by_product = path_report(res.paths, detector="scope/ar0130 v4")
     assert by_instance.total_w == by_product.total_w > 0
+
+
+@pytest.mark.parametrize("name", ["ar0130 v4", "ar0130 v4:1"])
+def test_geometry_scene_takes_the_detector_by_either_name(tmp_path, name):
+    from geometry.cad_scene import cad_scene_doc, detector_of
+
+    doc, _ = cad_scene_doc(FUSION, tmp_path / "scope.toml", detector=name, tolerance_mm=0.5, name="scope")
+    assert doc["part"][0]["solids"] == {"ar0130 v4": {"role": "detector"}}
+    assert detector_of(doc) == "scope/ar0130 v4"
+    with pytest.raises(GeometryError, match=r"no solid named 'ar0130'.*ar0130 v4 \(ar0130 v4:1\)"):
+        cad_scene_doc(FUSION, tmp_path / "scope.toml", detector="ar0130", tolerance_mm=0.5)
