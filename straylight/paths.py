@@ -60,6 +60,30 @@ class PathGroup:
     n_records: int
 
 
+class AliasDict(dict):
+    """A dict keyed by part names that also answers to a part's aliases (``result.detectors["scope/lens:1"]``
+    is ``result.detectors["scope/lens"]``, CONTRACTS 6.2); iteration, length and JSON are the dict's own."""
+
+    def __init__(self, data, aliases=()):
+        super().__init__(data)
+        self.aliases = dict(aliases)
+
+    def __missing__(self, key):
+        name = self.aliases.get(key)
+        if name is None or not dict.__contains__(self, name):
+            raise KeyError(key)
+        return self[name]
+
+    def __contains__(self, key):
+        return dict.__contains__(self, key) or dict.__contains__(self, self.aliases.get(key, object()))
+
+    def get(self, key, default=None):
+        return self[key] if key in self else default
+
+    def __reduce__(self):
+        return (AliasDict, (dict(self), tuple(self.aliases.items())))
+
+
 @dataclass(frozen=True, eq=False)
 class PathRecords:
     """Columnar records (see module docstring). ``n_rays``: rays traced (the stderr denominator)."""

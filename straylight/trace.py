@@ -109,4 +109,23 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
         aliases = tuple((alias, p.name) for p in scene.parts for alias in scene.names_of(p)[1:])
         if aliases:
             result = replace(result, paths=replace(result.paths, aliases=aliases))
-    return result
+    return _answering_to_aliases(result, scene)
+
+
+def _answering_to_aliases(result: TraceResult, scene) -> TraceResult:
+    """``result`` whose per-part tables (detectors, absorbed, incident, first_hit, maps) also answer to each part's
+    aliases (a CAD solid's instance name, CONTRACTS 6.2); unchanged for a scene without aliases."""
+    if not hasattr(scene, "names_of"):
+        return result
+    unique = {}
+    for p in scene.parts:
+        for alias in scene.names_of(p)[1:]:
+            unique.setdefault(alias, set()).add(p.name)
+    aliases = {a: next(iter(names)) for a, names in unique.items() if len(names) == 1}
+    if not aliases:
+        return result
+    from straylight.paths import AliasDict
+
+    tables = {f: AliasDict(getattr(result, f), aliases) for f in ("detectors", "absorbed", "incident", "first_hit", "maps")
+              if isinstance(getattr(result, f, None), dict)}
+    return replace(result, **tables)

@@ -145,6 +145,8 @@ def test_path_records_answer_to_instance_names(tmp_path):
     res = trace(setup.scene, [setup.beam.source(0.0)], 20_000, seed=3, materials=setup.materials,
                 options=TraceOptions(output=OutputOptions(record_paths=True)))
     assert res.paths.resolve("scope/ar0130 v4:1") == "scope/ar0130 v4"
+    assert res.detectors["scope/ar0130 v4:1"] is res.detectors["scope/ar0130 v4"]  # result tables too
+    assert "scope/lens v1:1" in res.absorbed and list(res.detectors) == ["scope/ar0130 v4"]
     by_instance = path_report(res.paths, detector="scope/ar0130 v4:1")
     by_product = path_report(res.paths, detector="scope/ar0130 v4")
     assert by_instance.total_w == by_product.total_w > 0
