@@ -131,6 +131,7 @@ class CollimatedDisk:
     radius_mm: float
     power_w: float = 1.0
     wavelength_nm: float | None = None  # CONTRACTS §6.5: needed when a part diffracts
+    name: str | None = None  # optional, used in reports (optics import names its source "pupil")
 
     def __post_init__(self):
         owner = "collimated_disk source"
@@ -220,7 +221,7 @@ class PointSource:
 
 
 _KEYS = {
-    "collimated_disk": ({"center_mm", "normal", "direction", "radius_mm"}, {"power_w", "wavelength_nm"}),
+    "collimated_disk": ({"center_mm", "normal", "direction", "radius_mm"}, {"power_w", "wavelength_nm", "name"}),
     "lambertian_disk": ({"center_mm", "normal", "radius_mm"}, {"power_w", "wavelength_nm"}),
     "point": ({"position_mm"}, {"power_w", "axis", "half_angle_deg", "wavelength_nm"}),
 }

@@ -28,6 +28,7 @@ OWN_GROUPS = (
     "straylight.cli.view",
     "straylight.cli.design",
     "straylight.cli.thermal",
+    "straylight.cli.optics",
 )
 COMMAND_GROUP = "straylight.commands"  # entry-point group of the command groups of other packages
 

@@ -1,0 +1,380 @@
+"""Read a lens-design file (CODE V ``.seq``, Zemax ``.zmx``) into a list of surfaces in the scene frame.
+
+The parsing is rayoptics' (BSD-3, M. Hayford): its CODE V and Zemax readers, its opticalglass catalogues
+(Schott, Ohara, Hoya, CDGM, Sumita...) for the media, its global surface transforms for decentres, tilts and
+coordinate breaks, and its paraxial first-order data. This module turns its model, once, into the frame of
+docs/optics.md: millimetres, the first surface's vertex at the origin, light from the object toward +z.
+
+What rayoptics does not keep (CODE V ``CIR ... OBS`` / ``CIR ... HOL``, Zemax ``OBSC`` / annular ``CLAP``)
+is read from the file's text here (:func:`_obstructions`).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import re
+import shutil
+import tempfile
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+class OpticsFileError(ValueError):
+    """A lens file that cannot be imported (one line: what and where)."""
+
+
+UNIT_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "inches": 25.4, "in": 25.4, "meters": 1000.0}
+
+
+@dataclass
+class OpticalSurface:
+    """One sequential surface, in the scene frame (mm)."""
+
+    index: int                      # sequential number in the file (object = 0)
+    name: str
+    type: str                       # sphere | conic | asphere | plane
+    radius_mm: float | None         # None: flat
+    conic: float
+    coefficients: list              # [A4, A6, ...] in mm^-3, mm^-5 ...
+    thickness_mm: float             # to the next vertex, the file's sign convention
+    glass: str | None               # medium after the surface (None: air)
+    n: float                        # index after the surface at the wavelength
+    n_before: float
+    mirror: bool
+    semi_diameter_mm: float
+    semi_diameter_from_file: bool
+    vertex_mm: np.ndarray
+    local_z: np.ndarray             # the surface's own +z axis (sag direction) in the scene frame
+    travel_in: np.ndarray           # direction light travels arriving at the surface (unit, scene frame)
+    stop: bool = False
+    inner_radius_mm: float = 0.0    # hole or obscuration radius
+    inner_kind: str = ""            # "hole" | "obscuration" | ""
+    coating: str | None = None
+    dummy: bool = False             # same medium both sides, not a mirror: no part
+
+
+@dataclass
+class Prescription:
+    file: str
+    format: str                     # "CODE V" | "Zemax"
+    units_in_file: str
+    wavelength_nm: float
+    efl_mm: float
+    bfl_mm: float
+    fno: float
+    epd_mm: float
+    fields_deg: list
+    surfaces: list                  # OpticalSurface, object and image excluded
+    image_vertex_mm: np.ndarray
+    image_travel_in: np.ndarray
+    image_local_z: np.ndarray
+    stop_semi_diameter_mm: float | None
+    warnings: list = field(default_factory=list)
+    model: object = None            # the rayoptics OpticalModel (wavelength set to wavelength_nm)
+    scale: float = 1.0              # mm per file unit
+
+
+def sniff_format(raw: bytes, path: Path) -> tuple[str, str]:
+    """("zmx" | "seq", decoded text), recognised by content (UTF-16 as OpticStudio writes it, UTF-8, Latin-1)."""
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        text = raw.decode("utf-16", errors="replace")
+    elif len(raw) > 3 and raw[1:2] == b"\x00" and raw[3:4] == b"\x00":
+        text = raw.decode("utf-16-le", errors="replace")
+    else:
+        try:
+            text = raw.decode("utf-8-sig")
+        except UnicodeDecodeError:
+            text = raw.decode("latin-1")
+    if "\x00" in text[:200]:
+        raise OpticsFileError(f"{path}: binary file, not a lens file (CODE V .seq or Zemax .zmx text)")
+    heads = [ln.strip().split()[0].upper() for ln in text.splitlines()[:400] if ln.strip()]
+    if "SURF" in heads and any(h in heads for h in ("VERS", "MODE", "UNIT", "ENPD", "WAVM", "TYPE")):
+        return "zmx", text
+    codev = {"S", "SO", "SI", "LEN", "EPD", "WL", "DIM", "YAN", "XAN", "FNO", "TIT", "RDM", "S1", "SO"}
+    if sum(h.rstrip(";") in codev for h in heads) >= 3:
+        return "seq", text
+    if path.suffix.lower() in (".zos", ".zar"):
+        raise OpticsFileError(f"{path}: binary OpticStudio archive (.{path.suffix[1:]}); export the lens as a .zmx file")
+    raise OpticsFileError(f"{path}: not a CODE V sequence file (.seq) or a Zemax lens file (.zmx): "
+                          "no SURF or S/SO/SI commands found")
+
+
+def _obstructions(fmt: str, text: str) -> dict:
+    """{surface index: (kind, radius in file units)} for holes and obscurations rayoptics drops."""
+    out = {}
+    if fmt == "seq":
+        idx = None
+        for line in text.splitlines():
+            for cmd in line.split(";"):
+                words = cmd.strip().split()
+                if not words:
+                    continue
+                head = words[0].upper()
+                if head == "SO":
+                    idx = 0
+                elif head == "S" or re.fullmatch(r"S\d+", head):
+                    idx = (idx or 0) + 1 if head == "S" else int(head[1:])
+                elif head == "SI":
+                    idx = None
+                elif head == "CIR" and idx is not None:
+                    up = [w.upper() for w in words]
+                    kind = "hole" if "HOL" in up else "obscuration" if "OBS" in up else None
+                    if kind:
+                        try:
+                            out[idx] = (kind, float(words[-1]))
+                        except ValueError:
+                            pass
+    else:
+        idx = None
+        for line in text.splitlines():
+            words = line.split()
+            if not words:
+                continue
+            head = words[0].upper()
+            if head == "SURF":
+                idx = int(words[1])
+            elif idx is not None and head in ("OBSC", "CLAP") and len(words) >= 3:
+                try:
+                    lo, hi = float(words[1]), float(words[2])
+                except ValueError:
+                    continue
+                if head == "OBSC" and hi > 0:
+                    out[idx] = ("obscuration", hi)
+                elif head == "CLAP" and lo > 0:
+                    out[idx] = ("hole", lo)
+    return out
+
+
+def _coatings(fmt: str, text: str) -> dict:
+    """{surface index: coating name} where the file names one (Zemax ``COAT NAME``)."""
+    out = {}
+    if fmt == "zmx":
+        idx = None
+        for line in text.splitlines():
+            words = line.split()
+            if words and words[0].upper() == "SURF":
+                idx = int(words[1])
+            elif idx is not None and len(words) >= 2 and words[0].upper() == "COAT":
+                out[idx] = words[1]
+    return out
+
+
+def _multiconfig(fmt: str, text: str) -> int:
+    if fmt == "zmx":
+        m = re.search(r"^\s*MNUM\s+(\d+)", text, re.M)
+        return int(m.group(1)) if m else 1
+    return 2 if re.search(r"^\s*ZOO\b", text, re.M | re.I) else 1
+
+
+def _open_rayoptics(path: Path, fmt: str, raw: bytes):
+    """rayoptics' model of the file, read from a private copy (rayoptics may write a glass template
+    beside the file it reads; ``optics info`` writes nothing where the user's file is)."""
+    logging.getLogger("rayoptics").setLevel(logging.ERROR)
+    from rayoptics.codev import cmdproc
+    from rayoptics.zemax import zmxread
+
+    with tempfile.TemporaryDirectory(prefix="straylight-lens-") as tmp:
+        copy = Path(tmp) / ("lens." + fmt)
+        copy.write_bytes(raw)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                if fmt == "seq":
+                    opm, info = cmdproc.read_lens(copy)
+                else:
+                    opm, info = zmxread.read_lens_file(copy)
+            except Exception as exc:  # noqa: BLE001 - any reader failure is one line naming the file
+                msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                raise OpticsFileError(f"{path}: the {'CODE V' if fmt == 'seq' else 'Zemax'} reader could not "
+                                      f"parse it ({type(exc).__name__}: {msg})") from None
+    return opm, info
+
+
+def _profile(ifc, where: str, problems: list):
+    """(type, radius in file units or None, conic, [A4, A6...] in file units) of a surface profile."""
+    prof = getattr(ifc, "profile", None)
+    kind = type(prof).__name__ if prof is not None else type(ifc).__name__
+    cv = float(getattr(prof, "cv", 0.0) or 0.0)
+    radius = None if cv == 0.0 else 1.0 / cv
+    if kind == "Spherical":
+        return ("plane" if radius is None else "sphere"), radius, 0.0, []
+    if kind == "Conic":
+        cc = float(prof.cc)
+        return ("plane" if radius is None and cc == 0 else "conic" if cc != 0 else "sphere"), radius, cc, []
+    if kind == "EvenPolynomial":
+        coefs = [float(c) for c in (prof.coefs or [])]
+        if coefs and coefs[0] != 0.0:
+            problems.append(f"{where}: even asphere with a quadratic (r^2) term {coefs[0]:g}, not representable")
+        coefs = coefs[1:]
+        while coefs and coefs[-1] == 0.0:
+            coefs.pop()
+        cc = float(getattr(prof, "cc", 0.0))
+        if not coefs:
+            return ("conic" if cc else ("sphere" if radius is not None else "plane")), radius, cc, []
+        return "asphere", radius, cc, coefs
+    problems.append(f"{where}: surface type {getattr(ifc, 'z_type', kind)} ({kind}) is not supported "
+                    "(sphere, conic, even asphere)")
+    return ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), []
+
+
+def _glass_name(medium) -> str | None:
+    name = medium.name() if hasattr(medium, "name") else str(medium)
+    if name.lower() in ("air", ""):
+        return None
+    return name
+
+
+def _set_wavelength(opm, wavelength_nm: float) -> None:
+    osp = opm["optical_spec"]
+    osp["wvls"].set_from_list([[float(wavelength_nm), 1.0]])
+    osp["wvls"].reference_wvl = 0
+    opm.update_model()
+
+
+def read_prescription(path, wavelength_nm: float | None = None, glass: dict | None = None,
+                      force: bool = False) -> Prescription:
+    """The lens file at ``path`` as a :class:`Prescription` in the scene frame.
+
+    ``glass``: {NAME: n} for glasses the catalogues lack. Raises :class:`OpticsFileError` (one line) for a
+    file that is not a lens file, an unknown glass, a finite object distance, or (without ``force``) a
+    surface type that has no exact part.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise OpticsFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    fmt, text = sniff_format(raw, path)
+    opm, info = _open_rayoptics(path, fmt, raw)
+    notes = []
+    glass = dict(glass or {})
+    sm = opm["seq_model"]
+    # glasses the catalogues lack: --glass NAME=N, or refused naming them
+    from opticalglass.opticalmedium import ConstantIndex
+
+    missing = []
+    for gi, gap in enumerate(sm.gaps):
+        nm = gap.medium.name() if hasattr(gap.medium, "name") else ""
+        if isinstance(gap.medium, ConstantIndex) and nm.startswith("not "):
+            gname = nm[4:]
+            match = next((k for k in glass if k.upper() == gname.upper()), None)
+            if match is None:
+                missing.append(gname)
+            else:
+                gap.medium = ConstantIndex(float(glass[match]), gname)
+    if missing:
+        raise OpticsFileError(f"{path}: unknown glass {', '.join(sorted(set(missing)))} (not in the Schott, Ohara, "
+                              f"Hoya, CDGM, Sumita... catalogues); give its index with --glass {missing[0]}=N")
+    subs = (info[0] if isinstance(info, tuple) else {}).get("glass substituted", 0) if isinstance(info, tuple) else 0
+    if subs:
+        notes.append(f"{subs} glass name(s) not found as written; rayoptics substituted the closest catalogue glass")
+    units = str(opm["system_spec"].dimensions)
+    scale = UNIT_MM.get(units.lower())
+    if scale is None:
+        raise OpticsFileError(f"{path}: unknown length unit {units!r}")
+    osp = opm["optical_spec"]
+    ref_wvl = float(osp["wvls"].central_wvl)
+    wvl = float(wavelength_nm) if wavelength_nm else ref_wvl
+    _set_wavelength(opm, wvl)
+    sm = opm["seq_model"]
+    obj_dist = float(sm.gaps[0].thi) * scale
+    if abs(obj_dist) < 1e8 and not math.isinf(obj_dist):
+        raise OpticsFileError(f"{path}: object at a finite distance ({obj_dist:g} mm); optics import models an "
+                              "object at infinity (a collimated source)")
+    nconf = _multiconfig(fmt, text)
+    if nconf > 1:
+        notes.append(f"multi-configuration file ({nconf} configurations): configuration 1 imported")
+    obstr = _obstructions(fmt, text)
+    coats = _coatings(fmt, text)
+
+    problems: list = []
+    n_ifc = len(sm.ifcs)
+    tfrms = sm.gbl_tfrms
+    rndx = [float(r[0]) for r in sm.rndx]
+    surfaces = []
+    stop_idx = sm.stop_surface
+    # clear apertures where the file gives none: the marginal ray at the field's edge (rayoptics' boundary rays)
+    given = {i: bool(getattr(ifc, "clear_apertures", None) or getattr(ifc, "edge_apertures", None))
+             for i, ifc in enumerate(sm.ifcs)}
+    given_sd = {i: float(sm.ifcs[i].surface_od()) for i in given if given[i]}
+    try:
+        sm.set_clear_apertures()
+        traced_sd = {i: float(ifc.max_aperture) for i, ifc in enumerate(sm.ifcs)}
+    except Exception:  # noqa: BLE001 - fall back to the paraxial marginal + chief ray heights
+        sm.set_clear_apertures_paraxial()
+        traced_sd = {i: float(ifc.max_aperture) for i, ifc in enumerate(sm.ifcs)}
+    for i, sd in given_sd.items():
+        sm.ifcs[i].set_max_aperture(sd)
+    names = {}
+    for i in range(1, n_ifc - 1):
+        ifc = sm.ifcs[i]
+        where = f"surface {i}"
+        kind, radius, cc, coefs = _profile(ifc, where, problems)
+        rot, trans = tfrms[i]
+        rot = np.asarray(rot, float)
+        mirror = getattr(ifc, "interact_mode", "") == "reflect"
+        z_in = sm.z_dir[i - 1]
+        travel = z_in * rot[:, 2]
+        n_before = abs(rndx[i - 1])
+        n_after = abs(rndx[i]) if i < len(rndx) else 1.0
+        medium_after = sm.gaps[i].medium if i < len(sm.gaps) else None
+        gname = _glass_name(medium_after) if medium_after is not None else None
+        if getattr(ifc, "phase_element", None) is not None:
+            problems.append(f"{where}: diffractive surface (grating or DOE) is not supported")
+        label = (getattr(ifc, "label", "") or "").strip()
+        if given.get(i):
+            sd, from_file = given_sd[i], True
+        else:
+            sd, from_file = traced_sd.get(i, 1.0) * 1.05, False
+        if not (sd > 0 and math.isfinite(sd)):
+            sd, from_file = 1.0, False
+        scale_c = [c / scale ** (2 * k + 3) for k, c in enumerate(coefs)]  # A_(2k+4) in mm^-(2k+3)
+        s = OpticalSurface(
+            index=i, name=f"s{i}", type=kind,
+            radius_mm=None if radius is None else radius * scale, conic=cc, coefficients=scale_c,
+            thickness_mm=float(sm.gaps[i].thi) * scale if i < len(sm.gaps) else 0.0,
+            glass=gname if (n_after != 1.0 or gname) and not (gname or "").lower().startswith("air") else None,
+            n=n_after, n_before=n_before, mirror=mirror,
+            semi_diameter_mm=sd * scale, semi_diameter_from_file=from_file,
+            vertex_mm=np.asarray(trans, float) * scale, local_z=rot[:, 2].copy(), travel_in=travel,
+            stop=(i == stop_idx), coating=coats.get(i),
+            dummy=(not mirror and abs(n_after - n_before) < 1e-12),
+        )
+        if i in obstr:
+            s.inner_kind, r_in = obstr[i]
+            s.inner_radius_mm = r_in * scale
+        if label:
+            names.setdefault(label, []).append(s)
+        s._label = label
+        surfaces.append(s)
+    for label, group in names.items():
+        if len(group) == 1 and re.fullmatch(r"[A-Za-z0-9_.\-]+", label) and label.lower() not in ("obj", "img"):
+            group[0].name = label
+    if problems and not force:
+        raise OpticsFileError(f"{path}: {problems[0]}" + (f" (and {len(problems) - 1} more)" if len(problems) > 1
+                                                          else "") + "; --force imports it approximated")
+    notes += [p + ": imported as its base sphere/conic (--force)" for p in problems]
+
+    img_rot, img_t = tfrms[n_ifc - 1]
+    img_rot = np.asarray(img_rot, float)
+    fod = opm["analysis_results"]["parax_data"].fod
+    fov = osp["fov"]
+    fields = [float(f.y) for f in fov.fields]
+    efl = float(fod.efl) * scale
+    if fov.key[1] == "angle":
+        fields_deg = fields
+    else:
+        fields_deg = [math.degrees(math.atan2(y * scale, efl)) if efl else 0.0 for y in fields]
+    stop_sd = None
+    if stop_idx is not None and 0 < stop_idx < n_ifc - 1:
+        stop_sd = float(sm.ifcs[stop_idx].surface_od()) * scale
+    return Prescription(
+        file=path.name, format="CODE V" if fmt == "seq" else "Zemax", units_in_file=units, wavelength_nm=wvl,
+        efl_mm=efl, bfl_mm=float(fod.bfl) * scale, fno=float(fod.fno), epd_mm=2.0 * float(fod.enp_radius) * scale,
+        fields_deg=[abs(f) for f in fields_deg], surfaces=surfaces,
+        image_vertex_mm=np.asarray(img_t, float) * scale, image_local_z=img_rot[:, 2].copy(),
+        image_travel_in=sm.z_dir[n_ifc - 2] * img_rot[:, 2], stop_semi_diameter_mm=stop_sd, warnings=notes,
+        model=opm, scale=scale)

@@ -1,0 +1,215 @@
+"""A :class:`~straylight.optics.reader.Prescription` as a scene (docs/optics.md): one exact analytic part per
+optical surface, black lens edges and stop, the ``image`` detector and the ``pupil`` source.
+
+Sag convention (docs/reference/scene.md, analytic surfaces): h(rho) = c rho^2 / (1 + sqrt(1 - (1 + k) c^2
+rho^2)) + sum A_(2i+4) rho^(2i+4) along the part's ``axis``; the lens file's sag is along the surface's own
++z, so a part whose ``axis`` is the opposite direction gets -R and -A.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from straylight.optics.aluminium import aluminium_nk
+
+EDGE_MATERIAL = "z302_sample_b"
+
+
+def _v(a) -> list:
+    return [round(float(x), 10) + 0.0 for x in a]
+
+
+def sag_mm(s, rho: float) -> float:
+    """Sag of surface ``s`` at ``rho`` along its own +z (lens-file convention)."""
+    h = 0.0
+    if s.radius_mm:
+        c = 1.0 / s.radius_mm
+        arg = 1.0 - (1.0 + s.conic) * c * c * rho * rho
+        h = c * rho * rho / (1.0 + math.sqrt(max(arg, 0.0)))
+    for i, a in enumerate(s.coefficients):
+        h += a * rho ** (2 * i + 4)
+    return h
+
+
+def _surface_table(s, axis, outer, inner=0.0) -> dict:
+    """The 6.1 ``surface`` table of ``s`` seen along ``axis`` (sign flipped when axis opposes its own z)."""
+    sign = 1.0 if float(np.dot(axis, s.local_z)) > 0 else -1.0
+    d = {"vertex_mm": _v(s.vertex_mm), "axis": _v(axis)}
+    if s.type == "plane":
+        d = {"type": "plane", **d}
+    elif s.type == "asphere":  # a flat base: c = 1e-18 /mm, the plane to 1e-12 mm over a metre
+        d = {"type": "asphere", **d, "radius_mm": sign * (s.radius_mm if s.radius_mm else 1e18), "conic": s.conic,
+             "coefficients": [sign * a for a in s.coefficients]}
+    else:
+        d = {"type": "conic", **d, "radius_mm": sign * s.radius_mm, "conic": s.conic}
+    d["outer_radius_mm"] = float(outer)
+    if inner > 0:
+        d["inner_radius_mm"] = float(inner)
+    return d
+
+
+def _same_geometry(a, b) -> bool:
+    if np.linalg.norm(a.vertex_mm - b.vertex_mm) > 1e-6 or abs(abs(np.dot(a.local_z, b.local_z)) - 1) > 1e-9:
+        return False
+    if (a.radius_mm is None) != (b.radius_mm is None) or a.type != b.type:
+        return False
+    if a.radius_mm is not None and abs(a.radius_mm - b.radius_mm) > 1e-9 * abs(a.radius_mm):
+        return False
+    return abs(a.conic - b.conic) < 1e-12 and np.allclose(a.coefficients, b.coefficients)
+
+
+def _glass_label(name, n) -> str:
+    return name if name else f"n{n:.5f}"
+
+
+def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, coating=None) -> dict:
+    """The scene dict (TOML tables) of prescription ``p``; warnings are appended to ``p.warnings``."""
+    wl = p.wavelength_nm
+    if not any(not s.dummy for s in p.surfaces):
+        from straylight.optics.reader import OpticsFileError
+
+        raise OpticsFileError(f"{p.file}: no optical surface (every surface has air on both sides)")
+    materials: dict = {}
+    parts: list = []
+    used = set()
+    surfaces = [s for s in p.surfaces if not s.dummy]
+    mirrors = [s for s in surfaces if s.mirror]
+    placed: list = []
+    n_al, k_al = aluminium_nk(wl)
+    edge_names = {}
+
+    def unique(name):
+        base, k = name, 2
+        while name in used:
+            name = f"{base}_{k}"
+            k += 1
+        used.add(name)
+        return name
+
+    for s in surfaces:
+        if any(_same_geometry(s, q) and s.mirror == q.mirror for q in placed):
+            continue  # the same physical surface met again (a Mangin's or a double pass)
+        placed.append(s)
+        inner = s.inner_radius_mm if s.inner_kind else 0.0
+        outer = s.semi_diameter_mm
+        if inner >= outer:
+            p.warnings.append(f"{s.name}: hole/obscuration {inner:g} mm >= clear aperture {outer:g} mm; ignored")
+            inner = 0.0
+        if s.mirror:
+            axis = -s.travel_in
+            materials.setdefault("aluminium_mirror", {"name": "aluminium_mirror", "wavelength_nm": wl,
+                                                      "components": [{"type": "specular", "n": [n_al, k_al]}]})
+            part = {"name": unique(s.name), "surface": _surface_table(s, axis, outer, inner),
+                    "material": "aluminium_mirror", "back_material": edge_material, "role": "surface"}
+            parts.append(part)
+            if s.inner_kind == "obscuration" and inner > 0:
+                parts.append({"name": unique(s.name + "_obscuration"), "surface": _surface_table(s, axis, inner),
+                              "material": edge_material, "role": "surface"})
+            continue
+        # refracting: axis out of the denser medium, whose index is the material's n (docs/optics.md)
+        glass_after = s.n > s.n_before
+        axis = -s.travel_in if glass_after else s.travel_in
+        n_in, n_out = (s.n, s.n_before) if glass_after else (s.n_before, s.n)
+        gname = s.glass if glass_after else _glass_before(p, s)
+        key = _glass_label(gname, n_in) + ("" if n_out == 1.0 else f"_in_{n_out:.5f}")
+        comp = {"type": "dielectric", "n": round(n_in, 7)}
+        if n_out != 1.0:
+            comp["n_outside"] = round(n_out, 7)
+        coat = coating if n_out == 1.0 else None
+        if s.coating and not coating:
+            if s.coating.lower() in known_coatings():
+                coat = s.coating.lower()
+            else:
+                p.warnings.append(f"{s.name}: coating {s.coating!r} named in the file is not a known design "
+                                  f"({', '.join(sorted(known_coatings()))}); left uncoated (--coating NAME sets one)")
+        if coat:
+            comp["coating"] = coat
+            key += f"_{coat}"
+        materials.setdefault(key, {"name": key, "wavelength_nm": wl, "components": [comp]})
+        # a mirror on the same surface (a Mangin's or a Maksutov's aluminised spot) fills the centre
+        spot = max((m.semi_diameter_mm for m in mirrors if _same_geometry(m, s)), default=0.0)
+        if spot > 0:
+            inner = max(inner, spot)
+        parts.append({"name": unique(s.name), "surface": _surface_table(s, axis, outer, inner),
+                      "material": key, "role": "surface"})
+        if s.inner_kind == "obscuration" and inner > 0 and spot == 0:
+            parts.append({"name": unique(s.name + "_obscuration"), "surface": _surface_table(s, axis, inner),
+                          "material": edge_material, "role": "surface"})
+    # lens edges: cylinder between consecutive refracting surfaces with glass between, and flat rings
+    for a, b in zip(p.surfaces, p.surfaces[1:]):
+        if a.mirror or b.mirror or a.n <= 1.0 + 1e-9 or a.dummy:
+            continue
+        if abs(abs(np.dot(a.local_z, b.local_z)) - 1) > 1e-9:
+            p.warnings.append(f"{a.name}-{b.name}: tilted element; its edge is not modelled")
+            continue
+        ax = a.local_z * (1 if np.dot(a.local_z, a.travel_in) > 0 else -1)
+        off = (b.vertex_mm - a.vertex_mm) - np.dot(b.vertex_mm - a.vertex_mm, ax) * ax
+        if np.linalg.norm(off) > 1e-9:
+            p.warnings.append(f"{a.name}-{b.name}: decentred element; its edge is not modelled")
+            continue
+        key = (tuple(np.round(a.vertex_mm, 6)), tuple(np.round(b.vertex_mm, 6)))
+        if key in edge_names or key[::-1] in edge_names:
+            continue
+        r_mech = max(a.semi_diameter_mm, b.semi_diameter_mm)
+        za = float(np.dot(a.vertex_mm, ax)) + sag_mm(a, a.semi_diameter_mm) * float(np.dot(a.local_z, ax))
+        zb = float(np.dot(b.vertex_mm, ax)) + sag_mm(b, b.semi_diameter_mm) * float(np.dot(b.local_z, ax))
+        za_m = float(np.dot(a.vertex_mm, ax)) + sag_mm(a, min(a.semi_diameter_mm, r_mech)) * float(np.dot(a.local_z, ax))
+        zb_m = float(np.dot(b.vertex_mm, ax)) + sag_mm(b, min(b.semi_diameter_mm, r_mech)) * float(np.dot(b.local_z, ax))
+        length = zb_m - za_m
+        if length <= 1e-6:
+            p.warnings.append(f"{a.name}-{b.name}: edge thickness {length:.3g} mm <= 0; its edge is not modelled")
+            continue
+        origin = a.vertex_mm - np.dot(a.vertex_mm, ax) * ax
+        name = unique(f"edge_{a.name}_{b.name}")
+        edge_names[key] = name
+        parts.append({"name": name, "surface": {"type": "cylinder", "vertex_mm": _v(origin + za_m * ax),
+                                                 "axis": _v(ax), "radius_mm": r_mech, "length_mm": length},
+                      "material": edge_material, "role": "surface"})
+        for s, z_rim, sign in ((a, za, -1.0), (b, zb, 1.0)):
+            if s.semi_diameter_mm < r_mech - 1e-9:
+                parts.append({"name": unique(f"ring_{s.name}"), "surface": {
+                    "type": "plane", "vertex_mm": _v(origin + z_rim * ax), "axis": _v(sign * ax),
+                    "outer_radius_mm": r_mech, "inner_radius_mm": s.semi_diameter_mm},
+                    "material": edge_material, "role": "surface"})
+    largest = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
+    # the aperture stop: a black annulus whose hole is the stop's semi-diameter
+    stop = next((s for s in p.surfaces if s.stop), None)
+    if stop is not None:
+        hole = stop.semi_diameter_mm if stop.semi_diameter_from_file else stop.semi_diameter_mm / 1.05
+        if stop.mirror and stop.inner_kind == "hole":
+            hole = stop.semi_diameter_mm
+        toward = -stop.travel_in
+        z_rim = sag_mm(stop, hole) if not stop.dummy else 0.0
+        centre = stop.vertex_mm + z_rim * stop.local_z + (0.0 if stop.dummy else 0.01) * toward
+        parts.append({"name": unique("stop"), "surface": {
+            "type": "plane", "vertex_mm": _v(centre), "axis": _v(toward),
+            "outer_radius_mm": max(1.5 * hole, hole + 1.0), "inner_radius_mm": hole},
+            "material": edge_material, "role": "surface"})
+    # the detector: an exact disk at the image surface, facing the light, 1.2 x the largest image height
+    f_max = max(p.fields_deg + [abs(field_deg)])
+    h_img = abs(p.efl_mm) * math.tan(math.radians(f_max))
+    r_det = 1.2 * max(h_img, 0.05 * p.epd_mm, 0.1)
+    parts.append({"name": unique("image"), "surface": {
+        "type": "plane", "vertex_mm": _v(p.image_vertex_mm), "axis": _v(-p.image_travel_in),
+        "outer_radius_mm": r_det}, "role": "detector"})
+    # the source: 1 mm on the object side of the vertex nearest the object
+    z0 = min(float(s.vertex_mm[2]) for s in p.surfaces if not s.dummy) - 1.0
+    f = math.radians(field_deg)
+    source = {"type": "collimated_disk", "name": "pupil", "center_mm": [0.0, 0.0, z0], "normal": [0.0, 0.0, 1.0],
+              "direction": _v([0.0, math.sin(f), math.cos(f)]), "radius_mm": round(1.1 * largest, 9),
+              "power_w": 1.0, "wavelength_nm": wl}
+    first = next(s for s in p.surfaces if not s.dummy)
+    analysis = {"detector": "image", "entrance": {"center_mm": _v(first.vertex_mm), "normal": [0.0, 0.0, -1.0],
+                                                   "radius_mm": first.semi_diameter_mm}}
+    return {"material": materials, "part": parts, "source": [source], "analysis": analysis}
+
+
+def known_coatings() -> set:
+    """The named thin-film designs of docs/reference/material.md (coating key)."""
+    return {"mgf2_quarter_wave", "broadband_ar"}
+
+
+def _glass_before(p, s):
+    prev = [q for q in p.surfaces if q.index < s.index]
+    return prev[-1].glass if prev else None

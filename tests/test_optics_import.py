@@ -1,0 +1,128 @@
+"""optics import / optics info (docs/optics.md): every corpus lens file imports or is refused in one line;
+first-order data checked against an independent paraxial y-nu trace of the written surface table."""
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LENSES = ROOT / "tests" / "data" / "lenses"
+CORPUS = sorted(p for p in LENSES.rglob("*") if p.suffix.lower() in (".seq", ".zmx"))
+
+# files refused, and the words their one-line refusal must carry
+REFUSED = {
+    "asphere.seq": "could not parse",            # rayoptics' CODE V reader fails on its ASP line
+    "cooke_triplet.seq": "unknown glass",        # N--SK16 as written in the file
+    "curved_reflective_grating.zmx": "diffractive",
+    "ACL3026U.zmx": "unknown glass B270",
+    "ASL5040-UV.zmx": "unknown glass C79-80",
+    "CODV_65988.seq": "diffractive",
+    "US05831776-1.zmx": "unknown glass SILICA",
+    "singlet.seq": "finite distance",
+    "tilt_test.seq": "no optical surface",
+}
+
+
+class _Result:
+    def __init__(self, returncode, stdout, stderr):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def _run(*args, cwd=None):
+    """The straylight command in this process (stdout, stderr captured)."""
+    import contextlib
+    import io
+    import os
+
+    from straylight.cli.main import main
+
+    out, err = io.StringIO(), io.StringIO()
+    old = os.getcwd()
+    try:
+        if cwd:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main([str(a) for a in args])
+    finally:
+        os.chdir(old)
+    return _Result(rc, out.getvalue(), err.getvalue())
+
+
+def test_corpus_is_large_enough():
+    assert len(CORPUS) >= 20
+    assert len({p.parent.name for p in CORPUS}) >= 3
+    assert (LENSES / "LICENSES.md").exists()
+
+
+@pytest.mark.parametrize("lens", CORPUS, ids=lambda p: p.name)
+def test_every_file_imports_or_is_refused_in_one_line(lens, tmp_path):
+    r = _run("optics", "import", lens, "--out", tmp_path / "out")
+    if lens.name in REFUSED:
+        assert r.returncode == 2, r.stderr
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+        assert REFUSED[lens.name] in lines[0], lines[0]
+    else:
+        assert r.returncode == 0, r.stderr
+        doc = json.loads((tmp_path / "out" / "prescription.json").read_text())
+        assert {"file", "units_in_file", "wavelength_nm", "efl_mm", "bfl_mm", "fno", "epd_mm", "fields_deg",
+                "surfaces"} <= set(doc)
+        for s in doc["surfaces"]:
+            assert {"name", "type", "radius_mm", "conic", "coefficients", "thickness_mm", "glass", "n",
+                    "semi_diameter_mm", "mirror"} <= set(s)
+        assert "Traceback" not in r.stderr
+
+
+def _paraxial_efl(surfaces):
+    """EFL from a y-nu paraxial trace of the surface table (coaxial, no mirrors): y' = y + t u, n'u' = nu - y phi."""
+    y, nu, n = 1.0, 0.0, 1.0
+    for i, s in enumerate(surfaces):
+        c = 0.0 if s["radius_mm"] is None else 1.0 / s["radius_mm"]
+        n2 = s["n"]
+        nu = nu - y * (n2 - n) * c
+        n = n2
+        if i < len(surfaces) - 1:
+            y = y + s["thickness_mm"] * nu / n
+    return -1.0 / nu
+
+
+@pytest.mark.parametrize("name", ["ray-optics/ag_dblgauss.seq", "optiland/lens1.zmx", "ray-optics/CODV_32327.seq",
+                                  "OpticsDatabase/Edmund_32-299.zmx"])
+def test_efl_matches_an_independent_paraxial_trace(name, tmp_path):
+    r = _run("optics", "import", LENSES / name, "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    assert not any(s["mirror"] for s in doc["surfaces"])
+    assert math.isclose(_paraxial_efl(doc["surfaces"]), doc["efl_mm"], rel_tol=1e-4)
+
+
+def test_info_prints_first_order_data_and_writes_nothing(tmp_path):
+    lens = tmp_path / "dg.seq"
+    lens.write_bytes((LENSES / "ray-optics" / "ag_dblgauss.seq").read_bytes())
+    r = _run("optics", "info", lens, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "efl         100.0" in r.stdout and "mm" in r.stdout and "N-SSK2" in r.stdout and "stop" in r.stdout
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dg.seq"]
+
+
+def test_glass_option_supplies_a_missing_glass(tmp_path):
+    r = _run("optics", "import", LENSES / "ray-optics" / "ACL3026U.zmx", "--glass", "B270=1.5230", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    assert any(s["glass"] == "B270" and s["n"] == 1.523 for s in doc["surfaces"])
+
+
+def test_imported_scene_loads_and_traces(tmp_path):
+    from straylight.scene import load_scene
+
+    r = _run("optics", "import", LENSES / "ray-optics" / "ag_dblgauss.seq", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    scene = load_scene(tmp_path / "scene.toml")
+    names = {p.name for p in scene.scene.parts}
+    assert {"image", "stop", "s1", "s11"} <= names
+    assert any(n.startswith("edge_") for n in names)
+    t = _run("trace", tmp_path / "scene.toml", "--rays", 2000, "--json", tmp_path / "t.json")
+    assert t.returncode == 0, t.stderr
+    out = json.loads((tmp_path / "t.json").read_text())
+    assert out["detectors"]["image"]["power_w"] > 0.2
