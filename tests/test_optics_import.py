@@ -126,3 +126,10 @@ def test_imported_scene_loads_and_traces(tmp_path):
     assert t.returncode == 0, t.stderr
     out = json.loads((tmp_path / "t.json").read_text())
     assert out["detectors"]["image"]["power_w"] > 0.2
+
+
+def test_readers_write_no_log_files_in_the_working_folder(tmp_path):
+    for name in ("ray-optics/ag_dblgauss.seq", "optiland/lens1.zmx"):
+        r = _run("optics", "info", LENSES / name, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+    assert list(tmp_path.iterdir()) == []

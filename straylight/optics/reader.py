@@ -172,9 +172,14 @@ def _multiconfig(fmt: str, text: str) -> int:
 def _open_rayoptics(path: Path, fmt: str, raw: bytes):
     """rayoptics' model of the file, read from a private copy (rayoptics may write a glass template
     beside the file it reads; ``optics info`` writes nothing where the user's file is)."""
-    logging.getLogger("rayoptics").setLevel(logging.ERROR)
     from rayoptics.codev import cmdproc
     from rayoptics.zemax import zmxread
+
+    for module in (cmdproc, zmxread):  # their module-level log files (cv_cmd_proc.log...) in the working folder
+        handler = getattr(module, "_fh", None)
+        if handler is not None:
+            module.logger.removeHandler(handler)
+        module.logger.setLevel(logging.ERROR)
 
     with tempfile.TemporaryDirectory(prefix="straylight-lens-") as tmp:
         copy = Path(tmp) / ("lens." + fmt)
