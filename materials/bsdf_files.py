@@ -460,3 +460,58 @@ def export_fred(material, aoi_deg=None, scatter_deg=None) -> str:
         out.append(f"{a:g}\t0")
         out += [f"{t:g}\t0\t{v:.6e}" for t, v in zip(th, f)]
     return "\n".join(out) + "\n"
+
+
+# ---------------------------------------------------------------------------------------- fit
+
+
+def wavelength_from_comments(text: str):
+    """A wavelength stated in a file's comment lines ('650 nm'), or None."""
+    for line in text.splitlines()[:80]:
+        if line.lstrip().startswith(("#", "!")):
+            m = re.search(r"(\d{3,4}(?:\.\d+)?)\s*nm\b", line)
+            if m:
+                return float(m.group(1))
+    return None
+
+
+def scan_from_file(path, wavelength_nm=None):
+    """A measured scan (materials.scan.Scan) from a Zemax or FRED file: the nodes in the plane of
+    incidence of every incidence (rotation 0 of an anisotropic file), polarization 'u', std unknown
+    (the fit then uses its default relative std). ``wavelength_nm``: given, else read from the file's
+    comments ('650 nm'), else an error naming what to pass."""
+    from materials.scan import make_scan
+
+    import materials.bsdf_table  # noqa: F401
+
+    path = Path(path)
+    text = read_text(path)
+    kind = detect(text)
+    if kind not in ("zemax", "fred"):
+        raise BsdfFileError(f"{path}: not a Zemax tabular BSDF nor a FRED tabulated BSDF")
+    comp = parse_zemax(text, path) if kind == "zemax" else parse_fred(text, path)
+    if comp["scatter"] != "brdf":
+        raise BsdfFileError(f"{path}: a BTDF file: fit reads reflectance (BRDF) files")
+    wl = wavelength_nm if wavelength_nm is not None else wavelength_from_comments(text)
+    if wl is None:
+        raise BsdfFileError(f"{path}: the file states no wavelength: pass --wavelength-nm")
+    n_ti = len(comp["theta_i_deg"])
+    ti_col, tr_col, ph_col, v_col = [], [], [], []
+    for j, ti in enumerate(comp["theta_i_deg"]):
+        b = comp["blocks"][j]  # rotation 0 (the first rotation) of the file
+        th = np.asarray(b["theta_r_deg"])
+        ph = np.mod(np.asarray(b["phi_r_deg"]), 360.0)
+        v = np.asarray(b["bsdf_per_sr"])
+        inplane = (np.minimum(np.abs(ph), np.abs(ph - 360.0)) < 1e-6) | (np.abs(ph - 180.0) < 1e-6) | (th < 1e-9)
+        keep = inplane & (v > 0) & (th < 89.9)
+        signed = np.where(np.abs(ph - 180.0) < 1e-6, -th, th)[keep]
+        signed, idx = np.unique(np.round(signed, 9), return_index=True)
+        ti_col += [ti] * len(signed)
+        tr_col += list(signed)
+        ph_col += [0.0] * len(signed)
+        v_col += list(v[keep][idx])
+    if not v_col:
+        raise BsdfFileError(f"{path}: no positive values in the plane of incidence to fit")
+    del n_ti
+    return make_scan(wavelength_nm=wl, polarization="u", theta_i_deg=ti_col, theta_r_deg=tr_col, phi_r_deg=ph_col,
+                     brdf_per_sr=v_col, metadata={"sample": path.stem, "source": f"{kind} tabulated BSDF {path.name}"})

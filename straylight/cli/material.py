@@ -153,7 +153,14 @@ def cmd_fit(args) -> int:
     from materials.material import save_material
     from materials.scan import read_scan
 
-    scan = read_scan(args.scan)
+    from materials.bsdf_files import detect, read_text, scan_from_file
+
+    if detect(read_text(args.scan)) in ("zemax", "fred"):  # a lab's tabulated BSDF as the measurement
+        scan = scan_from_file(args.scan, args.wavelength_nm)
+        print(f"{args.scan}: {len(scan.brdf_per_sr)} in-plane nodes at "
+              f"{', '.join(f'{t:g}' for t in np.unique(scan.theta_i_deg))} deg, {scan.wavelength_nm[0]:g} nm")
+    else:
+        scan = read_scan(args.scan)
     with _progress(args.starts, "fit starts") as bar:
         result = fit(scan, args.model, fixed=_parse_pairs(args.fix, "--fix"),
                      bounds=_parse_pairs(args.bound, "--bound", bounds=True), n_starts=args.starts,
@@ -270,7 +277,9 @@ def add_parser(subparsers) -> None:
     ex.set_defaults(func=cmd_export)
 
     f = sub.add_parser("fit", help="fit a model to a measured scan CSV (CONTRACTS 2)")
-    f.add_argument("scan", metavar="SCAN.csv")
+    f.add_argument("scan", metavar="SCAN.csv", help="a measured scan CSV (CONTRACTS 2), or a Zemax tabular .bsdf "
+                   "or FRED tabulated BSDF file (its in-plane nodes)")
+    f.add_argument("--wavelength-nm", type=float, help="wavelength of a BSDF file that states none")
     f.add_argument("--model", default="lambertian+k_correlation",
                    help="components joined by '+': lambertian, k_correlation, microfacet, abg, harvey_shack")
     f.add_argument("-o", "--output", required=True, metavar="MODEL.json", help="fitted material file")

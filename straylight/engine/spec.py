@@ -84,6 +84,9 @@ def resolve_materials(scene, materials):
             model = materials[name]
         else:
             model = load_material(name)
+        if any(getattr(c, "scatter", "brdf") == "btdf" for c in getattr(model, "components", ())):
+            raise TraceError(f"material {name!r}: an imported BTDF table (scatter into transmission) is evaluated and "
+                             "exported but not traced yet; use it with material eval/export (docs/bsdf-files.md)")
         index[name] = len(models)
         models.append(model)
     part_material = np.array([index.get(p.material, -1) if p.role == "surface" else -1 for p in scene.parts],

@@ -325,7 +325,6 @@ def test_anisotropic_nodes_by_rotation(imx455, tmp_path):
     both sides of the specular direction; the scatter changes with the rotation as the file says."""
     from materials.base import brdf_angles
     from materials.bsdf_table import rotated
-    from materials.material import save_material
 
     path, material, report = imx455
     assert report["symmetry"] == "none" and len(report["rotation_deg"]) == 37
@@ -353,19 +352,124 @@ def test_anisotropic_nodes_by_rotation(imx455, tmp_path):
     wi = np.array([[-math.sin(th), 0.0, math.cos(th)]])
     got = rotated(material, 30.0).brdf(wi, wo)[0]
     assert got == pytest.approx(data[rots.index(30.0), j, az.index(90.0), k], rel=1e-3)
-    # the CLI's --rotation-deg, and a visible change with rotation
-    mat = tmp_path / "imx.json"
-    save_material(mat, material, check_energy=False)
-    a = _eval(tmp_path, mat, ti, [-10.0, 10.0, 50.0], rotation=30.0)["brdf_per_sr"]
-    want30 = brdf_angles(rotated(material, 30.0), math.radians(ti), np.radians([10.0, 10.0, 50.0]),
-                         np.array([np.pi, 0.0, 0.0]))
-    np.testing.assert_allclose(a, want30, rtol=1e-9)
+    # a visible change with rotation
+    a = brdf_angles(rotated(material, 30.0), math.radians(ti), np.radians([10.0, 10.0, 50.0]),
+                    np.array([np.pi, 0.0, 0.0]))
     b = brdf_angles(rotated(material, 90.0), math.radians(ti), np.radians([10.0, 10.0, 50.0]),
                     np.array([np.pi, 0.0, 0.0]))
     assert not np.allclose(a, b, rtol=0.05)
+
+
+def test_eval_rotation_option_on_a_small_asymmetrical4d_file(tmp_path):
+    """Two sample rotations (0: 0.01/sr, 90: 0.03/sr everywhere): eval --rotation-deg gives each, and
+    their linear blend half-way (45 deg); periodically from 90 back to 360 = 0 beyond the last rotation."""
+    az = list(range(0, 360, 45))
+    rad = [0, 20, 40, 60, 80, 100, 120, 140, 160, 180]
+    lines = ["Source\tMeasured", "Symmetry\tAsymmetrical4D", "SpectralContent\tMonochrome", "ScatterType\tBRDF",
+             "SampleRotation\t2", "0\t90", "AngleOfIncidence\t2", "10\t50", f"ScatterAzimuth\t{len(az)}",
+             "\t".join(map(str, az)), f"ScatterRadial\t{len(rad)}", "\t".join(map(str, rad)), "Monochrome",
+             "DataBegin"]
+    for v in (0.01, 0.01, 0.03, 0.03):
+        lines += ["\t".join([str(v)] * len(rad))] * len(az)
+    lines.append("DataEnd")
+    src = tmp_path / "aniso.bsdf"
+    src.write_text("\n".join(lines) + "\n")
+    mat = tmp_path / "aniso.json"
+    assert _run("material", "import", src, "-o", mat) == 0
+    for rot, want in ((0.0, 0.01), (90.0, 0.03), (45.0, 0.02), (225.0, 0.02), (180.0, 0.03 - 0.02 / 3)):
+        got = _eval(tmp_path, mat, 30.0, [-40.0, 0.0, 30.0, 60.0], rotation=rot)
+        np.testing.assert_allclose(got["brdf_per_sr"], want, rtol=1e-9, err_msg=str(rot))
+        assert got["dhr"] == pytest.approx(want * math.pi, rel=2e-3)
 
 
 def test_zemax_missing_value_lines_use_defaults():
     comp = parse_zemax((DATA / "aeroglaze.bsdf").read_text(), "aeroglaze.bsdf")
     assert comp["rotation_deg"] == [0.0] and comp["theta_i_deg"] == [10.0, 30.0, 50.0, 70.0]
     assert comp["symmetry"] == "plane"
+
+
+# ------------------------------------------------------------------------------------ fit
+
+
+def test_fit_accepts_a_tabulated_file_as_the_measurement(tmp_path, capsys):
+    """The paper's model fitted to ua-loft's Zemax file (650 nm from its comment line), with uncertainties."""
+    out = tmp_path / "fit.json"
+    report = tmp_path / "fit_report.json"
+    assert _run("material", "fit", DATA / "AnoBlackEC1onAlum.bsdf", "-o", out, "--starts", "1",
+                "--json", report) == 0
+    text = capsys.readouterr().out
+    assert "in-plane nodes at 10, 30, 50, 70 deg, 650 nm" in text and "+-" in text
+    fitted = json.loads(out.read_text())
+    assert fitted["wavelength_nm"] == 650.0
+    assert {c["type"] for c in fitted["components"]} == {"lambertian", "k_correlation"}
+    # FRED in-plane file: no wavelength stated -> a one-line error naming the option, then with it
+    assert _run("material", "fit", DATA / "aeroglaze_bsdf_final.txt", "-o", tmp_path / "a.json", "--starts", "1") == 2
+    assert "--wavelength-nm" in capsys.readouterr().err
+    assert _run("material", "fit", DATA / "aeroglaze_bsdf_final.txt", "-o", tmp_path / "a.json", "--starts", "1",
+                "--wavelength-nm", "632.8") == 0
+
+
+def test_importance_sampling_is_unbiased_for_an_imported_table():
+    """Mean sample weight (f cos / pdf) equals the quadrature DHR: the draws cover the table."""
+    material = import_file(DATA / "AnoBlackEC1onAlum.bsdf")[0]
+    table = material.components[0]
+    rng = np.random.default_rng(3)
+    for ti in (10.0, 70.0):
+        t = math.radians(ti)
+        n = 200_000
+        wi = np.tile([-math.sin(t), 0.0, math.cos(t)], (n, 1))
+        smp = table.sample(wi, rng.random((n, 3)))
+        mean, err = smp.weight.mean(), smp.weight.std() / math.sqrt(n)
+        assert abs(mean - float(table.dhr([ti])[0])) < 4 * err + 1e-4, (ti, mean, err)
+
+
+# ------------------------------------------------------------------------------------ format variants
+
+
+def test_fred_sin_log_scale_comma_variant(tmp_path):
+    """angles=sin (a = sin f sin theta, b = cos f sin theta), bsdf=log, scale=2, comma separated."""
+    path = tmp_path / "variant.dat"
+    rows = [(0.0, -0.6, -2.0), (0.0, -0.2, -2.2), (0.0, 0.5, -1.0), (0.0, 0.7, -1.5), (0.3, 0.5, -1.8), (-0.3, 0.5, -1.8)]
+    path.write_text("type bsdf_data\nformat angles=sin bsdf=log scale=2 exclude=0.03\n0,0.5\n"
+                    + "\n".join(f"{a},{b},{v}" for a, b, v in rows) + "\n")
+    material, report = import_file(path)
+    assert report["format"] == "fred" and report["theta_i_deg"] == [pytest.approx(30.0)]
+    from materials.base import directions_from_angles
+
+    for a, b, v in rows:
+        theta_r = math.asin(math.hypot(a, b))
+        phi_r = math.atan2(a, b)
+        wi, wo = directions_from_angles(math.radians(30.0), theta_r, phi_r)
+        assert material.brdf(wi, wo)[0] == pytest.approx(2.0 * 10.0**v, rel=1e-9)
+
+
+def test_zemax_btdf_asymmetrical_variant(tmp_path):
+    """A BTDF in an Asymmetrical (full-azimuth) file: imported as scatter 'btdf'; its hemisphere
+    integral is the transmittance (uniform 0.05/sr: 0.05 pi, analytic)."""
+    az = list(range(0, 360, 30))
+    rad = list(range(0, 181, 10))
+    lines = ["Source  Measured", "Symmetry  Asymmetrical", "SpectralContent  Monochrome", "ScatterType  BTDF",
+             "SampleRotation  1", "0", "AngleOfIncidence  2", "0  40", f"ScatterAzimuth  {len(az)}",
+             "  ".join(map(str, az)), f"ScatterRadial  {len(rad)}", "  ".join(map(str, rad)), "", "Monochrome",
+             "DataBegin"]
+    for _ in range(2):
+        lines.append("TIS  0.157")
+        lines += ["  ".join(["5.000E-02"] * len(rad))] * len(az)
+    lines.append("DataEnd")
+    path = tmp_path / "diffuser.bsdf"
+    path.write_text("\n".join(lines) + "\n")
+    material, report = import_file(path)
+    assert report["scatter"] == "btdf" and report["symmetry"] == "none"
+    np.testing.assert_allclose(report["dhr"][0], 0.05 * math.pi, rtol=2e-3)
+    text = _run_export_text(tmp_path, material)
+    assert "ScatterType\tBTDF" in text
+
+
+def _run_export_text(tmp_path, material):
+    from materials.material import save_material
+
+    mat = tmp_path / "m.json"
+    save_material(mat, material, check_energy=False)
+    out = tmp_path / "out.bsdf"
+    assert _run("material", "export", mat, "--format", "zemax", "-o", out) == 0
+    return out.read_text()
