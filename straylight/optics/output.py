@@ -68,34 +68,45 @@ def info_text(p) -> str:
 
 
 def _toml_value(v) -> str:
-    import tomli_w
+    """One TOML value, inline (tables as inline tables, strings JSON-quoted, which TOML accepts)."""
+    import json
 
-    return tomli_w.dumps({"x": v}).split("=", 1)[1].strip()
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        f = float(v)
+        if not math.isfinite(f):
+            raise ValueError(f"non-finite number {v!r} in a scene")
+        return repr(int(v)) if isinstance(v, int) else repr(f)
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_key(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+
+
+def _key(k: str) -> str:
+    import json
+    import re
+
+    return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
 
 
 def scene_toml(scene: dict, header: str) -> str:
-    """The scene as TOML text (tomli-w), with inline ``surface`` tables as in docs/reference/scene.md."""
-    import tomli_w
-
+    """The scene as TOML text, inline ``surface`` tables as in docs/reference/scene.md."""
     out = [f"# {line}" for line in header.splitlines()] + [""]
     for key, mat in scene["material"].items():
-        out.append(f"[material.{_toml_value(key) if not key.replace('_', '').replace('-', '').isalnum() else key}]")
-        out.append(tomli_w.dumps({k: v for k, v in mat.items() if k != "name"}).strip())
+        out.append(f"[material.{_key(key)}]")
+        out += [f"{_key(k)} = {_toml_value(v)}" for k, v in mat.items() if k != "name"]
         out.append("")
-    out.append(tomli_w.dumps({"analysis": scene["analysis"]}).strip())
+    out.append("[analysis]")
+    out += [f"{_key(k)} = {_toml_value(v)}" for k, v in scene["analysis"].items()]
     out.append("")
-    for part in scene["part"]:
-        out.append("[[part]]")
-        for k, v in part.items():
-            if isinstance(v, dict):
-                out.append(f"{k} = {{" + ", ".join(f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()) + "}")
-            else:
-                out.append(f"{k} = {_toml_value(v)}")
-        out.append("")
-    for src in scene["source"]:
-        out.append("[[source]]")
-        out.append(tomli_w.dumps(src).strip())
-        out.append("")
+    for table, items in (("part", scene["part"]), ("source", scene["source"])):
+        for item in items:
+            out.append(f"[[{table}]]")
+            out += [f"{_key(k)} = {_toml_value(v)}" for k, v in item.items()]
+            out.append("")
     return "\n".join(out)
 
 

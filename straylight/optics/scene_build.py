@@ -12,24 +12,13 @@ import math
 import numpy as np
 
 from straylight.optics.aluminium import aluminium_nk
+from straylight.optics.sag import sag_mm
 
 EDGE_MATERIAL = "z302_sample_b"
 
 
 def _v(a) -> list:
     return [round(float(x), 10) + 0.0 for x in a]
-
-
-def sag_mm(s, rho: float) -> float:
-    """Sag of surface ``s`` at ``rho`` along its own +z (lens-file convention)."""
-    h = 0.0
-    if s.radius_mm:
-        c = 1.0 / s.radius_mm
-        arg = 1.0 - (1.0 + s.conic) * c * c * rho * rho
-        h = c * rho * rho / (1.0 + math.sqrt(max(arg, 0.0)))
-    for i, a in enumerate(s.coefficients):
-        h += a * rho ** (2 * i + 4)
-    return h
 
 
 def _surface_table(s, axis, outer, inner=0.0) -> dict:
@@ -70,6 +59,18 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         from straylight.optics.reader import OpticsFileError
 
         raise OpticsFileError(f"{p.file}: no optical surface (every surface has air on both sides)")
+    largest0 = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
+    z00 = min(float(s.vertex_mm[2]) for s in p.surfaces if not s.dummy) - 1.0
+    if p.model is not None:
+        from straylight.optics.sequential import holes_for_passing_light
+
+        for idx, r in holes_for_passing_light(p, z00, 1.1 * largest0).items():
+            m = next(s for s in p.surfaces if s.index == idx)
+            if m.inner_kind == "hole" and m.inner_radius_mm >= r:
+                continue
+            m.inner_kind, m.inner_radius_mm = "hole", min(1.05 * r, 0.999 * m.semi_diameter_mm)
+            p.warnings.append(f"{m.name}: the file gives this mirror no hole, but the beam passes through it to a "
+                              f"later surface; given a central hole of radius {m.inner_radius_mm:.4g} mm")
     materials: dict = {}
     parts: list = []
     used = set()

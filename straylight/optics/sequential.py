@@ -1,0 +1,99 @@
+"""The lens file's own sequential trace (rayoptics' real-ray trace, surface by surface in file order), used
+to check that an imported scene focuses where the design does (docs/optics.md).
+
+Rays start on the ``pupil`` source's disk (scene frame, mm), travel along (0, sin F, cos F), and are traced
+by :func:`rayoptics.raytr.raytrace.trace` from the object surface; a ray is kept where it passes every
+surface inside the clear aperture the scene uses (and outside its hole or obscuration).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def pupil_grid(radius_mm: float, n: int) -> np.ndarray:
+    """About ``n`` points (x, y) on a square grid inside a disk of ``radius_mm``."""
+    k = max(int(math.sqrt(4.0 * n / math.pi)), 3)
+    g = np.linspace(-radius_mm, radius_mm, k)
+    x, y = np.meshgrid(g, g)
+    inside = x * x + y * y <= radius_mm * radius_mm
+    return np.column_stack([x[inside], y[inside]])
+
+
+def sequential_spot(p, field_deg: float, source_z_mm: float, source_radius_mm: float, n: int = 2000):
+    """Global points (mm) where the kept rays cross the image surface, shape (m, 3)."""
+    paths = sequential_paths(p, field_deg, source_z_mm, source_radius_mm, n)
+    return np.array([path[-1] for path in paths]).reshape(-1, 3)
+
+
+def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: float, n: int = 2000) -> list:
+    """Each kept ray's global points (mm) at every surface from the first to the image, (n_surfaces, 3)."""
+    from rayoptics.raytr import raytrace as rt
+
+    sm = p.model["seq_model"]
+    s = p.scale
+    f = math.radians(field_deg)
+    d = np.array([0.0, math.sin(f), math.cos(f)])
+    rot0, t0 = (np.asarray(a, float) for a in sm.gbl_tfrms[0])
+    img_rot, img_t = (np.asarray(a, float) for a in sm.gbl_tfrms[-1])
+    limits = {q.index: (q.semi_diameter_mm / s, q.inner_radius_mm / s if q.inner_kind else 0.0)
+              for q in p.surfaces}
+    stop = next((q for q in p.surfaces if q.stop), None)
+    if stop is not None and not stop.semi_diameter_from_file:  # the black stop's hole (scene_build)
+        limits[stop.index] = (stop.semi_diameter_mm / 1.05 / s, limits[stop.index][1])
+    out = []
+    for x, y in pupil_grid(source_radius_mm, n):
+        start = np.array([x, y, source_z_mm]) / s
+        t = (start[2] - t0[2]) / d[2]
+        p0 = rot0.T @ (start - t * d - t0)
+        try:
+            ray, _, _ = rt.trace(sm, p0, rot0.T @ d, p.wavelength_nm)
+        except Exception:  # noqa: BLE001 - missed surface, TIR: the ray does not reach the image
+            continue
+        ok = True
+        for i, seg in enumerate(ray):
+            if i in limits:
+                r = math.hypot(seg[0][0], seg[0][1])
+                hi, lo = limits[i]
+                if r > hi or r < lo:
+                    ok = False
+                    break
+        if ok:
+            pts = [(np.asarray(sm.gbl_tfrms[i][0], float) @ np.asarray(seg[0], float)
+                    + np.asarray(sm.gbl_tfrms[i][1], float)) * s for i, seg in enumerate(ray) if i >= 1]
+            out.append(np.array(pts))
+    return out
+
+
+def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, n: int = 600) -> dict:
+    """{surface index: radius_mm} of the central hole a mirror needs where the sequential beam, on its way to a
+    later surface, crosses the mirror's clear aperture (a Cassegrain primary that the file gives no hole)."""
+    from straylight.optics.sag import sag_mm
+
+    mirrors = [q for q in p.surfaces if q.mirror]
+    if not mirrors:
+        return {}
+    order = [q.index for q in p.surfaces]
+    need: dict = {}
+    for field in {0.0, max(p.fields_deg or [0.0])}:
+        for path in sequential_paths(p, field, source_z_mm, source_radius_mm, n):
+            for j in range(len(path) - 1):
+                a_pt, b_pt = path[j], path[j + 1]
+                seg_from = order[j] if j < len(order) else None
+                for m in mirrors:
+                    if m.index in (seg_from, order[j + 1] if j + 1 < len(order) else None):
+                        continue
+                    ax = m.local_z
+                    denom = float(np.dot(b_pt - a_pt, ax))
+                    if abs(denom) < 1e-12:
+                        continue
+                    r = 0.0
+                    for _ in range(2):  # the plane through the surface at the crossing's radius
+                        plane_pt = m.vertex_mm + sag_mm(m, min(r, m.semi_diameter_mm)) * ax
+                        t = float(np.dot(plane_pt - a_pt, ax)) / denom
+                        x = a_pt + t * (b_pt - a_pt) - m.vertex_mm
+                        r = float(np.linalg.norm(x - np.dot(x, ax) * ax))
+                    if 0.0 < t < 1.0 and r < m.semi_diameter_mm:
+                        need[m.index] = max(need.get(m.index, 0.0), r)
+    return need

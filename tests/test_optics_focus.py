@@ -1,0 +1,85 @@
+"""The imported scene focuses where the lens file's own sequential trace puts the image (CONTRACTS-style rule of
+docs/optics.md): on axis and at the field's edge, of the power near focus (on a disk 3 x the geometric spot
+radius about the sequential centroid), >= 95 % (85 % at the edge) falls within 1.2 x the geometric spot
+radius; on axis, the encircled power at half the sequential 90 % radius is within 0.05 of the sequential one.
+
+The sequential trace is rayoptics' real-ray trace of the same file (straylight.optics.sequential), an
+independent code path from our non-sequential tracer.
+"""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+LENSES = Path(__file__).resolve().parent / "data" / "lenses"
+FAST = ["ray-optics/ag_dblgauss.seq", "ray-optics/rc_f16.seq", "optiland/lens1.zmx"]
+SLOW = ["ray-optics/CODV_32327.seq", "ray-optics/HoO-V2C18Ex03.zmx", "ray-optics/US08011793-1.zmx",
+        "OpticsDatabase/Edmund_32-299.zmx", "OpticsDatabase/Edmund_45-206.zmx", "ray-optics/landscape_lens.seq",
+        "ray-optics/paraboloid.seq", "ray-optics/questar35.seq", "ray-optics/threemir.seq",
+        "ray-optics/schmidt.seq", "ray-optics/mangin.seq", "ray-optics/354710-C.zmx", "ray-optics/dec_tilt_test.seq",
+        "optiland/lens_thorlabs_iso_8859_1.zmx", "ray-optics/zmax_37992.zmx", "optiland/mirror.seq",
+        "optiland/one_mirror_up_45deg.zmx", "ray-optics/HoO-V2C18Ex27.zmx", "ray-optics/asp46.seq"]
+
+
+def focus_check(lens, field_deg, tmp_path, rays=6000, bins=121):
+    from straylight.engine.options import OutputOptions, TraceOptions
+    from straylight.optics.output import scene_toml
+    from straylight.optics.reader import read_prescription
+    from straylight.optics.scene_build import build_scene
+    from straylight.optics.sequential import sequential_spot
+    from straylight.scene import load_scene
+
+    p = read_prescription(lens)
+    scene = build_scene(p, field_deg=field_deg)
+    src = scene["source"][0]
+    seq = sequential_spot(p, field_deg, src["center_mm"][2], src["radius_mm"], n=3000)
+    assert len(seq) > 50
+    c = seq.mean(axis=0)
+    dist = np.linalg.norm(seq - c, axis=1)
+    r_geo = max(float(dist.max()), 1e-3)
+    r90 = float(np.quantile(dist, 0.9))
+    det = next(part for part in scene["part"] if part["name"] == "image")
+    det["surface"]["vertex_mm"] = [float(v) for v in c]
+    det["surface"]["outer_radius_mm"] = 3.0 * r_geo
+    (tmp_path / "scene.toml").write_text(scene_toml(scene, "focus test"))
+    rs = load_scene(tmp_path / "scene.toml")
+    res = rs.trace(rays, seed=1, options=TraceOptions(output=OutputOptions(map_bins=(bins, bins))))
+    m = res.maps["image"]
+    uc = 0.5 * (np.asarray(m.edges_u_mm)[1:] + np.asarray(m.edges_u_mm)[:-1])
+    vc = 0.5 * (np.asarray(m.edges_v_mm)[1:] + np.asarray(m.edges_v_mm)[:-1])
+    U, V = np.meshgrid(uc, vc, indexing="ij")
+    pts = np.asarray(m.origin_mm)[None, None, :] + U[..., None] * np.asarray(m.axis_u) + V[..., None] * np.asarray(m.axis_v)
+    rad = np.linalg.norm(pts - c, axis=-1)
+    power = np.asarray(m.power_w)
+    total = float(power.sum())
+    assert total > 0, f"{lens.name}: no power near the sequential focus at {field_deg} deg"
+    inside = float(power[rad <= 1.2 * r_geo].sum()) / total
+    ee_scene = float(power[rad <= 0.5 * r90].sum()) / total
+    ee_seq = float(np.mean(dist <= 0.5 * r90))
+    return inside, ee_scene, ee_seq, r_geo
+
+
+def _check(name, tmp_path):
+    from straylight.optics.reader import read_prescription
+
+    lens = LENSES / name
+    p = read_prescription(lens)
+    edge = max(p.fields_deg) if p.fields_deg else 0.0
+    inside, ee_scene, ee_seq, r_geo = focus_check(lens, 0.0, tmp_path)
+    assert inside >= 0.95, f"{name} on axis: {inside:.3f} of the power within 1.2 x r_geo = {1.2 * r_geo:.3g} mm"
+    assert abs(ee_scene - ee_seq) <= 0.05, f"{name}: encircled power at r90/2 {ee_scene:.3f} vs {ee_seq:.3f}"
+    if edge > 0:
+        (tmp_path / "edge").mkdir()
+        inside, _, _, r_geo = focus_check(lens, edge, tmp_path / "edge")
+        assert inside >= 0.85, f"{name} at {edge} deg: {inside:.3f} within 1.2 x r_geo = {1.2 * r_geo:.3g} mm"
+
+
+@pytest.mark.parametrize("name", FAST)
+def test_imported_scene_focuses_like_the_sequential_trace(name, tmp_path):
+    _check(name, tmp_path)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SLOW)
+def test_every_importing_file_focuses_like_the_sequential_trace(name, tmp_path):
+    _check(name, tmp_path)
