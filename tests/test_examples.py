@@ -57,7 +57,7 @@ def _scaled(argv: list[str], out: Path, **replace) -> list[str]:
     return args
 
 
-RUNS = {"parametric_baffle.py", "own_instrument"}
+RUNS = {"parametric_baffle.py", "own_instrument", "telescopes"}
 
 
 def test_every_example_has_a_run():
@@ -99,3 +99,13 @@ def test_own_instrument_scene_pst(tmp_path, monkeypatch):
     assert pst["detector"] == "detector"
     assert pst["detector_area_mm2"] == pytest.approx(math.pi * 50.0**2)
     assert pst["points"][0]["detector_w"] > 0
+
+
+def test_telescopes_scenes_trace_to_their_image(tmp_path):
+    """examples/telescopes/*.toml (two-mirror telescopes from published prescriptions, docs/baffles.md): each
+    puts on-axis light on its image; the baffle design itself is tested in tests/straylight/test_design_baffles.py."""
+    for scene in sorted((EXAMPLES / "telescopes").glob("*.toml")):
+        out = tmp_path / scene.stem
+        assert main(["pst", str(scene), "--angles-deg", "0", "--rays", FEW_RAYS, "--seed", "1", "--out", str(out)]) == 0
+        pst = json.loads((out / "pst.json").read_text())
+        assert pst["detector"] == "image" and pst["points"][0]["detector_w"] > 0, scene.name

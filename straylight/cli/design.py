@@ -42,6 +42,51 @@ def add_parser(subparsers):
     v.add_argument("--resume", action="store_true",
                    help="continue an interrupted run in the same --out: finished final PST points are read back")
     v.set_defaults(func=run)
+    b = sub.add_parser("baffles", help="light shields of a two-mirror telescope: exact construction + trace check",
+                       description="Primary tube, secondary skirt (and collar, rear enclosure) of a Cassegrain-type "
+                                   "telescope so that no direct ray from outside the half-field reaches the image "
+                                   "(docs/baffles.md).")
+    b.add_argument("scene", help="the telescope's scene TOML (CONTRACTS 6 / 6.1, or from `straylight optics import`)")
+    b.add_argument("--field-deg", type=float, required=True, help="F: half-field that must not be vignetted, deg")
+    b.add_argument("--max-added-obscuration", type=float, default=0.05,
+                   help="largest obscuration the shields may add, fraction of the aperture area (default 0.05)")
+    b.add_argument("--material", default="z302_sample_b", help="coating of the shields (preset or material file)")
+    b.add_argument("--rays", type=int, default=20_000, help="rays per angle in the direct-path check and the PST")
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--no-step", action="store_true", help="do not write DIR/baffles.step")
+    b.add_argument("--out", required=True, help="output directory")
+    b.add_argument("--force", action="store_true",
+                   help="overwrite files in --out that straylight did not write or that were changed by hand")
+    b.set_defaults(func=run_baffles)
+
+
+def run_baffles(args) -> int:
+    import sys
+
+    from atomicio.guard import check_overwrite, record_outputs
+    from straylight.design.baffles import design_baffles
+    from straylight.design.shields import NoShieldError
+
+    if args.rays < 1:
+        raise ValueError(f"--rays must be >= 1, got {args.rays}")
+    check_overwrite(args.out, patterns=DESIGN_OUTPUTS, force=args.force)
+    try:
+        doc = design_baffles(args.scene, args.field_deg, args.out, max_added_obscuration=args.max_added_obscuration,
+                             material=args.material, rays=args.rays, seed=args.seed, step=not args.no_step)
+    except NoShieldError as exc:
+        print(f"straylight design baffles: {exc}", file=sys.stderr)
+        return 1
+    record_outputs(args.out, patterns=DESIGN_OUTPUTS)
+    dc = doc["direct_check"]
+    for p in doc["baffles"]:
+        print(f"  {p['name']:24s} {p['shape']}")
+    print(f"obscuration {doc['obscuration_before']:.4f} -> {doc['obscuration_after']:.4f} "
+          f"(added {doc['obscuration_added']:.4f}); direct paths from 2F to 10 deg: "
+          f"{'none' if dc['blocked'] else 'SOME REMAIN'}; on-axis throughput ratio "
+          f"{dc['on_axis_throughput_ratio'] if dc['on_axis_throughput_ratio'] is None else round(dc['on_axis_throughput_ratio'], 4)}")
+    print(f"written {args.out}/scene.toml, design.json, index.html, view.html"
+          + ("" if args.no_step else ", baffles.step"))
+    return 0
 
 
 def run(args) -> int:

@@ -1,0 +1,196 @@
+"""``straylight design baffles`` end to end (CONTRACTS 8.2, docs/baffles.md).
+
+1. :func:`straylight.design.telescope_model.identify` finds the primary, secondary and image by
+   walking an on-axis fan through the exact surfaces (mirrors are parts with a ``specular`` material).
+2. :func:`straylight.design.telescope_model.nominal_bundle` traces the edge rays of the field -F..F.
+3. :func:`straylight.design.shields.construct` builds the least-obscuring skirt + tube (+ collar and
+   rear enclosure) that closes every straight line from the image to the sky.
+4. The designed scene is checked by the project's Monte Carlo tracer: with perfect mirrors and every
+   other part an absorber (glass keeps refracting), the detector power from 2F to 10 deg must be 0
+   (the *direct-path check*; before the shields it is usually not), and the on-axis throughput is
+   compared with the unshielded telescope's.
+5. The PST before and after with the scene's own materials, DIR/scene.toml, DIR/design.json,
+   DIR/baffles.step (CadQuery solids, one per baffle, knife-edged tube), DIR/index.html + view.html.
+"""
+from __future__ import annotations
+
+import math
+import time
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+import atomicio
+
+PERFECT_MIRROR = {"name": "perfect_mirror", "wavelength_nm": 532.0, "components": [{"type": "specular", "r": 1.0}]}
+ABSORBER = {"name": "absorber", "wavelength_nm": 532.0, "components": [{"type": "lambertian", "rd": 0.0}]}
+
+
+def direct_angles(field_deg: float) -> list[float]:
+    """The angles of the direct-path check: 2F to 10 deg (at least 2F), five steps."""
+    lo = max(2.0 * field_deg, 1e-3)
+    if lo >= 10.0:
+        return [lo]
+    return [float(a) for a in np.linspace(lo, 10.0, 5)]
+
+
+def ideal_materials(setup):
+    """Perfect mirrors (r = 1), glass as it is, everything else an absorber (rd = 0)."""
+    from materials import load_material
+
+    from straylight.design.telescope_model import _kind
+
+    mirror, black = load_material(PERFECT_MIRROR), load_material(ABSORBER)
+    out = dict(setup.materials)
+    for p in setup.scene.parts:
+        if p.material is None:
+            continue
+        kind = _kind(p, setup.materials)
+        if kind == "mirror":
+            out[p.material] = mirror
+        elif kind != "glass":
+            out[p.material] = black
+        if p.back_material is not None and p.back_material != p.material and kind != "glass":
+            out[p.back_material] = black
+    return out
+
+
+def _sweep(setup, angles_deg, rays, seed, nee=True):
+    from straylight.analyses.pst import pst_sweep
+
+    res = pst_sweep(setup, np.radians(angles_deg), n_rays=int(rays), seed=int(seed), nee=nee)
+    return [{"off_axis_deg": float(a), "pst": float(p), "pst_stderr": float(e), "detector_w": float(w),
+             "detector_stderr_w": float(we), "rays": int(rays)}
+            for a, p, e, w, we in zip(angles_deg, res.pst, res.pst_stderr, res.detector_w, res.detector_stderr_w)]
+
+
+def both_mirrors(events, primary: str, secondary: str) -> bool:
+    """Whether a path's events hold a specular reflection on the primary followed by one on the secondary."""
+    names = [p for p, k in events if k == "specular"]
+    if primary not in names:
+        return False
+    return secondary in names[names.index(primary) + 1:]
+
+
+def direct_check(setup, tel, angles_deg, rays, seed) -> list[dict]:
+    """Per angle: the image's power from paths that did not reflect from the primary and then the
+    secondary (``direct_w``, with its standard error), and its total power (``detector_w``), with
+    ``ideal_materials`` and path records (straylight.paths)."""
+    from straylight.analyses.grid import point_seed
+    from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
+
+    opts = TraceOptions(estimator=EstimatorOptions(nee=False), output=OutputOptions(record_paths=True, path_depth=16))
+    out = []
+    for i, a in enumerate(angles_deg):
+        res = trace(setup.scene, [setup.beam.source(math.radians(a))], int(rays), seed=point_seed(seed, i),
+                    materials=setup.materials, options=opts)
+        det = res.detectors[setup.detector]
+        direct, err = 0.0, 0.0
+        if res.paths is not None and len(res.paths):
+            for g in res.paths.group(by=lambda ev, d: (d == setup.detector and
+                                                        not both_mirrors(ev, tel.primary, tel.secondary))):
+                if g.key:
+                    direct, err = float(g.power_w), float(g.stderr_w)
+        out.append({"off_axis_deg": float(a), "direct_w": direct, "direct_stderr_w": err,
+                    "detector_w": float(det.power_w), "detector_stderr_w": float(det.stderr_w), "rays": int(rays)})
+    return out
+
+
+def output_scene_doc(scene_path: Path, parts: list[dict]) -> dict:
+    """The input scene's TOML with file paths made absolute (the output lives elsewhere) and the baffle
+    parts appended (analytic surfaces, CONTRACTS 6.1)."""
+    doc = tomllib.loads(scene_path.read_text())
+    base = scene_path.parent.resolve()
+
+    def fix(value):
+        if isinstance(value, str) and not Path(value).is_absolute() and (base / value).exists():
+            return str((base / value).resolve())
+        return value
+
+    for part in doc.get("part", []):
+        for key in ("mesh", "material", "back_material"):
+            if key in part:
+                part[key] = fix(part[key])
+    names = {p.get("name") for p in doc.get("part", [])}
+    clash = sorted(names & {p["name"] for p in parts})
+    if clash:
+        raise ValueError(f"{scene_path}: the scene already has part(s) {', '.join(clash)}; "
+                         "design baffles adds parts with these names (remove or rename them)")
+    doc.setdefault("part", [])
+    for p in parts:
+        doc["part"].append({"name": p["name"], "surface": p["surface"], "material": p["material"], "role": "surface"})
+    return doc
+
+
+def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: float = 0.05,
+                   material: str = "z302_sample_b", rays: int = 20_000, seed: int = 0, step: bool = True,
+                   log=print) -> dict:
+    """Design the shields of the telescope in ``scene_path`` and write ``out`` (module docstring)."""
+    import tomli_w
+
+    from straylight.analyses.scene_setup import scene_setup
+    from straylight.design import shields, telescope_model
+
+    if not (0.0 <= field_deg < 10.0) or not math.isfinite(field_deg):
+        raise ValueError(f"--field-deg must be in [0, 10) deg, got {field_deg}")
+    if not (0.0 <= max_added_obscuration < 1.0):
+        raise ValueError(f"--max-added-obscuration must be in [0, 1), got {max_added_obscuration}")
+    t0 = time.perf_counter()
+    scene_path = Path(scene_path)
+    out = Path(out)
+    before = scene_setup(scene_path)
+    tel = telescope_model.identify(before)
+    log(f"primary {tel.primary!r}, secondary {tel.secondary!r}, image {tel.image!r} "
+        f"(aperture radius {tel.aperture_radius_mm:.4g} mm)")
+    bundle = telescope_model.nominal_bundle(before, tel, field_deg)
+    layout = shields.construct(tel, bundle, max_added_obscuration)  # NoShieldError: the CLI's one line
+    parts = shields.baffle_parts(tel, layout, material)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = output_scene_doc(scene_path, parts)
+    atomicio.write_text(out / "scene.toml", tomli_w.dumps(doc))
+    after = scene_setup(out / "scene.toml")
+    # 4. direct-path check by the tracer, before and after
+    angles = direct_angles(field_deg)
+    ideal_b = replace(before, materials=ideal_materials(before))
+    ideal_a = replace(after, materials=ideal_materials(after))
+    direct_before = direct_check(ideal_b, tel, [0.0] + angles, rays, seed)
+    direct_after = direct_check(ideal_a, tel, [0.0] + angles, rays, seed)
+    on_b, on_a = direct_before[0]["detector_w"], direct_after[0]["detector_w"]
+    throughput = on_a / on_b if on_b > 0 else None
+    # 5. PST with the scene's own materials
+    pst_angles = sorted({0.0, float(field_deg), *angles})
+    pst_before = _sweep(before, pst_angles, rays, seed)
+    pst_after = _sweep(after, pst_angles, rays, seed)
+    step_file = None
+    if step:
+        from straylight.design.baffle_cad import write_step
+
+        step_file = write_step(out / "baffles.step", tel, parts)
+    design = {
+        "field_deg": float(field_deg),
+        "obscuration_before": layout.obscuration_before,
+        "obscuration_after": layout.obscuration_after,
+        "obscuration_added": layout.obscuration_after - layout.obscuration_before,
+        "max_added_obscuration": float(max_added_obscuration),
+        "baffles": [{k: v for k, v in p.items() if k != "surface"} for p in parts],
+        "telescope": tel.to_dict(),
+        "direct_margin_mm": layout.direct_margin_mm,
+        "direct_check": {
+            "method": "perfect mirrors (r = 1), glass as in the scene, every other part an absorber; direct_w: "
+                      "the image's power from paths without a reflection on the primary followed by one on the "
+                      "secondary (path records); detector_w: all of the image's power",
+            "before": direct_before[1:], "after": direct_after[1:],
+            "blocked": all(p["direct_w"] == 0.0 for p in direct_after[1:]),
+            "on_axis_throughput_ratio": throughput},
+        "pst_before": pst_before, "pst_after": pst_after,
+        "material": material, "rays": int(rays), "seed": int(seed),
+        "step": step_file.name if step_file else None,
+        "seconds": time.perf_counter() - t0,
+    }
+    atomicio.write_json(out / "design.json", design)
+    from straylight.design.baffle_report import write_report
+
+    write_report(out, design, after, tel)
+    return design

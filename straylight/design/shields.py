@@ -1,0 +1,220 @@
+"""Exact construction of a two-mirror telescope's light shields from the edge rays of the field.
+
+The classical layout (Young, Appl. Opt. 6, 1063 (1967); Breault, Handbook of Optics vol. II ch. 38):
+
+- ``baffle_secondary``: a skirt (cylinder of radius r_s) hanging from the secondary's rim toward the
+  primary down to u_s, closed at the top by ``baffle_secondary_cap`` (the annulus between the
+  mirror's rim and the skirt);
+- ``baffle_primary``: a tube of radius a about the axis, from the image plane up to u_p (through the
+  primary's hole; ``baffle_primary_collar`` closes the hole around it when a is smaller);
+- ``baffle_rear``: a cylinder at the primary's rim down past the image plane, so the detector sees
+  the sky only through the tube.
+
+Constraints, all exact in the meridional plane (u along the axis, y across it), for the nominal
+rays of every field angle in [-F, F] (:func:`straylight.design.telescope_model.nominal_bundle`):
+
+1. the tube must not touch the converging beam (secondary to image): a > max |y| of that beam over
+   the tube's height, and it must not touch the rays going to or from the primary;
+2. the skirt must not touch the beam primary -> secondary or secondary -> image: r_s > their max |y|
+   over [u_s, rim]; so a wider skirt may hang lower;
+3. no direct path: the steepest line from the detector's edge (-h, u_i) through the tube's rim
+   (a, u_p) must enter the skirt's mouth: y(u_s) = -h + (a + h)(u_s - u_i)/(u_p - u_i) <= r_s
+   (in 3-D the meridional line is the worst: the distance from the axis of a point (1-t)p + tq is at
+   most (t-1)|p| + t|q| for t > 1, with equality for p, q opposite).
+
+Among the layouts that satisfy all three (a grid over r_s and u_p, each with its least a and its
+lowest u_s), the one with the smallest skirt (least added obscuration) is kept, then the largest
+margin in (3). The added obscuration is the on-axis entrance area the skirt and tube block beyond
+what the unbaffled telescope already loses, over the aperture's area.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class NoShieldError(ValueError):
+    """No layout blocks every direct path within the allowed obscuration (one-line message)."""
+
+
+def clipped_abs_range(seg: np.ndarray, lo: float, hi: float):
+    """For segments (m, 4) = u0, y0, u1, y1: max and min of |y| over the part with lo <= u <= hi
+    (nan where a segment does not reach that range)."""
+    if len(seg) == 0:
+        return np.zeros(0), np.zeros(0)
+    u0, y0, u1, y1 = seg.T
+    ua, ub = np.minimum(u0, u1), np.maximum(u0, u1)
+    a, b = np.maximum(ua, lo), np.minimum(ub, hi)
+    inside = a <= b
+    du = np.where(np.abs(u1 - u0) > 1e-12, u1 - u0, 1.0)
+    flat = np.abs(u1 - u0) <= 1e-12
+
+    def y_at(u):
+        return np.where(flat, y0, y0 + (y1 - y0) * (u - u0) / du)
+
+    ya, yb = y_at(a), y_at(b)
+    ya = np.where(flat, y0, ya)
+    yb = np.where(flat, y1, yb)
+    ymax = np.maximum(np.abs(ya), np.abs(yb))
+    ymin = np.where(ya * yb <= 0, 0.0, np.minimum(np.abs(ya), np.abs(yb)))
+    return np.where(inside, ymax, np.nan), np.where(inside, ymin, np.nan)
+
+
+def _nanmax(x, default=0.0):
+    x = x[np.isfinite(x)]
+    return float(x.max()) if len(x) else default
+
+
+def _nanmin(x, default=math.inf):
+    x = x[np.isfinite(x)]
+    return float(x.min()) if len(x) else default
+
+
+@dataclass
+class Layout:
+    skirt_radius_mm: float
+    skirt_bottom_u: float
+    tube_radius_mm: float
+    tube_top_u: float
+    tube_bottom_u: float
+    cap_u: float
+    collar: bool
+    rear_radius_mm: float
+    rear_from_u: float
+    rear_to_u: float
+    direct_margin_mm: float
+    obscuration_before: float = 0.0
+    obscuration_after: float = 0.0
+    notes: list = field(default_factory=list)
+
+
+def obscuration(tel, bundle, layout: Layout | None) -> float:
+    """Fraction of the on-axis aperture (disk of the aperture radius) that does not form the image:
+    the unbaffled telescope's own loss (secondary, hole) plus, with ``layout``, what its skirt and
+    tube block. Area weights |y| over the meridional fan (an annulus per ray)."""
+    y = bundle.on_axis_y
+    wgt = np.abs(y) * (np.abs(y) <= tel.aperture_radius_mm)
+    ok = bundle.on_axis_nominal.copy()
+    if layout is not None:
+        for i, segs in bundle.on_axis_segments:
+            incoming = np.array([s[1:] for s in segs if s[0] == "in"], float).reshape(-1, 4)
+            _, smin = clipped_abs_range(incoming, layout.skirt_bottom_u, layout.cap_u)
+            _, tmin = clipped_abs_range(incoming, layout.tube_bottom_u, layout.tube_top_u)
+            if _nanmin(smin) <= layout.skirt_radius_mm or _nanmin(tmin) <= layout.tube_radius_mm:
+                ok[i] = False
+    total = wgt.sum()
+    return float(1.0 - (wgt * ok).sum() / total) if total > 0 else 0.0
+
+
+def construct(tel, bundle, max_added: float = 0.05, n_grid: int = 240) -> Layout:
+    """The least-obscuring layout (module docstring); raises NoShieldError when none fits ``max_added``."""
+    fam = bundle.families
+    R = tel.aperture_radius_mm
+    margin = max(2e-3 * R, 0.02)
+    inner = np.concatenate([fam["ps"], fam["si"]])
+    u_top = tel.secondary_rim_u
+    u_i = tel.image_u
+    h = tel.image_radius_mm
+    tube_bottom = u_i + 1e-3 * max(R, 1.0)
+    # skirt: for each radius, the lowest bottom that keeps the inner beams inside
+    us = np.linspace(min(tel.primary_hole_u, u_i), u_top, n_grid)
+    m_inner = np.array([_nanmax(clipped_abs_range(inner, u, u_top)[0]) for u in us])
+    r_grid = np.linspace(tel.secondary_outer_mm, R, n_grid)
+    u_sb = np.empty(n_grid)
+    for k, r in enumerate(r_grid):
+        ok = np.flatnonzero(m_inner < r - margin)
+        u_sb[k] = us[ok[0]] if len(ok) else u_top
+    # tube: for each top height, the least radius clearing the converging beam, and its room
+    up = np.linspace(max(tel.primary_hole_u, u_i) - 0.0, u_top, n_grid)
+    outer = np.concatenate([fam["in"], fam["ps"]])
+    a_need = np.empty(n_grid)
+    a_room = np.empty(n_grid)
+    for k, u in enumerate(up):
+        a_need[k] = _nanmax(clipped_abs_range(fam["si"], tube_bottom, u)[0]) + margin
+        a_room[k] = _nanmin(clipped_abs_range(outer, tube_bottom, u)[1]) - margin
+    before = obscuration(tel, bundle, None)
+    best = None
+    fallback = None
+    for k, r in enumerate(r_grid):
+        usk = u_sb[k]
+        for j, u in enumerate(up):
+            a = a_need[j]
+            if a > a_room[j] or u >= usk - margin:
+                continue
+            he = min(h, a)
+            x = -he + (a + he) * (usk - u_i) / (u - u_i)
+            slack = r - margin - x
+            if slack < 0:
+                continue
+            cand = (r, usk, a, u, slack)
+            if best is None or (abs(cand[0] - best[0]) < 1e-12 and slack > best[4]):
+                best = cand
+        if best is not None:
+            lay = _layout(tel, best, tube_bottom, margin)
+            lay.obscuration_before = before
+            lay.obscuration_after = obscuration(tel, bundle, lay)
+            if lay.obscuration_after - before <= max_added + 1e-12:
+                return lay
+            fallback = lay
+            break
+    if fallback is not None:
+        raise NoShieldError(
+            f"no shield blocks every direct path within the allowed obscuration: the smallest that does "
+            f"adds {fallback.obscuration_after - before:.4f} of the aperture area "
+            f"(--max-added-obscuration {max_added:g})")
+    raise NoShieldError("no shield blocks every direct path within the allowed obscuration: no skirt up to "
+                        f"the aperture radius ({R:.4g} mm) closes the view from the image to the sky "
+                        f"(--max-added-obscuration {max_added:g})")
+
+
+def _layout(tel, cand, tube_bottom, margin) -> Layout:
+    r, usk, a, u, slack = cand
+    rear_from = min(tel.image_u, tel.primary_rim_u) - 2 * margin
+    return Layout(skirt_radius_mm=float(r), skirt_bottom_u=float(usk), tube_radius_mm=float(a),
+                  tube_top_u=float(u), tube_bottom_u=float(tube_bottom), cap_u=float(tel.secondary_rim_u),
+                  collar=bool(a < tel.primary_hole_mm), rear_radius_mm=float(tel.primary_outer_mm + margin),
+                  rear_from_u=float(rear_from), rear_to_u=float(tel.primary_rim_u), direct_margin_mm=float(slack))
+
+
+def baffle_parts(tel, lay: Layout, material: str = "z302_sample_b") -> list[dict]:
+    """The layout as scene parts (CONTRACTS 6.1 analytic surfaces) and as design.json entries."""
+    ax = [float(v) for v in tel.axis]
+
+    def vec(p):
+        return [float(v) for v in p]
+
+    out = []
+    out.append({"name": "baffle_secondary", "type": "secondary_skirt", "shape": "cylinder",
+                "radius_mm": lay.skirt_radius_mm, "length_mm": lay.cap_u - lay.skirt_bottom_u,
+                "from_mm": vec(tel.point(lay.skirt_bottom_u)), "to_mm": vec(tel.point(lay.cap_u)),
+                "surface": {"type": "cylinder", "vertex_mm": vec(tel.point(lay.skirt_bottom_u)), "axis": ax,
+                            "radius_mm": lay.skirt_radius_mm, "length_mm": lay.cap_u - lay.skirt_bottom_u}})
+    if lay.skirt_radius_mm > tel.secondary_outer_mm + 1e-9:
+        out.append({"name": "baffle_secondary_cap", "type": "secondary_cap", "shape": "annulus",
+                    "inner_radius_mm": tel.secondary_outer_mm, "outer_radius_mm": lay.skirt_radius_mm,
+                    "center_mm": vec(tel.point(lay.cap_u)),
+                    "surface": {"type": "plane", "vertex_mm": vec(tel.point(lay.cap_u)), "axis": ax,
+                                "outer_radius_mm": lay.skirt_radius_mm, "inner_radius_mm": tel.secondary_outer_mm}})
+    out.append({"name": "baffle_primary", "type": "primary_tube", "shape": "cylinder",
+                "radius_mm": lay.tube_radius_mm, "length_mm": lay.tube_top_u - lay.tube_bottom_u,
+                "from_mm": vec(tel.point(lay.tube_bottom_u)), "to_mm": vec(tel.point(lay.tube_top_u)),
+                "surface": {"type": "cylinder", "vertex_mm": vec(tel.point(lay.tube_bottom_u)), "axis": ax,
+                            "radius_mm": lay.tube_radius_mm, "length_mm": lay.tube_top_u - lay.tube_bottom_u}})
+    if lay.collar:
+        uc = tel.primary_hole_u - 1e-3
+        outer = tel.primary_hole_mm + max(1e-3 * tel.aperture_radius_mm, 0.01)
+        out.append({"name": "baffle_primary_collar", "type": "primary_collar", "shape": "annulus",
+                    "inner_radius_mm": lay.tube_radius_mm, "outer_radius_mm": outer, "center_mm": vec(tel.point(uc)),
+                    "surface": {"type": "plane", "vertex_mm": vec(tel.point(uc)), "axis": ax,
+                                "outer_radius_mm": outer, "inner_radius_mm": lay.tube_radius_mm}})
+    if lay.rear_to_u > lay.rear_from_u:
+        out.append({"name": "baffle_rear", "type": "rear_enclosure", "shape": "cylinder",
+                    "radius_mm": lay.rear_radius_mm, "length_mm": lay.rear_to_u - lay.rear_from_u,
+                    "from_mm": vec(tel.point(lay.rear_from_u)), "to_mm": vec(tel.point(lay.rear_to_u)),
+                    "surface": {"type": "cylinder", "vertex_mm": vec(tel.point(lay.rear_from_u)), "axis": ax,
+                                "radius_mm": lay.rear_radius_mm, "length_mm": lay.rear_to_u - lay.rear_from_u}})
+    for p in out:
+        p["material"] = material
+    return out

@@ -1,0 +1,309 @@
+"""A two-mirror telescope read from its scene: which parts are the primary, the secondary and the
+image, and the exact nominal ray bundle (edge rays of the field) that the baffles must not touch.
+
+The parts are recognised by what they do, not by their names: an on-axis fan from the scene's
+``collimated_disk`` source is walked through the exact analytic surfaces (CONTRACTS 6.1: mirrors
+reflect, ``dielectric`` surfaces refract by Snell's law, n1 sin t1 = n2 sin t2, Born & Wolf 1.5.1;
+everything else stops the ray); the first mirror the image-forming rays meet is the primary, the
+second the secondary. Frame used by the construction (:mod:`straylight.design.shields`): ``u`` along
+the axis from the primary's vertex toward the secondary's, ``y`` the meridional coordinate.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from materials.smooth import reflect, refract
+
+
+class TelescopeError(ValueError):
+    """The scene is not a two-mirror telescope the baffle design understands (one-line message)."""
+
+
+def _components(material) -> list:
+    return list(getattr(material, "components", None) or ())
+
+
+def _kind(part, materials) -> str:
+    """``mirror``, ``glass`` (index in ``_index``), ``detector`` or ``stop`` (absorbs)."""
+    if part.role == "detector":
+        return "detector"
+    if part.role == "mirror":
+        return "mirror"
+    if part.role == "absorber" or part.material is None:
+        return "stop"
+    names = {type(c).__name__ for c in _components(materials.get(part.material))}
+    if "Specular" in names:
+        return "mirror"
+    if "Dielectric" in names:
+        return "glass"
+    return "stop"
+
+
+def _index(part, materials) -> float:
+    for c in _components(materials.get(part.material)):
+        if type(c).__name__ == "Dielectric":
+            n = c.n
+            return float(n[0] if isinstance(n, (tuple, list, np.ndarray)) else n)
+    return 1.0
+
+
+@dataclass
+class Walk:
+    """Rays walked through the scene: vertices (n, k+1, 3) padded with nan, hit part index per
+    vertex (-1: none), the number of hits, and whether the last hit was the detector."""
+
+    vertices: np.ndarray
+    parts: np.ndarray
+    n_hits: np.ndarray
+    detected: np.ndarray
+
+
+def walk(scene, materials, detector: str, o, d, max_hits: int = 8) -> Walk:
+    """Exact specular walk (mirrors reflect on their front, glass refracts, all else stops)."""
+    from straylight.intersect import EmbreeIntersector
+
+    o = np.array(o, float)
+    d = np.array(d, float)
+    n = len(o)
+    kinds = [_kind(p, materials) for p in scene.parts]
+    index = [_index(p, materials) for p in scene.parts]
+    det = scene.part_names.index(scene.resolve(detector))
+    tri_part = scene.triangle_part
+    isect = EmbreeIntersector(scene.triangles_mm)
+    bounds = np.asarray(scene.bounds_mm, float)
+    scale = float(np.linalg.norm(bounds[1] - bounds[0]))
+    verts = np.full((n, max_hits + 1, 3), np.nan)
+    verts[:, 0] = o
+    parts = np.full((n, max_hits + 1), -1)
+    nh = np.zeros(n, int)
+    detected = np.zeros(n, bool)
+    alive = np.ones(n, bool)
+    last = np.full(n, -1)
+    for k in range(max_hits):
+        idx = np.flatnonzero(alive)
+        if len(idx) == 0:
+            break
+        start = o[idx] + 1e-7 * d[idx]
+        tri, t = isect.intersect(start, d[idx])
+        # a ray leaving an exact surface may meet that surface's own mesh a chord away: step past it
+        for _ in range(5):
+            again = (tri >= 0) & (tri_part[np.maximum(tri, 0)] == last[idx]) & (t < 1e-3 * scale)
+            if not np.any(again):
+                break
+            sel = np.flatnonzero(again)
+            skip = t[sel] + 1e-6 * scale
+            tri2, t2 = isect.intersect(start[sel] + skip[:, None] * d[idx[sel]], d[idx[sel]])
+            tri[sel], t[sel] = tri2, np.where(tri2 >= 0, t2 + skip, t2)
+        hit = tri >= 0
+        alive[idx[~hit]] = False
+        idx, t, start = idx[hit], t[hit], start[hit]
+        part = tri_part[tri[hit]]
+        for pi in np.unique(part):
+            sel = part == pi
+            rows = idx[sel]
+            p = scene.parts[pi]
+            if p.surface is not None:
+                tr, nrm, ok = p.surface.refine_hits(start[sel], d[rows], t[sel])
+                ok = ok & np.isfinite(tr)
+                tr = np.where(ok, tr, t[sel])
+            else:  # a mesh: the triangle's hit, the flat normal facing the ray
+                tr = t[sel]
+                nrm = -d[rows]
+                ok = np.ones(len(rows), bool)
+            if not np.any(ok):
+                continue
+            rows, tr, nrm = rows[ok], tr[ok], nrm[ok]
+            o[rows] = start[sel][ok] + tr[:, None] * d[rows]
+            verts[rows, k + 1] = o[rows]
+            parts[rows, k + 1] = pi
+            nh[rows] = k + 1
+            last[rows] = pi
+            front = np.einsum("ij,ij->i", d[rows], nrm) < 0
+            kind = kinds[pi]
+            if pi == det:
+                detected[rows[front]] = True
+                alive[rows] = False
+            elif kind == "mirror":
+                d[rows[front]] = reflect(d[rows[front]], nrm[front])
+                alive[rows[~front]] = False
+            elif kind == "glass":
+                nn = np.where(front[:, None], nrm, -nrm)
+                eta = np.where(front, 1.0 / index[pi], index[pi])
+                cos_i = -np.einsum("ij,ij->i", d[rows], nn)
+                s2 = eta ** 2 * (1.0 - cos_i ** 2)
+                tir = s2 > 1.0
+                cos_t = np.sqrt(np.maximum(0.0, 1.0 - s2))
+                d[rows[~tir]] = refract(d[rows[~tir]], nn[~tir], eta[~tir], cos_t[~tir])
+                alive[rows[tir]] = False
+            else:
+                alive[rows] = False
+    return Walk(verts, parts, nh, detected)
+
+
+@dataclass
+class Telescope:
+    """The two-mirror telescope of a scene, in the frame (u along ``axis`` from ``origin``, y along ``e1``)."""
+
+    primary: str
+    secondary: str
+    image: str
+    origin: np.ndarray
+    axis: np.ndarray
+    e1: np.ndarray
+    image_u: float
+    image_radius_mm: float
+    primary_outer_mm: float
+    primary_hole_mm: float
+    primary_hole_u: float
+    primary_rim_u: float
+    secondary_outer_mm: float
+    secondary_rim_u: float
+    aperture_radius_mm: float
+    beam_axis: np.ndarray
+    beam_center: np.ndarray
+    beam_radius_mm: float
+    extra: dict = field(default_factory=dict)
+
+    def u(self, p):
+        return (np.asarray(p, float) - self.origin) @ self.axis
+
+    def y(self, p):
+        return (np.asarray(p, float) - self.origin) @ self.e1
+
+    def point(self, u, y=0.0):
+        return self.origin + u * self.axis + y * self.e1
+
+    def to_dict(self) -> dict:
+        return {"primary": self.primary, "secondary": self.secondary, "image": self.image,
+                "axis": [float(v) for v in self.axis], "primary_vertex_mm": [float(v) for v in self.origin],
+                "aperture_radius_mm": self.aperture_radius_mm, "primary_outer_radius_mm": self.primary_outer_mm,
+                "primary_hole_radius_mm": self.primary_hole_mm, "secondary_outer_radius_mm": self.secondary_outer_mm,
+                "image_radius_mm": self.image_radius_mm, "image_distance_mm": self.image_u}
+
+
+def _perp(w):
+    a = np.eye(3)[int(np.argmin(np.abs(w)))]
+    e = a - (a @ w) * w
+    return e / np.linalg.norm(e)
+
+
+def fan(tel_or_beam, field_rad: float, n: int, radius_scale: float = 1.0):
+    """Meridional rays of a collimated beam at field angle ``field_rad`` (tilted toward +e1), starting
+    on the beam's source plane, their ray through the beam centre fixed: origins (n, 3), dirs (n, 3), y (n,)."""
+    b, c, e1, R = tel_or_beam
+    dvec = math.cos(field_rad) * b + math.sin(field_rad) * e1
+    y = np.linspace(-R * radius_scale, R * radius_scale, n)
+    p = c[None, :] + y[:, None] * e1[None, :]
+    return p, np.tile(dvec, (n, 1)), y
+
+
+def _rim_u(surface, radius_mm: float, tel_origin, axis) -> float:
+    sag = float(surface.sag(radius_mm)) if hasattr(surface, "sag") else 0.0
+    local = np.array([[radius_mm, 0.0, sag]])
+    return float((surface.to_world(local)[0] - tel_origin) @ axis)
+
+
+def identify(setup, n_rays: int = 801) -> Telescope:
+    """Find the primary, secondary and image of ``setup`` (a straylight.analyses.types.Setup)."""
+    scene, materials = setup.scene, setup.materials
+    det = setup.detector
+    beam = setup.beam
+    b = np.asarray(beam.axis, float)
+    b = b / np.linalg.norm(b)
+    c = np.asarray(beam.center_mm, float)
+    e1 = _perp(b)
+    o, d, y = fan((b, c, e1, float(beam.radius_mm)), 0.0, n_rays)
+    w = walk(scene, materials, det, o, d)
+    kinds = [_kind(p, materials) for p in scene.parts]
+    firsts, seconds = {}, {}
+    for i in np.flatnonzero(w.detected):
+        mirrors = [p for p in w.parts[i, 1:w.n_hits[i] + 1] if p >= 0 and kinds[p] == "mirror"]
+        if len(mirrors) >= 2:
+            firsts[mirrors[0]] = firsts.get(mirrors[0], 0) + 1
+            seconds[mirrors[1]] = seconds.get(mirrors[1], 0) + 1
+    if not firsts:
+        raise TelescopeError(f"no on-axis ray from the source reaches the detector {det!r} after two mirrors: "
+                             "not a two-mirror telescope (mirrors are parts with a 'specular' material)")
+    ip = max(firsts, key=firsts.get)
+    isec = max(seconds, key=seconds.get)
+    P, S, D = scene.parts[ip], scene.parts[isec], scene.part(det)
+    for part in (P, S):
+        if part.surface is None or not hasattr(part.surface, "outer_radius_mm"):
+            raise TelescopeError(f"mirror {part.name!r} is not an analytic conic surface (CONTRACTS 6.1)")
+    origin = np.asarray(P.surface.vertex_mm, float)
+    axis = np.asarray(S.surface.vertex_mm, float) - origin
+    if np.linalg.norm(axis) < 1e-9:  # the secondary is a spot at the primary's vertex? use the beam
+        axis = -b
+    axis = axis / np.linalg.norm(axis)
+    e1 = _perp(axis)
+    if D.surface is not None and hasattr(D.surface, "outer_radius_mm"):
+        image_u = float((np.asarray(D.surface.vertex_mm, float) - origin) @ axis)
+        image_r = float(D.surface.outer_radius_mm)
+    else:
+        v = np.asarray(D.vertices_mm, float) - origin
+        us = v @ axis
+        image_u = float(us.mean())
+        image_r = float(np.linalg.norm(v - us[:, None] * axis, axis=1).max())
+    yy = np.abs(y[w.detected])
+    tel = Telescope(
+        primary=P.name, secondary=S.name, image=D.name, origin=origin, axis=axis, e1=e1,
+        image_u=image_u, image_radius_mm=image_r,
+        primary_outer_mm=float(P.surface.outer_radius_mm), primary_hole_mm=float(P.surface.inner_radius_mm),
+        primary_hole_u=_rim_u(P.surface, float(P.surface.inner_radius_mm), origin, axis),
+        primary_rim_u=_rim_u(P.surface, float(P.surface.outer_radius_mm), origin, axis),
+        secondary_outer_mm=float(S.surface.outer_radius_mm),
+        secondary_rim_u=_rim_u(S.surface, float(S.surface.outer_radius_mm), origin, axis),
+        aperture_radius_mm=float(yy.max()), beam_axis=b, beam_center=c, beam_radius_mm=float(beam.radius_mm))
+    tel.extra["indices"] = (ip, isec, scene.part_names.index(D.name))
+    return tel
+
+
+@dataclass
+class Bundle:
+    """Nominal segments in the (u, y) plane, by family: ``in`` (sky to primary), ``ps`` (primary to
+    secondary), ``si`` (secondary to image). Each: (m, 4) rows u0, y0, u1, y1."""
+
+    families: dict
+    on_axis_y: np.ndarray      # entrance heights of the on-axis fan
+    on_axis_nominal: np.ndarray  # which of them form the image (primary, then secondary, then image)
+    on_axis_segments: list     # per on-axis ray: list of (family, u0, y0, u1, y1)
+
+
+def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n_fields: int = 9) -> Bundle:
+    """The image-forming rays of fields -F..F (meridional fans over the whole source disk)."""
+    ip, isec, idet = tel.extra["indices"]
+    fams = {"in": [], "ps": [], "si": []}
+    on_y = on_nom = None
+    on_segs = []
+    fields = np.linspace(-field_deg, field_deg, n_fields) if field_deg > 0 else np.array([0.0])
+    fields = np.unique(np.concatenate([fields, [0.0]]))
+    for f in fields:
+        n = 2001 if f == 0.0 else n_rays
+        o, d, y = fan((tel.beam_axis, tel.beam_center, tel.e1, tel.beam_radius_mm), math.radians(f), n)
+        w = walk(setup.scene, setup.materials, tel.image, o, d)
+        nominal = np.zeros(n, bool)
+        for i in range(n):
+            seq = list(w.parts[i, 1:w.n_hits[i] + 1])
+            if not w.detected[i] or ip not in seq or isec not in seq:
+                continue
+            kp, ks = seq.index(ip), seq.index(isec)
+            if ks < kp:
+                continue
+            nominal[i] = True
+            pts = w.vertices[i, :w.n_hits[i] + 1]
+            u = (pts - tel.origin) @ tel.axis
+            yy = (pts - tel.origin) @ tel.e1
+            segs = []
+            for j in range(len(pts) - 1):
+                fam = "in" if j < kp + 1 else ("ps" if j < ks + 1 else "si")
+                fams[fam].append((u[j], yy[j], u[j + 1], yy[j + 1]))
+                segs.append((fam, u[j], yy[j], u[j + 1], yy[j + 1]))
+            if f == 0.0:
+                on_segs.append((i, segs))
+        if f == 0.0:
+            on_y, on_nom = y, nominal
+    arr = {k: np.asarray(v, float).reshape(-1, 4) for k, v in fams.items()}
+    return Bundle(arr, on_y, on_nom, on_segs)
