@@ -1,7 +1,8 @@
 """The designed shields as CadQuery solids in one STEP assembly (CONTRACTS 8.2), for the mechanical CAD.
 
-Each analytic baffle (a zero-thickness sheet in the scene) becomes a solid of ``thickness_mm`` grown
-away from the light: a cylinder grows outward (its inner face is the designed surface, so the beam's
+Each analytic baffle (a zero-thickness sheet in the scene) becomes a solid of ``thickness_mm`` (default:
+0.9 of the construction's clearance, 0.2 % of the aperture radius; thicken it in CAD only away from the
+beam) grown away from the light: a cylinder grows outward (its inner face is the designed surface, so the beam's
 clearance is kept); an annulus grows away from the secondary's mirror (toward the sky). The primary
 tube ends in a knife edge at its top: its outer face is chamfered at ``KNIFE_DEG`` to the axis, so the
 edge that the direct-path construction grazes is sharp (Breault: a sharp edge scatters the least).
@@ -38,7 +39,10 @@ def _revolved(profile_rz, loc):
 
 def shapes(tel, parts: list[dict], thickness_mm: float | None = None) -> dict:
     """{part name: cadquery Solid} for the design's parts (baffle_parts output)."""
-    t = thickness_mm if thickness_mm is not None else max(0.5, 0.004 * tel.aperture_radius_mm)
+    from straylight.design.shields import margin_mm
+
+    # as thick as the clearance the construction keeps, so the solids vignette nothing the sheets do not
+    t = thickness_mm if thickness_mm is not None else 0.9 * margin_mm(tel.aperture_radius_mm)
     out = {}
     for p in parts:
         s = p["surface"]

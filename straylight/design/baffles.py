@@ -183,6 +183,7 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
                       "secondary (path records); detector_w: all of the image's power",
             "before": direct_before[1:], "after": direct_after[1:],
             "blocked": all(p["direct_w"] == 0.0 for p in direct_after[1:]),
+            "on_axis_before": direct_before[0], "on_axis_after": direct_after[0],
             "on_axis_throughput_ratio": throughput},
         "pst_before": pst_before, "pst_after": pst_after,
         "material": material, "rays": int(rays), "seed": int(seed),

@@ -108,11 +108,17 @@ def obscuration(tel, bundle, layout: Layout | None) -> float:
     return float(1.0 - (wgt * ok).sum() / total) if total > 0 else 0.0
 
 
+def margin_mm(aperture_radius_mm: float) -> float:
+    """Clearance between a shield and the nominal beam, and in the direct-path condition: 0.2 % of the
+    aperture radius (at least 0.02 mm). The STEP solids are this thick, so they stay inside it."""
+    return max(2e-3 * aperture_radius_mm, 0.02)
+
+
 def construct(tel, bundle, max_added: float = 0.05, n_grid: int = 240) -> Layout:
     """The least-obscuring layout (module docstring); raises NoShieldError when none fits ``max_added``."""
     fam = bundle.families
     R = tel.aperture_radius_mm
-    margin = max(2e-3 * R, 0.02)
+    margin = margin_mm(R)
     inner = np.concatenate([fam["ps"], fam["si"]])
     u_top = tel.secondary_rim_u
     u_i = tel.image_u

@@ -190,14 +190,21 @@ def _perp(w):
     return e / np.linalg.norm(e)
 
 
-def fan(tel_or_beam, field_rad: float, n: int, radius_scale: float = 1.0):
-    """Meridional rays of a collimated beam at field angle ``field_rad`` (tilted toward +e1), starting
-    on the beam's source plane, their ray through the beam centre fixed: origins (n, 3), dirs (n, 3), y (n,)."""
+def fan(tel_or_beam, field_rad: float, n: int, radius_scale: float = 1.0, back_mm: float = 0.0):
+    """Meridional rays of a collimated beam at field angle ``field_rad`` (tilted toward +e1) through the
+    beam's source disk, starting ``back_mm`` before it (a source placed 1 mm before a lens's vertex may
+    lie behind the lens's rim): origins (n, 3), dirs (n, 3), y (n,) across the disk."""
     b, c, e1, R = tel_or_beam
     dvec = math.cos(field_rad) * b + math.sin(field_rad) * e1
     y = np.linspace(-R * radius_scale, R * radius_scale, n)
-    p = c[None, :] + y[:, None] * e1[None, :]
+    p = c[None, :] + y[:, None] * e1[None, :] - back_mm * dvec[None, :]
     return p, np.tile(dvec, (n, 1)), y
+
+
+def _extent(scene) -> float:
+    """The scene's bounding-box diagonal (mm)."""
+    b = np.asarray(scene.bounds_mm, float)
+    return float(np.linalg.norm(b[1] - b[0]))
 
 
 def _rim_u(surface, radius_mm: float, tel_origin, axis) -> float:
@@ -215,7 +222,7 @@ def identify(setup, n_rays: int = 801) -> Telescope:
     b = b / np.linalg.norm(b)
     c = np.asarray(beam.center_mm, float)
     e1 = _perp(b)
-    o, d, y = fan((b, c, e1, float(beam.radius_mm)), 0.0, n_rays)
+    o, d, y = fan((b, c, e1, float(beam.radius_mm)), 0.0, n_rays, back_mm=_extent(scene))
     w = walk(scene, materials, det, o, d)
     kinds = [_kind(p, materials) for p in scene.parts]
     firsts, seconds = {}, {}
@@ -282,7 +289,8 @@ def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n
     fields = np.unique(np.concatenate([fields, [0.0]]))
     for f in fields:
         n = 2001 if f == 0.0 else n_rays
-        o, d, y = fan((tel.beam_axis, tel.beam_center, tel.e1, tel.beam_radius_mm), math.radians(f), n)
+        o, d, y = fan((tel.beam_axis, tel.beam_center, tel.e1, tel.beam_radius_mm), math.radians(f), n,
+                      back_mm=_extent(setup.scene))
         w = walk(setup.scene, setup.materials, tel.image, o, d)
         nominal = np.zeros(n, bool)
         for i in range(n):
