@@ -3,8 +3,10 @@
 1. :func:`straylight.design.telescope_model.identify` finds the primary, secondary and image by
    walking an on-axis fan through the exact surfaces (mirrors are parts with a ``specular`` material).
 2. :func:`straylight.design.telescope_model.nominal_bundle` traces the edge rays of the field -F..F.
-3. :func:`straylight.design.shields.construct` builds the least-obscuring skirt + tube (+ collar and
-   rear enclosure) that closes every straight line from the image to the sky.
+3. :func:`straylight.design.shields.candidates` builds the least-obscuring skirt + tube (+ collar and
+   rear enclosure) that closes every straight line from the image to the sky, and a few wider-skirt or
+   shorter-tube variants within the budget; :func:`refine` (``refine_rays`` > 0) traces them all with the
+   scene's materials and common random numbers and keeps the lowest PST.
 4. The designed scene is checked by the project's Monte Carlo tracer: with perfect mirrors and every
    other part an absorber (glass keeps refracting), the detector power from 2F to 10 deg must be 0
    (the *direct-path check*; before the shields it is usually not), and the on-axis throughput is
@@ -24,6 +26,7 @@ import numpy as np
 
 import atomicio
 
+THROUGHPUT_KEPT = 0.95
 PERFECT_MIRROR = {"name": "perfect_mirror", "wavelength_nm": 532.0, "components": [{"type": "specular", "r": 1.0}]}
 ABSORBER = {"name": "absorber", "wavelength_nm": 532.0, "components": [{"type": "lambertian", "rd": 0.0}]}
 
@@ -124,9 +127,56 @@ def output_scene_doc(scene_path: Path, parts: list[dict]) -> dict:
     return doc
 
 
+def refine(scene_path, tel, layouts, material, field_deg, rays, seed, log):
+    """Monte Carlo choice among the feasible layouts (all close every direct path within the budget):
+    each is traced with the scene's materials at 2F, the middle of the check's range and 10 deg, with the
+    same rays for every layout (common random numbers: one seed, the optimiser's own, so differences
+    between layouts are not noise between draws); the objective is mean log10 PST - log10(1 - obscuration)
+    (stray light against the on-axis light kept), lowest wins. Variants other than the construction must
+    keep ``THROUGHPUT_KEPT`` of the bare telescope's on-axis throughput. Returns the layout and
+    the table of what was tried."""
+    import tempfile
+
+    import tomli_w
+
+    from straylight.analyses.scene_setup import scene_setup
+    from straylight.design import shields
+    from straylight.design.vanes import optimiser_seed
+
+    angles = direct_angles(field_deg)
+    angles = sorted({angles[1 if len(angles) > 2 else 0], angles[len(angles) // 2 + 1 if len(angles) > 2 else 0],
+                     angles[-1]})  # past 2F, where the edge of the nominal image may still fall on the image
+    # the variants may spend more of the budget, but keep 95 % of the bare telescope's on-axis throughput
+    layouts = [layouts[0]] + [x for x in layouts[1:]
+                              if (1 - x.obscuration_after) >= THROUGHPUT_KEPT * (1 - x.obscuration_before)]
+    crn_seed = optimiser_seed(seed)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="straylight-baffles-") as tmp:
+        for k, lay in enumerate(layouts):
+            doc = output_scene_doc(Path(scene_path), shields.baffle_parts(tel, lay, material))
+            path = Path(tmp) / f"candidate_{k}.toml"
+            path.write_text(tomli_w.dumps(doc))
+            pts = _sweep(scene_setup(path), angles, rays, crn_seed)
+            floor = min(p["pst"] for p in pts if p["pst"] > 0) if any(p["pst"] > 0 for p in pts) else 1e-30
+            # signal to stray light: the PST (per unit beam irradiance) against the on-axis light kept
+            obj = float(np.mean([math.log10(max(p["pst"], 0.1 * floor)) for p in pts])
+                        - math.log10(1.0 - lay.obscuration_after))
+            rows.append({"skirt_radius_mm": lay.skirt_radius_mm, "skirt_bottom_u_mm": lay.skirt_bottom_u,
+                         "tube_radius_mm": lay.tube_radius_mm, "tube_top_u_mm": lay.tube_top_u,
+                         "obscuration_added": lay.obscuration_after - lay.obscuration_before,
+                         "objective": obj, "pst": pts})
+    best = int(np.argmin([r["objective"] for r in rows]))
+    for k, r in enumerate(rows):
+        r["chosen"] = k == best
+    log(f"refinement: {len(rows)} layouts traced ({rays} rays per angle, common random numbers); "
+        f"chose #{best} (objective {rows[best]['objective']:.3f} vs construction {rows[0]['objective']:.3f})")
+    return layouts[best], {"angles_deg": angles, "rays": int(rays), "seed": int(crn_seed), "layouts": rows,
+                           "chosen": best}
+
+
 def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: float = 0.05,
                    material: str = "z302_sample_b", rays: int = 20_000, seed: int = 0, step: bool = True,
-                   log=print) -> dict:
+                   refine_rays: int = 0, log=print) -> dict:
     """Design the shields of the telescope in ``scene_path`` and write ``out`` (module docstring)."""
     import tomli_w
 
@@ -145,7 +195,12 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
     log(f"primary {tel.primary!r}, secondary {tel.secondary!r}, image {tel.image!r} "
         f"(aperture radius {tel.aperture_radius_mm:.4g} mm)")
     bundle = telescope_model.nominal_bundle(before, tel, field_deg)
-    layout = shields.construct(tel, bundle, max_added_obscuration)  # NoShieldError: the CLI's one line
+    layouts = shields.candidates(tel, bundle, max_added_obscuration, n_radii=2 if refine_rays > 0 else 1,
+                                 radius_step=0.01)  # NoShieldError: the CLI's one line
+    refinement = None
+    layout = layouts[0]
+    if refine_rays > 0 and len(layouts) > 1:
+        layout, refinement = refine(scene_path, tel, layouts, material, field_deg, refine_rays, seed, log)
     parts = shields.baffle_parts(tel, layout, material)
     out.mkdir(parents=True, exist_ok=True)
     doc = output_scene_doc(scene_path, parts)
@@ -185,7 +240,7 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
             "blocked": all(p["direct_w"] == 0.0 for p in direct_after[1:]),
             "on_axis_before": direct_before[0], "on_axis_after": direct_after[0],
             "on_axis_throughput_ratio": throughput},
-        "pst_before": pst_before, "pst_after": pst_after,
+        "pst_before": pst_before, "pst_after": pst_after, "refinement": refinement,
         "material": material, "rays": int(rays), "seed": int(seed),
         "step": step_file.name if step_file else None,
         "seconds": time.perf_counter() - t0,

@@ -114,8 +114,9 @@ def margin_mm(aperture_radius_mm: float) -> float:
     return max(2e-3 * aperture_radius_mm, 0.02)
 
 
-def construct(tel, bundle, max_added: float = 0.05, n_grid: int = 240) -> Layout:
-    """The least-obscuring layout (module docstring); raises NoShieldError when none fits ``max_added``."""
+def _scan(tel, bundle, max_added, n_grid, n_radii, radius_step) -> list[Layout]:
+    """Feasible layouts by increasing skirt radius (two tube choices per radius), up to ``n_radii`` radii
+    at least ``radius_step`` x the aperture radius apart, stopping past the obscuration budget."""
     fam = bundle.families
     R = tel.aperture_radius_mm
     margin = margin_mm(R)
@@ -141,10 +142,13 @@ def construct(tel, bundle, max_added: float = 0.05, n_grid: int = 240) -> Layout
         a_need[k] = _nanmax(clipped_abs_range(fam["si"], tube_bottom, u)[0]) + margin
         a_room[k] = _nanmin(clipped_abs_range(outer, tube_bottom, u)[1]) - margin
     before = obscuration(tel, bundle, None)
-    best = None
-    fallback = None
+    out = []
+    last_r, radii = None, 0
     for k, r in enumerate(r_grid):
+        if last_r is not None and r < last_r + radius_step * R:
+            continue
         usk = u_sb[k]
+        feasible = []
         for j, u in enumerate(up):
             a = a_need[j]
             if a > a_room[j] or u >= usk - margin:
@@ -152,27 +156,48 @@ def construct(tel, bundle, max_added: float = 0.05, n_grid: int = 240) -> Layout
             he = min(h, a)
             x = -he + (a + he) * (usk - u_i) / (u - u_i)
             slack = r - margin - x
-            if slack < 0:
-                continue
-            cand = (r, usk, a, u, slack)
-            if best is None or (abs(cand[0] - best[0]) < 1e-12 and slack > best[4]):
-                best = cand
-        if best is not None:
-            lay = _layout(tel, best, tube_bottom, margin)
+            if slack >= 0:
+                feasible.append((r, usk, a, u, slack))
+        if not feasible:
+            continue
+        picks = [max(feasible, key=lambda c: c[4])]  # the construction: the largest margin
+        if len(feasible) > 1:
+            picks.append(min(feasible, key=lambda c: c[3]))  # the shortest tube
+        for cand in picks:
+            lay = _layout(tel, cand, tube_bottom, margin)
             lay.obscuration_before = before
             lay.obscuration_after = obscuration(tel, bundle, lay)
-            if lay.obscuration_after - before <= max_added + 1e-12:
-                return lay
-            fallback = lay
+            out.append(lay)
+        last_r, radii = r, radii + 1
+        if radii >= n_radii or lay.obscuration_after - before > max_added:
             break
-    if fallback is not None:
+    return out
+
+
+def construct(tel, bundle, max_added: float = 0.05, n_grid: int = 240) -> Layout:
+    """The least-obscuring layout (module docstring); raises NoShieldError when none fits ``max_added``."""
+    return candidates(tel, bundle, max_added, n_grid)[0]
+
+
+def candidates(tel, bundle, max_added: float = 0.05, n_grid: int = 240, n_radii: int = 1,
+               radius_step: float = 0.0) -> list[Layout]:
+    """Layouts that close every direct path within ``max_added``: the construction first (smallest skirt,
+    largest margin), then, for the refinement, the shortest tube with that skirt and both choices for
+    ``n_radii - 1`` wider skirts (each ``radius_step`` of the aperture radius wider). Raises NoShieldError
+    when none fits."""
+    lays = _scan(tel, bundle, max_added, n_grid, n_radii, radius_step)
+    before = lays[0].obscuration_before if lays else 0.0
+    fits = [x for x in lays if x.obscuration_after - x.obscuration_before <= max_added + 1e-12]
+    if fits:
+        return fits
+    if lays:
         raise NoShieldError(
             f"no shield blocks every direct path within the allowed obscuration: the smallest that does "
-            f"adds {fallback.obscuration_after - before:.4f} of the aperture area "
+            f"adds {lays[0].obscuration_after - before:.4f} of the aperture area "
             f"(--max-added-obscuration {max_added:g})")
     raise NoShieldError("no shield blocks every direct path within the allowed obscuration: no skirt up to "
-                        f"the aperture radius ({R:.4g} mm) closes the view from the image to the sky "
-                        f"(--max-added-obscuration {max_added:g})")
+                        f"the aperture radius ({tel.aperture_radius_mm:.4g} mm) closes the view from the image to "
+                        f"the sky (--max-added-obscuration {max_added:g})")
 
 
 def _layout(tel, cand, tube_bottom, margin) -> Layout:

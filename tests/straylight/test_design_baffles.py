@@ -35,7 +35,7 @@ def test_shields_close_every_direct_path(tmp_path, name, field_deg, leaks):
     out = tmp_path / "out"
     step = name == "cassegrain.toml"
     argv = ["design", "baffles", str(TELESCOPES / name), "--field-deg", str(field_deg), "--rays", "6000",
-            "--out", str(out)] + ([] if step else ["--no-step"])
+            "--refine-rays", "2000", "--out", str(out)] + ([] if step else ["--no-step"])
     assert main(argv) == 0
     d = json.loads((out / "design.json").read_text())
     assert {"field_deg", "obscuration_before", "obscuration_after", "baffles"} <= set(d)
@@ -57,6 +57,14 @@ def test_shields_close_every_direct_path(tmp_path, name, field_deg, leaks):
     assert all(parts[n]["material"] == "z302_sample_b" for n in names)
     assert (out / "index.html").exists() and (out / "view.html").exists()
     assert len(d["pst_before"]) == len(d["pst_after"]) >= 3
+    # the Monte Carlo choice: every layout tried closes the direct paths within the budget, one was chosen
+    ref = d["refinement"]
+    if ref is not None:
+        assert sum(r["chosen"] for r in ref["layouts"]) == 1
+        assert all(r["obscuration_added"] <= 0.05 for r in ref["layouts"])
+        chosen = next(r for r in ref["layouts"] if r["chosen"])
+        assert chosen["skirt_radius_mm"] == pytest.approx(next(b for b in d["baffles"]
+                                                               if b["name"] == "baffle_secondary")["radius_mm"])
     if step:
         _step_scene_has_no_direct_path(out, d)
 
