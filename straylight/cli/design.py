@@ -89,7 +89,7 @@ def run_baffles(args) -> int:
           f"(added {doc['obscuration_added']:.4f}); direct paths from 2F to 10 deg: "
           f"{'none' if dc['blocked'] else 'SOME REMAIN'}; on-axis throughput ratio "
           f"{dc['on_axis_throughput_ratio'] if dc['on_axis_throughput_ratio'] is None else round(dc['on_axis_throughput_ratio'], 4)}")
-    print(f"written {args.out}/scene.toml, design.json, index.html, view.html"
+    print(f"written {args.out}/scene.toml, scene_unshielded.toml, design.json, index.html, view.html"
           + ("" if args.no_step else ", baffles.step"))
     return 0
 

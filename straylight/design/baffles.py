@@ -101,7 +101,7 @@ def direct_check(setup, tel, angles_deg, rays, seed) -> list[dict]:
     return out
 
 
-def output_scene_doc(scene_path: Path, parts: list[dict]) -> dict:
+def output_scene_doc(scene_path: Path, parts: list[dict], upstream_of=None) -> dict:
     """The input scene's TOML with file paths made absolute (the output lives elsewhere) and the baffle
     parts appended (analytic surfaces, CONTRACTS 6.1)."""
     doc = tomllib.loads(scene_path.read_text())
@@ -124,10 +124,43 @@ def output_scene_doc(scene_path: Path, parts: list[dict]) -> dict:
     doc.setdefault("part", [])
     for p in parts:
         doc["part"].append({"name": p["name"], "surface": p["surface"], "material": p["material"], "role": "surface"})
+    pts = [_baffle_points(parts)] if parts else []
+    if upstream_of is not None:
+        pts.append(np.atleast_2d(np.asarray(upstream_of, float)))
+    if pts:
+        move_sources_upstream(doc, np.concatenate(pts))
     return doc
 
 
-def refine(scene_path, tel, layouts, material, field_deg, rays, seed, log):
+def _baffle_points(parts: list[dict]) -> np.ndarray:
+    """End points of every shield (both ends of a cylinder, the centre of an annulus), rims included."""
+    pts = []
+    for p in parts:
+        s = p["surface"]
+        v = np.asarray(s["vertex_mm"], float)
+        pts.append(v)
+        if s["type"] == "cylinder":
+            pts.append(v + s["length_mm"] * np.asarray(s["axis"], float))
+    return np.array(pts)
+
+
+def move_sources_upstream(doc: dict, pts: np.ndarray, clearance_mm: float = 1.0) -> None:
+    """Sources start where they are (they are virtual): a collimated source placed close to the secondary
+    (``optics import`` puts it 1 mm before the first vertex) would start inside the secondary's skirt and
+    its rays would skip the shield. Such a source is moved back along its direction until every shield
+    lies downstream of it (its disk, radius and direction unchanged); ``pts`` (n, 3): what must be downstream."""
+    for src in doc.get("source", []):
+        if src.get("type") != "collimated_disk" or "direction" not in src or "center_mm" not in src:
+            continue
+        d = np.asarray(src["direction"], float)
+        d = d / np.linalg.norm(d)
+        c = np.asarray(src["center_mm"], float)
+        lead = float(np.min((pts - c) @ d)) - clearance_mm
+        if lead < 0:
+            src["center_mm"] = [float(v) for v in c + lead * d]
+
+
+def refine(scene_path, tel, layouts, material, field_deg, rays, seed, log, upstream_of=None):
     """Monte Carlo choice among the feasible layouts (all close every direct path within the budget):
     each is traced with the scene's materials at 2F, the middle of the check's range and 10 deg, with the
     same rays for every layout (common random numbers: one seed, the optimiser's own, so differences
@@ -153,7 +186,7 @@ def refine(scene_path, tel, layouts, material, field_deg, rays, seed, log):
     rows = []
     with tempfile.TemporaryDirectory(prefix="straylight-baffles-") as tmp:
         for k, lay in enumerate(layouts):
-            doc = output_scene_doc(Path(scene_path), shields.baffle_parts(tel, lay, material))
+            doc = output_scene_doc(Path(scene_path), shields.baffle_parts(tel, lay, material), upstream_of)
             path = Path(tmp) / f"candidate_{k}.toml"
             path.write_text(tomli_w.dumps(doc))
             pts = _sweep(scene_setup(path), angles, rays, crn_seed)
@@ -190,20 +223,29 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
     t0 = time.perf_counter()
     scene_path = Path(scene_path)
     out = Path(out)
-    before = scene_setup(scene_path)
-    tel = telescope_model.identify(before)
+    given = scene_setup(scene_path)
+    tel = telescope_model.identify(given)
     log(f"primary {tel.primary!r}, secondary {tel.secondary!r}, image {tel.image!r} "
         f"(aperture radius {tel.aperture_radius_mm:.4g} mm)")
-    bundle = telescope_model.nominal_bundle(before, tel, field_deg)
+    bundle = telescope_model.nominal_bundle(given, tel, field_deg)
+    # the secondary's rim must be downstream of the source too, or rays would start behind the secondary
+    rim = [tel.point(tel.secondary_rim_u, sgn * tel.secondary_outer_mm) for sgn in (-1.0, 1.0)]
     layouts = shields.candidates(tel, bundle, max_added_obscuration, n_radii=2 if refine_rays > 0 else 1,
                                  radius_step=0.01)  # NoShieldError: the CLI's one line
     refinement = None
     layout = layouts[0]
     if refine_rays > 0 and len(layouts) > 1:
-        layout, refinement = refine(scene_path, tel, layouts, material, field_deg, refine_rays, seed, log)
+        layout, refinement = refine(scene_path, tel, layouts, material, field_deg, refine_rays, seed, log, rim)
     parts = shields.baffle_parts(tel, layout, material)
     out.mkdir(parents=True, exist_ok=True)
-    doc = output_scene_doc(scene_path, parts)
+    atomicio.write_text(out / "scene_unshielded.toml", tomli_w.dumps(output_scene_doc(scene_path, [], rim)))
+    before = scene_setup(out / "scene_unshielded.toml")
+    doc = output_scene_doc(scene_path, parts, rim)
+    moved = [{"from_mm": a.get("center_mm"), "to_mm": b.get("center_mm")}
+             for a, b in zip(tomllib.loads(scene_path.read_text()).get("source", []), doc.get("source", []))
+             if a.get("center_mm") != b.get("center_mm")]
+    if moved:
+        log(f"source moved upstream of the shields: {moved}")
     atomicio.write_text(out / "scene.toml", tomli_w.dumps(doc))
     after = scene_setup(out / "scene.toml")
     # 4. direct-path check by the tracer, before and after
@@ -241,7 +283,7 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
             "on_axis_before": direct_before[0], "on_axis_after": direct_after[0],
             "on_axis_throughput_ratio": throughput},
         "pst_before": pst_before, "pst_after": pst_after, "refinement": refinement,
-        "material": material, "rays": int(rays), "seed": int(seed),
+        "material": material, "rays": int(rays), "seed": int(seed), "sources_moved": moved,
         "step": step_file.name if step_file else None,
         "seconds": time.perf_counter() - t0,
     }
