@@ -54,7 +54,8 @@ def add_parser(subparsers):
     b.add_argument("--rays", type=int, default=20_000, help="rays per angle in the direct-path check and the PST")
     b.add_argument("--seed", type=int, default=0)
     b.add_argument("--refine-rays", type=int, default=5_000,
-                   help="rays per angle for the Monte Carlo choice among feasible layouts (0: the construction only)")
+                   help="rays per angle for the Monte Carlo choice among feasible layouts")
+    b.add_argument("--no-refine", action="store_true", help="keep the construction (no Monte Carlo choice)")
     b.add_argument("--no-step", action="store_true", help="do not write DIR/baffles.step")
     b.add_argument("--out", required=True, help="output directory")
     b.add_argument("--force", action="store_true",
@@ -71,13 +72,11 @@ def run_baffles(args) -> int:
 
     if args.rays < 1:
         raise ValueError(f"--rays must be >= 1, got {args.rays}")
-    if args.refine_rays < 0:
-        raise ValueError(f"--refine-rays must be >= 0, got {args.refine_rays}")
     check_overwrite(args.out, patterns=DESIGN_OUTPUTS, force=args.force)
     try:
         doc = design_baffles(args.scene, args.field_deg, args.out, max_added_obscuration=args.max_added_obscuration,
                              material=args.material, rays=args.rays, seed=args.seed, step=not args.no_step,
-                             refine_rays=args.refine_rays)
+                             refine_rays=0 if args.no_refine else args.refine_rays)
     except NoShieldError as exc:
         print(f"straylight design baffles: {exc}", file=sys.stderr)
         return 1
