@@ -224,7 +224,10 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
     scene_path = Path(scene_path)
     out = Path(out)
     given = scene_setup(scene_path)
-    tel = telescope_model.identify(given)
+    try:
+        tel = telescope_model.identify(given)
+    except telescope_model.TelescopeError as exc:
+        raise telescope_model.TelescopeError(f"{scene_path}: {exc}") from None
     log(f"primary {tel.primary!r}, secondary {tel.secondary!r}, image {tel.image!r} "
         f"(aperture radius {tel.aperture_radius_mm:.4g} mm)")
     bundle = telescope_model.nominal_bundle(given, tel, field_deg)
