@@ -38,7 +38,7 @@ def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: 
     rot0, t0 = (np.asarray(a, float) for a in sm.gbl_tfrms[0])
     img_rot, img_t = (np.asarray(a, float) for a in sm.gbl_tfrms[-1])
     limits = {q.index: (q.semi_diameter_mm / s, q.inner_radius_mm / s if q.inner_kind else 0.0)
-              for q in p.surfaces}
+              for q in p.surfaces if not q.dummy or q.stop}  # a dummy surface is no part: it stops nothing
     stop = next((q for q in p.surfaces if q.stop), None)
     if stop is not None and not stop.semi_diameter_from_file:  # the black stop's hole (scene_build)
         limits[stop.index] = (stop.semi_diameter_mm / 1.05 / s, limits[stop.index][1])
