@@ -60,7 +60,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
 
         raise OpticsFileError(f"{p.file}: no optical surface (every surface has air on both sides)")
     largest0 = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
-    z00 = min(float(s.vertex_mm[2]) for s in p.surfaces if not s.dummy) - 1.0
+    z00 = min(float(s.vertex_mm[2]) for s in p.surfaces if not s.dummy or s.stop) - 1.0
     if p.model is not None:
         from straylight.optics.sequential import holes_for_passing_light
 
@@ -195,7 +195,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         "type": "plane", "vertex_mm": _v(p.image_vertex_mm), "axis": _v(-p.image_travel_in),
         "outer_radius_mm": r_det}, "role": "detector"})
     # the source: 1 mm on the object side of the vertex nearest the object
-    z0 = min(float(s.vertex_mm[2]) for s in p.surfaces if not s.dummy) - 1.0
+    z0 = min(float(s.vertex_mm[2]) for s in p.surfaces if not s.dummy or s.stop) - 1.0  # the stop is a part too
     f = math.radians(field_deg)
     source = {"type": "collimated_disk", "name": "pupil", "center_mm": [0.0, 0.0, z0], "normal": [0.0, 0.0, 1.0],
               "direction": _v([0.0, math.sin(f), math.cos(f)]), "radius_mm": round(1.1 * largest, 9),

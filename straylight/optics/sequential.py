@@ -11,6 +11,8 @@ import math
 
 import numpy as np
 
+from straylight.optics.sag import sag_mm
+
 
 def pupil_grid(radius_mm: float, n: int) -> np.ndarray:
     """About ``n`` points (x, y) on a square grid inside a disk of ``radius_mm``."""
@@ -27,8 +29,42 @@ def sequential_spot(p, field_deg: float, source_z_mm: float, source_radius_mm: f
     return np.array([path[-1] for path in paths]).reshape(-1, 3)
 
 
-def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: float, n: int = 2000) -> list:
-    """Each kept ray's global points (mm) at every surface from the first to the image, (n_surfaces, 3)."""
+def _crossing(q, a_pt, b_pt):
+    """(t, rho) where the segment a_pt -> b_pt crosses surface ``q`` (its sag at the crossing's radius), or None."""
+    ax = q.local_z
+    denom = float(np.dot(b_pt - a_pt, ax))
+    if abs(denom) < 1e-12:
+        return None
+    r, t = 0.0, 0.0
+    for _ in range(3):
+        plane_pt = q.vertex_mm + sag_mm(q, min(r, q.semi_diameter_mm)) * ax
+        t = float(np.dot(plane_pt - a_pt, ax)) / denom
+        x = a_pt + t * (b_pt - a_pt) - q.vertex_mm
+        r = float(np.linalg.norm(x - np.dot(x, ax) * ax))
+    return t, r
+
+
+def _blocked(p, path) -> bool:
+    """Whether a sequential ray crosses, between two of its surfaces, another surface's part (a Cassegrain's
+    secondary in the incoming beam, a primary outside its hole): the scene stops such a ray, so does this check."""
+    for j in range(len(path) - 1):
+        for q in p.surfaces:
+            if q.dummy or q.index in (j, j + 1):
+                continue
+            hit = _crossing(q, path[j], path[j + 1])
+            if hit is None:
+                continue
+            t, r = hit
+            lo = q.inner_radius_mm if q.inner_kind == "hole" else 0.0
+            if 1e-9 < t < 1 - 1e-9 and lo <= r <= q.semi_diameter_mm:
+                return True
+    return False
+
+
+def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: float, n: int = 2000,
+                     block: bool = True) -> list:
+    """Each kept ray's global points (mm): the start on the source disk, then every surface from the first to the
+    image (row k: surface k). ``block``: drop rays that cross another surface's part between two of theirs."""
     from rayoptics.raytr import raytrace as rt
 
     sm = p.model["seq_model"]
@@ -60,40 +96,28 @@ def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: 
                     ok = False
                     break
         if ok:
-            pts = [(np.asarray(sm.gbl_tfrms[i][0], float) @ np.asarray(seg[0], float)
-                    + np.asarray(sm.gbl_tfrms[i][1], float)) * s for i, seg in enumerate(ray) if i >= 1]
-            out.append(np.array(pts))
+            pts = [start * s] + [(np.asarray(sm.gbl_tfrms[i][0], float) @ np.asarray(seg[0], float)
+                                  + np.asarray(sm.gbl_tfrms[i][1], float)) * s for i, seg in enumerate(ray) if i >= 1]
+            pts = np.array(pts)
+            if not (block and _blocked(p, pts)):
+                out.append(pts)
     return out
 
 
 def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, n: int = 600) -> dict:
     """{surface index: radius_mm} of the central hole a mirror needs where the sequential beam, on its way to a
     later surface, crosses the mirror's clear aperture (a Cassegrain primary that the file gives no hole)."""
-    from straylight.optics.sag import sag_mm
-
     mirrors = [q for q in p.surfaces if q.mirror]
     if not mirrors:
         return {}
-    order = [q.index for q in p.surfaces]
     need: dict = {}
     for field in {0.0, max(p.fields_deg or [0.0])}:
-        for path in sequential_paths(p, field, source_z_mm, source_radius_mm, n):
-            for j in range(len(path) - 1):
-                a_pt, b_pt = path[j], path[j + 1]
-                seg_from = order[j] if j < len(order) else None
+        for path in sequential_paths(p, field, source_z_mm, source_radius_mm, n, block=False):
+            for j in range(1, len(path) - 1):  # after the first surface: the incoming beam is not a hole's
                 for m in mirrors:
-                    if m.index in (seg_from, order[j + 1] if j + 1 < len(order) else None):
+                    if m.index in (j, j + 1):
                         continue
-                    ax = m.local_z
-                    denom = float(np.dot(b_pt - a_pt, ax))
-                    if abs(denom) < 1e-12:
-                        continue
-                    r = 0.0
-                    for _ in range(2):  # the plane through the surface at the crossing's radius
-                        plane_pt = m.vertex_mm + sag_mm(m, min(r, m.semi_diameter_mm)) * ax
-                        t = float(np.dot(plane_pt - a_pt, ax)) / denom
-                        x = a_pt + t * (b_pt - a_pt) - m.vertex_mm
-                        r = float(np.linalg.norm(x - np.dot(x, ax) * ax))
-                    if 0.0 < t < 1.0 and r < m.semi_diameter_mm:
-                        need[m.index] = max(need.get(m.index, 0.0), r)
+                    hit = _crossing(m, path[j], path[j + 1])
+                    if hit and 0.0 < hit[0] < 1.0 and hit[1] < m.semi_diameter_mm:
+                        need[m.index] = max(need.get(m.index, 0.0), hit[1])
     return need
