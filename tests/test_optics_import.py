@@ -133,3 +133,25 @@ def test_readers_write_no_log_files_in_the_working_folder(tmp_path):
         r = _run("optics", "info", LENSES / name, cwd=tmp_path)
         assert r.returncode == 0, r.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_coating_option_writes_the_coating_key_on_glass_air_surfaces(tmp_path):
+    import tomllib
+
+    r = _run("optics", "import", LENSES / "OpticsDatabase" / "Edmund_32-299.zmx", "--coating", "mgf2_quarter_wave",
+             "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = tomllib.loads((tmp_path / "scene.toml").read_text())
+    comps = [c for m in doc["material"].values() for c in m["components"] if c["type"] == "dielectric"]
+    outer = [c for c in comps if "n_outside" not in c]   # glass against air: coated
+    inner = [c for c in comps if "n_outside" in c]       # the cemented surface: not
+    assert outer and all(c.get("coating") == "mgf2_quarter_wave" for c in outer)
+    assert inner and all("coating" not in c for c in inner)
+
+
+def test_a_coating_named_in_the_file_but_unknown_is_warned_not_dropped_silently(tmp_path):
+    r = _run("optics", "import", LENSES / "OpticsDatabase" / "Edmund_32-299.zmx", "--out", tmp_path)
+    assert r.returncode == 0
+    assert "coating 'EO_MGF2(550nm)'" in r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    assert any("EO_MGF2" in w for w in doc["warnings"])

@@ -29,6 +29,10 @@ def prescription_dict(p) -> dict:
     }
 
 
+def _show(x, spec) -> str:
+    return format(x, spec) if x is not None and math.isfinite(x) else "none (afocal)"
+
+
 def info_text(p) -> str:
     """First-order data and the surface table, with units and conventions stated."""
     lines = [
@@ -36,9 +40,9 @@ def info_text(p) -> str:
         "frame: first surface vertex at the origin, optical axis +z, light from the object toward +z; "
         "radius > 0: centre of curvature on the +z side; thickness to the next vertex (negative after a mirror)",
         f"wavelength  {p.wavelength_nm:.4g} nm",
-        f"efl         {p.efl_mm:.6g} mm",
-        f"bfl         {p.bfl_mm:.6g} mm",
-        f"f/#         {p.fno:.4g}",
+        f"efl         {_show(p.efl_mm, '.6g')} mm",
+        f"bfl         {_show(p.bfl_mm, '.6g')} mm",
+        f"f/#         {_show(p.fno, '.4g')}",
         f"epd         {p.epd_mm:.6g} mm",
         f"fields      {', '.join(f'{f:g}' for f in p.fields_deg)} deg",
         "",

@@ -368,16 +368,20 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     fov = osp["fov"]
     fields = [float(f.y) for f in fov.fields]
     efl = float(fod.efl) * scale
+    afocal = not (math.isfinite(efl) and 1e-9 < abs(efl) < 1e12)
+    if afocal:
+        notes.append("afocal as read (no finite focal length): efl, bfl and f/# are null")
     if fov.key[1] == "angle":
         fields_deg = fields
     else:
-        fields_deg = [math.degrees(math.atan2(y * scale, efl)) if efl else 0.0 for y in fields]
+        fields_deg = [0.0 if afocal else math.degrees(math.atan2(y * scale, abs(efl))) for y in fields]
     stop_sd = None
     if stop_idx is not None and 0 < stop_idx < n_ifc - 1:
         stop_sd = float(sm.ifcs[stop_idx].surface_od()) * scale
     return Prescription(
         file=path.name, format="CODE V" if fmt == "seq" else "Zemax", units_in_file=units, wavelength_nm=wvl,
-        efl_mm=efl, bfl_mm=float(fod.bfl) * scale, fno=float(fod.fno), epd_mm=2.0 * float(fod.enp_radius) * scale,
+        efl_mm=math.nan if afocal else efl, bfl_mm=math.nan if afocal else float(fod.bfl) * scale,
+        fno=math.nan if afocal else float(fod.fno), epd_mm=2.0 * float(fod.enp_radius) * scale,
         fields_deg=[abs(f) for f in fields_deg], surfaces=surfaces,
         image_vertex_mm=np.asarray(img_t, float) * scale, image_local_z=img_rot[:, 2].copy(),
         image_travel_in=sm.z_dir[n_ifc - 2] * img_rot[:, 2], stop_semi_diameter_mm=stop_sd, warnings=notes,

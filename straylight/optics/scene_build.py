@@ -132,6 +132,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         spot = max((m.semi_diameter_mm for m in mirrors if _same_geometry(m, s)), default=0.0)
         if spot > 0:
             inner = max(inner, spot)
+            s.inner_kind, s.inner_radius_mm = (s.inner_kind or "obscuration"), inner  # as the trace sees it
         parts.append({"name": unique(s.name), "surface": _surface_table(s, axis, outer, inner),
                       "material": key, "role": "surface"})
         if s.inner_kind == "obscuration" and inner > 0 and spot == 0:
@@ -189,7 +190,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
             "material": edge_material, "role": "surface"})
     # the detector: an exact disk at the image surface, facing the light, 1.2 x the largest image height
     f_max = max(p.fields_deg + [abs(field_deg)])
-    h_img = abs(p.efl_mm) * math.tan(math.radians(f_max))
+    h_img = abs(p.efl_mm) * math.tan(math.radians(f_max)) if math.isfinite(p.efl_mm) else 0.0
     r_det = 1.2 * max(h_img, 0.05 * p.epd_mm, 0.1)
     parts.append({"name": unique("image"), "surface": {
         "type": "plane", "vertex_mm": _v(p.image_vertex_mm), "axis": _v(-p.image_travel_in),

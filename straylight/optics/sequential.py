@@ -41,22 +41,39 @@ def _crossing(q, a_pt, b_pt):
         t = float(np.dot(plane_pt - a_pt, ax)) / denom
         x = a_pt + t * (b_pt - a_pt) - q.vertex_mm
         r = float(np.linalg.norm(x - np.dot(x, ax) * ax))
+    length = float(np.linalg.norm(b_pt - a_pt))
+    if t * length <= 1e-6 or (1.0 - t) * length <= 1e-6:  # at an end (a coordinate break on the mirror): no crossing
+        return None
     return t, r
+
+
+def _coincide(a, b) -> bool:
+    """The same physical surface met twice (a Maksutov's secondary spot on the meniscus, a Mangin's glass)."""
+    return (np.linalg.norm(a.vertex_mm - b.vertex_mm) < 1e-6 and abs(abs(float(np.dot(a.local_z, b.local_z))) - 1) < 1e-9
+            and (a.radius_mm or 0.0) == (b.radius_mm or 0.0))
+
+
+def _real_segments(p, path):
+    """(from index, to index, from point, to point) between the surfaces that are parts (dummies and coordinate
+    breaks skipped: rayoptics may put their points behind the ray), the source (row 0) and the image (last row)."""
+    keep = [0] + [q.index for q in p.surfaces if not q.dummy] + [len(path) - 1]
+    return [(a, b, path[a], path[b]) for a, b in zip(keep, keep[1:])]
 
 
 def _blocked(p, path) -> bool:
     """Whether a sequential ray crosses, between two of its surfaces, another surface's part (a Cassegrain's
     secondary in the incoming beam, a primary outside its hole): the scene stops such a ray, so does this check."""
-    for j in range(len(path) - 1):
+    for i_from, i_to, a_pt, b_pt in _real_segments(p, path):
+        ends = [e for e in p.surfaces if e.index in (i_from, i_to)]
         for q in p.surfaces:
-            if q.dummy or q.index in (j, j + 1):
+            if q.dummy or q.index in (i_from, i_to) or any(_coincide(q, e) for e in ends):
                 continue
-            hit = _crossing(q, path[j], path[j + 1])
+            hit = _crossing(q, a_pt, b_pt)
             if hit is None:
                 continue
             t, r = hit
             lo = q.inner_radius_mm if q.inner_kind == "hole" else 0.0
-            if 1e-9 < t < 1 - 1e-9 and lo <= r <= q.semi_diameter_mm:
+            if lo <= r <= q.semi_diameter_mm:
                 return True
     return False
 
@@ -113,11 +130,11 @@ def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, n: i
     need: dict = {}
     for field in {0.0, max(p.fields_deg or [0.0])}:
         for path in sequential_paths(p, field, source_z_mm, source_radius_mm, n, block=False):
-            for j in range(1, len(path) - 1):  # after the first surface: the incoming beam is not a hole's
+            for i_from, i_to, a_pt, b_pt in _real_segments(p, path)[1:]:  # the incoming beam makes no hole
                 for m in mirrors:
-                    if m.index in (j, j + 1):
+                    if m.index in (i_from, i_to):
                         continue
-                    hit = _crossing(m, path[j], path[j + 1])
-                    if hit and 0.0 < hit[0] < 1.0 and hit[1] < m.semi_diameter_mm:
+                    hit = _crossing(m, a_pt, b_pt)
+                    if hit and hit[1] < m.semi_diameter_mm:
                         need[m.index] = max(need.get(m.index, 0.0), hit[1])
     return need
