@@ -342,15 +342,15 @@ def import_file(path, name=None):
 
 # ---------------------------------------------------------------------------------------- export
 
-DEFAULT_AOI_DEG = (0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 85.0)
+DEFAULT_AOI_DEG = tuple(float(a) for a in range(0, 70, 5)) + tuple(70.0 + 2.5 * k for k in range(7)) + (86.0, 87.0, 88.0, 89.0)
 DEFAULT_RADIAL_DEG = (0.0, 0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, 6.0, 7.5, 10.0, 12.5, 15.0,
-                      17.5, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0, 110.0, 120.0,
-                      130.0, 140.0, 150.0, 160.0, 170.0, 180.0)
+                      17.5) + tuple(float(r) for r in range(20, 181, 5))
 
 
-def _lobe_radial_deg(material) -> list[float]:
-    """Radial angles that resolve the material's narrowest in-plane lobe: the default set plus
-    fractions of its half-width at half maximum at a few incidences."""
+def _lobe_radial_deg(material, aoi_deg=()) -> list[float]:
+    """Radial angles that resolve the material's narrowest in-plane lobe: the default set, fractions
+    of its half-width at half maximum at a few incidences, and for each incidence the radial angles
+    1 deg short of the horizon on both sides of the plane of incidence (90 - aoi - 1, 90 + aoi - 1)."""
     from materials.base import brdf_angles
 
     extra = []
@@ -363,6 +363,8 @@ def _lobe_radial_deg(material) -> list[float]:
         half = fine[np.nonzero(f >= 0.5 * f.max())[0][-1]]
         hw = math.degrees(max(half, 1e-4))
         extra += [hw * k for k in (0.25, 0.5, 1.0, 2.0, 4.0)]
+    for a in aoi_deg:
+        extra += [v for v in (90.0 - a - 1.0, 90.0 + a - 1.0) if 0.5 < v < 179.5]
     out = sorted({round(v, 4) for v in list(DEFAULT_RADIAL_DEG) + [e for e in extra if e < 180]})
     return out
 
@@ -388,8 +390,13 @@ def _f_at(material, theta_i_deg, az_deg, rad_deg, rotation_deg=None):
     ti = math.radians(theta_i_deg)
     wi = np.tile([-math.sin(ti), 0.0, math.cos(ti)], (th.size, 1))
     wo = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1).reshape(-1, 3)
+    # a node on the horizon (|cos| < 1e-9, e.g. R = 90 at normal incidence) gets the limit from just above it
+    edge = (np.abs(cz) <= 1e-9).reshape(-1)
+    if np.any(edge):
+        wo[edge, 2] = 1e-7
+        wo[edge] /= np.linalg.norm(wo[edge], axis=1, keepdims=True)
     f = model.brdf(wi, wo, "u").reshape(th.shape)
-    return np.where(cz > 1e-9, f, 0.0)
+    return np.where(cz > -1e-9, f, 0.0)
 
 
 def export_zemax(material, aoi_deg=None, radial_deg=None, azimuth_deg=None) -> str:
@@ -399,7 +406,7 @@ def export_zemax(material, aoi_deg=None, radial_deg=None, azimuth_deg=None) -> s
     aniso = any(t.anisotropic or t.symmetry == "none" for t in tables)
     stype = "BTDF" if tables and all(t.scatter == "btdf" for t in tables) else "BRDF"
     aoi = list(aoi_deg) if aoi_deg else (sorted({*DEFAULT_AOI_DEG, *[a for t in tables for a in t.theta_i_deg]}))
-    rad = list(radial_deg) if radial_deg else _lobe_radial_deg(material)
+    rad = list(radial_deg) if radial_deg else _lobe_radial_deg(material, aoi)
     az = list(azimuth_deg) if azimuth_deg else (list(np.arange(0.0, 360.0, 10.0)) if aniso else list(np.arange(0.0, 181.0, 10.0)))
     rots = [float(r) for r in tables[0]._rotations] if aniso and tables else [0.0]
 

@@ -22,8 +22,10 @@ on log10(BSDF) where all three are positive and linear otherwise (so each node i
 exactly); outside the nodes' hull the nearest node's value is held. A block whose nodes lie in the
 plane of incidence only (FRED in-plane scans) is interpolated along the signed offset and extended
 out of plane by |beta - beta0| (the isotropic beta - beta0 rule of FRED and materials.tabulated).
-Between incidence blocks (and between sample rotations, periodically) values at the same offset
-are interpolated linearly in value, so the reflectance between nodes lies between the nodes'.
+Between incidence blocks (and between sample rotations, periodically) values are blended
+geometrically where all are positive (linearly otherwise; never above the linear blend):
+the offset is carried to each block unchanged near the specular point and stretched so the horizon
+meets the block's horizon (:func:`_to_block`).
 
 Rotation: the sample frame is the part's local frame (x, y on the surface, z the normal). A ray
 whose specular direction has azimuth phi_s in that frame sees the file's rotation
@@ -148,6 +150,28 @@ def _interp1(x, v, s):
     return np.where(pos, lg, lin)
 
 
+def _edge(b, c, s):
+    """Distance from beta0 = (b, 0) to the unit circle along the direction (c, s)."""
+    return -b * c + np.sqrt(np.maximum(1.0 - (b * s) ** 2, 0.0))
+
+
+def _to_block(d, theta_q_deg, theta_k_deg):
+    """Offsets d at incidences theta_q carried to the block of incidence theta_k: unchanged near the
+    specular point (a beta-centred lobe keeps its shape) and the horizon carried onto the block's
+    horizon: rho_k = rho + (e_k - e_q) (rho / e_q)^2, e the distance from beta0 to the disk edge
+    along d. The identity when theta_q = theta_k (so each node is reproduced)."""
+    rho = np.hypot(d[:, 0], d[:, 1])
+    ok = rho > 0
+    safe = np.where(ok, rho, 1.0)
+    c, s = d[:, 0] / safe, d[:, 1] / safe
+    e_q = _edge(np.sin(np.radians(theta_q_deg)), c, s)
+    e_k = _edge(np.sin(np.radians(theta_k_deg)), c, s)
+    u = np.clip(rho / np.maximum(e_q, 1e-12), 0.0, 1.0)
+    rho_k = rho + (e_k - e_q) * u**2
+    scale = np.where(ok, rho_k / safe, 1.0)
+    return d * scale[:, None]
+
+
 def _bracket(axis, q, periodic=False):
     """(j0, j1, t) with q between axis[j0] and axis[j1] (edges held, or periodic over 360 deg)."""
     n = len(axis)
@@ -258,7 +282,10 @@ class BsdfTable:
         theta_i_deg = np.broadcast_to(np.asarray(theta_i_deg, float), (len(d),))
         r0, r1, tr = _bracket(self._rotations, rotation_deg, periodic=True)
         i0, i1, ti = _bracket(np.asarray(self.theta_i_deg), theta_i_deg)
-        out = np.zeros(len(d))
+        lin = np.zeros(len(d))
+        logs = np.zeros(len(d))
+        positive = np.ones(len(d), bool)
+        nodes = np.asarray(self.theta_i_deg)
         for rr, wr in ((r0, 1.0 - tr), (r1, tr)):
             for ii, wi in ((i0, 1.0 - ti), (i1, ti)):
                 w = wr * wi
@@ -266,8 +293,13 @@ class BsdfTable:
                     for i in np.unique(ii):
                         m = (rr == r) & (ii == i) & (w > 0)
                         if np.any(m):
-                            out[m] += w[m] * self._blocks[r][i](d[m])
-        return out
+                            v = self._blocks[r][i](_to_block(d[m], theta_i_deg[m], nodes[i]))
+                            lin[m] += w[m] * v
+                            positive[m] &= v > 0
+                            logs[m] += w[m] * np.log(np.where(v > 0, v, 1.0))
+        # geometric blend where every contributing value is positive (BSDFs change by decades with
+        # incidence near grazing); it never exceeds the linear blend, so energy stays bounded
+        return np.where(positive, np.exp(logs), lin)
 
     def _local(self, wi, wo):
         """(rotation_deg, theta_i_deg, d) of each pair: d in the frame of its plane of incidence."""
