@@ -17,7 +17,7 @@ Formats (docs/bsdf-files.md has the coordinate figure):
   (``exclude=``, ``num=`` are FRED interpolation hints: read and ignored), then blocks: a
   two-number line (specular theta0, azimuth f0; or a0, b0 with angles=sin) and rows
   ``theta f bsdf`` (or ``a b bsdf``), tab, comma or space separated. theta < 0 with f = 0 is the
-  backscatter side. FRED's model is isotropic: blocks are turned so that f0 = 0 and mirrored.
+  backscatter side. Rows on the horizon (theta = +-90) are dropped. FRED's model is isotropic: blocks are turned so that f0 = 0 and mirrored.
 
 The file's values are used as they are (``scale`` is the file's own instruction and is applied);
 ``TIS`` lines are kept in the material (``tis``) and reported, never used to rescale.
@@ -290,9 +290,11 @@ def parse_fred(text: str, path="file") -> dict:
         cf, sf = math.cos(f0), math.sin(f0)
         x, y = cf * sx + sf * sy, -sf * sx + cf * sy
         rho = np.hypot(x, y)
-        if np.any(rho >= 1.0):
-            raise BsdfFileError(f"{path}:{line_no}: a scatter direction at or beyond the horizon (90 deg)")
         vals = (10.0 ** r[:, 2] if kind == "log" else r[:, 2]) * scale
+        keep = rho < 1.0 - 1e-9  # rows at theta = +-90 deg (grazing, on the horizon) carry no energy: dropped
+        if not np.any(keep):
+            raise BsdfFileError(f"{path}:{line_no}: every scatter direction of this block is on the horizon (90 deg)")
+        x, y, rho, vals = x[keep], y[keep], rho[keep], vals[keep]
         if np.any(~np.isfinite(vals)) or np.any(vals < 0):
             raise BsdfFileError(f"{path}:{line_no}: negative or non-finite BSDF values in this block")
         ti = round(math.degrees(th0), 9)

@@ -480,3 +480,12 @@ def _run_export_text(tmp_path, material):
     out = tmp_path / "out.bsdf"
     assert _run("material", "export", mat, "--format", "zemax", "-o", out) == 0
     return out.read_text()
+
+
+def test_fred_rows_on_the_horizon_are_dropped(tmp_path):
+    path = tmp_path / "edge.txt"
+    path.write_text("type bsdf_data\nformat angles=deg bsdf=value scale=1\n20\t0\n-90\t0\t0.5\n-45\t0\t0.01\n"
+                    "0\t0\t0.02\n20\t0\t0.05\n60\t0\t0.01\n90\t0\t0.5\n")
+    material, report = import_file(path)
+    assert report["theta_i_deg"] == [20.0]
+    assert len(material.components[0].blocks[0]["bsdf_per_sr"]) == 4
