@@ -29,6 +29,7 @@ from materials.fresnel import fresnel_amplitudes
 from materials.flags import ComponentFlags
 from materials.registry import register
 from materials.sampling import check_index, check_real, set_fields
+from materials.thin_film import layers_to_json, parse_coating, stack_amplitudes
 
 
 def reflect(d, n) -> np.ndarray:
@@ -115,11 +116,18 @@ class Specular:
         for the ray's polarization. Exactly one of ``r`` and ``n``.
     weight : float
         Multiplies the reflected power, in [0, 1] (default 1).
+    coating : str or list, optional
+        A thin-film stack on the mirror (:mod:`materials.thin_film`): a named design or layers
+        ``[{"n": ..., "thickness_nm": ...}, ...]``, outermost first; needs ``n`` and the wavelength.
+    wavelength_nm : float, optional
+        The traced wavelength for a coating (the material's, by default).
     """
 
     r: Optional[float] = None
     n: Optional[Union[float, tuple]] = None
     weight: float = 1.0
+    coating: Optional[object] = None
+    wavelength_nm: Optional[float] = None
 
     flags = ComponentFlags.DELTA_REFLECTION | ComponentFlags.POLARIZING
     reciprocal = True
@@ -134,6 +142,14 @@ class Specular:
         else:
             n, k = check_index(o, "n", self.n)
             set_fields(self, n=(n, k) if k else n)
+        _check_coating(self, o)
+        if self.coating is not None and self.r is not None:
+            raise MaterialError(f"{o}: a 'coating' needs the substrate index 'n', not a constant 'r'")
+
+    @property
+    def wavelength_optional(self) -> bool:
+        """Only a coating needs the wavelength."""
+        return self.coating is None
 
     @classmethod
     def example(cls) -> "Specular":
@@ -153,7 +169,10 @@ class Specular:
             rs = np.full(c.shape, -a, complex)
             rp = np.full(c.shape, a, complex)
         else:
-            rs, rp, _, _, _ = fresnel_amplitudes(c, self.index)
+            if self.coating is not None:
+                rs, rp, _, _, _, _ = stack_amplitudes(c, 1.0, self.index, _layers(self), self.wavelength_nm)
+            else:
+                rs, rp, _, _, _ = fresnel_amplitudes(c, self.index)
             if self.weight != 1.0:
                 w = np.sqrt(self.weight)
                 rs, rp = rs * w, rp * w
@@ -167,6 +186,7 @@ class Specular:
             d["n"] = list(self.n) if isinstance(self.n, tuple) else self.n
         if self.weight != 1.0:
             d["weight"] = self.weight
+        _coating_to_dict(self, d)
         return d
 
 
@@ -191,13 +211,18 @@ class Dielectric:
         Bulk absorption coefficient inside the medium, 1/mm (default 0): a path of length
         L keeps ``exp(-alpha L)`` of its power, with ``alpha = absorption_per_mm + 4 pi k / lambda``.
     wavelength_nm : float, optional
-        Needed only with ``k > 0`` (the material's, by default).
+        Needed only with ``k > 0`` or a coating (the material's, by default).
+    coating : str or list, optional
+        A thin-film stack on the outer (front) side (:mod:`materials.thin_film`): a named design or
+        layers ``[{"n": ..., "thickness_nm": ...}, ...]``, outermost first. Light from inside the
+        medium meets the same stack in reverse order.
     """
 
     n: Union[float, tuple]
     n_outside: float = 1.0
     absorption_per_mm: float = 0.0
     wavelength_nm: Optional[float] = None
+    coating: Optional[object] = None
 
     flags = ComponentFlags.DELTA_REFLECTION | ComponentFlags.DELTA_TRANSMISSION | ComponentFlags.POLARIZING
     reciprocal = True
@@ -213,6 +238,7 @@ class Dielectric:
         )
         if self.wavelength_nm is not None:
             set_fields(self, wavelength_nm=check_real(o, "wavelength_nm", self.wavelength_nm, lo=0.0, lo_open=True))
+        _check_coating(self, o)
 
     @classmethod
     def example(cls) -> "Dielectric":
@@ -220,8 +246,8 @@ class Dielectric:
 
     @property
     def wavelength_optional(self) -> bool:
-        """Only an absorbing index (k > 0) needs the wavelength."""
-        return self.k == 0.0
+        """Only an absorbing index (k > 0) or a coating needs the wavelength."""
+        return self.k == 0.0 and self.coating is None
 
     @property
     def n_real(self) -> float:
@@ -267,6 +293,14 @@ class Dielectric:
         sin2_t = (1.0 - c * c) / (m_real * m_real)
         tir = sin2_t >= 1.0
         cos_t = np.where(tir, 0.0, np.sqrt(np.maximum(0.0, 1.0 - sin2_t)))
+        if self.coating is not None:  # the stack replaces the bare amplitudes; directions (Snell) are unchanged
+            layers = _layers(self)
+            if back:
+                rs, rp, _, _, ts, tp = stack_amplitudes(c, self.n_real, complex(self.n_outside), layers[::-1],
+                                                        self.wavelength_nm)
+            else:
+                rs, rp, _, _, ts, tp = stack_amplitudes(c, self.n_outside, complex(self.n_real, self.k), layers,
+                                                        self.wavelength_nm)
         ts = np.where(tir, 0.0, ts)
         tp = np.where(tir, 0.0, tp)
         return Coefficients(rs, rp, ts, tp, cos_t, np.full(c.shape, 1.0 / m_real))
@@ -279,4 +313,28 @@ class Dielectric:
             d["absorption_per_mm"] = self.absorption_per_mm
         if self.wavelength_nm is not None:
             d["wavelength_nm"] = self.wavelength_nm
+        _coating_to_dict(self, d)
         return d
+
+
+def _check_coating(component, owner: str) -> None:
+    """Parse ``coating`` (a design name stays a name until the wavelength is known, then becomes
+    its layers at that wavelength, so a later change of traced wavelength keeps the thicknesses)."""
+    if component.coating is None:
+        return
+    layers = parse_coating(owner, component.coating, component.wavelength_nm)
+    if layers is not None:
+        set_fields(component, coating=layers)
+
+
+def _layers(component) -> tuple:
+    if component.wavelength_nm is None or isinstance(component.coating, str):
+        raise MaterialError(f"{type(component).__name__.lower()}: a coating needs the wavelength (wavelength_nm)")
+    return component.coating
+
+
+def _coating_to_dict(component, d: dict) -> None:
+    if component.coating is not None:
+        d["coating"] = component.coating if isinstance(component.coating, str) else layers_to_json(component.coating)
+        if component.wavelength_nm is not None:
+            d.setdefault("wavelength_nm", component.wavelength_nm)

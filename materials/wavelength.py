@@ -48,9 +48,14 @@ def sigma_at_wavelength_nm(sigma_nm: float, lc_um: float, s: float, from_nm: flo
     return float(sigma_nm) * math.sqrt(_psd_band(lc_um, s, to_nm) / _psd_band(lc_um, s, from_nm))
 
 
+def _coated(c) -> bool:
+    return getattr(c, "coating", None) is not None
+
+
 def wavelength_dependent(material) -> bool:
-    """Does any component change with wavelength (so that a band needs several traced wavelengths)?"""
-    return any(_type(c) in WAVELENGTH_DEPENDENT for c in getattr(material, "components", ()))
+    """Does any component change with wavelength (so that a band needs several traced wavelengths)?
+    A coated ``specular`` or ``dielectric`` does: its layers' phase thicknesses scale with 1/lambda."""
+    return any(_type(c) in WAVELENGTH_DEPENDENT or _coated(c) for c in getattr(material, "components", ()))
 
 
 def at_wavelength(material, wavelength_nm: float):
@@ -66,8 +71,8 @@ def at_wavelength(material, wavelength_nm: float):
             lam0 = c.wavelength_nm if c.wavelength_nm is not None else material.wavelength_nm
             c = dataclasses.replace(c, sigma_nm=sigma_at_wavelength_nm(c.sigma_nm, c.lc_um, c.s, lam0, lam),
                                     wavelength_nm=lam)
-        elif kind == "particulate":
-            c = dataclasses.replace(c, wavelength_nm=lam)
+        elif kind == "particulate" or _coated(c):
+            c = dataclasses.replace(c, wavelength_nm=lam)  # a coating keeps its physical thicknesses
         comps.append(c)
     return Material(name=material.name, wavelength_nm=lam, components=tuple(comps),
                     description=material.description, provenance=material.provenance)
