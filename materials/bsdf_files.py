@@ -30,7 +30,13 @@ from pathlib import Path
 
 import numpy as np
 
-from materials.base import MaterialError
+import materials.bsdf_table  # noqa: F401 - registers the component
+from materials.albedo import directional_hemispherical_reflectance
+from materials.base import MaterialError, brdf_angles
+from materials.bsdf_table import rotated
+from materials.material import Material
+from materials.registry import build_component
+from materials.scan import make_scan
 
 ZEMAX_KEYS = ("Source", "Symmetry", "SpectralContent", "ScatterType", "SampleRotation", "AngleOfIncidence",
               "ScatterAzimuth", "ScatterRadial")
@@ -316,10 +322,7 @@ def parse_fred(text: str, path="file") -> dict:
 
 def import_file(path, name=None):
     """(Material, report dict) from a Zemax or FRED file; refuses other files and non-physical data."""
-    from materials.material import Material
-    from materials.registry import build_component
 
-    import materials.bsdf_table  # noqa: F401 - registers the component
 
     path = Path(path)
     text = read_text(path)
@@ -353,7 +356,6 @@ def _lobe_radial_deg(material, aoi_deg=()) -> list[float]:
     """Radial angles that resolve the material's narrowest in-plane lobe: the default set, fractions
     of its half-width at half maximum at a few incidences, and for each incidence the radial angles
     1 deg short of the horizon on both sides of the plane of incidence (90 - aoi - 1, 90 + aoi - 1)."""
-    from materials.base import brdf_angles
 
     extra = []
     fine = np.radians(np.concatenate([np.linspace(0.0, 2.0, 201), np.linspace(2.0, 89.0, 175)]))
@@ -385,7 +387,6 @@ def _fmt(v: float) -> str:
 
 def _f_at(material, theta_i_deg, az_deg, rad_deg, rotation_deg=None):
     """Material BRDF on a Zemax (azimuth x radial) grid about the specular direction (0 below the horizon)."""
-    from materials.bsdf_table import rotated
 
     th, ph, cz = _zemax_direction(math.radians(theta_i_deg), np.radians(az_deg), np.radians(rad_deg))
     model = material if rotation_deg is None else rotated(material, rotation_deg)
@@ -437,8 +438,6 @@ def export_zemax(material, aoi_deg=None, radial_deg=None, azimuth_deg=None) -> s
 
 
 def material_dhr_rotated(material, theta_i_deg, rotation_deg):
-    from materials.albedo import directional_hemispherical_reflectance
-    from materials.bsdf_table import rotated
 
     return directional_hemispherical_reflectance(rotated(material, rotation_deg), math.radians(theta_i_deg), "u")
 
@@ -447,7 +446,6 @@ def export_fred(material, aoi_deg=None, scatter_deg=None) -> str:
     """FRED tabulated BSDF text: in-plane scans (theta from -89.5 to 89.5, denser near specular)
     at each specular angle. FRED's tabulated model is isotropic: an anisotropic table is written at
     its rotation 0 (the caller warns)."""
-    from materials.base import brdf_angles
 
     tables = _tables(material)
     aoi = list(aoi_deg) if aoi_deg else sorted({*DEFAULT_AOI_DEG, *[a for t in tables for a in t.theta_i_deg]})
@@ -462,8 +460,7 @@ def export_fred(material, aoi_deg=None, scatter_deg=None) -> str:
             th = th[(th >= -89.5) & (th <= 89.5)]
         model = material
         if tables and tables[0].anisotropic:
-            from materials.bsdf_table import rotated
-
+        
             model = rotated(material, 0.0)
         f = brdf_angles(model, math.radians(a), np.radians(np.abs(th)), np.where(th >= 0, 0.0, np.pi))
         out.append(f"{a:g}\t0")
@@ -489,9 +486,7 @@ def scan_from_file(path, wavelength_nm=None):
     incidence of every incidence (rotation 0 of an anisotropic file), polarization 'u', std unknown
     (the fit then uses its default relative std). ``wavelength_nm``: given, else read from the file's
     comments ('650 nm'), else an error naming what to pass."""
-    from materials.scan import make_scan
 
-    import materials.bsdf_table  # noqa: F401
 
     path = Path(path)
     text = read_text(path)

@@ -37,12 +37,14 @@ whose width is the narrowest half-width at half maximum of the blocks, as materi
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Optional
 
 import numpy as np
 
+from materials.albedo import directional_hemispherical_reflectance
 from materials.base import MaterialError, Sample, check_polarization
 from materials.flags import ComponentFlags
 from materials.registry import register
@@ -318,7 +320,6 @@ class BsdfTable:
     def oriented(self, offset_deg: float) -> "BsdfTable":
         """This table on a part whose sample x axis lies at azimuth ``offset_deg`` in the tracer's
         local frame (straylight.engine.spec.orient_materials); the material file is unchanged."""
-        import copy
 
         out = copy.copy(self)  # shares the built interpolants
         object.__setattr__(out, "_frame_offset_deg", float(offset_deg))
@@ -373,7 +374,6 @@ class BsdfTable:
     def dhr(self, theta_i_deg, rotation_deg=0.0, n_radial=96, n_azimuth=192) -> np.ndarray:
         """Directional-hemispherical reflectance (transmittance for btdf) at sample rotation
         ``rotation_deg``: the quadrature of materials.albedo on this table alone."""
-        from materials.albedo import directional_hemispherical_reflectance
 
         return directional_hemispherical_reflectance(_Rotated(self, rotation_deg), np.radians(theta_i_deg), "u",
                                                      n_radial, n_azimuth)

@@ -188,7 +188,7 @@ def refine(scene_path, tel, layouts, material, field_deg, rays, seed, log, upstr
         for k, lay in enumerate(layouts):
             doc = output_scene_doc(Path(scene_path), shields.baffle_parts(tel, lay, material), upstream_of)
             path = Path(tmp) / f"candidate_{k}.toml"
-            path.write_text(tomli_w.dumps(doc))
+            atomicio.write_text(path, tomli_w.dumps(doc))
             pts = _sweep(scene_setup(path), angles, rays, crn_seed)
             floor = min(p["pst"] for p in pts if p["pst"] > 0) if any(p["pst"] > 0 for p in pts) else 1e-30
             # signal to stray light: the PST (per unit beam irradiance) against the on-axis light kept

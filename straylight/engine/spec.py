@@ -15,6 +15,7 @@ from straylight.engine.roles import ROLE_CODES, ROLE_DETECTOR
 from straylight.engine.tally_rows import tally_rows
 from straylight.rng import check_seed
 from straylight.run_checks import check_origin_precision
+from straylight.sources import orthonormal_basis
 
 
 
@@ -113,8 +114,6 @@ def orient_materials(scene, part_material, models):
     models = list(models)
     if not any(_anisotropic(m) for m in models):
         return part_material, tuple(models)
-    from straylight.sources import orthonormal_basis
-
     part_material = part_material.copy()
     for k, p in enumerate(scene.parts):
         idx = int(part_material[k])

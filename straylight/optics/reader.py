@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+import atomicio
+
 
 class OpticsFileError(ValueError):
     """A lens file that cannot be imported (one line: what and where)."""
@@ -182,7 +184,7 @@ def _open_rayoptics(path: Path, fmt: str, raw: bytes):
 
     with tempfile.TemporaryDirectory(prefix="straylight-lens-") as tmp:
         copy = Path(tmp) / ("lens." + fmt)
-        copy.write_bytes(raw)
+        atomicio.write_bytes(copy, raw)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
