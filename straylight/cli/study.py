@@ -25,7 +25,8 @@ def add_parser(subparsers):
 
     add_precision_args(p, default_rays=None,
                        what=f"rays per PST angle (default: each PST point traced to {DEFAULT_TARGET_REL_ERROR * 100:g} %% "
-                            f"with a reliable error, at most {DEFAULT_POINT_SECONDS:g} s per point); the other "
+                            f"with a reliable error, at most {DEFAULT_POINT_RAYS:.0e} rays per point, so the same seed gives the "
+                            f"same numbers on any machine); the other "
                             f"steps scale from it (default {DEFAULT_RAYS})", exclusive=False)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads (K processes "
@@ -56,18 +57,19 @@ def add_parser(subparsers):
 
 DEFAULT_RAYS = 200_000
 DEFAULT_TARGET_REL_ERROR = 0.02
-DEFAULT_POINT_SECONDS = 10.0
+DEFAULT_POINT_RAYS = 2_000_000  # a ray budget, not wall seconds: the same seed, the same numbers under any load
 
 
 def default_precision(args) -> None:
     """Neither --rays nor --target-rel-error: the PST points trace to DEFAULT_TARGET_REL_ERROR with a
-    reliable error (VOV <= 0.1) within a time budget of DEFAULT_POINT_SECONDS each (--max-seconds
-    changes it), not a fixed ray count; the other steps use DEFAULT_RAYS. A point the budget stops is
-    flagged in the report, the plot and pst.json (issue 26)."""
+    reliable error (VOV <= 0.1) within a budget of DEFAULT_POINT_RAYS rays each (--max-rays changes
+    it; --max-seconds adds a wall cap, which then says it stopped the run), not a fixed ray count; the
+    other steps use DEFAULT_RAYS. A ray budget keeps a seed's numbers the same on a loaded or an idle
+    machine. A point the budget stops is flagged in the report, the plot and pst.json."""
     if args.rays is None and args.target_rel_error is None:
         args.target_rel_error = DEFAULT_TARGET_REL_ERROR
-        if args.max_seconds is None:
-            args.max_seconds = DEFAULT_POINT_SECONDS
+        if args.max_rays is None and args.max_seconds is None:
+            args.max_rays = DEFAULT_POINT_RAYS
     if args.rays is None:
         args.rays = DEFAULT_RAYS
 

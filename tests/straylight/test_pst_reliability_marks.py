@@ -56,15 +56,15 @@ def _study_args(argv):
     return build_parser().parse_args(["study", "--out", "x", *argv])
 
 
-def test_default_study_traces_to_a_target_within_a_time_budget():
+def test_default_study_traces_to_a_target_within_a_ray_budget():
     from straylight.cli.pst import precision_from_args
-    from straylight.cli.study import DEFAULT_POINT_SECONDS, DEFAULT_RAYS, DEFAULT_TARGET_REL_ERROR, default_precision
+    from straylight.cli.study import DEFAULT_POINT_RAYS, DEFAULT_RAYS, DEFAULT_TARGET_REL_ERROR, default_precision
 
     args = _study_args([])
     default_precision(args)
     p = precision_from_args(args)
-    assert (p.target_rel_error, p.max_seconds, args.rays) == (DEFAULT_TARGET_REL_ERROR, DEFAULT_POINT_SECONDS,
-                                                               DEFAULT_RAYS)
+    assert (p.target_rel_error, p.max_rays, args.rays) == (DEFAULT_TARGET_REL_ERROR, DEFAULT_POINT_RAYS, DEFAULT_RAYS)
+    assert p.max_seconds == float("inf")  # no wall cap by default: the same seed, the same numbers under any load
     fixed = _study_args(["--rays", "5000"])  # asked for rays: a fixed count, as before
     default_precision(fixed)
     assert precision_from_args(fixed) is None and fixed.rays == 5000
