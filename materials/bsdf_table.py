@@ -422,6 +422,26 @@ class BsdfTable:
         cos_part = np.where(wi[:, 2] > 0, cosine_hemisphere_pdf(wo[:, 2]), 0.0)
         return 0.5 * cos_part + 0.5 * lobe_pdf(wi, wo, self.proposal_width, 2.0)
 
+    @classmethod
+    def example(cls) -> "BsdfTable":
+        """A small plane-symmetric table for the component contract test: a Lambertian rd = 0.03
+        plus a mild forward lobe, at incidences 0, 30, 60 and 80 deg."""
+        theta_r = [float(a) for a in range(0, 90, 5)]
+        phi_r = [float(a) for a in range(0, 181, 30)]
+        blocks = []
+        for ti in (0.0, 30.0, 60.0, 80.0):
+            tr, pr, f = [], [], []
+            for a in theta_r:
+                for b in phi_r:
+                    # cosine of the angle to the specular direction (theta_r = theta_i, phi_r = 0)
+                    cs = (np.cos(np.radians(a)) * np.cos(np.radians(ti))
+                          + np.sin(np.radians(a)) * np.sin(np.radians(ti)) * np.cos(np.radians(b)))
+                    tr.append(a)
+                    pr.append(b)
+                    f.append(0.03 / np.pi + 0.01 * max(float(cs), 0.0) ** 8)
+            blocks.append({"theta_r_deg": tr, "phi_r_deg": pr, "bsdf_per_sr": f})
+        return cls(theta_i_deg=(0.0, 30.0, 60.0, 80.0), blocks=tuple(blocks))
+
     def to_dict(self) -> dict:
         out = {"type": "bsdf_table", "scatter": self.scatter, "symmetry": self.symmetry,
                "rotation_deg": list(self.rotation_deg), "theta_i_deg": list(self.theta_i_deg),
