@@ -36,7 +36,7 @@ Named designs (layers from the outside in; lambda0 = the material's ``wavelength
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -52,7 +52,7 @@ NAMED_DESIGNS = {
 Layer = tuple  # (n, k, thickness_nm)
 
 
-def parse_coating(owner: str, value, wavelength_nm) -> tuple:
+def parse_coating(owner: str, value, wavelength_nm) -> Optional[tuple]:
     """A material file's ``coating`` (a design name or a list of ``{"n", "thickness_nm"}``) ->
     a tuple of (n, k, thickness_nm) layers, outermost first. A named design needs the wavelength
     (its thicknesses are fractions of it); it returns None while that is unknown."""
