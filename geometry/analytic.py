@@ -1,4 +1,4 @@
-"""Analytic optical surfaces (CONTRACTS §6.1): conic, plane, cylinder.
+"""Analytic optical surfaces (CONTRACTS §6.1): conic, even asphere, plane, cylinder.
 
 Each surface is meshed for the hit search (embree finds the triangle), then every hit is refined
 onto the exact surface by Newton's method along the ray on the surface's implicit equation, and
@@ -7,8 +7,15 @@ the exact normal is taken there. Local frame: ``w = axis``, origin at ``vertex_m
 - conic: ``G = c rho^2 - 2 z + (1 + k) c z^2 = 0``, whose branch through the vertex is the sag
   ``z = h(rho) = c rho^2 / (1 + sqrt(1 - (1 + k) c^2 rho^2))`` (c = 1 / radius_mm, k = conic);
   clear aperture ``inner_radius_mm <= rho <= outer_radius_mm``.
+- asphere: ``G = h(rho) + sum_i A_(2i+4) rho^(2i+4) - z`` (the conic sag plus an even polynomial,
+  ``coefficients = [A4, A6, ...]``); Newton along the ray on this G from the mesh hit, with
+  ``dG/dt = q(rho^2) (x dx + y dy) - dz`` where ``q = h'(rho) / rho`` stays finite on the axis.
 - plane: ``G = -2 z``, a disk or annulus.
 - cylinder: ``G = rho^2 - R^2`` for ``0 <= z <= length_mm``; the front is the outside.
+
+Any of them may be placed off the axis by ``tilt_deg = [ax, ay, az]`` (rotations about the world x,
+then y, then z axes, about the vertex: ``axis' = Rz Ry Rx axis``) and then ``offset_mm = [dx, dy,
+dz]`` (``vertex' = vertex + offset``): a decentre or a coordinate break of a lens file.
 
 The front side is the side ``axis`` points to (conic, plane; the outside for a cylinder); front
 normals are ``-grad G / |grad G|`` for conic and plane and ``+grad G / |grad G|`` for the cylinder.
@@ -210,6 +217,93 @@ class Conic(_Surface):
 
 
 @dataclass(frozen=True, eq=False)
+class Asphere(Conic):
+    """Even asphere: the conic sag plus ``sum_i A_(2i+4) rho^(2i+4)`` (CONTRACTS §6.1 ``asphere``).
+
+    ``coefficients = (A4, A6, ...)`` in mm^-3, mm^-5, ... as lens-design programs write them
+    (CODE V ``A``, ``B``, ...; Zemax EVENASPH terms from rho^4). Implicit ``G = sag(rho) - z`` (its
+    front normal ``-grad G`` is +axis at the vertex, as for the conic)."""
+
+    coefficients: tuple = ()
+
+    kind = "asphere"
+
+    def _poly(self, rho2):
+        """(sum A rho^n, q_poly = (d/drho sum A rho^n) / rho, d/drho q_poly... ) for rho^2 (n = 4, 6, ...)."""
+        s = np.zeros_like(rho2)
+        q = np.zeros_like(rho2)
+        for i, a in enumerate(self.coefficients):
+            n = 2 * i + 4
+            s = s + a * rho2 ** (n // 2)
+            q = q + n * a * rho2 ** (n // 2 - 1)
+        return s, q
+
+    def sag(self, rho):
+        """h(rho) + sum A_(2i+4) rho^(2i+4)."""
+        rho = np.asarray(rho, float)
+        return Conic.sag(self, rho) + self._poly(rho * rho)[0]
+
+    def slope_over_rho(self, rho2):
+        """q = h'(rho) / rho: c / sqrt(1 - (1 + k) c^2 rho^2) + sum n A rho^(n - 2)."""
+        c, k = self.c, self.conic
+        return c / np.sqrt(1.0 - (1.0 + k) * c * c * rho2) + self._poly(rho2)[1]
+
+    def implicit(self, p):
+        rho2 = p[:, 0] ** 2 + p[:, 1] ** 2
+        return self.sag(np.sqrt(rho2)) - p[:, 2]
+
+    def gradient(self, p):
+        q = self.slope_over_rho(p[:, 0] ** 2 + p[:, 1] ** 2)
+        return np.stack([q * p[:, 0], q * p[:, 1], -np.ones(len(p))], axis=1)
+
+    def quadric(self):  # pragma: no cover - not a quadric
+        raise TypeError("an asphere is not a quadric: use refine_hits")
+
+    def valid(self, p):
+        rho = np.hypot(p[:, 0], p[:, 1])
+        c, k = self.c, self.conic
+        inside = (1.0 + k) * c * c * rho * rho <= 1.0  # the conic base has a sag there
+        tol = 1e-9 * max(1.0, self.outer_radius_mm)
+        return inside & (rho <= self.outer_radius_mm + tol) & (rho >= self.inner_radius_mm - tol)
+
+    def refine_hits(self, origins, dirs, t0):
+        """Compiled Newton on ``sag(rho) - z = 0`` along each ray from ``t0``: ``(t, normals, ok)``."""
+        o = np.ascontiguousarray(origins, dtype=np.float64)
+        d = np.ascontiguousarray(dirs, dtype=np.float64)
+        t = np.ascontiguousarray(t0, dtype=np.float64).copy()
+        nrm = np.empty_like(o)
+        loc = np.empty((len(o), 2))
+        done = np.empty(len(o), np.bool_)
+        coef = np.ascontiguousarray(self.coefficients, dtype=np.float64)
+        _asphere_kernel()(o, d, t, self.rotation, self.vertex_mm, self.c, self.conic, coef,
+                          NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm, loc, done)
+        p = np.column_stack([loc[:, 0], np.zeros(len(o)), loc[:, 1]])
+        return t, nrm, done & self.valid(p)
+
+    def mesh(self, tolerance_mm: float = 0.01):
+        """Rings spaced for the largest normal curvature of the asphere's profile (sampled)."""
+        r0, r1 = self.inner_radius_mm, self.outer_radius_mm
+        rr = np.linspace(max(r0, 1e-9 * r1), r1, 1025)
+        q = self.slope_over_rho(rr * rr)  # h'(rho) / rho, exact (finite on the axis)
+        h1 = rr * q
+        h2 = np.gradient(h1, rr)
+        curv = float(np.max(np.maximum(np.abs(h2) / (1 + h1 * h1) ** 1.5, np.abs(q) / np.sqrt(1 + h1 * h1))))
+        curv = max(curv, 1e-12)
+        step = math.sqrt(8.0 * tolerance_mm / curv)
+        n_r = max(2, int(math.ceil((r1 - r0) / step)) + 1)
+        n_phi = max(24, int(math.ceil(2 * math.pi * r1 / min(step, math.sqrt(8 * tolerance_mm * r1)))))
+        rho = np.linspace(r0, r1, n_r)
+        phi = np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
+        return _revolve(self, rho, phi, self.sag(rho), center=r0 == 0.0)
+
+    def to_dict(self) -> dict:
+        d = Conic.to_dict(self)
+        d["type"] = "asphere"
+        d["coefficients"] = [float(a) for a in self.coefficients]
+        return d
+
+
+@dataclass(frozen=True, eq=False)
 class Plane(Conic):
     """A disk or annulus through vertex_mm with normal axis (a conic with c = 0), exact in every role
     (CONTRACTS §6.4): its area is pi (outer^2 - inner^2), and the tracer counts a hit only inside its
@@ -350,6 +444,90 @@ def _kernel():
     return _KERNEL
 
 
+_ASPHERE_KERNEL = None
+
+
+def _asphere_kernel():
+    """The numba kernel of :meth:`Asphere.refine_hits`, compiled on first use (cache=True)."""
+    global _ASPHERE_KERNEL
+    if _ASPHERE_KERNEL is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def asphere_kernel(o, d, t, rot, vertex, c, k, coef, tol, max_iter, nrm, loc, done):
+            ck = (1.0 + k) * c * c
+            for i in range(o.shape[0]):
+                ox = oy = oz = 0.0
+                dx = dy = dz = 0.0
+                for j in range(3):
+                    ox += rot[0, j] * (o[i, j] - vertex[j])
+                    oy += rot[1, j] * (o[i, j] - vertex[j])
+                    oz += rot[2, j] * (o[i, j] - vertex[j])
+                    dx += rot[0, j] * d[i, j]
+                    dy += rot[1, j] * d[i, j]
+                    dz += rot[2, j] * d[i, j]
+                ti = t[i]
+                ok = False
+                q = 0.0
+                x = y = z = 0.0
+                if ti == ti and abs(ti) < 1e300:
+                    for _ in range(max_iter):
+                        x = ox + ti * dx
+                        y = oy + ti * dy
+                        z = oz + ti * dz
+                        r2 = x * x + y * y
+                        arg = 1.0 - ck * r2
+                        if arg <= 0.0:
+                            break
+                        root = arg ** 0.5
+                        h = c * r2 / (1.0 + root)
+                        q = c / root
+                        p = r2
+                        for m in range(coef.shape[0]):
+                            n = 2 * m + 4
+                            h += coef[m] * p * r2
+                            q += n * coef[m] * p
+                            p *= r2
+                        g = h - z
+                        dg = q * (x * dx + y * dy) - dz
+                        if dg == 0.0:
+                            break
+                        step = g / dg
+                        ti -= step
+                        if abs(step) <= tol * (1.0 + abs(ti)):
+                            ok = True
+                            break
+                x = ox + ti * dx
+                y = oy + ti * dy
+                z = oz + ti * dz
+                r2 = x * x + y * y
+                arg = 1.0 - ck * r2
+                if arg > 0.0:
+                    q = c / arg ** 0.5
+                    p = r2
+                    for m in range(coef.shape[0]):
+                        q += (2 * m + 4) * coef[m] * p
+                        p *= r2
+                else:
+                    ok = False
+                gx = -q * x
+                gy = -q * y
+                gz = 1.0
+                norm = (gx * gx + gy * gy + gz * gz) ** 0.5
+                gx /= norm
+                gy /= norm
+                gz /= norm
+                for j in range(3):
+                    nrm[i, j] = gx * rot[0, j] + gy * rot[1, j] + gz * rot[2, j]
+                loc[i, 0] = r2 ** 0.5
+                loc[i, 1] = z
+                t[i] = ti
+                done[i] = ok
+
+        _ASPHERE_KERNEL = asphere_kernel
+    return _ASPHERE_KERNEL
+
+
 def _revolve(surface, rho, phi, z, center):
     """Rings (rho_i, z_i) x azimuths -> triangles whose normals face +w (the front of a conic)."""
     n_phi = len(phi)
@@ -375,11 +553,33 @@ def _revolve(surface, rho, phi, z, center):
 
 # ---------------------------------------------------------------- scene-file keys
 
+_PLACEMENT = {"offset_mm", "tilt_deg"}
 _KEYS = {
-    "conic": {"type", "vertex_mm", "axis", "radius_mm", "conic", "outer_radius_mm", "inner_radius_mm"},
-    "plane": {"type", "vertex_mm", "axis", "outer_radius_mm", "inner_radius_mm"},
-    "cylinder": {"type", "vertex_mm", "axis", "radius_mm", "length_mm"},
+    "conic": {"type", "vertex_mm", "axis", "radius_mm", "conic", "outer_radius_mm", "inner_radius_mm"} | _PLACEMENT,
+    "asphere": {"type", "vertex_mm", "axis", "radius_mm", "conic", "coefficients", "outer_radius_mm",
+                "inner_radius_mm"} | _PLACEMENT,
+    "plane": {"type", "vertex_mm", "axis", "outer_radius_mm", "inner_radius_mm"} | _PLACEMENT,
+    "cylinder": {"type", "vertex_mm", "axis", "radius_mm", "length_mm"} | _PLACEMENT,
 }
+
+
+def tilt_matrix(tilt_deg) -> np.ndarray:
+    """Rz Ry Rx: rotations about the world x, then y, then z axes by ``tilt_deg = [ax, ay, az]``."""
+    ax, ay, az = np.radians(np.asarray(tilt_deg, float))
+    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _triple(d, key, where):
+    v = d.get(key, [0.0, 0.0, 0.0])
+    ok = isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                      for x in v)
+    a = np.asarray(v, float) if ok else None
+    if a is None or not np.all(np.isfinite(a)):
+        raise GeometryError(f"{where}: surface {key!r} must be [x, y, z] (numbers), got {v!r}")
+    return a
 
 
 def _number(d, key, where, default=None, positive=False, nonneg=False):
@@ -399,7 +599,7 @@ def _number(d, key, where, default=None, positive=False, nonneg=False):
 
 
 def surface_from_dict(d, where: str = "surface"):
-    """A CONTRACTS §6.1 ``surface = {...}`` table -> Conic | Plane | Cylinder; one-line errors."""
+    """A CONTRACTS §6.1 ``surface = {...}`` table -> Conic | Asphere | Plane | Cylinder; one-line errors."""
     if not isinstance(d, dict):
         raise GeometryError(f"{where}: 'surface' must be a table {{type = ..., ...}}")
     kind = d.get("type")
@@ -414,6 +614,10 @@ def surface_from_dict(d, where: str = "surface"):
     if v is None or not np.all(np.isfinite(v)):
         raise GeometryError(f"{where}: surface 'vertex_mm' must be [x, y, z], got {vertex!r}")
     axis = _unit(d.get("axis", [0.0, 0.0, 1.0]), "surface 'axis'", where)
+    # placement: tilt about the vertex, then decentre (a lens file's decentre / coordinate break)
+    axis = tilt_matrix(_triple(d, "tilt_deg", where)) @ axis
+    axis = axis / np.linalg.norm(axis)
+    v = v + _triple(d, "offset_mm", where)
     if kind == "cylinder":
         return Cylinder(v, axis, _number(d, "radius_mm", where, positive=True),
                         _number(d, "length_mm", where, positive=True))
@@ -432,6 +636,17 @@ def surface_from_dict(d, where: str = "surface"):
         rmax = 1.0 / math.sqrt((1.0 + k) * c * c)
         raise GeometryError(f"{where}: the conic (radius_mm {radius:g}, conic {k:g}) has no sag beyond "
                             f"rho = {rmax:.6g} mm < outer_radius_mm {outer:g}")
+    if kind == "asphere":
+        coefs = d.get("coefficients", [])
+        if not isinstance(coefs, list) or not all(isinstance(a, (int, float)) and not isinstance(a, bool)
+                                                  and math.isfinite(a) for a in coefs):
+            raise GeometryError(f"{where}: surface 'coefficients' must be a list of numbers [A4, A6, ...], "
+                                f"got {coefs!r}")
+        surf = Asphere(v, axis, radius, k, outer, inner, tuple(float(a) for a in coefs))
+        rho = np.linspace(inner, outer, 513)
+        if not np.all(np.isfinite(surf.sag(rho))):
+            raise GeometryError(f"{where}: the asphere's sag is not finite over its clear aperture")
+        return surf
     return Conic(v, axis, radius, k, outer, inner)
 
 
