@@ -13,7 +13,7 @@ import pytest
 
 LENSES = Path(__file__).resolve().parent / "data" / "lenses"
 FAST = ["ray-optics/ag_dblgauss.seq", "ray-optics/rc_f16.seq", "optiland/lens1.zmx"]
-SLOW = ["ray-optics/CODV_32327.seq", "ray-optics/HoO-V2C18Ex03.zmx", "ray-optics/US08011793-1.zmx",
+SLOW = ["optiland/cooke_triplet.seq", "ray-optics/CODV_32327.seq", "ray-optics/HoO-V2C18Ex03.zmx", "ray-optics/US08011793-1.zmx",
         "OpticsDatabase/Edmund_32-299.zmx", "OpticsDatabase/Edmund_45-206.zmx", "ray-optics/landscape_lens.seq",
         "ray-optics/paraboloid.seq", "ray-optics/questar35.seq", "ray-optics/threemir.seq",
         "ray-optics/schmidt.seq", "ray-optics/mangin.seq", "ray-optics/354710-C.zmx", "ray-optics/dec_tilt_test.seq",

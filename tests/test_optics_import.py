@@ -13,7 +13,6 @@ CORPUS = sorted(p for p in LENSES.rglob("*") if p.suffix.lower() in (".seq", ".z
 # files refused, and the words their one-line refusal must carry
 REFUSED = {
     "asphere.seq": "could not parse",            # rayoptics' CODE V reader fails on its ASP line
-    "cooke_triplet.seq": "unknown glass",        # N--SK16 as written in the file
     "curved_reflective_grating.zmx": "diffractive",
     "ACL3026U.zmx": "unknown glass B270",
     "ASL5040-UV.zmx": "unknown glass C79-80",

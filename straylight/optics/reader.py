@@ -170,6 +170,24 @@ def _multiconfig(fmt: str, text: str) -> int:
     return 2 if re.search(r"^\s*ZOO\b", text, re.M | re.I) else 1
 
 
+def _radii_without_rdm(text: str) -> bool:
+    """A CODE V file with neither ``RDM`` nor ``CUM`` whose surface values only make sense as radii.
+
+    rayoptics reads such a file in curvature mode; a hand-written file (optiland's test files) means
+    radii. Decided by physics: a curvature c with |c| EPD / 2 > 1 has no surface over the pupil."""
+    if re.search(r"^\s*(RDM|CUM)\b", text, re.M | re.I):
+        return False
+    epd = re.search(r"^\s*EPD\s+([-+0-9.eE]+)", text, re.M | re.I)
+    if not epd:
+        return False
+    try:
+        half = abs(float(epd.group(1))) / 2.0
+        values = [abs(float(m.group(1))) for m in re.finditer(r"^\s*S\s+([-+0-9.eE]+)", text, re.M)]
+    except ValueError:
+        return False
+    return any(v * half > 1.0 for v in values)
+
+
 def _open_rayoptics(path: Path, fmt: str, raw: bytes):
     """rayoptics' model of the file, read from a private copy (rayoptics may write a glass template
     beside the file it reads; ``optics info`` writes nothing where the user's file is)."""
@@ -226,6 +244,24 @@ def _profile(ifc, where: str, problems: list):
     return ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), []
 
 
+CATALOGUES = ("Schott", "Ohara", "Hoya", "CDGM", "Sumita")
+
+
+def _catalogue_glass(name: str):
+    """A catalogue glass for a name rayoptics did not find, or None. rayoptics' CODE V reader turns
+    ``N-SK16_SCHOTT`` into ``N--SK16`` (it expects ``NSK16_SCHOTT``): the doubled hyphen is undone and the
+    name looked up in each catalogue."""
+    from opticalglass import glassfactory
+
+    for cand in dict.fromkeys((name, name.replace("--", "-"), name.upper().replace("--", "-"))):
+        for cat in CATALOGUES:
+            try:
+                return glassfactory.create_glass(cand, cat)
+            except Exception:  # noqa: BLE001 - opticalglass raises its own GlassNotFoundError per catalogue
+                continue
+    return None
+
+
 def _glass_name(medium) -> str | None:
     name = medium.name() if hasattr(medium, "name") else str(medium)
     if name.lower() in ("air", ""):
@@ -254,8 +290,13 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     except OSError as exc:
         raise OpticsFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     fmt, text = sniff_format(raw, path)
-    opm, info = _open_rayoptics(path, fmt, raw)
     notes = []
+    if fmt == "seq" and _radii_without_rdm(text):
+        raw = b"RDM\n" + raw
+        text = "RDM\n" + text
+        notes.append("no RDM/CUM in the file and its S values as curvatures would give radii smaller than the "
+                     "entrance pupil: read as radii (RDM)")
+    opm, info = _open_rayoptics(path, fmt, raw)
     glass = dict(glass or {})
     sm = opm["seq_model"]
     # glasses the catalogues lack: --glass NAME=N, or refused naming them
@@ -267,7 +308,13 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         if isinstance(gap.medium, ConstantIndex) and nm.startswith("not "):
             gname = nm[4:]
             match = next((k for k in glass if k.upper() == gname.upper()), None)
-            if match is None:
+            found = None if match is not None else _catalogue_glass(gname)
+            if found is not None:
+                gap.medium = found
+                note = f"glass {gname} read as {found.name()} ({found.catalog_name()})"
+                if note not in notes:
+                    notes.append(note)
+            elif match is None:
                 missing.append(gname)
             else:
                 gap.medium = ConstantIndex(float(glass[match]), gname)
