@@ -29,6 +29,7 @@ OWN_GROUPS = (
     "straylight.cli.design",
     "straylight.cli.thermal",
     "straylight.cli.optics",
+    "straylight.cli.ghosts",
 )
 COMMAND_GROUP = "straylight.commands"  # entry-point group of the command groups of other packages
 

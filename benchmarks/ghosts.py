@@ -1,0 +1,66 @@
+"""The ghost table of the 10-surface double Gauss (ray-optics' ag_dblgauss.seq), timed (BENCHMARK: <= 60 s).
+
+    .venv/bin/python benchmarks/ghosts.py [--lens tests/data/lenses/ray-optics/ag_dblgauss.seq] [--walk-rays 1000000]
+
+Imports the lens (``optics import``), runs the ghost table (``straylight.analyses.ghost_trace``: every
+two-reflection ghost to 2 %, ghosts below 1e-6 of the nominal image stopped early) and, as the baseline
+measured in the same run, the tracer's analog random walk with path records: its time for
+``--walk-rays`` rays and the worst relative error among the same ghosts, extrapolated to the time the
+walk would need for 2 % on every ghost (time x (worst error / 0.02)^2). Prints both and their ratio.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--lens", default=str(ROOT / "tests" / "data" / "lenses" / "ray-optics" / "ag_dblgauss.seq"))
+    ap.add_argument("--walk-rays", type=int, default=1_000_000)
+    args = ap.parse_args(argv)
+    from straylight.analyses.ghost_trace import ghosts
+    from straylight.analyses.ghosts import specular_sequence
+    from straylight.cli.main import main as cli
+    from straylight.scene import load_scene
+    from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions
+
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        assert cli(["optics", "import", args.lens, "--out", tmp]) == 0
+        t_import = time.perf_counter() - t0
+        rs = load_scene(Path(tmp) / "scene.toml")
+        t0 = time.perf_counter()
+        table = ghosts(rs, order=2)
+        t_table = time.perf_counter() - t0
+        wanted = [r for r in table.rows if r.fraction_of_nominal >= 1e-6]
+        worst = max(r.stderr_w / r.power_w for r in wanted)
+        t0 = time.perf_counter()
+        res = rs.trace(args.walk_rays, seed=1, options=TraceOptions(
+            estimator=EstimatorOptions(nee=False), output=OutputOptions(record_paths=True, path_depth=40)))
+        t_walk = time.perf_counter() - t0
+    groups = {g.key: g for g in res.paths.group(by=lambda ev, det: specular_sequence(ev) if det == "image" else None)
+              if g.key is not None}
+    walk_err = []
+    for r in wanted:
+        g = groups.get(tuple(r.sequence))
+        walk_err.append(g.stderr_w / g.power_w if g is not None and g.power_w > 0 else math.inf)
+    worst_walk = max(walk_err)
+    t_walk_2pc = t_walk * (worst_walk / 0.02) ** 2
+    print(f"lens {Path(args.lens).name}: import {t_import:.2f} s; {len(table.rows)} ghosts, {len(wanted)} >= 1e-6 of "
+          f"the nominal image")
+    print(f"ghost table: {t_table:.1f} s, worst relative error {worst:.4f} (target 0.02)")
+    print(f"analog walk: {args.walk_rays:.0e} rays in {t_walk:.1f} s, worst relative error {worst_walk:.3f} "
+          f"({sum(math.isinf(e) for e in walk_err)} ghosts never drawn) -> ~{t_walk_2pc:.3g} s for 2 % on every ghost")
+    print(f"ratio: ghost table {t_walk_2pc / t_table:.3g}x faster than the analog walk to the same precision")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,608 @@
+"""The ghost table of the lenses in a scene (CONTRACTS 8.4), by forced-sequence tracing.
+
+A *ghost* is a path that reflects an even number of times at Fresnel interfaces (``dielectric``
+parts, coated or not) where the design transmits. The design path, the *nominal* sequence, is found
+first: source rays are followed taking the likelier branch at every interface (transmission through
+glass, reflection at a mirror) until they reach the detector; of the sequences that pass through at
+least one interface, the one that carries the most power is the nominal one (a lens: every surface in
+turn; a telescope: its mirrors too).
+
+Each ghost is then a sequence derived from the nominal one by reflections at positions
+``r1 > r2 < r3 > ...`` (the ray reflects forward at r1, runs back through the nominal parts to r2,
+reflects again and runs forward...): for order 2 every pair of interfaces, C(n, 2) ghosts for n
+transmitting interfaces (15 for a Cooke triplet, 45 for a 10-surface double Gauss), as OpticStudio's
+ghost focus generator and FRED's ghost-path listing count them.
+
+Every source ray of a ghost is traced through exactly that sequence of parts (a ray whose next hit is
+another part, or outside the clear aperture, is blocked: vignetting and the mechanics are the
+scene's own). At each interface the ray's weight is multiplied by the reflected or transmitted power
+of its Stokes vector, with the same Fresnel (and thin-film) amplitudes, Mueller matrices and bulk
+absorption as the engine's walk (``optical_surface``, ``delta_chain``): the weight is the exact
+expectation over the walk's branch choices along that sequence, so only the sampling of the source
+is random. Estimator per ghost: the mean of the per-ray powers, its standard error the sample
+standard deviation over sqrt(rays); rays are added in batches until the relative error reaches the
+target, or the ghost is below ``min_fraction`` of the nominal power, or the ray budget is spent.
+
+At the detector each ghost also gives
+- ``focus_mm``: where its ray bundle is narrowest, along the direction light travels at the detector
+  (the weighted least-squares waist: ``s* = -cov(q, u) / var(u)`` for transverse positions q and
+  slopes u); > 0 beyond the detector, < 0 before it, null for a collimated ghost;
+- ``radius_mm``: the power-weighted RMS radius of its spot on the detector about its centroid;
+- ``peak_ratio``: its peak irradiance over the nominal image's, both binned on the same grid of
+  ``MAP_BINS`` x ``MAP_BINS`` cells over the detector's disk and averaged over ``PEAK_CELLS`` x
+  ``PEAK_CELLS`` cells (a sparse map's single-cell maximum would measure the sampling noise).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.smooth import reflect, refract
+
+MAP_BINS = 64
+PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK_CELLS cells
+EPS_MM = 1e-6
+SELF_HIT_MM = 1e-6
+MAX_NOMINAL_STEPS = 200
+
+
+class GhostError(ValueError):
+    """A scene the ghost analysis cannot handle (no detector, no interface, no nominal path)."""
+
+
+# ---------------------------------------------------------------- the scene as the forced tracer sees it
+
+
+@dataclass(eq=False)
+class GhostOptics:
+    """Parts, their analytic surfaces and resolved materials, one intersector, the detector and the source."""
+
+    names: tuple
+    surfaces: tuple
+    models: tuple  # per part: (front model or None, back model or None)
+    roles: tuple
+    isect: object
+    tri_part: np.ndarray
+    tri_normals: np.ndarray
+    detector: int
+    source: object
+
+    def is_interface(self, p: int) -> bool:
+        return self.models[p][0] is not None and getattr(self.models[p][0], "smooth", None) is not None
+
+
+def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOptics:
+    """The forced tracer's view of a loaded scene (``straylight.scene.load_scene``); the source turned to
+    field ``field_deg`` in the meridional y-z plane (CONTRACTS 8.1: +z toward (0, sin F, cos F))."""
+    from straylight.engine.spec import back_material_index, resolve_materials
+    from straylight.intersect import EmbreeIntersector
+
+    scene = rs.scene
+    parts = scene.parts
+    dets = [i for i, p in enumerate(parts) if p.role == "detector"]
+    if detector is not None:
+        name = scene.resolve(detector) if hasattr(scene, "resolve") else detector
+        dets = [i for i in dets if parts[i].name == name]
+        if not dets:
+            raise GhostError(f"no detector part named {detector!r} in the scene")
+    if not dets:
+        raise GhostError("the scene has no detector part (role = \"detector\")")
+    if not rs.sources:
+        raise GhostError("the scene has no source")
+    part_material, models = resolve_materials(scene, rs.materials)
+    back = back_material_index(scene)
+    per_part = []
+    for i, p in enumerate(parts):
+        front = models[part_material[i]] if part_material[i] >= 0 else None
+        per_part.append((front, models[back[i]] if back[i] >= 0 else None))
+    tri = np.ascontiguousarray(scene.triangles_mm, dtype=np.float64)
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
+    src = _at_field(rs.sources[0], field_deg)
+    return GhostOptics(tuple(p.name for p in parts), tuple(getattr(p, "surface", None) for p in parts),
+                       tuple(per_part), tuple(p.role for p in parts), EmbreeIntersector(tri),
+                       np.asarray(scene.triangle_part, dtype=np.int64), nrm, dets[0], src)
+
+
+def _at_field(source, field_deg: float):
+    """The source with its direction turned by ``field_deg`` about the world x axis (+z -> (0, sin F, cos F))."""
+    if not field_deg:
+        return source
+    if not hasattr(source, "direction"):
+        raise GhostError("--field-deg needs a collimated source (a collimated_disk, as optics import writes)")
+    import dataclasses
+
+    f = math.radians(field_deg)
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(f), math.sin(f)], [0.0, -math.sin(f), math.cos(f)]])
+    return dataclasses.replace(source, direction=rx @ np.asarray(source.direction, float))
+
+
+# ---------------------------------------------------------------- one step: the next hit and its interface
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+@dataclass(eq=False)
+class Bundle:
+    """Rays in flight: origin, direction, weight (W), Stokes vector (S0 = 1) and its frame e1, last part."""
+
+    o: np.ndarray
+    d: np.ndarray
+    w: np.ndarray
+    S: np.ndarray
+    e1: np.ndarray
+    last: np.ndarray
+
+    def take(self, sel) -> "Bundle":
+        return Bundle(self.o[sel], self.d[sel], self.w[sel], self.S[sel], self.e1[sel], self.last[sel])
+
+
+def emit(opt: GhostOptics, n: int, rng) -> Bundle:
+    """``n`` rays of the source, each carrying power_w / n, unpolarized."""
+    src = opt.source
+    o, d = src.emit(rng.random((n, 4)))
+    S = np.zeros((n, 4))
+    S[:, 0] = 1.0
+    e1 = s_vector(d, np.tile([0.0, 0.0, 1.0], (n, 1)))
+    return Bundle(np.ascontiguousarray(o), np.ascontiguousarray(d), np.full(n, float(src.power_w) / n), S, e1,
+                  np.full(n, -1, np.int64))
+
+
+def next_hits(opt: GhostOptics, b: Bundle):
+    """First hits of the bundle: (part (-1: miss), distance from the origin, exact point, facing normal, front).
+
+    As in the walk (``optical_surface``): a mesh hit is refined onto the part's exact surface; one that
+    refines outside the clear aperture, or back onto the ray's own origin on its last part, is passed
+    through and the ray cast again from just beyond it."""
+    n = len(b.w)
+    part = np.full(n, -1, np.int64)
+    point = np.zeros((n, 3))
+    facing = np.zeros((n, 3))
+    front = np.zeros(n, bool)
+    todo = np.arange(n)
+    o = b.o.copy()
+    last = b.last.copy()
+    for _ in range(4):
+        if len(todo) == 0:
+            break
+        tri, t = opt.isect.intersect(o[todo], b.d[todo])
+        tri = np.asarray(tri, np.int64)
+        t = np.asarray(t, float)
+        hit_part = np.where(tri >= 0, opt.tri_part[np.maximum(tri, 0)], -1)
+        retry = []
+        for p in np.unique(hit_part[hit_part >= 0]):
+            g = np.flatnonzero(hit_part == p)
+            rows = todo[g]
+            surf = opt.surfaces[p]
+            if surf is not None:
+                tr, n_front, ok = surf.refine_hits(o[rows], b.d[rows], t[g])
+                accept = ok & ~((last[rows] == p) & (tr < SELF_HIT_MM))
+            else:
+                tr, n_front, accept = t[g], opt.tri_normals[tri[g]], np.ones(len(g), bool)
+            r = rows[accept]
+            part[r] = p
+            point[r] = o[r] + tr[accept, None] * b.d[r]
+            fr = _dot(b.d[r], n_front[accept]) < 0
+            front[r] = fr
+            facing[r] = np.where(fr[:, None], n_front[accept], -n_front[accept])
+            again = rows[~accept]
+            o[again] = o[again] + (t[g][~accept] + 1e-6)[:, None] * b.d[again]
+            last[again] = p
+            retry.append(again)
+        todo = np.concatenate(retry) if retry else np.zeros(0, np.int64)
+    dist = _dot(point - b.o, b.d)
+    return part, dist, point, facing, front
+
+
+def fresnel(opt: GhostOptics, part, front, cos_i, dist):
+    """(r_s, r_p, t_s, t_p, cos_t, eta, bulk) per hit (``Material.smooth_coefficients``)."""
+    from straylight.engine.interactions.optical_surface import smooth_coefficients_into
+
+    m = len(part)
+    out = (np.zeros(m, complex), np.zeros(m, complex), np.zeros(m, complex), np.zeros(m, complex),
+           np.zeros(m), np.ones(m), np.ones(m))
+    back = ~front
+    for p in np.unique(part):
+        g = np.flatnonzero(part == p)
+        f_model, b_model = opt.models[p]
+        for side, model in ((False, f_model), (True, b_model if b_model is not None else f_model)):
+            gg = g[back[g] == side]
+            if len(gg) and model is not None:
+                smooth_coefficients_into(model, gg, back, cos_i, dist, out)
+    return out
+
+
+def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray) -> Bundle:
+    """The bundle after its interface hits: reflected where ``reflect_it``, else transmitted; weights times
+    the branch's power for the ray's Stokes vector (the engine's Mueller matrices) and the bulk factor."""
+    rs, rp, ts, tp, cos_t, eta, bulk = coeffs
+    s = s_vector(b.d, facing)
+    S = rotate_stokes(b.S, b.e1, s, b.d)
+    a_s = np.where(reflect_it, rs, ts)
+    a_p = np.where(reflect_it, rp, tp)
+    So = np.einsum("nij,nj->ni", interface_mueller(a_s, a_p), S)
+    w = b.w * So[:, 0] * bulk
+    d_new = np.where(reflect_it[:, None], reflect(b.d, facing), refract(b.d, facing, eta, cos_t))
+    sign = np.where(reflect_it, 1.0, -1.0)
+    safe = np.where(So[:, :1] > 0, So[:, :1], 1.0)
+    return Bundle(np.ascontiguousarray(point + (sign * EPS_MM)[:, None] * facing), np.ascontiguousarray(d_new), w,
+                  So / safe, s, b.last)
+
+
+# ---------------------------------------------------------------- the nominal sequence and the ghosts
+
+
+def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tuple:
+    """The design path: ((part, "T" | "R"), ...) up to the detector, the likelier branch at every interface,
+    the sequence carrying the most power at the detector."""
+    rng = np.random.default_rng(seed)
+    b = emit(opt, n_rays, rng)
+    seqs = [[] for _ in range(n_rays)]
+    ids = np.arange(n_rays)
+    power: dict = {}
+    for _ in range(MAX_NOMINAL_STEPS):
+        if len(ids) == 0:
+            break
+        part, dist, point, facing, front = next_hits(opt, b)
+        at_det = (part == opt.detector) & front
+        for i, w in zip(ids[at_det], b.w[at_det]):
+            key = tuple(seqs[i])
+            power[key] = power.get(key, 0.0) + float(w)
+        go = np.flatnonzero((part >= 0) & ~at_det & np.array([p >= 0 and opt.is_interface(p) for p in part], bool))
+        if len(go) == 0:
+            break
+        b, ids = b.take(go), ids[go]
+        part, dist, point, facing, front = part[go], dist[go], point[go], facing[go], front[go]
+        cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
+        co = fresnel(opt, part, front, cos_i, dist)
+        R = 0.5 * (np.abs(co[0]) ** 2 + np.abs(co[1]) ** 2)
+        T = 0.5 * (np.abs(co[2]) ** 2 + np.abs(co[3]) ** 2)
+        refl = R > T
+        for i, p, r in zip(ids, part, refl):
+            seqs[i].append((int(p), "R" if r else "T"))
+        b.last = part
+        b = interact(b, point, facing, co, refl)
+    through = {k: w for k, w in power.items() if any(a == "T" for _, a in k)}
+    if not through:
+        raise GhostError(f"no source ray reaches the detector {opt.names[opt.detector]!r} through an interface "
+                         "(a lens or window) along a specular path")
+    return max(through, key=through.get)  # light that misses every lens (around a mount) is not the design path
+
+
+def reflection_sites(nominal) -> list:
+    """Positions in the nominal sequence where the design transmits through an interface."""
+    return [i for i, (_, act) in enumerate(nominal) if act == "T"]
+
+
+def ghost_reflections(nominal, order: int = 2) -> list:
+    """Every tuple of reflection positions r1 > r2 < r3 > r4 ... (even length <= order) among the sites."""
+    sites = reflection_sites(nominal)
+    out = []
+
+    def grow(prefix):
+        if prefix and len(prefix) % 2 == 0:
+            out.append(tuple(prefix))
+        if len(prefix) >= order:
+            return
+        last = prefix[-1] if prefix else -1
+        forward = len(prefix) % 2 == 0  # the next reflection happens going forward (after a backward one)
+        for s in sites:
+            if (forward and s > last) or (not forward and s < last):
+                grow(prefix + [s])
+
+    grow([])
+    return out
+
+
+def ghost_sequence(nominal, refl) -> tuple:
+    """The forced sequence ((part, action), ...) of the ghost with reflections at nominal positions ``refl``."""
+    seq = []
+    cur = 0
+    for k, r in enumerate(refl):
+        if k % 2 == 0:  # going forward from cur up to r
+            seq += list(nominal[cur:r])
+            cur = r - 1
+        else:  # going backward from cur down to r
+            seq += [nominal[j] for j in range(cur, r, -1)]
+            cur = r + 1
+        seq.append((nominal[r][0], "R"))
+    seq += list(nominal[cur:])
+    return tuple(seq)
+
+
+# ---------------------------------------------------------------- tracing one sequence
+
+
+@dataclass(eq=False)
+class Arrivals:
+    """Per traced ray: its power at the detector (0 when blocked); the arrivals' points and directions."""
+
+    per_ray_w: np.ndarray
+    points: np.ndarray
+    dirs: np.ndarray
+    weights: np.ndarray
+
+
+def trace_sequence(opt: GhostOptics, seq, n: int, rng) -> Arrivals:
+    """``n`` source rays forced through ``seq`` and into the detector."""
+    b = emit(opt, n, rng)
+    ids = np.arange(n)
+    for p, act in seq:
+        if len(ids) == 0:
+            break
+        part, dist, point, facing, front = next_hits(opt, b)
+        ok = np.flatnonzero(part == p)
+        b, ids = b.take(ok), ids[ok]
+        part, dist, point, facing, front = part[ok], dist[ok], point[ok], facing[ok], front[ok]
+        cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
+        co = fresnel(opt, part, front, cos_i, dist)
+        b.last = part
+        b = interact(b, point, facing, co, np.full(len(ids), act == "R"))
+        live = np.flatnonzero(b.w > 0)
+        b, ids = b.take(live), ids[live]
+    per_ray = np.zeros(n)
+    if len(ids) == 0:
+        return Arrivals(per_ray, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+    part, dist, point, facing, front = next_hits(opt, b)
+    at = np.flatnonzero((part == opt.detector) & front)
+    per_ray[ids[at]] = b.w[at]
+    return Arrivals(per_ray, point[at], b.d[at], b.w[at])
+
+
+# ---------------------------------------------------------------- the table
+
+
+@dataclass
+class GhostRow:
+    """One ghost (or the nominal image): CONTRACTS 8.4's columns."""
+
+    surfaces: list
+    reflections: list
+    power_w: float
+    stderr_w: float
+    fraction_of_nominal: float
+    focus_mm: float | None
+    radius_mm: float | None
+    peak_ratio: float | None
+    rays: int
+    sequence: list = field(default_factory=list)
+
+
+class _Accumulator:
+    """Running sums over batches: per-ray mean and variance, arrivals for the focus and the map."""
+
+    def __init__(self, frame):
+        self.frame = frame
+        self.n = 0
+        self.s1 = 0.0
+        self.s2 = 0.0
+        self.map = np.zeros((MAP_BINS, MAP_BINS))
+        self.m = np.zeros(12)  # weighted moments for centroid, RMS and focus
+
+    def add(self, arr: Arrivals):
+        n_new = len(arr.per_ray_w)
+        self.n += n_new
+        self.s1 += float(arr.per_ray_w.sum())
+        self.s2 += float((arr.per_ray_w ** 2).sum())
+        if len(arr.weights) == 0:
+            return
+        origin, u, v, a, half = self.frame
+        rel = arr.points - origin
+        q = np.column_stack([rel @ u, rel @ v])
+        along = arr.dirs @ a
+        slope = np.column_stack([arr.dirs @ u, arr.dirs @ v]) / np.where(np.abs(along) > 1e-12, along, 1e-12)[:, None]
+        w = arr.weights
+        self.map += np.histogram2d(q[:, 0], q[:, 1], bins=MAP_BINS, range=[[-half, half], [-half, half]], weights=w)[0]
+        self.m += np.array([w.sum(), (w * q[:, 0]).sum(), (w * q[:, 1]).sum(), (w * (q ** 2).sum(1)).sum(),
+                            (w * slope[:, 0]).sum(), (w * slope[:, 1]).sum(), (w * (slope ** 2).sum(1)).sum(),
+                            (w * (q * slope).sum(1)).sum(), 0, 0, 0, 0])
+
+    def geometry(self):
+        """(focus_mm or None, RMS radius mm or None)."""
+        W = self.m[0]
+        if W <= 0:
+            return None, None
+        cq = self.m[1:3] / W
+        rms2 = self.m[3] / W - float(cq @ cq)
+        cs = self.m[4:6] / W
+        var_u = self.m[6] / W - float(cs @ cs)
+        cov = self.m[7] / W - float(cq @ cs)
+        focus = None if var_u <= 1e-18 else -cov / var_u
+        return focus, math.sqrt(max(rms2, 0.0))
+
+
+def peak_irradiance(m: np.ndarray) -> float:
+    """The largest mean irradiance over PEAK_CELLS x PEAK_CELLS cells of a map (W/mm^2)."""
+    from scipy.ndimage import uniform_filter
+
+    return float(uniform_filter(m, size=PEAK_CELLS, mode="constant").max())
+
+
+def detector_frame(opt: GhostOptics):
+    """(origin, u, v, a (the direction light travels into the detector), half-width mm) of the detector."""
+    surf = opt.surfaces[opt.detector]
+    if surf is not None and hasattr(surf, "outer_radius_mm"):
+        a = -np.asarray(surf.axis, float)
+        u, v = surf.rotation[0], surf.rotation[1]
+        return np.asarray(surf.vertex_mm, float), u, v, a, float(surf.outer_radius_mm)
+    mask = opt.tri_part == opt.detector
+    raise GhostError(f"the detector {opt.names[opt.detector]!r} needs an exact plane surface "
+                     f"(CONTRACTS 6.4; {int(mask.sum())} triangles of mesh given)")
+
+
+@dataclass(eq=False)
+class GhostTable:
+    """The ghost table: the nominal image and every ghost, sorted by power (CONTRACTS 8.4)."""
+
+    detector: str
+    order: int
+    field_deg: float
+    nominal: GhostRow
+    rows: list
+    maps: dict
+    half_width_mm: float
+    seconds: float = 0.0
+    notes: list = field(default_factory=list)
+
+    def to_json_dict(self) -> dict:
+        return {"detector": self.detector, "order": self.order, "field_deg": self.field_deg,
+                "map_bins": MAP_BINS, "nominal": self.nominal.__dict__,
+                "ghosts": [r.__dict__ for r in self.rows], "seconds": self.seconds, "notes": list(self.notes)}
+
+
+def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
+                batch_rays: int = 4096, max_rays: int = 400_000, seed: int = 0, progress=None) -> GhostTable:
+    """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio."""
+    import time
+
+    if order < 2 or order % 2:
+        raise GhostError(f"--order must be an even number >= 2, got {order}")
+    t0 = time.perf_counter()
+    nominal = nominal_sequence(opt, seed=seed)
+    frame = detector_frame(opt)
+    half = frame[4]
+    cell_mm2 = (2 * half / MAP_BINS) ** 2
+    refls = ghost_reflections(nominal, order)
+    if not refls:
+        raise GhostError("the nominal path crosses no transmitting interface: no ghost to list")
+
+    def run(seq, k, floor_w=None):
+        rng = np.random.default_rng([seed, k])
+        acc = _Accumulator(frame)
+        while True:
+            acc.add(trace_sequence(opt, seq, batch_rays, rng))
+            # each ray carries power_w / batch_rays: the power is batch_rays times the per-ray mean
+            mean = acc.s1 / acc.n * batch_rays
+            err = math.sqrt(max(acc.s2 / acc.n - (acc.s1 / acc.n) ** 2, 0.0) / max(acc.n - 1, 1)) * batch_rays
+            if acc.n >= max_rays or (mean > 0 and err <= target_rel_error * mean and acc.n >= 2 * batch_rays):
+                break
+            if floor_w is not None and acc.n >= 4 * batch_rays and mean + 4 * err < floor_w:
+                break  # below the fraction of the nominal power asked for, with confidence
+            if mean == 0 and acc.n >= 4 * batch_rays:
+                break
+        focus, radius = acc.geometry()
+        return mean, err, focus, radius, acc.map * (batch_rays / acc.n) / cell_mm2, acc.n
+
+    p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = run(nominal, 0)
+    peak_nom = peak_irradiance(map_nom)
+    nom_row = GhostRow([], [], p_nom, e_nom, 1.0, f_nom, r_nom, 1.0 if peak_nom > 0 else None, n_nom,
+                       [opt.names[p] for p, _ in nominal])
+    rows = []
+    maps = {"nominal": map_nom}
+    for k, refl in enumerate(refls, start=1):
+        seq = ghost_sequence(nominal, refl)
+        p, e, f, r, m, n = run(seq, k, floor_w=min_fraction * p_nom)
+        names = [opt.names[nominal[i][0]] for i in refl]
+        label = " > ".join(names)
+        maps[label] = m
+        rows.append(GhostRow(names, list(refl), p, e, p / p_nom if p_nom > 0 else float("nan"), f, r,
+                             peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n,
+                             [opt.names[q] for q, _ in seq]))
+        if progress is not None:
+            progress(k, len(refls))
+    rows.sort(key=lambda r: -r.power_w)
+    return GhostTable(opt.names[opt.detector], order, 0.0, nom_row, rows, maps, half, time.perf_counter() - t0)
+
+
+# ---------------------------------------------------------------- files and the picture
+
+CSV_COLUMNS = ("rank", "surfaces", "power_w", "stderr_w", "fraction_of_nominal", "focus_mm", "radius_mm",
+               "peak_ratio", "rays", "sequence")
+
+
+def _cell(v) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return ""
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return str(v)
+
+
+def write_table(table: GhostTable, directory) -> list:
+    """DIR/ghosts.csv, ghosts.json, ghosts.md and ghosts.png (the irradiance maps); returns the paths."""
+    from pathlib import Path
+
+    import atomicio
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    lines = [",".join(CSV_COLUMNS)]
+    for rank, r in enumerate(table.rows, start=1):
+        vals = [rank, " > ".join(r.surfaces), r.power_w, r.stderr_w, r.fraction_of_nominal, r.focus_mm,
+                r.radius_mm, r.peak_ratio, r.rays, " -> ".join(r.sequence)]
+        lines.append(",".join(_cell(v) for v in vals))
+    out = [atomicio.write_text(d / "ghosts.csv", "\n".join(lines) + "\n"),
+           atomicio.write_json(d / "ghosts.json", table.to_json_dict()),
+           atomicio.write_text(d / "ghosts.md", markdown(table))]
+    out.append(plot_maps(table, d / "ghosts.png"))
+    return out
+
+
+def markdown(table: GhostTable, top: int = 50) -> str:
+    n = table.nominal
+    lines = [f"# Ghosts at {table.detector} (order {table.order}, field {table.field_deg:g} deg)", "",
+             f"Nominal image: {n.power_w:.4e} W +- {n.stderr_w:.1e}, RMS radius "
+             f"{_cell(n.radius_mm)} mm; {len(table.rows)} ghosts, {table.seconds:.1f} s.", "",
+             "| rank | surfaces | power (W) | stderr (W) | of nominal | focus (mm) | radius (mm) | peak ratio |",
+             "|---|---|---|---|---|---|---|---|"]
+    for rank, r in enumerate(table.rows[:top], start=1):
+        lines.append(f"| {rank} | {' > '.join(r.surfaces)} | {r.power_w:.4e} | {r.stderr_w:.1e} | "
+                     f"{r.fraction_of_nominal:.3e} | {_cell(r.focus_mm)} | {_cell(r.radius_mm)} | "
+                     f"{_cell(r.peak_ratio)} |")
+    lines += ["", "focus: where the ghost's bundle is narrowest, mm along the light's direction from the detector "
+              "(< 0: before it); radius: RMS radius of its spot on the detector; peak ratio: its peak irradiance "
+              f"over the nominal image's, both on a {MAP_BINS} x {MAP_BINS} grid over the detector, "
+              f"averaged over {PEAK_CELLS} x {PEAK_CELLS} cells."]
+    return "\n".join(lines) + "\n"
+
+
+def plot_maps(table: GhostTable, path, top: int = 8):
+    """The nominal image and the ``top`` strongest ghosts as irradiance maps on the detector (W/mm^2, log)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    import atomicio
+
+    labels = ["nominal"] + [" > ".join(r.surfaces) for r in table.rows[:top]]
+    n = len(labels)
+    cols = min(3, n)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.6 * cols, 3.3 * rows), squeeze=False)
+    h = table.half_width_mm
+    for ax, lab in zip(axes.ravel(), labels):
+        m = table.maps[lab]
+        pos = m[m > 0]
+        if len(pos):
+            ax.set_facecolor("black")
+            im = ax.imshow(np.where(m > 0, m, np.nan).T, origin="lower", extent=[-h, h, -h, h], cmap="magma",
+                           norm=LogNorm(vmin=max(pos.min(), pos.max() * 1e-6), vmax=pos.max()))
+            fig.colorbar(im, ax=ax, shrink=0.8, label="W/mm$^2$")
+        row = table.nominal if lab == "nominal" else next(r for r in table.rows if " > ".join(r.surfaces) == lab)
+        ax.set_title(f"{lab}\n{row.power_w:.2e} W", fontsize=9)
+        ax.set_xlabel("u (mm)")
+        ax.set_ylabel("v (mm)")
+    for ax in axes.ravel()[n:]:
+        ax.axis("off")
+    fig.suptitle(f"Ghost irradiance at {table.detector} (field {table.field_deg:g} deg)")
+    fig.tight_layout()
+    out = atomicio.write_figure(fig, path, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def ghosts(scene, order: int = 2, field_deg: float = 0.0, detector: str | None = None, **kwargs) -> GhostTable:
+    """Notebook API: the ghost table of a scene file (or a loaded scene) at ``field_deg``."""
+    from straylight.scene import load_scene
+
+    rs = load_scene(scene) if not hasattr(scene, "scene") else scene
+    table = ghost_table(prepare(rs, field_deg, detector), order=order, **kwargs)
+    table.field_deg = float(field_deg)
+    return table

@@ -1,0 +1,57 @@
+"""``straylight ghosts``: the ghost table of the lenses in a scene (CONTRACTS 8.4; docs/ghosts.md).
+
+    straylight ghosts SCENE.toml [--order 2] [--field-deg F] --out DIR
+
+Writes DIR/ghosts.csv, ghosts.json, ghosts.md and ghosts.png (straylight.analyses.ghost_trace).
+"""
+from __future__ import annotations
+
+
+def add_parser(subparsers):
+    p = subparsers.add_parser("ghosts", help="ghost table of the lenses in a scene (every even-reflection path)",
+                              description=__doc__.splitlines()[0])
+    p.add_argument("scene", help="scene.toml (for example from `straylight optics import`)")
+    p.add_argument("--order", type=int, default=2, help="most reflections per ghost, even (default 2)")
+    p.add_argument("--field-deg", type=float, default=0.0,
+                   help="field angle: the source turned about x, +z toward (0, sin F, cos F) (default 0)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--detector", default=None, help="detector part (default: the scene's first detector)")
+    p.add_argument("--target-rel-error", type=float, default=0.02,
+                   help="relative standard error each ghost is traced to (default 0.02)")
+    p.add_argument("--min-fraction", type=float, default=1e-6,
+                   help="ghosts below this fraction of the nominal image's power stop early (default 1e-6)")
+    p.add_argument("--max-rays", type=int, default=400_000, help="ray budget per ghost (default 400000)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import sys
+
+    from straylight.analyses.ghost_trace import GhostError, ghosts, markdown, write_table
+    from straylight.progress import progress_bar
+
+    if args.order < 2 or args.order % 2:
+        raise GhostError(f"--order must be an even number >= 2, got {args.order}")
+    if not -90 < args.field_deg < 90:
+        raise GhostError(f"--field-deg must be in (-90, 90), got {args.field_deg:g}")
+    if not 0 < args.target_rel_error < 1:
+        raise GhostError(f"--target-rel-error must be in (0, 1), got {args.target_rel_error:g}")
+    if not 0 <= args.min_fraction < 1:
+        raise GhostError(f"--min-fraction must be in [0, 1), got {args.min_fraction:g}")
+    bar = progress_bar(total=None, desc="ghosts", unit="ghost", enabled=sys.stderr.isatty())
+
+    def tick(k, n):
+        bar.total = n
+        bar.update(1)
+
+    try:
+        table = ghosts(args.scene, order=args.order, field_deg=args.field_deg, detector=args.detector,
+                       target_rel_error=args.target_rel_error, min_fraction=args.min_fraction,
+                       max_rays=args.max_rays, seed=args.seed, progress=tick)
+    finally:
+        bar.close()
+    write_table(table, args.out)
+    print(markdown(table, top=15))
+    print(f"written {args.out}/ghosts.csv, ghosts.json, ghosts.md, ghosts.png")
+    return 0

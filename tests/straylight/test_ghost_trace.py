@@ -1,0 +1,163 @@
+"""The ghost table (CONTRACTS 8.4, straylight.analyses.ghost_trace) against independent references.
+
+- A window at normal incidence (incoherent plate, Born & Wolf §7.6.1): the two-reflection ghost carries
+  (1 - R)^2 R^2 of the beam, R = ((n - 1)/(n + 1))^2 bare; with a quarter-wave MgF2 layer on each face R is
+  the thin-film value ((n0 n_s - n1^2)/(n0 n_s + n1^2))^2 (Macleod, Thin-Film Optical Filters §3.2), written
+  here, so the coated ghost is (R_c / R_b)^2 of the bare one.
+- The Cooke triplet of the lens-file corpus: C(6, 2) = 15 two-reflection ghosts, each within 4 sigma of
+  the engine's analog random walk (branch by probability at every interface, path records grouped by
+  their sequence of parts): a different estimator of the same physics.
+- The double Gauss ag_dblgauss.seq: C(10, 2) = 45 ghosts.
+- The focus estimator on a synthetic bundle converging to a known point.
+"""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from engine_helpers import window_scene
+from straylight.analyses.ghost_trace import (
+    Arrivals, GhostError, _Accumulator, ghost_reflections, ghost_sequence, ghost_table, ghosts, prepare,
+)
+from straylight.scene import ResolvedScene
+
+LENSES = Path(__file__).resolve().parents[1] / "data" / "lenses"
+
+
+def _window(coating=None):
+    from materials import load_material
+
+    scene, src, mats = window_scene()
+    comp = {"type": "dielectric", "n": 1.5}
+    if coating:
+        comp = {**comp, "coating": coating, "wavelength_nm": 550.0}
+    mats = {"glass": load_material({"name": "glass", "components": [comp]})}
+    return ResolvedScene(None, scene, mats, (src,), ())
+
+
+def test_sequences_of_a_four_surface_lens():
+    nominal = tuple((p, "T") for p in range(4))
+    refl = ghost_reflections(nominal, 2)
+    assert len(refl) == 6 and all(a > b for a, b in refl)
+    # reflect forward at 2, back through 1, reflect at 0, forward through 1, 2, 3
+    assert ghost_sequence(nominal, (2, 0)) == ((0, "T"), (1, "T"), (2, "R"), (1, "T"), (0, "R"), (1, "T"),
+                                               (2, "T"), (3, "T"))
+    # order 4: r1 > r2 < r3 > r4, counted by hand for 4 sites: sum over (r1, r2) pairs of the pairs after
+    four = [r for r in ghost_reflections(nominal, 4) if len(r) == 4]
+    brute = [(a, b, c, d) for a in range(4) for b in range(4) for c in range(4) for d in range(4)
+             if a > b and c > b and c > d]
+    assert sorted(four) == sorted(brute)
+
+
+def test_window_ghost_is_one_minus_r_squared_r_squared():
+    table = ghost_table(prepare(_window()), target_rel_error=0.01)
+    R = ((1.5 - 1) / 2.5) ** 2
+    assert len(table.rows) == 1
+    g = table.rows[0]
+    assert g.surfaces == ["bottom", "top"]
+    # every ray of a collimated beam at normal incidence has the same weight: the error is ~0
+    assert g.power_w == pytest.approx((1 - R) ** 2 * R ** 2, rel=1e-9)
+    assert table.nominal.power_w == pytest.approx((1 - R) ** 2, rel=1e-9)
+    assert g.focus_mm is None  # a collimated ghost has no waist
+
+
+def test_coated_window_ghost_is_the_thin_film_reflectance_squared():
+    n_s, n1 = 1.5, 1.38
+    R_c = ((n_s - n1 ** 2) / (n_s + n1 ** 2)) ** 2  # quarter-wave layer at its design wavelength
+    coated = ghost_table(prepare(_window([{"n": n1, "thickness_nm": 550.0 / (4 * n1)}])))
+    bare = ghost_table(prepare(_window()))
+    R_b = ((n_s - 1) / (n_s + 1)) ** 2
+    ratio = coated.rows[0].power_w / bare.rows[0].power_w
+    assert ratio == pytest.approx((R_c / R_b) ** 2 * ((1 - R_c) / (1 - R_b)) ** 2, rel=1e-6)
+
+
+def test_focus_of_a_converging_bundle():
+    origin, u, v, a = np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, -1.0])
+    acc = _Accumulator((origin, u, v, a, 10.0))
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-3, 3, 500), rng.uniform(-3, 3, 500), np.zeros(500)])
+    focus = np.array([0.5, -0.2, -7.0])  # 7 mm beyond the detector along the light's direction (-z)
+    d = focus - pts
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    acc.add(Arrivals(np.ones(500), pts, d, rng.uniform(0.5, 1.5, 500)))
+    f, r = acc.geometry()
+    assert f == pytest.approx(7.0, abs=1e-9)
+    assert 0 < r < 3 * math.sqrt(2)
+
+
+def _cooke(tmp_path):
+    from straylight.cli.main import main
+
+    assert main(["optics", "import", str(LENSES / "optiland" / "cooke_triplet.seq"), "--out", str(tmp_path)]) == 0
+    return tmp_path / "scene.toml"
+
+
+def test_cooke_triplet_has_15_ghosts_each_within_4_sigma_of_the_analog_walk(tmp_path):
+    from straylight.analyses.ghosts import specular_sequence
+    from straylight.scene import load_scene
+    from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions
+
+    rs = load_scene(_cooke(tmp_path))
+    table = ghosts(rs, order=2, target_rel_error=0.03)
+    assert len(table.rows) == 15
+    powers = [r.power_w for r in table.rows]
+    assert powers == sorted(powers, reverse=True)
+    res = rs.trace(300_000, seed=11, options=TraceOptions(estimator=EstimatorOptions(nee=False),
+                                                          output=OutputOptions(record_paths=True, path_depth=40)))
+    groups = {g.key: g for g in res.paths.group(by=lambda ev, det: specular_sequence(ev) if det == "image" else None)
+              if g.key is not None}
+    nominal = groups[tuple(table.nominal.sequence)]
+    assert abs(nominal.power_w - table.nominal.power_w) < 4 * math.hypot(nominal.stderr_w, table.nominal.stderr_w)
+    z = []
+    for r in table.rows:
+        g = groups[tuple(r.sequence)]  # every ghost the forced trace lists, the walk finds
+        z.append((r.power_w - g.power_w) / math.hypot(r.stderr_w, g.stderr_w))
+    assert max(abs(x) for x in z) < 4, z
+    assert 0.3 < math.sqrt(np.mean(np.square(z))) < 2.0  # the error bars are neither too small nor too big
+
+
+def test_double_gauss_has_45_ghosts(tmp_path):
+    from straylight.cli.main import main
+
+    assert main(["optics", "import", str(LENSES / "ray-optics" / "ag_dblgauss.seq"), "--out", str(tmp_path)]) == 0
+    table = ghosts(tmp_path / "scene.toml", target_rel_error=0.2, max_rays=8192)
+    assert len(table.rows) == 45
+    assert all(r.power_w > 0 for r in table.rows)
+
+
+def test_command_writes_the_contract_files(tmp_path):
+    from straylight.cli.main import main
+
+    scene = _cooke(tmp_path / "lens")
+    out = tmp_path / "g"
+    assert main(["ghosts", str(scene), "--order", "2", "--field-deg", "5", "--out", str(out),
+                 "--target-rel-error", "0.1"]) == 0
+    lines = (out / "ghosts.csv").read_text().splitlines()
+    assert lines[0].split(",")[:8] == ["rank", "surfaces", "power_w", "stderr_w", "fraction_of_nominal", "focus_mm",
+                                       "radius_mm", "peak_ratio"]
+    assert len(lines) == 16
+    doc = json.loads((out / "ghosts.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    assert doc["field_deg"] == 5.0 and doc["order"] == 2 and len(doc["ghosts"]) == 15
+    assert (out / "ghosts.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("args, words", [(["--order", "3"], "even"), (["--field-deg", "95"], "field")])
+def test_bad_requests_are_one_line_errors(tmp_path, capsys, args, words):
+    from straylight.cli.main import main
+
+    scene = _cooke(tmp_path / "lens")
+    capsys.readouterr()
+    assert main(["ghosts", str(scene), "--out", str(tmp_path / "g"), *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0]
+
+
+def test_a_scene_without_a_detector_is_refused():
+    scene, src, mats = window_scene()
+    from geometry.mesh import Scene
+
+    no_det = ResolvedScene(None, Scene(tuple(p for p in scene.parts if p.role != "detector")), mats, (src,), ())
+    with pytest.raises(GhostError, match="no detector"):
+        prepare(no_det)
