@@ -97,7 +97,7 @@ class DetectorGeometry:
     def sample(self, u):
         """Uniform points over the area. u : (n, 3) -> (points (n, 3), triangle normals (n, 3))."""
         if self.disk is not None:
-            from straylight.engine.disk_sampling import sample_annulus
+            from straylight.disk_sampling import sample_annulus
 
             return sample_annulus(self.disk, u[:, 1], u[:, 2]), np.tile(self.disk.normal, (len(u), 1))
         k = self._pick_triangle(u[:, 0])

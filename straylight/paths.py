@@ -181,3 +181,19 @@ class PathRecords:
             for g in range(n_groups)
         ]
         return sorted(groups, key=lambda grp: -grp.power_w)
+
+
+def sequence_label(events, detector: str, truncated: bool = False) -> str:
+    """'source -> wall -> vane_7 (specular) -> diffracted at vane_1 -> detector', with runs of one
+    event collapsed ('wall x3')."""
+    steps = []
+    for part, kind in events:
+        name = part if kind == "scatter" else f"diffracted at {part}" if kind == "diffraction" else f"{part} ({kind})"
+        if steps and steps[-1][0] == name:
+            steps[-1][1] += 1
+        else:
+            steps.append([name, 1])
+    middle = [n if k == 1 else f"{n} x{k}" for n, k in steps]
+    if truncated:
+        middle.append("...")
+    return " -> ".join(["source", *middle, detector])

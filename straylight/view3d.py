@@ -109,7 +109,7 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
     refraction and diffraction are not drawn). Rays show where a path runs; their number is not
     its power (the group's fraction, from the trace, is).
     """
-    from straylight.analyses.paths_report import sequence_label
+    from straylight.paths import sequence_label
     from straylight.intersect import EmbreeIntersector
     from straylight.viz import trace_ray_paths
 

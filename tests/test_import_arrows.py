@@ -149,9 +149,10 @@ def test_cycle_finder_sees_a_lazy_cycle(tmp_path):
 # the modules of straylight the engine stands on (random streams, path records, detectors, sources,
 # intersectors, run checks): they and the engine import nothing of straylight above them (trace,
 # analyses, cli, design, thermal, checkpoints, progress, ...). The engine's backends (dask, fork server,
-# thread pool) live in straylight/engine/backends (issue 23: the dask code used to sit above the engine).
+# thread pool) live in straylight/engine/backends (the dask code used to sit above the engine).
 ENGINE_FLOOR = ("straylight.rng", "straylight.pcg64", "straylight.paths", "straylight.detectors", "straylight.sources",
-                "straylight.budget", "straylight.run_checks", "straylight.polarization", "straylight.intersect")
+                "straylight.budget", "straylight.run_checks", "straylight.polarization", "straylight.intersect",
+                "straylight.disk_sampling")
 
 
 def _in(name: str, roots) -> bool:
@@ -185,3 +186,78 @@ def test_straylight_help_lists_rig_through_its_entry_point():
                          check=True)
     listed = [line.split()[0] for line in out.stdout.splitlines() if line.startswith("    ") and line.split()]
     assert "rig" in listed, out.stdout
+
+
+# ------------------------------------------------------------------ layers of straylight: arrows point down
+
+# straylight's top-level modules and subpackages, lowest layer first. An import may point within a
+# layer or down, never up; and no two units import each other (through any chain). The arrows that
+# once ran back up (the study tables under thermal, the disk sampler inside the engine, the path
+# label inside the path report) are now in the floor: straylight.frames, straylight.disk_sampling,
+# straylight.paths.sequence_label.
+STRAYLIGHT_LAYERS = (
+    ("floor", ("straylight", "straylight.pcg64", "straylight.rng", "straylight.paths", "straylight.run_checks",
+               "straylight.progress", "straylight.polarization", "straylight.frames", "straylight.compile_notice",
+               "straylight.checkpoints", "straylight.optics", "straylight.disk_sampling", "straylight.sources",
+               "straylight.intersect", "straylight.detectors", "straylight.budget")),
+    ("engine", ("straylight.engine", "straylight.execution")),
+    ("runs", ("straylight.trace", "straylight.scene", "straylight.thermal")),
+    ("displays", ("straylight.viz", "straylight.view3d", "straylight.viewer")),
+    ("analyses", ("straylight.analyses",)),
+    ("front", ("straylight.api", "straylight.design", "straylight.cli")),
+)
+
+
+def unit_of(module: str) -> str:
+    """The layer unit of a module: ``straylight.<x>`` for anything under straylight.<x>, else the package."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if parts[0] == "straylight" else parts[0]
+
+
+def unit_graph(graph: dict) -> dict:
+    """{unit: units it imports} from the file graph (arrows inside a unit dropped)."""
+    out: dict = {}
+    for module, targets in graph.items():
+        a = unit_of(module)
+        out.setdefault(a, set())
+        for t in targets:
+            b = unit_of(t)
+            out.setdefault(b, set())
+            if a != b:
+                out[a].add(b)
+    return out
+
+
+def upward_arrows(units: dict, layers) -> list:
+    """'a -> b' for every arrow from a unit to one of a higher layer (units of no layer are left out)."""
+    level = {u: i for i, (_, members) in enumerate(layers) for u in members}
+    return [f"{a} ({layers[level[a]][0]}) -> {b} ({layers[level[b]][0]})" for a, targets in sorted(units.items())
+            for b in sorted(targets) if a in level and b in level and level[b] > level[a]]
+
+
+def test_every_straylight_unit_has_a_layer():
+    units = unit_graph(import_graph(module_files()))
+    placed = {u for _, members in STRAYLIGHT_LAYERS for u in members}
+    missing = sorted(u for u in units if u.startswith("straylight") and u not in placed)
+    assert not missing, f"place these in STRAYLIGHT_LAYERS (tests/test_import_arrows.py): {missing}"
+
+
+def test_straylight_imports_point_down_the_layers_without_cycles():
+    units = unit_graph(import_graph(module_files()))
+    up = upward_arrows(units, STRAYLIGHT_LAYERS)
+    assert up == [], "imports that run up the layers:\n" + "\n".join(up)
+    found = cycles({u: t for u, t in units.items() if u.startswith("straylight")})
+    assert found == [], "units of straylight that import each other:\n" + "\n".join(" <-> ".join(c) for c in found)
+    # the three arrows that ran back up are gone
+    graph = import_graph(module_files())
+    assert "straylight.analyses.tables" not in graph["straylight.thermal.run"] | graph["straylight.thermal.exchange"]
+    assert not any(t.startswith("straylight.engine") for t in graph["straylight.detectors"])
+    assert not any(t.startswith("straylight.analyses") for t in graph["straylight.view3d"])
+
+
+def test_layer_check_sees_an_upward_arrow():
+    """Not vacuous: an arrow from the floor to the engine is reported, a downward one is not."""
+    layers = (("floor", ("straylight.rng",)), ("engine", ("straylight.engine",)))
+    units = unit_graph({"straylight.rng": {"straylight.engine.walk"}, "straylight.engine.walk": {"straylight.rng"}})
+    assert upward_arrows(units, layers) == ["straylight.rng (floor) -> straylight.engine (engine)"]
+    assert cycles(units) == [["straylight.engine", "straylight.rng"]]

@@ -33,6 +33,7 @@ from straylight.analyses.estimators import estimator_options
 from straylight.analyses.pst import detector_name
 from straylight.analyses.tables import TableRepr
 from straylight.execution import Execution, as_execution
+from straylight.paths import sequence_label
 from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 
 ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more", "diffracted")
@@ -49,22 +50,6 @@ def ancestry_of(events) -> str:
     if n_scatter == 0:
         return "specular_only"
     return "scattered_once" if n_scatter == 1 else "scattered_more"
-
-
-def sequence_label(events, detector: str, truncated: bool = False) -> str:
-    """'source -> wall -> vane_7 (specular) -> diffracted at vane_1 -> detector', with runs of one
-    event collapsed ('wall x3')."""
-    steps = []
-    for part, kind in events:
-        name = part if kind == "scatter" else f"diffracted at {part}" if kind == "diffraction" else f"{part} ({kind})"
-        if steps and steps[-1][0] == name:
-            steps[-1][1] += 1
-        else:
-            steps.append([name, 1])
-    middle = [n if k == 1 else f"{n} x{k}" for n, k in steps]
-    if truncated:
-        middle.append("...")
-    return " -> ".join(["source", *middle, detector])
 
 
 @dataclass(frozen=True)

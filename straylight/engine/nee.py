@@ -16,7 +16,7 @@ import numpy as np
 from materials.jit_cache import njit
 
 from straylight.engine import second_vertex
-from straylight.engine.disk_sampling import annulus_point, annulus_points
+from straylight.disk_sampling import annulus_point, annulus_points
 from straylight.engine.interactions.registry import Capability
 from straylight.engine.material_groups import by_material
 from straylight.engine.diffraction import blocked_by_edges

@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
-from straylight.analyses.tables import data_frame, plot_matrix
+from straylight.frames import data_frame
+from straylight.thermal.tables import plot_matrix
 from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
 from straylight.thermal.sampling import AreaSampler, emission_rays

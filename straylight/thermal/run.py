@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from straylight.analyses.tables import plot_thermal, thermal_frame
+from straylight.thermal.tables import plot_thermal, thermal_frame
 from straylight.detectors import FRONT_FACE_COS, DetectorGeometry
 from straylight.thermal.forward import ForwardEstimator
 from straylight.thermal.model import sub_bands
@@ -74,7 +74,7 @@ class ThermalResult:
                 "seed": int(self.seed), "detectors": {k: v.to_json_dict() for k, v in self.detectors.items()}}
 
     def to_pandas(self):
-        """One row per (detector, emitting part): power and error (pandas is optional; straylight.analyses.tables)."""
+        """One row per (detector, emitting part): power and error (pandas is optional; straylight.thermal.tables)."""
         return thermal_frame(self)
 
     def plot(self, path=None, ax=None):

@@ -41,7 +41,7 @@ class AreaSampler:
     def sample(self, u3):
         """(points (n, 3), normals (n, 3)) from uniforms (n, 3)."""
         if self.disk is not None:
-            from straylight.engine.disk_sampling import sample_annulus  # a numba kernel: compiled on first use
+            from straylight.disk_sampling import sample_annulus  # a numba kernel: compiled on first use
 
             return sample_annulus(self.disk, u3[:, 1], u3[:, 2]), np.tile(self.disk.normal, (len(u3), 1))
         k = np.minimum(np.searchsorted(self.cdf, u3[:, 0], side="right"), len(self.cdf) - 1)

@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from straylight.analyses.tables import THERMAL_TABLE, thermal_rows, write_csv_table
+from straylight.analyses.tables import write_csv_table
+from straylight.thermal.tables import THERMAL_TABLE, thermal_rows
 
 # CONTRACTS §7.1's example document
 DOC = {"band_um": [8.0, 12.0], "rays": 2000000, "seed": 1,
