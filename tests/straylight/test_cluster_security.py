@@ -1,10 +1,12 @@
-"""Local clusters only the user can use (issue 27, item 2): a ``--workers K --processes`` cluster's
+"""Local clusters only the user can use: a ``--workers K --processes`` cluster's
 scheduler listens on a loopback port that every process of the machine can reach, so it speaks TLS
 with a key made for the run; a process without that key cannot connect (plain TCP, TLS without a
 certificate, TLS with a certificate of its own), so it cannot submit work. An unencrypted scheduler
 beyond this machine is refused in one line unless the user says ``--allow-insecure``."""
 from __future__ import annotations
 
+import asyncio
+import gc
 from pathlib import Path
 
 import dask
@@ -19,24 +21,40 @@ def _add_one(x):
     return x + 1
 
 
+async def _intrude(address: str, security=None) -> int:
+    """Connect to ``address`` as another client and run a task; the client is closed explicitly
+    whatever happens. (A synchronous ``Client`` whose constructor fails is left for the garbage
+    collector, and its ``__del__`` closes it through the event loop's thread: when the collector
+    runs on that thread, the close waits on itself and the test hangs. An asynchronous client,
+    awaited and closed here, leaves nothing behind.)"""
+    from distributed import Client
+
+    client = Client(address, security=security, asynchronous=True, timeout="2s", set_as_default=False)
+    try:
+        await client
+        return await asyncio.wait_for(client.submit(_add_one, 1), 2)
+    finally:
+        await asyncio.wait_for(client.close(), 5)
+
+
 def test_process_cluster_refuses_clients_without_the_run_key():
     from distributed import Client, Security
 
     from straylight.engine.backends.dask import local_cluster
 
-    with local_cluster(1, processes=True) as cluster, Client(cluster) as client:
+    with local_cluster(1, processes=True) as cluster, Client(cluster, set_as_default=False) as client:
         address = cluster.scheduler_address
         assert address.startswith("tls://127.0.0.1:")
         assert client.submit(_add_one, 1).result() == 2  # the run's own client works
-        attempts = {"plain tcp": {"address": address.replace("tls://", "tcp://")},
-                    "tls, no certificate": {"address": address},
-                    "tls, another certificate": {"address": address, "security": Security.temporary()}}
+        attempts = {"plain tcp": (address.replace("tls://", "tcp://"), None),
+                    "tls, no certificate": (address, None),
+                    "tls, another certificate": (address, Security.temporary())}
         with dask.config.set({"distributed.comm.timeouts.connect": "2s"}):
-            for label, kwargs in attempts.items():
+            for label, (target, security) in attempts.items():
                 with pytest.raises(Exception):  # noqa: B017 - any failure to connect is the point
-                    with Client(timeout="2s", **kwargs) as intruder:
-                        intruder.submit(_add_one, 1).result(timeout=2)
-                        pytest.fail(f"{label}: a client without the run's key ran a task")
+                    asyncio.run(_intrude(target, security))
+                    pytest.fail(f"{label}: a client without the run's key ran a task")
+        gc.collect()  # any client object left would be finalised now, inside the test's time limit
         assert client.submit(_add_one, 2).result() == 3  # and the run goes on
 
 
