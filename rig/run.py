@@ -16,6 +16,7 @@
 """
 from __future__ import annotations
 
+import atexit
 import json
 import signal
 import threading
@@ -69,7 +70,6 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     written for each document). The laser suspender's thresholds are fractions of
     ``nominal_power_w`` (default: the power read when the scan starts).
     """
-    from bluesky import RunEngine
     from bluesky.utils import RunEngineInterrupted
 
     config = config or RigConfig()
@@ -97,7 +97,9 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     if hasattr(devices.backend, "prefetch"):
         devices.backend.prefetch([p for p in spec.points if _key(p) not in done])
 
-    RE = run_engine or RunEngine({}, context_managers=[])
+    RE = run_engine if run_engine is not None else session_run_engine()
+    if run_engine is None:
+        RE.md.clear()  # each scan's documents as from a fresh engine (scan_id 1), as when one was made per scan
     tokens = []
     bar = None
     if progress:
@@ -146,6 +148,49 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
         raise ScanFailed(f"{reason}; {outcome.n_points_in_file} of {outcome.n_points_plan} points saved in "
                          f"{csv_path} (log {files.log_path.name}); fix the fault and rerun with --resume")
     return outcome
+
+
+_SESSION: dict = {}  # {"engine": the RunEngine of this process}, made on first use
+_SESSION_LOCK = threading.Lock()
+
+
+def session_run_engine():
+    """The one bluesky ``RunEngine`` of this process, made on first use and stopped at exit.
+
+    A RunEngine runs its event loop on a thread of its own; one made per scan and never stopped
+    leaves a thread behind for every scan. This one is shared by every :func:`run_scan` of the
+    process that is not given its own ``run_engine``; :func:`stop_session_run_engine` (registered
+    with ``atexit``) stops its loop and joins the thread."""
+    with _SESSION_LOCK:
+        engine = _SESSION.get("engine")
+        if engine is None:
+            from bluesky import RunEngine
+
+            engine = _SESSION["engine"] = RunEngine({}, context_managers=[])
+            if len(_SESSION) == 1:
+                _SESSION["atexit"] = True
+                atexit.register(stop_session_run_engine)
+        return engine
+
+
+def stop_session_run_engine(timeout_s: float = 5.0) -> None:
+    """Stop the session RunEngine's event loop and join its thread (nothing to do if none was made);
+    the next :func:`session_run_engine` makes a new one."""
+    with _SESSION_LOCK:
+        engine = _SESSION.pop("engine", None)
+    if engine is not None:
+        stop_run_engine(engine, timeout_s)
+
+
+def stop_run_engine(engine, timeout_s: float = 5.0) -> None:
+    """Stop a RunEngine's event loop (it must be idle) and join the thread that runs it."""
+    loop, thread = engine.loop, getattr(engine, "_th", None)
+    if loop.is_running():
+        loop.call_soon_threadsafe(loop.stop)
+    if thread is not None:
+        thread.join(timeout_s)
+    if not loop.is_running() and not loop.is_closed():
+        loop.close()
 
 
 def _quiet_pause(RE):

@@ -9,7 +9,6 @@ import os
 import signal
 
 import pytest
-from bluesky import RunEngine
 from event_model import DocumentNames, schema_validators
 
 from materials.scan import read_scan
@@ -80,14 +79,14 @@ def test_sigint_stop_document_has_abort_and_reason(tmp_path):
     assert docs[-1][0] == "stop" and stop["exit_status"] == "abort" and "SIGINT" in stop["reason"]
 
 
-def test_plain_run_engine_abort_still_gives_a_reason(tmp_path):
+def test_plain_run_engine_abort_still_gives_a_reason(tmp_path, new_run_engine):
     # RE.abort(reason): bluesky's run_wrapper drops the reason; the plan's own close does not
     import threading
 
     from bluesky.utils import RunEngineInterrupted
 
     _, dev = instrument()
-    RE = RunEngine({}, context_managers=[])
+    RE = new_run_engine()
 
     def pause_at_3(name, doc, n={"n": 0}):
         n["n"] += 1
@@ -167,12 +166,12 @@ def test_every_overload_bit_reported_on_pyvisa_sim():
     assert "input overload, output overload" in str(status.exception())
 
 
-def test_plain_run_engine_keeps_csv_log_and_suspender(tmp_path, reference):
+def test_plain_run_engine_keeps_csv_log_and_suspender(tmp_path, reference, new_run_engine):
     # what a notebook or a queueserver does: RE(plan), nothing subscribed by hand
     ref, _ = reference
     sim, dev = instrument()
     sim.faults.laser_dip_at_reading = 7  # the plan's own SuspendFloor re-measures the point
-    RE = RunEngine({}, context_managers=[])
+    RE = new_run_engine()
     RE(brdf_scan(dev, SPEC.points, md=MD, csv_path=tmp_path / "nb.csv"))
     assert_same_scan(read_scan(tmp_path / "nb.csv"), ref)
     docs = read_log(tmp_path / "nb.log.jsonl")

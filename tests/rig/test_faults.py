@@ -7,7 +7,6 @@ import signal
 import threading
 
 import pytest
-from bluesky import RunEngine
 from bluesky.utils import RunEngineInterrupted
 
 from materials.scan import read_scan
@@ -43,12 +42,12 @@ def test_soft_limit_rejected_before_anything_moves(tmp_path):
     assert not (tmp_path / "s.csv").exists()
 
 
-def test_soft_limit_inside_a_running_plan_keeps_earlier_points(tmp_path, reference):
+def test_soft_limit_inside_a_running_plan_keeps_earlier_points(tmp_path, reference, new_run_engine):
     # bypass the pre-flight check: the device itself refuses, before motion
     sim, dev = instrument()
     path = tmp_path / "s.csv"
     writer, log = CsvScanWriter(path), DocumentLog(tmp_path / "s.log.jsonl", fsync=False)
-    RE = RunEngine({}, context_managers=[])
+    RE = new_run_engine()
     RE.subscribe(log)
     RE.subscribe(writer)
     points = SPEC.points[:4] + (Point(30.0, "s", 28.0, 180.0),) + SPEC.points[4:]
@@ -121,12 +120,12 @@ def _pause_at(RE, n_events):
     return cb
 
 
-def test_operator_pause_resume_and_abort(tmp_path, reference):
+def test_operator_pause_resume_and_abort(tmp_path, reference, new_run_engine):
     md = {"sample": "test_glossy", "plan_name": "small", "rig": {}, "gain_v_per_w": 1000.0}
     for action in ("resume", "abort"):
         _, dev = instrument()
         path = tmp_path / f"{action}.csv"
-        RE = RunEngine({}, context_managers=[])
+        RE = new_run_engine()
         log = DocumentLog(tmp_path / f"{action}.log.jsonl", fsync=False)
         RE.subscribe(log)
         RE.subscribe(CsvScanWriter(path))

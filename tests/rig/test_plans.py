@@ -4,7 +4,6 @@ import json
 
 import numpy as np
 import pytest
-from bluesky import RunEngine
 
 from materials.lambertian import Lambertian
 from rig.devices import sim_devices
@@ -123,10 +122,10 @@ def test_plan_file_json_error_has_line_and_column(tmp_path):
         load_plan(tmp_path / "missing.json")
 
 
-def test_run_documents_carry_metadata_and_one_event_per_point(rig):
+def test_run_documents_carry_metadata_and_one_event_per_point(rig, new_run_engine):
     _, d = rig
     docs = []
-    RE = RunEngine({}, context_managers=[])
+    RE = new_run_engine()
     RE.subscribe(lambda name, doc: docs.append((name, doc)))
     points = [Point(30.0, "s", tr, 0.0) for tr in (29.0, 30.0, 31.0)]
     RE(brdf_scan(d, points, md={"sample": "z302_sample_a", "rig": {"arm_mm": "200.0"}, "plan_name": "t"}))
