@@ -200,7 +200,7 @@ STRAYLIGHT_LAYERS = (
                "straylight.progress", "straylight.polarization", "straylight.frames", "straylight.compile_notice",
                "straylight.checkpoints", "straylight.optics", "straylight.disk_sampling", "straylight.sources",
                "straylight.intersect", "straylight.detectors", "straylight.budget")),
-    ("engine", ("straylight.engine", "straylight.execution")),
+    ("engine", ("straylight.engine", "straylight.execution", "straylight.stop_rule")),
     ("runs", ("straylight.trace", "straylight.scene", "straylight.thermal")),
     ("displays", ("straylight.viz", "straylight.view3d", "straylight.viewer")),
     ("analyses", ("straylight.analyses",)),

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from straylight.stop_rule import Precision
 from straylight.thermal.tables import plot_thermal, thermal_frame
 from straylight.detectors import FRONT_FACE_COS, DetectorGeometry
 from straylight.thermal.forward import ForwardEstimator
@@ -28,6 +29,7 @@ DEFAULT_MAX_RAYS = 50_000_000
 DEFAULT_MAX_SECONDS = 600.0
 ZERO_POWER_RAYS = 100_000  # --target-rel-error gives up on a detector that nothing reaches after this
 MIN_ROUND_RAYS = 512  # first round of --target-rel-error, and the smallest later round (per sub-band)
+THERMAL_MIN_CHUNKS = 16  # no precision stop before this many chunks of rays (the VOV needs batches)
 
 
 @dataclass
@@ -128,8 +130,10 @@ class _Sums:
         self.s2 = np.zeros(n_parts)
         self.t1 = 0.0 if n_sets == 1 else np.zeros(n_sets)
         self.t2 = 0.0 if n_sets == 1 else np.zeros(n_sets)
+        self.chunks: list = []  # (rays, sum, sum of squares) of the total (first set) per chunk: the VOV
 
     def add(self, n, s1, s2, t1, t2):
+        self.chunks.append((n, float(np.atleast_1d(t1)[0]), float(np.atleast_1d(t2)[0])))
         self.n += n
         self.s1 += s1
         self.s2 += s2
@@ -194,12 +198,17 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
             tot, err, per, per_err = run.combined()
         else:
             target = float(target_rel_error)  # type: ignore[arg-type]  # set when n_rays is None
+            # the same stop as the PST's (straylight.analyses.precision): the error AND its reliability
+            # (VOV, no chunk dominating), a minimum sample of chunks, and a confirming look
+            rule = Precision(target, min_chunks=THERMAL_MIN_CHUNKS)
+            looks: list = []
             rays_now = MIN_ROUND_RAYS * len(bands)
             while True:
                 run.round(rays_now)
                 tot, err, per, per_err = run.combined()
                 done = run.rays
-                if (tot > 0 and err <= target * tot) or (radiance.max() <= 0 and done > 0):
+                looks.append(run.look())
+                if rule.stops(looks) or (radiance.max() <= 0 and done > 0):
                     break
                 if tot <= 0 and done >= ZERO_POWER_RAYS:
                     stopped = f"no emission reached the detector in {done} rays: power 0"
@@ -209,8 +218,13 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
                                f"{err / tot if tot > 0 else float('inf'):.3g} (target {target_rel_error})")
                     break
                 rel = err / tot if tot > 0 else 1.0
-                # the rays still needed if the error falls as 1/sqrt(N), 5 % more, at most 16x the work so far
+                # the rays still needed if the error falls as 1/sqrt(N), 5 % more, at most 16x the work so
+                # far; half as many again for a confirming look once the target is met
                 need = done * ((rel / target) ** 2 - 1.0) * 1.05
+                if rule.meets(looks[-1]):
+                    need = max(need, rule.confirm_growth * done)
+                elif looks[-1].chunks < rule.min_chunks:
+                    need = max(need, 0.5 * done)
                 rays_now = int(min(max_rays - done, 16 * done, max(MIN_ROUND_RAYS, need)))
         max_rays_one = max(max_rays_one, run.rays)
         by_part = {ts.part_names[q]: Tally(float(per[q]), float(per_err[q])) for q in range(ts.n_parts)
@@ -268,6 +282,25 @@ class _DetectorRun:
                 self.sums[k].add(m, *self.estimator(sides, rad, self.seed, self.index * 64 + k, self.next_chunk[k], m))
                 self.next_chunk[k] += 1
                 want -= m
+
+    def look(self):
+        """The precision stop's view of the total (straylight.analyses.precision.Look): its relative error,
+        and the VOV and largest chunk share of the sub-band that holds most of the variance."""
+        from straylight.stop_rule import Look, reliability
+
+        tot, err, _, _ = self.combined()
+        worst, best_var = None, -1.0
+        for s in self.sums:
+            if s.n < 2 or not s.chunks:
+                continue
+            n_c, t1, t2 = (np.array(x, dtype=np.float64) for x in zip(*s.chunks))
+            var = max(float(t2.sum()) - float(t1.sum()) ** 2 / s.n, 0.0) / (s.n * (s.n - 1.0))
+            if var > best_var:
+                best_var, worst = var, reliability(t1, t2, s.n, chunk_rays=n_c)
+        chunks = sum(len(s.chunks) for s in self.sums)
+        if worst is None or tot <= 0:
+            return Look(self.rays, tot, float("nan"), float("nan"), float("nan"), chunks)
+        return Look(self.rays, tot, err / tot, worst.vov, worst.max_chunk_share, chunks)
 
     def combined(self, c: int = 0):
         """(total, its stderr, per-part (P,), their stderrs) for temperature set ``c``: sums over
