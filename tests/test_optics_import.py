@@ -154,3 +154,25 @@ def test_a_coating_named_in_the_file_but_unknown_is_warned_not_dropped_silently(
     assert "coating 'EO_MGF2(550nm)'" in r.stderr
     doc = json.loads((tmp_path / "prescription.json").read_text())
     assert any("EO_MGF2" in w for w in doc["warnings"])
+
+
+def test_a_zemax_ar_coating_is_read_as_the_quarter_wave_mgf2_design(tmp_path):
+    """OpticStudio's COATING.DAT defines AR (and MGF2) as one quarter-wave MgF2 layer: read as mgf2_quarter_wave."""
+    src = (LENSES / "OpticsDatabase" / "Edmund_32-299.zmx").read_bytes()
+    for enc in ("utf-16", "utf-8"):
+        try:
+            text = src.decode(enc)
+            break
+        except UnicodeDecodeError:
+            continue
+    assert "EO_MGF2(550nm)" in text
+    lens = tmp_path / "ar.zmx"
+    lens.write_text(text.replace("EO_MGF2(550nm)", "AR"), encoding="utf-8")
+    r = _run("optics", "import", lens, "--out", tmp_path / "out")
+    assert r.returncode == 0, r.stderr
+    assert "read as mgf2_quarter_wave" in r.stderr
+    import tomllib
+
+    scene = tomllib.loads((tmp_path / "out" / "scene.toml").read_text())
+    coated = [c for m in scene["material"].values() for c in m["components"] if c.get("coating")]
+    assert coated and all(c["coating"] == "mgf2_quarter_wave" for c in coated)

@@ -121,6 +121,11 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         if s.coating and not coating:
             if s.coating.lower() in known_coatings():
                 coat = s.coating.lower()
+            elif s.coating.upper() in FILE_COATINGS:
+                coat = FILE_COATINGS[s.coating.upper()]
+                note = f"coating {s.coating} of the file read as {coat} (docs/optics.md)"
+                if note not in p.warnings:
+                    p.warnings.append(note)
             else:
                 p.warnings.append(f"{s.name}: coating {s.coating!r} named in the file is not a known design "
                                   f"({', '.join(sorted(known_coatings()))}); left uncoated (--coating NAME sets one)")
@@ -205,6 +210,11 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     analysis = {"detector": "image", "entrance": {"center_mm": _v(first.vertex_mm), "normal": [0.0, 0.0, -1.0],
                                                    "radius_mm": first.semi_diameter_mm}}
     return {"material": materials, "part": parts, "source": [source], "analysis": analysis}
+
+
+# coatings lens files name, as the lens-design programs' own coating files define them: OpticStudio's
+# COATING.DAT "AR" and "MGF2" are one quarter-wave MgF2 layer (at the design wavelength)
+FILE_COATINGS = {"AR": "mgf2_quarter_wave", "MGF2": "mgf2_quarter_wave"}
 
 
 def known_coatings() -> set:
