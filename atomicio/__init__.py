@@ -24,7 +24,7 @@ JSON goes through :func:`dumps_json` / :func:`write_json` / :func:`append_json_l
 JSON file is strict JSON (RFC 8259, CONTRACTS 1): a number that is not finite is written as ``null``,
 never ``NaN`` / ``Infinity``, so browsers, ``jq`` and other languages read it. Their options keep each
 file's established bytes: ``indent``, ``sort_keys``, ``final_newline``. (``allow_nan`` is still
-accepted for callers written before issue 38 and ignored: there is no non-strict output.)
+accepted for callers written before JSON was strict, and ignored: there is no non-strict output.)
 Readers of the project's own older files keep accepting ``NaN`` (Python's ``json.loads`` does).
 
 The reading side (:mod:`atomicio.inputs`): every file a user names is checked to be a regular
@@ -145,7 +145,7 @@ def json_safe(obj, *, nan_as_null: bool = True):
 def dumps_json(obj, *, indent: int | None = 2, sort_keys: bool = False, allow_nan: bool = False) -> str:
     """``json_safe(obj)`` as strict JSON text (``json.dumps``' separators): non-finite numbers as
     ``null`` (CONTRACTS 1). ``allow_nan`` is ignored (module doc)."""
-    del allow_nan  # strict JSON always (issue 38)
+    del allow_nan  # strict JSON always
     return json.dumps(json_safe(obj, nan_as_null=True), indent=indent, sort_keys=sort_keys, allow_nan=False)
 
 

@@ -1,4 +1,4 @@
-"""Where the project's caches live: compiled kernels (numba) and CAD tessellations (issue 27, item 6).
+"""Where the project's caches live: compiled kernels (numba) and CAD tessellations.
 
 Both sit under the user's cache directory (``platformdirs.user_cache_dir("straylight")``, e.g.
 ``~/.cache/straylight`` on Linux), never inside the installed package, so a read-only install

@@ -1,4 +1,4 @@
-"""Outputs checked before the work, and a user's files never overwritten (issue 27, item 4).
+"""Outputs checked before the work, and a user's files never overwritten.
 
 :func:`check_output_file` / :func:`check_output_dir`: before a command starts its work, the place
 it will write must be writable, and a file output must not be a folder, so a read-only folder or a

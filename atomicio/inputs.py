@@ -3,7 +3,7 @@
 A path in a scene, a material, a plan or a checkpoint may name anything: ``/dev/zero`` (a read that
 never ends), a FIFO (a read that waits forever for a writer), a folder, a 50 GB file. Every reader of
 the project goes through :func:`read_input_text` / :func:`check_input_file`, which refuse these in
-one line naming the file and what it is (issue 27). The file is opened with ``O_NONBLOCK`` and
+one line naming the file and what it is. The file is opened with ``O_NONBLOCK`` and
 checked with ``fstat`` on the open descriptor, so a FIFO swapped in after a check cannot block the
 read either, and at most ``max_bytes + 1`` bytes are ever read.
 """

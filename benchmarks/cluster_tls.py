@@ -1,4 +1,4 @@
-"""What TLS costs a local cluster of worker processes (issue 27): ``local_cluster(2, processes=True)``
+"""What TLS costs a local cluster of worker processes: ``local_cluster(2, processes=True)``
 with its per-run TLS key (``straylight.engine.backends.dask.run_security``) against the same cluster on plain
 TCP, alternating, each starting the cluster and tracing the golden tube; prints each run and the
 medians (the first run of each kind is a warm-up). The numbers must be identical.

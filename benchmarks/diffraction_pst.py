@@ -1,4 +1,4 @@
-"""PST of the reference tube near its cut-off with and without edge diffraction (issue 25).
+"""PST of the reference tube near its cut-off with and without edge diffraction.
 
     .venv/bin/python benchmarks/diffraction_pst.py [--quick] [--rays N] [--angles-deg 10 12 ...]
         [--wavelengths-nm 500 10000] [--json OUT.json]

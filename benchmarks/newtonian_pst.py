@@ -15,8 +15,8 @@ lens of ``benchmarks/guide_scope.py``; built once, then read from its cache fold
 reports wall seconds, CPU seconds of the command (its own and its children's, from
 ``getrusage(RUSAGE_CHILDREN)``), rays, relative error, VOV and the stop reason from ``pst.json``.
 "after" is the default estimator set (or ``--estimators-after NAME``), "before" ``--estimators
-baseline`` (the set before issue 26; or the sets ``--estimators-before NAME ...``: ``lobes`` is the
-default with the engine's roulette threshold), in the same run; the table names each set. The
+baseline`` (the first estimator set; or the sets ``--estimators-before NAME ...``: ``lobes`` is the
+default with the engine's roulette threshold; the history sets of benchmarks/estimator_sets.py), in the same run; the table names each set. The
 machine is shared: compare CPU seconds and rays; wall time depends on the
 neighbours. ``--quick``: seeds 1 2, baseline at 15 and 20 deg, seed 1, capped at 60 s.
 """
@@ -44,9 +44,9 @@ def _cpu_children() -> float:
 
 def run_point(scene, angle, seed, estimators, max_seconds, workers, target=0.02) -> dict:
     """One whole ``straylight pst`` command for one angle; its times and what pst.json says."""
-    exe = Path(sys.executable).with_name("straylight")
+    exe = [sys.executable, str(HERE / "estimator_sets.py")]  # ``straylight`` with the history sets registered
     with tempfile.TemporaryDirectory(prefix="newtonian_pst_") as out:
-        cmd = [str(exe), "pst", str(scene), "--angles-deg", str(angle), "--target-rel-error", str(target),
+        cmd = [*exe, "pst", str(scene), "--angles-deg", str(angle), "--target-rel-error", str(target),
                "--seed", str(seed), "--max-seconds", str(max_seconds), "--out", out, "--estimators", estimators]
         if workers:
             cmd += ["--workers", str(workers)]
@@ -59,7 +59,7 @@ def run_point(scene, angle, seed, estimators, max_seconds, workers, target=0.02)
     rel = point["pst_stderr"] / point["pst"] if point["pst"] else math.nan
     return {"angle_deg": angle, "seed": seed, "estimators": estimators, "wall_s": wall, "cpu_s": cpu,
             "rays": point["rays"], "pst": point["pst"], "rel_error": rel, "vov": point.get("vov"),
-            "stop_reason": point.get("stop_reason"), "command": " ".join(cmd[1:4] + cmd[5:])}
+            "stop_reason": point.get("stop_reason"), "command": " ".join(["straylight", *cmd[2:4], *cmd[5:]])}
 
 
 def _median(xs):

@@ -1,4 +1,4 @@
-"""Cost of the optical_surface interaction on the built-in Cassegrain, in one run (issue 14).
+"""Cost of the optical_surface interaction on the built-in Cassegrain, in one run.
 
     python benchmarks/optics_cost.py [--rays N] [--angle-deg A] [--repeats R]
 

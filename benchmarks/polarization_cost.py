@@ -1,4 +1,4 @@
-"""What per-ray polarization costs, in one run (issue 14 follow-up; CPU time, ratios only).
+"""What per-ray polarization costs, in one run (CPU time, ratios only).
 
     python benchmarks/polarization_cost.py [--rays N] [--repeats R]
 

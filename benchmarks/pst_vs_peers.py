@@ -104,6 +104,7 @@ def run_peer(name: str, python: Path, angle_deg: float, seconds: float, quick: b
 
 
 def run_ours(setup, angle_deg: float, n_rays: int, seed: int, nee: bool = True) -> dict:
+    import estimator_sets  # noqa: F401 - registers the history sets (benchmarks/estimator_sets.py)
     from straylight.analyses.estimators import estimator_options
     from straylight.analyses.pst import pst_sweep
 

@@ -1,4 +1,4 @@
-"""Thermal self-emission benchmark (issue 24; shared BENCHMARK.md "Thermal"): the reference baffled
+"""Thermal self-emission benchmark (shared BENCHMARK.md "Thermal"): the reference baffled
 tube (BENCHMARK.md geometry, Lambertian 5 % walls) at 300 K, its detector at 77 K, band 8-12 um.
 
 Prints, measured in one run on the same cores:

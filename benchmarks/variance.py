@@ -44,6 +44,7 @@ def main(argv=None) -> int:
 
     from materials import Lambertian
     from straylight.analyses.builtin import tube_setup
+    import estimator_sets  # noqa: F401 - registers the history sets (benchmarks/estimator_sets.py)
     from straylight.analyses.estimators import estimator_options
     from straylight.analyses.pst import pst_sweep
 

@@ -50,6 +50,7 @@ def _family_label(paths, row):
 
 
 def run(setup, angle_deg, seed, estimators, n_rays, top, rr_threshold=None):
+    import estimator_sets  # noqa: F401 - registers the history sets (benchmarks/estimator_sets.py)
     from straylight.analyses.estimators import estimator_options
     from straylight.analyses.paths_report import path_report
     from straylight.analyses.precision import reliability

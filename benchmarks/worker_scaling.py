@@ -1,4 +1,4 @@
-"""Worker-process scaling on dask (issue #17), each run timed whole, K = 1 and 2 alternately.
+"""Worker-process scaling on dask, each run timed whole, K = 1 and 2 alternately.
 
     .venv/bin/python benchmarks/worker_scaling.py [--scene SCENE.toml] [--rays N] [--seed S] [--repeat R] [--json OUT]
 

@@ -1,4 +1,4 @@
-"""Chord tolerances that would mesh without bound, refused before meshing (issue 27, item 3).
+"""Chord tolerances that would mesh without bound, refused before meshing.
 
 OpenCascade meshes to whatever chord error it is asked for, in native code that neither reports
 progress nor stops on Ctrl-C: ``--tolerance-mm 1e-6`` on a 100 mm part asks for ~1e8 triangles.

@@ -1,6 +1,6 @@
 """numba caches that cannot go stale: a cached kernel is keyed on its own source file AND on the
 sources of every jitted helper it calls (in any file, transitively) and the values of the
-module-level constants it reads (issue 23).
+module-level constants it reads.
 
 numba's own cache (``cache=True``) checks only the file that defines the kernel: after an edit
 to a helper in another file (``straylight/engine/vec3.py``'s ``dot3`` called from ``hits.py``), or to

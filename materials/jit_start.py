@@ -1,4 +1,4 @@
-"""Start numba's CPU target once per process without importing scipy.linalg (issue 17, start-up); here,
+"""Start numba's CPU target once per process without importing scipy.linalg; here,
 in the lowest package that compiles code, so that whichever package compiles first (a material's loop,
 the engine's kernels) starts it this way.
 

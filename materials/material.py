@@ -199,7 +199,7 @@ class Material:
 
     def check_energy(self, where: Optional[str] = None) -> None:
         """Raise MaterialError if rho(theta_i) >= 1 at any integer theta_i in 0..89 deg (s or p), or at
-        a table's own incidence nodes and the midpoints between them (issue #39: a spike between nodes)."""
+        a table's own incidence nodes and the midpoints between them (a spike between nodes)."""
         if self.composite is None:
             return  # a delta component alone: R + T <= 1 by construction (Fresnel, r <= 1, weight <= 1)
         key = check_key(self)

@@ -71,7 +71,7 @@ def close_dangling_runs(log: "DocumentLog") -> list[str]:
     was killed: SIGKILL, power cut) the stop document it never got: ``exit_status`` "abort" (no
     error of the scan is known) with a reason saying so, and the count of its events per stream
     (event-model's ``num_events``). Written through ``log`` before a new run starts, so every start
-    in the file has its stop (issue 27). Returns the uids of the runs closed."""
+    in the file has its stop. Returns the uids of the runs closed."""
     import time
     import uuid
 

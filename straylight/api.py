@@ -191,7 +191,7 @@ class Instrument:
         standard error is at most that (docs/study.md). Each point has its own seed derived from ``seed``.
         ``diffraction``: the parts marked ``diffraction = "edges"`` bend light (HURB, docs/diffraction.md)
         or, False, pure geometric optics; ``wavelength_nm`` overrides the beam's (CONTRACTS §6.5).
-        ``estimators``: the estimator set (:mod:`straylight.analyses.estimators`; "baseline" = before issue 26).
+        ``estimators``: the estimator set (:mod:`straylight.analyses.estimators`: "default", or one registered).
         """
         from dataclasses import replace
 

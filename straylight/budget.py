@@ -1,4 +1,4 @@
-"""Requests beyond what the machine has, refused up front with the estimate (issue 27, item 3).
+"""Requests beyond what the machine has, refused up front with the estimate.
 
 A trace keeps, in the process that combines the results, two small tallies per chunk of
 :data:`straylight.rng.CHUNK_RAYS` rays (the detector sums behind the reliability checks:

@@ -5,14 +5,14 @@ the output (``DIR/pst.points/point_000012.json``) together with the fingerprint 
 point has its own seed and streams, so it does not matter which run traced it). The folder is
 removed once the sweep's results are written. Floats go through JSON exactly (``repr``).
 
-Every file is checked before it is trusted (issue 27): ``run.json`` holds the fingerprint's digest
+Every file is checked before it is trusted: ``run.json`` holds the fingerprint's digest
 and the run's parameters in readable form; each point holds its values, its index, the run's digest
 and a SHA-256 of the three. A point edited by hand (a PST x1000, a NaN), truncated, or copied from
 another run is refused on ``--resume`` with a one-line error naming the file; so is a point or
 ``run.json`` that is not valid JSON.
 
 ``run.json`` also names the layout of the points (:data:`FORMAT`): since the one grid runner
-(:mod:`straylight.analyses.grid`, issue 23) a point holds what that runner keeps (values, rays,
+(:mod:`straylight.analyses.grid`) a point holds what that runner keeps (values, rays,
 seconds, diagnostics, tag). A folder written by an earlier version is refused on ``--resume`` in one
 line that says so."""
 from __future__ import annotations
@@ -109,7 +109,7 @@ VALUE_BOUNDS = {"pst": (0.0, None), "pst_stderr": (0.0, None), "power_w": (0.0, 
 
 def check_point_values(values, path) -> None:
     """Refuse (one-line ValueError naming the file, the value and its range) a restored point whose
-    numbers are impossible: a negative PST, power or ray count, a reflectance above 1 (issue 39)."""
+    numbers are impossible: a negative PST, power or ray count, a reflectance above 1."""
     def walk(obj, where):
         if isinstance(obj, dict):
             for k, v in obj.items():

@@ -1,5 +1,5 @@
 """The first run's announcement: the tracer's kernels are compiled once (numba), which takes tens of seconds
-before the first ray; said up front so that a progress bar at 0 does not look like a hang (issue 38).
+before the first ray; said up front so that a progress bar at 0 does not look like a hang.
 
 The kernels are cached by content and package path (:mod:`materials.jit_cache`), in
 ``NUMBA_CACHE_DIR/straylight_engine`` for the engine's: no index file there means nothing is compiled yet.

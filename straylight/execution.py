@@ -1,4 +1,4 @@
-"""Where and how a trace runs: :class:`Execution` (issue 23), one object instead of six keywords.
+"""Where and how a trace runs: :class:`Execution`, one object instead of six keywords.
 
 ``trace(..., execution=Execution(threads=2))``, ``pst_sweep(..., execution=...)``: every analysis takes
 one ``Execution`` and no execution keywords. The numbers never depend on it (same seed, same results in

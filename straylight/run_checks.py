@@ -1,4 +1,4 @@
-"""Warnings for numbers that would otherwise be silently wrong (issue 27, item 5).
+"""Warnings for numbers that would otherwise be silently wrong.
 
 - :func:`check_truncation`: a ray still carrying power after ``max_events`` surface events is
   stopped and its power counted as absorbed (the ledger's ``truncated_w``). Above

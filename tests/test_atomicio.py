@@ -145,7 +145,7 @@ def test_write_json_keeps_the_bytes_of_each_former_hand_written_writer(tmp_path)
 
     doc = _doc()
     plain = {k: (list(v) if isinstance(v, tuple) else v) for k, v in doc.items()} | {"emitted_w": 1.0}
-    # strict JSON (CONTRACTS 1, issue 38): the same bytes with every non-finite number as null
+    # strict JSON (CONTRACTS 1): the same bytes with every non-finite number as null
     plain["detectors"] = {"fp": {"power_w": 1.2e-6, "stderr_w": None}}
     plain["points"] = [{"pst": 3.4e-5, "pst_stderr": None}, {"pst": None, "name": "é"}]
     cases = [  # (before, after); allow_nan=True (the former non-strict writers) is strict now too

@@ -1,4 +1,4 @@
-"""Caches under the user's cache folder (issue 27, item 6): with a read-only install and a read-only
+"""Caches under the user's cache folder: with a read-only install and a read-only
 HOME, ``straylight material eval`` (which compiles a kernel) works, its compiled code cached in a
 private temporary folder; a temp folder another user could write is never used; ``NUMBA_CACHE_DIR``
 set by the user is kept; a tessellation cache entry changed after it was written is never served."""
@@ -41,7 +41,7 @@ def test_read_only_install_and_home_still_trace_materials(shared_tmp, as_nobody)
     cmd = [sys.executable, "-m", "straylight.cli.main", "material", "eval", str(model), "--theta-i-deg", "30",
            "--theta-r-deg", "10", "--polarization", "s", "--json", str(shared_tmp / "out.json")]
     if os.geteuid() == 0:
-        cmd = as_nobody(cmd, "nothing is read-only to root (issue 27)")
+        cmd = as_nobody(cmd, "nothing is read-only to root")
         env["HOME"] = "/nonexistent"
         uid = 65534
     else:

@@ -1,4 +1,4 @@
-"""docs/reference/ stays in step with the code (issue 38): every command the parser has, every scene key, source
+"""docs/reference/ stays in step with the code: every command the parser has, every scene key, source
 and surface type, every material component and its keys, every scan column and every instrument-effect name is
 described there; help texts point there, never at the specification users do not have."""
 import argparse

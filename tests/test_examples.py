@@ -1,4 +1,4 @@
-"""Every example in examples/ runs (issue 23, "examples/ executed by a test"), with few rays.
+"""Every example in examples/ runs ("examples/ executed by a test"), with few rays.
 
 Each example is run the way its own documentation says (the command in the example's docstring or
 header, through the ``straylight`` CLI's ``main``), scaled down: ``--rays`` and the sweep values are

@@ -1,4 +1,4 @@
-"""Imports inside functions only for heavy libraries (issue 23), in straylight/engine and materials.
+"""Imports inside functions only for heavy libraries, in straylight/engine and materials.
 
 A lazy import is allowed when it brings in a heavy library (:data:`HEAVY`: compilers, CAD,
 plotting, clusters, scipy), directly or through a project module that imports one at module level

@@ -1,4 +1,4 @@
-"""The habits of issue 23 that live in files: slow tests run with one make target, which the README
+"""Habits that live in files: slow tests run with one make target, which the README
 names, and that target selects tests that exist."""
 import ast
 import re

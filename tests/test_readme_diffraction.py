@@ -1,5 +1,5 @@
 """The user guide's "Edge diffraction (HURB)" (docs/guide.md) stays true: its commands run as written (few rays), in a shell, and
-the scene they make diffracts where the section says (issue 25, CONTRACTS §6.5)."""
+the scene they make diffracts where the section says (CONTRACTS §6.5)."""
 import json
 import os
 import re

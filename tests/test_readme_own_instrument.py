@@ -1,5 +1,5 @@
 """The user guide's "Your own instrument" (docs/guide.md) stays true: its commands run (with few rays) on the real third-party part
-it names, and its TOML excerpt is the example scene file's (issue 22)."""
+it names, and its TOML excerpt is the example scene file's."""
 import json
 import math
 import re

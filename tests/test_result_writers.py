@@ -1,4 +1,4 @@
-"""Every file the project writes goes through atomicio (issue 23: "every result writer through
+"""Every file the project writes goes through atomicio ("every result writer through
 atomicio"): no module of materials/, geometry/, straylight/ or rig/ opens a file for writing,
 dumps JSON into a file, writes through ``Path.write_text``, replaces files by hand, or serialises
 JSON itself for a writer (``json.dumps`` handed to ``write_text``: that is :func:`atomicio.write_json`).

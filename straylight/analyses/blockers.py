@@ -1,4 +1,4 @@
-"""What keeps the light from the detector, said when a result is zero (issue 38).
+"""What keeps the light from the detector, said when a result is zero.
 
 Two causes a user can fix, both found from the scene alone:
 

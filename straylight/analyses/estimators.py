@@ -2,8 +2,8 @@
 
 ``default``
     next-event estimation, first-vertex sampling with the lobe's own draw
-    (``vertex_lobe_sampling``, issue 26), second-vertex sampling with the lobe's own draw at its
-    critical point (``second_vertex_lobe_sampling``, issue 26), and Russian roulette only below
+    (``vertex_lobe_sampling``), second-vertex sampling with the lobe's own draw at its
+    critical point (``second_vertex_lobe_sampling``), and Russian roulette only below
     ``ANALYSIS_RR_THRESHOLD`` = 1e-5 of a ray's start weight. Roulette's survivors carry the
     threshold weight: at 1e-3 (the engine's default) a glossy double or triple scatter that was
     rouletted at its last vertex and then went along its lobe into the detector carried 1e-3 of a
@@ -16,20 +16,10 @@
     (T) -> back face (R) -> front face (R) -> back face (T) -> sensor" was found by ~R^2 = 1.6e-3 of
     the rays that entered the lens, with ~600x the weight, and the single reflections "vane -> lens
     face (R) -> sensor" by ~4 %, with 25x.
-``split``
-    the default with ``reflection_split`` (single reflections into a detector by expected value)
-    instead of ``delta_chain``: the set before the chains, to measure what they buy.
-``roulette``
-    the default without ``delta_chain`` or ``reflection_split`` (to measure what they buy).
-``lobes``
-    ``roulette`` with the engine's roulette threshold (1e-3): the set before the roulette change,
-    kept to measure what it buys.
-``first_lobe``
-    ``lobes`` without the second-vertex lobe draw (to measure what each draw buys).
-``baseline``
-    the set before issue 26 (first-vertex sampling joined to the detector by a uniform point
-    only, roulette at 1e-3), kept so benchmarks can time before and after in one run
-    (``--estimators baseline``).
+
+Other sets (the history sets the benchmarks time the default against) are registered by
+:func:`register_estimator_set`: ``benchmarks/estimator_sets.py`` registers them for the benchmark
+runs and for its ``straylight`` command wrapper.
 """
 from __future__ import annotations
 
@@ -44,16 +34,21 @@ ANALYSIS_RR_THRESHOLD = 1e-5
 DELTA_CHAIN_INTERFACES = 4
 
 #: the sets: presets of the estimator options (NEE on, the engine's other defaults unless named)
-_LOBES = EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
-                          second_vertex_lobe_sampling=True)
 ESTIMATOR_SETS = {
-    "default": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD, delta_chain=DELTA_CHAIN_INTERFACES),
-    "split": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD, reflection_split=True),
-    "lobes": _LOBES,
-    "roulette": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD),
-    "first_lobe": replace(_LOBES, second_vertex_lobe_sampling=False),
-    "baseline": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True),
+    "default": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
+                                second_vertex_lobe_sampling=True, rr_threshold=ANALYSIS_RR_THRESHOLD,
+                                delta_chain=DELTA_CHAIN_INTERFACES),
 }
+
+
+def register_estimator_set(name: str, options: EstimatorOptions) -> None:
+    """Add (or replace) the estimator set ``name``: :func:`estimator_options` and the ``--estimators``
+    choices of a command built afterwards accept it. ``default`` cannot be replaced."""
+    if name == "default":
+        raise ValueError("the default estimator set cannot be replaced")
+    if not isinstance(options, EstimatorOptions):
+        raise TypeError(f"estimator set {name!r}: expected EstimatorOptions, got {type(options).__name__}")
+    ESTIMATOR_SETS[name] = options
 
 
 def estimator_options(name: str = "default", options: TraceOptions | None = None, materials=None) -> TraceOptions:

@@ -1,4 +1,4 @@
-"""Ghost analysis: detector power grouped by specular / refraction sequence (issue 14).
+"""Ghost analysis: detector power grouped by specular / refraction sequence.
 
 A path whose events are all specular (mirror reflections, Fresnel reflections and refractions of
 ``optical_surface`` parts) is a *specular path*. The most powerful one at the detector is the

@@ -1,4 +1,4 @@
-"""One way to run a grid of points (issue 23): :func:`run_grid`, used by ``pst``, ``study``, the
+"""One way to run a grid of points: :func:`run_grid`, used by ``pst``, ``study``, the
 ``--model`` sweeps, the built-in tube's design sweep and ``design vanes``.
 
 A grid is a list of :class:`GridPoint` (a checkpoint key, a seed, a label); for each point the

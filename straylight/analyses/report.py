@@ -253,7 +253,7 @@ def _study_steps(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Exec
 
     from straylight.thermal.report import has_temperatures, thermal_step
 
-    if has_temperatures(setup.scene):  # parts at a temperature: the self-emission budget (issue 24)
+    if has_temperatures(setup.scene):  # parts at a temperature: the self-emission budget
         _step(f"self-emission budget, {cfg.thermal_band_um[0]:g}-{cfg.thermal_band_um[1]:g} um", progress)
         t0 = time.perf_counter()
         thermal_step(setup, out, cfg.thermal_band_um, seed=point_seed(cfg.seed, 7))

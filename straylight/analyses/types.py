@@ -1,4 +1,4 @@
-"""The types the analyses share (issue 23): what an analysis traces and what a sweep returns.
+"""The types the analyses share: what an analysis traces and what a sweep returns.
 
 - :class:`Beam`, :class:`Entrance`, :class:`Setup`: an instrument set up for a PST analysis (the
   built-in tube, a scene file, a model's design, the Cassegrain all become a ``Setup``);

@@ -163,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _check_requests(args) -> None:
-    """Requests that cannot succeed, refused before any work (issue 27), whatever the command: ray
+    """Requests that cannot succeed, refused before any work, whatever the command: ray
     counts beyond this machine (straylight.budget), chord tolerances that would mesh without bound
     (geometry.limits), and outputs that cannot be written (``--json``/``--png`` files, ``--out``
     folders, ``--report`` folders: atomicio.guard)."""

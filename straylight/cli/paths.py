@@ -6,7 +6,7 @@
 
 Writes DIR/paths.md (table), paths.csv (every group), paths.json, paths.png (bar plot); with --view3d
 also DIR/view3d.html (the interactive 3-D view, docs/notebook.md). Each group has its share of the
-power and its share of the estimate's variance (which paths make the error bar: issue 26).
+power and its share of the estimate's variance (which paths make the error bar).
 """
 from __future__ import annotations
 

@@ -99,10 +99,8 @@ def add_parser(subparsers):
     from straylight.analyses.estimators import ESTIMATOR_SETS
 
     p.add_argument("--estimators", choices=tuple(ESTIMATOR_SETS), default="default",
-                   help="estimator set (straylight.analyses.estimators): 'baseline' the first estimators (no second-vertex "
-                        "lobe, no lens-ghost trees), "
-                        "'first_lobe' without the second-vertex lobe draw, 'split' with single reflections "
-                        "into the detector instead of the lens-ghost trees (delta_chain), for timing before and after")
+                   help="estimator set (straylight.analyses.estimators): 'default'; others when registered "
+                        "(benchmarks/estimator_sets.py registers the history sets the benchmarks time against)")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)
     p.add_argument("--entrance-radius-mm", type=float, default=None)
     p.add_argument("--workers", type=int, default=None, help="dask LocalCluster with K worker threads "

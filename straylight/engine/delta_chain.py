@@ -1,4 +1,4 @@
-"""Chains of interfaces into a detector, followed by splitting (issue 26: the lens's own ghosts).
+"""Chains of interfaces into a detector, followed by splitting (the lens's own ghosts).
 
 At a Fresnel interface (``optical_surface`` parts) the walk picks one branch, lobe, reflection or
 transmission, with probability proportional to its power (docs/engine.md, "Branch by probability,

@@ -46,16 +46,16 @@ class Estimator:
 ESTIMATORS = (
     Estimator("nee", replace(ANALOG, nee=True), Capability.NEE, diffraction=True),
     Estimator("first_vertex", replace(ANALOG, first_vertex_sampling=True), Capability.FIRST_VERTEX, reference=False),
-    # first-vertex sampling joined to the detector by the lobe's own draw as well (issue 26)
+    # first-vertex sampling joined to the detector by the lobe's own draw as well
     Estimator("first_vertex_lobe", replace(ANALOG, first_vertex_sampling=True, vertex_lobe_sampling=True),
               Capability.FIRST_VERTEX, reference=False),
     Estimator("second_vertex", replace(ANALOG, nee=True, second_vertex_sampling=True), Capability.SECOND_VERTEX,
               requires=("nee",)),
-    # second-vertex sampling whose critical point also leaves along its lobe's own draw (issue 26)
+    # second-vertex sampling whose critical point also leaves along its lobe's own draw
     Estimator("second_vertex_lobe",
               replace(ANALOG, nee=True, second_vertex_sampling=True, second_vertex_lobe_sampling=True),
               Capability.SECOND_VERTEX, requires=("nee",)),
-    # an interface's reflection straight into a detector counted by its expected value (issue 26)
+    # an interface's reflection straight into a detector counted by its expected value
     Estimator("reflection_split", replace(ANALOG, reflection_split=True), Capability.REFLECTION_SPLIT),
     # runs of up to 4 interfaces into a detector (a singlet's two-reflection ghost) followed by splitting
     Estimator("delta_chain", replace(ANALOG, delta_chain=4), Capability.DELTA_CHAIN),

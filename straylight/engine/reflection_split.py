@@ -1,4 +1,4 @@
-"""Reflections into a detector, counted by their expected value (issue 26: the optics path).
+"""Reflections into a detector, counted by their expected value (the optics path).
 
 At a Fresnel or specular interface (``optical_surface`` parts) the walk picks one branch, scatter
 lobe, reflection or transmission, with probabilities proportional to their powers, and the chosen

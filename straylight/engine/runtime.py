@@ -1,4 +1,4 @@
-"""This process's engine state, in one object (issue 23): :class:`Runtime`.
+"""This process's engine state, in one object: :class:`Runtime`.
 
 One per process (:func:`runtime`), made and started on first use, or on a dask worker by the
 worker plugin (:mod:`straylight.engine.backends.worker_plugin`). It owns

@@ -14,7 +14,7 @@ def triangle_planes(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
     ``tri.mean(axis=1)`` bit for bit (tests/straylight/test_plane.py): the same products and sums
     in the same order (np.cross's ``a1 b2 - a2 b1``, ...; the norm's ``(x0^2 + x1^2) + x2^2``;
     ``(p0 + p1) + p2``), written out on blocks of :data:`PLANE_BLOCK` triangles, ~2x faster
-    (0.36M triangles: 0.10-0.24 -> 0.05 s, part of every worker's start-up, issue 17)."""
+    (0.36M triangles: 0.10-0.24 -> 0.05 s, part of every worker's start-up)."""
     tri = np.asarray(triangles, dtype=np.float64)
     m = len(tri)
     v0 = tri[:, 0].copy()

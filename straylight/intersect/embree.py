@@ -43,7 +43,7 @@ class EmbreeIntersector:
         self._embree = EmbreeScene(self._device)
         self._building = None
         # the same Embree geometry as embreex's TriangleMesh, filled by numpy and its BVH built on a thread
-        # without the GIL (straylight.intersect.embree_build; issue 17, start-up), else embreex's way
+        # without the GIL (straylight.intersect.embree_build), else embreex's way
         if embree_build.add_triangles(self._embree, self._device, tri):
             self._building = threading.Thread(target=embree_build.commit, args=(self._embree, self._device),
                                               name="embree-bvh", daemon=True)

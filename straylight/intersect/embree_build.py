@@ -2,7 +2,7 @@
 
 embreex's ``TriangleMesh`` copies a (m, 3, 3) triangle array into Embree one number at a time
 through Python indexing (9 m ``ndarray.__getitem__`` calls): ~0.5 s for 0.36M triangles, the
-largest single cost of a cached start-up (issue 17), and it holds the GIL the whole time. Its
+largest single cost of a cached start-up, and it holds the GIL the whole time. Its
 ``EmbreeScene.run`` then builds the BVH (``rtcCommitScene``) on the first query, also with the
 GIL held.
 

@@ -1,4 +1,4 @@
-"""The self-emission budget of a study (issue 24): when parts have a ``temperature_k``, ``straylight
+"""The self-emission budget of a study: when parts have a ``temperature_k``, ``straylight
 study`` traces the detector's self-emission in ``StudyConfig.thermal_band_um`` (reverse estimator,
 to 1 %), writes thermal.json / thermal_details.json / thermal_budget.png, and the report shows the
 budget by part with the narcissus term (the detector's own emission that returns to it)."""

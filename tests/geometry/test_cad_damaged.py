@@ -1,4 +1,4 @@
-"""A damaged STEP file never takes the process down (issue #27 item 1): read in a child process, every
+"""A damaged STEP file never takes the process down : read in a child process, every
 damage gets a scene or a one-line error naming the file. The base file is tests/data/cad/gmsh_parts.step;
 deleting one ``#n = VECTOR(...)`` line made OpenCascade's transfer crash with SIGSEGV in-process."""
 import random
@@ -18,7 +18,7 @@ def _variants():
     data = BASE.read_bytes()
     vectors = [i for i, line in enumerate(lines) if re.match(r"#\d+\s*=\s*VECTOR\(", line)]
     out = {}
-    for k in (0, len(vectors) // 2, len(vectors) - 1):  # delete one VECTOR line (the crash of issue #27)
+    for k in (0, len(vectors) // 2, len(vectors) - 1):  # delete one VECTOR line (the crash this guards against)
         out[f"no-vector-{k}"] = "".join(lines[:vectors[k]] + lines[vectors[k] + 1:]).encode()
     for fraction in (0.1, 0.5, 0.97):  # truncated
         out[f"truncated-{fraction}"] = data[:int(len(data) * fraction)]
@@ -57,7 +57,7 @@ def test_damaged_step_gives_a_scene_or_one_line_error(name, tmp_path, monkeypatc
 
 
 def test_a_crash_in_the_reader_is_reported_as_such(tmp_path, monkeypatch):
-    """The reproduction of issue #27: in-process this SIGSEGVs; isolated it is a one-line error."""
+    """The reproduction: in-process this SIGSEGVs; isolated it is a one-line error."""
     from geometry.cad_child import ENV_ISOLATE
     from geometry.io import tessellate_cad
 

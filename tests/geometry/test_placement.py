@@ -147,7 +147,7 @@ power_w = 1.0
 
 
 def test_placed_parts_trace_identically_to_the_parts_pre_transformed(tmp_path):
-    """Acceptance (issue 22): the same seed gives the same JSON numbers whether the parts are placed by
+    """Acceptance: the same seed gives the same JSON numbers whether the parts are placed by
     rotate_deg/translate_mm or written already in place (an independent transform: coordinate swaps)."""
     from straylight.cli.main import main
 

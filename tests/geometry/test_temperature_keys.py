@@ -1,4 +1,4 @@
-"""``temperature_k`` in scene files (CONTRACTS §7, issue 24): per part, per solid override, checked."""
+"""``temperature_k`` in scene files (CONTRACTS §7): per part, per solid override, checked."""
 from pathlib import Path
 
 import pytest

@@ -83,7 +83,7 @@ def test_open_solid_left_open_is_reported_with_its_faces():
 
 def test_a_stalled_file_is_reported_once_with_its_faces_and_what_to_do(tmp_path, monkeypatch):
     """One warning per file on the run that meshes it (naming the solid, its chord error and face 79, and what
-    to do); none when the same meshes come from the cache (issue 38: the warning repeated on every command)."""
+    to do); none when the same meshes come from the cache (the warning repeated on every command)."""
     import warnings
 
     from geometry.cad_child import ENV_ISOLATE

@@ -1,4 +1,4 @@
-"""Shared inputs of the hostile-input suite (issue 39): a small analytic scene that traces in
+"""Shared inputs of the hostile-input suite: a small analytic scene that traces in
 well under a second, written into the test's own tmp_path (never a real device or shared folder)."""
 from __future__ import annotations
 

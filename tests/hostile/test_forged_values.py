@@ -1,4 +1,4 @@
-"""Issue 39 item 3: a checkpoint whose checksum was recomputed around impossible values is refused."""
+"""A checkpoint whose checksum was recomputed around impossible values is refused."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""CONTRACTS 1 (issue 38): every JSON file the commands write is strict RFC 8259 JSON. A value that is not
+"""CONTRACTS 1: every JSON file the commands write is strict RFC 8259 JSON. A value that is not
 a finite number is ``null``; ``NaN`` / ``Infinity`` never appear. Each command is run, then every
 ``*.json`` / ``*.jsonl`` file under its output is parsed with a parser that refuses the three
 non-standard constants (``json.loads`` calls ``parse_constant`` only for them)."""

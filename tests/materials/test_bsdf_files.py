@@ -241,7 +241,7 @@ def test_non_physical_file_refused_naming_the_incidence(tmp_path, capsys):
 
 
 def test_spike_between_incidence_nodes_does_not_pass(tmp_path):
-    """Issue #39: a tabulated material whose node at 62.5 deg (off the 1-deg grid) is a spike."""
+    """A tabulated material whose node at 62.5 deg (off the 1-deg grid) is a spike."""
     from materials.material import material_from_dict
 
     ti = [60.0, 62.5, 65.0]

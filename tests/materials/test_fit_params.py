@@ -1,5 +1,5 @@
 """Every fittable model declares its fit parameters in its own file; materials.fit reads them through
-materials.fit_params only (issue 23, "every model's fit bounds in its own file")."""
+materials.fit_params only ("every model's fit bounds in its own file")."""
 import ast
 import dataclasses
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""numba caches keyed on the kernel's sources and its helpers' (materials.jit_cache, issue 23).
+"""numba caches keyed on the kernel's sources and its helpers' (materials.jit_cache).
 
 numba's own cache checks only the kernel's file; a kernel calling a jitted helper in another file
 keeps serving the old machine code after the helper changes (seen during development:
@@ -152,7 +152,7 @@ print(json.dumps({{"value": kernel(1.0), "hits": sum(kernel.stats.cache_hits.val
 
 
 def test_a_second_clone_finds_the_kernels_the_first_compiled(tmp_path):
-    """The cache is keyed by content and package path, not by the checkout's folder (issue 38: every clone
+    """The cache is keyed by content and package path, not by the checkout's folder (every clone
     paid the first compile again)."""
     cache = tmp_path / "numba_cache"
     results = []

@@ -1,5 +1,4 @@
-"""Materials at another wavelength and Kirchhoff emissivity (materials.wavelength; CONTRACTS §7,
-issue 24). Golden values from formulas written here (PHYSICS §1), not from the code under test."""
+"""Materials at another wavelength and Kirchhoff emissivity (materials.wavelength; CONTRACTS §7). Golden values from formulas written here (PHYSICS §1), not from the code under test."""
 import math
 
 import numpy as np

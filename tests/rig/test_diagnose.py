@@ -228,13 +228,13 @@ def test_second_material_z302_sample_a(name):
     _check_single(doc, name, SCORE_CASES[name])
 
 
-# ----------------------------------------------------------------------------- issue 15 cases
+# ----------------------------------------------------------------------------- substrate ghost, offset and background
 
 @pytest.mark.slow
 @pytest.mark.parametrize("material", ["z302_sample_a", "z302_sample_b"])
 @pytest.mark.parametrize("case", ["substrate", "offset_background"])
 def test_z302_substrate_ghost_and_offset_with_background(material, case):
-    """Issue 15's cases on both Z302-like presets, from rig.synth's own implementation (complex
+    """Both Z302-like presets, from rig.synth's own implementation (complex
     Snell + textbook Fresnel for the ghost): the substrate ghost alone is named substrate_reflection
     (not polarization_leakage, whose p-dip filling it resembles) and its parameters recovered; a
     stage offset with a stray floor is named angle_offset (not arm_offset) and stray_background."""

@@ -1,5 +1,5 @@
 """The scan's bluesky documents (CONTRACTS 4.4), its lock-in faults, and plans that keep their data
-safety under a plain ``RE(plan)`` (issue 15).
+safety under a plain ``RE(plan)``.
 
 Documents are validated with event-model's own JSON schemas (``event_model.schema_validators``),
 an independent check of what bluesky's tools (suitcase-jsonl, databroker/tiled) accept.

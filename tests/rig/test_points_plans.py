@@ -1,4 +1,4 @@
-"""Plans as arrays live with the points (rig/points.py); the diagnosis benchmark in benchmarks/ (issue 23)."""
+"""Plans as arrays live with the points (rig/points.py); the diagnosis benchmark in benchmarks/."""
 import subprocess
 import sys
 from pathlib import Path

@@ -1,4 +1,4 @@
-"""``rig scan --resume`` after a SIGKILL (issue 27, item 5): a resume with another ``--seed`` is
+"""``rig scan --resume`` after a SIGKILL: a resume with another ``--seed`` is
 refused in one line (it would mix two noise streams under the first run's header), and the killed
 run gets its stop document (exit_status "abort") when the scan is opened again, so every start
 document in the log has exactly one stop document, and every document validates against

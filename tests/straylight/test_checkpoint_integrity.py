@@ -1,4 +1,4 @@
-"""Checkpoints carry a checksum and the run's parameters (issue 27, item 5; item 7 for the JSON
+"""Checkpoints carry a checksum and the run's parameters (item 7 for the JSON
 errors): a point edited by hand (PST x1000, NaN), truncated, or of another run is refused on
 resume with one line naming the file; a sweep resumed through the real ``pst`` command refuses an
 edited point instead of returning its numbers."""

@@ -1,4 +1,4 @@
-"""Dask for real (issue #17): a ``--workers 2`` run opens no socket beyond this machine; worker
+"""Dask for real: a ``--workers 2`` run opens no socket beyond this machine; worker
 processes give the numbers of an in-process run; a worker killed mid-trace (SIGKILL to a real
 ``dask worker`` process on localhost) costs only its tasks, which dask reruns, and the numbers stay
 identical (counter-based streams: a chunk's numbers do not depend on where or when it runs).

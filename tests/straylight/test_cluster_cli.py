@@ -1,4 +1,4 @@
-"""Cluster options of the commands (issue #17, docs/cluster.md): ``--workers K --processes`` runs K
+"""Cluster options of the commands (docs/cluster.md): ``--workers K --processes`` runs K
 local worker processes (loopback only, stopped with the command, the numbers of an in-process run);
 ``pst`` and ``study`` reach a TLS-secured scheduler with ``--tls-ca-file/--tls-cert/--tls-key`` as
 ``trace`` does (a real TLS scheduler on 127.0.0.1 with certificates made by openssl here); wrong

@@ -1,4 +1,4 @@
-"""The first run says it is compiling the kernels (issue 38); a warm cache says nothing."""
+"""The first run says it is compiling the kernels; a warm cache says nothing."""
 from straylight.compile_notice import first_compile_notice
 
 

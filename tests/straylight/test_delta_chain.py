@@ -1,5 +1,5 @@
 """Runs of interfaces into a detector followed by splitting (TraceOptions.delta_chain,
-straylight.engine.delta_chain; issue 26, the lens's own ghosts).
+straylight.engine.delta_chain: the lens's own ghosts).
 
 Scene: a collimated beam meets a 10 mm thick uncoated glass slab (n = 1.5, two flat faces) at
 45 deg; a small detector below the slab sits where only the two-reflection ghost lands

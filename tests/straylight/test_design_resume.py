@@ -1,4 +1,4 @@
-"""``straylight design vanes --resume`` (issue #17): a run interrupted during its final PST
+"""``straylight design vanes --resume``: a run interrupted during its final PST
 evaluations, resumed, writes the same design.json as one run straight through (wall-clock
 ``seconds`` aside) and traces only the points that were missing."""
 from __future__ import annotations

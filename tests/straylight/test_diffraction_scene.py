@@ -1,4 +1,4 @@
-"""Edge diffraction plumbing (issue 25, CONTRACTS §6.5): which edges diffract, the scene keys, the
+"""Edge diffraction plumbing (CONTRACTS §6.5): which edges diffract, the scene keys, the
 command line, and the engine invariants (ledger, seeds, batch sizes) with diffraction on."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Capability declarations (issue 23): components declare their physics (materials.flags), the
+"""Capability declarations: components declare their physics (materials.flags), the
 engine chooses each part's interaction kind from those flags in one registry
 (straylight.engine.interactions.registry), and no code outside the registry recognises a kind by
 its name. The estimator side (every kind under every estimator) is test_engine_contract.py."""
@@ -103,7 +103,7 @@ def test_no_interaction_name_comparisons_outside_the_registry():
 
 
 def test_the_scan_sees_a_name_comparison(tmp_path):
-    """The scan above can fail: it finds the pattern the engine used before issue 23."""
+    """The scan above can fail: it finds the pattern the engine used before capability flags."""
     bad = tmp_path / "probe.py"
     bad.write_text('def f(m, kind):\n    return getattr(m, "interaction", "") == "optical_surface" or kind in ("detection",)\n')
     assert _kind_name_comparisons(bad, set(INTERACTIONS), tmp_path) == ["probe.py:2", "probe.py:2"]

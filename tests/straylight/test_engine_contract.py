@@ -1,4 +1,4 @@
-"""The engine's contract, over every interaction kind x every estimator (issue 23).
+"""The engine's contract, over every interaction kind x every estimator.
 
 For each continuing interaction kind (straylight.engine.interactions.registry) a small scene
 (:data:`CONTRACT_SCENES`: a lit part of that kind, the "subject", seen by a flat detector, with an

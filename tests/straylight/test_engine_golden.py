@@ -1,5 +1,5 @@
 """Same seed, same numbers: the engine reproduces the results recorded BEFORE the engine was split
-into stages (issue #13; commit c2b77b3 of main), to 1e-15 relative.
+into stages (commit c2b77b3 of main), to 1e-15 relative.
 
 These are regression values, not physics: they pin the refactor (and any later speed work) to the
 exact random walk of the engine they were recorded with. Physics is checked elsewhere

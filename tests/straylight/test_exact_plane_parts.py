@@ -1,6 +1,6 @@
 """Analytic ``plane`` parts are exactly the disk or annulus they name, in every role (CONTRACTS §6.4):
 area pi (outer^2 - inner^2), hits counted against the exact boundary, next-event estimation on the
-exact disk, whatever polygon finds the hits (issue 22: a 5 mm detector disk read 1.2 % low)."""
+exact disk, whatever polygon finds the hits (a 5 mm detector disk read 1.2 % low)."""
 import math
 
 import numpy as np
@@ -56,7 +56,7 @@ def _grey():
 
 
 def test_analytic_5mm_detector_disk_gets_the_power_of_the_exact_disk():
-    """Acceptance (issue 22). Expected: rd x P x F(beam spot r = 3 mm -> detector r = 5 mm, h = 20 mm); the
+    """Acceptance. Expected: rd x P x F(beam spot r = 3 mm -> detector r = 5 mm, h = 20 mm); the
     spot is a uniform Lambertian emitter of rd x P. The same disk as a plain mesh (its 24-gon, what the
     tracer used before) reads ~1.1 % low, many standard errors away: the test can tell them apart."""
     expected = 0.5 * 1.0 * coaxial_disks_view_factor(3.0, 5.0, 20.0)

@@ -1,4 +1,4 @@
-"""``Execution``: where a trace runs, in one object (issue 23); the numbers never depend on it, and
+"""``Execution``: where a trace runs, in one object; the numbers never depend on it, and
 ``trace`` and every analysis take it instead of execution keywords."""
 from __future__ import annotations
 

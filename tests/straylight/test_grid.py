@@ -1,4 +1,4 @@
-"""The one grid runner (issue 23, straylight.analyses.grid): a resumed grid returns the floats of an
+"""The one grid runner (straylight.analyses.grid): a resumed grid returns the floats of an
 uninterrupted one, a precision target stops each point by its rule, progress reaches stderr, and a
 checkpoint written by an earlier version is refused in one line."""
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Input files must be regular files of sane size, and requests beyond the machine are refused up
-front with the estimate (issue 27, item 3): ``material = "/dev/zero"`` or a FIFO in a scene, a FIFO
+front with the estimate: ``material = "/dev/zero"`` or a FIFO in a scene, a FIFO
 as the scene itself, ``--rays 99999999999999999999``, ``--tolerance-mm 1e-6``: each ends in one
 line naming what is wrong, at once (each command runs under a 60 s timeout that a hang would hit;
 the FIFOs have no writer, so a read would block forever)."""

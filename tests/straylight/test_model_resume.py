@@ -1,4 +1,4 @@
-"""Resumable ``study --model FILE.py:build`` (issue #17): a study interrupted by Ctrl-C inside its
+"""Resumable ``study --model FILE.py:build``: a study interrupted by Ctrl-C inside its
 model sweep leaves a readable partial report and keeps the finished sweep points; ``--resume``
 reads them back (the finished design is not built or traced again) and ends with the same
 results.json numbers as a study that ran straight through (wall-clock fields aside); an edited

@@ -1,4 +1,4 @@
-"""Outputs checked before the work, and never overwriting what the user wrote (issue 27, item 4).
+"""Outputs checked before the work, and never overwriting what the user wrote.
 
 ``trace --json`` onto a folder or into a folder it cannot write fails at once, before the scene is
 even read (the scene given here does not exist, so an error about it would mean the output was
@@ -47,7 +47,7 @@ def test_trace_json_into_a_read_only_folder_fails_at_once(open_tmp, as_nobody):
     cmd = [sys.executable, "-m", "straylight.cli.main", "trace", str(tmp_path / "missing.toml"), "--rays", "1000",
            "--json", str(folder / "out.json")]
     if os.geteuid() == 0:
-        cmd = as_nobody(cmd, "no folder is read-only to root (issue 27)")
+        cmd = as_nobody(cmd, "no folder is read-only to root")
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path), "HOME": str(folder),
            "STRAYLIGHT_CACHE": "off", "NUMBA_CACHE_DIR": str(folder)}
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=60, env=env, cwd=str(folder))

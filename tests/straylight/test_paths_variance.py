@@ -1,4 +1,4 @@
-"""The path report on the variance (issue 26): each group's share of the detector estimate's
+"""The path report on the variance: each group's share of the detector estimate's
 variance, and the "family" grouping that merges numbered parts (vane_1 .. vane_N -> vane).
 
 Records are built by hand so the shares are known exactly: a group where every ray gives the same

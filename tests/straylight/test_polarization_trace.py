@@ -1,4 +1,4 @@
-"""Polarization through mirrors and scattering parts (CONTRACTS §6.3; issue 14's left-overs).
+"""Polarization through mirrors and scattering parts (CONTRACTS §6.3).
 
 References, all independent of the code under test:
 - Fresnel reflection of a metal (Born & Wolf §14.2; Chipman, Lam & Young, *Polarized Light and
@@ -123,8 +123,8 @@ def _rs_brewster():
 @pytest.mark.parametrize("a_deg,gamma_deg", [(0.0, 0.0), (30.0, 0.0), (90.0, 0.0), (20.0, 65.0)])
 def test_malus_law_through_a_role_mirror_and_a_brewster_analyser(a_deg, gamma_deg):
     """Linear light, field e0 = (cos a, sin a, 0), off an ideal role-mirror fold (R = 0.9) into a Brewster
-    analyser: P / P0 = 0.9 R_s(theta_B) (E' . s_a)^2 with E' = -e0 + 2 (e0 . n) n. Before issue 14's
-    follow-up the mirror depolarized the light and every case read 0.45 R_s(theta_B)."""
+    analyser: P / P0 = 0.9 R_s(theta_B) (E' . s_a)^2 with E' = -e0 + 2 (e0 . n) n. Before the
+    mirror kept the polarization it depolarized the light and every case read 0.45 R_s(theta_B)."""
     a = math.radians(a_deg)
     e0 = np.array([math.cos(a), math.sin(a), 0.0])
     n_m = _unit([1.0, 0.0, 1.0])

@@ -1,4 +1,4 @@
-"""Progress that also reaches a log file (issue 22): when stderr is not a terminal, a plain line every few
+"""Progress that also reaches a log file: when stderr is not a terminal, a plain line every few
 seconds (a heartbeat too), nothing for short runs; on a terminal, tqdm's bar."""
 import io
 import time

@@ -1,4 +1,4 @@
-"""Error bars a user can trust (issue 26): where the VOV says a PST point's error estimate is not
+"""Error bars a user can trust: where the VOV says a PST point's error estimate is not
 reliable, or a cap stopped it before its target, the plot, the study's table and the pst command
 say so (pst.json / pst.csv carry the ``flags`` of straylight.analyses.types.point_flags); and the
 default study traces to a target error within a time budget, not a fixed ray count."""

@@ -1,4 +1,4 @@
-"""Resumable PST sweeps (issue #17): a sweep killed after some points and continued with --resume
+"""Resumable PST sweeps: a sweep killed after some points and continued with --resume
 ends with the same pst.json as one that ran straight through (wall-clock ``seconds`` aside), and
 the finished points are read back, not traced again."""
 from __future__ import annotations

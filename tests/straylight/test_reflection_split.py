@@ -1,5 +1,5 @@
 """Reflections into a detector counted by their expected value (EstimatorOptions.reflection_split,
-straylight.engine.reflection_split; issue 26, the optics path).
+straylight.engine.reflection_split).
 
 Scene: a beam lights a grey Lambertian floor; a flat glass plate (n = 2, uncoated: ~11 % reflected
 near normal incidence) hangs above it; a small front-only detector beside the beam faces the plate,

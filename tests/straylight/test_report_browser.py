@@ -1,4 +1,4 @@
-"""The study report's interactive 3-D view, opened in a real headless browser (issue #28).
+"""The study report's interactive 3-D view, opened in a real headless browser.
 
 Debian's ``chromium`` and ``chromium-driver`` (installed by .ci/run) driven by Selenium: the report's
 ``index.html`` is opened from disk (file://, no server, no network), the view's WebGL canvas must
@@ -138,7 +138,7 @@ def test_report_3d_view_in_a_browser(driver, report):
 
 
 def test_the_view_opens_showing_the_light(driver, report):
-    """Issue 38: on opening, with nothing clicked, the instrument is cut open, the main paths' rays are drawn
+    """On opening, with nothing clicked, the instrument is cut open, the main paths' rays are drawn
     (each path its own colour, a swatch per path in the panel) and the detector is marked. The screenshot on
     opening is kept in the report folder (view3d_opening.png) for a person to look at."""
     from selenium.webdriver.common.by import By

@@ -1,4 +1,4 @@
-"""The study report as a newcomer reads it (issue 38): on a scene file no "unscattered (geometric)" caption nor an
+"""The study report as a newcomer reads it: on a scene file no "unscattered (geometric)" caption nor an
 all-"-" column; Method bullets rendered (no "- " nor backticks inside <li>); numbers that never wrap at their
 minus sign; the PST plot with a panel giving the error bars' size; the static 3-D picture's legend beside the
 scene, not over it."""

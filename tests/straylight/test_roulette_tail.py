@@ -1,4 +1,4 @@
-"""The analyses' Russian roulette threshold (straylight.analyses.estimators.ANALYSIS_RR_THRESHOLD, issue 26).
+"""The analyses' Russian roulette threshold (straylight.analyses.estimators.ANALYSIS_RR_THRESHOLD).
 
 On the built-in z302 tube at 50 deg off axis the stray light is double and triple scatter off the
 glossy walls and vanes. With roulette below 1e-3 of a ray's start weight (the engine's default, the
@@ -7,7 +7,10 @@ narrow lobe into the detector with all of it: one such ray held 99 % of the vari
 rays; docs/engine.md, "Russian roulette and the glossy tails"). With the default set's 1e-5 no ray
 carries a roulette survivor's weight and the error estimate is reliable. Both are unbiased: the
 two estimates agree within their errors."""
+import importlib.util
 import math
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +23,15 @@ from straylight.trace import OutputOptions, TraceOptions, trace
 N_RAYS = 100_000
 
 
+def _history_set(name):
+    """A history estimator set of benchmarks/estimator_sets.py (not in the public API)."""
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "estimator_sets.py"
+    spec = importlib.util.spec_from_file_location("benchmark_estimator_sets", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.HISTORY_SETS[name]
+
+
 @pytest.fixture(scope="module")
 def tube():
     from straylight.analyses.builtin import tube_setup
@@ -28,7 +40,8 @@ def tube():
 
 
 def _run(setup, name):
-    opts = estimator_options(name, TraceOptions(output=OutputOptions(record_paths=True, path_depth=4)))
+    base = TraceOptions(output=OutputOptions(record_paths=True, path_depth=4))
+    opts = estimator_options(name, base) if name == "default" else replace(base, estimator=_history_set(name))
     res = trace(setup.scene, [setup.beam.source(math.radians(50.0), 0.0)], N_RAYS, seed=point_seed(1, 0),
                 materials=setup.materials, options=opts)
     det = detector_name(setup.scene, setup.detector)

@@ -1,4 +1,4 @@
-"""One Runtime per process (issue 23): it owns the compiled scene, the kept sampling tables, the
+"""One Runtime per process: it owns the compiled scene, the kept sampling tables, the
 batch thread pools and the start (numba's target, the allocator); a dask worker plugin sets it up
 on workers; no import hook and no write to a private attribute of dask."""
 from __future__ import annotations

@@ -89,7 +89,7 @@ def test_study_on_scene_file_equals_builtin(tmp_path, tube_scene):
     assert [p["view_factor"] for p in ja["critical"]["parts"]] == \
         pytest.approx([p["view_factor"] for p in jb["critical"]["parts"]], rel=1e-12)
     assert str(tube_scene) in (b / "index.html").read_text()
-    # the scene's report speaks of its own parts and materials, and of the files it wrote (issue 22)
+    # the scene's report speaks of its own parts and materials, and of the files it wrote
     for name in ("report.md", "index.html"):
         text = (b / name).read_text()
         assert "wall, vanes and end plate" not in text and "sweep.csv" not in text, name

@@ -1,5 +1,5 @@
-"""Numbers that used to be silently wrong, and errors that used to say nothing useful (issue 27,
-items 5 and 7): power cut by ``max_events`` above 1 % is a warning; a source so far away that
+"""Numbers that used to be silently wrong, and errors that used to say nothing useful: power
+cut by ``max_events`` above 1 % is a warning; a source so far away that
 Embree's float32 rounds its ray origins is a warning or a refusal (1e17 mm used to lose every ray);
 a source radius of 1e-300 ("float division by zero"), a NaN vertex in a detector STL
 ("Eigenvalues did not converge") are one-line errors naming the entry; ``geometry check`` exits 1

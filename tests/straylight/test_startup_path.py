@@ -1,4 +1,4 @@
-"""The cached start-up path (issue 17): a repeat ``straylight trace`` on a STEP assembly reads the tessellation
+"""The cached start-up path: a repeat ``straylight trace`` on a STEP assembly reads the tessellation
 cache, imports none of the heavy packages (CAD kernel, plotting, scipy.linalg, dask), and traces the same
 numbers as the cold run; numba starts without scipy.linalg and jitted linear algebra still works."""
 import json

@@ -1,4 +1,4 @@
-"""Resumable studies (issue #17): a study interrupted by Ctrl-C inside its design sweep leaves a
+"""Resumable studies: a study interrupted by Ctrl-C inside its design sweep leaves a
 readable partial report naming the missing steps and exits 130; ``--resume`` reads the finished PST
 and sweep points back (not traced again) and ends with the same results.json numbers as a study
 that ran straight through (wall-clock fields aside); a resume with other settings is refused."""

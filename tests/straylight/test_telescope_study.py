@@ -1,5 +1,5 @@
 """``straylight study --builtin cassegrain`` runs from the command line and separates the
-contributions (issue 14). The path classes partition the focal plane's power, so they must add up
+contributions. The path classes partition the focal plane's power, so they must add up
 to the total (to round-off); on axis the nominal image dominates and the filter's two-bounce ghost
 carries about R^2 of it (R = 4.3 % for n = 1.5195 at normal incidence: Fresnel)."""
 import json

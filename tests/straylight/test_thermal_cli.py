@@ -1,4 +1,4 @@
-"""``straylight thermal`` writes CONTRACTS §7.1's thermal.json (issue 24)."""
+"""``straylight thermal`` writes CONTRACTS §7.1's thermal.json."""
 import json
 
 import numpy as np

@@ -1,5 +1,5 @@
 """Planck band radiance (straylight.thermal.planck) against an adaptive quadrature of Planck's law
-and against Stefan-Boltzmann (sigma T^4 / pi for the whole spectrum). Issue 24."""
+and against Stefan-Boltzmann (sigma T^4 / pi for the whole spectrum)."""
 import numpy as np
 import pytest
 from scipy.integrate import quad

@@ -1,4 +1,4 @@
-"""``straylight study`` adds the self-emission budget when parts have temperature_k (issue 24)."""
+"""``straylight study`` adds the self-emission budget when parts have temperature_k."""
 import json
 import warnings
 

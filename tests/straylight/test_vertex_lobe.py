@@ -1,4 +1,4 @@
-"""First-vertex sampling with the lobe's own draw (EstimatorOptions.vertex_lobe_sampling, issue 26):
+"""First-vertex sampling with the lobe's own draw (EstimatorOptions.vertex_lobe_sampling):
 unbiased against an analog walk (no NEE, no vertex sampling: every path is a BRDF-sampled walk),
 exact ledger, reproducible, and a real variance reduction on a narrow glossy lobe.
 

@@ -1,4 +1,4 @@
-"""A zero result says what blocks the light (issue 38): an opaque part named like an optic, a closed detector.
+"""A zero result says what blocks the light: an opaque part named like an optic, a closed detector.
 
 Scenes: the fusion-like scope (tests/data/cad/fusion_like_scope.step: a tube, a lens disk, a sensor) with the
 lens left in the tube's black coating, then given glass; and a detector boxed in by a cap."""

@@ -1,4 +1,4 @@
-"""Effective emissivity of isothermal diffuse cylindrical cavities (issue 24): a cold black
+"""Effective emissivity of isothermal diffuse cylindrical cavities: a cold black
 detector filling the opening reads eps_a pi B_band(T). Reference: the net-radiation solution of the
 cavity's integral equation (Sparrow, Albers & Eckert 1962; Sparrow & Cess ch. 7), computed by
 tests/validation/cavity_radiosity.py with exact exchange factors; its discretisation error is

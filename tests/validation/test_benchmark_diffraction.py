@@ -1,4 +1,4 @@
-"""Edge diffraction (HURB, CONTRACTS §6.5) against wave optics (issue 25).
+"""Edge diffraction (HURB, CONTRACTS §6.5) against wave optics.
 
 References, independent of the code under test:
 - circular aperture, Fraunhofer: encircled energy 1 - J0(x)^2 - J1(x)^2, x = k a sin(theta)

@@ -1,4 +1,4 @@
-"""Distribution factors (straylight.thermal.exchange; CONTRACTS §7.2, issue 24) against closed
+"""Distribution factors (straylight.thermal.exchange; CONTRACTS §7.2) against closed
 forms: the coaxial-disk view factor (PHYSICS §5) and, in a closed enclosure, rows summing to 1 and
 reciprocity eps_i A_i D_ij = eps_j A_j D_ji. Tolerances: 3 standard errors of the run (fixed seed)."""
 import json

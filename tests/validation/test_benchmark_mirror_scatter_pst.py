@@ -1,4 +1,4 @@
-"""PST of a single rough paraboloid (issue 14 acceptance): Monte Carlo vs an independent quadrature.
+"""PST of a single rough paraboloid (acceptance): Monte Carlo vs an independent quadrature.
 
 First-order scatter: the power a small detector at the focus receives from a mirror lit by a
 collimated beam of irradiance E (normal to the rays) tilted by theta off axis is

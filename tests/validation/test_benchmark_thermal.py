@@ -1,4 +1,4 @@
-"""Thermal self-emission against closed forms (issue 24, CONTRACTS §7). Tolerances: the run's own
+"""Thermal self-emission against closed forms (CONTRACTS §7). Tolerances: the run's own
 standard error (fixed seed) times 3, plus the stated model tolerance."""
 import warnings
 

@@ -1,4 +1,4 @@
-"""Scene files for the thermal checks (issue 24): written to a temporary directory."""
+"""Scene files for the thermal checks: written to a temporary directory."""
 from pathlib import Path
 
 import numpy as np

@@ -148,7 +148,7 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
     processes with one thread each; their scheduler listens on a loopback TCP port, which any
     process of the machine can reach, so it speaks TLS with a key made for this cluster alone
     (:func:`run_security`): a process without that key (another user, another program) cannot
-    connect, let alone submit a task (issue 27)."""
+    connect, let alone submit a task."""
     import dask
     from dask.distributed import LocalCluster, Worker
 

@@ -1,4 +1,4 @@
-"""The fork server of a local cluster's worker processes, started early (issue 17, start-up).
+"""The fork server of a local cluster's worker processes, started early.
 
 A local cluster of worker processes (``straylight.engine.backends.dask.local_cluster(K, processes=True)``)
 forks its workers from a server process that imports dask and the engine and loads the compiled

@@ -1,5 +1,4 @@
-"""The dask worker plugin that sets up a worker process's :class:`straylight.engine.runtime.Runtime`
-(issue 23): registered by :func:`straylight.engine.backends.dask.register_runtime` on every client
+"""The dask worker plugin that sets up a worker process's :class:`straylight.engine.runtime.Runtime`: registered by :func:`straylight.engine.backends.dask.register_runtime` on every client
 the engine runs on (``Client.register_plugin``, distributed's public API), so each worker starts
 numba's target and tunes its allocator once, when it joins, not in its first task."""
 from __future__ import annotations

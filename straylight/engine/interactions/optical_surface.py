@@ -1,4 +1,4 @@
-"""``optical_surface``: mirrors, windows and lenses that also scatter (issue 14; CONTRACTS §5.1, §6.3).
+"""``optical_surface``: mirrors, windows and lenses that also scatter (CONTRACTS §5.1, §6.3).
 
 Selected for surface parts whose material has a ``specular`` or ``dielectric`` component
 (``ComponentFlags.DELTA``, registry.kind_for). Per hit:

@@ -1,4 +1,4 @@
-"""Each ray's polarization during a batch (CONTRACTS §6.3; issue 14): a Stokes vector in a
+"""Each ray's polarization during a batch (CONTRACTS §6.3): a Stokes vector in a
 reference frame ``(e1, e2 = d x e1)`` carried with the ray (``materials.mueller`` conventions).
 
 The state lives on the batch's ``DetectorRecords`` (as long as the batch) and is created lazily:

@@ -1,0 +1,51 @@
+"""The history estimator sets the benchmarks time the default against, registered with
+:func:`straylight.analyses.estimators.register_estimator_set` (they are not part of the public API).
+
+``split``
+    the default with ``reflection_split`` (single reflections into a detector by expected value)
+    instead of ``delta_chain``: the set before the interface chains, to measure what they buy.
+``roulette``
+    the default without ``delta_chain`` or ``reflection_split`` (to measure what they buy).
+``lobes``
+    ``roulette`` with the engine's roulette threshold (1e-3): the set before the roulette change,
+    kept to measure what it buys.
+``first_lobe``
+    ``lobes`` without the second-vertex lobe draw (to measure what each draw buys).
+``baseline``
+    the first estimator set (first-vertex sampling joined to the detector by a uniform point only,
+    roulette at 1e-3), so a benchmark can time before and after in one run.
+
+As a command: ``python benchmarks/estimator_sets.py pst ... --estimators baseline`` is
+``straylight pst`` with these sets registered (what benchmarks/newtonian_pst.py runs).
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import replace
+
+from straylight.analyses.estimators import ANALYSIS_RR_THRESHOLD, register_estimator_set
+from straylight.engine.options import EstimatorOptions
+
+_LOBES = EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
+                          second_vertex_lobe_sampling=True)
+HISTORY_SETS = {
+    "split": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD, reflection_split=True),
+    "lobes": _LOBES,
+    "roulette": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD),
+    "first_lobe": replace(_LOBES, second_vertex_lobe_sampling=False),
+    "baseline": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True),
+}
+
+
+def register() -> None:
+    """Make every history set a choice of ``estimator_options`` and of ``--estimators``."""
+    for name, options in HISTORY_SETS.items():
+        register_estimator_set(name, options)
+
+
+register()
+
+if __name__ == "__main__":
+    from straylight.cli.main import main
+
+    sys.exit(main(sys.argv[1:]))
