@@ -579,7 +579,17 @@ def _triple(d, key, where):
     a = np.asarray(v, float) if ok else None
     if a is None or not np.all(np.isfinite(a)):
         raise GeometryError(f"{where}: surface {key!r} must be [x, y, z] (numbers), got {v!r}")
+    _within_reach(float(np.abs(a).max()), f"surface {key!r}", where)
     return a
+
+
+def _within_reach(value: float, what: str, where: str) -> None:
+    """A position or length the tracer's float32 intersector can resolve (geometry.limits)."""
+    from geometry.limits import coordinate_limit_message
+
+    message = coordinate_limit_message(value, what)
+    if message:
+        raise GeometryError(f"{where}: {message}")
 
 
 def _number(d, key, where, default=None, positive=False, nonneg=False):
@@ -595,6 +605,8 @@ def _number(d, key, where, default=None, positive=False, nonneg=False):
         raise GeometryError(f"{where}: surface {key!r} must be > 0, got {v!r}")
     if nonneg and not v >= 0:
         raise GeometryError(f"{where}: surface {key!r} must be >= 0, got {v!r}")
+    if key != "radius_mm" or positive:  # a conic's radius of curvature may be huge (nearly flat) or inf
+        _within_reach(v, f"surface {key!r}", where)
     return v
 
 
@@ -613,6 +625,7 @@ def surface_from_dict(d, where: str = "surface"):
     v = np.asarray(vertex, float) if isinstance(vertex, list) and len(vertex) == 3 else None
     if v is None or not np.all(np.isfinite(v)):
         raise GeometryError(f"{where}: surface 'vertex_mm' must be [x, y, z], got {vertex!r}")
+    _within_reach(float(np.abs(v).max()), "surface 'vertex_mm'", where)
     axis = _unit(d.get("axis", [0.0, 0.0, 1.0]), "surface 'axis'", where)
     # placement: tilt about the vertex, then decentre (a lens file's decentre / coordinate break)
     axis = tilt_matrix(_triple(d, "tilt_deg", where)) @ axis

@@ -530,6 +530,11 @@ def check_temperature(value, where: str) -> float:
     """A ``temperature_k`` value (CONTRACTS §7): a finite number >= 0, else a one-line error."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 <= value < float("inf")):
         raise GeometryError(f"{where}: temperature_k must be a number >= 0 (kelvin), got {value!r}")
+    from geometry.limits import temperature_limit_message
+
+    message = temperature_limit_message(float(value))
+    if message:
+        raise GeometryError(f"{where}: {message}")
     return float(value)
 
 

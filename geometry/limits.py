@@ -19,11 +19,36 @@ from __future__ import annotations
 import math
 
 MIN_TOLERANCE_MM = 1e-5
+MAX_TEMPERATURE_K = 1e5  # hotter than any star's surface; above ~1e8 K Planck's band fractions cancel to 0 W
+MAX_COORDINATE_MM = 1e7  # 10 km: float32 (Embree, the tracer's intersector) spaces numbers 1 mm apart there
 BYTES_PER_TRIANGLE_MESHING = 1024  # OCC's mesh structures + our arrays, per triangle, while meshing
 
 
 class ToleranceError(ValueError):
     """A chord tolerance that is not a usable number, or would mesh beyond this machine."""
+
+
+def temperature_limit_message(value: float) -> str | None:
+    """The reason a ``temperature_k`` is refused, or None: above :data:`MAX_TEMPERATURE_K` the band
+    radiance is the difference of two blackbody fractions within round-off of 1 (straylight.thermal.planck),
+    so 1e9 K gave 0 W and 1e300 K an index error (issue 39)."""
+    if value > MAX_TEMPERATURE_K:
+        return (f"temperature_k = {value:g} K is above the {MAX_TEMPERATURE_K:g} K limit (hotter than any star's "
+                f"surface; Planck's band radiance is not computable there)")
+    return None
+
+
+def coordinate_limit_message(value: float, what: str) -> str | None:
+    """The one-line reason a position or length ``value`` (mm) is refused, or None if it is usable.
+
+    Beyond :data:`MAX_COORDINATE_MM` (10 km) float32, in which Embree intersects rays, spaces numbers
+    by 1 mm or more, and the tracer's self-intersection offset (32 float32 ulps of the largest
+    coordinate, straylight.engine.spec.scene_epsilon) grows past 32 mm: a part moved 1e9 mm away
+    made every detector read 0 W (issue 39). No instrument part is that far or that large."""
+    if abs(value) > MAX_COORDINATE_MM:
+        return (f"{what} = {value:g} mm is beyond the {MAX_COORDINATE_MM:g} mm (10 km) the tracer's float32 "
+                f"intersector resolves to better than 1 mm; keep parts within 10 km of the origin")
+    return None
 
 
 def check_tolerance_mm(value, where: str = "tolerance_mm") -> float:

@@ -12,11 +12,30 @@ from functools import cached_property
 
 import numpy as np
 
+from geometry.limits import MAX_COORDINATE_MM, coordinate_limit_message
+
 ROLES = ("surface", "mirror", "absorber", "detector")
+
+
+MAX_PART_NAME_CHARS = 1024
 
 
 class GeometryError(ValueError):
     """Bad geometry input; the message names the part or file."""
+
+
+def check_part_name(name) -> str:
+    """A part name (CONTRACTS 6): a non-empty string of printable characters, at most
+    :data:`MAX_PART_NAME_CHARS` long; results, tables and view3d.html are keyed by it (issue 39:
+    an empty name or one holding NUL was accepted)."""
+    if not isinstance(name, str) or not name.strip():
+        raise GeometryError(f"part name must be a non-empty string, got {name!r}")
+    if len(name) > MAX_PART_NAME_CHARS:
+        raise GeometryError(f"part name {name[:40]!r}... is {len(name)} characters long; at most {MAX_PART_NAME_CHARS}")
+    bad = [c for c in name if not c.isprintable()]
+    if bad:
+        raise GeometryError(f"part name {name!r} holds a control character ({bad[0]!r}); use printable characters")
+    return name
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,6 +61,7 @@ class Part:
     back_material: str | None = None
 
     def __post_init__(self):
+        check_part_name(self.name)
         if self.role not in ROLES:
             raise GeometryError(f"part {self.name!r}: unknown role {self.role!r}; expected one of {', '.join(ROLES)}")
         v = np.asarray(self.vertices_mm, dtype=np.float64)
@@ -56,6 +76,9 @@ class Part:
         if bad.any():  # a NaN vertex fails much later, as "Eigenvalues did not converge" in a plane fit
             raise GeometryError(f"part {self.name!r}: {int(bad.sum())} of {len(v)} vertices have a NaN or infinite "
                                 f"coordinate (first: vertex {int(np.argmax(bad))})")
+        far = np.abs(v).max()
+        if far > MAX_COORDINATE_MM:
+            raise GeometryError(f"part {self.name!r}: " + coordinate_limit_message(float(far), "a vertex coordinate"))
         object.__setattr__(self, "vertices_mm", v)
         object.__setattr__(self, "faces", f)
 

@@ -105,4 +105,9 @@ def placement_of(entry: dict, where: str) -> Placement | None:
         rotation = rotation_matrix(axis, float(angle))
     shift = _finite_vector(entry["translate_mm"], "translate_mm", where) if "translate_mm" in entry \
         else np.zeros(3)
+    from geometry.limits import coordinate_limit_message
+
+    message = coordinate_limit_message(float(np.abs(shift).max()), "translate_mm")
+    if message:
+        raise GeometryError(f"{where}: {message}")
     return Placement(rotation, shift)

@@ -21,6 +21,8 @@ import numpy as np
 TRUNCATION_WARN_FRACTION = 0.01
 PRECISION_WARN_FRACTION = 1e-4
 PRECISION_REFUSE_FRACTION = 1e-2
+PART_EPS_WARN_FRACTION = 1e-2
+PART_EPS_REFUSE_FRACTION = 1e-1
 FLOAT32_HALF_ULP = 2.0 ** -24  # relative rounding of a float64 -> float32 cast (round to nearest)
 
 
@@ -75,3 +77,29 @@ def check_origin_precision(sources, bounds_mm) -> None:
         if rounding > PRECISION_REFUSE_FRACTION * size_mm:
             raise ValueError(f"{text}: rays would miss or hit the wrong parts; {advice}")
         warnings.warn(f"{text}; {advice}", PrecisionWarning, stacklevel=3)
+
+
+def check_part_precision(parts, eps_mm: float) -> None:
+    """Refuse (ValueError) or warn (:class:`PrecisionWarning`) when the self-intersection offset
+    ``eps_mm`` is above the fractions of the smallest part's size (bounding-box diagonal) in the
+    module doc; the message names that part and the farthest one."""
+    if not parts or not eps_mm > 0:
+        return
+    sizes, reach = [], []
+    for p in parts:
+        v = np.asarray(p.vertices_mm, dtype=np.float64)
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        sizes.append(float(np.linalg.norm(hi - lo)))
+        reach.append(float(max(np.abs(lo).max(), np.abs(hi).max())))
+    small = int(np.argmin(sizes))
+    far = int(np.argmax(reach))
+    fraction = eps_mm / sizes[small] if sizes[small] > 0 else math.inf
+    if fraction <= PART_EPS_WARN_FRACTION:
+        return
+    text = (f"part {parts[far].name!r} reaches {reach[far]:.3g} mm from the origin, where the tracer's float32 "
+            f"self-intersection offset is {eps_mm:.3g} mm, {fraction:.2g} of the smallest part "
+            f"({parts[small].name!r}, {sizes[small]:.3g} mm)")
+    advice = "place the parts near the origin (results would be biased)"
+    if fraction > PART_EPS_REFUSE_FRACTION:
+        raise ValueError(f"{text}; {advice}")
+    warnings.warn(f"{text}; {advice}", PrecisionWarning, stacklevel=3)

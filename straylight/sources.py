@@ -39,7 +39,13 @@ def _positive(name, value, owner, allow_zero=False) -> float:
     v = float(value)
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
         raise SourceError(f"{owner}: {name} must be {'>= 0' if allow_zero else '> 0'}, got {value!r}")
+    if name == "power_w" and v > MAX_POWER_W:
+        raise SourceError(f"{owner}: power_w = {v:g} W is above the {MAX_POWER_W:g} W a source may carry (the Sun "
+                          f"emits 3.8e26 W; sums of ray powers would overflow to NaN); results scale with power_w")
     return v
+
+
+MAX_POWER_W = 1e30  # above the Sun's 3.8e26 W; 1e308 W overflowed the tallies to NaN (issue 39)
 
 
 MIN_RADIUS_MM = 1e-6  # a disk source smaller than 1 nm: its area (and the irradiance it divides) is not usable
@@ -52,6 +58,11 @@ def _disk_radius(value, owner) -> float:
     if r < MIN_RADIUS_MM:
         raise SourceError(f"{owner}: radius_mm {r:g} is below {MIN_RADIUS_MM:g} mm: a disk that small has no usable "
                           f"area; for a point-like source use type = \"point\"")
+    from geometry.limits import coordinate_limit_message
+
+    message = coordinate_limit_message(r, "radius_mm")
+    if message:
+        raise SourceError(f"{owner}: {message}")
     return r
 
 

@@ -14,7 +14,7 @@ from straylight.engine.options import TraceError, TraceOptions
 from straylight.engine.roles import ROLE_CODES, ROLE_DETECTOR
 from straylight.engine.tally_rows import tally_rows
 from straylight.rng import check_seed
-from straylight.run_checks import check_origin_precision
+from straylight.run_checks import check_origin_precision, check_part_precision
 from straylight.sources import orthonormal_basis
 
 
@@ -202,6 +202,11 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
             raise TraceError(why)
     tri = np.ascontiguousarray(scene.triangles_mm, dtype=np.float64)
     tri_part = np.ascontiguousarray(scene.triangle_part, dtype=np.int32)
+    eps_mm = scene_epsilon(tri)
+    try:  # the offset grows with the scene's extent: refuse it where it is a fraction of a part
+        check_part_precision(scene.parts, eps_mm)
+    except ValueError as exc:
+        raise TraceError(str(exc)) from None
     roles = np.array([ROLE_CODES[p.role] for p in scene.parts], dtype=np.int64)
     h = hashlib.sha1(memoryview(tri).cast("B"))  # the bytes of tri.tobytes(), without copying them
     h.update(tri_part.tobytes())
@@ -210,11 +215,11 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     surfaces = tuple(getattr(p, "surface", None) for p in scene.parts)
     h.update(repr([None if s is None else s.to_dict() for s in surfaces]).encode())  # exact plane boundaries
     if diffraction is not None:
-        diffraction = replace(diffraction, past_mm=4.0 * scene_epsilon(tri))
+        diffraction = replace(diffraction, past_mm=4.0 * eps_mm)
     return TraceSpec(
         triangles_mm=tri, triangle_part=tri_part, part_names=scene.part_names, part_roles=roles,
         part_material=part_material, materials=models, sources=tuple(sources), n_rays=int(n_rays), seed=seed,
-        options=options, eps=scene_epsilon(tri), token=h.hexdigest(),
+        options=options, eps=eps_mm, token=h.hexdigest(),
         part_surfaces=surfaces,
         part_back_material=back_material_index(scene), diffraction=diffraction,
     )

@@ -266,6 +266,10 @@ def temperatures_with(ts: ThermalScene, settings) -> np.ndarray:
             raise ValueError(f"--temperature-k {item!r}: {value!r} is not a number") from None
         if not (0 <= k < float("inf")):
             raise ValueError(f"--temperature-k {item!r}: a temperature must be >= 0 K")
+        from geometry.limits import temperature_limit_message
+
+        if temperature_limit_message(k):
+            raise ValueError(f"--temperature-k {item!r}: {temperature_limit_message(k)}")
         hit = [i for i, part in enumerate(ts.scene.parts)  # its own name or an alias (CONTRACTS 6.2)
                if any(fnmatch.fnmatchcase(n, pattern) for n in ts.scene.names_of(part))]
         if not hit:
