@@ -4,6 +4,7 @@
 
     inst = sl.load("scope.toml")                 # a scene file (CONTRACTS §6), or sl.load(builtin="tube")
     pst = inst.pst([0, 10, 20, 30], rays=50_000, seed=1)      # PstResult
+    pst = inst.pst([10, 20], precision=sl.Precision(0.05), execution=sl.Execution(threads=2))
     pst.to_pandas(); pst.plot()
     paths = inst.paths(20, rays=100_000, seed=1)              # PathReport (.trace: the TraceResult)
     crit = inst.critical(20, rays=50_000, seed=1)             # CriticalReport
@@ -20,11 +21,22 @@ from __future__ import annotations
 import dataclasses
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from straylight.analyses.builtin import DEFAULT_MATERIAL
-from straylight.analyses.types import Entrance, Setup
+from straylight.analyses.types import Entrance, PstResult, Setup
+from straylight.execution import Execution
+from straylight.stop_rule import Precision
+
+if TYPE_CHECKING:
+    from straylight.analyses.critical import CriticalReport
+    from straylight.analyses.paths_report import PathReport
+
+__all__ = ["BUILTINS", "Execution", "Instrument", "PartInfo", "Precision", "exchange", "load", "precision_target",
+           "thermal", "thermal_scene"]
 
 BUILTINS = ("tube", "cassegrain")
 
@@ -180,28 +192,39 @@ class Instrument:
 
         return detector_name(self.setup.scene, self.setup.detector)
 
-    def pst(self, angles_deg, azimuths_deg=(0.0,), *, rays: int = 100_000, seed: int = 0,
-            target_rel_error: float | None = None, max_rays=None, max_seconds=None, max_vov=None, nee: bool = True,
-            execution=None, checkpoint_dir=None, resume: bool = False, diffraction: bool = True,
-            wavelength_nm: float | None = None,
-            estimators: str = "default"):
+    def pst(self, angles_deg: float | Sequence[float], azimuths_deg: float | Sequence[float] = (0.0,), *,
+            rays: int = 100_000, seed: int = 0, precision: Precision | None = None,
+            execution: Execution | None = None, nee: bool = True, diffraction: bool = True,
+            wavelength_nm: float | None = None, estimators: str = "default",
+            checkpoint_dir: str | Path | None = None, resume: bool = False,
+            target_rel_error: float | None = None, max_rays: int | None = None, max_seconds: float | None = None,
+            max_vov: float | None = None) -> PstResult:
         """Point source transmittance at every (angle, azimuth): a :class:`~straylight.analyses.types.PstResult`.
 
-        ``rays`` per point, or ``target_rel_error`` (with its caps): each point traced until its relative
-        standard error is at most that (docs/study.md). Each point has its own seed derived from ``seed``.
+        ``rays`` per point, or ``precision=Precision(target_rel_error, max_rays=..., max_seconds=...,
+        max_vov=...)``: each point traced until its relative standard error is at most the target
+        (docs/study.md); the short form ``target_rel_error=`` (with ``max_rays``, ``max_seconds``,
+        ``max_vov``) makes the same Precision. ``execution``: where it runs (:class:`Execution`).
+        Each point has its own seed derived from ``seed``.
         ``diffraction``: the parts marked ``diffraction = "edges"`` bend light (HURB, docs/diffraction.md)
         or, False, pure geometric optics; ``wavelength_nm`` overrides the beam's (CONTRACTS §6.5).
         ``estimators``: the estimator set (:mod:`straylight.analyses.estimators`: "default", or one registered).
         """
-        from dataclasses import replace
-
         import numpy as np
 
         from straylight.analyses.estimators import estimator_options
         from straylight.analyses.pst import pst_sweep
         from straylight.trace import PhysicsOptions, TraceOptions
 
-        precision = precision_target(target_rel_error, max_rays, max_seconds, max_vov)
+        if precision is not None:
+            loose = [k for k, v in {"target_rel_error": target_rel_error, "max_rays": max_rays,
+                                    "max_seconds": max_seconds, "max_vov": max_vov}.items() if v is not None]
+            if loose:
+                raise ValueError(f"give precision=Precision(...) or {', '.join(loose)}, not both")
+            if not isinstance(precision, Precision):
+                raise TypeError(f"precision must be a straylight.api.Precision, got {type(precision).__name__}")
+        else:
+            precision = precision_target(target_rel_error, max_rays, max_seconds, max_vov)
         setup = self.setup
         if wavelength_nm is not None:
             if not float(wavelength_nm) > 0:
@@ -214,7 +237,8 @@ class Instrument:
                          execution=execution, precision=precision, checkpoint_dir=checkpoint_dir, resume=resume)
 
     def paths(self, angle_deg: float, azimuth_deg: float = 0.0, *, rays: int = 100_000, seed: int = 0,
-              nee: bool = True, group_by: str = "sequence", ancestry=None, execution=None):
+              nee: bool = True, group_by: str = "sequence", ancestry=None,
+              execution: Execution | None = None) -> PathReport:
         """Stray-light paths to the detector, ranked: a :class:`~straylight.analyses.paths_report.PathReport`
         whose ``trace`` is the :class:`~straylight.trace.TraceResult` (absorbed power per part, maps...)."""
         from straylight.analyses.paths_report import paths_analysis
@@ -225,7 +249,7 @@ class Instrument:
         return replace(report, trace=res)
 
     def critical(self, angle_deg: float, azimuth_deg: float = 0.0, *, rays: int = 100_000, seed: int = 0,
-                 execution=None):
+                 execution: Execution | None = None) -> CriticalReport:
         """Critical and illuminated parts: a :class:`~straylight.analyses.critical.CriticalReport`."""
         from straylight.analyses.critical import critical_objects
 

@@ -12,14 +12,21 @@ from dataclasses import dataclass, fields, replace
 
 from straylight.engine.options import TraceError
 
-FIELDS = ("workers", "client", "scheduler", "threads", "security", "progress")
+FIELDS = ("workers", "client", "scheduler", "threads", "security", "progress", "intersector", "first_chunk")
 
 
 @dataclass(frozen=True)
 class Execution:
     """How to run: in this process (default), on ``threads`` threads, on a local dask cluster of
     ``workers`` processes, on a running ``scheduler`` (address; ``security``: TLS for it) or an
-    existing dask ``client``; ``progress``: progress on stderr (a bar on a terminal, lines in a log)."""
+    existing dask ``client``; ``progress``: progress on stderr (a bar on a terminal, lines in a log).
+
+    ``intersector``: an intersector object to find the hits with in this process (e.g.
+    ``straylight.intersect.ReferenceIntersector``; default: the scene's Embree one). ``first_chunk``:
+    this call traces the chunks ``first_chunk, first_chunk + 1, ...`` of a longer run (the ray ids from
+    ``first_chunk * CHUNK_RAYS`` on, each chunk with its own random stream), so rounds of traces pool
+    exactly into the trace of all their rays (:func:`straylight.analyses.precision.merge_results`):
+    how a run is split, not what it computes."""
 
     workers: int | None = None
     client: object = None
@@ -27,18 +34,22 @@ class Execution:
     threads: int | None = None
     security: object = None
     progress: bool = False
+    intersector: object = None
+    first_chunk: int = 0
 
     def __post_init__(self):
         for name in ("workers", "threads"):
             v = getattr(self, name)
             if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
                 raise TraceError(f"execution: {name} must be a positive integer, got {v!r}")
+        if isinstance(self.first_chunk, bool) or not isinstance(self.first_chunk, int) or self.first_chunk < 0:
+            raise TraceError(f"execution: first_chunk must be a non-negative integer, got {self.first_chunk!r}")
         if self.client is not None and self.scheduler is not None:
             raise TraceError("execution: give a dask client or a scheduler address, not both")
 
     def trace_keywords(self) -> dict:
         """The keywords the batch scheduler (:func:`straylight.engine.scheduling.run_batches`) takes."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "progress"}
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("progress", "first_chunk")}
 
     def describe(self) -> dict:
         """Where it runs, for a report: threads, workers and the scheduler's address (a client's own)."""

@@ -22,6 +22,7 @@ The names other modules use are importable from here.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 from straylight.engine.backends.dask import ship_early
@@ -49,8 +50,24 @@ from straylight.progress import progress_bar
 from straylight.rng import n_chunks
 
 
+_MOVED_TO_EXECUTION = ("intersector", "first_chunk")
+
+
+def _with_deprecated_keywords(ex: Execution, deprecated: dict) -> Execution:
+    """``ex`` with the execution keywords ``trace`` used to take loose (``intersector``, ``first_chunk``),
+    each with a DeprecationWarning; any other keyword is the TypeError Python would raise."""
+    unknown = sorted(set(deprecated) - set(_MOVED_TO_EXECUTION))
+    if unknown:
+        raise TypeError(f"trace() got an unexpected keyword argument {unknown[0]!r}")
+    given = {k: v for k, v in deprecated.items() if v is not None and not (k == "first_chunk" and v == 0)}
+    for name in deprecated:
+        warnings.warn(f"trace({name}=...) is deprecated and will be removed in the next release: "
+                      f"pass execution=Execution({name}=...)", DeprecationWarning, stacklevel=3)
+    return replace(ex, **given) if given else ex
+
+
 def trace(scene, sources, n_rays, seed=0, materials=None, options=None, execution: Execution | None = None,
-          intersector=None, first_chunk=0) -> TraceResult:
+          **deprecated) -> TraceResult:
     """Trace ``n_rays`` rays from ``sources`` through ``scene``; see docs/engine.md.
 
     Parameters
@@ -64,19 +81,19 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
     execution : straylight.execution.Execution, optional
         where and how to run (default: in this process): ``threads`` (an in-process thread pool: embree
         and the compiled kernels release the GIL), ``workers``/``client``/``scheduler``/``security`` (dask,
-        straylight.engine.backends.dask), ``progress`` (a bar on stderr); the numbers never depend on it
-    intersector : an intersector object to use in-process (e.g. ReferenceIntersector)
-    first_chunk : int, optional
-        trace the ray ids from ``first_chunk * CHUNK_RAYS`` on: the random streams of chunks
-        ``first_chunk, first_chunk + 1, ...`` (continues an earlier trace of ``first_chunk`` whole
-        chunks with the same seed; :func:`straylight.analyses.precision.merge_results` pools them exactly)
+        straylight.engine.backends.dask), ``progress`` (a bar on stderr), ``intersector`` (an intersector
+        object to use in-process, e.g. ReferenceIntersector) and ``first_chunk`` (trace the ray ids from
+        ``first_chunk * CHUNK_RAYS`` on: continues an earlier trace of ``first_chunk`` whole chunks with the
+        same seed; :func:`straylight.analyses.precision.merge_results` pools them exactly)
+
+    ``intersector=`` and ``first_chunk=`` as keywords of ``trace`` are deprecated (one release; a
+    DeprecationWarning): give them in ``execution``.
     """
-    ex = as_execution(execution)
+    ex = _with_deprecated_keywords(as_execution(execution), deprecated)
     spec = make_spec(scene, sources, n_rays, seed, materials, options)
-    if first_chunk:
-        if isinstance(first_chunk, bool) or int(first_chunk) < 0:
-            raise TraceError(f"first_chunk must be a non-negative integer, got {first_chunk!r}")
-        spec = replace(spec, chunk_offset=int(first_chunk))
+    intersector = ex.intersector
+    if ex.first_chunk:
+        spec = replace(spec, chunk_offset=ex.first_chunk)
     opt = spec.options
     first = opt.estimator.first_vertex_sampling and intersector is None and len(spec.detector_parts)
     second = (opt.estimator.second_vertex_sampling and opt.estimator.nee and len(spec.detector_parts)
@@ -95,7 +112,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
         if early is not None:
             early.release()
         raise
-    results = run_batches(spec, batch_ranges(spec), intersector=intersector, early=early, **ex.trace_keywords())
+    results = run_batches(spec, batch_ranges(spec), early=early, **ex.trace_keywords())
     totals = BatchTotals(spec)
     with progress_bar(total=n_chunks(spec.n_rays), unit="chunk", enabled=ex.progress) as bar:
         for res in results:  # in chunk order

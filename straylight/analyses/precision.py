@@ -48,7 +48,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from straylight.execution import Execution
+from straylight.execution import Execution, as_execution
 from straylight.rng import CHUNK_RAYS
 
 from straylight.stop_rule import (  # noqa: F401 - the rule lives below the runs (thermal uses it)
@@ -199,7 +199,7 @@ def trace_to_precision(scene, sources, seed, precision: Precision, materials=Non
     looks: list = []
     while True:
         res = trace(scene, sources, next_n, seed, materials=materials, options=options,
-                    first_chunk=n_done // CHUNK_RAYS, execution=execution)
+                    execution=replace(as_execution(execution), first_chunk=n_done // CHUNK_RAYS))
         results.append(res)
         n_done += next_n
         merged = merge_results(results)

@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 
+from straylight.execution import Execution
 from straylight.intersect import coherence, embree
 from straylight.intersect.coherence import coherent_float32, scatter_back
 from straylight.intersect.embree import EmbreeIntersector
@@ -85,12 +86,12 @@ def test_trace_with_coherent_casts_is_identical(monkeypatch):
     mats = {scene.parts[0].material: Lambertian(0.05)}
     opts = TraceOptions(batch_rays=10_000)
     base = trace(scene, src, 20_000, 4, materials=mats, options=opts,
-                 intersector=EmbreeIntersector(scene.triangles_mm))
+                 execution=Execution(intersector=EmbreeIntersector(scene.triangles_mm)))
     monkeypatch.setattr(embree, "MIN_TRIANGLES", 0)
     monkeypatch.setattr(embree, "MIN_RAYS", 64)
     isect = EmbreeIntersector(scene.triangles_mm)
     assert isect._min_rays == 64
-    res = trace(scene, src, 20_000, 4, materials=mats, options=opts, intersector=isect)
+    res = trace(scene, src, 20_000, 4, materials=mats, options=opts, execution=Execution(intersector=isect))
     assert res.to_json_dict() == base.to_json_dict()
     assert res.segments == base.segments and res.shadow_rays == base.shadow_rays
     assert coherence.CELL_BITS >= 1

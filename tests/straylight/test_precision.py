@@ -19,14 +19,16 @@ def tube():
 
 
 def _trace(tube, n, first_chunk=0, angle_deg=20.0, seed=3):
+    from straylight.execution import Execution
     from straylight.trace import EstimatorOptions, TraceOptions, trace
 
     return trace(tube.scene, [tube.beam.source(math.radians(angle_deg))], n, seed, materials=tube.materials,
-                 options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)), first_chunk=first_chunk)
+                 options=TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True)),
+                 execution=Execution(first_chunk=first_chunk))
 
 
 def test_rounds_continue_the_streams_and_merge_to_one_trace(tube):
-    """trace(5000) == merge(trace(2000), trace(3000, first_chunk=2)): the same rays, pooled sums."""
+    """trace(5000) == merge(trace(2000), trace(3000, Execution(first_chunk=2))): the same rays, pooled sums."""
     whole = _trace(tube, 5 * CHUNK_RAYS)
     merged = merge_results([_trace(tube, 2 * CHUNK_RAYS), _trace(tube, 3 * CHUNK_RAYS, first_chunk=2)])
     assert merged.n_rays == whole.n_rays
@@ -142,3 +144,25 @@ def test_study_report_shows_the_precision_stop(tmp_path):
     assert stops[0] == "target" and stops[1] == "max_rays"
     page = (out / "index.html").read_text()
     assert "stopped by" in page and "max_rays" in page and "VOV" in page
+
+
+def test_loose_execution_keywords_of_trace_still_work_with_a_warning(tube):
+    """``trace(..., first_chunk=K, intersector=I)`` (the old spelling, one release): the numbers of
+    ``execution=Execution(first_chunk=K, intersector=I)`` and a DeprecationWarning naming the new one."""
+    from straylight.execution import Execution
+    from straylight.intersect import EmbreeIntersector
+    from straylight.trace import EstimatorOptions, TraceError, TraceOptions, trace
+
+    args = (tube.scene, [tube.beam.source(math.radians(20.0))], CHUNK_RAYS, 3)
+    kw = {"materials": tube.materials, "options": TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True))}
+    new = trace(*args, **kw, execution=Execution(first_chunk=2))
+    with pytest.warns(DeprecationWarning, match=r"trace\(first_chunk=\.\.\.\) is deprecated.*Execution\(first_chunk"):
+        old = trace(*args, **kw, first_chunk=2)
+    assert old.to_json_dict() == new.to_json_dict()
+    isect = EmbreeIntersector(tube.scene.triangles_mm)
+    with pytest.warns(DeprecationWarning, match=r"trace\(intersector=\.\.\.\)"):
+        trace(*args, **kw, intersector=isect)
+    with pytest.raises(TraceError, match="first_chunk must be a non-negative integer"):
+        trace(*args, **kw, execution=Execution(first_chunk=-1))
+    with pytest.raises(TypeError, match="unexpected keyword argument 'chunk'"):
+        trace(*args, **kw, chunk=2)

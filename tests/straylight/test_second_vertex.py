@@ -177,10 +177,10 @@ def test_tables_are_built_once_per_seed_and_reused_without_changing_numbers(monk
     monkeypatch.setattr(trace_module, "build_critical_table", lambda spec, comp: built.append(1) or real(spec, comp))
     runtime().forget_tables()
     a = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts)
-    b = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, first_chunk=3)
+    b = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, execution=Execution(first_chunk=3))
     assert len(built) == 1
     runtime().forget_tables()
-    c = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, first_chunk=3)
+    c = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, execution=Execution(first_chunk=3))
     assert len(built) == 2
     assert c.detectors["detector"].power_w == b.detectors["detector"].power_w
     assert c.detectors["detector"].stderr_w == b.detectors["detector"].stderr_w
