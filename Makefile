@@ -22,10 +22,11 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2
 
-## lint: ruff and mypy on the engine and the materials (pyproject.toml [tool.ruff] / [tool.mypy])
+## lint: ruff and mypy (pyproject.toml [tool.ruff] / [tool.mypy]) on the packages that are clean: all but the rest of straylight
+LINTED := atomicio materials geometry rig straylight/engine
 lint: $(STAMP)
-	$(VENV)/bin/ruff check straylight/engine materials
-	$(VENV)/bin/mypy straylight/engine materials
+	$(VENV)/bin/ruff check $(LINTED)
+	$(VENV)/bin/mypy $(LINTED)
 
 ## test-latest: the engine's tests on the newest numba and dask/distributed, past the upper bounds (.ci/latest)
 test-latest:

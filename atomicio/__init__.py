@@ -43,6 +43,7 @@ import math
 import os
 import secrets
 import stat
+import typing
 from pathlib import Path
 
 __all__ = ["write_text", "write_bytes", "write_json", "dumps_json", "json_safe", "atomic_open", "write_figure",
@@ -85,6 +86,7 @@ def atomic_open(path, mode: str = "w", *, fsync: bool = True, encoding: str = "u
     try:
         if keep_mode is not None:
             os.chmod(tmp, keep_mode)
+        fh: typing.IO
         if mode == "wb":
             fh = os.fdopen(fd, "wb")
         else:

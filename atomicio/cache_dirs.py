@@ -22,6 +22,7 @@ import os
 import stat
 import sys
 import tempfile
+import typing
 from pathlib import Path
 
 ENV_DIR = "STRAYLIGHT_CACHE_DIR"
@@ -98,7 +99,7 @@ def configure_numba_cache() -> str:
     given = os.environ.get(NUMBA_ENV)
     folder = given if given and _usable(Path(given)) else str(cache_dir("numba"))
     os.environ[NUMBA_ENV] = folder
-    config = sys.modules.get("numba.core.config")
+    config: typing.Any = sys.modules.get("numba.core.config")  # a module whose settings are set at import
     if config is not None:  # numba read its settings already: tell it too
         config.CACHE_DIR = folder
     _CHOSEN["numba"] = folder

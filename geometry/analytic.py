@@ -676,7 +676,7 @@ def analytic_part(name: str, surface, material=None, role: str = "surface", back
         v2, f2 = surface.mesh(tolerance_mm)
         faces = np.concatenate([np.asarray(faces, dtype=np.int64), np.asarray(f2, dtype=np.int64) + len(vertices)])
         vertices = np.concatenate([np.asarray(vertices, dtype=np.float64), v2])
-    meta = {"tolerance_mm": tolerance_mm}
+    meta: dict[str, object] = {"tolerance_mm": tolerance_mm}
     if mesh is None:
         meta["kind"] = "sheet"  # the project's mesh of a surface is an open sheet, not a leaky solid
     return Part(name, vertices, faces, material, role, meta, surface, back_material)

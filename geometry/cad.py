@@ -276,7 +276,7 @@ def read_cad(path) -> list[CadSolid]:
     shape_tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
     free = TDF_LabelSequence()
     shape_tool.GetFreeShapes(free)
-    found = []
+    found: list[tuple] = []  # (shape, kind, name, aliases, label) per solid
     for i in range(1, free.Length() + 1):
         label = free.Value(i)
         _walk(shape_tool, label, TopLoc_Location(), None, found)

@@ -29,6 +29,7 @@ import json
 import warnings
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +60,7 @@ def entry_checksum(arrays: dict, meta_text: str) -> str:
     for name in sorted(arrays):
         a = np.ascontiguousarray(arrays[name])
         h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
-        h.update(memoryview(a).cast("B") if a.size else b"")
+        h.update(a.data.cast("B") if a.size else b"")
     h.update(meta_text.encode())
     return h.hexdigest()
 
@@ -125,7 +126,8 @@ def store(entry: Path, solids, strict: bool = False) -> None:
     """Write [(name, kind, label, Part)] atomically; failures (read-only disk...) are ignored unless ``strict``."""
     import atomicio
 
-    arrays, items = {}, []
+    arrays: dict[str, Any] = {}
+    items = []
     for i, (name, kind, label, part) in enumerate(solids):
         arrays[f"v{i}"] = np.asarray(part.vertices_mm, dtype=np.float64)
         arrays[f"f{i}"] = np.asarray(part.faces, dtype=np.int64 if len(part.vertices_mm) >= 2**31 else np.int32)

@@ -26,6 +26,7 @@ import signal
 import sys
 import tempfile
 import traceback
+from multiprocessing.process import BaseProcess
 from pathlib import Path
 
 import atomicio
@@ -129,6 +130,9 @@ class _Popen:
     def __init__(self, popen):
         self.popen = popen
 
+    def start(self) -> None:
+        """Nothing to do: a Popen runs from its creation."""
+
     def is_alive(self) -> bool:
         return self.popen.poll() is None
 
@@ -197,6 +201,7 @@ def tessellate_isolated(run, path, entry: Path | None, *, tolerance_mm: float, a
         error_file = Path(tmp) / "error.txt"
         args = (str(path), str(target), str(error_file), float(tolerance_mm), float(angular_tolerance_deg),
                 bool(split), memory_mb)
+        process: BaseProcess | _Popen
         if fork:
             process = multiprocessing.get_context("fork").Process(target=_child, args=(run, *args, True), daemon=True)
         else:  # a fresh interpreter (not multiprocessing's spawn, which re-runs the caller's __main__)
@@ -207,8 +212,7 @@ def tessellate_isolated(run, path, entry: Path | None, *, tolerance_mm: float, a
                 [sys.executable, "-m", "geometry.cad_reader_main", *map(str, args[:5]), "1" if split else "0",
                  str(memory_mb)], env=env, stdin=subprocess.DEVNULL))
         start = time.monotonic()
-        if fork:
-            process.start()
+        process.start()
         every_s = progress_interval_s()
         next_line = start + every_s
         try:

@@ -14,6 +14,7 @@ detector the scene is written all the same, and the analyses refuse it in one li
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -80,7 +81,7 @@ def cad_scene_doc(cad_path, scene_path, *, detector: str | None = None, material
            "material": material, "role": "surface"}
     if detector is not None:
         cad["solids"] = {detector: {"role": "detector"}}
-    doc = {"part": [cad],
+    doc: dict[str, Any] = {"part": [cad],
            "source": [{"type": "collimated_disk", "center_mm": _clean(top), "normal": _clean(-a),
                        "direction": _clean(-a), "radius_mm": round(radius, 6), "power_w": 1.0}]}
     if detector_disk is not None:

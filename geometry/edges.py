@@ -108,7 +108,7 @@ def sharp_edges(vertices_mm, faces, min_turn_deg: float = MIN_TURN_DEG) -> Sharp
 def _neighbours(ends: np.ndarray) -> np.ndarray:
     """(E, 2): for each edge's start and end vertex, another sharp edge at that vertex (-1: none)."""
     out = np.full((len(ends), 2), -1, dtype=np.int64)
-    at = {}
+    at: dict[int, list[int]] = {}  # vertex -> the sharp edges that meet there
     for e, (p, q) in enumerate(ends.tolist()):
         at.setdefault(p, []).append(e)
         at.setdefault(q, []).append(e)

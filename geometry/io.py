@@ -15,7 +15,6 @@ Every error names the file.
 """
 from __future__ import annotations
 
-
 import re
 import tempfile
 import tomllib
@@ -23,6 +22,7 @@ from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import plyfile
@@ -189,8 +189,8 @@ def _read_mesh(path: Path, suffix: str):
     import trimesh
 
     try:
-        kwargs = {"maintain_order": True} if suffix == ".obj" else {}
-        mesh = trimesh.load(str(path), file_type=suffix[1:], force="mesh", process=False, **kwargs)
+        kwargs: dict[str, Any] = {"maintain_order": True} if suffix == ".obj" else {}
+        mesh: Any = trimesh.load(str(path), file_type=suffix[1:], force="mesh", process=False, **kwargs)
         vertices = np.asarray(mesh.vertices, dtype=np.float64)
         faces = np.asarray(mesh.faces, dtype=np.int64)
     except Exception as exc:  # noqa: BLE001 - parsers raise many types; name the file
@@ -485,7 +485,7 @@ def _load_entries(entries: list, path: Path) -> list[Part]:
     """The parts of the ``[[part]]`` entries, each placed by its ``rotate_deg`` / ``translate_mm``."""
     from geometry.placement import placement_of
 
-    parts = []
+    parts: list[Part] = []
     starts = []  # (first part of the entry, entry): temperatures are set after the loop
     for i, entry in enumerate(entries, start=1):
         where = f"{path}: [[part]] {i}"

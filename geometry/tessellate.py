@@ -47,6 +47,7 @@ import sys
 import time
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -497,7 +498,7 @@ def tessellate(shape, *, name: str = "part", tolerance_mm: float = DEFAULT_TOLER
             stopped = "budget"
             notes.append(f"tolerance {tol:g} mm would need about {predicted:.3g} triangles (budget {budget}): "
                          f"meshed at {deflection_mm:.3g} mm instead")
-    best = None  # (worst, deflection, meshed)
+    best: tuple[float, float, Any] | None = None  # (worst, deflection, meshed)
     previous = np.inf
     for _ in range(_MAX_REFINE + 1):
         meshed = _mesh_faces(topo, deflection_mm, angular_tolerance_deg, _VERIFY_FRACTION * tol, progress)
@@ -540,6 +541,7 @@ def tessellate(shape, *, name: str = "part", tolerance_mm: float = DEFAULT_TOLER
         deflection_mm = new_mm
     else:
         stopped = stopped or "stalled"
+    assert best is not None  # the first pass always keeps its mesh
     worst, deflection_mm, meshed = best
     if worst > tol:
         notes.append(f"above tolerance: {_faces_above(meshed, tol)}")

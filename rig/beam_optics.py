@@ -124,7 +124,7 @@ def beam_parts(S, tol: float = 1e-9):
     if abs(S[3]) > tol * max(S[0], 1e-300):
         raise BeamOpticsError(f"the beam after the optics is elliptical (S3 = {S[3]:.3g}); the engine's sources "
                               "are unpolarized or linear")
-    parts = []
+    parts: list[tuple[float, tuple[float, float, float] | None]] = []
     if S[0] - P > tol * S[0]:
         parts.append((S[0] - P, None))
     if P > tol * S[0]:

@@ -252,6 +252,7 @@ def instrument_nodes(theta_i, theta_r, phi_r, config: RigConfig = NOMINAL, tier:
             yu, wu = y_u[:, None] * rule_u[0], y_u[:, None] * rule_u[1]
             yv, wv = y_v[:, None] * rule_v[0], y_v[:, None] * rule_v[1]
         else:
+            assert scale is not None  # only the far rule has no clustering scale
             yu, wu = _sinh_rule(rule_u, -y_u, y_u, u_c, scale * L)
             yv, wv = _sinh_rule(rule_v, -y_v, y_v, v_c, scale * L)
         pu = _box_gauss_density(yu, half_w, k[:, None], sigma, t_max[:, None]) * wu

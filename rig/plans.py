@@ -111,7 +111,7 @@ def plan_spec_from_dict(data, where: str = "plan") -> PlanSpec:
     entries = data.get("incidence")
     if not isinstance(entries, list) or not entries:
         raise PlanError(f"{where}: 'incidence' must be a non-empty list")
-    by_pol = {p: [] for p in ("s", "p")}
+    by_pol: dict[str, list] = {p: [] for p in ("s", "p")}
     for i, entry in enumerate(entries):
         here = f"{where}: incidence[{i}]"
         if not isinstance(entry, dict):
@@ -137,7 +137,7 @@ def plan_spec_from_dict(data, where: str = "plan") -> PlanSpec:
             raw = entry["theta_r_deg"]
             if not isinstance(raw, list) or not raw:
                 raise PlanError(f"{here}.theta_r_deg: expected a non-empty list")
-            trs = [_num(v, f"{here}.theta_r_deg[{k}]", 0.0, 89.9) for k, v in enumerate(raw)]
+            trs = np.array([_num(v, f"{here}.theta_r_deg[{k}]", 0.0, 89.9) for k, v in enumerate(raw)])
         for pol in _pols(entry.get("polarizations", list(pols)), f"{here}.polarizations"):
             by_pol[pol] += [Point(ti, pol, float(tr), phi % 360.0) for tr in trs]
     points = by_pol["s"] + by_pol["p"]
@@ -230,7 +230,7 @@ def _devices(devices, kwargs) -> dict:
     """The ophyd objects by role, from a RigDevices / mapping and/or keyword arguments."""
     from rig.devices import DEVICE_ROLES, ScanPoint
 
-    found = {}
+    found: dict[str, object] = {}
     if devices is not None:
         found.update(devices if isinstance(devices, dict) else devices.as_dict())
     found.update({k: v for k, v in kwargs.items() if v is not None})

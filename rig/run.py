@@ -300,6 +300,7 @@ def hardware_instrument(hw: dict):
         res = open_resource(sec["resource"], visa_library=lib, timeout_s=float(sec.get("timeout_s", 2.0)))
         drivers[section] = cls(res)
     lockin = drivers["lockin"]
+    assert isinstance(lockin, Sr830)
     if "time_constant_s" in hw["lockin"]:
         lockin.time_constant_s = float(hw["lockin"]["time_constant_s"])
     if "sensitivity_v" in hw["lockin"]:

@@ -86,8 +86,8 @@ class SimLaser:
     def __init__(self, power_w: float = 5e-3):
         self.nominal_w = power_w
         self._power_w = power_w
-        self._listeners = []
-        self._timers = []
+        self._listeners: list = []  # callables told of every clock step
+        self._timers: list = []
         self.synchronous = True
 
     def power_w(self) -> float:
@@ -153,7 +153,7 @@ class SimLockin:
         self._overload = False
         self._unlocked_until_s = -1.0
         self._unlock_latched = False
-        self._key = None
+        self._key: tuple[int, int, int] | None = None  # the positions of the current noise stream
         self._k = 0
         self.synchronous = True
 
@@ -269,7 +269,7 @@ class SimRig:
         self.chopper = SimChopper()
         self.lockin = SimLockin(self)
         self.faults = SimFaults()
-        self._brdf_cache = {}
+        self._brdf_cache: dict[tuple, float] = {}
 
     def prefetch(self, points) -> None:
         """Evaluate the BRDF of many plan points in one vectorised forward-model call and cache
@@ -311,7 +311,8 @@ class SimRig:
 
     def state_key(self) -> tuple[int, int, int]:
         """Stage, arm and HWP positions in 1e-4 deg (the key of the noise stream)."""
-        return tuple(int(round(self.axes[a].position() * 1e4)) for a in ("sample", "arm", "hwp"))
+        sample, arm, hwp = (int(round(self.axes[a].position() * 1e4)) for a in ("sample", "arm", "hwp"))
+        return sample, arm, hwp
 
     def geometry_now(self):
         """(theta_i_deg, theta_r_deg, phi_r_deg, s_fraction) from the stage, arm and HWP positions.

@@ -348,13 +348,13 @@ def twin_point(material, theta_i_deg: float, theta_r_deg: float, phi_r_deg: floa
     elif estimator == "auto":
         n_pilot = max(2000, int(round(twin.pilot_fraction * n_rays)))
         pilot_seed = point_seed(s, 0.0, 0.0, 0.0, "u")  # an independent stream
-        var = {}
+        pilot_err = {}
         for est in ("nee", "walk"):
             _, err = _trace_detector(scene, beam, n_pilot, pilot_seed, materials, TraceOptions(
                 estimator=EstimatorOptions(nee=est == "nee"), output=output, physics=physics))
-            var[est] = err
+            pilot_err[est] = err
         # a pilot that saw nothing says nothing: prefer NEE, which sees every scatter vertex
-        estimator = "walk" if 0 < var["walk"] < var["nee"] else "nee"
+        estimator = "walk" if 0 < pilot_err["walk"] < pilot_err["nee"] else "nee"
     power, var = 0.0, 0.0
     for k, (b, _) in enumerate(beams):
         if incident <= 0:

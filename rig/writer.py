@@ -82,7 +82,8 @@ def close_dangling_runs(log: "DocumentLog") -> list[str]:
     except (ValueError, KeyError, TypeError) as exc:
         raise ResumeError(f"{log.path}: damaged document log ({type(exc).__name__}: {exc}); "
                           f"move it aside to start a new log") from None
-    open_runs, streams, counts = {}, {}, {}
+    open_runs, streams = {}, {}
+    counts: dict[str, dict[str, int]] = {}  # run uid -> stream name -> events
     for name, doc in records:
         if name == "start":
             open_runs[doc["uid"]] = doc
@@ -141,7 +142,7 @@ class CsvScanWriter:
         self.fsync = fsync
         self._text = None
         self._keys = set()
-        self._descriptors = {}
+        self._descriptors: dict[str, str | None] = {}  # descriptor uid -> stream name
         self._start = None
         self.n_written = 0
         self.n_duplicates = 0

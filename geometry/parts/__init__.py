@@ -7,6 +7,7 @@ whose sensitive side is the side its face normal points to.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +27,7 @@ class ShapePart:
     """
 
     name: str
-    shape: object
+    shape: Any  # a cadquery.Shape (cadquery is optional: not imported for the annotation)
     role: str = "surface"
     kind: str = "solid"
 

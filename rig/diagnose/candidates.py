@@ -35,10 +35,12 @@ def fit_baseline(problem: Problem, executor=None) -> Fit:
     """Material only, one or two lobes, several starts (on ``executor``, :mod:`rig.diagnose.tasks`); lowest BIC
     wins (first in start order on ties, as a serial loop)."""
     args = [(start, 80 if n_lobes == 1 else 120) for n_lobes in (1, 2) for start in material_starts(problem, n_lobes)]
-    best = None
+    best: Fit | None = None
     for f in run_tasks(problem, _baseline_job, args, executor):
         if best is None or f.bic < best.bic:
             best = f
+    if best is None:
+        raise ValueError("the baseline has no starting model")
     # polish the winner
     polished = problem.fit(best.model, max_nfev=100)
     return polished if polished.bic <= best.bic else best
@@ -47,7 +49,7 @@ def fit_baseline(problem: Problem, executor=None) -> Fit:
 def effect_prefits(problem: Problem, base: Fit, name: str) -> Fit:
     """``base`` plus effect ``name`` with only the effect's parameters free (material fixed,
     cheap), from each of the effect's starts; the best."""
-    best = None
+    best: Fit | None = None
     for start in effect_starts(problem, name):
         vals = dict(base.model.values)
         vals.update({(name, p): v for p, v in start.items()})
@@ -55,6 +57,8 @@ def effect_prefits(problem: Problem, base: Fit, name: str) -> Fit:
         f = problem.fit(model, free={(name, p) for p in start}, max_nfev=12)
         if best is None or f.chi2 < best.chi2:
             best = f
+    if best is None:
+        raise ValueError(f"effect {name!r} has no starting values")
     return best
 
 

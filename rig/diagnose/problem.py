@@ -85,7 +85,7 @@ class Problem:
             raise DiagnoseError(f"only {self.train_idx.size} usable training points; need at least 8")
         self.cache = NodeCache()
         # contiguous copies so cache keys are stable
-        self._sub = {}
+        self._sub: dict[bytes, tuple] = {}  # index bytes -> the arrays at those indices
         # identifies this problem in worker processes (rig.diagnose.tasks keeps one copy per token)
         self.token = uuid.uuid4().hex
 

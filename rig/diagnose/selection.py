@@ -47,8 +47,8 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
     if executor is None and workers > 1:
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            return diagnose(scan, holdout_theta_i_deg, effects, config, progress, executor=pool)
+        with ProcessPoolExecutor(max_workers=workers) as processes:
+            return diagnose(scan, holdout_theta_i_deg, effects, config, progress, executor=processes)
     names = list(CATALOGUE if not effects else effects)
     for n in names:
         if n not in effect_types():
@@ -66,7 +66,8 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
     candidates = rank_candidates([candidate_row(problem, baseline, singles[n], n, gap_before) for n in names])
 
     # forward selection
-    selected, confounded = [], []
+    selected: list[str] = []
+    confounded: list[dict] = []
     current = baseline
     current_gap = gap_before
     helpful = [c["name"] for c in candidates if c["delta_bic"] < -BIC_THRESHOLD and not c["at_bound"]]
@@ -114,7 +115,7 @@ def diagnose(scan: Scan, holdout_theta_i_deg=None, effects=None, config: RigConf
         # the refits without each effect are independent until one is dropped: run them in parallel
         # and redo the rest serially only after a drop (the same results as the serial loop)
         order = list(selected)
-        ahead = dict(zip(order, run_tasks(problem, without_effect, [(n, current.model) for n in order], executor)))
+        ahead: dict | None = dict(zip(order, run_tasks(problem, without_effect, [(n, current.model) for n in order], executor)))
         for name in order:
             without = ahead[name] if ahead is not None else without_effect(problem, name, current.model)
             d_held = problem.chi2(without.model, held) - problem.chi2(current.model, held)

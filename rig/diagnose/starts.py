@@ -52,7 +52,7 @@ def effect_starts(problem: Problem, name: str):
     idx = problem.train_idx
     signal = problem.y[idx] * np.cos(problem.theta_r[idx])
     data = cls.starts_from_data(signal) if hasattr(cls, "starts_from_data") else {}
-    combos = [{}]
+    combos: list[dict[str, float]] = [{}]
     for p, (lo, hi, scale, starts) in cls.fit_space.items():
         values = []
         for s in starts:

@@ -19,13 +19,16 @@ from __future__ import annotations
 from rig.diagnose.params import Fit, Model
 from rig.diagnose.problem import Problem
 from rig.effects import effect_types
+from rig.effects.registry import twin_of
 
 #: Evidence (chi^2 units) needed to call one twin better than the other (= the BIC threshold).
 TWIN_EVIDENCE = 10.0
 
 
 def _with_twin(model: Model, name: str, twin: str) -> Model:
-    cls = effect_types()[name]
+    cls = twin_of(name)
+    if cls is None:
+        raise ValueError(f"effect {name!r} has no twin")
     params = model.effect_params(name)
     vals = {k: v for k, v in model.values.items() if k[0] != name}
     vals.update({(twin, p): v for p, v in cls.twin_params(**params).items()})
@@ -35,7 +38,10 @@ def _with_twin(model: Model, name: str, twin: str) -> Model:
 
 def fit_twin(problem: Problem, current: Fit, name: str) -> Fit:
     """``current`` with effect ``name`` replaced by its twin: the twin's parameters alone, then jointly."""
-    twin = effect_types()[name].twin
+    cls = twin_of(name)
+    if cls is None:
+        raise ValueError(f"effect {name!r} has no twin")
+    twin = cls.twin
     start = _with_twin(current.model, name, twin)
     free = {(twin, p) for p in effect_types()[twin].fit_space}
     alone = problem.fit(start, free=free, max_nfev=15)
@@ -50,7 +56,8 @@ def check_twins(problem: Problem, current: Fit, selected: list, allowed=None) ->
     checks, confounded = [], []
     selected = list(selected)
     for name in list(selected):
-        twin = getattr(effect_types()[name], "twin", None)
+        cls = twin_of(name)
+        twin = cls.twin if cls is not None else None
         if twin is None or twin in selected or (allowed is not None and twin not in allowed):
             continue
         alt = fit_twin(problem, current, name)

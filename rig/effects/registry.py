@@ -16,13 +16,33 @@ diagnosis needs lives in the effect's own file.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any, Protocol, cast
 
 
 class EffectError(ValueError):
     """Unknown effect name or bad effect parameter; the message names it."""
 
 
-_EFFECTS: dict[str, type] = {}
+class EffectClass(Protocol):
+    """What the diagnosis reads from a registered effect class (class attributes; calling it makes the effect)."""
+
+    name: str
+    fit_space: dict[str, tuple]  # parameter -> (lower, upper, "lin" | "log", starts)
+    region: str
+
+    def __call__(self, **params: Any) -> Any: ...
+
+
+class TwinnedEffectClass(EffectClass, Protocol):
+    """An effect with a twin: another effect the data can hardly tell from it, and the twin's
+    parameters that imitate given ones."""
+
+    twin: str
+
+    def twin_params(self, **params: float) -> dict[str, float]: ...
+
+
+_EFFECTS: dict[str, Any] = {}  # name -> the registered class (an EffectClass)
 
 
 def register_effect(name: str):
@@ -36,9 +56,15 @@ def register_effect(name: str):
     return decorate
 
 
-def effect_types() -> dict[str, type]:
+def effect_types() -> dict[str, EffectClass]:
     """name -> class, in registration order."""
     return dict(_EFFECTS)
+
+
+def twin_of(name: str) -> TwinnedEffectClass | None:
+    """The class of effect ``name`` if it declares a twin (``twin``, ``twin_params``), else None."""
+    cls = _EFFECTS.get(name)
+    return cast(TwinnedEffectClass, cls) if cls is not None and hasattr(cls, "twin") else None
 
 
 def effect_names() -> list[str]:
