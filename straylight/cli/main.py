@@ -249,7 +249,30 @@ def _allow_insecure(allowed: bool):
             os.environ[key] = saved
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """Was ``exc`` caused by Ctrl-C? A KeyboardInterrupt raised inside a compiled (numba) kernel comes
+    out as ``SystemError: CPUDispatcher(...) returned a result with an exception set`` whose context
+    is the KeyboardInterrupt (issue 39)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def main(argv=None) -> int:
+    """The ``straylight`` command. Ctrl-C (SIGINT) is honoured from the first instant, while the
+    parser imports its groups as well as during the command: one line, exit 130."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("straylight: interrupted", file=sys.stderr)
+        return 130
+
+
+def _main(argv=None) -> int:
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv  # anywhere: `straylight pst ... --debug` as well as `straylight --debug pst ...`
@@ -268,6 +291,9 @@ def main(argv=None) -> int:
         print("straylight: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - the CLI boundary turns errors into one line
+        if _interrupted(exc):
+            print("straylight: interrupted", file=sys.stderr)
+            return 130
         if args.debug:
             raise
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
