@@ -73,6 +73,7 @@ def paper_plan_spec() -> PlanSpec:
     return PlanSpec(name="paper", points=tuple(paper_points()), n_readings=PAPER_N_READINGS)
 
 
+MAX_N_READINGS = 1000  # readings per point; 1e9 never finished a point (issue 39)
 _TOP_KEYS = {"name", "n_readings", "polarizations", "signature", "incidence"}
 _ENTRY_KEYS = {"theta_i_deg", "theta_r_deg", "grid", "phi_r_deg", "polarizations"}
 
@@ -104,6 +105,10 @@ def plan_spec_from_dict(data, where: str = "plan") -> PlanSpec:
     n_readings = data.get("n_readings", PAPER_N_READINGS)
     if isinstance(n_readings, bool) or not isinstance(n_readings, int) or n_readings < 1:
         raise PlanError(f"{where}: 'n_readings' must be an integer >= 1, got {n_readings!r}")
+    if n_readings > MAX_N_READINGS:
+        raise PlanError(f"{where}: 'n_readings' = {n_readings} is above {MAX_N_READINGS} (each reading waits for the "
+                        f"lock-in to settle, several time constants: a point would take hours); average more "
+                        f"points or use a longer time constant")
     signature = data.get("signature", False)
     if not isinstance(signature, bool):
         raise PlanError(f"{where}: 'signature' must be true or false")

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import atexit
 import json
+import math
 import signal
 import threading
 from dataclasses import dataclass
@@ -53,6 +54,19 @@ class ScanOutcome:
     reason: str = ""
 
 
+def check_gain(gain_v_per_w, where: str = "gain_v_per_w") -> float:
+    """The detector gain (V/W) as a float: finite and > 0, else a one-line error (a gain of 0 or
+    below ran a whole scan of NaN with exit 0, issue 39)."""
+    try:
+        g = float(gain_v_per_w)
+    except (TypeError, ValueError):
+        raise HardwareConfigError(f"{where} must be a number of V/W, got {gain_v_per_w!r}") from None
+    if not math.isfinite(g) or g <= 0:
+        raise HardwareConfigError(f"{where} must be a finite number > 0 (V/W: the detector's volts per watt), "
+                                  f"got {gain_v_per_w!r}")
+    return g
+
+
 def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfig | None = None,
              md: dict | None = None, resume: bool = False, progress: bool = False, log_path=None,
              gain_v_per_w: float = DEFAULT_GAIN_V_PER_W, suspend_fraction: float = 0.5,
@@ -72,6 +86,7 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
     """
     from bluesky.utils import RunEngineInterrupted
 
+    check_gain(gain_v_per_w)
     config = config or RigConfig()
     csv_path = Path(csv_path)
     files = ScanFiles(csv_path, log_path=log_path, resume=resume, fsync=fsync, after=callbacks)
@@ -271,6 +286,8 @@ def load_hardware_config(path) -> dict:
     unknown = sorted(set(data) - allowed)
     if unknown:
         raise HardwareConfigError(f"{path}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
+    if "gain_v_per_w" in data:
+        check_gain(data["gain_v_per_w"], f"{path}: gain_v_per_w")
     for section in ("motion", "lockin"):
         if not isinstance(data.get(section), dict) or "resource" not in data[section]:
             raise HardwareConfigError(f"{path}: [{section}] needs a 'resource' (a VISA resource name)")
@@ -314,4 +331,4 @@ def hardware_instrument(hw: dict):
                            axes=(int(axes.get("sample", 1)), int(axes.get("arm", 2)), int(axes.get("hwp", 3))),
                            laser_watts_per_volt=float(hw.get("laser_watts_per_volt", 0.002)),
                            move_timeout_s=float(hw.get("move_timeout_s", 30.0)))
-    return config, devices, float(hw.get("gain_v_per_w", DEFAULT_GAIN_V_PER_W))
+    return config, devices, check_gain(hw.get("gain_v_per_w", DEFAULT_GAIN_V_PER_W), f"{where}: gain_v_per_w")
