@@ -456,7 +456,7 @@ class GhostTable:
 
 
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
-                batch_rays: int = 4096, max_rays: int = 400_000, seed: int = 0, progress=None) -> GhostTable:
+                batch_rays: int = 4096, max_rays: int = 400_000, seed: int = 0, on_ghost=None) -> GhostTable:
     """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio."""
     import time
 
@@ -503,8 +503,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         rows.append(GhostRow(names, list(refl), p, e, p / p_nom if p_nom > 0 else float("nan"), f, r,
                              peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n,
                              [opt.names[q] for q, _ in seq]))
-        if progress is not None:
-            progress(k, len(refls))
+        if on_ghost is not None:  # a callable(k, n) told after each ghost (a progress bar)
+            on_ghost(k, len(refls))
     rows.sort(key=lambda r: -r.power_w)
     return GhostTable(opt.names[opt.detector], order, 0.0, nom_row, rows, maps, half, time.perf_counter() - t0)
 

@@ -48,7 +48,7 @@ def run(args) -> int:
     try:
         table = ghosts(args.scene, order=args.order, field_deg=args.field_deg, detector=args.detector,
                        target_rel_error=args.target_rel_error, min_fraction=args.min_fraction,
-                       max_rays=args.max_rays, seed=args.seed, progress=tick)
+                       max_rays=args.max_rays, seed=args.seed, on_ghost=tick)
     finally:
         bar.close()
     write_table(table, args.out)
