@@ -213,6 +213,7 @@ class Material:
         theta_deg = np.unique(np.concatenate([ENERGY_CHECK_THETA_I_DEG, *nodes])) if nodes else ENERGY_CHECK_THETA_I_DEG
         theta_deg = theta_deg[theta_deg < 90.0]
         theta = np.deg2rad(theta_deg)
+        rho_max = 0.0
         for pol in ("s", "p"):
             # a coarse grid (<~1 % for beta-centred lobes, ~10 % for grazing microfacet lobes
             # at 89 deg), refined with the default grid wherever it comes near 1
@@ -227,7 +228,8 @@ class Material:
                     f"hemispherical reflectance {rho[k]:.4f} >= 1 at theta_i = "
                     f"{theta_deg[k]:g} deg ({pol}-polarized)"
                 )
-        remember_pass(key)
+            rho_max = max(rho_max, float(rho[k]))
+        remember_pass(key, rho_max)
 
     def to_dict(self) -> dict:
         """The material-file dict (CONTRACTS §5); component wavelengths equal to the material's are omitted."""
