@@ -20,6 +20,7 @@ import json
 from functools import lru_cache
 from pathlib import Path
 
+import atomicio
 from atomicio.cache_dirs import cache_dir, enabled
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -82,8 +83,6 @@ def remember_pass(key: str | None, max_reflectance: float = 0.0) -> None:
     """Leave the marker (best effort: an unwritable cache only means checking again next time)."""
     if key is None or not (0.0 <= float(max_reflectance) < 1.0):
         return
-    import atomicio
-
     rho = float(max_reflectance)
     try:
         path = _marker(key)
