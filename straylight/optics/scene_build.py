@@ -200,8 +200,10 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     parts.append({"name": unique("image"), "surface": {
         "type": "plane", "vertex_mm": _v(p.image_vertex_mm), "axis": _v(-p.image_travel_in),
         "outer_radius_mm": r_det}, "role": "detector"})
-    # the source: 1 mm on the object side of the vertex nearest the object
-    z0 = min(float(s.vertex_mm[2]) for s in p.surfaces if not s.dummy or s.stop) - 1.0  # the stop is a part too
+    # the source: 1 mm on the object side of the surface point nearest the object (its vertex, or the edge of
+    # a surface that curves toward the object: a Cassegrain's convex secondary reaches ~90 mm past its
+    # vertex; a source at the vertex would start inside it and lose its obscuration)
+    z0 = min(_object_side_z(s) for s in p.surfaces if not s.dummy or s.stop) - 1.0  # the stop is a part too
     f = math.radians(field_deg)
     source = {"type": "collimated_disk", "name": "pupil", "center_mm": [0.0, 0.0, z0], "normal": [0.0, 0.0, 1.0],
               "direction": _v([0.0, math.sin(f), math.cos(f)]), "radius_mm": round(1.1 * largest, 9),
@@ -215,6 +217,15 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
 # coatings lens files name, as the lens-design programs' own coating files define them: OpticStudio's
 # COATING.DAT "AR" and "MGF2" are one quarter-wave MgF2 layer (at the design wavelength)
 FILE_COATINGS = {"AR": "mgf2_quarter_wave", "MGF2": "mgf2_quarter_wave"}
+
+
+def _object_side_z(s) -> float:
+    """The smallest global z of surface ``s`` over its clear aperture (its vertex for a plane)."""
+    from straylight.optics.sag import sag_mm
+
+    rho = np.linspace(0.0, max(float(s.semi_diameter_mm or 0.0), 0.0), 33)
+    axial = float(np.asarray(s.local_z, float)[2])
+    return float(min(float(s.vertex_mm[2]) + sag_mm(s, r) * axial for r in rho))
 
 
 def known_coatings() -> set:
