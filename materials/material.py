@@ -38,6 +38,7 @@ from materials.registry import build_component
 from materials.sampling import check_real
 
 LIBRARY_DIR = Path(__file__).resolve().parent / "library"
+MAX_COMPONENTS = 64  # 100 000 components took minutes to load and check (issue 39)
 TOP_LEVEL_KEYS = ("name", "wavelength_nm", "components", "description", "provenance")
 ENERGY_CHECK_THETA_I_DEG = np.arange(0.0, 90.0, 1.0)
 
@@ -281,6 +282,9 @@ def material_from_dict(data, where: str = "material", name: Optional[str] = None
     comps_in = data.get("components")
     if not isinstance(comps_in, list) or not comps_in:
         raise MaterialError(f"{where}: 'components' must be a non-empty list")
+    if len(comps_in) > MAX_COMPONENTS:
+        raise MaterialError(f"{where}: {len(comps_in)} components is above {MAX_COMPONENTS} (a material is a sum of a "
+                            f"few lobes; every component is evaluated at every scatter event)")
     mat_name = data.get("name", name if name is not None else "unnamed")
     if not isinstance(mat_name, str):
         raise MaterialError(f"{where}: 'name' must be a string")

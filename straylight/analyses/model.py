@@ -58,12 +58,18 @@ def load_model(spec: str):
     path = Path(path_s)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found")
+    if path.suffix != ".py":  # /etc/passwd:build gave "'NoneType' object has no attribute 'loader'" (issue 39)
+        raise ModelError(f"{path}: a model is a Python file ending in .py (--model FILE.py:FUNCTION)")
     name = f"_straylight_model_{abs(hash(str(path.resolve())))}"
     mod_spec = importlib.util.spec_from_file_location(name, path)
+    if mod_spec is None or mod_spec.loader is None:
+        raise ModelError(f"{path}: cannot be imported as a Python module (--model FILE.py:FUNCTION)")
     module = importlib.util.module_from_spec(mod_spec)
     sys.modules[name] = module
     try:
         mod_spec.loader.exec_module(module)
+    except SystemExit as exc:  # sys.exit() in the model ended straylight with exit 0 and no report (issue 39)
+        raise ModelError(f"{path}: importing the model called sys.exit({exc.code!r}); a model must not exit") from None
     except Exception as exc:  # noqa: BLE001 - the user's code: name the file and the error
         raise ModelError(f"{path}: importing the model failed: {type(exc).__name__}: {exc}") from exc
     fn = getattr(module, func, None)
@@ -199,6 +205,9 @@ def design_scene(model: str, params: dict, directory) -> Path:
         check_parameter(fn, key, where)
     try:
         result = fn(**params)
+    except SystemExit as exc:
+        raise ModelError(f"{where}: {fn.__name__}() called sys.exit({exc.code!r}); a model must return its parts") \
+            from None
     except Exception as exc:  # noqa: BLE001 - the user's code
         shown = ", ".join(f"{k}={v!r}" for k, v in params.items())
         raise ModelError(f"{where}: {fn.__name__}({shown}) failed: {type(exc).__name__}: {exc}") from exc

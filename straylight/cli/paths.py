@@ -38,6 +38,8 @@ def run(args) -> int:
     from straylight.cli.pst import check_angle_deg, load_instrument
 
     check_angle_deg(args.angle_deg)
+    if args.top < 1:
+        raise ValueError(f"--top must be >= 1 (rows in the table), got {args.top}")
     inst = load_instrument(args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

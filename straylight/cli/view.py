@@ -12,6 +12,9 @@ from __future__ import annotations
 import math
 
 
+MAX_DRAWN_RAYS = 100_000  # ray paths drawn by --rays (each a polyline held in memory)
+
+
 def add_parser(subparsers):
     from straylight.cli.pst import add_common_scene_args
 
@@ -46,6 +49,9 @@ def run(args) -> int:
     from straylight.cli.pst import check_angle_deg, load_instrument
 
     check_angle_deg(args.angle_deg)
+    if args.rays > MAX_DRAWN_RAYS:  # 1e9 asked numpy for 29.8 GiB of polylines (issue 39)
+        raise ValueError(f"--rays {args.rays} is above {MAX_DRAWN_RAYS} drawn ray paths (a picture shows no more; "
+                         f"--trace-rays sets the rays traced for the colours and --html)")
     if args.scene is not None and args.builtin is None:
         from geometry.io import CAD_SUFFIXES, MESH_SUFFIXES, load_scene_or_file
 

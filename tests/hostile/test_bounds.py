@@ -103,3 +103,28 @@ def test_cli_temperature_above_limit_refused(tmp_path, capsys, hot_scene):
     assert main(["thermal", str(path), "--band-um", "8", "12", "--rays", "2000", "--temperature-k", "baffle=1e300",
                  "--out", str(tmp_path / "o")]) == 2  # main: "invalid index to scalar variable."
     assert "baffle=1e300" in (line := _one_error_line(capsys)) and "100000 K limit" in line
+
+
+def test_paths_top_below_one_refused(tmp_path, capsys, scene):
+    out = tmp_path / "p"
+    assert main(["paths", str(scene), "--angle-deg", "0", "--rays", "1000", "--top", "-1", "--out", str(out)]) == 2
+    assert "--top must be >= 1" in _one_error_line(capsys)  # main: accepted, a table without its last row
+
+
+def test_view_rays_beyond_a_picture_refused(tmp_path, capsys, scene):
+    png = tmp_path / "v.png"
+    assert main(["view", str(scene), "--rays", "1e9", "--png", str(png)]) == 2  # main: "Unable to allocate 29.8 GiB"
+    assert "--rays 1000000000 is above 100000" in _one_error_line(capsys)
+    assert not png.exists()
+
+
+def test_material_with_too_many_components_refused_fast(tmp_path, capsys):
+    import time
+
+    from materials import MaterialError, load_material
+
+    doc = {"name": "many", "components": [{"type": "lambertian", "rd": 1e-6}] * 100_000}
+    start = time.perf_counter()
+    with pytest.raises(MaterialError, match="100000 components is above 64"):
+        load_material(doc)
+    assert time.perf_counter() - start < 1.0  # main: minutes
