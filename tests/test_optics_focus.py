@@ -85,12 +85,7 @@ NO_REFERENCE = ("the sequential reference (rayoptics, with the clear apertures a
 KNOWN = {  # files that import but whose focus check does not pass yet (reported, not hidden)
     "ray-optics/US08011793-1.zmx": NO_REFERENCE, "ray-optics/threemir.seq": NO_REFERENCE,
     "ray-optics/HoO-V2C18Ex27.zmx": NO_REFERENCE,
-    "ray-optics/questar35.seq": "on axis >= 95 % within 1.2 r_geo passes; the encircled power at r90/2 differs "
-                                "(scene 1.0, sequential 0.28): the primary's hole vignettes the outer pupil in the "
-                                "scene; under investigation",
-    "optiland/mirror.seq": "efl -0.0025 mm as read: the sequential trace reaches no image",
     "ray-optics/zmax_37992.zmx": "the sequential trace (rayoptics) reaches the image with no ray: under investigation",
-    "ray-optics/mangin.seq": "double pass through the Mangin's glass: under investigation",
 }
 
 
