@@ -22,8 +22,8 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2
 
-## lint: ruff and mypy (pyproject.toml [tool.ruff] / [tool.mypy]) on the packages that are clean: all but the rest of straylight
-LINTED := atomicio materials geometry rig straylight/engine
+## lint: ruff and mypy on the whole tree (pyproject.toml [tool.ruff] / [tool.mypy])
+LINTED := atomicio materials geometry straylight rig
 lint: $(STAMP)
 	$(VENV)/bin/ruff check $(LINTED)
 	$(VENV)/bin/mypy $(LINTED)

@@ -24,7 +24,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from straylight.analyses.builtin import DEFAULT_MATERIAL
 from straylight.analyses.types import Entrance, PstResult, Setup
@@ -268,6 +268,6 @@ class Instrument:
         report = paths if paths is not None else self.paths(angle_deg, azimuth_deg, rays=rays, seed=seed)
         if report.trace is None:
             raise ValueError("paths has no trace: use the PathReport that Instrument.paths returned")
-        extra = {} if max_triangles is None else {"max_triangles": int(max_triangles)}
+        extra: dict[str, Any] = {} if max_triangles is None else {"max_triangles": int(max_triangles)}
         return view3d.write_view3d(path, self.setup, report.trace, report, _angle_rad(angle_deg, "angle_deg"),
                                    math.radians(azimuth_deg), seed=seed, **extra)

@@ -186,7 +186,7 @@ class PathRecords:
 def sequence_label(events, detector: str, truncated: bool = False) -> str:
     """'source -> wall -> vane_7 (specular) -> diffracted at vane_1 -> detector', with runs of one
     event collapsed ('wall x3')."""
-    steps = []
+    steps: list[list] = []  # [name, count] of each run of one event
     for part, kind in events:
         name = part if kind == "scatter" else f"diffracted at {part}" if kind == "diffraction" else f"{part} ({kind})"
         if steps and steps[-1][0] == name:

@@ -70,6 +70,8 @@ def check_polarization_for_source(pol: SourcePolarization, source, where: str = 
         raise PolarizationError(f"{where}: polarization = \"linear\" needs a collimated source (one direction)")
     d = np.asarray(direction, float)
     d = d / np.linalg.norm(d)
+    if pol.e_field is None:
+        raise PolarizationError(f"{where}: polarization = \"linear\" needs an e_field")
     dot = float(np.dot(d, pol.e_field))
     if abs(dot) > 1e-6:
         raise PolarizationError(f"{where}: e_field must be normal to the source direction (e . d = {dot:.3g})")

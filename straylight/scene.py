@@ -183,7 +183,7 @@ def load_scene(path, check_watertight: bool = True, sources: bool = True) -> Res
     entries = doc.get("source", []) if sources else []
     if sources and (not isinstance(entries, list) or not entries):
         raise SceneFileError(f"{path}: no [[source]] entries")
-    sources = []
+    resolved = []
     lo, hi = scene.bounds_mm
     for i, entry in enumerate(entries, start=1):
         where = f"{path}: [[source]] {i}"
@@ -195,7 +195,7 @@ def load_scene(path, check_watertight: bool = True, sources: bool = True) -> Res
             raise SceneFileError(str(exc)) from None
         if not _probe_reaches_box(src, lo, hi):
             notes.append(f"{where}: no ray of this source reaches the scene's bounding box")
-        sources.append(src)
+        resolved.append(src)
     for note in notes:
         warnings.warn(note, SceneWarning, stacklevel=2)
-    return ResolvedScene(path, scene, materials, tuple(sources), tuple(notes))
+    return ResolvedScene(path, scene, materials, tuple(resolved), tuple(notes))

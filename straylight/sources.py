@@ -268,3 +268,7 @@ def source_from_dict(entry: dict, where: str = "source"):
         return cls(**args)
     except SourceError as exc:
         raise SourceError(f"{where}: {exc}") from None
+
+
+#: any source the engine traces
+Source = CollimatedDisk | LambertianDisk | PointSource

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import replace
+from typing import Any
 
 from straylight.engine.backends.dask import ship_early
 from straylight.engine.compiled_scene import detector_samplers
@@ -134,7 +135,7 @@ def _answering_to_aliases(result: TraceResult, scene) -> TraceResult:
     aliases (a CAD solid's instance name, CONTRACTS 6.2); unchanged for a scene without aliases."""
     if not hasattr(scene, "names_of"):
         return result
-    unique = {}
+    unique: dict[str, set[str]] = {}  # alias -> the parts it names
     for p in scene.parts:
         for alias in scene.names_of(p)[1:]:
             unique.setdefault(alias, set()).add(p.name)
@@ -143,6 +144,6 @@ def _answering_to_aliases(result: TraceResult, scene) -> TraceResult:
         return result
     from straylight.paths import AliasDict
 
-    tables = {f: AliasDict(getattr(result, f), aliases) for f in ("detectors", "absorbed", "incident", "first_hit", "maps")
+    tables: dict[str, Any] = {f: AliasDict(getattr(result, f), aliases) for f in ("detectors", "absorbed", "incident", "first_hit", "maps")
               if isinstance(getattr(result, f, None), dict)}
     return replace(result, **tables)

@@ -130,7 +130,7 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
         eps = 1e-6 * float(np.ptp(scene.bounds_mm, axis=0).max())
         starts, ends, prefixes, labels = [], [], [], []
         for pts, _, reached, tris in walks:
-            events = []
+            events: list[tuple[str, str]] = []
             for j, t in enumerate(tris):
                 if t < 0:
                     break

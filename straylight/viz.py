@@ -69,8 +69,8 @@ def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 
                 for m, p in zip(mats, scene.parts)]
     eps = 1e-6 * float(np.ptp(scene.bounds_mm, axis=0).max())
     pts = [[o[i]] for i in range(n_rays)]
-    wts = [[] for _ in range(n_rays)]
-    tris = [[] for _ in range(n_rays)]
+    wts: list[list[float]] = [[] for _ in range(n_rays)]
+    tris: list[list[int]] = [[] for _ in range(n_rays)]
     hit_det = np.zeros(n_rays, bool)
     alive = np.arange(n_rays)
     w = np.ones(n_rays)
@@ -79,10 +79,10 @@ def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 
             break
         tri, t = isect.intersect(o, d)
         miss = tri < 0
-        for k in np.flatnonzero(miss):  # escaping rays: a short stub shows where they go
-            i = alive[k]
-            pts[i].append(o[k] + d[k] * 0.3 * float(np.ptp(scene.bounds_mm[:, 2])))
-            wts[i].append(w[k])
+        for j in np.flatnonzero(miss):  # escaping rays: a short stub shows where they go
+            i = alive[j]
+            pts[i].append(o[j] + d[j] * 0.3 * float(np.ptp(scene.bounds_mm[:, 2])))
+            wts[i].append(w[j])
             tris[i].append(-1)
         keep = ~miss
         alive, o, d, w, tri, t = alive[keep], o[keep], d[keep], w[keep], tri[keep], t[keep]
@@ -151,6 +151,7 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
         raise ValueError(f"color_by must be 'part' or 'absorbed', got {color_by!r}")
     if color_by == "absorbed" and not absorbed_w:
         raise ValueError("color_by='absorbed' needs absorbed_w {part: watts}")
+    absorbed = absorbed_w or {}
     off_screen = path is not None or not has_display()
     pv = _pyvista(off_screen)
     pl = pv.Plotter(off_screen=off_screen, window_size=tuple(window_size))
@@ -158,7 +159,7 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
     legend = []
     bar_shown = False
     if color_by == "absorbed":
-        vals = np.array([v for v in absorbed_w.values() if v > 0])
+        vals = np.array([v for v in absorbed.values() if v > 0])
         lo, hi = (np.log10(vals.min()), np.log10(vals.max())) if len(vals) else (-12.0, 0.0)
         if hi - lo < 1e-6:
             lo -= 1
@@ -176,7 +177,7 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
             pl.add_mesh(mesh, color=color, smooth_shading=True, specular=0.2)
             legend.append([part.name, color])
         else:
-            value = absorbed_w.get(part.name, 0.0)
+            value = absorbed.get(part.name, 0.0)
             mesh.cell_data["log10 absorbed power (W)"] = np.full(mesh.n_cells, np.log10(value) if value > 0 else lo)
             pl.add_mesh(mesh, scalars="log10 absorbed power (W)", cmap="inferno", clim=(lo, hi),
                         show_scalar_bar=not bar_shown, smooth_shading=True,

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from geometry.mesh import GeometryError, Scene
 
 # CONTRACTS §5.1 example: aluminium (n, k at 532 nm), 2 nm micro-roughness, IEST level 300
 MIRROR_MATERIAL = "aluminium_mirror"
-MIRROR_MATERIAL_TABLE = {
+MIRROR_MATERIAL_TABLE: dict[str, Any] = {
     "name": MIRROR_MATERIAL, "wavelength_nm": 532.0,
     "description": "aluminium mirror at 532 nm with micro-roughness and IEST-STD-CC1246E level-300 particles",
     "components": [

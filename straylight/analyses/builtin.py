@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import replace
 from functools import lru_cache
 
+import numpy as np
+
 from straylight.analyses.types import Beam, Entrance, Setup
 
 DEFAULT_MATERIAL = "z302_sample_b"
@@ -73,7 +75,8 @@ def tube_beam_and_entrance(p) -> tuple[Beam, Entrance]:
     # outside it meet the outer wall, whose normal faces away from every other surface
     beam_radius = p.outer_radius_mm
     # the disk slides with the tilt so that it always covers the entrance and the rim
-    beam = Beam(center_mm=(0.0, 0.0, top + BEAM_STANDOFF_MM), axis=(0.0, 0.0, -1.0), radius_mm=beam_radius,
-                pivot_mm=(0.0, 0.0, top))
-    entrance = Entrance(center_mm=(0.0, 0.0, top), radius_mm=r_entrance, normal=(0.0, 0.0, 1.0))
+    beam = Beam(center_mm=np.array([0.0, 0.0, top + BEAM_STANDOFF_MM]), axis=np.array([0.0, 0.0, -1.0]),
+                radius_mm=beam_radius,
+                pivot_mm=np.array([0.0, 0.0, top]))
+    entrance = Entrance(center_mm=np.array([0.0, 0.0, top]), radius_mm=r_entrance, normal=np.array([0.0, 0.0, 1.0]))
     return beam, entrance

@@ -36,11 +36,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.smooth import reflect, refract
+
+if TYPE_CHECKING:
+    from straylight.intersect import Intersector
+    from straylight.sources import Source
 
 MAP_BINS = 64
 PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK_CELLS cells
@@ -64,11 +69,11 @@ class GhostOptics:
     surfaces: tuple
     models: tuple  # per part: (front model or None, back model or None)
     roles: tuple
-    isect: object
+    isect: Intersector
     tri_part: np.ndarray
     tri_normals: np.ndarray
     detector: int
-    source: object
+    source: Source
 
     def is_interface(self, p: int) -> bool:
         return self.models[p][0] is not None and getattr(self.models[p][0], "smooth", None) is not None
@@ -242,7 +247,7 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
     the sequence carrying the most power at the detector."""
     rng = np.random.default_rng(seed)
     b = emit(opt, n_rays, rng)
-    seqs = [[] for _ in range(n_rays)]
+    seqs: list[list[tuple[int, str]]] = [[] for _ in range(n_rays)]
     ids = np.arange(n_rays)
     power: dict = {}
     for _ in range(MAX_NOMINAL_STEPS):
@@ -271,7 +276,7 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
     if not through:
         raise GhostError(f"no source ray reaches the detector {opt.names[opt.detector]!r} through an interface "
                          "(a lens or window) along a specular path")
-    return max(through, key=through.get)  # light that misses every lens (around a mount) is not the design path
+    return max(through, key=lambda k: through[k])  # light that misses every lens (around a mount) is not the design path
 
 
 def reflection_sites(nominal) -> list:

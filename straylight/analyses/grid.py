@@ -150,7 +150,7 @@ def _trace_point(point: GridPoint, tj: TraceJob, execution: Execution, rays, pre
     if precision is None:
         res = trace(tj.scene, tj.sources, n_rays=int(rays), seed=point.seed, materials=tj.materials,
                     options=tj.options, execution=execution)
-        diagnostics = _diagnostics(reliability(*res.detector_chunks[tj.detector], res.n_rays))
+        diagnostics = _diagnostics(reliability(*res.chunks_of(tj.detector), res.n_rays))
     else:
         run = trace_to_precision(tj.scene, tj.sources, point.seed, precision, materials=tj.materials,
                                  options=tj.options, detectors=[tj.detector], on_round=tell, execution=execution)

@@ -45,6 +45,7 @@ import copy
 import math
 import time
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -56,6 +57,9 @@ from straylight.stop_rule import (  # noqa: F401 - the rule lives below the runs
     DEFAULT_MAX_VOV, DEFAULT_MIN_CHUNKS, MAX_GROWTH, SAFETY, Look, Precision, Reliability, _chunk_rays,
     next_round_rays, reliability, tail_aware,
 )
+
+if TYPE_CHECKING:
+    from straylight.engine.results import TraceResult
 
 
 # ------------------------------------------------------------------ merging rounds exactly
@@ -92,7 +96,7 @@ def _merge_dict(results, get):
     return {k: _merge_tallies(results, lambda r, k=k: get(r)[k]) for k in keys}
 
 
-def merge_results(results):
+def merge_results(results) -> TraceResult:
     """One TraceResult from rounds that traced consecutive ray ids of one seed (see module doc)."""
     from straylight.detectors import IrradianceMap
     from straylight.paths import PathRecords
@@ -147,7 +151,7 @@ def merge_results(results):
 class PrecisionRun:
     """A merged trace and how it stopped: ``stop_reason`` is target, max_rays or max_seconds."""
 
-    result: object
+    result: TraceResult
     stop_reason: str
     rounds: list = field(default_factory=list)  # (rays so far, rel_error, vov) after each round
     seconds: float = 0.0
@@ -204,7 +208,7 @@ def trace_to_precision(scene, sources, seed, precision: Precision, materials=Non
         n_done += next_n
         merged = merge_results(results)
         names = list(detectors) if detectors is not None else list(merged.detectors)
-        rel = {name: reliability(*merged.detector_chunks[name], n_done) for name in names}
+        rel = {name: reliability(*merged.chunks_of(name), n_done) for name in names}
         err, vov = _worst(rel)
         rounds.append((n_done, err, vov))
         looks.append(_look(merged, rel, n_done))

@@ -26,12 +26,16 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 import atomicio
 from straylight.analyses.grid import point_seed
 from straylight.execution import Execution, as_execution
+
+if TYPE_CHECKING:
+    from straylight.stop_rule import Precision
 
 DEFAULT_ANGLES_DEG = (0.0, 2.0, 5.0, 8.0, 10.0, 12.0, 14.0, 16.0, 20.0, 25.0, 30.0, 40.0, 50.0, 60.0)
 DEFAULT_SWEEP_ANGLES_DEG = (20.0, 30.0)
@@ -53,7 +57,7 @@ class StudyConfig:
     scene: str | None = None  # SCENE.toml: the user's instrument instead of the built-in tube
     detector: str | None = None  # overrides the scene's [analysis] detector
     sweep: bool = True  # the design sweep (built-in tube parameters, or a --model file's)
-    precision: object = None  # straylight.analyses.precision.Precision: PST points traced to a target
+    precision: Precision | None = None  # PST points traced to a target
     model: str | None = None  # FILE.py:build, the user's parametric CadQuery design (analyses.model)
     thermal_band_um: tuple = (8.0, 12.0)  # self-emission budget band when parts have temperature_k
 
@@ -546,7 +550,6 @@ def _findings(pst, report, crit, sweep, builtin: bool = True) -> list[str]:
 
 
 def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
-    cfg = result.config
     lines = [f"# {_title(result)}", "", result.summary["description"], "", "## Findings", ""]
     lines += [f"- {f}" for f in _findings(pst, report, crit, sweep, _builtin(result))]
     note = _pst_reliability_note(pst)

@@ -21,6 +21,7 @@ shared/BENCHMARK.md, and ``entrance_ratio`` is detector power / beam power.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -49,7 +50,7 @@ def parse_analysis_table(doc: dict, path) -> dict:
     unknown = sorted(set(table) - set(ANALYSIS_KEYS))
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {', '.join(unknown)}; expected {', '.join(ANALYSIS_KEYS)}")
-    out = {"detector": None, "entrance": None, "detector_area_mm2": None}
+    out: dict[str, Any] = {"detector": None, "entrance": None, "detector_area_mm2": None}
     if "detector" in table:
         if not isinstance(table["detector"], str):
             raise ValueError(f"{where}: detector must be a part name (a string)")
@@ -139,7 +140,7 @@ def scene_tables(beam, entrance, detector: str, detector_area_mm2=None) -> tuple
     source = {"type": "collimated_disk", "center_mm": [float(x) for x in b.center_mm],
               "normal": [float(x) for x in b.disk_normal], "direction": [float(x) for x in b.axis],
               "radius_mm": float(b.radius_mm), "power_w": float(b.power_w)}
-    analysis = {"detector": detector}
+    analysis: dict[str, Any] = {"detector": detector}
     e = entrance
     if e is not None:
         if b.pivot_mm is not None and not np.allclose(b.pivot_mm, e.center_mm):

@@ -32,6 +32,12 @@ class ResultFiles:
     (columns, rows as dicts) are the result's own; the files are written atomically (atomicio), the
     JSON strict (a non-finite number as null, CONTRACTS 1) with no final newline, the CSV with missing cells empty."""
 
+    def to_json_dict(self) -> dict:
+        raise NotImplementedError(f"{type(self).__name__} must define to_json_dict()")
+
+    def csv_table(self) -> tuple[tuple, list[dict]]:
+        raise NotImplementedError(f"{type(self).__name__} must define csv_table()")
+
     def write_json(self, path) -> Path:
         path = Path(path)
         atomicio.write_json(path, self.to_json_dict(), final_newline=False)
@@ -58,7 +64,7 @@ CRITICAL_TABLE = ("rank", "part", "illuminated", "illuminated_stderr", "view_fac
 
 def report_tables(pst, report, crit, sweep=None, direct=()) -> dict:
     """{name: (columns, rows)} for the tables of the study report, in the order it shows them."""
-    out = {}
+    out: dict[str, tuple[tuple, list[dict]]] = {}
     rows = []
     for i, r in enumerate(pst.flagged_rows()):
         d = float(direct[i]) if i < len(direct) else math.nan

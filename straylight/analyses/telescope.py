@@ -50,9 +50,11 @@ def cassegrain_setup(params=None, mirror_components=None, tolerance_mm: float = 
             FILTER_MATERIAL: load_material(FILTER_MATERIAL_TABLE)}
     scene = cassegrain_scene(p, tolerance_mm=tolerance_mm)
     top = p.tube_front_mm
-    beam = Beam(center_mm=(0.0, 0.0, top + 10.0), axis=(0.0, 0.0, -1.0), radius_mm=p.tube_radius_mm + 1.0,
-                pivot_mm=(0.0, 0.0, top))
-    entrance = Entrance(center_mm=(0.0, 0.0, top), radius_mm=p.tube_radius_mm, normal=(0.0, 0.0, 1.0))
+    beam = Beam(center_mm=np.array([0.0, 0.0, top + 10.0]), axis=np.array([0.0, 0.0, -1.0]),
+                radius_mm=p.tube_radius_mm + 1.0,
+                pivot_mm=np.array([0.0, 0.0, top]))
+    entrance = Entrance(center_mm=np.array([0.0, 0.0, top]), radius_mm=p.tube_radius_mm,
+                        normal=np.array([0.0, 0.0, 1.0]))
     desc = (f"Cassegrain D={2 * p.aperture_radius_mm:g} mm F/{p.focal_length_mm / (2 * p.aperture_radius_mm):g}, "
             f"{p.vane_count} vanes, mirrors {', '.join(c['type'] for c in table['components'])}")
     return Setup(scene, mats, beam, entrance, "focal_plane", desc, {f: getattr(p, f) for f in p.names()})

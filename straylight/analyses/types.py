@@ -9,12 +9,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 import atomicio
 from straylight.analyses.tables import ResultFiles, TableRepr
 from straylight.sources import MIN_RADIUS_MM, CollimatedDisk
+
+if TYPE_CHECKING:
+    from geometry.mesh import Scene
 
 DEFAULT_VOV_LIMIT = 0.1  # straylight.analyses.precision.DEFAULT_MAX_VOV: MCNP's reliability check
 CSV_COLUMNS = ("off_axis_deg", "azimuth_deg", "pst", "pst_stderr", "entrance_ratio", "entrance_ratio_stderr",
@@ -62,7 +66,7 @@ class Beam:
         collimated_disk source may emit obliquely through its disk); None: ``axis``.
     """
 
-    center_mm: np.ndarray
+    center_mm: np.ndarray  # given as any (3,) array-like; stored as float64 arrays (__post_init__)
     axis: np.ndarray
     radius_mm: float
     power_w: float = 1.0
@@ -85,6 +89,13 @@ class Beam:
         if not np.isfinite(np.linalg.norm(n)) or abs(float(np.dot(n, self.axis))) < 1e-9 * np.linalg.norm(n):
             raise ValueError(f"beam disk normal {self.disk_normal!r} must not be perpendicular to the beam")
         object.__setattr__(self, "disk_normal", n / np.linalg.norm(n))
+
+    @property
+    def emit_normal(self) -> np.ndarray:
+        """The emitting disk's unit normal: ``disk_normal``, which __post_init__ sets (to ``axis`` when not given)."""
+        n = self.disk_normal
+        assert n is not None
+        return n
 
     @property
     def basis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -111,20 +122,20 @@ class Beam:
         if self.pivot_mm is None:
             return self.center_mm
         d = self.direction(off_axis, azimuth)
-        n = self.disk_normal
+        n = self.emit_normal
         t = float(np.dot(self.pivot_mm - self.center_mm, n) / np.dot(d, n))
         return self.pivot_mm - t * d
 
     def source(self, off_axis: float, azimuth: float = 0.0):
         """The engine's ``CollimatedDisk`` for this tilt."""
-        return CollimatedDisk(center_mm=self.center_for(off_axis, azimuth), normal=self.disk_normal,
+        return CollimatedDisk(center_mm=self.center_for(off_axis, azimuth), normal=self.emit_normal,
                               direction=self.direction(off_axis, azimuth), radius_mm=float(self.radius_mm),
                               power_w=float(self.power_w), wavelength_nm=self.wavelength_nm)
 
     def cross_section_mm2(self, off_axis: float, azimuth: float = 0.0) -> float:
         """Beam area normal to the rays: pi R^2 |n . d| (the disk seen along the rays)."""
         d = self.direction(off_axis, azimuth)
-        return float(np.pi * self.radius_mm**2 * abs(np.dot(self.disk_normal, d)))
+        return float(np.pi * self.radius_mm**2 * abs(np.dot(self.emit_normal, d)))
 
     def irradiance_w_per_mm2(self, off_axis: float, azimuth: float = 0.0) -> float:
         """Irradiance on a plane normal to the rays: P / (pi R^2 |n . d|) (P / (pi R^2 cos a) when the
@@ -163,7 +174,7 @@ class Entrance:
         beam's (n_e: entrance normal, default the beam axis; n_s: the source disk's normal).
         """
         d = beam.direction(off_axis, azimuth)
-        n = beam.disk_normal
+        n = beam.emit_normal
         # walk back from the entrance centre along the rays to the source plane
         t = float(np.dot(self.center_mm - beam.center_mm, n) / np.dot(d, n))
         foot = self.center_mm - t * d
@@ -182,7 +193,7 @@ class Entrance:
 class Setup:
     """What a PST analysis needs: scene, materials, beam, entrance (optional), detector name."""
 
-    scene: object
+    scene: Scene
     materials: dict | None
     beam: Beam
     entrance: Entrance | None

@@ -100,7 +100,7 @@ def _ray_counts_as_numbers(parser) -> None:
     for action in parser._actions:
         if action.dest in RAY_COUNT_FLAGS and action.type is int:
             action.type = ray_count
-        for sub in getattr(action, "choices", None).values() if isinstance(action, argparse._SubParsersAction) else ():
+        for sub in action.choices.values() if isinstance(action, argparse._SubParsersAction) else ():
             _ray_counts_as_numbers(sub)
 
 

@@ -24,8 +24,11 @@ def _placement(tel, base_u: float):
     origin = tel.point(base_u)
     w = tel.axis
     x = tel.e1
-    return cq.Location(cq.Plane(origin=tuple(float(v) for v in origin), xDir=tuple(float(v) for v in x),
-                                normal=tuple(float(v) for v in w)))
+    return cq.Location(cq.Plane(origin=_xyz(origin), xDir=_xyz(x), normal=_xyz(w)))
+
+
+def _xyz(v) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
 
 
 def _revolved(profile_rz, loc):
@@ -75,4 +78,6 @@ def write_step(path, tel, parts: list[dict], thickness_mm: float | None = None) 
 def bounding_radii(step_path) -> np.ndarray:  # pragma: no cover - debugging aid
     import cadquery as cq
 
-    return np.array(cq.importers.importStep(str(step_path)).val().BoundingBox().xmax)
+    shape = cq.importers.importStep(str(step_path)).val()
+    assert isinstance(shape, cq.Shape)
+    return np.array(shape.BoundingBox().xmax)

@@ -328,7 +328,8 @@ def construct(spec: BaffleSpec) -> Layout:
     L, half = spec.tube_length_mm, spec.vane_thickness_mm / 2
     corners_above = [(L, spec.tube_radius_mm)]
     ceiling = L  # lowest corner placed so far: the top of the bay being closed
-    vanes, notes = [], []
+    vanes: list = []
+    notes: list[str] = []
     while True:
         lit, _ = lit_interval(spec, corners_above, 0.0, ceiling)
         if lit is None:

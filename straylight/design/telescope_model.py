@@ -225,7 +225,8 @@ def identify(setup, n_rays: int = 801) -> Telescope:
     o, d, y = fan((b, c, e1, float(beam.radius_mm)), 0.0, n_rays, back_mm=_extent(scene))
     w = walk(scene, materials, det, o, d)
     kinds = [_kind(p, materials) for p in scene.parts]
-    firsts, seconds = {}, {}
+    firsts: dict[int, int] = {}  # part -> rays whose first mirror it is
+    seconds: dict[int, int] = {}
     for i in np.flatnonzero(w.detected):
         mirrors = [p for p in w.parts[i, 1:w.n_hits[i] + 1] if p >= 0 and kinds[p] == "mirror"]
         if len(mirrors) >= 2:
@@ -234,8 +235,8 @@ def identify(setup, n_rays: int = 801) -> Telescope:
     if not firsts:
         raise TelescopeError(f"no on-axis ray from the source reaches the detector {det!r} after two mirrors: "
                              "not a two-mirror telescope (mirrors are parts with a 'specular' material)")
-    ip = max(firsts, key=firsts.get)
-    isec = max(seconds, key=seconds.get)
+    ip = max(firsts, key=lambda p: firsts[p])
+    isec = max(seconds, key=lambda p: seconds[p])
     P, S, D = scene.parts[ip], scene.parts[isec], scene.part(det)
     for part in (P, S):
         if part.surface is None or not hasattr(part.surface, "outer_radius_mm"):
@@ -282,8 +283,9 @@ class Bundle:
 def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n_fields: int = 9) -> Bundle:
     """The image-forming rays of fields -F..F (meridional fans over the whole source disk)."""
     ip, isec, idet = tel.extra["indices"]
-    fams = {"in": [], "ps": [], "si": []}
-    on_y = on_nom = None
+    fams: dict[str, list] = {"in": [], "ps": [], "si": []}
+    on_y: np.ndarray | None = None
+    on_nom: np.ndarray | None = None
     on_segs = []
     fields = np.linspace(-field_deg, field_deg, n_fields) if field_deg > 0 else np.array([0.0])
     fields = np.unique(np.concatenate([fields, [0.0]]))
@@ -314,4 +316,5 @@ def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n
         if f == 0.0:
             on_y, on_nom = y, nominal
     arr = {k: np.asarray(v, float).reshape(-1, 4) for k, v in fams.items()}
+    assert on_y is not None and on_nom is not None  # the field list always holds 0
     return Bundle(arr, on_y, on_nom, on_segs)

@@ -43,6 +43,12 @@ class TraceResult:
     shadow_rays: int
     detector_chunks: dict | None = None  # name -> (s1 (K,), s2 (K,)): per-chunk sums of the detector total
 
+    def chunks_of(self, detector: str) -> tuple[np.ndarray, np.ndarray]:
+        """(s1 (K,), s2 (K,)): the per-chunk sums of ``detector``'s total (every trace keeps them)."""
+        if self.detector_chunks is None:
+            raise ValueError("this result has no per-chunk detector sums")
+        return self.detector_chunks[detector]
+
     def to_json_dict(self) -> dict:
         """CONTRACTS §4.3 keys, plus the ledger breakdown (its terms are already inside ``absorbed``)."""
         led = self.ledger

@@ -5,5 +5,17 @@
 distance along the unit direction (inf on a miss), float64, recomputed from the triangle's plane.
 ``occluded(origins, dirs, tmax) -> bool``: is there any hit with ``0 < t < tmax``.
 """
+from typing import Protocol
+
+import numpy as np
+
 from straylight.intersect.embree import EmbreeIntersector  # noqa: F401
 from straylight.intersect.reference import ReferenceIntersector  # noqa: F401
+
+
+class Intersector(Protocol):
+    """What the tracers ask of an intersector (the module doc)."""
+
+    def intersect(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def occluded(self, origins: np.ndarray, dirs: np.ndarray, tmax: np.ndarray) -> np.ndarray: ...

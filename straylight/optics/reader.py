@@ -226,10 +226,10 @@ def _profile(ifc, where: str, problems: list):
     if kind == "Spherical":
         return ("plane" if radius is None else "sphere"), radius, 0.0, []
     if kind == "Conic":
-        cc = float(prof.cc)
+        cc = float(getattr(prof, "cc"))
         return ("plane" if radius is None and cc == 0 else "conic" if cc != 0 else "sphere"), radius, cc, []
     if kind == "EvenPolynomial":
-        coefs = [float(c) for c in (prof.coefs or [])]
+        coefs = [float(c) for c in (getattr(prof, "coefs", None) or [])]
         if coefs and coefs[0] != 0.0:
             problems.append(f"{where}: even asphere with a quadratic (r^2) term {coefs[0]:g}, not representable")
         coefs = coefs[1:]
@@ -361,7 +361,7 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         traced_sd = {i: float(ifc.max_aperture) for i, ifc in enumerate(sm.ifcs)}
     for i, sd in given_sd.items():
         sm.ifcs[i].set_max_aperture(sd)
-    names = {}
+    names: dict[str, list] = {}  # label -> its surfaces
     for i in range(1, n_ifc - 1):
         ifc = sm.ifcs[i]
         where = f"surface {i}"
@@ -401,7 +401,6 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
             s.inner_radius_mm = r_in * scale
         if label:
             names.setdefault(label, []).append(s)
-        s._label = label
         surfaces.append(s)
     for label, group in names.items():
         if len(group) == 1 and re.fullmatch(r"[A-Za-z0-9_.\-]+", label) and label.lower() not in ("obj", "img"):

@@ -8,6 +8,7 @@ rho^2)) + sum A_(2i+4) rho^(2i+4) along the part's ``axis``; the lens file's sag
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -24,7 +25,7 @@ def _v(a) -> list:
 def _surface_table(s, axis, outer, inner=0.0) -> dict:
     """The 6.1 ``surface`` table of ``s`` seen along ``axis`` (sign flipped when axis opposes its own z)."""
     sign = 1.0 if float(np.dot(axis, s.local_z)) > 0 else -1.0
-    d = {"vertex_mm": _v(s.vertex_mm), "axis": _v(axis)}
+    d: dict[str, Any] = {"vertex_mm": _v(s.vertex_mm), "axis": _v(axis)}
     if s.type == "plane":
         d = {"type": "plane", **d}
     elif s.type == "asphere":  # a flat base: c = 1e-18 /mm, the plane to 1e-12 mm over a metre
@@ -155,8 +156,8 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         if np.linalg.norm(off) > 1e-9:
             p.warnings.append(f"{a.name}-{b.name}: decentred element; its edge is not modelled")
             continue
-        key = (tuple(np.round(a.vertex_mm, 6)), tuple(np.round(b.vertex_mm, 6)))
-        if key in edge_names or key[::-1] in edge_names:
+        edge_key = (tuple(np.round(a.vertex_mm, 6)), tuple(np.round(b.vertex_mm, 6)))
+        if edge_key in edge_names or edge_key[::-1] in edge_names:
             continue
         r_mech = max(a.semi_diameter_mm, b.semi_diameter_mm)
         za = float(np.dot(a.vertex_mm, ax)) + sag_mm(a, a.semi_diameter_mm) * float(np.dot(a.local_z, ax))
@@ -169,7 +170,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
             continue
         origin = a.vertex_mm - np.dot(a.vertex_mm, ax) * ax
         name = unique(f"edge_{a.name}_{b.name}")
-        edge_names[key] = name
+        edge_names[edge_key] = name
         parts.append({"name": name, "surface": {"type": "cylinder", "vertex_mm": _v(origin + za_m * ax),
                                                  "axis": _v(ax), "radius_mm": r_mech, "length_mm": length},
                       "material": edge_material, "role": "surface"})

@@ -49,7 +49,7 @@ def _crossing(q, a_pt, b_pt):
 
 def _coincide(a, b) -> bool:
     """The same physical surface met twice (a Maksutov's secondary spot on the meniscus, a Mangin's glass)."""
-    return (np.linalg.norm(a.vertex_mm - b.vertex_mm) < 1e-6 and abs(abs(float(np.dot(a.local_z, b.local_z))) - 1) < 1e-9
+    return bool(np.linalg.norm(a.vertex_mm - b.vertex_mm) < 1e-6 and abs(abs(float(np.dot(a.local_z, b.local_z))) - 1) < 1e-9
             and (a.radius_mm or 0.0) == (b.radius_mm or 0.0))
 
 
@@ -115,9 +115,9 @@ def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: 
         if ok:
             pts = [start * s] + [(np.asarray(sm.gbl_tfrms[i][0], float) @ np.asarray(seg[0], float)
                                   + np.asarray(sm.gbl_tfrms[i][1], float)) * s for i, seg in enumerate(ray) if i >= 1]
-            pts = np.array(pts)
-            if not (block and _blocked(p, pts)):
-                out.append(pts)
+            path = np.array(pts)
+            if not (block and _blocked(p, path)):
+                out.append(path)
     return out
 
 
