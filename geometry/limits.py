@@ -31,7 +31,7 @@ class ToleranceError(ValueError):
 def temperature_limit_message(value: float) -> str | None:
     """The reason a ``temperature_k`` is refused, or None: above :data:`MAX_TEMPERATURE_K` the band
     radiance is the difference of two blackbody fractions within round-off of 1 (straylight.thermal.planck),
-    so 1e9 K gave 0 W and 1e300 K an index error (issue 39)."""
+    so 1e9 K gave 0 W and 1e300 K an index error."""
     if value > MAX_TEMPERATURE_K:
         return (f"temperature_k = {value:g} K is above the {MAX_TEMPERATURE_K:g} K limit (hotter than any star's "
                 f"surface; Planck's band radiance is not computable there)")
@@ -44,7 +44,7 @@ def coordinate_limit_message(value: float, what: str) -> str | None:
     Beyond :data:`MAX_COORDINATE_MM` (10 km) float32, in which Embree intersects rays, spaces numbers
     by 1 mm or more, and the tracer's self-intersection offset (32 float32 ulps of the largest
     coordinate, straylight.engine.spec.scene_epsilon) grows past 32 mm: a part moved 1e9 mm away
-    made every detector read 0 W (issue 39). No instrument part is that far or that large."""
+    made every detector read 0 W. No instrument part is that far or that large."""
     if abs(value) > MAX_COORDINATE_MM:
         return (f"{what} = {value:g} mm is beyond the {MAX_COORDINATE_MM:g} mm (10 km) the tracer's float32 "
                 f"intersector resolves to better than 1 mm; keep parts within 10 km of the origin")

@@ -26,8 +26,8 @@ class GeometryError(ValueError):
 
 def check_part_name(name) -> str:
     """A part name (CONTRACTS 6): a non-empty string of printable characters, at most
-    :data:`MAX_PART_NAME_CHARS` long; results, tables and view3d.html are keyed by it (issue 39:
-    an empty name or one holding NUL was accepted)."""
+    :data:`MAX_PART_NAME_CHARS` long; results, tables and view3d.html are keyed by it (
+    an empty name or one holding NUL used to be accepted)."""
     if not isinstance(name, str) or not name.strip():
         raise GeometryError(f"part name must be a non-empty string, got {name!r}")
     if len(name) > MAX_PART_NAME_CHARS:

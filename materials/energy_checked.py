@@ -10,7 +10,7 @@ checked, and refused, every time. ``STRAYLIGHT_CACHE=off`` turns the memo off (a
 The marker holds ``{"key", "max_reflectance", "sha256"}``: the largest directional-hemispherical
 reflectance the check found and a checksum of both. A marker is believed only if its checksum holds
 AND its value is possible (a finite number in [0, 1)): a marker whose checksum was recomputed around
-an impossible value (3.14) is ignored and the material checked again (issue 39). An empty marker (an
+an impossible value (3.14) is ignored and the material checked again. An empty marker (an
 older version's) is checked again too.
 """
 from __future__ import annotations

@@ -73,7 +73,7 @@ def paper_plan_spec() -> PlanSpec:
     return PlanSpec(name="paper", points=tuple(paper_points()), n_readings=PAPER_N_READINGS)
 
 
-MAX_N_READINGS = 1000  # readings per point; 1e9 never finished a point (issue 39)
+MAX_N_READINGS = 1000  # readings per point; 1e9 never finished a point
 _TOP_KEYS = {"name", "n_readings", "polarizations", "signature", "incidence"}
 _ENTRY_KEYS = {"theta_i_deg", "theta_r_deg", "grid", "phi_r_deg", "polarizations"}
 

@@ -56,7 +56,7 @@ class ScanOutcome:
 
 def check_gain(gain_v_per_w, where: str = "gain_v_per_w") -> float:
     """The detector gain (V/W) as a float: finite and > 0, else a one-line error (a gain of 0 or
-    below ran a whole scan of NaN with exit 0, issue 39)."""
+    below ran a whole scan of NaN with exit 0)."""
     try:
         g = float(gain_v_per_w)
     except (TypeError, ValueError):

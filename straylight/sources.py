@@ -45,7 +45,7 @@ def _positive(name, value, owner, allow_zero=False) -> float:
     return v
 
 
-MAX_POWER_W = 1e30  # above the Sun's 3.8e26 W; 1e308 W overflowed the tallies to NaN (issue 39)
+MAX_POWER_W = 1e30  # above the Sun's 3.8e26 W; 1e308 W overflowed the tallies to NaN
 
 
 MIN_RADIUS_MM = 1e-6  # a disk source smaller than 1 nm: its area (and the irradiance it divides) is not usable

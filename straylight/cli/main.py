@@ -249,10 +249,10 @@ def _allow_insecure(allowed: bool):
             os.environ[key] = saved
 
 
-def _interrupted(exc: BaseException) -> bool:
+def _interrupted(exc: BaseException | None) -> bool:
     """Was ``exc`` caused by Ctrl-C? A KeyboardInterrupt raised inside a compiled (numba) kernel comes
     out as ``SystemError: CPUDispatcher(...) returned a result with an exception set`` whose context
-    is the KeyboardInterrupt (issue 39)."""
+    is the KeyboardInterrupt."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):

@@ -1,4 +1,4 @@
-"""Issue 39, bounds where data enter: magnitudes that float arithmetic cannot carry are refused in one
+"""Bounds where data enter: magnitudes that float arithmetic cannot carry are refused in one
 line naming the limit (exit 2, no traceback), before any ray is traced. Each case failed on main
 13a6b5b (silently biased results, NaN, 0 W, or a cryptic Python message)."""
 from __future__ import annotations

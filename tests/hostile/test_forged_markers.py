@@ -1,4 +1,4 @@
-"""Issue 39: an energy-check marker (materials.energy_checked) is believed only when its checksum holds
+"""An energy-check marker (materials.energy_checked) is believed only when its checksum holds
 AND its value is possible. On main 13a6b5b an empty file named by the material's key made a material
 with a directional-hemispherical reflectance of 1.3 load without the check."""
 from __future__ import annotations

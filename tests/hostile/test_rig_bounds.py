@@ -1,4 +1,4 @@
-"""Issue 39: the rig refuses, before anything moves, a plan whose points would never finish and a
+"""The rig refuses, before anything moves, a plan whose points would never finish and a
 detector gain that would turn every reading into NaN (main 13a6b5b: 'n_readings': 1000000000 never
 finished a point; gain_v_per_w = 0 or below ran a whole scan of NaN with exit 0)."""
 from __future__ import annotations

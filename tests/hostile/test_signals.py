@@ -1,4 +1,4 @@
-"""Issue 39: Ctrl-C is honoured from the first instant. SIGINT sent to ``straylight trace`` while it
+"""Ctrl-C is honoured from the first instant. SIGINT sent to ``straylight trace`` while it
 imports its command groups (0.1-0.5 s: main 13a6b5b printed a KeyboardInterrupt traceback) or while a
 compiled kernel runs (main: "CPUDispatcher(...) returned a result with an exception set", exit 2)
 ends the run with one line and exit 130."""
