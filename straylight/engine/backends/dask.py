@@ -176,18 +176,43 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
             self.straylight_threads = int(straylight_threads)
             super().__init__(*args, **kwargs)
 
+    lean = {**LEAN_CONFIG, **({} if dashboard else NO_HTTP_ROUTES)}
     if processes:
         security = run_security()
-        with dask.config.set({**LEAN_CONFIG, **_fork_server_config()}):
+        with dask.config.set({**lean, **_fork_server_config()}):
             cluster = _process_cluster_class()(n_workers=int(n_workers), threads_per_worker=1, processes=True,
                                                host=LOOPBACK, dashboard_address=None, scheduler_kwargs=scheduler_kwargs,
                                                protocol="tls://", security=security)
-        return cluster  # Client(cluster) takes the cluster's security (dask's Client does)
+        return cluster if dashboard else _http_off(cluster)  # Client(cluster) takes the cluster's security
     runtime()  # this process's, started before the cluster's threads are (its in-process worker shares it)
-    with dask.config.set(LEAN_CONFIG):
-        return PooledCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
-                             dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker,
-                             straylight_threads=int(n_workers))
+    with dask.config.set(lean):
+        cluster = PooledCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
+                                dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker,
+                                straylight_threads=int(n_workers))
+    return cluster if dashboard else _http_off(cluster)
+
+
+#: without --dashboard, the scheduler and workers serve no HTTP page (dask starts their HTTP servers
+#: anyway, with pages such as /info/call-stacks that any local user could read; issue 39)
+NO_HTTP_ROUTES = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
+
+
+def _stop_http(server) -> None:
+    """Close ``server``'s HTTP listening sockets (a dask Scheduler or Worker; they serve no route)."""
+    http = getattr(server, "http_server", None)
+    if http is not None:
+        http.stop()
+
+
+def _http_off(cluster):
+    """``cluster`` with no HTTP port: its scheduler's (in this process) and its in-process workers'
+    HTTP servers closed; worker processes serve no route (:data:`NO_HTTP_ROUTES`) and close theirs
+    when a client connects (:func:`dask_client`)."""
+    _stop_http(cluster.scheduler)
+    for worker in getattr(cluster, "workers", {}).values():
+        if hasattr(worker, "http_server"):  # an in-process Worker (a Nanny holds its worker in another process)
+            _stop_http(worker)
+    return cluster
 
 
 def run_security():
@@ -366,11 +391,20 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
         with local_cluster(n, processes=processes, dashboard=dashboard) as cluster, Client(cluster) as client:
             if dashboard:
                 print(f"straylight: dask dashboard at {cluster.dashboard_link} (this machine only)", file=sys.stderr)
+            elif processes:
+                client.run(_stop_worker_http)  # each worker process closes its HTTP port
             yield client
     else:
         if workers is not None and int(workers) < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         yield None
+
+
+def _stop_worker_http(dask_worker=None):
+    """Run on each worker process (``client.run``): close its HTTP server's port."""
+    if dask_worker is not None:
+        _stop_http(dask_worker)
+    return True
 
 
 def _warm_task(spec):
