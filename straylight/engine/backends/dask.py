@@ -178,6 +178,7 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
 
     lean = {**LEAN_CONFIG, **({} if dashboard else NO_HTTP_ROUTES)}
     if processes:
+        _quiet_handshakes()
         security = run_security()
         with dask.config.set({**lean, **_fork_server_config()}):
             cluster = _process_cluster_class()(n_workers=int(n_workers), threads_per_worker=1, processes=True,
@@ -194,7 +195,7 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
 
 #: without --dashboard, the scheduler and workers serve no HTTP page (dask starts their HTTP servers
 #: anyway, with pages such as /info/call-stacks that any local user could read; issue 39)
-NO_HTTP_ROUTES = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
+NO_HTTP_ROUTES: dict[str, list] = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
 
 
 def _stop_http(server) -> None:
@@ -393,11 +394,32 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
                 print(f"straylight: dask dashboard at {cluster.dashboard_link} (this machine only)", file=sys.stderr)
             elif processes:
                 client.run(_stop_worker_http)  # each worker process closes its HTTP port
+            if processes:
+                client.run(_quiet_handshakes)  # and says nothing of other processes' failed handshakes
             yield client
     else:
         if workers is not None and int(workers) < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         yield None
+
+
+class _NoForeignHandshakes:
+    """A logging filter: drops dask's "TLS handshake failed with remote ..." warnings. Any local process
+    (another user's port scan, a browser) that touches the cluster's TLS port printed one on the user's
+    terminal (issue 39); it never got in (tests/straylight/test_cluster_security.py)."""
+
+    def filter(self, record) -> bool:
+        return "TLS handshake failed" not in record.getMessage()
+
+
+def _quiet_handshakes(dask_worker=None) -> bool:
+    """Install :class:`_NoForeignHandshakes` on ``distributed.comm.tcp`` in this process (once)."""
+    import logging
+
+    log = logging.getLogger("distributed.comm.tcp")
+    if not any(isinstance(f, _NoForeignHandshakes) for f in log.filters):
+        log.addFilter(_NoForeignHandshakes())
+    return True
 
 
 def _stop_worker_http(dask_worker=None):
