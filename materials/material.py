@@ -38,7 +38,7 @@ from materials.registry import build_component
 from materials.sampling import check_real
 
 LIBRARY_DIR = Path(__file__).resolve().parent / "library"
-MAX_COMPONENTS = 64  # 100 000 components took minutes to load and check (issue 39)
+MAX_COMPONENTS = 64  # 100 000 components took minutes to load and check
 TOP_LEVEL_KEYS = ("name", "wavelength_nm", "components", "description", "provenance")
 ENERGY_CHECK_THETA_I_DEG = np.arange(0.0, 90.0, 1.0)
 

@@ -215,7 +215,7 @@ def _asset(name: str) -> str:
 def view_page(data: dict) -> str:
     """The standalone HTML page for ``data`` (:func:`view_data`), scripts and data inlined."""
     # every <, > and & as a JSON \u escape: neither "</script>" nor "<!--<script>" (which would hold the parser
-    # in the script's escaped state past its end tag, issue 39) can appear inside the data block
+    # in the script's escaped state past its end tag) can appear inside the data block
     payload = (json.dumps(data, separators=(",", ":"))
                .replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026"))
     title = html.escape(data.get("title") or "3-D view")

@@ -58,7 +58,7 @@ def load_model(spec: str):
     path = Path(path_s)
     if not path.is_file():
         raise ModelError(f"{path}: model file not found")
-    if path.suffix != ".py":  # /etc/passwd:build gave "'NoneType' object has no attribute 'loader'" (issue 39)
+    if path.suffix != ".py":  # /etc/passwd:build gave "'NoneType' object has no attribute 'loader'"
         raise ModelError(f"{path}: a model is a Python file ending in .py (--model FILE.py:FUNCTION)")
     name = f"_straylight_model_{abs(hash(str(path.resolve())))}"
     mod_spec = importlib.util.spec_from_file_location(name, path)
@@ -68,7 +68,7 @@ def load_model(spec: str):
     sys.modules[name] = module
     try:
         mod_spec.loader.exec_module(module)
-    except SystemExit as exc:  # sys.exit() in the model ended straylight with exit 0 and no report (issue 39)
+    except SystemExit as exc:  # sys.exit() in the model ended straylight with exit 0 and no report
         raise ModelError(f"{path}: importing the model called sys.exit({exc.code!r}); a model must not exit") from None
     except Exception as exc:  # noqa: BLE001 - the user's code: name the file and the error
         raise ModelError(f"{path}: importing the model failed: {type(exc).__name__}: {exc}") from exc

@@ -1,6 +1,6 @@
 """Ask for precision, not rays: trace in growing rounds until the relative standard error is reached.
 
-Round ``r`` traces the ray ids right after the previous rounds' (``trace(..., first_chunk=K)``:
+Round ``r`` traces the ray ids right after the previous rounds' (``trace(..., execution=Execution(first_chunk=K))``:
 the random streams of chunks K, K+1, ... of the same seed), so the rounds together are the first N
 rays of one long run: the same seed and target give the same rounds and the same numbers, and the
 merged estimate equals a single trace of N rays (:func:`merge_results`, exact pooled sums).

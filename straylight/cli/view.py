@@ -49,7 +49,7 @@ def run(args) -> int:
     from straylight.cli.pst import check_angle_deg, load_instrument
 
     check_angle_deg(args.angle_deg)
-    if args.rays > MAX_DRAWN_RAYS:  # 1e9 asked numpy for 29.8 GiB of polylines (issue 39)
+    if args.rays > MAX_DRAWN_RAYS:  # 1e9 asked numpy for 29.8 GiB of polylines
         raise ValueError(f"--rays {args.rays} is above {MAX_DRAWN_RAYS} drawn ray paths (a picture shows no more; "
                          f"--trace-rays sets the rays traced for the colours and --html)")
     if args.scene is not None and args.builtin is None:

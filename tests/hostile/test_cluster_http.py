@@ -1,4 +1,4 @@
-"""Issue 39: without ``--dashboard`` the local cluster serves no HTTP at all. On main 13a6b5b the
+"""Without ``--dashboard`` the local cluster serves no HTTP at all. On main 13a6b5b the
 scheduler's HTTP server listened on a loopback port (pages such as /info/call-stacks: worker call
 stacks and paths readable by any local user), and so did each worker's."""
 from __future__ import annotations

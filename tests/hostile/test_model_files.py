@@ -1,4 +1,4 @@
-"""Issue 39: ``--model`` refuses a file that is not Python (main 13a6b5b: "'NoneType' object has no
+"""``--model`` refuses a file that is not Python (main 13a6b5b: "'NoneType' object has no
 attribute 'loader'") and a model that calls sys.exit() (main: straylight ended with exit 0 and no
 report), each in one line naming the file."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 39: a part name holding ``<!--<script>`` stopped view3d.html from rendering: inside a <script>
+"""A part name holding ``<!--<script>`` stopped view3d.html from rendering: inside a <script>
 element that sequence puts the HTML parser in the "script data double escaped" state, where the data
 block's own ``</script>`` no longer ends it, so the viewer's code never ran. Every <, > and & of the
 data is now a JSON \\u escape: the block's text has none, and parses back to the same names."""

@@ -194,7 +194,7 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
 
 
 #: without --dashboard, the scheduler and workers serve no HTTP page (dask starts their HTTP servers
-#: anyway, with pages such as /info/call-stacks that any local user could read; issue 39)
+#: anyway, with pages such as /info/call-stacks that any local user could read)
 NO_HTTP_ROUTES: dict[str, list] = {"distributed.scheduler.http.routes": [], "distributed.worker.http.routes": []}
 
 
@@ -406,7 +406,7 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
 class _NoForeignHandshakes:
     """A logging filter: drops dask's "TLS handshake failed with remote ..." warnings. Any local process
     (another user's port scan, a browser) that touches the cluster's TLS port printed one on the user's
-    terminal (issue 39); it never got in (tests/straylight/test_cluster_security.py)."""
+    terminal; it never got in (tests/straylight/test_cluster_security.py)."""
 
     def filter(self, record) -> bool:
         return "TLS handshake failed" not in record.getMessage()
