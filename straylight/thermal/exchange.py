@@ -6,8 +6,11 @@ Each part with a front emissivity > 0 emits at its ``temperature_k`` (300 K wher
 uniform points of its front, directions with density eps(theta) cos(theta) / (pi eps_h) (exact,
 so all rays weigh the same), traced at each sub-band's wavelength with rays in proportion to the
 part's band power there. At every hit the walk books the power it removes (weight x (1 -
-throughput), what Russian roulette removes or adds, and what is left at the event cap) to the
-part hit; absorbers and detectors take everything. So each row plus ``escaped`` is exactly 1 and
+throughput) and what Russian roulette removes or adds) to the part hit; absorbers and detectors take
+everything. What a path still carries at the event cap (``walk.MAX_EVENTS``, reached only in closed
+mirror cavities) is booked to no part: it is reported as ``truncated`` (exchange_details.json) and
+warned above 1 % of a part's emission, as ``trace`` warns for its max_events (a perfect mirror was
+booked 4.3 % absorbed, issue 39). So each row plus ``escaped`` plus ``truncated`` is exactly 1 and
 the estimate of D_ij is unbiased (roulette is). The band value is the emitted-power-weighted mean
 over sub-bands; ``emissivity`` is the hemispherical band emissivity, so that
 eps_i A_i D_ij = eps_j A_j D_ji at equal temperatures (reciprocity).
@@ -45,6 +48,7 @@ class ExchangeResult:
     rays: int
     seed: int
     temperatures_k: np.ndarray
+    truncated: np.ndarray | None = None  # (P,) fraction of each part's emission cut at the event cap
 
     def couplings_m2(self) -> np.ndarray:
         """eps_i A_i D_ij in m^2."""
@@ -84,6 +88,7 @@ class ExchangeResult:
         atomicio.write_text(directory / "couplings.csv", self.couplings_csv())
         atomicio.write_json(directory / "exchange_details.json", {
             "rays": self.rays, "seed": self.seed, "escaped_stderr": self.escaped_stderr.tolist(),
+            "truncated": (self.truncated if self.truncated is not None else np.zeros(len(self.names))).tolist(),
             "temperatures_k": dict(zip(self.names, map(float, self.temperatures_k))),
             "couplings_m2": self.couplings_m2().tolist()})
 
@@ -112,6 +117,7 @@ def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
     var = np.zeros((P, P))
     esc = np.ones(P)
     esc_var = np.zeros(P)
+    cut = np.zeros(P)
     for i in emitters:
         share = emitted[:, i] / emitted[:, i].sum()
         sampler = AreaSampler.of_part(ts, i)
@@ -122,7 +128,7 @@ def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
                 n_k = 2 if share[k] > 0 else 0
             if n_k == 0:
                 continue
-            s1, s2 = np.zeros(P + 1), np.zeros(P + 1)
+            s1, s2 = np.zeros(P + 2), np.zeros(P + 2)
             chunk, left = 0, n_k
             while left > 0:
                 m = min(CHUNK_RAYS, left)
@@ -137,8 +143,26 @@ def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
             var[i] += share[k] ** 2 * v[:P]
             esc[i] += share[k] * mean[P]
             esc_var[i] += share[k] ** 2 * v[P]
+            cut[i] += share[k] * mean[P + 1]
+    _warn_truncated(cut, ts.part_names)
     return ExchangeResult((lo, hi), list(ts.part_names), np.array([ts.part_area_mm2(p) for p in range(P)]),
-                          band_eps, d, np.sqrt(var), esc, np.sqrt(esc_var), int(n_rays), int(seed), temps)
+                          band_eps, d, np.sqrt(var), esc, np.sqrt(esc_var), int(n_rays), int(seed), temps,
+                          truncated=cut)
+
+
+def _warn_truncated(cut, names) -> None:
+    """A TruncationWarning naming the part whose emission the event cap cut most, above 1 %."""
+    import warnings
+
+    from straylight.run_checks import TRUNCATION_WARN_FRACTION, TruncationWarning
+    from straylight.thermal.walk import MAX_EVENTS
+
+    k = int(np.argmax(cut)) if len(cut) else 0
+    if len(cut) and cut[k] > TRUNCATION_WARN_FRACTION:
+        warnings.warn(f"the event cap ({MAX_EVENTS} events: a closed mirror cavity) stopped {cut[k]:.1%} of the "
+                      f"power {names[k]!r} emits, booked to no part (exchange_details.json 'truncated'); the "
+                      f"row's D_ij are low by that much: give the cavity an absorbing or escaping part",
+                      TruncationWarning, stacklevel=3)
 
 
 def _emit_chunk(ts, sides, i, sampler, seed, stream, chunk, n):
@@ -147,16 +171,21 @@ def _emit_chunk(ts, sides, i, sampler, seed, stream, chunk, n):
     P = ts.n_parts
     rng = chunk_rng(seed, stream + (2 << 20), chunk)
     o, nrm, d = emission_rays(sampler, sides.eps[i, 0], rng.random((n, 3)), rng)
-    book = np.zeros((P + 1) * n)  # (part or escaped, ray)
+    book = np.zeros((P + 2) * n)  # (part, escaped or cut at the event cap, ray)
 
     def ended(ev):  # escaped (booked to P), or all of it to the absorber or detector hit
         part = np.where(ev.alive, ev.hit.part, P)
         np.add.at(book, part[ev.ends] * n + ev.ray[ev.ends], ev.w[ev.ends])
 
-    def removed(ev, w_next):  # what the interaction and roulette took (at the event cap: everything)
+    def removed(ev, w_next):  # what the interaction and roulette took; at the event cap, the rest is cut
         c = ev.cont
+        if ev.capped:
+            out = ev.carried
+            np.add.at(book, ev.hit.part[c] * n + ev.ray[c], ev.w[c] - out)  # absorbed at this last hit
+            np.add.at(book, (P + 1) * n + ev.ray[c], out)  # what the path still carried: cut, not absorbed
+            return
         np.add.at(book, ev.hit.part[c] * n + ev.ray[c], ev.w[c] - w_next)
 
     walk(ts, sides, rng, o, nrm, d, np.ones(n), ended, removed)
-    x = book.reshape(P + 1, n)
+    x = book.reshape(P + 2, n)
     return x.sum(axis=1), (x * x).sum(axis=1)

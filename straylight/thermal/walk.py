@@ -90,6 +90,8 @@ class Event:
     ends: np.ndarray  # (n,) bool: escaped, or on an absorber or detector (the walk stops there)
     cont: np.ndarray  # row indices that interact and go on (the rows not in ``ends``)
     U: np.ndarray  # (n, EVENT_COLUMNS) this event's uniforms
+    capped: bool = False  # the event cap (MAX_EVENTS): every path ends here, what it carries is dropped
+    carried: np.ndarray | None = None  # at the cap: the rows ``cont``'s weights after this interaction (dropped)
 
     @property
     def alive(self) -> np.ndarray:
@@ -105,7 +107,8 @@ def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
 
     ``at_hit(event)`` scores the hits of every event; ``after_scatter(event, w_next)`` the rows
     ``event.cont`` after interaction and roulette (``w_next``: their weights now, 0 where the path
-    ends; at the event cap every path ends with 0). Roulette plays below ``ROULETTE_W * w_ref``."""
+    ends; at the event cap every path ends with 0 and ``event.capped`` is set: callers report that
+    power as cut, never as absorbed by the part hit). Roulette plays below ``ROULETTE_W * w_ref``."""
     o = o + ts.eps_mm * nrm
     ray = np.arange(len(w))
     delta = np.zeros(len(w), bool)
@@ -118,13 +121,14 @@ def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
         alive = hit.tri >= 0
         ends = ~alive | terminal[np.where(alive, hit.part, 0)]
         cont = np.flatnonzero(~ends)
-        ev = Event(ray, d, w, delta, hit, ends, cont, U)
+        ev = Event(ray, d, w, delta, hit, ends, cont, U, capped=index == MAX_EVENTS - 1)
         at_hit(ev)
         if len(cont) == 0:
             break
         out = interact(ts, sides, hit, cont, d[cont], U[cont])
         w_next = roulette(w[cont] * out.throughput, w_ref, U[cont, 4])
         if index == MAX_EVENTS - 1:
+            ev.carried = w_next
             w_next = np.zeros_like(w_next)  # the cap: every path ends here
         if after_scatter is not None:
             after_scatter(ev, w_next)
