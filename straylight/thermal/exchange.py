@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import io
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import numpy as np
 
 import atomicio
 from straylight.frames import data_frame
+from straylight.run_checks import TRUNCATION_WARN_FRACTION, TruncationWarning
 from straylight.thermal.tables import plot_matrix
 from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
@@ -152,11 +154,9 @@ def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
 
 def _warn_truncated(cut, names) -> None:
     """A TruncationWarning naming the part whose emission the event cap cut most, above 1 %."""
-    import warnings
+    from straylight.thermal import walk as walk_module  # MAX_EVENTS read now (tests lower it)
 
-    from straylight.run_checks import TRUNCATION_WARN_FRACTION, TruncationWarning
-    from straylight.thermal.walk import MAX_EVENTS
-
+    MAX_EVENTS = walk_module.MAX_EVENTS
     k = int(np.argmax(cut)) if len(cut) else 0
     if len(cut) and cut[k] > TRUNCATION_WARN_FRACTION:
         warnings.warn(f"the event cap ({MAX_EVENTS} events: a closed mirror cavity) stopped {cut[k]:.1%} of the "

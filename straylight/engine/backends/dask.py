@@ -414,8 +414,6 @@ class _NoForeignHandshakes:
 
 def _quiet_handshakes(dask_worker=None) -> bool:
     """Install :class:`_NoForeignHandshakes` on ``distributed.comm.tcp`` in this process (once)."""
-    import logging
-
     log = logging.getLogger("distributed.comm.tcp")
     if not any(isinstance(f, _NoForeignHandshakes) for f in log.filters):
         log.addFilter(_NoForeignHandshakes())
