@@ -359,6 +359,56 @@ def trace_sequence(opt: GhostOptics, seq, n: int, rng) -> Arrivals:
     return Arrivals(per_ray, point[at], b.d[at], b.w[at])
 
 
+def sample_polylines(opt: GhostOptics, seq, n_paths: int = 6, rays: int = 256, seed: int = 0) -> list:
+    """Up to ``n_paths`` rays of ``seq`` that reach the detector, each as its (k, 3) points in mm (source,
+    every hit, the detector): the rays the 3-D view draws for a ghost."""
+    rng = np.random.default_rng(seed)
+    b = emit(opt, rays, rng)
+    ids = np.arange(rays)
+    trail = [b.o.copy()]
+    alive_at = [ids.copy()]
+    for p, act in list(seq) + [(opt.detector, "D")]:
+        if len(ids) == 0:
+            return []
+        part, dist, point, facing, front = next_hits(opt, b)
+        ok = np.flatnonzero((part == p) & (front if act == "D" else True))
+        b, ids = b.take(ok), ids[ok]
+        point, facing, front, part, dist = point[ok], facing[ok], front[ok], part[ok], dist[ok]
+        trail.append(point.copy())
+        alive_at.append(ids.copy())
+        if act == "D":
+            break
+        cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
+        co = fresnel(opt, part, front, cos_i, dist)
+        b.last = part
+        b = interact(b, point, facing, co, np.full(len(ids), act == "R"))
+    out = []
+    for i in ids[:n_paths]:
+        out.append(np.array([pts[np.flatnonzero(at == i)[0]] for pts, at in zip(trail, alive_at)]))
+    return out
+
+
+def write_view3d(table: "GhostTable", opt: GhostOptics, setup, path, top: int = 12, seed: int = 0):
+    """DIR/view3d.html: the instrument with the nominal path and the ``top`` strongest ghosts drawn, each its own
+    selectable path (straylight.view3d)."""
+    from straylight.view3d import PathSample, view_data, view_page
+
+    import atomicio
+
+    samples = []
+    nominal_seq = table.nominal_parts
+    samples.append(PathSample(0, "nominal image", 1.0, 0.0,
+                              [p.tolist() for p in sample_polylines(opt, nominal_seq, seed=seed)]))
+    for rank, r in enumerate(table.rows[:top], start=1):
+        poly = sample_polylines(opt, r.parts, seed=seed + rank)
+        if poly:
+            samples.append(PathSample(rank, "ghost " + " > ".join(r.surfaces), r.fraction_of_nominal,
+                                      r.stderr_w / table.nominal.power_w if table.nominal.power_w > 0 else 0.0,
+                                      [p.tolist() for p in poly]))
+    page = view_page(view_data(setup, {}, {}, samples, f"Ghosts at {table.detector} (field {table.field_deg:g} deg)"))
+    return atomicio.write_text(path, page)
+
+
 # ---------------------------------------------------------------- the table
 
 
@@ -376,6 +426,7 @@ class GhostRow:
     peak_ratio: float | None
     rays: int
     sequence: list = field(default_factory=list)
+    parts: tuple = field(default=(), repr=False)  # the forced sequence ((part index, action), ...)
 
 
 class _Accumulator:
@@ -440,6 +491,10 @@ def detector_frame(opt: GhostOptics):
                      f"(CONTRACTS 6.4; {int(mask.sum())} triangles of mesh given)")
 
 
+def _row_dict(r: GhostRow) -> dict:
+    return {k: v for k, v in r.__dict__.items() if k != "parts"}
+
+
 @dataclass(eq=False)
 class GhostTable:
     """The ghost table: the nominal image and every ghost, sorted by power (CONTRACTS 8.4)."""
@@ -453,11 +508,13 @@ class GhostTable:
     half_width_mm: float
     seconds: float = 0.0
     notes: list = field(default_factory=list)
+    nominal_parts: tuple = ()
+    optics: "GhostOptics | None" = None  # the GhostOptics it was traced on (the 3-D view draws its rays)
 
     def to_json_dict(self) -> dict:
         return {"detector": self.detector, "order": self.order, "field_deg": self.field_deg,
-                "map_bins": MAP_BINS, "nominal": self.nominal.__dict__,
-                "ghosts": [r.__dict__ for r in self.rows], "seconds": self.seconds, "notes": list(self.notes)}
+                "map_bins": MAP_BINS, "nominal": _row_dict(self.nominal),
+                "ghosts": [_row_dict(r) for r in self.rows], "seconds": self.seconds, "notes": list(self.notes)}
 
 
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
@@ -507,11 +564,12 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         maps[label] = m
         rows.append(GhostRow(names, list(refl), p, e, p / p_nom if p_nom > 0 else float("nan"), f, r,
                              peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n,
-                             [opt.names[q] for q, _ in seq]))
+                             [opt.names[q] for q, _ in seq], tuple(seq)))
         if on_ghost is not None:  # a callable(k, n) told after each ghost (a progress bar)
             on_ghost(k, len(refls))
     rows.sort(key=lambda r: -r.power_w)
-    return GhostTable(opt.names[opt.detector], order, 0.0, nom_row, rows, maps, half, time.perf_counter() - t0)
+    return GhostTable(opt.names[opt.detector], order, 0.0, nom_row, rows, maps, half, time.perf_counter() - t0,
+                      nominal_parts=tuple(nominal))
 
 
 # ---------------------------------------------------------------- files and the picture
@@ -608,6 +666,8 @@ def ghosts(scene, order: int = 2, field_deg: float = 0.0, detector: str | None =
     from straylight.scene import load_scene
 
     rs = load_scene(scene) if not hasattr(scene, "scene") else scene
-    table = ghost_table(prepare(rs, field_deg, detector), order=order, **kwargs)
+    opt = prepare(rs, field_deg, detector)
+    table = ghost_table(opt, order=order, **kwargs)
     table.field_deg = float(field_deg)
+    table.optics = opt
     return table

@@ -22,6 +22,8 @@ def add_parser(subparsers):
                    help="ghosts below this fraction of the nominal image's power stop early (default 1e-6)")
     p.add_argument("--max-rays", type=int, default=400_000, help="ray budget per ghost (default 400000)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-view3d", action="store_true",
+                   help="skip DIR/view3d.html (the lens with the nominal path and the strongest ghosts, each selectable)")
     p.set_defaults(func=run)
 
 
@@ -52,6 +54,16 @@ def run(args) -> int:
     finally:
         bar.close()
     write_table(table, args.out)
+    written = "ghosts.csv, ghosts.json, ghosts.md, ghosts.png"
+    if not args.no_view3d and table.optics is not None:
+        from pathlib import Path
+
+        from straylight.analyses.ghost_trace import write_view3d
+        from straylight.analyses.scene_setup import scene_setup
+
+        write_view3d(table, table.optics, scene_setup(args.scene, detector=args.detector), Path(args.out) / "view3d.html",
+                     seed=args.seed)
+        written += ", view3d.html"
     print(markdown(table, top=15))
-    print(f"written {args.out}/ghosts.csv, ghosts.json, ghosts.md, ghosts.png")
+    print(f"written {args.out}/{written}")
     return 0

@@ -141,6 +141,27 @@ def test_command_writes_the_contract_files(tmp_path):
     doc = json.loads((out / "ghosts.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
     assert doc["field_deg"] == 5.0 and doc["order"] == 2 and len(doc["ghosts"]) == 15
     assert (out / "ghosts.png").stat().st_size > 10_000
+    page = (out / "view3d.html").read_text()
+    assert '"label":"nominal image"' in page
+    labels = page.replace("\\u003e", ">")  # the page's JSON escapes ">"
+    assert sum(f'"label":"ghost {" > ".join(g["surfaces"])}"' in labels for g in doc["ghosts"][:12]) >= 10  # the strongest ghosts are selectable paths of the view
+
+
+def test_the_view_draws_each_ghost_along_its_own_sequence(tmp_path):
+    from straylight.analyses.ghost_trace import sample_polylines
+
+    table = ghosts(_cooke(tmp_path), target_rel_error=0.2)
+    opt = table.optics
+    det = opt.surfaces[opt.detector]
+    g = table.rows[0]
+    lines = sample_polylines(opt, g.parts, n_paths=4)
+    assert len(lines) == 4
+    for pts in lines:
+        assert len(pts) == len(g.parts) + 2  # the source, every forced hit, the detector
+        assert abs(float(np.dot(pts[-1] - det.vertex_mm, det.axis))) < 1e-6  # ends on the detector's plane
+        # after the two reflections the ray runs backward (-z) between them, forward (+z) elsewhere
+        dz = np.diff(pts[:, 2])
+        assert (dz < 0).sum() >= 1 and dz[-1] > 0
 
 
 @pytest.mark.parametrize("args, words", [(["--order", "3"], "even"), (["--field-deg", "95"], "field")])
