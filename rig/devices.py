@@ -56,6 +56,11 @@ class LockinOverload(RuntimeError):
     """The lock-in overloaded (LIAS? bits 0-2) and could not range out of it."""
 
 
+class ReadingsInterrupted(RuntimeError):
+    """A point's readings were stopped by SIGINT/SIGTERM (:meth:`LockIn.halt_readings`); the point is
+    not saved, the points before it are, and ``--resume`` measures it again."""
+
+
 class Quantity(Signal):
     """A soft ophyd Signal whose ``describe()`` carries ``units`` and ``precision`` (decimal
     places), as an EPICS signal's does, so every event descriptor says what its numbers mean."""
@@ -222,7 +227,17 @@ class LockIn(Device):
     def __init__(self, prefix="", *, backend, name, **kwargs):
         self._backend = backend
         self._discarded = 0
+        self._halt = threading.Event()
         super().__init__(prefix, name=name, **kwargs)
+
+    def halt_readings(self) -> None:
+        """Stop the readings of the point being measured before its next reading (a signal handler may
+        call it: it only sets an event). A point of 1000 readings at several time constants each would
+        otherwise hold Ctrl-C for minutes (issue 39)."""
+        self._halt.set()
+
+    def allow_readings(self) -> None:
+        self._halt.clear()
 
     def _read_one(self) -> float:
         """One reading after settling. A reference unlock discards it and waits for the lock
@@ -289,7 +304,11 @@ class LockIn(Device):
             if hasattr(self._backend, "start_acquisition"):
                 self._backend.start_acquisition()
             self._discarded = 0
-            values = np.array([self._read_one() for _ in range(n)])
+            values = np.empty(n)
+            for k in range(n):
+                if self._halt.is_set():
+                    raise ReadingsInterrupted(f"{self.name}: readings stopped after {k} of {n} (interrupted)")
+                values[k] = self._read_one()
             self.mean_v.put(float(values.mean()))
             self.std_v.put(float(values.std(ddof=1)) if n > 1 else float("nan"))
             self.n.put(n)

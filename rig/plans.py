@@ -42,6 +42,7 @@ from bluesky import plan_stubs as bps
 from bluesky import preprocessors as bpp
 from bluesky.utils import Msg
 
+from rig.devices import ReadingsInterrupted
 from rig.points import (PAPER_N_READINGS, PAPER_POLARIZATIONS, PAPER_THETA_I_DEG, PAPER_ZONES_DEG,  # noqa: F401
                         THETA_R_MAX_DEG, WING_STEP_DEG, Point, paper_points, paper_theta_r_deg, point_key)
 
@@ -341,6 +342,8 @@ def brdf_scan(devices=None, points=(), *, n_readings: int = PAPER_N_READINGS, md
             if isinstance(e, RunEngineControlException):
                 reason = stop_reason.for_abort() if e.exit_status == "abort" else ""
                 yield from bps.close_run(exit_status=e.exit_status, reason=reason)
+            elif isinstance(e, ScanFault) and isinstance(e.cause, ReadingsInterrupted):
+                yield from bps.close_run(exit_status="abort", reason=stop_reason.for_abort())
             else:
                 yield from bps.close_run(exit_status="fail", reason=str(e))
 

@@ -24,6 +24,7 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+from rig.devices import ReadingsInterrupted
 from rig.instrument import RigConfig
 from rig.plans import PlanSpec, ScanFault, StopReason, brdf_scan, device_error
 from rig.writer import ScanFiles
@@ -131,6 +132,9 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
         # request_pause blocks until the RunEngine's loop thread acknowledges: never call it
         # from that thread or hold the main thread on it (bluesky's SigintHandler does the same)
         threading.Thread(target=_quiet_pause, args=(RE,), daemon=True).start()
+        halt = getattr(getattr(devices, "lockin", None), "halt_readings", None)
+        if halt is not None:  # a point of many readings stops before its next one
+            halt()
 
     if handle_signals and threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -146,8 +150,15 @@ def run_scan(devices, spec: PlanSpec, csv_path, *, sample: str, config: RigConfi
             status = "abort"
         except Exception as exc:  # noqa: BLE001 - a fault; the plan closed the run with 'fail'
             cause = exc.cause if isinstance(exc, ScanFault) else device_error(exc)
-            status, reason = "fail", f"{type(cause).__name__}: {cause}"
+            if isinstance(cause, ReadingsInterrupted):  # a signal stopped a point's readings: the plan aborted
+                status = "abort"
+                reason = stop_reason.text = f"interrupted ({interrupted.get('signal', 'readings halted')})"
+            else:
+                status, reason = "fail", f"{type(cause).__name__}: {cause}"
     finally:
+        allow = getattr(getattr(devices, "lockin", None), "allow_readings", None)
+        if allow is not None:
+            allow()
         for sig, handler in old_handlers.items():
             signal.signal(sig, handler)
         if real:
