@@ -233,6 +233,25 @@ def _parse_float(text, path, line, col, name):
     return value
 
 
+def _check_repeat(columns: dict, seen: dict, path, lineno: int) -> None:
+    """The row just read (the last of ``columns``) may repeat an earlier row's point (same wavelength,
+    polarization and angles) only with the same BRDF: two different values at one point would both be
+    fitted as truth (issue 39). Repeats belong in one row (mean, ``brdf_std_per_sr``, ``n_repeats``)."""
+    key = (columns["wavelength_nm"][-1], columns["polarization"][-1], columns["theta_i_deg"][-1],
+           columns["theta_r_deg"][-1], float(columns["phi_r_deg"][-1]) % 360.0)
+    brdf = columns["brdf_per_sr"][-1]
+    if not (math.isfinite(brdf) and brdf >= 0):  # a flagged reading (NaN, negative) is kept, never compared
+        return
+    if key not in seen:
+        seen[key] = (lineno, brdf)
+        return
+    first, before = seen[key]
+    if brdf != before:
+        raise ScanError(f"repeats the point of line {first} (wavelength {key[0]:g} nm, {key[1]}, theta_i {key[2]:g}, "
+                        f"theta_r {key[3]:g}, phi_r {key[4]:g} deg) with another brdf_per_sr ({brdf:g} vs {before:g}); "
+                        f"keep one row per point (mean, brdf_std_per_sr, n_repeats)", path, lineno, "brdf_per_sr")
+
+
 def read_scan(path) -> Scan:
     """Read and validate a scan CSV (CONTRACTS §2).
 
@@ -255,6 +274,7 @@ def read_scan(path) -> Scan:
     metadata: dict[str, str] = {}
     header = None
     columns = {name: [] for name in CSV_COLUMNS}
+    seen: dict = {}  # (wavelength, pol, theta_i, theta_r, phi_r) -> (line, brdf) of its first row
     for lineno, raw in enumerate(text.splitlines(), start=1):
         stripped = raw.strip()
         if not stripped:
@@ -301,6 +321,7 @@ def read_scan(path) -> Scan:
             if name == "n_repeats" and not (math.isfinite(value) and value == int(value) and value >= 0):
                 raise ScanError(f"n_repeats = {cell} is not a non-negative whole number", *where)
             columns[name].append(value)
+        _check_repeat(columns, seen, path, lineno)
     if header is None:
         raise ScanError("no header row (expected columns: " + ", ".join(CSV_COLUMNS) + ")", path, 1)
     return Scan(**columns, metadata=metadata, path=path)
