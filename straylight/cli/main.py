@@ -262,6 +262,39 @@ def _interrupted(exc: BaseException | None) -> bool:
     return False
 
 
+def _disk_full_message(exc: BaseException) -> str | None:
+    """A full disk, said with the folder to free: "[Errno 28] No space left on device" from a cache
+    write (numba's kernels, tessellations, tables) named no file and failed every command (issue 39)."""
+    import errno
+    import os
+
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
+            break
+        exc = exc.__cause__ or exc.__context__
+    else:
+        return None
+    if not isinstance(exc, OSError):
+        return None
+    name = exc.filename
+    caches = [os.environ.get("STRAYLIGHT_CACHE_DIR"), os.environ.get("NUMBA_CACHE_DIR")]
+    try:
+        from atomicio.cache_dirs import user_cache_root
+
+        caches.append(str(user_cache_root()))
+    except Exception:  # noqa: BLE001 - naming the folder must not fail in turn
+        pass
+    caches = list(dict.fromkeys(c for c in caches if c))
+    in_cache = name is None or any(str(name).startswith(c) for c in caches)
+    if in_cache and caches:
+        return (f"no space left on the disk of the cache folder {' or '.join(caches) if name is None else name} "
+                f"({exc.strerror}): free space there, or point STRAYLIGHT_CACHE_DIR and NUMBA_CACHE_DIR at "
+                f"another disk, or set STRAYLIGHT_CACHE=off")
+    return f"no space left on the disk holding {name} ({exc.strerror}): free space there or write elsewhere"
+
+
 def main(argv=None) -> int:
     """The ``straylight`` command. Ctrl-C (SIGINT) is honoured from the first instant, while the
     parser imports its groups as well as during the command: one line, exit 130."""
@@ -297,6 +330,7 @@ def _main(argv=None) -> int:
         if args.debug:
             raise
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        message = _disk_full_message(exc) or message
         print(f"straylight: error: {message}", file=sys.stderr)
         return 2
 
