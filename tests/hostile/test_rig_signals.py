@@ -41,7 +41,7 @@ def test_signal_inside_a_long_point_stops_it(tmp_path, signum):
     assert time.monotonic() - start < 20
     assert signal.getsignal(signum) == previous
     assert out.exit_status == "abort" and signal.Signals(signum).name in out.reason
-    assert readings["n"] <= 1000 + 20 + 1  # the second point stopped at its next reading (main: all 1000 read)
+    assert readings["n"] <= 1000 + 20 + 100  # the second point stopped within a few readings (main: all 1000 read)
     assert len(read_scan(path)) == 1  # the first point kept
     stops = [doc for name, doc in read_log(out.log_path) if name == "stop"]
     assert stops[-1]["exit_status"] == "abort" and signal.Signals(signum).name in stops[-1]["reason"]
