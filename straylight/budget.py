@@ -74,3 +74,38 @@ def check_worker_budget(workers, processes: bool = False, what: str = "--workers
     if n > MAX_THREADS_PER_CORE * cores:
         raise ValueError(f"{what} {n}: more than {MAX_THREADS_PER_CORE} per core on this machine's {cores} cores; "
                          f"use a cluster (--scheduler) for more")
+
+
+EMBREE_BYTES_PER_TRIANGLE = 600  # address space Embree's BVH build takes per triangle (measured: ~515 B, 1e6 triangles)
+
+
+def address_space_left_bytes() -> float:
+    """Bytes this process may still map under its address-space limit (``ulimit -v``, RLIMIT_AS); inf if none."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+    except (ImportError, OSError, ValueError):
+        return float("inf")
+    if soft in (resource.RLIM_INFINITY, -1) or soft <= 0:
+        return float("inf")
+    try:
+        with open("/proc/self/statm") as f:
+            used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        used = 0
+    return float(soft - used)
+
+
+def check_embree_address_space(n_triangles: int, left_bytes: float | None = None) -> None:
+    """Refuse (ValueError, one line) a scene whose Embree BVH would not fit in the address space left
+    under this process's limit: Embree then aborts the process (SIGABRT / SIGSEGV, no message; an
+    11.5 M-triangle scene under ``ulimit -v``, issue 39)."""
+    left = address_space_left_bytes() if left_bytes is None else float(left_bytes)
+    need = int(n_triangles) * EMBREE_BYTES_PER_TRIANGLE
+    if need <= left:
+        return
+    raise ValueError(f"the scene's {int(n_triangles):,} triangles need about {need / 2**30:.3g} GB of address space "
+                     f"for the intersector (Embree, ~{EMBREE_BYTES_PER_TRIANGLE} B per triangle), more than the "
+                     f"{max(left, 0) / 2**30:.3g} GB left under this process's limit (ulimit -v); raise the limit "
+                     f"or mesh coarser (a larger tolerance_mm)")

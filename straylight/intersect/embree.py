@@ -39,6 +39,9 @@ class EmbreeIntersector:
         if tri.ndim != 3 or tri.shape[1:] != (3, 3) or len(tri) == 0:
             raise ValueError(f"triangles_mm must be a non-empty (m, 3, 3) array, got {tri.shape}")
         self.n_triangles = len(tri)
+        from straylight.budget import check_embree_address_space
+
+        check_embree_address_space(self.n_triangles)  # Embree aborts the process when it runs out
         self._device = EmbreeDevice()
         self._embree = EmbreeScene(self._device)
         self._building = None
