@@ -80,11 +80,13 @@ def test_imported_scene_focuses_like_the_sequential_trace(name, tmp_path):
     _check(name, tmp_path)
 
 
-NO_REFERENCE = ("the sequential reference (rayoptics, with the clear apertures and holes as read) keeps no ray "
-                "of the pupil grid: every ray fails some surface's aperture or hole limit; under investigation")
+OFF_AXIS_APERTURE = ("off-axis apertures: the file's clear apertures are rectangles decentred from the surface "
+                     "vertex (Zemax SQAP + OBDC, CODE V REX/REY + ADY: 397 mm on this primary, 99.6 mm on threemir's); "
+                     "a 6.1 surface's aperture is an annulus about its axis, so the import keeps a disk of the file's "
+                     "semi-diameter about the vertex, and the sequential reference, limited the same way, "
+                     "keeps no ray of the pupil grid")
 KNOWN = {  # files that import but whose focus check does not pass yet (reported, not hidden)
-    "ray-optics/US08011793-1.zmx": NO_REFERENCE, "ray-optics/threemir.seq": NO_REFERENCE,
-    "ray-optics/HoO-V2C18Ex27.zmx": NO_REFERENCE,
+    "ray-optics/US08011793-1.zmx": OFF_AXIS_APERTURE, "ray-optics/threemir.seq": OFF_AXIS_APERTURE,
     "ray-optics/zmax_37992.zmx": "the sequential trace (rayoptics) reaches the image with no ray: under investigation",
 }
 

@@ -78,6 +78,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     surfaces = [s for s in p.surfaces if not s.dummy]
     mirrors = [s for s in surfaces if s.mirror]
     placed: list = []
+    optical: list = []  # (surface, its part)
     n_al, k_al = aluminium_nk(wl)
     edge_names = {}
 
@@ -105,6 +106,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
             part = {"name": unique(s.name), "surface": _surface_table(s, axis, outer, inner),
                     "material": "aluminium_mirror", "back_material": edge_material, "role": "surface"}
             parts.append(part)
+            optical.append((s, part))
             if s.inner_kind == "obscuration" and inner > 0:
                 parts.append({"name": unique(s.name + "_obscuration"), "surface": _surface_table(s, axis, inner),
                               "material": edge_material, "role": "surface"})
@@ -141,9 +143,11 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
             s.inner_kind, s.inner_radius_mm = (s.inner_kind or "obscuration"), inner  # as the trace sees it
         parts.append({"name": unique(s.name), "surface": _surface_table(s, axis, outer, inner),
                       "material": key, "role": "surface"})
+        optical.append((s, parts[-1]))
         if s.inner_kind == "obscuration" and inner > 0 and spot == 0:
             parts.append({"name": unique(s.name + "_obscuration"), "surface": _surface_table(s, axis, inner),
                           "material": edge_material, "role": "surface"})
+    _tighten_mesh_tolerance(optical)
     # lens edges: cylinder between consecutive refracting surfaces with glass between, and flat rings
     for a, b in zip(p.surfaces, p.surfaces[1:]):
         if a.mirror or b.mirror or a.n <= 1.0 + 1e-9 or a.dummy:
@@ -213,6 +217,43 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     analysis = {"detector": "image", "entrance": {"center_mm": _v(first.vertex_mm), "normal": [0.0, 0.0, -1.0],
                                                    "radius_mm": first.semi_diameter_mm}}
     return {"material": materials, "part": parts, "source": [source], "analysis": analysis}
+
+
+MESH_TOLERANCE_MM = 0.05  # the scene's default chord tolerance (docs/reference/scene.md, tolerance_mm)
+MIN_MESH_TOLERANCE_MM = 1e-3
+
+
+def _axial_gap_mm(a, b, rho_lo: float, rho_hi: float) -> float:
+    """Smallest distance along the common axis between coaxial surfaces ``a`` and ``b`` over the annulus
+    ``rho_lo..rho_hi`` their parts share (sampled sags), or inf when they share none or are not coaxial (tilted
+    or decentred relative to each other)."""
+    if rho_hi <= rho_lo:
+        return math.inf
+    ax = np.asarray(a.local_z, float)
+    if abs(abs(float(np.dot(ax, b.local_z))) - 1.0) > 1e-9:
+        return math.inf
+    d = np.asarray(b.vertex_mm, float) - np.asarray(a.vertex_mm, float)
+    if np.linalg.norm(d - np.dot(d, ax) * ax) > 1e-6:
+        return math.inf
+    sb = float(np.dot(b.local_z, ax))
+    return min(abs(float(np.dot(d, ax)) + sag_mm(b, r) * sb - sag_mm(a, r)) for r in np.linspace(rho_lo, rho_hi, 65))
+
+
+def _tighten_mesh_tolerance(optical) -> None:
+    """Give ``tolerance_mm`` (a quarter of the gap, >= 1 um) to the parts of surfaces closer than 4 x the default
+    chord tolerance: the hit search runs on the meshes, and two meshes within their chord error of each other
+    (a 0.018 mm air gap between two lenses) would be met in the wrong order; the hit is then refined onto the
+    wrong surface and the lens defocuses (by 0.8 mm for such a pair)."""
+    for i, (a, pa) in enumerate(optical):
+        for b, pb in optical[i + 1:]:
+            sa, sb = pa["surface"], pb["surface"]
+            gap = _axial_gap_mm(a, b, max(sa.get("inner_radius_mm", 0.0), sb.get("inner_radius_mm", 0.0)),
+                                min(sa["outer_radius_mm"], sb["outer_radius_mm"]))
+            if gap >= 4.0 * MESH_TOLERANCE_MM:
+                continue
+            tol = max(float(gap) / 4.0, MIN_MESH_TOLERANCE_MM)
+            for part in (pa, pb):
+                part["tolerance_mm"] = round(min(part.get("tolerance_mm", MESH_TOLERANCE_MM), tol), 6)
 
 
 # coatings lens files name, as the lens-design programs' own coating files define them: OpticStudio's

@@ -132,7 +132,9 @@ def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, n: i
         for path in sequential_paths(p, field, source_z_mm, source_radius_mm, n, block=False):
             for i_from, i_to, a_pt, b_pt in _real_segments(p, path)[1:]:  # the incoming beam makes no hole
                 for m in mirrors:
-                    if m.index in (i_from, i_to):
+                    # before the mirror is met, the beam crossing its aperture is obscured by its back (a
+                    # secondary's central obscuration, :func:`_blocked`), not passed through a hole
+                    if m.index in (i_from, i_to) or i_from < m.index:
                         continue
                     hit = _crossing(m, a_pt, b_pt)
                     if hit and hit[1] < m.semi_diameter_mm:

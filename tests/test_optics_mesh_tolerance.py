@@ -1,0 +1,46 @@
+"""Imported surfaces closer than the default mesh chord tolerance are meshed finer (docs/optics.md).
+
+The hit search runs on the meshes; two meshes within their chord error of each other would be met in the
+wrong order. Golden: the gap between s7 and s8 of HoO-V2C18Ex27.zmx computed here from the file's own CURV
+and DISZ numbers with the sphere sag formula, independent of the importer.
+"""
+import math
+from pathlib import Path
+
+import numpy as np
+
+LENSES = Path(__file__).resolve().parent / "data" / "lenses"
+
+
+def _sphere_sag(c, rho):
+    return c * rho * rho / (1.0 + np.sqrt(1.0 - c * c * rho * rho))
+
+
+def test_a_thin_air_gap_gets_a_mesh_tolerance_below_a_quarter_of_the_gap():
+    from geometry.analytic import surface_from_dict
+    from straylight.optics.reader import read_prescription
+    from straylight.optics.scene_build import build_scene
+
+    p = read_prescription(LENSES / "ray-optics" / "HoO-V2C18Ex27.zmx")
+    parts = {q["name"]: q for q in build_scene(p)["part"]}
+    # the file: SURF 7 CURV -0.11659088259, DISZ 0.018 to SURF 8 CURV -0.11641443539, common DIAM 1.37503
+    c7, c8, d78, r = -1.165908825929812265e-01, -1.164144353899883577e-01, 0.018, 1.3750279799325189
+    rho = np.linspace(0.0, r, 2001)
+    gap = float(np.min(d78 + _sphere_sag(c8, rho) - _sphere_sag(c7, rho)))
+    assert 0.0 < gap < 0.2
+    for name in ("s7", "s8"):
+        assert parts[name]["tolerance_mm"] <= gap / 4.0 + 1e-9
+    # surfaces far apart keep the scene's default (no key)
+    assert "tolerance_mm" not in parts["s4"] and "tolerance_mm" not in parts["s1"]
+    # meshed at that tolerance, every vertex and facet centre of s8's mesh stays behind s7's exact surface
+    s7 = surface_from_dict(parts["s7"]["surface"])
+    s8 = surface_from_dict(parts["s8"]["surface"])
+    v8, f8 = s8.mesh(parts["s8"]["tolerance_mm"])
+    pts = np.concatenate([v8, v8[f8].mean(axis=1)])
+    z7 = float(s7.vertex_mm[2]) + (-1.0 if s7.axis[2] < 0 else 1.0) * s7.sag(np.hypot(pts[:, 0], pts[:, 1]).clip(0, r))
+    assert np.all(pts[:, 2] > z7)
+    v7, f7 = s7.mesh(parts["s7"]["tolerance_mm"])
+    c7pts = np.concatenate([v7, v7[f7].mean(axis=1)])
+    z8 = float(s8.vertex_mm[2]) + (-1.0 if s8.axis[2] < 0 else 1.0) * s8.sag(np.hypot(c7pts[:, 0], c7pts[:, 1]).clip(0, r))
+    assert np.all(c7pts[:, 2] < z8)
+    assert math.isclose(float(s8.vertex_mm[2] - s7.vertex_mm[2]), d78, abs_tol=1e-9)
