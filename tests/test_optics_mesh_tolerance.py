@@ -44,3 +44,16 @@ def test_a_thin_air_gap_gets_a_mesh_tolerance_below_a_quarter_of_the_gap():
     z8 = float(s8.vertex_mm[2]) + (-1.0 if s8.axis[2] < 0 else 1.0) * s8.sag(np.hypot(c7pts[:, 0], c7pts[:, 1]).clip(0, r))
     assert np.all(c7pts[:, 2] < z8)
     assert math.isclose(float(s8.vertex_mm[2] - s7.vertex_mm[2]), d78, abs_tol=1e-9)
+
+
+def test_a_secondary_in_the_incoming_beam_gets_no_hole():
+    """HoO-V2C18Ex27's flat secondary (s5, semi-diameter 5.44 mm) sits in the beam between the corrector and the
+    primary: that beam is obscured by its back. The file gives it no hole, and none may be added (a hole of
+    0.999 x its semi-diameter left a 6 um ring of mirror, and the sequential reference kept no ray)."""
+    from straylight.optics.reader import read_prescription
+    from straylight.optics.scene_build import build_scene
+
+    p = read_prescription(LENSES / "ray-optics" / "HoO-V2C18Ex27.zmx")
+    parts = {q["name"]: q for q in build_scene(p)["part"]}
+    assert "inner_radius_mm" not in parts["s5"]["surface"]
+    assert not [w for w in p.warnings if "hole" in w]
