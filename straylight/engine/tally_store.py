@@ -18,9 +18,28 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from atomicio.inputs import physical_memory_bytes
 from materials.jit_cache import njit
 
 from straylight.engine.tallies import chunk_sums_numpy, log_chunk_sums
+
+
+#: bytes the compiled walk's tally log of one batch may take (None: a quarter of this machine's memory).
+#: Paths that never end (a closed perfect-mirror cavity with a large --max-events) grew the log by
+#: ~20-30 MB/s until "Allocation failed" (issue 39); past the budget the batch stops with a clear error.
+LOG_BUDGET_BYTES: int | None = None
+BYTES_PER_WRITE = 16  # row int32 + ray int32 + value float64
+
+
+class TallyLogBudgetError(MemoryError):
+    """The walk's tally log of one batch would outgrow :data:`LOG_BUDGET_BYTES`."""
+
+
+def log_budget_bytes() -> float:
+    if LOG_BUDGET_BYTES is not None:
+        return float(LOG_BUDGET_BYTES)
+    memory = physical_memory_bytes()
+    return memory / 4 if memory else float("inf")
 
 
 class TallyLog(NamedTuple):
@@ -78,7 +97,17 @@ class LoggedTallies:
             return
         if n > cap:
             raise RuntimeError(f"tally log overflow: {n} writes into {cap} slots (a kernel wrote more than it reserved)")
-        new = self._empty(max(2 * cap, n + int(k)))
+        size = max(2 * cap, n + int(k))
+        budget = log_budget_bytes()
+        if size * BYTES_PER_WRITE > budget:
+            size = n + int(k)  # the least that fits, before giving up
+            if size * BYTES_PER_WRITE > budget:
+                raise TallyLogBudgetError(
+                    f"the walk's tally records for {self.n_rays} rays reached {n * BYTES_PER_WRITE / 2**30:.3g} GB "
+                    f"({n:,} writes), past the {budget / 2**30:.3g} GB budget (a quarter of this machine's memory): "
+                    f"paths that do not end, as in a closed mirror cavity; lower --max-events or give the cavity an "
+                    f"absorbing or escaping part")
+        new = self._empty(size)
         for a, b in zip(new[:3], self.log[:3]):
             a[:n] = b[:n]
         new.count[0] = n
