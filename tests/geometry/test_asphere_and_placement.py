@@ -181,3 +181,21 @@ def test_bad_asphere_and_placement_keys_are_one_line_errors(table, message):
     with pytest.raises(GeometryError, match=message) as err:
         surface_from_dict(table, where="scene.toml part 'l1'")
     assert "\n" not in str(err.value) and "l1" in str(err.value)
+
+
+@pytest.mark.parametrize("kind", ["conic", "asphere", "plane", "cylinder"])
+def test_a_placed_surface_round_trips_through_to_dict(kind):
+    """to_dict writes the placement folded into vertex_mm and axis (the surfaces are symmetric about their
+    axis, so nothing is lost): reading it back gives the same placed surface, not the offset applied twice."""
+    base = {"conic": {"type": "conic", "radius_mm": 100.0, "conic": -0.5, "outer_radius_mm": 10.0},
+            "asphere": {**ASPHERE},
+            "plane": {"type": "plane", "outer_radius_mm": 10.0, "inner_radius_mm": 2.0},
+            "cylinder": {"type": "cylinder", "radius_mm": 5.0, "length_mm": 20.0}}[kind]
+    placed = surface_from_dict({**base, "vertex_mm": [1.0, 2.0, 3.0], "tilt_deg": [5.0, 0.0, -7.0],
+                                "offset_mm": [0.0, 3.0, -1.0]})
+    d = placed.to_dict()
+    assert "offset_mm" not in d and "tilt_deg" not in d
+    again = surface_from_dict(d)
+    np.testing.assert_allclose(again.vertex_mm, placed.vertex_mm, atol=1e-14)
+    np.testing.assert_allclose(again.axis, placed.axis, atol=1e-14)
+    assert again.to_dict() == d
