@@ -5,6 +5,7 @@ resource and the command, so an operator can act on it without a traceback.
 """
 from __future__ import annotations
 
+import re
 import threading
 from pathlib import Path
 
@@ -26,6 +27,26 @@ class ResponseError(InstrumentError, ValueError):
     """An instrument's reply could not be parsed."""
 
 
+def one_line(exc: BaseException) -> str:
+    """``exc``'s message on one line. pyvisa-sim puts whole tracebacks (as reprs, with ``\\n``) in its
+    "Could not parse definitions file." error (issue 39): keep the text before them and the innermost
+    error with its detail lines (the file, line and column of a YAML mistake)."""
+    text = str(exc)
+    marker = "Traceback (most recent call last):"
+    if marker not in text:
+        return " ".join(text.split())
+    head = text.split(marker, 1)[0].strip().rstrip("'").strip()
+    body = text
+    for _ in range(4):  # undo the nested reprs
+        body = body.replace("\\\\", "\\").replace("\\n", "\n").replace("\\'", "'")
+    lines = [ln.strip() for ln in body.splitlines()]
+    starts = [k for k, ln in enumerate(lines) if re.match(r"^[\w.]*(Error|Exception|Warning)\b.*:", ln)]
+    tail = lines[starts[-1]:] if starts else lines[-1:]
+    detail = " ".join(ln for ln in tail if ln and not ln.startswith(("File ", "^", "Traceback", "During handling")))
+    detail = detail.strip("'\" ")
+    return " ".join(f"{head} {detail}".split())[:400]
+
+
 def sim_library(yaml_name: str) -> str:
     """The ``visa_library`` string of a bundled pyvisa-sim definition, e.g. ``'esp301.yaml'``."""
     return f"{SIM_DIR / yaml_name}@sim"
@@ -44,9 +65,9 @@ def open_resource(resource_name: str, *, visa_library: str = "", timeout_s: floa
         rm = pyvisa.ResourceManager(visa_library)
         res = rm.open_resource(resource_name, read_termination=read_termination,
                                write_termination=write_termination)
-    except (pyvisa.errors.VisaIOError, OSError, ValueError) as exc:
+    except Exception as exc:  # noqa: BLE001 - pyvisa and its backends raise many kinds; name the resource
         raise InstrumentError(f"cannot open VISA resource {resource_name!r} "
-                              f"(library {visa_library or 'default'!r}): {exc}") from None
+                              f"(library {visa_library or 'default'!r}): {one_line(exc)}") from None
     res.timeout = timeout_s * 1000.0
     return res
 
