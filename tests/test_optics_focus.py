@@ -87,7 +87,7 @@ OFF_AXIS_APERTURE = ("off-axis apertures: the file's clear apertures are rectang
                      "keeps no ray of the pupil grid")
 KNOWN = {  # files that import but whose focus check does not pass yet (reported, not hidden)
     "ray-optics/US08011793-1.zmx": OFF_AXIS_APERTURE, "ray-optics/threemir.seq": OFF_AXIS_APERTURE,
-    "ray-optics/zmax_37992.zmx": "the sequential trace (rayoptics) reaches the image with no ray: under investigation",
+    "ray-optics/zmax_37992.zmx": OFF_AXIS_APERTURE + " (an off-axis paraboloid, aperture decentred 190.6 mm by OBDC)",
 }
 
 

@@ -57,3 +57,17 @@ def test_a_secondary_in_the_incoming_beam_gets_no_hole():
     parts = {q["name"]: q for q in build_scene(p)["part"]}
     assert "inner_radius_mm" not in parts["s5"]["surface"]
     assert not [w for w in p.warnings if "hole" in w]
+
+
+def test_a_decentred_clear_aperture_is_warned_not_dropped_silently():
+    """zmax_37992.zmx: an off-axis paraboloid whose aperture the file decentres (OBDC 0 190.6 on SURF 3);
+    threemir.seq: CODE V ADY on the three mirrors (99.602384, -6.213535, -112.354230 in the file)."""
+    from straylight.optics.reader import read_prescription
+
+    w = read_prescription(LENSES / "ray-optics" / "zmax_37992.zmx").warnings
+    assert any(x.startswith("s3: the file decentres its clear aperture by (0, 190.6) mm") for x in w)
+    w = read_prescription(LENSES / "ray-optics" / "threemir.seq").warnings
+    for name, dy in (("s2", "99.6024"), ("s4", "-6.21354"), ("s5", "-112.354")):
+        assert any(x.startswith(f"{name}: the file decentres its clear aperture by (0, {dy}) mm") for x in w)
+    assert not any("decentres its clear" in x
+                   for x in read_prescription(LENSES / "ray-optics" / "rc_f16.seq").warnings)

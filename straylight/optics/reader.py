@@ -149,6 +149,41 @@ def _obstructions(fmt: str, text: str) -> dict:
     return out
 
 
+def _aperture_decentres(fmt: str, text: str) -> dict:
+    """{surface index: (dx, dy) in file units} of clear apertures decentred from their surface's vertex (CODE V
+    ``ADX`` / ``ADY``, Zemax ``OBDC``): an off-axis segment of a parent surface (docs/optics.md)."""
+    out: dict = {}
+    idx = None
+    for line in text.splitlines():
+        for cmd in (line.split(";") if fmt == "seq" else [line]):
+            words = cmd.strip().split()
+            if not words:
+                continue
+            head = words[0].upper()
+            if fmt == "seq":
+                if head == "SO":
+                    idx = 0
+                elif head == "S" or re.fullmatch(r"S\d+", head):
+                    idx = (idx or 0) + 1 if head == "S" else int(head[1:])
+                elif head == "SI":
+                    idx = None
+                elif head in ("ADX", "ADY") and idx is not None and len(words) >= 2:
+                    try:
+                        value = float(words[1])
+                    except ValueError:
+                        continue
+                    dx, dy = out.get(idx, (0.0, 0.0))
+                    out[idx] = (value, dy) if head == "ADX" else (dx, value)
+            elif head == "SURF" and len(words) >= 2:
+                idx = int(words[1]) if words[1].isdigit() else None
+            elif head == "OBDC" and idx is not None and len(words) >= 3:
+                try:
+                    out[idx] = (float(words[1]), float(words[2]))
+                except ValueError:
+                    continue
+    return {i: v for i, v in out.items() if v != (0.0, 0.0)}
+
+
 def _coatings(fmt: str, text: str) -> dict:
     """{surface index: coating name} where the file names one (Zemax ``COAT NAME``)."""
     out = {}
@@ -342,6 +377,7 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         notes.append(f"multi-configuration file ({nconf} configurations): configuration 1 imported")
     obstr = _obstructions(fmt, text)
     coats = _coatings(fmt, text)
+    decentred = _aperture_decentres(fmt, text)
 
     problems: list = []
     n_ifc = len(sm.ifcs)
@@ -399,6 +435,10 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         if i in obstr:
             s.inner_kind, r_in = obstr[i]
             s.inner_radius_mm = r_in * scale
+        if i in decentred:
+            dx, dy = (v * scale for v in decentred[i])
+            notes.append(f"{s.name}: the file decentres its clear aperture by ({dx:g}, {dy:g}) mm from the vertex "
+                         "(an off-axis segment); the scene's aperture is centred on the vertex (not supported yet)")
         if label:
             names.setdefault(label, []).append(s)
         surfaces.append(s)
