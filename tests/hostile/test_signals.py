@@ -19,12 +19,12 @@ from tests.hostile.conftest import scene_text
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _interrupt_trace(tmp_path, delay_s: float, rays: str = "3e7"):
+def _interrupt_trace(tmp_path, delay_s: float, rays: str = "3e7", extra=()):
     scene = tmp_path / "scene.toml"
     scene.write_text(scene_text())
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen([sys.executable, "-m", "straylight.cli.main", "trace", str(scene), "--rays", rays,
-                             "--json", str(tmp_path / "out.json")], cwd=tmp_path, env=env,
+                             "--json", str(tmp_path / "out.json"), *extra], cwd=tmp_path, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(delay_s)
     proc.send_signal(signal.SIGINT)
@@ -37,9 +37,11 @@ def _interrupt_trace(tmp_path, delay_s: float, rays: str = "3e7"):
     return proc.returncode, err
 
 
-@pytest.mark.parametrize("delay_s", [0.5, 1.5])
-def test_sigint_stops_trace_with_one_line(tmp_path, delay_s):
-    code, err = _interrupt_trace(tmp_path, delay_s)
+@pytest.mark.parametrize("delay_s, extra", [(0.5, ()), (1.5, ()), (2.0, ("--workers", "2"))])
+def test_sigint_stops_trace_with_one_line(tmp_path, delay_s, extra):
+    """With --workers, main also printed dask's "Async instruction for <Task cancelled ...> ended with
+    CancelledError" warnings."""
+    code, err = _interrupt_trace(tmp_path, delay_s, extra=extra)
     lines = [line for line in err.strip().splitlines() if "compiling" not in line and "warning" not in line]
     # 130, or death by SIGINT after the message (-2: what a shell also reports as 130; CPython ends so when a
     # KeyboardInterrupt went through an extension's PyRun_* call during an import)

@@ -186,6 +186,7 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
                                                protocol="tls://", security=security)
         return cluster if dashboard else _http_off(cluster)  # Client(cluster) takes the cluster's security
     runtime()  # this process's, started before the cluster's threads are (its in-process worker shares it)
+    _quiet_handshakes()
     with dask.config.set(lean):
         cluster = PooledCluster(n_workers=1, threads_per_worker=int(n_workers), processes=False,
                                 dashboard_address=None, scheduler_kwargs=scheduler_kwargs, worker_class=LoopbackWorker,
@@ -404,19 +405,27 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
 
 
 class _NoForeignHandshakes:
-    """A logging filter: drops dask's "TLS handshake failed with remote ..." warnings. Any local process
-    (another user's port scan, a browser) that touches the cluster's TLS port printed one on the user's
-    terminal; it never got in (tests/straylight/test_cluster_security.py)."""
+    """A logging filter for dask's noise on the user's terminal (issue 39): "TLS handshake failed with
+    remote ..." (any local process, another user's port scan or a browser, that touches the cluster's
+    TLS port; it never got in: tests/straylight/test_cluster_security.py) and, after Ctrl-C, "Async
+    instruction for <Task cancelled ...> ended with CancelledError" (the run says "interrupted")."""
+
+    NOISE = ("TLS handshake failed", "ended with CancelledError")
 
     def filter(self, record) -> bool:
-        return "TLS handshake failed" not in record.getMessage()
+        message = record.getMessage()
+        return not any(n in message for n in self.NOISE)
+
+
+QUIET_LOGGERS = ("distributed.comm.tcp", "distributed.worker.state_machine")
 
 
 def _quiet_handshakes(dask_worker=None) -> bool:
-    """Install :class:`_NoForeignHandshakes` on ``distributed.comm.tcp`` in this process (once)."""
-    log = logging.getLogger("distributed.comm.tcp")
-    if not any(isinstance(f, _NoForeignHandshakes) for f in log.filters):
-        log.addFilter(_NoForeignHandshakes())
+    """Install :class:`_NoForeignHandshakes` on :data:`QUIET_LOGGERS` in this process (once)."""
+    for name in QUIET_LOGGERS:
+        log = logging.getLogger(name)
+        if not any(isinstance(f, _NoForeignHandshakes) for f in log.filters):
+            log.addFilter(_NoForeignHandshakes())
     return True
 
 
