@@ -186,6 +186,6 @@ def _emit_chunk(ts, sides, i, sampler, seed, stream, chunk, n):
             return
         np.add.at(book, ev.hit.part[c] * n + ev.ray[c], ev.w[c] - w_next)
 
-    walk(ts, sides, rng, o, nrm, d, np.ones(n), ended, removed)
+    walk(ts, sides, rng, o, nrm, d, np.ones(n), ended, removed, warn_cap=False)  # reported per part instead
     x = book.reshape(P + 2, n)
     return x.sum(axis=1), (x * x).sum(axis=1)

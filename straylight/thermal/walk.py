@@ -15,11 +15,13 @@ dielectrics, reverse walks use f(wi, wo) with wi and wo swapped (exact for recip
 """
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from straylight.run_checks import TruncationWarning
 from straylight.thermal.interaction import interact
 
 CHUNK_RAYS = 4096
@@ -99,8 +101,14 @@ class Event:
         return self.hit.tri >= 0
 
 
+CAP_MESSAGE = ("the thermal walk's event cap ({cap} events) stopped paths still carrying over 1 % of their "
+               "power (a closed mirror cavity): that power is not counted; give the cavity an absorbing or "
+               "escaping part")
+
+
 def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
-         after_scatter: Callable[[Event, np.ndarray], None] | None = None, w_ref: float = 1.0) -> None:
+         after_scatter: Callable[[Event, np.ndarray], None] | None = None, w_ref: float = 1.0,
+         warn_cap: bool = True) -> None:
     """Walk rays from points ``o`` (n, 3) on surfaces of normals ``nrm`` (started ``ts.eps_mm`` off
     them) along ``d`` with weights ``w`` through ``ts`` (straylight.thermal.model.ThermalScene) with
     the materials ``sides`` (model.SideTables), drawing each event's uniforms from ``rng``.
@@ -108,7 +116,10 @@ def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
     ``at_hit(event)`` scores the hits of every event; ``after_scatter(event, w_next)`` the rows
     ``event.cont`` after interaction and roulette (``w_next``: their weights now, 0 where the path
     ends; at the event cap every path ends with 0 and ``event.capped`` is set: callers report that
-    power as cut, never as absorbed by the part hit). Roulette plays below ``ROULETTE_W * w_ref``."""
+    power as cut, never as absorbed by the part hit). Roulette plays below ``ROULETTE_W * w_ref``.
+    ``warn_cap``: a TruncationWarning (:data:`CAP_MESSAGE`) when the paths stopped at the cap still
+    carry more than 1 % of the starting weight (callers that report it themselves pass False)."""
+    w_start = float(np.sum(w))
     o = o + ts.eps_mm * nrm
     ray = np.arange(len(w))
     delta = np.zeros(len(w), bool)
@@ -129,6 +140,8 @@ def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
         w_next = roulette(w[cont] * out.throughput, w_ref, U[cont, 4])
         if index == MAX_EVENTS - 1:
             ev.carried = w_next
+            if warn_cap and float(np.sum(w_next)) > 0.01 * w_start:
+                warnings.warn(CAP_MESSAGE.format(cap=MAX_EVENTS), TruncationWarning, stacklevel=2)
             w_next = np.zeros_like(w_next)  # the cap: every path ends here
         if after_scatter is not None:
             after_scatter(ev, w_next)

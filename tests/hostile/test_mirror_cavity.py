@@ -58,3 +58,12 @@ def test_event_cap_is_not_absorbed_by_a_perfect_mirror(box, tmp_path):
     np.testing.assert_allclose(res.d[det].sum() + res.escaped[det] + res.truncated[det], 1.0, rtol=1e-12)
     res.write(tmp_path)
     assert json.loads((tmp_path / "exchange_details.json").read_text())["truncated"][det] == res.truncated[det]
+
+
+def test_thermal_reports_the_event_cap(box, tmp_path, capsys):
+    """``thermal`` (reverse rays from the detector) dropped what its paths carried at the cap without a word."""
+    from straylight.cli.main import main
+
+    assert main(["thermal", str(box), "--band-um", "8", "12", "--rays", "400", "--out", str(tmp_path / "t")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("warning: the thermal walk's event cap (40 events) stopped paths") == 1  # once, not per chunk
