@@ -15,6 +15,10 @@ system's temporary directory is used instead: ``straylight-cache-<uid>``, create
 used only if it is a real folder owned by this user that nobody else can write (another local user
 could otherwise plant compiled code or meshes there for this one to load); else a fresh
 ``mkdtemp`` folder for this process.
+
+Every cache folder (and dask's scratch folder, :func:`private_dir`) is created with mode 0700 and
+used only while :func:`check_private` holds (a real folder, ours, that no other user can write): a
+folder planted by someone else, or opened to others, is passed over for the fallback.
 """
 from __future__ import annotations
 
@@ -36,10 +40,43 @@ def enabled() -> bool:
     return os.environ.get(ENV_SWITCH, "on").strip().lower() not in ("off", "0", "no", "false")
 
 
-def _usable(path: Path) -> bool:
-    """Can this process create ``path`` (with its parents) and a file in it?"""
+class NotPrivateError(OSError):
+    """A cache or scratch folder another user could write into (and so plant code or data for us)."""
+
+
+def check_private(path: Path) -> Path:
+    """``path`` itself (not a symlink) is a folder owned by this user that no one else can write, or
+    :class:`NotPrivateError` naming it and why ( a world-writable ``dask-scratch-space`` put
+    on ``sys.path`` let another local user run code as this one)."""
+    st = os.lstat(path)
+    if not stat.S_ISDIR(st.st_mode):
+        raise NotPrivateError(f"{path}: is not a folder (a symlink or a file): not used as a private folder")
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        raise NotPrivateError(f"{path}: belongs to user id {st.st_uid}, not to you: not used as a private folder")
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        raise NotPrivateError(f"{path}: other users can write into it (mode {stat.S_IMODE(st.st_mode):o}): "
+                              f"not used as a private folder; chmod go-w it")
+    return path
+
+
+def _make_private(path: Path) -> Path:
+    """Create ``path`` (parents as needed; the folder itself with mode 0700) and :func:`check_private` it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     try:
-        path.mkdir(parents=True, exist_ok=True)
+        path.mkdir(mode=0o700)
+    except FileExistsError:
+        st = os.lstat(path)
+        if (stat.S_ISDIR(st.st_mode) and (not hasattr(os, "getuid") or st.st_uid == os.getuid())
+                and st.st_mode & (stat.S_IWGRP | stat.S_IWOTH)):
+            os.chmod(path, stat.S_IMODE(st.st_mode) & ~0o022)  # ours, made by an older version under umask 002
+    return check_private(path)
+
+
+def _usable(path: Path) -> bool:
+    """Can this process create ``path`` (with its parents, the folder itself private: 0700, ours, no one
+    else may write) and a file in it?"""
+    try:
+        _make_private(path)
         fd, probe = tempfile.mkstemp(dir=path, prefix=".probe-")
         os.close(fd)
         os.unlink(probe)
@@ -84,11 +121,30 @@ def cache_dir(kind: str) -> Path:
     the tessellations if set (and usable), else under :func:`user_cache_root`. Not created here
     beyond what checking it needs."""
     given = os.environ.get(ENV_DIR) if kind != "numba" else None
+    memo = ("dir", kind, given)
+    if memo in _CHOSEN and os.path.isdir(_CHOSEN[memo]):
+        return _CHOSEN[memo]
+    _CHOSEN[memo] = path = _find_cache_dir(kind, given)
+    return path
+
+
+def _find_cache_dir(kind: str, given) -> Path:
     if given:
         path = Path(given) / kind
         if _usable(path):
             return path
-    return user_cache_root() / kind
+    path = user_cache_root() / kind
+    if not _usable(path):  # planted or opened to others: this user's private temp folder instead
+        path = _private_temp() / kind
+        if not _usable(path):
+            path = Path(tempfile.mkdtemp(prefix=f"straylight-{kind}-"))
+    return path
+
+
+def private_dir(kind: str) -> Path:
+    """A private folder (0700, ours, checked: :func:`check_private`) under the user cache root for
+    scratch files (``"dask-scratch"``: dask's ``temporary-directory``), never a shared ``<tmp>`` folder."""
+    return cache_dir(kind)
 
 
 def configure_numba_cache() -> str:

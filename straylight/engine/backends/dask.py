@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from atomicio.cache_dirs import private_dir
 from straylight.engine.backends import fork_server
 from straylight.engine.backends.threads import run_threads
 from straylight.engine.runtime import runtime
@@ -148,7 +149,11 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
     processes with one thread each; their scheduler listens on a loopback TCP port, which any
     process of the machine can reach, so it speaks TLS with a key made for this cluster alone
     (:func:`run_security`): a process without that key (another user, another program) cannot
-    connect, let alone submit a task."""
+    connect, let alone submit a task.
+
+    dask's scratch folder (its ``temporary-directory``, which a worker puts first on ``sys.path``) is
+    this user's private folder (:func:`atomicio.cache_dirs.private_dir`: 0700, ours, checked), never
+    ``<tmp>/dask-scratch-space``, where another local user could plant a module."""
     import dask
     from dask.distributed import LocalCluster, Worker
 
@@ -176,7 +181,8 @@ def local_cluster(n_workers: int, processes: bool = False, dashboard: bool = Fal
             self.straylight_threads = int(straylight_threads)
             super().__init__(*args, **kwargs)
 
-    lean = {**LEAN_CONFIG, **({} if dashboard else NO_HTTP_ROUTES)}
+    lean = {**LEAN_CONFIG, **({} if dashboard else NO_HTTP_ROUTES),
+            "temporary-directory": str(private_dir("dask-scratch"))}  # never a shared <tmp> folder
     if processes:
         _quiet_handshakes()
         security = run_security()
@@ -224,8 +230,6 @@ def run_security():
     ECDSA P-256 key instead of RSA-2048 (made in ~1 ms instead of 0.1-0.4 s, and every TLS handshake
     between the cluster's processes signs faster). ``require_encryption``: every connection is TLS
     and must present that certificate, so nothing without the key talks to the scheduler."""
-    from distributed.security import Security
-
     try:
         from cryptography import x509
         from cryptography.hazmat.primitives import hashes, serialization
@@ -245,9 +249,63 @@ def run_security():
             .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=30))
             .sign(key, hashes.SHA256()))
     cert_pem = cert.public_bytes(serialization.Encoding.PEM).decode()
-    return Security(require_encryption=True, tls_ca_file=cert_pem, tls_client_key=key_pem, tls_client_cert=cert_pem,
+    return MemorySecurity(require_encryption=True, tls_ca_file=cert_pem, tls_client_key=key_pem, tls_client_cert=cert_pem,
                     tls_scheduler_key=key_pem, tls_scheduler_cert=cert_pem, tls_worker_key=key_pem,
                     tls_worker_cert=cert_pem)
+
+
+def _memory_file(text: str):
+    """A file descriptor of an anonymous in-memory file (Linux ``memfd_create``) holding ``text``, and
+    its path ``/proc/self/fd/N``; None where there is no such thing."""
+    if not hasattr(os, "memfd_create") or not os.path.isdir("/proc/self/fd"):
+        return None
+    fd = os.memfd_create("straylight-tls", getattr(os, "MFD_CLOEXEC", 0))
+    os.write(fd, text.encode())
+    return fd, f"/proc/self/fd/{fd}"
+
+
+def _security_class():
+    from distributed.security import Security
+
+    class _MemorySecurity(Security):
+        """dask's ``Security`` whose in-memory PEM certificate and key never touch a disk: dask writes
+        them to a temporary folder for ``ssl.load_cert_chain`` (which reads only files); here they
+        go to anonymous in-memory files (``memfd_create``) instead, as the docs promise.
+        Elsewhere (no memfd) dask's own way applies."""
+
+        def _get_tls_context(self, tls, purpose):
+            fds, tls = [], dict(tls)
+            try:
+                for name in ("cert", "key"):
+                    text = tls.get(name)
+                    if text and "\n" in text:
+                        made = _memory_file(text)
+                        if made is None:
+                            break
+                        fds.append(made[0])
+                        tls[name] = made[1]
+                return super()._get_tls_context(tls, purpose)
+            finally:
+                for fd in fds:
+                    os.close(fd)
+
+    _MemorySecurity.__qualname__ = _MemorySecurity.__name__  # pickled by name: the module's __getattr__
+    globals()["_MemorySecurity"] = _MemorySecurity
+    return _MemorySecurity
+
+
+def __getattr__(name):
+    """``_MemorySecurity`` made on first use (dask is imported only when a cluster is), so that worker
+    processes can unpickle it by name."""
+    if name == "_MemorySecurity":
+        return _security_class()
+    raise AttributeError(name)
+
+
+def MemorySecurity(**kwargs):  # noqa: N802 - builds a Security
+    """A :class:`distributed.Security` whose in-memory key stays in memory (:func:`_security_class`)."""
+    cls = globals().get("_MemorySecurity") or _security_class()
+    return cls(**kwargs)
 
 
 INSECURE_ENV = "STRAYLIGHT_ALLOW_INSECURE_SCHEDULER"
