@@ -144,7 +144,8 @@ def write_partial_report(out: Path, cfg: StudyConfig, done: list[str]) -> None:
     missing = [s for s in planned_steps(cfg) if s not in done]
     points = {p.name: len(list(p.glob("point_*.json"))) for p in sorted((out / POINTS_DIR).glob("*"))
               if p.is_dir() and p.name != "study"}
-    files = sorted(p.name for p in out.iterdir() if p.is_file() and p.name not in ("results.json", "index.html"))
+    files = sorted(p.name for p in out.iterdir() if p.is_file() and p.name not in ("results.json", "index.html")
+                   and not p.name.startswith("."))
     doc = {"status": "interrupted", "completed_steps": list(done), "missing_steps": missing,
            "finished_sweep_points": points, "files": files,
            "resume": "run the same study command again with --resume: finished sweep points are read back",
@@ -338,7 +339,7 @@ def _study_steps(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Exec
     write_html(result, pst, report, crit, sweep, direct)
     PointStore.remove_folder(points)  # the report holds every number now
     done.append("report")
-    result.files = {p.name: p for p in sorted(out.iterdir())}
+    result.files = {p.name: p for p in sorted(out.iterdir()) if not p.name.startswith(".")}
     return result
 
 

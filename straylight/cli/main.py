@@ -168,13 +168,17 @@ def _check_requests(args) -> None:
     (geometry.limits), and outputs that cannot be written (``--json``/``--png`` files, ``--out``
     folders, ``--report`` folders: atomicio.guard)."""
     from atomicio.guard import check_output_dir, check_output_file
+    from atomicio.output_rule import check_not_an_input, check_plain_path
 
-    for flag in ("json", "png"):
-        if isinstance(getattr(args, flag, None), str):
-            check_output_file(getattr(args, flag), f"--{flag} output")
-    for flag in ("out", "report"):
-        if isinstance(getattr(args, flag, None), str):
-            check_output_dir(getattr(args, flag), f"--{flag} folder")
+    files, folders = _outputs(args)
+    inputs = _input_files(args)
+    for flag, path in files:
+        check_plain_path(path, f"{flag} output")
+        check_not_an_input(path, inputs, f"{flag} output")
+        check_output_file(path, f"{flag} output")
+    for flag, path in folders:
+        check_plain_path(path, f"{flag} folder")
+        check_output_dir(path, f"{flag} folder")
     for flag in RAY_COUNT_FLAGS:
         value = getattr(args, flag, None)
         none_ok = args.command == "view" and flag == "rays"  # view --rays 0: draw no ray
@@ -202,6 +206,42 @@ def _check_requests(args) -> None:
         from geometry.limits import check_tolerance_mm
 
         check_tolerance_mm(tolerance, "--tolerance-mm")
+
+
+OUTPUT_FILE_FLAGS = ("json", "png", "plot", "csv")
+OUTPUT_DIR_FLAGS = ("out", "report")
+
+
+def _outputs(args) -> tuple[list, list]:
+    """([(flag, file path)], [(flag, folder path)]) of the outputs this command will write."""
+    files = [(f"--{f}", getattr(args, f)) for f in OUTPUT_FILE_FLAGS if isinstance(getattr(args, f, None), str)]
+    folders = [(f"--{f}", getattr(args, f)) for f in OUTPUT_DIR_FLAGS if isinstance(getattr(args, f, None), str)]
+    out = getattr(args, "output", None)
+    if isinstance(out, str):  # -o: a file (MODEL.json, SCAN.csv, SCENE.toml) or a folder (geometry build)
+        from pathlib import Path
+
+        p = Path(out)
+        (folders if p.is_dir() or not p.suffix else files).append(("-o/--output", out))
+    return files, folders
+
+
+def _input_files(args) -> list:
+    """Every argument that names an existing regular file and is not an output: the command's inputs."""
+    import os
+
+    outs = set(OUTPUT_FILE_FLAGS) | set(OUTPUT_DIR_FLAGS) | {"output"}
+    found = []
+    for key, value in vars(args).items():
+        if key in outs or key == "func":
+            continue
+        for v in value if isinstance(value, (list, tuple)) else [value]:
+            if isinstance(v, str) and v and "\0" not in v:
+                try:
+                    if os.path.isfile(v):
+                        found.append(v)
+                except (OSError, ValueError):
+                    continue
+    return found
 
 
 def _announce_first_compile(args) -> None:
@@ -318,7 +358,12 @@ def _main(argv=None) -> int:
     try:
         _check_requests(args)
         _announce_first_compile(args)
-        with _allow_insecure(getattr(args, "allow_insecure", False)), _one_line_warnings():
+        from atomicio.output_rule import outputs_held
+
+        files, folders = _outputs(args)
+        with _allow_insecure(getattr(args, "allow_insecure", False)), _one_line_warnings(), \
+                outputs_held(folders=[(p, f"{f} folder") for f, p in folders],
+                             files=[(p, f"{f} output") for f, p in files if f == "-o/--output"]):
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("straylight: interrupted", file=sys.stderr)
