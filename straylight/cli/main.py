@@ -302,9 +302,9 @@ def _interrupted(exc: BaseException | None) -> bool:
     return False
 
 
-def _disk_full_message(exc: BaseException) -> str | None:
+def _disk_full_message(exc: BaseException | None) -> str | None:
     """A full disk, said with the folder to free: "[Errno 28] No space left on device" from a cache
-    write (numba's kernels, tessellations, tables) named no file and failed every command (issue 39)."""
+    write (numba's kernels, tessellations, tables) named no file and failed every command."""
     import errno
     import os
 
@@ -319,14 +319,14 @@ def _disk_full_message(exc: BaseException) -> str | None:
     if not isinstance(exc, OSError):
         return None
     name = exc.filename
-    caches = [os.environ.get("STRAYLIGHT_CACHE_DIR"), os.environ.get("NUMBA_CACHE_DIR")]
+    found: list[str | None] = [os.environ.get("STRAYLIGHT_CACHE_DIR"), os.environ.get("NUMBA_CACHE_DIR")]
     try:
         from atomicio.cache_dirs import user_cache_root
 
-        caches.append(str(user_cache_root()))
+        found.append(str(user_cache_root()))
     except Exception:  # noqa: BLE001 - naming the folder must not fail in turn
         pass
-    caches = list(dict.fromkeys(c for c in caches if c))
+    caches: list[str] = list(dict.fromkeys(c for c in found if c))
     in_cache = name is None or any(str(name).startswith(c) for c in caches)
     if in_cache and caches:
         return (f"no space left on the disk of the cache folder {' or '.join(caches) if name is None else name} "
