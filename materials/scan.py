@@ -236,7 +236,7 @@ def _parse_float(text, path, line, col, name):
 def _check_repeat(columns: dict, seen: dict, path, lineno: int) -> None:
     """The row just read (the last of ``columns``) may repeat an earlier row's point (same wavelength,
     polarization and angles) only with the same BRDF: two different values at one point would both be
-    fitted as truth (issue 39). Repeats belong in one row (mean, ``brdf_std_per_sr``, ``n_repeats``)."""
+    fitted as truth. Repeats belong in one row (mean, ``brdf_std_per_sr``, ``n_repeats``)."""
     key = (columns["wavelength_nm"][-1], columns["polarization"][-1], columns["theta_i_deg"][-1],
            columns["theta_r_deg"][-1], float(columns["phi_r_deg"][-1]) % 360.0)
     brdf = columns["brdf_per_sr"][-1]

@@ -233,7 +233,7 @@ class LockIn(Device):
     def halt_readings(self) -> None:
         """Stop the readings of the point being measured before its next reading (a signal handler may
         call it: it only sets an event). A point of 1000 readings at several time constants each would
-        otherwise hold Ctrl-C for minutes (issue 39)."""
+        otherwise hold Ctrl-C for minutes."""
         self._halt.set()
 
     def allow_readings(self) -> None:

@@ -100,7 +100,7 @@ def address_space_left_bytes() -> float:
 def check_embree_address_space(n_triangles: int, left_bytes: float | None = None) -> None:
     """Refuse (ValueError, one line) a scene whose Embree BVH would not fit in the address space left
     under this process's limit: Embree then aborts the process (SIGABRT / SIGSEGV, no message; an
-    11.5 M-triangle scene under ``ulimit -v``, issue 39)."""
+    11.5 M-triangle scene under ``ulimit -v``)."""
     left = address_space_left_bytes() if left_bytes is None else float(left_bytes)
     need = int(n_triangles) * EMBREE_BYTES_PER_TRIANGLE
     if need <= left:

@@ -29,7 +29,7 @@ class ResponseError(InstrumentError, ValueError):
 
 def one_line(exc: BaseException) -> str:
     """``exc``'s message on one line. pyvisa-sim puts whole tracebacks (as reprs, with ``\\n``) in its
-    "Could not parse definitions file." error (issue 39): keep the text before them and the innermost
+    "Could not parse definitions file." error: keep the text before them and the innermost
     error with its detail lines (the file, line and column of a YAML mistake)."""
     text = str(exc)
     marker = "Traceback (most recent call last):"

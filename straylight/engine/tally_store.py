@@ -26,7 +26,7 @@ from straylight.engine.tallies import chunk_sums_numpy, log_chunk_sums
 
 #: bytes the compiled walk's tally log of one batch may take (None: a quarter of this machine's memory).
 #: Paths that never end (a closed perfect-mirror cavity with a large --max-events) grew the log by
-#: ~20-30 MB/s until "Allocation failed" (issue 39); past the budget the batch stops with a clear error.
+#: ~20-30 MB/s until "Allocation failed"; past the budget the batch stops with a clear error.
 LOG_BUDGET_BYTES: int | None = None
 BYTES_PER_WRITE = 16  # row int32 + ray int32 + value float64
 

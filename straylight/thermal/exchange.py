@@ -10,7 +10,7 @@ throughput) and what Russian roulette removes or adds) to the part hit; absorber
 everything. What a path still carries at the event cap (``walk.MAX_EVENTS``, reached only in closed
 mirror cavities) is booked to no part: it is reported as ``truncated`` (exchange_details.json) and
 warned above 1 % of a part's emission, as ``trace`` warns for its max_events (a perfect mirror was
-booked 4.3 % absorbed, issue 39). So each row plus ``escaped`` plus ``truncated`` is exactly 1 and
+booked 4.3 % absorbed). So each row plus ``escaped`` plus ``truncated`` is exactly 1 and
 the estimate of D_ij is unbiased (roulette is). The band value is the emitted-power-weighted mean
 over sub-bands; ``emissivity`` is the hemispherical band emissivity, so that
 eps_i A_i D_ij = eps_j A_j D_ji at equal temperatures (reciprocity).

@@ -1,4 +1,4 @@
-"""Issue 39: a scene too big for the address space left under ``ulimit -v`` aborted inside Embree
+"""Hostile input: a scene too big for the address space left under ``ulimit -v`` aborted inside Embree
 (SIGABRT / SIGSEGV, no message). It is now refused before Embree starts, in one line with the estimate."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 39: a full cache disk failed every command with "[Errno 28] No space left on device" without
+"""Hostile input: a full cache disk failed every command with "[Errno 28] No space left on device" without
 naming the cache. The one-line error now names the folder and what to do."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 39: in a closed perfect-mirror cavity the thermal walk ends at its event cap. ``exchange``
+"""Hostile input: in a closed perfect-mirror cavity the thermal walk ends at its event cap. ``exchange``
 booked what the paths still carried there as absorbed by the perfect mirror (4.3 % on main 13a6b5b,
 where ``trace`` warned on the same scene). Now it is booked to no part, reported as ``truncated`` and
 warned; a perfect mirror (emissivity 0, reflectance 1) absorbs exactly nothing."""

@@ -1,4 +1,4 @@
-"""Issue 39 item 1: scratch and cache folders no other user can plant in.
+"""scratch and cache folders no other user can plant in.
 
 - a module planted in a world-writable ``<tmp>/dask-scratch-space`` (and ``-<uid>``) is never run:
   dask's scratch folder is the user's private folder (0700, owned, checked), not ``<tmp>``;

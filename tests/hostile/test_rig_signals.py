@@ -1,4 +1,4 @@
-"""Issue 39: SIGINT or SIGTERM during a rig scan point with many readings stops that point before its
+"""Hostile input: SIGINT or SIGTERM during a rig scan point with many readings stops that point before its
 next reading (main 13a6b5b: a point of 1e9 readings ignored both signals). The points measured before
 stay in the CSV, the stop document says 'abort' and names the signal, and --resume completes the scan."""
 from __future__ import annotations

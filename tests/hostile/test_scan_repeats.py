@@ -1,4 +1,4 @@
-"""Issue 39: a measured scan that gives one point (wavelength, polarization, angles) two different
+"""Hostile input: a measured scan that gives one point (wavelength, polarization, angles) two different
 BRDF values was accepted (main 13a6b5b) and both rows were fitted as truth. Now refused in one line
 naming both lines; an exact repeat still reads."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 39: pyvisa-sim put a whole traceback inside its one-line error for a definitions file it
+"""Hostile input: pyvisa-sim put a whole traceback inside its one-line error for a definitions file it
 cannot parse; the rig's message is now the file's problem, on one line, without the traceback."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 39: a perfect-mirror box traced with a huge --max-events grew ~20-30 MB/s until "Allocation
+"""Hostile input: a perfect-mirror box traced with a huge --max-events grew ~20-30 MB/s until "Allocation
 failed" (main 13a6b5b): the walk's tally log of a batch has a budget (a quarter of the machine's
 memory); past it the trace stops with one line saying why and what to change."""
 from __future__ import annotations

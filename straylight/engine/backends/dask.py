@@ -463,7 +463,7 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
 
 
 class _NoForeignHandshakes:
-    """A logging filter for dask's noise on the user's terminal (issue 39): "TLS handshake failed with
+    """A logging filter for dask's noise on the user's terminal: "TLS handshake failed with
     remote ..." (any local process, another user's port scan or a browser, that touches the cluster's
     TLS port; it never got in: tests/straylight/test_cluster_security.py) and, after Ctrl-C, "Async
     instruction for <Task cancelled ...> ended with CancelledError" (the run says "interrupted")."""
