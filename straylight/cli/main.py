@@ -338,11 +338,49 @@ def _disk_full_message(exc: BaseException | None) -> str | None:
 def main(argv=None) -> int:
     """The ``straylight`` command. Ctrl-C (SIGINT) is honoured from the first instant, while the
     parser imports its groups as well as during the command: one line, exit 130."""
+    with _sigint_kept():
+        try:
+            return _main(argv)
+        except KeyboardInterrupt:
+            print("straylight: interrupted", file=sys.stderr)
+            return 130
+
+
+@contextmanager
+def _sigint_kept():
+    """A Ctrl-C is never lost. Python raises KeyboardInterrupt at the next bytecode, which may be inside
+    a C callback (numba's LLVM object-cache hook while kernels load) that swallows it with an "Exception
+    ignored" message. Such a swallowed KeyboardInterrupt prints nothing here, and SIGINT is sent again
+    0.2 s later (once per swallowed one), so the interrupt reaches this command."""
+    import os
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    state = {"done": False}
+
+    def resend():
+        if not state["done"]:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    previous_hook = sys.unraisablehook
+
+    def quiet(unraisable):
+        if isinstance(unraisable.exc_value, KeyboardInterrupt):
+            timer = threading.Timer(0.2, resend)
+            timer.daemon = True
+            timer.start()
+            return
+        previous_hook(unraisable)
+
+    sys.unraisablehook = quiet
     try:
-        return _main(argv)
-    except KeyboardInterrupt:
-        print("straylight: interrupted", file=sys.stderr)
-        return 130
+        yield
+    finally:
+        state["done"] = True
+        sys.unraisablehook = previous_hook
 
 
 def _main(argv=None) -> int:

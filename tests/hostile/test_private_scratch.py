@@ -29,9 +29,22 @@ def _plant(tmp: Path, mark: Path) -> None:
         os.chmod(folder, 0o777)  # as another local user would leave it
 
 
-def test_planted_module_in_shared_dask_scratch_is_never_run(scene, tmp_path):
-    tmp = tmp_path / "tmp"
-    tmp.mkdir(mode=0o700)
+@pytest.fixture()
+def short_tmp():
+    """A private (0700) TMPDIR with a short path: the process cluster's UNIX sockets live under TMPDIR, and
+    pytest's per-worker tmp_path would push them past the 108-byte AF_UNIX limit."""
+    import shutil
+    import tempfile
+
+    d = Path(tempfile.mkdtemp(prefix="slt-"))
+    try:
+        yield d
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def test_planted_module_in_shared_dask_scratch_is_never_run(scene, tmp_path, short_tmp):
+    tmp = short_tmp
     mark = tmp_path / "mark"
     _plant(tmp, mark)
     env = {**os.environ, "TMPDIR": str(tmp), "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
