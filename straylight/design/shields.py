@@ -102,7 +102,10 @@ def obscuration(tel, bundle, layout: Layout | None) -> float:
             incoming = np.array([s[1:] for s in segs if s[0] == "in"], float).reshape(-1, 4)
             _, smin = clipped_abs_range(incoming, layout.skirt_bottom_u, layout.cap_u)
             _, tmin = clipped_abs_range(incoming, layout.tube_bottom_u, layout.tube_top_u)
-            if _nanmin(smin) <= layout.skirt_radius_mm or _nanmin(tmin) <= layout.tube_radius_mm:
+            to_sec = np.array([s[1:] for s in segs if s[0] == "ps"], float).reshape(-1, 4)
+            _, pmin = clipped_abs_range(to_sec, layout.tube_bottom_u, layout.tube_top_u)
+            if (_nanmin(smin) <= layout.skirt_radius_mm or _nanmin(tmin) <= layout.tube_radius_mm
+                    or _nanmin(pmin) <= layout.tube_radius_mm):
                 ok[i] = False
     total = wgt.sum()
     return float(1.0 - (wgt * ok).sum() / total) if total > 0 else 0.0
@@ -114,40 +117,67 @@ def margin_mm(aperture_radius_mm: float) -> float:
     return max(2e-3 * aperture_radius_mm, 0.02)
 
 
+class _Suffix:
+    """max (or min) of |y| over a u-range for the rays a cap of radius r does not already block.
+
+    The cap annulus (secondary's rim to skirt radius r, at the rim's height) stops every incoming ray that
+    crosses that plane inside r, so those rays never reach the primary, the secondary or the image and
+    need no clearance. Columns are sorted by that crossing radius (``Bundle.keys``); a reverse cumulative
+    max / min gives the value over the rays kept for any r in one lookup."""
+
+    def __init__(self, seg, keys, lo, hi, which):
+        order = np.argsort(keys, kind="stable")
+        self.keys = keys[order]
+        vmax, vmin = clipped_abs_range(seg[order], lo, hi)
+        v = vmax if which == "max" else vmin
+        acc = np.fmax if which == "max" else np.fmin
+        if v.shape[-1]:
+            v = acc.accumulate(v[:, ::-1], axis=1)[:, ::-1]
+        self.v = np.concatenate([v, np.full((v.shape[0], 1), np.nan)], axis=1)
+
+    def at(self, r_min: float) -> np.ndarray:
+        """The values (one per grid height) over the rays whose crossing radius is >= r_min."""
+        return self.v[:, int(np.searchsorted(self.keys, r_min, "left"))]
+
+
+def _fam(bundle, names):
+    seg = np.concatenate([bundle.families[k] for k in names])
+    keys = [bundle.keys.get(k) if bundle.keys else None for k in names]
+    if any(k is None for k in keys):
+        return seg, np.full(len(seg), np.inf)
+    return seg, np.concatenate(keys)
+
+
 def _scan(tel, bundle, max_added, n_grid, n_radii, radius_step) -> list[Layout]:
     """Feasible layouts by increasing skirt radius (two tube choices per radius), up to ``n_radii`` radii
-    at least ``radius_step`` x the aperture radius apart, stopping past the obscuration budget."""
-    fam = bundle.families
+    at least ``radius_step`` x the aperture radius apart, stopping past the obscuration budget. For each
+    skirt radius only the rays its cap lets through constrain the skirt and the tube (:class:`_Suffix`)."""
     R = tel.aperture_radius_mm
     margin = margin_mm(R)
-    inner = np.concatenate([fam["ps"], fam["si"]])
     u_top = tel.secondary_rim_u
     u_i = tel.image_u
     h = tel.image_radius_mm
     tube_bottom = u_i + 1e-3 * max(R, 1.0)
-    # skirt: for each radius, the lowest bottom that keeps the inner beams inside
     us = np.linspace(min(tel.primary_hole_u, u_i), u_top, n_grid)
-    m_inner = np.array([_nanmax(clipped_abs_range(inner, u, u_top)[0]) for u in us])
-    r_grid = np.linspace(tel.secondary_outer_mm, R, n_grid)
-    u_sb = np.empty(n_grid)
-    for k, r in enumerate(r_grid):
-        ok = np.flatnonzero(m_inner < r - margin)
-        u_sb[k] = us[ok[0]] if len(ok) else u_top
-    # tube: for each top height, the least radius clearing the converging beam, and its room
     up = np.linspace(max(tel.primary_hole_u, u_i) - 0.0, u_top, n_grid)
-    outer = np.concatenate([fam["in"], fam["ps"]])
-    a_need = np.empty(n_grid)
-    a_room = np.empty(n_grid)
-    for k, u in enumerate(up):
-        a_need[k] = _nanmax(clipped_abs_range(fam["si"], tube_bottom, u)[0]) + margin
-        a_room[k] = _nanmin(clipped_abs_range(outer, tube_bottom, u)[1]) - margin
+    inner = _Suffix(*_fam(bundle, ("ps", "si")), us[:, None], u_top, "max")
+    need = _Suffix(*_fam(bundle, ("si",)), tube_bottom, up[:, None], "max")
+    room = _Suffix(*_fam(bundle, ("in", "ps")), tube_bottom, up[:, None], "min")
+    r_grid = np.linspace(tel.secondary_outer_mm, R, n_grid)
     before = obscuration(tel, bundle, None)
     out = []
     last_r, radii = None, 0
     for k, r in enumerate(r_grid):
         if last_r is not None and r < last_r + radius_step * R:
             continue
-        usk = u_sb[k]
+        kept = r - margin  # rays crossing the cap's plane inside this are stopped by the cap (with margin)
+        # skirt: the lowest bottom that keeps the inner beams inside
+        m_inner = np.nan_to_num(inner.at(kept), nan=0.0)
+        ok = np.flatnonzero(m_inner < r - margin)
+        usk = us[ok[0]] if len(ok) else u_top
+        # tube: for each top height, the least radius clearing the converging beam, and its room
+        a_need = np.nan_to_num(need.at(kept), nan=0.0) + margin
+        a_room = np.nan_to_num(room.at(kept), nan=math.inf) - margin
         feasible = []
         for j, u in enumerate(up):
             a = a_need[j]

@@ -278,12 +278,16 @@ class Bundle:
     on_axis_y: np.ndarray      # entrance heights of the on-axis fan
     on_axis_nominal: np.ndarray  # which of them form the image (primary, then secondary, then image)
     on_axis_segments: list     # per on-axis ray: list of (family, u0, y0, u1, y1)
+    keys: dict = field(default_factory=dict)  # per family segment: the ray's |y| where it crosses the
+    #                                           secondary's rim plane going in (inf: does not cross it)
 
 
 def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n_fields: int = 9) -> Bundle:
     """The image-forming rays of fields -F..F (meridional fans over the whole source disk)."""
     ip, isec, idet = tel.extra["indices"]
     fams: dict[str, list] = {"in": [], "ps": [], "si": []}
+    keys: dict[str, list] = {"in": [], "ps": [], "si": []}
+    cap_u = tel.secondary_rim_u
     on_y: np.ndarray | None = None
     on_nom: np.ndarray | None = None
     on_segs = []
@@ -307,9 +311,14 @@ def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n
             u = (pts - tel.origin) @ tel.axis
             yy = (pts - tel.origin) @ tel.e1
             segs = []
+            key = math.inf
+            for j in range(kp + 1):  # where the incoming ray crosses the plane of the secondary's rim
+                if min(u[j], u[j + 1]) <= cap_u <= max(u[j], u[j + 1]) and abs(u[j + 1] - u[j]) > 1e-12:
+                    key = min(key, abs(yy[j] + (yy[j + 1] - yy[j]) * (cap_u - u[j]) / (u[j + 1] - u[j])))
             for j in range(len(pts) - 1):
                 fam = "in" if j < kp + 1 else ("ps" if j < ks + 1 else "si")
                 fams[fam].append((u[j], yy[j], u[j + 1], yy[j + 1]))
+                keys[fam].append(key)
                 segs.append((fam, u[j], yy[j], u[j + 1], yy[j + 1]))
             if f == 0.0:
                 on_segs.append((i, segs))
@@ -317,4 +326,4 @@ def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n
             on_y, on_nom = y, nominal
     arr = {k: np.asarray(v, float).reshape(-1, 4) for k, v in fams.items()}
     assert on_y is not None and on_nom is not None  # the field list always holds 0
-    return Bundle(arr, on_y, on_nom, on_segs)
+    return Bundle(arr, on_y, on_nom, on_segs, {k: np.asarray(v, float) for k, v in keys.items()})
