@@ -140,7 +140,7 @@ class _Suffix:
         return self.v[:, int(np.searchsorted(self.keys, r_min, "left"))]
 
 
-def _fam(bundle, names):
+def _fam(bundle, names) -> tuple[np.ndarray, np.ndarray]:
     seg = np.concatenate([bundle.families[k] for k in names])
     keys = [bundle.keys.get(k) if bundle.keys else None for k in names]
     if any(k is None for k in keys):
