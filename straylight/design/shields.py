@@ -143,9 +143,10 @@ class _Suffix:
 def _fam(bundle, names) -> tuple[np.ndarray, np.ndarray]:
     seg = np.concatenate([bundle.families[k] for k in names])
     keys = [bundle.keys.get(k) if bundle.keys else None for k in names]
-    if any(k is None for k in keys):
+    found = [k for k in keys if k is not None]
+    if len(found) < len(keys):
         return seg, np.full(len(seg), np.inf)
-    return seg, np.concatenate(keys)
+    return seg, np.concatenate(found)
 
 
 def _scan(tel, bundle, max_added, n_grid, n_radii, radius_step) -> list[Layout]:
