@@ -267,18 +267,16 @@ class Asphere(Conic):
         return inside & (rho <= self.outer_radius_mm + tol) & (rho >= self.inner_radius_mm - tol)
 
     def refine_hits(self, origins, dirs, t0):
-        """Compiled Newton on ``sag(rho) - z = 0`` along each ray from ``t0``: ``(t, normals, ok)``."""
-        o = np.ascontiguousarray(origins, dtype=np.float64)
-        d = np.ascontiguousarray(dirs, dtype=np.float64)
+        """Compiled Newton on ``sag(rho) - z = 0`` along each ray from ``t0``: ``(t, normals, ok)``. The kernel
+        works in the surface's local frame (:meth:`to_local`); the normals go back with :meth:`dirs_to_world`."""
+        o = np.ascontiguousarray(self.to_local(origins))
+        d = np.ascontiguousarray(self.dirs_to_local(dirs))
         t = np.ascontiguousarray(t0, dtype=np.float64).copy()
         nrm = np.empty_like(o)
-        loc = np.empty((len(o), 2))
         done = np.empty(len(o), np.bool_)
         coef = np.ascontiguousarray(self.coefficients, dtype=np.float64)
-        _asphere_kernel()(o, d, t, self.rotation, self.vertex_mm, self.c, self.conic, coef,
-                          NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm, loc, done)
-        p = np.column_stack([loc[:, 0], np.zeros(len(o)), loc[:, 1]])
-        return t, nrm, done & self.valid(p)
+        _asphere_kernel()(o, d, t, self.c, self.conic, coef, NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm, done)
+        return t, self.dirs_to_world(nrm), done & self.valid(o + t[:, None] * d)
 
     def mesh(self, tolerance_mm: float = 0.01):
         """Rings spaced for the largest normal curvature of the asphere's profile (sampled)."""
@@ -454,18 +452,12 @@ def _asphere_kernel():
         import numba
 
         @numba.njit(cache=True, nogil=True)
-        def asphere_kernel(o, d, t, rot, vertex, c, k, coef, tol, max_iter, nrm, loc, done):
+        def asphere_kernel(o, d, t, c, k, coef, tol, max_iter, nrm, done):
+            """Local frame: origins ``o``, directions ``d``; writes local unit normals (front side) and ``done``."""
             ck = (1.0 + k) * c * c
             for i in range(o.shape[0]):
-                ox = oy = oz = 0.0
-                dx = dy = dz = 0.0
-                for j in range(3):
-                    ox += rot[0, j] * (o[i, j] - vertex[j])
-                    oy += rot[1, j] * (o[i, j] - vertex[j])
-                    oz += rot[2, j] * (o[i, j] - vertex[j])
-                    dx += rot[0, j] * d[i, j]
-                    dy += rot[1, j] * d[i, j]
-                    dz += rot[2, j] * d[i, j]
+                ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+                dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
                 ti = t[i]
                 ok = False
                 q = 0.0
@@ -510,17 +502,10 @@ def _asphere_kernel():
                         p *= r2
                 else:
                     ok = False
-                gx = -q * x
-                gy = -q * y
-                gz = 1.0
-                norm = (gx * gx + gy * gy + gz * gz) ** 0.5
-                gx /= norm
-                gy /= norm
-                gz /= norm
-                for j in range(3):
-                    nrm[i, j] = gx * rot[0, j] + gy * rot[1, j] + gz * rot[2, j]
-                loc[i, 0] = r2 ** 0.5
-                loc[i, 1] = z
+                norm = (q * q * r2 + 1.0) ** 0.5  # |(-q x, -q y, 1)|
+                nrm[i, 0] = -q * x / norm
+                nrm[i, 1] = -q * y / norm
+                nrm[i, 2] = 1.0 / norm
                 t[i] = ti
                 done[i] = ok
 

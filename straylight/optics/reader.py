@@ -103,56 +103,12 @@ def sniff_format(raw: bytes, path: Path) -> tuple[str, str]:
                           "no SURF or S/SO/SI commands found")
 
 
-def _obstructions(fmt: str, text: str) -> dict:
-    """{surface index: (kind, radius in file units)} for holes and obscurations rayoptics drops."""
-    out = {}
-    if fmt == "seq":
-        idx = None
-        for line in text.splitlines():
-            for cmd in line.split(";"):
-                words = cmd.strip().split()
-                if not words:
-                    continue
-                head = words[0].upper()
-                if head == "SO":
-                    idx = 0
-                elif head == "S" or re.fullmatch(r"S\d+", head):
-                    idx = (idx or 0) + 1 if head == "S" else int(head[1:])
-                elif head == "SI":
-                    idx = None
-                elif head == "CIR" and idx is not None:
-                    up = [w.upper() for w in words]
-                    kind = "hole" if "HOL" in up else "obscuration" if "OBS" in up else None
-                    if kind:
-                        try:
-                            out[idx] = (kind, float(words[-1]))
-                        except ValueError:
-                            pass
-    else:
-        idx = None
-        for line in text.splitlines():
-            words = line.split()
-            if not words:
-                continue
-            head = words[0].upper()
-            if head == "SURF":
-                idx = int(words[1])
-            elif idx is not None and head in ("OBSC", "CLAP") and len(words) >= 3:
-                try:
-                    lo, hi = float(words[1]), float(words[2])
-                except ValueError:
-                    continue
-                if head == "OBSC" and hi > 0:
-                    out[idx] = ("obscuration", hi)
-                elif head == "CLAP" and lo > 0:
-                    out[idx] = ("hole", lo)
-    return out
+def _surface_commands(fmt: str, text: str):
+    """Each command of a lens file with the index of the surface it belongs to: ``(index or None, HEAD, words)``.
 
-
-def _aperture_decentres(fmt: str, text: str) -> dict:
-    """{surface index: (dx, dy) in file units} of clear apertures decentred from their surface's vertex (CODE V
-    ``ADX`` / ``ADY``, Zemax ``OBDC``): an off-axis segment of a parent surface (docs/optics.md)."""
-    out: dict = {}
+    CODE V: commands split on ``;``, ``SO`` is surface 0, each ``S`` the next surface (``Sk`` surface k), ``SI``
+    ends the surfaces. Zemax: ``SURF k`` starts surface k. The surface-marker commands themselves are not
+    yielded."""
     idx = None
     for line in text.splitlines():
         for cmd in (line.split(";") if fmt == "seq" else [line]):
@@ -163,39 +119,73 @@ def _aperture_decentres(fmt: str, text: str) -> dict:
             if fmt == "seq":
                 if head == "SO":
                     idx = 0
-                elif head == "S" or re.fullmatch(r"S\d+", head):
-                    idx = (idx or 0) + 1 if head == "S" else int(head[1:])
-                elif head == "SI":
-                    idx = None
-                elif head in ("ADX", "ADY") and idx is not None and len(words) >= 2:
-                    try:
-                        value = float(words[1])
-                    except ValueError:
-                        continue
-                    dx, dy = out.get(idx, (0.0, 0.0))
-                    out[idx] = (value, dy) if head == "ADX" else (dx, value)
-            elif head == "SURF" and len(words) >= 2:
-                idx = int(words[1]) if words[1].isdigit() else None
-            elif head == "OBDC" and idx is not None and len(words) >= 3:
-                try:
-                    out[idx] = (float(words[1]), float(words[2]))
-                except ValueError:
                     continue
+                if head == "S" or re.fullmatch(r"S\d+", head):
+                    idx = (idx or 0) + 1 if head == "S" else int(head[1:])
+                    continue
+                if head == "SI":
+                    idx = None
+                    continue
+            elif head == "SURF":
+                idx = int(words[1]) if len(words) >= 2 and words[1].isdigit() else None
+                continue
+            yield idx, head, words
+
+
+def _obstructions(fmt: str, text: str) -> dict:
+    """{surface index: (kind, radius in file units)} for holes and obscurations rayoptics drops."""
+    out = {}
+    for idx, head, words in _surface_commands(fmt, text):
+        if idx is None:
+            continue
+        if fmt == "seq" and head == "CIR":
+            up = [w.upper() for w in words]
+            kind = "hole" if "HOL" in up else "obscuration" if "OBS" in up else None
+            if kind:
+                try:
+                    out[idx] = (kind, float(words[-1]))
+                except ValueError:
+                    pass
+        elif fmt != "seq" and head in ("OBSC", "CLAP") and len(words) >= 3:
+            try:
+                lo, hi = float(words[1]), float(words[2])
+            except ValueError:
+                continue
+            if head == "OBSC" and hi > 0:
+                out[idx] = ("obscuration", hi)
+            elif head == "CLAP" and lo > 0:
+                out[idx] = ("hole", lo)
+    return out
+
+
+def _aperture_decentres(fmt: str, text: str) -> dict:
+    """{surface index: (dx, dy) in file units} of clear apertures decentred from their surface's vertex (CODE V
+    ``ADX`` / ``ADY``, Zemax ``OBDC``): an off-axis segment of a parent surface (docs/optics.md)."""
+    out: dict = {}
+    for idx, head, words in _surface_commands(fmt, text):
+        if idx is None:
+            continue
+        if fmt == "seq" and head in ("ADX", "ADY") and len(words) >= 2:
+            try:
+                value = float(words[1])
+            except ValueError:
+                continue
+            dx, dy = out.get(idx, (0.0, 0.0))
+            out[idx] = (value, dy) if head == "ADX" else (dx, value)
+        elif fmt != "seq" and head == "OBDC" and len(words) >= 3:
+            try:
+                out[idx] = (float(words[1]), float(words[2]))
+            except ValueError:
+                continue
     return {i: v for i, v in out.items() if v != (0.0, 0.0)}
 
 
 def _coatings(fmt: str, text: str) -> dict:
     """{surface index: coating name} where the file names one (Zemax ``COAT NAME``)."""
-    out = {}
-    if fmt == "zmx":
-        idx = None
-        for line in text.splitlines():
-            words = line.split()
-            if words and words[0].upper() == "SURF":
-                idx = int(words[1])
-            elif idx is not None and len(words) >= 2 and words[0].upper() == "COAT":
-                out[idx] = words[1]
-    return out
+    if fmt != "zmx":
+        return {}
+    return {idx: words[1] for idx, head, words in _surface_commands(fmt, text)
+            if idx is not None and head == "COAT" and len(words) >= 2}
 
 
 def _multiconfig(fmt: str, text: str) -> int:
