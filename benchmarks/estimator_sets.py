@@ -1,6 +1,9 @@
 """The history estimator sets the benchmarks time the default against, registered with
 :func:`straylight.analyses.estimators.register_estimator_set` (they are not part of the public API).
 
+``chains``
+    the default without ``entrance_sampling`` (uniform entrance points): the set before it, to measure
+    what it buys on scenes with lenses.
 ``split``
     the default with ``reflection_split`` (single reflections into a detector by expected value)
     instead of ``delta_chain``: the set before the interface chains, to measure what they buy.
@@ -29,6 +32,7 @@ from straylight.engine.options import EstimatorOptions
 _LOBES = EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
                           second_vertex_lobe_sampling=True)
 HISTORY_SETS = {
+    "chains": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD, delta_chain=4),
     "split": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD, reflection_split=True),
     "lobes": _LOBES,
     "roulette": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD),

@@ -30,6 +30,7 @@ from straylight.engine.backends.dask import ship_early
 from straylight.engine.compiled_scene import detector_samplers
 from straylight.engine.first_vertex import build_table
 from straylight.engine.second_vertex import build_table as build_critical_table
+from straylight.engine import entrance_sampling
 from straylight.engine.second_vertex import unsupported as second_vertex_unsupported
 from straylight.engine.options import (  # noqa: F401 - re-exported
     EstimatorOptions,
@@ -109,6 +110,9 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
             spec = replace(spec, critical_table=rt.table(
                 "second", spec, lambda: build_critical_table(spec, rt.scene(spec, intersector)),
                 cache=intersector is None))
+        if opt.estimator.entrance_sampling and entrance_sampling.applies(spec):
+            spec = replace(spec, entrance_table=rt.table(
+                "entrance", spec, lambda: entrance_sampling.build_table(spec, run_batch, intersector), cache=intersector is None))
     except BaseException:
         if early is not None:
             early.release()

@@ -36,11 +36,14 @@ def emit(source, u, eps):
     return lift_origins(o, d, np.ascontiguousarray(normal, dtype=np.float64), float(eps)), d
 
 
-def emit_batch(spec, draws, n, buf=None):
+def emit_batch(spec, draws, n, buf=None, on_uniforms=None):
     """Emission of a batch of ``n`` rays: chunk k draws (rays in chunk, 5) uniforms first; returns
-    origins, directions (n, 3), contiguous and not sharing memory with ``buf``."""
+    origins, directions (n, 3), contiguous and not sharing memory with ``buf``. ``on_uniforms(u)``,
+    if given, sees (and may move, straylight.engine.entrance_sampling) the uniforms before the sources do."""
     u = np.empty((n, EMISSION_COLUMNS)) if buf is None else buf[:n * EMISSION_COLUMNS].reshape(n, EMISSION_COLUMNS)
     draws.fill(np.arange(n, dtype=np.int64), EMISSION_COLUMNS, u, CHUNK_RAYS)
+    if on_uniforms is not None:
+        on_uniforms(u)
     if len(spec.sources) == 1:
         o, d = emit(spec.sources[0], u[:, 1:5], spec.eps)
     else:

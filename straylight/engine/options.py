@@ -32,6 +32,7 @@ class EstimatorOptions:
     second_vertex_lobe_sampling: bool = False  # second-vertex sampling also leaves B by the lobe's own draw
     reflection_split: bool = False  # interface reflections into a detector counted by expected value
     delta_chain: int = 0  # > 0: runs of up to this many interfaces into a detector followed by splitting
+    entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
 
     def __post_init__(self):
         if not (0.0 <= float(self.rr_threshold) < 1.0):

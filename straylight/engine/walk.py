@@ -4,7 +4,8 @@ each continuing hit (by kind: straylight.engine.interactions), then absorption, 
 next ray state (straylight.engine.advance). :func:`run_batch` runs it on compiled kernels,
 :func:`run_batch_reference` on their numpy twins: the same walk, so the two cannot drift.
 
-Estimators and ledger: docs/engine.md. Every ray starts with weight total power / n_rays."""
+Estimators and ledger: docs/engine.md. Every ray starts with weight total power / n_rays (with
+entrance sampling: that over the density of its entrance point, straylight.engine.entrance_sampling)."""
 from __future__ import annotations
 
 import numpy as np
@@ -13,6 +14,7 @@ from straylight.engine.advance import ADVANCE_WRITES_PER_RAY, next_rays
 from straylight.engine import diffraction as diffraction_step
 from straylight.engine.draws import event_columns, event_uniforms
 from straylight.engine.emission import emit_batch
+from straylight.engine.entrance_sampling import EntranceWeights
 from straylight.engine.event import Event, combined_outgoing
 from straylight.engine.first_vertex import FirstVertexWeights, run_vertex_pass
 from straylight.engine.hits import HITS_WRITES_PER_RAY, Hits
@@ -90,7 +92,9 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     columns = event_columns(rows.n_detectors, opt.estimator.nee_samples, scene.target is not None,
                             spec.critical_table is not None, second_lobe)
     ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
-    rays = emitted_rays(*emit_batch(spec, draws, n, ubuf), w0, opt.output.path_depth, settings.record_paths)
+    start = EntranceWeights(spec, w0, tallies, rows) if spec.entrance_table is not None else None
+    rays = emitted_rays(*emit_batch(spec, draws, n, ubuf, start), w0 if start is None else start.weights,
+                        opt.output.path_depth, settings.record_paths)
     records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.output.map_bins),
                               settings.record_paths)
     first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \

@@ -27,7 +27,7 @@ import pytest
 
 from geometry.mesh import Part, Scene
 from materials import load_material
-from straylight.engine import second_vertex
+from straylight.engine import entrance_sampling, second_vertex
 from straylight.engine.runtime import runtime
 from straylight.engine.estimators import ANALOG, ESTIMATORS, options_for
 from straylight.engine.interactions import INTERACTIONS, Capability, kind_for
@@ -187,6 +187,10 @@ def engaged(case_name, estimator, on) -> bool:
         off = _run(case_name, ANALOG, SEED_ON, record_paths=True)
         subj = case.scene.part_names.index("subject")
         return _last_vertex_counts(alone, subj) > TARGET_ENGAGED_RATIO * max(_last_vertex_counts(off, subj), 1)
+    if estimator.capability == Capability.NONE:
+        # entrance sampling acts on the source's rays before any hit, on no kind's parts: it must not
+        # engage there (no NEE-exchange, the same walk); its own checks are in test_entrance_sampling.py
+        return on.ledger["nee_exchange"]["subject"].power_w != 0.0
     raise AssertionError(f"no engagement measure for {estimator.name}: add one to engaged()")
 
 
@@ -240,6 +244,8 @@ def test_compiled_equals_reference(kind, estimator):
     spec = make_spec(case.scene, _source(), N_REF, 5, case.materials, TraceOptions(estimator=_estimator_options(est)))
     if est.capability == Capability.SECOND_VERTEX and second_vertex.unsupported(spec) is None:
         spec = replace(spec, critical_table=second_vertex.build_table(spec, runtime().scene(spec)))
+    if est.options.entrance_sampling:
+        spec = replace(spec, entrance_table=entrance_sampling.build_table(spec, run_batch, n_rays=3_000))
     n_chunks = 1
     a, b = run_batch(spec, 0, n_chunks), run_batch_reference(spec, 0, n_chunks)
     assert set(a) == set(b)
@@ -268,7 +274,7 @@ def test_removing_a_declaration_is_detected(kind, estimator, monkeypatch):
 
 # every (kind, capability) a kind does not declare: declaring it falsely must fail the contract too
 ADDABLE = [(name, est.name) for name in KIND_NAMES for est in ESTIMATORS
-           if not INTERACTIONS[name].allows(est.capability)]
+           if est.capability != Capability.NONE and not INTERACTIONS[name].allows(est.capability)]
 
 
 @pytest.mark.parametrize("kind,estimator", ADDABLE)

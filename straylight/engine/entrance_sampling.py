@@ -1,0 +1,187 @@
+"""Entrance sampling: the source's rays start where light reaches the detectors, by importance.
+
+A collimated beam over an aperture reaches a small detector behind a lens only from a few entrance
+points: the lens's own two-reflection ghost of the direct beam (a deterministic path from the entrance
+point: ~3e-4 of the aperture at 10 deg on the guide scope), the part of the dew shield whose glossy
+reflection the lens's ghost then focuses onto the sensor (30 deg), the vane spot the lens focuses the
+beam onto. A uniform source finds them by chance; this strategy draws the entrance points from a
+learnt density instead, each ray weighted by the ratio of the densities (importance sampling).
+
+**The density.** Every source maps its first two emission uniforms (u1, u2) = the source's own
+``u[:, 0:2]`` (a disk: radius sqrt(u1), azimuth 2 pi u2) to where (or which way) a ray leaves; the
+rays of the walk have a uniform density on that unit square. Here the square is cut into G x G cells
+and a ray first picks cell c with probability P_c, then a uniform point in it: the density on the
+square is p(u) = G^2 P_c, and the ray starts with weight w0 / p(u) (w0 = total power / n_rays), so
+E[w g] = integral of w0 g du for any path contribution g: unbiased for any table with P_c > 0 everywhere
+(Kahn and Marshall 1953; Veach 1997 eq. 2.7). The cell is picked with u1 itself (inverse CDF over
+the flattened cells) and the residual of that pick, uniform on [0, 1) and independent of the cell,
+becomes the position in the cell along u1: the ray keeps its own 5 emission uniforms and draws
+nothing more, so results stay identical for any batch, thread or worker split.
+
+**The table** is learnt before the run by a pilot trace of :data:`PILOT_RAYS` rays with the same
+estimators (own streams: chunks from :data:`PILOT_CHUNK_OFFSET` on, so the table does not depend on the
+run's own draws, and depends only on scene, sources, options and seed, like the vertex tables): each
+pilot ray's total detector contribution x (its path records summed) goes to its cell; with
+m_c = mean of x^2 over the cell's pilot rays, smoothed over the 3 x 3 neighbouring cells (azimuth
+periodic), the variance-optimal choice for piecewise-constant importance sampling is P_c proportional
+to sqrt(m_c) (the density proportional to the root mean square of the contribution); a defensive
+fraction :data:`DEFENSIVE` of uniform keeps every cell drawn (Hesterberg 1995), so a path the pilot
+never saw keeps at least that share of its rays (its variance grows at most 1 / DEFENSIVE). A pilot
+that reaches no detector gives no table (uniform rays, as without the strategy).
+
+**The ledger.** The start weights no longer add up to the emitted power exactly: each ray's
+w0 - w (expectation zero) is booked to the ``escaped`` row, which keeps escaped an unbiased estimate
+of the escaped power and the ledger exact (emitted = detected + absorbed + escaped to round-off).
+
+The vertex strategies' balance weights keep the uniform source's density p_F of the first vertex: the
+weights of the walk and of the area strategy still add to one for every path, so the sum stays
+unbiased (only the split between the two strategies is no longer the balance optimum).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from straylight.engine.draws import EMISSION_COLUMNS
+from straylight.rng import CHUNK_RAYS, n_chunks
+
+#: cells per side of the table over the source's first two uniforms
+GRID = 64
+#: the grids (cells per side, dividing GRID) whose tables are averaged
+SCALES = (64, 16, 4)
+#: rays of the pilot trace that learns the table
+PILOT_RAYS = 30_000
+#: share of the draws left uniform over the square (defensive mixture)
+DEFENSIVE = 0.25
+#: the pilot's chunk streams start here (never reached by a trace's own ray ids)
+PILOT_CHUNK_OFFSET = 1 << 40
+
+
+@dataclass(frozen=True, eq=False)
+class EntranceTable:
+    """Cell probabilities ``prob`` (G*G, row-major: u1 cell, then u2 cell), their cumulative sums
+    ``cdf`` and the pilot's size, for :func:`warp`."""
+
+    grid: int
+    prob: np.ndarray
+    cdf: np.ndarray
+    pilot_rays: int
+    pilot_hits: int  # pilot rays with a detector contribution
+
+
+def _smoothed_root(n_c: np.ndarray, s2: np.ndarray) -> np.ndarray:
+    """sqrt of the mean x^2 per cell over its 3 x 3 neighbourhood (axis 0 clamped, axis 1 periodic)."""
+    g = n_c.shape[0]
+    pad_n = np.pad(n_c, ((1, 1), (0, 0)), mode="constant")
+    pad_s = np.pad(s2, ((1, 1), (0, 0)), mode="constant")
+    box_n = sum(np.roll(pad_n[a:a + g], b, axis=1) for a in range(3) for b in (-1, 0, 1))
+    box_s = sum(np.roll(pad_s[a:a + g], b, axis=1) for a in range(3) for b in (-1, 0, 1))
+    return np.sqrt(np.where(box_n > 0, box_s / np.maximum(box_n, 1.0), 0.0))
+
+
+def _scale_tables(u: np.ndarray, x: np.ndarray, g: int, scales) -> np.ndarray:
+    """(len(scales), G*G): per scale s, the normalised sqrt of the smoothed mean x^2 on s x s cells,
+    spread evenly over the G x G cells each covers (zeros where no pilot ray contributed)."""
+    i = np.minimum((u[:, 0] * g).astype(np.int64), g - 1)
+    j = np.minimum((u[:, 1] * g).astype(np.int64), g - 1)
+    cell = i * g + j
+    n_c = np.bincount(cell, minlength=g * g).reshape(g, g).astype(np.float64)
+    s2 = np.bincount(cell, weights=x * x, minlength=g * g).reshape(g, g)
+    out = np.zeros((len(scales), g * g))
+    for k, s in enumerate(scales):
+        b = g // int(s)
+        root = _smoothed_root(n_c.reshape(s, b, s, b).sum(axis=(1, 3)), s2.reshape(s, b, s, b).sum(axis=(1, 3)))
+        if root.sum() > 0:
+            out[k] = (np.repeat(np.repeat(root / root.sum(), b, axis=0), b, axis=1) / (b * b)).ravel()
+    return out
+
+
+def table_from_contributions(u: np.ndarray, x: np.ndarray, grid: int = GRID, defensive: float = DEFENSIVE,
+                             scales: tuple = SCALES) -> EntranceTable | None:
+    """The table from pilot rays' first two source uniforms ``u`` (n, 2) and contributions ``x`` (n,):
+    P_c = defensive / G^2 + (1 - defensive) mean_s q_s(c), where q_s is the normalised sqrt of the
+    smoothed mean x^2 on a grid of s x s cells (s in ``scales``, spread evenly over the G x G cells
+    each covers). The fine grid resolves a small deterministic region (the ghost of the direct beam);
+    the coarse ones keep mass over the whole region where a rare path happens when the pilot saw it
+    only a few times (dew-shield scatter into the ghost). As a mixture, the table's variance is at
+    most len(scales) times that of its best scale alone."""
+    g = int(grid)
+    u = np.asarray(u, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    hits = int(np.count_nonzero(x))
+    if hits == 0:
+        return None
+    q = _scale_tables(u, x, g, scales).mean(axis=0)
+    prob = defensive / (g * g) + (1.0 - defensive) * q
+    prob = prob / prob.sum()
+    cdf = np.cumsum(prob)
+    cdf[-1] = 1.0
+    return EntranceTable(grid=g, prob=prob, cdf=cdf, pilot_rays=len(x), pilot_hits=hits)
+
+
+def warp(table: EntranceTable, u: np.ndarray) -> np.ndarray:
+    """Move the source uniforms ``u[:, 0], u[:, 1]`` (in place) to the table's density; returns each
+    ray's weight factor 1 / p(u) = 1 / (G^2 P_c). u1 picks the cell by inverse CDF, its residual
+    (u1 - CDF_{c-1}) / P_c is the position in the cell along u1, u2 the position along u2."""
+    g = table.grid
+    a = u[:, 0]
+    c = np.minimum(np.searchsorted(table.cdf, a, side="right"), g * g - 1)
+    lo = np.where(c > 0, table.cdf[np.maximum(c - 1, 0)], 0.0)
+    p = table.prob[c]
+    frac = np.clip((a - lo) / p, 0.0, np.nextafter(1.0, 0.0))
+    i, j = np.divmod(c, g)
+    u[:, 0] = (i + frac) / g
+    u[:, 1] = (j + u[:, 1]) / g
+    return 1.0 / (g * g * p)
+
+
+def start_weights(spec, u, w0: float, tallies, rows):
+    """Emission with the table: warp the source columns of the batch's emission uniforms ``u``
+    (n, 5: source choice, then the source's four) in place and return the start weights (n,); each
+    ray's w0 - w goes to the ``escaped`` row (expectation zero: the ledger stays exact)."""
+    factor = warp(spec.entrance_table, u[:, 1:3])
+    w = w0 * factor
+    tallies.add(rows.escaped, np.arange(len(w), dtype=np.int64), w0 - w)
+    return w
+
+
+def applies(spec) -> bool:
+    """Whether a table can be used: one source (the table is over its uniforms) and a detector."""
+    return len(spec.sources) == 1 and len(spec.detector_parts) > 0
+
+
+def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> EntranceTable | None:
+    """Learn the table from a pilot trace of ``n_rays`` rays with ``spec``'s estimators (own
+    streams, path records for the per-ray contributions); ``run_batch(spec, first_chunk, stop_chunk,
+    intersector)`` is the compiled walk (straylight.engine.walk.run_batch, passed in: the walk
+    imports this module)."""
+    from straylight.engine.kernel_sets import COMPILED
+
+    opt = spec.options
+    pilot_opts = replace(opt, estimator=replace(opt.estimator, entrance_sampling=False),
+                         output=replace(opt.output, record_paths=True, path_depth=1))
+    n = int(n_rays)
+    nch = n_chunks(n)
+    pilot = replace(spec, n_rays=n, options=pilot_opts, chunk_offset=PILOT_CHUNK_OFFSET, entrance_table=None)
+    res = run_batch(pilot, 0, nch, intersector)
+    x = np.zeros(n)
+    paths = res.get("paths")
+    if paths is not None:
+        np.add.at(x, np.asarray(paths["ray"], dtype=np.int64), np.asarray(paths["power_w"], dtype=np.float64))
+    u = np.empty((n, EMISSION_COLUMNS))
+    COMPILED.draws(spec.seed, PILOT_CHUNK_OFFSET, PILOT_CHUNK_OFFSET + nch).fill(
+        np.arange(n, dtype=np.int64), EMISSION_COLUMNS, u, CHUNK_RAYS)
+    return table_from_contributions(u[:, 1:3], x)
+
+
+class EntranceWeights:
+    """The walk's emission hook (``emit_batch(..., on_uniforms=)``): warps the batch's uniforms and
+    keeps the start weights in :attr:`weights`."""
+
+    def __init__(self, spec, w0: float, tallies, rows):
+        self.spec, self.w0, self.tallies, self.rows = spec, float(w0), tallies, rows
+        self.weights = None
+
+    def __call__(self, u):
+        self.weights = start_weights(self.spec, u, self.w0, self.tallies, self.rows)

@@ -1,0 +1,86 @@
+"""Entrance sampling (EstimatorOptions.entrance_sampling, straylight.engine.entrance_sampling): the
+source's entrance points drawn from a pilot-learnt density, each ray weighted by 1 / density.
+
+Scene: the glass slab of test_delta_chain.py (10 mm, n = 1.5, at 45 deg) under a wide collimated
+beam (radius 15 mm) with a 4 mm detector below: only the entrance points over small parts of the
+beam (the detector's footprint shifted back along the transmitted beam's path and along the
+two-reflection ghost's) reach it, as behind a refractor's lens."""
+import math
+
+import numpy as np
+import pytest
+
+from engine_helpers import disk_part
+from geometry.mesh import Part, Scene
+from materials import load_material
+from straylight.engine import entrance_sampling
+from straylight.engine.entrance_sampling import table_from_contributions, warp
+from straylight.sources import CollimatedDisk
+from straylight.trace import EstimatorOptions, TraceOptions, trace
+
+N = 1.5
+THICK_MM = 10.0
+ANALOG = TraceOptions(estimator=EstimatorOptions(nee=False))
+ENTRANCE = TraceOptions(estimator=EstimatorOptions(nee=False, entrance_sampling=True))
+
+
+@pytest.fixture(scope="module")
+def wide_slab():
+    v_top = np.array([[-100.0, -100.0, 0.0], [100.0, -100.0, 0.0], [100.0, 100.0, 0.0], [-100.0, 100.0, 0.0]])
+    top = Part("top", v_top, np.array([[0, 1, 2], [0, 2, 3]]), material="glass", role="surface")
+    bottom = Part("bottom", v_top - [0.0, 0.0, THICK_MM], np.array([[0, 2, 1], [0, 3, 2]]), material="glass",
+                  role="surface")
+    shift = THICK_MM * math.tan(math.asin(math.sin(math.radians(45.0)) / N))
+    det = disk_part("det", -20.0, 4.0, 64, role="detector")
+    det = Part("det", det.vertices_mm + np.array([3 * shift + 10.0, 0.0, 0.0]), det.faces, role="detector")
+    d = np.array([math.sqrt(0.5), 0.0, -math.sqrt(0.5)])
+    src = CollimatedDisk(center_mm=[-20.0, 0.0, 20.0], normal=d, direction=d, radius_mm=15.0)
+    mats = {"glass": load_material({"components": [{"type": "dielectric", "n": N}]}, "glass")}
+    return Scene((top, bottom, det)), src, mats
+
+
+def test_agrees_with_the_analog_walk_at_a_smaller_error(wide_slab):
+    sc, src, mats = wide_slab
+    analog = trace(sc, src, 200_000, seed=11, materials=mats, options=ANALOG)
+    on = trace(sc, src, 40_000, seed=12, materials=mats, options=ENTRANCE)
+    a, b = analog.detectors["det"], on.detectors["det"]
+    assert a.power_w > 0 and b.power_w > 0
+    assert abs(a.power_w - b.power_w) <= 4 * math.hypot(a.stderr_w, b.stderr_w), (a, b)
+    # at equal rays the analog walk's error would be sqrt(5) x its own: the entrance points cut it
+    assert b.stderr_w / b.power_w < 0.5 * math.sqrt(5.0) * a.stderr_w / a.power_w
+    # w0 - w of each ray is booked as escaped: the ledger still closes to round-off
+    assert abs(on.ledger["balance_residual_w"]) < 1e-9 * on.emitted_w
+
+
+def test_results_do_not_depend_on_the_batch_size(wide_slab):
+    sc, src, mats = wide_slab
+    runs = [trace(sc, src, 6_000, seed=3, materials=mats,
+                  options=TraceOptions(estimator=ENTRANCE.estimator, batch_rays=b)) for b in (1_000, 6_000)]
+    assert runs[0].detectors["det"].power_w == runs[1].detectors["det"].power_w
+
+
+def test_the_warp_has_the_table_density_and_unit_mean_weight():
+    """Rays land in cell c with probability P_c, uniformly inside it, and carry 1 / (G^2 P_c): the
+    weighted mean of any g(u) is its integral over the unit square (here g = u1 + u2^2: 1/2 + 1/3)."""
+    rng = np.random.default_rng(5)
+    u0 = rng.random((20_000, 2))
+    x = np.where((u0[:, 0] > 0.3) & (u0[:, 0] < 0.35) & (u0[:, 1] < 0.1), 1.0, 0.0)  # a small bright region
+    table = table_from_contributions(u0, x)
+    assert table is not None and table.prob.min() >= entrance_sampling.DEFENSIVE / table.grid ** 2 * 0.999
+    u = rng.random((400_000, 2))
+    w = warp(table, u)
+    assert u.min() >= 0.0 and u.max() < 1.0
+    g = table.grid
+    cell = np.minimum((u[:, 0] * g).astype(int), g - 1) * g + np.minimum((u[:, 1] * g).astype(int), g - 1)
+    np.testing.assert_allclose(w, 1.0 / (g * g * table.prob[cell]))
+    counts = np.bincount(cell, minlength=g * g)
+    big = table.prob > 10.0 / g ** 2
+    assert big.any()
+    np.testing.assert_allclose(counts[big] / len(u), table.prob[big], rtol=0.1)
+    est = w * (u[:, 0] + u[:, 1] ** 2)
+    assert abs(est.mean() - 5.0 / 6.0) < 4 * est.std() / math.sqrt(len(u))
+    assert abs(w.mean() - 1.0) < 4 * w.std() / math.sqrt(len(u))
+
+
+def test_no_table_without_a_pilot_hit():
+    assert table_from_contributions(np.random.default_rng(0).random((100, 2)), np.zeros(100)) is None
