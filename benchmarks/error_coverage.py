@@ -1,6 +1,6 @@
 """Do the precision stop's error bars cover the truth? Many seeds per angle against a long reference.
 
-    .venv/bin/python benchmarks/error_coverage.py [--instrument tube|newtonian] [--angles-deg 20 30] [--seeds 16]
+    .venv/bin/python benchmarks/error_coverage.py [--instrument tube|newtonian|guide_scope] [--angles-deg 20 30] [--seeds 16]
         [--target 0.02] [--reference-rays 8000000] [--no-write]
 
 For each angle: a reference PST from one long fixed-ray run (its own error, typically 5-10x smaller than
@@ -30,6 +30,10 @@ def _instrument(name: str):
     if name == "tube":
         return sl.load(builtin="tube")
     sys.path.insert(0, str(HERE))
+    if name == "guide_scope":
+        import guide_scope
+
+        return sl.load(str(guide_scope.build(quiet=True)))
     import newtonian
 
     return sl.load(str(newtonian.build(quiet=True)))  # built once, then read from its cache folder
@@ -37,7 +41,7 @@ def _instrument(name: str):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--instrument", choices=("tube", "newtonian"), default="tube")
+    ap.add_argument("--instrument", choices=("tube", "newtonian", "guide_scope"), default="tube")
     ap.add_argument("--angles-deg", type=float, nargs="+", default=[20.0, 30.0])
     ap.add_argument("--seeds", type=int, default=16)
     ap.add_argument("--target", type=float, default=0.02)
