@@ -60,7 +60,7 @@ ESTIMATORS = (
     # runs of up to 4 interfaces into a detector (a singlet's two-reflection ghost) followed by splitting
     Estimator("delta_chain", replace(ANALOG, delta_chain=4), Capability.DELTA_CHAIN),
     # the source's entrance points drawn from a pilot-learnt density (any kind: it acts before the first hit)
-    Estimator("entrance", replace(ANALOG, entrance_sampling=True), Capability.NONE),
+    Estimator("entrance", replace(ANALOG, entrance_sampling=True), Capability.NONE, diffraction=True),
     Estimator("target_mis", replace(ANALOG, nee=True, target_fraction=0.5), Capability.TARGET_MIS, target=True,
               requires=("nee",), diffraction=True),
 )
