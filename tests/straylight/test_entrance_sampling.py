@@ -84,3 +84,12 @@ def test_the_warp_has_the_table_density_and_unit_mean_weight():
 
 def test_no_table_without_a_pilot_hit():
     assert table_from_contributions(np.random.default_rng(0).random((100, 2)), np.zeros(100)) is None
+
+
+def test_the_analyses_turn_it_on_only_with_a_refracting_material(wide_slab):
+    from materials import Lambertian
+    from straylight.analyses.estimators import estimator_options
+
+    _, _, mats = wide_slab
+    assert estimator_options("default", materials=mats).estimator.entrance_sampling
+    assert not estimator_options("default", materials={"black": Lambertian(0.05)}).estimator.entrance_sampling
