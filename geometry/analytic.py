@@ -6,7 +6,9 @@ the exact normal is taken there. Local frame: ``w = axis``, origin at ``vertex_m
 
 - conic: ``G = c rho^2 - 2 z + (1 + k) c z^2 = 0``, whose branch through the vertex is the sag
   ``z = h(rho) = c rho^2 / (1 + sqrt(1 - (1 + k) c^2 rho^2))`` (c = 1 / radius_mm, k = conic);
-  clear aperture ``inner_radius_mm <= rho <= outer_radius_mm``.
+  clear aperture ``inner_radius_mm <= rho' <= outer_radius_mm``, rho' measured from the aperture's centre
+  (the axis, or ``aperture_center_mm`` for an off-axis segment), within the rectangle
+  ``aperture_half_widths_mm`` when one is given.
 - asphere: ``G = h(rho) + sum_i A_(2i+4) rho^(2i+4) - z`` (the conic sag plus an even polynomial,
   ``coefficients = [A4, A6, ...]``); Newton along the ray on this G from the mesh hit, with
   ``dG/dt = q(rho^2) (x dx + y dy) - dz`` where ``q = h'(rho) / rho`` stays finite on the axis.
@@ -103,7 +105,10 @@ class _Surface:
         done = np.empty(len(o), np.bool_)
         _kernel()(o, d, t, self.rotation, self.vertex_mm, a, b, e, f, sign, NEWTON_TOL_REL, NEWTON_MAX_ITER,
                    nrm, loc, done)
-        p = np.column_stack([loc[:, 0], np.zeros(len(o)), loc[:, 1]])
+        if getattr(self, "decentred", False) or getattr(self, "aperture_half_widths_mm", ()):
+            p = self.to_local(o + t[:, None] * d)  # the aperture test needs (u, v), not only rho
+        else:
+            p = np.column_stack([loc[:, 0], np.zeros(len(o)), loc[:, 1]])
         return t, nrm, done & self.valid(p)
 
     def refine(self, origins, dirs, t0):
@@ -156,8 +161,57 @@ class Conic(_Surface):
     conic: float = 0.0
     outer_radius_mm: float = 1.0
     inner_radius_mm: float = 0.0
+    aperture_center_uv: tuple = (0.0, 0.0)  # the clear aperture's centre in the local (u, v) frame, mm
+    aperture_half_widths_mm: tuple = ()     # (hx, hy): a rectangular clear aperture within the annulus
+    aperture_x_uv: tuple = (1.0, 0.0)       # the rectangle's hx side, a unit vector in the local (u, v) frame
 
     kind = "conic"
+
+    @property
+    def decentred(self) -> bool:
+        """The clear aperture is centred off the surface's axis (an off-axis segment)."""
+        return bool(self.aperture_center_uv[0] or self.aperture_center_uv[1])
+
+    def in_aperture(self, p) -> np.ndarray:
+        """(n,) bool: local points whose (u, v) lie in the clear aperture: ``inner <= rho' <= outer`` about the
+        aperture's centre, and inside the rectangle ``|x'| <= hx, |y'| <= hy`` when one is given."""
+        x = p[:, 0] - self.aperture_center_uv[0]
+        y = p[:, 1] - self.aperture_center_uv[1]
+        rho = np.hypot(x, y)
+        tol = 1e-9 * max(1.0, self.outer_radius_mm)
+        ok = (rho <= self.outer_radius_mm + tol) & (rho >= self.inner_radius_mm - tol)
+        if self.aperture_half_widths_mm:
+            ex, ey = self.aperture_x_uv
+            hx, hy = self.aperture_half_widths_mm
+            ok &= (np.abs(x * ex + y * ey) <= hx + tol) & (np.abs(y * ex - x * ey) <= hy + tol)
+        return ok
+
+    def rho_range_mm(self) -> tuple[float, float]:
+        """(smallest, largest) distance from the axis over the clear aperture's annulus."""
+        off = math.hypot(*self.aperture_center_uv)
+        if off == 0.0:
+            return self.inner_radius_mm, self.outer_radius_mm
+        return max(0.0, off - self.outer_radius_mm), off + self.outer_radius_mm
+
+    def _max_curvature(self, rr) -> float:
+        """Largest normal curvature (meridional and azimuthal) of the profile at radii ``rr``."""
+        c, k = self.c, self.conic
+        root = np.sqrt(np.maximum(1e-300, 1.0 - (1.0 + k) * c * c * rr * rr))
+        h1 = c * rr / root
+        h2 = c / root**3
+        return float(np.max(np.maximum(np.abs(h2) / (1 + h1 * h1) ** 1.5, np.abs(h1) / (rr * np.sqrt(1 + h1 * h1)))))
+
+    def _mesh_rings(self, tolerance_mm: float, samples: int):
+        """(rho, phi) of a polar grid about the aperture's centre whose facets stay within ``tolerance_mm``."""
+        lo, hi = self.rho_range_mm()
+        rr = np.linspace(max(lo, 1e-9 * hi), hi, samples)
+        curv = max(self._max_curvature(rr), 1e-12)
+        r0, r1 = self.inner_radius_mm, self.outer_radius_mm
+        step = math.sqrt(8.0 * tolerance_mm / curv)
+        n_r = max(2, int(math.ceil((r1 - r0) / step)) + 1)
+        # azimuth: the facets' chord across the ring and the aperture outline both within tolerance
+        n_phi = max(24, int(math.ceil(2 * math.pi * r1 / min(step, math.sqrt(8 * tolerance_mm * r1)))))
+        return np.linspace(r0, r1, n_r), np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
 
     @property
     def c(self) -> float:
@@ -183,36 +237,33 @@ class Conic(_Surface):
         return c, -2.0, (1.0 + self.conic) * c, 0.0, -1.0
 
     def valid(self, p):
-        rho = np.hypot(p[:, 0], p[:, 1])
         branch = (1.0 + self.conic) * self.c * p[:, 2] < 1.0  # the sheet through the vertex
-        tol = 1e-9 * max(1.0, self.outer_radius_mm)
-        return branch & (rho <= self.outer_radius_mm + tol) & (rho >= self.inner_radius_mm - tol)
+        return branch & self.in_aperture(p)
 
     def mesh(self, tolerance_mm: float = 0.01):
         """(vertices (v, 3) world, faces (m, 3)), facets within about ``tolerance_mm`` of the surface,
         counter-clockwise seen from the front (+axis side)."""
-        r0, r1 = self.inner_radius_mm, self.outer_radius_mm
-        # largest normal curvature over the aperture (meridional and azimuthal), sampled
-        rr = np.linspace(max(r0, 1e-9 * r1), r1, 257)
-        c, k = self.c, self.conic
-        root = np.sqrt(np.maximum(1e-300, 1.0 - (1.0 + k) * c * c * rr * rr))
-        h1 = c * rr / root
-        h2 = c / root**3
-        curv = float(np.max(np.maximum(np.abs(h2) / (1 + h1 * h1) ** 1.5, np.abs(h1) / (rr * np.sqrt(1 + h1 * h1)))))
-        curv = max(curv, 1e-12)
-        step = math.sqrt(8.0 * tolerance_mm / curv)
-        n_r = max(2, int(math.ceil((r1 - r0) / step)) + 1)
-        # azimuth: the facets' chord across the ring and the aperture outline both within tolerance
-        n_phi = max(24, int(math.ceil(2 * math.pi * r1 / min(step, math.sqrt(8 * tolerance_mm * r1)))))
-        rho = np.linspace(r0, r1, n_r)
-        phi = np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
-        return _revolve(self, rho, phi, self.sag(rho), center=r0 == 0.0)
+        rho, phi = self._mesh_rings(tolerance_mm, 257)
+        return _revolve(self, rho, phi, self.sag(rho), center=self.inner_radius_mm == 0.0)
 
     def to_dict(self) -> dict:
         d = {"type": "conic", "vertex_mm": self.vertex_mm.tolist(), "axis": self.axis.tolist(),
              "radius_mm": self.radius_mm, "conic": self.conic, "outer_radius_mm": self.outer_radius_mm}
         if self.inner_radius_mm:
             d["inner_radius_mm"] = self.inner_radius_mm
+        d.update(self._aperture_keys())
+        return d
+
+    def _aperture_keys(self) -> dict:
+        """The scene keys of an off-axis or rectangular clear aperture (world frame), empty for the default."""
+        d: dict = {}
+        if self.decentred:
+            cu, cv = self.aperture_center_uv
+            d["aperture_center_mm"] = self.to_world(np.array([[cu, cv, 0.0]]))[0].tolist()
+        if self.aperture_half_widths_mm:
+            d["aperture_half_widths_mm"] = [float(h) for h in self.aperture_half_widths_mm]
+            ex, ey = self.aperture_x_uv
+            d["aperture_x_axis"] = self.dirs_to_world(np.array([[ex, ey, 0.0]]))[0].tolist()
         return d
 
 
@@ -260,11 +311,10 @@ class Asphere(Conic):
         raise TypeError("an asphere is not a quadric: use refine_hits")
 
     def valid(self, p):
-        rho = np.hypot(p[:, 0], p[:, 1])
+        rho2 = p[:, 0] ** 2 + p[:, 1] ** 2
         c, k = self.c, self.conic
-        inside = (1.0 + k) * c * c * rho * rho <= 1.0  # the conic base has a sag there
-        tol = 1e-9 * max(1.0, self.outer_radius_mm)
-        return inside & (rho <= self.outer_radius_mm + tol) & (rho >= self.inner_radius_mm - tol)
+        inside = (1.0 + k) * c * c * rho2 <= 1.0  # the conic base has a sag there
+        return inside & self.in_aperture(p)
 
     def refine_hits(self, origins, dirs, t0):
         """Compiled Newton on ``sag(rho) - z = 0`` along each ray from ``t0``: ``(t, normals, ok)``. The kernel
@@ -278,21 +328,17 @@ class Asphere(Conic):
         _asphere_kernel()(o, d, t, self.c, self.conic, coef, NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm, done)
         return t, self.dirs_to_world(nrm), done & self.valid(o + t[:, None] * d)
 
-    def mesh(self, tolerance_mm: float = 0.01):
-        """Rings spaced for the largest normal curvature of the asphere's profile (sampled)."""
-        r0, r1 = self.inner_radius_mm, self.outer_radius_mm
-        rr = np.linspace(max(r0, 1e-9 * r1), r1, 1025)
+    def _max_curvature(self, rr) -> float:
+        """Largest normal curvature of the asphere's profile at radii ``rr`` (h'' by finite differences)."""
         q = self.slope_over_rho(rr * rr)  # h'(rho) / rho, exact (finite on the axis)
         h1 = rr * q
         h2 = np.gradient(h1, rr)
-        curv = float(np.max(np.maximum(np.abs(h2) / (1 + h1 * h1) ** 1.5, np.abs(q) / np.sqrt(1 + h1 * h1))))
-        curv = max(curv, 1e-12)
-        step = math.sqrt(8.0 * tolerance_mm / curv)
-        n_r = max(2, int(math.ceil((r1 - r0) / step)) + 1)
-        n_phi = max(24, int(math.ceil(2 * math.pi * r1 / min(step, math.sqrt(8 * tolerance_mm * r1)))))
-        rho = np.linspace(r0, r1, n_r)
-        phi = np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
-        return _revolve(self, rho, phi, self.sag(rho), center=r0 == 0.0)
+        return float(np.max(np.maximum(np.abs(h2) / (1 + h1 * h1) ** 1.5, np.abs(q) / np.sqrt(1 + h1 * h1))))
+
+    def mesh(self, tolerance_mm: float = 0.01):
+        """Rings spaced for the largest normal curvature of the asphere's profile (sampled)."""
+        rho, phi = self._mesh_rings(tolerance_mm, 1025)
+        return _revolve(self, rho, phi, self.sag(rho), center=self.inner_radius_mm == 0.0)
 
     def to_dict(self) -> dict:
         d = Conic.to_dict(self)
@@ -514,14 +560,18 @@ def _asphere_kernel():
 
 
 def _revolve(surface, rho, phi, z, center):
-    """Rings (rho_i, z_i) x azimuths -> triangles whose normals face +w (the front of a conic)."""
+    """Rings (rho_i, z_i) x azimuths -> triangles whose normals face +w (the front of a conic). An off-axis
+    aperture (``aperture_center_uv``) gets its rings about its own centre, each point at the surface's sag."""
     n_phi = len(phi)
     cphi, sphi = np.cos(phi), np.sin(phi)
+    cu, cv = getattr(surface, "aperture_center_uv", (0.0, 0.0))
     rings = []
     start = 1 if center else 0
     for r, zz in zip(rho[start:], z[start:]):
-        rings.append(np.column_stack([r * cphi, r * sphi, np.full(n_phi, zz)]))
-    verts = np.concatenate(([np.array([[0.0, 0.0, z[0]]])] if center else []) + rings)
+        rings.append(np.column_stack([cu + r * cphi, cv + r * sphi, np.full(n_phi, zz)]))
+    verts = np.concatenate(([np.array([[cu, cv, z[0]]])] if center else []) + rings)
+    if cu or cv:
+        verts[:, 2] = surface.sag(np.hypot(verts[:, 0], verts[:, 1]))
     faces = []
     i = np.arange(n_phi)
     j = (i + 1) % n_phi
@@ -539,10 +589,12 @@ def _revolve(surface, rho, phi, z, center):
 # ---------------------------------------------------------------- scene-file keys
 
 _PLACEMENT = {"offset_mm", "tilt_deg"}
+_APERTURE = {"aperture_center_mm", "aperture_half_widths_mm", "aperture_x_axis"}  # off-axis segments
 _KEYS = {
-    "conic": {"type", "vertex_mm", "axis", "radius_mm", "conic", "outer_radius_mm", "inner_radius_mm"} | _PLACEMENT,
+    "conic": {"type", "vertex_mm", "axis", "radius_mm", "conic", "outer_radius_mm", "inner_radius_mm"} | _PLACEMENT
+    | _APERTURE,
     "asphere": {"type", "vertex_mm", "axis", "radius_mm", "conic", "coefficients", "outer_radius_mm",
-                "inner_radius_mm"} | _PLACEMENT,
+                "inner_radius_mm"} | _PLACEMENT | _APERTURE,
     "plane": {"type", "vertex_mm", "axis", "outer_radius_mm", "inner_radius_mm"} | _PLACEMENT,
     "cylinder": {"type", "vertex_mm", "axis", "radius_mm", "length_mm"} | _PLACEMENT,
 }
@@ -613,8 +665,10 @@ def surface_from_dict(d, where: str = "surface"):
     _within_reach(float(np.abs(v).max()), "surface 'vertex_mm'", where)
     axis = _unit(d.get("axis", [0.0, 0.0, 1.0]), "surface 'axis'", where)
     # placement: tilt about the vertex, then decentre (a lens file's decentre / coordinate break)
-    axis = tilt_matrix(_triple(d, "tilt_deg", where)) @ axis
+    tilt = tilt_matrix(_triple(d, "tilt_deg", where))
+    axis = tilt @ axis
     axis = axis / np.linalg.norm(axis)
+    v0 = v
     v = v + _triple(d, "offset_mm", where)
     if kind == "cylinder":
         return Cylinder(v, axis, _number(d, "radius_mm", where, positive=True),
@@ -640,12 +694,51 @@ def surface_from_dict(d, where: str = "surface"):
                                                   and math.isfinite(a) for a in coefs):
             raise GeometryError(f"{where}: surface 'coefficients' must be a list of numbers [A4, A6, ...], "
                                 f"got {coefs!r}")
-        surf = Asphere(v, axis, radius, k, outer, inner, tuple(float(a) for a in coefs))
-        rho = np.linspace(inner, outer, 513)
-        if not np.all(np.isfinite(surf.sag(rho))):
-            raise GeometryError(f"{where}: the asphere's sag is not finite over its clear aperture")
-        return surf
-    return Conic(v, axis, radius, k, outer, inner)
+        surf: Conic = Asphere(v, axis, radius, k, outer, inner, coefficients=tuple(float(a) for a in coefs))
+    else:
+        surf = Conic(v, axis, radius, k, outer, inner)
+    surf = _with_aperture(surf, d, v0, tilt, where)
+    lo, hi = surf.rho_range_mm()
+    if (1.0 + k) * c * c * hi * hi > 1.0:
+        raise GeometryError(f"{where}: the conic (radius_mm {radius:g}, conic {k:g}) has no sag beyond "
+                            f"rho = {1.0 / math.sqrt((1.0 + k) * c * c):.6g} mm, inside the off-axis aperture "
+                            f"(which reaches rho = {hi:.6g} mm)")
+    if kind == "asphere" and not np.all(np.isfinite(surf.sag(np.linspace(lo, hi, 513)))):
+        raise GeometryError(f"{where}: the asphere's sag is not finite over its clear aperture")
+    return surf
+
+
+def _with_aperture(surf, d, v0, tilt, where):
+    """``surf`` with the off-axis / rectangular clear aperture of the scene keys (docs/reference/scene.md):
+    ``aperture_center_mm`` a point (same frame as ``vertex_mm``, moved with the surface by its placement)
+    through which the aperture's own axis runs parallel to ``axis``; ``aperture_half_widths_mm = [hx, hy]``
+    a rectangle about that centre, its hx side along ``aperture_x_axis`` (default: world x, or y when the
+    axis is along x) projected onto the plane normal to the axis."""
+    import dataclasses
+
+    changes: dict = {}
+    if "aperture_center_mm" in d:
+        centre = surf.vertex_mm + tilt @ (_triple(d, "aperture_center_mm", where) - v0)
+        u, v, _ = surf.to_local(centre[None, :])[0]
+        changes["aperture_center_uv"] = (float(u), float(v))
+    if "aperture_half_widths_mm" in d:
+        hw = d["aperture_half_widths_mm"]
+        ok = isinstance(hw, list) and len(hw) == 2 and all(isinstance(h, (int, float)) and not isinstance(h, bool)
+                                                           and math.isfinite(h) and h > 0 for h in hw)
+        if not ok:
+            raise GeometryError(f"{where}: surface 'aperture_half_widths_mm' must be [hx, hy] (numbers > 0), got {hw!r}")
+        changes["aperture_half_widths_mm"] = (float(hw[0]), float(hw[1]))
+        if "aperture_x_axis" in d:
+            xdir = tilt @ _unit(d["aperture_x_axis"], "surface 'aperture_x_axis'", where)
+        else:
+            xdir = np.eye(3)[1] if abs(float(surf.axis[0])) > 0.9 else np.eye(3)[0]
+        ex, ey, _ = surf.dirs_to_local(xdir[None, :])[0]
+        if math.hypot(ex, ey) < 1e-6:
+            raise GeometryError(f"{where}: surface 'aperture_x_axis' is along the axis; give a direction across it")
+        changes["aperture_x_uv"] = (float(ex / math.hypot(ex, ey)), float(ey / math.hypot(ex, ey)))
+    elif "aperture_x_axis" in d:
+        raise GeometryError(f"{where}: surface 'aperture_x_axis' needs 'aperture_half_widths_mm' (a rectangle)")
+    return dataclasses.replace(surf, **changes) if changes else surf
 
 
 def analytic_part(name: str, surface, material=None, role: str = "surface", back_material=None,

@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 LENSES = Path(__file__).resolve().parent / "data" / "lenses"
 
@@ -59,15 +60,26 @@ def test_a_secondary_in_the_incoming_beam_gets_no_hole():
     assert not [w for w in p.warnings if "hole" in w]
 
 
-def test_a_decentred_clear_aperture_is_warned_not_dropped_silently():
-    """zmax_37992.zmx: an off-axis paraboloid whose aperture the file decentres (OBDC 0 190.6 on SURF 3);
-    threemir.seq: CODE V ADY on the three mirrors (99.602384, -6.213535, -112.354230 in the file)."""
+def test_a_decentred_clear_aperture_is_kept_in_the_scene():
+    """zmax_37992.zmx: an off-axis paraboloid whose aperture the file decentres (OBDC 0 190.6 on SURF 3, CLAP 25.4);
+    threemir.seq: CODE V REX/REY rectangles and ADY on the three mirrors (values as the file writes them);
+    US08011793-1.zmx: Zemax SQAP 424 x 192 with OBDC 0 -397 on SURF 2."""
     from straylight.optics.reader import read_prescription
+    from straylight.optics.scene_build import build_scene
 
-    w = read_prescription(LENSES / "ray-optics" / "zmax_37992.zmx").warnings
-    assert any(x.startswith("s3: the file decentres its clear aperture by (0, 190.6) mm") for x in w)
-    w = read_prescription(LENSES / "ray-optics" / "threemir.seq").warnings
-    for name, dy in (("s2", "99.6024"), ("s4", "-6.21354"), ("s5", "-112.354")):
-        assert any(x.startswith(f"{name}: the file decentres its clear aperture by (0, {dy}) mm") for x in w)
-    assert not any("decentres its clear" in x
-                   for x in read_prescription(LENSES / "ray-optics" / "rc_f16.seq").warnings)
+    p = read_prescription(LENSES / "ray-optics" / "zmax_37992.zmx")
+    s3 = next(s for s in p.surfaces if s.name == "s3")
+    assert s3.aperture_offset_mm == pytest.approx((0.0, 190.6)) and s3.semi_diameter_mm == pytest.approx(25.4)
+    part = next(q for q in build_scene(p)["part"] if q["name"] == "s3")["surface"]
+    # the coordinate break puts the vertex at y = -190.6: the segment's centre is back on the z axis
+    assert part["aperture_center_mm"] == pytest.approx([0.0, 0.0, 200.0])
+    p = read_prescription(LENSES / "ray-optics" / "threemir.seq")
+    shapes = {s.name: s.aperture_offset_mm + s.aperture_half_widths_mm for s in p.surfaces if not s.dummy}
+    assert shapes["s2"] == pytest.approx((0.0, 99.602384, 75.734236, 78.538674))
+    assert shapes["s4"] == pytest.approx((0.0, -6.213535, 24.789115, 24.791683))
+    assert shapes["s5"] == pytest.approx((0.0, -112.35423, 66.581268, 65.453521))
+    p = read_prescription(LENSES / "ray-optics" / "US08011793-1.zmx")
+    s2 = next(s for s in p.surfaces if s.name == "s2")
+    assert s2.aperture_offset_mm == pytest.approx((0.0, -397.0)) and s2.aperture_half_widths_mm == pytest.approx((424.0, 192.0))
+    assert not any(s.aperture_offset_mm != (0.0, 0.0) or s.aperture_half_widths_mm
+                   for s in read_prescription(LENSES / "ray-optics" / "rc_f16.seq").surfaces)

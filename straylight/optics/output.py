@@ -24,6 +24,8 @@ def prescription_dict(p) -> dict:
             "name": s.name, "type": s.type, "radius_mm": _num(s.radius_mm), "conic": _num(s.conic),
             "coefficients": [_num(a) for a in s.coefficients], "thickness_mm": _num(s.thickness_mm),
             "glass": s.glass, "n": _num(s.n), "semi_diameter_mm": _num(s.semi_diameter_mm), "mirror": bool(s.mirror),
+            **({"aperture_offset_mm": [_num(v) for v in s.aperture_offset_mm]} if s.aperture_offset_mm != (0.0, 0.0) else {}),
+            **({"aperture_half_widths_mm": [_num(v) for v in s.aperture_half_widths_mm]} if s.aperture_half_widths_mm else {}),
         } for s in p.surfaces],
         "warnings": list(p.warnings),
     }
@@ -62,6 +64,10 @@ def info_text(p) -> str:
             notes.append("A4.. = " + ", ".join(f"{a:.4g}" for a in s.coefficients))
         if not s.semi_diameter_from_file:
             notes.append("aperture from marginal ray +5%")
+        if s.aperture_offset_mm != (0.0, 0.0):
+            notes.append("off-axis aperture centred (%.6g, %.6g) mm from the vertex" % s.aperture_offset_mm)
+        if s.aperture_half_widths_mm:
+            notes.append("rectangular aperture, half-widths %.6g x %.6g mm" % s.aperture_half_widths_mm)
         if any(abs(x) > 1e-9 for x in s.vertex_mm[:2]) or abs(abs(s.local_z[2]) - 1) > 1e-12:
             notes.append("vertex (%.4g, %.4g, %.4g) mm, axis (%.4g, %.4g, %.4g)" % (*s.vertex_mm, *s.local_z))
         lines.append(f"{s.name:<12} {s.type:<8} {r:>13} {s.conic:>9.4g} {s.thickness_mm:>13.6g} "

@@ -55,6 +55,9 @@ class OpticalSurface:
     inner_kind: str = ""            # "hole" | "obscuration" | ""
     coating: str | None = None
     dummy: bool = False             # same medium both sides, not a mirror: no part
+    aperture_offset_mm: tuple = (0.0, 0.0)  # clear aperture's centre in the surface's own x, y (off-axis segment)
+    aperture_half_widths_mm: tuple = ()     # (hx, hy): a rectangular clear aperture about that centre
+    local_x: np.ndarray | None = None       # the surface's own +x axis in the scene frame (for the two above)
 
 
 @dataclass
@@ -158,26 +161,57 @@ def _obstructions(fmt: str, text: str) -> dict:
     return out
 
 
-def _aperture_decentres(fmt: str, text: str) -> dict:
-    """{surface index: (dx, dy) in file units} of clear apertures decentred from their surface's vertex (CODE V
-    ``ADX`` / ``ADY``, Zemax ``OBDC``): an off-axis segment of a parent surface (docs/optics.md)."""
+def _aperture_shapes(fmt: str, text: str) -> dict:
+    """{surface index: {"offset": (dx, dy), "half_widths": (hx, hy) | None}} in file units, for clear apertures
+    decentred from their surface's vertex (CODE V ``ADX`` / ``ADY``, Zemax ``OBDC``: an off-axis segment of a
+    parent surface) or rectangular (CODE V ``REX`` / ``REY``, Zemax ``SQAP hx hy``), docs/optics.md."""
     out: dict = {}
+
+    def number(words, k):
+        try:
+            return float(words[k])
+        except (IndexError, ValueError):
+            return None
+
     for idx, head, words in _surface_commands(fmt, text):
         if idx is None:
             continue
-        if fmt == "seq" and head in ("ADX", "ADY") and len(words) >= 2:
-            try:
-                value = float(words[1])
-            except ValueError:
+        shape = out.setdefault(idx, {"offset": (0.0, 0.0), "half_widths": None})
+        dx, dy = shape["offset"]
+        hx, hy = shape["half_widths"] or (None, None)
+        if fmt == "seq" and head in ("ADX", "ADY", "REX", "REY"):
+            value = number(words, 1)
+            if value is None:
                 continue
-            dx, dy = out.get(idx, (0.0, 0.0))
-            out[idx] = (value, dy) if head == "ADX" else (dx, value)
+            if head == "ADX":
+                dx = value
+            elif head == "ADY":
+                dy = value
+            elif head == "REX":
+                hx = abs(value)
+            else:
+                hy = abs(value)
         elif fmt != "seq" and head == "OBDC" and len(words) >= 3:
-            try:
-                out[idx] = (float(words[1]), float(words[2]))
-            except ValueError:
-                continue
-    return {i: v for i, v in out.items() if v != (0.0, 0.0)}
+            dx, dy = number(words, 1) or 0.0, number(words, 2) or 0.0
+        elif fmt != "seq" and head == "SQAP":
+            hx, hy = number(words, 1), number(words, 2)
+        shape["offset"] = (dx, dy)
+        if hx is not None or hy is not None:
+            shape["half_widths"] = (hx if hx is not None else hy, hy if hy is not None else hx)
+    return {i: v for i, v in out.items() if v["offset"] != (0.0, 0.0) or v["half_widths"]}
+
+
+def _set_aperture(s, shape: dict, scale: float, rot) -> None:
+    """An off-axis or rectangular clear aperture of the file on surface ``s`` (its semi-diameter becomes the
+    radius about the aperture's own centre: the rectangle's half-diagonal, or the file's circle)."""
+    s.local_x = np.asarray(rot, float)[:, 0].copy()
+    s.aperture_offset_mm = tuple(float(v) * scale for v in shape["offset"])
+    if shape["half_widths"]:
+        hx, hy = (float(v) * scale for v in shape["half_widths"])
+        if hx > 0 and hy > 0:
+            s.aperture_half_widths_mm = (hx, hy)
+            s.semi_diameter_mm = math.hypot(hx, hy)
+            s.semi_diameter_from_file = True
 
 
 def _coatings(fmt: str, text: str) -> dict:
@@ -367,7 +401,7 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         notes.append(f"multi-configuration file ({nconf} configurations): configuration 1 imported")
     obstr = _obstructions(fmt, text)
     coats = _coatings(fmt, text)
-    decentred = _aperture_decentres(fmt, text)
+    apertures = _aperture_shapes(fmt, text)
 
     problems: list = []
     n_ifc = len(sm.ifcs)
@@ -425,10 +459,8 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         if i in obstr:
             s.inner_kind, r_in = obstr[i]
             s.inner_radius_mm = r_in * scale
-        if i in decentred:
-            dx, dy = (v * scale for v in decentred[i])
-            notes.append(f"{s.name}: the file decentres its clear aperture by ({dx:g}, {dy:g}) mm from the vertex "
-                         "(an off-axis segment); the scene's aperture is centred on the vertex (not supported yet)")
+        if i in apertures:
+            _set_aperture(s, apertures[i], scale, rot)
         if label:
             names.setdefault(label, []).append(s)
         surfaces.append(s)

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from straylight.optics import aperture
 from straylight.optics.aluminium import aluminium_nk
 from straylight.optics.sag import sag_mm
 
@@ -26,7 +27,9 @@ def _surface_table(s, axis, outer, inner=0.0) -> dict:
     """The 6.1 ``surface`` table of ``s`` seen along ``axis`` (sign flipped when axis opposes its own z)."""
     sign = 1.0 if float(np.dot(axis, s.local_z)) > 0 else -1.0
     d: dict[str, Any] = {"vertex_mm": _v(s.vertex_mm), "axis": _v(axis)}
-    if s.type == "plane":
+    if s.type == "plane" and aperture.is_off_axis(s):  # an off-axis flat segment: a conic with c = 1e-18 /mm
+        d = {"type": "conic", **d, "radius_mm": 1e18, "conic": 0.0}
+    elif s.type == "plane":
         d = {"type": "plane", **d}
     elif s.type == "asphere":  # a flat base: c = 1e-18 /mm, the plane to 1e-12 mm over a metre
         d = {"type": "asphere", **d, "radius_mm": sign * (s.radius_mm if s.radius_mm else 1e18), "conic": s.conic,
@@ -36,6 +39,7 @@ def _surface_table(s, axis, outer, inner=0.0) -> dict:
     d["outer_radius_mm"] = float(outer)
     if inner > 0:
         d["inner_radius_mm"] = float(inner)
+    d.update(aperture.scene_keys(s))
     return d
 
 
@@ -65,7 +69,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     if p.model is not None:
         from straylight.optics.sequential import holes_for_passing_light
 
-        for idx, r in holes_for_passing_light(p, z00, 1.1 * largest0).items():
+        for idx, r in holes_for_passing_light(p, z00, 1.1 * largest0, source_centre_xy(p)).items():
             m = next(s for s in p.surfaces if s.index == idx)
             if m.inner_kind == "hole" and m.inner_radius_mm >= r:
                 continue
@@ -157,7 +161,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
             continue
         ax = a.local_z * (1 if np.dot(a.local_z, a.travel_in) > 0 else -1)
         off = (b.vertex_mm - a.vertex_mm) - np.dot(b.vertex_mm - a.vertex_mm, ax) * ax
-        if np.linalg.norm(off) > 1e-9:
+        if np.linalg.norm(off) > 1e-9 or aperture.is_off_axis(a) or aperture.is_off_axis(b):
             p.warnings.append(f"{a.name}-{b.name}: decentred element; its edge is not modelled")
             continue
         edge_key = (tuple(np.round(a.vertex_mm, 6)), tuple(np.round(b.vertex_mm, 6)))
@@ -210,11 +214,12 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     # vertex; a source at the vertex would start inside it and lose its obscuration)
     z0 = min(_object_side_z(s) for s in p.surfaces if not s.dummy or s.stop) - 1.0  # the stop is a part too
     f = math.radians(field_deg)
-    source = {"type": "collimated_disk", "name": "pupil", "center_mm": [0.0, 0.0, z0], "normal": [0.0, 0.0, 1.0],
+    cx, cy = source_centre_xy(p)
+    source = {"type": "collimated_disk", "name": "pupil", "center_mm": [cx, cy, z0], "normal": [0.0, 0.0, 1.0],
               "direction": _v([0.0, math.sin(f), math.cos(f)]), "radius_mm": round(1.1 * largest, 9),
               "power_w": 1.0, "wavelength_nm": wl}
     first = next(s for s in p.surfaces if not s.dummy)
-    analysis = {"detector": "image", "entrance": {"center_mm": _v(first.vertex_mm), "normal": [0.0, 0.0, -1.0],
+    analysis = {"detector": "image", "entrance": {"center_mm": _v(aperture.centre_mm(first)), "normal": [0.0, 0.0, -1.0],
                                                    "radius_mm": first.semi_diameter_mm}}
     return {"material": materials, "part": parts, "source": [source], "analysis": analysis}
 
@@ -247,8 +252,12 @@ def _tighten_mesh_tolerance(optical) -> None:
     for i, (a, pa) in enumerate(optical):
         for b, pb in optical[i + 1:]:
             sa, sb = pa["surface"], pb["surface"]
-            gap = _axial_gap_mm(a, b, max(sa.get("inner_radius_mm", 0.0), sb.get("inner_radius_mm", 0.0)),
-                                min(sa["outer_radius_mm"], sb["outer_radius_mm"]))
+            if aperture.is_off_axis(a) or aperture.is_off_axis(b):  # the radii the two segments span
+                (lo_a, hi_a), (lo_b, hi_b) = aperture.rho_range_mm(a), aperture.rho_range_mm(b)
+                gap = _axial_gap_mm(a, b, max(lo_a, lo_b), min(hi_a, hi_b))
+            else:
+                gap = _axial_gap_mm(a, b, max(sa.get("inner_radius_mm", 0.0), sb.get("inner_radius_mm", 0.0)),
+                                    min(sa["outer_radius_mm"], sb["outer_radius_mm"]))
             if gap >= 4.0 * MESH_TOLERANCE_MM:
                 continue
             tol = max(float(gap) / 4.0, MIN_MESH_TOLERANCE_MM)
@@ -265,9 +274,19 @@ def _object_side_z(s) -> float:
     """The smallest global z of surface ``s`` over its clear aperture (its vertex for a plane)."""
     from straylight.optics.sag import sag_mm
 
-    rho = np.linspace(0.0, max(float(s.semi_diameter_mm or 0.0), 0.0), 33)
+    rho = np.linspace(*aperture.rho_range_mm(s), 33)
     axial = float(np.asarray(s.local_z, float)[2])
     return float(min(float(s.vertex_mm[2]) + sag_mm(s, r) * axial for r in rho))
+
+
+def source_centre_xy(p) -> tuple[float, float]:
+    """(x, y) of the ``pupil`` source's centre: the axis, or the centre of the first surface's clear aperture
+    when the file decentres it (an off-axis system's entrance segment)."""
+    first = next((s for s in p.surfaces if not s.dummy), None)
+    if first is None or first.aperture_offset_mm == (0.0, 0.0):
+        return 0.0, 0.0
+    c = aperture.centre_mm(first)
+    return round(float(c[0]), 10) + 0.0, round(float(c[1]), 10) + 0.0
 
 
 def known_coatings() -> set:

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from straylight.optics import aperture
 from straylight.optics.sag import sag_mm
 
 
@@ -23,14 +24,17 @@ def pupil_grid(radius_mm: float, n: int) -> np.ndarray:
     return np.column_stack([x[inside], y[inside]])
 
 
-def sequential_spot(p, field_deg: float, source_z_mm: float, source_radius_mm: float, n: int = 2000):
+def sequential_spot(p, field_deg: float, source_z_mm: float, source_radius_mm: float, n: int = 2000,
+                    source_centre_xy=(0.0, 0.0)):
     """Global points (mm) where the kept rays cross the image surface, shape (m, 3)."""
-    paths = sequential_paths(p, field_deg, source_z_mm, source_radius_mm, n)
-    return np.array([path[-1] for path in paths]).reshape(-1, 3)
+    paths = sequential_paths(p, field_deg, source_z_mm, source_radius_mm, n, source_centre_xy=source_centre_xy)
+    pts = np.array([path[-1] for path in paths]).reshape(-1, 3)
+    return pts[np.all(np.isfinite(pts), axis=1)]  # a ray along the image plane (a 90 deg off-axis mirror) meets it nowhere
 
 
 def _crossing(q, a_pt, b_pt):
-    """(t, rho) where the segment a_pt -> b_pt crosses surface ``q`` (its sag at the crossing's radius), or None."""
+    """(t, rho, (x, y)) where the segment a_pt -> b_pt crosses surface ``q`` (its sag at the crossing's radius;
+    (x, y) in the surface's own frame), or None."""
     ax = q.local_z
     denom = float(np.dot(b_pt - a_pt, ax))
     if abs(denom) < 1e-12:
@@ -44,7 +48,7 @@ def _crossing(q, a_pt, b_pt):
     length = float(np.linalg.norm(b_pt - a_pt))
     if t * length <= 1e-6 or (1.0 - t) * length <= 1e-6:  # at an end (a coordinate break on the mirror): no crossing
         return None
-    return t, r
+    return t, r, aperture.local_xy(q, x)
 
 
 def _coincide(a, b) -> bool:
@@ -71,15 +75,15 @@ def _blocked(p, path) -> bool:
             hit = _crossing(q, a_pt, b_pt)
             if hit is None:
                 continue
-            t, r = hit
             lo = q.inner_radius_mm if q.inner_kind == "hole" else 0.0
-            if lo <= r <= q.semi_diameter_mm:
+            x_q, y_q = hit[2]
+            if aperture.inside(q, x_q, y_q, hole_mm=lo):
                 return True
     return False
 
 
 def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: float, n: int = 2000,
-                     block: bool = True) -> list:
+                     block: bool = True, source_centre_xy=(0.0, 0.0)) -> list:
     """Each kept ray's global points (mm): the start on the source disk, then every surface from the first to the
     image (row k: surface k). ``block``: drop rays that cross another surface's part between two of theirs."""
     from rayoptics.raytr import raytrace as rt
@@ -90,13 +94,14 @@ def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: 
     d = np.array([0.0, math.sin(f), math.cos(f)])
     rot0, t0 = (np.asarray(a, float) for a in sm.gbl_tfrms[0])
     img_rot, img_t = (np.asarray(a, float) for a in sm.gbl_tfrms[-1])
-    limits = {q.index: (q.semi_diameter_mm / s, q.inner_radius_mm / s if q.inner_kind else 0.0)
+    limits = {q.index: (q, q.inner_radius_mm if q.inner_kind else 0.0)
               for q in p.surfaces if not q.dummy or q.stop}  # a dummy surface is no part: it stops nothing
     stop = next((q for q in p.surfaces if q.stop), None)
+    stop_hole = None
     if stop is not None and not stop.semi_diameter_from_file:  # the black stop's hole (scene_build)
-        limits[stop.index] = (stop.semi_diameter_mm / 1.05 / s, limits[stop.index][1])
+        stop_hole = stop.semi_diameter_mm / 1.05
     out = []
-    for x, y in pupil_grid(source_radius_mm, n):
+    for x, y in pupil_grid(source_radius_mm, n) + np.asarray(source_centre_xy, float):
         start = np.array([x, y, source_z_mm]) / s
         t = (start[2] - t0[2]) / d[2]
         p0 = rot0.T @ (start - t * d - t0)
@@ -107,9 +112,13 @@ def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: 
         ok = True
         for i, seg in enumerate(ray):
             if i in limits:
-                r = math.hypot(seg[0][0], seg[0][1])
-                hi, lo = limits[i]
-                if r > hi or r < lo:
+                q, lo = limits[i]
+                x_mm, y_mm = seg[0][0] * s, seg[0][1] * s
+                if q is stop and stop_hole is not None:
+                    passes = lo <= math.hypot(x_mm, y_mm) <= stop_hole
+                else:
+                    passes = aperture.inside(q, x_mm, y_mm, hole_mm=lo)
+                if not passes:
                     ok = False
                     break
         if ok:
@@ -121,7 +130,8 @@ def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: 
     return out
 
 
-def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, n: int = 600) -> dict:
+def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, source_centre_xy=(0.0, 0.0),
+                            n: int = 600) -> dict:
     """{surface index: radius_mm} of the central hole a mirror needs where the sequential beam, on its way to a
     later surface, crosses the mirror's clear aperture (a Cassegrain primary that the file gives no hole)."""
     mirrors = [q for q in p.surfaces if q.mirror]
@@ -129,7 +139,8 @@ def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, n: i
         return {}
     need: dict = {}
     for field in {0.0, max(p.fields_deg or [0.0])}:
-        for path in sequential_paths(p, field, source_z_mm, source_radius_mm, n, block=False):
+        for path in sequential_paths(p, field, source_z_mm, source_radius_mm, n, block=False,
+                                     source_centre_xy=source_centre_xy):
             for i_from, i_to, a_pt, b_pt in _real_segments(p, path)[1:]:  # the incoming beam makes no hole
                 for m in mirrors:
                     # before the mirror is met, the beam crossing its aperture is obscured by its back (a
@@ -137,6 +148,7 @@ def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, n: i
                     if m.index in (i_from, i_to) or i_from < m.index:
                         continue
                     hit = _crossing(m, a_pt, b_pt)
-                    if hit and hit[1] < m.semi_diameter_mm:
-                        need[m.index] = max(need.get(m.index, 0.0), hit[1])
+                    if hit and aperture.inside(m, hit[2][0], hit[2][1]):
+                        dx, dy = m.aperture_offset_mm  # a hole about the aperture's own centre
+                        need[m.index] = max(need.get(m.index, 0.0), math.hypot(hit[2][0] - dx, hit[2][1] - dy))
     return need
