@@ -148,12 +148,29 @@ def test_coating_option_writes_the_coating_key_on_glass_air_surfaces(tmp_path):
     assert inner and all("coating" not in c for c in inner)
 
 
-def test_a_coating_named_in_the_file_but_unknown_is_warned_not_dropped_silently(tmp_path):
+def test_a_vendor_mgf2_coating_is_one_quarter_wave_layer_at_its_own_wavelength(tmp_path):
+    """Edmund writes EO_MGF2(550nm): one MgF2 layer (n = 1.38) a quarter wave thick at 550 nm, 550 / (4 x 1.38) =
+    99.64 nm, whatever wavelength is traced."""
     r = _run("optics", "import", LENSES / "OpticsDatabase" / "Edmund_32-299.zmx", "--out", tmp_path)
     assert r.returncode == 0
-    assert "coating 'EO_MGF2(550nm)'" in r.stderr
-    doc = json.loads((tmp_path / "prescription.json").read_text())
-    assert any("EO_MGF2" in w for w in doc["warnings"])
+    assert "coating EO_MGF2(550nm) of the file read as one quarter-wave MgF2 layer at 550 nm" in r.stderr
+    import tomllib
+
+    scene = tomllib.loads((tmp_path / "scene.toml").read_text())
+    coated = [c for m in scene["material"].values() for c in m["components"] if c.get("coating")]
+    assert coated and all(c["coating"] == [{"n": 1.38, "thickness_nm": pytest.approx(99.6377, abs=1e-3)}] for c in coated)
+
+
+def test_a_coating_named_in_the_file_but_unknown_is_warned_not_dropped_silently(tmp_path):
+    text = (LENSES / "OpticsDatabase" / "Edmund_32-299.zmx").read_bytes()
+    text = text.decode("utf-16") if text[:2] in (b"\xff\xfe", b"\xfe\xff") else text.decode("utf-8")
+    lens = tmp_path / "v.zmx"
+    lens.write_text(text.replace("EO_MGF2(550nm)", "VENDOR_V2"), encoding="utf-8")
+    r = _run("optics", "import", lens, "--out", tmp_path / "out")
+    assert r.returncode == 0
+    assert "coating 'VENDOR_V2'" in r.stderr
+    doc = json.loads((tmp_path / "out" / "prescription.json").read_text())
+    assert any("VENDOR_V2" in w for w in doc["warnings"])
 
 
 def test_a_zemax_ar_coating_is_read_as_the_quarter_wave_mgf2_design(tmp_path):

@@ -8,6 +8,7 @@ rho^2)) + sum A_(2i+4) rho^(2i+4) along the part's ``axis``; the lens file's sag
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 import numpy as np
@@ -128,9 +129,9 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         if s.coating and not coating:
             if s.coating.lower() in known_coatings():
                 coat = s.coating.lower()
-            elif s.coating.upper() in FILE_COATINGS:
-                coat = FILE_COATINGS[s.coating.upper()]
-                note = f"coating {s.coating} of the file read as {coat} (docs/optics.md)"
+            elif (read := file_coating(s.coating)) is not None:
+                coat, label = read
+                note = f"coating {s.coating} of the file read as {label} (docs/optics.md)"
                 if note not in p.warnings:
                     p.warnings.append(note)
             else:
@@ -138,7 +139,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
                                   f"({', '.join(sorted(known_coatings()))}); left uncoated (--coating NAME sets one)")
         if coat:
             comp["coating"] = coat
-            key += f"_{coat}"
+            key += f"_{coat}" if isinstance(coat, str) else f"_mgf2_{round(coat[0]['thickness_nm'] * 4 * MGF2_N)}nm"
         materials.setdefault(key, {"name": key, "wavelength_nm": wl, "components": [comp]})
         # a mirror on the same surface (a Mangin's or a Maksutov's aluminised spot) fills the centre
         spot = max((m.semi_diameter_mm for m in mirrors if _same_geometry(m, s)), default=0.0)
@@ -287,6 +288,31 @@ def source_centre_xy(p) -> tuple[float, float]:
         return 0.0, 0.0
     c = aperture.centre_mm(first)
     return round(float(c[0]), 10) + 0.0, round(float(c[1]), 10) + 0.0
+
+
+MGF2_N = 1.38  # the index of mgf2_quarter_wave (materials.thin_film)
+
+
+def file_coating(name: str):
+    """(the scene's ``coating`` value, a label) for a coating a lens file names, or None when unknown.
+
+    OpticStudio's COATING.DAT ``AR`` and ``MGF2`` are one quarter-wave MgF2 layer at the traced wavelength
+    (``mgf2_quarter_wave``); a name holding ``MGF2`` and a design wavelength, as vendors write them (Edmund's
+    ``EO_MGF2(550nm)``), is that layer at its own wavelength: ``[{n = 1.38, thickness_nm = lambda0 / (4 x 1.38)}]``.
+    """
+    upper = name.strip().upper()
+    if upper in FILE_COATINGS:
+        return FILE_COATINGS[upper], FILE_COATINGS[upper]
+    if "MGF2" in upper:
+        m = re.search(r"(\d+(?:\.\d+)?)\s*NM", upper)
+        if m is None:
+            return "mgf2_quarter_wave", "mgf2_quarter_wave"
+        lam0 = float(m.group(1))
+        if not 200.0 <= lam0 <= 20000.0:
+            return None
+        return ([{"n": MGF2_N, "thickness_nm": round(lam0 / (4.0 * MGF2_N), 4)}],
+                f"one quarter-wave MgF2 layer at {lam0:g} nm (n = {MGF2_N}, {lam0 / (4.0 * MGF2_N):.4g} nm)")
+    return None
 
 
 def known_coatings() -> set:
