@@ -158,8 +158,23 @@ def build_parser() -> argparse.ArgumentParser:
             raise ImportError(f"straylight command group {ep.name!r} ({ep.value}) failed to load: {exc}") from exc
         add_parser(sub)
     _ray_counts_as_numbers(parser)
+    _force_flags(parser)
     _plain_texts(parser)
     return parser
+
+
+def _force_flags(parser) -> None:
+    """Every command that writes an output file takes ``--force`` (replace an existing output file): without
+    it, an existing file is refused before any work (docs/reference/commands.md, "Outputs")."""
+    outs = set(OUTPUT_FILE_FLAGS) | {"output"}
+    for action in parser._actions:
+        for sub in action.choices.values() if isinstance(action, argparse._SubParsersAction) else ():
+            dests = {a.dest for a in sub._actions}
+            if dests & outs and "force" not in dests:
+                sub.add_argument("--force", action="store_true",
+                                 help="replace output files that exist already (a run may always replace its own "
+                                      "unchanged outputs)")
+            _force_flags(sub)
 
 
 def _check_requests(args) -> None:
@@ -168,7 +183,10 @@ def _check_requests(args) -> None:
     (geometry.limits), and outputs that cannot be written (``--json``/``--png`` files, ``--out``
     folders, ``--report`` folders: atomicio.guard)."""
     from atomicio.guard import check_output_dir, check_output_file
+    import os
+
     from atomicio.output_rule import check_not_an_input, check_plain_path
+    from atomicio.written_outputs import replaceable
 
     files, folders = _outputs(args)
     inputs = _input_files(args)
@@ -176,6 +194,10 @@ def _check_requests(args) -> None:
         check_plain_path(path, f"{flag} output")
         check_not_an_input(path, inputs, f"{flag} output")
         check_output_file(path, f"{flag} output")
+        if not getattr(args, "force", False) and not _appends(args, flag) and os.path.isfile(path) \
+                and not replaceable(path):
+            raise ValueError(f"{path}: the {flag} output exists already and this command did not write it (or it "
+                             "changed since); give --force to replace it, or another path")
     for flag, path in folders:
         check_plain_path(path, f"{flag} folder")
         check_output_dir(path, f"{flag} folder")
@@ -210,6 +232,22 @@ def _check_requests(args) -> None:
 
 OUTPUT_FILE_FLAGS = ("json", "png", "plot", "csv")
 OUTPUT_DIR_FLAGS = ("out", "report")
+
+
+def _remember_outputs(files) -> None:
+    """Record the output files this run wrote (atomicio.written_outputs): a rerun may replace them."""
+    import os
+
+    from atomicio.written_outputs import remember
+
+    for _, path in files:
+        if os.path.isfile(path):
+            remember(path)
+
+
+def _appends(args, flag: str) -> bool:
+    """The command adds to this output rather than replacing it (``rig scan --resume -o SCAN.csv``)."""
+    return flag == "-o/--output" and bool(getattr(args, "resume", False))
 
 
 def _outputs(args) -> tuple[list, list]:
@@ -402,7 +440,10 @@ def _main(argv=None) -> int:
         with _allow_insecure(getattr(args, "allow_insecure", False)), _one_line_warnings(), \
                 outputs_held(folders=[(p, f"{f} folder") for f, p in folders],
                              files=[(p, f"{f} output") for f, p in files if f == "-o/--output"]):
-            return int(args.func(args) or 0)
+            try:
+                return int(args.func(args) or 0)
+            finally:
+                _remember_outputs(files)
     except KeyboardInterrupt:
         print("straylight: interrupted", file=sys.stderr)
         return 130
