@@ -128,8 +128,8 @@ def check_point_values(values, path) -> None:
 
 
 class PointStore:
-    """Finished points of one sweep in ``folder``. ``resume=False`` starts afresh (old points are
-    removed); ``resume=True`` keeps them, after checking they belong to a run with the same
+    """Finished points of one sweep in ``folder``. ``resume=False`` starts afresh, and refuses a folder
+    holding an earlier run's finished points (one line naming ``--resume``); ``resume=True`` keeps them, after checking they belong to a run with the same
     fingerprint (else a one-line error naming the folder)."""
 
     def __init__(self, folder, fingerprint: dict, resume: bool = False):
@@ -149,8 +149,10 @@ class PointStore:
                 raise ValueError(f"--resume: {self.folder} holds points of a different run (scene, angles, rays, "
                                  f"seed or options changed); remove it or run without --resume")
         elif self.folder.exists():
-            for old in self.folder.glob("point_*.json"):
-                old.unlink()
+            old = sorted(self.folder.glob("point_*.json"))
+            if old:  # an interrupted run's finished points: never deleted silently
+                raise ValueError(f"{self.folder} holds {len(old)} finished point(s) of an earlier, interrupted run; "
+                                 f"give --resume to keep them, or remove {self.folder} to start afresh")
         self.folder.mkdir(parents=True, exist_ok=True)
         atomicio.write_json(meta, {"format": FORMAT, "fingerprint_sha256": digest,
                                    "parameters": _parameters(fingerprint)}, indent=1)

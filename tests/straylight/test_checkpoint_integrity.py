@@ -93,3 +93,13 @@ def test_pst_resume_refuses_a_hand_edited_point(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and str(path) in err[0] and "checksum" in err[0]
     assert not (out / "pst.json").exists()
+
+
+def test_a_run_without_resume_never_deletes_an_interrupted_runs_points(tmp_path):
+    """Nothing measured is lost: starting the same sweep again without --resume is refused in one line naming
+    --resume, and the finished point is still there to be resumed."""
+    _store_with_point(tmp_path)
+    with pytest.raises(ValueError, match="give --resume to keep them") as err:
+        PointStore(tmp_path / "pts", FINGERPRINT)
+    assert "\n" not in str(err.value) and "1 finished point" in str(err.value)
+    assert PointStore(tmp_path / "pts", FINGERPRINT, resume=True).get(0)["pst"] == 1.25e-5
