@@ -34,6 +34,9 @@ def add_parser(subparsers):
     v.add_argument("--rays", type=int, default=100_000, help="rays per angle for the PST in design.json")
     v.add_argument("--refine-rays", type=int, default=None, help="rays per angle in the optimiser (default rays/5)")
     v.add_argument("--refine-evals", type=int, default=40, help="optimiser budget in traced layouts (0: no refinement)")
+    v.add_argument("--optimise", action="store_true",
+                   help="also choose the bevel (angle and side) by the Monte Carlo objective, at the construction's "
+                        "vane count (docs/design.md)")
     v.add_argument("--seed", type=int, default=0)
     v.add_argument("--threads", type=int, default=2, help="tracing threads")
     v.add_argument("--out", required=True, help="output directory")
@@ -93,6 +96,24 @@ def run_baffles(args) -> int:
     return 0
 
 
+def _optimised_bevel(spec, args, ex):
+    """The spec with the bevel (angle, side) of lowest CRN objective at the construction's positions."""
+    from straylight.design import model
+    from straylight.design.optimise import optimise_vanes
+    from straylight.design.vanes import band_angles, optimiser_seed
+
+    _, _, mats = model.coating(args.material)
+    rays = int(args.refine_rays or max(2_000, int(args.rays) // 5))
+    res = optimise_vanes(spec, mats, band_angles(spec), rays=rays, seed=optimiser_seed(args.seed), max_evals=0,
+                         execution=ex)
+    for t in res.tried:
+        j = "none" if t["objective"] is None else f"{t['objective']:.3f}"
+        print(f"  bevel {t['bevel_deg']:4.0f} deg {t['bevel_side']:5s}  J {j}")
+    print(f"optimiser: bevel {res.spec.bevel_deg:g} deg {res.spec.bevel_side} (J {res.start_objective:.3f} -> "
+          f"{res.best_objective:.3f} +- {res.start_objective_stderr:.3f})")
+    return res.spec
+
+
 def run(args) -> int:
     from straylight.design.construction import BaffleSpec
     from straylight.design.vanes import design_vanes
@@ -112,6 +133,8 @@ def run(args) -> int:
     from straylight.cli.cluster_args import execution
 
     with execution(args) as ex:  # --threads K in this process
+        if args.optimise:
+            spec = _optimised_bevel(spec, args, ex)
         doc = design_vanes(spec, args.out, material=args.material, rays=args.rays, seed=args.seed,
                            refine_rays=args.refine_rays, refine_evals=args.refine_evals, execution=ex,
                            resume=args.resume)
