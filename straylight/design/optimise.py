@@ -17,7 +17,7 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from straylight.design.construction import construct
+from straylight.design.construction import BaffleSpec, construct
 from straylight.design.evaluate import log_objective, pst_points
 from straylight.design.refine import feasible, refine
 from straylight.execution import Execution, as_execution
@@ -29,7 +29,7 @@ BEVELS = ((0.0, "back"), (30.0, "back"), (45.0, "back"), (60.0, "back"), (45.0, 
 class Optimised:
     """Result of :func:`optimise_vanes`."""
 
-    spec: object
+    spec: BaffleSpec
     z_mm: list
     start_objective: float
     start_objective_stderr: float
