@@ -61,3 +61,37 @@ def test_interrupt_inside_compiled_kernel_is_recognised():
         wrapped = exc
     assert _interrupted(wrapped)  # `from None` keeps __context__
     assert not _interrupted(ValueError("plain"))
+
+
+def test_dask_says_nothing_of_the_tasks_it_drops_after_ctrl_c():
+    """CI once printed dask's "Couldn't gather keys ... 'forgotten'" (distributed.scheduler) and
+    "rescheduling" (distributed.client) above "straylight: interrupted": what the scheduler logs while
+    the client and cluster close after a Ctrl-C is not shown; the level is restored afterwards."""
+    import logging
+
+    from straylight.engine.backends.dask import _quiet_after_interrupt
+
+    shown = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            shown.append(record.getMessage())
+
+    handler = Keep()
+    logging.getLogger("distributed").addHandler(handler)
+    before = logging.getLogger("distributed").level
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with _quiet_after_interrupt() as quiet:
+                try:
+                    with quiet:
+                        raise KeyboardInterrupt
+                finally:  # where the client and the cluster close
+                    logging.getLogger("distributed.scheduler").error("Couldn't gather keys")
+        assert shown == []
+        assert logging.getLogger("distributed").level == before
+        with _quiet_after_interrupt() as quiet, quiet:  # no interrupt: dask's errors are shown
+            logging.getLogger("distributed.scheduler").error("a real failure")
+        assert shown == ["a real failure"]
+    finally:
+        logging.getLogger("distributed").removeHandler(handler)

@@ -442,13 +442,14 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
         warning = check_scheduler_address(scheduler, allow_insecure)
         if warning:
             print(f"straylight: warning: {warning}", file=sys.stderr)
-        with Client(scheduler, security=security) as client:
+        with _quiet_after_interrupt() as quiet, Client(scheduler, security=security) as client, quiet:
             yield client
     elif workers is not None and int(workers) >= max(1, int(in_process_below)):
         from dask.distributed import Client
 
         n = int(workers)
-        with local_cluster(n, processes=processes, dashboard=dashboard) as cluster, Client(cluster) as client:
+        with _quiet_after_interrupt() as quiet, local_cluster(n, processes=processes, dashboard=dashboard) as cluster, \
+                Client(cluster) as client, quiet:
             if dashboard:
                 print(f"straylight: dask dashboard at {cluster.dashboard_link} (this machine only)", file=sys.stderr)
             elif processes:
@@ -460,6 +461,30 @@ def dask_client(workers=None, scheduler=None, security=None, dashboard=False, in
         if workers is not None and int(workers) < 1:
             raise ValueError(f"workers must be >= 1, got {workers}")
         yield None
+
+
+@contextmanager
+def _quiet_after_interrupt():
+    """After Ctrl-C, dask's own account of the tasks it drops ("Couldn't gather keys ... forgotten",
+    "rescheduling ...") is not printed: the run says "interrupted" in one line. Used as
+    ``with _quiet_after_interrupt() as quiet, <cluster and client>, quiet:``: the inner ``quiet``
+    raises distributed's loggers to CRITICAL when a KeyboardInterrupt passes, before the client and
+    cluster close; the outer one restores their level after they closed."""
+    log = logging.getLogger("distributed")
+    level = log.level
+
+    @contextmanager
+    def quiet():
+        try:
+            yield
+        except KeyboardInterrupt:
+            log.setLevel(logging.CRITICAL)
+            raise
+
+    try:
+        yield quiet()
+    finally:
+        log.setLevel(level)
 
 
 class _NoForeignHandshakes:
