@@ -114,11 +114,16 @@ def check_overwrite(directory, names=(), patterns=(), force: bool = False, flag:
         raise OverwriteError(f"{path}: {why}{more}; it would be overwritten: choose another output or pass {flag}")
 
 
-def record_outputs(directory, names=(), patterns=()) -> None:
+def record_outputs(directory, names=(), patterns=(), since: float | None = None) -> None:
     """Record the SHA-256 of the outputs just written (by name or glob pattern) in the folder's
-    manifest, so the next run may replace them while they are unchanged."""
+    manifest, so the next run may replace them while they are unchanged. ``since`` (a ``time.time()``):
+    only files modified since then (what an interrupted run wrote before it stopped)."""
     directory = Path(directory)
+    if not directory.is_dir():
+        return
     files = _manifest(directory)
     for path in _candidates(directory, names, patterns):
+        if since is not None and path.stat().st_mtime < since:
+            continue
         files[path.name] = file_sha256(path)
     atomicio.write_json(directory / MANIFEST, {"files": files}, indent=1, sort_keys=True, fsync=False)

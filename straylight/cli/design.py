@@ -7,7 +7,9 @@ Writes DIR/design.json, DIR/scene.toml (+ meshes), DIR/design.step and DIR/index
 """
 from __future__ import annotations
 
+import time
 
+CLOCK_SLACK_S = 0.05  # file times come from the kernel's coarse clock, a few ms behind time.time()
 DESIGN_OUTPUTS = ("*.toml", "*.stl", "*.ply", "*.obj", "*.step", "*.json", "*.html", "*.png")  # what --out holds
 
 
@@ -128,22 +130,25 @@ def run(args) -> int:
         raise ValueError(f"--refine-evals must be >= 0, got {args.refine_evals}")
     from atomicio.guard import check_overwrite, record_outputs
 
-    if not args.resume:  # a resume continues writing this folder
-        check_overwrite(args.out, patterns=DESIGN_OUTPUTS, force=args.force)
+    # a resume too: a design.json or scene.toml the user edited since is theirs (--force replaces it)
+    check_overwrite(args.out, patterns=DESIGN_OUTPUTS, force=args.force)
     from straylight.cli.cluster_args import execution
 
-    with execution(args) as ex:  # --threads K in this process
-        if args.optimise:
-            spec = _optimised_bevel(spec, args, ex)
-        doc = design_vanes(spec, args.out, material=args.material, rays=args.rays, seed=args.seed,
-                           refine_rays=args.refine_rays, refine_evals=args.refine_evals, execution=ex,
-                           resume=args.resume)
+    started = time.time() - CLOCK_SLACK_S
+    try:
+        with execution(args) as ex:  # --threads K in this process
+            if args.optimise:
+                spec = _optimised_bevel(spec, args, ex)
+            doc = design_vanes(spec, args.out, material=args.material, rays=args.rays, seed=args.seed,
+                               refine_rays=args.refine_rays, refine_evals=args.refine_evals, execution=ex,
+                               resume=args.resume)
+    finally:  # what this run wrote, even if interrupted, is its own: a --resume may replace it
+        record_outputs(args.out, patterns=DESIGN_OUTPUTS, since=started)
     print(f"{len(doc['vanes'])} vanes ({doc['design_source']}):")
     for v in doc["vanes"]:
         print(f"  z {v['z_mm']:8.2f} mm  inner radius {v['inner_radius_mm']:7.3f} mm")
     for d, r in zip(doc["pst"], doc["ratio_to_baseline"]):
         ratio = "" if r["ratio"] is None else f"  design / evenly spaced {r['ratio']:.3f} +- {r['ratio_stderr']:.3f}"
         print(f"{d['off_axis_deg']:6.2f} deg  PST {d['pst']:.4e} +- {d['pst_stderr']:.2e}{ratio}")
-    record_outputs(args.out, patterns=DESIGN_OUTPUTS)
     print(f"written {args.out}/design.json, scene.toml, design.step, index.html")
     return 0

@@ -230,7 +230,7 @@ def _check_requests(args) -> None:
         check_tolerance_mm(tolerance, "--tolerance-mm")
 
 
-OUTPUT_FILE_FLAGS = ("json", "png", "plot", "csv")
+OUTPUT_FILE_FLAGS = ("json", "png", "plot", "csv", "html")
 OUTPUT_DIR_FLAGS = ("out", "report")
 
 

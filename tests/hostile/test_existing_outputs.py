@@ -47,7 +47,7 @@ def _commands(parser, prefix=()):
         yield prefix, {a.dest for a in parser._actions}
 
 
-@pytest.mark.parametrize("flag", ["json", "png", "plot", "csv", "output"])
+@pytest.mark.parametrize("flag", ["json", "png", "plot", "csv", "html", "output"])
 def test_every_command_writing_a_file_takes_force(flag):
     writers = [(c, d) for c, d in _commands(build_parser()) if flag in d]
     assert writers or flag in ("plot", "csv")

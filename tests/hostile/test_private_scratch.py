@@ -115,3 +115,27 @@ def test_symlinked_cache_folder_is_not_used(tmp_path, monkeypatch):
     monkeypatch.setenv("STRAYLIGHT_CACHE_DIR", str(shared))
     monkeypatch.setattr(cache_dirs, "_CHOSEN", {"root": tmp_path / "root"})
     assert cache_dirs.cache_dir("energy_check") == tmp_path / "root" / "energy_check"
+
+
+def test_a_long_tmpdir_still_runs_a_process_cluster(scene, tmp_path):
+    """Under a TMPDIR too long for a UNIX socket address (multiprocessing's fork server listens on
+    <tmp>/pymp-*/listener-*: 108 bytes at most on Linux), ``--workers 2 --processes`` failed with "AF_UNIX
+    path too long"; the workers now start by dask's spawn method there (same results)."""
+    long_tmp = tmp_path / ("t" * 60) / ("u" * 60)
+    long_tmp.mkdir(parents=True)
+    os.chmod(long_tmp, 0o700)
+    env = {**os.environ, "TMPDIR": str(long_tmp), "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    out = subprocess.run([sys.executable, "-m", "straylight.cli.main", "trace", str(scene), "--rays", "2000",
+                          "--json", str(tmp_path / "t.json"), "--workers", "2", "--processes"],
+                         capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert (tmp_path / "t.json").exists()
+
+
+def test_the_fork_server_is_used_only_where_its_socket_fits(tmp_path, monkeypatch):
+    from straylight.engine.backends import fork_server
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / ("v" * 120)))
+    assert not fork_server.socket_path_fits() and not fork_server.wanted()
+    monkeypatch.setattr(tempfile, "tempdir", "/tmp")
+    assert fork_server.socket_path_fits()

@@ -52,3 +52,38 @@ def test_interrupted_design_resumes_to_the_same_json(tmp_path, monkeypatch):
     doc.pop("seconds"), ref.pop("seconds")
     assert doc == ref
     assert not (out / "design.points").exists()
+
+
+def test_resume_keeps_a_design_the_user_edited(tmp_path, capsys):
+    """``--resume`` does not replace a design.json (or scene.toml) the user edited since the run wrote it:
+    refused in one line naming the file, the edit kept; ``--force`` replaces it. What an interrupted run
+    wrote before it stopped stays its own (a resume replaces it without --force)."""
+    out = tmp_path / "d"
+    assert main(ARGS + ["--out", str(out)]) == 0
+    design = out / "design.json"
+    edited = design.read_text().replace('"design_source"', '"my_note": "hand-tuned", "design_source"')
+    design.write_text(edited)
+    capsys.readouterr()
+    assert main(ARGS + ["--out", str(out), "--resume"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "design.json" in err and "--force" in err, err
+    assert design.read_text() == edited
+    assert main(ARGS + ["--out", str(out), "--resume", "--force"]) == 0
+    assert "my_note" not in design.read_text()
+
+
+def test_an_interrupted_runs_own_files_are_resumed_without_force(tmp_path, monkeypatch):
+    out = tmp_path / "d"
+    import straylight.design.vanes as vanes_mod
+
+    real = vanes_mod.write_report
+
+    def stop(*args, **kwargs):  # Ctrl-C after scene.toml and design.step are written, before design.json
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(vanes_mod, "write_report", stop)
+    assert main(ARGS + ["--out", str(out)]) == 130
+    assert (out / "scene.toml").exists() and not (out / "design.json").exists()
+    monkeypatch.setattr(vanes_mod, "write_report", real)
+    assert main(ARGS + ["--out", str(out), "--resume"]) == 0
+    assert (out / "design.json").exists()

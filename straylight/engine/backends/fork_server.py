@@ -23,6 +23,7 @@ import importlib.util
 import multiprocessing
 import os
 import sys
+import tempfile
 from multiprocessing import forkserver
 from pathlib import Path
 
@@ -59,7 +60,21 @@ def wanted() -> bool:
     """Will a local process cluster start its workers from our fork server? Yes unless dask's start
     method was configured otherwise (``distributed.worker.multiprocessing-method``) or the platform
     cannot fork. :func:`straylight.engine.backends.dask.local_cluster` asks the same."""
-    return sys.platform != "win32" and config("distributed.worker.multiprocessing-method") == "spawn"
+    return sys.platform != "win32" and config("distributed.worker.multiprocessing-method") == "spawn" \
+        and socket_path_fits()
+
+
+AF_UNIX_PATH_MAX = 107  # bytes of a socket path on Linux (sun_path[108] with its NUL); macOS: 103
+
+
+def socket_path_fits() -> bool:
+    """Does the fork server's socket fit in an AF_UNIX address? multiprocessing listens on
+    ``<tmp>/pymp-XXXXXXXX/listener-XXXXXXXX``; under a long TMPDIR that path is too long and the
+    server fails ("AF_UNIX path too long"). Then the workers are started by dask's own spawn method
+    instead (slower to start, same results)."""
+    base = getattr(multiprocessing.current_process(), "_config", {}).get("tempdir") or os.path.join(tempfile.gettempdir(), "pymp-xxxxxxxx")
+    limit = 103 if sys.platform == "darwin" else AF_UNIX_PATH_MAX
+    return len(os.fsencode(os.path.join(base, "listener-xxxxxxxx"))) <= limit
 
 
 def nanny_environ() -> dict:
