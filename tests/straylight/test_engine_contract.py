@@ -13,6 +13,8 @@ of straylight.engine.estimators.ESTIMATORS:
 - the estimator engages on the subject's parts exactly when the subject's kind declares the
   capability it needs (measured from what the run wrote, not from the declaration).
 
+The shipped default set (all its strategies at once) has its own row, :func:`test_the_shipped_default_set`.
+
 A new kind is covered by adding a scene here (the test fails for a registered kind without one);
 a new estimator by adding a row to ESTIMATORS. :func:`test_removing_a_declaration_is_detected`
 deletes each declared capability in turn and expects this check to fail.
@@ -288,3 +290,21 @@ def test_a_false_declaration_is_detected(kind, estimator, monkeypatch):
     finally:
         _RUNS.clear()
     assert failures, f"declaring {est.capability} on {kind} went unnoticed"
+
+
+@pytest.mark.parametrize("kind", KIND_NAMES)
+def test_the_shipped_default_set(kind):
+    """The contract row of the set the analyses run (``straylight.analyses.estimators``' ``default``: all its
+    strategies at once, as :func:`estimator_options` gives them for the scene's materials): the ledger
+    closes and the detector's power agrees with the analog walk within 4 sigma, on every kind."""
+    from straylight.analyses.estimators import estimator_options
+
+    case = CONTRACT_SCENES[kind]()
+    chosen = estimator_options("default", materials=case.materials).estimator
+    assert chosen.nee and chosen.first_vertex_sampling and chosen.second_vertex_sampling and chosen.delta_chain
+    on = _run(kind, chosen, SEED_ON)
+    analog = _run(kind, ANALOG, SEED_ANALOG, N_ANALOG)
+    assert _ledger_error(on) <= 1e-9
+    a, b = on.detectors["detector"], analog.detectors["detector"]
+    assert a.power_w > 0 and b.power_w > 0
+    assert abs(a.power_w - b.power_w) <= 4 * math.hypot(a.stderr_w, b.stderr_w), (kind, a, b)
