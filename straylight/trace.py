@@ -31,7 +31,7 @@ from straylight.engine.compiled_scene import detector_samplers
 from straylight.engine.first_vertex import build_table
 from straylight.engine.second_vertex import build_table as build_critical_table
 from straylight.engine import entrance_sampling
-from straylight.engine.second_vertex import unsupported as second_vertex_unsupported
+from straylight.engine.plan import resolve as resolve_plan
 from straylight.engine.options import (  # noqa: F401 - re-exported
     EstimatorOptions,
     OutputOptions,
@@ -97,9 +97,9 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
     if ex.first_chunk:
         spec = replace(spec, chunk_offset=ex.first_chunk)
     opt = spec.options
-    first = opt.estimator.first_vertex_sampling and intersector is None and len(spec.detector_parts)
-    second = (opt.estimator.second_vertex_sampling and opt.estimator.nee and len(spec.detector_parts)
-              and second_vertex_unsupported(spec) is None)
+    plan = resolve_plan(options or TraceOptions(), spec, intersector)  # which strategies run, and why not
+    first = plan.runs("first_vertex")
+    second = plan.runs("second_vertex")
     # on dask, the workers get the spec and build their scenes while this process builds the tables
     early = ship_early(ex.client, spec) if ex.client is not None and (first or second) else None
     rt = runtime()  # this process's compiled scene and kept tables
@@ -110,7 +110,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
             spec = replace(spec, critical_table=rt.table(
                 "second", spec, lambda: build_critical_table(spec, rt.scene(spec, intersector)),
                 cache=intersector is None))
-        if opt.estimator.entrance_sampling and entrance_sampling.applies(spec):
+        if plan.runs("entrance"):
             spec = replace(spec, entrance_table=rt.table(
                 "entrance", spec, lambda: entrance_sampling.build_table(spec, run_batch, intersector), cache=intersector is None))
     except BaseException:
@@ -123,7 +123,8 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
         for res in results:  # in chunk order
             bar.update(totals.add(res))
     here = rt.cached_scene(spec)  # this process's scene, if it traced here; else the detectors alone
-    result = totals.result(spec, here.detectors if here is not None else detector_samplers(spec))
+    result = replace(totals.result(spec, here.detectors if here is not None else detector_samplers(spec)),
+                     strategies=plan)
     from straylight.run_checks import check_truncation
 
     check_truncation(result, opt.physics.max_events)  # power cut by max_events is not round-off: say so

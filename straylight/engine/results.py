@@ -4,6 +4,7 @@ the power ledger and path records by :func:`build_result`."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -11,6 +12,9 @@ from straylight.detectors import IrradianceMap
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.spec import TraceSpec
 from straylight.paths import PathRecords, stderr_from_sums
+
+if TYPE_CHECKING:
+    from straylight.engine.plan import StrategyPlan
 
 
 @dataclass(frozen=True)
@@ -42,6 +46,7 @@ class TraceResult:
     segments: int
     shadow_rays: int
     detector_chunks: dict | None = None  # name -> (s1 (K,), s2 (K,)): per-chunk sums of the detector total
+    strategies: StrategyPlan | None = None  # straylight.engine.plan.StrategyPlan: the requested strategies that ran, and why not the rest
 
     def chunks_of(self, detector: str) -> tuple[np.ndarray, np.ndarray]:
         """(s1 (K,), s2 (K,)): the per-chunk sums of ``detector``'s total (every trace keeps them)."""
@@ -73,6 +78,7 @@ class TraceResult:
             },
             "segments": self.segments,
             "shadow_rays": self.shadow_rays,
+            **({"strategies": self.strategies.to_dict()} if self.strategies is not None else {}),
         }
 
 
