@@ -5,9 +5,9 @@ interactive window otherwise. Off screen, VTK needs no X server here: with no ``
 the EGL render window is selected (Mesa's llvmpipe works on machines without a GPU).
 The scene is drawn cut away (the half y > 0 removed) so the inside of a tube shows.
 
-Ray paths for a picture are traced by :func:`trace_ray_paths`, a short random walk that
-records vertices: the engine's intersector and the parts' own BRDF sampling, a few
-hundred rays, for display only (the numbers come from ``straylight.trace``).
+Ray paths for a picture come from :func:`trace_ray_paths`: a short trace of the engine itself
+with its ray log on (straylight.engine.ray_log), so the drawn rays follow the same physics as the
+numbers (refraction through lenses and windows, mirrors, diffraction): one walk, not a copy.
 """
 from __future__ import annotations
 
@@ -44,79 +44,44 @@ def part_polydata(part):
 
 def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 200, seed: int = 0,
                     max_events: int = 6, min_weight: float = 1e-4, with_triangles: bool = False):
-    """Random walks with recorded vertices, for display.
+    """Rays for display: the engine's own walk (``straylight.trace`` with the ray log on,
+    straylight.engine.ray_log), so a drawn ray refracts, reflects and bends as the traced ones do.
 
-    Returns a list of (points (k, 3) mm, weights (k - 1,) relative power on each segment,
-    reached_detector bool); with ``with_triangles``, a fourth item: the triangle hit at each
-    vertex after the first ((j,) int, -1 for an escaping stub). Scatter directions come from each surface's material ``sample``;
-    absorbers and detectors end a path; a path ends when its weight drops below ``min_weight``.
+    ``n_rays`` rays of the setup's beam at (``off_axis``, ``azimuth``), rad, an analog walk (no
+    next-event estimation, no roulette) of at most ``max_events`` events. Returns a list of
+    (points (k, 3) mm, weights (k - 1,) relative power on each segment, reached_detector bool);
+    with ``with_triangles``, a fourth item: the triangle hit at each vertex after the first ((j,)
+    int; -1 for an escaping ray's stub, -2 for a bend at a diffracting edge). A path is drawn up to
+    its first segment whose relative power is below ``min_weight``.
     """
-    from straylight.intersect import EmbreeIntersector
-    from straylight.sources import orthonormal_basis
+    from straylight.engine.ray_log import SEGMENT_ESCAPE
+    from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions, trace
 
+    if int(n_rays) <= 0:
+        return []
     scene = setup.scene
-    rng = np.random.default_rng([int(seed), 7])
-    src = setup.beam.source(off_axis, azimuth)
-    o, d = src.emit(rng.random((n_rays, 4)))
-    isect = EmbreeIntersector(scene.triangles_mm)
-    normals = scene.triangle_normals
-    roles = np.array([p.role for p in scene.parts])
-    mats = [None if p.role != "surface" else (setup.materials or {}).get(p.material) for p in scene.parts]
-    if any(m is None for m, p in zip(mats, scene.parts) if p.role == "surface"):
-        from materials import load_material
-
-        mats = [m if m is not None or p.role != "surface" else load_material(p.material)
-                for m, p in zip(mats, scene.parts)]
-    eps = 1e-6 * float(np.ptp(scene.bounds_mm, axis=0).max())
-    pts = [[o[i]] for i in range(n_rays)]
-    wts: list[list[float]] = [[] for _ in range(n_rays)]
-    tris: list[list[int]] = [[] for _ in range(n_rays)]
-    hit_det = np.zeros(n_rays, bool)
-    alive = np.arange(n_rays)
-    w = np.ones(n_rays)
-    for _ in range(max_events):
-        if len(alive) == 0:
-            break
-        tri, t = isect.intersect(o, d)
-        miss = tri < 0
-        for j in np.flatnonzero(miss):  # escaping rays: a short stub shows where they go
-            i = alive[j]
-            pts[i].append(o[j] + d[j] * 0.3 * float(np.ptp(scene.bounds_mm[:, 2])))
-            wts[i].append(w[j])
-            tris[i].append(-1)
-        keep = ~miss
-        alive, o, d, w, tri, t = alive[keep], o[keep], d[keep], w[keep], tri[keep], t[keep]
-        p = o + t[:, None] * d
-        for k, i in enumerate(alive):
-            pts[i].append(p[k])
-            wts[i].append(w[k])
-            tris[i].append(int(tri[k]))
-        part = scene.triangle_part[tri]
-        role = roles[part]
-        hit_det[alive[role == "detector"]] = True
-        cont = role == "surface"
-        alive, d, w, tri, p, part = alive[cont], d[cont], w[cont], tri[cont], p[cont], part[cont]
-        if len(alive) == 0:
-            break
-        n = normals[tri]
-        n = np.where((np.einsum("ij,ij->i", d, n) < 0)[:, None], n, -n)
-        tb, bb = orthonormal_basis(n)
-        wi_world = -d
-        wi = np.stack([np.einsum("ij,ij->i", wi_world, a) for a in (tb, bb, n)], axis=1)
-        new_d = np.empty_like(d)
-        new_w = np.zeros(len(alive))
-        for m_index in np.unique(part):
-            sel = part == m_index
-            s = mats[m_index].sample(wi[sel], rng.random((sel.sum(), 3)))
-            wo = s.wo
-            new_d[sel] = wo[:, :1] * tb[sel] + wo[:, 1:2] * bb[sel] + wo[:, 2:3] * n[sel]
-            new_w[sel] = np.where(wo[:, 2] > 0, s.weight, 0.0)
-        w = w * new_w
-        live = w > min_weight
-        alive, d, w, p, n = alive[live], new_d[live], w[live], p[live], n[live]
-        o = p + eps * n
-    return [(np.array(pts[i]), np.array(wts[i]), bool(hit_det[i]), *((np.array(tris[i], dtype=np.int64),)
-             if with_triangles else ())) for i in range(n_rays) if len(pts[i]) > 1]
+    options = TraceOptions(estimator=EstimatorOptions(nee=False, rr_threshold=0.0),
+                           output=OutputOptions(ray_log=int(n_rays)), physics=PhysicsOptions(max_events=int(max_events)))
+    res = trace(scene, [setup.beam.source(off_axis, azimuth)], int(n_rays), seed=int(seed),
+                materials=setup.materials, options=options)
+    log = res.ray_log
+    assert log is not None  # ray_log > 0 asked for it
+    start_w = res.emitted_w / int(n_rays)  # every ray's weight as it leaves the beam
+    stub_mm = 0.3 * float(np.ptp(np.asarray(scene.bounds_mm)[:, 2]))  # escaping rays: a short stub
+    paths = []
+    for _, rows in log.rays():
+        w = log.weight_w[rows] / start_w
+        k = int(np.argmax(w <= min_weight)) if (w <= min_weight).any() else len(w)  # segments drawn
+        if k == 0:
+            continue
+        tri = log.tri[rows][:k]
+        end = log.end_mm[rows][:k]
+        escaped = tri == SEGMENT_ESCAPE
+        end = np.where(escaped[:, None], end + stub_mm * log.direction[rows][:k], end)
+        points = np.vstack([log.origin_mm[rows][:1], end])
+        reached = bool(log.detector[rows][:k].any())
+        paths.append((points, w[:k].copy(), reached, *((tri.astype(np.int64),) if with_triangles else ())))
+    return paths
 
 
 LEGEND_WIDTH = 0.2  # fraction of the picture's width the part legend takes, at its right edge

@@ -58,8 +58,11 @@ class OutputOptions:
     path_depth: int = 12
     map_bins: tuple = (64, 64)
     detector_sides: str = "both"  # "both": detectors count light from both sides; "front": the front only
+    ray_log: int = 0  # > 0: every segment of the trace's first ray_log rays is logged (straylight.engine.ray_log)
 
     def __post_init__(self):
+        if isinstance(self.ray_log, bool) or int(self.ray_log) != self.ray_log or int(self.ray_log) < 0:
+            raise TraceError(f"ray_log must be an integer >= 0 (rays whose segments are logged), got {self.ray_log!r}")
         if self.detector_sides not in ("both", "front"):
             raise TraceError(f"detector_sides must be 'both' or 'front', got {self.detector_sides!r}")
         if len(tuple(self.map_bins)) != 2 or min(self.map_bins) < 1:

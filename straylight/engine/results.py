@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from straylight.detectors import IrradianceMap
+from straylight.engine.ray_log import RayLog
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.spec import TraceSpec
 from straylight.paths import PathRecords, stderr_from_sums
@@ -47,6 +48,7 @@ class TraceResult:
     shadow_rays: int
     detector_chunks: dict | None = None  # name -> (s1 (K,), s2 (K,)): per-chunk sums of the detector total
     strategies: StrategyPlan | None = None  # straylight.engine.plan.StrategyPlan: the requested strategies that ran, and why not the rest
+    ray_log: RayLog | None = None  # the segments of the first OutputOptions.ray_log rays (None when off)
 
     def chunks_of(self, detector: str) -> tuple[np.ndarray, np.ndarray]:
         """(s1 (K,), s2 (K,)): the per-chunk sums of ``detector``'s total (every trace keeps them)."""
@@ -82,8 +84,10 @@ class TraceResult:
         }
 
 
-def build_result(spec: TraceSpec, detector_geometry, s1, s2, map_sums, paths_pieces, segments, shadow) -> TraceResult:
-    """The :class:`TraceResult` of summed chunk sums (``detector_geometry``: DetectorGeometry per detector)."""
+def build_result(spec: TraceSpec, detector_geometry, s1, s2, map_sums, paths_pieces, segments, shadow,
+                 ray_log_pieces=()) -> TraceResult:
+    """The :class:`TraceResult` of summed chunk sums (``detector_geometry``: DetectorGeometry per detector;
+    ``ray_log_pieces``: the batches' ray-log pieces, straylight.engine.ray_log)."""
     N = spec.n_rays
     err = stderr_from_sums(s1, s2, N)
     names = spec.part_names
@@ -138,6 +142,7 @@ def build_result(spec: TraceSpec, detector_geometry, s1, s2, map_sums, paths_pie
         incident={names[i]: tally(rows.incident + i) for i in range(P)},
         first_hit={names[i]: tally(rows.first_hit + i) for i in range(P)},
         ledger=ledger, paths=paths, segments=int(segments), shadow_rays=int(shadow),
+        ray_log=RayLog.concatenate(ray_log_pieces) if int(spec.options.output.ray_log) > 0 else None,
     )
 
 
@@ -156,6 +161,7 @@ class BatchTotals:
         self.paths: list = []
         self.segments = 0
         self.shadow_rays = 0
+        self.ray_log: list = []  # the batches' ray-log pieces (straylight.engine.ray_log), in chunk order
         self.detector_rows = spec.rows.detector_total + np.arange(self.n_detectors)
         self.chunk_s1: list = []  # per chunk: the detector totals' sums (reliability checks)
         self.chunk_s2: list = []
@@ -175,11 +181,13 @@ class BatchTotals:
         self.paths.append(res["paths"])
         self.segments += res["segments"]
         self.shadow_rays += res["shadow_rays"]
+        if res.get("ray_log") is not None:
+            self.ray_log.append(res["ray_log"])
         return len(res["s1"])
 
     def result(self, spec: TraceSpec, detector_geometry) -> "TraceResult":
         res = build_result(spec, detector_geometry, self.s1, self.s2, self.map_sums, self.paths, self.segments,
-                           self.shadow_rays)
+                           self.shadow_rays, self.ray_log)
         shape = (len(self.chunk_s1), self.n_detectors)  # (chunks, detectors); a scene may have no detector
         c1 = np.array(self.chunk_s1, dtype=np.float64).reshape(shape)
         c2 = np.array(self.chunk_s2, dtype=np.float64).reshape(shape)

@@ -313,9 +313,10 @@ class DetectorRecords:
                                    depth.astype(np.int16), keys, events))
 
 
-def batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays):
+def batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays, ray_log=None):
     """The result of one batch: per-chunk sums S1, S2 of every tally row (``tallies``: a store of
-    straylight.engine.tally_store), irradiance-map sums and path records."""
+    straylight.engine.tally_store), irradiance-map sums, path records and the ray log's piece
+    (``ray_log``: straylight.engine.ray_log.RayLogger.piece, None when off)."""
     C = CHUNK_RAYS
     n = tallies.n_rays
     nch = -(-n // C)
@@ -330,4 +331,4 @@ def batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays):
             "depth": cols[3][order], "key": cols[4][order], "events": cols[5][order],
         }
     return {"first_chunk": first_chunk, "s1": s1, "s2": s2, "maps": maps, "paths": paths,
-            "segments": segments, "shadow_rays": shadow_rays}
+            "segments": segments, "shadow_rays": shadow_rays, "ray_log": ray_log}

@@ -22,6 +22,7 @@ from straylight.engine.interactions import Capability, PartCapabilities, part_ki
 from straylight.engine.kernel_sets import COMPILED, NUMPY
 from straylight.engine.options import TraceError, walk_settings
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
+from straylight.engine.ray_log import RayLogger
 from straylight.engine.runtime import runtime
 from straylight.engine.reflection_split import ReflectionSplit
 from straylight.engine.delta_chain import DeltaChains
@@ -104,6 +105,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     delta_chain = DeltaChains(n, opt.estimator.delta_chain) \
         if int(opt.estimator.delta_chain) > 0 and rows.n_detectors > 0 else None
     splits = None if delta_chain is None else capabilities.parts(Capability.DELTA_CHAIN)
+    logged = min(int(opt.output.ray_log) - first_chunk * CHUNK_RAYS, n)  # rays of this batch in the ray log
+    ray_log = RayLogger(logged, first_chunk * CHUNK_RAYS, scene.arrays.part_roles) if logged > 0 else None
     segments = shadow_rays = 0
     max_events = int(opt.physics.max_events)
     diff = spec.diffraction
@@ -119,6 +122,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             split = diffraction_step.divert(diff, scene, rays, tri, skip, U, columns.sample, settings.record_paths)
             if split is not None:
                 keep, bent, bent_skip, vertex = split
+                if ray_log is not None:
+                    ray_log.bends(ev, rays, keep, bent)
                 rays, tri, U = diffraction_step.subset(rays, keep), tri[keep], U[keep]
                 if settings.nee and rows.n_detectors > 0:
                     shadow_rays += diffraction_step.next_event(diff, scene, bent, bent_skip, vertex, columns, settings,
@@ -128,6 +133,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
                     bent = None
         tallies.reserve(HITS_WRITES_PER_RAY * len(tri))
         hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, tallies.kernel_arg))
+        if ray_log is not None:
+            ray_log.segments(ev, rays, tri, hit, scene.arrays.triangle_part)
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
                       first_vertex=first_vertex, second_vertex=second_vertex, reflection_split=reflection_split,
@@ -168,7 +175,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     if first_vertex is not None:
         shadow_rays += run_vertex_pass(spec, scene, spec.vertex_table, first_chunk, stop_chunk, tallies, rows, records,
                                        settings.record_paths, int(opt.output.path_depth))
-    return batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays)
+    return batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays,
+                      None if ray_log is None else ray_log.piece())
 
 
 def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:
