@@ -18,7 +18,8 @@ SLOW = ["optiland/cooke_triplet.seq", "ray-optics/CODV_32327.seq", "ray-optics/H
         "ray-optics/paraboloid.seq", "ray-optics/questar35.seq", "ray-optics/threemir.seq",
         "ray-optics/schmidt.seq", "ray-optics/mangin.seq", "ray-optics/354710-C.zmx", "ray-optics/dec_tilt_test.seq",
         "optiland/lens_thorlabs_iso_8859_1.zmx", "ray-optics/zmax_37992.zmx", "optiland/mirror.seq",
-        "optiland/one_mirror_up_45deg.zmx", "ray-optics/HoO-V2C18Ex27.zmx", "ray-optics/asp46.seq"]
+        "optiland/one_mirror_up_45deg.zmx", "ray-optics/HoO-V2C18Ex27.zmx", "ray-optics/asp46.seq",
+        "ray-optics/ACL3026U.zmx", "optiland/fno_fields.seq"]
 
 
 def focus_check(lens, field_deg, tmp_path, rays=6000, bins=121):

@@ -14,10 +14,9 @@ CORPUS = sorted(p for p in LENSES.rglob("*") if p.suffix.lower() in (".seq", ".z
 REFUSED = {
     "asphere.seq": "could not parse",            # rayoptics' CODE V reader fails on its ASP line
     "curved_reflective_grating.zmx": "diffractive",
-    "ACL3026U.zmx": "unknown glass B270",
-    "ASL5040-UV.zmx": "unknown glass C79-80",
+    "ASL5040-UV.zmx": "surface type QED_TYPE",   # a Forbes Q asphere: rayoptics keeps only its base conic
     "CODV_65988.seq": "diffractive",
-    "US05831776-1.zmx": "unknown glass SILICA",
+    "US05831776-1.zmx": "finite distance",       # its SILICA is fused silica (other_materials)
     "singlet.seq": "finite distance",
     "tilt_test.seq": "no optical surface",
 }
@@ -87,7 +86,7 @@ def _paraxial_efl(surfaces):
 
 
 @pytest.mark.parametrize("name", ["ray-optics/ag_dblgauss.seq", "optiland/lens1.zmx", "ray-optics/CODV_32327.seq",
-                                  "OpticsDatabase/Edmund_32-299.zmx"])
+                                  "OpticsDatabase/Edmund_32-299.zmx", "ray-optics/ACL3026U.zmx"])
 def test_efl_matches_an_independent_paraxial_trace(name, tmp_path):
     r = _run("optics", "import", LENSES / name, "--out", tmp_path)
     assert r.returncode == 0, r.stderr
@@ -110,6 +109,46 @@ def test_glass_option_supplies_a_missing_glass(tmp_path):
     assert r.returncode == 0, r.stderr
     doc = json.loads((tmp_path / "prescription.json").read_text())
     assert any(s["glass"] == "B270" and s["n"] == 1.523 for s in doc["surfaces"])
+    lens = tmp_path / "lens.seq"
+    lens.write_text((LENSES / "optiland" / "fno_fields.seq").read_text().replace("1.5168:64.17", "MYGLASS"))
+    r = _run("optics", "import", lens, "--out", tmp_path / "mine")
+    assert r.returncode == 2 and "unknown glass MYGLASS" in r.stderr and "--glass MYGLASS=N" in r.stderr
+
+
+def test_a_model_glass_given_by_its_numbers(tmp_path):
+    """optiland's fno_fields.seq names its glass ``1.5168:64.17`` (nd:vd, no RDM): an equiconvex R 100 mm, 10 mm
+    thick lens; its EFL is the thick-lens formula's (1/f = (n-1)(2/R - (n-1) t/(n R^2))) with n of the model
+    glass at the traced wavelength (and the six-digit code 517642 is the same kind of glass)."""
+    r = _run("optics", "import", LENSES / "optiland" / "fno_fields.seq", "--wavelength-nm", "587.56", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "model glass nd 1.5168, vd 64.17" in r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    n = doc["surfaces"][0]["n"]
+    assert abs(n - 1.5168) < 1e-4  # at the d line the model glass is its nd
+    R, t = 100.0, 10.0
+    efl = 1.0 / ((n - 1) * (2 / R - (n - 1) * t / (n * R * R)))
+    assert math.isclose(doc["efl_mm"], efl, rel_tol=1e-6)
+    from straylight.optics.reader import _model_glass
+
+    code = _model_glass("517642")
+    assert code is not None and (code.nd, code.vd) == (1.517, 64.2)
+    assert _model_glass("N-BK7") is None and _model_glass("999:0.1") is None
+
+
+def test_crystals_and_fused_silica_lens_files_name(tmp_path):
+    """Fused silica (SILICA, F_SILICA, C79-80...), CaF2 and sapphire from Malitson's Sellmeier fits, checked
+    against the d-line indices those papers tabulate (fused silica 1.45846, J. Opt. Soc. Am. 55, 1205; CaF2
+    1.43385, Appl. Opt. 2, 1103; sapphire n_o 1.7682, J. Opt. Soc. Am. 52, 1377); B270 as a model glass
+    from Schott's nd 1.5230."""
+    from straylight.optics import other_materials as om
+
+    for name, nd in (("SILICA", 1.45846), ("C79-80", 1.45846), ("CAF2", 1.43385), ("SAPPHIRE", 1.7682)):
+        medium = om.medium(name)
+        assert abs(medium.rindex(587.56) - nd) < 5e-5, name  # the papers tabulate 4-5 decimals
+    assert abs(om.medium("B270").rindex(587.56) - 1.5230) < 1e-4
+    assert om.medium("N-BK7") is None
+    r = _run("optics", "import", LENSES / "ray-optics" / "ACL3026U.zmx", "--out", tmp_path)
+    assert r.returncode == 0 and "glass B270 read as" in r.stderr, r.stderr
 
 
 def test_imported_scene_loads_and_traces(tmp_path):

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 import atomicio
+from straylight.optics.other_materials import medium as other_medium
 
 
 class OpticsFileError(ValueError):
@@ -229,18 +230,20 @@ def _multiconfig(fmt: str, text: str) -> int:
     return 2 if re.search(r"^\s*ZOO\b", text, re.M | re.I) else 1
 
 
+SMALLEST_RADIUS = 0.5  # file units: no lens file's surface has a radius this small (a curvature of 2 per unit)
+
+
 def _radii_without_rdm(text: str) -> bool:
     """A CODE V file with neither ``RDM`` nor ``CUM`` whose surface values only make sense as radii.
 
     rayoptics reads such a file in curvature mode; a hand-written file (optiland's test files) means
-    radii. Decided by physics: a curvature c with |c| EPD / 2 > 1 has no surface over the pupil."""
+    radii. Decided by physics: a curvature c with |c| EPD / 2 > 1 has no surface over the pupil; a file
+    without EPD (its pupil given by FNO or NA) by a surface radius under :data:`SMALLEST_RADIUS` units."""
     if re.search(r"^\s*(RDM|CUM)\b", text, re.M | re.I):
         return False
     epd = re.search(r"^\s*EPD\s+([-+0-9.eE]+)", text, re.M | re.I)
-    if not epd:
-        return False
     try:
-        half = abs(float(epd.group(1))) / 2.0
+        half = abs(float(epd.group(1))) / 2.0 if epd else SMALLEST_RADIUS
         values = [abs(float(m.group(1))) for m in re.finditer(r"^\s*S\s+([-+0-9.eE]+)", text, re.M)]
     except ValueError:
         return False
@@ -276,12 +279,23 @@ def _open_rayoptics(path: Path, fmt: str, raw: bytes):
     return opm, info
 
 
+#: Zemax surface types whose whole shape rayoptics reads (or that are handled by kind: coordinate breaks,
+#: paraxial lenses, gratings, toroids and extended polynomials get their own message)
+ZEMAX_TYPES_READ = ("STANDARD", "EVENASPH", "COORDBRK", "PARAXIAL", "DGRATING", "TOROIDAL", "XOSPHERE")
+
+
 def _profile(ifc, where: str, problems: list):
     """(type, radius in file units or None, conic, [A4, A6...] in file units) of a surface profile."""
     prof = getattr(ifc, "profile", None)
     kind = type(prof).__name__ if prof is not None else type(ifc).__name__
     cv = float(getattr(prof, "cv", 0.0) or 0.0)
     radius = None if cv == 0.0 else 1.0 / cv
+    z_type = getattr(ifc, "z_type", None)
+    if z_type is not None and z_type not in ZEMAX_TYPES_READ:
+        # rayoptics keeps the base sphere/conic of a Zemax type it does not know (QED_TYPE, ODDASPHE, SZERNSAG...)
+        # and drops the rest of its shape without a word
+        problems.append(f"{where}: surface type {z_type} is not supported (sphere, conic, even asphere)")
+        return ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), []
     if kind == "Spherical":
         return ("plane" if radius is None else "sphere"), radius, 0.0, []
     if kind == "Conic":
@@ -319,6 +333,31 @@ def _catalogue_glass(name: str):
             except Exception:  # noqa: BLE001 - opticalglass raises its own GlassNotFoundError per catalogue
                 continue
     return None
+
+
+MODEL_GLASS = re.compile(r"\s*(1\.\d+)\s*:\s*(\d+(?:\.\d+)?)\s*")  # nd:vd, e.g. 1.5168:64.17
+GLASS_CODE = re.compile(r"\s*(\d{3})(\d{3})(?:\.\d*)?\s*")  # the six-digit code, e.g. 517642 (nd 1.517, vd 64.2)
+
+
+def _model_glass(name: str):
+    """A glass given by its numbers rather than a catalogue name: ``nd:vd`` (``1.5168:64.17``) or the
+    six-digit glass code (``517642``: nd = 1.517, vd = 64.2), as opticalglass' ModelGlass (the model rayoptics
+    uses for Zemax model glasses); None for a name."""
+    from opticalglass.modelglass import ModelGlass
+
+    m = MODEL_GLASS.fullmatch(name)
+    if m:
+        nd, vd = float(m.group(1)), float(m.group(2))
+    else:
+        m = GLASS_CODE.fullmatch(name)
+        if not m:
+            return None
+        nd, vd = 1.0 + int(m.group(1)) / 1000.0, int(m.group(2)) / 10.0
+    if not (1.0 < nd < 4.0 and 5.0 <= vd <= 120.0):
+        return None
+    glass = ModelGlass(nd, vd, name.strip())
+    glass.nd, glass.vd = nd, vd
+    return glass
 
 
 def _glass_name(medium) -> str | None:
@@ -367,8 +406,21 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         if isinstance(gap.medium, ConstantIndex) and nm.startswith("not "):
             gname = nm[4:]
             match = next((k for k in glass if k.upper() == gname.upper()), None)
-            found = None if match is not None else _catalogue_glass(gname)
-            if found is not None:
+            model = None if match is not None else _model_glass(gname)
+            found = None if match is not None or model is not None else _catalogue_glass(gname)
+            other = None if match is not None or model is not None or found is not None else other_medium(gname)
+            if other is not None:
+                gap.medium = other
+                note = f"glass {gname} read as {other.catalog_name()}"
+                if note not in notes:
+                    notes.append(note)
+            elif model is not None:
+                gap.medium = model
+                note = (f"glass {gname} read as a model glass nd {model.nd:g}, vd {model.vd:g} (opticalglass' ModelGlass, "
+                        "as rayoptics reads Zemax model glasses)")
+                if note not in notes:
+                    notes.append(note)
+            elif found is not None:
                 gap.medium = found
                 note = f"glass {gname} read as {found.name()} ({found.catalog_name()})"
                 if note not in notes:
@@ -379,7 +431,8 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
                 gap.medium = ConstantIndex(float(glass[match]), gname)
     if missing:
         raise OpticsFileError(f"{path}: unknown glass {', '.join(sorted(set(missing)))} (not in the Schott, Ohara, "
-                              f"Hoya, CDGM, Sumita... catalogues); give its index with --glass {missing[0]}=N")
+                              f"Hoya, CDGM, Sumita catalogues nor docs/optics.md's other materials); give its index "
+                              f"with --glass {missing[0]}=N")
     subs = (info[0] if isinstance(info, tuple) else {}).get("glass substituted", 0) if isinstance(info, tuple) else 0
     if subs:
         notes.append(f"{subs} glass name(s) not found as written; rayoptics substituted the closest catalogue glass")
