@@ -90,9 +90,6 @@ class PathSample:
     polylines: list
 
 
-SPECULAR_TOL = 3e-4  # rad: an outgoing direction this close to the mirror direction was a delta reflection
-
-
 def _unit(v):
     return v / max(float(np.linalg.norm(v)), 1e-300)
 
@@ -101,17 +98,18 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
                  n_walks: int = 3000, seed: int = 0) -> list[PathSample]:
     """A few rays drawn for each of the ``top`` groups of a path report (grouped by sequence).
 
-    Display walks (:func:`straylight.viz.trace_ray_paths`) give scatter vertices; each prefix of a
-    walk that ends on a surface is joined to a random point of the detector when nothing blocks
-    that segment (the next-event connection the engine makes), and a walk that hits the detector
-    is kept as it is. A ray joins the group whose label its sequence of parts and events gives (an
-    event is specular where the walk left along the mirror direction, within ``SPECULAR_TOL``;
-    refraction and diffraction are not drawn). Rays show where a path runs; their number is not
-    its power (the group's fraction, from the trace, is).
+    The rays are the engine's own walks (:func:`straylight.viz.display_walks`: a short analog trace
+    with its ray log on), with the engine's own event at each vertex (scatter, or specular: a mirror,
+    an interface's reflection or refraction). Each prefix of a walk that scatters on a surface is
+    joined to a random point of the detector when nothing blocks that segment (the next-event
+    connection the engine makes), and a walk that hits the detector is kept as it is. A ray joins
+    the group whose label its sequence of parts and events gives (diffraction is not drawn). Rays
+    show where a path runs; their number is not its power (the group's fraction, from the trace, is).
     """
+    from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
     from straylight.paths import sequence_label
     from straylight.intersect import EmbreeIntersector
-    from straylight.viz import trace_ray_paths
+    from straylight.viz import display_walks
 
     scene = setup.scene
     det = report.detector
@@ -119,7 +117,7 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
     wanted = {r.label: r for r in report.rows[:top]} if report.group_by == "sequence" else {}
     found: dict[str, list] = {k: [] for k in wanted}
     if wanted:
-        walks = trace_ray_paths(setup, off_axis, azimuth, n_rays=n_walks, seed=seed, with_triangles=True)
+        log, _ = display_walks(setup, off_axis, azimuth, n_rays=n_walks, seed=seed)
         names, roles = scene.part_names, [p.role for p in scene.parts]
         tri_part = scene.triangle_part
         rng = np.random.default_rng([int(seed), 11])
@@ -129,10 +127,12 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
         cdf = np.cumsum(area) / area.sum()
         eps = 1e-6 * float(np.ptp(scene.bounds_mm, axis=0).max())
         starts, ends, prefixes, labels = [], [], [], []
-        for pts, _, reached, tris in walks:
+        for _, rows in log.rays():
+            tris, kinds = log.tri[rows], log.kind[rows]
+            pts = np.vstack([log.origin_mm[rows][:1], log.end_mm[rows]])
             events: list[tuple[str, str]] = []
             for j, t in enumerate(tris):
-                if t < 0:
+                if t < 0:  # escaped, or bent at an edge
                     break
                 part = int(tri_part[t])
                 if part == det_index:
@@ -140,20 +140,21 @@ def path_samples(setup, report, off_axis: float, azimuth: float = 0.0, top: int 
                     if label in found and len(found[label]) < per_group:
                         found[label].append(pts[: j + 2])
                     break
-                if roles[part] != "surface":
+                if roles[part] not in ("surface", "mirror"):
                     break
-                n = scene.triangle_normals[t]
-                incoming = _unit(pts[j + 1] - pts[j])
-                label = sequence_label([*events, (names[part], "scatter")], det)  # a scatter joined to the detector
-                if label in found and len(found[label]) < per_group:
-                    starts.append(pts[j + 1])
-                    prefixes.append(pts[: j + 2])
-                    labels.append(label)
-                    ends.append(-n if np.dot(incoming, n) > 0 else n)  # the side the ray came from
-                # the walk goes on: a delta reflection if it left along the mirror direction
-                mirror = incoming - 2 * np.dot(incoming, n) * n
-                delta = j + 2 < len(pts) and np.linalg.norm(_unit(pts[j + 2] - pts[j + 1]) - mirror) < SPECULAR_TOL
-                events.append((names[part], "specular" if delta else "scatter"))
+                after = int(kinds[j + 1]) if j + 1 < len(tris) else None  # the engine's event here (None: it ended)
+                if roles[part] == "surface" and after in (None, EVENT_SCATTER):  # a scatter vertex, joined to the detector
+                    label = sequence_label([*events, (names[part], "scatter")], det)
+                    if label in found and len(found[label]) < per_group:
+                        n = scene.triangle_normals[t]
+                        incoming = _unit(pts[j + 1] - pts[j])
+                        starts.append(pts[j + 1])
+                        prefixes.append(pts[: j + 2])
+                        labels.append(label)
+                        ends.append(-n if np.dot(incoming, n) > 0 else n)  # the side the ray came from
+                if after not in (EVENT_SCATTER, EVENT_SPECULAR):
+                    break
+                events.append((names[part], "scatter" if after == EVENT_SCATTER else "specular"))
         if starts:
             p, side = np.array(starts), np.array(ends)
             k = np.minimum(np.searchsorted(cdf, rng.random(len(p)), side="right"), len(cdf) - 1)

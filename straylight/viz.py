@@ -42,32 +42,38 @@ def part_polydata(part):
     return pv.PolyData(part.vertices_mm, faces)
 
 
+def display_walks(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 200, seed: int = 0,
+                  max_events: int = 6):
+    """(ray log, start weight W): ``n_rays`` rays of the setup's beam at (``off_axis``, ``azimuth``),
+    rad, traced by the engine with its ray log on (``straylight.engine.ray_log.RayLog``): an analog
+    walk (no next-event estimation, no roulette) of at most ``max_events`` events. The rays the
+    pictures (:func:`trace_ray_paths`) and the 3-D view (straylight.view3d) draw."""
+    from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions, trace
+
+    options = TraceOptions(estimator=EstimatorOptions(nee=False, rr_threshold=0.0),
+                           output=OutputOptions(ray_log=int(n_rays)), physics=PhysicsOptions(max_events=int(max_events)))
+    res = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], int(n_rays), seed=int(seed),
+                materials=setup.materials, options=options)
+    assert res.ray_log is not None  # ray_log > 0 asked for it
+    return res.ray_log, res.emitted_w / int(n_rays)  # every ray's weight as it leaves the beam
+
+
 def trace_ray_paths(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 200, seed: int = 0,
                     max_events: int = 6, min_weight: float = 1e-4, with_triangles: bool = False):
-    """Rays for display: the engine's own walk (``straylight.trace`` with the ray log on,
-    straylight.engine.ray_log), so a drawn ray refracts, reflects and bends as the traced ones do.
+    """Rays for display: the engine's own walk (:func:`display_walks`), so a drawn ray refracts,
+    reflects and bends as the traced ones do.
 
-    ``n_rays`` rays of the setup's beam at (``off_axis``, ``azimuth``), rad, an analog walk (no
-    next-event estimation, no roulette) of at most ``max_events`` events. Returns a list of
-    (points (k, 3) mm, weights (k - 1,) relative power on each segment, reached_detector bool);
-    with ``with_triangles``, a fourth item: the triangle hit at each vertex after the first ((j,)
-    int; -1 for an escaping ray's stub, -2 for a bend at a diffracting edge). A path is drawn up to
-    its first segment whose relative power is below ``min_weight``.
+    Returns a list of (points (k, 3) mm, weights (k - 1,) relative power on each segment,
+    reached_detector bool); with ``with_triangles``, a fourth item: the triangle hit at each vertex
+    after the first ((j,) int; -1 for an escaping ray's stub, -2 for a bend at a diffracting edge).
+    A path is drawn up to its first segment whose relative power is below ``min_weight``.
     """
     from straylight.engine.ray_log import SEGMENT_ESCAPE
-    from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions, trace
 
     if int(n_rays) <= 0:
         return []
-    scene = setup.scene
-    options = TraceOptions(estimator=EstimatorOptions(nee=False, rr_threshold=0.0),
-                           output=OutputOptions(ray_log=int(n_rays)), physics=PhysicsOptions(max_events=int(max_events)))
-    res = trace(scene, [setup.beam.source(off_axis, azimuth)], int(n_rays), seed=int(seed),
-                materials=setup.materials, options=options)
-    log = res.ray_log
-    assert log is not None  # ray_log > 0 asked for it
-    start_w = res.emitted_w / int(n_rays)  # every ray's weight as it leaves the beam
-    stub_mm = 0.3 * float(np.ptp(np.asarray(scene.bounds_mm)[:, 2]))  # escaping rays: a short stub
+    log, start_w = display_walks(setup, off_axis, azimuth, n_rays, seed, max_events)
+    stub_mm = 0.3 * float(np.ptp(np.asarray(setup.scene.bounds_mm)[:, 2]))  # escaping rays: a short stub
     paths = []
     for _, rows in log.rays():
         w = log.weight_w[rows] / start_w

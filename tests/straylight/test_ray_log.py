@@ -111,13 +111,17 @@ def test_drawn_rays_refract_through_a_window_by_snells_law():
     assert inside > 250 and through > 200 and reflected >= 1
 
 
-def test_drawn_rays_reflect_at_a_mirror():
-    from straylight import viz
-
+def _mirror_setup():
     mirror = analytic_part("mirror", Plane(np.zeros(3), UP, math.inf, 0.0, 100.0, 0.0), None, "mirror")
     v = np.array([[60, -50, 0], [60, 50, 0], [60, 50, 100], [60, -50, 100]], float)
     det = Part("det", v, np.array([[0, 2, 1], [0, 3, 2]]), None, "detector")  # the plane x = 60
-    setup = Setup(Scene((mirror, det)), {}, Beam(center_mm=(0, 0, 60), axis=(0, 0, -1), radius_mm=5.0), None, "det")
+    return Setup(Scene((mirror, det)), {}, Beam(center_mm=(0, 0, 60), axis=(0, 0, -1), radius_mm=5.0), None, "det")
+
+
+def test_drawn_rays_reflect_at_a_mirror():
+    from straylight import viz
+
+    setup = _mirror_setup()
     paths = viz.trace_ray_paths(setup, math.radians(30.0), n_rays=40, seed=1, with_triangles=True)
     assert len(paths) == 40
     names, part_of = setup.scene.part_names, setup.scene.triangle_part
@@ -127,3 +131,29 @@ def test_drawn_rays_reflect_at_a_mirror():
         d, r = _unit(pts[1] - pts[0]), _unit(pts[2] - pts[1])
         assert np.allclose(r, d - 2 * np.dot(d, UP) * UP, atol=1e-9)  # angle in = angle out
         assert reached and np.allclose(w, 1.0)  # mirror_reflectance 1: the power carried on
+
+
+@pytest.mark.parametrize("scene", ["window", "mirror"])
+def test_the_3d_views_sample_rays_follow_refraction_and_mirrors(scene):
+    """The view's rays of a path group run through the glass (Snell) or off the mirror (reflection)
+    under the path report's own label, with the engine's event kinds (specular at each interface)."""
+    from straylight import view3d
+    from straylight.analyses.paths_report import paths_analysis
+
+    setup = _window_setup() if scene == "window" else _mirror_setup()
+    theta_i = math.radians(30.0)
+    report, _ = paths_analysis(setup, theta_i, n_rays=2000, seed=1)
+    samples = view3d.path_samples(setup, report, theta_i, top=1, n_walks=200, seed=1)
+    expected = {"window": "source -> top (specular) -> bottom (specular) -> det",
+                "mirror": "source -> mirror (specular) -> det"}[scene]
+    assert samples[0].label == expected and len(samples[0].polylines) == 6
+    for line in samples[0].polylines:
+        pts = np.asarray(line)
+        d_in, d_out = _unit(pts[1] - pts[0]), _unit(pts[2] - pts[1])
+        if scene == "window":
+            assert len(pts) == 4 and np.allclose(pts[1:, 2], [10.0, 0.0, -20.0], atol=2e-3)
+            # the points are rounded to 1 um: Snell's law to ~1e-4 over the 10 mm plate
+            assert abs(math.sin(theta_i) - N_GLASS * np.linalg.norm(np.cross(d_out, UP))) < 1e-3
+        else:
+            assert len(pts) == 3 and abs(pts[1][2]) < 2e-3
+            assert np.allclose(d_out, d_in - 2 * np.dot(d_in, UP) * UP, atol=1e-3)
