@@ -6,6 +6,7 @@ the refracted ray in the plane of incidence, and the law of reflection r = d - 2
 (Hecht, Optics, §4.4 and §4.3). Neither is computed by the code under test here.
 """
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -157,3 +158,37 @@ def test_the_3d_views_sample_rays_follow_refraction_and_mirrors(scene):
         else:
             assert len(pts) == 3 and abs(pts[1][2]) < 2e-3
             assert np.allclose(d_out, d_in - 2 * np.dot(d_in, UP) * UP, atol=1e-3)
+
+
+def test_drawn_rays_through_an_imported_lens_meet_at_its_focus(tmp_path, capsys):
+    """A lens from ``straylight optics import`` (Thorlabs ACL3026U, an aspheric condenser, EFL 25.9 mm):
+    the drawn rays of the on-axis beam refract at both faces and meet on the axis at the back focal
+    distance rayoptics' paraxial trace gives (``optics info``: bfl 18.0957 mm after the last vertex,
+    which is 5 + 11.9 mm from the first)."""
+    from straylight import viz
+    from straylight.analyses.scene_setup import scene_setup
+    from straylight.cli.main import main
+
+    lens = Path(__file__).resolve().parents[1] / "data" / "lenses" / "ray-optics" / "ACL3026U.zmx"
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path)]) == 0
+    capsys.readouterr()
+    setup = scene_setup(tmp_path / "scene.toml")
+    paths = viz.trace_ray_paths(setup, 0.0, n_rays=600, seed=1, max_events=20, with_triangles=True)
+    names, part_of = setup.scene.part_names, setup.scene.triangle_part
+    focus_z = 5.0 + 11.9 + 18.0957
+    crossings, reached_image, direct = [], 0, 0
+    for pts, _, reached, tris in paths:
+        if not reached:
+            continue
+        reached_image += 1
+        if [names[part_of[t]] for t in tris] != ["s2", "s3", "image"]:  # a ghost (Fresnel reflections)
+            continue
+        direct += 1  # through the glass: the old display walk stopped every ray at the first face
+        a, b = pts[-2], pts[-1]  # the last segment, from the back face to the image
+        height = math.hypot(*a[:2])
+        if 0.5 < height < 3.0:  # near the axis (paraxial): where it crosses the axis (in its own plane)
+            d = b - a
+            t = -np.dot(a[:2], d[:2]) / np.dot(d[:2], d[:2])
+            crossings.append(a[2] + t * d[2])
+    assert direct > 0.9 * reached_image and len(crossings) > 10
+    assert np.allclose(crossings, focus_z, atol=0.05)
