@@ -10,12 +10,19 @@ from straylight.trace import OutputOptions, TraceOptions, trace
 from straylight.execution import Execution
 
 
+def _same_ray_log(res, local):
+    assert len(local.ray_log) > 5000 and set(local.ray_log.ray.tolist()) == set(range(5000))
+    for field in ("ray", "event", "origin_mm", "direction", "end_mm", "tri", "kind", "weight_w", "detector"):
+        assert (getattr(res.ray_log, field) == getattr(local.ray_log, field)).all(), field
+
+
 @pytest.fixture(scope="module")
 def setup():
     scene = baffled_tube_scene()
     src = CollimatedDisk([0, 0, 310], [0, 0, -1], [math.sin(0.35), 0, -math.cos(0.35)], 60.0)
     mats = {"black": Lambertian(0.05)}  # importable by worker processes (test helpers are not)
-    opts = TraceOptions(output=OutputOptions(record_paths=True), batch_rays=3000)
+    # the ray log spans two batches: it comes back from workers and threads as from this process
+    opts = TraceOptions(output=OutputOptions(record_paths=True, ray_log=5000), batch_rays=3000)
     local = trace(scene, src, 9000, seed=5, materials=mats, options=opts)
     return scene, src, mats, opts, local
 
@@ -27,6 +34,7 @@ def test_same_numbers_on_any_worker_count(setup, workers):
     assert local.detectors["detector"].power_w > 0
     assert res.to_json_dict() == local.to_json_dict()
     assert (res.paths.key == local.paths.key).all()
+    _same_ray_log(res, local)
 
 
 def test_same_numbers_on_a_thread_pool(setup):
@@ -36,6 +44,7 @@ def test_same_numbers_on_a_thread_pool(setup):
     assert local.detectors["detector"].power_w > 0
     assert res.to_json_dict() == local.to_json_dict()
     assert (res.paths.key == local.paths.key).all()
+    _same_ray_log(res, local)
 
 
 @pytest.mark.parametrize("n_rays,batch,slots", [(400_000, 50_000, 2), (2_000_000, 50_000, 2), (9000, 3000, 2),
