@@ -48,12 +48,17 @@ def display_walks(setup, off_axis: float, azimuth: float = 0.0, n_rays: int = 20
     rad, traced by the engine with its ray log on (``straylight.engine.ray_log.RayLog``): an analog
     walk (no next-event estimation, no roulette) of at most ``max_events`` events. The rays the
     pictures (:func:`trace_ray_paths`) and the 3-D view (straylight.view3d) draw."""
+    import warnings
+
+    from straylight.run_checks import TruncationWarning
     from straylight.trace import EstimatorOptions, OutputOptions, PhysicsOptions, TraceOptions, trace
 
     options = TraceOptions(estimator=EstimatorOptions(nee=False, rr_threshold=0.0),
                            output=OutputOptions(ray_log=int(n_rays)), physics=PhysicsOptions(max_events=int(max_events)))
-    res = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], int(n_rays), seed=int(seed),
-                materials=setup.materials, options=options)
+    with warnings.catch_warnings():  # a drawing stops its rays after max_events on purpose: not a finding
+        warnings.simplefilter("ignore", TruncationWarning)
+        res = trace(setup.scene, [setup.beam.source(off_axis, azimuth)], int(n_rays), seed=int(seed),
+                    materials=setup.materials, options=options)
     assert res.ray_log is not None  # ray_log > 0 asked for it
     return res.ray_log, res.emitted_w / int(n_rays)  # every ray's weight as it leaves the beam
 

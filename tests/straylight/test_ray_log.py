@@ -192,3 +192,13 @@ def test_drawn_rays_through_an_imported_lens_meet_at_its_focus(tmp_path, capsys)
             crossings.append(a[2] + t * d[2])
     assert direct > 0.9 * reached_image and len(crossings) > 10
     assert np.allclose(crossings, focus_z, atol=0.05)
+
+
+def test_a_drawing_cut_at_max_events_warns_nothing(recwarn):
+    """The picture stops its rays after max_events on purpose; the trace's truncation warning is for runs."""
+    from straylight import viz
+
+    setup = _window_setup()
+    paths = viz.trace_ray_paths(setup, math.radians(30.0), n_rays=100, seed=1, max_events=1)
+    assert all(len(p[0]) == 2 for p in paths)  # one event each: most power still in flight
+    assert not [w for w in recwarn if "max_events" in str(w.message)]
