@@ -52,6 +52,7 @@ PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK
 EPS_MM = 1e-6
 SELF_HIT_MM = 1e-6
 MAX_NOMINAL_STEPS = 200
+NOMINAL_MIN_SHARE = 0.02  # a design path carries at least this share of the strongest sequence's power
 
 
 class GhostError(ValueError):
@@ -243,8 +244,12 @@ def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray) -> Bundle
 
 
 def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tuple:
-    """The design path: ((part, "T" | "R"), ...) up to the detector, the likelier branch at every interface,
-    the sequence carrying the most power at the detector."""
+    """The design path: ((part, "T" | "R"), ...) up to the detector, the likelier branch at every interface.
+
+    Of the sequences that reach the detector through at least one interface and carry at least
+    :data:`NOMINAL_MIN_SHARE` of the strongest one's power, the one through the most interfaces: light that
+    passes the front elements and then goes *around* the smaller ones (a lens file has no barrel) can carry
+    more power than the design path, but it always skips some of the surfaces the design path crosses."""
     rng = np.random.default_rng(seed)
     b = emit(opt, n_rays, rng)
     seqs: list[list[tuple[int, str]]] = [[] for _ in range(n_rays)]
@@ -276,7 +281,9 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
     if not through:
         raise GhostError(f"no source ray reaches the detector {opt.names[opt.detector]!r} through an interface "
                          "(a lens or window) along a specular path")
-    return max(through, key=lambda k: through[k])  # light that misses every lens (around a mount) is not the design path
+    strongest = max(through.values())
+    kept = {k: w for k, w in through.items() if w >= NOMINAL_MIN_SHARE * strongest}
+    return max(kept, key=lambda k: (len(k), kept[k]))  # light around the lenses (no barrel) is not the design path
 
 
 def reflection_sites(nominal) -> list:

@@ -182,3 +182,20 @@ def test_a_scene_without_a_detector_is_refused():
     no_det = ResolvedScene(None, Scene(tuple(p for p in scene.parts if p.role != "detector")), mats, (src,), ())
     with pytest.raises(GhostError, match="no detector"):
         prepare(no_det)
+
+
+def test_the_nominal_path_crosses_every_surface_not_the_light_around_the_lenses(tmp_path):
+    """A lens file has no barrel: in the Canon EF 28 mm f/2.8 (OpticsDatabase), light entering the large front
+    elements outside the small rear ones goes around them to the image, more power than the focused design
+    path. The nominal sequence is the design path, through all 16 refracting surfaces in order."""
+    from straylight.analyses.ghost_trace import nominal_sequence
+    from straylight.cli.main import main
+    from straylight.scene import load_scene
+
+    lens = LENSES / "OpticsDatabase" / "Canon_EF28mm_f2.8_IS_USM.zmx"
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path)]) == 0
+    opt = prepare(load_scene(tmp_path / "scene.toml"))
+    nominal = nominal_sequence(opt)
+    names = [opt.names[p] for p, _ in nominal]
+    refracting = [f"s{i}" for i in range(2, 19) if i != 11]  # s11 is the stop (air on both sides)
+    assert names == refracting and all(a == "T" for _, a in nominal)
