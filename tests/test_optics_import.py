@@ -232,3 +232,11 @@ def test_a_zemax_ar_coating_is_read_as_the_quarter_wave_mgf2_design(tmp_path):
     scene = tomllib.loads((tmp_path / "out" / "scene.toml").read_text())
     coated = [c for m in scene["material"].values() for c in m["components"] if c.get("coating")]
     assert coated and all(c["coating"] == "mgf2_quarter_wave" for c in coated)
+
+
+def test_a_substituted_glass_is_named(tmp_path):
+    """rayoptics replaces a glass it cannot find as written by a similar catalogue glass; the warning names both
+    (354710-C.zmx: D-ZK3M, a moulding glass of CDGM's, read as D-ZK3)."""
+    r = _run("optics", "info", LENSES / "ray-optics" / "354710-C.zmx")
+    assert r.returncode == 0, r.stderr
+    assert "glass D-ZK3M is not in the catalogues as written; rayoptics substituted D-ZK3 (CDGM)" in r.stdout + r.stderr

@@ -360,6 +360,19 @@ def _model_glass(name: str):
     return glass
 
 
+def _substitutions(info) -> list[str]:
+    """One note per glass name rayoptics replaced by a similar catalogue glass (Ohara's L-BAL35 read as
+    S-BAL35; Schott's old BK7 as the Buchdahl model of Robb's 1983 catalogue): its reader's map
+    {name in the file: (glass used, catalogue)}."""
+    subs = info[1] if isinstance(info, tuple) and len(info) > 1 and isinstance(info[1], dict) else {}
+    notes = []
+    for name, used in subs.items():
+        glass, cat = (tuple(used) + ("", ""))[:2] if isinstance(used, (tuple, list)) else (str(used), "")
+        notes.append(f"glass {name} is not in the catalogues as written; rayoptics substituted {glass}"
+                     + (f" ({cat})" if cat else ""))
+    return notes
+
+
 def _glass_name(medium) -> str | None:
     name = medium.name() if hasattr(medium, "name") else str(medium)
     if name.lower() in ("air", ""):
@@ -435,7 +448,9 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
                               f"with --glass {missing[0]}=N")
     subs = (info[0] if isinstance(info, tuple) else {}).get("glass substituted", 0) if isinstance(info, tuple) else 0
     if subs:
-        notes.append(f"{subs} glass name(s) not found as written; rayoptics substituted the closest catalogue glass")
+        named = _substitutions(info)
+        notes.extend(named or [f"{subs} glass name(s) not found as written; rayoptics substituted the closest "
+                               "catalogue glass"])
     units = str(opm["system_spec"].dimensions)
     scale = UNIT_MM.get(units.lower())
     if scale is None:
