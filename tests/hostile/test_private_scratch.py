@@ -133,8 +133,12 @@ def test_a_long_tmpdir_still_runs_a_process_cluster(scene, tmp_path):
 
 
 def test_the_fork_server_is_used_only_where_its_socket_fits(tmp_path, monkeypatch):
+    import multiprocessing
+
     from straylight.engine.backends import fork_server
 
+    # multiprocessing's own temp folder, once made in this process, is used instead of TMPDIR
+    monkeypatch.delitem(getattr(multiprocessing.current_process(), "_config", {}), "tempdir", raising=False)
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / ("v" * 120)))
     assert not fork_server.socket_path_fits() and not fork_server.wanted()
     monkeypatch.setattr(tempfile, "tempdir", "/tmp")
