@@ -62,6 +62,8 @@ def shapes(tel, parts: list[dict], thickness_mm: float | None = None) -> dict:
             ri, ro = s["inner_radius_mm"], s["outer_radius_mm"]
             if p["type"] == "secondary_cap":  # toward the sky, away from the mirror
                 prof = [(ri, 0.0), (ro + t, 0.0), (ro + t, t), (ri, t)]
+            elif p["type"] == "field_stop":  # toward the sky, away from the image plane just below it
+                prof = [(ri, 0.0), (ro, 0.0), (ro, t), (ri, t)]
             else:  # the collar sits behind the primary: grow it away from the sky
                 prof = [(ri, -t), (ro, -t), (ro, 0.0), (ri, 0.0)]
         out[p["name"]] = _revolved(prof, loc)

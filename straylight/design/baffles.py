@@ -69,6 +69,50 @@ def _sweep(setup, angles_deg, rays, seed, nee=True):
             for a, p, e, w, we in zip(angles_deg, res.pst, res.pst_stderr, res.detector_w, res.detector_stderr_w)]
 
 
+def throughput_budget(obscuration_before: float, max_added: float) -> float:
+    """The added obscuration a layout with a sunshade may spend: the allowed one, and no more than keeps
+    ``THROUGHPUT_KEPT`` of the bare telescope's on-axis light (1 - after >= 0.95 (1 - before)), less
+    0.005 for the trace's own error (a 20000-ray trace measures the ratio to about 0.002)."""
+    return min(max_added, (1.0 - THROUGHPUT_KEPT) * (1.0 - obscuration_before)) - 5e-3
+
+
+def with_sunshade(setup, tel, bundle, max_added, refusal, log):
+    """The widest skirt within the budget (:func:`throughput_budget`) and a sunshade that stops the lines it
+    leaves open (straylight.design.sunshade); raises ``refusal`` (the one line, with the shade's reason)
+    when there is none."""
+    from straylight.design import shields, sunshade
+
+    budget = throughput_budget(shields.obscuration(tel, bundle, None), max_added)
+    lay = shields.within_budget(tel, bundle, budget) if budget > 0 else None
+    if lay is None:
+        raise refusal
+    try:
+        shade = sunshade.construct(setup, tel, bundle, lay)
+    except sunshade.SunshadeError as exc:
+        raise shields.NoShieldError(f"{refusal}; the widest skirt within it needs {exc}") from None
+    if shade is None:
+        raise refusal
+    lay.sunshade = shade
+    closing = getattr(refusal, "smallest_added", None)
+    log(f"the skirt and tube that close every direct path add {closing if closing is None else round(closing, 4)} "
+        f"of the aperture: kept a skirt of {lay.skirt_radius_mm:.4g} mm (adds "
+        f"{lay.obscuration_after - lay.obscuration_before:.4f}) and a sunshade of radius {shade.radius_mm:.4g} mm, "
+        f"{shade.to_u - shade.from_u:.4g} mm long, that stops the lines it leaves open "
+        f"({shade.angles_deg[0]:.2f}-{shade.angles_deg[1]:.2f} deg)")
+    return lay
+
+
+def critical_angles(layout, field_deg: float) -> list[float]:
+    """Sky angles the direct-path check adds: where the lines the sunshade stops leave the telescope."""
+    if layout.sunshade is None:
+        return []
+    lo, hi = layout.sunshade.angles_deg
+    lo_ok = max(lo, 2.0 * field_deg)
+    if hi < lo_ok or lo_ok > 10.0:
+        return []
+    return [float(a) for a in np.linspace(lo_ok, min(hi, 10.0), 3)]
+
+
 def both_mirrors(events, primary: str, secondary: str) -> bool:
     """Whether a path's events hold a specular reflection on the primary followed by one on the secondary."""
     names = [p for p, k in events if k == "specular"]
@@ -233,8 +277,11 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
     bundle = telescope_model.nominal_bundle(given, tel, field_deg)
     # the secondary's rim must be downstream of the source too, or rays would start behind the secondary
     rim = [tel.point(tel.secondary_rim_u, sgn * tel.secondary_outer_mm) for sgn in (-1.0, 1.0)]
-    layouts = shields.candidates(tel, bundle, max_added_obscuration, n_radii=2 if refine_rays > 0 else 1,
-                                 radius_step=0.01)  # NoShieldError: the CLI's one line
+    try:
+        layouts = shields.candidates(tel, bundle, max_added_obscuration, n_radii=2 if refine_rays > 0 else 1,
+                                     radius_step=0.01)
+    except shields.NoShieldError as exc:  # the skirt within the budget and a sunshade, or the CLI's one line
+        layouts = [with_sunshade(given, tel, bundle, max_added_obscuration, exc, log)]
     refinement = None
     layout = layouts[0]
     if refine_rays > 0 and len(layouts) > 1:
@@ -251,8 +298,10 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
         log(f"source moved upstream of the shields: {moved}")
     atomicio.write_text(out / "scene.toml", tomli_w.dumps(doc))
     after = scene_setup(out / "scene.toml")
-    # 4. direct-path check by the tracer, before and after
+    # 4. direct-path check by the tracer, before and after (and where the sunshade's lines leave)
     angles = direct_angles(field_deg)
+    critical = critical_angles(layout, field_deg)
+    angles = sorted(set(angles) | set(critical))
     ideal_b = replace(before, materials=ideal_materials(before))
     ideal_a = replace(after, materials=ideal_materials(after))
     direct_before = direct_check(ideal_b, tel, [0.0] + angles, rays, seed)
@@ -277,12 +326,17 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
         "baffles": [{k: v for k, v in p.items() if k != "surface"} for p in parts],
         "telescope": tel.to_dict(),
         "direct_margin_mm": layout.direct_margin_mm,
+        "sunshade": None if layout.sunshade is None else {
+            "radius_mm": layout.sunshade.radius_mm, "length_mm": layout.sunshade.to_u - layout.sunshade.from_u,
+            "stops_angles_deg": list(layout.sunshade.angles_deg), "lines": layout.sunshade.lines,
+            "skirt_alone_leaves_open_mm": -layout.direct_margin_mm},
         "direct_check": {
             "method": "perfect mirrors (r = 1), glass as in the scene, every other part an absorber; direct_w: "
                       "the image's power from paths without a reflection on the primary followed by one on the "
                       "secondary (path records); detector_w: all of the image's power",
             "before": direct_before[1:], "after": direct_after[1:],
             "blocked": all(p["direct_w"] == 0.0 for p in direct_after[1:]),
+            "critical_angles_deg": critical,
             "on_axis_before": direct_before[0], "on_axis_after": direct_after[0],
             "on_axis_throughput_ratio": throughput},
         "pst_before": pst_before, "pst_after": pst_after, "refinement": refinement,

@@ -7,6 +7,9 @@ The classical layout (Young, Appl. Opt. 6, 1063 (1967); Breault, Handbook of Opt
   mirror's rim and the skirt);
 - ``baffle_primary``: a tube of radius a about the axis, from the image plane up to u_p (through the
   primary's hole; ``baffle_primary_collar`` closes the hole around it when a is smaller);
+- ``baffle_field_stop``: an annulus closing the tube's bottom, just above the image, from the beam of
+  the field (the image of the half-field F, plus aberrations and clearance) out to the tube: only the
+  field's image sees up the tube, not the whole detector disk;
 - ``baffle_rear``: a cylinder at the primary's rim down past the image plane, so the detector sees
   the sky only through the tube.
 
@@ -17,10 +20,14 @@ rays of every field angle in [-F, F] (:func:`straylight.design.telescope_model.n
    the tube's height, and it must not touch the rays going to or from the primary;
 2. the skirt must not touch the beam primary -> secondary or secondary -> image: r_s > their max |y|
    over [u_s, rim]; so a wider skirt may hang lower;
-3. no direct path: the steepest line from the detector's edge (-h, u_i) through the tube's rim
-   (a, u_p) must enter the skirt's mouth: y(u_s) = -h + (a + h)(u_s - u_i)/(u_p - u_i) <= r_s
-   (in 3-D the meridional line is the worst: the distance from the axis of a point (1-t)p + tq is at
-   most (t-1)|p| + t|q| for t > 1, with equality for p, q opposite).
+3. no direct path: every line that leaves the detector disk (|y| <= h at u_i) and passes the tube's
+   apertures (|y| <= b at the field stop, |y| <= a at the tube's bottom and rim) must enter the skirt's
+   mouth: max y(u_s) <= r_s, a linear programme in the line's two parameters whose optimum is a line
+   through two of the apertures' edges on opposite sides (:func:`max_exit`; without a field stop,
+   y(u_s) = -a + 2a (u_s - u_b)/(u_p - u_b) for a <= h). In 3-D the meridional line is the worst: for a
+   line x(u) (transverse position) the meridional line through -|x(u_j)| and +|x(u_k)| stays within
+   |x(u)| between them (reverse triangle inequality) and reaches |x(u_s)| beyond (|(1-t)p + tq| <=
+   (t-1)|p| + t|q| for t > 1).
 
 Among the layouts that satisfy all three (a grid over r_s and u_p, each with its least a and its
 lowest u_s), the one with the smallest skirt (least added obscuration) is kept, then the largest
@@ -31,12 +38,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from straylight.design.sunshade import Sunshade
+
 
 class NoShieldError(ValueError):
-    """No layout blocks every direct path within the allowed obscuration (one-line message)."""
+    """No layout blocks every direct path within the allowed obscuration (one-line message);
+    ``smallest_added``: what the least-obscuring closing layout adds, when there is one."""
+
+    smallest_added: float | None = None
 
 
 def clipped_abs_range(seg: np.ndarray, lo: float, hi: float):
@@ -62,6 +76,25 @@ def clipped_abs_range(seg: np.ndarray, lo: float, hi: float):
     return np.where(inside, ymax, np.nan), np.where(inside, ymin, np.nan)
 
 
+def max_exit(apertures, u_exit: float) -> float:
+    """The largest y at ``u_exit`` of a line in the (u, y) plane that passes every aperture: |y(u_k)| <= c_k
+    for ``apertures`` = [(u_k, c_k)], at least two distinct heights, all below ``u_exit``. A linear
+    programme in two unknowns: its optimum is a vertex, a line through two apertures' edges, so every
+    pair of edges is tried and the feasible lines kept (exact)."""
+    best = -math.inf
+    pts = [(float(u), float(c)) for u, c in apertures]
+    for i, (uj, cj) in enumerate(pts):
+        for uk, ck in pts[i + 1:]:
+            if abs(uk - uj) < 1e-12:
+                continue
+            for yj in (-cj, cj):
+                for yk in (-ck, ck):
+                    slope = (yk - yj) / (uk - uj)
+                    if all(abs(yj + slope * (ul - uj)) <= cl + 1e-9 for ul, cl in pts):
+                        best = max(best, yj + slope * (u_exit - uj))
+    return best
+
+
 def _nanmax(x, default=0.0):
     x = x[np.isfinite(x)]
     return float(x.max()) if len(x) else default
@@ -85,6 +118,8 @@ class Layout:
     rear_from_u: float
     rear_to_u: float
     direct_margin_mm: float
+    field_stop_radius_mm: float | None = None  # inner radius of the annulus at the tube's bottom
+    sunshade: Sunshade | None = None  # straylight.design.sunshade.Sunshade: closes what the skirt leaves open
     obscuration_before: float = 0.0
     obscuration_after: float = 0.0
     notes: list = field(default_factory=list)
@@ -149,10 +184,10 @@ def _fam(bundle, names) -> tuple[np.ndarray, np.ndarray]:
     return seg, np.concatenate(found)
 
 
-def _scan(tel, bundle, max_added, n_grid, n_radii, radius_step) -> list[Layout]:
-    """Feasible layouts by increasing skirt radius (two tube choices per radius), up to ``n_radii`` radii
-    at least ``radius_step`` x the aperture radius apart, stopping past the obscuration budget. For each
-    skirt radius only the rays its cap lets through constrain the skirt and the tube (:class:`_Suffix`)."""
+def _options(tel, bundle, n_grid):
+    """A function of the skirt radius r_s: every (r_s, skirt bottom, tube radius, tube top, slack, field
+    stop) whose skirt and tube clear the beams that r_s's cap lets through (slack < 0: the direct-path
+    condition (3) fails by that much), one per tube height; and the tube's bottom."""
     R = tel.aperture_radius_mm
     margin = margin_mm(R)
     u_top = tel.secondary_rim_u
@@ -164,13 +199,10 @@ def _scan(tel, bundle, max_added, n_grid, n_radii, radius_step) -> list[Layout]:
     inner = _Suffix(*_fam(bundle, ("ps", "si")), us[:, None], u_top, "max")
     need = _Suffix(*_fam(bundle, ("si",)), tube_bottom, up[:, None], "max")
     room = _Suffix(*_fam(bundle, ("in", "ps")), tube_bottom, up[:, None], "min")
-    r_grid = np.linspace(tel.secondary_outer_mm, R, n_grid)
-    before = obscuration(tel, bundle, None)
-    out = []
-    last_r, radii = None, 0
-    for k, r in enumerate(r_grid):
-        if last_r is not None and r < last_r + radius_step * R:
-            continue
+    # the field stop: the beam of the field where it leaves the tube's bottom, just above the image
+    field = _Suffix(*_fam(bundle, ("si",)), np.array([[u_i]]), np.array([[tube_bottom]]), "max")
+
+    def options(r):
         kept = r - margin  # rays crossing the cap's plane inside this are stopped by the cap (with margin)
         # skirt: the lowest bottom that keeps the inner beams inside
         m_inner = np.nan_to_num(inner.at(kept), nan=0.0)
@@ -179,16 +211,54 @@ def _scan(tel, bundle, max_added, n_grid, n_radii, radius_step) -> list[Layout]:
         # tube: for each top height, the least radius clearing the converging beam, and its room
         a_need = np.nan_to_num(need.at(kept), nan=0.0) + margin
         a_room = np.nan_to_num(room.at(kept), nan=math.inf) - margin
-        feasible = []
+        b = float(np.nan_to_num(field.at(kept), nan=0.0)[0]) + margin
+        out = []
         for j, u in enumerate(up):
             a = a_need[j]
             if a > a_room[j] or u >= usk - margin:
                 continue
-            he = min(h, a)
-            x = -he + (a + he) * (usk - u_i) / (u - u_i)
-            slack = r - margin - x
-            if slack >= 0:
-                feasible.append((r, usk, a, u, slack))
+            stop = b if b < min(a, h) - margin else None
+            slack = r - margin - max_exit(apertures(tel, tube_bottom, a, u, stop), usk)
+            out.append((r, usk, a, u, slack, stop))
+        return out
+
+    return options, tube_bottom
+
+
+def apertures(tel, tube_bottom, a, u_top, stop) -> list[tuple[float, float]]:
+    """The (height, radius) apertures a line from the image up the tube passes: the detector disk, the
+    tube's bottom (or the field stop there), the tube's rim."""
+    return [(tel.image_u, tel.image_radius_mm), (tube_bottom, a if stop is None else stop), (u_top, a)]
+
+
+def _scan(tel, bundle, max_added, n_grid, n_radii, radius_step) -> list[Layout]:
+    """Feasible layouts by increasing skirt radius (two tube choices per radius), up to ``n_radii`` radii
+    at least ``radius_step`` x the aperture radius apart, stopping past the obscuration budget. For each
+    skirt radius only the rays its cap lets through constrain the skirt and the tube (:class:`_Suffix`)."""
+    R = tel.aperture_radius_mm
+    margin = margin_mm(R)
+    options, tube_bottom = _options(tel, bundle, n_grid)
+    r_grid = np.linspace(tel.secondary_outer_mm, R, n_grid)
+    before = obscuration(tel, bundle, None)
+
+    def feasible_at(r):
+        return [c for c in options(r) if c[4] >= 0]
+
+    out = []
+    last_r, radii = None, 0
+    for k, r in enumerate(r_grid):
+        if last_r is not None and r < last_r + radius_step * R:
+            continue
+        feasible = feasible_at(r)
+        if feasible and radii == 0 and k > 0:  # the smallest skirt: bisect between the grid's radii
+            lo, hi = float(r_grid[k - 1]), float(r)
+            for _ in range(8):
+                mid = 0.5 * (lo + hi)
+                f_mid = feasible_at(mid)
+                if f_mid:
+                    hi, feasible = mid, f_mid
+                else:
+                    lo = mid
         if not feasible:
             continue
         picks = [max(feasible, key=lambda c: c[4])]  # the construction: the largest margin
@@ -203,6 +273,45 @@ def _scan(tel, bundle, max_added, n_grid, n_radii, radius_step) -> list[Layout]:
         if radii >= n_radii or lay.obscuration_after - before > max_added:
             break
     return out
+
+
+def within_budget(tel, bundle, max_added: float, n_grid: int = 240) -> Layout | None:
+    """The widest skirt whose layout adds at most ``max_added`` obscuration, with the tube that leaves the
+    least of the direct view open (largest slack, negative: condition (3) fails); None when even the
+    narrowest skirt does not fit. For a sunshade to close what the skirt leaves open."""
+    R = tel.aperture_radius_mm
+    margin = margin_mm(R)
+    options, tube_bottom = _options(tel, bundle, n_grid)
+    before = obscuration(tel, bundle, None)
+
+    def best(r):
+        opts = options(r)
+        if not opts:
+            return None
+        lay = _layout(tel, max(opts, key=lambda c: c[4]), tube_bottom, margin)
+        lay.obscuration_before = before
+        lay.obscuration_after = obscuration(tel, bundle, lay)
+        return lay if lay.obscuration_after - before <= max_added else None
+
+    good, lo, hi = None, None, None
+    for r in np.linspace(tel.secondary_outer_mm, R, n_grid):
+        lay = best(float(r))
+        if lay is None and good is not None:
+            hi = float(r)
+            break
+        if lay is not None:
+            good, lo = lay, float(r)
+    if good is None or lo is None:
+        return None
+    if hi is not None:  # bisect the budget's edge between the grid's radii
+        for _ in range(8):
+            mid = 0.5 * (lo + hi)
+            lay = best(mid)
+            if lay is not None:
+                good, lo = lay, mid
+            else:
+                hi = mid
+    return good
 
 
 def construct(tel, bundle, max_added: float = 0.05, n_grid: int = 240) -> Layout:
@@ -222,22 +331,25 @@ def candidates(tel, bundle, max_added: float = 0.05, n_grid: int = 240, n_radii:
     if fits:
         return fits
     if lays:
-        raise NoShieldError(
+        exc = NoShieldError(
             f"no shield blocks every direct path within the allowed obscuration: the smallest that does "
             f"adds {lays[0].obscuration_after - before:.4f} of the aperture area "
             f"(--max-added-obscuration {max_added:g})")
+        exc.smallest_added = lays[0].obscuration_after - before
+        raise exc
     raise NoShieldError("no shield blocks every direct path within the allowed obscuration: no skirt up to "
                         f"the aperture radius ({tel.aperture_radius_mm:.4g} mm) closes the view from the image to "
                         f"the sky (--max-added-obscuration {max_added:g})")
 
 
 def _layout(tel, cand, tube_bottom, margin) -> Layout:
-    r, usk, a, u, slack = cand
+    r, usk, a, u, slack, stop = cand
     rear_from = min(tel.image_u, tel.primary_rim_u) - 2 * margin
     return Layout(skirt_radius_mm=float(r), skirt_bottom_u=float(usk), tube_radius_mm=float(a),
                   tube_top_u=float(u), tube_bottom_u=float(tube_bottom), cap_u=float(tel.secondary_rim_u),
                   collar=bool(a < tel.primary_hole_mm), rear_radius_mm=float(tel.primary_outer_mm + margin),
-                  rear_from_u=float(rear_from), rear_to_u=float(tel.primary_rim_u), direct_margin_mm=float(slack))
+                  rear_from_u=float(rear_from), rear_to_u=float(tel.primary_rim_u), direct_margin_mm=float(slack),
+                  field_stop_radius_mm=None if stop is None else float(stop))
 
 
 def baffle_parts(tel, lay: Layout, material: str = "z302_sample_b") -> list[dict]:
@@ -264,6 +376,13 @@ def baffle_parts(tel, lay: Layout, material: str = "z302_sample_b") -> list[dict
                 "from_mm": vec(tel.point(lay.tube_bottom_u)), "to_mm": vec(tel.point(lay.tube_top_u)),
                 "surface": {"type": "cylinder", "vertex_mm": vec(tel.point(lay.tube_bottom_u)), "axis": ax,
                             "radius_mm": lay.tube_radius_mm, "length_mm": lay.tube_top_u - lay.tube_bottom_u}})
+    if lay.field_stop_radius_mm is not None:
+        outer = lay.tube_radius_mm + margin_mm(tel.aperture_radius_mm)  # overlaps the tube's wall: no gap
+        out.append({"name": "baffle_field_stop", "type": "field_stop", "shape": "annulus",
+                    "inner_radius_mm": lay.field_stop_radius_mm, "outer_radius_mm": outer,
+                    "center_mm": vec(tel.point(lay.tube_bottom_u)),
+                    "surface": {"type": "plane", "vertex_mm": vec(tel.point(lay.tube_bottom_u)), "axis": ax,
+                                "outer_radius_mm": outer, "inner_radius_mm": lay.field_stop_radius_mm}})
     if lay.collar:
         uc = tel.primary_hole_u - 1e-3
         outer = tel.primary_hole_mm + max(1e-3 * tel.aperture_radius_mm, 0.01)
@@ -271,6 +390,14 @@ def baffle_parts(tel, lay: Layout, material: str = "z302_sample_b") -> list[dict
                     "inner_radius_mm": lay.tube_radius_mm, "outer_radius_mm": outer, "center_mm": vec(tel.point(uc)),
                     "surface": {"type": "plane", "vertex_mm": vec(tel.point(uc)), "axis": ax,
                                 "outer_radius_mm": outer, "inner_radius_mm": lay.tube_radius_mm}})
+    sh = lay.sunshade
+    if sh is not None:
+        length = sh.to_u - sh.from_u
+        out.append({"name": "baffle_sunshade", "type": "sunshade", "shape": "cylinder",
+                    "radius_mm": sh.radius_mm, "length_mm": length,
+                    "from_mm": vec(tel.point(sh.from_u)), "to_mm": vec(tel.point(sh.to_u)),
+                    "surface": {"type": "cylinder", "vertex_mm": vec(tel.point(sh.from_u)), "axis": ax,
+                                "radius_mm": sh.radius_mm, "length_mm": length}})
     if lay.rear_to_u > lay.rear_from_u:
         out.append({"name": "baffle_rear", "type": "rear_enclosure", "shape": "cylinder",
                     "radius_mm": lay.rear_radius_mm, "length_mm": lay.rear_to_u - lay.rear_from_u,

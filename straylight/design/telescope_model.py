@@ -59,6 +59,8 @@ class Walk:
     parts: np.ndarray
     n_hits: np.ndarray
     detected: np.ndarray
+    directions: np.ndarray | None = None  # (n, 3) each ray's direction after its last hit
+    stopped: np.ndarray | None = None     # (n,) whether the ray ended on a part (not in free space)
 
 
 def walk(scene, materials, detector: str, o, d, max_hits: int = 8) -> Walk:
@@ -81,6 +83,7 @@ def walk(scene, materials, detector: str, o, d, max_hits: int = 8) -> Walk:
     nh = np.zeros(n, int)
     detected = np.zeros(n, bool)
     alive = np.ones(n, bool)
+    stopped = np.zeros(n, bool)
     last = np.full(n, -1)
     for k in range(max_hits):
         idx = np.flatnonzero(alive)
@@ -126,9 +129,11 @@ def walk(scene, materials, detector: str, o, d, max_hits: int = 8) -> Walk:
             if pi == det:
                 detected[rows[front]] = True
                 alive[rows] = False
+                stopped[rows] = True
             elif kind == "mirror":
                 d[rows[front]] = reflect(d[rows[front]], nrm[front])
                 alive[rows[~front]] = False
+                stopped[rows[~front]] = True
             elif kind == "glass":
                 nn = np.where(front[:, None], nrm, -nrm)
                 eta = np.where(front, 1.0 / index[pi], index[pi])
@@ -138,9 +143,12 @@ def walk(scene, materials, detector: str, o, d, max_hits: int = 8) -> Walk:
                 cos_t = np.sqrt(np.maximum(0.0, 1.0 - s2))
                 d[rows[~tir]] = refract(d[rows[~tir]], nn[~tir], eta[~tir], cos_t[~tir])
                 alive[rows[tir]] = False
+                stopped[rows[tir]] = True
             else:
                 alive[rows] = False
-    return Walk(verts, parts, nh, detected)
+                stopped[rows] = True
+    stopped |= alive  # still bouncing after max_hits: not known to escape
+    return Walk(verts, parts, nh, detected, d, stopped)
 
 
 @dataclass
