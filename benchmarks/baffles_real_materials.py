@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/baffles_real_materials.py [--target 0.03] [--angles-deg 2.8 5.2 7.6 10] [--out DIR]
 
-For each telescope of examples/telescopes/ (classical Cassegrain, Ritchey-Chretien), `straylight design
+For each telescope of examples/telescopes/ (classical Cassegrain, Ritchey-Chretien, Maksutov), `straylight design
 baffles` designs the shields; then `straylight pst` (the scene's own materials: aluminium mirrors with 2 nm rms
 roughness, z302 shields) traces
 
@@ -27,7 +27,7 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-TELESCOPES = [("cassegrain.toml", 0.2), ("ritchey_chretien.toml", 0.1)]
+TELESCOPES = [("cassegrain.toml", 0.2), ("ritchey_chretien.toml", 0.1), ("maksutov_cassegrain.toml", 0.25)]
 
 
 def _straylight(*args) -> None:
