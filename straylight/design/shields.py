@@ -38,12 +38,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from straylight.design.sunshade import Sunshade
 
 
 class NoShieldError(ValueError):
@@ -106,6 +102,17 @@ def _nanmin(x, default=math.inf):
 
 
 @dataclass
+class Sunshade:
+    """A cylinder about the axis from the front of the telescope (built by straylight.design.sunshade)."""
+
+    radius_mm: float
+    from_u: float
+    to_u: float
+    angles_deg: tuple[float, float]  # the sky angles of the lines it stops (least, steepest)
+    lines: int                       # open lines followed (those the telescope itself does not stop)
+
+
+@dataclass
 class Layout:
     skirt_radius_mm: float
     skirt_bottom_u: float
@@ -119,7 +126,7 @@ class Layout:
     rear_to_u: float
     direct_margin_mm: float
     field_stop_radius_mm: float | None = None  # inner radius of the annulus at the tube's bottom
-    sunshade: Sunshade | None = None  # straylight.design.sunshade.Sunshade: closes what the skirt leaves open
+    sunshade: Sunshade | None = None  # built by straylight.design.sunshade: closes what the skirt leaves open
     obscuration_before: float = 0.0
     obscuration_after: float = 0.0
     notes: list = field(default_factory=list)

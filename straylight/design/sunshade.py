@@ -17,9 +17,9 @@ look exactly there.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+
+from straylight.design.shields import Sunshade, apertures, margin_mm, max_exit
 
 LENGTH_MARGIN = 0.02  # of the shade's length, for the grid's spacing and the glass's 3-D (skew) refraction
 MAX_LENGTH_DIAMETERS = 8.0  # longer than this many aperture diameters is no sunshade: refuse instead
@@ -29,20 +29,9 @@ class SunshadeError(ValueError):
     """No sunshade closes the open lines (one-line message)."""
 
 
-@dataclass
-class Sunshade:
-    radius_mm: float
-    from_u: float
-    to_u: float
-    angles_deg: tuple[float, float]  # the sky angles of the lines it stops (least, steepest)
-    lines: int                       # open lines followed (those the telescope itself does not stop)
-
-
 def open_lines(tel, lay, n: int = 25) -> tuple[np.ndarray, np.ndarray]:
     """Meridional lines from the image up the tube that pass outside the skirt's mouth: (y at the mouth,
     slope dy/du), a grid over y at the tube's rim x y at the mouth, plus the least steep line exactly."""
-    from straylight.design.shields import apertures, margin_mm, max_exit
-
     aps = apertures(tel, lay.tube_bottom_u, lay.tube_radius_mm, lay.tube_top_u, lay.field_stop_radius_mm)
     u_p, a, u_s = lay.tube_top_u, lay.tube_radius_mm, lay.skirt_bottom_u
     r_open = lay.skirt_radius_mm - margin_mm(tel.aperture_radius_mm)  # the construction's own margin
@@ -98,7 +87,6 @@ def _beam_radius(bundle, u_from, u_to) -> float:
 
 def construct(setup, tel, bundle, lay) -> Sunshade | None:
     """The sunshade that stops the lines ``lay`` leaves open (None when it leaves none open)."""
-    from straylight.design.shields import margin_mm
     from straylight.design.telescope_model import walk
 
     ys, slopes = open_lines(tel, lay)
