@@ -53,6 +53,12 @@ def write_report(out, design, setup_after, tel) -> None:
                                 ", ".join(f"{k} {v:.4g}" for k, v in p.items() if k.endswith("_mm") and
                                           isinstance(v, float))]) for p in design["baffles"])
     thr = dc["on_axis_throughput_ratio"]
+    sh = design.get("sunshade")
+    shade_note = "" if not sh else (
+        f"<p>No skirt within the allowed obscuration closes every direct path: the widest that fits leaves lines "
+        f"open at {sh['stops_angles_deg'][0]:.2f}-{sh['stops_angles_deg'][1]:.2f} deg, which the sunshade "
+        f"(radius {sh['radius_mm']:.4g} mm, {sh['length_mm']:.4g} mm long, clear of the field's beam) stops; "
+        f"the check below includes those angles.</p>")
     page = f"""<!DOCTYPE html><html><head><meta charset="utf-8"><title>Telescope baffles</title></head><body>
 <h1>Light shields of the two-mirror telescope</h1>
 <p>Primary <b>{html.escape(tel.primary)}</b>, secondary <b>{html.escape(tel.secondary)}</b>, image
@@ -67,6 +73,7 @@ STEP: {html.escape(str(design['step']))}.</p>
 </table>
 <h2>Shields</h2><table border=1 cellpadding=3><tr><th>part</th><th>type</th><th>shape</th><th>dimensions (mm)</th></tr>
 {baffle_rows}</table>
+{shade_note}
 <h2>Direct-path check (perfect mirrors, all else absorbing): power on the image, W</h2>
 <p>Direct: paths that did not reflect from the primary and then the secondary. All: every path (at 2F the
 edge of the nominal image may still fall on the image disk).</p>
