@@ -7,6 +7,8 @@
    rear enclosure) that closes every straight line from the image to the sky, and a few wider-skirt or
    shorter-tube variants within the budget; :func:`refine` (``refine_rays`` > 0) traces them all with the
    scene's materials and common random numbers and keeps the lowest PST.
+   When none fits the budget, :func:`with_sunshade` keeps the widest skirt that does and
+   :mod:`straylight.design.sunshade` adds a sunshade in front that stops the steep lines it leaves open.
 4. The designed scene is checked by the project's Monte Carlo tracer: with perfect mirrors and every
    other part an absorber (glass keeps refracting), the detector power from 2F to 10 deg must be 0
    (the *direct-path check*; before the shields it is usually not), and the on-axis throughput is
