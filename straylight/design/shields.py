@@ -373,11 +373,17 @@ def baffle_parts(tel, lay: Layout, material: str = "z302_sample_b") -> list[dict
                 "surface": {"type": "cylinder", "vertex_mm": vec(tel.point(lay.skirt_bottom_u)), "axis": ax,
                             "radius_mm": lay.skirt_radius_mm, "length_mm": lay.cap_u - lay.skirt_bottom_u}})
     if lay.skirt_radius_mm > tel.secondary_outer_mm + 1e-9:
+        # a spot on a corrector: the glass around it meets the cap's plane at the rim, and a ray leaving the
+        # glass there starts within the tracer's self-intersection offset of the cap and would skip it; the
+        # cap sits a quarter of the clearance lower and overlaps the spot's and the skirt's edges by a quarter
+        # of that (closed for lines within 14 deg of the axis; the lines up the tube are steeper than 6 deg only
+        # in telescopes far faster than f/4)
+        seam = 0.25 * margin_mm(tel.aperture_radius_mm) if tel.extra.get("secondary_on_glass") else 0.0
+        cap_u, r_in, r_out = lay.cap_u - seam, tel.secondary_outer_mm - 0.25 * seam, lay.skirt_radius_mm + 0.25 * seam
         out.append({"name": "baffle_secondary_cap", "type": "secondary_cap", "shape": "annulus",
-                    "inner_radius_mm": tel.secondary_outer_mm, "outer_radius_mm": lay.skirt_radius_mm,
-                    "center_mm": vec(tel.point(lay.cap_u)),
-                    "surface": {"type": "plane", "vertex_mm": vec(tel.point(lay.cap_u)), "axis": ax,
-                                "outer_radius_mm": lay.skirt_radius_mm, "inner_radius_mm": tel.secondary_outer_mm}})
+                    "inner_radius_mm": r_in, "outer_radius_mm": r_out, "center_mm": vec(tel.point(cap_u)),
+                    "surface": {"type": "plane", "vertex_mm": vec(tel.point(cap_u)), "axis": ax,
+                                "outer_radius_mm": r_out, "inner_radius_mm": r_in}})
     out.append({"name": "baffle_primary", "type": "primary_tube", "shape": "cylinder",
                 "radius_mm": lay.tube_radius_mm, "length_mm": lay.tube_top_u - lay.tube_bottom_u,
                 "from_mm": vec(tel.point(lay.tube_bottom_u)), "to_mm": vec(tel.point(lay.tube_top_u)),

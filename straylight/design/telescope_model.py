@@ -274,6 +274,12 @@ def identify(setup, n_rays: int = 801) -> Telescope:
         secondary_rim_u=_rim_u(S.surface, float(S.surface.outer_radius_mm), origin, axis),
         aperture_radius_mm=float(yy.max()), beam_axis=b, beam_center=c, beam_radius_mm=float(beam.radius_mm))
     tel.extra["indices"] = (ip, isec, scene.part_names.index(D.name))
+    # a spot secondary on a corrector (Maksutov, Schmidt-Cassegrain): a glass surface shares its vertex
+    tel.extra["secondary_on_glass"] = any(
+        kinds[k] == "glass" and p.surface is not None and hasattr(p.surface, "vertex_mm")
+        and float(np.linalg.norm(np.asarray(p.surface.vertex_mm, float) - np.asarray(S.surface.vertex_mm, float)))
+        <= 1e-6 * max(tel.aperture_radius_mm, 1.0)
+        for k, p in enumerate(scene.parts))
     return tel
 
 

@@ -134,6 +134,11 @@ def test_maksutov_skirt_within_the_budget_and_a_sunshade(tmp_path):
     assert kept >= 0.95  # the construction's own count (exact meridional fan)
     types = {b["type"] for b in d["baffles"]}
     assert {"secondary_skirt", "primary_tube", "field_stop", "sunshade"} <= types
+    # the spot sits on the meniscus's back: the cap is below its rim, overlapping its edge, so a ray leaving
+    # the glass next to the spot does not start within the tracer's self-intersection offset of the cap
+    cap = next(b for b in d["baffles"] if b["type"] == "secondary_cap")
+    assert cap["center_mm"][2] > 6.723 + 0.01  # the spot's rim plane is z = 6.723 mm; light goes +z
+    assert cap["inner_radius_mm"] < d["telescope"]["secondary_outer_radius_mm"]
     shade = next(b for b in d["baffles"] if b["type"] == "sunshade")
     assert shade["radius_mm"] > 43.1  # clear of the aperture: it takes no on-axis light
     dc = d["direct_check"]
