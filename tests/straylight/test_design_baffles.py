@@ -174,18 +174,23 @@ def test_no_shield_within_the_budget_says_so_in_one_line(tmp_path, capsys):
     assert not (out / "design.json").exists()
 
 
-@pytest.mark.slow
-def test_imported_questar(tmp_path):
-    """The lens file itself (ray-optics' questar35.seq through `optics import`): a skirt within the budget
-    and a sunshade, no direct path 2F..10 deg, 95 % of the on-axis light kept."""
-    lens = Path(__file__).resolve().parents[1] / "data" / "lenses" / "ray-optics" / "questar35.seq"
+def _designed_from_lens_file(tmp_path, name: str, field_deg: str, rays: str):
+    """(out folder, design.json) of `design baffles` on ray-optics' lens file ``name`` through `optics import`."""
+    lens = Path(__file__).resolve().parents[1] / "data" / "lenses" / "ray-optics" / name
     if not lens.exists():
         pytest.skip("lens corpus not present")
     assert main(["optics", "import", str(lens), "--out", str(tmp_path / "imp")]) == 0
     out = tmp_path / "out"
-    assert main(["design", "baffles", str(tmp_path / "imp" / "scene.toml"), "--field-deg", "0.25", "--rays", "3000",
+    assert main(["design", "baffles", str(tmp_path / "imp" / "scene.toml"), "--field-deg", field_deg, "--rays", rays,
                  "--no-refine", "--no-step", "--out", str(out)]) == 0
-    d = json.loads((out / "design.json").read_text())
+    return out, json.loads((out / "design.json").read_text())
+
+
+@pytest.mark.slow
+def test_imported_questar(tmp_path):
+    """The lens file itself (ray-optics' questar35.seq through `optics import`): a skirt within the budget
+    and a sunshade, no direct path 2F..10 deg, 95 % of the on-axis light kept."""
+    out, d = _designed_from_lens_file(tmp_path, "questar35.seq", "0.25", "3000")
     dc = d["direct_check"]
     kept = (1 - d["obscuration_after"]) / (1 - d["obscuration_before"])
     assert dc["blocked"] and kept >= 0.95
@@ -199,14 +204,7 @@ def test_imported_ritchey_chretien(tmp_path):
     """The lens file itself (ray-optics' rc_f16.seq through `optics import`; its source sits 1 mm in front
     of the secondary's edge, and is moved upstream where a skirt would enclose it); the direct paths the
     bare telescope has at 7.6-10 deg are closed, 95 % of the on-axis light is kept."""
-    lens = Path(__file__).resolve().parents[1] / "data" / "lenses" / "ray-optics" / "rc_f16.seq"
-    if not lens.exists():
-        pytest.skip("lens corpus not present")
-    assert main(["optics", "import", str(lens), "--out", str(tmp_path / "imp")]) == 0
-    out = tmp_path / "out"
-    assert main(["design", "baffles", str(tmp_path / "imp" / "scene.toml"), "--field-deg", "0.15", "--rays", "8000",
-                 "--no-refine", "--no-step", "--out", str(out)]) == 0
-    d = json.loads((out / "design.json").read_text())
+    _, d = _designed_from_lens_file(tmp_path, "rc_f16.seq", "0.15", "8000")
     assert d["telescope"]["primary"] == "s1" and d["telescope"]["secondary"] == "s2"
     assert isinstance(d["sources_moved"], list)
     dc = d["direct_check"]
