@@ -116,3 +116,27 @@ def test_a_file_output_that_is_the_commands_own_input_is_refused(cmd, dest, tmp_
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and ("own inputs" in err or "not a folder" in err or "is a file" in err), err
     assert input_file.read_bytes() == before
+
+
+def test_a_device_output_is_refused(tmp_path, monkeypatch, capsys):
+    """A character or block device (``--json /dev/null`` as root replaced the real device): refused in one line.
+    CI never touches /dev: the path's lstat reports a character device."""
+    import stat as stat_mod
+
+    fake = tmp_path / "device.json"
+    fake.write_text("")
+    real_lstat = os.lstat
+
+    class DeviceStat:
+        def __init__(self, st):
+            self._st = st
+            self.st_mode = stat_mod.S_IFCHR | 0o666
+
+        def __getattr__(self, name):
+            return getattr(self._st, name)
+
+    monkeypatch.setattr(os, "lstat", lambda p, *a, **k: DeviceStat(real_lstat(p, *a, **k))
+                        if os.fspath(p) == os.fspath(fake) else real_lstat(p, *a, **k))
+    capsys.readouterr()
+    assert main(["material", "show", "z302_sample_b", "--json", str(fake)]) == 2
+    _one_line(capsys, "a device", str(fake))
