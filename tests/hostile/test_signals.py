@@ -19,13 +19,20 @@ from tests.hostile.conftest import scene_text
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def _terminal_sigint():
+    """The child starts with SIGINT as a terminal gives it (default action). A test process may run with SIGINT
+    ignored (a pytest-xdist worker after some tests); an ignored SIGINT is inherited across exec, and Python then
+    installs no KeyboardInterrupt handler: the CI run of 2026-12-05 saw traces ignore the signal and exit 0."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt_trace(tmp_path, delay_s: float, rays: str = "3e7", extra=()):
     scene = tmp_path / "scene.toml"
     scene.write_text(scene_text())
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen([sys.executable, "-m", "straylight.cli.main", "trace", str(scene), "--rays", rays,
                              "--json", str(tmp_path / "out.json"), *extra], cwd=tmp_path, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_terminal_sigint)
     time.sleep(delay_s)
     proc.send_signal(signal.SIGINT)
     try:
