@@ -100,7 +100,7 @@ def _one_telescope(name: str, field: float, a, work: Path) -> None:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         from results_md import write_section
 
-        write_section(f"baffles_real_materials ({name.removesuffix('.toml')})", "\n".join(lines))
+        write_section("baffles_real_materials", "\n".join(lines), name_suffix=name.removesuffix(".toml"))
         print("written benchmarks/RESULTS.md", flush=True)
 
 

@@ -78,12 +78,9 @@ def main(argv=None) -> int:
                      f"{'yes' if r['stop_reason'] == 'target' else 'no (' + str(r['stop_reason']) + ')'} | "
                      f"{r['rays']:.3g} | {r['cpu_s']:.1f} | {r['cpu_s'] * scale:.1f} | {r['rel_error']:.2%} | "
                      f"{r['vov'] if r['vov'] is not None else math.nan:.3g} | {r['pst']:.4g} |")
-    text = "\n".join(lines)
-    print(text)
-    if not args.no_write:
-        from results_md import write_section
+    from results_md import publish
 
-        write_section("guide_scope_pst", text)
+    publish("guide_scope_pst", "\n".join(lines), write=not args.no_write)
     return 0
 
 

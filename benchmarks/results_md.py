@@ -32,3 +32,10 @@ def write_section(name: str, body: str, path: Path = RESULTS, name_suffix: str =
         text = text.rstrip() + "\n\n" + section + "\n"
     atomicio.write_text(path, text)
     return path
+
+
+def publish(name: str, text: str, write: bool = True, name_suffix: str = "") -> None:
+    """Print a benchmark's table and, unless ``write`` is false (``--no-write``), put it in its section."""
+    print(text, flush=True)
+    if write:
+        write_section(name, text, name_suffix=name_suffix)

@@ -79,11 +79,9 @@ def main(argv=None) -> int:
               f"seen edge face (x{ms / mf:.0f} over square edges at this count); moving vanes along z or changing "
               "the bevel angle or side then only shifts that edge-and-face residual by ~10 % (the table above). "
               "Hole radii are kept on the field envelope: a larger hole uncovers wall, a smaller one vignettes F."]
-    text = "\n".join(lines)
-    print(text)
-    if not args.no_write:
-        from results_md import write_section
-        write_section("vane_optimiser", text)
+    from results_md import publish
+
+    publish("vane_optimiser", "\n".join(lines), write=not args.no_write)
     return 0
 
 
