@@ -131,7 +131,7 @@ def test_a_model_glass_given_by_its_numbers(tmp_path):
     from straylight.optics.reader import _model_glass
 
     code = _model_glass("517642")
-    assert code is not None and (code.nd, code.vd) == (1.517, 64.2)
+    assert code is not None and (code.n, code.v) == (1.517, 64.2)
     assert _model_glass("N-BK7") is None and _model_glass("999:0.1") is None
 
 

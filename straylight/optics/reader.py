@@ -355,9 +355,7 @@ def _model_glass(name: str):
         nd, vd = 1.0 + int(m.group(1)) / 1000.0, int(m.group(2)) / 10.0
     if not (1.0 < nd < 4.0 and 5.0 <= vd <= 120.0):
         return None
-    glass = ModelGlass(nd, vd, name.strip())
-    glass.nd, glass.vd = nd, vd
-    return glass
+    return ModelGlass(nd, vd, name.strip())
 
 
 def _substitutions(info) -> list[str]:
@@ -429,7 +427,7 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
                     notes.append(note)
             elif model is not None:
                 gap.medium = model
-                note = (f"glass {gname} read as a model glass nd {model.nd:g}, vd {model.vd:g} (opticalglass' ModelGlass, "
+                note = (f"glass {gname} read as a model glass nd {model.n:g}, vd {model.v:g} (opticalglass' ModelGlass, "
                         "as rayoptics reads Zemax model glasses)")
                 if note not in notes:
                     notes.append(note)
