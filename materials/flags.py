@@ -4,7 +4,9 @@ The tracer chooses how a surface interacts from these flags, never from componen
 names (straylight.engine.interactions.registry). The same idea as Mitsuba 3's ``BSDFFlags``
 (``include/mitsuba/render/bsdf.h``) and pbrt-v4's ``BxDFFlags`` (``src/pbrt/bxdfs.h``): a
 component says whether it is a smooth (delta) interface, a diffuse or glossy scatter lobe,
-whether it transmits, polarizes, emits or diffracts; a material is the union of its components'.
+whether it transmits or polarizes; a material is the union of its components'. Every flag here is
+read by the tracer (a flag nobody reads is not declared: emission is every absorbing side's, by
+Kirchhoff, and edge diffraction is a part's, not a component's).
 
 A component class declares ``flags = ComponentFlags.X | ComponentFlags.Y`` (a class attribute or
 a property); :func:`materials.registry.register` refuses a class without it. A new kind of
@@ -25,8 +27,6 @@ class ComponentFlags(enum.IntFlag):
     DELTA_REFLECTION = 4  # a smooth reflecting interface (a Dirac lobe: no pdf, no NEE)
     DELTA_TRANSMISSION = 8  # a smooth transmitting (refracting) interface
     POLARIZING = 16  # its coefficients depend on or change the polarization (Fresnel s/p)
-    EMITTING = 32  # radiates (thermal emission, Kirchhoff)
-    DIFFRACTING = 64  # diffracts (gratings, edges)
 
     SCATTER = DIFFUSE | GLOSSY
     DELTA = DELTA_REFLECTION | DELTA_TRANSMISSION
