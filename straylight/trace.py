@@ -28,10 +28,9 @@ from typing import Any
 
 from straylight.engine.backends.dask import ship_early
 from straylight.engine.compiled_scene import detector_samplers
-from straylight.engine.first_vertex import build_table
-from straylight.engine.second_vertex import build_table as build_critical_table
-from straylight.engine import entrance_sampling
 from straylight.engine.plan import resolve as resolve_plan
+from straylight.engine.strategies.base import TableTools
+from straylight.engine.strategies.registry import STRATEGIES
 from straylight.engine.options import (  # noqa: F401 - re-exported
     EstimatorOptions,
     OutputOptions,
@@ -98,21 +97,17 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
         spec = replace(spec, chunk_offset=ex.first_chunk)
     opt = spec.options
     plan = resolve_plan(options or TraceOptions(), spec, intersector)  # which strategies run, and why not
-    first = plan.runs("first_vertex")
-    second = plan.runs("second_vertex")
+    tabled = [s for s in STRATEGIES if s.table_field is not None and plan.runs(s.name)]  # in registry order
     # on dask, the workers get the spec and build their scenes while this process builds the tables
-    early = ship_early(ex.client, spec) if ex.client is not None and (first or second) else None
+    slow = any(s.table_ships_early for s in tabled)
+    early = ship_early(ex.client, spec) if ex.client is not None and slow else None
     rt = runtime()  # this process's compiled scene and kept tables
+    tools = TableTools(runtime=rt, intersector=intersector, run_batch=run_batch)
     try:
-        if first:
-            spec = replace(spec, vertex_table=rt.table("first", spec, lambda: build_table(spec, rt.scene(spec))))
-        if second:
-            spec = replace(spec, critical_table=rt.table(
-                "second", spec, lambda: build_critical_table(spec, rt.scene(spec, intersector)),
-                cache=intersector is None))
-        if plan.runs("entrance"):
-            spec = replace(spec, entrance_table=rt.table(
-                "entrance", spec, lambda: entrance_sampling.build_table(spec, run_batch, intersector), cache=intersector is None))
+        for strategy in tabled:  # each table sees the ones before it (the entrance pilot runs with them)
+            table = rt.table(strategy.table_key, spec, lambda s=strategy, sp=spec: s.build_table(sp, tools),
+                             cache=intersector is None)
+            spec = replace(spec, **{str(strategy.table_field): table})
     except BaseException:
         if early is not None:
             early.release()

@@ -65,11 +65,13 @@ class Branches:
 
 class DeltaChains:
     """Per batch: each ray's count of interface branches (reflection or transmission at a
-    ``DELTA_CHAIN`` part) since its run of them started (0: not in a run)."""
+    ``DELTA_CHAIN`` part) since its run of them started (0: not in a run); ``splits``: per part, its
+    kind declares ``DELTA_CHAIN`` (a continuing hit elsewhere ends the run)."""
 
-    def __init__(self, n_rays_in_batch, max_interfaces):
+    def __init__(self, n_rays_in_batch, max_interfaces, splits=None):
         self.run = np.zeros(n_rays_in_batch, dtype=np.int64)
         self.k_max = int(max_interfaces)
+        self.splits = splits
 
     # ------------------------------------------------------------------ the walk's side
 

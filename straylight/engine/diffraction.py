@@ -27,7 +27,6 @@ import numpy as np
 from geometry.analytic import Plane
 from geometry.edges import sharp_edges
 from straylight.engine.edge_index import EdgeTable, band_prisms, edge_table, passages
-from straylight.engine.estimators import without_diffraction_blind
 from straylight.engine.hurb import GAMMA, deflect, tan_sigma
 from straylight.engine.options import TraceError
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_DIFFRACTION, RayBatch
@@ -293,12 +292,3 @@ def next_event(diff: Diffraction, scene, bent: RayBatch, skip, vertex: BentVerti
 
 def describe_method(gamma: float = GAMMA) -> str:
     return f"{METHOD}, gamma = {gamma:.3f}" if not math.isclose(gamma, GAMMA) else METHOD
-
-
-def vertex_strategies_off(options, diff: Diffraction | None):
-    """The strategies that do not see diffraction (straylight.engine.estimators: first- and
-    second-vertex sampling join vertices by straight shadow rays that do not know the edges) are
-    turned off when a part diffracts; NEE, target MIS and the walk see every path."""
-    if diff is None:
-        return options
-    return without_diffraction_blind(options)

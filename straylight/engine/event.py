@@ -2,7 +2,7 @@
 (:class:`Outgoing`). Built by the walk (straylight.engine.walk) once per event."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -34,8 +34,8 @@ def combined_outgoing(n: int, parts) -> Outgoing:
     out = Outgoing(direction=np.empty((n, 3)), throughput=np.empty(n), pdf_per_sr=np.empty(n),
                    event=np.empty(n, dtype=np.int8), side=np.empty(n, dtype=np.int8))
     for selection, part in parts:
-        for field, value in zip(out, part):
-            field[selection] = value
+        for column, value in zip(out, part):
+            column[selection] = value
     return out
 
 
@@ -56,12 +56,31 @@ class Event:
     hits: object  # straylight.engine.hits.Hits
     uniforms: np.ndarray  # (live rays, columns.width)
     columns: object  # straylight.engine.draws.EventColumns
-    first_vertex: object = None  # straylight.engine.first_vertex.FirstVertexWeights or None
-    second_vertex: object = None  # straylight.engine.second_vertex.SecondVertexShares or None
-    reflection_split: object = None  # straylight.engine.reflection_split.ReflectionSplit or None
-    delta_chain: object = None  # straylight.engine.delta_chain.DeltaChains or None
     capabilities: object = None  # straylight.engine.interactions.registry.PartCapabilities of the parts
+    #: the per-batch states of the strategies running in this batch, by their ``state_key``
+    #: (straylight.engine.strategies.base.Strategy.batch_state); a strategy not running has none
+    states: dict = field(default_factory=dict)
     shadow_rays: int = 0  # shadow rays cast by the interactions in this event
+
+    @property
+    def first_vertex(self):
+        """straylight.engine.first_vertex.FirstVertexWeights, or None."""
+        return self.states.get("first_vertex")
+
+    @property
+    def second_vertex(self):
+        """straylight.engine.second_vertex.SecondVertexShares (second-vertex lobe sampling), or None."""
+        return self.states.get("second_vertex")
+
+    @property
+    def reflection_split(self):
+        """straylight.engine.reflection_split.ReflectionSplit, or None."""
+        return self.states.get("reflection_split")
+
+    @property
+    def delta_chain(self):
+        """straylight.engine.delta_chain.DeltaChains, or None."""
+        return self.states.get("delta_chain")
 
     def vertex_rows(self, selection) -> np.ndarray:
         """Rows (into the event's per-ray arrays) of the continuing hits ``selection``."""

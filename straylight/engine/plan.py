@@ -1,17 +1,17 @@
-"""Which of the requested strategies run on one trace, decided once (docs/engine.md, "Strategy plan").
+"""Which of the requested strategies run on one trace, decided once (docs/engine.md, "Strategies").
 
-A strategy (a row of :data:`straylight.engine.estimators.ESTIMATORS`) is *requested* when every
-switch it sets is on in the options the caller gave; it *runs* unless the scene or the sources rule
-it out, and then the plan says why in one line instead of dropping it silently:
+A strategy (straylight.engine.strategies.registry.STRATEGIES) is *requested* when every switch it sets
+is on in the options the caller gave; it *runs* unless the scene or the sources rule it out, and then
+the plan says why in one line instead of dropping it silently. The plan asks, in order:
 
-- a part diffracts and the strategy does not see diffracting edges (its straight shadow rays or
-  vertex links do not know them);
-- there is no detector part (every strategy but the walk connects to a detector);
-- first-vertex sampling under a caller's own intersector (its table is built on embree);
-- second-vertex sampling on polarized light (:func:`straylight.engine.second_vertex.unsupported`);
-- entrance sampling with more than one source (its table is over one source's uniforms).
+- its declaration: a part diffracts and the strategy does not see diffracting edges
+  (``Estimator.diffraction``: its straight shadow rays or vertex links do not know them); there is no
+  detector part and it connects to one (``Strategy.needs_detector``);
+- the strategy itself (:meth:`Strategy.rules_out <straylight.engine.strategies.base.Strategy.rules_out>`:
+  first-vertex sampling under a caller's own intersector, second-vertex sampling on polarized light,
+  entrance sampling with more than one source, ...).
 
-:func:`straylight.trace.trace` builds its tables from :meth:`StrategyPlan.runs` and returns the plan
+:func:`straylight.trace.trace` builds the tables of :meth:`StrategyPlan.runs` and returns the plan
 with its result (``TraceResult.strategies``; ``straylight trace --json`` writes it as
 ``strategies``). The kinds' per-part capabilities (which parts NEE or the chains act on) stay with
 the kinds (straylight.engine.interactions).
@@ -20,9 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from straylight.engine import entrance_sampling
-from straylight.engine.estimators import ESTIMATORS, Estimator
-from straylight.engine.second_vertex import unsupported as second_vertex_unsupported
+from straylight.engine.strategies.base import Estimator, Strategy
+from straylight.engine.strategies.registry import STRATEGIES
 
 
 @dataclass(frozen=True)
@@ -60,31 +59,28 @@ def _on(value, wanted) -> bool:
     return value == wanted
 
 
+def why_off(strategy: Strategy, spec, intersector=None) -> str | None:
+    """Why ``strategy`` cannot run on ``spec`` traced with ``intersector``: its declared flags first,
+    then its own :meth:`~straylight.engine.strategies.base.Strategy.rules_out`; None when it can."""
+    if spec.diffraction is not None and not strategy.estimator.diffraction:
+        return "a part diffracts and this strategy's links do not see diffracting edges"
+    if strategy.needs_detector and len(spec.detector_parts) == 0:
+        return "the scene has no detector part"
+    return strategy.rules_out(spec, intersector)
+
+
 def resolve(requested_options, spec, intersector=None) -> StrategyPlan:
     """The plan for ``spec`` (built by :func:`straylight.engine.spec.make_spec` from
     ``requested_options``, the caller's TraceOptions) traced with ``intersector`` (None: embree)."""
     asked = requested_options.estimator
-    diffracts = spec.diffraction is not None
-    detectors = len(spec.detector_parts) > 0
     on: list[str] = []
     off: list[tuple[str, str]] = []
-    for est in ESTIMATORS:
-        if not requested(est, asked):
+    for strategy in STRATEGIES:
+        if not requested(strategy.estimator, asked):
             continue
-        why = None
-        if diffracts and not est.diffraction:
-            why = "a part diffracts and this strategy's links do not see diffracting edges"
-        elif not detectors and est.name != "entrance":
-            why = "the scene has no detector part"
-        elif est.name.startswith("first_vertex") and intersector is not None:
-            why = "its table is built on embree, and this trace has its own intersector"
-        elif est.name.startswith("second_vertex"):
-            why = second_vertex_unsupported(spec)
-        elif est.name == "entrance" and not entrance_sampling.applies(spec):
-            why = "it needs exactly one source and a detector part"
+        why = why_off(strategy, spec, intersector)
         if why is None:
-            on.append(est.name)
+            on.append(strategy.name)
         else:
-            off.append((est.name, why))
+            off.append((strategy.name, why))
     return StrategyPlan(tuple(on), tuple(off))
-

@@ -191,10 +191,12 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
         raise TraceError(str(exc)) from None
     part_material, models = resolve_materials(scene, materials)
     _check_targets(scene, options)
-    from straylight.engine.diffraction import scene_diffraction, vertex_strategies_off
+    from straylight.engine.diffraction import scene_diffraction
+    from straylight.engine.estimators import without_diffraction_blind
 
     diffraction = scene_diffraction(scene, sources, models, options)
-    options = vertex_strategies_off(options, diffraction)
+    if diffraction is not None:  # the strategies that do not see diffracting edges are turned off
+        options = without_diffraction_blind(options)
     if options.estimator.first_vertex_sampling:
         from straylight.engine.first_vertex import unsupported
 

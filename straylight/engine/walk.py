@@ -14,9 +14,7 @@ from straylight.engine.advance import ADVANCE_WRITES_PER_RAY, next_rays
 from straylight.engine import diffraction as diffraction_step
 from straylight.engine.draws import event_columns, event_uniforms
 from straylight.engine.emission import emit_batch
-from straylight.engine.entrance_sampling import EntranceWeights
 from straylight.engine.event import Event, combined_outgoing
-from straylight.engine.first_vertex import FirstVertexWeights, run_vertex_pass
 from straylight.engine.hits import HITS_WRITES_PER_RAY, Hits
 from straylight.engine.interactions import Capability, PartCapabilities, part_kinds
 from straylight.engine.kernel_sets import COMPILED, NUMPY
@@ -24,10 +22,9 @@ from straylight.engine.options import TraceError, walk_settings
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
 from straylight.engine.ray_log import RayLogger
 from straylight.engine.runtime import runtime
-from straylight.engine.reflection_split import ReflectionSplit
-from straylight.engine.delta_chain import DeltaChains
-from straylight.engine.second_vertex import SecondVertexShares
 from straylight.engine.spec import TraceSpec
+from straylight.engine.strategies.base import BatchContext
+from straylight.engine.strategies.registry import STRATEGIES
 from straylight.engine.tallies import DetectorRecords, batch_sums
 from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS
@@ -93,18 +90,19 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
     columns = event_columns(rows.n_detectors, opt.estimator.nee_samples, scene.target is not None,
                             spec.critical_table is not None, second_lobe)
     ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
-    start = EntranceWeights(spec, w0, tallies, rows) if spec.entrance_table is not None else None
-    rays = emitted_rays(*emit_batch(spec, draws, n, ubuf, start), w0 if start is None else start.weights,
-                        opt.output.path_depth, settings.record_paths)
     records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.output.map_bins),
                               settings.record_paths)
-    first_vertex = FirstVertexWeights(spec, spec.vertex_table, n) \
-        if spec.vertex_table is not None and rows.n_detectors > 0 else None
-    second_vertex = SecondVertexShares(n) if second_lobe and rows.n_detectors > 0 else None
-    reflection_split = ReflectionSplit(n) if opt.estimator.reflection_split and rows.n_detectors > 0 else None
-    delta_chain = DeltaChains(n, opt.estimator.delta_chain) \
-        if int(opt.estimator.delta_chain) > 0 and rows.n_detectors > 0 else None
-    splits = None if delta_chain is None else capabilities.parts(Capability.DELTA_CHAIN)
+    ctx = BatchContext(spec=spec, scene=scene, n_rays=n, start_weight_w=w0, tallies=tallies, rows=rows,
+                       records=records, capabilities=capabilities, first_chunk=first_chunk, stop_chunk=stop_chunk)
+    running = []  # (strategy, its state for this batch), in registry order
+    for strategy in STRATEGIES:
+        state = strategy.batch_state(ctx)
+        if state is not None:
+            running.append((strategy, state))
+    states = {s.state_key: state for s, state in running}
+    start = next((state for s, state in running if s.shapes_emission), None)  # e.g. entrance sampling
+    rays = emitted_rays(*emit_batch(spec, draws, n, ubuf, start), w0 if start is None else start.weights,
+                        opt.output.path_depth, settings.record_paths)
     logged = min(int(opt.output.ray_log) - first_chunk * CHUNK_RAYS, n)  # rays of this batch in the ray log
     ray_log = RayLogger(logged, first_chunk * CHUNK_RAYS, scene.arrays.part_roles) if logged > 0 else None
     segments = shadow_rays = 0
@@ -137,23 +135,16 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             ray_log.segments(ev, rays, tri, hit, scene.arrays.triangle_part)
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
-                      first_vertex=first_vertex, second_vertex=second_vertex, reflection_split=reflection_split,
-                      delta_chain=delta_chain,
-                      capabilities=capabilities)
+                      capabilities=capabilities, states=states)
         rec, rec_w = hit.detected, hit.detected_w
-        if len(rec) and first_vertex is not None:
-            rec, rec_w = first_vertex.share_single_scatter(event, rec, rec_w)
-        if len(rec) and second_vertex is not None:
-            rec, rec_w = second_vertex.share_after_vertex(event, rec, rec_w)
-        if len(rec) and reflection_split is not None:
-            rec, rec_w = reflection_split.share_after_reflection(event, rec, rec_w)
-        if len(rec) and delta_chain is not None:
-            rec, rec_w = delta_chain.share_after_chain(event, rec, rec_w)
+        for strategy, state in running:  # walk hits a strategy also counts keep their share
+            if len(rec):
+                rec, rec_w = strategy.share_walk_hits(state, event, rec, rec_w)
         if len(rec):
             _record_walk_hits(event, rec, rec_w)
         cont = hit.continuing
-        if delta_chain is not None:
-            delta_chain.leave_run(event, cont[~splits[hit.part[cont]]])
+        for strategy, state in running:
+            strategy.after_hits(state, event, cont)
         if len(cont) == 0:
             if bent is not None:
                 rays, skip = bent, bent_skip
@@ -172,9 +163,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             skip = np.full((len(rays.ray), 3), -1, dtype=np.int64)
             if bent is not None:
                 rays, skip = diffraction_step.merge(rays, skip, bent, bent_skip)
-    if first_vertex is not None:
-        shadow_rays += run_vertex_pass(spec, scene, spec.vertex_table, first_chunk, stop_chunk, tallies, rows, records,
-                                       settings.record_paths, int(opt.output.path_depth))
+    for strategy, state in running:
+        shadow_rays += strategy.after_walk(state, ctx)
     return batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays,
                       None if ray_log is None else ray_log.piece())
 

@@ -168,13 +168,13 @@ def test_two_stage_probe_table_agrees_with_plain_nee(monkeypatch):
 def test_tables_are_built_once_per_seed_and_reused_without_changing_numbers(monkeypatch):
     """The rounds of --target-rel-error trace the same scene, sources and seed again: the kept
     tables give exactly the numbers a fresh build gives."""
-    import straylight.trace as trace_module
+    from straylight.engine.strategies.second_vertex import SECOND_VERTEX
 
     scene, src = baffled_tube_scene(), _tube_source(30.0)
     opts = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True))
     built = []
-    real = trace_module.build_critical_table
-    monkeypatch.setattr(trace_module, "build_critical_table", lambda spec, comp: built.append(1) or real(spec, comp))
+    real = SECOND_VERTEX.build_table
+    monkeypatch.setattr(SECOND_VERTEX, "build_table", lambda spec, tools: built.append(1) or real(spec, tools))
     runtime().forget_tables()
     a = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts)
     b = trace(scene, src, 3000, seed=6, materials=BLACK, options=opts, execution=Execution(first_chunk=3))

@@ -1,0 +1,130 @@
+"""What a strategy is (docs/engine.md, "Strategies"): :class:`Estimator`, its declaration (name, the
+switches that turn it on, the interaction-kind capability it needs, flags), and :class:`Strategy`,
+the declaration with the hooks the rest of the engine calls:
+
+- :meth:`Strategy.rules_out` (straylight.engine.plan): why it cannot run on this trace, in one line;
+- :meth:`Strategy.build_table` (straylight.trace): the table it learns before the walk, stored on the
+  spec in :attr:`Strategy.table_field`;
+- :meth:`Strategy.batch_state` and the walk hooks (straylight.engine.walk): its per-batch state, handed
+  to the interactions on ``Event.states`` under :attr:`Strategy.state_key`, and what it does at fixed
+  points of each event (:meth:`~Strategy.share_walk_hits`, :meth:`~Strategy.after_hits`) and after the
+  batch's last event (:meth:`~Strategy.after_walk`).
+
+Every hook has a do-nothing default: a strategy overrides the ones it needs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar, NamedTuple
+
+from straylight.engine.capabilities import Capability
+from straylight.engine.options import EstimatorOptions
+
+#: the estimator options of the analog walk: no NEE, no vertex sampling, no target mixture
+ANALOG = EstimatorOptions(nee=False, first_vertex_sampling=False, second_vertex_sampling=False,
+                          vertex_lobe_sampling=False, second_vertex_lobe_sampling=False, reflection_split=False,
+                          delta_chain=0, target_parts=())
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """One strategy's declaration: its ``name``, the :class:`EstimatorOptions` that turn it on (the
+    analog walk :data:`ANALOG` with its switches set), the kind ``capability`` it needs, and whether
+    the numpy reference walk implements it (``reference``). ``target`` asks for the scene's flat
+    target part in ``target_parts``."""
+
+    name: str
+    options: EstimatorOptions
+    capability: Capability
+    reference: bool = True
+    target: bool = False
+    requires: tuple = field(default=())  # names of estimators it runs on top of
+    #: it sees edge diffraction (CONTRACTS §6.5): its shadow rays know the diffracting edges, or it only
+    #: picks directions the walk then follows; a strategy without it is turned off in traces that diffract
+    diffraction: bool = False
+
+    def switches(self) -> dict:
+        """The fields of :attr:`options` that differ from :data:`ANALOG` (what turns it on)."""
+        return {f.name: getattr(self.options, f.name) for f in fields(EstimatorOptions)
+                if getattr(self.options, f.name) != getattr(ANALOG, f.name)}
+
+
+class TableTools(NamedTuple):
+    """What :meth:`Strategy.build_table` may use: this process's ``runtime``
+    (straylight.engine.runtime.Runtime: ``runtime.scene(spec, intersector)``), the trace's ``intersector``
+    (None: embree) and the compiled walk ``run_batch`` (for pilot traces; passed in, since the walk
+    imports the strategies)."""
+
+    runtime: Any
+    intersector: Any
+    run_batch: Any
+
+
+class BatchContext(NamedTuple):
+    """What the walk builds a strategy's per-batch state from (straylight.engine.walk.walk)."""
+
+    spec: Any  # TraceSpec
+    scene: Any  # CompiledScene
+    n_rays: int  # rays in the batch
+    start_weight_w: float  # total power / n_rays
+    tallies: Any  # the batch's tally store
+    rows: Any  # TallyRows
+    records: Any  # DetectorRecords
+    capabilities: Any  # PartCapabilities of the parts
+    first_chunk: int
+    stop_chunk: int
+
+
+class Strategy:
+    """One variance-reduction strategy: its declaration (:attr:`estimator`) and its hooks. Subclasses set
+    the class attributes and override the hooks they need; the defaults do nothing."""
+
+    estimator: ClassVar[Estimator]
+    #: it connects to a detector (False: it acts before any detector is involved, e.g. at emission)
+    needs_detector: ClassVar[bool] = True
+    #: the TraceSpec field its table goes to (None: it has no table), and its key in the runtime's cache
+    table_field: ClassVar[str | None] = None
+    table_key: ClassVar[str] = ""
+    #: on dask, the workers start building their scenes while this process builds the table (a long build)
+    table_ships_early: ClassVar[bool] = False
+    #: the key of its per-batch state on ``Event.states`` (None: it has no per-batch state)
+    state_key: ClassVar[str | None] = None
+    #: its per-batch state reshapes emission (``emit_batch(..., on_uniforms=state)``, start weights
+    #: ``state.weights``); at most one strategy of a trace may
+    shapes_emission: ClassVar[bool] = False
+
+    @property
+    def name(self) -> str:
+        return self.estimator.name
+
+    def __repr__(self) -> str:
+        return f"<strategy {self.name}>"
+
+    # ------------------------------------------------------------------ the plan and the tables
+
+    def rules_out(self, spec, intersector) -> str | None:
+        """Why it cannot run on ``spec`` traced with ``intersector`` (None: embree), in one line; None
+        when it can. The plan checks the declared flags first (diffraction, a detector part)."""
+        return None
+
+    def build_table(self, spec, tools: TableTools) -> object:
+        """Its table for ``spec`` (only called when :attr:`table_field` is set and the plan runs it)."""
+        raise NotImplementedError(f"{self.name} declares no table")
+
+    # ------------------------------------------------------------------ the walk
+
+    def batch_state(self, ctx: BatchContext) -> object | None:
+        """Its state for one batch of the walk (None: it does nothing in this batch)."""
+        return None
+
+    def share_walk_hits(self, state, event, rec, rec_w):
+        """The walk's detector hits ``rec`` (rows of the event, weights ``rec_w``) that this strategy
+        also counts keep only their share (the rest to the NEE exchange); returns those still counted."""
+        return rec, rec_w
+
+    def after_hits(self, state, event, continuing) -> None:
+        """Called once per event after the hit stage with the continuing hits (rows of the event)."""
+
+    def after_walk(self, state, ctx: BatchContext) -> int:
+        """Called once after the batch's last event; returns the shadow rays it cast."""
+        return 0

@@ -1,0 +1,31 @@
+"""Runs of up to K interfaces into a detector (a singlet's two-reflection ghost) followed by splitting
+(straylight.engine.delta_chain): the interfaces start and extend the runs
+(``Event.states["delta_chain"]``); the walk's hits after 1..K interfaces of a run are dropped, and a
+continuing hit on a part that does not split ends its run."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from straylight.engine import delta_chain as impl
+from straylight.engine.capabilities import Capability
+from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy
+
+
+class DeltaChainStrategy(Strategy):
+    estimator = Estimator("delta_chain", replace(ANALOG, delta_chain=4), Capability.DELTA_CHAIN)
+    state_key = "delta_chain"
+
+    def batch_state(self, ctx: BatchContext) -> object | None:
+        k = int(ctx.spec.options.estimator.delta_chain)
+        if k <= 0 or ctx.rows.n_detectors == 0:
+            return None
+        return impl.DeltaChains(ctx.n_rays, k, ctx.capabilities.parts(Capability.DELTA_CHAIN))
+
+    def share_walk_hits(self, state, event, rec, rec_w):
+        return state.share_after_chain(event, rec, rec_w)
+
+    def after_hits(self, state, event, continuing) -> None:
+        state.leave_run(event, continuing[~state.splits[event.hits.part[continuing]]])
+
+
+DELTA_CHAIN = DeltaChainStrategy()
