@@ -28,6 +28,16 @@ def chunk_rng(seed: int, chunk: int) -> np.random.Generator:
     return np.random.default_rng([check_seed(seed), int(chunk)])
 
 
+def stream_chunk(chunk: int, stream: int, n_streams: int) -> int:
+    """The chunk id (the key of :func:`chunk_rng`) of chunk ``chunk`` of stream ``stream``, when one run
+    draws ``n_streams`` independent sequences of chunks from one seed (thermal: one per detector and
+    traced sub-band, straylight.thermal.run): interleaved, ``chunk * n_streams + stream``, so every
+    (stream, chunk) has its own generator, and a stream can grow by whole chunks round after round."""
+    if not 0 <= int(stream) < int(n_streams):
+        raise ValueError(f"stream {stream} is not one of {n_streams} streams")
+    return int(chunk) * int(n_streams) + int(stream)
+
+
 def n_chunks(n_rays: int, chunk_rays: int = CHUNK_RAYS) -> int:
     return -(-int(n_rays) // chunk_rays)
 

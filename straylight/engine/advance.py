@@ -2,8 +2,9 @@
 throughput removed), Russian roulette, truncation at max_events, and the next state of the rays
 that go on, compacted into a new :class:`~straylight.engine.ray_batch.RayBatch`.
 
-Russian roulette (unbiased): a weight below ``roulette_w`` survives with probability
-w / roulette_w at weight roulette_w; the difference goes to the part's ``roulette`` row.
+Russian roulette (unbiased, :func:`straylight.engine.roulette.survivor_weight`): a weight below
+``roulette_w`` survives with probability w / roulette_w at weight roulette_w; the difference goes to
+the part's ``roulette`` row.
 :func:`advance_numpy` is the numpy twin (same bits)."""
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 from materials.jit_cache import njit
 
 from straylight.engine.ray_batch import RayBatch
+from straylight.engine.roulette import survivor_weight
 from straylight.engine.tally_store import tally_add
 from straylight.paths import mix_key
 from straylight.engine.path_keys import mix_key1
@@ -48,9 +50,8 @@ def advance(cont, out, rays, hit, roulette_u, settings, last, log, rows):
         pt = hit.part[i]
         w_new = w[i] * out.throughput[c]
         tally_add(log, rows.absorbed + pt, r, w[i] - w_new)
-        w_after = w_new
-        if w_new < thr and w_new > 0:
-            w_after = thr if roulette_u[i] * thr < w_new else 0.0
+        w_after = survivor_weight(w_new, thr, roulette_u[i])  # the one roulette rule (straylight.engine.roulette)
+        if w_new < thr and w_new > 0:  # where it played: what it removed or added
             tally_add(log, rows.roulette + pt, r, w_new - w_after)
         if not w_after > 0:
             continue

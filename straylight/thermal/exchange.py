@@ -32,7 +32,8 @@ from straylight.thermal.tables import plot_matrix
 from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
 from straylight.thermal.sampling import AreaSampler, emission_rays
-from straylight.thermal.walk import CHUNK_RAYS, chunk_rng, walk
+from straylight.rng import CHUNK_RAYS, chunk_rng, stream_chunk
+from straylight.thermal.walk import walk
 
 DEFAULT_TEMPERATURE_K = 300.0
 
@@ -134,7 +135,8 @@ def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
             chunk, left = 0, n_k
             while left > 0:
                 m = min(CHUNK_RAYS, left)
-                a, b = _emit_chunk(ts, ts.sides_at(lam), i, sampler, seed, i * 64 + k, chunk, m)
+                a, b = _emit_chunk(ts, ts.sides_at(lam), i, sampler, seed, stream_chunk(chunk, i * len(bands) + k,
+                                                                                         P * len(bands)), m)
                 s1 += a
                 s2 += b
                 chunk += 1
@@ -165,11 +167,11 @@ def _warn_truncated(cut, names) -> None:
                       TruncationWarning, stacklevel=3)
 
 
-def _emit_chunk(ts, sides, i, sampler, seed, stream, chunk, n):
+def _emit_chunk(ts, sides, i, sampler, seed, chunk, n):
     """Per-ray absorbed fractions of one chunk from part i: sums (P + 1,) and sums of squares (the
     last entry is the escaped fraction)."""
     P = ts.n_parts
-    rng = chunk_rng(seed, stream + (2 << 20), chunk)
+    rng = chunk_rng(seed, chunk)  # the engine's stream of chunk id ``chunk`` (straylight.rng)
     o, nrm, d = emission_rays(sampler, sides.eps[i, 0], rng.random((n, 3)), rng)
     book = np.zeros((P + 2) * n)  # (part, escaped or cut at the event cap, ray)
 

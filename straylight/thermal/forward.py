@@ -18,14 +18,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from straylight.rng import chunk_rng
 from straylight.sources import orthonormal_basis
 from straylight.thermal.interaction import to_local
 from straylight.thermal.sampling import AreaSampler, emission_rays
-from straylight.thermal.walk import chunk_rng, walk
+from straylight.thermal.walk import walk
 
 
 class ForwardEstimator:
-    """Chunk function ``(sides, radiance (P,), seed, stream, chunk, n) -> (S1 (P,), S2 (P,), T1, T2)``
+    """Chunk function ``(sides, radiance (P,), seed, chunk, n) -> (S1 (P,), S2 (P,), T1, T2)``
     for detector part ``det`` whose receiving front is ``det_sampler``."""
 
     def __init__(self, ts, det: int, det_sampler: AreaSampler):
@@ -39,10 +40,10 @@ class ForwardEstimator:
             self.samplers[p] = AreaSampler.of_part(self.ts, p)
         return self.samplers[p]
 
-    def __call__(self, sides, radiance, seed, stream, chunk, n):
+    def __call__(self, sides, radiance, seed, chunk, n):
         ts = self.ts
         P = ts.n_parts
-        rng = chunk_rng(seed, stream + (1 << 20), chunk)
+        rng = chunk_rng(seed, chunk)  # the engine's stream of chunk id ``chunk`` (straylight.rng)
         # emitting sides: every part's front, and the back of a one-sided part (model.ThermalScene.one_sided)
         src = [(p, 0) for p in range(P)] + [(p, 1) for p in range(P) if ts.one_sided[p]]
         eps_h = np.array([sides.hemispherical(p, side) for p, side in src])

@@ -20,17 +20,17 @@ from __future__ import annotations
 import numpy as np
 
 from straylight.thermal.sampling import AreaSampler, cosine_directions
-from straylight.thermal.walk import chunk_rng, walk
+from straylight.rng import chunk_rng
+from straylight.thermal.walk import walk
 
 
-def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, seed: int, stream: int, chunk: int,
-                  n: int):
+def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, seed: int, chunk: int, n: int):
     """One chunk of ``n`` reverse rays. ``radiance`` (P,): B_band of each part's temperature in this
     sub-band (W m^-2 sr^-1), or (C, P) for C temperature sets traced together (the paths do not
     depend on temperatures). Returns (per-part sums S1 (P,), S2 (P,), total S1, total S2) of the
     per-ray power estimates A pi L in W (areas in mm^2 -> m^2), the totals (C,) for a (C, P) input
     and the per-part sums for its first set."""
-    rng = chunk_rng(seed, stream, chunk)
+    rng = chunk_rng(seed, chunk)  # the engine's stream of chunk id ``chunk`` (straylight.rng)
     P = ts.n_parts
     u = rng.random((n, 5))
     o, nrm = det_sampler.sample(u[:, :3])

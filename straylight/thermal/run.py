@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from straylight.rng import CHUNK_RAYS, stream_chunk
 from straylight.stop_rule import Precision
 from straylight.thermal.tables import plot_thermal, thermal_frame
 from straylight.detectors import FRONT_FACE_COS, DetectorGeometry
@@ -22,7 +23,6 @@ from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
 from straylight.thermal.reverse import reverse_chunk
 from straylight.thermal.sampling import AreaSampler
-from straylight.thermal.walk import CHUNK_RAYS
 
 METHODS = ("reverse", "forward")
 DEFAULT_MAX_RAYS = 50_000_000
@@ -189,8 +189,8 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     for j, name in enumerate(names):
         p = ts.part_index(name)
         sampler, _ = detector_sampler(ts, p, toward_mm)
-        run = _DetectorRun(ts, bands, rad_sets, share, _estimator(method, ts, p, sampler), seed, j,
-                           MIN_ROUND_RAYS if target_rel_error is not None else 2)
+        run = _DetectorRun(ts, bands, rad_sets, share, _estimator(method, ts, p, sampler), seed,
+                           (j * len(bands), len(names) * len(bands)), MIN_ROUND_RAYS if target_rel_error is not None else 2)
         if rad_sets.max() <= 0:
             tot, err, per, per_err = 0.0, 0.0, np.zeros(ts.n_parts), np.zeros(ts.n_parts)
         elif n_rays is not None:
@@ -255,11 +255,13 @@ def split_rays(n: int, share, min_rays: int) -> np.ndarray:
 
 
 class _DetectorRun:
-    """The running sums of one detector's trace, sub-band by sub-band (each its own streams)."""
+    """The running sums of one detector's trace, sub-band by sub-band: sub-band k is the stream
+    ``first_stream + k`` of the run's ``n_streams`` (straylight.rng.stream_chunk), its chunks the
+    engine's (CHUNK_RAYS rays, each its own generator)."""
 
-    def __init__(self, ts, bands, rad_sets, share, estimator, seed, index, min_rays):
+    def __init__(self, ts, bands, rad_sets, share, estimator, seed, streams, min_rays):
         self.ts, self.bands, self.rad_sets, self.share = ts, bands, rad_sets, share
-        self.estimator, self.seed, self.index, self.min_rays = estimator, seed, index, min_rays
+        self.estimator, self.seed, self.streams, self.min_rays = estimator, seed, streams, min_rays
         self.sums = [_Sums(ts.n_parts, rad_sets.shape[1]) for _ in bands]
         self.next_chunk = [0] * len(bands)
 
@@ -279,7 +281,8 @@ class _DetectorRun:
             rad = self.rad_sets[k] if self.rad_sets.shape[1] > 1 else self.rad_sets[k, 0]
             while want > 0:
                 m = min(CHUNK_RAYS, want)
-                self.sums[k].add(m, *self.estimator(sides, rad, self.seed, self.index * 64 + k, self.next_chunk[k], m))
+                chunk = stream_chunk(self.next_chunk[k], self.streams[0] + k, self.streams[1])
+                self.sums[k].add(m, *self.estimator(sides, rad, self.seed, chunk, m))
                 self.next_chunk[k] += 1
                 want -= m
 
@@ -314,8 +317,7 @@ class _DetectorRun:
 
 
 def _estimator(method, ts, p, sampler):
-    """chunk function (sides, radiance (P,), seed, stream, chunk, n) -> (S1, S2, T1, T2)."""
+    """chunk function (sides, radiance (P,), seed, chunk id, n) -> (S1, S2, T1, T2)."""
     if method == "reverse":
-        return lambda sides, rad, seed, stream, chunk, n: reverse_chunk(ts, sides, sampler, rad, seed, stream,
-                                                                        chunk, n)
+        return lambda sides, rad, seed, chunk, n: reverse_chunk(ts, sides, sampler, rad, seed, chunk, n)
     return ForwardEstimator(ts, p, sampler)

@@ -6,8 +6,11 @@ surface interaction, ``after_scatter`` the weights the interaction and roulette 
 
 Per event a ray draws ``EVENT_COLUMNS`` uniforms from its chunk's stream: 0 picks the branch
 (lobes / specular / transmission), 1..3 go to the material's ``sample``, 4 to roulette, 5..7 to
-next-event estimation. Streams: ``numpy.random.default_rng([seed, stream, chunk])``, chunks of
-``CHUNK_RAYS`` rays, so results do not depend on how chunks are grouped (CONTRACTS §1).
+next-event estimation. Chunks and streams are the engine's (straylight.rng): chunks of
+``straylight.rng.CHUNK_RAYS`` rays, each drawing from ``chunk_rng(seed, id)`` with its own id
+(``stream_chunk``), so results do not depend on how chunks are grouped or spread over threads
+(CONTRACTS §1). Russian roulette is the engine's rule (straylight.engine.roulette) at the engine's
+default threshold (``EstimatorOptions.rr_threshold`` times the start weight).
 
 Limits (docs/thermal.md): facet normals (no refinement onto analytic surfaces), unpolarized
 (the mean of s and p at every Fresnel interface), no bulk absorption or bulk emission in
@@ -21,17 +24,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from straylight.engine.options import EstimatorOptions
+from straylight.engine.roulette import survivor_weights
 from straylight.run_checks import TruncationWarning
 from straylight.thermal.interaction import interact
 
-CHUNK_RAYS = 4096
 EVENT_COLUMNS = 8
-ROULETTE_W = 1e-2  # relative to the start weight: survive with probability w / ROULETTE_W
+ROULETTE_W = EstimatorOptions().rr_threshold  # the engine's, relative to the start weight (w_ref)
 MAX_EVENTS = 100_000  # a bound, not a truncation: roulette ends the paths long before (mirror boxes need thousands)
-
-
-def chunk_rng(seed: int, stream: int, chunk: int) -> np.random.Generator:
-    return np.random.default_rng([int(seed), int(stream), int(chunk)])
 
 
 @dataclass
@@ -69,15 +69,6 @@ def cast(ts, o, d) -> Hit:
     facing = np.where((cos < 0)[:, None], n, -n)
     return Hit(tri=np.where(ok, tri, -1), part=np.where(ok, ts.triangle_part[k], -1), point=point, cos=cos,
                facing=facing)
-
-
-def roulette(w, w_ref, u):
-    """Russian roulette below ``ROULETTE_W * w_ref``: survivors get that weight (unbiased)."""
-    thr = ROULETTE_W * w_ref
-    low = (w < thr) & (w > 0)
-    w = w.copy()
-    w[low] = np.where(u[low] * thr < w[low], thr[low] if np.ndim(thr) else thr, 0.0)
-    return w
 
 
 @dataclass
@@ -137,7 +128,7 @@ def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
         if len(cont) == 0:
             break
         out = interact(ts, sides, hit, cont, d[cont], U[cont])
-        w_next = roulette(w[cont] * out.throughput, w_ref, U[cont, 4])
+        w_next = survivor_weights(w[cont] * out.throughput, ROULETTE_W * float(w_ref), U[cont, 4])
         if index == MAX_EVENTS - 1:
             ev.carried = w_next
             if warn_cap and float(np.sum(w_next)) > 0.01 * w_start:
