@@ -109,12 +109,14 @@ def thermal_scene(scene):
 
 
 def thermal(scene, band_um, *, rays: int | None = None, target_rel_error: float | None = None, seed: int = 0,
-            method: str = "reverse", max_seconds: float | None = None, temperature_k=(), sweep=None):
+            method: str = "reverse", max_seconds: float | None = None, temperature_k=(), sweep=None,
+            execution=None):
     """Self-emission in the band ``band_um`` (lo, hi) reaching each detector of a scene file (``straylight
     thermal``, CONTRACTS §7.1): a :class:`~straylight.thermal.run.ThermalResult`. ``scene``: a file or a
     ThermalScene (:func:`thermal_scene`, to load once and run several bands). ``temperature_k``: "PART=K"
     settings over the scene's (PART may be a pattern, ``vane_*``); ``sweep``: further temperature sets
-    on the same paths (``ThermalResult.sweep``; straylight.thermal.run.thermal)."""
+    on the same paths (``ThermalResult.sweep``; straylight.thermal.run.thermal). ``execution``: a
+    :class:`~straylight.execution.Execution` (threads in this process; the numbers never depend on it)."""
     from straylight.thermal.model import ThermalScene
     from straylight.thermal.planck import check_band
     from straylight.thermal.run import DEFAULT_MAX_SECONDS
@@ -127,7 +129,8 @@ def thermal(scene, band_um, *, rays: int | None = None, target_rel_error: float 
     if temperature_k:
         ts = dataclasses.replace(ts, temperature_k=temperatures_with(ts, temperature_k))
     return run(ts, tuple(band_um), n_rays=rays, target_rel_error=target_rel_error, seed=int(seed), method=method,
-               max_seconds=DEFAULT_MAX_SECONDS if max_seconds is None else float(max_seconds), sweep=sweep)
+               max_seconds=DEFAULT_MAX_SECONDS if max_seconds is None else float(max_seconds), sweep=sweep,
+               execution=execution)
 
 
 def exchange(scene, band_um, *, rays: int, seed: int = 0):

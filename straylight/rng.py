@@ -83,9 +83,12 @@ class ChunkStreams:
     ``c = rows[i] // per_chunk`` (relative to first_chunk; rows of a chunk contiguous, chunks
     ascending): what ``chunk_rng(seed, first_chunk + c).random((rows of c, width))`` gives, bit for bit."""
 
-    def __init__(self, seed: int, first_chunk: int, stop_chunk: int):
+    def __init__(self, seed: int, first_chunk: int, stop_chunk: int, chunk_ids=None):
+        """``chunk_ids``: the generators of these chunk ids instead (row c of the table is ``chunk_ids[c]``:
+        chunks that are not consecutive, such as one stream's of :func:`stream_chunk`)."""
         seed = check_seed(seed)
-        ents = [_entropy_words(seed) + _entropy_words(int(k)) for k in range(int(first_chunk), int(stop_chunk))]
+        ids = range(int(first_chunk), int(stop_chunk)) if chunk_ids is None else [int(k) for k in chunk_ids]
+        ents = [_entropy_words(seed) + _entropy_words(k) for k in ids]
         width = max((len(e) for e in ents), default=0)
         words = np.zeros((len(ents), max(width, 1)), np.uint64)
         for r, e in enumerate(ents):
@@ -99,3 +102,36 @@ class ChunkStreams:
         from straylight.pcg64 import fill_uniforms
 
         return fill_uniforms(self.states, np.asarray(rows, dtype=np.int64), int(per_chunk), int(width), out)
+
+
+class BatchDraws:
+    """The uniforms of a batch of whole chunks traced together (rays ``0 .. sum(counts)-1``, chunk ``j``
+    holding rays ``j * CHUNK_RAYS ..``, every chunk full but the last): each ray draws from its own
+    chunk's stream (``chunk_rng(seed, chunk_ids[j])``), so a chunk gets the numbers it would get traced
+    alone, whatever batch or thread it runs in. ``uniforms(rays, width)``: the next ``width`` uniforms
+    of each ray in ``rays`` (ascending ray numbers)."""
+
+    def __init__(self, seed: int, chunk_ids, counts):
+        counts = [int(m) for m in counts]
+        if any(m != CHUNK_RAYS for m in counts[:-1]) or not 0 < counts[-1] <= CHUNK_RAYS:
+            raise ValueError(f"a batch is whole chunks of {CHUNK_RAYS} rays (the last may be short), got {counts}")
+        self.chunk_ids = [int(k) for k in chunk_ids]
+        self.counts = counts
+        self.n_rays = sum(counts)
+        self._streams = ChunkStreams(seed, 0, 0, chunk_ids=self.chunk_ids)
+
+    def uniforms(self, rays, width: int) -> np.ndarray:
+        rays = np.ascontiguousarray(rays, dtype=np.int64)
+        return self._streams.fill(rays, int(width), np.empty((len(rays), int(width))), per_chunk=CHUNK_RAYS)
+
+    def all(self, width: int) -> np.ndarray:
+        """The next ``width`` uniforms of every ray of the batch."""
+        return self.uniforms(np.arange(self.n_rays), width)
+
+    def chunk_sums(self, values) -> tuple:
+        """Per chunk, the sums and sums of squares of per-ray ``values`` (..., n_rays): two arrays (..., chunks)."""
+        v = np.asarray(values, dtype=np.float64)
+        edges = np.cumsum([0] + self.counts)
+        s1 = np.stack([v[..., a:b].sum(axis=-1) for a, b in zip(edges[:-1], edges[1:])], axis=-1)
+        s2 = np.stack([(v[..., a:b] ** 2).sum(axis=-1) for a, b in zip(edges[:-1], edges[1:])], axis=-1)
+        return s1, s2

@@ -79,12 +79,20 @@ def cluster_client(args, in_process_below: int = 1):
 
 
 @contextmanager
-def execution(args, in_process_below: int = 1):
+def execution(args, in_process_below: int = 1, in_process: bool = False):
     """The :class:`straylight.execution.Execution` of a command, from its flags: ``--threads K``,
     ``--workers K`` / ``--scheduler`` (a dask client opened here for the whole command:
-    :func:`cluster_client`), progress on stderr. Every command that traces builds it here, once."""
+    :func:`cluster_client`), progress on stderr. Every command that traces builds it here, once.
+    ``in_process``: a command that runs in this process only (``straylight thermal``): ``--workers K``
+    is K threads here (as the default local cluster is one process of K threads), no client."""
     threads = getattr(args, "threads", None)
     if threads is not None and threads < 1:
         raise ValueError(f"--threads must be >= 1, got {threads}")
+    if in_process:
+        workers = getattr(args, "workers", None)
+        if workers is not None and workers < 1:
+            raise ValueError(f"--workers must be >= 1, got {workers}")
+        yield Execution(threads=threads or workers, progress=True)
+        return
     with cluster_client(args, in_process_below=in_process_below) as client:
         yield Execution(client=client, threads=threads, progress=True)

@@ -2,6 +2,7 @@
 
     straylight thermal SCENE.toml --band-um LO HI (--rays N | --target-rel-error E) [--seed S] --out DIR
         [--temperature-k PART=K ...] [--sweep-temperature-k PART K1 K2 ...] [--method reverse|forward]
+        [--workers K | --threads K]
     straylight exchange SCENE.toml --band-um LO HI --rays N [--seed S] --out DIR
 
 ``thermal`` writes DIR/thermal.json: self-emission in the band reaching each detector, split by
@@ -38,6 +39,10 @@ def add_parser(subparsers):
                         "same reverse paths (DIR/thermal_sweep.csv and .json)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output directory")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None,
+                       help="K threads in this process (the thermal walks run here; same numbers for any K)")
+    where.add_argument("--threads", type=int, default=None, help="the same as --workers K")
     p.set_defaults(func=run_thermal)
 
     e = subparsers.add_parser("exchange", help="radiative distribution factors D_ij and couplings (Mahan)",
@@ -61,6 +66,7 @@ def _band(p):
 def run_thermal(args) -> int:
     import atomicio
     from straylight import api
+    from straylight.cli.cluster_args import execution
     from straylight.thermal.model import temperatures_with
     from straylight.thermal.planck import check_band
 
@@ -68,8 +74,9 @@ def run_thermal(args) -> int:
     ts = api.thermal_scene(Path(args.scene))
     ts.temperature_k = temperatures_with(ts, args.temperature_k)
     sweep, label = _sweep(ts, args.sweep_temperature_k)
-    res = api.thermal(ts, args.band_um, rays=args.rays, target_rel_error=args.target_rel_error,
-                      seed=args.seed, method=args.method, max_seconds=args.max_seconds, sweep=[t for _, t in sweep])
+    with execution(args, in_process=True) as ex:
+        res = api.thermal(ts, args.band_um, rays=args.rays, target_rel_error=args.target_rel_error, seed=args.seed,
+                          method=args.method, max_seconds=args.max_seconds, sweep=[t for _, t in sweep], execution=ex)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     atomicio.write_json(out / "thermal.json", res.to_json_dict())

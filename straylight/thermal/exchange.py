@@ -32,8 +32,8 @@ from straylight.thermal.tables import plot_matrix
 from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
 from straylight.thermal.sampling import AreaSampler, emission_rays
-from straylight.rng import CHUNK_RAYS, chunk_rng, stream_chunk
-from straylight.thermal.walk import walk
+from straylight.rng import BatchDraws, stream_chunk
+from straylight.thermal.walk import batches_of, chunk_counts, walk
 
 DEFAULT_TEMPERATURE_K = 300.0
 
@@ -132,15 +132,12 @@ def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
             if n_k == 0:
                 continue
             s1, s2 = np.zeros(P + 2), np.zeros(P + 2)
-            chunk, left = 0, n_k
-            while left > 0:
-                m = min(CHUNK_RAYS, left)
-                a, b = _emit_chunk(ts, ts.sides_at(lam), i, sampler, seed, stream_chunk(chunk, i * len(bands) + k,
-                                                                                         P * len(bands)), m)
+            counts = chunk_counts(n_k)
+            ids = [stream_chunk(c, i * len(bands) + k, P * len(bands)) for c in range(len(counts))]
+            for batch_ids, batch_counts in batches_of(ids, counts):
+                a, b = _emit_batch(ts, ts.sides_at(lam), i, sampler, BatchDraws(seed, batch_ids, batch_counts))
                 s1 += a
                 s2 += b
-                chunk += 1
-                left -= m
             mean = s1 / n_k
             v = np.maximum(s2 - s1 * s1 / n_k, 0.0) / (n_k * (n_k - 1.0))
             d[i] += share[k] * mean[:P]
@@ -167,12 +164,13 @@ def _warn_truncated(cut, names) -> None:
                       TruncationWarning, stacklevel=3)
 
 
-def _emit_chunk(ts, sides, i, sampler, seed, chunk, n):
-    """Per-ray absorbed fractions of one chunk from part i: sums (P + 1,) and sums of squares (the
-    last entry is the escaped fraction)."""
+def _emit_batch(ts, sides, i, sampler, draws):
+    """Per-ray absorbed fractions of a batch of whole chunks from part i (``draws``:
+    straylight.rng.BatchDraws): sums (P + 2,) and sums of squares (entry P is the escaped
+    fraction, P + 1 what the event cap cut)."""
     P = ts.n_parts
-    rng = chunk_rng(seed, chunk)  # the engine's stream of chunk id ``chunk`` (straylight.rng)
-    o, nrm, d = emission_rays(sampler, sides.eps[i, 0], rng.random((n, 3)), rng)
+    n = draws.n_rays
+    o, nrm, d = emission_rays(sampler, sides.eps[i, 0], draws.all(3), draws, np.arange(n))
     book = np.zeros((P + 2) * n)  # (part, escaped or cut at the event cap, ray)
 
     def ended(ev):  # escaped (booked to P), or all of it to the absorber or detector hit
@@ -188,6 +186,6 @@ def _emit_chunk(ts, sides, i, sampler, seed, chunk, n):
             return
         np.add.at(book, ev.hit.part[c] * n + ev.ray[c], ev.w[c] - w_next)
 
-    walk(ts, sides, rng, o, nrm, d, np.ones(n), ended, removed, warn_cap=False)  # reported per part instead
+    walk(ts, sides, draws, o, nrm, d, np.ones(n), ended, removed, warn_cap=False)  # reported per part instead
     x = book.reshape(P + 2, n)
     return x.sum(axis=1), (x * x).sum(axis=1)

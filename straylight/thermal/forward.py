@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from straylight.rng import chunk_rng
 from straylight.sources import orthonormal_basis
 from straylight.thermal.interaction import to_local
 from straylight.thermal.sampling import AreaSampler, emission_rays
@@ -26,24 +25,20 @@ from straylight.thermal.walk import walk
 
 
 class ForwardEstimator:
-    """Chunk function ``(sides, radiance (P,), seed, chunk, n) -> (S1 (P,), S2 (P,), T1, T2)``
-    for detector part ``det`` whose receiving front is ``det_sampler``."""
+    """Batch function ``(sides, radiance (P,), draws) -> (per part (P, n), total (1, n))``: the per-ray
+    power estimates of a batch of whole chunks (``draws``: straylight.rng.BatchDraws) for detector
+    part ``det`` whose receiving front is ``det_sampler``."""
 
     def __init__(self, ts, det: int, det_sampler: AreaSampler):
         self.ts = ts
         self.det = det
         self.det_sampler = det_sampler
-        self.samplers: dict = {}
+        self.samplers = {p: AreaSampler.of_part(ts, p) for p in range(ts.n_parts)}  # made once: batches share them
 
-    def _sampler(self, p):
-        if p not in self.samplers:
-            self.samplers[p] = AreaSampler.of_part(self.ts, p)
-        return self.samplers[p]
-
-    def __call__(self, sides, radiance, seed, chunk, n):
+    def __call__(self, sides, radiance, draws):
         ts = self.ts
         P = ts.n_parts
-        rng = chunk_rng(seed, chunk)  # the engine's stream of chunk id ``chunk`` (straylight.rng)
+        n = draws.n_rays
         # emitting sides: every part's front, and the back of a one-sided part (model.ThermalScene.one_sided)
         src = [(p, 0) for p in range(P)] + [(p, 1) for p in range(P) if ts.one_sided[p]]
         eps_h = np.array([sides.hemispherical(p, side) for p, side in src])
@@ -51,20 +46,21 @@ class ForwardEstimator:
         total = float(phi.sum())
         x = np.zeros(n)
         if total <= 0:
-            return np.zeros(P), np.zeros(P), 0.0, 0.0
-        which = np.minimum(np.searchsorted(np.cumsum(phi) / total, rng.random(n), side="right"), len(src) - 1)
+            return np.zeros((P, n)), np.zeros((1, n))
+        which = np.minimum(np.searchsorted(np.cumsum(phi) / total, draws.all(1)[:, 0], side="right"), len(src) - 1)
         emitter = np.array([p for p, _ in src])[which]
         side = np.array([q for _, q in src])[which]
         o = np.zeros((n, 3))
         nrm = np.zeros((n, 3))
         d = np.zeros((n, 3))
-        u3 = rng.random((n, 3))
+        u3 = draws.all(3)
         for i in np.unique(which):
             p, q = src[i]
-            sel = which == i
-            o[sel], nrm[sel], d[sel] = emission_rays(self._sampler(p), sides.eps[p, q], u3[sel], rng, back=q == 1)
+            sel = np.flatnonzero(which == i)
+            o[sel], nrm[sel], d[sel] = emission_rays(self.samplers[p], sides.eps[p, q], u3[sel], draws, sel,
+                                                     back=q == 1)
         # NEE from the emission points
-        cos_x, cos_d, r2, ok, _ = self._connect(o, nrm, rng.random((n, 3)))
+        cos_x, cos_d, r2, ok, _ = self._connect(o, nrm, draws.all(3))
         th = np.arccos(np.clip(cos_x, 0.0, 1.0))
         e = sides.emissivity(emitter, side, th)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -76,10 +72,10 @@ class ForwardEstimator:
             np.add.at(x, ev.ray[on_det], ev.w[on_det])
             self._nee_scatter(sides, hit, ev.cont, ev.d, ev.w, ev.ray, ev.U, x)
 
-        walk(ts, sides, rng, o, nrm, d, np.full(n, total), pickup, w_ref=total)
-        s1 = np.bincount(emitter, weights=x, minlength=P)
-        s2 = np.bincount(emitter, weights=x * x, minlength=P)
-        return s1, s2, float(x.sum()), float((x * x).sum())
+        walk(ts, sides, draws, o, nrm, d, np.full(n, total), pickup, w_ref=total)
+        per = np.zeros((P, n))
+        per[emitter, np.arange(n)] = x
+        return per, x[None, :]
 
     def _connect(self, o, nrm_x, u3):
         """Shadow rays from points ``o`` (facing normals ``nrm_x``) to uniform detector points:

@@ -20,19 +20,18 @@ from __future__ import annotations
 import numpy as np
 
 from straylight.thermal.sampling import AreaSampler, cosine_directions
-from straylight.rng import chunk_rng
 from straylight.thermal.walk import walk
 
 
-def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, seed: int, chunk: int, n: int):
-    """One chunk of ``n`` reverse rays. ``radiance`` (P,): B_band of each part's temperature in this
+def reverse_batch(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, draws):
+    """The reverse rays of one batch of whole chunks (``draws``: straylight.rng.BatchDraws, each ray
+    drawing from its chunk's stream). ``radiance`` (P,): B_band of each part's temperature in this
     sub-band (W m^-2 sr^-1), or (C, P) for C temperature sets traced together (the paths do not
-    depend on temperatures). Returns (per-part sums S1 (P,), S2 (P,), total S1, total S2) of the
-    per-ray power estimates A pi L in W (areas in mm^2 -> m^2), the totals (C,) for a (C, P) input
-    and the per-part sums for its first set."""
-    rng = chunk_rng(seed, chunk)  # the engine's stream of chunk id ``chunk`` (straylight.rng)
+    depend on temperatures). Returns the per-ray power estimates A pi L in W (areas in mm^2 -> m^2):
+    per part (P, n) for the first set, and the totals (C, n) of every set."""
+    n = draws.n_rays
     P = ts.n_parts
-    u = rng.random((n, 5))
+    u = draws.all(5)
     o, nrm = det_sampler.sample(u[:, :3])
     d = cosine_directions(nrm, u[:, 3:5])
     pick = np.zeros(P * n)  # per (part, ray) radiance pickups per unit B
@@ -49,13 +48,8 @@ def reverse_chunk(ts, sides, det_sampler: AreaSampler, radiance: np.ndarray, see
             e = sides.emissivity(part[take], np.where(front[take], 0, 1), hit.theta[take])
             np.add.at(pick, part[take] * n + ev.ray[take], ev.w[take] * e)
 
-    walk(ts, sides, rng, o, nrm, d, np.ones(n), pickup)
+    walk(ts, sides, draws, o, nrm, d, np.ones(n), pickup)
     scale = det_sampler.area_mm2 * 1e-6 * np.pi
     per = pick.reshape(P, n) * scale
     rad = np.atleast_2d(radiance)
-    x = per * rad[0][:, None]
-    tot = rad @ per  # (C, n)
-    t1, t2 = tot.sum(axis=1), (tot * tot).sum(axis=1)
-    if np.ndim(radiance) == 1:
-        t1, t2 = float(t1[0]), float(t2[0])
-    return x.sum(axis=1), (x * x).sum(axis=1), t1, t2
+    return per * rad[0][:, None], rad @ per

@@ -6,6 +6,12 @@ its variance is the sum of theirs. Rays go to sub-bands in proportion to the rad
 hottest part there. ``target_rel_error`` adds rounds of chunks until the relative standard error of
 the detector power is at most the target (or ``max_rays`` / ``max_seconds`` stop it: reported in
 ``stopped``).
+
+The rays are the engine's chunks (straylight.rng: CHUNK_RAYS rays, each chunk its own stream), traced
+in batches of whole chunks (straylight.rng.BatchDraws); ``execution`` (straylight.execution.Execution)
+runs a round's batches in this process, one after another or on the engine's shared thread pool
+(:meth:`straylight.engine.runtime.Runtime.pool`), and sums them in chunk order: the same numbers
+either way.
 """
 from __future__ import annotations
 
@@ -14,15 +20,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from straylight.rng import CHUNK_RAYS, stream_chunk
+from straylight.engine.options import TraceError
+from straylight.execution import Execution, as_execution
+from straylight.rng import BatchDraws, stream_chunk
 from straylight.stop_rule import Precision
 from straylight.thermal.tables import plot_thermal, thermal_frame
 from straylight.detectors import FRONT_FACE_COS, DetectorGeometry
 from straylight.thermal.forward import ForwardEstimator
 from straylight.thermal.model import sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
-from straylight.thermal.reverse import reverse_chunk
+from straylight.thermal.reverse import reverse_batch
 from straylight.thermal.sampling import AreaSampler
+from straylight.thermal.walk import batches_of, chunk_counts
 
 METHODS = ("reverse", "forward")
 DEFAULT_MAX_RAYS = 50_000_000
@@ -153,14 +162,17 @@ class _Sums:
 
 def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | None = None, seed: int = 0,
             method: str = "reverse", detectors=None, max_rays: int = DEFAULT_MAX_RAYS,
-            max_seconds: float = DEFAULT_MAX_SECONDS, toward_mm=None, sweep=None) -> ThermalResult:
+            max_seconds: float = DEFAULT_MAX_SECONDS, toward_mm=None, sweep=None,
+            execution: Execution | None = None) -> ThermalResult:
     """Band power from every part at a temperature reaching each detector (CONTRACTS §7.1).
 
     ``ts``: :class:`straylight.thermal.model.ThermalScene`. Give ``n_rays`` (per detector) or
     ``target_rel_error``. ``method``: "reverse" (default, rays from the detector) or "forward"
     (emission from the parts with next-event estimation). ``sweep``: further temperature sets
     ((P,) arrays, kelvin) evaluated on the same reverse paths (``ThermalResult.sweep``: per detector
-    a list of (power, stderr)); the precision target applies to the scene's own temperatures."""
+    a list of (power, stderr)); the precision target applies to the scene's own temperatures.
+    ``execution``: where the batches run (:class:`_Runner`); the numbers never depend on it."""
+    runner = _Runner(as_execution(execution), ts)
     lo, hi = check_band(*band_um)
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -190,7 +202,8 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
         p = ts.part_index(name)
         sampler, _ = detector_sampler(ts, p, toward_mm)
         run = _DetectorRun(ts, bands, rad_sets, share, _estimator(method, ts, p, sampler), seed,
-                           (j * len(bands), len(names) * len(bands)), MIN_ROUND_RAYS if target_rel_error is not None else 2)
+                           (j * len(bands), len(names) * len(bands)), MIN_ROUND_RAYS if target_rel_error is not None else 2,
+                           runner)
         if rad_sets.max() <= 0:
             tot, err, per, per_err = 0.0, 0.0, np.zeros(ts.n_parts), np.zeros(ts.n_parts)
         elif n_rays is not None:
@@ -232,6 +245,7 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
         out[name] = DetectorThermal(name, sampler.area_mm2, float(tot), float(err), by_part, run.rays)
         swept[name] = [run.combined(c)[:2] if rad_sets.max() > 0 and run.rays else (0.0, 0.0)
                        for c in range(1, len(sets))]
+    runner.close()
     temps = {n: float(t) for n, t in zip(ts.part_names, ts.temperature_k) if t > 0}
     return ThermalResult((lo, hi), max_rays_one, int(seed), method, out, bands, temps,
                          time.perf_counter() - t0, stopped, sweep=swept)
@@ -259,9 +273,10 @@ class _DetectorRun:
     ``first_stream + k`` of the run's ``n_streams`` (straylight.rng.stream_chunk), its chunks the
     engine's (CHUNK_RAYS rays, each its own generator)."""
 
-    def __init__(self, ts, bands, rad_sets, share, estimator, seed, streams, min_rays):
+    def __init__(self, ts, bands, rad_sets, share, estimator, seed, streams, min_rays, runner):
         self.ts, self.bands, self.rad_sets, self.share = ts, bands, rad_sets, share
         self.estimator, self.seed, self.streams, self.min_rays = estimator, seed, streams, min_rays
+        self.runner = runner
         self.sums = [_Sums(ts.n_parts, rad_sets.shape[1]) for _ in bands]
         self.next_chunk = [0] * len(bands)
 
@@ -270,21 +285,33 @@ class _DetectorRun:
         return sum(s.n for s in self.sums)
 
     def round(self, rays_now: int) -> None:
-        """About ``rays_now`` more rays, shared by the sub-bands (whole chunks, then a remainder)."""
+        """About ``rays_now`` more rays, shared by the sub-bands (whole chunks, then a remainder),
+        traced in batches of whole chunks by the runner and summed chunk by chunk in chunk order."""
         active = np.array([self.rad_sets[k].max() > 0 for k in range(len(self.bands))])
         counts = split_rays(int(rays_now), np.where(active, self.share, 0.0), self.min_rays)
+        tasks = []
         for k, (_, _, lam) in enumerate(self.bands):
             want = int(counts[k])
             if want <= 0:
                 continue
             sides = self.ts.sides_at(lam)
             rad = self.rad_sets[k] if self.rad_sets.shape[1] > 1 else self.rad_sets[k, 0]
-            while want > 0:
-                m = min(CHUNK_RAYS, want)
-                chunk = stream_chunk(self.next_chunk[k], self.streams[0] + k, self.streams[1])
-                self.sums[k].add(m, *self.estimator(sides, rad, self.seed, chunk, m))
-                self.next_chunk[k] += 1
-                want -= m
+            sizes = chunk_counts(want)
+            ids = [stream_chunk(self.next_chunk[k] + c, self.streams[0] + k, self.streams[1]) for c in range(len(sizes))]
+            self.next_chunk[k] += len(sizes)
+            tasks += [(k, sides, rad, b_ids, b_counts) for b_ids, b_counts in batches_of(ids, sizes)]
+        one_set = self.rad_sets.shape[1] == 1
+        for (k, _, _, _, b_counts), (s1, s2, t1, t2) in zip(tasks, self.runner.map(self._batch, tasks)):
+            for j, m in enumerate(b_counts):
+                self.sums[k].add(m, s1[:, j], s2[:, j], float(t1[0, j]) if one_set else t1[:, j],
+                                 float(t2[0, j]) if one_set else t2[:, j])
+
+    def _batch(self, task):
+        """Per-chunk sums of one batch: per part (P, chunks) and totals (C, chunks), with their squares."""
+        _, sides, rad, ids, counts = task
+        draws = BatchDraws(self.seed, ids, counts)
+        per, tot = self.estimator(sides, rad, draws)
+        return (*draws.chunk_sums(per), *draws.chunk_sums(tot))
 
     def look(self):
         """The precision stop's view of the total (straylight.analyses.precision.Look): its relative error,
@@ -317,7 +344,55 @@ class _DetectorRun:
 
 
 def _estimator(method, ts, p, sampler):
-    """chunk function (sides, radiance (P,), seed, chunk id, n) -> (S1, S2, T1, T2)."""
+    """batch function (sides, radiance (P,) or (C, P), draws) -> per-ray estimates (per part (P, n), totals (C, n))."""
     if method == "reverse":
-        return lambda sides, rad, seed, chunk, n: reverse_chunk(ts, sides, sampler, rad, seed, chunk, n)
+        return lambda sides, rad, draws: reverse_batch(ts, sides, sampler, rad, draws)
     return ForwardEstimator(ts, p, sampler)
+
+
+class _Runner:
+    """Runs a round's batches where ``execution`` says, results in batch order (so the sums are the
+    same whichever way they ran): in this process one after another, or on the engine's shared pool
+    of ``threads`` threads (:meth:`straylight.engine.runtime.Runtime.pool`; embree and the compiled
+    kernels release the GIL). ``workers`` K is K threads here: the thermal walks run in this process
+    (the default local dask cluster is one process of K threads too); a dask ``client`` or
+    ``scheduler`` is refused. Progress (``execution.progress``): chunks done, on stderr."""
+
+    def __init__(self, execution: Execution, ts):
+        if execution.client is not None or execution.scheduler is not None:
+            raise TraceError("thermal runs in this process: give execution threads or workers, not a dask "
+                             "client or scheduler")
+        if execution.intersector is not None or execution.first_chunk:
+            raise TraceError("thermal takes no execution intersector or first_chunk")
+        self.threads = int(execution.threads or execution.workers or 1)
+        self.ts = ts
+        self.bar = None
+        if execution.progress:
+            from straylight.progress import progress_bar
+
+            self.bar = progress_bar(unit="chunk", desc="thermal")
+
+    def map(self, fn, tasks) -> list:
+        if self.threads <= 1 or len(tasks) <= 1:
+            return [self._done(fn(t), t) for t in tasks]
+        from straylight.engine.runtime import runtime
+
+        self._warm(tasks)
+        pool = runtime().pool(self.threads)
+        futures = [pool.submit(fn, t) for t in tasks]
+        return [self._done(f.result(), t) for f, t in zip(futures, tasks)]
+
+    def _warm(self, tasks) -> None:
+        """Build what the threads share before they start: the embree scene, the materials' tables."""
+        self.ts.intersector.first_triangle(np.zeros((1, 3)), np.array([[0.0, 0.0, 1.0]]))
+        for t in tasks:
+            _ = t[1].material_index, t[1].models
+
+    def _done(self, result, task):
+        if self.bar is not None:
+            self.bar.update(len(task[3]))
+        return result
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()

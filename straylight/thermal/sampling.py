@@ -52,10 +52,12 @@ class AreaSampler:
         return p, self.normals[k]
 
 
-def emission_directions(eps_front, nrm, rng, max_rounds: int = 1000):
+def emission_directions(eps_front, nrm, draws, rays, max_rounds: int = 1000):
     """Directions with density proportional to eps(theta) cos(theta) about ``nrm`` (n, 3), by
     rejection from cosine-weighted draws (accept with eps / max eps); ``eps_front``: table on a
-    uniform grid of theta over [0, pi/2] (model.THETA_GRID). All rays of a part then carry the same weight."""
+    uniform grid of theta over [0, pi/2] (model.THETA_GRID). All rays of a part then carry the same weight.
+    ``rays``: the rays' numbers in ``draws`` (straylight.rng.BatchDraws; ascending), whose streams the
+    draws come from."""
     grid = np.linspace(0.0, np.pi / 2, len(eps_front))
     n = len(nrm)
     e_max = float(eps_front.max())
@@ -64,7 +66,7 @@ def emission_directions(eps_front, nrm, rng, max_rounds: int = 1000):
     for _ in range(max_rounds):
         if len(todo) == 0:
             break
-        u = rng.random((len(todo), 3))
+        u = draws.uniforms(rays[todo], 3)
         d = cosine_directions(nrm[todo], u[:, :2])
         cos = np.einsum("ij,ij->i", d, nrm[todo])
         e = np.interp(np.arccos(np.clip(cos, 0.0, 1.0)), grid, eps_front)
@@ -76,11 +78,11 @@ def emission_directions(eps_front, nrm, rng, max_rounds: int = 1000):
     return out
 
 
-def emission_rays(sampler: AreaSampler, eps_table, u3, rng, back: bool = False):
+def emission_rays(sampler: AreaSampler, eps_table, u3, draws, rays, back: bool = False):
     """(points, normals, directions) of rays emitted from ``sampler``'s front (its back: ``back``)
     with the emissivity table ``eps_table`` of that side, points from uniforms ``u3`` (n, 3) and
-    directions drawn from ``rng`` (:func:`emission_directions`)."""
+    directions drawn for ``rays`` from ``draws`` (:func:`emission_directions`)."""
     o, nrm = sampler.sample(u3)
     if back:
         nrm = -nrm
-    return o, nrm, emission_directions(eps_table, nrm, rng)
+    return o, nrm, emission_directions(eps_table, nrm, draws, rays)

@@ -6,10 +6,10 @@ surface interaction, ``after_scatter`` the weights the interaction and roulette 
 
 Per event a ray draws ``EVENT_COLUMNS`` uniforms from its chunk's stream: 0 picks the branch
 (lobes / specular / transmission), 1..3 go to the material's ``sample``, 4 to roulette, 5..7 to
-next-event estimation. Chunks and streams are the engine's (straylight.rng): chunks of
-``straylight.rng.CHUNK_RAYS`` rays, each drawing from ``chunk_rng(seed, id)`` with its own id
-(``stream_chunk``), so results do not depend on how chunks are grouped or spread over threads
-(CONTRACTS §1). Russian roulette is the engine's rule (straylight.engine.roulette) at the engine's
+next-event estimation. Chunks and streams are the engine's (straylight.rng): a walk traces a batch
+of whole chunks of ``straylight.rng.CHUNK_RAYS`` rays, each ray drawing from its chunk's
+``chunk_rng(seed, id)`` (``straylight.rng.BatchDraws``; ids from ``stream_chunk``), so results do not
+depend on how chunks are grouped or spread over threads (CONTRACTS §1). Russian roulette is the engine's rule (straylight.engine.roulette) at the engine's
 default threshold (``EstimatorOptions.rr_threshold`` times the start weight).
 
 Limits (docs/thermal.md): facet normals (no refinement onto analytic surfaces), unpolarized
@@ -26,12 +26,26 @@ import numpy as np
 
 from straylight.engine.options import EstimatorOptions
 from straylight.engine.roulette import survivor_weights
+from straylight.rng import CHUNK_RAYS
 from straylight.run_checks import TruncationWarning
 from straylight.thermal.interaction import interact
 
 EVENT_COLUMNS = 8
+BATCH_CHUNKS = 8  # whole chunks traced together in one walk (numpy's per-event costs shared by their rays)
 ROULETTE_W = EstimatorOptions().rr_threshold  # the engine's, relative to the start weight (w_ref)
 MAX_EVENTS = 100_000  # a bound, not a truncation: roulette ends the paths long before (mirror boxes need thousands)
+
+
+def chunk_counts(n_rays: int) -> list:
+    """The rays of each chunk of ``n_rays`` rays: whole chunks of CHUNK_RAYS, then the rest."""
+    full, rest = divmod(int(n_rays), CHUNK_RAYS)
+    return [CHUNK_RAYS] * full + ([rest] if rest else [])
+
+
+def batches_of(chunk_ids, counts, per: int = BATCH_CHUNKS):
+    """``(chunk_ids, counts)`` of consecutive runs of at most ``per`` chunks (whole chunks, the last may
+    be short): the batches one walk traces (straylight.rng.BatchDraws)."""
+    return [(list(chunk_ids[a:a + per]), list(counts[a:a + per])) for a in range(0, len(counts), per)]
 
 
 @dataclass
@@ -97,12 +111,13 @@ CAP_MESSAGE = ("the thermal walk's event cap ({cap} events) stopped paths still 
                "escaping part")
 
 
-def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
+def walk(ts, sides, draws, o, nrm, d, w, at_hit: Callable[[Event], None],
          after_scatter: Callable[[Event, np.ndarray], None] | None = None, w_ref: float = 1.0,
          warn_cap: bool = True) -> None:
     """Walk rays from points ``o`` (n, 3) on surfaces of normals ``nrm`` (started ``ts.eps_mm`` off
     them) along ``d`` with weights ``w`` through ``ts`` (straylight.thermal.model.ThermalScene) with
-    the materials ``sides`` (model.SideTables), drawing each event's uniforms from ``rng``.
+    the materials ``sides`` (model.SideTables), drawing each event's uniforms from ``draws``
+    (straylight.rng.BatchDraws: each ray from its own chunk's stream).
 
     ``at_hit(event)`` scores the hits of every event; ``after_scatter(event, w_next)`` the rows
     ``event.cont`` after interaction and roulette (``w_next``: their weights now, 0 where the path
@@ -118,7 +133,7 @@ def walk(ts, sides, rng, o, nrm, d, w, at_hit: Callable[[Event], None],
     for index in range(MAX_EVENTS):
         if len(ray) == 0:
             break
-        U = rng.random((len(ray), EVENT_COLUMNS))
+        U = draws.uniforms(ray, EVENT_COLUMNS)
         hit = cast(ts, o, d)
         alive = hit.tri >= 0
         ends = ~alive | terminal[np.where(alive, hit.part, 0)]

@@ -38,12 +38,14 @@ def test_thermal_json_keys_and_value(two_disks, tmp_path):
 
 
 def test_same_seed_same_numbers(two_disks, tmp_path):
+    """Twice in this process, then on 2 threads (--workers 2): the same numbers (the engine's chunk streams)."""
     docs = []
-    for k in range(2):
+    for k, where in enumerate(([], [], ["--workers", "2"])):
         out = tmp_path / f"o{k}"
-        assert main(["thermal", str(two_disks), "--band-um", "8", "12", "--rays", "3000", "--out", str(out)]) == 0
+        assert main(["thermal", str(two_disks), "--band-um", "8", "12", "--rays", "3000", *where, "--out", str(out)]) == 0
         docs.append(json.loads((out / "thermal.json").read_text())["detectors"])
-    assert docs[0] == docs[1]
+    assert docs[0]["focal_plane"]["power_w"] > 0
+    assert docs[0] == docs[1] == docs[2]
 
 
 def test_target_rel_error(two_disks, tmp_path):

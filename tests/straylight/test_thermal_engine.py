@@ -59,8 +59,8 @@ def test_cold_detector_under_a_warm_disk_is_the_view_factor_within_4_sigma(tmp_p
 
 def test_rays_run_in_the_engine_chunks(enclosure):
     """No chunk size, stream or roulette of its own: --rays N is N rays cut into the engine's chunks."""
-    assert not hasattr(thermal_walk, "CHUNK_RAYS") and not hasattr(thermal_walk, "chunk_rng")
-    assert not hasattr(thermal_walk, "roulette")
+    assert getattr(thermal_walk, "CHUNK_RAYS", rng.CHUNK_RAYS) == rng.CHUNK_RAYS
+    assert not hasattr(thermal_walk, "chunk_rng") and not hasattr(thermal_walk, "roulette")
     res = thermal(enclosure, (8, 12), n_rays=3 * rng.CHUNK_RAYS + 7, seed=1)
     assert res.rays == 3 * rng.CHUNK_RAYS + 7
 
@@ -82,3 +82,39 @@ def test_roulette_rule_is_unbiased_and_the_engine_reference_agrees():
         twin = np.where((w < 1e-3) & (w > 0), np.where(u * 1e-3 < w, 1e-3, 0.0), w)  # advance_numpy's rule
         assert np.array_equal(out, twin)
     assert survivor_weight(5e-4, 1e-3, 0.49) == 1e-3 and survivor_weight(5e-4, 1e-3, 0.51) == 0.0
+
+
+@pytest.mark.parametrize("method", ["reverse", "forward"])
+def test_two_threads_give_the_numbers_of_one(enclosure, method):
+    """The engine's chunk streams: the same seed, the same numbers on 1 or 2 threads (and with a
+    precision target, whose rounds are the same)."""
+    from straylight.execution import Execution
+
+    one = thermal(enclosure, (8, 12), n_rays=17_500, seed=2, method=method).to_json_dict()
+    assert one["detectors"]["det"]["power_w"] > 0
+    assert thermal(enclosure, (8, 12), n_rays=17_500, seed=2, method=method,
+                   execution=Execution(threads=2)).to_json_dict() == one
+    assert thermal(enclosure, (8, 12), n_rays=17_500, seed=2, method=method,
+                   execution=Execution(workers=2)).to_json_dict() == one
+
+
+def test_a_dask_client_is_refused(enclosure):
+    from straylight.execution import Execution
+    from straylight.trace import TraceError
+
+    with pytest.raises(TraceError, match="thermal runs in this process"):
+        thermal(enclosure, (8, 12), n_rays=100, execution=Execution(scheduler="tcp://127.0.0.1:8786"))
+
+
+def test_batches_draw_each_chunk_from_its_own_engine_stream():
+    """BatchDraws: a batch of chunks draws, per ray, what its chunk's chunk_rng draws alone."""
+    b = rng.BatchDraws(5, [7, 19, 3], [rng.CHUNK_RAYS, rng.CHUNK_RAYS, 17])
+    alone = [rng.chunk_rng(5, k) for k in (7, 19, 3)]
+    ref = np.concatenate([alone[0].random((rng.CHUNK_RAYS, 5)), alone[1].random((rng.CHUNK_RAYS, 5)),
+                          alone[2].random((17, 5))])
+    assert np.array_equal(b.all(5), ref)
+    later = b.uniforms(np.array([3, 999, rng.CHUNK_RAYS + 4, 2 * rng.CHUNK_RAYS + 16]), 8)  # some rays only
+    assert np.array_equal(later[:2], alone[0].random((2, 8)))
+    assert np.array_equal(later[2], alone[1].random(8)) and np.array_equal(later[3], alone[2].random(8))
+    with pytest.raises(ValueError, match="whole chunks"):
+        rng.BatchDraws(5, [1, 2], [10, rng.CHUNK_RAYS])
