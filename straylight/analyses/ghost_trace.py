@@ -207,7 +207,7 @@ def next_hits(opt: GhostOptics, b: Bundle):
 
 def fresnel(opt: GhostOptics, part, front, cos_i, dist):
     """(r_s, r_p, t_s, t_p, cos_t, eta, bulk) per hit (``Material.smooth_coefficients``)."""
-    from straylight.engine.interactions.optical_surface import smooth_coefficients_into
+    from straylight.engine.surface_geometry import smooth_coefficients_into
 
     m = len(part)
     out = (np.zeros(m, complex), np.zeros(m, complex), np.zeros(m, complex), np.zeros(m, complex),

@@ -39,9 +39,9 @@ import numpy as np
 from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
-from straylight.engine.interactions.optical_surface import refine_on_surfaces, side_material, smooth_coefficients_into
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
+from straylight.engine.surface_geometry import refine_on_surfaces, side_material, smooth_coefficients_into
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
 

@@ -191,6 +191,21 @@ def blocked_by_edges(diff: Diffraction | None, origin, direction, tmax, skip=Non
     return edge >= 0
 
 
+def shadow_test(diff: Diffraction | None, scene):
+    """The walk's shadow test for one batch (handed to next-event estimation on ``Event.shadow_test``):
+    ``blocked(origin, direction, tmax)``, True where the segment is occluded by the scene or, when
+    parts diffract, passes a diffracting edge (the walk bends every ray that passes one)."""
+    isect = scene.isect
+
+    def blocked(origin, direction, tmax) -> np.ndarray:
+        out = np.asarray(isect.occluded(origin, direction, tmax), dtype=bool)
+        if diff is not None:
+            out = out | blocked_by_edges(diff, origin, direction, tmax, scene=scene)
+        return out
+
+    return blocked
+
+
 def segment_candidates(diff: Diffraction, scene, origin, direction, tmax) -> np.ndarray:
     """Rays that may pass a mesh edge before ``tmax``: one embree occlusion query against the edges'
     band prisms (straylight.engine.edge_index.band_prisms), built once per thread and edge set."""

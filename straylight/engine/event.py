@@ -60,6 +60,10 @@ class Event:
     #: the per-batch states of the strategies running in this batch, by their ``state_key``
     #: (straylight.engine.strategies.base.Strategy.batch_state); a strategy not running has none
     states: dict = field(default_factory=dict)
+    #: (strategy, state) of the running strategies with hooks into next-event estimation (straylight.engine.nee)
+    nee_hooks: tuple = ()
+    #: ``blocked(origin, direction, tmax)``: the walk's shadow test (straylight.engine.diffraction.shadow_test)
+    shadow_test: object = None
     shadow_rays: int = 0  # shadow rays cast by the interactions in this event
 
     @property

@@ -15,13 +15,9 @@ from typing import NamedTuple
 import numpy as np
 from materials.jit_cache import njit
 
-from straylight.engine import second_vertex
 from straylight.disk_sampling import annulus_point, annulus_points
-from straylight.engine.interactions.registry import Capability
 from straylight.engine.material_groups import by_material
-from straylight.engine.diffraction import blocked_by_edges
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
-from straylight.engine.targets import target_pdf
 from straylight.engine.tally_store import tally_add
 from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows
 from straylight.paths import mix_key
@@ -256,17 +252,22 @@ def estimate(event, verts, frame, w_vertex, evaluate=None):
     vertex)``, if given, returns ``(f, pdf)`` for local directions of the vertices ``vertex``
     (positions in ``verts``) instead of the materials' ``brdf``/``pdf`` (e.g. per-ray polarization).
 
-    With second-vertex sampling on (``spec.critical_table``), the vertices reached straight from a
-    scatter vertex keep their walk share of the estimate, and each vertex draws its own critical
-    second vertex (straylight.engine.second_vertex)."""
-    if event.spec.critical_table is None:
-        _estimate(event, verts, frame, w_vertex, evaluate)
-        return
-    _estimate(event, verts, frame, second_vertex.walk_weights(event, verts, w_vertex), evaluate)
-    second_vertex.estimate(event, verts, frame)
+    The strategies that work with NEE come in through the walk's ``event.nee_hooks``
+    (straylight.engine.strategies.base.Strategy: ``nee_weights``, ``nee_density``, ``after_nee``): e.g.
+    second-vertex sampling gives the vertices reached straight from a scatter vertex their walk share and
+    draws, after NEE, each vertex's critical second vertex; target sampling mixes its density into the
+    walk's. Shadow rays are tested by ``event.shadow_test`` (the walk's: occlusion and diffracting edges)."""
+    hooks = event.nee_hooks
+    mix = None
+    for strategy, state in hooks:
+        w_vertex = strategy.nee_weights(state, event, verts, w_vertex)
+        mix = strategy.nee_density(state, event, verts) or mix
+    _estimate(event, verts, frame, w_vertex, evaluate, mix)
+    for strategy, state in hooks:
+        strategy.after_nee(state, event, verts, frame)
 
 
-def _estimate(event, verts, frame, w_vertex, evaluate):
+def _estimate(event, verts, frame, w_vertex, evaluate, mix):
     spec, kern, settings, hit = event.spec, event.kernels, event.settings, event.hits
     pol = spec.options.physics.polarization
     n_jk = len(event.scene.det_parts) * settings.nee_samples
@@ -277,14 +278,6 @@ def _estimate(event, verts, frame, w_vertex, evaluate):
     f = np.empty(len(pairs.vertex))
     pdf_brdf = np.empty(len(pairs.vertex))
     wi_local, mat = frame.wi_local, frame.material
-    target = event.scene.target
-    mixed = None  # vertices whose kind mixes in target sampling (Capability.TARGET_MIS); None: all
-    if target is not None:
-        mixed = event.capabilities.at(Capability.TARGET_MIS, hit.part[verts])
-        if mixed.all():
-            mixed = None
-        elif not mixed.any():
-            target = None
     # materials see the same arrays in both walks: one call per (detector, sample) and material,
     # vertices in order (vectorised transcendental functions may round differently in a block's tail)
     for jk in range(n_jk):
@@ -300,26 +293,14 @@ def _estimate(event, verts, frame, w_vertex, evaluate):
                     model.brdf(wi_p[rows], wo_p[rows], pol), model.pdf(wi_p[rows], wo_p[rows], pol))):
                 f_jk[rows] = fv
                 pdf_jk[rows] = pv
-        if target is not None:
-            q = float(spec.options.estimator.target_fraction)
-            at = verts[pairs.vertex[sel]]
-            if mixed is None:
-                pdf_jk = (1 - q) * pdf_jk + q * target_pdf(target, hit.point_mm[at], hit.facing_normal[at],
-                                                           pairs.direction[sel], spec.eps)
-            else:
-                mx = np.flatnonzero(mixed[pairs.vertex[sel]])
-                dirs = pairs.direction[sel][mx]
-                pdf_jk[mx] = (1 - q) * pdf_jk[mx] + q * target_pdf(target, hit.point_mm[at[mx]],
-                                                                   hit.facing_normal[at[mx]], dirs, spec.eps)
+        if mix is not None:  # the walk's density there mixes in another strategy's (target sampling)
+            pdf_jk = mix(pdf_jk, pairs.vertex[sel], pairs.direction[sel])
         f[sel] = f_jk if w_vertex is None else f_jk * w_vertex[pairs.vertex[sel]]
         pdf_brdf[sel] = pdf_jk
     shadow = ShadowRays(*kern.nee_shadow(pairs, f, pdf_brdf, verts, event.rays, hit, event.scene.arrays, settings))
     if len(shadow.pair) == 0:
         return
-    blocked = np.asarray(event.scene.isect.occluded(shadow.origin_mm, shadow.direction, shadow.tmax_mm), dtype=bool)
-    if event.spec.diffraction is not None:  # the walk bends every ray that passes a diffracting edge
-        blocked = blocked | blocked_by_edges(event.spec.diffraction, shadow.origin_mm, shadow.direction,
-                                             shadow.tmax_mm, scene=event.scene)
+    blocked = event.shadow_test(shadow.origin_mm, shadow.direction, shadow.tmax_mm)
     event.shadow_rays += len(shadow.pair)
     event.tallies.reserve(NEE_WRITES_PER_SHADOW_RAY * len(shadow.pair))
     ok = kern.nee_tally(shadow, blocked, pairs, verts, event.rays, hit, settings.nee_samples,

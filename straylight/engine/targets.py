@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from straylight.engine.capabilities import Capability
 from straylight.engine.material_groups import by_material
 
 
@@ -52,3 +53,34 @@ def target_mixture(spec, target, ut, p, nf, frame, wo_world):
     good = (cos_o > 0) & (mix > 0)
     weight = np.where(good, f * cos_o / np.where(good, mix, 1.0), 0.0)
     return wo_world, weight, np.where(good, mix, 0.0)
+
+
+class TargetMixture:
+    """Per batch (the target strategy's state, straylight.engine.strategies.target_mis): the walk's
+    direction density at the scatter vertices of kinds that mix in target sampling
+    (Capability.TARGET_MIS), (1 - q) pdf_brdf + q pdf_target, which next-event estimation weighs its
+    samples against (straylight.engine.nee)."""
+
+    def __init__(self, target, fraction: float, eps: float):
+        self.target, self.q, self.eps = target, float(fraction), eps
+
+    def density(self, event, verts):
+        """For the scatter vertices ``verts`` (rows of the event): ``mix(pdf, vertex, dirs)``, which
+        turns the BRDF densities ``pdf`` of directions ``dirs`` at the vertices ``verts[vertex]`` into
+        the walk's (in place where only some vertices mix; returned); None when none of them mixes."""
+        hit = event.hits
+        mixed = event.capabilities.at(Capability.TARGET_MIS, hit.part[verts])
+        if not mixed.any():
+            return None
+        every = bool(mixed.all())
+        target, q, eps, p, nf = self.target, self.q, self.eps, hit.point_mm, hit.facing_normal
+
+        def mix(pdf, vertex, dirs):
+            at = verts[vertex]
+            if every:
+                return (1 - q) * pdf + q * target_pdf(target, p[at], nf[at], dirs, eps)
+            mx = np.flatnonzero(mixed[vertex])
+            pdf[mx] = (1 - q) * pdf[mx] + q * target_pdf(target, p[at[mx]], nf[at[mx]], dirs[mx], eps)
+            return pdf
+
+        return mix

@@ -23,7 +23,7 @@ from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
 from straylight.engine.ray_log import RayLogger
 from straylight.engine.runtime import runtime
 from straylight.engine.spec import TraceSpec
-from straylight.engine.strategies.base import BatchContext
+from straylight.engine.strategies.base import NEE_HOOKS, BatchContext, overrides
 from straylight.engine.strategies.registry import STRATEGIES
 from straylight.engine.tallies import DetectorRecords, batch_sums
 from straylight.paths import mix_key
@@ -99,7 +99,9 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         state = strategy.batch_state(ctx)
         if state is not None:
             running.append((strategy, state))
-    states = {s.state_key: state for s, state in running}
+    states = {s.state_key: state for s, state in running if s.state_key is not None}
+    nee_hooks = tuple((s, state) for s, state in running if any(overrides(s, h) for h in NEE_HOOKS))
+    shadow_test = diffraction_step.shadow_test(spec.diffraction, scene)
     start = next((state for s, state in running if s.shapes_emission), None)  # e.g. entrance sampling
     rays = emitted_rays(*emit_batch(spec, draws, n, ubuf, start), w0 if start is None else start.weights,
                         opt.output.path_depth, settings.record_paths)
@@ -135,7 +137,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             ray_log.segments(ev, rays, tri, hit, scene.arrays.triangle_part)
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
-                      capabilities=capabilities, states=states)
+                      capabilities=capabilities, states=states, nee_hooks=nee_hooks, shadow_test=shadow_test)
         rec, rec_w = hit.detected, hit.detected_w
         for strategy, state in running:  # walk hits a strategy also counts keep their share
             if len(rec):

@@ -8,7 +8,11 @@ the declaration with the hooks the rest of the engine calls:
 - :meth:`Strategy.batch_state` and the walk hooks (straylight.engine.walk): its per-batch state, handed
   to the interactions on ``Event.states`` under :attr:`Strategy.state_key`, and what it does at fixed
   points of each event (:meth:`~Strategy.share_walk_hits`, :meth:`~Strategy.after_hits`) and after the
-  batch's last event (:meth:`~Strategy.after_walk`).
+  batch's last event (:meth:`~Strategy.after_walk`);
+- the hooks of next-event estimation (straylight.engine.nee, handed them by the walk on
+  ``Event.nee_hooks``): weights of the vertices' NEE (:meth:`~Strategy.nee_weights`), the walk's direction
+  density NEE weighs against (:meth:`~Strategy.nee_density`), and what runs after NEE from the same
+  vertices (:meth:`~Strategy.after_nee`). NEE itself imports no other strategy.
 
 Every hook has a do-nothing default: a strategy overrides the ones it needs.
 """
@@ -128,3 +132,26 @@ class Strategy:
     def after_walk(self, state, ctx: BatchContext) -> int:
         """Called once after the batch's last event; returns the shadow rays it cast."""
         return 0
+
+    # ------------------------------------------------------------------ next-event estimation
+
+    def nee_weights(self, state, event, verts, w_vertex):
+        """Before NEE from the scatter vertices ``verts`` (rows of the event): the per-vertex factors of
+        their contributions, given those so far (``w_vertex``, None: all 1)."""
+        return w_vertex
+
+    def nee_density(self, state, event, verts):
+        """If it changes the walk's direction density at ``verts``: ``mix(pdf, vertex, dirs)`` turning the
+        BRDF densities of directions ``dirs`` at ``verts[vertex]`` into the walk's; else None."""
+        return None
+
+    def after_nee(self, state, event, verts, frame) -> None:
+        """After NEE from the scatter vertices ``verts`` (local frames ``frame``)."""
+
+
+NEE_HOOKS = ("nee_weights", "nee_density", "after_nee")
+
+
+def overrides(strategy: Strategy, hook: str) -> bool:
+    """Whether ``strategy`` implements the hook ``hook`` (a method of :class:`Strategy`)."""
+    return getattr(type(strategy), hook) is not getattr(Strategy, hook)

@@ -24,6 +24,17 @@ class SecondVertex(Strategy):
     def build_table(self, spec, tools: TableTools) -> object:
         return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector))
 
+    def batch_state(self, ctx: BatchContext) -> object | None:
+        return ctx.spec.critical_table  # the table is all it keeps (None: not running)
+
+    def nee_weights(self, state, event, verts, w_vertex):
+        """The vertices reached straight from a scatter vertex keep their walk share of NEE."""
+        return impl.walk_weights(event, verts, w_vertex)
+
+    def after_nee(self, state, event, verts, frame) -> None:
+        """Each vertex draws its critical second vertex, and NEE from there."""
+        impl.estimate(event, verts, frame)
+
 
 class SecondVertexLobe(Strategy):
     """Second-vertex sampling whose critical point also leaves along its lobe's own draw (the table is
