@@ -16,7 +16,8 @@ of straylight.engine.estimators.ESTIMATORS:
 The shipped default set (all its strategies at once) has its own row, :func:`test_the_shipped_default_set`.
 
 A new kind is covered by adding a scene here (the test fails for a registered kind without one);
-a new estimator by adding a row to ESTIMATORS. :func:`test_removing_a_declaration_is_detected`
+a new estimator (a strategy of straylight.engine.strategies.registry) by its row in :data:`ENGAGEMENT`
+(the test fails for a registered strategy without one). :func:`test_removing_a_declaration_is_detected`
 deletes each declared capability in turn and expects this check to fail.
 """
 from __future__ import annotations
@@ -167,33 +168,56 @@ def _last_vertex_counts(res, part_index: int) -> int:
     return int(np.count_nonzero((p.depth >= 1) & (last >= 0) & (last // 4 == part_index)))
 
 
+def _moves_the_exchange(case_name, estimator, on) -> bool:
+    """NEE / first-vertex / reflection-split / delta-chain estimates move power through the vertex part's
+    nee_exchange row (the runs other than NEE's have NEE off: nothing else writes it)."""
+    return on.ledger["nee_exchange"]["subject"].power_w != 0.0
+
+
+def _holds_second_vertices(case_name, estimator, on) -> bool:
+    """The subject's part is in the second-vertex table and the run cast more shadow rays than NEE alone."""
+    case = CONTRACT_SCENES[case_name]()
+    spec = make_spec(case.scene, _source(), 1000, 0, case.materials, TraceOptions(estimator=options_for(estimator)))
+    if second_vertex.unsupported(spec) is not None:
+        return False
+    table = second_vertex.build_table(spec, runtime().scene(spec))
+    subj = spec.part_names.index("subject")
+    return bool(table.from_part[subj]) and on.shadow_rays > _run(case_name, replace(ANALOG, nee=True),
+                                                                  SEED_ON).shadow_rays
+
+
+def _aims_at_the_target(case_name, estimator, on) -> bool:
+    """Walk hits only (NEE off in both runs): target sampling multiplies those after a subject vertex."""
+    case = CONTRACT_SCENES[case_name]()
+    alone = _run(case_name, replace(options_for(estimator, "detector"), nee=False), SEED_ON, record_paths=True)
+    off = _run(case_name, ANALOG, SEED_ON, record_paths=True)
+    subj = case.scene.part_names.index("subject")
+    return _last_vertex_counts(alone, subj) > TARGET_ENGAGED_RATIO * max(_last_vertex_counts(off, subj), 1)
+
+
+#: the contract's row of each strategy (straylight.engine.strategies.registry.STRATEGIES): how it is seen to
+#: act on the subject's parts, measured from what the run wrote. A new strategy adds its row here.
+ENGAGEMENT = {
+    "nee": _moves_the_exchange,
+    "first_vertex": _moves_the_exchange,
+    "first_vertex_lobe": _moves_the_exchange,
+    "second_vertex": _holds_second_vertices,
+    "second_vertex_lobe": _holds_second_vertices,
+    "reflection_split": _moves_the_exchange,
+    "delta_chain": _moves_the_exchange,
+    # entrance sampling acts on the source's rays before any hit, on no kind's parts: it must not engage
+    # there (no NEE-exchange, the same walk); its own checks are in test_entrance_sampling.py
+    "entrance": _moves_the_exchange,
+    "target_mis": _aims_at_the_target,
+}
+
+
 def engaged(case_name, estimator, on) -> bool:
     """Whether ``estimator`` acted on the subject part in the run ``on`` (measured, not declared)."""
-    case = CONTRACT_SCENES[case_name]()
-    if estimator.capability in (Capability.NEE, Capability.FIRST_VERTEX, Capability.REFLECTION_SPLIT,
-                                Capability.DELTA_CHAIN):
-        # NEE / first-vertex / reflection-split / delta-chain estimates move power through the vertex part's
-        # nee_exchange row (the runs other than NEE's have NEE off: nothing else writes it)
-        return on.ledger["nee_exchange"]["subject"].power_w != 0.0
-    if estimator.capability == Capability.SECOND_VERTEX:
-        spec = make_spec(case.scene, _source(), 1000, 0, case.materials, TraceOptions(estimator=options_for(estimator)))
-        if second_vertex.unsupported(spec) is not None:
-            return False
-        table = second_vertex.build_table(spec, runtime().scene(spec))
-        subj = spec.part_names.index("subject")
-        return bool(table.from_part[subj]) and on.shadow_rays > _run(case_name, replace(ANALOG, nee=True),
-                                                                      SEED_ON).shadow_rays
-    if estimator.capability == Capability.TARGET_MIS:
-        # walk hits only (NEE off in both runs): target sampling multiplies those after a subject vertex
-        alone = _run(case_name, replace(options_for(estimator, "detector"), nee=False), SEED_ON, record_paths=True)
-        off = _run(case_name, ANALOG, SEED_ON, record_paths=True)
-        subj = case.scene.part_names.index("subject")
-        return _last_vertex_counts(alone, subj) > TARGET_ENGAGED_RATIO * max(_last_vertex_counts(off, subj), 1)
-    if estimator.capability == Capability.NONE:
-        # entrance sampling acts on the source's rays before any hit, on no kind's parts: it must not
-        # engage there (no NEE-exchange, the same walk); its own checks are in test_entrance_sampling.py
-        return on.ledger["nee_exchange"]["subject"].power_w != 0.0
-    raise AssertionError(f"no engagement measure for {estimator.name}: add one to engaged()")
+    measure = ENGAGEMENT.get(estimator.name)
+    if measure is None:
+        raise AssertionError(f"no engagement measure for {estimator.name}: add its row to ENGAGEMENT")
+    return measure(case_name, estimator, on)
 
 
 def _estimator_options(estimator):
@@ -225,6 +249,11 @@ def contract_failures(case_name, estimator) -> list:
 
 KIND_NAMES = sorted(CONTRACT_SCENES)
 EST = {e.name: e for e in ESTIMATORS}
+
+
+def test_every_strategy_has_a_contract_row():
+    """A registered strategy without a row (or a row without a strategy) fails here, before any trace."""
+    assert set(ENGAGEMENT) == set(EST)
 
 
 @pytest.mark.parametrize("estimator", sorted(EST))
