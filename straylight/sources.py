@@ -231,6 +231,90 @@ class PointSource:
         return np.stack([self.position_mm, self.position_mm])
 
 
+EMISSION_THETA_REFINE = 16  # the inverse CDF of an emission table: this many linear pieces per table interval
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceEmission:
+    """Thermal emission of one side of a part, by Kirchhoff's law (docs/thermal.md): uniform points of
+    its triangles (``triangles_mm`` (k, 3, 3), ``normals`` (k, 3) the unit normals of the emitting side),
+    or of its exact ``annulus`` (center_mm, unit normal of the emitting side, inner_mm, outer_mm) for an
+    analytic plane part, and directions with density eps(theta) cos(theta) / (pi eps_h) about that
+    normal, eps the side's directional emissivity ``eps_table`` on a uniform grid of theta over
+    [0, pi/2] (linear between; eps_h its hemispherical value), so every ray carries the same power:
+    ``power_w`` = pi B_band(T) A eps_h, the side's emitted band power. Not a scene-file source: the
+    thermal forward estimator builds one per emitting side (straylight.thermal.engine_forward).
+
+    ``emit(u)``: u[:, 0] picks the triangle (its remainder is the azimuth), u[:, 1:3] the point,
+    u[:, 3] the polar angle by the inverse of the cumulative of eps(theta) sin(theta) cos(theta)
+    (:data:`EMISSION_THETA_REFINE` pieces per table interval: the density is exact to ~1e-6)."""
+
+    triangles_mm: np.ndarray
+    normals: np.ndarray
+    eps_table: np.ndarray
+    power_w: float = 1.0
+    annulus: tuple | None = None
+    wavelength_nm: float | None = None
+
+    def __post_init__(self):
+        owner = "surface emission source"
+        _check_wavelength(self, owner)
+        object.__setattr__(self, "power_w", _positive("power_w", self.power_w, owner, allow_zero=True))
+        eps = np.asarray(self.eps_table, dtype=np.float64)
+        if eps.ndim != 1 or len(eps) < 2 or not np.all(np.isfinite(eps)) or eps.min() < 0 or eps.max() <= 0:
+            raise SourceError(f"{owner}: eps_table must be >= 2 finite emissivities >= 0, not all 0")
+        fine = np.linspace(0.0, np.pi / 2, (len(eps) - 1) * EMISSION_THETA_REFINE + 1)
+        dens = np.interp(fine, np.linspace(0.0, np.pi / 2, len(eps)), eps) * np.sin(2 * fine)
+        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(fine))])
+        object.__setattr__(self, "_theta", fine)
+        object.__setattr__(self, "_theta_cdf", cdf / cdf[-1])
+        if self.annulus is None:
+            tri = np.ascontiguousarray(self.triangles_mm, dtype=np.float64).reshape(-1, 3, 3)
+            area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+            if len(tri) == 0 or not area.sum() > 0:
+                raise SourceError(f"{owner}: no triangle of positive area")
+            object.__setattr__(self, "triangles_mm", tri)
+            object.__setattr__(self, "normals", np.asarray(self.normals, dtype=np.float64).reshape(-1, 3))
+            object.__setattr__(self, "_cdf", np.cumsum(area) / area.sum())
+        else:
+            c, n, r0, r1 = self.annulus
+            object.__setattr__(self, "annulus", (_vec("center_mm", c, owner), _vec("normal", n, owner, unit=True),
+                                                 float(r0), float(r1)))
+
+    def emit(self, u):
+        n = len(u)
+        if self.annulus is not None:
+            c, nrm, r0, r1 = self.annulus
+            t, b = orthonormal_basis(nrm)
+            r = np.sqrt(r0 * r0 + u[:, 1] * (r1 * r1 - r0 * r0))
+            a = 2.0 * np.pi * u[:, 2]
+            o = c + (r * np.cos(a))[:, None] * t + (r * np.sin(a))[:, None] * b
+            normals = np.broadcast_to(nrm, (n, 3))
+            spin = u[:, 0]
+        else:
+            cdf = self._cdf
+            k = np.minimum(np.searchsorted(cdf, u[:, 0], side="right"), len(cdf) - 1)
+            lo = np.where(k > 0, cdf[np.maximum(k - 1, 0)], 0.0)
+            spin = np.clip((u[:, 0] - lo) / np.maximum(cdf[k] - lo, 1e-300), 0.0, np.nextafter(1.0, 0.0))
+            s = np.sqrt(u[:, 1])
+            wa, wb = 1.0 - s, s * (1.0 - u[:, 2])
+            tri = self.triangles_mm[k]
+            o = wa[:, None] * tri[:, 0] + wb[:, None] * tri[:, 1] + (1.0 - wa - wb)[:, None] * tri[:, 2]
+            normals = self.normals[k]
+        theta = np.interp(u[:, 3], self._theta_cdf, self._theta)
+        t, b = orthonormal_basis(normals)
+        st, phi = np.sin(theta), 2.0 * np.pi * spin
+        d = (st * np.cos(phi))[:, None] * t + (st * np.sin(phi))[:, None] * b + np.cos(theta)[:, None] * normals
+        return np.ascontiguousarray(o), np.ascontiguousarray(d)
+
+    def bounds_mm(self):
+        if self.annulus is not None:
+            c, _, _, r1 = self.annulus
+            return np.stack([c - r1, c + r1])
+        pts = self.triangles_mm.reshape(-1, 3)
+        return np.stack([pts.min(axis=0), pts.max(axis=0)])
+
+
 _KEYS = {
     "collimated_disk": ({"center_mm", "normal", "direction", "radius_mm"}, {"power_w", "wavelength_nm", "name"}),
     "lambertian_disk": ({"center_mm", "normal", "radius_mm"}, {"power_w", "wavelength_nm"}),
@@ -271,4 +355,4 @@ def source_from_dict(entry: dict, where: str = "source"):
 
 
 #: any source the engine traces
-Source = CollimatedDisk | LambertianDisk | PointSource
+Source = CollimatedDisk | LambertianDisk | PointSource | SurfaceEmission

@@ -29,7 +29,8 @@ def add_parser(subparsers):
     g.add_argument("--target-rel-error", type=float, help="trace until the detector power's relative error is at most E")
     p.add_argument("--method", choices=("reverse", "forward"), default="reverse",
                    help="reverse: rays from the detector pick up emission at every vertex (default, faster); "
-                        "forward: emission from the parts with next-event estimation")
+                        "forward: the parts' emission traced by the main engine (next-event estimation at "
+                        "scatter vertices)")
     p.add_argument("--max-seconds", type=float, default=600.0, help="time cap for --target-rel-error")
     p.add_argument("--temperature-k", nargs="+", default=(), metavar="PART=K",
                    help="set part temperatures (kelvin) over the scene's, in order; PART may be a shell pattern "

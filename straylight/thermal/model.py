@@ -46,6 +46,23 @@ def sub_bands(lo_um: float, hi_um: float, dependent: bool) -> list[tuple[float, 
     return [(float(a), float(b), float(np.sqrt(a * b))) for a, b in itertools.pairwise(edges)]
 
 
+def split_rays(n: int, share, min_rays: int) -> np.ndarray:
+    """``n`` rays shared in proportion to ``share`` (largest remainders, so they add up to ``n``
+    exactly), each sub-band with a share getting at least ``min_rays`` when ``n`` allows."""
+    share = np.asarray(share, float)
+    on = share > 0
+    if not on.any():
+        return np.zeros(len(share), np.int64)
+    n = max(int(n), int(min_rays) * int(on.sum())) if min_rays > 2 else max(int(n), 2 * int(on.sum()))
+    floor_n = min(int(min_rays), n // int(on.sum()))
+    exact = share / share.sum() * (n - floor_n * on.sum())
+    counts = np.floor(exact).astype(np.int64)
+    rest = n - floor_n * int(on.sum()) - int(counts.sum())
+    order = np.argsort(-(exact - counts), kind="stable")
+    counts[order[:rest]] += 1
+    return np.where(on, counts + floor_n, 0)
+
+
 @dataclass(eq=False)
 class ThermalScene:
     """Arrays of one scene for the thermal walks (built by :func:`thermal_scene`)."""

@@ -26,8 +26,8 @@ from straylight.rng import BatchDraws, stream_chunk
 from straylight.stop_rule import Precision
 from straylight.thermal.tables import plot_thermal, thermal_frame
 from straylight.detectors import FRONT_FACE_COS, DetectorGeometry
-from straylight.thermal.forward import ForwardEstimator
-from straylight.thermal.model import sub_bands
+from straylight.thermal.engine_forward import EngineForwardRun
+from straylight.thermal.model import split_rays, sub_bands
 from straylight.thermal.planck import band_radiance_w_m2_sr, check_band
 from straylight.thermal.reverse import reverse_batch
 from straylight.thermal.sampling import AreaSampler
@@ -168,7 +168,8 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
 
     ``ts``: :class:`straylight.thermal.model.ThermalScene`. Give ``n_rays`` (per detector) or
     ``target_rel_error``. ``method``: "reverse" (default, rays from the detector) or "forward"
-    (emission from the parts with next-event estimation). ``sweep``: further temperature sets
+    (the parts' emission as engine sources, straylight.sources.SurfaceEmission, traced by the main
+    engine's ``trace``: straylight.thermal.engine_forward). ``sweep``: further temperature sets
     ((P,) arrays, kelvin) evaluated on the same reverse paths (``ThermalResult.sweep``: per detector
     a list of (power, stderr)); the precision target applies to the scene's own temperatures.
     ``execution``: where the batches run (:class:`_Runner`); the numbers never depend on it."""
@@ -198,12 +199,18 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     out, stopped, max_rays_one, swept = {}, None, 0, {}
     share = rad_sets.max(axis=(1, 2)) if rad_sets.max() > 0 else np.ones(len(bands))
     share = share / share.sum()
+    chunk_counter = [0]  # the next free engine chunk id of the forward run's traces
     for j, name in enumerate(names):
         p = ts.part_index(name)
         sampler, _ = detector_sampler(ts, p, toward_mm)
-        run = _DetectorRun(ts, bands, rad_sets, share, _estimator(method, ts, p, sampler), seed,
-                           (j * len(bands), len(names) * len(bands)), MIN_ROUND_RAYS if target_rel_error is not None else 2,
-                           runner)
+        min_rays = MIN_ROUND_RAYS if target_rel_error is not None else 2
+        run: EngineForwardRun | _DetectorRun
+        if method == "forward":  # the main engine's trace of the parts' emission (straylight.thermal.engine_forward)
+            run = EngineForwardRun(ts, bands, rad_sets, share, ts.part_names[p], seed, min_rays, runner.threads,
+                                   chunk_counter)
+        else:
+            run = _DetectorRun(ts, bands, rad_sets, share, _estimator(method, ts, p, sampler), seed,
+                               (j * len(bands), len(names) * len(bands)), min_rays, runner)
         if rad_sets.max() <= 0:
             tot, err, per, per_err = 0.0, 0.0, np.zeros(ts.n_parts), np.zeros(ts.n_parts)
         elif n_rays is not None:
@@ -249,23 +256,6 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     temps = {n: float(t) for n, t in zip(ts.part_names, ts.temperature_k) if t > 0}
     return ThermalResult((lo, hi), max_rays_one, int(seed), method, out, bands, temps,
                          time.perf_counter() - t0, stopped, sweep=swept)
-
-
-def split_rays(n: int, share, min_rays: int) -> np.ndarray:
-    """``n`` rays shared in proportion to ``share`` (largest remainders, so they add up to ``n``
-    exactly), each sub-band with a share getting at least ``min_rays`` when ``n`` allows."""
-    share = np.asarray(share, float)
-    on = share > 0
-    if not on.any():
-        return np.zeros(len(share), np.int64)
-    n = max(int(n), int(min_rays) * int(on.sum())) if min_rays > 2 else max(int(n), 2 * int(on.sum()))
-    floor_n = min(int(min_rays), n // int(on.sum()))
-    exact = share / share.sum() * (n - floor_n * on.sum())
-    counts = np.floor(exact).astype(np.int64)
-    rest = n - floor_n * int(on.sum()) - int(counts.sum())
-    order = np.argsort(-(exact - counts), kind="stable")
-    counts[order[:rest]] += 1
-    return np.where(on, counts + floor_n, 0)
 
 
 class _DetectorRun:
@@ -344,10 +334,9 @@ class _DetectorRun:
 
 
 def _estimator(method, ts, p, sampler):
-    """batch function (sides, radiance (P,) or (C, P), draws) -> per-ray estimates (per part (P, n), totals (C, n))."""
-    if method == "reverse":
-        return lambda sides, rad, draws: reverse_batch(ts, sides, sampler, rad, draws)
-    return ForwardEstimator(ts, p, sampler)
+    """batch function (sides, radiance (P,) or (C, P), draws) -> per-ray estimates (per part (P, n), totals (C, n))
+    of the reverse estimator (the forward one is the engine's trace: straylight.thermal.engine_forward)."""
+    return lambda sides, rad, draws: reverse_batch(ts, sides, sampler, rad, draws)
 
 
 class _Runner:
