@@ -30,7 +30,7 @@ from straylight.engine.backends.dask import ship_early
 from straylight.engine.compiled_scene import detector_samplers
 from straylight.engine.plan import resolve as resolve_plan
 from straylight.engine.strategies.base import TableTools
-from straylight.engine.strategies.registry import STRATEGIES
+from straylight.engine.strategies import registry
 from straylight.engine.options import (  # noqa: F401 - re-exported
     EstimatorOptions,
     OutputOptions,
@@ -97,7 +97,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
         spec = replace(spec, chunk_offset=ex.first_chunk)
     opt = spec.options
     plan = resolve_plan(options or TraceOptions(), spec, intersector)  # which strategies run, and why not
-    tabled = [s for s in STRATEGIES if s.table_field is not None and plan.runs(s.name)]  # in registry order
+    tabled = [s for s in registry.STRATEGIES if s.table_field is not None and plan.runs(s.name)]  # in registry order
     # on dask, the workers get the spec and build their scenes while this process builds the tables
     slow = any(s.table_ships_early for s in tabled)
     early = ship_early(ex.client, spec) if ex.client is not None and slow else None

@@ -75,6 +75,16 @@ class DeltaChains:
 
     # ------------------------------------------------------------------ the walk's side
 
+    def at_interfaces(self, event, h):
+        """The interface hits ``h`` (straylight.engine.event.Interfaces): those that start a run and carry
+        power start split trees (:meth:`split`); then every hit advances its ray's run."""
+        root = np.flatnonzero(h.live & (h.E_r + h.E_t > 0) & self.starts(event, h.rows))
+        if len(root):
+            at = np.where(h.refined[root, None], h.exact[root], event.hits.point_mm[h.rows[root]])
+            self.split(event, h.rows[root], at, h.facing[root], h.d[root], h.s[root], h.S[root],
+                       tuple(x[root] for x in h.fresnel))
+        self.advance(event, h.rows, h.reflected | h.transmitted, h.passing)
+
     def starts(self, event, rows):
         """Of the interface hits ``rows``, which start a run (the ray did not come from one)."""
         return self.run[event.rays.ray[rows]] == 0

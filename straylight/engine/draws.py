@@ -25,16 +25,29 @@ class EventColumns(NamedTuple):
     width: int
     second: int = 0  # 3 + 3 per detector with second-vertex sampling: critical point, detector points
     second_lobe: int = 0  # 3 more with vertex_lobe_sampling: the lobe draw at the critical point
+    #: (strategy name, first column) of the columns the strategies declare (Strategy.uniform_columns),
+    #: after all the above, in registry order
+    strategies: tuple = ()
+
+    def of(self, strategy: str) -> int:
+        """The first of the columns ``strategy`` declared."""
+        return dict(self.strategies)[strategy]
 
 
 def event_columns(n_detectors: int, nee_samples: int, has_target: bool, second_vertex: bool = False,
-                  second_lobe: bool = False) -> EventColumns:
+                  second_lobe: bool = False, strategies=()) -> EventColumns:
+    """The layout; ``strategies``: (name, number of columns) each further strategy draws per event."""
     nee_end = 4 + 3 * int(n_detectors) * int(nee_samples)
     target_end = nee_end + (4 if has_target else 0)
     second_end = target_end + (3 + 3 * int(n_detectors) if second_vertex else 0)
     lobe = bool(second_vertex and second_lobe)
+    width = second_end + (3 if lobe else 0)
+    extra = []
+    for name, count in strategies:
+        extra.append((name, width))
+        width += int(count)
     return EventColumns(sample=0, roulette=3, nee=4, target=nee_end, second=target_end,
-                        width=second_end + (3 if lobe else 0), second_lobe=second_end if lobe else 0)
+                        width=width, second_lobe=second_end if lobe else 0, strategies=tuple(extra))
 
 
 class GeneratorDraws:

@@ -39,6 +39,26 @@ def combined_outgoing(n: int, parts) -> Outgoing:
     return out
 
 
+class Interfaces(NamedTuple):
+    """What an interface kind (straylight.engine.interactions.optical_surface) hands the strategies that act
+    at its hits (``Strategy.at_interfaces``: reflection_split, delta_chain), one row per hit, in order."""
+
+    rows: np.ndarray  # rows of the event
+    live: np.ndarray  # (m,) bool: not a pass-through
+    refined: np.ndarray  # (m,) bool: refined onto the part's analytic surface (at ``exact``)
+    exact: np.ndarray  # (m, 3) the refined point (where ``refined``)
+    facing: np.ndarray  # (m, 3) normal on the incident side
+    d: np.ndarray  # (m, 3) arriving direction
+    s: np.ndarray  # (m, 3) s vector (materials.mueller.s_vector)
+    S: np.ndarray  # (m, 4) arriving Stokes vector in the s/p basis
+    fresnel: tuple  # (r_s, r_p, t_s, t_p, cos_t, eta, bulk) of each hit (surface_geometry.smooth_coefficients_into)
+    E_r: np.ndarray  # (m,) expected reflected power fraction for this ray's polarization
+    E_t: np.ndarray  # (m,) expected transmitted power fraction
+    reflected: np.ndarray  # (m,) bool: the walk took the reflection branch
+    transmitted: np.ndarray  # (m,) bool: the walk took the transmission branch
+    passing: np.ndarray  # (m,) bool: a pass-through (refined outside the clear aperture or onto its origin)
+
+
 @dataclass
 class Event:
     """One event of a batch: the rays before it, what they hit, their uniforms, and where the
@@ -62,29 +82,22 @@ class Event:
     states: dict = field(default_factory=dict)
     #: (strategy, state) of the running strategies with hooks into next-event estimation (straylight.engine.nee)
     nee_hooks: tuple = ()
+    #: (strategy, state) of the running strategies that weigh scatter vertices (:meth:`vertex_weights`)
+    vertex_hooks: tuple = ()
+    #: (strategy, state) of the running strategies that act at Fresnel interfaces (:class:`Interfaces`)
+    interface_hooks: tuple = ()
     #: ``blocked(origin, direction, tmax)``: the walk's shadow test (straylight.engine.diffraction.shadow_test)
     shadow_test: object = None
     shadow_rays: int = 0  # shadow rays cast by the interactions in this event
 
-    @property
-    def first_vertex(self):
-        """straylight.engine.first_vertex.FirstVertexWeights, or None."""
-        return self.states.get("first_vertex")
-
-    @property
-    def second_vertex(self):
-        """straylight.engine.second_vertex.SecondVertexShares (second-vertex lobe sampling), or None."""
-        return self.states.get("second_vertex")
-
-    @property
-    def reflection_split(self):
-        """straylight.engine.reflection_split.ReflectionSplit, or None."""
-        return self.states.get("reflection_split")
-
-    @property
-    def delta_chain(self):
-        """straylight.engine.delta_chain.DeltaChains, or None."""
-        return self.states.get("delta_chain")
+    def vertex_weights(self, verts):
+        """MIS weights of the scatter vertices ``verts`` (rows of the event) from the strategies that also
+        sample such vertices (``Strategy.vertex_weights``: first-vertex sampling); None: all 1. The scatter
+        kinds call it once per event for their vertices, before NEE."""
+        w = None
+        for strategy, state in self.vertex_hooks:
+            w = strategy.vertex_weights(state, self, verts, w)
+        return w
 
     def vertex_rows(self, selection) -> np.ndarray:
         """Rows (into the event's per-ray arrays) of the continuing hits ``selection``."""

@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from straylight.engine.strategies.base import Estimator, Strategy
-from straylight.engine.strategies.registry import STRATEGIES
+from straylight.engine.strategies import registry
 
 
 @dataclass(frozen=True)
@@ -75,7 +75,7 @@ def resolve(requested_options, spec, intersector=None) -> StrategyPlan:
     asked = requested_options.estimator
     on: list[str] = []
     off: list[tuple[str, str]] = []
-    for strategy in STRATEGIES:
+    for strategy in registry.STRATEGIES:
         if not requested(strategy.estimator, asked):
             continue
         why = why_off(strategy, spec, intersector)

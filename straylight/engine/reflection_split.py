@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from materials.smooth import reflect
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.walk_shares import keep_walk_share
@@ -38,6 +39,17 @@ class ReflectionSplit:
 
     def __init__(self, n_rays_in_batch):
         self.at_depth = np.full(n_rays_in_batch, -1, dtype=np.int64)
+
+    def at_interfaces(self, event, h):
+        """The interface hits ``h`` (straylight.engine.event.Interfaces) whose reflection has power:
+        :meth:`connect` them from their (refined) points."""
+        can = np.flatnonzero(h.live & (h.E_r > 0))
+        if len(can):
+            rows = h.rows[can]
+            at = np.where(h.refined[can, None], h.exact[can], event.hits.point_mm[rows])
+            bulk = h.fresnel[6]
+            self.connect(event, rows, at, h.facing[can], reflect(h.d[can], h.facing[can]),
+                         event.rays.weight_w[rows] * h.E_r[can] * bulk[can], h.reflected[can])
 
     def connect(self, event, rows, point, facing, d_reflected, reflected_w, took_reflection):
         """Count the reflections of the interface hits ``rows`` (rows of the event) that go straight

@@ -256,9 +256,10 @@ def walk_weights(event, verts, w_vertex):
     dist = hit.distance_mm[i]
     p_w = rays.last_pdf_per_sr[i] * np.abs(hit.cos_in[i]) / (dist * dist)
     share = p_w / (p_w + p_c[s])
-    if event.second_vertex is not None:  # the area strategy draws B's lobe on glossy materials only
+    shares = event.states.get("second_vertex")  # SecondVertexShares with second_vertex_lobe_sampling
+    if shares is not None:  # the area strategy draws B's lobe on glossy materials only
         glossy = lobe_materials(event.spec)[event.spec.part_material[hit.part[i]]]
-        event.second_vertex.keep(event, i, np.where(glossy, share, 1.0))
+        shares.keep(event, i, np.where(glossy, share, 1.0))
     w = np.ones(len(verts)) if w_vertex is None else w_vertex.copy()
     w[s] *= share
     return w
@@ -403,7 +404,7 @@ def estimate(event, verts, frame):
         tallies.add(rows.detector_nee + j, r, c)
         tallies.subtract(rows.nee_exchange + part_y[g], r, c)
         _record(event, j, i[g], part_y[g], z[g], c)
-    if event.second_vertex is not None:
+    if event.states.get("second_vertex") is not None:
         _lobe_terms(event, i, y, nf_y, tb_y, bb_y, wi_y, mat_y, part_y, base)
 
 

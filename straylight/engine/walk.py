@@ -24,7 +24,7 @@ from straylight.engine.ray_log import RayLogger
 from straylight.engine.runtime import runtime
 from straylight.engine.spec import TraceSpec
 from straylight.engine.strategies.base import NEE_HOOKS, BatchContext, overrides
-from straylight.engine.strategies.registry import STRATEGIES
+from straylight.engine.strategies import registry
 from straylight.engine.tallies import DetectorRecords, batch_sums
 from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS
@@ -86,21 +86,24 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         tallies = scene.thread_local("tallies", lambda: kernels.tallies(rows.n_per_ray, n)).reset(rows.n_per_ray, n)
     else:
         tallies = kernels.tallies(rows.n_per_ray, n)
-    second_lobe = spec.critical_table is not None and bool(opt.estimator.second_vertex_lobe_sampling)
-    columns = event_columns(rows.n_detectors, opt.estimator.nee_samples, scene.target is not None,
-                            spec.critical_table is not None, second_lobe)
-    ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
     records = DetectorRecords(scene.detectors, scene.det_parts, tuple(int(b) for b in opt.output.map_bins),
                               settings.record_paths)
     ctx = BatchContext(spec=spec, scene=scene, n_rays=n, start_weight_w=w0, tallies=tallies, rows=rows,
                        records=records, capabilities=capabilities, first_chunk=first_chunk, stop_chunk=stop_chunk)
     running = []  # (strategy, its state for this batch), in registry order
-    for strategy in STRATEGIES:
+    for strategy in registry.STRATEGIES:
         state = strategy.batch_state(ctx)
         if state is not None:
             running.append((strategy, state))
     states = {s.state_key: state for s, state in running if s.state_key is not None}
+    second_lobe = spec.critical_table is not None and bool(opt.estimator.second_vertex_lobe_sampling)
+    columns = event_columns(rows.n_detectors, opt.estimator.nee_samples, scene.target is not None,
+                            spec.critical_table is not None, second_lobe,
+                            [(s.name, s.uniform_columns(spec)) for s, _ in running if overrides(s, "uniform_columns")])
+    ubuf = scene.scratch("uniforms", n * max(5, columns.width)) if reuse else None  # refilled every event
     nee_hooks = tuple((s, state) for s, state in running if any(overrides(s, h) for h in NEE_HOOKS))
+    vertex_hooks = tuple((s, state) for s, state in running if overrides(s, "vertex_weights"))
+    interface_hooks = tuple((s, state) for s, state in running if overrides(s, "at_interfaces"))
     shadow_test = diffraction_step.shadow_test(spec.diffraction, scene)
     start = next((state for s, state in running if s.shapes_emission), None)  # e.g. entrance sampling
     rays = emitted_rays(*emit_batch(spec, draws, n, ubuf, start), w0 if start is None else start.weights,
@@ -137,7 +140,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             ray_log.segments(ev, rays, tri, hit, scene.arrays.triangle_part)
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
-                      capabilities=capabilities, states=states, nee_hooks=nee_hooks, shadow_test=shadow_test)
+                      capabilities=capabilities, states=states, nee_hooks=nee_hooks,
+                      vertex_hooks=vertex_hooks, interface_hooks=interface_hooks, shadow_test=shadow_test)
         rec, rec_w = hit.detected, hit.detected_w
         for strategy, state in running:  # walk hits a strategy also counts keep their share
             if len(rec):

@@ -122,7 +122,7 @@ class BrdfScatter(Interaction):
         verts = np.ascontiguousarray(event.vertex_rows(selection))
         frame = LocalFrames(*kern.frames(verts, event.rays.direction, hit.facing_normal, hit.part,
                                          spec.part_material, event.uniforms))
-        w_vertex = None if event.first_vertex is None else event.first_vertex.vertex_weights(event, verts)
+        w_vertex = event.vertex_weights(verts)
         arr = arriving(event, verts, frame)
         if event.settings.nee and self.allows(Capability.NEE) and len(event.scene.det_parts):
             nee.estimate(event, verts, frame, w_vertex, evaluate=None if arr is None else arr.nee_evaluate(spec.materials))

@@ -39,7 +39,7 @@ from materials.mueller import interface_mueller, s_vector
 from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
 from straylight.engine import nee
-from straylight.engine.event import Outgoing
+from straylight.engine.event import Interfaces, Outgoing
 from straylight.engine.interactions.brdf_scatter import LocalFrames
 from materials.flags import ComponentFlags
 from straylight.engine.interactions.registry import Capability, Interaction, register_interaction
@@ -125,23 +125,14 @@ class OpticalSurface(Interaction):
         S_new[:, 0] = 1.0
         e1_new = s.copy()
 
-        # --- reflections straight into a detector, counted by their expected value (reflection_split)
-        split = event.reflection_split
-        if split is not None and self.allows(Capability.REFLECTION_SPLIT):
-            can = np.flatnonzero(live & (E_r > 0))
-            if len(can):
-                at = np.where(refined[can, None], exact[can], hit.point_mm[rows[can]])
-                split.connect(event, rows[can], at, facing[can], reflect(d[can], facing[can]),
-                              rays.weight_w[rows[can]] * E_r[can] * bulk[can], refl[can])
-        # --- runs of interfaces into a detector, followed by splitting (delta_chain)
-        chains = event.delta_chain
-        if chains is not None and self.allows(Capability.DELTA_CHAIN):
-            root = np.flatnonzero(live & (E_r + E_t > 0) & chains.starts(event, rows))
-            if len(root):
-                at = np.where(refined[root, None], exact[root], hit.point_mm[rows[root]])
-                chains.split(event, rows[root], at, facing[root], d[root], s[root], S[root],
-                             tuple(x[root] for x in (rs, rp, ts, tp, cos_t, eta, bulk)))
-            chains.advance(event, rows, refl | trans, passing)
+        # --- the strategies that act at interfaces (reflection_split, delta_chain), where the kind allows them
+        if event.interface_hooks:
+            at_interfaces = Interfaces(rows=rows, live=live, refined=refined, exact=exact, facing=facing, d=d, s=s,
+                                       S=S, fresnel=(rs, rp, ts, tp, cos_t, eta, bulk), E_r=E_r, E_t=E_t,
+                                       reflected=refl, transmitted=trans, passing=passing)
+            for strategy, state in event.interface_hooks:
+                if self.allows(strategy.estimator.capability):
+                    strategy.at_interfaces(state, event, at_interfaces)
         # --- lobes: NEE from every vertex whose material scatters, and the lobe branch
         has_lobes = live & ((rho_s > 0) | (rho_p > 0))
         if np.any(has_lobes):
@@ -202,7 +193,7 @@ class OpticalSurface(Interaction):
         polar_mat = np.array([is_polarizing(m) for m in spec.materials], bool)[mat[sel]]
         arr = Arriving(st, S[sel], s_local, polar_mat, frame, event.rays.ray[verts], event.rays.depth[verts])
         if event.settings.nee and self.allows(Capability.NEE) and len(event.scene.det_parts):
-            w_vertex = None if event.first_vertex is None else event.first_vertex.vertex_weights(event, verts)
+            w_vertex = event.vertex_weights(verts)
             nee.estimate(event, verts, frame, w_vertex, evaluate=arr.nee_evaluate(spec.materials))
         # the lobe branch: the material's own draw, u[:, 0] re-used within the branch's interval
         lb = np.flatnonzero(lobe[sel])

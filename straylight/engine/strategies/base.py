@@ -9,6 +9,10 @@ the declaration with the hooks the rest of the engine calls:
   to the interactions on ``Event.states`` under :attr:`Strategy.state_key`, and what it does at fixed
   points of each event (:meth:`~Strategy.share_walk_hits`, :meth:`~Strategy.after_hits`) and after the
   batch's last event (:meth:`~Strategy.after_walk`);
+- the hooks of the interaction kinds: weights of the scatter vertices (:meth:`~Strategy.vertex_weights`,
+  called through ``Event.vertex_weights``) and what it does at Fresnel interfaces
+  (:meth:`~Strategy.at_interfaces`, called by the interface kind where it allows the strategy's
+  capability; the walk hands them ``Event.vertex_hooks`` and ``Event.interface_hooks``);
 - the hooks of next-event estimation (straylight.engine.nee, handed them by the walk on
   ``Event.nee_hooks``): weights of the vertices' NEE (:meth:`~Strategy.nee_weights`), the walk's direction
   density NEE weighs against (:meth:`~Strategy.nee_density`), and what runs after NEE from the same
@@ -121,6 +125,11 @@ class Strategy:
         """Its state for one batch of the walk (None: it does nothing in this batch)."""
         return None
 
+    def uniform_columns(self, spec) -> int:
+        """The uniforms per live ray and event it draws (read at ``event.columns.of(name)``): appended to
+        the event's columns (straylight.engine.draws.event_columns) when it runs in the batch."""
+        return 0
+
     def share_walk_hits(self, state, event, rec, rec_w):
         """The walk's detector hits ``rec`` (rows of the event, weights ``rec_w``) that this strategy
         also counts keep only their share (the rest to the NEE exchange); returns those still counted."""
@@ -132,6 +141,17 @@ class Strategy:
     def after_walk(self, state, ctx: BatchContext) -> int:
         """Called once after the batch's last event; returns the shadow rays it cast."""
         return 0
+
+    # ------------------------------------------------------------------ the interaction kinds
+
+    def vertex_weights(self, state, event, verts, w_vertex):
+        """MIS weights of the scatter vertices ``verts`` (rows of the event) given those so far (None: all
+        1), when it also samples such vertices (first-vertex sampling)."""
+        return w_vertex
+
+    def at_interfaces(self, state, event, interfaces) -> None:
+        """At the Fresnel interface hits ``interfaces`` (straylight.engine.event.Interfaces) of a kind that
+        allows its capability, before the walk's branch is applied."""
 
     # ------------------------------------------------------------------ next-event estimation
 

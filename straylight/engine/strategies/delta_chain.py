@@ -21,6 +21,9 @@ class DeltaChainStrategy(Strategy):
             return None
         return impl.DeltaChains(ctx.n_rays, k, ctx.capabilities.parts(Capability.DELTA_CHAIN))
 
+    def at_interfaces(self, state, event, interfaces) -> None:
+        state.at_interfaces(event, interfaces)
+
     def share_walk_hits(self, state, event, rec, rec_w):
         return state.share_after_chain(event, rec, rec_w)
 

@@ -35,6 +35,9 @@ class FirstVertex(Strategy):
             return None
         return impl.FirstVertexWeights(ctx.spec, ctx.spec.vertex_table, ctx.n_rays)
 
+    def vertex_weights(self, state, event, verts, w_vertex):
+        return state.vertex_weights(event, verts)  # the first of its kind: w_vertex is None
+
     def share_walk_hits(self, state, event, rec, rec_w):
         return state.share_single_scatter(event, rec, rec_w)
 

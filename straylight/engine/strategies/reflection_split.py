@@ -19,6 +19,9 @@ class ReflectionSplitStrategy(Strategy):
             return None
         return impl.ReflectionSplit(ctx.n_rays)
 
+    def at_interfaces(self, state, event, interfaces) -> None:
+        state.at_interfaces(event, interfaces)
+
     def share_walk_hits(self, state, event, rec, rec_w):
         return state.share_after_reflection(event, rec, rec_w)
 
