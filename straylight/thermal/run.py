@@ -22,8 +22,8 @@ import numpy as np
 
 from straylight.engine.options import TraceError
 from straylight.execution import Execution, as_execution
-from straylight.rng import BatchDraws, stream_chunk
-from straylight.stop_rule import Precision
+from straylight.rng import CHUNK_RAYS, BatchDraws, stream_chunk
+from straylight.stop_rule import Precision, next_round_rays
 from straylight.thermal.tables import plot_thermal, thermal_frame
 from straylight.detectors import FRONT_FACE_COS, DetectorGeometry
 from straylight.thermal.engine_forward import EngineForwardRun
@@ -218,9 +218,12 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
             tot, err, per, per_err = run.combined()
         else:
             target = float(target_rel_error)  # type: ignore[arg-type]  # set when n_rays is None
-            # the same stop as the PST's (straylight.analyses.precision): the error AND its reliability
-            # (VOV, no chunk dominating), a minimum sample of chunks, and a confirming look
-            rule = Precision(target, min_chunks=THERMAL_MIN_CHUNKS)
+            # the same rule as trace's and the PST's rounds (straylight.analyses.precision): the stop (the
+            # error AND its reliability: VOV, no chunk dominating, a minimum sample of chunks, a confirming
+            # look) and the size of the next round (straylight.stop_rule.next_round_rays)
+            t_det = time.perf_counter()
+            rule = Precision(target, max_rays=max(int(max_rays), CHUNK_RAYS), min_chunks=THERMAL_MIN_CHUNKS,
+                             max_seconds=max(max_seconds - (t_det - t0), 1e-3))
             looks: list = []
             rays_now = MIN_ROUND_RAYS * len(bands)
             while True:
@@ -237,15 +240,7 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
                     stopped = (f"stopped at {done} rays / {time.perf_counter() - t0:.0f} s with relative error "
                                f"{err / tot if tot > 0 else float('inf'):.3g} (target {target_rel_error})")
                     break
-                rel = err / tot if tot > 0 else 1.0
-                # the rays still needed if the error falls as 1/sqrt(N), 5 % more, at most 16x the work so
-                # far; half as many again for a confirming look once the target is met
-                need = done * ((rel / target) ** 2 - 1.0) * 1.05
-                if rule.meets(looks[-1]):
-                    need = max(need, rule.confirm_growth * done)
-                elif looks[-1].chunks < rule.min_chunks:
-                    need = max(need, 0.5 * done)
-                rays_now = int(min(max_rays - done, 16 * done, max(MIN_ROUND_RAYS, need)))
+                rays_now = min(next_round_rays(looks, rule, time.perf_counter() - t_det), max(int(max_rays) - done, 2))
         max_rays_one = max(max_rays_one, run.rays)
         by_part = {ts.part_names[q]: Tally(float(per[q]), float(per_err[q])) for q in range(ts.n_parts)
                    if ts.part_names[q] in emitting}
