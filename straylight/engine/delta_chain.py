@@ -225,8 +225,9 @@ class DeltaChains:
             m = np.flatnonzero(j_of == j)
             i = b.row[m]
             r = rays.ray[i]
-            event.tallies.add(event.rows.detector_nee + int(j), r, b.w[m])
-            event.tallies.subtract(event.rows.nee_exchange + start_part[m], r, b.w[m])
+            w = b.w[m] * event.tree_share(i, int(j))  # a strategy that also counts this run keeps its share
+            event.tallies.add(event.rows.detector_nee + int(j), r, w)
+            event.tallies.subtract(event.rows.nee_exchange + start_part[m], r, w)
             keys = events = None
             depth = rays.depth[i]
             if event.settings.record_paths:
@@ -235,4 +236,4 @@ class DeltaChains:
                 for step in range(self.k_max):
                     at = np.flatnonzero((b.codes[m, step] >= 0) & (depth + step < events.shape[1]))
                     events[at, depth[at] + step] = b.codes[m[at], step]
-            event.records.add(int(j), r, z[m], b.w[m], keys, events, depth + b.k[m])
+            event.records.add(int(j), r, z[m], w, keys, events, depth + b.k[m])

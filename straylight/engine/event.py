@@ -99,6 +99,26 @@ class Event:
             w = strategy.vertex_weights(state, self, verts, w)
         return w
 
+    def claimed(self, rows) -> np.ndarray:
+        """Of the interface hits ``rows``: those whose runs into a detector a strategy counts in full
+        from here (straylight.engine.reverse_chain): reflection splits leave them."""
+        out = np.zeros(len(rows), dtype=bool)
+        for state in self.states.values():
+            claims = getattr(state, "claims", None)
+            if claims is not None:
+                out |= claims(self, rows)
+        return out
+
+    def tree_share(self, rows, detector: int) -> np.ndarray:
+        """The share a split tree rooted at the interface hits ``rows`` keeps of its score on
+        ``detector`` (1 unless a strategy also counts that run: straylight.engine.reverse_chain)."""
+        out = np.ones(len(rows))
+        for state in self.states.values():
+            share = getattr(state, "tree_share", None)
+            if share is not None:
+                out *= share(self, rows, detector)
+        return out
+
     def vertex_rows(self, selection) -> np.ndarray:
         """Rows (into the event's per-ray arrays) of the continuing hits ``selection``."""
         return self.hits.continuing[selection]

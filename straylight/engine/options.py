@@ -33,6 +33,7 @@ class EstimatorOptions:
     reflection_split: bool = False  # interface reflections into a detector counted by expected value
     delta_chain: int = 0  # > 0: runs of up to this many interfaces into a detector followed by splitting
     entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
+    reverse_chain: int = 0  # > 0: eye chains from the detectors through up to this many interfaces, joined to the walk
 
     def __post_init__(self):
         if not (0.0 <= float(self.rr_threshold) < 1.0):
@@ -46,6 +47,8 @@ class EstimatorOptions:
         object.__setattr__(self, "target_parts", tuple(self.target_parts))
         if int(self.delta_chain) < 0:
             raise TraceError(f"delta_chain must be >= 0 (interfaces per split tree), got {self.delta_chain}")
+        if int(self.reverse_chain) < 0:
+            raise TraceError(f"reverse_chain must be >= 0 (interfaces per eye chain), got {self.reverse_chain}")
         if int(self.delta_chain) > 0 and self.reflection_split:
             raise TraceError("delta_chain includes reflection_split (its one-reflection paths): turn one of them off")
 

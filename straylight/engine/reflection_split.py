@@ -43,7 +43,7 @@ class ReflectionSplit:
     def at_interfaces(self, event, h):
         """The interface hits ``h`` (straylight.engine.event.Interfaces) whose reflection has power:
         :meth:`connect` them from their (refined) points."""
-        can = np.flatnonzero(h.live & (h.E_r > 0))
+        can = np.flatnonzero(h.live & (h.E_r > 0) & ~event.claimed(h.rows))  # reverse chains count those
         if len(can):
             rows = h.rows[can]
             at = np.where(h.refined[can, None], h.exact[can], event.hits.point_mm[rows])

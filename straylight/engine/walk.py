@@ -161,6 +161,8 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             out = groups[0][0].interact(event, groups[0][1])
         else:
             out = combined_outgoing(len(cont), [(sel, kind.interact(event, sel)) for kind, sel in groups])
+        for strategy, state in running:
+            strategy.after_interactions(state, event, cont, out)
         shadow_rays += event.shadow_rays
         tallies.reserve(ADVANCE_WRITES_PER_RAY * len(cont))
         rays, _kept = next_rays(kernels.advance(cont, out, rays, hit, U[:, columns.roulette], settings,

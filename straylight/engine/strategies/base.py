@@ -138,6 +138,10 @@ class Strategy:
     def after_hits(self, state, event, continuing) -> None:
         """Called once per event after the hit stage with the continuing hits (rows of the event)."""
 
+    def after_interactions(self, state, event, continuing, outgoing) -> None:
+        """Called once per event after the interactions: ``outgoing`` (straylight.engine.event.Outgoing)
+        says what each continuing hit (rows of the event) did."""
+
     def after_walk(self, state, ctx: BatchContext) -> int:
         """Called once after the batch's last event; returns the shadow rays it cast."""
         return 0

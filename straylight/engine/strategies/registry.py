@@ -13,6 +13,7 @@ from straylight.engine.strategies.entrance import ENTRANCE
 from straylight.engine.strategies.first_vertex import FIRST_VERTEX, FIRST_VERTEX_LOBE
 from straylight.engine.strategies.nee import NEE
 from straylight.engine.strategies.reflection_split import REFLECTION_SPLIT
+from straylight.engine.strategies.reverse_chain import REVERSE_CHAIN
 from straylight.engine.strategies.second_vertex import SECOND_VERTEX, SECOND_VERTEX_LOBE
 from straylight.engine.strategies.target_mis import TARGET_MIS
 
@@ -26,6 +27,7 @@ STRATEGIES: tuple[Strategy, ...] = (
     DELTA_CHAIN,
     ENTRANCE,
     TARGET_MIS,
+    REVERSE_CHAIN,
 )
 
 BY_NAME: dict[str, Strategy] = {s.name: s for s in STRATEGIES}

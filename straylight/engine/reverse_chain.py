@@ -1,0 +1,589 @@
+"""Reverse chains: what the detector sees through runs of interfaces, joined to the walk.
+
+Behind a lens a scatter point P counts only if the light it sends through the glass lands on the
+small sensor: the walk finds such a direction by chance (on the guide scope at 45-60 deg a few rays
+in 1e5 carried 98 % of the variance, each a tube point whose two-reflection ghost crosses the sensor),
+and next-event estimation cannot aim through a refracting surface. So the path is built from both
+ends. Per ray of the walk one *eye chain* starts on a detector: a point z uniform on it (density
+1 / A), a direction omega cosine-distributed on its counted side (density cos / pi), cast and split at
+every interface (parts whose kind declares ``Capability.DELTA_CHAIN``: reflection and transmission
+both followed, as ``delta_chain`` does) for up to K interfaces. A branch that, after k >= 1
+interfaces, meets a scatter part whose material is a non-polarizing pure scatterer ends there at an
+*end point* P with the importance
+
+    beta = pi A D (x 2 with both sides counted) x (v_P)_0,
+
+D the number of detectors and v the chain's Stokes covector: (1, 0, 0, 0) at the detector (it
+measures power), carried back through each interface as v_in = M^T v_out (M the interface's Mueller
+matrix for the forward light, in its s/p frame; frames turned by the inverse rotation) and
+multiplied by the bulk transmission: (v_P)_0 is exactly the power the chain delivers for
+unpolarized light leaving P, and a non-polarizing scatterer sends unpolarized light whatever it
+receives (materials.polarized_brdf). Transmission coefficients are reciprocal (power-normalised
+amplitudes), so the eye ray's Fresnel factors are the forward light's.
+
+Two connections count the paths "X -> P -> interfaces (1..K) -> detector":
+
+- X the source (one ``collimated_disk``): P lit straight by the beam, irradiance E = Phi / (pi r^2
+  |d . n_src|) x cos_P, unblocked to the source disk: ``beta f_P(-d, omega_P) E cos_P``;
+- X a scatter vertex A of the walk whose scatter is non-polarizing (weight w, arriving from wi):
+  ``w f_A(wi, A->P) cos_A cos_P / |AP|^2 f_P(P->A, omega_P) beta x n_ends`` for one of the ray's
+  n_ends end points drawn uniformly, when A and P see each other.
+
+Each ray's eye chain is its own (a stream keyed by seed and chunk), so the rays stay independent
+and the engine's per-ray error stays right. The walk's own paths of that family are dropped (their
+weight to the NEE exchange, the ledger stays exact), and so are delta_chain's split trees and
+reflection_split's reflections that start after such a P (:meth:`ReverseChains.claims`): each path
+is counted once. Paths with a pass-through (a hit outside a clear aperture) between X and P stay
+the walk's (shadow rays do not pass apertures); passes inside the run are followed by both sides.
+
+Contributions go to ``detector_nee`` and, negated, to the NEE-exchange row of P's part (source
+connection) or A's part (vertex connection). Cost per ray: the eye chain (~2-6 casts in a singlet)
+and one shadow ray per end point and per eligible scatter vertex.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from materials.flags import ComponentFlags, flags_of
+from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.polarized_brdf import is_polarizing
+from materials.smooth import reflect, refract
+from straylight.engine.capabilities import Capability
+from straylight.engine.interactions.optical_surface import refine_on_surfaces, side_material, smooth_coefficients_into
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
+from straylight.engine.roles import ROLE_DETECTOR
+from straylight.engine.walk_shares import keep_walk_share
+from straylight.paths import mix_key
+from straylight.polarization import UNPOLARIZED
+from straylight.rng import CHUNK_RAYS
+from straylight.sources import CollimatedDisk, orthonormal_basis
+
+STREAM = 0x52564348  # entropy word of the eye chains' streams ("RVCH")
+_GOLDEN = 0.6180339887498949  # Weyl step of a ray's end-point choices over its depth
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def unsupported(spec) -> str | None:
+    """Why the strategy cannot run on ``spec`` (None when it can)."""
+    if len(spec.sources) != 1 or not isinstance(spec.sources[0], CollimatedDisk):
+        return "it joins its end points to exactly one collimated_disk source"
+    if spec.options.physics.polarization != "u":
+        return "its chains carry the polarization of unpolarized light; this trace fixes s or p"
+    return None
+
+
+def scatter_ends(spec) -> np.ndarray:
+    """Bool per material (index into ``spec.materials``, plus a last False for 'none'): a pure
+    scatterer that sends unpolarized light on when it receives unpolarized light, where an eye chain
+    may end and a vertex connection may start. That is every pure scatterer under the default
+    ``scatter_polarization = "auto"`` (the walk drops the polarization scatter creates from
+    unpolarized light, straylight.engine.interactions.stokes), and the non-polarizing ones under "on"."""
+    auto = spec.options.physics.scatter_polarization == "auto"
+    out = []
+    for m in spec.materials:
+        flags = flags_of(m)
+        out.append(not (flags & ComponentFlags.DELTA) and (auto or not is_polarizing(m)))
+    return np.array(out + [False], dtype=bool)
+
+
+def _source_linear(spec) -> bool:
+    return bool(getattr(spec.sources[0], "polarization", UNPOLARIZED).is_linear)
+
+
+def _brdf(spec, mat, n, wi, wo, with_pdf=False):
+    """Unpolarized BRDF of materials ``mat`` at frames of normals ``n`` (world directions wi toward
+    the light, wo toward the viewer, both on the normal's side); with ``with_pdf`` also the
+    material's sampling pdf of wo (the walk's draw there)."""
+    t, b = orthonormal_basis(n)
+    li = np.stack([_dot(wi, t), _dot(wi, b), _dot(wi, n)], axis=1)
+    lo = np.stack([_dot(wo, t), _dot(wo, b), _dot(wo, n)], axis=1)
+    f = np.zeros(len(mat))
+    pdf = np.zeros(len(mat))
+    pol = spec.options.physics.polarization
+    for k in np.unique(mat):
+        g = np.flatnonzero(mat == k)
+        model = spec.materials[k]
+        f[g] = model.brdf(li[g], lo[g], pol)
+        if with_pdf:
+            pdf[g] = model.pdf(li[g], lo[g], pol)
+    return (f, pdf) if with_pdf else f
+
+
+def _entrance_density(spec, src, q) -> np.ndarray:
+    """Density factor G^2 P_c of the entrance table at the source points ``q`` (1 without a table):
+    the inverse of the collimated disk's map u -> r sqrt(u1) (cos 2 pi u2 t + sin 2 pi u2 b)."""
+    table = spec.entrance_table
+    if table is None:
+        return np.ones(len(q))
+    t, b = orthonormal_basis(np.asarray(src.normal, float))
+    rel = q - src.center_mm
+    x, y = rel @ t, rel @ b
+    u1 = np.clip((x * x + y * y) / src.radius_mm ** 2, 0.0, np.nextafter(1.0, 0.0))
+    u2 = (np.arctan2(y, x) / (2.0 * np.pi)) % 1.0
+    g = table.grid
+    cell = np.minimum((u1 * g).astype(np.int64), g - 1) * g + np.minimum((u2 * g).astype(np.int64), g - 1)
+    return g * g * table.prob[cell]
+
+
+class EyeEnds:
+    """End points of the batch's eye chains, sorted by the ray that owns them."""
+
+    def __init__(self, ray, point, normal, part, material, omega, beta, detector, z, k, codes):
+        order = np.argsort(ray, kind="stable")
+        self.ray, self.point, self.normal = ray[order], point[order], normal[order]
+        self.part, self.material, self.omega = part[order], material[order], omega[order]
+        self.beta, self.detector, self.z, self.k = beta[order], detector[order], z[order], k[order]
+        self.codes = codes[order]  # (m, K) interface codes in the forward order, -1 padded
+
+
+class _Branches:
+    """Eye rays in flight: owning ray, origin, direction, scalar weight, Stokes covector and its
+    frame e1, interfaces met, last part, detector and point where the chain started, codes."""
+
+    FIELDS = ("ray", "origin", "d", "w", "v", "e1", "k", "last_part", "det", "z", "codes")
+
+    def __init__(self, **kw):
+        for f in self.FIELDS:
+            setattr(self, f, kw[f])
+
+    def take(self, sel):
+        return _Branches(**{f: getattr(self, f)[sel] for f in self.FIELDS})
+
+    @classmethod
+    def concat(cls, parts):
+        return cls(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in cls.FIELDS})
+
+
+class ReverseChains:
+    """Per batch: the eye chains of its rays, the source connections of their end points (counted
+    at once), the walk-side state that decides which walk paths the chains own, and the vertex
+    connections from the walk's scatter vertices."""
+
+    def __init__(self, ctx, k_max: int, splits: np.ndarray):
+        spec, scene = ctx.spec, ctx.scene
+        self.k_max = int(k_max)
+        self.path_depth = int(spec.options.output.path_depth)
+        self.splits = splits  # bool per part: an interface the chains cross (Capability.DELTA_CHAIN)
+        self.end_material = scatter_ends(spec)
+        n = ctx.n_rays
+        self.scale = 1.0 / float(spec.n_rays)  # each ray's eye chain: its 1/N share of the estimate
+        # walk side, per ray: the segment started at the source or at a plain scatter vertex (pred);
+        # the last scatter vertex is an end-point kind reached so (anchor); interfaces since (run)
+        self.linear_source = _source_linear(spec)
+        self.pred = np.full(n, not self.linear_source, dtype=bool)
+        self._arriving_unpolarized = np.zeros(0, dtype=bool)  # per continuing hit of the current event
+        self.anchor = np.zeros(n, dtype=bool)
+        self.run = np.zeros(n, dtype=np.int64)
+        self.shadow_rays = 0
+        self.u_choice = np.empty(n)
+        # multiple importance sampling with the split trees (delta_chain), which count the same runs
+        # from the walk's side: balance heuristic over (P, omega) (module doc, "Weights")
+        est = spec.options.estimator
+        self.k_tree = int(est.delta_chain)
+        self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
+        self.sides = 2.0 if spec.options.output.detector_sides == "both" else 1.0
+        self.w0 = ctx.start_weight_w
+        src = spec.sources[0]
+        self.source_footprint = np.pi * src.radius_mm ** 2 * abs(float(np.dot(src.direction, src.normal)))
+        self.p_walk = np.zeros(n)  # per anchored ray: the walk's density of (P, omega) (area x solid angle)
+        self.cos_out = np.zeros(n)  # and the cosine of omega at P
+        self.ends = self._trace_eyes(ctx)
+        self.first = np.searchsorted(self.ends.ray, np.arange(n), side="left")
+        self.count = np.searchsorted(self.ends.ray, np.arange(n), side="right") - self.first
+        self._connect_source(ctx)
+
+    # ------------------------------------------------------------------ eye chains
+
+    def _uniforms(self, ctx):
+        spec = ctx.spec
+        n = ctx.n_rays
+        u = np.empty((n, 7))
+        for c in range(ctx.first_chunk, ctx.stop_chunk):
+            lo = (c - ctx.first_chunk) * CHUNK_RAYS
+            hi = min(lo + CHUNK_RAYS, n)
+            if hi <= lo:
+                break
+            rng = np.random.default_rng([int(spec.seed), int(spec.chunk_offset + c), STREAM])
+            u[lo:hi] = rng.random((hi - lo, 7))
+        return u
+
+    def _trace_eyes(self, ctx):
+        spec, scene = ctx.spec, ctx.scene
+        n = ctx.n_rays
+        u = self._uniforms(ctx)
+        self.u_choice = u[:, 6].copy()
+        dets = scene.detectors
+        D = len(dets)
+        j = np.minimum((u[:, 0] * D).astype(np.int64), D - 1)
+        z = np.empty((n, 3))
+        nz = np.empty((n, 3))
+        area = np.empty(n)
+        for jj in range(D):
+            g = np.flatnonzero(j == jj)
+            if len(g):
+                z[g], nz[g] = dets[jj].sample(u[g, 1:4])
+                area[g] = dets[jj].area_mm2
+        both = spec.options.output.detector_sides == "both"
+        side = np.where(u[:, 5] < 0.5, 1.0, -1.0) if both else np.ones(n)
+        nz = nz * side[:, None]
+        # cosine-weighted direction about nz (Malley): density cos / pi
+        r = np.sqrt(u[:, 4])
+        phi = 2.0 * np.pi * (u[:, 5] * 2.0 % 1.0 if both else u[:, 5])
+        t, b = orthonormal_basis(nz)
+        cz = np.sqrt(np.maximum(0.0, 1.0 - u[:, 4]))
+        d = (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b + cz[:, None] * nz
+        d /= np.linalg.norm(d, axis=1)[:, None]
+        beta = np.pi * area * D * (2.0 if both else 1.0)
+        det_part = np.asarray(scene.det_parts, dtype=np.int64)[j]
+        e1 = s_vector(d, nz)  # any frame: the covector (1, 0, 0, 0) is the same in all
+        v = np.zeros((n, 4))
+        v[:, 0] = 1.0
+        live = _Branches(ray=np.arange(n), origin=np.ascontiguousarray(z + 2.0 * spec.eps * nz), d=d, w=beta, v=v,
+                         e1=e1, k=np.zeros(n, np.int64), last_part=det_part, det=j, z=z,
+                         codes=np.full((n, max(self.k_max, 1)), -1, dtype=np.int64))
+        ends = []
+        for _ in range(int(spec.options.physics.max_events)):
+            if live is None or len(live.w) == 0:
+                break
+            live = self._step(ctx, live, ends)
+        if not ends:
+            z0 = np.empty(0, np.int64)
+            return EyeEnds(z0, np.empty((0, 3)), np.empty((0, 3)), z0, z0, np.empty((0, 3)), np.empty(0), z0,
+                           np.empty((0, 3)), z0, np.empty((0, max(self.k_max, 1)), np.int64))
+        cols = {k: np.concatenate([e[k] for e in ends]) for k in ends[0]}
+        return EyeEnds(**cols)
+
+    def _step(self, ctx, b, ends):
+        spec, scene = ctx.spec, ctx.scene
+        tri, dist = scene.isect.intersect(np.ascontiguousarray(b.origin), np.ascontiguousarray(b.d))
+        self.shadow_rays += len(b.w)
+        tri, dist = np.asarray(tri), np.asarray(dist, dtype=np.float64)
+        hit = np.flatnonzero(tri >= 0)
+        b, tri, dist = b.take(hit), tri[hit], dist[hit]
+        part = spec.triangle_part[tri].astype(np.int64)
+        cos_in = _dot(b.d, scene.normals[tri])
+        flat = np.abs(cos_in) >= 1e-12
+        dist = np.where(flat, (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], b.origin))
+                        / np.where(flat, cos_in, 1.0), dist)
+        det = spec.part_roles[part] == ROLE_DETECTOR
+        # an end point: a plain scatter part met after >= 1 interface
+        mat = spec.part_material[part]
+        end = np.flatnonzero(~det & ~self.splits[part] & (b.k >= 1) & self.end_material[mat])
+        if len(end):
+            e = b.take(end)
+            nrm = scene.normals[tri[end]]
+            facing = np.where((cos_in[end] < 0)[:, None], nrm, -nrm)
+            point = e.origin + dist[end, None] * e.d
+            beta = e.w * e.v[:, 0]
+            ok = beta > 0
+            if ok.any():
+                ends.append({"ray": e.ray[ok], "point": point[ok], "normal": facing[ok], "part": part[end][ok],
+                             "material": mat[end][ok], "omega": -e.d[ok], "beta": beta[ok], "detector": e.det[ok],
+                             "z": e.z[ok], "k": e.k[ok], "codes": _forward_codes(e.codes[ok], e.k[ok])})
+        go = np.flatnonzero(~det & self.splits[part])
+        if len(go) == 0:
+            return None
+        b, part, dist, cos_in, tri = b.take(go), part[go], dist[go], cos_in[go], tri[go]
+        front0 = cos_in < 0
+        facing0 = np.where(front0[:, None], scene.normals[tri], -scene.normals[tri])
+        front, facing, exact, refined, passing = refine_on_surfaces(spec, part, b.origin, b.d, dist, b.last_part,
+                                                                    front0, facing0)
+        at = np.where(refined[:, None], exact, b.origin + dist[:, None] * b.d)
+        out = []
+        through = np.flatnonzero(passing)
+        if len(through):  # a pass-through: the walk goes on unchanged, and so does the chain
+            c = b.take(through)
+            c.origin = np.ascontiguousarray(at[through] + 2.0 * spec.eps * c.d)
+            c.last_part = part[through]
+            out.append(c)
+        live = np.flatnonzero(~passing & (b.k < self.k_max))
+        b, part, at, facing, dist = b.take(live), part[live], at[live], facing[live], dist[live]
+        if len(live):
+            out.extend(self._children(spec, b, part, at, facing, dist, front[live]))
+        out = [o for o in out if len(o.w)]
+        if not out:
+            return None
+        return out[0] if len(out) == 1 else _Branches.concat(out)
+
+    def _children(self, spec, b, part, at, facing, dist, front):
+        """Reflected and transmitted eye branches at interface hits, the covector carried back."""
+        mat = side_material(spec, part, front)
+        back = ~front
+        cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
+        m = len(part)
+        rs, rp, ts, tp = (np.zeros(m, complex) for _ in range(4))
+        cos_t, eta, bulk = np.zeros(m), np.ones(m), np.ones(m)
+        for k in np.unique(mat):
+            g = np.flatnonzero(mat == k)
+            smooth_coefficients_into(spec.materials[k], g, back, cos_i, dist, (rs, rp, ts, tp, cos_t, eta, bulk))
+        s = s_vector(b.d, facing)
+        # the covector from the frame of the interface met before (forward: after) to this one's s
+        # frame, along the forward direction -d (the inverse of the forward rotation)
+        v = rotate_stokes(b.v, b.e1, s, -b.d)
+        code = part * 4 + EVENT_SPECULAR
+        codes = b.codes.copy()
+        codes[np.arange(m), b.k] = code
+        eps = 2.0 * spec.eps
+        out = []
+        for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
+            v_in = np.einsum("nji,nj->ni", interface_mueller(a_s, a_p), v)  # M^T v
+            w = b.w * bulk
+            g = np.flatnonzero((v_in[:, 0] > 0) & (w > 0))
+            if len(g) == 0:
+                continue
+            d_out = reflect(b.d[g], facing[g]) if sign > 0 else refract(b.d[g], facing[g], eta[g], cos_t[g])
+            out.append(_Branches(ray=b.ray[g], origin=np.ascontiguousarray(at[g] + sign * eps * facing[g]),
+                                 d=np.ascontiguousarray(d_out), w=w[g], v=v_in[g], e1=s[g], k=b.k[g] + 1,
+                                 last_part=part[g], det=b.det[g], z=b.z[g], codes=codes[g]))
+        return out
+
+    # ------------------------------------------------------------------ source connection
+
+    def _connect_source(self, ctx):
+        e = self.ends
+        if len(e.ray) == 0 or self.linear_source:  # P must receive unpolarized light (module doc)
+            return
+        spec, scene = ctx.spec, ctx.scene
+        src = spec.sources[0]
+        d = np.asarray(src.direction, float)
+        cos_p = -(e.normal @ d)
+        denom = float(d @ src.normal)
+        if abs(denom) < 1e-12:
+            return
+        t = ((e.point - src.center_mm) @ src.normal) / denom
+        q = e.point - t[:, None] * d[None, :]
+        inside = np.einsum("ij,ij->i", q - src.center_mm, q - src.center_mm) <= src.radius_mm ** 2
+        g = np.flatnonzero((cos_p > 0) & (t > 2 * spec.eps) & inside)
+        if len(g) == 0:
+            return
+        origin = np.ascontiguousarray(e.point[g] + 2.0 * spec.eps * e.normal[g])
+        dirs = np.ascontiguousarray(np.broadcast_to(-d, (len(g), 3)))
+        blocked = np.asarray(scene.isect.occluded(origin, dirs, np.ascontiguousarray(t[g] - 4.0 * spec.eps)))
+        self.shadow_rays += len(g)
+        g = g[~blocked]
+        if len(g) == 0:
+            return
+        irradiance = src.power_w / (np.pi * src.radius_mm ** 2 * abs(denom))
+        wi = np.ascontiguousarray(np.broadcast_to(-d, (len(g), 3)))
+        f, pdf = _brdf(spec, e.material[g], e.normal[g], wi, e.omega[g], with_pdf=True)
+        p_area = _entrance_density(spec, src, q[g]) * cos_p[g] / self.source_footprint
+        value = e.beta[g] * f * irradiance * cos_p[g] * self.scale * self._eye_weight(g, p_area * pdf)
+        keep = value > 0
+        g, value = g[keep], value[keep]
+        self._tally(ctx.tallies, ctx.rows, ctx.records, e.ray[g], e.part[g], g, value, None, None, None)
+
+    # ------------------------------------------------------------------ the walk's side
+
+    def after_hits(self, event, cont):
+        """Before the interactions: does each continuing hit receive unpolarized light, in the walk's
+        model (no valid Stokes state for the ray at this depth, and not a linear source's first hit)?"""
+        rays = event.rays
+        depth = rays.depth[cont]
+        polarized = np.zeros(len(cont), dtype=bool)
+        st = event.records.polarization
+        if st is not None:
+            polarized |= st.depth[rays.ray[cont]] == depth
+        if self.linear_source:
+            polarized |= depth == 0
+        self._arriving_unpolarized = ~polarized
+
+    def after_interactions(self, event, cont, out):
+        """Update the per-ray state from what the continuing hits ``cont`` did (``out``: their
+        Outgoing) and join the plain scatter vertices among them to their ray's end points."""
+        if len(cont) == 0:
+            return
+        rays, hit = event.rays, event.hits
+        r = rays.ray[cont]
+        part = hit.part[cont].astype(np.int64)
+        interface = self.splits[part]
+        passing = interface & (out.event == rays.last_event[cont]) & (out.throughput == 1.0) \
+            & (out.direction == rays.direction[cont]).all(axis=1)
+        mat = event.spec.part_material[part]
+        scatter = (out.event == EVENT_SCATTER) & ~passing
+        specular = (out.event == EVENT_SPECULAR) & interface & ~passing
+        other = ~scatter & ~specular & ~passing
+        # a plain scatterer's vertex (every arrival there scatters): joined to an end point whatever
+        # the walk's own draw did next
+        plain = scatter & ~interface & self.end_material[mat] & self._arriving_unpolarized
+        self._connect_vertices(event, cont[plain])
+        end_kind = scatter & ~interface & self.end_material[mat]
+        anchored = end_kind & self.pred[r]
+        if self.k_tree > 0 and anchored.any():
+            self._walk_density(event, cont[anchored], out, np.flatnonzero(anchored))
+        self.anchor[r[scatter]] = anchored[scatter]
+        self.run[r[scatter]] = 0
+        self.pred[r[scatter]] = plain[scatter]
+        self.run[r[specular]] += 1
+        self.pred[r[specular | passing]] = False
+        self.anchor[r[other]] = False
+        self.pred[r[other]] = False
+        self.run[r[other]] = 0
+
+    def _walk_density(self, event, rows, out, at):
+        """The walk's density of the (P, omega) it drew at the anchored vertices ``rows`` (``out``
+        rows ``at``): the area density of P (the beam's footprint, over the entrance density the
+        ray's start weight carries; or the last vertex's direction pdf x |cos_P| / d^2) times the
+        pdf of omega; and cos(omega, n_P)."""
+        rays, hit = event.rays, event.hits
+        r = rays.ray[rows]
+        n_p = hit.facing_normal[rows]
+        from_source = rays.last_event[rows] == 0  # EVENT_SOURCE: P is the ray's first vertex
+        d = rays.direction[rows]
+        beam = (self.w0 / np.where(rays.weight_w[rows] > 0, rays.weight_w[rows], np.inf)) \
+            * np.abs(_dot(d, n_p)) / self.source_footprint
+        dist = hit.distance_mm[rows]
+        vertex = rays.last_pdf_per_sr[rows] * np.abs(hit.cos_in[rows]) / (dist * dist)
+        self.p_walk[r] = np.where(from_source, beam, vertex) * out.pdf_per_sr[at]
+        self.cos_out[r] = _dot(out.direction[at], n_p)
+
+    def _eye_weight(self, k, p_walk) -> np.ndarray:
+        """Balance-heuristic weight of the eye side for end points ``k`` whose path the walk draws
+        with density ``p_walk`` (1 without split trees, or past their reach)."""
+        e = self.ends
+        if self.k_tree <= 0:
+            return np.ones(len(k))
+        p_eye = np.maximum(_dot(e.omega[k], e.normal[k]), 0.0) \
+            / (np.pi * self.det_area[e.detector[k]] * len(self.det_area) * self.sides)
+        total = p_eye + p_walk
+        w = np.where(total > 0, p_eye / np.where(total > 0, total, 1.0), 1.0)
+        return np.where(e.k[k] <= self.k_tree, w, 1.0)
+
+    def tree_share(self, event, rows, detector: int) -> np.ndarray:
+        """The share a split tree rooted at ``rows`` keeps on ``detector`` (its balance weight
+        against the eye side; 1 for runs the chains do not own)."""
+        r = event.rays.ray[rows]
+        owned = self.owns(event, rows, extra=1)
+        p_eye = np.maximum(self.cos_out[r], 0.0) / (np.pi * self.det_area[detector] * len(self.det_area) * self.sides)
+        total = self.p_walk[r] + p_eye
+        share = np.where(total > 0, self.p_walk[r] / np.where(total > 0, total, 1.0), 0.0)
+        return np.where(owned, share, 1.0)
+
+    def owns(self, event, rows, extra: int = 0) -> np.ndarray:
+        """Of the rows ``rows``: the ray's last scatter is an anchored end-point kind and its run,
+        with ``extra`` more interfaces, is within 1..K (paths the chains count)."""
+        r = event.rays.ray[rows]
+        k = self.run[r] + extra
+        return self.anchor[r] & (k >= 1) & (k <= self.k_max)
+
+    def claims(self, event, rows) -> np.ndarray:
+        """Interface hits ``rows`` whose runs the chains own from here (split trees and reflection
+        splits must not count them)."""
+        return self.owns(event, rows, extra=1)
+
+    def share_walk_hits(self, event, rec, rec_w):
+        drop = np.flatnonzero(self.owns(event, rec))
+        if len(drop) == 0:
+            return rec, rec_w
+        return keep_walk_share(event, rec, rec_w, drop, np.zeros(len(drop)))
+
+    def _connect_vertices(self, event, rows):
+        """One vertex connection A -> P from each scatter vertex ``rows`` (rows of the event)."""
+        if len(rows) == 0:
+            return
+        rays, hit, spec = event.rays, event.hits, event.spec
+        r = rays.ray[rows]
+        have = self.count[r] > 0
+        rows, r = rows[have], r[have]
+        if len(rows) == 0:
+            return
+        u = (self.u_choice[r] + _GOLDEN * rays.depth[rows]) % 1.0
+        pick = self.first[r] + np.minimum((u * self.count[r]).astype(np.int64), self.count[r] - 1)
+        e = self.ends
+        a = hit.point_mm[rows]
+        n_a = hit.facing_normal[rows]
+        p = e.point[pick]
+        n_p = e.normal[pick]
+        vec = p - a
+        d2 = np.einsum("ij,ij->i", vec, vec)
+        dist = np.sqrt(d2)
+        w_ap = vec / np.where(dist > 0, dist, 1.0)[:, None]
+        cos_a = _dot(w_ap, n_a)
+        cos_p = -_dot(w_ap, n_p)
+        g = np.flatnonzero((cos_a > 0) & (cos_p > 0) & (dist > 4.0 * spec.eps))
+        if len(g) == 0:
+            return
+        origin = np.ascontiguousarray(a[g] + 2.0 * spec.eps * n_a[g])
+        target = p[g] + 2.0 * spec.eps * n_p[g]
+        seg = target - origin
+        seg_len = np.linalg.norm(seg, axis=1)
+        blocked = np.asarray(event.scene.isect.occluded(origin, np.ascontiguousarray(seg / seg_len[:, None]),
+                                                        np.ascontiguousarray(seg_len * (1.0 - 1e-9))))
+        event.shadow_rays += len(g)
+        g = g[~blocked]
+        if len(g) == 0:
+            return
+        i = rows[g]
+        k = pick[g]
+        mat_a = spec.part_material[hit.part[i].astype(np.int64)]
+        f_a, pdf_a = _brdf(spec, mat_a, n_a[g], -rays.direction[i], w_ap[g], with_pdf=True)
+        f_p, pdf_p = _brdf(spec, e.material[k], n_p[g], -w_ap[g], e.omega[k], with_pdf=True)
+        mis = self._eye_weight(k, pdf_a * cos_p[g] / d2[g] * pdf_p)
+        value = (rays.weight_w[i] * f_a * cos_a[g] * cos_p[g] / d2[g] * f_p * e.beta[k] * self.count[r[g]] * mis)
+        keep = value > 0
+        i, k, value = i[keep], k[keep], value[keep]
+        if len(i) == 0:
+            return
+        self._tally(event.tallies, event.rows, event.records, rays.ray[i], hit.part[i].astype(np.int64), k, value,
+                    rays.history[i] if event.settings.record_paths else None, rays.depth[i],
+                    (rays.path_key[i], hit.part[i].astype(np.int64) * 4 + EVENT_SCATTER)
+                    if event.settings.record_paths else None)
+
+    # ------------------------------------------------------------------ tallies
+
+    def _tally(self, tallies, rows, records, ray, exchange_part, k, value, history, depth, prefix):
+        """Add ``value`` to the detector of end points ``k`` (ray ``ray``), take it from the NEE
+        exchange of ``exchange_part``, and record it at the eye's detector point."""
+        e = self.ends
+        j_of = e.detector[k]
+        for j in np.unique(j_of):
+            m = np.flatnonzero(j_of == j)
+            tallies.add(rows.detector_nee + int(j), ray[m], value[m])
+            tallies.subtract(rows.nee_exchange + exchange_part[m], ray[m], value[m])
+            keys = events = None
+            n_before = np.zeros(len(m), np.int64) if depth is None else np.asarray(depth)[m]
+            total_depth = n_before + 1 + e.k[k[m]] + (0 if prefix is None else 1)
+            if records.record_paths:
+                if prefix is None:
+                    h = np.zeros(len(m), np.uint64)
+                else:
+                    h = mix_key(prefix[0][m], prefix[1][m])
+                h = mix_key(h, e.part[k[m]] * 4 + EVENT_SCATTER)
+                events = _path_events(history, m, n_before, prefix, e, k[m], self.path_depth)
+                for step in range(e.codes.shape[1]):
+                    c = e.codes[k[m], step]
+                    on = c >= 0
+                    h = np.where(on, mix_key(h, np.where(on, c, 0)), h)
+                keys = mix_key(h, records.detector_parts[int(j)] * 4 + EVENT_DETECTOR)
+            records.add(int(j), ray[m], e.z[k[m]], value[m], keys, events, total_depth)
+
+
+def _path_events(history, m, n_before, prefix, e, k, width):
+    """Event codes of the recorded paths: the ray's history, A (vertex connections), P, the interfaces."""
+    ev = np.full((len(m), width), -1, dtype=np.int16) if history is None else history[m].copy()
+    rows = np.arange(len(m))
+    pos = n_before.copy()
+    if prefix is not None:
+        at = pos < width
+        ev[rows[at], pos[at]] = prefix[1][m][at]
+        pos = pos + 1
+    at = pos < width
+    ev[rows[at], pos[at]] = e.part[k][at] * 4 + EVENT_SCATTER
+    pos = pos + 1
+    for step in range(e.codes.shape[1]):
+        c = e.codes[k, step]
+        at = (c >= 0) & (pos + step < width)
+        ev[rows[at], (pos + step)[at]] = c[at]
+    return ev
+
+
+def _forward_codes(codes, k):
+    """Interface codes met by eye chains (eye order, -1 padded) in the forward light's order."""
+    out = np.full_like(codes, -1)
+    for i in range(len(k)):
+        n = int(k[i])
+        out[i, :n] = codes[i, :n][::-1]
+    return out
+

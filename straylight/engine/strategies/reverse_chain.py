@@ -1,0 +1,41 @@
+"""Reverse chains (straylight.engine.reverse_chain): per ray an eye chain from a detector through up to K
+interfaces to a plain scatter point P, joined to the source and to the walk's scatter vertices; the
+walk's own such paths (and split trees or reflection splits after P) are dropped."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from straylight.engine import reverse_chain as impl
+from straylight.engine.capabilities import Capability
+from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy
+
+
+class ReverseChainStrategy(Strategy):
+    estimator = Estimator("reverse_chain", replace(ANALOG, reverse_chain=4), Capability.DELTA_CHAIN, reference=False)
+    state_key = "reverse_chain"
+
+    def rules_out(self, spec, intersector) -> str | None:
+        return impl.unsupported(spec)
+
+    def batch_state(self, ctx: BatchContext) -> object | None:
+        est = ctx.spec.options.estimator
+        if int(est.reverse_chain) <= 0 or ctx.rows.n_detectors == 0 or impl.unsupported(ctx.spec) is not None:
+            return None
+        # a split tree after an end point is left to the chains: they must reach as far as the tree would
+        k = max(int(est.reverse_chain), int(est.delta_chain))
+        return impl.ReverseChains(ctx, k, ctx.capabilities.parts(Capability.DELTA_CHAIN))
+
+    def share_walk_hits(self, state, event, rec, rec_w):
+        return state.share_walk_hits(event, rec, rec_w)
+
+    def after_hits(self, state, event, continuing) -> None:
+        state.after_hits(event, continuing)
+
+    def after_interactions(self, state, event, continuing, outgoing) -> None:
+        state.after_interactions(event, continuing, outgoing)
+
+    def after_walk(self, state, ctx: BatchContext) -> int:
+        return state.shadow_rays
+
+
+REVERSE_CHAIN = ReverseChainStrategy()
