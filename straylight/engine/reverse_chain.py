@@ -49,7 +49,8 @@ from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
-from straylight.engine.interactions.optical_surface import refine_on_surfaces, side_material, smooth_coefficients_into
+from straylight.engine.interactions.registry import parts_with
+from straylight.engine.surface_geometry import refine_on_surfaces, side_material, smooth_coefficients_into
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.walk_shares import keep_walk_share
@@ -68,6 +69,10 @@ def _dot(a, b):
 
 def unsupported(spec) -> str | None:
     """Why the strategy cannot run on ``spec`` (None when it can)."""
+    if not parts_with(spec, Capability.DELTA_CHAIN).any():
+        return "the scene has no interface for its chains to cross (no part whose kind declares DELTA_CHAIN)"
+    if spec.options.estimator.target_parts:
+        return "its balance weights use the materials' own pdf; target sampling draws from a mixture"
     if len(spec.sources) != 1 or not isinstance(spec.sources[0], CollimatedDisk):
         return "it joins its end points to exactly one collimated_disk source"
     if spec.options.physics.polarization != "u":

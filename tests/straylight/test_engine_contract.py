@@ -195,6 +195,12 @@ def _aims_at_the_target(case_name, estimator, on) -> bool:
     return _last_vertex_counts(alone, subj) > TARGET_ENGAGED_RATIO * max(_last_vertex_counts(off, subj), 1)
 
 
+def _chains_cross_the_subject(case_name, estimator, on) -> bool:
+    """Eye chains from the detector were split at the subject's interfaces: the run cast more rays than
+    one eye ray per ray of the walk (the walk's own casts are segments, not shadow rays; NEE is off)."""
+    return on.shadow_rays > N_RAYS
+
+
 #: the contract's row of each strategy (straylight.engine.strategies.registry.STRATEGIES): how it is seen to
 #: act on the subject's parts, measured from what the run wrote. A new strategy adds its row here.
 ENGAGEMENT = {
@@ -209,6 +215,7 @@ ENGAGEMENT = {
     # there (no NEE-exchange, the same walk); its own checks are in test_entrance_sampling.py
     "entrance": _moves_the_exchange,
     "target_mis": _aims_at_the_target,
+    "reverse_chain": _chains_cross_the_subject,
 }
 
 
