@@ -213,3 +213,23 @@ def test_pst_command_with_and_without_diffraction(tmp_path):
     assert on["on"] and "HURB" in on["method"] and on["wavelength_nm"] == 20000.0 and on["parts"] == ["stop"]
     assert off["on"] is False
     assert docs["on"]["points"][0]["pst"] > 0 and docs["off"]["points"][0]["pst"] == 0
+
+
+def test_ray_log_follows_rays_through_a_bend(tmp_path):
+    """The ray log (what the 3-D view draws) keeps a bent ray going: the segment that ends at the edge
+    (SEGMENT_BEND) is followed by the bent ray's own segment from that point, under the same ray id."""
+    from straylight.engine.ray_log import SEGMENT_BEND
+
+    res = load_scene(write_scene(tmp_path)).trace(400, seed=5, options=TraceOptions(output=OutputOptions(ray_log=400)))
+    log = res.ray_log
+    bends = np.flatnonzero(log.tri == SEGMENT_BEND)
+    assert len(bends) > 0  # at 10 um most rays through the 0.2 mm hole bend
+    followed = 0
+    for i in bends:
+        nxt = i + 1
+        if nxt < len(log) and log.ray[nxt] == log.ray[i]:
+            np.testing.assert_allclose(log.origin_mm[nxt], log.end_mm[i], atol=1e-6)
+            assert log.kind[nxt] == 3  # the segment leaves a bend (EVENT_DIFFRACTION)
+            assert not np.allclose(log.direction[nxt], log.direction[i])  # it changed direction there
+            followed += 1
+    assert followed == len(bends)
