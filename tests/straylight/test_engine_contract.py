@@ -30,7 +30,10 @@ import pytest
 
 from geometry.mesh import Part, Scene
 from materials import load_material
-from straylight.engine import entrance_sampling, second_vertex
+from straylight.engine import second_vertex
+from straylight.engine.plan import resolve
+from straylight.engine.strategies import registry
+from straylight.engine.strategies.base import TableTools
 from straylight.engine.runtime import runtime
 from straylight.engine.estimators import ANALOG, ESTIMATORS, options_for
 from straylight.engine.interactions import INTERACTIONS, Capability, kind_for
@@ -279,11 +282,13 @@ def test_analog_walk_ledger_closes(kind):
 def test_compiled_equals_reference(kind, estimator):
     case = CONTRACT_SCENES[kind]()
     est = EST[estimator]
-    spec = make_spec(case.scene, _source(), N_REF, 5, case.materials, TraceOptions(estimator=_estimator_options(est)))
-    if est.capability == Capability.SECOND_VERTEX and second_vertex.unsupported(spec) is None:
-        spec = replace(spec, critical_table=second_vertex.build_table(spec, runtime().scene(spec)))
-    if est.options.entrance_sampling:
-        spec = replace(spec, entrance_table=entrance_sampling.build_table(spec, run_batch, n_rays=3_000))
+    options = TraceOptions(estimator=_estimator_options(est))
+    spec = make_spec(case.scene, _source(), N_REF, 5, case.materials, options)
+    plan = resolve(options, spec)
+    tools = TableTools(runtime=runtime(), intersector=None, run_batch=run_batch)
+    for strategy in registry.STRATEGIES:  # the tables trace() would build (the second-vertex, entrance ones)
+        if strategy.table_field is not None and plan.runs(strategy.name):
+            spec = replace(spec, **{strategy.table_field: strategy.build_table(spec, tools)})
     n_chunks = 1
     a, b = run_batch(spec, 0, n_chunks), run_batch_reference(spec, 0, n_chunks)
     assert set(a) == set(b)
