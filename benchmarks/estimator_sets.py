@@ -38,8 +38,7 @@ HISTORY_SETS = {
     "roulette": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD),
     "first_lobe": replace(_LOBES, second_vertex_lobe_sampling=False),
     "baseline": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True),
-    "reverse": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD, delta_chain=4, entrance_sampling=True,
-                       reverse_chain=4),
+    "entrance": replace(_LOBES, rr_threshold=ANALYSIS_RR_THRESHOLD, delta_chain=4, entrance_sampling=True),
 }
 
 

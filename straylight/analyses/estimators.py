@@ -22,6 +22,12 @@
     (``entrance_sampling``, straylight.engine.entrance_sampling): behind a lens only a few entrance
     points reach a small sensor (the ghost of the direct beam), and a uniform beam finds them by chance.
 
+    With a refracting material it also traces, per ray, an eye chain from the detector back through
+    up to 4 interfaces (``reverse_chain``, straylight.engine.reverse_chain): the scatter the lens's
+    image or ghosts carry onto the sensor ("dew shield -> lens x4 -> sensor" at 30-60 deg on a
+    refractor, which the walk found by chance) is joined to the source and to the walk's scatter
+    vertices, sharing those runs with the split trees by the balance heuristic.
+
 Other sets (the history sets the benchmarks time the default against) are registered by
 :func:`register_estimator_set`: ``benchmarks/estimator_sets.py`` registers them for the benchmark
 runs and for its ``straylight`` command wrapper.
@@ -42,7 +48,8 @@ DELTA_CHAIN_INTERFACES = 4
 ESTIMATOR_SETS = {
     "default": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
                                 second_vertex_lobe_sampling=True, rr_threshold=ANALYSIS_RR_THRESHOLD,
-                                delta_chain=DELTA_CHAIN_INTERFACES, entrance_sampling=True),
+                                delta_chain=DELTA_CHAIN_INTERFACES, entrance_sampling=True,
+                                reverse_chain=DELTA_CHAIN_INTERFACES),
 }
 
 
@@ -71,5 +78,5 @@ def estimator_options(name: str = "default", options: TraceOptions | None = None
         if not any(flags_of(m) & ComponentFlags.GLOSSY for m in models if not isinstance(m, str)):
             chosen = replace(chosen, rr_threshold=options.estimator.rr_threshold)
         if not any(flags_of(m) & ComponentFlags.DELTA_TRANSMISSION for m in models if not isinstance(m, str)):
-            chosen = replace(chosen, entrance_sampling=False)
+            chosen = replace(chosen, entrance_sampling=False, reverse_chain=0)
     return replace(options, estimator=chosen)
