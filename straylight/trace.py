@@ -10,7 +10,7 @@ next-event estimation, Russian roulette and an exact power ledger. The engine is
     emission               sources -> rays
     walk                   event after event: cast, hits, interactions, advance
     hits                   escape, detection, absorption (terminal interactions)
-    interactions/          what a continuing hit does: brdf_scatter, delta_reflection (extension point)
+    interactions/          what a continuing hit does: surface_response, delta_reflection (extension point)
     nee, targets           next-event estimation; target-part MIS
     first_vertex           area sampling of single-scatter vertices (MIS with the walk)
     second_vertex          area sampling of the critical surfaces as second vertex (MIS with the walk)

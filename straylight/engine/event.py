@@ -40,7 +40,7 @@ def combined_outgoing(n: int, parts) -> Outgoing:
 
 
 class Interfaces(NamedTuple):
-    """What an interface kind (straylight.engine.interactions.optical_surface) hands the strategies that act
+    """What the Fresnel surface response (straylight.engine.interactions.optical_surface) hands the strategies that act
     at its hits (``Strategy.at_interfaces``: reflection_split, delta_chain), one row per hit, in order."""
 
     rows: np.ndarray  # rows of the event

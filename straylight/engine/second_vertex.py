@@ -89,13 +89,13 @@ def scatter_parts(spec) -> np.ndarray:
 def unsupported(spec) -> str | None:
     """Why the strategy cannot run on ``spec`` (None when it can). Its vertices are evaluated for
     unpolarized light (or the trace-wide s/p option), so it stays out of traces whose rays carry
-    a polarization state (:func:`straylight.engine.interactions.stokes.tracks_polarization`, or an
-    part whose interaction kind polarizes, Capability.POLARIZES: an ``optical_surface``'s Fresnel
+    a polarization state (:func:`straylight.engine.interactions.stokes.tracks_polarization`, or a
+    part whose material polarizes, Capability.POLARIZES: a ``surface_response`` with Fresnel
     interfaces): there the walk alone is used."""
     if tracks_polarization(spec):
         return "second_vertex_sampling does not follow polarized light (a linear source or scatter_polarization = 'on')"
-    for kind in kinds_with(spec, Capability.POLARIZES):
-        return f"second_vertex_sampling does not follow the polarization of {kind.name} parts"
+    for polarizing in kinds_with(spec, Capability.POLARIZES):  # per material (its POLARIZING components)
+        return f"second_vertex_sampling does not follow the polarization of {polarizing.name} parts"
     return None
 
 

@@ -16,7 +16,7 @@ from straylight.engine.draws import event_columns, event_uniforms
 from straylight.engine.emission import emit_batch
 from straylight.engine.event import Event, combined_outgoing
 from straylight.engine.hits import HITS_WRITES_PER_RAY, Hits
-from straylight.engine.interactions import Capability, PartCapabilities, part_kinds
+from straylight.engine.interactions import Capability, PartCapabilities, part_handlers
 from straylight.engine.kernel_sets import COMPILED, NUMPY
 from straylight.engine.options import TraceError, walk_settings
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
@@ -30,11 +30,13 @@ from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS
 
 def part_interactions(spec: TraceSpec):
-    """(index of each part's interaction kind (P,), the kinds, the kinds of continuing hits) for
-    the parts of ``spec``."""
+    """(index of each part's handler (P,), the handlers, those of continuing hits) for the parts of
+    ``spec``: a part's handler is its interaction kind's for its material (registry.part_handlers: the
+    kind itself, or the algorithm ``surface_response`` uses for that class of material), in the order
+    the parts first use them."""
     kinds, of_part = [], []
     try:
-        per_part = part_kinds(spec)
+        per_part = part_handlers(spec)
     except ValueError as exc:
         raise TraceError(str(exc)) from None
     for kind in per_part:
@@ -46,8 +48,8 @@ def part_interactions(spec: TraceSpec):
 
 
 def _by_interaction(kind_of_part, kinds, continuing, part):
-    """(interaction, selection of the continuing hits) per kind present; a slice when one kind has them all."""
-    if len(continuing) == 1:  # one kind in the scene for every continuing hit
+    """(handler, selection of the continuing hits) per handler present; a slice when one has them all."""
+    if len(continuing) == 1:  # one handler in the scene for every continuing hit
         return [(kinds[continuing[0]], slice(None))]
     k = kind_of_part[part]
     if len(k) and (k == k[0]).all():

@@ -1,7 +1,9 @@
 """Capability declarations: components declare their physics (materials.flags), the
-engine chooses each part's interaction kind from those flags in one registry
-(straylight.engine.interactions.registry), and no code outside the registry recognises a kind by
-its name. The estimator side (every kind under every estimator) is test_engine_contract.py."""
+engine chooses each part's interaction kind, and what the estimators may do there, from those flags
+in one registry (straylight.engine.interactions.registry; surface parts: one kind, surface_response,
+whose capabilities are computed per material), and no code outside the registry recognises a kind by
+its name. The estimator side (every kind and material class under every estimator) is
+test_engine_contract.py."""
 from __future__ import annotations
 
 import ast
@@ -12,7 +14,12 @@ import pytest
 import materials
 from materials.flags import ComponentFlags, flags_of
 from materials.registry import component_types, register
-from straylight.engine.interactions import INTERACTIONS, Capability, Interaction, kind_for, register_interaction
+from geometry.mesh import Part, Scene
+from straylight.engine import second_vertex
+from straylight.engine.interactions import (INTERACTIONS, Capability, Interaction, kind_for, kinds_with, parts_with,
+                                            register_interaction)
+from straylight.engine.interactions import registry
+from straylight.trace import make_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -39,26 +46,85 @@ def test_material_flags_are_the_union_of_its_components():
     assert m.flags == ComponentFlags.DIFFUSE | ComponentFlags.DELTA_REFLECTION | ComponentFlags.POLARIZING
 
 
-def test_kind_is_chosen_from_flags_not_names():
-    lamb = materials.load_material({"components": [{"type": "lambertian", "rd": 0.1}]})
-    mirror_coat = materials.load_material({"components": [{"type": "specular", "n": [0.96, 6.69]},
-                                                           {"type": "lambertian", "rd": 0.01}]})
-    window = materials.load_material({"components": [{"type": "dielectric", "n": 1.5}]})
-    scatter, optical = kind_for("surface", lamb), kind_for("surface", mirror_coat)
-    assert kind_for("surface", window) is optical and scatter is not optical
-    assert scatter.allows(Capability.FIRST_VERTEX | Capability.SECOND_VERTEX | Capability.NEE)
-    assert optical.allows(Capability.NEE) and optical.allows(Capability.POLARIZES)
-    assert not optical.allows(Capability.FIRST_VERTEX) and not optical.allows(Capability.SECOND_VERTEX)
+LAMB = {"components": [{"type": "lambertian", "rd": 0.1}]}
+MIRROR_COAT = {"components": [{"type": "specular", "n": [0.96, 6.69]}, {"type": "lambertian", "rd": 0.01}]}
+WINDOW = {"components": [{"type": "dielectric", "n": 1.5}]}
+SCATTER_CAPS = Capability.NEE | Capability.FIRST_VERTEX | Capability.SECOND_VERTEX | Capability.TARGET_MIS
+FRESNEL_CAPS = Capability.NEE | Capability.REFLECTION_SPLIT | Capability.DELTA_CHAIN
+
+
+def test_kind_and_capabilities_are_chosen_from_flags_not_names():
+    lamb, mirror_coat, window = (materials.load_material(m) for m in (LAMB, MIRROR_COAT, WINDOW))
+    surface = kind_for("surface", lamb)
+    assert kind_for("surface", mirror_coat) is surface and kind_for("surface", window) is surface  # one kind
+    assert surface.capabilities_for(lamb) == SCATTER_CAPS
+    assert surface.capabilities_for(mirror_coat) == surface.capabilities_for(window) == FRESNEL_CAPS | Capability.POLARIZES
+    assert not surface.allows(Capability.FIRST_VERTEX, mirror_coat) and not surface.allows(Capability.SECOND_VERTEX, window)
+    # two algorithms, one per material class, each carrying its materials' capabilities
+    assert surface.handler_for(lamb) is not surface.handler_for(mirror_coat)
+    assert surface.handler_for(mirror_coat) is surface.handler_for(window)
+    assert surface.handler_for(lamb).allows(Capability.TARGET_MIS)
+    assert surface.label(lamb) == "surface_response (scatter)" and surface.label(window) == "surface_response (Fresnel)"
     assert kind_for("detector").terminal and kind_for("absorber").terminal
-    assert not kind_for("mirror").terminal and kind_for("mirror").capabilities == Capability.NONE
+    assert not kind_for("mirror").terminal and kind_for("mirror").capabilities_for() == Capability.NONE
 
     class StandIn:  # a material object that declares nothing is a plain scatterer
         pass
 
-    assert kind_for("surface", StandIn()) is scatter
+    assert kind_for("surface", StandIn()) is surface and surface.capabilities_for(StandIn()) == SCATTER_CAPS
 
 
-def test_two_kinds_selected_by_the_same_flags_are_refused():
+class _Declares:
+    """A stand-in material that declares ``flags`` (what the rule reads, nothing else)."""
+
+    def __init__(self, flags):
+        self.flags = flags
+
+
+@pytest.mark.parametrize("flags,expected", [
+    (ComponentFlags.GLOSSY, SCATTER_CAPS),
+    (ComponentFlags.DIFFUSE | ComponentFlags.POLARIZING, SCATTER_CAPS | Capability.POLARIZES),
+    (ComponentFlags.DELTA_REFLECTION, FRESNEL_CAPS),
+    (ComponentFlags.DELTA_TRANSMISSION | ComponentFlags.GLOSSY, FRESNEL_CAPS),
+    (ComponentFlags.DELTA_TRANSMISSION | ComponentFlags.POLARIZING, FRESNEL_CAPS | Capability.POLARIZES),
+])
+def test_surface_capabilities_are_computed_from_every_flag(flags, expected):
+    """DELTA_* choose the Fresnel algorithm and its capabilities, POLARIZING adds POLARIZES (the flag is
+    read), DIFFUSE / GLOSSY alone make a pure scatterer."""
+    assert kind_for("surface", _Declares(flags)).capabilities_for(_Declares(flags)) == expected
+
+
+def _two_surface_spec(subject, wall):
+    from tests.straylight.test_engine_contract import DETECTOR, FLOOR, WALL, _quad, _source
+
+    scene = Scene((Part("subject", *_quad(*FLOOR), material="subject", role="surface"),
+                   Part("wall", *_quad(*WALL), material="wall", role="surface"),
+                   Part("detector", *_quad(*DETECTOR, n=2), role="detector")))
+    mats = {"subject": materials.load_material(subject), "wall": materials.load_material(wall)}
+    return make_spec(scene, _source(), 1000, 0, mats)
+
+
+def test_capabilities_are_per_part_within_one_kind():
+    """Two surface parts of the one kind: what the estimators may do follows each part's material, and
+    second-vertex sampling stays out of a scene with a polarizing (Fresnel) part, naming it."""
+    spec = _two_surface_spec(MIRROR_COAT, LAMB)
+    assert list(parts_with(spec, Capability.FIRST_VERTEX)) == [False, True, False]
+    assert list(parts_with(spec, Capability.DELTA_CHAIN)) == [True, False, False]
+    assert [h.name for h in kinds_with(spec, Capability.POLARIZES)] == ["surface_response (Fresnel)"]
+    assert "surface_response (Fresnel)" in second_vertex.unsupported(spec)
+    assert second_vertex.unsupported(_two_surface_spec(LAMB, LAMB)) is None
+
+
+def test_two_kinds_selected_by_the_same_flags_are_refused(monkeypatch):
+    monkeypatch.setattr(registry, "INTERACTIONS", dict(INTERACTIONS))  # a kind of its own, for this test only
+
+    @register_interaction
+    class Lens(Interaction):
+        name = "lens_kind"
+        roles = ("surface",)
+        selected_by = ComponentFlags.DELTA_TRANSMISSION
+
+    assert kind_for("surface", materials.load_material(WINDOW)).name == "lens_kind"
     with pytest.raises(ValueError, match="both selected by"):
         @register_interaction
         class Rival(Interaction):
@@ -70,7 +136,8 @@ def test_two_kinds_selected_by_the_same_flags_are_refused():
         class SecondDefault(Interaction):
             name = "second_default"
             roles = ("surface",)
-    assert "rival_delta" not in INTERACTIONS and "second_default" not in INTERACTIONS
+    assert "rival_delta" not in registry.INTERACTIONS and "second_default" not in registry.INTERACTIONS
+    assert "lens_kind" not in INTERACTIONS
 
 
 def _kind_name_comparisons(path: Path, names: set, base: Path = ROOT) -> list:
@@ -91,13 +158,23 @@ def _kind_name_comparisons(path: Path, names: set, base: Path = ROOT) -> list:
     return out
 
 
+def _kind_labels() -> set:
+    """Every registered kind's name and its labels per material class (``surface_response (Fresnel)``):
+    none of them is compared outside the registry (a part's capabilities come from its material's flags)."""
+    out = set(INTERACTIONS)
+    for kind in INTERACTIONS.values():
+        out |= {f"{kind.name} ({c})" for c in kind.material_classes if c}
+    return out
+
+
 def test_no_interaction_name_comparisons_outside_the_registry():
-    names = set(INTERACTIONS)
-    registry = ROOT / "straylight" / "engine" / "interactions" / "registry.py"
+    names = _kind_labels()
+    assert {"surface_response", "surface_response (Fresnel)", "surface_response (scatter)"} <= names
+    registry_py = ROOT / "straylight" / "engine" / "interactions" / "registry.py"
     found = []
     for pkg in ("materials", "geometry", "straylight", "rig"):
         for path in sorted((ROOT / pkg).rglob("*.py")):
-            if path != registry:
+            if path != registry_py:
                 found += _kind_name_comparisons(path, names)
     assert not found, f"interaction kinds recognised by name (use Capability / kind_for): {found}"
 
@@ -105,5 +182,6 @@ def test_no_interaction_name_comparisons_outside_the_registry():
 def test_the_scan_sees_a_name_comparison(tmp_path):
     """The scan above can fail: it finds the pattern the engine used before capability flags."""
     bad = tmp_path / "probe.py"
-    bad.write_text('def f(m, kind):\n    return getattr(m, "interaction", "") == "optical_surface" or kind in ("detection",)\n')
-    assert _kind_name_comparisons(bad, set(INTERACTIONS), tmp_path) == ["probe.py:2", "probe.py:2"]
+    bad.write_text('def f(m, kind):\n    return getattr(m, "interaction", "") == "surface_response" or kind in ("detection",)\n'
+                   'def g(kind, m):\n    return kind.label(m) != "surface_response (Fresnel)"\n')
+    assert sorted(_kind_name_comparisons(bad, _kind_labels(), tmp_path)) == ["probe.py:2", "probe.py:2", "probe.py:4"]

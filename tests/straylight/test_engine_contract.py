@@ -1,9 +1,11 @@
-"""The engine's contract, over every interaction kind x every estimator.
+"""The engine's contract, over every interaction kind and material class x every estimator.
 
-For each continuing interaction kind (straylight.engine.interactions.registry) a small scene
-(:data:`CONTRACT_SCENES`: a lit part of that kind, the "subject", seen by a flat detector, with an
-absorber; the terminal kinds, detection and absorption, are in every scene) and for each estimator
-of straylight.engine.estimators.ESTIMATORS:
+For each continuing interaction kind (straylight.engine.interactions.registry) and each class of
+materials it tells apart (``surface_response``: pure scatterers and Fresnel surfaces, whose
+capabilities the kind computes per material from its flags) a small scene (:data:`CONTRACT_SCENES`,
+keyed by the kind's label for that class: a lit part of that kind and material, the "subject",
+seen by a flat detector, with an absorber; the terminal kinds, detection and absorption, are in
+every scene) and for each estimator of straylight.engine.estimators.ESTIMATORS:
 
 - the power ledger closes (emitted = detected + absorbed + escaped, to 1e-9);
 - the compiled walk equals the numpy reference walk bit for bit (where the reference implements
@@ -11,14 +13,17 @@ of straylight.engine.estimators.ESTIMATORS:
 - the detector power with the estimator on agrees with the analog walk (every estimator off, an
   independent seed) within 4 combined standard errors;
 - the estimator engages on the subject's parts exactly when the subject's kind declares the
-  capability it needs (measured from what the run wrote, not from the declaration).
+  capability it needs for the subject's material (measured from what the run wrote, not from the
+  declaration).
 
 The shipped default set (all its strategies at once) has its own row, :func:`test_the_shipped_default_set`.
 
-A new kind is covered by adding a scene here (the test fails for a registered kind without one);
-a new estimator (a strategy of straylight.engine.strategies.registry) by its row in :data:`ENGAGEMENT`
-(the test fails for a registered strategy without one). :func:`test_removing_a_declaration_is_detected`
-deletes each declared capability in turn and expects this check to fail.
+A new kind (or material class) is covered by adding a scene here (the test fails for a registered
+kind or class without one); a new estimator (a strategy of straylight.engine.strategies.registry) by
+its row in :data:`ENGAGEMENT` (the test fails for a registered strategy without one).
+:func:`test_removing_a_declaration_is_detected` deletes each declared capability in turn from the
+kind's per-material rule (for the subject's material class only) and expects this check to fail;
+:func:`test_a_false_declaration_is_detected` adds each undeclared one.
 """
 from __future__ import annotations
 
@@ -105,8 +110,16 @@ class Case:
     expects: Capability  # what the estimators must do on the subject (this test's statement, not the registry's)
 
     @property
+    def material(self):
+        return self.materials.get("subject_material")
+
+    @property
     def kind(self):
-        return kind_for(self.role, self.materials.get("subject_material"))
+        return kind_for(self.role, self.material)
+
+    @property
+    def label(self) -> str:
+        return self.kind.label(self.material)
 
 
 def _matte_case():
@@ -128,20 +141,27 @@ def _mirror_case():
                 {"wall_material": load_material(MATTE, "matte")}, "mirror", Capability.NONE)
 
 
-#: one scene per continuing interaction kind (by the registry's label)
+#: one scene per continuing interaction kind and material class (by the registry's label,
+#: Interaction.label: the kind's name, with the class where the kind tells several apart)
 CONTRACT_SCENES = {
-    "brdf_scatter": _matte_case,
-    "optical_surface": _coated_mirror_case,
+    "surface_response (scatter)": _matte_case,
+    "surface_response (Fresnel)": _coated_mirror_case,
     "delta_reflection": _mirror_case,
 }
 TERMINAL_IN_EVERY_SCENE = ("detector", "absorber")
 
 
+def _labels(kind) -> set:
+    return {f"{kind.name} ({c})" if c else kind.name for c in kind.material_classes}
+
+
 def test_every_registered_kind_has_a_contract_scene():
-    continuing = {name for name, kind in INTERACTIONS.items() if not kind.terminal}
-    assert continuing == set(CONTRACT_SCENES), "add a scene for each new interaction kind to CONTRACT_SCENES"
-    for name, build in CONTRACT_SCENES.items():
-        assert build().kind is INTERACTIONS[name]
+    continuing = set().union(*(_labels(kind) for kind in INTERACTIONS.values() if not kind.terminal))
+    assert continuing == set(CONTRACT_SCENES), \
+        "add a scene for each new interaction kind (and material class) to CONTRACT_SCENES"
+    for label, build in CONTRACT_SCENES.items():
+        case = build()
+        assert case.label == label and label in _labels(case.kind)
     terminal = {kind_for(role) for role in TERMINAL_IN_EVERY_SCENE}
     assert terminal == {k for k in INTERACTIONS.values() if k.terminal}
 
@@ -247,11 +267,11 @@ def contract_failures(case_name, estimator) -> list:
         out.append(f"no light on the detector: {a} {b}")
     elif abs(a.power_w - b.power_w) > 4 * math.hypot(a.stderr_w, b.stderr_w):
         out.append(f"biased: {a.power_w:.6g} +- {a.stderr_w:.2g} vs analog {b.power_w:.6g} +- {b.stderr_w:.2g}")
-    declared = case.kind.allows(estimator.capability)
+    declared = case.kind.allows(estimator.capability, case.material)
     expected = bool(case.expects & estimator.capability)
     got = engaged(case_name, estimator, on)
     if got != expected or got != declared:
-        out.append(f"{estimator.name} {'engaged' if got else 'did not engage'} on {case.kind.name} parts; "
+        out.append(f"{estimator.name} {'engaged' if got else 'did not engage'} on {case.label} parts; "
                    f"expected {'on' if expected else 'off'}, the kind {'declares' if declared else 'does not declare'} "
                    f"{estimator.capability}")
     return out
@@ -297,16 +317,35 @@ def test_compiled_equals_reference(kind, estimator):
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
 
 
-# every (kind, capability) a kind declares that some estimator needs: deleting it must fail the contract
-REMOVABLE = [(name, est.name) for name in KIND_NAMES for est in ESTIMATORS
-             if INTERACTIONS[name].allows(est.capability)]
+def _declares(label, capability) -> bool:
+    case = CONTRACT_SCENES[label]()
+    return case.kind.allows(capability, case.material)
+
+
+def _patch_rule(monkeypatch, label, change):
+    """Make the subject's kind answer ``change(capabilities)`` for materials of the subject's class only
+    (its per-material rule, Interaction.capabilities_for), as a wrong declaration in the kind would."""
+    case = CONTRACT_SCENES[label]()
+    cls = type(case.kind)
+    rule = cls.capabilities_for
+    subject_class = case.kind.material_class(case.material)
+
+    def patched(self, material=None):
+        capabilities = rule(self, material)
+        return change(capabilities) if self.material_class(material) == subject_class else capabilities
+
+    monkeypatch.setattr(cls, "capabilities_for", patched)
+    assert case.kind.capabilities_for(case.material) == change(rule(case.kind, case.material))
+
+
+# every (kind and class, capability) declared that some estimator needs: deleting it must fail the contract
+REMOVABLE = [(name, est.name) for name in KIND_NAMES for est in ESTIMATORS if _declares(name, est.capability)]
 
 
 @pytest.mark.parametrize("kind,estimator", REMOVABLE)
 def test_removing_a_declaration_is_detected(kind, estimator, monkeypatch):
-    cls = type(INTERACTIONS[kind])
     est = EST[estimator]
-    monkeypatch.setattr(cls, "capabilities", cls.capabilities & ~est.capability)
+    _patch_rule(monkeypatch, kind, lambda caps: caps & ~est.capability)
     _RUNS.clear()
     try:
         failures = contract_failures(kind, est)
@@ -315,16 +354,15 @@ def test_removing_a_declaration_is_detected(kind, estimator, monkeypatch):
     assert failures, f"deleting {est.capability} from {kind} went unnoticed"
 
 
-# every (kind, capability) a kind does not declare: declaring it falsely must fail the contract too
+# every (kind and class, capability) not declared: declaring it falsely must fail the contract too
 ADDABLE = [(name, est.name) for name in KIND_NAMES for est in ESTIMATORS
-           if est.capability != Capability.NONE and not INTERACTIONS[name].allows(est.capability)]
+           if est.capability != Capability.NONE and not _declares(name, est.capability)]
 
 
 @pytest.mark.parametrize("kind,estimator", ADDABLE)
 def test_a_false_declaration_is_detected(kind, estimator, monkeypatch):
-    cls = type(INTERACTIONS[kind])
     est = EST[estimator]
-    monkeypatch.setattr(cls, "capabilities", cls.capabilities | est.capability)
+    _patch_rule(monkeypatch, kind, lambda caps: caps | est.capability)
     _RUNS.clear()
     try:
         failures = contract_failures(kind, est)

@@ -16,7 +16,7 @@ from test_engine_contract import CONTRACT_SCENES, _source
 
 
 def _run(**kw):
-    case = CONTRACT_SCENES["brdf_scatter"]()
+    case = CONTRACT_SCENES["surface_response (scatter)"]()
     return trace(case.scene, _source(), 6000, seed=3, materials=case.materials,
                  options=TraceOptions(batch_rays=2000), **kw).to_json_dict()
 

@@ -1,4 +1,4 @@
-"""The ``optical_surface`` interaction in the tracer: windows, Brewster's angle, polarization, focus.
+"""The Fresnel surface response (``optical_surface.OpticalSurface``) in the tracer: windows, Brewster's angle, polarization, focus.
 
 References (independent of the code under test):
 - incoherent multiple reflections in a plane-parallel plate (Born & Wolf §7.6.1; Hecht §9.7):

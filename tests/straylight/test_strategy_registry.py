@@ -86,7 +86,7 @@ class _Probe(Strategy):
 
 @pytest.mark.parametrize("columns", [0, 2])
 def test_a_strategy_added_to_the_registry_runs_its_hooks(monkeypatch, columns):
-    case = CONTRACT_SCENES["brdf_scatter"]()
+    case = CONTRACT_SCENES["surface_response (scatter)"]()
     probe = _Probe()
     probe.columns = columns
     _Probe.seen = []

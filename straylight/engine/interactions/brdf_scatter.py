@@ -1,4 +1,5 @@
-"""``brdf_scatter`` (surface parts): the material samples the new direction itself
+"""The scatter response (``surface_response`` parts whose material has no delta component,
+straylight.engine.interactions.surface_response): the material samples the new direction itself
 (``material.sample(wi, u) -> wo, weight = f cos / pdf, pdf``; materials/base.py), next-event
 estimation toward the detectors from the vertex (straylight.engine.nee), and, with target parts,
 the one-sample MIS mixture with area sampling of the target (straylight.engine.targets).
@@ -20,7 +21,7 @@ from materials.jit_cache import njit
 
 from straylight.engine import nee
 from straylight.engine.event import outgoing
-from straylight.engine.interactions.registry import Capability, Interaction, register_interaction
+from straylight.engine.interactions.registry import Capability, Handler
 from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER
@@ -111,11 +112,9 @@ def to_world_numpy(wo, weight, pdf, frame, verts, nf):
     return x / nrm[:, None], np.where(wo[:, 2] > 0, weight, 0.0), pdf
 
 
-@register_interaction
-class BrdfScatter(Interaction):
-    name = "brdf_scatter"
-    roles = ("surface",)  # the default kind of surface parts (materials without a delta component)
-    capabilities = Capability.NEE | Capability.FIRST_VERTEX | Capability.SECOND_VERTEX | Capability.TARGET_MIS
+class BrdfScatter(Handler):
+    """The pure-scatter fast path of ``surface_response`` (no Fresnel branch); its capabilities are
+    the materials' (``SurfaceResponse.capabilities_for``)."""
 
     def interact(self, event, selection):
         spec, kern, hit = event.spec, event.kernels, event.hits

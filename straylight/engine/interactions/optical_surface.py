@@ -1,7 +1,8 @@
-"""``optical_surface``: mirrors, windows and lenses that also scatter (CONTRACTS §5.1, §6.3).
+"""The Fresnel response: mirrors, windows and lenses that also scatter (CONTRACTS §5.1, §6.3).
 
-Selected for surface parts whose material has a ``specular`` or ``dielectric`` component
-(``ComponentFlags.DELTA``, registry.kind_for). Per hit:
+The algorithm of ``surface_response`` (straylight.engine.interactions.surface_response) for
+surface parts whose material has a ``specular`` or ``dielectric`` component (``ComponentFlags.DELTA``).
+Per hit:
 
 1. **Exact surface.** On a part with an analytic surface (geometry.analytic) the mesh hit is
    refined by Newton onto the surface and the exact normal replaces the facet's. A hit that
@@ -11,7 +12,7 @@ Selected for surface parts whose material has a ``specular`` or ``dielectric`` c
    id; ``materials.mueller`` conventions). Rays start unpolarized or linear (the sources'
    ``polarization``). At a Fresnel interface the frame is turned onto s and the Mueller matrix of
    the reflection or transmission is applied; the outgoing frame is s. A scatter lobe applies the
-   material's Mueller BRDF, as on ``brdf_scatter`` parts (``scatter_polarization``).
+   material's Mueller BRDF, as on pure scatterers (``brdf_scatter``) (``scatter_polarization``).
 3. **Branch by probability.** The expected powers of the three outcomes for this ray's
    polarization are E_l = rho_lobes (a rho_s + b rho_p), E_r = R, E_t = T, with
    ``a, b = (1 +- S1 / S0) / 2`` in the s/p basis and R, T after the lobes took their energy
@@ -41,8 +42,7 @@ from materials.smooth import reflect, refract
 from straylight.engine import nee
 from straylight.engine.event import Interfaces, Outgoing
 from straylight.engine.interactions.brdf_scatter import LocalFrames
-from materials.flags import ComponentFlags
-from straylight.engine.interactions.registry import Capability, Interaction, register_interaction
+from straylight.engine.interactions.registry import Capability, Handler
 from straylight.engine.interactions.scatter_polarization import Arriving
 from straylight.engine.interactions.stokes import batch_state, incoming_stokes
 from straylight.engine.interactions.stokes import mix as _mix
@@ -54,14 +54,10 @@ def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
 
 
-@register_interaction
-class OpticalSurface(Interaction):
-    name = "optical_surface"
-    roles = ("surface",)
-    selected_by = ComponentFlags.DELTA  # a material with a specular or dielectric component
-    # NEE from its scatter lobes; no area sampling (exact normals, the Fresnel split is the walk's);
-    # its Fresnel interfaces polarize
-    capabilities = Capability.NEE | Capability.POLARIZES | Capability.REFLECTION_SPLIT | Capability.DELTA_CHAIN
+class OpticalSurface(Handler):
+    """The Fresnel + lobes path of ``surface_response``; its capabilities are the materials'
+    (``SurfaceResponse.capabilities_for``: NEE from the lobes, no area sampling, the interface
+    strategies, POLARIZES where a component polarizes)."""
 
     def interact(self, event, selection):
         spec, hit, rays = event.spec, event.hits, event.rays
@@ -179,7 +175,7 @@ class OpticalSurface(Interaction):
 
     def _lobes(self, event, rows, has_lobes, lobe, mat, S, P_l, u, direction, throughput, pdf, code, pol_out):
         """NEE and the lobe branch; the polarized scatter (Mueller BRDF on the arriving S, the
-        scattered state into ``pol_out = (state, s, S_new, e1_new)``) as on brdf_scatter parts
+        scattered state into ``pol_out = (state, s, S_new, e1_new)``) as on pure scatterers
         (straylight.engine.interactions.scatter_polarization)."""
         spec, kern, hit = event.spec, event.kernels, event.hits
         st, s, S_new, e1_new = pol_out
