@@ -1,13 +1,18 @@
-"""The surface geometry and Fresnel coefficients of interface hits, shared by the interaction that branches
-at them (straylight.engine.interactions.optical_surface) and the strategy that splits through runs of them
-(straylight.engine.delta_chain): the mesh hit refined onto the part's analytic surface, the material of
-the side that was hit, and the Fresnel amplitudes (``Material.smooth_coefficients``) with the bulk
-attenuation of the medium crossed."""
+"""The surface geometry and Fresnel physics of interface hits, shared by the surface response that
+branches at them (straylight.engine.interactions.optical_surface), the strategy that splits through runs
+of them (straylight.engine.delta_chain) and thermal's reverse walk (straylight.thermal.interaction): the
+mesh hit refined onto the part's analytic surface, the material of the side that was hit, the Fresnel
+amplitudes (``Material.smooth_coefficients``) with the bulk attenuation of the medium crossed, the
+branch drawn by expected power (:func:`fresnel_branches`) and the reflected / refracted rays with
+their Mueller matrices (:func:`delta_branches`): one copy of the surface physics."""
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
-from materials.smooth import Dielectric
+from materials.mueller import interface_mueller
+from materials.smooth import Dielectric, reflect, refract
 
 SELF_HIT_MM = 1e-6  # a refined hit this close to (or behind) the ray's origin on its own last part is spurious
 
@@ -68,3 +73,96 @@ def smooth_coefficients_into(model, g, back, cos_i, distance_mm, out):
         cos_t[gg], eta[gg] = c.cos_t, c.eta
         if side and isinstance(smooth, Dielectric) and smooth.attenuation_per_mm > 0:
             bulk[gg] = np.exp(-smooth.attenuation_per_mm * distance_mm[gg])
+
+
+def mix(value_s, value_p, S):
+    """The value for light of Stokes S (S0 = 1, s/p basis), no analyser: a v_s + b v_p
+    (the first row of a Mueller matrix with M02 = M03 = 0)."""
+    return 0.5 * (value_s + value_p) + 0.5 * S[:, 1] * (value_s - value_p)
+
+
+class Branches(NamedTuple):
+    """Per interface hit: the expected powers of its three outcomes and the one drawn (CONTRACTS §5.1)."""
+
+    rho_s: np.ndarray  # lobe reflectance (directional-hemispherical) for s light
+    rho_p: np.ndarray  # and for p light
+    fresnel: tuple  # (r_s, r_p, t_s, t_p, cos_t, eta, bulk): smooth_coefficients_into
+    E_l: np.ndarray  # expected power into the scatter lobes, for the hit's polarization
+    E_r: np.ndarray  # specular reflection (after the lobes took theirs)
+    E_t: np.ndarray  # transmission (refraction)
+    P_l: np.ndarray  # branch probabilities E_x / (E_l + E_r + E_t)
+    P_r: np.ndarray
+    lobe: np.ndarray  # (m,) bool: the branch drawn
+    refl: np.ndarray
+    trans: np.ndarray
+    dead: np.ndarray  # a live hit with nothing to go on with (E_l + E_r + E_t = 0)
+
+
+def fresnel_branches(materials, mat, live, back, cos_i, distance_mm, S, u) -> Branches:
+    """Branch by probability at interface hits (docs/engine.md, "Branch by probability"): with ``mat``
+    the material index (into ``materials``) of the side hit, ``back`` whether it is the back side,
+    ``cos_i`` the incidence cosine, ``S`` the arriving Stokes vectors (s/p basis; unpolarized
+    ``(1, 0, 0, 0)``) and ``u`` one uniform per hit, the expected powers E_l = a rho_s + b rho_p (the
+    lobes), E_r = a |r_s|^2 + b |r_p|^2, E_t likewise (a, b = (1 +- S1) / 2; R and T after the lobes
+    took their energy, ``Material.smooth_coefficients``) and the outcome x drawn with probability
+    E_x / (E_l + E_r + E_t) (rows where ``live`` is False: none)."""
+    m = len(mat)
+    rs = np.zeros(m, complex)
+    rp = np.zeros(m, complex)
+    ts = np.zeros(m, complex)
+    tp = np.zeros(m, complex)
+    cos_t = np.zeros(m)
+    eta = np.ones(m)
+    bulk = np.ones(m)
+    rho_s = np.zeros(m)
+    rho_p = np.zeros(m)
+    theta = np.arccos(cos_i)
+    for k in np.unique(mat[live]):
+        g = np.flatnonzero(live & (mat == k))
+        model = materials[k]
+        if getattr(model, "composite", None) is not None:
+            rho_s[g] = model.lobe_reflectance(theta[g], "s")
+            rho_p[g] = model.lobe_reflectance(theta[g], "p")
+        smooth_coefficients_into(model, g, back, cos_i, distance_mm, (rs, rp, ts, tp, cos_t, eta, bulk))
+    E_l = np.where(live, mix(rho_s, rho_p, S), 0.0)
+    E_r = np.where(live, mix(np.abs(rs) ** 2, np.abs(rp) ** 2, S), 0.0)
+    E_t = np.where(live, mix(np.abs(ts) ** 2, np.abs(tp) ** 2, S), 0.0)
+    total = E_l + E_r + E_t
+    safe = np.where(total > 0, total, 1.0)
+    P_l, P_r = E_l / safe, E_r / safe
+    lobe = live & (total > 0) & (u < P_l)
+    refl = live & (total > 0) & ~lobe & (u < P_l + P_r)
+    trans = live & (total > 0) & ~lobe & ~refl
+    dead = live & ~(total > 0)
+    return Branches(rho_s, rho_p, (rs, rp, ts, tp, cos_t, eta, bulk), E_l, E_r, E_t, P_l, P_r, lobe, refl, trans, dead)
+
+
+def lobe_uniforms(u_sample, u, P_l):
+    """The lobe branch's sampling uniforms: ``u_sample`` (n, 3) with its first column replaced by the
+    branch uniform ``u`` re-used within the lobe's interval [0, P_l) (stratified, no extra draw)."""
+    out = u_sample.copy()
+    out[:, 0] = np.clip(u / P_l, 0.0, np.nextafter(1.0, 0.0))
+    return out
+
+
+def delta_branches(br: Branches, d, facing, S, direction, throughput, S_new, side_out) -> None:
+    """The specular reflection and refraction rows of ``br``: new direction (reflected about, or
+    refracted through, the ``facing`` normal), throughput (S0 of the Mueller matrix of the branch,
+    ``materials.mueller.interface_mueller`` in the s/p basis, applied to ``S``, over the branch
+    probability: the walk's weight times E_x / P_x), the outgoing Stokes vector (normalised, in the
+    frame s) and side (-1: crossed), written into the arrays given."""
+    rs, rp, ts, tp, cos_t, eta, _bulk = br.fresnel
+    for branch, a_s, a_p, P in ((br.refl, rs, rp, br.P_r), (br.trans, ts, tp, 1.0 - br.P_l - br.P_r)):
+        b = np.flatnonzero(branch)
+        if len(b) == 0:
+            continue
+        Mm = interface_mueller(a_s[b], a_p[b])
+        So = np.einsum("nij,nj->ni", Mm, S[b])
+        P_b = P[b] if np.ndim(P) else P
+        throughput[b] = So[:, 0] / P_b
+        S_new[b] = So / np.where(So[:, 0] > 0, So[:, 0], 1.0)[:, None]
+        if branch is br.refl:
+            direction[b] = reflect(d[b], facing[b])
+        else:
+            direction[b] = refract(d[b], facing[b], eta[b], cos_t[b])
+            side_out[b] = -1

@@ -8,7 +8,11 @@ import numpy as np
 
 from straylight.detectors import Disk
 from straylight.sources import orthonormal_basis
-from straylight.thermal.interaction import to_world
+
+
+def to_world(v, t, b, n):
+    """Local (t, b, n) coordinates ``v`` (m, 3) to world directions."""
+    return v[:, :1] * t + v[:, 1:2] * b + v[:, 2:3] * n
 
 
 def cosine_directions(nrm, u2):

@@ -68,17 +68,23 @@ def frames(verts, d, nf, part, part_material, U):
     return tb, bb, wi_loc, mat, u_s
 
 
-def frames_numpy(verts, d, nf, part, part_material, U):
-    """:func:`frames` in vectorised numpy (the reference)."""
-    n = nf[verts]
+def local_frame(d, n):
+    """(tangent, bitangent, incoming direction in the frame) for rays of directions ``d`` (m, 3) at
+    facing normals ``n`` (m, 3): the numpy form of :func:`frames` (also thermal's reverse walk)."""
     x, y, z = n[:, 0], n[:, 1], n[:, 2]
     sign = np.where(z >= 0, 1.0, -1.0)
     a = -1.0 / (sign + z)
     b = x * y * a
     tb = np.stack([1.0 + sign * x * x * a, sign * b, -sign * x], axis=-1)
     bb = np.stack([b, sign + y * y * a, -y], axis=-1)
-    wi = -d[verts]
+    wi = -d
     wi_loc = np.stack([dot_rows(wi, tb), dot_rows(wi, bb), dot_rows(wi, n)], axis=-1)
+    return tb, bb, wi_loc
+
+
+def frames_numpy(verts, d, nf, part, part_material, U):
+    """:func:`frames` in vectorised numpy (the reference)."""
+    tb, bb, wi_loc = local_frame(d[verts], nf[verts])
     return tb, bb, wi_loc, part_material[part[verts]], U[verts, 0:3]
 
 

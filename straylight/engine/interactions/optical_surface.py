@@ -36,18 +36,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from materials.mueller import interface_mueller, s_vector
+from materials.mueller import s_vector
 from materials.polarized_brdf import is_polarizing
-from materials.smooth import reflect, refract
 from straylight.engine import nee
 from straylight.engine.event import Interfaces, Outgoing
 from straylight.engine.interactions.brdf_scatter import LocalFrames
 from straylight.engine.interactions.registry import Capability, Handler
 from straylight.engine.interactions.scatter_polarization import Arriving
 from straylight.engine.interactions.stokes import batch_state, incoming_stokes
-from straylight.engine.interactions.stokes import mix as _mix
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
-from straylight.engine.surface_geometry import refine_on_surfaces, side_material, smooth_coefficients_into
+from straylight.engine.surface_geometry import (delta_branches, fresnel_branches, lobe_uniforms, refine_on_surfaces,
+                                                side_material)
 
 
 def _dot(a, b):
@@ -76,41 +75,14 @@ class OpticalSurface(Handler):
         mat = side_material(spec, part, front)
         back = ~front
         cos_i = np.clip(-_dot(d, facing), 0.0, 1.0)
-        theta = np.arccos(cos_i)
         s = s_vector(d, facing)
         S = incoming_stokes(st, rays.ray[rows], rays.depth[rows], d, s)
         U = event.uniforms
         u = U[rows, event.columns.sample].copy()
-
-        E_l = np.zeros(m)
-        E_r = np.zeros(m)
-        E_t = np.zeros(m)
-        rs = np.zeros(m, complex)
-        rp = np.zeros(m, complex)
-        ts = np.zeros(m, complex)
-        tp = np.zeros(m, complex)
-        cos_t = np.zeros(m)
-        eta = np.ones(m)
-        bulk = np.ones(m)
-        rho_s = np.zeros(m)
-        rho_p = np.zeros(m)
-        for k in np.unique(mat[live]):
-            g = np.flatnonzero(live & (mat == k))
-            model = spec.materials[k]
-            if getattr(model, "composite", None) is not None:
-                rho_s[g] = model.lobe_reflectance(theta[g], "s")
-                rho_p[g] = model.lobe_reflectance(theta[g], "p")
-            smooth_coefficients_into(model, g, back, cos_i, hit.distance_mm[rows], (rs, rp, ts, tp, cos_t, eta, bulk))
-        E_l = np.where(live, _mix(rho_s, rho_p, S), 0.0)
-        E_r = np.where(live, _mix(np.abs(rs) ** 2, np.abs(rp) ** 2, S), 0.0)
-        E_t = np.where(live, _mix(np.abs(ts) ** 2, np.abs(tp) ** 2, S), 0.0)
-        total = E_l + E_r + E_t
-        safe = np.where(total > 0, total, 1.0)
-        P_l, P_r = E_l / safe, E_r / safe
-        lobe = live & (total > 0) & (u < P_l)
-        refl = live & (total > 0) & ~lobe & (u < P_l + P_r)
-        trans = live & (total > 0) & ~lobe & ~refl
-        dead = live & ~(total > 0)
+        br = fresnel_branches(spec.materials, mat, live, back, cos_i, hit.distance_mm[rows], S, u)
+        rs, rp, ts, tp, cos_t, eta, bulk = br.fresnel
+        rho_s, rho_p, E_r, E_t, P_l = br.rho_s, br.rho_p, br.E_r, br.E_t, br.P_l
+        lobe, refl, trans, dead = br.lobe, br.refl, br.trans, br.dead
 
         direction = d.copy()
         throughput = np.ones(m)
@@ -135,20 +107,7 @@ class OpticalSurface(Handler):
             self._lobes(event, rows, has_lobes, lobe, mat, S, P_l, u, direction, throughput, pdf, code,
                         (st, s, S_new, e1_new))
         # --- specular reflection and refraction (Mueller matrices in the s/p basis)
-        for branch, a_s, a_p, P in ((refl, rs, rp, P_r), (trans, ts, tp, 1.0 - P_l - P_r)):
-            b = np.flatnonzero(branch)
-            if len(b) == 0:
-                continue
-            Mm = interface_mueller(a_s[b], a_p[b])
-            So = np.einsum("nij,nj->ni", Mm, S[b])
-            P_b = P[b] if np.ndim(P) else P
-            throughput[b] = So[:, 0] / P_b
-            S_new[b] = So / np.where(So[:, 0] > 0, So[:, 0], 1.0)[:, None]
-            if branch is refl:
-                direction[b] = reflect(d[b], facing[b])
-            else:
-                direction[b] = refract(d[b], facing[b], eta[b], cos_t[b])
-                side_out[b] = -1
+        delta_branches(br, d, facing, S, direction, throughput, S_new, side_out)
         throughput[dead] = 0.0
         throughput *= bulk
         # pass-through: the ray goes on unchanged (same event kind and pdf for the MIS at a detector)
@@ -197,8 +156,7 @@ class OpticalSurface(Handler):
             return
         at = sel[lb]
         wi = frame.wi_local[lb]
-        u3 = frame.u_sample[lb].copy()
-        u3[:, 0] = np.clip(u[at] / P_l[at], 0.0, np.nextafter(1.0, 0.0))
+        u3 = lobe_uniforms(frame.u_sample[lb], u[at], P_l[at])
         wo = np.empty((len(lb), 3))
         weight = np.empty(len(lb))
         pdf_l = np.empty(len(lb))

@@ -107,9 +107,3 @@ def incoming_stokes(st: PolarizationState, ray, depth, d, s):
             e /= np.linalg.norm(e, axis=1)[:, None]
             S[fresh] = rotate_stokes(np.tile([1.0, 1.0, 0.0, 0.0], (len(fresh), 1)), e, s[fresh], d[fresh])
     return S
-
-
-def mix(value_s, value_p, S):
-    """The value for light of Stokes S (S0 = 1, s/p basis), no analyser: a v_s + b v_p
-    (the first row of a Mueller matrix with M02 = M03 = 0)."""
-    return 0.5 * (value_s + value_p) + 0.5 * S[:, 1] * (value_s - value_p)
