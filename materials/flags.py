@@ -22,7 +22,9 @@ class ComponentFlags(enum.IntFlag):
     """Declared physics of a component (or, OR-ed, of a material)."""
 
     NONE = 0
-    DIFFUSE = 1  # a wide scatter lobe (Lambertian-like): pdf > 0 over the hemisphere
+    DIFFUSE = 1  # a wide scatter lobe (Lambertian-like): pdf > 0 over the hemisphere (a scatter lobe that
+    # is not GLOSSY: no lobe draws for it; materials.registry.register checks every component is exactly
+    # one of a scatter lobe and a delta interface)
     GLOSSY = 2  # a peaked scatter lobe (beta-centred, microfacet, particulate, tabulated)
     DELTA_REFLECTION = 4  # a smooth reflecting interface (a Dirac lobe: no pdf, no NEE)
     DELTA_TRANSMISSION = 8  # a smooth transmitting (refracting) interface

@@ -19,9 +19,13 @@ def register(type_name: str):
     def decorate(cls):
         if type_name in _REGISTRY and _REGISTRY[type_name] is not cls:
             raise RuntimeError(f"component type {type_name!r} registered twice")
-        if not isinstance(getattr(cls, "flags", None), (ComponentFlags, property)):
+        flags = getattr(cls, "flags", None)
+        if not isinstance(flags, (ComponentFlags, property)):
             raise RuntimeError(f"component type {type_name!r} ({cls.__name__}) must declare "
                                "'flags = ComponentFlags...' (materials.flags)")
+        if isinstance(flags, ComponentFlags) and bool(flags & ComponentFlags.SCATTER) == bool(flags & ComponentFlags.DELTA):
+            raise RuntimeError(f"component type {type_name!r} ({cls.__name__}) must be exactly one of a scatter lobe "
+                               "(DIFFUSE or GLOSSY) and a delta interface (DELTA_REFLECTION, DELTA_TRANSMISSION)")
         _REGISTRY[type_name] = cls
         cls.type_name = type_name
         return cls

@@ -185,3 +185,15 @@ def test_the_scan_sees_a_name_comparison(tmp_path):
     bad.write_text('def f(m, kind):\n    return getattr(m, "interaction", "") == "surface_response" or kind in ("detection",)\n'
                    'def g(kind, m):\n    return kind.label(m) != "surface_response (Fresnel)"\n')
     assert sorted(_kind_name_comparisons(bad, _kind_labels(), tmp_path)) == ["probe.py:2", "probe.py:2", "probe.py:4"]
+
+
+def test_register_refuses_a_component_that_is_neither_scatter_nor_delta():
+    with pytest.raises(RuntimeError, match="exactly one of a scatter lobe"):
+        @register("polarizing_only_here")
+        class PolarizingOnly:  # noqa: F841
+            flags = ComponentFlags.POLARIZING
+    with pytest.raises(RuntimeError, match="exactly one of a scatter lobe"):
+        @register("both_here")
+        class Both:  # noqa: F841
+            flags = ComponentFlags.DIFFUSE | ComponentFlags.DELTA_REFLECTION
+    assert "polarizing_only_here" not in component_types() and "both_here" not in component_types()
