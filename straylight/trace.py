@@ -28,7 +28,7 @@ from typing import Any
 
 from straylight.engine.backends.dask import ship_early
 from straylight.engine.compiled_scene import detector_samplers
-from straylight.engine.plan import resolve as resolve_plan
+from straylight.engine.plan import build_tables, resolve as resolve_plan, without_missing_tables
 from straylight.engine.strategies.base import TableTools
 from straylight.engine.strategies import registry
 from straylight.engine.options import (  # noqa: F401 - re-exported
@@ -97,21 +97,19 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
         spec = replace(spec, chunk_offset=ex.first_chunk)
     opt = spec.options
     plan = resolve_plan(options or TraceOptions(), spec, intersector)  # which strategies run, and why not
-    tabled = [s for s in registry.STRATEGIES if s.table_field is not None and plan.runs(s.name)]  # in registry order
     # on dask, the workers get the spec and build their scenes while this process builds the tables
-    slow = any(s.table_ships_early for s in tabled)
+    slow = any(s.table_ships_early and plan.runs(s.name) for s in registry.STRATEGIES)
     early = ship_early(ex.client, spec) if ex.client is not None and slow else None
     rt = runtime()  # this process's compiled scene and kept tables
     tools = TableTools(runtime=rt, intersector=intersector, run_batch=run_batch)
-    try:
-        for strategy in tabled:  # each table sees the ones before it (the entrance pilot runs with them)
-            table = rt.table(strategy.table_key, spec, lambda s=strategy, sp=spec: s.build_table(sp, tools),
-                             cache=intersector is None)
-            spec = replace(spec, **{str(strategy.table_field): table})
+    try:  # each table sees the ones before it (the entrance pilot runs with them)
+        spec = build_tables(spec, plan, tools, cache=intersector is None)
     except BaseException:
         if early is not None:
             early.release()
         raise
+    plan = without_missing_tables(plan, spec, "its table came out empty (its pilot saw no light reach a detector)")
+    spec = replace(spec, strategies_on=plan.on)  # the walk runs these, and no other
     results = run_batches(spec, batch_ranges(spec), early=early, **ex.trace_keywords())
     totals = BatchTotals(spec)
     with progress_bar(total=n_chunks(spec.n_rays), unit="chunk", enabled=ex.progress) as bar:

@@ -163,7 +163,9 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> 
                          output=replace(opt.output, record_paths=True, path_depth=1))
     n = int(n_rays)
     nch = n_chunks(n)
-    pilot = replace(spec, n_rays=n, options=pilot_opts, chunk_offset=PILOT_CHUNK_OFFSET, entrance_table=None)
+    # the pilot has its own plan: the walk resolves it from pilot_opts (this strategy off, its table None)
+    pilot = replace(spec, n_rays=n, options=pilot_opts, chunk_offset=PILOT_CHUNK_OFFSET, entrance_table=None,
+                    strategies_on=None)
     res = run_batch(pilot, 0, nch, intersector)
     x = np.zeros(n)
     paths = res.get("paths")

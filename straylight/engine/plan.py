@@ -11,14 +11,15 @@ the plan says why in one line instead of dropping it silently. The plan asks, in
   first-vertex sampling under a caller's own intersector, second-vertex sampling on polarized light,
   entrance sampling with more than one source, ...).
 
-:func:`straylight.trace.trace` builds the tables of :meth:`StrategyPlan.runs` and returns the plan
-with its result (``TraceResult.strategies``; ``straylight trace --json`` writes it as
-``strategies``). The kinds' per-part capabilities (which parts NEE or the chains act on) stay with
+:func:`straylight.trace.trace` builds the tables of :meth:`StrategyPlan.runs` (:func:`build_tables`),
+puts the names that run on the spec (``TraceSpec.strategies_on``: the walk builds states for those
+only, :func:`running`) and returns the plan with its result (``TraceResult.strategies``;
+``straylight trace --json`` writes it as ``strategies``). The kinds' per-part capabilities (which parts NEE or the chains act on) stay with
 the kinds (straylight.engine.interactions).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from straylight.engine.strategies.base import Estimator, Strategy
 from straylight.engine.strategies import registry
@@ -84,3 +85,41 @@ def resolve(requested_options, spec, intersector=None) -> StrategyPlan:
         else:
             off.append((strategy.name, why))
     return StrategyPlan(tuple(on), tuple(off))
+
+
+def without_missing_tables(plan: StrategyPlan, spec, why: str) -> StrategyPlan:
+    """``plan`` with each strategy that runs but whose table (Strategy.needs_table) ``spec`` lacks turned
+    off for ``why``."""
+    missing = [name for name in plan.on if _table_missing(registry.BY_NAME.get(name), spec)]
+    if not missing:
+        return plan
+    return StrategyPlan(tuple(n for n in plan.on if n not in missing), plan.off + tuple((n, why) for n in missing))
+
+
+def _table_missing(strategy: Strategy | None, spec) -> bool:
+    field = None if strategy is None else strategy.needs_table
+    return field is not None and getattr(spec, field) is None
+
+
+def build_tables(spec, plan: StrategyPlan, tools, cache: bool = True):
+    """``spec`` with the tables of the strategies ``plan`` runs, built by their own
+    :meth:`~straylight.engine.strategies.base.Strategy.build_table` with ``tools`` (TableTools) in registry
+    order (each sees the ones before it: the entrance pilot runs with them); kept in the runtime's table
+    cache (``tools.runtime.table``) when ``cache``."""
+    for strategy in registry.STRATEGIES:
+        if strategy.table_field is None or not plan.runs(strategy.name):
+            continue
+        table = tools.runtime.table(strategy.table_key, spec, lambda s=strategy, sp=spec: s.build_table(sp, tools),
+                                    cache=cache)
+        spec = replace(spec, **{str(strategy.table_field): table})
+    return spec
+
+
+def running(spec, intersector=None) -> tuple[str, ...]:
+    """The names of the strategies the walk runs on ``spec`` (traced with ``intersector``): the plan's
+    (``spec.strategies_on``, set by :func:`straylight.trace.trace`); for a spec without one (make_spec
+    and a direct ``run_batch``) the plan resolved here from the spec's options, without the strategies
+    whose tables were not built."""
+    if spec.strategies_on is not None:
+        return tuple(spec.strategies_on)
+    return without_missing_tables(resolve(spec.options, spec, intersector), spec, "its table was not built").on

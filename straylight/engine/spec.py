@@ -52,6 +52,9 @@ class TraceSpec:
     part_surfaces: tuple = ()  # analytic surface per part (geometry.analytic) or None
     part_back_material: np.ndarray = None  # index into ``materials`` of each part's back side, -1: as the front
     diffraction: object = None  # straylight.engine.diffraction.Diffraction when a part diffracts (CONTRACTS §6.5)
+    #: the names of the strategies that run, as the plan decided (straylight.engine.plan; trace() sets it): the
+    #: walk builds states for these only. None: the walk resolves the plan itself (make_spec, direct run_batch)
+    strategies_on: tuple | None = None
 
     @property
     def detector_parts(self) -> np.ndarray:

@@ -19,6 +19,7 @@ from straylight.engine.hits import HITS_WRITES_PER_RAY, Hits
 from straylight.engine.interactions import Capability, PartCapabilities, part_handlers
 from straylight.engine.kernel_sets import COMPILED, NUMPY
 from straylight.engine.options import TraceError, walk_settings
+from straylight.engine.plan import running as running_strategies
 from straylight.engine.ray_batch import EVENT_DETECTOR, emitted_rays
 from straylight.engine.ray_log import RayLogger
 from straylight.engine.runtime import runtime
@@ -92,8 +93,11 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
                               settings.record_paths)
     ctx = BatchContext(spec=spec, scene=scene, n_rays=n, start_weight_w=w0, tallies=tallies, rows=rows,
                        records=records, capabilities=capabilities, first_chunk=first_chunk, stop_chunk=stop_chunk)
+    on = running_strategies(spec, intersector)  # the plan's: a strategy it turned off does not run
     running = []  # (strategy, its state for this batch), in registry order
     for strategy in registry.STRATEGIES:
+        if strategy.name not in on:
+            continue
         state = strategy.batch_state(ctx)
         if state is not None:
             running.append((strategy, state))

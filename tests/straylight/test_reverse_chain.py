@@ -147,3 +147,32 @@ def test_the_plan_says_why_it_does_not_run(slab_scene):
     assert "collimated_disk" in unsupported(spec)
     res = trace(sc, point, 1_000, seed=0, materials=mats, options=TraceOptions(estimator=CHAINS))
     assert "reverse_chain" in dict(res.strategies.off)
+
+
+def test_a_strategy_the_plan_turns_off_never_runs(slab_scene, monkeypatch):
+    """The walk obeys the plan: with a point source the plan turns reverse_chain off though its switch is
+    on, and the walk never asks it for a batch state (in trace(), and in a direct run_batch, where the
+    walk resolves the plan itself); a spec whose plan runs nothing (strategies_on=()) runs nothing."""
+    from dataclasses import replace
+
+    from straylight.engine.strategies.reverse_chain import ReverseChainStrategy
+
+    calls = []
+    built = ReverseChainStrategy.batch_state
+
+    def counted(self, ctx):
+        calls.append(ctx.n_rays)
+        return built(self, ctx)
+
+    monkeypatch.setattr(ReverseChainStrategy, "batch_state", counted)
+    sc, src, mats = slab_scene
+    point = PointSource([0.0, 0.0, 20.0])
+    res = trace(sc, point, 1_000, seed=0, materials=mats, options=TraceOptions(estimator=CHAINS))
+    assert "reverse_chain" in dict(res.strategies.off)
+    run_batch(make_spec(sc, point, 1_000, 0, mats, TraceOptions(estimator=CHAINS)), 0, 1)
+    assert calls == []
+    spec = make_spec(sc, src, 1_000, 0, mats, TraceOptions(estimator=CHAINS))
+    run_batch(replace(spec, strategies_on=()), 0, 1)
+    assert calls == []
+    run_batch(spec, 0, 1)  # the probe counts where the plan runs it
+    assert calls == [1_000]

@@ -64,3 +64,22 @@ def test_a_strategy_asked_for_and_possible_runs(tmp_path):
     assert on.strategies.on == ("first_vertex",) and on.strategies.off == ()
     analog = rs.trace(2000, seed=3, options=TraceOptions(estimator=ANALOG))
     assert analog.strategies.on == () and analog.strategies.off == ()
+
+
+def test_a_spec_without_its_table_runs_without_the_strategy(tmp_path):
+    """A spec straight from make_spec (no trace(): no tables built) asks for first-vertex sampling: the
+    walk's plan (straylight.engine.plan.running) leaves it out, saying so; with the plan set on the spec
+    the walk takes that as it is."""
+    from dataclasses import replace
+
+    from straylight.engine.plan import resolve, running, without_missing_tables
+    from straylight.trace import make_spec
+
+    rs = load_scene(write_scene(tmp_path, diffraction=""))
+    options = TraceOptions(estimator=replace(ANALOG, nee=True, first_vertex_sampling=True))
+    spec = make_spec(rs.scene, rs.sources, 1000, 1, rs.materials, options)
+    assert resolve(options, spec).on == ("nee", "first_vertex")
+    assert running(spec) == ("nee",)
+    plan = without_missing_tables(resolve(options, spec), spec, "not built")
+    assert dict(plan.off) == {"first_vertex": "not built"}
+    assert running(replace(spec, strategies_on=("first_vertex",))) == ("first_vertex",)

@@ -95,6 +95,9 @@ class Strategy:
     table_key: ClassVar[str] = ""
     #: on dask, the workers start building their scenes while this process builds the table (a long build)
     table_ships_early: ClassVar[bool] = False
+    #: the TraceSpec field of a table it reads that another strategy builds (a lobe variant reads its
+    #: base's); None: only its own :attr:`table_field`, if any
+    table_from: ClassVar[str | None] = None
     #: the key of its per-batch state on ``Event.states`` (None: it has no per-batch state)
     state_key: ClassVar[str | None] = None
     #: its per-batch state reshapes emission (``emit_batch(..., on_uniforms=state)``, start weights
@@ -107,6 +110,11 @@ class Strategy:
 
     def __repr__(self) -> str:
         return f"<strategy {self.name}>"
+
+    @property
+    def needs_table(self) -> str | None:
+        """The TraceSpec field of the table it cannot run without (its own or the one it reads), or None."""
+        return self.table_from or self.table_field
 
     # ------------------------------------------------------------------ the plan and the tables
 
@@ -122,7 +130,9 @@ class Strategy:
     # ------------------------------------------------------------------ the walk
 
     def batch_state(self, ctx: BatchContext) -> object | None:
-        """Its state for one batch of the walk (None: it does nothing in this batch)."""
+        """Its state for one batch of the walk (None: it does nothing in this batch). Called only when the
+        plan runs it (``TraceSpec.strategies_on``): what :meth:`rules_out` and the plan decided, and its
+        table, need no second check here."""
         return None
 
     def uniform_columns(self, spec) -> int:

@@ -17,8 +17,6 @@ class DeltaChainStrategy(Strategy):
 
     def batch_state(self, ctx: BatchContext) -> object | None:
         k = int(ctx.spec.options.estimator.delta_chain)
-        if k <= 0 or ctx.rows.n_detectors == 0:
-            return None
         return impl.DeltaChains(ctx.n_rays, k, ctx.capabilities.parts(Capability.DELTA_CHAIN))
 
     def at_interfaces(self, state, event, interfaces) -> None:

@@ -26,8 +26,6 @@ class Entrance(Strategy):
         return impl.build_table(spec, tools.run_batch, tools.intersector)
 
     def batch_state(self, ctx: BatchContext) -> object | None:
-        if ctx.spec.entrance_table is None:
-            return None
         return impl.EntranceWeights(ctx.spec, ctx.start_weight_w, ctx.tallies, ctx.rows)
 
 

@@ -31,8 +31,6 @@ class FirstVertex(Strategy):
         return impl.build_table(spec, tools.runtime.scene(spec))
 
     def batch_state(self, ctx: BatchContext) -> object | None:
-        if ctx.spec.vertex_table is None or ctx.rows.n_detectors == 0:
-            return None
         return impl.FirstVertexWeights(ctx.spec, ctx.spec.vertex_table, ctx.n_rays)
 
     def vertex_weights(self, state, event, verts, w_vertex):
@@ -53,6 +51,7 @@ class FirstVertexLobe(Strategy):
 
     estimator = Estimator("first_vertex_lobe", replace(ANALOG, first_vertex_sampling=True, vertex_lobe_sampling=True),
                           Capability.FIRST_VERTEX, reference=False)
+    table_from = "vertex_table"
 
     def rules_out(self, spec, intersector) -> str | None:
         return _own_intersector(spec, intersector)

@@ -15,8 +15,6 @@ class ReflectionSplitStrategy(Strategy):
     state_key = "reflection_split"
 
     def batch_state(self, ctx: BatchContext) -> object | None:
-        if not ctx.spec.options.estimator.reflection_split or ctx.rows.n_detectors == 0:
-            return None
         return impl.ReflectionSplit(ctx.n_rays)
 
     def at_interfaces(self, state, event, interfaces) -> None:

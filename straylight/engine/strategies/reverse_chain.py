@@ -19,8 +19,6 @@ class ReverseChainStrategy(Strategy):
 
     def batch_state(self, ctx: BatchContext) -> object | None:
         est = ctx.spec.options.estimator
-        if int(est.reverse_chain) <= 0 or ctx.rows.n_detectors == 0 or impl.unsupported(ctx.spec) is not None:
-            return None
         # a split tree after an end point is left to the chains: they must reach as far as the tree would
         k = max(int(est.reverse_chain), int(est.delta_chain))
         return impl.ReverseChains(ctx, k, ctx.capabilities.parts(Capability.DELTA_CHAIN))

@@ -25,7 +25,7 @@ class SecondVertex(Strategy):
         return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector))
 
     def batch_state(self, ctx: BatchContext) -> object | None:
-        return ctx.spec.critical_table  # the table is all it keeps (None: not running)
+        return ctx.spec.critical_table  # the table is all it keeps
 
     def nee_weights(self, state, event, verts, w_vertex):
         """The vertices reached straight from a scatter vertex keep their walk share of NEE."""
@@ -44,14 +44,12 @@ class SecondVertexLobe(Strategy):
                           replace(ANALOG, nee=True, second_vertex_sampling=True, second_vertex_lobe_sampling=True),
                           Capability.SECOND_VERTEX, requires=("nee",))
     state_key = "second_vertex"
+    table_from = "critical_table"
 
     def rules_out(self, spec, intersector) -> str | None:
         return impl.unsupported(spec)
 
     def batch_state(self, ctx: BatchContext) -> object | None:
-        lobe = bool(ctx.spec.options.estimator.second_vertex_lobe_sampling)
-        if ctx.spec.critical_table is None or not lobe or ctx.rows.n_detectors == 0:
-            return None
         return impl.SecondVertexShares(ctx.n_rays)
 
     def share_walk_hits(self, state, event, rec, rec_w):

@@ -15,8 +15,6 @@ class TargetMis(Strategy):
                           target=True, requires=("nee",), diffraction=True)
 
     def batch_state(self, ctx: BatchContext) -> object | None:
-        if ctx.scene.target is None:
-            return None
         return impl.TargetMixture(ctx.scene.target, ctx.spec.options.estimator.target_fraction, ctx.spec.eps)
 
     def nee_density(self, state, event, verts):
