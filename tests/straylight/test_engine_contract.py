@@ -36,8 +36,7 @@ import pytest
 from geometry.mesh import Part, Scene
 from materials import load_material
 from straylight.engine import second_vertex
-from straylight.engine.plan import resolve
-from straylight.engine.strategies import registry
+from straylight.engine.plan import build_tables, resolve
 from straylight.engine.strategies.base import TableTools
 from straylight.engine.runtime import runtime
 from straylight.engine.estimators import ANALOG, ESTIMATORS, options_for
@@ -306,9 +305,7 @@ def test_compiled_equals_reference(kind, estimator):
     spec = make_spec(case.scene, _source(), N_REF, 5, case.materials, options)
     plan = resolve(options, spec)
     tools = TableTools(runtime=runtime(), intersector=None, run_batch=run_batch)
-    for strategy in registry.STRATEGIES:  # the tables trace() would build (the second-vertex, entrance ones)
-        if strategy.table_field is not None and plan.runs(strategy.name):
-            spec = replace(spec, **{strategy.table_field: strategy.build_table(spec, tools)})
+    spec = build_tables(spec, plan, tools, cache=False)  # the tables trace() would build (second-vertex, entrance)
     n_chunks = 1
     a, b = run_batch(spec, 0, n_chunks), run_batch_reference(spec, 0, n_chunks)
     assert set(a) == set(b)

@@ -18,10 +18,11 @@ import numpy as np
 
 from geometry.mesh import Part, Scene
 from materials import Lambertian
-from straylight.engine.first_vertex import build_table
 from straylight.engine.options import EstimatorOptions, TraceOptions
+from straylight.engine.plan import build_tables, resolve
 from straylight.engine.runtime import runtime
 from straylight.engine.spec import make_spec
+from straylight.engine.strategies.base import TableTools
 from straylight.engine.walk import run_batch
 from straylight.intersect.reference import ReferenceIntersector
 from straylight.sources import CollimatedDisk
@@ -30,7 +31,8 @@ from straylight.sources import CollimatedDisk
 def load_kernels() -> None:
     """Trace one chunk of a tiny scene (a black square facing a detector square) in this process:
     the compiled kernels of the usual options (NEE with and without first-vertex sampling, plain walk)
-    are loaded from numba's cache."""
+    are loaded from numba's cache. The tables are built by the strategies the plan runs, as
+    :func:`straylight.trace.trace` builds them."""
     rt = runtime()  # the server's Runtime, started: numba's target without scipy.linalg, the allocator tuned
 
     square = np.array([[-10, -10, 0], [10, -10, 0], [10, 10, 0], [-10, 10, 0]], dtype=np.float64)
@@ -43,9 +45,11 @@ def load_kernels() -> None:
         options = TraceOptions(estimator=EstimatorOptions(nee=nee, first_vertex_sampling=vertex), batch_rays=1000)
         spec = make_spec(scene, [source], 100, 0, {"black": Lambertian(0.5)}, options)
         isect = ReferenceIntersector(spec.triangles_mm)
-        if vertex:
-            spec = replace(spec, vertex_table=build_table(spec, rt.scene(spec, isect)))
-        run_batch(spec, 0, 1, isect)
+        # the plan of the workers' traces (on embree); here numpy's intersector stands in for embree in the
+        # tables (built as trace() builds them, through the strategies) and the walk, which runs that plan
+        plan = resolve(options, spec)
+        spec = build_tables(spec, plan, TableTools(runtime=rt, intersector=isect, run_batch=run_batch), cache=False)
+        run_batch(replace(spec, strategies_on=plan.on), 0, 1, isect)
 
 
 try:

@@ -28,7 +28,7 @@ class FirstVertex(Strategy):
         return _own_intersector(spec, intersector)
 
     def build_table(self, spec, tools: TableTools) -> object:
-        return impl.build_table(spec, tools.runtime.scene(spec))
+        return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector))  # None: embree (rules_out)
 
     def batch_state(self, ctx: BatchContext) -> object | None:
         return impl.FirstVertexWeights(ctx.spec, ctx.spec.vertex_table, ctx.n_rays)
