@@ -41,7 +41,7 @@ from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
-from straylight.engine.surface_geometry import refine_on_surfaces, side_material, smooth_coefficients_into
+from straylight.engine.surface_geometry import at_interfaces, cast_branches, side_material, smooth_coefficients_into
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
 
@@ -159,17 +159,9 @@ class DeltaChains:
         """Cast the branches ``b``: score those that reach a detector, split those that meet another
         interface (if fewer than K were met), pass those that refine outside a clear aperture."""
         spec, scene = event.spec, event.scene
-        tri, dist = scene.isect.intersect(b.origin, b.d)
+        h = cast_branches(spec, scene, b.origin, b.d)
         event.shadow_rays += len(b.w)
-        tri, dist = np.asarray(tri), np.asarray(dist, dtype=np.float64)
-        hit = np.flatnonzero(tri >= 0)
-        b, tri, dist = b.take(hit), tri[hit], dist[hit]
-        part = spec.triangle_part[tri].astype(np.int64)
-        cos_in = _dot(b.d, scene.normals[tri])
-        # the hit distance in float64 from the triangle's plane, as the walk's hit stage takes it
-        flat = np.abs(cos_in) >= 1e-12
-        dist = np.where(flat, (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], b.origin))
-                        / np.where(flat, cos_in, 1.0), dist)
+        b, tri, dist, part, cos_in = b.take(h.hit), h.tri, h.distance_mm, h.part, h.cos_in
         det = spec.part_roles[part] == ROLE_DETECTOR
         if event.settings.both_sides:
             counted = det
@@ -182,11 +174,7 @@ class DeltaChains:
         if len(go) == 0:
             return None
         b, part, dist, cos_in = b.take(go), part[go], dist[go], cos_in[go]
-        front0 = cos_in < 0
-        facing0 = np.where(front0[:, None], scene.normals[tri[go]], -scene.normals[tri[go]])
-        front, facing, exact, refined, passing = refine_on_surfaces(spec, part, b.origin, b.d, dist, b.last_part,
-                                                                    front0, facing0)
-        at = np.where(refined[:, None], exact, b.origin + dist[:, None] * b.d)
+        front, facing, at, passing = at_interfaces(spec, scene, part, tri[go], b.origin, b.d, dist, b.last_part, cos_in)
         through = np.flatnonzero(passing)
         carried = None
         if len(through):  # the walk passes such a hit unchanged: so does the branch

@@ -50,7 +50,7 @@ from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.interactions.registry import parts_with
-from straylight.engine.surface_geometry import refine_on_surfaces, side_material, smooth_coefficients_into
+from straylight.engine.surface_geometry import at_interfaces, cast_branches, side_material, smooth_coefficients_into
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.walk_shares import keep_walk_share
@@ -263,16 +263,9 @@ class ReverseChains:
 
     def _step(self, ctx, b, ends):
         spec, scene = ctx.spec, ctx.scene
-        tri, dist = scene.isect.intersect(np.ascontiguousarray(b.origin), np.ascontiguousarray(b.d))
+        h = cast_branches(spec, scene, np.ascontiguousarray(b.origin), np.ascontiguousarray(b.d))
         self.shadow_rays += len(b.w)
-        tri, dist = np.asarray(tri), np.asarray(dist, dtype=np.float64)
-        hit = np.flatnonzero(tri >= 0)
-        b, tri, dist = b.take(hit), tri[hit], dist[hit]
-        part = spec.triangle_part[tri].astype(np.int64)
-        cos_in = _dot(b.d, scene.normals[tri])
-        flat = np.abs(cos_in) >= 1e-12
-        dist = np.where(flat, (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], b.origin))
-                        / np.where(flat, cos_in, 1.0), dist)
+        b, tri, dist, part, cos_in = b.take(h.hit), h.tri, h.distance_mm, h.part, h.cos_in
         det = spec.part_roles[part] == ROLE_DETECTOR
         # an end point: a plain scatter part met after >= 1 interface
         mat = spec.part_material[part]
@@ -292,11 +285,7 @@ class ReverseChains:
         if len(go) == 0:
             return None
         b, part, dist, cos_in, tri = b.take(go), part[go], dist[go], cos_in[go], tri[go]
-        front0 = cos_in < 0
-        facing0 = np.where(front0[:, None], scene.normals[tri], -scene.normals[tri])
-        front, facing, exact, refined, passing = refine_on_surfaces(spec, part, b.origin, b.d, dist, b.last_part,
-                                                                    front0, facing0)
-        at = np.where(refined[:, None], exact, b.origin + dist[:, None] * b.d)
+        front, facing, at, passing = at_interfaces(spec, scene, part, tri, b.origin, b.d, dist, b.last_part, cos_in)
         out = []
         through = np.flatnonzero(passing)
         if len(through):  # a pass-through: the walk goes on unchanged, and so does the chain

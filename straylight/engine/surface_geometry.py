@@ -49,6 +49,43 @@ def refine_on_surfaces(spec, part, origin, d, distance_mm, last_part, front, fac
     return front, facing, exact, refined, passing
 
 
+class BranchHits(NamedTuple):
+    """Where cast branch rays (split trees, eye chains) met the scene: ``hit`` the indices of the
+    rays that met a triangle, and for those the triangle, the distance in float64 from the
+    triangle's plane (as the walk's hit stage takes it), the part and d . n of the facet."""
+
+    hit: np.ndarray
+    tri: np.ndarray
+    distance_mm: np.ndarray
+    part: np.ndarray
+    cos_in: np.ndarray
+
+
+def cast_branches(spec, scene, origin, d) -> BranchHits:
+    """Cast rays ``origin``, ``d`` (contiguous (n, 3)) on ``scene`` (a CompiledScene)."""
+    tri, dist = scene.isect.intersect(origin, d)
+    tri, dist = np.asarray(tri), np.asarray(dist, dtype=np.float64)
+    hit = np.flatnonzero(tri >= 0)
+    tri, dist = tri[hit], dist[hit]
+    o = origin[hit]
+    part = spec.triangle_part[tri].astype(np.int64)
+    cos_in = _dot(d[hit], scene.normals[tri])
+    flat = np.abs(cos_in) >= 1e-12
+    dist = np.where(flat, (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], o)) / np.where(flat, cos_in, 1.0), dist)
+    return BranchHits(hit, tri, dist, part, cos_in)
+
+
+def at_interfaces(spec, scene, part, tri, origin, d, distance_mm, last_part, cos_in):
+    """Branch rays' hits on interface parts refined onto their exact surfaces: (front, facing normal,
+    the point, passing) as :func:`refine_on_surfaces` (the facet's point where not refined)."""
+    front0 = cos_in < 0
+    facing0 = np.where(front0[:, None], scene.normals[tri], -scene.normals[tri])
+    front, facing, exact, refined, passing = refine_on_surfaces(spec, part, origin, d, distance_mm, last_part,
+                                                                front0, facing0)
+    at = np.where(refined[:, None], exact, origin + distance_mm[:, None] * d)
+    return front, facing, at, passing
+
+
 def side_material(spec, part, front):
     """Material index of the side of ``part`` that was hit; a dielectric's back is its medium."""
     m_front = spec.part_material[part]
