@@ -41,7 +41,7 @@ from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
-from straylight.engine.surface_geometry import at_interfaces, cast_branches, side_material, smooth_coefficients_into
+from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
 
@@ -183,19 +183,11 @@ class DeltaChains:
             carried.last_part = part[through]
         live = np.flatnonzero(~passing & (b.k < self.k_max))  # the walk's hits after K + 1 interfaces stay its own
         b, part, at, facing, dist = b.take(live), part[live], at[live], facing[live], dist[live]
-        mat = side_material(spec, part, front[live])
-        back = ~front[live]
-        cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
-        m = len(part)
-        rs, rp, ts, tp = (np.zeros(m, complex) for _ in range(4))
-        cos_t, eta, bulk = np.zeros(m), np.ones(m), np.ones(m)
-        for k in np.unique(mat):
-            g = np.flatnonzero(mat == k)
-            smooth_coefficients_into(spec.materials[k], g, back, cos_i, dist, (rs, rp, ts, tp, cos_t, eta, bulk))
+        fresnel = branch_coefficients(spec, part, front[live], b.d, facing, dist)
         s = s_vector(b.d, facing)
         S = rotate_stokes(b.S, b.e1, s, b.d)
         b.origin, b.last_part = at, part
-        children = self._children(spec, b, facing, s, S, (rs, rp, ts, tp, cos_t, eta, bulk), event)
+        children = self._children(spec, b, facing, s, S, fresnel, event)
         parts = [x for x in (children, carried) if x is not None and len(x.w)]
         if not parts:
             return None

@@ -50,7 +50,7 @@ from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.interactions.registry import parts_with
-from straylight.engine.surface_geometry import at_interfaces, cast_branches, side_material, smooth_coefficients_into
+from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.walk_shares import keep_walk_share
@@ -304,15 +304,8 @@ class ReverseChains:
 
     def _children(self, spec, b, part, at, facing, dist, front):
         """Reflected and transmitted eye branches at interface hits, the covector carried back."""
-        mat = side_material(spec, part, front)
-        back = ~front
-        cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
+        rs, rp, ts, tp, cos_t, eta, bulk = branch_coefficients(spec, part, front, b.d, facing, dist)
         m = len(part)
-        rs, rp, ts, tp = (np.zeros(m, complex) for _ in range(4))
-        cos_t, eta, bulk = np.zeros(m), np.ones(m), np.ones(m)
-        for k in np.unique(mat):
-            g = np.flatnonzero(mat == k)
-            smooth_coefficients_into(spec.materials[k], g, back, cos_i, dist, (rs, rp, ts, tp, cos_t, eta, bulk))
         s = s_vector(b.d, facing)
         # the covector from the frame of the interface met before (forward: after) to this one's s
         # frame, along the forward direction -d (the inverse of the forward rotation)

@@ -86,6 +86,22 @@ def at_interfaces(spec, scene, part, tri, origin, d, distance_mm, last_part, cos
     return front, facing, at, passing
 
 
+def branch_coefficients(spec, part, front, d, facing, distance_mm):
+    """Fresnel amplitudes of branch rays ``d`` meeting interface parts ``part`` on the side ``front``
+    (normal ``facing`` on the incident side, segment ``distance_mm``): ``(r_s, r_p, t_s, t_p, cos_t,
+    eta, bulk)`` of :func:`smooth_coefficients_into`, per row."""
+    mat = side_material(spec, part, front)
+    back = ~front
+    cos_i = np.clip(-_dot(d, facing), 0.0, 1.0)
+    m = len(part)
+    rs, rp, ts, tp = (np.zeros(m, complex) for _ in range(4))
+    cos_t, eta, bulk = np.zeros(m), np.ones(m), np.ones(m)
+    for k in np.unique(mat):
+        g = np.flatnonzero(mat == k)
+        smooth_coefficients_into(spec.materials[k], g, back, cos_i, distance_mm, (rs, rp, ts, tp, cos_t, eta, bulk))
+    return rs, rp, ts, tp, cos_t, eta, bulk
+
+
 def side_material(spec, part, front):
     """Material index of the side of ``part`` that was hit; a dielectric's back is its medium."""
     m_front = spec.part_material[part]
