@@ -1,7 +1,7 @@
 """Do the precision stop's error bars cover the truth? Many seeds per angle against a long reference.
 
     .venv/bin/python benchmarks/error_coverage.py [--instrument tube|newtonian|guide_scope] [--angles-deg 20 30] [--seeds 16]
-        [--target 0.02] [--reference-rays 8000000] [--no-write]
+        [--target 0.02] [--reference-rays 8000000] [--reference ANGLE=PST,REL_ERR ...] [--estimators default] [--no-write]
 
 For each angle: a reference PST from one long fixed-ray run (its own error, typically 5-10x smaller than
 the target), then ``--seeds`` runs with ``precision=Precision(target)`` (the default stop rule of
@@ -47,20 +47,39 @@ def main(argv=None) -> int:
     ap.add_argument("--target", type=float, default=0.02)
     ap.add_argument("--reference-rays", type=int, default=8_000_000)
     ap.add_argument("--no-write", action="store_true", help="print only; leave benchmarks/RESULTS.md alone")
+    ap.add_argument("--reference", nargs="+", metavar="ANGLE=PST,REL_ERR", default=None,
+                    help="per angle, a reference PST and its relative error to use instead of a long run now (e.g. "
+                         "an earlier long run with another estimator set: an independent check of a new one)")
+    ap.add_argument("--estimators", default="default", help="the estimator set of the seeded runs")
     args = ap.parse_args(argv)
+    given = {}
+    for item in args.reference or ():
+        try:
+            angle, values = item.split("=")
+            pst, rel = values.split(",")
+            given[float(angle)] = (float(pst), float(rel))
+        except ValueError:
+            ap.error(f"--reference {item!r}: expected ANGLE=PST,REL_ERR (e.g. 30=3.86e-07,0.0087)")
+    if given and set(given) != {float(a) for a in args.angles_deg}:
+        ap.error("--reference must give a value for every --angles-deg")
+    sys.path.insert(0, str(HERE))
+    import estimator_sets  # noqa: F401 - registers the history sets for --estimators
     import straylight.api as sl
 
     inst = _instrument(args.instrument)
     rows = []
     for a in args.angles_deg:
         t0 = time.perf_counter()
-        ref = inst.pst([a], rays=args.reference_rays, seed=10_000)
-        r, r_err = float(ref.pst[0]), float(ref.pst_stderr[0])
+        if given:
+            r, r_err = given[float(a)][0], given[float(a)][0] * given[float(a)][1]
+        else:
+            ref = inst.pst([a], rays=args.reference_rays, seed=10_000, estimators=args.estimators)
+            r, r_err = float(ref.pst[0]), float(ref.pst_stderr[0])
         t_ref = time.perf_counter() - t0
         z, rays, secs, reliable = [], [], [], []
         for s in range(1, args.seeds + 1):
             t0 = time.perf_counter()
-            run = inst.pst([a], seed=s, precision=sl.Precision(args.target))
+            run = inst.pst([a], seed=s, precision=sl.Precision(args.target), estimators=args.estimators)
             secs.append(time.perf_counter() - t0)
             p, e = float(run.pst[0]), float(run.pst_stderr[0])
             z.append((p - r) / math.hypot(e, r_err) if e > 0 else math.nan)
@@ -81,8 +100,10 @@ def main(argv=None) -> int:
         sys.path.insert(0, str(HERE))
         from results_md import write_section
 
+        reference = ("the values given per angle (`--reference`)" if given
+                     else f"one run of {args.reference_rays:.0e} rays")
         lines = [f"Instrument `{args.instrument}`, target {args.target:.0%}, {args.seeds} seeds per angle, the "
-                 f"default stop rule (straylight.stop_rule); reference: one run of {args.reference_rays:.0e} rays.", "",
+                 f"default stop rule (straylight.stop_rule), estimator set `{args.estimators}`; reference: {reference}.", "",
                  "| angle (deg) | reference PST (rel. err) | reliable | RMS z | mean z (bound) | abs z > 3 | abs z > 4 "
                  "| median rays | median s |", "|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
