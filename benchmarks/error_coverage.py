@@ -1,7 +1,7 @@
 """Do the precision stop's error bars cover the truth? Many seeds per angle against a long reference.
 
     .venv/bin/python benchmarks/error_coverage.py [--instrument tube|newtonian|guide_scope] [--angles-deg 20 30] [--seeds 16]
-        [--target 0.02] [--reference-rays 8000000] [--reference ANGLE=PST,REL_ERR ...] [--estimators default] [--no-write]
+        [--target 0.02] [--reference-rays 8000000] [--reference ANGLE=PST,REL_ERR ...] [--estimators default] [--max-seconds S] [--no-write]
 
 For each angle: a reference PST from one long fixed-ray run (its own error, typically 5-10x smaller than
 the target), then ``--seeds`` runs with ``precision=Precision(target)`` (the default stop rule of
@@ -51,6 +51,8 @@ def main(argv=None) -> int:
                     help="per angle, a reference PST and its relative error to use instead of a long run now (e.g. "
                          "an earlier long run with another estimator set: an independent check of a new one)")
     ap.add_argument("--estimators", default="default", help="the estimator set of the seeded runs")
+    ap.add_argument("--max-seconds", type=float, default=math.inf,
+                    help="per seeded run (Precision.max_seconds): a run stopped by it is not counted as reliable")
     args = ap.parse_args(argv)
     given = {}
     for item in args.reference or ():
@@ -79,7 +81,8 @@ def main(argv=None) -> int:
         z, rays, secs, reliable = [], [], [], []
         for s in range(1, args.seeds + 1):
             t0 = time.perf_counter()
-            run = inst.pst([a], seed=s, precision=sl.Precision(args.target), estimators=args.estimators)
+            run = inst.pst([a], seed=s, precision=sl.Precision(args.target, max_seconds=args.max_seconds),
+                           estimators=args.estimators)
             secs.append(time.perf_counter() - t0)
             p, e = float(run.pst[0]), float(run.pst_stderr[0])
             z.append((p - r) / math.hypot(e, r_err) if e > 0 else math.nan)
@@ -103,7 +106,8 @@ def main(argv=None) -> int:
         reference = ("the values given per angle (`--reference`)" if given
                      else f"one run of {args.reference_rays:.0e} rays")
         lines = [f"Instrument `{args.instrument}`, target {args.target:.0%}, {args.seeds} seeds per angle, the "
-                 f"default stop rule (straylight.stop_rule), estimator set `{args.estimators}`; reference: {reference}.", "",
+                 f"default stop rule (straylight.stop_rule), estimator set `{args.estimators}`"
+                 f"{'' if math.isinf(args.max_seconds) else f', at most {args.max_seconds:g} s per run'}; reference: {reference}.", "",
                  "| angle (deg) | reference PST (rel. err) | reliable | RMS z | mean z (bound) | abs z > 3 | abs z > 4 "
                  "| median rays | median s |", "|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
