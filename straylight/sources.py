@@ -167,6 +167,16 @@ class CollimatedDisk:
     def bounds_mm(self):
         return np.stack([self.center_mm - self.radius_mm, self.center_mm + self.radius_mm])
 
+    def uniforms_at(self, points_mm) -> np.ndarray:
+        """The first two uniforms (n, 2) whose ray :meth:`emit` starts at ``points_mm`` on the disk (the
+        inverse of r = radius sqrt(u1), phi = 2 pi u2)."""
+        t, b = orthonormal_basis(self.normal)  # the basis emit() uses
+        rel = np.asarray(points_mm, float) - self.center_mm
+        x, y = rel @ t, rel @ b
+        u1 = np.clip((x * x + y * y) / self.radius_mm ** 2, 0.0, np.nextafter(1.0, 0.0))
+        u2 = (np.arctan2(y, x) / (2.0 * np.pi)) % 1.0
+        return np.stack([u1, u2], axis=1)
+
 
 @dataclass(frozen=True, eq=False)
 class LambertianDisk:

@@ -136,6 +136,14 @@ def warp(table: EntranceTable, u: np.ndarray) -> np.ndarray:
     return 1.0 / (g * g * p)
 
 
+def density(table: EntranceTable, u: np.ndarray) -> np.ndarray:
+    """The table's density p(u) = G^2 P_c at the source uniforms ``u`` (n, 2) (the density the warped
+    rays of :func:`warp` have there)."""
+    g = table.grid
+    cell = np.minimum((u[:, 0] * g).astype(np.int64), g - 1) * g + np.minimum((u[:, 1] * g).astype(np.int64), g - 1)
+    return g * g * table.prob[cell]
+
+
 def start_weights(spec, u, w0: float, tallies, rows):
     """Emission with the table: warp the source columns of the batch's emission uniforms ``u``
     (n, 5: source choice, then the source's four) in place and return the start weights (n,); each

@@ -48,8 +48,11 @@ from materials.flags import ComponentFlags, flags_of
 from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
+from materials.sampling import sample_cosine_hemisphere
 from straylight.engine.capabilities import Capability
+from straylight.engine.entrance_sampling import density as entrance_density
 from straylight.engine.interactions.registry import parts_with
+from straylight.engine.material_groups import by_material
 from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
@@ -108,29 +111,18 @@ def _brdf(spec, mat, n, wi, wo, with_pdf=False):
     f = np.zeros(len(mat))
     pdf = np.zeros(len(mat))
     pol = spec.options.physics.polarization
-    for k in np.unique(mat):
-        g = np.flatnonzero(mat == k)
-        model = spec.materials[k]
-        f[g] = model.brdf(li[g], lo[g], pol)
-        if with_pdf:
-            pdf[g] = model.pdf(li[g], lo[g], pol)
+    for rows, (fv, pv) in by_material(spec.materials, mat, lambda model, rows: (
+            model.brdf(li[rows], lo[rows], pol), model.pdf(li[rows], lo[rows], pol) if with_pdf else 0.0)):
+        f[rows] = fv
+        pdf[rows] = pv
     return (f, pdf) if with_pdf else f
 
 
 def _entrance_density(spec, src, q) -> np.ndarray:
-    """Density factor G^2 P_c of the entrance table at the source points ``q`` (1 without a table):
-    the inverse of the collimated disk's map u -> r sqrt(u1) (cos 2 pi u2 t + sin 2 pi u2 b)."""
-    table = spec.entrance_table
-    if table is None:
+    """The entrance table's density factor at the beam points ``q`` (1 without a table)."""
+    if spec.entrance_table is None:
         return np.ones(len(q))
-    t, b = orthonormal_basis(np.asarray(src.normal, float))
-    rel = q - src.center_mm
-    x, y = rel @ t, rel @ b
-    u1 = np.clip((x * x + y * y) / src.radius_mm ** 2, 0.0, np.nextafter(1.0, 0.0))
-    u2 = (np.arctan2(y, x) / (2.0 * np.pi)) % 1.0
-    g = table.grid
-    cell = np.minimum((u1 * g).astype(np.int64), g - 1) * g + np.minimum((u2 * g).astype(np.int64), g - 1)
-    return g * g * table.prob[cell]
+    return entrance_density(spec.entrance_table, src.uniforms_at(q))
 
 
 class EyeEnds:
@@ -183,7 +175,6 @@ class ReverseChains:
         self.anchor = np.zeros(n, dtype=bool)
         self.run = np.zeros(n, dtype=np.int64)
         self.shadow_rays = 0
-        self.u_choice = np.empty(n)
         # multiple importance sampling with the split trees (delta_chain), which count the same runs
         # from the walk's side: balance heuristic over (P, omega) (module doc, "Weights")
         est = spec.options.estimator
@@ -234,12 +225,12 @@ class ReverseChains:
         both = spec.options.output.detector_sides == "both"
         side = np.where(u[:, 5] < 0.5, 1.0, -1.0) if both else np.ones(n)
         nz = nz * side[:, None]
-        # cosine-weighted direction about nz (Malley): density cos / pi
-        r = np.sqrt(u[:, 4])
-        phi = 2.0 * np.pi * (u[:, 5] * 2.0 % 1.0 if both else u[:, 5])
+        # cosine-weighted direction about nz (density cos / pi); with both sides counted, u5 picks the
+        # side (< 0.5) and its doubled fraction is the azimuth's uniform
+        azimuth_u = u[:, 5] * 2.0 % 1.0 if both else u[:, 5]
+        local = sample_cosine_hemisphere(np.ascontiguousarray(np.stack([u[:, 4], azimuth_u], axis=1)))
         t, b = orthonormal_basis(nz)
-        cz = np.sqrt(np.maximum(0.0, 1.0 - u[:, 4]))
-        d = (r * np.cos(phi))[:, None] * t + (r * np.sin(phi))[:, None] * b + cz[:, None] * nz
+        d = local[:, :1] * t + local[:, 1:2] * b + local[:, 2:3] * nz
         d /= np.linalg.norm(d, axis=1)[:, None]
         beta = np.pi * area * D * (2.0 if both else 1.0)
         det_part = np.asarray(scene.det_parts, dtype=np.int64)[j]

@@ -176,3 +176,19 @@ def test_a_strategy_the_plan_turns_off_never_runs(slab_scene, monkeypatch):
     assert calls == []
     run_batch(spec, 0, 1)  # the probe counts where the plan runs it
     assert calls == [1_000]
+
+
+def test_the_beam_point_maps_back_to_its_uniforms_and_the_table_density():
+    """CollimatedDisk.uniforms_at inverts emit; entrance_sampling.density is the density warp gives."""
+    from straylight.engine.entrance_sampling import density, table_from_contributions, warp
+
+    src = CollimatedDisk(center_mm=[1.0, -2.0, 5.0], normal=[0.3, 0.0, 0.95], direction=[0.0, 0.0, -1.0],
+                         radius_mm=4.0)
+    rng = np.random.default_rng(3)
+    u = rng.random((500, 2))
+    origins, _ = src.emit(np.ascontiguousarray(np.hstack([u, rng.random((500, 2))])))
+    np.testing.assert_allclose(src.uniforms_at(origins), u, atol=1e-9)
+    table = table_from_contributions(rng.random((2000, 2)), rng.random(2000) ** 4)
+    w = u.copy()
+    factor = warp(table, w)
+    np.testing.assert_allclose(density(table, w), 1.0 / factor, rtol=1e-12)
