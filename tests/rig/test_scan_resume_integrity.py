@@ -16,8 +16,11 @@ from materials.scan import read_scan
 from rig.writer import read_log
 from straylight.cli.main import main
 
+# The simulated rig takes about 4 ms a point: a long plan (about 280 points) keeps the scan running
+# well past the third point, so the kill cannot race the scan's own end.
 PLAN = {"name": "kill-test", "polarizations": ["s"],
-        "incidence": [{"theta_i_deg": 30, "theta_r_deg": [float(x) for x in range(2, 86, 8) if abs(x - 30) > 6]}]}
+        "incidence": [{"theta_i_deg": 30,
+                       "theta_r_deg": [x / 4 for x in range(8, 344) if abs(x / 4 - 30) > 6]}]}
 
 
 def test_killed_scan_resume_refuses_other_seed_and_closes_the_killed_run(tmp_path, capsys):
