@@ -129,14 +129,13 @@ class DeltaChains:
             live = self._step(event, live)
 
     def _children(self, spec, b, facing, s, S, fresnel, event):
-        """The reflected and transmitted branches of the interface hits of ``b`` (at ``b.origin``)."""
+        """The reflected and transmitted branches of the interface hits of ``b`` (at ``b.origin``).
+        The fields the two branches copy from ``b`` are gathered once, on the rows of both."""
         rs, rp, ts, tp, cos_t, eta, bulk = fresnel
         eps = 2.0 * event.settings.eps_mm
-        out = []
         code = b.last_part * 4 + EVENT_SPECULAR
-        codes = b.codes.copy()
-        codes[np.arange(len(b.w)), b.k] = code
         key = mix_key(b.key, code) if event.settings.record_paths else b.key
+        rows, origin, d, weight, stokes = [], [], [], [], []
         for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
             So = np.einsum("nij,nj->ni", interface_mueller(a_s, a_p), S)
             w = b.w * So[:, 0] * bulk
@@ -147,21 +146,27 @@ class DeltaChains:
                 d_out = reflect(b.d[g], facing[g])
             else:
                 d_out = refract(b.d[g], facing[g], eta[g], cos_t[g])
-            out.append(Branches(b.row[g], np.ascontiguousarray(b.origin[g] + sign * eps * facing[g]),
-                                np.ascontiguousarray(d_out), w[g], So[g] / So[g, :1], s[g], b.k[g] + 1,
-                                b.last_part[g], key[g], codes[g]))
-        if not out:
+            rows.append(g)
+            origin.append(np.ascontiguousarray(b.origin[g] + sign * eps * facing[g]))
+            d.append(np.ascontiguousarray(d_out))
+            weight.append(w[g])
+            stokes.append(So[g] / So[g, :1])
+        if not rows:
             return None
-        return Branches(*(np.concatenate([getattr(o, f) for o in out])
-                          for f in ("row", "origin", "d", "w", "S", "e1", "k", "last_part", "key", "codes")))
+        g = rows[0] if len(rows) == 1 else np.concatenate(rows)
+        codes = b.codes[g]
+        codes[np.arange(len(g)), b.k[g]] = code[g]
+        return Branches(b.row[g], *(x[0] if len(x) == 1 else np.concatenate(x) for x in (origin, d, weight, stokes)),
+                        s[g], b.k[g] + 1, b.last_part[g], key[g], codes)
 
     def _step(self, event, b):
         """Cast the branches ``b``: score those that reach a detector, split those that meet another
-        interface (if fewer than K were met), pass those that refine outside a clear aperture."""
+        interface (if fewer than K were met), pass those that refine outside a clear aperture.
+        ``b``'s fields are gathered once per outcome (the row indices are composed, not the branches)."""
         spec, scene = event.spec, event.scene
         h = cast_branches(spec, scene, b.origin, b.d)
         event.shadow_rays += len(b.w)
-        b, tri, dist, part, cos_in = b.take(h.hit), h.tri, h.distance_mm, h.part, h.cos_in
+        hit, tri, dist, part, cos_in = h.hit, h.tri, h.distance_mm, h.part, h.cos_in
         det = spec.part_roles[part] == ROLE_DETECTOR
         if event.settings.both_sides:
             counted = det
@@ -169,20 +174,22 @@ class DeltaChains:
             counted = det & (cos_in < 0)
         sc = np.flatnonzero(counted)
         if len(sc):
-            self._score(event, b.take(sc), part[sc], b.origin[sc] + dist[sc, None] * b.d[sc])
+            i = hit[sc]
+            self._score(event, b.take(i), part[sc], b.origin[i] + dist[sc, None] * b.d[i])
         go = np.flatnonzero(~det & event.capabilities.at(Capability.DELTA_CHAIN, part))
         if len(go) == 0:
             return None
-        b, part, dist, cos_in = b.take(go), part[go], dist[go], cos_in[go]
-        front, facing, at, passing = at_interfaces(spec, scene, part, tri[go], b.origin, b.d, dist, b.last_part, cos_in)
+        idx, part, dist, cos_in = hit[go], part[go], dist[go], cos_in[go]
+        front, facing, at, passing = at_interfaces(spec, scene, part, tri[go], b.origin[idx], b.d[idx], dist,
+                                                   b.last_part[idx], cos_in)
         through = np.flatnonzero(passing)
         carried = None
         if len(through):  # the walk passes such a hit unchanged: so does the branch
-            carried = b.take(through)
+            carried = b.take(idx[through])
             carried.origin = np.ascontiguousarray(at[through] + 2.0 * event.settings.eps_mm * carried.d)
             carried.last_part = part[through]
-        live = np.flatnonzero(~passing & (b.k < self.k_max))  # the walk's hits after K + 1 interfaces stay its own
-        b, part, at, facing, dist = b.take(live), part[live], at[live], facing[live], dist[live]
+        live = np.flatnonzero(~passing & (b.k[idx] < self.k_max))  # the walk's hits after K + 1 interfaces stay its own
+        b, part, at, facing, dist = b.take(idx[live]), part[live], at[live], facing[live], dist[live]
         fresnel = branch_coefficients(spec, part, front[live], b.d, facing, dist)
         s = s_vector(b.d, facing)
         S = rotate_stokes(b.S, b.e1, s, b.d)

@@ -13,6 +13,7 @@ import numpy as np
 
 from materials.mueller import interface_mueller
 from materials.smooth import Dielectric, reflect, refract
+from straylight.intersect._plane import plane_distance
 
 SELF_HIT_MM = 1e-6  # a refined hit this close to (or behind) the ray's origin on its own last part is spurious
 
@@ -62,7 +63,30 @@ class BranchHits(NamedTuple):
 
 
 def cast_branches(spec, scene, origin, d) -> BranchHits:
-    """Cast rays ``origin``, ``d`` (contiguous (n, 3)) on ``scene`` (a CompiledScene)."""
+    """Cast rays ``origin``, ``d`` (contiguous (n, 3)) on ``scene`` (a CompiledScene). The distance is
+    ``(n . v0 - n . o) / (d . n)`` of the facet's plane; the intersector's own (plane_distance) only
+    where the ray runs edge-on (|d . n| < 1e-12), so an intersector that can return the triangles
+    alone (``intersect_triangles``, looked up on its class) skips computing it for every hit."""
+    isect = scene.isect
+    if not hasattr(type(isect), "intersect_triangles"):
+        return _cast_with_distances(spec, scene, origin, d)
+    tri = np.asarray(isect.intersect_triangles(origin, d))
+    hit = np.flatnonzero(tri >= 0)
+    tri = tri[hit]
+    o, dh = origin[hit], d[hit]
+    part = spec.triangle_part[tri].astype(np.int64)
+    cos_in = _dot(dh, scene.normals[tri])
+    flat = np.abs(cos_in) >= 1e-12
+    dist = (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], o)) / np.where(flat, cos_in, 1.0)
+    edge = np.flatnonzero(~flat)
+    if len(edge):
+        v0, normal, centroid = isect.planes
+        dist[edge] = plane_distance(v0, normal, centroid, tri[edge], o[edge], dh[edge])
+    return BranchHits(hit, tri, dist, part, cos_in)
+
+
+def _cast_with_distances(spec, scene, origin, d) -> BranchHits:
+    """:func:`cast_branches` on an intersector that returns the triangles with their distances only."""
     tri, dist = scene.isect.intersect(origin, d)
     tri, dist = np.asarray(tri), np.asarray(dist, dtype=np.float64)
     hit = np.flatnonzero(tri >= 0)

@@ -91,6 +91,12 @@ class EmbreeIntersector:
             )
         return tri, t
 
+    def intersect_triangles(self, origins, dirs) -> np.ndarray:
+        """The triangles of :meth:`intersect` (int64, -1 = miss), without their distances."""
+        o32 = np.ascontiguousarray(origins, dtype=np.float32)
+        d32 = np.ascontiguousarray(dirs, dtype=np.float32)
+        return self._scene.run(o32, d32).astype(np.int64)
+
     def occluded(self, origins, dirs, tmax):
         """True where some triangle lies on the ray at 0 < t < tmax."""
         if len(origins) == 0:

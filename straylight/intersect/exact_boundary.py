@@ -100,6 +100,12 @@ class ExactBoundaryIntersector:
             t[hit] = plane_distance(self._v0, self._normal, self._centroid, tri[hit], origins[hit], dirs[hit])
         return tri, t
 
+    def intersect_triangles(self, origins, dirs) -> np.ndarray:
+        """The triangles of :meth:`intersect` (int64, -1 = miss), without their distances."""
+        origins = np.asarray(origins, dtype=np.float64)
+        dirs = np.asarray(dirs, dtype=np.float64)
+        return self._first(origins, dirs, self.inner.first_triangle).astype(np.int64)
+
     def occluded(self, origins, dirs, tmax):
         """True where a real hit lies on the ray at 0 < t < tmax: the rays the inner query finds occluded
         are cast again, and a refused sliver does not block."""
