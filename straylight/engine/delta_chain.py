@@ -212,7 +212,7 @@ class DeltaChains:
             m = np.flatnonzero(j_of == j)
             i = b.row[m]
             r = rays.ray[i]
-            w = b.w[m] * event.tree_share(i, int(j))  # a strategy that also counts this run keeps its share
+            w = b.w[m] * event.tree_share(i, int(j), b.d[m])  # a strategy that also counts this run keeps its share
             event.tallies.add(event.rows.detector_nee + int(j), r, w)
             event.tallies.subtract(event.rows.nee_exchange + start_part[m], r, w)
             keys = events = None

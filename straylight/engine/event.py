@@ -109,14 +109,15 @@ class Event:
                 out |= claims(self, rows)
         return out
 
-    def tree_share(self, rows, detector: int) -> np.ndarray:
+    def tree_share(self, rows, detector: int, arrival) -> np.ndarray:
         """The share a split tree rooted at the interface hits ``rows`` keeps of its score on
-        ``detector`` (1 unless a strategy also counts that run: straylight.engine.reverse_chain)."""
+        ``detector``, its branches arriving along ``arrival`` (n, 3) (1 unless a strategy also counts
+        that run: straylight.engine.reverse_chain)."""
         out = np.ones(len(rows))
         for state in self.states.values():
             share = getattr(state, "tree_share", None)
             if share is not None:
-                out *= share(self, rows, detector)
+                out *= share(self, rows, detector, arrival)
         return out
 
     def vertex_rows(self, selection) -> np.ndarray:

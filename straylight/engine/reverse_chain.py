@@ -4,14 +4,15 @@ Behind a lens a scatter point P counts only if the light it sends through the gl
 small sensor: the walk finds such a direction by chance (on the guide scope at 45-60 deg a few rays
 in 1e5 carried 98 % of the variance, each a tube point whose two-reflection ghost crosses the sensor),
 and next-event estimation cannot aim through a refracting surface. So the path is built from both
-ends. Per ray of the walk one *eye chain* starts on a detector: a point z uniform on it (density
-1 / A), a direction omega cosine-distributed on its counted side (density cos / pi), cast and split at
+ends. Per ray of the walk M = :data:`EYES_PER_RAY` *eye chains* start on a detector: a point z uniform
+on it (density 1 / A), a direction omega on its counted side (density q cos / pi: cosine-distributed
+with q = 1, or drawn from the eye table below), cast and split at
 every interface (parts whose kind declares ``Capability.DELTA_CHAIN``: reflection and transmission
 both followed, as ``delta_chain`` does) for up to K interfaces. A branch that, after k >= 1
 interfaces, meets a scatter part whose material is a non-polarizing pure scatterer ends there at an
 *end point* P with the importance
 
-    beta = pi A D (x 2 with both sides counted) x (v_P)_0,
+    beta = pi A D (x 2 with both sides counted) x (v_P)_0 / (q M),
 
 D the number of detectors and v the chain's Stokes covector: (1, 0, 0, 0) at the detector (it
 measures power), carried back through each interface as v_in = M^T v_out (M the interface's Mueller
@@ -21,6 +22,17 @@ unpolarized light leaving P, and a non-polarizing scatterer sends unpolarized li
 receives (materials.polarized_brdf). Transmission coefficients are reciprocal (power-normalised
 amplitudes), so the eye ray's Fresnel factors are the forward light's.
 
+**The eye table** (:func:`build_table`, before the walk, like the entrance table): behind a lens the
+chains that end on a scatter point the beam lights are few (on the guide scope 1 in 1300 cosine-drawn
+chains at 60 deg, 1 in 900 at 30 deg, where the tube's glossy highlight seen through the ghost carries
+70 % of the value in 5 of them). A pilot of :data:`PILOT_EYES` cosine-drawn chains (own streams) joined
+to the source gives each chain's value x; per detector and side, the direction's two cosine-map
+uniforms (radius sqrt(u1), azimuth 2 pi u2) get the entrance table's density
+(straylight.engine.entrance_sampling: proportional to the smoothed RMS of x at three scales, a quarter
+left cosine), and the chains draw their directions from it. q enters beta and the balance weights
+below; for a split tree's branch the eye side's q is looked up from the direction it reaches the
+detector with (:meth:`EyeTable.density_of_arrival`). Flat detectors only (the table is over one frame).
+
 Two connections count the paths "X -> P -> interfaces (1..K) -> detector":
 
 - X the source (one ``collimated_disk``): P lit straight by the beam, irradiance E = Phi / (pi r^2
@@ -29,7 +41,7 @@ Two connections count the paths "X -> P -> interfaces (1..K) -> detector":
   ``w f_A(wi, A->P) cos_A cos_P / |AP|^2 f_P(P->A, omega_P) beta x n_ends`` for one of the ray's
   n_ends end points drawn uniformly, when A and P see each other.
 
-Each ray's eye chain is its own (a stream keyed by seed and chunk), so the rays stay independent
+Each ray's eye chains are its own (a stream keyed by seed and chunk), so the rays stay independent
 and the engine's per-ray error stays right. The walk's own paths of that family are dropped (their
 weight to the NEE exchange, the ledger stays exact), and so are delta_chain's split trees and
 reflection_split's reflections that start after such a P (:meth:`ReverseChains.claims`): each path
@@ -37,10 +49,12 @@ is counted once. Paths with a pass-through (a hit outside a clear aperture) betw
 the walk's (shadow rays do not pass apertures); passes inside the run are followed by both sides.
 
 Contributions go to ``detector_nee`` and, negated, to the NEE-exchange row of P's part (source
-connection) or A's part (vertex connection). Cost per ray: the eye chain (~2-6 casts in a singlet)
+connection) or A's part (vertex connection). Cost per ray: the eye chains (M x ~2-6 casts in a singlet)
 and one shadow ray per end point and per eligible scatter vertex.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -48,9 +62,10 @@ from materials.flags import ComponentFlags, flags_of
 from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
-from materials.sampling import sample_cosine_hemisphere
+from materials.sampling import invert_cosine_hemisphere_sample, sample_cosine_hemisphere
 from straylight.engine.capabilities import Capability
 from straylight.engine.entrance_sampling import density as entrance_density
+from straylight.engine.entrance_sampling import table_from_contributions, warp
 from straylight.engine.interactions.registry import parts_with
 from straylight.engine.material_groups import by_material
 from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
@@ -63,6 +78,15 @@ from straylight.rng import CHUNK_RAYS
 from straylight.sources import CollimatedDisk, orthonormal_basis
 
 STREAM = 0x52564348  # entropy word of the eye chains' streams ("RVCH")
+#: eye chains per ray of the walk (the ray's eye estimate is their mean). A chain costs ~1.5 us, a ray of
+#: the walk on the guide scope ~25 us; measured there (variance_paths.py, 3e5 rays, seeds 1-3, CPU s x
+#: rel. error^2): 30 deg 56 / 16 / 30 with 1 chain, 22 / 16 / 35 with 2, 25 / 17 / 28 with 4; 60 deg
+#: 8.5 / 55 / 8.2, 4.9 / 8.9 / 5.6, 7.7 / 7.1 / 27
+EYES_PER_RAY = 2
+#: eye chains of the pilot that learns the direction table (:func:`build_table`)
+PILOT_EYES = 200_000
+#: the pilot's chunk streams start here (never reached by a trace's own chunks, nor the entrance pilot's)
+PILOT_CHUNK_OFFSET = 1 << 41
 _GOLDEN = 0.6180339887498949  # Weyl step of a ray's end-point choices over its depth
 
 
@@ -125,15 +149,163 @@ def _entrance_density(spec, src, q) -> np.ndarray:
     return entrance_density(spec.entrance_table, src.uniforms_at(q))
 
 
+def source_connection(spec, scene, e):
+    """The source connections of end points ``e`` (:class:`EyeEnds`): the indices ``g`` of the end
+    points lit straight by the beam (unblocked), their value ``beta f_P(-d, omega_P) E cos_P`` (per
+    eye chain, before the 1/N share and the balance weight), the walk's density of (P, omega_P) there
+    (for the balance weight) and the number of shadow rays cast."""
+    src = spec.sources[0]
+    d = np.asarray(src.direction, float)
+    cos_p = -(e.normal @ d)
+    denom = float(d @ src.normal)
+    none = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), 0
+    if abs(denom) < 1e-12 or len(e.ray) == 0:
+        return none
+    t = ((e.point - src.center_mm) @ src.normal) / denom
+    q = e.point - t[:, None] * d[None, :]
+    inside = np.einsum("ij,ij->i", q - src.center_mm, q - src.center_mm) <= src.radius_mm ** 2
+    g = np.flatnonzero((cos_p > 0) & (t > 2 * spec.eps) & inside)
+    if len(g) == 0:
+        return none
+    origin = np.ascontiguousarray(e.point[g] + 2.0 * spec.eps * e.normal[g])
+    dirs = np.ascontiguousarray(np.broadcast_to(-d, (len(g), 3)))
+    blocked = np.asarray(scene.isect.occluded(origin, dirs, np.ascontiguousarray(t[g] - 4.0 * spec.eps)))
+    shadows = len(g)
+    g = g[~blocked]
+    if len(g) == 0:
+        return none[:3] + (shadows,)
+    footprint = np.pi * src.radius_mm ** 2 * abs(denom)
+    wi = np.ascontiguousarray(np.broadcast_to(-d, (len(g), 3)))
+    f, pdf = _brdf(spec, e.material[g], e.normal[g], wi, e.omega[g], with_pdf=True)
+    p_area = _entrance_density(spec, src, q[g]) * cos_p[g] / footprint
+    raw = e.beta[g] * f * (src.power_w / footprint) * cos_p[g]
+    return g, raw, p_area * pdf, shadows
+
+
+def eye_uniforms(spec, first_chunk: int, stop_chunk: int, n: int, chunk_offset: int, per_ray: int = 1) -> np.ndarray:
+    """The uniforms (n x ``per_ray``, 7, ray-major) of the eye chains of the n rays of chunks
+    ``first_chunk``..``stop_chunk`` (a stream per chunk, keyed by seed, ``chunk_offset`` + chunk and
+    :data:`STREAM`): detector choice, detector point (3), direction (2), end-point choice."""
+    m = int(per_ray)
+    u = np.empty((n * m, 7))
+    for c in range(first_chunk, stop_chunk):
+        lo = (c - first_chunk) * CHUNK_RAYS
+        hi = min(lo + CHUNK_RAYS, n)
+        if hi <= lo:
+            break
+        rng = np.random.default_rng([int(spec.seed), int(chunk_offset + c), STREAM])
+        u[lo * m:hi * m] = rng.random(((hi - lo) * m, 7))
+    return u
+
+
+def _flat_normal(detector) -> np.ndarray | None:
+    """The one normal a flat detector's points carry (what its ``sample`` returns), None if it is not flat."""
+    n0 = np.asarray(detector.sample(np.full((1, 3), 0.5))[1][0], dtype=np.float64)
+    normals = getattr(detector, "normals", None)
+    if normals is not None and len(normals) and float(np.min(np.asarray(normals) @ n0)) < 1.0 - 1e-9:
+        return None
+    return n0
+
+
+@dataclass(frozen=True, eq=False)
+class EyeTable:
+    """The eye directions' density, learnt by a pilot (:func:`build_table`): per detector j and side
+    (index 2 j + (side < 0)) an entrance-style table (straylight.engine.entrance_sampling) over the two
+    uniforms of the cosine map (radius sqrt(u1), azimuth 2 pi u2, the same structure as a disk source),
+    or None (cosine there); the direction's pdf is q cos / pi with q the table's density. Flat detectors
+    only: ``normals`` (one per detector) is the frame the tables are drawn in."""
+
+    tables: tuple
+    normals: np.ndarray
+    pilot_eyes: int
+    pilot_hits: int
+
+    def _groups(self, j, side):
+        key = 2 * np.asarray(j, np.int64) + (np.asarray(side) < 0)
+        for kk in np.unique(key):
+            table = self.tables[int(kk)]
+            if table is not None:
+                yield table, np.flatnonzero(key == kk)
+
+    def warp(self, j, side, drawn) -> np.ndarray:
+        """Move the cosine map's uniforms ``drawn`` (n, 2, in place) to the tables' density; returns q (n,)."""
+        q = np.ones(len(drawn))
+        for table, g in self._groups(j, side):
+            sub = drawn[g]
+            q[g] = 1.0 / warp(table, sub)
+            drawn[g] = sub
+        return q
+
+    def density(self, j, side, drawn) -> np.ndarray:
+        """q at the cosine map's uniforms ``drawn`` (n, 2)."""
+        q = np.ones(len(drawn))
+        for table, g in self._groups(j, side):
+            q[g] = entrance_density(table, drawn[g])
+        return q
+
+    def density_of_arrival(self, j: int, arrival) -> np.ndarray:
+        """q of the eye directions -``arrival`` (n, 3: forward directions reaching detector ``j``)."""
+        eye = -np.asarray(arrival, dtype=np.float64)
+        n0 = self.normals[j]
+        side = np.where(eye @ n0 >= 0.0, 1.0, -1.0)
+        nz = side[:, None] * n0[None, :]
+        t, b = orthonormal_basis(nz)
+        local = np.stack([_dot(eye, t), _dot(eye, b), _dot(eye, nz)], axis=1)
+        return self.density(np.full(len(eye), j), side, invert_cosine_hemisphere_sample(local))
+
+
+def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
+    """Learn the eye directions' density from a pilot of ``n_eyes`` cosine-drawn eye chains (own
+    streams, from :data:`PILOT_CHUNK_OFFSET`) joined to the source: each chain's source-connection
+    value x goes to its direction's cell, and the tables are
+    :func:`straylight.engine.entrance_sampling.table_from_contributions` of them (density proportional
+    to the smoothed root mean square of x at three scales, a defensive quarter left cosine): the
+    chains are drawn toward the directions whose runs end on scatter points the beam lights. None
+    when a detector is not flat, the source is linearly polarized or the pilot joined nothing."""
+    if unsupported(spec) is not None or _source_linear(spec):
+        return None
+    normals = [_flat_normal(d) for d in scene.detectors]
+    if any(n is None for n in normals):
+        return None
+    est = spec.options.estimator
+    k = max(int(est.reverse_chain), int(est.delta_chain))
+    eyes = EyeChains(k, parts_with(spec, Capability.DELTA_CHAIN), scatter_ends(spec))
+    n = int(n_eyes)
+    u = eye_uniforms(spec, 0, -(-n // CHUNK_RAYS), n, PILOT_CHUNK_OFFSET)
+    ends, _, drawn = eyes.trace(spec, scene, u, None)
+    g, raw, _, _ = source_connection(spec, scene, ends)
+    x = np.bincount(ends.ray[g], weights=raw, minlength=n) if len(g) else np.zeros(n)
+    if not np.any(x > 0):
+        return None
+    D = len(scene.detectors)
+    both = spec.options.output.detector_sides == "both"
+    j = np.minimum((u[:, 0] * D).astype(np.int64), D - 1)
+    side = np.where(u[:, 5] < 0.5, 1.0, -1.0) if both else np.ones(n)
+    key = 2 * j + (side < 0)
+    tables = tuple(table_from_contributions(drawn[key == kk], x[key == kk]) if np.any(key == kk) else None
+                   for kk in range(2 * D))
+    return EyeTable(tables=tables, normals=np.array(normals), pilot_eyes=n, pilot_hits=int(np.count_nonzero(x)))
+
+
 class EyeEnds:
     """End points of the batch's eye chains, sorted by the ray that owns them."""
 
-    def __init__(self, ray, point, normal, part, material, omega, beta, detector, z, k, codes):
+    def __init__(self, ray, point, normal, part, material, omega, beta, detector, z, k, codes, q=None):
         order = np.argsort(ray, kind="stable")
         self.ray, self.point, self.normal = ray[order], point[order], normal[order]
         self.part, self.material, self.omega = part[order], material[order], omega[order]
         self.beta, self.detector, self.z, self.k = beta[order], detector[order], z[order], k[order]
         self.codes = codes[order]  # (m, K) interface codes in the forward order, -1 padded
+        # the density factor of the chain's direction draw (its pdf q cos / pi: the eye table's)
+        self.q = (np.ones(len(ray)) if q is None else np.asarray(q, dtype=np.float64))[order]
+
+    def per_ray(self, eyes_per_ray: int, q_chain: np.ndarray) -> "EyeEnds":
+        """These ends (of chains numbered c) regrouped by ray c // ``eyes_per_ray``, each chain's weight
+        divided by ``eyes_per_ray`` (the ray's estimate is their mean), with the chains' q."""
+        m = int(eyes_per_ray)
+        c = self.ray
+        return EyeEnds(c // m, self.point, self.normal, self.part, self.material, self.omega, self.beta / m,
+                       self.detector, self.z, self.k, self.codes, q=q_chain[c])
 
 
 class _Branches:
@@ -154,63 +326,23 @@ class _Branches:
         return cls(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in cls.FIELDS})
 
 
-class ReverseChains:
-    """Per batch: the eye chains of its rays, the source connections of their end points (counted
-    at once), the walk-side state that decides which walk paths the chains own, and the vertex
-    connections from the walk's scatter vertices."""
+class EyeChains:
+    """Eye chains through up to ``k_max`` interfaces (``splits``: bool per part, the parts crossed),
+    ending at plain scatter parts (``end_material``: bool per material, :func:`scatter_ends`);
+    :attr:`shadow_rays` counts the casts."""
 
-    def __init__(self, ctx, k_max: int, splits: np.ndarray):
-        spec, scene = ctx.spec, ctx.scene
+    def __init__(self, k_max: int, splits: np.ndarray, end_material: np.ndarray):
         self.k_max = int(k_max)
-        self.path_depth = int(spec.options.output.path_depth)
-        self.splits = splits  # bool per part: an interface the chains cross (Capability.DELTA_CHAIN)
-        self.end_material = scatter_ends(spec)
-        n = ctx.n_rays
-        self.scale = 1.0 / float(spec.n_rays)  # each ray's eye chain: its 1/N share of the estimate
-        # walk side, per ray: the segment started at the source or at a plain scatter vertex (pred);
-        # the last scatter vertex is an end-point kind reached so (anchor); interfaces since (run)
-        self.linear_source = _source_linear(spec)
-        self.pred = np.full(n, not self.linear_source, dtype=bool)
-        self._arriving_unpolarized = np.zeros(0, dtype=bool)  # per continuing hit of the current event
-        self.anchor = np.zeros(n, dtype=bool)
-        self.run = np.zeros(n, dtype=np.int64)
+        self.splits = splits
+        self.end_material = end_material
         self.shadow_rays = 0
-        # multiple importance sampling with the split trees (delta_chain), which count the same runs
-        # from the walk's side: balance heuristic over (P, omega) (module doc, "Weights")
-        est = spec.options.estimator
-        self.k_tree = int(est.delta_chain)
-        self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
-        self.sides = 2.0 if spec.options.output.detector_sides == "both" else 1.0
-        self.w0 = ctx.start_weight_w
-        src = spec.sources[0]
-        self.source_footprint = np.pi * src.radius_mm ** 2 * abs(float(np.dot(src.direction, src.normal)))
-        self.p_walk = np.zeros(n)  # per anchored ray: the walk's density of (P, omega) (area x solid angle)
-        self.cos_out = np.zeros(n)  # and the cosine of omega at P
-        self.ends = self._trace_eyes(ctx)
-        self.first = np.searchsorted(self.ends.ray, np.arange(n), side="left")
-        self.count = np.searchsorted(self.ends.ray, np.arange(n), side="right") - self.first
-        self._connect_source(ctx)
 
-    # ------------------------------------------------------------------ eye chains
-
-    def _uniforms(self, ctx):
-        spec = ctx.spec
-        n = ctx.n_rays
-        u = np.empty((n, 7))
-        for c in range(ctx.first_chunk, ctx.stop_chunk):
-            lo = (c - ctx.first_chunk) * CHUNK_RAYS
-            hi = min(lo + CHUNK_RAYS, n)
-            if hi <= lo:
-                break
-            rng = np.random.default_rng([int(spec.seed), int(spec.chunk_offset + c), STREAM])
-            u[lo:hi] = rng.random((hi - lo, 7))
-        return u
-
-    def _trace_eyes(self, ctx):
-        spec, scene = ctx.spec, ctx.scene
-        n = ctx.n_rays
-        u = self._uniforms(ctx)
-        self.u_choice = u[:, 6].copy()
+    def trace(self, spec, scene, u, table):
+        """The eye chains of uniforms ``u`` (n, 7), one per row (its "ray"), directions drawn by
+        ``table`` (an :class:`EyeTable`; None: cosine): their :class:`EyeEnds`, the density factor
+        q of each row's direction draw (its pdf is q cos / pi) and the uniforms (n, 2) that drew it
+        from the cosine map (before the table's warp)."""
+        n = len(u)
         dets = scene.detectors
         D = len(dets)
         j = np.minimum((u[:, 0] * D).astype(np.int64), D - 1)
@@ -224,15 +356,21 @@ class ReverseChains:
                 area[g] = dets[jj].area_mm2
         both = spec.options.output.detector_sides == "both"
         side = np.where(u[:, 5] < 0.5, 1.0, -1.0) if both else np.ones(n)
+        if table is not None:  # flat detectors: the frame the tables were drawn in
+            nz = table.normals[j].copy()
         nz = nz * side[:, None]
         # cosine-weighted direction about nz (density cos / pi); with both sides counted, u5 picks the
         # side (< 0.5) and its doubled fraction is the azimuth's uniform
         azimuth_u = u[:, 5] * 2.0 % 1.0 if both else u[:, 5]
-        local = sample_cosine_hemisphere(np.ascontiguousarray(np.stack([u[:, 4], azimuth_u], axis=1)))
+        drawn = np.ascontiguousarray(np.stack([u[:, 4], azimuth_u], axis=1))
+        q = np.ones(n)
+        if table is not None:
+            q = table.warp(j, side, drawn)
+        local = sample_cosine_hemisphere(drawn)
         t, b = orthonormal_basis(nz)
         d = local[:, :1] * t + local[:, 1:2] * b + local[:, 2:3] * nz
         d /= np.linalg.norm(d, axis=1)[:, None]
-        beta = np.pi * area * D * (2.0 if both else 1.0)
+        beta = np.pi * area * D * (2.0 if both else 1.0) / q
         det_part = np.asarray(scene.det_parts, dtype=np.int64)[j]
         e1 = s_vector(d, nz)  # any frame: the covector (1, 0, 0, 0) is the same in all
         v = np.zeros((n, 4))
@@ -244,16 +382,15 @@ class ReverseChains:
         for _ in range(int(spec.options.physics.max_events)):
             if live is None or len(live.w) == 0:
                 break
-            live = self._step(ctx, live, ends)
+            live = self._step(spec, scene, live, ends)
         if not ends:
             z0 = np.empty(0, np.int64)
             return EyeEnds(z0, np.empty((0, 3)), np.empty((0, 3)), z0, z0, np.empty((0, 3)), np.empty(0), z0,
-                           np.empty((0, 3)), z0, np.empty((0, max(self.k_max, 1)), np.int64))
+                           np.empty((0, 3)), z0, np.empty((0, max(self.k_max, 1)), np.int64)), q, drawn
         cols = {k: np.concatenate([e[k] for e in ends]) for k in ends[0]}
-        return EyeEnds(**cols)
+        return EyeEnds(**cols), q, drawn
 
-    def _step(self, ctx, b, ends):
-        spec, scene = ctx.spec, ctx.scene
+    def _step(self, spec, scene, b, ends):
         h = cast_branches(spec, scene, np.ascontiguousarray(b.origin), np.ascontiguousarray(b.d))
         self.shadow_rays += len(b.w)
         b, tri, dist, part, cos_in = b.take(h.hit), h.tri, h.distance_mm, h.part, h.cos_in
@@ -318,37 +455,67 @@ class ReverseChains:
                                  last_part=part[g], det=b.det[g], z=b.z[g], codes=codes[g]))
         return out
 
+
+class ReverseChains:
+    """Per batch: the eye chains of its rays, the source connections of their end points (counted
+    at once), the walk-side state that decides which walk paths the chains own, and the vertex
+    connections from the walk's scatter vertices."""
+
+    def __init__(self, ctx, k_max: int, splits: np.ndarray):
+        spec, scene = ctx.spec, ctx.scene
+        self.k_max = int(k_max)
+        self.path_depth = int(spec.options.output.path_depth)
+        self.splits = splits  # bool per part: an interface the chains cross (Capability.DELTA_CHAIN)
+        self.end_material = scatter_ends(spec)
+        n = ctx.n_rays
+        self.scale = 1.0 / float(spec.n_rays)  # each ray's eye chain: its 1/N share of the estimate
+        # walk side, per ray: the segment started at the source or at a plain scatter vertex (pred);
+        # the last scatter vertex is an end-point kind reached so (anchor); interfaces since (run)
+        self.linear_source = _source_linear(spec)
+        self.pred = np.full(n, not self.linear_source, dtype=bool)
+        self._arriving_unpolarized = np.zeros(0, dtype=bool)  # per continuing hit of the current event
+        self.anchor = np.zeros(n, dtype=bool)
+        self.run = np.zeros(n, dtype=np.int64)
+        self.shadow_rays = 0
+        # multiple importance sampling with the split trees (delta_chain), which count the same runs
+        # from the walk's side: balance heuristic over (P, omega) (module doc, "Weights")
+        est = spec.options.estimator
+        self.k_tree = int(est.delta_chain)
+        self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
+        self.sides = 2.0 if spec.options.output.detector_sides == "both" else 1.0
+        self.w0 = ctx.start_weight_w
+        src = spec.sources[0]
+        self.source_footprint = np.pi * src.radius_mm ** 2 * abs(float(np.dot(src.direction, src.normal)))
+        self.p_walk = np.zeros(n)  # per anchored ray: the walk's density of (P, omega) (area x solid angle)
+        self.cos_out = np.zeros(n)  # and the cosine of omega at P
+        self.ends = self._trace_eyes(ctx)
+        self.first = np.searchsorted(self.ends.ray, np.arange(n), side="left")
+        self.count = np.searchsorted(self.ends.ray, np.arange(n), side="right") - self.first
+        self._connect_source(ctx)
+
+    # ------------------------------------------------------------------ eye chains
+
+    def _trace_eyes(self, ctx):
+        spec = ctx.spec
+        m = EYES_PER_RAY
+        u = eye_uniforms(spec, ctx.first_chunk, ctx.stop_chunk, ctx.n_rays, spec.chunk_offset, per_ray=m)
+        self.u_choice = u[::m, 6].copy()
+        eyes = EyeChains(self.k_max, self.splits, self.end_material)
+        ends, q, _ = eyes.trace(spec, ctx.scene, u, spec.eye_table)
+        self.shadow_rays += eyes.shadow_rays
+        return ends.per_ray(m, q)
+
     # ------------------------------------------------------------------ source connection
 
     def _connect_source(self, ctx):
         e = self.ends
         if len(e.ray) == 0 or self.linear_source:  # P must receive unpolarized light (module doc)
             return
-        spec, scene = ctx.spec, ctx.scene
-        src = spec.sources[0]
-        d = np.asarray(src.direction, float)
-        cos_p = -(e.normal @ d)
-        denom = float(d @ src.normal)
-        if abs(denom) < 1e-12:
-            return
-        t = ((e.point - src.center_mm) @ src.normal) / denom
-        q = e.point - t[:, None] * d[None, :]
-        inside = np.einsum("ij,ij->i", q - src.center_mm, q - src.center_mm) <= src.radius_mm ** 2
-        g = np.flatnonzero((cos_p > 0) & (t > 2 * spec.eps) & inside)
+        g, raw, p_walk, shadows = source_connection(ctx.spec, ctx.scene, e)
+        self.shadow_rays += shadows
         if len(g) == 0:
             return
-        origin = np.ascontiguousarray(e.point[g] + 2.0 * spec.eps * e.normal[g])
-        dirs = np.ascontiguousarray(np.broadcast_to(-d, (len(g), 3)))
-        blocked = np.asarray(scene.isect.occluded(origin, dirs, np.ascontiguousarray(t[g] - 4.0 * spec.eps)))
-        self.shadow_rays += len(g)
-        g = g[~blocked]
-        if len(g) == 0:
-            return
-        irradiance = src.power_w / (np.pi * src.radius_mm ** 2 * abs(denom))
-        wi = np.ascontiguousarray(np.broadcast_to(-d, (len(g), 3)))
-        f, pdf = _brdf(spec, e.material[g], e.normal[g], wi, e.omega[g], with_pdf=True)
-        p_area = _entrance_density(spec, src, q[g]) * cos_p[g] / self.source_footprint
-        value = e.beta[g] * f * irradiance * cos_p[g] * self.scale * self._eye_weight(g, p_area * pdf)
+        value = raw * self.scale * self._eye_weight(g, p_walk)
         keep = value > 0
         g, value = g[keep], value[keep]
         self._tally(ctx.tallies, ctx.rows, ctx.records, e.ray[g], e.part[g], g, value, None, None, None)
@@ -423,18 +590,23 @@ class ReverseChains:
         e = self.ends
         if self.k_tree <= 0:
             return np.ones(len(k))
-        p_eye = np.maximum(_dot(e.omega[k], e.normal[k]), 0.0) \
+        p_eye = EYES_PER_RAY * np.maximum(_dot(e.omega[k], e.normal[k]), 0.0) * e.q[k] \
             / (np.pi * self.det_area[e.detector[k]] * len(self.det_area) * self.sides)
         total = p_eye + p_walk
         w = np.where(total > 0, p_eye / np.where(total > 0, total, 1.0), 1.0)
         return np.where(e.k[k] <= self.k_tree, w, 1.0)
 
-    def tree_share(self, event, rows, detector: int) -> np.ndarray:
-        """The share a split tree rooted at ``rows`` keeps on ``detector`` (its balance weight
-        against the eye side; 1 for runs the chains do not own)."""
+    def tree_share(self, event, rows, detector: int, arrival) -> np.ndarray:
+        """The share a split tree rooted at ``rows`` keeps on ``detector``, its branches arriving along
+        ``arrival`` (n, 3) (its balance weight against the eye side, whose direction density there
+        the eye table gives; 1 for runs the chains do not own)."""
         r = event.rays.ray[rows]
         owned = self.owns(event, rows, extra=1)
-        p_eye = np.maximum(self.cos_out[r], 0.0) / (np.pi * self.det_area[detector] * len(self.det_area) * self.sides)
+        p_eye = EYES_PER_RAY * np.maximum(self.cos_out[r], 0.0) \
+            / (np.pi * self.det_area[detector] * len(self.det_area) * self.sides)
+        table = event.spec.eye_table
+        if table is not None and owned.any():
+            p_eye = p_eye * np.where(owned, table.density_of_arrival(detector, arrival), 1.0)
         total = self.p_walk[r] + p_eye
         share = np.where(total > 0, self.p_walk[r] / np.where(total > 0, total, 1.0), 0.0)
         return np.where(owned, share, 1.0)

@@ -48,6 +48,7 @@ class TraceSpec:
     vertex_table: object = None  # straylight.engine.first_vertex.VertexTable when first_vertex_sampling is on
     critical_table: object = None  # straylight.engine.second_vertex.CriticalTable when second_vertex_sampling is on
     entrance_table: object = None  # straylight.engine.entrance_sampling.EntranceTable when entrance_sampling is on
+    eye_table: object = None  # straylight.engine.reverse_chain.EyeTable when reverse_chain is on (None: cosine eyes)
     chunk_offset: int = 0  # local chunk k draws from the stream of chunk chunk_offset + k (Execution(first_chunk=))
     part_surfaces: tuple = ()  # analytic surface per part (geometry.analytic) or None
     part_back_material: np.ndarray = None  # index into ``materials`` of each part's back side, -1: as the front

@@ -192,3 +192,50 @@ def test_the_beam_point_maps_back_to_its_uniforms_and_the_table_density():
     w = u.copy()
     factor = warp(table, w)
     np.testing.assert_allclose(density(table, w), 1.0 / factor, rtol=1e-12)
+
+
+def test_the_eye_table_draws_where_the_pilot_saw_light_and_inverts_its_density(slab_scene):
+    """The pilot's table (build_table): its density q at the eye directions it drew, recovered from the
+    forward arrival directions alone (what the split trees' balance weights use), equals the density
+    the draw reported; and it draws the chains that end lit more often than cosine directions do."""
+    from straylight.engine import reverse_chain as rc
+    from straylight.engine.runtime import runtime
+
+    sc, src, mats = slab_scene
+    spec = make_spec(sc, src, 1_000, 3, mats, TraceOptions(estimator=CHAINS))
+    scene = runtime().scene(spec, None)
+    table = rc.build_table(spec, scene, n_eyes=20_000)
+    assert table is not None and table.pilot_hits > 0
+    u = np.random.default_rng(5).random((4_000, 7))
+    eyes = rc.EyeChains(4, np.array([True, True, False, False, False]), rc.scatter_ends(spec))
+    plain = eyes.trace(spec, scene, u.copy(), None)
+    guided = eyes.trace(spec, scene, u.copy(), table)
+    q, drawn = guided[1], guided[2]
+    # the arrival direction of each guided chain, from its drawn uniforms (the cosine map about the normal)
+    local = np.stack([np.sqrt(drawn[:, 0]) * np.cos(2 * np.pi * drawn[:, 1]),
+                      np.sqrt(drawn[:, 0]) * np.sin(2 * np.pi * drawn[:, 1]), np.sqrt(1 - drawn[:, 0])], axis=1)
+    both = spec.options.output.detector_sides == "both"
+    side = np.where(u[:, 5] < 0.5, 1.0, -1.0) if both else np.ones(len(u))  # u5 picks the side (both counted)
+    nz = side[:, None] * table.normals[0][None, :]
+    from straylight.sources import orthonormal_basis
+
+    t, b = orthonormal_basis(nz)
+    eye = local[:, :1] * t + local[:, 1:2] * b + local[:, 2:3] * nz
+    np.testing.assert_allclose(table.density_of_arrival(0, -eye), q, rtol=1e-9)
+    lit = [len(np.unique(rc.source_connection(spec, scene, ends)[0])) for ends, *_ in (plain, guided)]
+    assert lit[1] > 1.5 * lit[0], lit
+
+
+def test_chains_without_the_table_agree_too(slab_scene, monkeypatch):
+    """The same agreement when the pilot gives no table (cosine eye directions)."""
+    from straylight.engine import reverse_chain as rc
+
+    monkeypatch.setattr(rc, "build_table", lambda spec, scene, n_eyes=0: None)
+    from straylight.engine.runtime import runtime
+
+    runtime().forget_tables()
+    chains = _run(slab_scene, 20_000, 7, EstimatorOptions(reverse_chain=4, delta_chain=4))
+    runtime().forget_tables()
+    analog = _run(slab_scene, 400_000, 4, ANALOG)
+    c, a = chains.detectors["det"], analog.detectors["det"]
+    assert abs(c.power_w - a.power_w) <= 4 * math.hypot(c.stderr_w, a.stderr_w), (c, a)

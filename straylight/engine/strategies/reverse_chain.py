@@ -7,12 +7,21 @@ from dataclasses import replace
 
 from straylight.engine import reverse_chain as impl
 from straylight.engine.capabilities import Capability
-from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy
+from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy, TableTools
 
 
 class ReverseChainStrategy(Strategy):
     estimator = Estimator("reverse_chain", replace(ANALOG, reverse_chain=4), Capability.DELTA_CHAIN, reference=False)
     state_key = "reverse_chain"
+    table_field = "eye_table"
+    table_key = "eye"
+
+    @property
+    def needs_table(self) -> str | None:
+        return None  # without a table (a pilot that joined nothing) the eye directions stay cosine
+
+    def build_table(self, spec, tools: TableTools) -> object:
+        return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector))
 
     def rules_out(self, spec, intersector) -> str | None:
         return impl.unsupported(spec)
