@@ -126,13 +126,22 @@ def polarized_value(value_s, value_p, stokes) -> np.ndarray:
 PAULI = np.array([[[1, 0], [0, 1]], [[1, 0], [0, -1]], [[0, 1], [1, 0]], [[0, -1j], [1j, 0]]], complex)
 
 
-def jones_to_mueller(J) -> np.ndarray:
+def jones_to_mueller(J, first_row_only: bool = False) -> np.ndarray:
     """Mueller matrices (n, 4, 4) of Jones matrices J (n, 2, 2) (``E_out = J E_in``, components
     along (e1, e2) of each side): ``M_ij = tr(sigma_i J sigma_j J^dagger) / 2`` (Chipman et al.
-    ch. 6, with this module's Stokes convention; for a diagonal J it is :func:`interface_mueller`)."""
+    ch. 6, with this module's Stokes convention; for a diagonal J it is :func:`interface_mueller`).
+    ``first_row_only``: rows 1-3 are left zero (the scattered power ``M[0] . S`` needs only row 0:
+    ``M_0j = Re(K_j,00 + K_j,11) / 2``, the same products as the full matrix's row 0)."""
     J = np.asarray(J, complex)
     a, b, c, d = J[..., 0, 0], J[..., 0, 1], J[..., 1, 0], J[..., 1, 1]
     ca, cb, cc, cd = np.conj(a), np.conj(b), np.conj(c), np.conj(d)
+    if first_row_only:
+        K00_11 = [(a * ca + b * cb, c * cc + d * cd), (a * ca - b * cb, c * cc - d * cd),
+                  (b * ca + a * cb, d * cc + c * cd), (1j * (b * ca - a * cb), 1j * (d * cc - c * cd))]
+        M = np.zeros(J.shape[:-2] + (4, 4))
+        for j, (k00, k11) in enumerate(K00_11):
+            M[..., 0, j] = 0.5 * (k00 + k11).real
+        return M
     # K_j = J sigma_j J^dagger, element by element (00, 11, 01, 10)
     K = [(a * ca + b * cb, c * cc + d * cd, a * cc + b * cd, c * ca + d * cb),
          (a * ca - b * cb, c * cc - d * cd, a * cc - b * cd, c * ca - d * cb),

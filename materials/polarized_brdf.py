@@ -68,9 +68,10 @@ def is_polarizing(model) -> bool:
     return value
 
 
-def mueller_brdf(model, wi, wo, s_in=None):
+def mueller_brdf(model, wi, wo, s_in=None, first_row_only: bool = False):
     """``(M (n, 4, 4) in 1/sr, e1_out (n, 3))`` for local directions wi, wo (n, 3) (z the normal)
-    and the incident s vectors ``s_in`` (n, 3; default k_i x z normalised)."""
+    and the incident s vectors ``s_in`` (n, 3; default k_i x z normalised). ``first_row_only``: row 0
+    alone (what the scattered power ``M[0] . S`` needs), rows 1-3 zero; row 0 is the same either way."""
     wi = np.asarray(wi, float)
     wo = np.asarray(wo, float)
     s_in = s_basis(-wi) if s_in is None else np.asarray(s_in, float)
@@ -79,8 +80,11 @@ def mueller_brdf(model, wi, wo, s_in=None):
     for c in components_of(model):
         if _full(c):
             f = c.brdf(wi, wo, "u")
-            Mn, _ = rayleigh_rice_mueller(wi, wo, c._index, s_in, e1)
-            M += f[:, None, None] * Mn
+            Mn, _ = rayleigh_rice_mueller(wi, wo, c._index, s_in, e1, first_row_only)
+            if first_row_only:
+                M[:, 0, :] += f[:, None] * Mn[:, 0, :]
+            else:
+                M += f[:, None, None] * Mn
         else:
             fs = c.brdf(wi, wo, "s")
             fp = c.brdf(wi, wo, "p")

@@ -112,9 +112,13 @@ def rayleigh_rice_jones(wi, wo, n, s_in=None, e1_out=None):
     return J, e1
 
 
-def rayleigh_rice_mueller(wi, wo, n, s_in=None, e1_out=None):
-    """Normalised Mueller matrices (m, 4, 4) (M00 = 1 where defined) and the scattered e1 (m, 3)."""
+def rayleigh_rice_mueller(wi, wo, n, s_in=None, e1_out=None, first_row_only: bool = False):
+    """Normalised Mueller matrices (m, 4, 4) (M00 = 1 where defined) and the scattered e1 (m, 3);
+    ``first_row_only``: row 0 alone, rows 1-3 zero (:func:`materials.mueller.jones_to_mueller`)."""
     J, e1 = rayleigh_rice_jones(wi, wo, n, s_in, e1_out)
-    M = jones_to_mueller(J)
+    M = jones_to_mueller(J, first_row_only)
     m00 = M[:, 0, 0]
+    if first_row_only:
+        M[:, 0, :] = M[:, 0, :] / np.where(m00 > 0, m00, 1.0)[:, None]
+        return M, e1
     return M / np.where(m00 > 0, m00, 1.0)[:, None, None], e1

@@ -137,3 +137,18 @@ def test_which_materials_polarize():
     assert not is_polarizing(load_material({"name": "b", "components": [{"type": "lambertian", "rd": 0.05}]}))
     assert not is_polarizing(load_material({"name": "r", "wavelength_nm": 532.0, "components": [
         {"type": "k_correlation", "sigma_nm": 10.0, "lc_um": 2.0, "s": 2.6, "r": 0.04}]}))
+
+
+@pytest.mark.parametrize("model", [Z302B, GLOSSY_PAINT], ids=["z302b", "lambert+kcorr+abg"])
+def test_first_row_only_is_the_full_matrix_row_bit_for_bit(model):
+    """Next-event estimation asks only for the scattered power M[0] . S: the first row alone is the same
+    numbers as the full matrix's (the same products), the other rows zero."""
+    rng = np.random.default_rng(11)
+    ang = np.column_stack([rng.uniform(0, 1.5, 300), rng.uniform(0, 1.5, 300), rng.uniform(0, 2 * np.pi, 300)])
+    wi, wo = _dirs(ang)
+    full, e1 = mueller_brdf(model, wi, wo)
+    row, e1_row = mueller_brdf(model, wi, wo, first_row_only=True)
+    assert np.array_equal(row[:, 0, :], full[:, 0, :]) and np.array_equal(e1_row, e1)
+    assert not row[:, 1:, :].any() and full[:, 1:, :].any()
+    J, _ = rayleigh_rice_jones(wi, wo, complex(1.6, 0.3))
+    assert np.array_equal(jones_to_mueller(J, first_row_only=True)[:, 0], jones_to_mueller(J)[:, 0])

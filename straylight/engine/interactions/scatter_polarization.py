@@ -58,7 +58,7 @@ class Arriving:
                 for k in np.unique(mv):
                     g = use[mv == k]
                     v = vertex[g]
-                    M, _ = mueller_brdf(models[k], wi[g], wo[g], self.s_local[v])
+                    M, _ = mueller_brdf(models[k], wi[g], wo[g], self.s_local[v], first_row_only=True)
                     f[g] = np.einsum("nj,nj->n", M[:, 0, :], self.S[v])
             return f, p
 
