@@ -14,6 +14,9 @@
     kept to measure what it buys.
 ``first_lobe``
     ``lobes`` without the second-vertex lobe draw (to measure what each draw buys).
+``manifold``
+    the default with specular next-event estimation (``specular_nee``): scatter vertices joined to the
+    detector through one or two lens surfaces, to measure what it buys.
 ``baseline``
     the first estimator set (first-vertex sampling joined to the detector by a uniform point only,
     roulette at 1e-3), so a benchmark can time before and after in one run.
@@ -26,7 +29,7 @@ from __future__ import annotations
 import sys
 from dataclasses import replace
 
-from straylight.analyses.estimators import ANALYSIS_RR_THRESHOLD, register_estimator_set
+from straylight.analyses.estimators import ANALYSIS_RR_THRESHOLD, ESTIMATOR_SETS, register_estimator_set
 from straylight.engine.options import EstimatorOptions
 
 _LOBES = EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
@@ -46,6 +49,7 @@ def register() -> None:
     """Make every history set a choice of ``estimator_options`` and of ``--estimators``."""
     for name, options in HISTORY_SETS.items():
         register_estimator_set(name, options)
+    register_estimator_set("manifold", replace(ESTIMATOR_SETS["default"], specular_nee=True))
 
 
 register()

@@ -175,7 +175,7 @@ class DeltaChains:
         sc = np.flatnonzero(counted)
         if len(sc):
             i = hit[sc]
-            self._score(event, b.take(i), part[sc], b.origin[i] + dist[sc, None] * b.d[i])
+            self._score(event, b.take(i), part[sc], b.origin[i] + dist[sc, None] * b.d[i], scene.normals[tri[sc]])
         go = np.flatnonzero(~det & event.capabilities.at(Capability.DELTA_CHAIN, part))
         if len(go) == 0:
             return None
@@ -203,8 +203,8 @@ class DeltaChains:
         return Branches(*(np.concatenate([getattr(o, f) for o in parts])
                           for f in ("row", "origin", "d", "w", "S", "e1", "k", "last_part", "key", "codes")))
 
-    def _score(self, event, b, part, z):
-        """Count the branches ``b`` that reached detector parts ``part`` at points ``z``."""
+    def _score(self, event, b, part, z, nz):
+        """Count the branches ``b`` that reached detector parts ``part`` at points ``z`` (triangle normals ``nz``)."""
         rays = event.rays
         j_of = event.scene.arrays.detector_of_part[part]
         start_part = event.hits.part[b.row].astype(np.int64)
@@ -213,6 +213,7 @@ class DeltaChains:
             i = b.row[m]
             r = rays.ray[i]
             w = b.w[m] * event.tree_share(i, int(j), b.d[m])  # a strategy that also counts this run keeps its share
+            w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])  # or this very path
             event.tallies.add(event.rows.detector_nee + int(j), r, w)
             event.tallies.subtract(event.rows.nee_exchange + start_part[m], r, w)
             keys = events = None

@@ -120,6 +120,17 @@ class Event:
                 out *= share(self, rows, detector, arrival)
         return out
 
+    def branch_share(self, rows, detector: int, z, nz, codes, k) -> np.ndarray:
+        """The share a split-tree branch keeps of its score (rooted at the interface hits ``rows``, reaching
+        ``detector`` at points ``z`` of triangle normals ``nz`` after ``k`` interfaces whose event codes are
+        ``codes``): 1 unless a strategy also makes that very path (straylight.engine.specular_nee)."""
+        out = np.ones(len(rows))
+        for state in self.states.values():
+            share = getattr(state, "branch_share", None)
+            if share is not None:
+                out *= share(self, rows, detector, z, nz, codes, k)
+        return out
+
     def vertex_rows(self, selection) -> np.ndarray:
         """Rows (into the event's per-ray arrays) of the continuing hits ``selection``."""
         return self.hits.continuing[selection]

@@ -34,6 +34,7 @@ class EstimatorOptions:
     delta_chain: int = 0  # > 0: runs of up to this many interfaces into a detector followed by splitting
     entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
     reverse_chain: int = 0  # > 0: eye chains from the detectors through up to this many interfaces, joined to the walk
+    specular_nee: bool = False  # scatter vertices joined to the detectors through 1-2 analytic interfaces (needs delta_chain)
 
     def __post_init__(self):
         if not (0.0 <= float(self.rr_threshold) < 1.0):

@@ -223,6 +223,11 @@ def _chains_cross_the_subject(case_name, estimator, on) -> bool:
     return on.shadow_rays > N_RAYS
 
 
+def _casts_connections(case_name, estimator, on) -> bool:
+    """Specular NEE cast connections: more casts than the split trees alone (the rest of its options)."""
+    return on.shadow_rays > _run(case_name, replace(estimator.options, specular_nee=False), SEED_ON).shadow_rays
+
+
 #: the contract's row of each strategy (straylight.engine.strategies.registry.STRATEGIES): how it is seen to
 #: act on the subject's parts, measured from what the run wrote. A new strategy adds its row here.
 ENGAGEMENT = {
@@ -238,6 +243,8 @@ ENGAGEMENT = {
     "entrance": _moves_the_exchange,
     "target_mis": _aims_at_the_target,
     "reverse_chain": _chains_cross_the_subject,
+    # it connects through analytic surfaces only (none in the contract scenes): it must not engage there
+    "specular_nee": _casts_connections,
 }
 
 

@@ -15,6 +15,7 @@ from straylight.engine.strategies.nee import NEE
 from straylight.engine.strategies.reflection_split import REFLECTION_SPLIT
 from straylight.engine.strategies.reverse_chain import REVERSE_CHAIN
 from straylight.engine.strategies.second_vertex import SECOND_VERTEX, SECOND_VERTEX_LOBE
+from straylight.engine.strategies.specular_nee import SPECULAR_NEE
 from straylight.engine.strategies.target_mis import TARGET_MIS
 
 STRATEGIES: tuple[Strategy, ...] = (
@@ -28,6 +29,7 @@ STRATEGIES: tuple[Strategy, ...] = (
     ENTRANCE,
     TARGET_MIS,
     REVERSE_CHAIN,
+    SPECULAR_NEE,
 )
 
 BY_NAME: dict[str, Strategy] = {s.name: s for s in STRATEGIES}

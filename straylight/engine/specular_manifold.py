@@ -1,0 +1,315 @@
+"""Specular paths through one or two analytic surfaces, solved for (specular manifold connections).
+
+Given a point P, a point z and a sequence S of k = 1 or 2 interfaces (each a part's analytic surface,
+``geometry.analytic.Conic`` / ``Asphere`` / ``Plane``, with reflection or transmission), find the
+points X_1 (, X_2) on the surfaces such that P -> X_1 (-> X_2) -> z obeys the law of reflection or
+refraction at every X_i, and the generalized geometry term |d omega_P / d A_z| of that path.
+
+Unknowns: each X_i's local coordinates (u_i, v_i) in its surface's frame (X = (u, v, sag(rho)),
+geometry.analytic). Constraint at X_i (Jakob & Marschner 2012, "Manifold exploration", eq. 4, in the
+form of Snell's law for the tangential components): with omega_a, omega_b the unit directions from
+X_i to the previous and the next vertex,
+
+    reflection:    t_j . (omega_a + omega_b) = 0
+    transmission:  t_j . (eta omega_a + omega_b) = 0,   eta = n_incident / n_transmitted,
+
+for the two tangents t_1, t_2 of the surface at X_i (the local x and y axes projected on its tangent
+plane): 2k equations, solved by Newton's method with a central-difference Jacobian and step halving,
+from a deterministic start (:func:`start`: the straight line from P to z's image unfolded through the
+reflecting surfaces' vertex planes, met with each surface's vertex plane): the solution is a function
+of (P, z, S) alone, so the balance weights of the estimator that uses it can be recomputed for any
+path (straylight.engine.specular_nee).
+
+Geometry term (Hanika, Droske & Fascione 2015, "Manifold next event estimation", sec. 4, by the
+implicit function theorem): with F(x; z) = 0 at the solution, dx/dz = -(dF/dx)^-1 dF/dz (both by
+central differences, z moved along the two tangents of the detector at z), dX_1/dz from the
+parametrisation, d omega/dz = (I - omega omega^T) dX_1/dz / |X_1 - P| and |d omega/dA_z| = |d omega/da
+x d omega/db|. For no interface at all this is cos_z / d^2 (next-event estimation's term); for a
+plane mirror cos_z / d'^2 with d' the unfolded length (tests/straylight/test_specular_manifold.py).
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+NEWTON_ITER = 20
+GIVE_UP_AFTER = 6  # iterations after which a row still far from a root stops
+GIVE_UP_RESIDUAL = 1e-4
+NEWTON_TOL_MM = 1e-10  # a converged step, mm
+RESIDUAL_TOL = 1e-9  # |F| of an accepted solution (dimensionless: sines)
+DIFF_MM = 1e-5  # central-difference step in (u, v), mm
+DIFF_Z_MM = 1e-4  # central-difference step of z along the detector, mm
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+def _unit(v):
+    n = np.linalg.norm(v, axis=1)
+    return v / np.where(n > 0, n, 1.0)[:, None], n
+
+
+class Vertex(NamedTuple):
+    """One interface of a sequence: its analytic surface, reflection (True) or transmission,
+    eta = n_incident / n_transmitted for light arriving on its front (``eta_front``) or back side, and
+    the medium on each side (-1: the surrounding air; a dielectric's back is its glass)."""
+
+    surface: object
+    reflect: bool
+    eta_front: float = 1.0
+    eta_back: float = 1.0
+    medium_front: int = -1
+    medium_back: int = -1
+
+
+def media_agree(seq, arrive_front) -> np.ndarray:
+    """Per row: the light leaves p in the air, crosses each medium it enters to the next vertex and ends
+    in the air at z; ``arrive_front`` (m, k) bool, the side of each vertex the light arrives on."""
+    m = arrive_front.shape[0]
+    ok = np.ones(m, dtype=bool)
+    medium = np.full(m, -1)
+    for i, vtx in enumerate(seq):
+        front = arrive_front[:, i]
+        arrive = np.where(front, vtx.medium_front, vtx.medium_back)
+        ok &= arrive == medium
+        leave_front = front if vtx.reflect else ~front
+        medium = np.where(leave_front, vtx.medium_front, vtx.medium_back)
+    return ok & (medium == -1)
+
+
+def surface_points(surface, uv):
+    """World points (m, 3) and front unit normals (m, 3) at local coordinates ``uv`` (m, 2)."""
+    rho = np.hypot(uv[:, 0], uv[:, 1])
+    with np.errstate(invalid="ignore"):
+        h = surface.sag(rho)
+    local = np.column_stack([uv[:, 0], uv[:, 1], h])
+    world = surface.to_world(local)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g = surface.gradient(local) * surface.front_sign()
+        g = g / np.linalg.norm(g, axis=1)[:, None]
+    return world, surface.dirs_to_world(g)
+
+
+def residual(seq, x, p, z):
+    """F (m, 2k) of the sequence ``seq`` at unknowns ``x`` (m, 2k), endpoints p, z (m, 3); also the
+    vertices X (m, k, 3) and their front normals (m, k, 3)."""
+    k = len(seq)
+    m = len(x)
+    X = np.empty((m, k, 3))
+    N = np.empty((m, k, 3))
+    for i, vtx in enumerate(seq):
+        X[:, i], N[:, i] = surface_points(vtx.surface, x[:, 2 * i:2 * i + 2])
+    F = np.empty((m, 2 * k))
+    for i, vtx in enumerate(seq):
+        prev = p if i == 0 else X[:, i - 1]
+        nxt = z if i == k - 1 else X[:, i + 1]
+        wa, _ = _unit(prev - X[:, i])
+        wb, _ = _unit(nxt - X[:, i])
+        n = N[:, i]
+        if vtx.reflect:
+            h = wa + wb
+        else:
+            eta = np.where(_dot(wa, n) > 0, vtx.eta_front, vtx.eta_back)
+            h = eta[:, None] * wa + wb
+        rot = vtx.surface.rotation
+        for j in range(2):
+            t = rot[j][None, :] - (n @ rot[j])[:, None] * n
+            F[:, 2 * i + j] = _dot(t, h)
+    return F, X, N
+
+
+def _jacobian(seq, x, p, z):
+    m, d = x.shape
+    J = np.empty((m, d, d))
+    for c in range(d):
+        xp, xm = x.copy(), x.copy()
+        xp[:, c] += DIFF_MM
+        xm[:, c] -= DIFF_MM
+        J[:, :, c] = (residual(seq, xp, p, z)[0] - residual(seq, xm, p, z)[0]) / (2 * DIFF_MM)
+    return J
+
+
+def _mirror(points, vertex, axis):
+    return points - 2.0 * ((points - vertex) @ axis)[:, None] * axis[None, :]
+
+
+def start(seq, p, z):
+    """The deterministic start (m, 2k): the straight line from p to z's image in the reflecting
+    surfaces' vertex planes (the path unfolded), met with each surface's (unfolded) vertex plane, the
+    points folded back and taken in each surface's local (u, v); ``ok`` False where a plane is parallel."""
+    m = len(p)
+    k = len(seq)
+    planes = [(np.asarray(v.surface.vertex_mm, float), np.asarray(v.surface.axis, float)) for v in seq]
+
+    def unfold(points, upto):  # the mirrors of the reflections before vertex `upto`, innermost last
+        out = points
+        for i in reversed(range(upto)):
+            if seq[i].reflect:
+                out = _mirror(out, *planes[i])
+        return out
+
+    z_img = unfold(z, k)
+    d = z_img - p
+    x = np.zeros((m, 2 * k))
+    ok = np.ones(m, dtype=bool)
+    for i, vtx in enumerate(seq):
+        v0, a = planes[i]
+        # the plane of surface i, unfolded by the reflections before it
+        pts = np.stack([v0, v0 + a])
+        img = unfold(pts, i)
+        v0u, au = img[0], img[1] - img[0]
+        denom = d @ au
+        good = np.abs(denom) > 1e-12
+        t = np.where(good, ((v0u - p) @ au) / np.where(good, denom, 1.0), 0.0)
+        y = p + t[:, None] * d
+        # fold back: the mirrors in the same order (each is its own inverse; applied outermost first)
+        for j in range(i):
+            if seq[j].reflect:
+                y = _mirror(y, *planes[j])
+        ok &= good
+        x[:, 2 * i:2 * i + 2] = vtx.surface.to_local(y)[:, :2]
+    return x, ok
+
+
+def plausible(seq, x0, p, z):
+    """Rows whose start is worth solving from: every start point within twice its surface's outer
+    radius of the axis, and the path through the start points on each vertex plane's side that its
+    branch needs (a reflection returns to the side it came from, a transmission crosses). A
+    deterministic part of the solve: the rows it drops are paths this estimator does not make."""
+    ok = np.ones(len(p), dtype=bool)
+    k = len(seq)
+    pts = [vtx.surface.to_world(np.column_stack([x0[:, 2 * i:2 * i + 2], np.zeros(len(p))]))
+           for i, vtx in enumerate(seq)]
+    front = np.zeros((len(p), k), dtype=bool)
+    for i, vtx in enumerate(seq):
+        surf = vtx.surface
+        rmax = 2.0 * float(getattr(surf, "outer_radius_mm", np.inf))
+        ok &= np.hypot(x0[:, 2 * i], x0[:, 2 * i + 1]) <= rmax
+        v0, a = np.asarray(surf.vertex_mm, float), np.asarray(surf.axis, float)
+        prev = p if i == 0 else pts[i - 1]
+        nxt = z if i == k - 1 else pts[i + 1]
+        sa, sb = (prev - v0) @ a, (nxt - v0) @ a
+        ok &= ((sa > 0) == (sb > 0)) if vtx.reflect else ((sa > 0) != (sb > 0))
+        front[:, i] = sa > 0
+    return ok & media_agree(seq, front)
+
+
+class Solution(NamedTuple):
+    x: np.ndarray  # (m, 2k) local coordinates
+    X: np.ndarray  # (m, k, 3) the interface points
+    N: np.ndarray  # (m, k, 3) their front normals
+    ok: np.ndarray  # (m,) converged to a finite solution
+
+
+def solve(seq, p, z, x0=None, ok0=None) -> Solution:
+    """Newton's method for the sequence ``seq`` between p and z (m, 3) from ``x0`` (default
+    :func:`start`). Rows are independent: each row's iterates do not depend on the others."""
+    if x0 is None:
+        x0, ok0 = start(seq, p, z)
+        ok0 = ok0 & plausible(seq, x0, p, z)
+    x = np.array(x0, dtype=float)
+    m = len(x)
+    active = np.ones(m, bool) if ok0 is None else np.asarray(ok0, bool).copy()
+    done = np.zeros(m, bool)
+    F = np.full((m, x.shape[1]), np.inf)
+    norm = np.full(m, np.inf)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        a = np.flatnonzero(active)
+        if len(a):
+            F[a] = residual(seq, x[a], p[a], z[a])[0]
+            norm[a] = np.linalg.norm(F[a], axis=1)
+        active &= np.isfinite(norm)
+        done = active & (norm <= 1e-14)  # an exact start (a plane mirror's image)
+        for it in range(NEWTON_ITER):
+            a = np.flatnonzero(active & ~done)
+            if len(a) == 0:
+                break
+            J = _jacobian(seq, x[a], p[a], z[a])
+            good = np.isfinite(J).all(axis=(1, 2)) & (np.abs(np.linalg.det(J)) > 1e-300)
+            active[a[~good]] = False
+            a = a[good]
+            if len(a) == 0:
+                break
+            step = -np.linalg.solve(J[good], F[a][:, :, None])[:, :, 0]
+            scale = np.ones(len(a))
+            new_x = x[a] + step
+            new_F = residual(seq, new_x, p[a], z[a])[0]
+            new_norm = np.linalg.norm(new_F, axis=1)
+            for _h in range(8):  # halve the step while the residual grows (or leaves the surface)
+                worse = ~(new_norm <= norm[a]) & (np.linalg.norm(F[a], axis=1) > RESIDUAL_TOL)
+                if not worse.any():
+                    break
+                w = np.flatnonzero(worse)
+                scale[w] *= 0.5
+                new_x[w] = x[a[w]] + scale[w, None] * step[w]
+                new_F[w] = residual(seq, new_x[w], p[a[w]], z[a[w]])[0]
+                new_norm[w] = np.linalg.norm(new_F[w], axis=1)
+            moved = np.max(np.abs(new_x - x[a]), axis=1)
+            x[a], F[a], norm[a] = new_x, new_F, new_norm
+            done[a] = (moved <= NEWTON_TOL_MM) | (new_norm <= 1e-14)
+            active[a] &= np.isfinite(new_norm)
+            if it >= GIVE_UP_AFTER:  # not near a root by now: no solution from this start
+                active[a] &= new_norm <= GIVE_UP_RESIDUAL
+        ok = active & np.isfinite(norm) & (norm <= RESIDUAL_TOL)
+        X = np.full((m, len(seq), 3), np.nan)
+        N = np.full((m, len(seq), 3), np.nan)
+        g = np.flatnonzero(ok)
+        if len(g):
+            _, X[g], N[g] = residual(seq, x[g], p[g], z[g])
+    ok &= np.isfinite(X).all(axis=(1, 2))
+    return Solution(x, X, N, ok)
+
+
+def geometry_term(seq, sol: Solution, p, z, nz):
+    """|d omega_P / d A_z| (sr / mm^2) of the solved paths (implicit function theorem, module doc) and
+    the unit direction omega_P (m, 3) from p to X_1; ``nz`` the detector normals at z."""
+    m = len(p)
+    k = len(seq)
+    t, _ = _unit(np.cross(nz, np.where(np.abs(nz[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])))
+    b = np.cross(nz, t)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        Jx = _jacobian(seq, sol.x, p, z)
+        Jz = np.empty((m, 2 * k, 2))
+        for c, e in enumerate((t, b)):
+            Jz[:, :, c] = (residual(seq, sol.x, p, z + DIFF_Z_MM * e)[0]
+                           - residual(seq, sol.x, p, z - DIFF_Z_MM * e)[0]) / (2 * DIFF_Z_MM)
+        good = np.isfinite(Jx).all(axis=(1, 2)) & (np.abs(np.linalg.det(Jx)) > 1e-300)
+        dx = np.zeros((m, 2 * k, 2))
+        if good.any():
+            dx[good] = -np.linalg.solve(Jx[good], Jz[good])
+        s1 = seq[0].surface
+        dX = np.zeros((m, 3, 2))
+        for c in range(2):
+            up, um = sol.x[:, 0:2].copy(), sol.x[:, 0:2].copy()
+            up[:, c] += DIFF_MM
+            um[:, c] -= DIFF_MM
+            dX[:, :, c] = (surface_points(s1, up)[0] - surface_points(s1, um)[0]) / (2 * DIFF_MM)
+        dX1 = np.einsum("mic,mcj->mij", dX, dx[:, 0:2, :])
+        omega, length = _unit(sol.X[:, 0] - p)
+        proj = np.eye(3)[None, :, :] - omega[:, :, None] * omega[:, None, :]
+        dw = np.einsum("mij,mjc->mic", proj, dX1) / np.where(length > 0, length, 1.0)[:, None, None]
+        J = np.linalg.norm(np.cross(dw[:, :, 0], dw[:, :, 1]), axis=1)
+    J = np.where(good & np.isfinite(J), J, 0.0)
+    return J, omega
+
+
+def side_checks(seq, sol: Solution, p, z):
+    """Per row: every X_i inside its surface's valid region and clear aperture, reflections leave on
+    the side they arrive from and transmissions cross."""
+    ok = sol.ok.copy()
+    k = len(seq)
+    front = np.zeros((len(p), k), dtype=bool)
+    for i, vtx in enumerate(seq):
+        Xi, n = sol.X[:, i], sol.N[:, i]
+        prev = p if i == 0 else sol.X[:, i - 1]
+        nxt = z if i == k - 1 else sol.X[:, i + 1]
+        a = _dot(prev - Xi, n)
+        b = _dot(nxt - Xi, n)
+        same = (a > 0) == (b > 0)
+        ok &= (same if vtx.reflect else ~same) & (a != 0) & (b != 0)
+        front[:, i] = a > 0
+        with np.errstate(invalid="ignore"):
+            ok &= vtx.surface.valid(vtx.surface.to_local(np.where(np.isfinite(Xi), Xi, 0.0)))
+    return ok & media_agree(seq, front)

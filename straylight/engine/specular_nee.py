@@ -1,0 +1,436 @@
+"""Specular next-event estimation: from a scatter vertex to a detector through one or two interfaces.
+
+Behind or around a lens a scatter point P often reaches the small sensor only through the glass: by
+one reflection off a lens face (a vane behind the lens, seen in the flat back face's mirror) or by
+two refractions (the lens cell's lip, seen through the lens). Next-event estimation cannot aim
+through a refracting or reflecting surface, and the split trees (straylight.engine.delta_chain) hit
+the sensor only when the walk's scatter direction happens to go where the run lands on it: on the
+guide scope at 5-15 deg those paths held 86-88 % of the variance (benchmarks/variance_paths.py).
+
+At every walk vertex P on a plain scatterer (a non-delta material; straylight.engine.reverse_chain
+.scatter_ends), for each candidate sequence S of 1 or 2 interfaces (:func:`candidate_sequences`:
+every sequence of reflections and transmissions over the parts whose kind declares
+``Capability.DELTA_CHAIN`` and that have an analytic conic, asphere or plane surface, no part twice
+in a row) and each detector j: a point z uniform on the detector (density 1 / A_j), the interface
+points X_i solved for by Newton's method from a deterministic start
+(straylight.engine.specular_manifold), every segment checked by a cast (it must meet exactly the
+intended surface point, a clear aperture's pass-through refuses the path), and
+
+    w (M_P S_in)_0 cos_P T_S |d omega_P / d A_z| A_j m
+
+added to detector j (its ``detector_nee`` row, taken from the NEE-exchange row of P's part: the
+ledger stays exact). M_P S_in is the walk's own polarized scatter at P
+(straylight.engine.interactions.scatter_polarization), T_S the Mueller chain's first element on the
+scattered Stokes vector times the bulk transmission (as the split trees carry it), |d omega/dA| the
+generalized geometry term (Hanika et al. 2015).
+
+Exactly once: the same paths are counted by the split trees rooted at the walk's first interface
+hit after P (the walk's own hits after such runs are already the trees', straylight.engine
+.delta_chain). The two are combined by the balance heuristic over the direction omega at P:
+m = p_nee / (p_nee + p_walk), p_nee = 1 / (A_j |d omega/dA_z|) (solid-angle density of this
+estimator's z), p_walk the walk's pdf of omega at P. A tree branch that reaches detector j after
+1-2 interfaces keeps p_walk / (p_walk + p_nee) (:meth:`SpecularNee.branch_share`), where p_nee is
+found by re-running the same deterministic solve for that (P, z, S) and is 0 unless it lands on
+the branch's own omega: where Newton misses a solution the tree keeps the whole path, so the sum
+stays unbiased whatever the solver finds. Vertices whose runs the reverse chains own (an anchored P,
+straylight.engine.reverse_chain.ReverseChains.owns) are left to them.
+
+Requires the split trees (``delta_chain >= 2``), one polarization mode ``u``, no target parts (its
+weights use the materials' own pdf). Cost per plain vertex: one Newton solve per sequence and
+detector (vectorised), casts only for converged solutions (2-3 each).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geometry.analytic import Conic
+from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.smooth import Dielectric
+from straylight.engine import specular_manifold as manifold
+from straylight.engine.capabilities import Capability
+from straylight.engine.interactions.brdf_scatter import LocalFrames, frames_numpy
+from straylight.engine.interactions.registry import parts_with
+from straylight.engine.interactions.scatter_polarization import arriving
+from straylight.engine.material_groups import by_material
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
+from straylight.engine.reverse_chain import scatter_ends
+from straylight.engine.roles import ROLE_SURFACE
+from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients, cast_branches, side_material
+from straylight.paths import mix_key
+
+MAX_INTERFACES = 2
+SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """One candidate interface sequence: the parts in the light's order, reflection (True) or
+    transmission at each, and the solver's vertices (surfaces and indices)."""
+
+    parts: tuple
+    reflect: tuple
+    vertices: tuple
+
+    @property
+    def k(self) -> int:
+        return len(self.parts)
+
+    def codes(self) -> np.ndarray:
+        return np.array([p * 4 + EVENT_SPECULAR for p in self.parts], dtype=np.int64)
+
+
+def _eta(spec, part: int, front: bool) -> float:
+    """n_incident / n_transmitted for light arriving on ``front`` of ``part`` (1 where it does not transmit)."""
+    mat = int(side_material(spec, np.array([part]), np.array([front]))[0])
+    model = spec.materials[mat] if mat >= 0 else None
+    coef = None if model is None else getattr(model, "smooth_coefficients", lambda *a, **k: None)(np.array([1.0]),
+                                                                                              back=not front)
+    return 1.0 if coef is None else float(np.real(coef.eta[0]))
+
+
+def _medium(spec, part: int) -> int:
+    """The medium behind ``part`` (its back side): its material index when the material transmits (a
+    dielectric's back is its glass), else -1 (air on both sides)."""
+    mat = int(spec.part_material[part])
+    model = spec.materials[mat] if mat >= 0 else None
+    smooth = getattr(model, "smooth", None)
+    return mat if isinstance(smooth, Dielectric) else -1
+
+
+def interface_parts(spec, splits) -> list:
+    """Parts it may connect through: the kind declares DELTA_CHAIN and the part has a conic surface."""
+    surfaces = spec.part_surfaces or ()
+    return [p for p in np.flatnonzero(splits) if p < len(surfaces) and isinstance(surfaces[p], Conic)]
+
+
+def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES) -> list:
+    """Every sequence of 1..max_k reflections and transmissions over :func:`interface_parts` (no part
+    twice in a row: a convex or flat surface cannot be met twice in a row, and a concave one rarely)."""
+    parts = interface_parts(spec, splits)
+    surf = spec.part_surfaces
+    vert = {(p, r): manifold.Vertex(surf[p], r, _eta(spec, p, True), _eta(spec, p, False), -1, _medium(spec, p))
+            for p in parts for r in (True, False)}
+    out = []
+    chains = [[]]
+    for _ in range(max_k):
+        chains = [c + [(p, r)] for c in chains for p in parts for r in (True, False) if not c or c[-1][0] != p]
+        out.extend(Sequence(tuple(int(p) for p, _ in c), tuple(r for _, r in c), tuple(vert[x] for x in c))
+                   for c in chains)
+    return out
+
+
+def unsupported(spec) -> str | None:
+    """Why the strategy cannot run on ``spec`` (None when it can)."""
+    est = spec.options.estimator
+    if not interface_parts(spec, parts_with(spec, Capability.DELTA_CHAIN)):
+        return "the scene has no interface with an analytic surface (conic, asphere or plane) to connect through"
+    if int(est.delta_chain) < MAX_INTERFACES:
+        return f"it shares its paths with the split trees: it needs delta_chain >= {MAX_INTERFACES}"
+    if est.target_parts:
+        return "its balance weights use the materials' own pdf; target sampling draws from a mixture"
+    if spec.options.physics.polarization != "u":
+        return "it carries the polarization of the walk's light; this trace fixes s or p"
+    return None
+
+
+class Connection:
+    """Solved and checked paths P -> S -> z for one sequence: ``ok`` per row, the interface points
+    and front normals, omega at P and the geometry term J = |d omega / d A_z|."""
+
+    def __init__(self, ok, X, N, omega, J):
+        self.ok, self.X, self.N, self.omega, self.J = ok, X, N, omega, J
+
+
+def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides: bool) -> tuple[Connection, int]:
+    """Solve the sequence between p (facing normal ``n_p``) and z (detector normal ``nz``, part
+    ``det_part``) and check the path: the sides, the clear apertures, that light leaves P on its
+    facing side and reaches the counted side of the detector, and that every segment, cast, meets
+    exactly its intended point. Returns the :class:`Connection` and the casts made."""
+    sol = manifold.solve(seq.vertices, p, z)
+    ok = sol.ok.copy()
+    m = len(p)
+    J, omega = np.zeros(m), np.zeros((m, 3))
+    g = np.flatnonzero(ok)
+    if len(g):
+        sub = manifold.Solution(sol.x[g], sol.X[g], sol.N[g], ok[g])
+        ok[g] = manifold.side_checks(seq.vertices, sub, p[g], z[g])
+        g = g[ok[g]]
+    if len(g):
+        sub = manifold.Solution(sol.x[g], sol.X[g], sol.N[g], ok[g])
+        J[g], omega[g] = manifold.geometry_term(seq.vertices, sub, p[g], z[g], nz[g])
+    ok &= (_dot(omega, n_p) > 0) & (J > 0) & np.isfinite(J)
+    last = np.where(ok[:, None], z - sol.X[:, -1], 1.0)
+    arrive = last / np.linalg.norm(last, axis=1)[:, None]
+    ok &= (_dot(arrive, nz) < 0) if not both_sides else (_dot(arrive, nz) != 0)
+    casts = 0
+    g = np.flatnonzero(ok)
+    eps2 = 2.0 * spec.eps
+    here = p[g] + eps2 * n_p[g]
+    last = np.full(len(g), -1, dtype=np.int64)
+    for i in range(seq.k + 1):
+        if len(g) == 0:
+            break
+        target = z[g] if i == seq.k else sol.X[g, i]
+        want = det_part if i == seq.k else seq.parts[i]
+        good, n_cast = _meets(spec, scene, here, target, last, want, None if i == seq.k else seq.vertices[i].surface)
+        casts += n_cast
+        ok[g[~good]] = False
+        g, last = g[good], np.full(int(good.sum()), want, dtype=np.int64)
+        if i == seq.k or len(g) == 0:
+            break
+        n = sol.N[g, i]
+        nxt = z[g] if i == seq.k - 1 else sol.X[g, i + 1]
+        side = np.where(_dot(nxt - sol.X[g, i], n) > 0, 1.0, -1.0)
+        here = sol.X[g, i] + eps2 * side[:, None] * n
+    return Connection(ok, sol.X, sol.N, omega, J), casts
+
+
+def _meets(spec, scene, origin, target, last_part, want: int, surface) -> tuple[np.ndarray, int]:
+    """Whether the segments origin -> target first meet part ``want`` at the target (on ``surface``
+    refined, or on the facet for a detector), past hits on their own last part that refine back onto
+    the origin (the facets of a concave surface lie in front of it: as the walk passes them,
+    straylight.engine.surface_geometry.refine_on_surfaces)."""
+    vec = target - origin
+    length = np.linalg.norm(vec, axis=1)
+    d = np.ascontiguousarray(vec / length[:, None])
+    tol = 1e-6 * length + 4.0 * spec.eps
+    good = np.zeros(len(origin), dtype=bool)
+    start = np.zeros(len(origin))  # distance already passed
+    live = np.arange(len(origin))
+    casts = 0
+    surfaces = spec.part_surfaces or ()
+    for _ in range(3):
+        if len(live) == 0:
+            break
+        o = np.ascontiguousarray(origin[live] + start[live, None] * d[live])
+        h = cast_branches(spec, scene, o, d[live])
+        casts += len(live)
+        rows = live[h.hit]
+        again = np.zeros(len(rows), dtype=bool)
+        self_hit = h.part == last_part[rows]
+        if self_hit.any():
+            k = np.flatnonzero(self_hit)
+            surf = surfaces[int(h.part[k[0]])] if int(h.part[k[0]]) < len(surfaces) else None
+            if surf is not None:
+                t, _n, fine = surf.refine_hits(o[h.hit[k]], d[rows[k]], h.distance_mm[k])
+                again[k] = ~fine | (t + start[rows[k]] < SELF_HIT_MM + 4.0 * spec.eps)
+        hit_want = (h.part == want) & ~again
+        sel = np.flatnonzero(hit_want)
+        if len(sel):
+            rr = rows[sel]
+            if surface is None:
+                t = h.distance_mm[sel]
+                fine = np.ones(len(sel), dtype=bool)
+            else:
+                t, _n, fine = surface.refine_hits(o[h.hit[sel]], d[rr], h.distance_mm[sel])
+            good[rr] = fine & (np.abs(start[rr] + t - length[rr]) <= tol[rr])
+        nxt = rows[again]
+        start[nxt] += h.distance_mm[again] + 2.0 * spec.eps
+        live = nxt
+    return good, casts
+
+
+def chain_throughput(spec, seq: Sequence, p, X, N, z, S, e1) -> np.ndarray:
+    """(M_k ... M_1 S)_0 x bulk along the solved path: S (m, 4) the Stokes vector leaving p in the frame
+    ``e1`` (as the split trees carry it from their root, straylight.engine.delta_chain)."""
+    m = len(p)
+    T = np.ones(m)
+    S = S.copy()
+    prev = p
+    for i in range(seq.k):
+        vec = X[:, i] - prev
+        dist = np.linalg.norm(vec, axis=1)
+        d = vec / np.where(dist > 0, dist, 1.0)[:, None]
+        n = N[:, i]
+        front = _dot(d, n) < 0
+        facing = np.where(front[:, None], n, -n)
+        part = np.full(m, seq.parts[i], dtype=np.int64)
+        rs, rp, ts, tp, _cos_t, _eta, bulk = branch_coefficients(spec, part, front, d, facing, dist)
+        s = s_vector(d, facing)
+        S = rotate_stokes(S, e1, s, d)
+        a_s, a_p = (rs, rp) if seq.reflect[i] else (ts, tp)
+        So = np.einsum("nij,nj->ni", interface_mueller(a_s, a_p), S)
+        T = T * So[:, 0] * bulk
+        S = So / np.where(So[:, 0] > 0, So[:, 0], 1.0)[:, None]
+        e1 = s
+        prev = X[:, i]
+    return T
+
+
+class SpecularNee:
+    """Per batch: the candidate sequences, and per ray the last plain scatter vertex it left (for the
+    split trees' shares)."""
+
+    def __init__(self, ctx, splits):
+        spec, scene = ctx.spec, ctx.scene
+        self.seqs = candidate_sequences(spec, splits)
+        self.end_material = scatter_ends(spec)
+        self.splits = splits
+        n = ctx.n_rays
+        self.depth = np.full(n, -1, dtype=np.int64)  # depth of the ray's vertex P (-1: none of ours)
+        self.point = np.zeros((n, 3))
+        self.normal = np.zeros((n, 3))
+        self.chain_k = np.zeros(n, dtype=np.int64)  # runs up to this length are the reverse chains'
+        self.pdf = np.zeros(n)  # the walk's pdf of the direction it drew at P
+        self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
+        self.det_parts = np.asarray(scene.det_parts, dtype=np.int64)
+        self.both = spec.options.output.detector_sides == "both"
+        self.path_depth = int(spec.options.output.path_depth)
+        self.shadow_rays = 0
+
+    # ------------------------------------------------------------------ the walk's vertices
+
+    def vertices(self, event, cont):
+        """The continuing hits that are plain scatter vertices, and the run length the reverse chains
+        own from each (0: none)."""
+        spec, hit, rays = event.spec, event.hits, event.rays
+        part = hit.part[cont].astype(np.int64)
+        mat = spec.part_material[part]
+        plain = (spec.part_roles[part] == ROLE_SURFACE) & ~self.splits[part] & self.end_material[mat] \
+            & (rays.weight_w[cont] > 0)
+        rows = cont[plain]
+        chain_k = np.zeros(len(rows), dtype=np.int64)
+        rc = event.states.get("reverse_chain")
+        if rc is not None:
+            chain_k = np.where(rc.pred[rays.ray[rows]], rc.k_max, 0)
+        return rows, chain_k
+
+    def after_hits(self, event, cont, column: int) -> None:
+        """At the plain scatter vertices among the continuing hits (before the interactions change the
+        rays' polarization states): the connections through every candidate sequence."""
+        rays = event.rays
+        rows, chain_k = self.vertices(event, cont)
+        mine = chain_k < MAX_INTERFACES
+        rows, chain_k = rows[mine], chain_k[mine]
+        if len(rows) == 0:
+            return
+        r = rays.ray[rows]
+        self.depth[r] = rays.depth[rows]
+        self.point[r] = event.hits.point_mm[rows]
+        self.normal[r] = event.hits.facing_normal[rows]
+        self.chain_k[r] = chain_k
+        self._connect(event, rows, chain_k, column)
+
+    def after_interactions(self, event, cont, out) -> None:
+        r = event.rays.ray[cont]
+        ours = self.depth[r] == event.rays.depth[cont]
+        self.pdf[r[ours]] = out.pdf_per_sr[ours]
+
+    def _connect(self, event, rows, chain_k, column):
+        spec, scene, rays, hit = event.spec, event.scene, event.rays, event.hits
+        verts = np.ascontiguousarray(rows)
+        frame = LocalFrames(*frames_numpy(verts, rays.direction, hit.facing_normal, hit.part, spec.part_material,
+                                          event.uniforms))
+        arr = arriving(event, verts, frame)
+        evaluate = arr.nee_evaluate(spec.materials) if arr is not None else _unpolarized(spec, frame.material)
+        p, n_p = hit.point_mm[rows], hit.facing_normal[rows]
+        U = event.uniforms
+        for j, det in enumerate(scene.detectors):
+            z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
+            area = self.det_area[j]
+            for seq in self.seqs:
+                pos = np.flatnonzero(chain_k < seq.k)
+                if len(pos) == 0:
+                    continue
+                con, casts = connect(spec, scene, seq, p[pos], n_p[pos], z[pos], nz[pos], int(self.det_parts[j]),
+                                     self.both)
+                self.shadow_rays += casts
+                g = np.flatnonzero(con.ok)
+                if len(g) == 0:
+                    continue
+                at = pos[g]
+                omega = con.omega[g]
+                wo_local = np.stack([_dot(omega, frame.tangent[at]), _dot(omega, frame.bitangent[at]),
+                                     _dot(omega, n_p[at])], axis=1)
+                f, pdf = evaluate(frame.wi_local[at], wo_local, at)
+                S = np.zeros((len(g), 4))
+                S[:, 0] = 1.0
+                e1 = s_vector(omega, n_p[at])
+                if arr is not None:
+                    _ratio, use, S_out, e1_out = arr.scattered(event, verts, omega, subset=at)
+                    S[use], e1[use] = S_out, e1_out
+                T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
+                J = con.J[g]
+                p_nee = 1.0 / (area * J)
+                mis = p_nee / (p_nee + pdf)
+                value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis
+                keep = np.flatnonzero(value > 0)
+                if len(keep):
+                    self._tally(event, rows[at[keep]], j, seq, z[at[keep]], value[keep])
+
+    def _tally(self, event, rows, j, seq, z, value):
+        rays, hit = event.rays, event.hits
+        r = rays.ray[rows]
+        part = hit.part[rows].astype(np.int64)
+        event.tallies.add(event.rows.detector_nee + int(j), r, value)
+        event.tallies.subtract(event.rows.nee_exchange + part, r, value)
+        keys = events = None
+        depth = rays.depth[rows]
+        if event.settings.record_paths:
+            code_p = part * 4 + EVENT_SCATTER
+            h = mix_key(rays.path_key[rows], code_p)
+            codes = seq.codes()
+            for c in codes:
+                h = mix_key(h, np.full(len(rows), c, dtype=np.int64))
+            keys = mix_key(h, np.full(len(rows), int(self.det_parts[j]) * 4 + EVENT_DETECTOR, dtype=np.int64))
+            events = rays.history[rows].copy()
+            width = events.shape[1]
+            idx = np.arange(len(rows))
+            for step, c in enumerate(np.concatenate([[-1], codes])):
+                at = depth + step < width
+                events[idx[at], (depth + step)[at]] = code_p[at] if step == 0 else c
+        event.records.add(int(j), r, z, value, keys, events, depth + 1 + seq.k)
+
+    # ------------------------------------------------------------------ the split trees' side
+
+    def branch_share(self, event, rows, detector: int, z, nz, codes, k) -> np.ndarray:
+        """The share split-tree branches keep (rooted at the interface hits ``rows``, reaching
+        ``detector`` at ``z`` with triangle normals ``nz`` after ``k`` interfaces ``codes``): p_walk /
+        (p_walk + p_nee) where this estimator makes the same path (module doc), else 1."""
+        rays = event.rays
+        out = np.ones(len(rows))
+        r = rays.ray[rows]
+        ours = (self.depth[r] >= 0) & (rays.depth[rows] == self.depth[r] + 1) & (k <= MAX_INTERFACES) \
+            & (k > self.chain_k[r])
+        g = np.flatnonzero(ours)
+        if len(g) == 0:
+            return out
+        area = self.det_area[detector]
+        p_nee = np.zeros(len(rows))
+        for seq in self.seqs:
+            parts = np.array(seq.parts, dtype=np.int64)
+            same = (k[g] == seq.k) & np.all(codes[g][:, :seq.k] // 4 == parts[None, :], axis=1)
+            at = g[same]
+            if len(at) == 0:
+                continue
+            ri = r[at]
+            con, casts = connect(event.spec, event.scene, seq, self.point[ri], self.normal[ri], z[at], nz[at],
+                                 int(self.det_parts[detector]), self.both)
+            self.shadow_rays += casts
+            match = con.ok & (_dot(con.omega, rays.direction[rows[at]]) > SAME_DIRECTION_COS)
+            p_nee[at[match]] = 1.0 / (area * con.J[match])
+        walk = self.pdf[r]
+        total = walk + p_nee
+        share = np.where(total > 0, walk / np.where(total > 0, total, 1.0), 1.0)
+        return np.where(p_nee > 0, share, out)
+
+
+def _unpolarized(spec, material):
+    """``evaluate(wi, wo, vertex)`` of unpolarized light: the materials' BRDF and pdf."""
+
+    def evaluate(wi, wo_local, vertex):
+        f = np.empty(len(vertex))
+        pdf = np.empty(len(vertex))
+        for rows, (fv, pv) in by_material(spec.materials, material[vertex], lambda model, rows: (
+                model.brdf(wi[rows], wo_local[rows], "u"), model.pdf(wi[rows], wo_local[rows], "u"))):
+            f[rows] = fv
+            pdf[rows] = pv
+        return f, pdf
+
+    return evaluate
