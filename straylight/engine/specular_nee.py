@@ -116,8 +116,8 @@ def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES) -> list:
     surf = spec.part_surfaces
     vert = {(p, r): manifold.Vertex(surf[p], r, _eta(spec, p, True), _eta(spec, p, False), -1, _medium(spec, p))
             for p in parts for r in (True, False)}
-    out = []
-    chains = [[]]
+    out: list[Sequence] = []
+    chains: list[list[tuple]] = [[]]
     for _ in range(max_k):
         chains = [c + [(p, r)] for c in chains for p in parts for r in (True, False) if not c or c[-1][0] != p]
         out.extend(Sequence(tuple(int(p) for p, _ in c), tuple(r for _, r in c), tuple(vert[x] for x in c))
