@@ -354,7 +354,7 @@ class SpecularNee:
                 e1 = s_vector(omega, n_p[at])
                 if arr is not None:
                     _ratio, use, S_out, e1_out = arr.scattered(event, verts, omega, subset=at)
-                    S[use], e1[use] = S_out, e1_out
+                    S[use], e1[use] = S_out / S_out[:, :1], e1_out  # M S, normalised as the walk stores it
                 T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
                 J = con.J[g]
                 p_nee = 1.0 / (area * J)
