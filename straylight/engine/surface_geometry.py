@@ -40,10 +40,12 @@ def refine_on_surfaces(spec, part, origin, d, distance_mm, last_part, front, fac
         t, n_front, ok = surf.refine_hits(origin[g], d[g], distance_mm[g])
         bad = ~ok | ((last_part[g] == p) & (t < SELF_HIT_MM))
         passing[g[bad]] = True
-        good = g[~bad]
-        nf = n_front[~bad]
-        exact[good] = origin[g[~bad]] + t[~bad, None] * d[good]
-        fr = _dot(d[good], nf) < 0
+        keep = ~bad
+        good = g[keep]
+        nf = n_front[keep]
+        d_good = d[good]
+        exact[good] = origin[good] + t[keep, None] * d_good
+        fr = _dot(d_good, nf) < 0
         front[good] = fr
         facing[good] = np.where(fr[:, None], nf, -nf)
         refined[good] = True
@@ -103,7 +105,8 @@ def at_interfaces(spec, scene, part, tri, origin, d, distance_mm, last_part, cos
     """Branch rays' hits on interface parts refined onto their exact surfaces: (front, facing normal,
     the point, passing) as :func:`refine_on_surfaces` (the facet's point where not refined)."""
     front0 = cos_in < 0
-    facing0 = np.where(front0[:, None], scene.normals[tri], -scene.normals[tri])
+    n_tri = scene.normals[tri]
+    facing0 = np.where(front0[:, None], n_tri, -n_tri)
     front, facing, exact, refined, passing = refine_on_surfaces(spec, part, origin, d, distance_mm, last_part,
                                                                 front0, facing0)
     at = np.where(refined[:, None], exact, origin + distance_mm[:, None] * d)

@@ -35,6 +35,8 @@ class ExactBoundaryIntersector:
         for k, (p, plane) in enumerate(sorted(planes.items())):
             self._disk_of_triangle[parts == p] = k
             self._disks.append(plane)
+        # the disk of each triangle, then -1 for a miss (tri = -1 reads the last entry)
+        self._disk_or_miss = np.append(self._disk_of_triangle, -1)
         self._centre = np.array([d.vertex_mm for d in self._disks]).reshape(-1, 3)
         self._axis = np.array([d.axis for d in self._disks]).reshape(-1, 3)
         self._r2 = np.array([[d.inner_radius_mm ** 2, d.outer_radius_mm ** 2] for d in self._disks]).reshape(-1, 2)
@@ -50,7 +52,7 @@ class ExactBoundaryIntersector:
     def _refused(self, tri, origins, dirs):
         """(bool per ray: its hit is on a plane part outside the exact boundary, hit distances)."""
         tri = np.asarray(tri, dtype=np.int64)
-        disk = np.where(tri >= 0, self._disk_of_triangle[np.maximum(tri, 0)], -1)
+        disk = self._disk_or_miss[tri]
         on = np.flatnonzero(disk >= 0)
         refused = np.zeros(len(tri), dtype=bool)
         t = np.full(len(tri), np.inf)
