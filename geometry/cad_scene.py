@@ -54,10 +54,13 @@ def cad_scene_doc(cad_path, scene_path, *, detector: str | None = None, material
     if a.shape != (3,) or not np.all(np.isfinite(a)) or np.linalg.norm(a) == 0:
         raise GeometryError(f"axis must be three finite numbers, not all zero, got {axis!r}")
     a = a / np.linalg.norm(a)
-    parts = load_cad_parts(cad_path, name=name, material=material, tolerance_mm=tolerance_mm)
-    solids = [p.meta["solid"] for p in parts]
     if detector is not None and detector_disk is not None:
         raise GeometryError("give a detector solid or a detector disk, not both")
+    # the disks are checked before the assembly is read and meshed (seconds to minutes of OpenCascade)
+    detector_table = None if detector_disk is None else disk_table(detector_disk, "--detector-disk")
+    entrance_table = None if entrance_disk is None else disk_table(entrance_disk, "--entrance-disk")
+    parts = load_cad_parts(cad_path, name=name, material=material, tolerance_mm=tolerance_mm)
+    solids = [p.meta["solid"] for p in parts]
     if detector is None and detector_disk is None:
         guesses = [s for s in solids if s == "detector"] or [s for s in solids if "detector" in s.lower()]
         detector = guesses[0] if len(guesses) == 1 else None
@@ -87,10 +90,9 @@ def cad_scene_doc(cad_path, scene_path, *, detector: str | None = None, material
     if detector_disk is not None:
         if name == "detector":
             raise GeometryError(f"{cad_path}: the assembly's part is named 'detector': rename it (name=...)")
-        doc["part"].append({"name": "detector", "role": "detector",
-                            "surface": disk_table(detector_disk, "--detector-disk")})
-    if entrance_disk is not None:
-        e = disk_table(entrance_disk, "--entrance-disk")
+        doc["part"].append({"name": "detector", "role": "detector", "surface": detector_table})
+    if entrance_table is not None:
+        e = entrance_table
         doc["analysis"] = {"entrance": {"center_mm": e["vertex_mm"], "normal": e["axis"],
                                         "radius_mm": e["outer_radius_mm"]}}
     return doc, parts

@@ -64,7 +64,15 @@ def test_detector_disk_from_the_command_line_is_an_exact_detector(tmp_path, caps
 
 @pytest.mark.parametrize("disk, words", [(["0", "0", "1", "0", "0", "0", "2"], "normal"),
                                          (["0", "0", "1", "0", "0", "1", "-2"], "radius")])
-def test_bad_detector_disk_is_a_one_line_error(tmp_path, capsys, disk, words):
+def test_bad_detector_disk_is_a_one_line_error(tmp_path, capsys, monkeypatch, disk, words):
+    """Refused before the assembly is read and meshed (a progress line of a slow meshing would be a
+    second line, and the user would wait for nothing)."""
+    import geometry.io
+
+    def no_meshing(*args, **kwargs):
+        raise AssertionError("the assembly was meshed before the bad disk was refused")
+
+    monkeypatch.setattr(geometry.io, "load_cad_parts", no_meshing)
     assert main(["geometry", "scene", str(DATA / "gmsh_parts.step"), "-o", str(tmp_path / "x.toml"),
                  "--detector-disk", *disk]) != 0
     err = capsys.readouterr().err.strip()
