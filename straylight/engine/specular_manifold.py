@@ -264,7 +264,18 @@ def solve(seq, p, z, x0=None, ok0=None) -> Solution:
 
 def geometry_term(seq, sol: Solution, p, z, nz):
     """|d omega_P / d A_z| (sr / mm^2) of the solved paths (implicit function theorem, module doc) and
-    the unit direction omega_P (m, 3) from p to X_1; ``nz`` the detector normals at z."""
+    the unit direction omega_P (m, 3) from p to X_1; ``nz`` the detector normals at z. One reflection
+    in a plane: |cos_z| / d'^2 with d' the unfolded length (the image of z), exactly."""
+    k = len(seq)
+    if k == 1 and seq[0].reflect and getattr(seq[0].surface, "kind", "") == "plane":
+        omega, d1 = _unit(sol.X[:, 0] - p)
+        arrive, d2 = _unit(z - sol.X[:, 0])
+        return np.abs(_dot(arrive, nz)) / (d1 + d2) ** 2, omega
+    return implicit_geometry_term(seq, sol, p, z, nz)
+
+
+def implicit_geometry_term(seq, sol: Solution, p, z, nz):
+    """:func:`geometry_term` by the implicit function theorem, for any sequence."""
     m = len(p)
     k = len(seq)
     t, _ = _unit(np.cross(nz, np.where(np.abs(nz[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])))

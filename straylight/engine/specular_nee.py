@@ -122,7 +122,14 @@ def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES) -> list:
         chains = [c + [(p, r)] for c in chains for p in parts for r in (True, False) if not c or c[-1][0] != p]
         out.extend(Sequence(tuple(int(p) for p, _ in c), tuple(r for _, r in c), tuple(vert[x] for x in c))
                    for c in chains)
-    return out
+    return [seq for seq in out if _media_allow(seq)]
+
+
+def _media_allow(seq: Sequence) -> bool:
+    """Whether some choice of arrival sides lets light start and end in the air (a singlet keeps 4 of its
+    12 sequences: a reflection off either face, both faces' reflections, and the two refractions)."""
+    sides = np.array(np.meshgrid(*[[True, False]] * seq.k, indexing="ij")).reshape(seq.k, -1).T
+    return bool(manifold.media_agree(seq.vertices, sides).any())
 
 
 def unsupported(spec) -> str | None:
@@ -328,7 +335,7 @@ class SpecularNee:
         frame = LocalFrames(*frames_numpy(verts, rays.direction, hit.facing_normal, hit.part, spec.part_material,
                                           event.uniforms))
         arr = arriving(event, verts, frame)
-        evaluate = arr.nee_evaluate(spec.materials) if arr is not None else _unpolarized(spec, frame.material)
+        evaluate = _unpolarized(spec, frame.material)
         p, n_p = hit.point_mm[rows], hit.facing_normal[rows]
         U = event.uniforms
         for j, det in enumerate(scene.detectors):
@@ -352,8 +359,9 @@ class SpecularNee:
                 S = np.zeros((len(g), 4))
                 S[:, 0] = 1.0
                 e1 = s_vector(omega, n_p[at])
-                if arr is not None:
-                    _ratio, use, S_out, e1_out = arr.scattered(event, verts, omega, subset=at)
+                if arr is not None:  # the walk's polarized scatter: f = M[0] . S = ratio x f_u, and M S carried on
+                    ratio, use, S_out, e1_out = arr.scattered(event, verts, omega, subset=at)
+                    f = f * ratio
                     S[use], e1[use] = S_out / S_out[:, :1], e1_out  # M S, normalised as the walk stores it
                 T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
                 J = con.J[g]

@@ -45,11 +45,13 @@ def test_plane_mirror_reflection_point_and_geometry_term():
     np.testing.assert_allclose(sol.X[:, 0], p + t[:, None] * (image - p), atol=1e-9)
     nz = np.array([[0.3, 0.0, -1.0], [0.0, 0.2, -1.0]])
     nz /= np.linalg.norm(nz, axis=1)[:, None]
-    J, omega = sm.geometry_term(seq, sol, p, z, nz)
     d_unfolded = np.linalg.norm(image - p, axis=1)
     arrive = z - sol.X[:, 0]
     arrive /= np.linalg.norm(arrive, axis=1)[:, None]
-    np.testing.assert_allclose(J, np.abs(np.einsum("ij,ij->i", arrive, nz)) / d_unfolded ** 2, rtol=1e-6)
+    expected = np.abs(np.einsum("ij,ij->i", arrive, nz)) / d_unfolded ** 2
+    for term in (sm.geometry_term, sm.implicit_geometry_term):  # the plane's closed form and the general route
+        J, _omega = term(seq, sol, p, z, nz)
+        np.testing.assert_allclose(J, expected, rtol=1e-6)
 
 
 def test_concave_sphere_reflects_symmetric_points_at_its_vertex():
