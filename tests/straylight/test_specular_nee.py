@@ -237,3 +237,13 @@ def test_what_rules_it_out():
     flat = Scene(tuple(p for p in sc.parts if p.name != "mirror") + (
         _quad("mirror", (-30, -30, 40), (0, 60, 0), (60, 0, 0), "mirror"),))
     assert "analytic" in unsupported(make_spec(flat, src, 100, 0, mats, TraceOptions(estimator=MANIFOLD)))
+
+
+def test_same_numbers_for_any_batch_size():
+    """Its detector points come from the event's own uniforms and each vertex's solve is its own: the
+    batch size does not change a bit."""
+    sc, src, mats = _lens_scene()
+    runs = [trace(sc, src, 3000, seed=9, materials=mats, options=TraceOptions(estimator=MANIFOLD, batch_rays=b))
+            for b in (1000, 3000)]
+    assert runs[0].detectors["det"].power_w == runs[1].detectors["det"].power_w
+    assert runs[0].detectors["det"].stderr_w == runs[1].detectors["det"].stderr_w
