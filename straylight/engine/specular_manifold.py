@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 
 NEWTON_ITER = 20
-GIVE_UP_AFTER = 6  # iterations after which a row still far from a root stops
+GIVE_UP_AFTER = 5  # iterations after which a row still far from a root stops
 GIVE_UP_RESIDUAL = 1e-4
 NEWTON_TOL_MM = 1e-10  # a converged step, mm
 RESIDUAL_TOL = 1e-9  # |F| of an accepted solution (dimensionless: sines)
@@ -120,12 +120,18 @@ def residual(seq, x, p, z):
     return F, X, N
 
 
-def _jacobian(seq, x, p, z):
+def _jacobian(seq, x, p, z, F=None):
+    """dF/dx (m, 2k, 2k): central differences, or forward differences from ``F`` = F(x) when given (the
+    Newton steps' Jacobian only steers; the geometry term takes the central one)."""
     m, d = x.shape
     J = np.empty((m, d, d))
     for c in range(d):
-        xp, xm = x.copy(), x.copy()
+        xp = x.copy()
         xp[:, c] += DIFF_MM
+        if F is not None:
+            J[:, :, c] = (residual(seq, xp, p, z)[0] - F) / DIFF_MM
+            continue
+        xm = x.copy()
         xm[:, c] -= DIFF_MM
         J[:, :, c] = (residual(seq, xp, p, z)[0] - residual(seq, xm, p, z)[0]) / (2 * DIFF_MM)
     return J
@@ -226,7 +232,7 @@ def solve(seq, p, z, x0=None, ok0=None) -> Solution:
             a = np.flatnonzero(active & ~done)
             if len(a) == 0:
                 break
-            J = _jacobian(seq, x[a], p[a], z[a])
+            J = _jacobian(seq, x[a], p[a], z[a], F[a])
             good = np.isfinite(J).all(axis=(1, 2)) & (np.abs(np.linalg.det(J)) > 1e-300)
             active[a[~good]] = False
             a = a[good]
