@@ -169,6 +169,15 @@ def start(seq, p, z):
         denom = d @ au
         good = np.abs(denom) > 1e-12
         t = np.where(good, ((v0u - p) @ au) / np.where(good, denom, 1.0), 0.0)
+        if not any(v.reflect for v in seq[:i]) and hasattr(vtx.surface, "refine"):
+            # no mirror before it: the line meets the surface itself (near a curved rim the vertex plane
+            # is far from it: a point just in front of the rim is behind the vertex plane)
+            length = np.linalg.norm(d, axis=1)
+            unit = d / np.where(length > 0, length, 1.0)[:, None]
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                t_s, on = vtx.surface.refine(p, unit, t * length)
+            on &= np.isfinite(t_s) & (t_s > 0)
+            t = np.where(on, t_s / np.where(length > 0, length, 1.0), t)
         y = p + t[:, None] * d
         # fold back: the mirrors in the same order (each is its own inverse; applied outermost first)
         for j in range(i):
@@ -180,25 +189,31 @@ def start(seq, p, z):
 
 
 def plausible(seq, x0, p, z):
-    """Rows whose start is worth solving from: every start point within twice its surface's outer
-    radius of the axis, and the path through the start points on each vertex plane's side that its
-    branch needs (a reflection returns to the side it came from, a transmission crosses). A
-    deterministic part of the solve: the rows it drops are paths this estimator does not make."""
+    """Rows whose start is worth solving from: every start point within twice its surface's reach from
+    the axis, and the path through the start points (put on the surfaces) on each surface's side that
+    its branch needs there (a reflection returns to the side it came from, a transmission crosses; the
+    tangent plane at the start point, not the vertex plane: a point just in front of a curved surface's
+    rim is behind its vertex plane), starting and ending in the air. A deterministic part of the
+    solve: the rows it drops are paths this estimator does not make (the split trees keep them)."""
     ok = np.ones(len(p), dtype=bool)
     k = len(seq)
-    pts = [vtx.surface.to_world(np.column_stack([x0[:, 2 * i:2 * i + 2], np.zeros(len(p))]))
-           for i, vtx in enumerate(seq)]
-    front = np.zeros((len(p), k), dtype=bool)
-    for i, vtx in enumerate(seq):
-        surf = vtx.surface
-        rmax = 2.0 * float(getattr(surf, "outer_radius_mm", np.inf))
-        ok &= np.hypot(x0[:, 2 * i], x0[:, 2 * i + 1]) <= rmax
-        v0, a = np.asarray(surf.vertex_mm, float), np.asarray(surf.axis, float)
-        prev = p if i == 0 else pts[i - 1]
-        nxt = z if i == k - 1 else pts[i + 1]
-        sa, sb = (prev - v0) @ a, (nxt - v0) @ a
-        ok &= ((sa > 0) == (sb > 0)) if vtx.reflect else ((sa > 0) != (sb > 0))
-        front[:, i] = sa > 0
+    pts, nrm = [], []
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for i, vtx in enumerate(seq):
+            X, n = surface_points(vtx.surface, x0[:, 2 * i:2 * i + 2])
+            pts.append(X)
+            nrm.append(n)
+        front = np.zeros((len(p), k), dtype=bool)
+        for i, vtx in enumerate(seq):
+            surf = vtx.surface
+            reach = surf.rho_range_mm()[1] if hasattr(surf, "rho_range_mm") else getattr(surf, "outer_radius_mm", np.inf)
+            ok &= np.hypot(x0[:, 2 * i], x0[:, 2 * i + 1]) <= 2.0 * float(reach)
+            prev = p if i == 0 else pts[i - 1]
+            nxt = z if i == k - 1 else pts[i + 1]
+            sa, sb = _dot(prev - pts[i], nrm[i]), _dot(nxt - pts[i], nrm[i])
+            ok &= np.isfinite(sa) & np.isfinite(sb)
+            ok &= ((sa > 0) == (sb > 0)) if vtx.reflect else ((sa > 0) != (sb > 0))
+            front[:, i] = sa > 0
     return ok & media_agree(seq, front)
 
 
