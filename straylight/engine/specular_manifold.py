@@ -169,13 +169,14 @@ def start(seq, p, z):
         denom = d @ au
         good = np.abs(denom) > 1e-12
         t = np.where(good, ((v0u - p) @ au) / np.where(good, denom, 1.0), 0.0)
-        if not any(v.reflect for v in seq[:i]) and hasattr(vtx.surface, "refine"):
+        if not any(v.reflect for v in seq[:i]) and hasattr(vtx.surface, "refine_hits"):
             # no mirror before it: the line meets the surface itself (near a curved rim the vertex plane
             # is far from it: a point just in front of the rim is behind the vertex plane)
             length = np.linalg.norm(d, axis=1)
             unit = d / np.where(length > 0, length, 1.0)[:, None]
             with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-                t_s, on = vtx.surface.refine(p, unit, t * length)
+                t_s, _n, on = vtx.surface.refine_hits(np.ascontiguousarray(p), np.ascontiguousarray(unit),
+                                                      np.where(np.isfinite(t), t * length, 0.0))
             on &= np.isfinite(t_s) & (t_s > 0)
             t = np.where(on, t_s / np.where(length > 0, length, 1.0), t)
         y = p + t[:, None] * d
