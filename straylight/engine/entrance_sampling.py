@@ -19,7 +19,9 @@ becomes the position in the cell along u1: the ray keeps its own 5 emission unif
 nothing more, so results stay identical for any batch, thread or worker split.
 
 **The table** is learnt before the run by a pilot trace of :data:`PILOT_RAYS` rays with the same
-estimators (own streams: chunks from :data:`PILOT_CHUNK_OFFSET` on, so the table does not depend on the
+estimators except reverse chains (whose source connections do not depend on the entrance point: on the
+guide scope their cosine-drawn chains put single heavy values on random cells; without them the walk
+counts that family itself, from the entrance points that light it) (own streams: chunks from :data:`PILOT_CHUNK_OFFSET` on, so the table does not depend on the
 run's own draws, and depends only on scene, sources, options and seed, like the vertex tables): each
 pilot ray's total detector contribution x (its path records summed) goes to its cell; with
 m_c = mean of x^2 over the cell's pilot rays, smoothed over the 3 x 3 neighbouring cells (azimuth
@@ -167,7 +169,11 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> 
     from straylight.engine.kernel_sets import COMPILED
 
     opt = spec.options
-    pilot_opts = replace(opt, estimator=replace(opt.estimator, entrance_sampling=False),
+    # without the reverse chains: their source connections do not depend on the ray's entrance point
+    # (each ray's eye chains are drawn on their own), so in a pilot they only add noise to the cells;
+    # the walk's own paths of their family (kept without them) say which entrance points light the
+    # scatter points the lens carries onto the sensor
+    pilot_opts = replace(opt, estimator=replace(opt.estimator, entrance_sampling=False, reverse_chain=0),
                          output=replace(opt.output, record_paths=True, path_depth=1))
     n = int(n_rays)
     nch = n_chunks(n)
