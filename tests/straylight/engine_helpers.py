@@ -33,6 +33,16 @@ class StandInLambertian:
         return np.where(wi[:, 2] > 0, np.maximum(wo[:, 2], 0) / np.pi, 0.0)
 
 
+
+def quad_part(name, p0, e1, e2, material=None, role="surface", n=6):
+    """A flat n x n-cell quad from corner p0 along e1 and e2 (its normal e1 x e2)."""
+    s, t = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
+    v = np.asarray(p0, float) + s.reshape(-1, 1) * np.asarray(e1, float) + t.reshape(-1, 1) * np.asarray(e2, float)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    f = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return Part(name, v, f, material=material, role=role)
+
 def disk_part(name, z, radius, n_seg=512, role="detector", material=None, facing=+1, circumscribe=False):
     """Flat N-gon disk in the plane z (normal +z if facing > 0)."""
     R = radius / np.cos(np.pi / n_seg) if circumscribe else radius

@@ -14,8 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from engine_helpers import disk_part
-from geometry.mesh import Part, Scene
+from engine_helpers import disk_part, quad_part
+from geometry.mesh import Scene
 from materials import load_material
 from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from straylight.engine.reverse_chain import unsupported
@@ -29,12 +29,7 @@ CHAINS = EstimatorOptions(nee=False, reverse_chain=4)
 
 
 def _quad(name, p0, e1, e2, material=None, role="surface", n=6):
-    s, t = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
-    v = np.asarray(p0, float) + s.reshape(-1, 1) * np.asarray(e1, float) + t.reshape(-1, 1) * np.asarray(e2, float)
-    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    f = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    return Part(name, v, f, material=material, role=role)
+    return quad_part(name, p0, e1, e2, material, role, n)
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ import math
 import numpy as np
 import pytest
 
-from engine_helpers import disk_part
+from engine_helpers import disk_part, quad_part
 from geometry.analytic import Conic, Cylinder, Plane
 from geometry.mesh import Part, Scene
 from materials import load_material
@@ -114,12 +114,7 @@ MATTE = {"components": [{"type": "lambertian", "rd": 0.6}]}
 
 
 def _quad(name, p0, e1, e2, material=None, role="surface", n=4):
-    s, t = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
-    v = np.asarray(p0, float) + s.reshape(-1, 1) * np.asarray(e1, float) + t.reshape(-1, 1) * np.asarray(e2, float)
-    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    f = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    return Part(name, v, f, material=material, role=role)
+    return quad_part(name, p0, e1, e2, material, role, n)
 
 
 def _surface_part(name, surface, material, role="surface"):
