@@ -93,3 +93,24 @@ def test_the_analyses_turn_it_on_only_with_a_refracting_material(wide_slab):
     _, _, mats = wide_slab
     assert estimator_options("default", materials=mats).estimator.entrance_sampling
     assert not estimator_options("default", materials={"black": Lambertian(0.05)}).estimator.entrance_sampling
+
+
+def test_the_pilot_runs_without_the_reverse_chains(wide_slab):
+    """The pilot learns which entrance points matter; the reverse chains' source connections do not
+    depend on the entrance point (each ray's eye chains are drawn on their own), so the pilot runs
+    without them and with every other estimator of the trace."""
+    from straylight.trace import make_spec
+
+    sc, src, mats = wide_slab
+    opts = TraceOptions(estimator=EstimatorOptions(entrance_sampling=True, reverse_chain=4, delta_chain=4))
+    spec = make_spec(sc, src, 1_000, 5, mats, opts)
+    seen = []
+
+    def run_batch(pilot, first, stop, intersector):
+        seen.append(pilot.options.estimator)
+        return {}
+
+    entrance_sampling.build_table(spec, run_batch, n_rays=2_000)
+    (est,) = seen
+    assert est.reverse_chain == 0 and not est.entrance_sampling
+    assert est.delta_chain == 4 and est.nee
