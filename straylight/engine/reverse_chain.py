@@ -125,13 +125,22 @@ def _source_linear(spec) -> bool:
     return bool(getattr(spec.sources[0], "polarization", UNPOLARIZED).is_linear)
 
 
+def _local(v, n) -> np.ndarray:
+    """World directions ``v`` (m, 3) in the frames (t, b, n) of normals ``n`` (sources.orthonormal_basis)."""
+    t, b = orthonormal_basis(n)
+    return np.stack([_dot(v, t), _dot(v, b), _dot(v, n)], axis=1)
+
+
+def _beam_footprint(src) -> float:
+    """Area (mm^2) the collimated disk ``src`` covers across its beam: pi r^2 |d . n_src|."""
+    return float(np.pi * src.radius_mm ** 2 * abs(float(np.dot(src.direction, src.normal))))
+
+
 def _brdf(spec, mat, n, wi, wo, with_pdf=False):
     """Unpolarized BRDF of materials ``mat`` at frames of normals ``n`` (world directions wi toward
     the light, wo toward the viewer, both on the normal's side); with ``with_pdf`` also the
     material's sampling pdf of wo (the walk's draw there)."""
-    t, b = orthonormal_basis(n)
-    li = np.stack([_dot(wi, t), _dot(wi, b), _dot(wi, n)], axis=1)
-    lo = np.stack([_dot(wo, t), _dot(wo, b), _dot(wo, n)], axis=1)
+    li, lo = _local(wi, n), _local(wo, n)
     f = np.zeros(len(mat))
     pdf = np.zeros(len(mat))
     pol = spec.options.physics.polarization
@@ -174,7 +183,7 @@ def source_connection(spec, scene, e):
     g = g[~blocked]
     if len(g) == 0:
         return none[:3] + (shadows,)
-    footprint = np.pi * src.radius_mm ** 2 * abs(denom)
+    footprint = _beam_footprint(src)
     wi = np.ascontiguousarray(np.broadcast_to(-d, (len(g), 3)))
     f, pdf = _brdf(spec, e.material[g], e.normal[g], wi, e.omega[g], with_pdf=True)
     p_area = _entrance_density(spec, src, q[g]) * cos_p[g] / footprint
@@ -249,9 +258,7 @@ class EyeTable:
         n0 = self.normals[j]
         side = np.where(eye @ n0 >= 0.0, 1.0, -1.0)
         nz = side[:, None] * n0[None, :]
-        t, b = orthonormal_basis(nz)
-        local = np.stack([_dot(eye, t), _dot(eye, b), _dot(eye, nz)], axis=1)
-        return self.density(np.full(len(eye), j), side, invert_cosine_hemisphere_sample(local))
+        return self.density(np.full(len(eye), j), side, invert_cosine_hemisphere_sample(_local(eye, nz)))
 
 
 def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
@@ -485,7 +492,7 @@ class ReverseChains:
         self.sides = 2.0 if spec.options.output.detector_sides == "both" else 1.0
         self.w0 = ctx.start_weight_w
         src = spec.sources[0]
-        self.source_footprint = np.pi * src.radius_mm ** 2 * abs(float(np.dot(src.direction, src.normal)))
+        self.source_footprint = _beam_footprint(src)
         self.p_walk = np.zeros(n)  # per anchored ray: the walk's density of (P, omega) (area x solid angle)
         self.cos_out = np.zeros(n)  # and the cosine of omega at P
         self.ends = self._trace_eyes(ctx)

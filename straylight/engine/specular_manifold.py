@@ -25,13 +25,15 @@ implicit function theorem): with F(x; z) = 0 at the solution, dx/dz = -(dF/dx)^-
 central differences, z moved along the two tangents of the detector at z), dX_1/dz from the
 parametrisation, d omega/dz = (I - omega omega^T) dX_1/dz / |X_1 - P| and |d omega/dA_z| = |d omega/da
 x d omega/db|. For no interface at all this is cos_z / d^2 (next-event estimation's term); for a
-plane mirror cos_z / d'^2 with d' the unfolded length (tests/straylight/test_specular_manifold.py).
+plane mirror cos_z / d'^2 with d' the unfolded length (tests/straylight/test_specular_nee.py).
 """
 from __future__ import annotations
 
 from typing import NamedTuple
 
 import numpy as np
+
+from straylight.sources import orthonormal_basis
 
 NEWTON_ITER = 20
 GIVE_UP_AFTER = 5  # iterations after which a row still far from a root stops
@@ -300,8 +302,7 @@ def implicit_geometry_term(seq, sol: Solution, p, z, nz):
     """:func:`geometry_term` by the implicit function theorem, for any sequence."""
     m = len(p)
     k = len(seq)
-    t, _ = _unit(np.cross(nz, np.where(np.abs(nz[:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]])))
-    b = np.cross(nz, t)
+    t, b = orthonormal_basis(nz)  # any orthonormal tangents: |d omega/dt x d omega/db| does not depend on them
     with np.errstate(invalid="ignore", divide="ignore"):
         Jx = _jacobian(seq, sol.x, p, z)
         Jz = np.empty((m, 2 * k, 2))
