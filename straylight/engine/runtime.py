@@ -51,10 +51,12 @@ def tune_allocator() -> bool:
 
 def _table_key(spec: TraceSpec) -> tuple:
     """What a sampling table depends on: geometry, seed, sources and materials (by identity, kept
-    alive by the entry so their ids stay theirs), detector sides and polarization."""
+    alive by the entry so their ids stay theirs), detector sides, polarization and the estimator
+    options (the entrance pilot traces with them, the eye chains reach as far as they say: a table
+    kept from another estimator set would make a trace's numbers depend on what the process ran before)."""
     opt = spec.options
     return (spec.token, spec.seed, tuple(id(s) for s in spec.sources), tuple(id(m) for m in spec.materials),
-            opt.output.detector_sides, opt.physics.polarization)
+            opt.output.detector_sides, opt.physics.polarization, opt.estimator)
 
 
 class Runtime:

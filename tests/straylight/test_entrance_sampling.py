@@ -114,3 +114,18 @@ def test_the_pilot_runs_without_the_reverse_chains(wide_slab):
     (est,) = seen
     assert est.reverse_chain == 0 and not est.entrance_sampling
     assert est.delta_chain == 4 and est.nee
+
+
+def test_a_trace_does_not_depend_on_what_the_process_traced_before(wide_slab):
+    """The kept tables are keyed by the estimator options too: the entrance pilot traces with them, so a
+    table kept from another estimator set would give other numbers for the same seed."""
+    from straylight.engine.runtime import runtime
+
+    sc, src, mats = wide_slab
+    other = TraceOptions(estimator=EstimatorOptions(nee=True, entrance_sampling=True, delta_chain=4))
+    runtime().forget_tables()
+    alone = trace(sc, src, 4_000, seed=9, materials=mats, options=ENTRANCE).detectors["det"].power_w
+    runtime().forget_tables()
+    trace(sc, src, 4_000, seed=9, materials=mats, options=other)
+    after = trace(sc, src, 4_000, seed=9, materials=mats, options=ENTRANCE).detectors["det"].power_w
+    assert after == alone
