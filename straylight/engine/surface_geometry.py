@@ -76,15 +76,12 @@ def cast_branches(spec, scene, origin, d) -> BranchHits:
     hit = np.flatnonzero(tri >= 0)
     tri = tri[hit]
     o, dh = origin[hit], d[hit]
-    part = spec.triangle_part[tri].astype(np.int64)
-    cos_in = _dot(dh, scene.normals[tri])
-    flat = np.abs(cos_in) >= 1e-12
-    dist = (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], o)) / np.where(flat, cos_in, 1.0)
-    edge = np.flatnonzero(~flat)
-    if len(edge):
+
+    def edge_on(edge):
         v0, normal, centroid = isect.planes
-        dist[edge] = plane_distance(v0, normal, centroid, tri[edge], o[edge], dh[edge])
-    return BranchHits(hit, tri, dist, part, cos_in)
+        return plane_distance(v0, normal, centroid, tri[edge], o[edge], dh[edge])
+
+    return _branch_hits(spec, scene, hit, tri, o, dh, edge_on)
 
 
 def _cast_with_distances(spec, scene, origin, d) -> BranchHits:
@@ -92,12 +89,20 @@ def _cast_with_distances(spec, scene, origin, d) -> BranchHits:
     tri, dist = scene.isect.intersect(origin, d)
     tri, dist = np.asarray(tri), np.asarray(dist, dtype=np.float64)
     hit = np.flatnonzero(tri >= 0)
-    tri, dist = tri[hit], dist[hit]
-    o = origin[hit]
+    dist = dist[hit]
+    return _branch_hits(spec, scene, hit, tri[hit], origin[hit], d[hit], lambda edge: dist[edge])
+
+
+def _branch_hits(spec, scene, hit, tri, o, dh, edge_distance) -> BranchHits:
+    """:class:`BranchHits` of the rays ``hit`` (meeting triangles ``tri`` from ``o`` along ``dh``): the
+    plane distance in float64, ``edge_distance(rows)`` where a ray runs edge-on."""
     part = spec.triangle_part[tri].astype(np.int64)
-    cos_in = _dot(d[hit], scene.normals[tri])
+    cos_in = _dot(dh, scene.normals[tri])
     flat = np.abs(cos_in) >= 1e-12
-    dist = np.where(flat, (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], o)) / np.where(flat, cos_in, 1.0), dist)
+    dist = (scene.arrays.plane_d[tri] - _dot(scene.normals[tri], o)) / np.where(flat, cos_in, 1.0)
+    edge = np.flatnonzero(~flat)
+    if len(edge):
+        dist[edge] = edge_distance(edge)
     return BranchHits(hit, tri, dist, part, cos_in)
 
 
