@@ -23,6 +23,10 @@ KIND_DETECTOR = 3
 # same kind marks a diffraction in the stored events (a detector part never diffracts).
 KIND_DIFFRACTION = 3
 KIND_NAMES = {KIND_SCATTER: "scatter", KIND_SPECULAR: "specular", KIND_DIFFRACTION: "diffraction"}
+# The path report's ancestry classes and groupings (straylight.analyses.paths_report); here, light to
+# import, for the command line's choices.
+ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more", "diffracted")
+GROUP_BY = ("sequence", "family", "first_part", "last_part", "ancestry")
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)

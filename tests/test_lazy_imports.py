@@ -141,3 +141,19 @@ def test_the_rule_tells_heavy_from_light():
     assert is_heavy("straylight.engine.vec3")  # compiles kernels when imported
     assert not is_heavy("materials.base") and not is_heavy("dataclasses")
     assert sys.modules.get(__name__) is not None
+
+
+def test_building_the_command_line_parser_loads_no_heavy_library():
+    """``straylight --help``, a mistyped flag and every command's start pay only for argparse: the parser's
+    help texts and choices come from light modules (straylight.engine.hurb's METHOD, not .diffraction, which
+    starts numba; straylight.paths' ANCESTRY, not analyses.paths_report, which imports the tracer)."""
+    import subprocess
+
+    code = ("import sys; from straylight.cli.main import build_parser; build_parser(); "
+            "print(' '.join(sorted(sys.modules)))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                            cwd=ROOT).stdout.split()
+    heavy = sorted({m.split(".")[0] for m in loaded} & HEAVY)
+    project = {"straylight.engine.diffraction", "straylight.engine.edge_index", "straylight.analyses.paths_report",
+               "straylight.trace", "straylight.engine.backends.dask"} & set(loaded)
+    assert not heavy and not project, f"building the parser imported {heavy + sorted(project)}"

@@ -33,11 +33,8 @@ from straylight.analyses.estimators import estimator_options
 from straylight.analyses.pst import detector_name
 from straylight.analyses.tables import TableRepr
 from straylight.execution import Execution, as_execution
-from straylight.paths import sequence_label
+from straylight.paths import ANCESTRY, GROUP_BY, sequence_label
 from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
-
-ANCESTRY = ("direct", "specular_only", "scattered_once", "scattered_more", "diffracted")
-GROUP_BY = ("sequence", "family", "first_part", "last_part", "ancestry")
 
 
 def ancestry_of(events) -> str:

@@ -203,6 +203,14 @@ class Setup:
     detector_area_mm2: float | None = None  # None: straylight.detectors.sensitive_area of the part
 
 
+def _tight_layout(fig) -> None:
+    """``fig.tight_layout()``'s layout (same subplot parameters, same pixels), done once: ``Figure.tight_layout``
+    leaves a placeholder layout engine on the figure, for which ``savefig`` lays the figure out again with a
+    throwaway draw before the real one (a tenth of a second for a log axis with many ticks)."""
+    from matplotlib.layout_engine import TightLayoutEngine
+
+    TightLayoutEngine().execute(fig)
+
 
 @dataclass(frozen=True, eq=False)
 class PstResult(TableRepr, ResultFiles):
@@ -297,9 +305,11 @@ class PstResult(TableRepr, ResultFiles):
 
             fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
         elif own:  # a file only: matplotlib's Figure API, without pyplot's import and figure manager
+            from matplotlib.backends.backend_agg import FigureCanvasAgg
             from matplotlib.figure import Figure
 
             fig = Figure(figsize=(7, 4.5), dpi=120)
+            FigureCanvasAgg(fig)  # a real renderer for the layout (else each layout prints the figure to get one)
             ax = fig.subplots()
         doubtful = np.array([bool(set(r[FLAG_COLUMN].split(";")) & UNTRUSTED_FLAGS) for r in self.flagged_rows()])
         for phi in np.unique(self.azimuth_deg):
@@ -330,7 +340,7 @@ class PstResult(TableRepr, ResultFiles):
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
         if own:
-            fig.tight_layout()
+            _tight_layout(fig)
             if path is not None:
                 atomicio.write_figure(fig, path)
         return ax
@@ -409,7 +419,7 @@ class SweepResult(ResultFiles):
         ax.set_title(f"Design sweep: {PARAMETER_LABELS.get(self.parameter, self.parameter)}\n"
                      f"coating {self.material}; {self.rays:.2g} rays per point, 1-sigma error bars", fontsize=10)
         if own:
-            fig.tight_layout()
+            _tight_layout(fig)
             if path is not None:
                 atomicio.write_figure(fig, path)
         return ax

@@ -14,7 +14,7 @@ from pathlib import Path
 
 
 def add_parser(subparsers):
-    from straylight.analyses.paths_report import ANCESTRY, GROUP_BY
+    from straylight.paths import ANCESTRY, GROUP_BY  # not analyses.paths_report: the parser stays light
     from straylight.cli.pst import add_common_scene_args, add_dask_out_args, add_one_angle_args
 
     p = subparsers.add_parser("paths", help="stray-light path report at one off-axis angle",

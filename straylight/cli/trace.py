@@ -10,7 +10,7 @@ import warnings
 
 
 def add_parser(subparsers) -> None:
-    from straylight.engine.diffraction import METHOD
+    from straylight.engine.hurb import METHOD  # not .diffraction: the parser stays light (no numba)
 
     p = subparsers.add_parser("trace", help="Monte Carlo trace of a scene file (CONTRACTS §6)",
                               description="Trace a scene TOML and write powers with standard errors as JSON. "

@@ -27,13 +27,11 @@ import numpy as np
 from geometry.analytic import Plane
 from geometry.edges import sharp_edges
 from straylight.engine.edge_index import EdgeTable, band_prisms, edge_table, passages
-from straylight.engine.hurb import GAMMA, deflect, tan_sigma
+from straylight.engine.hurb import GAMMA, METHOD, deflect, tan_sigma
 from straylight.engine.options import TraceError
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_DIFFRACTION, RayBatch
 from straylight.intersect.embree import EmbreeIntersector
 from straylight.paths import mix_key
-
-METHOD = "HURB (Heisenberg uncertainty ray bending, Freniere et al. 1999)"
 
 
 @dataclass(frozen=True, eq=False)

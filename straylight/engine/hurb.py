@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+METHOD = "HURB (Heisenberg uncertainty ray bending, Freniere et al. 1999)"  # the method's name in help and pst.json
 GAMMA = math.sqrt(2.0 / math.pi)  # default uncertainty factor (module docstring)
 FRENIERE_GAMMA = 1.0  # Freniere et al. 1999
 
