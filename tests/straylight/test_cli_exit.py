@@ -1,5 +1,5 @@
 """The ``straylight`` command skips the garbage collections of the interpreter's shutdown
-(straylight.cli.main._no_collection_at_exit): a third of a CPU second after a ``pst`` run."""
+(straylight.cli.main._no_collection_at_exit) and runs fewer full collections during a command."""
 from __future__ import annotations
 
 import subprocess
@@ -20,3 +20,17 @@ def test_the_command_freezes_the_collector_at_exit():
     count = int(out.rsplit("frozen objects at exit:", 1)[1].split()[0])
     assert count > 1000, out[-300:]
 
+
+
+def test_full_collections_are_rarer_during_a_command_and_restored_after(monkeypatch, tmp_path):
+    import gc
+
+    import straylight.cli.pst
+    from straylight.cli.main import main
+
+    seen = []
+    monkeypatch.setattr(straylight.cli.pst, "run", lambda args: seen.append(gc.get_threshold()) or 0)
+    before = gc.get_threshold()
+    assert main(["pst", "--builtin", "tube", "--rays", "10", "--out", str(tmp_path / "out")]) == 0
+    assert seen and seen[0][:2] == before[:2] and seen[0][2] >= 100  # the young generations as before
+    assert gc.get_threshold() == before
