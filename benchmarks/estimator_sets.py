@@ -15,8 +15,12 @@
 ``first_lobe``
     ``lobes`` without the second-vertex lobe draw (to measure what each draw buys).
 ``manifold``
-    the default with specular next-event estimation (``specular_nee``): scatter vertices joined to the
-    detector through one or two lens surfaces, to measure what it buys.
+    the default with specular next-event estimation through up to two interfaces (``specular_nee=2``;
+    the default joins scatter vertices to the detector through one lens surface), to measure what the
+    second buys.
+``reverse``
+    the default without specular next-event estimation (``specular_nee=0``): the set before it, to measure
+    what it buys.
 ``baseline``
     the first estimator set (first-vertex sampling joined to the detector by a uniform point only,
     roulette at 1e-3), so a benchmark can time before and after in one run.
@@ -49,7 +53,8 @@ def register() -> None:
     """Make every history set a choice of ``estimator_options`` and of ``--estimators``."""
     for name, options in HISTORY_SETS.items():
         register_estimator_set(name, options)
-    register_estimator_set("manifold", replace(ESTIMATOR_SETS["default"], specular_nee=True))
+    register_estimator_set("manifold", replace(ESTIMATOR_SETS["default"], specular_nee=2))
+    register_estimator_set("reverse", replace(ESTIMATOR_SETS["default"], specular_nee=0))
 
 
 register()

@@ -28,6 +28,13 @@
     refractor, which the walk found by chance) is joined to the source and to the walk's scatter
     vertices, sharing those runs with the split trees by the balance heuristic.
 
+    With a refracting material it also joins the walk's plain scatter vertices to the detector through
+    one analytic lens surface, reflected or refracted (``specular_nee = 1``, straylight.engine
+    .specular_nee, Newton's method on the surface): "vane -> lens back face (R) -> sensor", a vane
+    behind the lens seen in its flat back face, held 86 % of the variance at 5 deg on the guide scope
+    and made 20 deg's error bar unreliable (VOV up to 0.9); it costs 10-20 % CPU per ray (docs/engine.md,
+    "Specular next-event estimation").
+
 Other sets (the history sets the benchmarks time the default against) are registered by
 :func:`register_estimator_set`: ``benchmarks/estimator_sets.py`` registers them for the benchmark
 runs and for its ``straylight`` command wrapper.
@@ -49,7 +56,7 @@ ESTIMATOR_SETS = {
     "default": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
                                 second_vertex_lobe_sampling=True, rr_threshold=ANALYSIS_RR_THRESHOLD,
                                 delta_chain=DELTA_CHAIN_INTERFACES, entrance_sampling=True,
-                                reverse_chain=DELTA_CHAIN_INTERFACES),
+                                reverse_chain=DELTA_CHAIN_INTERFACES, specular_nee=1),
 }
 
 
@@ -78,5 +85,5 @@ def estimator_options(name: str = "default", options: TraceOptions | None = None
         if not any(flags_of(m) & ComponentFlags.GLOSSY for m in models if not isinstance(m, str)):
             chosen = replace(chosen, rr_threshold=options.estimator.rr_threshold)
         if not any(flags_of(m) & ComponentFlags.DELTA_TRANSMISSION for m in models if not isinstance(m, str)):
-            chosen = replace(chosen, entrance_sampling=False, reverse_chain=0)
+            chosen = replace(chosen, entrance_sampling=False, reverse_chain=0, specular_nee=0)
     return replace(options, estimator=chosen)

@@ -34,7 +34,7 @@ class EstimatorOptions:
     delta_chain: int = 0  # > 0: runs of up to this many interfaces into a detector followed by splitting
     entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
     reverse_chain: int = 0  # > 0: eye chains from the detectors through up to this many interfaces, joined to the walk
-    specular_nee: bool = False  # scatter vertices joined to the detectors through 1-2 analytic interfaces (needs delta_chain)
+    specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1 or 2) analytic interfaces
 
     def __post_init__(self):
         if not (0.0 <= float(self.rr_threshold) < 1.0):
@@ -50,6 +50,9 @@ class EstimatorOptions:
             raise TraceError(f"delta_chain must be >= 0 (interfaces per split tree), got {self.delta_chain}")
         if int(self.reverse_chain) < 0:
             raise TraceError(f"reverse_chain must be >= 0 (interfaces per eye chain), got {self.reverse_chain}")
+        if not isinstance(self.specular_nee, (int, np.integer)) or not 0 <= int(self.specular_nee) <= 2:
+            raise TraceError(f"specular_nee must be 0, 1 or 2 (interfaces per connection), got {self.specular_nee!r}")
+        object.__setattr__(self, "specular_nee", int(self.specular_nee))  # True (the former switch) is 1
         if int(self.delta_chain) > 0 and self.reflection_split:
             raise TraceError("delta_chain includes reflection_split (its one-reflection paths): turn one of them off")
 

@@ -8,7 +8,7 @@ the sensor only when the walk's scatter direction happens to go where the run la
 guide scope at 5-15 deg those paths held 86-88 % of the variance (benchmarks/variance_paths.py).
 
 At every walk vertex P on a plain scatterer (a non-delta material; straylight.engine.reverse_chain
-.scatter_ends), for each candidate sequence S of 1 or 2 interfaces (:func:`candidate_sequences`:
+.scatter_ends), for each candidate sequence S of 1 to ``specular_nee`` (1 or 2) interfaces (:func:`candidate_sequences`:
 every sequence of reflections and transmissions over the parts whose kind declares
 ``Capability.DELTA_CHAIN`` and that have an analytic conic, asphere or plane surface, no part twice
 in a row) and each detector j: a point z uniform on the detector (density 1 / A_j), the interface
@@ -29,15 +29,18 @@ hit after P (the walk's own hits after such runs are already the trees', strayli
 .delta_chain). The two are combined by the balance heuristic over the direction omega at P:
 m = p_nee / (p_nee + p_walk), p_nee = 1 / (A_j |d omega/dA_z|) (solid-angle density of this
 estimator's z), p_walk the walk's pdf of omega at P. A tree branch that reaches detector j after
-1-2 interfaces keeps p_walk / (p_walk + p_nee) (:meth:`SpecularNee.branch_share`), where p_nee is
+1 to ``specular_nee`` interfaces keeps p_walk / (p_walk + p_nee) (:meth:`SpecularNee.branch_share`), where p_nee is
 found by re-running the same deterministic solve for that (P, z, S) and is 0 unless it lands on
 the branch's own omega: where Newton misses a solution the tree keeps the whole path, so the sum
 stays unbiased whatever the solver finds. Vertices whose runs the reverse chains own (an anchored P,
 straylight.engine.reverse_chain.ReverseChains.owns) are left to them.
 
-Requires the split trees (``delta_chain >= 2``), one polarization mode ``u``, no target parts (its
-weights use the materials' own pdf). Cost per plain vertex: one Newton solve per sequence and
-detector (vectorised), casts only for converged solutions (2-3 each).
+Requires the split trees (``delta_chain >= specular_nee``), one polarization mode ``u``, no target parts
+(its weights use the materials' own pdf). Cost per plain vertex: one Newton solve per sequence and
+detector (vectorised), casts only for converged solutions (2-3 each). A singlet has 4 sequences of one
+interface and 8 more of two (:func:`candidate_sequences`, before the media rule); the default estimator
+set uses ``specular_nee = 1`` (docs/engine.md: the single reflections carry what it buys on the guide
+scope, at a third of the cost).
 """
 from __future__ import annotations
 
@@ -137,8 +140,8 @@ def unsupported(spec) -> str | None:
     est = spec.options.estimator
     if not interface_parts(spec, parts_with(spec, Capability.DELTA_CHAIN)):
         return "the scene has no interface with an analytic surface (conic, asphere or plane) to connect through"
-    if int(est.delta_chain) < MAX_INTERFACES:
-        return f"it shares its paths with the split trees: it needs delta_chain >= {MAX_INTERFACES}"
+    if int(est.delta_chain) < int(est.specular_nee):
+        return f"it shares its paths with the split trees: it needs delta_chain >= specular_nee ({est.specular_nee})"
     if est.target_parts:
         return "its balance weights use the materials' own pdf; target sampling draws from a mixture"
     if spec.options.physics.polarization != "u":
@@ -276,7 +279,8 @@ class SpecularNee:
 
     def __init__(self, ctx, splits):
         spec, scene = ctx.spec, ctx.scene
-        self.seqs = candidate_sequences(spec, splits)
+        self.max_k = int(spec.options.estimator.specular_nee)  # interfaces per connection, 1..MAX_INTERFACES
+        self.seqs = candidate_sequences(spec, splits, self.max_k)
         self.end_material = scatter_ends(spec)
         self.splits = splits
         n = ctx.n_rays
@@ -313,7 +317,7 @@ class SpecularNee:
         rays' polarization states): the connections through every candidate sequence."""
         rays = event.rays
         rows, chain_k = self.vertices(event, cont)
-        mine = chain_k < MAX_INTERFACES
+        mine = chain_k < self.max_k
         rows, chain_k = rows[mine], chain_k[mine]
         if len(rows) == 0:
             return
@@ -404,7 +408,7 @@ class SpecularNee:
         rays = event.rays
         out = np.ones(len(rows))
         r = rays.ray[rows]
-        ours = (self.depth[r] >= 0) & (rays.depth[rows] == self.depth[r] + 1) & (k <= MAX_INTERFACES) \
+        ours = (self.depth[r] >= 0) & (rays.depth[rows] == self.depth[r] + 1) & (k <= self.max_k) \
             & (k > self.chain_k[r])
         g = np.flatnonzero(ours)
         if len(g) == 0:

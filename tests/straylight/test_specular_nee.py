@@ -13,6 +13,7 @@ on agrees with the analog walk (another seed) within 4 sigma, the ledger closes,
 and path records of its family), and the error per ray is smaller than with the split trees alone.
 """
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -21,8 +22,12 @@ from engine_helpers import disk_part, quad_part
 from geometry.analytic import Conic, Cylinder, Plane
 from geometry.mesh import Part, Scene
 from materials import load_material
+from straylight.analyses.estimators import estimator_options
 from straylight.engine import specular_manifold as sm
-from straylight.engine.specular_nee import unsupported
+from straylight.engine.capabilities import Capability
+from straylight.engine.interactions.registry import parts_with
+from straylight.engine.options import TraceError
+from straylight.engine.specular_nee import candidate_sequences, unsupported
 from straylight.sources import CollimatedDisk
 from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, make_spec, trace
 
@@ -161,7 +166,7 @@ def _lens_scene():
 
 
 TREES = EstimatorOptions(delta_chain=4)
-MANIFOLD = EstimatorOptions(delta_chain=4, specular_nee=True)
+MANIFOLD = EstimatorOptions(delta_chain=4, specular_nee=2)
 ANALOG = EstimatorOptions(nee=False)
 
 
@@ -171,11 +176,14 @@ def _run(scene, n, seed, est, record_paths=False):
                  options=TraceOptions(estimator=est, output=OutputOptions(record_paths=record_paths)))
 
 
-@pytest.mark.parametrize("build,n_analog", [(_mirror_scene, 300_000), (_lens_scene, 300_000)])
-def test_agrees_with_the_analog_walk_and_beats_the_trees(build, n_analog):
+@pytest.mark.parametrize("build,n_analog,k", [(_mirror_scene, 300_000, 2), (_mirror_scene, 300_000, 1),
+                                               (_lens_scene, 300_000, 2)])
+def test_agrees_with_the_analog_walk_and_beats_the_trees(build, n_analog, k):
+    """Through up to k interfaces (the mirror scene's family is one reflection: k = 1, the default set's,
+    already has it all; the singlet's is two refractions)."""
     scene = build()
     n = 20_000
-    on = _run(scene, n, 3, MANIFOLD, record_paths=True)
+    on = _run(scene, n, 3, replace(MANIFOLD, specular_nee=k), record_paths=True)
     trees = _run(scene, n, 3, TREES)
     analog = _run(scene, n_analog, 4, ANALOG)
     a, t, b = on.detectors["det"], trees.detectors["det"], analog.detectors["det"]
@@ -220,6 +228,37 @@ def test_polarized_scatter_agrees_with_the_split_trees():
     assert abs(on.ledger["balance_residual_w"]) < 1e-9 * on.emitted_w
 
 
+def test_one_interface_leaves_the_two_refraction_paths_to_the_trees():
+    """specular_nee = 1 on the singlet: only the single reflections are candidates (no single
+    refraction starts and ends in the air), so the plate seen through the glass stays the trees' alone
+    (their branches keep the whole path: p_nee = 0), and the sum still agrees with the analog walk."""
+    sc, src, mats = _lens_scene()
+    spec = make_spec(sc, src, 100, 0, mats, TraceOptions(estimator=replace(MANIFOLD, specular_nee=1)))
+    splits = parts_with(spec, Capability.DELTA_CHAIN)
+    one, two = candidate_sequences(spec, splits, 1), candidate_sequences(spec, splits, 2)
+    assert {s.k for s in one} == {1} and all(all(s.reflect) for s in one) and len(one) == 2
+    assert max(s.k for s in two) == 2 and len(two) > len(one)
+    scene = (sc, src, mats)
+    single = _run(scene, 20_000, 3, replace(MANIFOLD, specular_nee=1))
+    both = _run(scene, 20_000, 3, MANIFOLD)
+    analog = _run(scene, 300_000, 4, ANALOG)
+    a, b = single.detectors["det"], analog.detectors["det"]
+    assert "specular_nee" in single.strategies.on and single.shadow_rays < both.shadow_rays
+    assert abs(a.power_w - b.power_w) <= 4 * math.hypot(a.stderr_w, b.stderr_w), (a, b)
+    assert abs(single.ledger["balance_residual_w"]) < 1e-9 * single.emitted_w
+
+
+def test_the_option_counts_interfaces_and_the_default_set_uses_one_with_glass():
+    assert EstimatorOptions(specular_nee=True).specular_nee == 1  # the former switch
+    for bad in (3, -1, 1.5, "2"):
+        with pytest.raises(TraceError, match="specular_nee"):
+            EstimatorOptions(specular_nee=bad)
+    _, _, lens_mats = _lens_scene()
+    assert estimator_options("default", materials=lens_mats).estimator.specular_nee == 1
+    _, _, mirror_mats = _mirror_scene()  # no refracting material: the default set leaves it off
+    assert estimator_options("default", materials=mirror_mats).estimator.specular_nee == 0
+
+
 def test_what_rules_it_out():
     sc, src, mats = _mirror_scene()
 
@@ -227,8 +266,8 @@ def test_what_rules_it_out():
         return unsupported(make_spec(sc, src, 100, 0, mats, TraceOptions(estimator=est)))
 
     assert why(MANIFOLD) is None
-    assert "delta_chain" in why(EstimatorOptions(delta_chain=1, specular_nee=True))
-    assert "target" in why(EstimatorOptions(delta_chain=4, specular_nee=True, target_parts=("plate",)))
+    assert "delta_chain" in why(EstimatorOptions(delta_chain=1, specular_nee=2))
+    assert "target" in why(EstimatorOptions(delta_chain=4, specular_nee=2, target_parts=("plate",)))
     flat = Scene(tuple(p for p in sc.parts if p.name != "mirror") + (
         _quad("mirror", (-30, -30, 40), (0, 60, 0), (60, 0, 0), "mirror"),))
     assert "analytic" in unsupported(make_spec(flat, src, 100, 0, mats, TraceOptions(estimator=MANIFOLD)))

@@ -14,7 +14,7 @@ class SpecularNeeStrategy(Strategy):
     # Capability.NONE: its vertices are plain scatter vertices and the interfaces it crosses need an
     # analytic surface, which no mesh part of a kind has (the contract scenes); it crosses only parts
     # whose kind declares DELTA_CHAIN (impl.interface_parts). Its own checks: test_specular_nee.py.
-    estimator = Estimator("specular_nee", replace(ANALOG, delta_chain=4, specular_nee=True), Capability.NONE,
+    estimator = Estimator("specular_nee", replace(ANALOG, delta_chain=4, specular_nee=2), Capability.NONE,
                           reference=False, requires=("delta_chain",))
     state_key = "specular_nee"
 
