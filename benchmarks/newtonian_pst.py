@@ -42,16 +42,39 @@ def _cpu_children() -> float:
     return r.ru_utime + r.ru_stime
 
 
+#: the commands' compiled modules: kept as an installed package keeps them (pip byte-compiles on install);
+#: a machine with PYTHONDONTWRITEBYTECODE set (this one) would otherwise compile ~165 modules from source
+#: at every point (~0.3 CPU s) and time that instead of the command
+PYCACHE = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "straylight" / "benchmark-pycache"
+_warm: set = set()
+
+
+def _command_env() -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env["PYTHONPYCACHEPREFIX"] = str(PYCACHE)
+    return env
+
+
 def run_point(scene, angle, seed, estimators, max_seconds, workers, target=0.02) -> dict:
-    """One whole ``straylight pst`` command for one angle; its times and what pst.json says."""
+    """One whole ``straylight pst`` command for one angle; its times and what pst.json says. The first
+    point of a process (per scene and estimator set) is preceded by the same command capped at 2e4 rays,
+    untimed: the modules compiled and the kernels' caches written once, as on a machine where straylight
+    has run before."""
     exe = [sys.executable, str(HERE / "estimator_sets.py")]  # ``straylight`` with the history sets registered
+    env = _command_env()
+    if (str(scene), estimators) not in _warm:
+        with tempfile.TemporaryDirectory(prefix="newtonian_pst_warm_") as out:
+            subprocess.run([*exe, "pst", str(scene), "--angles-deg", str(angle), "--target-rel-error", "0.5",
+                            "--max-rays", "20000", "--out", out, "--estimators", estimators],
+                           capture_output=True, text=True, env=env)
+        _warm.add((str(scene), estimators))
     with tempfile.TemporaryDirectory(prefix="newtonian_pst_") as out:
         cmd = [*exe, "pst", str(scene), "--angles-deg", str(angle), "--target-rel-error", str(target),
                "--seed", str(seed), "--max-seconds", str(max_seconds), "--out", out, "--estimators", estimators]
         if workers:
             cmd += ["--workers", str(workers)]
         c0, t0 = _cpu_children(), time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True)
+        proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
         wall, cpu = time.perf_counter() - t0, _cpu_children() - c0
         if proc.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd)} failed: {proc.stderr.strip()[-400:]}")
