@@ -45,6 +45,7 @@ scope, at a third of the cost).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -52,6 +53,7 @@ from geometry.analytic import Conic
 from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.smooth import Dielectric
 from straylight.engine import specular_manifold as manifold
+from straylight.engine import specular_reach as reach
 from straylight.engine.capabilities import Capability
 from straylight.engine.interactions.brdf_scatter import LocalFrames, frames_numpy
 from straylight.engine.interactions.registry import parts_with
@@ -86,6 +88,47 @@ class Sequence:
 
     def codes(self) -> np.ndarray:
         return np.array([p * 4 + EVENT_SPECULAR for p in self.parts], dtype=np.int64)
+
+    @cached_property
+    def ends(self) -> tuple:
+        """((side test, air side) of the first vertex, the same of the last): where P and z must lie
+        (straylight.engine.specular_reach; None where it does not say)."""
+        out = []
+        for vtx in (self.vertices[0], self.vertices[-1]):
+            side, test = reach.air_side(vtx), reach.side_test(vtx.surface)
+            out.append(None if side is None or test is None else (test, side))
+        return tuple(out)
+
+
+def reaches(seq: Sequence, p, z) -> np.ndarray:
+    """(m,) bool: the rows whose P (m, 3) can lie on the air side of the sequence's first interface and
+    whose z (m, 3) on the air side its last one leaves into (straylight.engine.specular_reach). The
+    rows it refuses are rows :func:`connect`'s side checks refuse: a part of the deterministic rule,
+    run by the connections and by the split trees' shares alike."""
+    ok = np.ones(len(p), dtype=bool)
+    for end, q in zip(seq.ends, (p, z)):
+        if end is not None:
+            ok &= reach.may_lie(end[0], end[1], q)
+    return ok
+
+
+def reaches_ball(seq: Sequence, centre_mm, radius_mm: float) -> bool:
+    """Whether any point within ``radius_mm`` of ``centre_mm`` (a detector's bounding ball) can lie on the
+    air side the sequence's last interface leaves into (False: :func:`reaches` refuses every z there)."""
+    end = seq.ends[1]
+    return end is None or bool(reach.may_lie(end[0], end[1], np.asarray(centre_mm, float)[None, :], radius_mm)[0])
+
+
+def detector_ball(det) -> tuple:
+    """(centre, radius) of a ball holding every point of a detector (straylight.detectors.DetectorGeometry):
+    its exact disk, if any, and its triangles."""
+    pts = np.asarray(det.triangles_mm, dtype=np.float64).reshape(-1, 3)
+    disk = getattr(det, "disk", None)
+    centre = pts.mean(axis=0) if disk is None else np.asarray(disk.centre_mm, dtype=np.float64)
+    radius = float(np.linalg.norm(pts - centre, axis=1).max())
+    if disk is not None:
+        radius = max(radius, float(np.sqrt(disk.r2_out)))
+    return centre, radius * (1.0 + 1e-9) + 1e-9
 
 
 def _eta(spec, part: int, front: bool) -> float:
@@ -157,14 +200,17 @@ class Connection:
         self.ok, self.X, self.N, self.omega, self.J = ok, X, N, omega, J
 
 
-def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides: bool) -> tuple[Connection, int]:
+def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides: bool,
+            may=None) -> tuple[Connection, int]:
     """Solve the sequence between p (facing normal ``n_p``) and z (detector normal ``nz``, part
     ``det_part``) and check the path: the sides, the clear apertures, that light leaves P on its
     facing side and reaches the counted side of the detector, and that every segment, cast, meets
-    exactly its intended point. Returns the :class:`Connection` and the casts made."""
-    sol = manifold.solve(seq.vertices, p, z)
-    ok = sol.ok.copy()
+    exactly its intended point. Only the rows :func:`reaches` keeps are solved (``may``: its answer,
+    when the caller has it). Returns the :class:`Connection` and the casts made."""
     m = len(p)
+    may = reaches(seq, p, z) if may is None else may
+    sol = _solve(seq, p, z, may)
+    ok = sol.ok.copy()
     J, omega = np.zeros(m), np.zeros((m, 3))
     g = np.flatnonzero(ok)
     if len(g):
@@ -199,6 +245,23 @@ def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides
         side = np.where(_dot(nxt - sol.X[g, i], n) > 0, 1.0, -1.0)
         here = sol.X[g, i] + eps2 * side[:, None] * n
     return Connection(ok, sol.X, sol.N, omega, J), casts
+
+
+def _solve(seq: Sequence, p, z, rows) -> manifold.Solution:
+    """manifold.solve on the rows ``rows`` (bool), the others not converged (its rows are independent:
+    the same numbers as solving them all)."""
+    if rows.all():
+        return manifold.solve(seq.vertices, p, z)
+    m = len(p)
+    x = np.zeros((m, 2 * seq.k))
+    X = np.full((m, seq.k, 3), np.nan)
+    N = np.full((m, seq.k, 3), np.nan)
+    ok = np.zeros(m, dtype=bool)
+    g = np.flatnonzero(rows)
+    if len(g):
+        sub = manifold.solve(seq.vertices, p[g], z[g])
+        x[g], X[g], N[g], ok[g] = sub
+    return manifold.Solution(x, X, N, ok)
 
 
 def _meets(spec, scene, origin, target, last_part, want: int, surface) -> tuple[np.ndarray, int]:
@@ -291,6 +354,8 @@ class SpecularNee:
         self.pdf = np.zeros(n)  # the walk's pdf of the direction it drew at P
         self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
         self.det_parts = np.asarray(scene.det_parts, dtype=np.int64)
+        # per detector the sequences whose last interface can leave toward some point of it (reaches_ball)
+        self.seqs_to = [[seq for seq in self.seqs if reaches_ball(seq, *detector_ball(det))] for det in scene.detectors]
         self.both = spec.options.output.detector_sides == "both"
         self.path_depth = int(spec.options.output.path_depth)
         self.shadow_rays = 0
@@ -335,46 +400,58 @@ class SpecularNee:
 
     def _connect(self, event, rows, chain_k, column):
         spec, scene, rays, hit = event.spec, event.scene, event.rays, event.hits
+        U = event.uniforms
+        p = hit.point_mm[rows]
+        # per detector its points z, and per sequence the rows it may connect (reaches): the rows none
+        # may are left before the frames and the polarization (every step below is row by row)
+        todo, need = [], np.zeros(len(rows), dtype=bool)
+        for j, det in enumerate(scene.detectors):
+            z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
+            for seq in self.seqs_to[j]:
+                may = (chain_k < seq.k) & reaches(seq, p, z)
+                if may.any():
+                    todo.append((j, seq, may, z, nz))
+                    need |= may
+        if not todo:
+            return
+        sub = np.flatnonzero(need)
+        rows, p = rows[sub], p[sub]
         verts = np.ascontiguousarray(rows)
         frame = LocalFrames(*frames_numpy(verts, rays.direction, hit.facing_normal, hit.part, spec.part_material,
                                           event.uniforms))
         arr = arriving(event, verts, frame)
         evaluate = _unpolarized(spec, frame.material)
-        p, n_p = hit.point_mm[rows], hit.facing_normal[rows]
-        U = event.uniforms
-        for j, det in enumerate(scene.detectors):
-            z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
+        n_p = hit.facing_normal[rows]
+        for j, seq, may, z, nz in todo:
+            z, nz, may = z[sub], nz[sub], may[sub]
             area = self.det_area[j]
-            for seq in self.seqs:
-                pos = np.flatnonzero(chain_k < seq.k)
-                if len(pos) == 0:
-                    continue
-                con, casts = connect(spec, scene, seq, p[pos], n_p[pos], z[pos], nz[pos], int(self.det_parts[j]),
-                                     self.both)
-                self.shadow_rays += casts
-                g = np.flatnonzero(con.ok)
-                if len(g) == 0:
-                    continue
-                at = pos[g]
-                omega = con.omega[g]
-                wo_local = np.stack([_dot(omega, frame.tangent[at]), _dot(omega, frame.bitangent[at]),
-                                     _dot(omega, n_p[at])], axis=1)
-                f, pdf = evaluate(frame.wi_local[at], wo_local, at)
-                S = np.zeros((len(g), 4))
-                S[:, 0] = 1.0
-                e1 = s_vector(omega, n_p[at])
-                if arr is not None:  # the walk's polarized scatter: f = M[0] . S = ratio x f_u, and M S carried on
-                    ratio, use, S_out, e1_out = arr.scattered(event, verts, omega, subset=at)
-                    f = f * ratio
-                    S[use], e1[use] = S_out / S_out[:, :1], e1_out  # M S, normalised as the walk stores it
-                T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
-                J = con.J[g]
-                p_nee = 1.0 / (area * J)
-                mis = p_nee / (p_nee + pdf)
-                value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis
-                keep = np.flatnonzero(value > 0)
-                if len(keep):
-                    self._tally(event, rows[at[keep]], j, seq, z[at[keep]], value[keep])
+            pos = np.flatnonzero(may)
+            con, casts = connect(spec, scene, seq, p[pos], n_p[pos], z[pos], nz[pos], int(self.det_parts[j]),
+                                 self.both, may=np.ones(len(pos), dtype=bool))
+            self.shadow_rays += casts
+            g = np.flatnonzero(con.ok)
+            if len(g) == 0:
+                continue
+            at = pos[g]
+            omega = con.omega[g]
+            wo_local = np.stack([_dot(omega, frame.tangent[at]), _dot(omega, frame.bitangent[at]),
+                                 _dot(omega, n_p[at])], axis=1)
+            f, pdf = evaluate(frame.wi_local[at], wo_local, at)
+            S = np.zeros((len(g), 4))
+            S[:, 0] = 1.0
+            e1 = s_vector(omega, n_p[at])
+            if arr is not None:  # the walk's polarized scatter: f = M[0] . S = ratio x f_u, and M S carried on
+                ratio, use, S_out, e1_out = arr.scattered(event, verts, omega, subset=at)
+                f = f * ratio
+                S[use], e1[use] = S_out / S_out[:, :1], e1_out  # M S, normalised as the walk stores it
+            T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
+            J = con.J[g]
+            p_nee = 1.0 / (area * J)
+            mis = p_nee / (p_nee + pdf)
+            value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis
+            keep = np.flatnonzero(value > 0)
+            if len(keep):
+                self._tally(event, rows[at[keep]], j, seq, z[at[keep]], value[keep])
 
     def _tally(self, event, rows, j, seq, z, value):
         rays, hit = event.rays, event.hits
@@ -415,7 +492,7 @@ class SpecularNee:
             return out
         area = self.det_area[detector]
         p_nee = np.zeros(len(rows))
-        for seq in self.seqs:
+        for seq in self.seqs_to[detector]:  # the others reach no point of it (the same rule as connect's)
             parts = np.array(seq.parts, dtype=np.int64)
             same = (k[g] == seq.k) & np.all(codes[g][:, :seq.k] // 4 == parts[None, :], axis=1)
             at = g[same]
