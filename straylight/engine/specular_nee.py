@@ -99,16 +99,25 @@ class Sequence:
             out.append(None if side is None or test is None else (test, side))
         return tuple(out)
 
+    @cached_property
+    def aperture_ball(self) -> tuple | None:
+        """(centre, radius) of a ball holding the first interface's clear aperture (None: not known)."""
+        test = reach.side_test(self.vertices[0].surface)
+        return None if test is None else reach.aperture_ball(test)
 
-def reaches(seq: Sequence, p, z) -> np.ndarray:
-    """(m,) bool: the rows whose P (m, 3) can lie on the air side of the sequence's first interface and
-    whose z (m, 3) on the air side its last one leaves into (straylight.engine.specular_reach). The
-    rows it refuses are rows :func:`connect`'s side checks refuse: a part of the deterministic rule,
-    run by the connections and by the split trees' shares alike."""
+
+def reaches(seq: Sequence, p, n_p, z) -> np.ndarray:
+    """(m,) bool: the rows whose P (m, 3) can lie on the air side of the sequence's first interface, whose
+    facing side (normal ``n_p``) sees some point of that interface's aperture, and whose z (m, 3) can lie
+    on the air side its last one leaves into (straylight.engine.specular_reach). The rows it refuses
+    are rows :func:`connect`'s checks refuse: a part of the deterministic rule, run by the connections
+    and by the split trees' shares alike."""
     ok = np.ones(len(p), dtype=bool)
     for end, q in zip(seq.ends, (p, z)):
         if end is not None:
             ok &= reach.may_lie(end[0], end[1], q)
+    if seq.aperture_ball is not None:
+        ok &= reach.may_face(p, n_p, *seq.aperture_ball)
     return ok
 
 
@@ -208,7 +217,7 @@ def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides
     exactly its intended point. Only the rows :func:`reaches` keeps are solved (``may``: its answer,
     when the caller has it). Returns the :class:`Connection` and the casts made."""
     m = len(p)
-    may = reaches(seq, p, z) if may is None else may
+    may = reaches(seq, p, n_p, z) if may is None else may
     sol = _solve(seq, p, z, may)
     ok = sol.ok.copy()
     J, omega = np.zeros(m), np.zeros((m, 3))
@@ -401,27 +410,26 @@ class SpecularNee:
     def _connect(self, event, rows, chain_k, column):
         spec, scene, rays, hit = event.spec, event.scene, event.rays, event.hits
         U = event.uniforms
-        p = hit.point_mm[rows]
+        p, n_p = hit.point_mm[rows], hit.facing_normal[rows]
         # per detector its points z, and per sequence the rows it may connect (reaches): the rows none
         # may are left before the frames and the polarization (every step below is row by row)
         todo, need = [], np.zeros(len(rows), dtype=bool)
         for j, det in enumerate(scene.detectors):
             z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
             for seq in self.seqs_to[j]:
-                may = (chain_k < seq.k) & reaches(seq, p, z)
+                may = (chain_k < seq.k) & reaches(seq, p, n_p, z)
                 if may.any():
                     todo.append((j, seq, may, z, nz))
                     need |= may
         if not todo:
             return
         sub = np.flatnonzero(need)
-        rows, p = rows[sub], p[sub]
+        rows, p, n_p = rows[sub], p[sub], n_p[sub]
         verts = np.ascontiguousarray(rows)
         frame = LocalFrames(*frames_numpy(verts, rays.direction, hit.facing_normal, hit.part, spec.part_material,
                                           event.uniforms))
         arr = arriving(event, verts, frame)
         evaluate = _unpolarized(spec, frame.material)
-        n_p = hit.facing_normal[rows]
         for j, seq, may, z, nz in todo:
             z, nz, may = z[sub], nz[sub], may[sub]
             area = self.det_area[j]

@@ -52,9 +52,12 @@ class SideTest(NamedTuple):
 
 
 def side_test(surface) -> SideTest | None:
-    """The :class:`SideTest` of a conic or plane surface, None for any other (an asphere, a cylinder)
-    or where the aperture reaches past the conic's own extent."""
+    """The :class:`SideTest` of a conic or plane surface, None for any other (an asphere, a cylinder),
+    where the aperture reaches past the conic's own extent or where its local frame is not orthonormal."""
     if type(surface) not in (Conic, Plane):
+        return None
+    rot = np.asarray(surface.rotation, dtype=np.float64)
+    if not np.allclose(rot @ rot.T, np.eye(3), rtol=0.0, atol=1e-12):  # a frame built on a non-unit axis
         return None
     lo, hi = surface.rho_range_mm()
     tol = 2e-9 * max(1.0, float(surface.outer_radius_mm))  # Conic.in_aperture's tolerance, and some
@@ -86,3 +89,24 @@ def air_side(vertex) -> bool | None:
     other is not: True front, False back; None when both are (a mirror) or neither."""
     front, back = vertex.medium_front == -1, vertex.medium_back == -1
     return front if front != back else None
+
+
+def aperture_ball(test: SideTest) -> tuple:
+    """(centre (3,), radius) of a ball holding the surface's clear aperture: the aperture's disk about its
+    centre, between the least and the largest sag."""
+    surf = test.surface
+    cu, cv = surf.aperture_center_uv
+    centre = surf.to_world(np.array([[cu, cv, 0.5 * (test.h_lo + test.h_hi)]]))[0]
+    outer = float(surf.outer_radius_mm) * (1.0 + 2e-9) + 2e-9
+    radius = math.hypot(outer, 0.5 * (test.h_hi - test.h_lo))
+    return centre, radius * (1.0 + 1e-9) + 1e-9
+
+
+def may_face(points, normals, centre, radius_mm: float) -> np.ndarray:
+    """(n,) bool: False where the ball (``centre``, ``radius_mm``) lies wholly behind the tangent plane of
+    ``points`` (n, 3) with normals ``normals`` (n, 3): light leaving such a point on its normal's side
+    cannot reach any point of it."""
+    rel = centre[None, :] - points
+    ahead = np.einsum("ij,ij->i", rel, normals) + radius_mm * np.linalg.norm(normals, axis=1)
+    margin = MARGIN * (1.0 + np.linalg.norm(rel, axis=1) + radius_mm)
+    return ahead > -margin

@@ -12,10 +12,15 @@ from straylight.engine import specular_manifold as sm
 from straylight.engine import specular_nee as sn
 from straylight.engine import specular_reach as reach
 
+def _unit(v):
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v)
+
+
 SURFACES = {
-    "convex": Conic(vertex_mm=np.array([1.0, -2.0, 30.0]), axis=np.array([0.1, 0.0, 1.0]), radius_mm=-40.0,
+    "convex": Conic(vertex_mm=np.array([1.0, -2.0, 30.0]), axis=_unit([0.1, 0.0, 1.0]), radius_mm=-40.0,
                     outer_radius_mm=12.0),
-    "concave_parabola": Conic(vertex_mm=np.array([0.0, 0.0, -5.0]), axis=np.array([0.0, 0.3, -1.0]),
+    "concave_parabola": Conic(vertex_mm=np.array([0.0, 0.0, -5.0]), axis=_unit([0.0, 0.3, -1.0]),
                               radius_mm=60.0, conic=-1.0, outer_radius_mm=25.0, inner_radius_mm=4.0),
     "off_axis": Conic(vertex_mm=np.array([0.0, 0.0, 0.0]), axis=np.array([0.0, 0.0, 1.0]), radius_mm=80.0,
                       outer_radius_mm=10.0, aperture_center_uv=(15.0, 5.0)),
@@ -52,6 +57,21 @@ def test_refuses_only_points_on_no_tangent_plane_side(name):
         assert not reach.may_lie(test, True, ball).any()
 
 
+@pytest.mark.parametrize("name", sorted(SURFACES))
+def test_refuses_only_points_facing_away_from_every_aperture_point(name):
+    surface = SURFACES[name]
+    centre, radius = reach.aperture_ball(reach.side_test(surface))
+    X, _N = _aperture_grid(surface)
+    assert np.linalg.norm(X - centre, axis=1).max() <= radius  # the ball holds the aperture
+    rng = np.random.default_rng(7)
+    p = surface.vertex_mm + rng.uniform(-60.0, 60.0, (400, 3))
+    n = rng.normal(size=(400, 3))
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    may = reach.may_face(p, n, centre, radius)
+    ahead = (np.einsum("pk,qk->qp", X, n) - np.einsum("qk,qk->q", p, n)[:, None] > 0).any(axis=1)
+    assert not (ahead & ~may).any() and (~may).sum() > 50
+
+
 def test_no_test_for_an_asphere_or_a_conic_past_its_extent():
     asph = Asphere(vertex_mm=np.zeros(3), axis=np.array([0.0, 0.0, 1.0]), radius_mm=50.0, outer_radius_mm=10.0,
                    coefficients=(1e-5,))
@@ -60,7 +80,7 @@ def test_no_test_for_an_asphere_or_a_conic_past_its_extent():
 
 
 def _without_reach(monkeypatch):
-    monkeypatch.setattr(sn, "reaches", lambda seq, p, z: np.ones(len(p), dtype=bool))
+    monkeypatch.setattr(sn, "reaches", lambda seq, p, n_p, z: np.ones(len(p), dtype=bool))
     monkeypatch.setattr(sn, "reaches_ball", lambda seq, centre, radius: True)
 
 
@@ -81,3 +101,8 @@ def test_same_bits_as_solving_every_row(monkeypatch, k):
     assert a.detectors["det"].power_w == b.detectors["det"].power_w > 0
     assert a.detectors["det"].stderr_w == b.detectors["det"].stderr_w
     assert a.shadow_rays == b.shadow_rays and len(a.paths) == len(b.paths)
+
+
+def test_no_test_on_a_frame_built_on_a_non_unit_axis():
+    skew = Conic(vertex_mm=np.zeros(3), axis=np.array([0.1, 0.0, 1.0]), radius_mm=-40.0, outer_radius_mm=12.0)
+    assert reach.side_test(skew) is None
