@@ -36,8 +36,10 @@ stays unbiased whatever the solver finds. Vertices whose runs the reverse chains
 straylight.engine.reverse_chain.ReverseChains.owns) are left to them.
 
 Requires the split trees (``delta_chain >= specular_nee``), one polarization mode ``u``, no target parts
-(its weights use the materials' own pdf). Cost per plain vertex: one Newton solve per sequence and
-detector (vectorised), casts only for converged solutions (2-3 each). A singlet has 4 sequences of one
+(its weights use the materials' own pdf). Cost per plain vertex: a side test per sequence and detector
+(:func:`reaches`, straylight.engine.specular_reach: P and z on the air sides of the first and last lens
+faces, P facing the first; it refuses only rows the checks refuse, so the numbers do not depend on it),
+one Newton solve for the rows it keeps (vectorised), casts only for converged solutions (2-3 each). A singlet has 4 sequences of one
 interface and 8 more of two (:func:`candidate_sequences`, before the media rule); the default estimator
 set uses ``specular_nee = 1`` (docs/engine.md: the single reflections carry what it buys on the guide
 scope, at a third of the cost).
