@@ -18,7 +18,7 @@
     face (R) -> sensor" by ~4 %, with 25x.
 
     With a refracting material in the scene (``ComponentFlags.DELTA_TRANSMISSION``: a lens, a
-    window) it also draws the source's entrance points from a density learnt by a 3e4-ray pilot
+    window) it also draws the source's entrance points from a density learnt by a pilot of 1e4-3e4 rays
     (``entrance_sampling``, straylight.engine.entrance_sampling): behind a lens only a few entrance
     points reach a small sensor (the ghost of the direct beam), and a uniform beam finds them by chance.
 

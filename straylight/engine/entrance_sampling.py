@@ -31,6 +31,14 @@ fraction :data:`DEFENSIVE` of uniform keeps every cell drawn (Hesterberg 1995), 
 never saw keeps at least that share of its rays (its variance grows at most 1 / DEFENSIVE). A pilot
 that reaches no detector gives no table (uniform rays, as without the strategy).
 
+**A pilot stops when it has seen enough.** It traces :data:`PILOT_FIRST_RAYS` rays first and the rest of
+:data:`PILOT_RAYS` only when their contributions' effective sample size (sum x)^2 / sum x^2 is below
+:data:`PILOT_ENOUGH_ESS`: a bright point (the direct image near the axis, where most rays reach the sensor with
+alike weights) has learnt its table by then, and the rest would cost a third of a 0 deg point's trace;
+where a few rays carry the light (off axis, behind the lens) the whole pilot runs. The first stage is
+the whole pilot's first rays (the same streams), so the table depends only on scene, sources, options and
+seed, as before.
+
 **The ledger.** The start weights no longer add up to the emitted power exactly: each ray's
 w0 - w (expectation zero) is booked to the ``escaped`` row, which keeps escaped an unbiased estimate
 of the escaped power and the ledger exact (emitted = detected + absorbed + escaped to round-off).
@@ -54,6 +62,11 @@ GRID = 64
 SCALES = (64, 16, 4)
 #: rays of the pilot trace that learns the table
 PILOT_RAYS = 30_000
+#: rays of the pilot's first stage; the rest of PILOT_RAYS only below PILOT_ENOUGH_ESS (module doc)
+PILOT_FIRST_RAYS = 10_000
+#: effective sample size of the first stage's contributions that ends the pilot (~ the 64 x 64 table's
+#: half-filled cells: an average cell seen by one ray's worth of light at least)
+PILOT_ENOUGH_ESS = 2_000.0
 #: share of the draws left uniform over the square (defensive mixture)
 DEFENSIVE = 0.25
 #: the pilot's chunk streams start here (never reached by a trace's own ray ids)
@@ -156,6 +169,12 @@ def start_weights(spec, u, w0: float, tallies, rows):
     return w
 
 
+def effective_sample_size(x: np.ndarray) -> float:
+    """(sum x)^2 / sum x^2 of contributions ``x`` (0 when none): how many rays' worth of light they hold."""
+    s2 = float(np.dot(x, x))
+    return float(x.sum()) ** 2 / s2 if s2 > 0 else 0.0
+
+
 def applies(spec) -> bool:
     """Whether a table can be used: one source (the table is over its uniforms) and a detector."""
     return len(spec.sources) == 1 and len(spec.detector_parts) > 0
@@ -176,15 +195,23 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> 
     pilot_opts = replace(opt, estimator=replace(opt.estimator, entrance_sampling=False, reverse_chain=0),
                          output=replace(opt.output, record_paths=True, path_depth=1))
     n = int(n_rays)
-    nch = n_chunks(n)
     # the pilot has its own plan: the walk resolves it from pilot_opts (this strategy off, its table None)
     pilot = replace(spec, n_rays=n, options=pilot_opts, chunk_offset=PILOT_CHUNK_OFFSET, entrance_table=None,
                     strategies_on=None)
-    res = run_batch(pilot, 0, nch, intersector)
     x = np.zeros(n)
-    paths = res.get("paths")
-    if paths is not None:
-        np.add.at(x, np.asarray(paths["ray"], dtype=np.int64), np.asarray(paths["power_w"], dtype=np.float64))
+    first = min(n_chunks(min(PILOT_FIRST_RAYS, n)), n_chunks(n))
+    for a, b in ((0, first), (first, n_chunks(n))):
+        if b <= a:
+            continue
+        res = run_batch(pilot, a, b, intersector)
+        paths = res.get("paths")
+        if paths is not None:
+            np.add.at(x, np.asarray(paths["ray"], dtype=np.int64), np.asarray(paths["power_w"], dtype=np.float64))
+        if effective_sample_size(x) >= PILOT_ENOUGH_ESS:
+            n = min(b * CHUNK_RAYS, n)
+            break
+    x = x[:n]
+    nch = n_chunks(n)
     u = np.empty((n, EMISSION_COLUMNS))
     COMPILED.draws(spec.seed, PILOT_CHUNK_OFFSET, PILOT_CHUNK_OFFSET + nch).fill(
         np.arange(n, dtype=np.int64), EMISSION_COLUMNS, u, CHUNK_RAYS)

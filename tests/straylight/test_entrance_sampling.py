@@ -129,3 +129,51 @@ def test_a_trace_does_not_depend_on_what_the_process_traced_before(wide_slab):
     trace(sc, src, 4_000, seed=9, materials=mats, options=other)
     after = trace(sc, src, 4_000, seed=9, materials=mats, options=ENTRANCE).detectors["det"].power_w
     assert after == alone
+
+
+def _fake_pilot(bright: bool):
+    """A run_batch whose rays 0, 1, 2, ... reach the detector with weight 1 each (``bright``: every ray)
+    or only ray 0 (a dim point: one ray holds the light)."""
+    calls = []
+
+    def run_batch(pilot, first, stop, intersector):
+        calls.append((first, stop))
+        rays = np.arange(first * 1000, stop * 1000) if bright else np.array([0] if first == 0 else [], int)
+        return {"paths": {"ray": rays, "power_w": np.ones(len(rays))}}
+
+    return run_batch, calls
+
+
+@pytest.mark.parametrize("bright", [True, False])
+def test_the_pilot_stops_after_its_first_stage_when_it_has_seen_enough(wide_slab, bright):
+    """A bright point's contributions have an effective sample size of thousands after the first stage:
+    the pilot ends there; a dim point's run the whole pilot (each stage continues the same streams)."""
+    from straylight.trace import make_spec
+
+    sc, src, mats = wide_slab
+    spec = make_spec(sc, src, 1_000, 5, mats, ENTRANCE)
+    run_batch, calls = _fake_pilot(bright)
+    table = entrance_sampling.build_table(spec, run_batch)
+    first = entrance_sampling.PILOT_FIRST_RAYS // 1000
+    if bright:
+        assert calls == [(0, first)] and table.pilot_rays == entrance_sampling.PILOT_FIRST_RAYS
+    else:
+        assert calls == [(0, first), (first, entrance_sampling.PILOT_RAYS // 1000)]
+        assert table.pilot_rays == entrance_sampling.PILOT_RAYS
+
+
+def test_a_pilot_in_two_stages_learns_the_table_of_one(wide_slab, monkeypatch):
+    """The stages trace the whole pilot's streams: without the early stop, two stages give the very table
+    one stage of all the rays gives."""
+    from straylight.engine.walk import run_batch
+    from straylight.trace import make_spec
+
+    sc, src, mats = wide_slab
+    spec = make_spec(sc, src, 1_000, 5, mats, ENTRANCE)
+    monkeypatch.setattr(entrance_sampling, "PILOT_ENOUGH_ESS", math.inf)
+    monkeypatch.setattr(entrance_sampling, "PILOT_FIRST_RAYS", 2_000)
+    staged = entrance_sampling.build_table(spec, run_batch, n_rays=6_000)
+    monkeypatch.setattr(entrance_sampling, "PILOT_FIRST_RAYS", 6_000)
+    whole = entrance_sampling.build_table(spec, run_batch, n_rays=6_000)
+    assert staged.pilot_hits > 100 and staged.pilot_rays == whole.pilot_rays == 6_000
+    np.testing.assert_array_equal(staged.prob, whole.prob)
