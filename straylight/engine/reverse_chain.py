@@ -32,6 +32,10 @@ uniforms (radius sqrt(u1), azimuth 2 pi u2) get the entrance table's density
 left cosine), and the chains draw their directions from it. q enters beta and the balance weights
 below; for a split tree's branch the eye side's q is looked up from the direction it reaches the
 detector with (:meth:`EyeTable.density_of_arrival`). Flat detectors only (the table is over one frame).
+The pilot traces its first :data:`PILOT_FIRST_EYES` chains first: when none of them is joined (near the
+axis the beam lights nothing the chains reach: the guide scope at 0 deg joins none of 2e5) it ends there
+without a table; otherwise it goes on, and the table is the whole pilot's, bit for bit (the chains are
+independent rows of their own streams).
 
 Two connections count the paths "X -> P -> interfaces (1..K) -> detector":
 
@@ -85,6 +89,8 @@ STREAM = 0x52564348  # entropy word of the eye chains' streams ("RVCH")
 EYES_PER_RAY = 2
 #: eye chains of the pilot that learns the direction table (:func:`build_table`)
 PILOT_EYES = 200_000
+#: its first stage: when none of these chains is joined to the source, the pilot ends without a table
+PILOT_FIRST_EYES = 50_000
 #: the pilot's chunk streams start here (never reached by a trace's own chunks, nor the entrance pilot's)
 PILOT_CHUNK_OFFSET = 1 << 41
 _GOLDEN = 0.6180339887498949  # Weyl step of a ray's end-point choices over its depth
@@ -278,10 +284,21 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
     k = max(int(est.reverse_chain), int(est.delta_chain))
     eyes = EyeChains(k, parts_with(spec, Capability.DELTA_CHAIN), scatter_ends(spec))
     n = int(n_eyes)
-    u = eye_uniforms(spec, 0, -(-n // CHUNK_RAYS), n, PILOT_CHUNK_OFFSET)
-    ends, _, drawn = eyes.trace(spec, scene, u, None)
-    g, raw, _, _ = source_connection(spec, scene, ends)
-    x = np.bincount(ends.ray[g], weights=raw, minlength=n) if len(g) else np.zeros(n)
+    first = min(PILOT_FIRST_EYES // CHUNK_RAYS * CHUNK_RAYS, n)
+    stages = []
+    for a, b in ((0, first), (first, n)):
+        if b <= a:
+            continue
+        u_s = eye_uniforms(spec, a // CHUNK_RAYS, -(-b // CHUNK_RAYS), b - a, PILOT_CHUNK_OFFSET)
+        ends, _, drawn_s = eyes.trace(spec, scene, u_s, None)
+        g, raw, _, _ = source_connection(spec, scene, ends)
+        x_s = np.bincount(ends.ray[g], weights=raw, minlength=b - a) if len(g) else np.zeros(b - a)
+        stages.append((u_s, drawn_s, x_s))
+        if not np.any(x_s > 0) and a == 0:
+            return None  # the first stage joined nothing: no table (module doc)
+    u = np.concatenate([st[0] for st in stages])
+    drawn = np.concatenate([st[1] for st in stages])
+    x = np.concatenate([st[2] for st in stages])
     if not np.any(x > 0):
         return None
     D = len(scene.detectors)

@@ -234,3 +234,33 @@ def test_chains_without_the_table_agree_too(slab_scene, monkeypatch):
     analog = _run(slab_scene, 400_000, 4, ANALOG)
     c, a = chains.detectors["det"], analog.detectors["det"]
     assert abs(c.power_w - a.power_w) <= 4 * math.hypot(c.stderr_w, a.stderr_w), (c, a)
+
+
+def test_the_eye_pilot_in_stages_learns_the_whole_pilots_table_and_ends_when_it_joins_nothing(slab_scene,
+                                                                                              monkeypatch):
+    """Its chains are independent rows of their own streams: a first stage of 5000 and the rest give the
+    very table one stage gives; a first stage that joins none ends the pilot there, without a table."""
+    from straylight.engine import reverse_chain as rc
+    from straylight.engine.runtime import runtime
+
+    sc, src, mats = slab_scene
+    spec = make_spec(sc, src, 1_000, 3, mats, TraceOptions(estimator=CHAINS))
+    scene = runtime().scene(spec, None)
+    monkeypatch.setattr(rc, "PILOT_FIRST_EYES", 5_000)
+    staged = rc.build_table(spec, scene, n_eyes=20_000)
+    monkeypatch.setattr(rc, "PILOT_FIRST_EYES", 20_000)
+    whole = rc.build_table(spec, scene, n_eyes=20_000)
+    assert staged.pilot_hits == whole.pilot_hits > 0
+    for a, b in zip(staged.tables, whole.tables):
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_array_equal(a.prob, b.prob)
+    traced = []
+
+    def joins_nothing(*args):  # a pilot whose chains end on no lit point
+        traced.append(len(args[2].ray))
+        return np.zeros(0, np.int64), np.zeros(0), None, None
+
+    monkeypatch.setattr(rc, "PILOT_FIRST_EYES", 5_000)
+    monkeypatch.setattr(rc, "source_connection", joins_nothing)
+    assert rc.build_table(spec, scene, n_eyes=20_000) is None and len(traced) == 1  # the first stage only
