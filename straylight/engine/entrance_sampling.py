@@ -199,7 +199,7 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> 
     pilot = replace(spec, n_rays=n, options=pilot_opts, chunk_offset=PILOT_CHUNK_OFFSET, entrance_table=None,
                     strategies_on=None)
     x = np.zeros(n)
-    first = min(n_chunks(min(PILOT_FIRST_RAYS, n)), n_chunks(n))
+    first = n_chunks(min(PILOT_FIRST_RAYS, n))
     for a, b in ((0, first), (first, n_chunks(n))):
         if b <= a:
             continue

@@ -298,9 +298,7 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
             return None  # the first stage joined nothing: no table (module doc)
     u = np.concatenate([st[0] for st in stages])
     drawn = np.concatenate([st[1] for st in stages])
-    x = np.concatenate([st[2] for st in stages])
-    if not np.any(x > 0):
-        return None
+    x = np.concatenate([st[2] for st in stages])  # the first stage joined some: so has the whole
     D = len(scene.detectors)
     both = spec.options.output.detector_sides == "both"
     j = np.minimum((u[:, 0] * D).astype(np.int64), D - 1)
