@@ -415,13 +415,13 @@ class EyeChains:
     def _step(self, spec, scene, b, ends):
         h = cast_branches(spec, scene, np.ascontiguousarray(b.origin), np.ascontiguousarray(b.d))
         self.shadow_rays += len(b.w)
-        b, tri, dist, part, cos_in = b.take(h.hit), h.tri, h.distance_mm, h.part, h.cos_in
+        hit, tri, dist, part, cos_in = h.hit, h.tri, h.distance_mm, h.part, h.cos_in  # rows of b: hit
         det = spec.part_roles[part] == ROLE_DETECTOR
         # an end point: a plain scatter part met after >= 1 interface
         mat = spec.part_material[part]
-        end = np.flatnonzero(~det & ~self.splits[part] & (b.k >= 1) & self.end_material[mat])
+        end = np.flatnonzero(~det & ~self.splits[part] & (b.k[hit] >= 1) & self.end_material[mat])
         if len(end):
-            e = b.take(end)
+            e = b.take(hit[end])
             nrm = scene.normals[tri[end]]
             facing = np.where((cos_in[end] < 0)[:, None], nrm, -nrm)
             point = e.origin + dist[end, None] * e.d
@@ -434,19 +434,21 @@ class EyeChains:
         go = np.flatnonzero(~det & self.splits[part])
         if len(go) == 0:
             return None
-        b, part, dist, cos_in, tri = b.take(go), part[go], dist[go], cos_in[go], tri[go]
-        front, facing, at, passing = at_interfaces(spec, scene, part, tri, b.origin, b.d, dist, b.last_part, cos_in)
+        idx = hit[go]  # rows of b going on (taken once per branch set below: no copy of the rest)
+        part, dist, cos_in, tri = part[go], dist[go], cos_in[go], tri[go]
+        origin, d = b.origin[idx], b.d[idx]
+        front, facing, at, passing = at_interfaces(spec, scene, part, tri, origin, d, dist, b.last_part[idx], cos_in)
         out = []
         through = np.flatnonzero(passing)
         if len(through):  # a pass-through: the walk goes on unchanged, and so does the chain
-            c = b.take(through)
+            c = b.take(idx[through])
             c.origin = np.ascontiguousarray(at[through] + 2.0 * spec.eps * c.d)
             c.last_part = part[through]
             out.append(c)
-        live = np.flatnonzero(~passing & (b.k < self.k_max))
-        b, part, at, facing, dist = b.take(live), part[live], at[live], facing[live], dist[live]
+        live = np.flatnonzero(~passing & (b.k[idx] < self.k_max))
         if len(live):
-            out.extend(self._children(spec, b, part, at, facing, dist, front[live]))
+            out.extend(self._children(spec, b.take(idx[live]), part[live], at[live], facing[live], dist[live],
+                                      front[live]))
         out = [o for o in out if len(o.w)]
         if not out:
             return None
@@ -511,8 +513,9 @@ class ReverseChains:
         self.p_walk = np.zeros(n)  # per anchored ray: the walk's density of (P, omega) (area x solid angle)
         self.cos_out = np.zeros(n)  # and the cosine of omega at P
         self.ends = self._trace_eyes(ctx)
-        self.first = np.searchsorted(self.ends.ray, np.arange(n), side="left")
-        self.count = np.searchsorted(self.ends.ray, np.arange(n), side="right") - self.first
+        # the ends are sorted by ray: ray r's are first[r] .. first[r] + count[r] - 1
+        self.count = np.bincount(self.ends.ray, minlength=n).astype(np.int64)
+        self.first = np.cumsum(self.count) - self.count
         self._connect_source(ctx)
 
     # ------------------------------------------------------------------ eye chains
@@ -752,10 +755,10 @@ def _path_events(history, m, n_before, prefix, e, k, width):
 
 
 def _forward_codes(codes, k):
-    """Interface codes met by eye chains (eye order, -1 padded) in the forward light's order."""
-    out = np.full_like(codes, -1)
-    for i in range(len(k)):
-        n = int(k[i])
-        out[i, :n] = codes[i, :n][::-1]
-    return out
-
+    """Interface codes met by eye chains (eye order, -1 padded) in the forward light's order: row i's
+    first k_i codes reversed."""
+    k = np.asarray(k, dtype=np.int64)
+    src = k[:, None] - 1 - np.arange(codes.shape[1])[None, :]  # column of codes for each output column
+    inside = src >= 0
+    picked = np.take_along_axis(codes, np.where(inside, src, 0), axis=1)
+    return np.where(inside, picked, np.asarray(-1, dtype=codes.dtype))
