@@ -275,6 +275,9 @@ def _estimate(event, verts, frame, w_vertex, evaluate, mix):
                                      settings))
     if len(pairs.vertex) == 0:
         return
+    pairs = _unblocked(event, pairs, verts, w_vertex)  # shadow rays first: the materials only where they count
+    if len(pairs.vertex) == 0:
+        return
     f = np.empty(len(pairs.vertex))
     pdf_brdf = np.empty(len(pairs.vertex))
     wi_local, mat = frame.wi_local, frame.material
@@ -300,13 +303,35 @@ def _estimate(event, verts, frame, w_vertex, evaluate, mix):
     shadow = ShadowRays(*kern.nee_shadow(pairs, f, pdf_brdf, verts, event.rays, hit, event.scene.arrays, settings))
     if len(shadow.pair) == 0:
         return
-    blocked = event.shadow_test(shadow.origin_mm, shadow.direction, shadow.tmax_mm)
-    event.shadow_rays += len(shadow.pair)
+    blocked = np.zeros(len(shadow.pair), dtype=bool)  # every pair left is unblocked (_unblocked)
     event.tallies.reserve(NEE_WRITES_PER_SHADOW_RAY * len(shadow.pair))
     ok = kern.nee_tally(shadow, blocked, pairs, verts, event.rays, hit, settings.nee_samples,
                         event.tallies.kernel_arg, event.rows)
     if len(ok):
         _record(event, verts, pairs, shadow, ok)
+
+
+def _unblocked(event, pairs, verts, w_vertex) -> NeePairs:
+    """The pairs whose shadow ray is not blocked (``event.shadow_test``), of those that can contribute
+    (the ray's weight and the vertex's MIS weight > 0). The shadow rays are those of
+    :func:`nee_shadow_numpy` (the kernel's bits): testing them before the materials are evaluated
+    leaves every contribution as it was and spares the BRDF (and polarization) of the blocked pairs,
+    nearly all of them behind a lens. Counts the casts in ``event.shadow_rays``."""
+    eps = event.settings.eps_mm
+    hit = event.hits
+    i = verts[pairs.vertex]
+    can = event.rays.weight_w[i] > 0
+    if w_vertex is not None:
+        can &= w_vertex[pairs.vertex] > 0
+    cand = np.flatnonzero(can)
+    i = i[cand]
+    origin = hit.point_mm[i] + eps * hit.facing_normal[i]
+    v = pairs.point_mm[cand] - origin
+    lo = np.sqrt(dot_rows(v, v))
+    blocked = event.shadow_test(origin, v / lo[:, None], lo - eps)
+    event.shadow_rays += len(cand)
+    keep = cand[~np.asarray(blocked, dtype=bool)]
+    return NeePairs(*(a[keep] for a in pairs))
 
 
 def _record(event, verts, pairs, shadow, ok):
