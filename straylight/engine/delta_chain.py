@@ -52,25 +52,31 @@ def _dot(a, b):
 
 class Branches:
     """Rays of the split trees in flight: event row of the tree's root, origin, direction, weight,
-    Stokes vector (S0 = 1) and its frame e1, interfaces met, last part, path key, event codes."""
+    Stokes vector (S0 = 1) and its frame e1, interfaces met, last part, path key, event codes,
+    reflections met."""
 
-    def __init__(self, row, origin, d, w, S, e1, k, last_part, key, codes):
+    FIELDS = ("row", "origin", "d", "w", "S", "e1", "k", "last_part", "key", "codes", "refl")
+
+    def __init__(self, row, origin, d, w, S, e1, k, last_part, key, codes, refl):
         self.row, self.origin, self.d, self.w, self.S, self.e1 = row, origin, d, w, S, e1
-        self.k, self.last_part, self.key, self.codes = k, last_part, key, codes
+        self.k, self.last_part, self.key, self.codes, self.refl = k, last_part, key, codes, refl
 
     def take(self, sel):
-        return Branches(self.row[sel], self.origin[sel], self.d[sel], self.w[sel], self.S[sel], self.e1[sel],
-                        self.k[sel], self.last_part[sel], self.key[sel], self.codes[sel])
+        return Branches(*(getattr(self, f)[sel] for f in self.FIELDS))
 
 
 class DeltaChains:
     """Per batch: each ray's count of interface branches (reflection or transmission at a
-    ``DELTA_CHAIN`` part) since its run of them started (0: not in a run); ``splits``: per part, its
-    kind declares ``DELTA_CHAIN`` (a continuing hit elsewhere ends the run)."""
+    ``DELTA_CHAIN`` part) since its run of them started (0: not in a run) and of the reflections among
+    them; ``splits``: per part, its kind declares ``DELTA_CHAIN`` (a continuing hit elsewhere ends the
+    run). ``max_reflections`` R > 0: the trees follow only branches with at most R reflections (any
+    transmissions, up to K interfaces in all), and the walk keeps its hits after more."""
 
-    def __init__(self, n_rays_in_batch, max_interfaces, splits=None):
+    def __init__(self, n_rays_in_batch, max_interfaces, splits=None, max_reflections=0):
         self.run = np.zeros(n_rays_in_batch, dtype=np.int64)
+        self.refl = np.zeros(n_rays_in_batch, dtype=np.int64)
         self.k_max = int(max_interfaces)
+        self.r_max = int(max_reflections) if int(max_reflections) > 0 else self.k_max
         self.splits = splits
 
     # ------------------------------------------------------------------ the walk's side
@@ -83,28 +89,35 @@ class DeltaChains:
             at = np.where(h.refined[root, None], h.exact[root], event.hits.point_mm[h.rows[root]])
             self.split(event, h.rows[root], at, h.facing[root], h.d[root], h.s[root], h.S[root],
                        tuple(x[root] for x in h.fresnel))
-        self.advance(event, h.rows, h.reflected | h.transmitted, h.passing)
+        self.advance(event, h.rows, h.reflected | h.transmitted, h.passing, h.reflected)
 
     def starts(self, event, rows):
         """Of the interface hits ``rows``, which start a run (the ray did not come from one)."""
         return self.run[event.rays.ray[rows]] == 0
 
-    def advance(self, event, rows, specular, passing):
-        """After the interface hits ``rows``: a reflection or transmission extends the run, a lobe
-        (or an absorbed ray) ends it, a pass-through leaves it as it is."""
+    def advance(self, event, rows, specular, passing, reflected):
+        """After the interface hits ``rows``: a reflection or transmission extends the run (a
+        reflection also its reflection count), a lobe (or an absorbed ray) ends it, a pass-through
+        leaves it as it is."""
         r = event.rays.ray[rows]
         self.run[r] = np.where(passing, self.run[r], np.where(specular, self.run[r] + 1, 0))
+        self.refl[r] = np.where(passing, self.refl[r], np.where(specular, self.refl[r] + reflected, 0))
 
     def leave_run(self, event, rows):
         """Continuing hits ``rows`` on parts whose kind does not split end their run."""
         if len(rows):
             self.run[event.rays.ray[rows]] = 0
+            self.refl[event.rays.ray[rows]] = 0
+
+    def covers(self, k, refl) -> np.ndarray:
+        """Runs of ``k`` interfaces with ``refl`` reflections that the trees count (1 <= k <= K, refl <= R)."""
+        return (k >= 1) & (k <= self.k_max) & (refl <= self.r_max)
 
     def share_after_chain(self, event, rec, rec_w):
-        """The walk's detector hits after 1..K interfaces of a run, which the tree counted, are dropped
-        (their weight to the NEE exchange: the ledger stays exact)."""
-        k = self.run[event.rays.ray[rec]]
-        drop = np.flatnonzero((k >= 1) & (k <= self.k_max))
+        """The walk's detector hits after 1..K interfaces (at most R reflections) of a run, which the tree
+        counted, are dropped (their weight to the NEE exchange: the ledger stays exact)."""
+        r = event.rays.ray[rec]
+        drop = np.flatnonzero(self.covers(self.run[r], self.refl[r]))
         if len(drop) == 0:
             return rec, rec_w
         return keep_walk_share(event, rec, rec_w, drop, np.zeros(len(drop)))
@@ -122,7 +135,8 @@ class DeltaChains:
         key = rays.path_key[rows] if event.settings.record_paths else np.zeros(len(rows), np.uint64)
         codes = np.full((len(rows), self.k_max), -1, dtype=np.int64)
         live = self._children(spec, Branches(np.asarray(rows), at, d, w, S, s, np.zeros(len(rows), np.int64),
-                                             part, key, codes), facing, s, S, fresnel, event)
+                                             part, key, codes, np.zeros(len(rows), np.int64)),
+                              facing, s, S, fresnel, event)
         for _ in range(event.spec.options.physics.max_events):  # each step splits or passes a hit: the walk's own bound
             if live is None or len(live.w) == 0:
                 break
@@ -135,11 +149,12 @@ class DeltaChains:
         eps = 2.0 * event.settings.eps_mm
         code = b.last_part * 4 + EVENT_SPECULAR
         key = mix_key(b.key, code) if event.settings.record_paths else b.key
-        rows, origin, d, weight, stokes = [], [], [], [], []
+        rows, origin, d, weight, stokes, refl = [], [], [], [], [], []
         for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
             So = np.einsum("nij,nj->ni", interface_mueller(a_s, a_p), S)
             w = b.w * So[:, 0] * bulk
-            g = np.flatnonzero(w > 0)
+            # a reflection past the trees' R is not followed: the walk keeps those paths (share_after_chain)
+            g = np.flatnonzero((w > 0) & (b.refl < self.r_max)) if sign > 0 else np.flatnonzero(w > 0)
             if len(g) == 0:
                 continue
             if sign > 0:
@@ -151,13 +166,15 @@ class DeltaChains:
             d.append(np.ascontiguousarray(d_out))
             weight.append(w[g])
             stokes.append(So[g] / So[g, :1])
+            refl.append(b.refl[g] + (1 if sign > 0 else 0))
         if not rows:
             return None
         g = rows[0] if len(rows) == 1 else np.concatenate(rows)
         codes = b.codes[g]
         codes[np.arange(len(g)), b.k[g]] = code[g]
-        return Branches(b.row[g], *(x[0] if len(x) == 1 else np.concatenate(x) for x in (origin, d, weight, stokes)),
-                        s[g], b.k[g] + 1, b.last_part[g], key[g], codes)
+        origin, d, weight, stokes, refl = (x[0] if len(x) == 1 else np.concatenate(x)
+                                           for x in (origin, d, weight, stokes, refl))
+        return Branches(b.row[g], origin, d, weight, stokes, s[g], b.k[g] + 1, b.last_part[g], key[g], codes, refl)
 
     def _step(self, event, b):
         """Cast the branches ``b``: score those that reach a detector, split those that meet another
@@ -200,8 +217,7 @@ class DeltaChains:
             return None
         if len(parts) == 1:
             return parts[0]
-        return Branches(*(np.concatenate([getattr(o, f) for o in parts])
-                          for f in ("row", "origin", "d", "w", "S", "e1", "k", "last_part", "key", "codes")))
+        return Branches(*(np.concatenate([getattr(o, f) for o in parts]) for f in Branches.FIELDS))
 
     def _score(self, event, b, part, z, nz):
         """Count the branches ``b`` that reached detector parts ``part`` at points ``z`` (triangle normals ``nz``)."""

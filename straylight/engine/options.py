@@ -32,6 +32,7 @@ class EstimatorOptions:
     second_vertex_lobe_sampling: bool = False  # second-vertex sampling also leaves B by the lobe's own draw
     reflection_split: bool = False  # interface reflections into a detector counted by expected value
     delta_chain: int = 0  # > 0: runs of up to this many interfaces into a detector followed by splitting
+    delta_chain_reflections: int = 0  # > 0: of those, the runs with at most this many reflections (a ghost's order)
     entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
     reverse_chain: int = 0  # > 0: eye chains from the detectors through up to this many interfaces, joined to the walk
     specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1 or 2) analytic interfaces
@@ -48,11 +49,17 @@ class EstimatorOptions:
         object.__setattr__(self, "target_parts", tuple(self.target_parts))
         if int(self.delta_chain) < 0:
             raise TraceError(f"delta_chain must be >= 0 (interfaces per split tree), got {self.delta_chain}")
+        if int(self.delta_chain_reflections) < 0:
+            raise TraceError(f"delta_chain_reflections must be >= 0 (reflections per split-tree branch; 0: no limit), "
+                             f"got {self.delta_chain_reflections}")
         if int(self.reverse_chain) < 0:
             raise TraceError(f"reverse_chain must be >= 0 (interfaces per eye chain), got {self.reverse_chain}")
         if not isinstance(self.specular_nee, (int, np.integer)) or not 0 <= int(self.specular_nee) <= 2:
             raise TraceError(f"specular_nee must be 0, 1 or 2 (interfaces per connection), got {self.specular_nee!r}")
         object.__setattr__(self, "specular_nee", int(self.specular_nee))  # True (the former switch) is 1
+        if 0 < int(self.delta_chain_reflections) < int(self.specular_nee):
+            raise TraceError(f"specular_nee ({self.specular_nee}) shares its paths with the split trees: it needs "
+                             f"delta_chain_reflections 0 (no limit) or >= {self.specular_nee}")
         if int(self.delta_chain) > 0 and self.reflection_split:
             raise TraceError("delta_chain includes reflection_split (its one-reflection paths): turn one of them off")
 

@@ -282,7 +282,7 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
         return None
     est = spec.options.estimator
     k = max(int(est.reverse_chain), int(est.delta_chain))
-    eyes = EyeChains(k, parts_with(spec, Capability.DELTA_CHAIN), scatter_ends(spec))
+    eyes = EyeChains(k, parts_with(spec, Capability.DELTA_CHAIN), scatter_ends(spec), reflection_limit(est))
     n = int(n_eyes)
     first = min(PILOT_FIRST_EYES // CHUNK_RAYS * CHUNK_RAYS, n)
     stages = []
@@ -312,12 +312,13 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
 class EyeEnds:
     """End points of the batch's eye chains, sorted by the ray that owns them."""
 
-    def __init__(self, ray, point, normal, part, material, omega, beta, detector, z, k, codes, q=None):
+    def __init__(self, ray, point, normal, part, material, omega, beta, detector, z, k, codes, refl, q=None):
         order = np.argsort(ray, kind="stable")
         self.ray, self.point, self.normal = ray[order], point[order], normal[order]
         self.part, self.material, self.omega = part[order], material[order], omega[order]
         self.beta, self.detector, self.z, self.k = beta[order], detector[order], z[order], k[order]
         self.codes = codes[order]  # (m, K) interface codes in the forward order, -1 padded
+        self.refl = refl[order]  # reflections among the k interfaces
         # the density factor of the chain's direction draw (its pdf q cos / pi: the eye table's)
         self.q = (np.ones(len(ray)) if q is None else np.asarray(q, dtype=np.float64))[order]
 
@@ -327,14 +328,15 @@ class EyeEnds:
         m = int(eyes_per_ray)
         c = self.ray
         return EyeEnds(c // m, self.point, self.normal, self.part, self.material, self.omega, self.beta / m,
-                       self.detector, self.z, self.k, self.codes, q=q_chain[c])
+                       self.detector, self.z, self.k, self.codes, self.refl, q=q_chain[c])
 
 
 class _Branches:
     """Eye rays in flight: owning ray, origin, direction, scalar weight, Stokes covector and its
-    frame e1, interfaces met, last part, detector and point where the chain started, codes."""
+    frame e1, interfaces met, last part, detector and point where the chain started, codes,
+    reflections met."""
 
-    FIELDS = ("ray", "origin", "d", "w", "v", "e1", "k", "last_part", "det", "z", "codes")
+    FIELDS = ("ray", "origin", "d", "w", "v", "e1", "k", "last_part", "det", "z", "codes", "refl")
 
     def __init__(self, **kw):
         for f in self.FIELDS:
@@ -348,13 +350,21 @@ class _Branches:
         return cls(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in cls.FIELDS})
 
 
+def reflection_limit(est) -> int:
+    """The reflections an eye chain follows: the split trees' ``delta_chain_reflections`` R when the
+    trees run with one (the chains must reach every path a tree does, and need not go further),
+    else 0 (no limit)."""
+    return int(est.delta_chain_reflections) if int(est.delta_chain) > 0 else 0
+
+
 class EyeChains:
     """Eye chains through up to ``k_max`` interfaces (``splits``: bool per part, the parts crossed),
-    ending at plain scatter parts (``end_material``: bool per material, :func:`scatter_ends`);
-    :attr:`shadow_rays` counts the casts."""
+    at most ``r_max`` of them reflections (0: no limit), ending at plain scatter parts
+    (``end_material``: bool per material, :func:`scatter_ends`); :attr:`shadow_rays` counts the casts."""
 
-    def __init__(self, k_max: int, splits: np.ndarray, end_material: np.ndarray):
+    def __init__(self, k_max: int, splits: np.ndarray, end_material: np.ndarray, r_max: int = 0):
         self.k_max = int(k_max)
+        self.r_max = int(r_max) if int(r_max) > 0 else self.k_max
         self.splits = splits
         self.end_material = end_material
         self.shadow_rays = 0
@@ -399,7 +409,7 @@ class EyeChains:
         v[:, 0] = 1.0
         live = _Branches(ray=np.arange(n), origin=np.ascontiguousarray(z + 2.0 * spec.eps * nz), d=d, w=beta, v=v,
                          e1=e1, k=np.zeros(n, np.int64), last_part=det_part, det=j, z=z,
-                         codes=np.full((n, max(self.k_max, 1)), -1, dtype=np.int64))
+                         codes=np.full((n, max(self.k_max, 1)), -1, dtype=np.int64), refl=np.zeros(n, np.int64))
         ends = []
         for _ in range(int(spec.options.physics.max_events)):
             if live is None or len(live.w) == 0:
@@ -408,7 +418,7 @@ class EyeChains:
         if not ends:
             z0 = np.empty(0, np.int64)
             return EyeEnds(z0, np.empty((0, 3)), np.empty((0, 3)), z0, z0, np.empty((0, 3)), np.empty(0), z0,
-                           np.empty((0, 3)), z0, np.empty((0, max(self.k_max, 1)), np.int64)), q, drawn
+                           np.empty((0, 3)), z0, np.empty((0, max(self.k_max, 1)), np.int64), z0), q, drawn
         cols = {k: np.concatenate([e[k] for e in ends]) for k in ends[0]}
         return EyeEnds(**cols), q, drawn
 
@@ -430,7 +440,8 @@ class EyeChains:
             if ok.any():
                 ends.append({"ray": e.ray[ok], "point": point[ok], "normal": facing[ok], "part": part[end][ok],
                              "material": mat[end][ok], "omega": -e.d[ok], "beta": beta[ok], "detector": e.det[ok],
-                             "z": e.z[ok], "k": e.k[ok], "codes": _forward_codes(e.codes[ok], e.k[ok])})
+                             "z": e.z[ok], "k": e.k[ok], "codes": _forward_codes(e.codes[ok], e.k[ok]),
+                             "refl": e.refl[ok]})
         go = np.flatnonzero(~det & self.splits[part])
         if len(go) == 0:
             return None
@@ -470,13 +481,14 @@ class EyeChains:
         for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
             v_in = np.einsum("nji,nj->ni", interface_mueller(a_s, a_p), v)  # M^T v
             w = b.w * bulk
-            g = np.flatnonzero((v_in[:, 0] > 0) & (w > 0))
+            g = np.flatnonzero((v_in[:, 0] > 0) & (w > 0) & ((b.refl < self.r_max) if sign > 0 else True))
             if len(g) == 0:
                 continue
             d_out = reflect(b.d[g], facing[g]) if sign > 0 else refract(b.d[g], facing[g], eta[g], cos_t[g])
             out.append(_Branches(ray=b.ray[g], origin=np.ascontiguousarray(at[g] + sign * eps * facing[g]),
                                  d=np.ascontiguousarray(d_out), w=w[g], v=v_in[g], e1=s[g], k=b.k[g] + 1,
-                                 last_part=part[g], det=b.det[g], z=b.z[g], codes=codes[g]))
+                                 last_part=part[g], det=b.det[g], z=b.z[g], codes=codes[g],
+                                 refl=b.refl[g] + (1 if sign > 0 else 0)))
         return out
 
 
@@ -488,6 +500,8 @@ class ReverseChains:
     def __init__(self, ctx, k_max: int, splits: np.ndarray):
         spec, scene = ctx.spec, ctx.scene
         self.k_max = int(k_max)
+        r_max = reflection_limit(spec.options.estimator)  # the chains' reflections (0: no limit)
+        self.r_max = r_max if r_max > 0 else self.k_max
         self.path_depth = int(spec.options.output.path_depth)
         self.splits = splits  # bool per part: an interface the chains cross (Capability.DELTA_CHAIN)
         self.end_material = scatter_ends(spec)
@@ -500,11 +514,14 @@ class ReverseChains:
         self._arriving_unpolarized = np.zeros(0, dtype=bool)  # per continuing hit of the current event
         self.anchor = np.zeros(n, dtype=bool)
         self.run = np.zeros(n, dtype=np.int64)
+        self.refl = np.zeros(n, dtype=np.int64)  # reflections among the run's interfaces
         self.shadow_rays = 0
         # multiple importance sampling with the split trees (delta_chain), which count the same runs
         # from the walk's side: balance heuristic over (P, omega) (module doc, "Weights")
         est = spec.options.estimator
         self.k_tree = int(est.delta_chain)
+        # the trees' reflection limit (delta_chain_reflections; 0: none): paths past it are not theirs
+        self.r_tree = int(est.delta_chain_reflections) if int(est.delta_chain_reflections) > 0 else self.k_tree
         self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
         self.sides = 2.0 if spec.options.output.detector_sides == "both" else 1.0
         self.w0 = ctx.start_weight_w
@@ -525,7 +542,7 @@ class ReverseChains:
         m = EYES_PER_RAY
         u = eye_uniforms(spec, ctx.first_chunk, ctx.stop_chunk, ctx.n_rays, spec.chunk_offset, per_ray=m)
         self.u_choice = u[::m, 6].copy()
-        eyes = EyeChains(self.k_max, self.splits, self.end_material)
+        eyes = EyeChains(self.k_max, self.splits, self.end_material, self.r_max)
         ends, q, _ = eyes.trace(spec, ctx.scene, u, spec.eye_table)
         self.shadow_rays += eyes.shadow_rays
         return ends.per_ray(m, q)
@@ -585,12 +602,16 @@ class ReverseChains:
             self._walk_density(event, cont[anchored], out, np.flatnonzero(anchored))
         self.anchor[r[scatter]] = anchored[scatter]
         self.run[r[scatter]] = 0
+        self.refl[r[scatter]] = 0
         self.pred[r[scatter]] = plain[scatter]
         self.run[r[specular]] += 1
+        # a reflection leaves on the side it arrived from (facing_normal is turned toward the incoming ray)
+        self.refl[r[specular]] += _dot(out.direction[specular], hit.facing_normal[cont[specular]]) > 0
         self.pred[r[specular | passing]] = False
         self.anchor[r[other]] = False
         self.pred[r[other]] = False
         self.run[r[other]] = 0
+        self.refl[r[other]] = 0
 
     def _walk_density(self, event, rows, out, at):
         """The walk's density of the (P, omega) it drew at the anchored vertices ``rows`` (``out``
@@ -611,7 +632,8 @@ class ReverseChains:
 
     def _eye_weight(self, k, p_walk) -> np.ndarray:
         """Balance-heuristic weight of the eye side for end points ``k`` whose path the walk draws
-        with density ``p_walk`` (1 without split trees, or past their reach)."""
+        with density ``p_walk`` (1 without split trees, or past their reach: more than K interfaces or
+        more than R reflections)."""
         e = self.ends
         if self.k_tree <= 0:
             return np.ones(len(k))
@@ -619,7 +641,7 @@ class ReverseChains:
             / (np.pi * self.det_area[e.detector[k]] * len(self.det_area) * self.sides)
         total = p_eye + p_walk
         w = np.where(total > 0, p_eye / np.where(total > 0, total, 1.0), 1.0)
-        return np.where(e.k[k] <= self.k_tree, w, 1.0)
+        return np.where((e.k[k] <= self.k_tree) & (e.refl[k] <= self.r_tree), w, 1.0)
 
     def tree_share(self, event, rows, detector: int, arrival) -> np.ndarray:
         """The share a split tree rooted at ``rows`` keeps on ``detector``, its branches arriving along
@@ -638,10 +660,11 @@ class ReverseChains:
 
     def owns(self, event, rows, extra: int = 0) -> np.ndarray:
         """Of the rows ``rows``: the ray's last scatter is an anchored end-point kind and its run,
-        with ``extra`` more interfaces, is within 1..K (paths the chains count)."""
+        with ``extra`` more interfaces, is within 1..K, with at most R reflections so far (paths the
+        chains count; a split tree rooted here follows at most R in all)."""
         r = event.rays.ray[rows]
         k = self.run[r] + extra
-        return self.anchor[r] & (k >= 1) & (k <= self.k_max)
+        return self.anchor[r] & (k >= 1) & (k <= self.k_max) & (self.refl[r] <= self.r_max)
 
     def claims(self, event, rows) -> np.ndarray:
         """Interface hits ``rows`` whose runs the chains own from here (split trees and reflection

@@ -76,6 +76,22 @@ def test_chains_with_the_split_trees_and_nee_agree_and_are_far_more_precise(slab
     assert 4 * per_ray < per_ray_analog, (b, a)
 
 
+@pytest.fixture(scope="module")
+def analog_slab(slab_scene):
+    return _run(slab_scene, 400_000, 4, ANALOG)
+
+
+@pytest.mark.parametrize("k, r", [(7, 2), (4, 1)])
+def test_chains_and_trees_with_a_reflection_limit_agree(slab_scene, analog_slab, k, r):
+    """With the trees' reflection limit R (delta_chain_reflections, the default set's K = 7, R = 2): the
+    chains follow at most R reflections too, the walk keeps the runs with more, and an eye path past
+    the trees' R keeps its whole weight. R = 1 leaves the ghost T R R T to the walk."""
+    res = _run(slab_scene, 20_000, 5, EstimatorOptions(reverse_chain=4, delta_chain=k, delta_chain_reflections=r))
+    b, a = res.detectors["det"], analog_slab.detectors["det"]
+    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
+    assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+
+
 def test_the_covector_carried_back_gives_the_forward_chain(rng=np.random.default_rng(11)):
     """(v_P)_0 from the detector back equals S0 at the detector of unpolarized light sent forward
     through the same interfaces and frame rotations (three random interfaces, random amplitudes)."""

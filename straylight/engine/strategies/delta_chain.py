@@ -1,4 +1,5 @@
-"""Runs of up to K interfaces into a detector (a singlet's two-reflection ghost) followed by splitting
+"""Runs of up to K interfaces into a detector (a singlet's two-reflection ghost; with
+``delta_chain_reflections`` R, of at most R reflections) followed by splitting
 (straylight.engine.delta_chain): the interfaces start and extend the runs
 (``Event.states["delta_chain"]``); the walk's hits after 1..K interfaces of a run are dropped, and a
 continuing hit on a part that does not split ends its run."""
@@ -16,8 +17,9 @@ class DeltaChainStrategy(Strategy):
     state_key = "delta_chain"
 
     def batch_state(self, ctx: BatchContext) -> object | None:
-        k = int(ctx.spec.options.estimator.delta_chain)
-        return impl.DeltaChains(ctx.n_rays, k, ctx.capabilities.parts(Capability.DELTA_CHAIN))
+        est = ctx.spec.options.estimator
+        return impl.DeltaChains(ctx.n_rays, int(est.delta_chain), ctx.capabilities.parts(Capability.DELTA_CHAIN),
+                                max_reflections=int(est.delta_chain_reflections))
 
     def at_interfaces(self, state, event, interfaces) -> None:
         state.at_interfaces(event, interfaces)
