@@ -68,7 +68,7 @@ def rotate_stokes(stokes, e1_from, e1_to, direction) -> np.ndarray:
     a = np.asarray(e1_from, float)
     b = np.asarray(e1_to, float)
     cos_psi = np.einsum("ij,ij->i", a, b)
-    sin_psi = np.einsum("ij,ij->i", np.cross(d, a), b)
+    sin_psi = np.einsum("ij,ij->i", cross_rows(d, a), b)
     s = np.asarray(stokes, float)
     c2 = cos_psi * cos_psi - sin_psi * sin_psi
     s2 = 2.0 * cos_psi * sin_psi
@@ -78,14 +78,26 @@ def rotate_stokes(stokes, e1_from, e1_to, direction) -> np.ndarray:
     return out
 
 
+def cross_rows(a, b) -> np.ndarray:
+    """Row-wise a x b of (n, 3) arrays: ``np.cross``'s products and differences, in its order (the
+    same bits), without its axis handling."""
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=-1)
+
+
+def norm_rows(v) -> np.ndarray:
+    """Row-wise |v| of an (n, 3) array in ``np.linalg.norm(v, axis=1)``'s order (the same bits)."""
+    return np.sqrt((v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) + v[:, 2] * v[:, 2])
+
+
 def s_vector(direction, normal) -> np.ndarray:
     """The s unit vector (n, 3) of rays ``direction`` hitting a surface of ``normal``:
     ``d x n`` normalised; at normal incidence any unit vector normal to ``d`` (a fixed rule:
     ``d x x`` or, when that vanishes, ``d x y``)."""
     d = np.asarray(direction, float)
     n = np.asarray(normal, float)
-    s = np.cross(d, n)
-    norm = np.linalg.norm(s, axis=1)
+    s = cross_rows(d, n)
+    norm = norm_rows(s)
     bad = norm < 1e-12
     if np.any(bad):
         alt = np.cross(d[bad], np.array([1.0, 0.0, 0.0]))

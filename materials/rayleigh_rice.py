@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from materials.mueller import jones_to_mueller
+from materials.mueller import jones_to_mueller, norm_rows
 
 Z = np.array([0.0, 0.0, 1.0])
 
@@ -35,8 +35,9 @@ def _unit(v):
 def s_basis(k, fallback=None) -> np.ndarray:
     """s = k x z normalised for propagation directions k (n, 3) in the sample frame; along the
     normal, ``fallback`` (n, 3) (unit, normal to k) or the x-based rule of materials.mueller.s_vector."""
-    s = np.cross(k, Z)
-    norm = np.linalg.norm(s, axis=1)
+    z0, z1, z2 = Z  # np.cross(k, Z), its products and differences written out (the same bits)
+    s = np.stack([k[:, 1] * z2 - k[:, 2] * z1, k[:, 2] * z0 - k[:, 0] * z2, k[:, 0] * z1 - k[:, 1] * z0], axis=-1)
+    norm = norm_rows(s)
     bad = norm < 1e-12
     if np.any(bad):
         if fallback is not None:
@@ -44,7 +45,7 @@ def s_basis(k, fallback=None) -> np.ndarray:
         else:
             alt = np.cross(k[bad], np.array([1.0, 0.0, 0.0]))
             s[bad] = alt
-        norm = np.linalg.norm(s, axis=1)
+        norm = norm_rows(s)
     return s / norm[:, None]
 
 

@@ -39,6 +39,7 @@ import numpy as np
 from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
+from straylight.engine.material_groups import distinct
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
@@ -224,7 +225,7 @@ class DeltaChains:
         rays = event.rays
         j_of = event.scene.arrays.detector_of_part[part]
         start_part = event.hits.part[b.row].astype(np.int64)
-        for j in np.unique(j_of):
+        for j in distinct(j_of):
             m = np.flatnonzero(j_of == j)
             i = b.row[m]
             r = rays.ray[i]

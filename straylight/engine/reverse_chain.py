@@ -71,7 +71,7 @@ from straylight.engine.capabilities import Capability
 from straylight.engine.entrance_sampling import density as entrance_density
 from straylight.engine.entrance_sampling import table_from_contributions, warp
 from straylight.engine.interactions.registry import parts_with
-from straylight.engine.material_groups import by_material
+from straylight.engine.material_groups import by_material, distinct
 from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
@@ -237,7 +237,7 @@ class EyeTable:
 
     def _groups(self, j, side):
         key = 2 * np.asarray(j, np.int64) + (np.asarray(side) < 0)
-        for kk in np.unique(key):
+        for kk in distinct(key):
             table = self.tables[int(kk)]
             if table is not None:
                 yield table, np.flatnonzero(key == kk)
@@ -736,7 +736,7 @@ class ReverseChains:
         exchange of ``exchange_part``, and record it at the eye's detector point."""
         e = self.ends
         j_of = e.detector[k]
-        for j in np.unique(j_of):
+        for j in distinct(j_of):
             m = np.flatnonzero(j_of == j)
             tallies.add(rows.detector_nee + int(j), ray[m], value[m])
             tallies.subtract(rows.nee_exchange + exchange_part[m], ray[m], value[m])

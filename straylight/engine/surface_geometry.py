@@ -13,6 +13,7 @@ import numpy as np
 
 from materials.mueller import interface_mueller
 from materials.smooth import Dielectric, reflect, refract
+from straylight.engine.material_groups import distinct
 from straylight.intersect._plane import plane_distance
 
 SELF_HIT_MM = 1e-6  # a refined hit this close to (or behind) the ray's origin on its own last part is spurious
@@ -32,7 +33,7 @@ def refine_on_surfaces(spec, part, origin, d, distance_mm, last_part, front, fac
     refined = np.zeros(m, bool)
     passing = np.zeros(m, bool)
     surfaces = spec.part_surfaces or ()
-    for p in np.unique(part):
+    for p in distinct(part):
         surf = surfaces[p] if p < len(surfaces) else None
         if surf is None:
             continue
@@ -128,7 +129,7 @@ def branch_coefficients(spec, part, front, d, facing, distance_mm):
     m = len(part)
     rs, rp, ts, tp = (np.zeros(m, complex) for _ in range(4))
     cos_t, eta, bulk = np.zeros(m), np.ones(m), np.ones(m)
-    for k in np.unique(mat):
+    for k in distinct(mat):
         g = np.flatnonzero(mat == k)
         smooth_coefficients_into(spec.materials[k], g, back, cos_i, distance_mm, (rs, rp, ts, tp, cos_t, eta, bulk))
     return rs, rp, ts, tp, cos_t, eta, bulk
@@ -202,7 +203,7 @@ def fresnel_branches(materials, mat, live, back, cos_i, distance_mm, S, u) -> Br
     rho_s = np.zeros(m)
     rho_p = np.zeros(m)
     theta = np.arccos(cos_i)
-    for k in np.unique(mat[live]):
+    for k in distinct(mat[live]):
         g = np.flatnonzero(live & (mat == k))
         model = materials[k]
         if getattr(model, "composite", None) is not None:

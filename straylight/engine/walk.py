@@ -13,6 +13,7 @@ import numpy as np
 from straylight.engine.advance import ADVANCE_WRITES_PER_RAY, next_rays
 from straylight.engine import diffraction as diffraction_step
 from straylight.engine.draws import event_columns, event_uniforms
+from straylight.engine.material_groups import distinct
 from straylight.engine.emission import emit_batch
 from straylight.engine.event import Event, combined_outgoing
 from straylight.engine.hits import HITS_WRITES_PER_RAY, Hits
@@ -55,7 +56,7 @@ def _by_interaction(kind_of_part, kinds, continuing, part):
     k = kind_of_part[part]
     if len(k) and (k == k[0]).all():
         return [(kinds[k[0]], slice(None))]
-    return [(kinds[u], np.flatnonzero(k == u)) for u in np.unique(k)]
+    return [(kinds[u], np.flatnonzero(k == u)) for u in distinct(k)]
 
 
 def _record_walk_hits(event, rec, rec_w):

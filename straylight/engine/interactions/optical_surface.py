@@ -39,6 +39,7 @@ import numpy as np
 from materials.mueller import s_vector
 from materials.polarized_brdf import is_polarizing
 from straylight.engine import nee
+from straylight.engine.material_groups import distinct
 from straylight.engine.event import Interfaces, Outgoing
 from straylight.engine.interactions.brdf_scatter import LocalFrames
 from straylight.engine.interactions.registry import Capability, Handler
@@ -161,7 +162,7 @@ class OpticalSurface(Handler):
         weight = np.empty(len(lb))
         pdf_l = np.empty(len(lb))
         mv = mat[at]
-        for k in np.unique(mv):
+        for k in distinct(mv):
             g = np.flatnonzero(mv == k)
             smp = spec.materials[k].sample(wi[g], u3[g], "u")
             wo[g], weight[g], pdf_l[g] = smp.wo, smp.weight, smp.pdf_per_sr

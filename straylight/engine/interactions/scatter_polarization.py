@@ -19,7 +19,7 @@ import numpy as np
 from materials.mueller import s_vector
 from materials.polarized_brdf import is_polarizing, mueller_brdf
 from straylight.engine.interactions.stokes import active_state, incoming_stokes
-from straylight.engine.material_groups import by_material
+from straylight.engine.material_groups import by_material, distinct
 from straylight.engine.vec3 import dot_rows
 
 
@@ -55,7 +55,7 @@ class Arriving:
             use = np.flatnonzero(self.polarized[vertex] & self.polar_mat[vertex])
             if len(use):
                 mv = material[vertex[use]]
-                for k in np.unique(mv):
+                for k in distinct(mv):
                     g = use[mv == k]
                     v = vertex[g]
                     M, _ = mueller_brdf(models[k], wi[g], wo[g], self.s_local[v], first_row_only=True)
@@ -90,7 +90,7 @@ class Arriving:
         mv = fr.material[at]
         S_out = np.zeros((len(use), 4))
         e1 = np.zeros((len(use), 3))
-        for k in np.unique(mv):
+        for k in distinct(mv):
             g = np.flatnonzero(mv == k)
             M, e1_loc = mueller_brdf(models[k], wi[g], wo[g], self.s_local[at[g]])
             So = np.einsum("nij,nj->ni", M, self.S[at[g]])
