@@ -256,23 +256,59 @@ def estimate(event, verts, frame, w_vertex, evaluate=None):
     (straylight.engine.strategies.base.Strategy: ``nee_weights``, ``nee_density``, ``after_nee``): e.g.
     second-vertex sampling gives the vertices reached straight from a scatter vertex their walk share and
     draws, after NEE, each vertex's critical second vertex; target sampling mixes its density into the
-    walk's. Shadow rays are tested by ``event.shadow_test`` (the walk's: occlusion and diffracting edges)."""
+    walk's. Shadow rays are tested by ``event.shadow_test`` (the walk's: occlusion and diffracting edges).
+
+    With ``nee_split`` (straylight.engine.nee_split) the heavy glossy vertices take K > ``nee_samples``
+    samples per detector, all weighed as one K-sample MIS."""
     hooks = event.nee_hooks
     mix = None
     for strategy, state in hooks:
         w_vertex = strategy.nee_weights(state, event, verts, w_vertex)
         mix = strategy.nee_density(state, event, verts) or mix
-    _estimate(event, verts, frame, w_vertex, evaluate, mix)
+    split = event.states.get(SPLIT_KEY)
+    k_vertex = None
+    if split is not None:
+        k_vertex = split.counts(event, verts, frame, w_vertex, _probe_pairs(event))
+    k0 = event.settings.nee_samples
+    _estimate(event, verts, frame, w_vertex, evaluate, mix, None if k_vertex is None else k0 / k_vertex)
+    if k_vertex is not None:
+        for k in np.unique(k_vertex[k_vertex > k0]):
+            sub = np.flatnonzero(k_vertex == k)
+            more = int(k) - k0
+            U = split.uniforms(event, verts[sub], 3 * len(event.scene.det_parts) * more)
+            _estimate(event, np.ascontiguousarray(verts[sub]), type(frame)(*(a[sub] for a in frame)),
+                      None if w_vertex is None else w_vertex[sub],
+                      None if evaluate is None else (lambda wi, wo, v, sub=sub: evaluate(wi, wo, sub[v])),
+                      None if mix is None else (lambda pdf, v, d, sub=sub: mix(pdf, sub[v], d)),
+                      np.full(len(sub), more / float(k)), U=U, u_col0=0,
+                      settings=event.settings._replace(nee_samples=more))
     for strategy, state in hooks:
         strategy.after_nee(state, event, verts, frame)
 
 
-def _estimate(event, verts, frame, w_vertex, evaluate, mix):
-    spec, kern, settings, hit = event.spec, event.kernels, event.settings, event.hits
+SPLIT_KEY = "nee_split"  # the NeeSplit state's key on Event.states (straylight.engine.strategies.nee)
+
+
+def _probe_pairs(event):
+    """``pairs_of(verts, frame, U, k)`` for NeeSplit.counts: k fixed detector points per vertex."""
+    def pairs_of(verts, frame, U, k):
+        p = NeePairs(*event.kernels.nee_pairs(verts, frame, event.hits, U, 0, event.scene.arrays,
+                                               event.settings._replace(nee_samples=k)))
+        return p.vertex, p.sample, p.point_mm, p.wo_local, p.dist2_mm2, p.cos_vertex, p.cos_detector
+    return pairs_of
+
+
+def _estimate(event, verts, frame, w_vertex, evaluate, mix, scale=None, U=None, u_col0=None, settings=None):
+    """NEE from ``verts``; ``scale`` (per vertex, or None): k / K of the vertices split into K samples (it
+    multiplies f and the walk's density, so each of these k samples weighs in as one of K); ``U``,
+    ``u_col0``, ``settings``: the uniforms and the sample count (default: the event's)."""
+    spec, kern, hit = event.spec, event.kernels, event.hits
+    settings = event.settings if settings is None else settings
+    U = event.uniforms if U is None else U
+    u_col0 = event.columns.nee if u_col0 is None else u_col0
     pol = spec.options.physics.polarization
     n_jk = len(event.scene.det_parts) * settings.nee_samples
-    pairs = NeePairs(*kern.nee_pairs(verts, frame, hit, event.uniforms, event.columns.nee, event.scene.arrays,
-                                     settings))
+    pairs = NeePairs(*kern.nee_pairs(verts, frame, hit, U, u_col0, event.scene.arrays, settings))
     if len(pairs.vertex) == 0:
         return
     pairs = _unblocked(event, pairs, verts, w_vertex)  # shadow rays first: the materials only where they count
@@ -298,6 +334,10 @@ def _estimate(event, verts, frame, w_vertex, evaluate, mix):
                 pdf_jk[rows] = pv
         if mix is not None:  # the walk's density there mixes in another strategy's (target sampling)
             pdf_jk = mix(pdf_jk, pairs.vertex[sel], pairs.direction[sel])
+        if scale is not None:  # k of K samples: power heuristic with K p_nee (pdf k / K against k p_nee), / K
+            s_jk = scale[pairs.vertex[sel]]
+            f_jk = f_jk * s_jk
+            pdf_jk = pdf_jk * s_jk
         f[sel] = f_jk if w_vertex is None else f_jk * w_vertex[pairs.vertex[sel]]
         pdf_brdf[sel] = pdf_jk
     shadow = ShadowRays(*kern.nee_shadow(pairs, f, pdf_brdf, verts, event.rays, hit, event.scene.arrays, settings))
@@ -308,7 +348,7 @@ def _estimate(event, verts, frame, w_vertex, evaluate, mix):
     ok = kern.nee_tally(shadow, blocked, pairs, verts, event.rays, hit, settings.nee_samples,
                         event.tallies.kernel_arg, event.rows)
     if len(ok):
-        _record(event, verts, pairs, shadow, ok)
+        _record(event, verts, pairs, shadow, ok, settings.nee_samples)
 
 
 def _unblocked(event, pairs, verts, w_vertex) -> NeePairs:
@@ -334,7 +374,7 @@ def _unblocked(event, pairs, verts, w_vertex) -> NeePairs:
     return NeePairs(*(a[keep] for a in pairs))
 
 
-def _record(event, verts, pairs, shadow, ok):
+def _record(event, verts, pairs, shadow, ok, k_nee):
     """Map (and path) records of the unblocked NEE contributions, per detector. One record call per
     (detector, sample), as both walks make them: the map binning (a BLAS product) then sees the same
     arrays, so the bins are the same to the last bit."""
@@ -342,7 +382,6 @@ def _record(event, verts, pairs, shadow, ok):
     c = shadow.contribution_w[ok]
     live = verts[pairs.vertex[a]]
     jk_a = pairs.sample[a]
-    k_nee = event.settings.nee_samples
     rays, part = event.rays, event.hits.part
     K = rays.history.shape[1]
     det_parts = event.scene.det_parts

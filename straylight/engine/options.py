@@ -23,6 +23,7 @@ class EstimatorOptions:
 
     nee: bool = True
     nee_samples: int = 1
+    nee_split: int = 1  # > nee_samples: heavy glossy vertices take up to this many NEE samples (straylight.engine.nee_split)
     rr_threshold: float = 1e-3
     target_parts: tuple = ()
     target_fraction: float = 0.5
@@ -42,6 +43,8 @@ class EstimatorOptions:
             raise TraceError(f"rr_threshold must be in [0, 1), got {self.rr_threshold}")
         if int(self.nee_samples) < 1:
             raise TraceError(f"nee_samples must be >= 1, got {self.nee_samples}")
+        if not isinstance(self.nee_split, (int, np.integer)) or int(self.nee_split) < 1:
+            raise TraceError(f"nee_split must be an integer >= 1 (most NEE samples at a split vertex), got {self.nee_split!r}")
         if not (0.0 < float(self.target_fraction) < 1.0):
             raise TraceError(f"target_fraction must be in (0, 1), got {self.target_fraction}")
         if isinstance(self.target_parts, str):
