@@ -586,8 +586,12 @@ class ReverseChains:
         r = rays.ray[cont]
         part = hit.part[cont].astype(np.int64)
         interface = self.splits[part]
-        passing = interface & (out.event == rays.last_event[cont]) & (out.throughput == 1.0) \
-            & (out.direction == rays.direction[cont]).all(axis=1)
+        passing = np.zeros(len(cont), dtype=bool)  # an interface hit the walk passed unchanged
+        at = np.flatnonzero(interface)
+        if len(at):
+            c = cont[at]
+            passing[at] = (out.event[at] == rays.last_event[c]) & (out.throughput[at] == 1.0) \
+                & (out.direction[at] == rays.direction[c]).all(axis=1)
         mat = event.spec.part_material[part]
         scatter = (out.event == EVENT_SCATTER) & ~passing
         specular = (out.event == EVENT_SPECULAR) & interface & ~passing
@@ -600,18 +604,19 @@ class ReverseChains:
         anchored = end_kind & self.pred[r]
         if self.k_tree > 0 and anchored.any():
             self._walk_density(event, cont[anchored], out, np.flatnonzero(anchored))
-        self.anchor[r[scatter]] = anchored[scatter]
-        self.run[r[scatter]] = 0
-        self.refl[r[scatter]] = 0
-        self.pred[r[scatter]] = plain[scatter]
-        self.run[r[specular]] += 1
+        r_scatter, r_specular, r_other = r[scatter], r[specular], r[other]
+        self.anchor[r_scatter] = anchored[scatter]
+        self.run[r_scatter] = 0
+        self.refl[r_scatter] = 0
+        self.pred[r_scatter] = plain[scatter]
+        self.run[r_specular] += 1
         # a reflection leaves on the side it arrived from (facing_normal is turned toward the incoming ray)
-        self.refl[r[specular]] += _dot(out.direction[specular], hit.facing_normal[cont[specular]]) > 0
+        self.refl[r_specular] += _dot(out.direction[specular], hit.facing_normal[cont[specular]]) > 0
         self.pred[r[specular | passing]] = False
-        self.anchor[r[other]] = False
-        self.pred[r[other]] = False
-        self.run[r[other]] = 0
-        self.refl[r[other]] = 0
+        self.anchor[r_other] = False
+        self.pred[r_other] = False
+        self.run[r_other] = 0
+        self.refl[r_other] = 0
 
     def _walk_density(self, event, rows, out, at):
         """The walk's density of the (P, omega) it drew at the anchored vertices ``rows`` (``out``

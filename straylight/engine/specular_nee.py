@@ -57,7 +57,7 @@ from materials.smooth import Dielectric
 from straylight.engine import specular_manifold as manifold
 from straylight.engine import specular_reach as reach
 from straylight.engine.capabilities import Capability
-from straylight.engine.interactions.brdf_scatter import LocalFrames, frames_numpy
+from straylight.engine.interactions.brdf_scatter import LocalFrames
 from straylight.engine.interactions.registry import parts_with
 from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import by_material
@@ -428,8 +428,8 @@ class SpecularNee:
         sub = np.flatnonzero(need)
         rows, p, n_p = rows[sub], p[sub], n_p[sub]
         verts = np.ascontiguousarray(rows)
-        frame = LocalFrames(*frames_numpy(verts, rays.direction, hit.facing_normal, hit.part, spec.part_material,
-                                          event.uniforms))
+        frame = LocalFrames(*event.kernels.frames(verts, rays.direction, hit.facing_normal, hit.part,
+                                                  spec.part_material, event.uniforms))  # the walk's kernel (same bits)
         arr = arriving(event, verts, frame)
         evaluate = _unpolarized(spec, frame.material)
         for j, seq, may, z, nz in todo:
