@@ -10,7 +10,7 @@
     start weight, ~1500x the mean contribution at 30 deg on the Newtonian benchmark: those rays held
     78-84 % of the variance there and 99 % at 50 deg on the built-in z302 tube (docs/engine.md,
     "Russian roulette and the glossy tails").
-    It also follows runs of up to 7 Fresnel and specular interfaces (``optical_surface`` parts) with at
+    It also follows runs of up to 32 Fresnel and specular interfaces (``optical_surface`` parts) with at
     most 2 reflections among them into a detector by splitting, both branches with their expected
     weights (``delta_chain``, ``delta_chain_reflections``,
     straylight.engine.delta_chain): on a refractor the lens's own two-reflection ghost "vane -> lens
@@ -24,7 +24,7 @@
     points reach a small sensor (the ghost of the direct beam), and a uniform beam finds them by chance.
 
     With a refracting material it also traces, per ray, an eye chain from the detector back through
-    up to 7 interfaces, at most 2 of them reflections (``reverse_chain``, straylight.engine.reverse_chain):
+    up to 32 interfaces, at most 2 of them reflections (``reverse_chain``, straylight.engine.reverse_chain):
     the scatter the lens's
     image or ghosts carry onto the sensor ("dew shield -> lens x4 -> sensor" at 30-60 deg on a
     refractor, which the walk found by chance) is joined to the source and to the walk's scatter
@@ -50,12 +50,13 @@ from straylight.engine.options import EstimatorOptions, TraceOptions
 
 #: Russian roulette threshold of the default set, relative to a ray's start weight
 ANALYSIS_RR_THRESHOLD = 1e-5
-#: interfaces a split tree of the default set follows (a singlet's two-reflection ghost meets 4, a
-#: cemented doublet's meets up to 7: front (T), cement (T), back (R), cement (T), front (R), cement (T),
-#: back (T))
-DELTA_CHAIN_INTERFACES = 7
-#: reflections a split tree of the default set follows among them (a ghost's order): the trees of a
-#: doublet stay small (the transmissions through the cement need no budget of their own)
+#: interfaces a split tree of the default set follows: a cap. A two-reflection ghost of a lens of N
+#: surfaces meets up to 3 N - 2 (a singlet 4, a cemented doublet 7: front (T), cement (T), back (R),
+#: cement (T), front (R), cement (T), back (T); a Cooke triplet 16, a double Gauss of 10 surfaces 28):
+#: 32 reaches every two-reflection ghost of a lens of up to 11 surfaces
+DELTA_CHAIN_INTERFACES = 32
+#: reflections a split tree of the default set follows among them (a ghost's order): this, not the
+#: cap, bounds the trees (the transmissions between the reflections need no budget of their own)
 DELTA_CHAIN_REFLECTIONS = 2
 
 #: the sets: presets of the estimator options (NEE on, the engine's other defaults unless named)

@@ -28,6 +28,12 @@ the lens's ghosts and its direct image. Walk hits after more than K interfaces a
 most 2 + 4 + ... + 2^K casts per run start (~2 per interface level in a singlet: one branch leaves
 the lens and stops at the tube).
 
+With ``delta_chain_reflections = R`` > 0 a branch is reflected only while it has met fewer than R
+reflections (a ghost's order; transmissions are followed up to K interfaces), and the walk keeps its hits
+after runs with more than R reflections: a cemented doublet's two-reflection ghosts cross the cement
+on every pass (7 interfaces, not a singlet's 4), and with R = 2 a cap of K = 32 costs a shallow lens
+nothing while the trees stay polynomial in the number of surfaces.
+
 Roulette, which is unbiased, keeps the walk's side an unbiased estimate of what the tree covers; a
 walk truncated by ``max_events`` would not reach the detector where the tree does (the tree follows
 the physics there).
@@ -47,8 +53,26 @@ from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
 
 
+#: columns of interface codes a branch starts with; they grow as a branch meets more (a cap K of 32
+#: interfaces must not cost a singlet's trees, whose branches meet at most 4, 32 columns per row)
+CODE_COLUMNS = 8
+
+
 def _dot(a, b):
     return np.einsum("ij,ij->i", a, b)
+
+
+def widen_codes(codes: np.ndarray, width: int) -> np.ndarray:
+    """``codes`` (n, m) with -1 columns appended up to ``width`` (itself when m >= width)."""
+    if codes.shape[1] >= width:
+        return codes
+    return np.concatenate([codes, np.full((len(codes), width - codes.shape[1]), -1, dtype=codes.dtype)], axis=1)
+
+
+def concat_codes(parts) -> np.ndarray:
+    """Code arrays of several branch sets stacked, the narrower ones widened to the widest."""
+    width = max(c.shape[1] for c in parts)
+    return np.concatenate([widen_codes(c, width) for c in parts])
 
 
 class Branches:
@@ -134,7 +158,7 @@ class DeltaChains:
         part = event.hits.part[rows].astype(np.int64)
         w = rays.weight_w[rows]
         key = rays.path_key[rows] if event.settings.record_paths else np.zeros(len(rows), np.uint64)
-        codes = np.full((len(rows), self.k_max), -1, dtype=np.int64)
+        codes = np.full((len(rows), min(self.k_max, CODE_COLUMNS)), -1, dtype=np.int64)
         live = self._children(spec, Branches(np.asarray(rows), at, d, w, S, s, np.zeros(len(rows), np.int64),
                                              part, key, codes, np.zeros(len(rows), np.int64)),
                               facing, s, S, fresnel, event)
@@ -171,7 +195,7 @@ class DeltaChains:
         if not rows:
             return None
         g = rows[0] if len(rows) == 1 else np.concatenate(rows)
-        codes = b.codes[g]
+        codes = widen_codes(b.codes[g], int(b.k[g].max()) + 1)  # the column of this interface exists
         codes[np.arange(len(g)), b.k[g]] = code[g]
         origin, d, weight, stokes, refl = (x[0] if len(x) == 1 else np.concatenate(x)
                                            for x in (origin, d, weight, stokes, refl))
@@ -218,7 +242,8 @@ class DeltaChains:
             return None
         if len(parts) == 1:
             return parts[0]
-        return Branches(*(np.concatenate([getattr(o, f) for o in parts]) for f in Branches.FIELDS))
+        return Branches(*(concat_codes([o.codes for o in parts]) if f == "codes"
+                          else np.concatenate([getattr(o, f) for o in parts]) for f in Branches.FIELDS))
 
     def _score(self, event, b, part, z, nz):
         """Count the branches ``b`` that reached detector parts ``part`` at points ``z`` (triangle normals ``nz``)."""
@@ -238,7 +263,7 @@ class DeltaChains:
             if event.settings.record_paths:
                 keys = mix_key(b.key[m], event.scene.det_parts[int(j)] * 4 + EVENT_DETECTOR)
                 events = rays.history[i]
-                for step in range(self.k_max):
+                for step in range(b.codes.shape[1]):
                     at = np.flatnonzero((b.codes[m, step] >= 0) & (depth + step < events.shape[1]))
                     events[at, depth[at] + step] = b.codes[m[at], step]
             event.records.add(int(j), r, z[m], w, keys, events, depth + b.k[m])

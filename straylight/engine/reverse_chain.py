@@ -68,6 +68,7 @@ from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
 from materials.sampling import invert_cosine_hemisphere_sample, sample_cosine_hemisphere
 from straylight.engine.capabilities import Capability
+from straylight.engine.delta_chain import CODE_COLUMNS, concat_codes, widen_codes
 from straylight.engine.entrance_sampling import density as entrance_density
 from straylight.engine.entrance_sampling import table_from_contributions, warp
 from straylight.engine.interactions.registry import parts_with
@@ -347,7 +348,8 @@ class _Branches:
 
     @classmethod
     def concat(cls, parts):
-        return cls(**{f: np.concatenate([getattr(p, f) for p in parts]) for f in cls.FIELDS})
+        return cls(**{f: concat_codes([p.codes for p in parts]) if f == "codes"
+                      else np.concatenate([getattr(p, f) for p in parts]) for f in cls.FIELDS})
 
 
 def reflection_limit(est) -> int:
@@ -409,7 +411,8 @@ class EyeChains:
         v[:, 0] = 1.0
         live = _Branches(ray=np.arange(n), origin=np.ascontiguousarray(z + 2.0 * spec.eps * nz), d=d, w=beta, v=v,
                          e1=e1, k=np.zeros(n, np.int64), last_part=det_part, det=j, z=z,
-                         codes=np.full((n, max(self.k_max, 1)), -1, dtype=np.int64), refl=np.zeros(n, np.int64))
+                         codes=np.full((n, max(min(self.k_max, CODE_COLUMNS), 1)), -1, dtype=np.int64),
+                         refl=np.zeros(n, np.int64))
         ends = []
         for _ in range(int(spec.options.physics.max_events)):
             if live is None or len(live.w) == 0:
@@ -419,7 +422,8 @@ class EyeChains:
             z0 = np.empty(0, np.int64)
             return EyeEnds(z0, np.empty((0, 3)), np.empty((0, 3)), z0, z0, np.empty((0, 3)), np.empty(0), z0,
                            np.empty((0, 3)), z0, np.empty((0, max(self.k_max, 1)), np.int64), z0), q, drawn
-        cols = {k: np.concatenate([e[k] for e in ends]) for k in ends[0]}
+        cols = {k: concat_codes([e[k] for e in ends]) if k == "codes" else np.concatenate([e[k] for e in ends])
+                for k in ends[0]}
         return EyeEnds(**cols), q, drawn
 
     def _step(self, spec, scene, b, ends):
@@ -474,7 +478,8 @@ class EyeChains:
         # frame, along the forward direction -d (the inverse of the forward rotation)
         v = rotate_stokes(b.v, b.e1, s, -b.d)
         code = part * 4 + EVENT_SPECULAR
-        codes = b.codes.copy()
+        codes = widen_codes(b.codes, int(b.k.max()) + 1 if m else 0)
+        codes = codes.copy() if codes is b.codes else codes
         codes[np.arange(m), b.k] = code
         eps = 2.0 * spec.eps
         out = []
