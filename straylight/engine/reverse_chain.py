@@ -615,8 +615,7 @@ class ReverseChains:
         self.refl[r_scatter] = 0
         self.pred[r_scatter] = plain[scatter]
         self.run[r_specular] += 1
-        # a reflection leaves on the side it arrived from (facing_normal is turned toward the incoming ray)
-        self.refl[r_specular] += _dot(out.direction[specular], hit.facing_normal[cont[specular]]) > 0
+        self.refl[r_specular] += out.side[specular] > 0  # the walk's branch: a reflection leaves on its own side
         self.pred[r[specular | passing]] = False
         self.anchor[r_other] = False
         self.pred[r_other] = False
