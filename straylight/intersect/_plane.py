@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from materials.sampling import lazy_njit
+
 
 PLANE_BLOCK = 16384  # triangles per block of triangle_planes: its temporaries stay in the CPU cache
 
@@ -37,8 +39,36 @@ def triangle_planes(triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
 def plane_distance(v0, normal, centroid, tri, origins, dirs) -> np.ndarray:
     """Distance along ``dirs`` from ``origins`` to the plane of triangle ``tri`` (float64).
 
-    Edge-on hits (|d.n| tiny) fall back to the projection of the centroid on the ray.
-    """
+    Edge-on hits (|d.n| tiny) fall back to the projection of the centroid on the ray. One compiled
+    pass, :func:`plane_distance_numpy`'s operations in its order (the same bits)."""
+    tri = np.ascontiguousarray(tri, dtype=np.int64)
+    out = np.empty(len(tri))
+    if len(tri):
+        lazy_njit(_plane_distance_loop, "numpy")(v0, normal, centroid, tri, np.ascontiguousarray(origins, np.float64),
+                                                 np.ascontiguousarray(dirs, np.float64), out)
+    return out
+
+
+def _plane_distance_loop(v0, normal, centroid, tri, origins, dirs, out):
+    """:func:`plane_distance_numpy` row by row: einsum's dot order ``(a0 b0 + a2 b2) + a1 b1``,
+    ``np.maximum(t, 0)`` (NaN kept, -0 to +0)."""
+    for r in range(len(tri)):
+        k = tri[r]
+        n0, n1, n2 = normal[k, 0], normal[k, 1], normal[k, 2]
+        o0, o1, o2 = origins[r, 0], origins[r, 1], origins[r, 2]
+        d0, d1, d2 = dirs[r, 0], dirs[r, 1], dirs[r, 2]
+        dn = (d0 * n0 + d2 * n2) + d1 * n1
+        if abs(dn) < 1e-12:
+            c0, c1, c2 = centroid[k, 0] - o0, centroid[k, 1] - o1, centroid[k, 2] - o2
+            t = (c0 * d0 + c2 * d2) + c1 * d1
+        else:
+            a0, a1, a2 = v0[k, 0] - o0, v0[k, 1] - o1, v0[k, 2] - o2
+            t = ((a0 * n0 + a2 * n2) + a1 * n1) / dn
+        out[r] = t if (t > 0.0 or t != t) else 0.0  # np.maximum(t, 0.0): +0 for -0
+
+
+def plane_distance_numpy(v0, normal, centroid, tri, origins, dirs) -> np.ndarray:
+    """:func:`plane_distance` in vectorised numpy (the reference it is tested against)."""
     n = normal[tri]
     dn = np.einsum("ij,ij->i", dirs, n)
     num = np.einsum("ij,ij->i", v0[tri] - origins, n)

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from straylight.intersect._plane import plane_distance
+from materials.sampling import lazy_njit
+from straylight.intersect._plane import plane_distance, plane_distance_numpy
 
 MAX_PASSES = 8  # a ray crosses at most this many refused slivers before its hit is taken as found
 
@@ -50,7 +51,21 @@ class ExactBoundaryIntersector:
         return getattr(self.inner, name)
 
     def _refused(self, tri, origins, dirs):
-        """(bool per ray: its hit is on a plane part outside the exact boundary, hit distances)."""
+        """(bool per ray: its hit is on a plane part outside the exact boundary, hit distances: the
+        plane distance on plane parts, inf elsewhere). One compiled pass, :meth:`_refused_numpy`'s
+        operations in its order (the same bits)."""
+        tri = np.ascontiguousarray(tri, dtype=np.int64)
+        refused = np.zeros(len(tri), dtype=bool)
+        t = np.full(len(tri), np.inf)
+        if len(tri):
+            lazy_njit(_refused_loop, "numpy")(tri, np.ascontiguousarray(origins, np.float64),
+                                              np.ascontiguousarray(dirs, np.float64), self._disk_or_miss,
+                                              self._v0, self._normal, self._centroid, self._centre, self._axis,
+                                              self._r2, refused, t)
+        return refused, t
+
+    def _refused_numpy(self, tri, origins, dirs):
+        """:meth:`_refused` in vectorised numpy (the reference it is tested against)."""
         tri = np.asarray(tri, dtype=np.int64)
         disk = self._disk_or_miss[tri]
         on = np.flatnonzero(disk >= 0)
@@ -58,7 +73,7 @@ class ExactBoundaryIntersector:
         t = np.full(len(tri), np.inf)
         if len(on) == 0:
             return refused, t
-        t_on = plane_distance(self._v0, self._normal, self._centroid, tri[on], origins[on], dirs[on])
+        t_on = plane_distance_numpy(self._v0, self._normal, self._centroid, tri[on], origins[on], dirs[on])
         k = disk[on]
         rel = origins[on] + t_on[:, None] * dirs[on] - self._centre[k]
         along = np.einsum("ij,ij->i", rel, self._axis[k])
@@ -121,6 +136,34 @@ class ExactBoundaryIntersector:
         out = blocked.copy()
         out[rows] = (tri >= 0) & (t < np.asarray(tmax, dtype=np.float64)[rows])
         return out
+
+
+def _refused_loop(tri, origins, dirs, disk_or_miss, v0, normal, centroid, centre, axis, r2, refused, t):
+    """:meth:`ExactBoundaryIntersector._refused_numpy` row by row (``tri`` -1: a miss, the last entry of
+    ``disk_or_miss``); the plane distance of straylight.intersect._plane's loop, einsum's dot order."""
+    for r in range(len(tri)):
+        k = disk_or_miss[tri[r]]
+        if k < 0:
+            continue
+        j = tri[r]
+        n0, n1, n2 = normal[j, 0], normal[j, 1], normal[j, 2]
+        o0, o1, o2 = origins[r, 0], origins[r, 1], origins[r, 2]
+        d0, d1, d2 = dirs[r, 0], dirs[r, 1], dirs[r, 2]
+        dn = (d0 * n0 + d2 * n2) + d1 * n1
+        if abs(dn) < 1e-12:
+            c0, c1, c2 = centroid[j, 0] - o0, centroid[j, 1] - o1, centroid[j, 2] - o2
+            tp = (c0 * d0 + c2 * d2) + c1 * d1
+        else:
+            a0, a1, a2 = v0[j, 0] - o0, v0[j, 1] - o1, v0[j, 2] - o2
+            tp = ((a0 * n0 + a2 * n2) + a1 * n1) / dn
+        tp = tp if (tp > 0.0 or tp != tp) else 0.0
+        x0 = (o0 + tp * d0) - centre[k, 0]
+        x1 = (o1 + tp * d1) - centre[k, 1]
+        x2 = (o2 + tp * d2) - centre[k, 2]
+        along = (x0 * axis[k, 0] + x2 * axis[k, 2]) + x1 * axis[k, 1]
+        rho2 = ((x0 * x0 + x2 * x2) + x1 * x1) - along * along
+        refused[r] = rho2 > r2[k, 1] or rho2 < r2[k, 0]
+        t[r] = tp
 
 
 def plane_parts(part_surfaces) -> dict:

@@ -22,3 +22,44 @@ def test_cross_and_norm_rows_are_numpys_bits():
     got, want = cross_rows(a, b), np.cross(a, b)
     assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
     assert np.array_equal(norm_rows(a), np.linalg.norm(a, axis=1))
+
+
+def test_plane_distance_kernel_is_the_numpy_formula():
+    from straylight.intersect._plane import plane_distance, plane_distance_numpy, triangle_planes
+
+    rng = np.random.default_rng(2)
+    v0, normal, centroid = triangle_planes(rng.normal(size=(300, 3, 3)) * 100)
+    n = 20000
+    tri = rng.integers(0, 300, n)
+    o = rng.normal(size=(n, 3)) * 100
+    d = rng.normal(size=(n, 3))
+    d[:200] = np.cross(normal[tri[:200]], d[:200])  # edge-on: the centroid's projection
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    o[200:300] = v0[tri[200:300]]  # on the plane: 0
+    got, want = plane_distance(v0, normal, centroid, tri, o, d), plane_distance_numpy(v0, normal, centroid, tri, o, d)
+    assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+
+
+def test_refusal_kernel_is_the_numpy_formula():
+    """Rays aimed at a disk's covering polygon: the slivers outside the exact disk refused alike."""
+    import math
+
+    from geometry.analytic import Plane, analytic_part
+    from geometry.mesh import Scene
+    from straylight.intersect.embree import EmbreeIntersector
+    from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts
+
+    disk = Plane(np.zeros(3), np.array([0.0, 0.0, 1.0]), math.inf, 0.0, 5.0, 0.5)
+    scene = Scene((analytic_part("disk", disk, "grey"),))
+    ex = ExactBoundaryIntersector(EmbreeIntersector(scene.triangles_mm), scene.triangle_part,
+                                  plane_parts([disk]), 1e-6)
+    rng = np.random.default_rng(3)
+    n = 20000
+    target = np.column_stack([rng.uniform(-5.5, 5.5, (n, 2)), np.zeros(n)])
+    o = target + np.column_stack([rng.normal(size=(n, 2)), np.full(n, 10.0)])
+    d = target - o
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    tri = ex.inner.first_triangle(o, d)
+    (r1, t1), (r2, t2) = ex._refused(tri, o, d), ex._refused_numpy(tri, o, d)
+    assert r2.any() and (tri >= 0).any() and (tri < 0).any()
+    assert np.array_equal(r1, r2) and np.array_equal(t1, t2)
