@@ -39,10 +39,15 @@ def wide_slab():
     return Scene((top, bottom, det)), src, mats
 
 
-def test_agrees_with_the_analog_walk_at_a_smaller_error(wide_slab):
+@pytest.mark.parametrize("guide_hits", [None, 100])
+def test_agrees_with_the_analog_walk_at_a_smaller_error(wide_slab, guide_hits, monkeypatch):
+    """Also with the pilot's second stage drawn from its first stage's table (its first stage has ~470
+    lit rays: 100 lets them guide)."""
     sc, src, mats = wide_slab
+    if guide_hits is not None:
+        monkeypatch.setattr(entrance_sampling, "PILOT_GUIDE_HITS", guide_hits)
     analog = trace(sc, src, 200_000, seed=11, materials=mats, options=ANALOG)
-    on = trace(sc, src, 40_000, seed=12, materials=mats, options=ENTRANCE)
+    on = trace(sc, src, 40_000, seed=12 if guide_hits is None else 13, materials=mats, options=ENTRANCE)
     a, b = analog.detectors["det"], on.detectors["det"]
     assert a.power_w > 0 and b.power_w > 0
     assert abs(a.power_w - b.power_w) <= 4 * math.hypot(a.stderr_w, b.stderr_w), (a, b)
@@ -171,9 +176,61 @@ def test_a_pilot_in_two_stages_learns_the_table_of_one(wide_slab, monkeypatch):
     sc, src, mats = wide_slab
     spec = make_spec(sc, src, 1_000, 5, mats, ENTRANCE)
     monkeypatch.setattr(entrance_sampling, "PILOT_ENOUGH_ESS", math.inf)
+    monkeypatch.setattr(entrance_sampling, "PILOT_GUIDE_HITS", math.inf)  # the rest uniform, not guided
     monkeypatch.setattr(entrance_sampling, "PILOT_FIRST_RAYS", 2_000)
     staged = entrance_sampling.build_table(spec, run_batch, n_rays=6_000)
     monkeypatch.setattr(entrance_sampling, "PILOT_FIRST_RAYS", 6_000)
     whole = entrance_sampling.build_table(spec, run_batch, n_rays=6_000)
     assert staged.pilot_hits > 100 and staged.pilot_rays == whole.pilot_rays == 6_000
     np.testing.assert_array_equal(staged.prob, whole.prob)
+
+
+def _thin_band(u):
+    """A pilot contribution over the source's uniforms: a lit band 0.008 wide (half a cell of the 64 grid)
+    and a dim half, as a lens's ghost over the entrance points."""
+    band = np.abs(u[:, 0] - 0.3) < 0.004
+    return np.where(band, 1.0 + u[:, 1], 0.0) + 1e-3 * (u[:, 1] > 0.5)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_guided_stage_weighted_by_its_density_learns_the_table_closer(seed):
+    """Rays drawn from a first table and weighted by 1 / p in their cells' means estimate the uniform
+    measure's table: 1e4 uniform + 2e4 guided rays come closer to the table of 1e6 uniform rays (total
+    variation distance) than 3e4 uniform rays do, and than the same rays counted as if uniform."""
+    big = np.random.default_rng(99).random((1_000_000, 2))
+    truth = table_from_contributions(big, _thin_band(big))
+    rng = np.random.default_rng(seed)
+    uni = rng.random((30_000, 2))
+    first = table_from_contributions(uni[:10_000], _thin_band(uni[:10_000]))
+    rest = rng.random((20_000, 2))
+    rho = np.concatenate([np.ones(10_000), warp(first, rest)])
+    u = np.concatenate([uni[:10_000], rest])
+
+    def distance(table):
+        return 0.5 * np.abs(table.prob - truth.prob).sum()
+
+    guided = distance(table_from_contributions(u, _thin_band(u), rho=rho))
+    assert guided < 0.75 * distance(table_from_contributions(uni, _thin_band(uni)))
+    assert guided < 0.9 * distance(table_from_contributions(u, _thin_band(u)))
+
+
+def test_the_rest_of_the_pilot_draws_from_the_first_stages_table_when_enough_rays_saw_light(wide_slab, monkeypatch):
+    """A first stage with many lit rays but a low effective sample size guides the rest: the second
+    call runs with entrance sampling on the first stage's table (own streams, the rest of the pilot)."""
+    from straylight.trace import make_spec
+
+    sc, src, mats = wide_slab
+    spec = make_spec(sc, src, 1_000, 5, mats, ENTRANCE)
+    monkeypatch.setattr(entrance_sampling, "PILOT_ENOUGH_ESS", math.inf)
+    specs = []
+
+    def run_batch(pilot, first, stop, intersector=None):
+        specs.append(pilot)
+        rays = np.arange(first * 1000, stop * 1000)
+        return {"paths": {"ray": rays, "power_w": np.ones(len(rays))}}
+
+    table = entrance_sampling.build_table(spec, run_batch)
+    assert len(specs) == 2 and specs[0].entrance_table is None and not specs[0].options.estimator.entrance_sampling
+    assert specs[1].options.estimator.entrance_sampling and specs[1].entrance_table is not None
+    assert specs[1].chunk_offset == entrance_sampling.PILOT_CHUNK_OFFSET
+    assert table.pilot_rays == entrance_sampling.PILOT_RAYS
