@@ -37,6 +37,13 @@
     and made 20 deg's error bar unreliable (VOV up to 0.9); it costs 10-20 % CPU per ray (docs/engine.md,
     "Specular next-event estimation").
 
+    At the glints of a glossy lobe on a detector (a vertex whose NEE toward a fixed detector point is
+    predicted above 3e-7 of a start weight) it takes up to 64 NEE samples and as many lobe draws,
+    weighed as one multi-sample MIS (``nee_split``, straylight.engine.nee_split): on the guide scope at
+    15 deg the lens cell's bore, grazed by the beam behind the lens, is nearly a mirror there, and one
+    NEE point and one lobe draw saw its peak on the sensor by chance (docs/engine.md, "NEE splitting at
+    glints").
+
 Other sets (the history sets the benchmarks time the default against) are registered by
 :func:`register_estimator_set`: ``benchmarks/estimator_sets.py`` registers them for the benchmark
 runs and for its ``straylight`` command wrapper.
@@ -59,13 +66,16 @@ DELTA_CHAIN_INTERFACES = 32
 #: cap, bounds the trees (the transmissions between the reflections need no budget of their own)
 DELTA_CHAIN_REFLECTIONS = 2
 
+#: most NEE samples and lobe draws at a glint of the default set (straylight.engine.nee_split)
+NEE_SPLIT = 64
+
 #: the sets: presets of the estimator options (NEE on, the engine's other defaults unless named)
 ESTIMATOR_SETS = {
     "default": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
                                 second_vertex_lobe_sampling=True, rr_threshold=ANALYSIS_RR_THRESHOLD,
                                 delta_chain=DELTA_CHAIN_INTERFACES, delta_chain_reflections=DELTA_CHAIN_REFLECTIONS,
                                 entrance_sampling=True,
-                                reverse_chain=DELTA_CHAIN_INTERFACES, specular_nee=1),
+                                reverse_chain=DELTA_CHAIN_INTERFACES, specular_nee=1, nee_split=NEE_SPLIT),
 }
 
 
@@ -92,7 +102,7 @@ def estimator_options(name: str = "default", options: TraceOptions | None = None
     if materials is not None:
         models = list(materials.values()) if isinstance(materials, dict) else list(materials)
         if not any(flags_of(m) & ComponentFlags.GLOSSY for m in models if not isinstance(m, str)):
-            chosen = replace(chosen, rr_threshold=options.estimator.rr_threshold)
+            chosen = replace(chosen, rr_threshold=options.estimator.rr_threshold, nee_split=options.estimator.nee_split)
         if not any(flags_of(m) & ComponentFlags.DELTA_TRANSMISSION for m in models if not isinstance(m, str)):
             chosen = replace(chosen, entrance_sampling=False, reverse_chain=0, specular_nee=0)
     return replace(options, estimator=chosen)

@@ -270,18 +270,27 @@ def estimate(event, verts, frame, w_vertex, evaluate=None):
     if split is not None:
         k_vertex = split.counts(event, verts, frame, w_vertex, _probe_pairs(event))
     k0 = event.settings.nee_samples
-    _estimate(event, verts, frame, w_vertex, evaluate, mix, None if k_vertex is None else k0 / k_vertex)
+    # K NEE samples and K lobe draws (the walk's own and K - 1 more) at a split vertex: MIS weights
+    # ph(K p_nee, K pdf) per sample / K; these k0 samples carry f k0 / K against pdf k0 (K / K)
+    _estimate(event, verts, frame, w_vertex, evaluate, mix,
+              None if k_vertex is None else (k0 / k_vertex, np.where(k_vertex > k0, float(k0), 1.0)))
     if k_vertex is not None:
-        for k in np.unique(k_vertex[k_vertex > k0]):
-            sub = np.flatnonzero(k_vertex == k)
+        split_rows = np.flatnonzero(k_vertex > k0)
+        block = split.uniforms(event, verts[split_rows])
+        for k in np.unique(k_vertex[split_rows]):
+            at = np.flatnonzero(k_vertex[split_rows] == k)
+            sub = split_rows[at]
             more = int(k) - k0
-            U = split.uniforms(event, verts[sub], 3 * len(event.scene.det_parts) * more)
-            _estimate(event, np.ascontiguousarray(verts[sub]), type(frame)(*(a[sub] for a in frame)),
-                      None if w_vertex is None else w_vertex[sub],
-                      None if evaluate is None else (lambda wi, wo, v, sub=sub: evaluate(wi, wo, sub[v])),
-                      None if mix is None else (lambda pdf, v, d, sub=sub: mix(pdf, sub[v], d)),
-                      np.full(len(sub), more / float(k)), U=U, u_col0=0,
-                      settings=event.settings._replace(nee_samples=more))
+            fr = type(frame)(*(a[sub] for a in frame))
+            wv = None if w_vertex is None else w_vertex[sub]
+            ev = None if evaluate is None else (lambda wi, wo, v, sub=sub: evaluate(wi, wo, sub[v]))
+            if more > 0:
+                _estimate(event, np.ascontiguousarray(verts[sub]), fr, wv, ev,
+                          None if mix is None else (lambda pdf, v, d, sub=sub: mix(pdf, sub[v], d)),
+                          (np.full(len(sub), more / float(k)), np.full(len(sub), float(more))),
+                          U=split.nee_uniforms(event, verts[sub], block[at], more), u_col0=0,
+                          settings=event.settings._replace(nee_samples=more))
+            split.lobe_draws(event, verts[sub], fr, wv, ev, int(k), block[at])
     for strategy, state in hooks:
         strategy.after_nee(state, event, verts, frame)
 
@@ -299,9 +308,10 @@ def _probe_pairs(event):
 
 
 def _estimate(event, verts, frame, w_vertex, evaluate, mix, scale=None, U=None, u_col0=None, settings=None):
-    """NEE from ``verts``; ``scale`` (per vertex, or None): k / K of the vertices split into K samples (it
-    multiplies f and the walk's density, so each of these k samples weighs in as one of K); ``U``,
-    ``u_col0``, ``settings``: the uniforms and the sample count (default: the event's)."""
+    """NEE from ``verts``; ``scale`` (or None): per vertex, the factors of f and of the walk's density of
+    the vertices split into K NEE samples and K lobe draws (k / K and k for the k samples of this call:
+    each then weighs in as one of K, power heuristic of K p_nee against K pdf); ``U``, ``u_col0``,
+    ``settings``: the uniforms and the sample count (default: the event's)."""
     spec, kern, hit = event.spec, event.kernels, event.hits
     settings = event.settings if settings is None else settings
     U = event.uniforms if U is None else U
@@ -334,10 +344,9 @@ def _estimate(event, verts, frame, w_vertex, evaluate, mix, scale=None, U=None, 
                 pdf_jk[rows] = pv
         if mix is not None:  # the walk's density there mixes in another strategy's (target sampling)
             pdf_jk = mix(pdf_jk, pairs.vertex[sel], pairs.direction[sel])
-        if scale is not None:  # k of K samples: power heuristic with K p_nee (pdf k / K against k p_nee), / K
-            s_jk = scale[pairs.vertex[sel]]
-            f_jk = f_jk * s_jk
-            pdf_jk = pdf_jk * s_jk
+        if scale is not None:  # k of K samples: ph(k p_nee, k pdf) = ph(K p_nee, K pdf), f k / K over k: / K
+            f_jk = f_jk * scale[0][pairs.vertex[sel]]
+            pdf_jk = pdf_jk * scale[1][pairs.vertex[sel]]
         f[sel] = f_jk if w_vertex is None else f_jk * w_vertex[pairs.vertex[sel]]
         pdf_brdf[sel] = pdf_jk
     shadow = ShadowRays(*kern.nee_shadow(pairs, f, pdf_brdf, verts, event.rays, hit, event.scene.arrays, settings))

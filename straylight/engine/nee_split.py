@@ -27,17 +27,19 @@ import numpy as np
 
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
-from straylight.engine.ray_batch import EVENT_SCATTER
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.vec3 import power_heuristic_rows
 from straylight.engine.walk_shares import keep_walk_share
+from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS, check_seed
 
 SPLIT_STREAM = 0x4E53504C  # third entropy word of the further samples' streams ("NSPL")
 #: the predicted contribution (in start weights) above which a vertex's NEE is split
 SPLIT_TAU = 3e-7
 #: fixed detector points of the prediction: the (alias, radial, angular) uniforms of the NEE sampler
-#: (a disk detector: its centre and four points at 0.7 of the radius)
-PROBE_UNIFORMS = ((0.5, 0.0, 0.0), (0.5, 0.49, 0.0), (0.5, 0.49, 0.25), (0.5, 0.49, 0.5), (0.5, 0.49, 0.75))
+#: (a disk detector: its centre; a mesh: a corner of its middle triangle in the alias table). Four more
+#: at 0.7 of the radius found the same glints on the guide scope at 15 deg for 5x the BRDF calls
+PROBE_UNIFORMS = ((0.5, 0.0, 0.0),)
 
 
 class NeeSplit:
@@ -53,6 +55,8 @@ class NeeSplit:
         self.seed = check_seed(spec.seed)
         self.first_chunk = int(spec.chunk_offset) + int(ctx.first_chunk)
         self.n_det = len(ctx.scene.det_parts)
+        self.eps = float(spec.eps)
+        self.width = 3 * self.n_det * (self.k_max - self.k0) + 3 * (self.k_max - 1)
         self.k_of_ray = np.ones(ctx.n_rays, dtype=np.int64)
         self.at_depth = np.full(ctx.n_rays, -1, dtype=np.int64)
         self._gens: dict = {}
@@ -116,12 +120,12 @@ class NeeSplit:
         self.at_depth[r] = event.rays.depth[verts[split]] + 1
         return k
 
-    def uniforms(self, event, rows, width):
-        """Uniforms (n_rows of the event, ``width``) of the further samples; only ``rows`` filled, each from
-        its chunk's own stream in ray order (``self.k_max - k0`` samples per detector are drawn for
-        every split vertex, so what a chunk draws depends on its rays only)."""
-        full = 3 * self.n_det * (self.k_max - self.k0)
-        U = np.empty((event.uniforms.shape[0], max(width, 1)))
+    def uniforms(self, event, rows):
+        """The further draws' uniforms of the split vertices ``rows`` (rows of the event), one row each
+        (in the order of ``rows``): 3 per detector and further NEE sample, then 3 per further lobe draw,
+        for the largest K; each from its chunk's own stream in ray order (what a chunk draws depends on
+        its rays only, not on the batch)."""
+        out = np.empty((len(rows), self.width))
         r = event.rays.ray[rows]
         chunk = r // CHUNK_RAYS
         order = np.argsort(r, kind="stable")
@@ -130,13 +134,105 @@ class NeeSplit:
             gen = self._gens.get(int(c))
             if gen is None:
                 gen = self._gens[int(c)] = np.random.default_rng([self.seed, self.first_chunk + int(c), SPLIT_STREAM])
-            U[rows[at], :width] = gen.random((len(at), full))[:, :width]
+            out[at] = gen.random((len(at), self.width))
+        return out
+
+    def nee_uniforms(self, event, rows, block, more):
+        """An event-row-indexed array of the further NEE samples' uniforms (``more`` per detector) of the
+        vertices ``rows`` (``block``: their rows of :meth:`uniforms`); other rows unset."""
+        width = 3 * self.n_det * more
+        U = np.empty((event.uniforms.shape[0], max(width, 1)))
+        U[rows, :width] = block[:, :width]
         return U
+
+    def lobe_draws(self, event, verts, frame, w_vertex, evaluate, k, block):
+        """The K - 1 further lobe draws (the material's own ``sample``) of the split vertices ``verts``
+        (rows of the event, all split into ``k``; ``block``: their rows of :meth:`uniforms`), each cast
+        and, when it reaches a detector first on its sensitive side, counted like the walk's hit there:
+        w f cos / pdf x ph(K pdf, K p1) / K (p1 = d^2 / (A |cos_y|)), into ``detector_nee`` and,
+        negated, the part's NEE exchange (ledger exact). ``evaluate`` as NEE's (positions in ``verts``)."""
+        n_more = int(k) - 1
+        if n_more <= 0 or len(verts) == 0:
+            return
+        spec, scene, hit, rays = event.spec, event.scene, event.hits, event.rays
+        pol = spec.options.physics.polarization
+        m = len(verts)
+        pos = np.repeat(np.arange(m), n_more)
+        c0 = 3 * self.n_det * (self.k_max - self.k0)
+        u = block[:, c0:c0 + 3 * n_more].reshape(m * n_more, 3)
+        wi = frame.wi_local[pos]
+        mat = frame.material[pos]
+        wo = np.empty((len(pos), 3))
+        pdf = np.empty(len(pos))
+        for rows, smp in by_material(spec.materials, mat, lambda model, rows: model.sample(wi[rows], u[rows], pol)):
+            wo[rows] = smp.wo
+            pdf[rows] = smp.pdf_per_sr
+        ok = np.flatnonzero((wo[:, 2] > 0) & (pdf > 0))
+        if len(ok) == 0:
+            return
+        pos, wi, wo, pdf = pos[ok], wi[ok], wo[ok], pdf[ok]
+        i = verts[pos]
+        nf = hit.facing_normal[i]
+        d = wo[:, :1] * frame.tangent[pos] + wo[:, 1:2] * frame.bitangent[pos] + wo[:, 2:3] * nf
+        d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+        o = hit.point_mm[i] + self.eps * nf
+        tri = np.asarray(scene.isect.first_triangle(o, d), dtype=np.int64)
+        event.shadow_rays += len(tri)
+        arr = scene.arrays
+        part = np.where(tri >= 0, arr.triangle_part[np.maximum(tri, 0)], -1)
+        j = np.where(part >= 0, arr.detector_of_part[np.maximum(part, 0)], -1)
+        n_t = arr.normals[np.maximum(tri, 0)]
+        cos_in = np.einsum("ij,ij->i", d, n_t)
+        sens = (j >= 0) & (np.abs(cos_in) > 1e-12) & (event.settings.both_sides | (cos_in < 0))
+        got = np.flatnonzero(sens)
+        if len(got) == 0:
+            return
+        pos, i, wi, wo, pdf, d, o, tri, j, cos_in = (x[got] for x in (pos, i, wi, wo, pdf, d, o, tri, j, cos_in))
+        t = (arr.plane_d[tri] - np.einsum("ij,ij->i", n_t[got], o)) / cos_in
+        if evaluate is not None:
+            f, _ = evaluate(wi, wo, pos)
+        else:
+            f = np.empty(len(pos))
+            for rows, fv in by_material(spec.materials, frame.material[pos],
+                                        lambda model, rows: model.brdf(wi[rows], wo[rows], pol)):
+                f[rows] = fv
+        p1 = t * t / (arr.detector_area_mm2[j] * np.abs(cos_in))
+        c = rays.weight_w[i] * f * wo[:, 2] / pdf * power_heuristic_rows(k * pdf, k * p1) / k
+        if w_vertex is not None:
+            c = c * w_vertex[pos]
+        keep = np.flatnonzero(c > 0)
+        if len(keep) == 0:
+            return
+        i, j, c, y = i[keep], j[keep], c[keep], o[keep] + t[keep, None] * d[keep]
+        r = rays.ray[i]
+        tallies, trow = event.tallies, event.rows
+        tallies.add(trow.detector_nee + j, r, c)
+        tallies.subtract(trow.nee_exchange + hit.part[i], r, c)
+        for jj in np.unique(j):
+            sel = np.flatnonzero(j == jj)
+            self._record(event, int(jj), i[sel], y[sel], c[sel])
+
+    @staticmethod
+    def _record(event, j, i, points, c):
+        """Map (and path) records of further lobe draws from the vertices ``i`` (rows of the event)
+        that reached detector ``j``, keyed like NEE's (straylight.engine.nee._record)."""
+        rays, part = event.rays, event.hits.part
+        keys = events = None
+        if event.settings.record_paths:
+            K = rays.history.shape[1]
+            code = part[i] * 4 + EVENT_SCATTER
+            keys = mix_key(mix_key(rays.path_key[i], code), event.scene.det_parts[j] * 4 + EVENT_DETECTOR)
+            events = rays.history[i]
+            depth = rays.depth[i]
+            inside = np.flatnonzero(depth < K)
+            events[inside, depth[inside]] = code[inside]
+        event.records.add(j, rays.ray[i], points, c, keys, events, rays.depth[i] + 1)
 
     # ------------------------------------------------------------------ the walk's hit after a split vertex
 
     def share_walk_hits(self, event, rec, rec_w):
-        """Walk hits on a detector straight after a split vertex keep ph(pdf, K p1) / ph(pdf, k p1)."""
+        """Walk hits on a detector straight after a split vertex keep ph(K pdf, K p1) / K over the
+        ph(pdf, k p1) the hit stage gave them (it is one of the vertex's K lobe draws)."""
         rays, hit = event.rays, event.hits
         r = rays.ray[rec]
         last = rays.last_part[rec]
@@ -150,6 +246,7 @@ class NeeSplit:
         p1 = t * t / (event.scene.arrays.detector_area_mm2[j] * np.abs(hit.cos_in[i]))
         pdf = rays.last_pdf_per_sr[i]
         before = power_heuristic_rows(pdf, self.k0 * p1)
-        now = power_heuristic_rows(pdf, self.k_of_ray[r[after]] * p1)
+        k = self.k_of_ray[r[after]]
+        now = power_heuristic_rows(k * pdf, k * p1) / k
         share = np.where(before > 0, now / np.where(before > 0, before, 1.0), 1.0)
         return keep_walk_share(event, rec, rec_w, after, share)

@@ -23,7 +23,7 @@ from straylight.trace import EstimatorOptions, TraceOptions, trace
 
 ANALOG = TraceOptions(estimator=EstimatorOptions(nee=False))
 NEE = TraceOptions(estimator=EstimatorOptions())
-SPLIT = TraceOptions(estimator=EstimatorOptions(nee_split=64))
+SPLIT = TraceOptions(estimator=EstimatorOptions(nee_split=16))
 INCIDENCE_DEG = 80.0
 
 
@@ -75,14 +75,15 @@ def test_split_nee_agrees_with_the_analog_walk(glossy):
 
 
 def test_split_cuts_the_error_at_the_glint(glossy):
-    """Same rays, same seed (the walk's draws are the same; the further samples have their own
-    streams): the one-sample MIS of NEE and the lobe draw misses the glint's peak now and then."""
+    """Same rays, same seed (the walk's draws are the same; the further draws have their own
+    streams): one NEE sample and one lobe draw find the glint's peak only now and then."""
     scene, src = _glint()
     plain = trace(scene, src, 20_000, seed=5, materials=glossy, options=NEE).detectors["det"]
     split = trace(scene, src, 20_000, seed=5, materials=glossy, options=SPLIT).detectors["det"]
     _agree(plain, split)
-    # measured (20k rays) 0.56 % against 1.01 % (seeds 5 and 6 alike): ask for 0.7 of it
-    assert split.stderr_w / split.power_w < 0.7 * plain.stderr_w / plain.power_w, (plain, split)
+    # measured (20k rays, seed 5) 0.25 % against 1.01 % (K = 4: 0.51 %, 64: 0.13 %; NEE samples alone,
+    # without the further lobe draws, 64 gave 0.56 %): ask for a half
+    assert split.stderr_w / split.power_w < 0.5 * plain.stderr_w / plain.power_w, (plain, split)
 
 
 def test_same_numbers_for_any_batch_size_and_thread_count(glossy):

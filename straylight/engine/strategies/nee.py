@@ -20,7 +20,7 @@ class Nee(Strategy):
         est = ctx.spec.options.estimator
         if int(est.nee_split) <= int(est.nee_samples) or ctx.spec.diffraction is not None:
             return None
-        if len(ctx.scene.det_parts) == 0:
+        if len(ctx.scene.det_parts) == 0 or ctx.scene.target is not None:  # (its lobe draws are the material's)
             return None
         return NeeSplit(ctx)
 
