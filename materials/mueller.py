@@ -16,7 +16,11 @@ Born & Wolf, *Principles of Optics*, §1.4.2 (Stokes parameters), §1.5 (Fresnel
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from materials.sampling import lazy_njit
 
 
 def interface_mueller(a_s, a_p) -> np.ndarray:
@@ -63,12 +67,40 @@ def rotation_mueller(cos_psi, sin_psi) -> np.ndarray:
 def rotate_stokes(stokes, e1_from, e1_to, direction) -> np.ndarray:
     """Stokes vectors (n, 4) re-expressed from the frame ``e1_from`` to ``e1_to`` (both normal to
     ``direction``, all (n, 3) unit vectors): ``cos psi = e1_from . e1_to``,
-    ``sin psi = (direction x e1_from) . e1_to``."""
+    ``sin psi = (direction x e1_from) . e1_to``. One compiled pass, :func:`rotate_stokes_numpy`'s
+    operations in its order (the same bits)."""
+    s = np.ascontiguousarray(stokes, dtype=float)
+    out = s.copy()
+    if len(s):
+        lazy_njit(_rotate_stokes_loop, "numpy")(s, np.ascontiguousarray(e1_from, dtype=float),
+                                                np.ascontiguousarray(e1_to, dtype=float),
+                                                np.ascontiguousarray(direction, dtype=float), out)
+    return out
+
+
+def _rotate_stokes_loop(s, a, b, d, out):
+    """:func:`rotate_stokes_numpy` row by row (einsum's dot order ``(x0 y0 + x2 y2) + x1 y1``)."""
+    for r in range(len(s)):
+        a0, a1, a2 = a[r, 0], a[r, 1], a[r, 2]
+        b0, b1, b2 = b[r, 0], b[r, 1], b[r, 2]
+        d0, d1, d2 = d[r, 0], d[r, 1], d[r, 2]
+        cos_psi = (a0 * b0 + a2 * b2) + a1 * b1
+        c0, c1, c2 = d1 * a2 - d2 * a1, d2 * a0 - d0 * a2, d0 * a1 - d1 * a0
+        sin_psi = (c0 * b0 + c2 * b2) + c1 * b1
+        cc = cos_psi * cos_psi - sin_psi * sin_psi
+        ss = 2.0 * cos_psi * sin_psi
+        s1, s2 = s[r, 1], s[r, 2]
+        out[r, 1] = cc * s1 + ss * s2
+        out[r, 2] = -ss * s1 + cc * s2
+
+
+def rotate_stokes_numpy(stokes, e1_from, e1_to, direction) -> np.ndarray:
+    """:func:`rotate_stokes` in vectorised numpy (the reference it is tested against)."""
     d = np.asarray(direction, float)
     a = np.asarray(e1_from, float)
     b = np.asarray(e1_to, float)
     cos_psi = np.einsum("ij,ij->i", a, b)
-    sin_psi = np.einsum("ij,ij->i", cross_rows(d, a), b)
+    sin_psi = np.einsum("ij,ij->i", np.cross(d, a), b)
     s = np.asarray(stokes, float)
     c2 = cos_psi * cos_psi - sin_psi * sin_psi
     s2 = 2.0 * cos_psi * sin_psi
@@ -93,11 +125,38 @@ def norm_rows(v) -> np.ndarray:
 def s_vector(direction, normal) -> np.ndarray:
     """The s unit vector (n, 3) of rays ``direction`` hitting a surface of ``normal``:
     ``d x n`` normalised; at normal incidence any unit vector normal to ``d`` (a fixed rule:
-    ``d x x`` or, when that vanishes, ``d x y``)."""
+    ``d x x`` or, when that vanishes, ``d x y``). One compiled pass, :func:`s_vector_numpy`'s
+    operations in its order (the same bits)."""
+    d = np.ascontiguousarray(direction, dtype=float)
+    n = np.ascontiguousarray(normal, dtype=float)
+    out = np.empty((len(d), 3))
+    if len(d):
+        lazy_njit(_s_vector_loop, "numpy")(d, n, out)
+    return out
+
+
+def _s_vector_loop(d, n, out):
+    """:func:`s_vector_numpy` row by row: np.cross's products with the unit vectors written out."""
+    for r in range(len(d)):
+        d0, d1, d2 = d[r, 0], d[r, 1], d[r, 2]
+        n0, n1, n2 = n[r, 0], n[r, 1], n[r, 2]
+        s0, s1, s2 = d1 * n2 - d2 * n1, d2 * n0 - d0 * n2, d0 * n1 - d1 * n0
+        norm = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        if norm < 1e-12:  # d x (1, 0, 0), or d x (0, 1, 0) when that vanishes too
+            s0, s1, s2 = d1 * 0.0 - d2 * 0.0, d2 * 1.0 - d0 * 0.0, d0 * 0.0 - d1 * 1.0
+            norm = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+            if norm < 1e-6:
+                s0, s1, s2 = d1 * 0.0 - d2 * 1.0, d2 * 0.0 - d0 * 0.0, d0 * 1.0 - d1 * 0.0
+                norm = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        out[r, 0], out[r, 1], out[r, 2] = s0 / norm, s1 / norm, s2 / norm
+
+
+def s_vector_numpy(direction, normal) -> np.ndarray:
+    """:func:`s_vector` in vectorised numpy (the reference it is tested against)."""
     d = np.asarray(direction, float)
     n = np.asarray(normal, float)
-    s = cross_rows(d, n)
-    norm = norm_rows(s)
+    s = np.cross(d, n)
+    norm = np.linalg.norm(s, axis=1)
     bad = norm < 1e-12
     if np.any(bad):
         alt = np.cross(d[bad], np.array([1.0, 0.0, 0.0]))

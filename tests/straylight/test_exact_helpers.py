@@ -63,3 +63,21 @@ def test_refusal_kernel_is_the_numpy_formula():
     (r1, t1), (r2, t2) = ex._refused(tri, o, d), ex._refused_numpy(tri, o, d)
     assert r2.any() and (tri >= 0).any() and (tri < 0).any()
     assert np.array_equal(r1, r2) and np.array_equal(t1, t2)
+
+
+def test_s_vector_and_stokes_rotation_kernels_are_the_numpy_formulas():
+    from materials.mueller import rotate_stokes, rotate_stokes_numpy, s_vector, s_vector_numpy
+
+    rng = np.random.default_rng(4)
+    n = 20000
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    nrm = rng.normal(size=(n, 3))
+    nrm[:100] = d[:100]  # normal incidence: the d x x rule
+    d[100:150] = [1.0, 0.0, 0.0]  # ... and d x y where d x x vanishes
+    nrm[100:150] = [-1.0, 0.0, 0.0]
+    got, want = s_vector(d, nrm), s_vector_numpy(d, nrm)
+    assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+    S, e_to = rng.normal(size=(n, 4)), s_vector_numpy(d, rng.normal(size=(n, 3)))
+    got, want = rotate_stokes(S, want, e_to, d), rotate_stokes_numpy(S, want, e_to, d)
+    assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
