@@ -13,6 +13,7 @@ import numpy as np
 
 from materials.mueller import interface_mueller
 from materials.smooth import Dielectric, reflect, refract
+from materials.sampling import lazy_njit
 from straylight.engine.material_groups import distinct
 from straylight.intersect._plane import plane_distance
 
@@ -75,14 +76,32 @@ def cast_branches(spec, scene, origin, d) -> BranchHits:
         return _cast_with_distances(spec, scene, origin, d)
     tri = np.asarray(isect.intersect_triangles(origin, d))
     hit = np.flatnonzero(tri >= 0)
-    tri = tri[hit]
-    o, dh = origin[hit], d[hit]
-
-    def edge_on(edge):
+    tri = np.ascontiguousarray(tri[hit], dtype=np.int64)
+    m = len(hit)
+    part, cos_in, dist = np.empty(m, np.int64), np.empty(m), np.empty(m)
+    if m:  # _branch_hits in one compiled pass (its operations in its order: the same bits)
+        lazy_njit(_branch_hits_loop, "numpy")(hit, tri, np.ascontiguousarray(origin, np.float64),
+                                              np.ascontiguousarray(d, np.float64), spec.triangle_part,
+                                              scene.normals, scene.arrays.plane_d, part, cos_in, dist)
+    edge = np.flatnonzero(~(np.abs(cos_in) >= 1e-12))
+    if len(edge):
         v0, normal, centroid = isect.planes
-        return plane_distance(v0, normal, centroid, tri[edge], o[edge], dh[edge])
+        dist[edge] = plane_distance(v0, normal, centroid, tri[edge], origin[hit[edge]], d[hit[edge]])
+    return BranchHits(hit, tri, dist, part, cos_in)
 
-    return _branch_hits(spec, scene, hit, tri, o, dh, edge_on)
+
+def _branch_hits_loop(hit, tri, origin, d, triangle_part, normals, plane_d, part, cos_in, dist):
+    """:func:`_branch_hits` row by row (einsum's dot order ``(a0 b0 + a2 b2) + a1 b1``); the edge-on
+    rows' distances are the caller's."""
+    for r in range(len(hit)):
+        i = hit[r]
+        k = tri[r]
+        n0, n1, n2 = normals[k, 0], normals[k, 1], normals[k, 2]
+        c = (d[i, 0] * n0 + d[i, 2] * n2) + d[i, 1] * n1
+        part[r] = triangle_part[k]
+        cos_in[r] = c
+        den = c if abs(c) >= 1e-12 else 1.0
+        dist[r] = (plane_d[k] - ((n0 * origin[i, 0] + n2 * origin[i, 2]) + n1 * origin[i, 1])) / den
 
 
 def _cast_with_distances(spec, scene, origin, d) -> BranchHits:
