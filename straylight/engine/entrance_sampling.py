@@ -54,6 +54,11 @@ in 6 went from 1.6 % to 5-20 % at 1e5 rays). Over 6 seeds at 1e5 rays, CPU s x r
 (mean) uniform -> guided: 5 deg 13.7 (14.3) -> 12.6 (11.8); 10 deg 30.0 (31.2) -> 28.6 (30.2); 15 deg 164
 (912) -> 48 (83); 20 deg 19.2 (20.7) -> 19.7 (22.0); 30 deg 25.3 (31.3) -> 22.6 (29.9).
 
+**The finest grid** (:data:`GRID` = 256 cells per side, with the 64, 16 and 4 grids of :data:`SCALES`)
+resolves the ghost of the direct beam, narrower than a 64-grid cell (guide scope, 6 seeds at 1e5 rays,
+CPU s x rel^2 median with the 64 grid -> 256: 5 deg 13.9 -> 5.4, 10 deg 16.8 -> 5.2, 15 deg 67 -> 24,
+20 deg 19.7 -> 4.3, 30 deg 21.7 -> 9.4, 45 deg 28.9 -> 22.0, 60 deg 5.4 -> 3.1; docs/engine.md).
+
 **The ledger.** The start weights no longer add up to the emitted power exactly: each ray's
 w0 - w (expectation zero) is booked to the ``escaped`` row, which keeps escaped an unbiased estimate
 of the escaped power and the ledger exact (emitted = detected + absorbed + escaped to round-off).
@@ -72,17 +77,17 @@ from straylight.engine.draws import EMISSION_COLUMNS
 from straylight.rng import CHUNK_RAYS, n_chunks
 
 #: cells per side of the table over the source's first two uniforms
-GRID = 64
+GRID = 256
 #: the grids (cells per side, dividing GRID) whose tables are averaged
-SCALES = (64, 16, 4)
+SCALES = (256, 64, 16, 4)
 #: rays of the pilot trace that learns the table
 PILOT_RAYS = 30_000
 #: rays of the pilot's first stage; the rest of PILOT_RAYS only below PILOT_ENOUGH_ESS (module doc)
 PILOT_FIRST_RAYS = 10_000
 #: rays of the first stage with a detector contribution that let the rest draw from its table (module doc)
 PILOT_GUIDE_HITS = 1_000
-#: effective sample size of the first stage's contributions that ends the pilot (~ the 64 x 64 table's
-#: half-filled cells: an average cell seen by one ray's worth of light at least)
+#: effective sample size of the first stage's contributions that ends the pilot (~ half the 64 x 64 scale's
+#: cells: an average such cell seen by one ray's worth of light at least)
 PILOT_ENOUGH_ESS = 2_000.0
 #: share of the draws left uniform over the square (defensive mixture)
 DEFENSIVE = 0.25

@@ -81,7 +81,9 @@ def test_the_warp_has_the_table_density_and_unit_mean_weight():
     counts = np.bincount(cell, minlength=g * g)
     big = table.prob > 10.0 / g ** 2
     assert big.any()
-    np.testing.assert_allclose(counts[big] / len(u), table.prob[big], rtol=0.1)
+    expected = len(u) * table.prob[big]  # binomial counts: within 5 sigma in every bright cell
+    assert np.all(np.abs(counts[big] - expected) < 5.0 * np.sqrt(expected) + 1.0)
+    assert abs(counts[big].sum() - expected.sum()) < 4.0 * math.sqrt(expected.sum())
     est = w * (u[:, 0] + u[:, 1] ** 2)
     assert abs(est.mean() - 5.0 / 6.0) < 4 * est.std() / math.sqrt(len(u))
     assert abs(w.mean() - 1.0) < 4 * w.std() / math.sqrt(len(u))
@@ -186,22 +188,27 @@ def test_a_pilot_in_two_stages_learns_the_table_of_one(wide_slab, monkeypatch):
 
 
 def _thin_band(u):
-    """A pilot contribution over the source's uniforms: a lit band 0.008 wide (half a cell of the 64 grid)
+    """A pilot contribution over the source's uniforms: a lit band 0.008 wide (half a cell of the 64 x 64 scale)
     and a dim half, as a lens's ghost over the entrance points."""
     band = np.abs(u[:, 0] - 0.3) < 0.004
     return np.where(band, 1.0 + u[:, 1], 0.0) + 1e-3 * (u[:, 1] > 0.5)
+
+
+COARSE = {"grid": 64, "scales": (64, 16, 4)}
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_guided_stage_weighted_by_its_density_learns_the_table_closer(seed):
     """Rays drawn from a first table and weighted by 1 / p in their cells' means estimate the uniform
     measure's table: 1e4 uniform + 2e4 guided rays come closer to the table of 1e6 uniform rays (total
-    variation distance) than 3e4 uniform rays do, and than the same rays counted as if uniform."""
+    variation distance) than 3e4 uniform rays do, and than the same rays counted as if uniform. On a 64 x 64
+    table: the weighting does not depend on the grid, and 1e6 rays measure a 64 x 64 truth to well below the
+    distances compared (~250 rays a cell; the default 256 x 256 would leave ~15)."""
     big = np.random.default_rng(99).random((1_000_000, 2))
-    truth = table_from_contributions(big, _thin_band(big))
+    truth = table_from_contributions(big, _thin_band(big), **COARSE)
     rng = np.random.default_rng(seed)
     uni = rng.random((30_000, 2))
-    first = table_from_contributions(uni[:10_000], _thin_band(uni[:10_000]))
+    first = table_from_contributions(uni[:10_000], _thin_band(uni[:10_000]), **COARSE)
     rest = rng.random((20_000, 2))
     rho = np.concatenate([np.ones(10_000), warp(first, rest)])
     u = np.concatenate([uni[:10_000], rest])
@@ -209,9 +216,9 @@ def test_a_guided_stage_weighted_by_its_density_learns_the_table_closer(seed):
     def distance(table):
         return 0.5 * np.abs(table.prob - truth.prob).sum()
 
-    guided = distance(table_from_contributions(u, _thin_band(u), rho=rho))
-    assert guided < 0.75 * distance(table_from_contributions(uni, _thin_band(uni)))
-    assert guided < 0.9 * distance(table_from_contributions(u, _thin_band(u)))
+    guided = distance(table_from_contributions(u, _thin_band(u), rho=rho, **COARSE))
+    assert guided < 0.75 * distance(table_from_contributions(uni, _thin_band(uni), **COARSE))
+    assert guided < 0.9 * distance(table_from_contributions(u, _thin_band(u), **COARSE))
 
 
 def test_the_rest_of_the_pilot_draws_from_the_first_stages_table_when_enough_rays_saw_light(wide_slab, monkeypatch):
