@@ -211,7 +211,17 @@ class Conic(_Surface):
         n_r = max(2, int(math.ceil((r1 - r0) / step)) + 1)
         # azimuth: the facets' chord across the ring and the aperture outline both within tolerance
         n_phi = max(24, int(math.ceil(2 * math.pi * r1 / min(step, math.sqrt(8 * tolerance_mm * r1)))))
-        return np.linspace(r0, r1, n_r), np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
+        rho = np.linspace(r0, r1, n_r)
+        # the rings are about the aperture's centre: the sag must be defined out to its offset + the outer ring
+        reach = self.largest_sag_radius_mm() - math.hypot(*self.aperture_center_uv)
+        rho[0], rho[-1] = covering_rim_radii_mm(r0, r1, n_phi, tolerance_mm, reach)
+        return rho, np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
+
+    def largest_sag_radius_mm(self) -> float:
+        """The largest distance from the axis at which the sag is defined (inf unless the conic closes:
+        ``(1 + k) c^2 rho^2 <= 1``)."""
+        ck = (1.0 + self.conic) * self.c * self.c
+        return math.inf if ck <= 0.0 else 1.0 / math.sqrt(ck)
 
     @property
     def c(self) -> float:
@@ -557,6 +567,29 @@ def _asphere_kernel():
 
         _ASPHERE_KERNEL = asphere_kernel
     return _ASPHERE_KERNEL
+
+
+def covering_rim_radii_mm(inner_mm: float, outer_mm: float, n_phi: int, tolerance_mm: float,
+                          largest_mm: float = math.inf) -> tuple[float, float]:
+    """(inner, outer) ring radii of a curved surface's mesh that *cover* its clear aperture
+    ``inner_mm <= rho <= outer_mm`` (docs/optics.md, "Mesh of a lens surface").
+
+    The mesh only finds the hits: each hit is refined onto the analytic surface and counted only inside
+    the clear aperture (straylight.engine.surface_geometry, straylight.intersect.exact_boundary). A ring of
+    ``n_phi`` vertices on the aperture circle is an inscribed polygon whose edges cut
+    ``outer (1 - cos(pi / n_phi))`` inside the circle: rays through those slivers would miss the surface.
+    The outer ring is therefore circumscribed about the circle widened by ``tolerance_mm``, at
+    ``(outer + tolerance) / cos(pi / n_phi)`` (its edges' midpoints at ``outer + tolerance``): the facets sit
+    within about ``tolerance_mm`` of the surface along its axis, so a ray inclined by up to 45 deg to the
+    axis meets the mesh within ``tolerance_mm`` sideways of where it meets the surface. The inner ring (a
+    hole) is inscribed in the hole's circle narrowed likewise, at ``inner - tolerance`` (at least half the
+    hole's radius; 0: none). Both
+    stay where the sag is defined (below ``largest_mm``)."""
+    outer = (outer_mm + tolerance_mm) / math.cos(math.pi / n_phi)
+    if math.isfinite(largest_mm):
+        outer = max(outer_mm, min(outer, largest_mm * (1.0 - 1e-9)))
+    inner = max(0.5 * inner_mm, inner_mm - tolerance_mm)  # a hole stays a hole (0: none)
+    return inner, outer
 
 
 def _revolve(surface, rho, phi, z, center):

@@ -16,7 +16,7 @@ from straylight.detectors import DetectorGeometry
 from straylight.engine.spec import TraceSpec
 from straylight.intersect._plane import triangle_planes
 from straylight.intersect.embree import EmbreeIntersector
-from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts
+from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts, rim_parts
 from straylight.intersect.reference import ReferenceIntersector
 
 
@@ -82,8 +82,9 @@ class CompiledScene:
     def __init__(self, spec: TraceSpec, intersector=None):
         self.isect = intersector if intersector is not None else EmbreeIntersector(spec.triangles_mm)
         planes = plane_parts(spec.part_surfaces)
-        if planes:  # hits on analytic planes count inside their exact boundary only
-            self.isect = ExactBoundaryIntersector(self.isect, spec.triangle_part, planes, spec.eps)
+        rims = rim_parts(spec.part_surfaces, spec.triangles_mm, spec.triangle_part)
+        if planes or rims:  # hits on analytic planes, and on curved parts' rims, count inside their exact boundary
+            self.isect = ExactBoundaryIntersector(self.isect, spec.triangle_part, planes, spec.eps, rims)
         tri = spec.triangles_mm
         planes = getattr(self.isect, "planes", None)  # our intersectors computed them from these triangles
         v0, self.normals, centroids = planes if planes is not None else triangle_planes(tri)

@@ -7,7 +7,15 @@ the mesh but outside the exact disk or annulus, and casts those rays on from jus
 every stage (the walk, next-event shadow rays, first- and second-vertex sampling) sees the exact disk.
 
 A plane is flat, so the hit point on its mesh is on the exact plane: the test ``inner^2 <= rho^2 <=
-outer^2`` is exact. Scenes without plane parts do not use the wrapper (same bits as before).
+outer^2`` is exact.
+
+A curved lens or mirror surface (``conic``, ``asphere``) is meshed likewise to cover its clear aperture
+(geometry.analytic.covering_rim_radii_mm: its rim ring lies outside the aperture circle). Hits on the
+triangles of that rim band (a vertex outside the clear aperture) are refined onto the analytic surface
+(``refine_hits``, as the walk refines them, straylight.engine.surface_geometry) and refused where the
+refined point is outside the clear aperture, so shadow rays pass where the walk passes (a pass-through).
+
+Scenes without plane or curved parts do not use the wrapper (same bits as before).
 """
 from __future__ import annotations
 
@@ -25,7 +33,7 @@ class ExactBoundaryIntersector:
 
     eps_mm : how far past a refused hit the ray starts again (the scene's offset)."""
 
-    def __init__(self, inner, triangle_part, planes: dict, eps_mm: float):
+    def __init__(self, inner, triangle_part, planes: dict, eps_mm: float, rims: dict | None = None):
         self.inner = inner
         self.planes = inner.planes  # the engine reuses the triangle planes
         self.n_triangles = inner.n_triangles
@@ -42,6 +50,12 @@ class ExactBoundaryIntersector:
         self._axis = np.array([d.axis for d in self._disks]).reshape(-1, 3)
         self._r2 = np.array([[d.inner_radius_mm ** 2, d.outer_radius_mm ** 2] for d in self._disks]).reshape(-1, 2)
         self._eps = float(eps_mm)
+        # the rim band of each curved part (rims: {part index: (surface, triangle indices)}), then -1 for a miss
+        self._rim_surfaces = []
+        self._rim_or_miss = np.full(len(parts) + 1, -1, dtype=np.int64)
+        for k, (p, (surface, triangles)) in enumerate(sorted((rims or {}).items())):
+            self._rim_or_miss[np.asarray(triangles, dtype=np.int64)] = k
+            self._rim_surfaces.append(surface)
 
     def __getattr__(self, name):
         """Anything else is the inner intersector's (e.g. embree's ``_scene``, whose first use waits for the
@@ -62,6 +76,7 @@ class ExactBoundaryIntersector:
                                               np.ascontiguousarray(dirs, np.float64), self._disk_or_miss,
                                               self._v0, self._normal, self._centroid, self._centre, self._axis,
                                               self._r2, refused, t)
+        self._refuse_outside_apertures(tri, origins, dirs, refused, t)
         return refused, t
 
     def _refused_numpy(self, tri, origins, dirs):
@@ -71,16 +86,37 @@ class ExactBoundaryIntersector:
         on = np.flatnonzero(disk >= 0)
         refused = np.zeros(len(tri), dtype=bool)
         t = np.full(len(tri), np.inf)
-        if len(on) == 0:
-            return refused, t
-        t_on = plane_distance_numpy(self._v0, self._normal, self._centroid, tri[on], origins[on], dirs[on])
-        k = disk[on]
-        rel = origins[on] + t_on[:, None] * dirs[on] - self._centre[k]
-        along = np.einsum("ij,ij->i", rel, self._axis[k])
-        rho2 = np.einsum("ij,ij->i", rel, rel) - along * along
-        refused[on] = (rho2 > self._r2[k, 1]) | (rho2 < self._r2[k, 0])
-        t[on] = t_on
+        if len(on):
+            t_on = plane_distance_numpy(self._v0, self._normal, self._centroid, tri[on], origins[on], dirs[on])
+            k = disk[on]
+            rel = origins[on] + t_on[:, None] * dirs[on] - self._centre[k]
+            along = np.einsum("ij,ij->i", rel, self._axis[k])
+            rho2 = np.einsum("ij,ij->i", rel, rel) - along * along
+            refused[on] = (rho2 > self._r2[k, 1]) | (rho2 < self._r2[k, 0])
+            t[on] = t_on
+        self._refuse_outside_apertures(tri, origins, dirs, refused, t)
         return refused, t
+
+    def _refuse_outside_apertures(self, tri, origins, dirs, refused, t):
+        """Hits on the rim band of a curved part: refined onto its analytic surface from the facet's plane
+        distance (``refine_hits``) and refused where that fails or lands outside the clear aperture (the walk's
+        pass-through, straylight.engine.surface_geometry.refine_on_surfaces); ``t`` the facet distance."""
+        if not self._rim_surfaces:
+            return
+        k = self._rim_or_miss[tri]
+        on = np.flatnonzero(k >= 0)
+        if len(on) == 0:
+            return
+        o = np.ascontiguousarray(origins[on], dtype=np.float64)
+        d = np.ascontiguousarray(dirs[on], dtype=np.float64)
+        t_on = plane_distance(self._v0, self._normal, self._centroid, tri[on], o, d)
+        t_on = np.where(t_on > 0.0, t_on, 0.0)
+        k = k[on]
+        for j in np.unique(k):
+            g = np.flatnonzero(k == j)
+            _t, _n, ok = self._rim_surfaces[j].refine_hits(o[g], d[g], t_on[g])
+            refused[on[g]] = ~ok
+        t[on] = t_on
 
     def _first(self, origins, dirs, cast):
         """First triangle per ray whose hit is a real one (``cast``: the inner first-triangle query)."""
@@ -164,6 +200,27 @@ def _refused_loop(tri, origins, dirs, disk_or_miss, v0, normal, centroid, centre
         rho2 = ((x0 * x0 + x2 * x2) + x1 * x1) - along * along
         refused[r] = rho2 > r2[k, 1] or rho2 < r2[k, 0]
         t[r] = tp
+
+
+def rim_parts(part_surfaces, triangles_mm, triangle_part) -> dict:
+    """{part index: (surface, indices of its rim triangles)} of the parts whose analytic surface is curved
+    (a ``conic`` or ``asphere`` with a clear aperture, not a plane): the triangles with a vertex outside the
+    clear aperture (geometry.analytic.covering_rim_radii_mm puts the mesh's rim ring there)."""
+    from geometry.analytic import Plane
+
+    out = {}
+    parts = np.asarray(triangle_part)
+    for p, surface in enumerate(part_surfaces or ()):
+        if surface is None or isinstance(surface, Plane) or not hasattr(surface, "in_aperture"):
+            continue
+        rows = np.flatnonzero(parts == p)
+        if len(rows) == 0:
+            continue
+        local = surface.to_local(np.asarray(triangles_mm, dtype=np.float64)[rows].reshape(-1, 3))
+        outside = ~surface.in_aperture(local).reshape(-1, 3).all(axis=1)
+        if outside.any():
+            out[p] = (surface, rows[outside])
+    return out
 
 
 def plane_parts(part_surfaces) -> dict:

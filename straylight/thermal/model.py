@@ -27,7 +27,7 @@ from materials.wavelength import (
     hemispherical_emissivity,
     wavelength_dependent,
 )
-from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts
+from straylight.intersect.exact_boundary import ExactBoundaryIntersector, plane_parts, rim_parts
 
 THETA_GRID = np.linspace(0.0, np.pi / 2, 181)  # 0.5 deg: the tables are interpolated linearly in theta
 MAX_SUB_BANDS = 16
@@ -94,9 +94,12 @@ class ThermalScene:
             from straylight.intersect.embree import EmbreeIntersector
 
             isect = EmbreeIntersector(self.triangles_mm)
-            # hits on analytic planes count inside their exact boundary only (as in the engine)
-            self._isect = ExactBoundaryIntersector(isect, self.triangle_part, self.planes, self.eps_mm) \
-                if self.planes else isect
+            # hits on analytic planes, and on curved parts' rims, count inside their exact boundary only
+            # (as in the engine)
+            rims = rim_parts(tuple(getattr(p, "surface", None) for p in self.scene.parts), self.triangles_mm,
+                             self.triangle_part)
+            self._isect = ExactBoundaryIntersector(isect, self.triangle_part, self.planes, self.eps_mm, rims) \
+                if self.planes or rims else isect
         return self._isect
 
     def is_role(self, *roles) -> np.ndarray:
