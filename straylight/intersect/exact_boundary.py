@@ -1,4 +1,5 @@
-"""Hits on analytic plane parts counted against their exact boundary (CONTRACTS §6.4).
+"""Hits on analytic plane parts counted against their exact boundary (CONTRACTS §6.4), and on curved
+parts inside their clear aperture.
 
 A ``plane`` part (geometry.analytic.Plane: a disk or annulus) is meshed only to find hits, with a
 mesh that covers the exact region (outer polygon circumscribed, inner one inscribed). This wrapper
@@ -29,7 +30,8 @@ MAX_PASSES = 8  # a ray crosses at most this many refused slivers before its hit
 
 class ExactBoundaryIntersector:
     """``inner`` (an intersector over ``triangle_part``'s triangles) with the hits on the plane parts
-    ``planes`` ({part index: geometry.analytic.Plane}) outside their exact boundary removed.
+    ``planes`` ({part index: geometry.analytic.Plane}) outside their exact boundary removed, and those on
+    the curved parts' rim bands ``rims`` (:func:`rim_parts`) that refine outside their clear aperture.
 
     eps_mm : how far past a refused hit the ray starts again (the scene's offset)."""
 
@@ -50,6 +52,7 @@ class ExactBoundaryIntersector:
         self._axis = np.array([d.axis for d in self._disks]).reshape(-1, 3)
         self._r2 = np.array([[d.inner_radius_mm ** 2, d.outer_radius_mm ** 2] for d in self._disks]).reshape(-1, 2)
         self._eps = float(eps_mm)
+        self._part = np.append(parts.astype(np.int64), -1)  # the part of each triangle, then -1 for a miss
         # the rim band of each curved part (rims: {part index: (surface, triangle indices)}), then -1 for a miss
         self._rim_surfaces = []
         self._rim_or_miss = np.full(len(parts) + 1, -1, dtype=np.int64)
@@ -128,14 +131,37 @@ class ExactBoundaryIntersector:
         for _ in range(MAX_PASSES):
             if len(rows) == 0:
                 break
-            start[rows] += np.maximum(t[rows], 0.0) + self._eps
+            start[rows] += np.maximum(t[rows], 0.0)  # the refused hit
+            at = origins[rows] + start[rows, None] * dirs[rows]
+            start[rows] += self._eps
             o = origins[rows] + start[rows, None] * dirs[rows]
             again = np.asarray(cast(o, dirs[rows]))
-            out[rows] = again
             refused_again, t_again = self._refused(again, o, dirs[rows])
+            found = self._in_gap(out[rows], at, o, dirs[rows], cast)
+            out[rows] = np.where(found >= 0, found, again)
+            refused_again &= found < 0
             t[rows] = t_again
             rows = rows[refused_again]
         return out
+
+    def _in_gap(self, refused_tri, at, o, dirs, cast):
+        """Per ray, a real hit between a refused one (at ``at``, on ``refused_tri``) and the cast's restart
+        ``o`` (``eps_mm`` on), -1 where none: the restart steps over it (a lens facet crossing a ring's plane
+        right behind the ring's refused sliver). Cast back from ``o`` over the gap; the refused part's own
+        triangles there are not hits."""
+        back = np.asarray(cast(o, -dirs)).astype(np.int64)
+        found = np.full(len(o), -1, dtype=np.int64)
+        rows = np.flatnonzero((back >= 0) & (self._part[back] != self._part[refused_tri]))
+        if len(rows) == 0:
+            return found
+        tb = plane_distance(self._v0, self._normal, self._centroid, back[rows],
+                            np.ascontiguousarray(o[rows]), np.ascontiguousarray(-dirs[rows]))
+        rows = rows[(tb >= 0.0) & (tb < self._eps)]
+        if len(rows) == 0:
+            return found
+        refused, _t = self._refused(back[rows], np.ascontiguousarray(at[rows]), np.ascontiguousarray(dirs[rows]))
+        found[rows[~refused]] = back[rows[~refused]]
+        return found
 
     def first_triangle(self, origins, dirs) -> np.ndarray:
         origins = np.asarray(origins, dtype=np.float64)
