@@ -16,6 +16,9 @@ triangles of that rim band (a vertex outside the clear aperture) are refined ont
 (``refine_hits``, as the walk refines them, straylight.engine.surface_geometry) and refused where the
 refined point is outside the clear aperture, so shadow rays pass where the walk passes (a pass-through).
 
+A refused hit's ray is cast again from ``eps_mm`` past it; a real hit in that gap (a lens facet crossing
+an edge ring's plane right behind the ring's refused sliver) is found by casting back over the gap.
+
 Scenes without plane or curved parts do not use the wrapper (same bits as before).
 """
 from __future__ import annotations
