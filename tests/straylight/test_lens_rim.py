@@ -176,3 +176,15 @@ def test_a_lens_facet_just_behind_a_refused_sliver_is_not_stepped_over():
     o = np.column_stack([rho * np.cos(phi), rho * np.sin(phi), np.full(n, -5.0)])
     tri_hit, _ = ex.intersect(o, np.tile(UP, (n, 1)))
     assert ((tri_hit < 0) | (part[np.maximum(tri_hit, 0)] != 0)).sum() <= 5
+
+
+def test_thermal_walks_see_the_same_clear_aperture():
+    """Thermal's intersector (its reverse walk and exchange) refuses the rim band outside the aperture too."""
+    from straylight.thermal.model import thermal_scene
+
+    s = SURFACES["asphere"]
+    ts = thermal_scene(Scene((analytic_part("lens", s, role="absorber", tolerance_mm=TOL_MM),)), {})
+    for rho, found in ((s.outer_radius_mm * (1 - 1e-7), True), (s.outer_radius_mm + 0.03, False)):
+        o, d, _ = _rays_at(s, rho, 20.0)
+        tri, _ = ts.intersector.intersect(o, d)
+        assert ((tri >= 0) == found).all(), rho
