@@ -227,6 +227,29 @@ class Conic(_Surface):
     def c(self) -> float:
         return 0.0 if math.isinf(self.radius_mm) else 1.0 / self.radius_mm
 
+    def slope_over_rho(self, rho2):
+        """q = h'(rho) / rho = c / sqrt(1 - (1 + k) c^2 rho^2) (finite on the axis)."""
+        c, k = self.c, self.conic
+        return c / np.sqrt(1.0 - (1.0 + k) * c * c * rho2)
+
+    def clear_area_mm2(self, nodes: int = 64) -> float | None:
+        """Area of the surface over its clear aperture, ``int int sqrt(1 + h'(rho)^2) r dr dphi`` about the
+        aperture's centre (``rho`` the distance from the axis): Gauss-Legendre in ``r``, and for a decentred
+        aperture the periodic trapezoid rule in ``phi``. None for a rectangular aperture. The mesh's area
+        differs (it covers the aperture: docs/optics.md, "Mesh of a lens surface")."""
+        if self.aperture_half_widths_mm:
+            return None
+        x, w = np.polynomial.legendre.leggauss(nodes)
+        a, b = self.inner_radius_mm, self.outer_radius_mm
+        r, wr = 0.5 * (b - a) * x + 0.5 * (b + a), 0.5 * (b - a) * w
+        if not self.decentred:
+            return float(np.sum(wr * 2 * math.pi * r * np.sqrt(1.0 + r * r * self.slope_over_rho(r * r) ** 2)))
+        phi = 2 * math.pi * (np.arange(4 * nodes) + 0.5) / (4 * nodes)
+        cu, cv = self.aperture_center_uv
+        rho2 = (cu + r[:, None] * np.cos(phi)) ** 2 + (cv + r[:, None] * np.sin(phi)) ** 2
+        slope2 = rho2 * self.slope_over_rho(rho2) ** 2
+        return float(np.sum((wr * r)[:, None] * np.sqrt(1.0 + slope2)) * 2 * math.pi / len(phi))
+
     def sag(self, rho):
         """h(rho) = c rho^2 / (1 + sqrt(1 - (1 + k) c^2 rho^2))."""
         rho = np.asarray(rho, float)

@@ -110,9 +110,17 @@ class ThermalScene:
         return self.part_names.index(self.scene.resolve(name) if name not in self.part_names else name)
 
     def part_area_mm2(self, p: int) -> float:
+        """An analytic plane's exact area; a curved analytic surface meshed by the project (its mesh covers
+        the clear aperture) the surface's area over the aperture (``clear_area_mm2``); otherwise the
+        triangles' area."""
         if p in self.planes:
             return float(self.planes[p].area_mm2)
-        return float(self.areas_mm2[self.triangle_part == p].sum())
+        part = self.scene.parts[p]
+        meta = getattr(part, "meta", None) or {}
+        clear_area = getattr(getattr(part, "surface", None), "clear_area_mm2", None)
+        own_mesh = meta.get("kind") == "sheet" and "tolerance_mm" in meta  # analytic_part's covering mesh
+        area = clear_area() if own_mesh and clear_area is not None else None
+        return float(area) if area is not None else float(self.areas_mm2[self.triangle_part == p].sum())
 
     def side_materials(self, p: int) -> tuple:
         """(front, back) material models of part ``p`` (None for non-surface roles)."""
