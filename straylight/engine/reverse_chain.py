@@ -6,7 +6,8 @@ in 1e5 carried 98 % of the variance, each a tube point whose two-reflection ghos
 and next-event estimation cannot aim through a refracting surface. So the path is built from both
 ends. Per ray of the walk M = :data:`EYES_PER_RAY` *eye chains* start on a detector: a point z uniform
 on it (density 1 / A), a direction omega on its counted side (density q cos / pi: cosine-distributed
-with q = 1, or drawn from the eye table below), cast and split at
+with q = 1, or drawn from the eye table below, whose q also carries the share of the chains its
+detector and side get), cast and split at
 every interface (parts whose kind declares ``Capability.DELTA_CHAIN``: reflection and transmission
 both followed, as ``delta_chain`` does) for up to K interfaces. A branch that, after k >= 1
 interfaces, meets a scatter part whose material is a non-polarizing pure scatterer ends there at an
@@ -26,16 +27,33 @@ amplitudes), so the eye ray's Fresnel factors are the forward light's.
 chains that end on a scatter point the beam lights are few (on the guide scope 1 in 1300 cosine-drawn
 chains at 60 deg, 1 in 900 at 30 deg, where the tube's glossy highlight seen through the ghost carries
 70 % of the value in 5 of them). A pilot of :data:`PILOT_EYES` cosine-drawn chains (own streams) joined
-to the source gives each chain's value x; per detector and side, the direction's two cosine-map
-uniforms (radius sqrt(u1), azimuth 2 pi u2) get the entrance table's density
-(straylight.engine.entrance_sampling: proportional to the smoothed RMS of x at three scales, a quarter
-left cosine), and the chains draw their directions from it. q enters beta and the balance weights
-below; for a split tree's branch the eye side's q is looked up from the direction it reaches the
-detector with (:meth:`EyeTable.density_of_arrival`). Flat detectors only (the table is over one frame).
-The pilot traces its first :data:`PILOT_FIRST_EYES` chains first: when none of them is joined (near the
-axis the beam lights nothing the chains reach: the guide scope at 0 deg joins none of 2e5) it ends there
-without a table; otherwise it goes on, and the table is the whole pilot's, bit for bit (the chains are
-independent rows of their own streams).
+to the source gives each chain's value x; per detector and side (a *key*), the direction's two
+cosine-map uniforms (radius sqrt(u1), azimuth 2 pi u2) get the entrance table's density
+(straylight.engine.entrance_sampling: proportional to the smoothed RMS of x at four scales, a quarter
+left cosine), and the chains draw their directions from it. The keys themselves are drawn by the
+pilot's value: P_key proportional to the root of the key's second moment E[x^2 / q_dir] under its
+table (the variance-optimal split of the chains among strata), a share :data:`KEY_DEFENSIVE` spread
+evenly over the keys (a key the pilot saw nothing on keeps it); the first uniform picks the key by
+inverse CDF. With both sides counted the uniform choice spent half the chains on the detector's back,
+which on the guide scope sees no light (the pilot joins none of its ~1e5 back chains at any angle): the
+table now gives the front 0.95. q = (P_key D x sides) x the direction table's density, so beta and the
+balance weights below take the key's share with the direction's; for a split tree's branch the eye
+side's q is looked up from the direction it reaches the detector with
+(:meth:`EyeTable.density_of_arrival`). Flat detectors only (the table is over one frame).
+The pilot traces its first :data:`PILOT_FIRST_EYES` chains first (uniform keys): when none of them is
+joined (near the axis the beam lights nothing the chains reach: the guide scope at 0 deg joins none of
+2e5) it ends there without a table; otherwise the rest draws its keys by the first stage's key
+probabilities (its directions still cosine), and each chain's x q (its value at a uniform key) goes to
+its key's cells. Guide scope, 6 seeds at 1e5 rays (variance_paths.py, the same process), CPU s x rel^2
+(%^2) median (mean), uniform keys -> keys by value: 30 deg 11.4 (14.2) -> 10.0 (11.8), 45 deg 26.5
+(41.2) -> 25.0 (36.4), 60 deg 3.8 (4.1) -> 2.3 (2.9); the front chains cost more than the back ones
+(CPU +10-20 %). At 30-45 deg 70 % of the variance is the split trees' share of the ghost family (a
+tube point's glossy draw whose tree lands on the sensor, ~1e-3 per ray: tree share 0.88-0.99, the eye
+side's density 1/100 of the walk's there); the eye side's own pilot efficiency (mean^2 / mean of x^2,
+~1e-3, one chain in 2e5 holding most of the sum of squares: the glossy peak) did not improve with the
+rest's directions guided by the first stage (as entrance_sampling does: 18000 instead of 400 joined
+chains at 45 deg, but 0.4 CPU s more and 30 deg 13.9 median), with 1024-cell grids, or with a table per
+cell of a 2 x 2 to 8 x 8 grid of detector points (docs/engine.md, "Eye chains by detector and side").
 
 Two connections count the paths "X -> P -> interfaces (1..K) -> detector":
 
@@ -58,7 +76,7 @@ and one shadow ray per end point and per eligible scatter vertex.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -92,6 +110,8 @@ EYES_PER_RAY = 2
 PILOT_EYES = 200_000
 #: its first stage: when none of these chains is joined to the source, the pilot ends without a table
 PILOT_FIRST_EYES = 50_000
+#: share of the eye chains spread evenly over the (detector, side) keys; the rest goes by the pilot's value
+KEY_DEFENSIVE = 0.1
 #: the pilot's chunk streams start here (never reached by a trace's own chunks, nor the entrance pilot's)
 PILOT_CHUNK_OFFSET = 1 << 41
 _GOLDEN = 0.6180339887498949  # Weyl step of a ray's end-point choices over its depth
@@ -225,19 +245,43 @@ def _flat_normal(detector) -> np.ndarray | None:
 
 @dataclass(frozen=True, eq=False)
 class EyeTable:
-    """The eye directions' density, learnt by a pilot (:func:`build_table`): per detector j and side
-    (index 2 j + (side < 0)) an entrance-style table (straylight.engine.entrance_sampling) over the two
-    uniforms of the cosine map (radius sqrt(u1), azimuth 2 pi u2, the same structure as a disk source),
-    or None (cosine there); the direction's pdf is q cos / pi with q the table's density. Flat detectors
-    only: ``normals`` (one per detector) is the frame the tables are drawn in."""
+    """The eye chains' draw, learnt by a pilot (:func:`build_table`): which (detector, side) key a chain
+    starts on (probability ``key_prob[2 j + (side < 0)]``, an inverse CDF of the chain's first uniform),
+    and per key an entrance-style table (straylight.engine.entrance_sampling) over the two uniforms of the
+    cosine map (radius sqrt(u1), azimuth 2 pi u2, the same structure as a disk source), or None (cosine
+    there). The direction's pdf is q cos / pi, q = (P_key n_keys) x the key's table density: the key's
+    share against the uniform 1 / n_keys is folded into q, so beta and the balance weights take it with
+    the direction's. Flat detectors only: ``normals`` (one per detector) is the frame the tables are drawn in."""
 
     tables: tuple
     normals: np.ndarray
     pilot_eyes: int
     pilot_hits: int
+    key_prob: np.ndarray  # (2 D,): P of each (detector, side) key; the back keys 0 when one side is counted
+    n_keys: int  # D x sides: the keys a cosine draw picks uniformly
+
+    @property
+    def key_cdf(self) -> np.ndarray:
+        cdf = np.cumsum(self.key_prob)
+        cdf[-1] = 1.0
+        return cdf
+
+    def keys(self, u0) -> tuple[np.ndarray, np.ndarray]:
+        """Detector and side (+1 front, -1 back) of the chains whose first uniforms are ``u0`` (inverse CDF
+        of :attr:`key_prob`: a key of probability 0 is never picked)."""
+        cdf = self.key_cdf
+        key = np.minimum(np.searchsorted(cdf, np.asarray(u0, np.float64), side="right"), len(cdf) - 1)
+        return key // 2, np.where(key % 2 == 1, -1.0, 1.0)
+
+    def _key(self, j, side):
+        return 2 * np.asarray(j, np.int64) + (np.asarray(side) < 0)
+
+    def key_factor(self, j, side) -> np.ndarray:
+        """P_key n_keys of the chains' keys: the key's share of the chains over the uniform choice's."""
+        return self.key_prob[self._key(j, side)] * self.n_keys
 
     def _groups(self, j, side):
-        key = 2 * np.asarray(j, np.int64) + (np.asarray(side) < 0)
+        key = self._key(j, side)
         for kk in distinct(key):
             table = self.tables[int(kk)]
             if table is not None:
@@ -245,18 +289,18 @@ class EyeTable:
 
     def warp(self, j, side, drawn) -> np.ndarray:
         """Move the cosine map's uniforms ``drawn`` (n, 2, in place) to the tables' density; returns q (n,)."""
-        q = np.ones(len(drawn))
+        q = self.key_factor(j, side)
         for table, g in self._groups(j, side):
             sub = drawn[g]
-            q[g] = 1.0 / warp(table, sub)
+            q[g] = q[g] / warp(table, sub)
             drawn[g] = sub
         return q
 
     def density(self, j, side, drawn) -> np.ndarray:
         """q at the cosine map's uniforms ``drawn`` (n, 2)."""
-        q = np.ones(len(drawn))
+        q = self.key_factor(j, side)
         for table, g in self._groups(j, side):
-            q[g] = entrance_density(table, drawn[g])
+            q[g] = q[g] * entrance_density(table, drawn[g])
         return q
 
     def density_of_arrival(self, j: int, arrival) -> np.ndarray:
@@ -269,45 +313,69 @@ class EyeTable:
 
 
 def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
-    """Learn the eye directions' density from a pilot of ``n_eyes`` cosine-drawn eye chains (own
-    streams, from :data:`PILOT_CHUNK_OFFSET`) joined to the source: each chain's source-connection
-    value x goes to its direction's cell, and the tables are
-    :func:`straylight.engine.entrance_sampling.table_from_contributions` of them (density proportional
-    to the smoothed root mean square of x at three scales, a defensive quarter left cosine): the
-    chains are drawn toward the directions whose runs end on scatter points the beam lights. None
-    when a detector is not flat, the source is linearly polarized or the pilot joined nothing."""
+    """Learn the eye chains' draw from a pilot of ``n_eyes`` eye chains (own streams, from
+    :data:`PILOT_CHUNK_OFFSET`) joined to the source (module doc, "The eye table"): a first stage of
+    :data:`PILOT_FIRST_EYES` cosine-drawn chains of uniform keys, the rest cosine-drawn too on keys drawn
+    by the first stage's key probabilities. Per (detector, side) key, each chain's source-connection value
+    brought to a uniform key's measure (x q) goes to its direction's cell, and the key's table is
+    :func:`straylight.engine.entrance_sampling.table_from_contributions` of them; the keys get P_key
+    proportional to the root of their chains' second moment under that table, a :data:`KEY_DEFENSIVE`
+    share spread evenly. None when a detector is not flat, the source is linearly polarized or the first
+    stage joined nothing."""
     if unsupported(spec) is not None or _source_linear(spec):
         return None
-    normals = [_flat_normal(d) for d in scene.detectors]
-    if any(n is None for n in normals):
+    flat = [_flat_normal(d) for d in scene.detectors]
+    if any(n is None for n in flat):
         return None
+    normals = np.array(flat)
     est = spec.options.estimator
     k = max(int(est.reverse_chain), int(est.delta_chain))
     eyes = EyeChains(k, parts_with(spec, Capability.DELTA_CHAIN), scatter_ends(spec), reflection_limit(est))
     n = int(n_eyes)
     first = min(PILOT_FIRST_EYES // CHUNK_RAYS * CHUNK_RAYS, n)
+    D = len(scene.detectors)
+    both = spec.options.output.detector_sides == "both"
     stages = []
+    keys = None  # the first stage's key probabilities, cosine directions: the rest's draw
     for a, b in ((0, first), (first, n)):
         if b <= a:
             continue
         u_s = eye_uniforms(spec, a // CHUNK_RAYS, -(-b // CHUNK_RAYS), b - a, PILOT_CHUNK_OFFSET)
-        ends, _, drawn_s = eyes.trace(spec, scene, u_s, None)
+        ends, q, drawn_s = eyes.trace(spec, scene, u_s, keys)
         g, raw, _, _ = source_connection(spec, scene, ends)
         x_s = np.bincount(ends.ray[g], weights=raw, minlength=b - a) if len(g) else np.zeros(b - a)
-        stages.append((u_s, drawn_s, x_s))
-        if not np.any(x_s > 0) and a == 0:
-            return None  # the first stage joined nothing: no table (module doc)
-    u = np.concatenate([st[0] for st in stages])
-    drawn = np.concatenate([st[1] for st in stages])
-    x = np.concatenate([st[2] for st in stages])  # the first stage joined some: so has the whole
-    D = len(scene.detectors)
-    both = spec.options.output.detector_sides == "both"
-    j = np.minimum((u[:, 0] * D).astype(np.int64), D - 1)
-    side = np.where(u[:, 5] < 0.5, 1.0, -1.0) if both else np.ones(n)
-    key = 2 * j + (side < 0)
-    tables = tuple(table_from_contributions(drawn[key == kk], x[key == kk]) if np.any(key == kk) else None
-                   for kk in range(2 * D))
-    return EyeTable(tables=tables, normals=np.array(normals), pilot_eyes=n, pilot_hits=int(np.count_nonzero(x)))
+        j, side = chain_keys(u_s, D, both, keys)
+        # x q: what the chain carries when its key is drawn uniformly (q = P_key n_keys here)
+        stages.append((drawn_s, x_s * q, 2 * j + (side < 0)))
+        if a == 0:
+            if not np.any(x_s > 0):
+                return None  # the first stage joined nothing: no table (module doc)
+            first_table = _learn(stages, normals, both, b)
+            keys = replace(first_table, tables=(None,) * len(first_table.tables))
+    return _learn(stages, normals, both, n)
+
+
+def _learn(stages, normals, both: bool, n_traced: int) -> EyeTable:
+    """The :class:`EyeTable` of the pilot stages ``stages`` (per stage: the cosine-map uniforms (m, 2)
+    of the chains' directions, their values x q at a uniform key's measure and their keys 2 j + (side < 0))."""
+    drawn = np.concatenate([st[0] for st in stages])
+    x = np.concatenate([st[1] for st in stages])
+    key = np.concatenate([st[2] for st in stages])
+    n_det = len(normals)
+    tables = []
+    moment = np.zeros(2 * n_det)  # per key: the mean of x^2 / q_dir, its chains' second moment under its table
+    for kk in range(2 * n_det):
+        sel = key == kk
+        table = table_from_contributions(drawn[sel], x[sel]) if np.any(sel) else None
+        tables.append(table)
+        if table is not None:
+            moment[kk] = float(np.mean(x[sel] ** 2 / entrance_density(table, drawn[sel])))
+    counted = np.ones(2 * n_det, dtype=bool) if both else (np.arange(2 * n_det) % 2 == 0)
+    root = np.sqrt(moment)
+    n_keys = int(counted.sum())
+    prob = np.where(counted, KEY_DEFENSIVE / n_keys + (1.0 - KEY_DEFENSIVE) * root / root.sum(), 0.0)
+    return EyeTable(tables=tuple(tables), normals=normals, pilot_eyes=n_traced,
+                    pilot_hits=int(np.count_nonzero(x)), key_prob=prob / prob.sum(), n_keys=n_keys)
 
 
 class EyeEnds:
@@ -352,6 +420,16 @@ class _Branches:
                       else np.concatenate([getattr(p, f) for p in parts]) for f in cls.FIELDS})
 
 
+def chain_keys(u, n_detectors: int, both: bool, table) -> tuple[np.ndarray, np.ndarray]:
+    """Detector j and side (+1 front, -1 back) of the eye chains of uniforms ``u`` (n, 7): without a
+    table, u0 picks the detector uniformly and u5 < 0.5 the front (both sides counted); with one, u0
+    picks the (detector, side) key by the table's key probabilities (:meth:`EyeTable.keys`)."""
+    if table is not None:
+        return table.keys(u[:, 0])
+    j = np.minimum((u[:, 0] * n_detectors).astype(np.int64), n_detectors - 1)
+    return j, (np.where(u[:, 5] < 0.5, 1.0, -1.0) if both else np.ones(len(u)))
+
+
 def reflection_limit(est) -> int:
     """The reflections an eye chain follows: the split trees' ``delta_chain_reflections`` R when the
     trees run with one (the chains must reach every path a tree does, and need not go further),
@@ -379,7 +457,8 @@ class EyeChains:
         n = len(u)
         dets = scene.detectors
         D = len(dets)
-        j = np.minimum((u[:, 0] * D).astype(np.int64), D - 1)
+        both = spec.options.output.detector_sides == "both"
+        j, side = chain_keys(u, D, both, table)
         z = np.empty((n, 3))
         nz = np.empty((n, 3))
         area = np.empty(n)
@@ -388,13 +467,11 @@ class EyeChains:
             if len(g):
                 z[g], nz[g] = dets[jj].sample(u[g, 1:4])
                 area[g] = dets[jj].area_mm2
-        both = spec.options.output.detector_sides == "both"
-        side = np.where(u[:, 5] < 0.5, 1.0, -1.0) if both else np.ones(n)
         if table is not None:  # flat detectors: the frame the tables were drawn in
             nz = table.normals[j].copy()
         nz = nz * side[:, None]
         # cosine-weighted direction about nz (density cos / pi); with both sides counted, u5 picks the
-        # side (< 0.5) and its doubled fraction is the azimuth's uniform
+        # side (< 0.5, without a table) and its doubled fraction is the azimuth's uniform
         azimuth_u = u[:, 5] * 2.0 % 1.0 if both else u[:, 5]
         drawn = np.ascontiguousarray(np.stack([u[:, 4], azimuth_u], axis=1))
         q = np.ones(n)
