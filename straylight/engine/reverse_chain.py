@@ -46,7 +46,8 @@ joined (near the axis the beam lights nothing the chains reach: the guide scope 
 probabilities (its directions still cosine), and each chain's x q (its value at a uniform key) goes to
 its key's cells. Guide scope, 6 seeds at 1e5 rays (variance_paths.py, the same process), CPU s x rel^2
 (%^2) median (mean), uniform keys -> keys by value: 30 deg 11.4 (14.2) -> 10.0 (11.8), 45 deg 26.5
-(41.2) -> 25.0 (36.4), 60 deg 3.8 (4.1) -> 2.3 (2.9); the front chains cost more than the back ones
+(41.2) -> 25.0 (36.4), 60 deg 3.8 (4.1) -> 2.3 (2.9) (a second pair: 10.8 -> 9.2, 27.0 -> 24.2, 3.5 ->
+2.1; 5 and 20 deg: the same relative errors, CPU +4-6 %); the front chains cost more than the back ones
 (CPU +10-20 %). At 30-45 deg 70 % of the variance is the split trees' share of the ghost family (a
 tube point's glossy draw whose tree lands on the sensor, ~1e-3 per ray: tree share 0.88-0.99, the eye
 side's density 1/100 of the walk's there); the eye side's own pilot efficiency (mean^2 / mean of x^2,
@@ -104,7 +105,8 @@ STREAM = 0x52564348  # entropy word of the eye chains' streams ("RVCH")
 #: eye chains per ray of the walk (the ray's eye estimate is their mean). A chain costs ~1.5 us, a ray of
 #: the walk on the guide scope ~25 us; measured there (variance_paths.py, 3e5 rays, seeds 1-3, CPU s x
 #: rel. error^2): 30 deg 56 / 16 / 30 with 1 chain, 22 / 16 / 35 with 2, 25 / 17 / 28 with 4; 60 deg
-#: 8.5 / 55 / 8.2, 4.9 / 8.9 / 5.6, 7.7 / 7.1 / 27
+#: 8.5 / 55 / 8.2, 4.9 / 8.9 / 5.6, 7.7 / 7.1 / 27. With the keys by value (6 seeds at 1e5 rays, median, 2 -> 4
+#: chains): 5 deg 6.3 -> 7.2, 20 deg 5.0 -> 5.5, 30 deg 8.5 -> 8.8, 45 deg 22.1 -> 19.8, 60 deg 2.06 -> 1.77
 EYES_PER_RAY = 2
 #: eye chains of the pilot that learns the direction table (:func:`build_table`)
 PILOT_EYES = 200_000
