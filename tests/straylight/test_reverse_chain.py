@@ -300,26 +300,33 @@ def test_the_keys_are_drawn_by_their_probabilities_and_fold_into_q():
     assert abs(np.mean(1.0 / q) - 1.0) < 0.01
 
 
-@pytest.mark.parametrize("facing", [1, -1])
-def test_chains_agree_with_the_analog_walk_when_one_side_sees_the_light(slab_scene, facing):
-    """Both sides counted, the light on one side only (the detector facing the slab: its front; turned
-    over: its back): the pilot gives the lit side all but the defensive share of the chains, and the
-    estimate, whose q carries the side's share, still agrees with the analog walk."""
+@pytest.mark.parametrize("facing, sides", [(1, "both"), (-1, "both"), (1, "front")])
+def test_chains_agree_with_the_analog_walk_when_one_side_sees_the_light(slab_scene, facing, sides):
+    """The light on one side only (the detector facing the slab: its front; turned over: its back). Both
+    sides counted: the pilot gives the lit side all but the defensive share of the chains; the front only:
+    the back keys get none. The estimate, whose q carries the side's share, still agrees with the analog
+    walk."""
     from straylight.engine import reverse_chain as rc
     from straylight.engine.runtime import runtime
 
     sc, src, mats = slab_scene
     parts = list(sc.parts[:-1]) + [disk_part("det", -20.0, 1.5, 64, role="detector", facing=facing)]
-    scene = (Scene(tuple(parts)), src, mats)
-    spec = make_spec(scene[0], src, 1_000, 7, mats, TraceOptions(estimator=CHAINS))
-    assert spec.options.output.detector_sides == "both"
+    scene = Scene(tuple(parts))
+    out = OutputOptions(detector_sides=sides)
+    spec = make_spec(scene, src, 1_000, 7, mats, TraceOptions(estimator=CHAINS, output=out))
     table = rc.build_table(spec, runtime().scene(spec, None), n_eyes=20_000)
     lit = 0 if facing > 0 else 1
-    assert table.key_prob[lit] > 1.0 - rc.KEY_DEFENSIVE / 2 - 1e-3 and table.tables[1 - lit] is None
-    runtime().forget_tables()
-    chains = _run(scene, 20_000, 7, EstimatorOptions(reverse_chain=4, delta_chain=4))
-    runtime().forget_tables()
-    analog = _run(scene, 400_000, 4, ANALOG)
+    if sides == "both":
+        assert table.key_prob[lit] > 1.0 - rc.KEY_DEFENSIVE / 2 - 1e-3 and table.tables[1 - lit] is None
+    else:
+        assert table.key_prob[0] == 1.0 and table.key_prob[1] == 0.0 and table.n_keys == 1
+
+    def run(n, seed, est):
+        runtime().forget_tables()
+        return trace(scene, src, n, seed=seed, materials=mats, options=TraceOptions(estimator=est, output=out))
+
+    chains = run(20_000, 7, EstimatorOptions(reverse_chain=4, delta_chain=4))
+    analog = run(400_000, 4, ANALOG)
     c, a = chains.detectors["det"], analog.detectors["det"]
     assert c.power_w > 0 and a.power_w > 0
     assert abs(c.power_w - a.power_w) <= 4 * math.hypot(c.stderr_w, a.stderr_w), (c, a)
