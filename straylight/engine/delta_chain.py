@@ -46,7 +46,7 @@ from materials.mueller import interface_mueller, rotate_stokes, s_vector
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.material_groups import distinct
-from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SPECULAR
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
 from straylight.engine.walk_shares import keep_walk_share
@@ -80,11 +80,12 @@ class Branches:
     Stokes vector (S0 = 1) and its frame e1, interfaces met, last part, path key, event codes,
     reflections met."""
 
-    FIELDS = ("row", "origin", "d", "w", "S", "e1", "k", "last_part", "key", "codes", "refl")
+    FIELDS = ("row", "origin", "d", "w", "S", "e1", "k", "last_part", "key", "codes", "refl", "tag")
 
-    def __init__(self, row, origin, d, w, S, e1, k, last_part, key, codes, refl):
+    def __init__(self, row, origin, d, w, S, e1, k, last_part, key, codes, refl, tag=None):
         self.row, self.origin, self.d, self.w, self.S, self.e1 = row, origin, d, w, S, e1
         self.k, self.last_part, self.key, self.codes, self.refl = k, last_part, key, codes, refl
+        self.tag = np.full(len(row), -1, dtype=np.int64) if tag is None else tag  # a further lobe draw's index (-1: the walk's)
 
     def take(self, sel):
         return Branches(*(getattr(self, f)[sel] for f in self.FIELDS))
@@ -97,8 +98,12 @@ class DeltaChains:
     run). ``max_reflections`` R > 0: the trees follow only branches with at most R reflections (any
     transmissions, up to K interfaces in all), and the walk keeps its hits after more."""
 
-    def __init__(self, n_rays_in_batch, max_interfaces, splits=None, max_reflections=0):
+    def __init__(self, n_rays_in_batch, max_interfaces, splits=None, max_reflections=0, lobe_split=None):
         self.run = np.zeros(n_rays_in_batch, dtype=np.int64)
+        #: straylight.engine.tree_split.LobeSplit (``tree_split`` > 1) or None; per ray, the share the walk's
+        #: own tree keeps after a split vertex (1 / K, for branches past the split's ``k_min``)
+        self.lobe_split = lobe_split
+        self.walk_scale = np.ones(n_rays_in_batch)
         self.refl = np.zeros(n_rays_in_batch, dtype=np.int64)
         self.k_max = int(max_interfaces)
         self.r_max = int(max_reflections) if int(max_reflections) > 0 else self.k_max
@@ -114,6 +119,8 @@ class DeltaChains:
             at = np.where(h.refined[root, None], h.exact[root], event.hits.point_mm[h.rows[root]])
             self.split(event, h.rows[root], at, h.facing[root], h.d[root], h.s[root], h.S[root],
                        tuple(x[root] for x in h.fresnel))
+        if self.lobe_split is not None:  # the run after a split vertex has started (or the ray scattered again)
+            self.walk_scale[event.rays.ray[h.rows[~h.passing]]] = 1.0
         self.advance(event, h.rows, h.reflected | h.transmitted, h.passing, h.reflected)
 
     def starts(self, event, rows):
@@ -133,6 +140,7 @@ class DeltaChains:
         if len(rows):
             self.run[event.rays.ray[rows]] = 0
             self.refl[event.rays.ray[rows]] = 0
+            self.walk_scale[event.rays.ray[rows]] = 1.0
 
     def covers(self, k, refl) -> np.ndarray:
         """Runs of ``k`` interfaces with ``refl`` reflections that the trees count (1 <= k <= K, refl <= R)."""
@@ -162,6 +170,10 @@ class DeltaChains:
         live = self._children(spec, Branches(np.asarray(rows), at, d, w, S, s, np.zeros(len(rows), np.int64),
                                              part, key, codes, np.zeros(len(rows), np.int64)),
                               facing, s, S, fresnel, event)
+        self.grow(event, live)
+
+    def grow(self, event, live):
+        """Cast and split the branches ``live`` until every one has scored or ended."""
         for _ in range(event.spec.options.physics.max_events):  # each step splits or passes a hit: the walk's own bound
             if live is None or len(live.w) == 0:
                 break
@@ -199,7 +211,8 @@ class DeltaChains:
         codes[np.arange(len(g)), b.k[g]] = code[g]
         origin, d, weight, stokes, refl = (x[0] if len(x) == 1 else np.concatenate(x)
                                            for x in (origin, d, weight, stokes, refl))
-        return Branches(b.row[g], origin, d, weight, stokes, s[g], b.k[g] + 1, b.last_part[g], key[g], codes, refl)
+        return Branches(b.row[g], origin, d, weight, stokes, s[g], b.k[g] + 1, b.last_part[g], key[g], codes, refl,
+                        b.tag[g])
 
     def _step(self, event, b):
         """Cast the branches ``b``: score those that reach a detector, split those that meet another
@@ -254,15 +267,30 @@ class DeltaChains:
             m = np.flatnonzero(j_of == j)
             i = b.row[m]
             r = rays.ray[i]
-            w = b.w[m] * event.tree_share(i, int(j), b.d[m])  # a strategy that also counts this run keeps its share
-            w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])  # or this very path
+            split = self.lobe_split
+            drawn = split is not None and split.draws is not None  # branches of further lobe draws (tree_split)
+            if drawn:
+                w = b.w[m] * split.share(event, b.tag[m], b.k[m], int(j), b.d[m])
+            else:
+                w = b.w[m] * event.tree_share(i, int(j), b.d[m])  # a strategy that also counts this run keeps its share
+                w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])  # or this very path
+                if split is not None:
+                    w = np.where(b.k[m] > split.k_min, w * self.walk_scale[r], w)
+            keep = np.flatnonzero(w > 0) if split is not None else m
+            if split is not None and len(keep) < len(m):
+                m, i, r, w = m[keep], i[keep], r[keep], w[keep]
+                if len(m) == 0:
+                    continue
             event.tallies.add(event.rows.detector_nee + int(j), r, w)
             event.tallies.subtract(event.rows.nee_exchange + start_part[m], r, w)
             keys = events = None
-            depth = rays.depth[i]
+            depth = rays.depth[i] + (1 if drawn else 0)  # a further draw's tree starts at its vertex, not past it
             if event.settings.record_paths:
                 keys = mix_key(b.key[m], event.scene.det_parts[int(j)] * 4 + EVENT_DETECTOR)
                 events = rays.history[i]
+                if drawn:
+                    at = np.flatnonzero(rays.depth[i] < events.shape[1])
+                    events[at, rays.depth[i][at]] = start_part[m][at] * 4 + EVENT_SCATTER
                 for step in range(b.codes.shape[1]):
                     at = np.flatnonzero((b.codes[m, step] >= 0) & (depth + step < events.shape[1]))
                     events[at, depth[at] + step] = b.codes[m[at], step]

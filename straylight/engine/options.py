@@ -34,6 +34,7 @@ class EstimatorOptions:
     reflection_split: bool = False  # interface reflections into a detector counted by expected value
     delta_chain: int = 0  # > 0: runs of up to this many interfaces into a detector followed by splitting
     delta_chain_reflections: int = 0  # > 0: of those, the runs with at most this many reflections (a ghost's order)
+    tree_split: int = 1  # > 1: glossy vertices lit by the source send this many lobe draws into the split trees
     entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
     reverse_chain: int = 0  # > 0: eye chains from the detectors through up to this many interfaces, joined to the walk
     specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1 or 2) analytic interfaces
@@ -52,6 +53,8 @@ class EstimatorOptions:
         object.__setattr__(self, "target_parts", tuple(self.target_parts))
         if int(self.delta_chain) < 0:
             raise TraceError(f"delta_chain must be >= 0 (interfaces per split tree), got {self.delta_chain}")
+        if not isinstance(self.tree_split, (int, np.integer)) or int(self.tree_split) < 1:
+            raise TraceError(f"tree_split must be an integer >= 1 (lobe draws into the split trees), got {self.tree_split!r}")
         if int(self.delta_chain_reflections) < 0:
             raise TraceError(f"delta_chain_reflections must be >= 0 (reflections per split-tree branch; 0: no limit), "
                              f"got {self.delta_chain_reflections}")

@@ -736,14 +736,18 @@ class ReverseChains:
         ``arrival`` (n, 3) (its balance weight against the eye side, whose direction density there
         the eye table gives; 1 for runs the chains do not own)."""
         r = event.rays.ray[rows]
-        owned = self.owns(event, rows, extra=1)
-        p_eye = EYES_PER_RAY * np.maximum(self.cos_out[r], 0.0) \
+        return self.share_of(event, self.owns(event, rows, extra=1), self.p_walk[r], self.cos_out[r], detector, arrival)
+
+    def share_of(self, event, owned, p_walk, cos_out, detector: int, arrival) -> np.ndarray:
+        """The balance weight p_walk / (p_walk + p_eye) of walk-side paths (P, omega) of density ``p_walk``
+        (cos(omega, n_P) ``cos_out``) reaching ``detector`` along ``arrival``; 1 where not ``owned``."""
+        p_eye = EYES_PER_RAY * np.maximum(cos_out, 0.0) \
             / (np.pi * self.det_area[detector] * len(self.det_area) * self.sides)
         table = event.spec.eye_table
         if table is not None and owned.any():
             p_eye = p_eye * np.where(owned, table.density_of_arrival(detector, arrival), 1.0)
-        total = self.p_walk[r] + p_eye
-        share = np.where(total > 0, self.p_walk[r] / np.where(total > 0, total, 1.0), 0.0)
+        total = p_walk + p_eye
+        share = np.where(total > 0, p_walk / np.where(total > 0, total, 1.0), 0.0)
         return np.where(owned, share, 1.0)
 
     def owns(self, event, rows, extra: int = 0) -> np.ndarray:

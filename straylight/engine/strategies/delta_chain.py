@@ -9,6 +9,7 @@ from dataclasses import replace
 
 from straylight.engine import delta_chain as impl
 from straylight.engine.capabilities import Capability
+from straylight.engine.tree_split import LobeSplit
 from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy
 
 
@@ -18,8 +19,17 @@ class DeltaChainStrategy(Strategy):
 
     def batch_state(self, ctx: BatchContext) -> object | None:
         est = ctx.spec.options.estimator
-        return impl.DeltaChains(ctx.n_rays, int(est.delta_chain), ctx.capabilities.parts(Capability.DELTA_CHAIN),
-                                max_reflections=int(est.delta_chain_reflections))
+        splits = ctx.capabilities.parts(Capability.DELTA_CHAIN)
+        lobe = None
+        if int(est.tree_split) > 1 and ctx.spec.diffraction is None and ctx.scene.target is None \
+                and len(ctx.spec.sources) == 1:  # (the draws are the material's own; P's density is the beam's)
+            lobe = LobeSplit(ctx, int(est.tree_split), splits)
+        return impl.DeltaChains(ctx.n_rays, int(est.delta_chain), splits,
+                                max_reflections=int(est.delta_chain_reflections), lobe_split=lobe)
+
+    def after_interactions(self, state, event, continuing, outgoing) -> None:
+        if state.lobe_split is not None and len(continuing):
+            state.lobe_split.at_vertices(event, state, continuing, outgoing)
 
     def at_interfaces(self, state, event, interfaces) -> None:
         state.at_interfaces(event, interfaces)

@@ -1,0 +1,131 @@
+"""Lobe splitting into the split trees (``EstimatorOptions.tree_split``; docs/engine.md, "Lobe draws into
+the split trees").
+
+At a scatter vertex P lit straight by the source (the ray's first hit) on a glossy pure scatterer
+(``ComponentFlags.GLOSSY``, an end-point kind of the reverse chains) the walk draws K - 1 further lobe
+directions (the material's ``sample``, an own stream per chunk: :data:`TREE_STREAM`) besides its own.
+Each starts a branch at P with weight w f cos / pdf / K (the walk's throughput over K) that
+straylight.engine.delta_chain follows like a tree rooted at its first interface hit; the walk's own tree
+after P keeps 1 / K of its branches (``DeltaChains.walk_scale``). For each path the K draws are K
+identically distributed estimates of the same conditional expectation, so their mean is unbiased for any
+K that depends on the vertex only. The MIS weights are the one-sample ones, per draw: against the eye
+chains p_walk / (p_walk + p_eye) with the draw's own (P, omega) density (a partition of unity whatever K;
+the K-sample balance weights would move only the eye side's already small share); branches of at most
+``k_min`` = ``specular_nee`` interfaces, which specular NEE also makes, are left to the walk's own tree
+(its weight there unchanged)."""
+from __future__ import annotations
+
+import numpy as np
+
+from straylight.engine.delta_chain import CODE_COLUMNS, Branches
+from straylight.engine.interactions.brdf_scatter import local_frame
+from straylight.engine.lobes import lobe_materials
+from straylight.engine.material_groups import by_material
+from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SOURCE
+from straylight.engine.reverse_chain import _beam_footprint, scatter_ends
+from straylight.paths import mix_key
+from straylight.rng import CHUNK_RAYS, check_seed
+
+TREE_STREAM = 0x5453504C  # third entropy word of the further lobe draws' streams ("TSPL")
+
+
+class LobeSplit:
+    """Per batch: which materials split, K, the further draws' streams, and while their branches grow,
+    each draw's (p_walk, cos(omega, n_P), owned by the eye chains) (:attr:`draws`)."""
+
+    def __init__(self, ctx, k: int, splits: np.ndarray):
+        spec = ctx.spec
+        self.k = int(k)
+        self.k_min = int(spec.options.estimator.specular_nee)
+        self.material = lobe_materials(spec) & scatter_ends(spec)
+        self.splits = splits
+        self.seed = check_seed(spec.seed)
+        self.first_chunk = int(spec.chunk_offset) + int(ctx.first_chunk)
+        self.w0 = float(ctx.start_weight_w)
+        self.source = spec.sources[0]
+        self._gens: dict = {}
+        self.draws = None
+
+    def uniforms(self, event, rows):
+        """3 uniforms per further draw of the vertices ``rows`` (rows of the event), from each chunk's own
+        stream in ray order (what a chunk draws depends on its rays only)."""
+        width = 3 * (self.k - 1)
+        out = np.empty((len(rows), width))
+        r = event.rays.ray[rows]
+        chunk = r // CHUNK_RAYS
+        order = np.argsort(r, kind="stable")
+        for c in np.unique(chunk):
+            at = order[chunk[order] == c]
+            gen = self._gens.get(int(c))
+            if gen is None:
+                gen = self._gens[int(c)] = np.random.default_rng([self.seed, self.first_chunk + int(c), TREE_STREAM])
+            out[at] = gen.random((len(at), width))
+        return out
+
+    def at_vertices(self, event, chains, cont, out):
+        """After the interactions: the split vertices among the continuing hits ``cont`` (``out``: what the
+        walk did there) send their further draws into ``chains`` (DeltaChains) and keep 1 / K of the walk's tree."""
+        rays, hit, spec = event.rays, event.hits, event.spec
+        part = hit.part[cont].astype(np.int64)
+        mat = spec.part_material[part]
+        sel = np.flatnonzero((out.event == EVENT_SCATTER) & (rays.last_event[cont] == EVENT_SOURCE)
+                             & self.material[mat] & ~self.splits[part] & (rays.weight_w[cont] > 0))
+        if len(sel) == 0:
+            return
+        rows = cont[sel]
+        chains.walk_scale[rays.ray[rows]] = 1.0 / self.k
+        n_more = self.k - 1
+        m = len(rows)
+        pos = np.repeat(np.arange(m), n_more)
+        u = self.uniforms(event, rows).reshape(m * n_more, 3)
+        nf = hit.facing_normal[rows]
+        tb, bb, wi_all = local_frame(rays.direction[rows], nf)
+        wi = wi_all[pos]
+        pol = spec.options.physics.polarization
+        wo = np.empty((len(pos), 3))
+        weight = np.empty(len(pos))
+        pdf = np.empty(len(pos))
+        for g, smp in by_material(spec.materials, mat[sel][pos], lambda model, g: model.sample(wi[g], u[g], pol)):
+            wo[g] = smp.wo
+            weight[g] = smp.weight
+            pdf[g] = smp.pdf_per_sr
+        ok = np.flatnonzero((wo[:, 2] > 0) & (pdf > 0) & (weight > 0))
+        if len(ok) == 0:
+            return
+        pos, wo, weight, pdf = pos[ok], wo[ok], weight[ok], pdf[ok]
+        i = rows[pos]
+        d = wo[:, :1] * tb[pos] + wo[:, 1:2] * bb[pos] + wo[:, 2:3] * nf[pos]
+        d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+        n = len(i)
+        # the walk's density of (P, omega) for each draw (reverse_chain.ReverseChains._walk_density, from the source)
+        rc = event.states.get("reverse_chain")
+        if rc is not None:
+            beam = (self.w0 / rays.weight_w[i]) * np.abs(np.einsum("ij,ij->i", rays.direction[i], nf[pos])) \
+                / _beam_footprint(self.source)
+            owned = rc.end_material[mat[sel][pos]] & rc.pred[rays.ray[i]] & (rc.k_tree > 0)
+            self.draws = (beam * pdf, wo[:, 2], owned)
+        else:
+            self.draws = (np.zeros(n), wo[:, 2], np.zeros(n, dtype=bool))
+        key = mix_key(rays.path_key[i], part[sel][pos] * 4 + EVENT_SCATTER) if event.settings.record_paths \
+            else np.zeros(n, np.uint64)
+        S = np.zeros((n, 4))
+        S[:, 0] = 1.0  # a pure scatterer's light leaves unpolarized (reverse_chain.scatter_ends)
+        b = Branches(i, np.ascontiguousarray(hit.point_mm[i] + 2.0 * event.settings.eps_mm * nf[pos]),
+                     np.ascontiguousarray(d), rays.weight_w[i] * weight / self.k, S, tb[pos], np.zeros(n, np.int64),
+                     part[sel][pos], key, np.full((n, CODE_COLUMNS), -1, dtype=np.int64), np.zeros(n, np.int64),
+                     np.arange(n, dtype=np.int64))
+        try:
+            chains.grow(event, b)
+        finally:
+            self.draws = None
+
+    def share(self, event, tag, k, detector: int, arrival) -> np.ndarray:
+        """The share further draws ``tag`` keep on ``detector`` after ``k`` interfaces: 0 for k <= ``k_min``
+        (the walk's own tree keeps those), else their balance weight against the eye chains."""
+        p_walk, cos_out, owned = (x[tag] for x in self.draws)
+        out = np.where(k > self.k_min, 1.0, 0.0)
+        rc = event.states.get("reverse_chain")
+        if rc is not None and owned.any():
+            out = out * rc.share_of(event, owned, p_walk, cos_out, detector, arrival)
+        return out
+
