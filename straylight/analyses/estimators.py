@@ -69,13 +69,18 @@ DELTA_CHAIN_REFLECTIONS = 2
 #: most NEE samples and lobe draws at a glint of the default set (straylight.engine.nee_split)
 NEE_SPLIT = 64
 
+#: lobe draws of a glossy vertex lit by the source followed into the split trees (straylight.engine.tree_split;
+#: on the guide scope 4 beat 2 and 8, docs/engine.md "Lobe draws into the split trees")
+TREE_SPLIT = 4
+
 #: the sets: presets of the estimator options (NEE on, the engine's other defaults unless named)
 ESTIMATOR_SETS = {
     "default": EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
                                 second_vertex_lobe_sampling=True, rr_threshold=ANALYSIS_RR_THRESHOLD,
                                 delta_chain=DELTA_CHAIN_INTERFACES, delta_chain_reflections=DELTA_CHAIN_REFLECTIONS,
                                 entrance_sampling=True,
-                                reverse_chain=DELTA_CHAIN_INTERFACES, specular_nee=1, nee_split=NEE_SPLIT),
+                                reverse_chain=DELTA_CHAIN_INTERFACES, specular_nee=1, nee_split=NEE_SPLIT,
+                                tree_split=TREE_SPLIT),
 }
 
 

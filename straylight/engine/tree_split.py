@@ -22,7 +22,7 @@ from straylight.engine.interactions.brdf_scatter import local_frame
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SOURCE
-from straylight.engine.reverse_chain import _beam_footprint, scatter_ends
+from straylight.engine.reverse_chain import _beam_footprint, _source_linear, scatter_ends
 from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS, check_seed
 
@@ -37,14 +37,16 @@ class LobeSplit:
         spec = ctx.spec
         self.k = int(k)
         self.k_min = int(spec.options.estimator.specular_nee)
-        self.material = lobe_materials(spec) & scatter_ends(spec)
+        # unpolarized light at P (a linear source's first vertex receives polarized light: the walk's weight
+        # there has the polarized BRDF's factor, which the draws would miss)
+        self.material = lobe_materials(spec) & scatter_ends(spec) & (not _source_linear(spec))
         self.splits = splits
         self.seed = check_seed(spec.seed)
         self.first_chunk = int(spec.chunk_offset) + int(ctx.first_chunk)
         self.w0 = float(ctx.start_weight_w)
         self.source = spec.sources[0]
         self._gens: dict = {}
-        self.draws = None
+        self.draws: tuple | None = None
 
     def uniforms(self, event, rows):
         """3 uniforms per further draw of the vertices ``rows`` (rows of the event), from each chunk's own
@@ -122,6 +124,7 @@ class LobeSplit:
     def share(self, event, tag, k, detector: int, arrival) -> np.ndarray:
         """The share further draws ``tag`` keep on ``detector`` after ``k`` interfaces: 0 for k <= ``k_min``
         (the walk's own tree keeps those), else their balance weight against the eye chains."""
+        assert self.draws is not None  # (called by DeltaChains while the draws' branches grow)
         p_walk, cos_out, owned = (x[tag] for x in self.draws)
         out = np.where(k > self.k_min, 1.0, 0.0)
         rc = event.states.get("reverse_chain")

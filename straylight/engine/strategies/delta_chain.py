@@ -22,7 +22,7 @@ class DeltaChainStrategy(Strategy):
         splits = ctx.capabilities.parts(Capability.DELTA_CHAIN)
         lobe = None
         if int(est.tree_split) > 1 and ctx.spec.diffraction is None and ctx.scene.target is None \
-                and len(ctx.spec.sources) == 1:  # (the draws are the material's own; P's density is the beam's)
+                and len(ctx.spec.sources) == 1 and splits.any():  # (the draws are the material's; P's density the beam's)
             lobe = LobeSplit(ctx, int(est.tree_split), splits)
         return impl.DeltaChains(ctx.n_rays, int(est.delta_chain), splits,
                                 max_reflections=int(est.delta_chain_reflections), lobe_split=lobe)
