@@ -52,3 +52,29 @@ def test_lobe_draws_into_the_trees_agree_with_the_analog_walk(glossy_slab, analo
     assert b.power_w > 0 and a.power_w > 0
     assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
     assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+
+
+def test_the_draws_cut_the_variance_and_give_the_same_numbers_for_any_batch_size_and_thread_count(glossy_slab):
+    """The draws engage (more error per ray without them) and come from each chunk's own stream: the
+    same numbers whatever the batches and threads."""
+    from dataclasses import replace
+
+    from straylight.execution import Execution
+
+    sc, src, mats = glossy_slab
+    est = EstimatorOptions(nee=False, delta_chain=4, tree_split=8)
+    ref = trace(sc, src, 5_432, seed=9, materials=mats, options=TraceOptions(estimator=est, batch_rays=1000))
+    got = trace(sc, src, 5_432, seed=9, materials=mats, options=TraceOptions(estimator=est, batch_rays=3000),
+                execution=Execution(threads=2))
+    assert got.detectors["det"] == ref.detectors["det"]
+    plain = trace(sc, src, 5_432, seed=9, materials=mats,
+                  options=TraceOptions(estimator=replace(est, tree_split=1), batch_rays=1000)).detectors["det"]
+    split = ref.detectors["det"]
+    assert split.stderr_w / split.power_w < 0.8 * plain.stderr_w / plain.power_w, (plain, split)
+
+
+def test_tree_split_must_be_a_positive_integer():
+    from straylight.trace import TraceError
+
+    with pytest.raises(TraceError, match="tree_split"):
+        EstimatorOptions(tree_split=0)
