@@ -38,6 +38,24 @@ def stream_chunk(chunk: int, stream: int, n_streams: int) -> int:
     return int(chunk) * int(n_streams) + int(stream)
 
 
+def chunk_stream_uniforms(gens: dict, seed: int, first_chunk: int, stream: int, ray: np.ndarray,
+                          width: int) -> np.ndarray:
+    """(len(ray), width) uniforms for the rays ``ray`` of a batch, each chunk's rows drawn in ray order
+    from its own generator ``default_rng([seed, first_chunk + chunk, stream])`` (kept in ``gens`` by chunk,
+    so a batch's later calls continue the same streams): what a chunk draws depends on its rays only,
+    not on how chunks are grouped into batches (a strategy's own draws, e.g. NEE splitting's)."""
+    out = np.empty((len(ray), width))
+    chunk = ray // CHUNK_RAYS
+    order = np.argsort(ray, kind="stable")
+    for c in np.unique(chunk):
+        at = order[chunk[order] == c]
+        gen = gens.get(int(c))
+        if gen is None:
+            gen = gens[int(c)] = np.random.default_rng([seed, first_chunk + int(c), stream])
+        out[at] = gen.random((len(at), width))
+    return out
+
+
 def n_chunks(n_rays: int, chunk_rays: int = CHUNK_RAYS) -> int:
     return -(-int(n_rays) // chunk_rays)
 

@@ -31,7 +31,7 @@ from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.vec3 import power_heuristic_rows
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
-from straylight.rng import CHUNK_RAYS, check_seed
+from straylight.rng import check_seed, chunk_stream_uniforms
 
 SPLIT_STREAM = 0x4E53504C  # third entropy word of the further samples' streams ("NSPL")
 #: the predicted contribution (in start weights) above which a vertex's NEE is split
@@ -125,17 +125,8 @@ class NeeSplit:
         (in the order of ``rows``): 3 per detector and further NEE sample, then 3 per further lobe draw,
         for the largest K; each from its chunk's own stream in ray order (what a chunk draws depends on
         its rays only, not on the batch)."""
-        out = np.empty((len(rows), self.width))
-        r = event.rays.ray[rows]
-        chunk = r // CHUNK_RAYS
-        order = np.argsort(r, kind="stable")
-        for c in np.unique(chunk):
-            at = order[chunk[order] == c]
-            gen = self._gens.get(int(c))
-            if gen is None:
-                gen = self._gens[int(c)] = np.random.default_rng([self.seed, self.first_chunk + int(c), SPLIT_STREAM])
-            out[at] = gen.random((len(at), self.width))
-        return out
+        return chunk_stream_uniforms(self._gens, self.seed, self.first_chunk, SPLIT_STREAM, event.rays.ray[rows],
+                                     self.width)
 
     def nee_uniforms(self, event, rows, block, more):
         """An event-row-indexed array of the further NEE samples' uniforms (``more`` per detector) of the

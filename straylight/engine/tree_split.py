@@ -24,7 +24,7 @@ from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SOURCE
 from straylight.engine.reverse_chain import _beam_footprint, _source_linear, scatter_ends
 from straylight.paths import mix_key
-from straylight.rng import CHUNK_RAYS, check_seed
+from straylight.rng import check_seed, chunk_stream_uniforms
 
 TREE_STREAM = 0x5453504C  # third entropy word of the further lobe draws' streams ("TSPL")
 
@@ -51,18 +51,8 @@ class LobeSplit:
     def uniforms(self, event, rows):
         """3 uniforms per further draw of the vertices ``rows`` (rows of the event), from each chunk's own
         stream in ray order (what a chunk draws depends on its rays only)."""
-        width = 3 * (self.k - 1)
-        out = np.empty((len(rows), width))
-        r = event.rays.ray[rows]
-        chunk = r // CHUNK_RAYS
-        order = np.argsort(r, kind="stable")
-        for c in np.unique(chunk):
-            at = order[chunk[order] == c]
-            gen = self._gens.get(int(c))
-            if gen is None:
-                gen = self._gens[int(c)] = np.random.default_rng([self.seed, self.first_chunk + int(c), TREE_STREAM])
-            out[at] = gen.random((len(at), width))
-        return out
+        return chunk_stream_uniforms(self._gens, self.seed, self.first_chunk, TREE_STREAM, event.rays.ray[rows],
+                                     3 * (self.k - 1))
 
     def at_vertices(self, event, chains, cont, out):
         """After the interactions: the split vertices among the continuing hits ``cont`` (``out``: what the
