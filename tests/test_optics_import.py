@@ -240,3 +240,14 @@ def test_a_substituted_glass_is_named(tmp_path):
     r = _run("optics", "info", LENSES / "ray-optics" / "354710-C.zmx")
     assert r.returncode == 0, r.stderr
     assert "glass D-ZK3M is not in the catalogues as written; rayoptics substituted D-ZK3 (CDGM)" in r.stdout + r.stderr
+
+
+def test_a_truncated_lens_file_is_refused_in_one_line_naming_it(tmp_path):
+    """A CODE V file cut off after its first surface (no image surface: rayoptics finds no ray through it)
+    is one error line naming the file, not rayoptics' internal TypeError."""
+    cut = tmp_path / "cut.seq"
+    cut.write_bytes((LENSES / "ray-optics" / "CODV_32327.seq").read_bytes()[:300])
+    r = _run("optics", "import", cut, "--out", tmp_path / "out")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert str(cut) in lines[0] and "no ray passes the system" in lines[0], lines[0]

@@ -483,7 +483,11 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         sm.set_clear_apertures()
         traced_sd = {i: float(ifc.max_aperture) for i, ifc in enumerate(sm.ifcs)}
     except Exception:  # noqa: BLE001 - fall back to the paraxial marginal + chief ray heights
-        sm.set_clear_apertures_paraxial()
+        try:
+            sm.set_clear_apertures_paraxial()
+        except Exception as exc:  # noqa: BLE001 - no paraxial solution either: a truncated or incomplete file
+            raise OpticsFileError(f"{path}: no ray passes the system (neither a real nor a paraxial trace; is the "
+                                  f"file complete, with an image surface?): {type(exc).__name__}") from None
         traced_sd = {i: float(ifc.max_aperture) for i, ifc in enumerate(sm.ifcs)}
     for i, sd in given_sd.items():
         sm.ifcs[i].set_max_aperture(sd)
