@@ -23,7 +23,7 @@ import numpy as np
 
 from materials.base import directions_from_angles
 from materials.kcorrelation import KCorrelation
-from materials.rayleigh_rice import rayleigh_rice_mueller, s_basis
+from materials.rayleigh_rice import add_rayleigh_rice_mueller, s_basis
 
 _PROBE = None
 
@@ -79,12 +79,7 @@ def mueller_brdf(model, wi, wo, s_in=None, first_row_only: bool = False):
     M = np.zeros((len(wi), 4, 4))
     for c in components_of(model):
         if _full(c):
-            f = c.brdf(wi, wo, "u")
-            Mn, _ = rayleigh_rice_mueller(wi, wo, c._index, s_in, e1, first_row_only)
-            if first_row_only:
-                M[:, 0, :] += f[:, None] * Mn[:, 0, :]
-            else:
-                M += f[:, None, None] * Mn
+            add_rayleigh_rice_mueller(M, c.brdf(wi, wo, "u"), wi, wo, c._index, s_in, e1, first_row_only)
         else:
             fs = c.brdf(wi, wo, "s")
             fp = c.brdf(wi, wo, "p")

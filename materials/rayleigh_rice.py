@@ -21,9 +21,12 @@ K-correlation lobe's Mueller matrix is ``M = f_u jones_to_mueller(J) / M00(J)``.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from materials.mueller import jones_to_mueller, norm_rows
+from materials.sampling import lazy_njit
 
 Z = np.array([0.0, 0.0, 1.0])
 
@@ -115,7 +118,111 @@ def rayleigh_rice_jones(wi, wo, n, s_in=None, e1_out=None):
 
 def rayleigh_rice_mueller(wi, wo, n, s_in=None, e1_out=None, first_row_only: bool = False):
     """Normalised Mueller matrices (m, 4, 4) (M00 = 1 where defined) and the scattered e1 (m, 3);
-    ``first_row_only``: row 0 alone, rows 1-3 zero (:func:`materials.mueller.jones_to_mueller`)."""
+    ``first_row_only``: row 0 alone, rows 1-3 zero (:func:`materials.mueller.jones_to_mueller`).
+    One compiled pass per ray (:func:`add_rayleigh_rice_mueller`), the same bits as
+    :func:`rayleigh_rice_mueller_numpy`."""
+    wi = np.asarray(wi, float)
+    wo = np.asarray(wo, float)
+    s_i = s_basis(-wi) if s_in is None else np.asarray(s_in, float)
+    e1 = s_basis(wo, fallback=s_i) if e1_out is None else np.asarray(e1_out, float)
+    M = np.zeros((len(wi), 4, 4))
+    add_rayleigh_rice_mueller(M, np.ones(len(wi)), wi, wo, n, s_i, e1, first_row_only)
+    return M, e1
+
+
+def add_rayleigh_rice_mueller(M, f, wi, wo, n, s_in, e1_out, first_row_only: bool = False) -> None:
+    """``M += f Mn`` in place (M (m, 4, 4), f (m,)), Mn the normalised Rayleigh-Rice Mueller matrix of
+    :func:`rayleigh_rice_mueller` for the bases ``s_in`` and ``e1_out`` (m, 3; both given); with
+    ``first_row_only`` row 0 alone. :func:`rayleigh_rice_jones`, :func:`materials.mueller.jones_to_mueller`
+    and the normalisation row by row in one compiled pass, numpy's operations in numpy's order (complex
+    quotients as numpy forms them), so the same bits as ``M += f Mn`` with the numpy twin."""
+    if not len(wi):
+        return
+    eps = complex(n) ** 2
+    lazy_njit(_rr_mueller_loop, "numpy")(
+        np.ascontiguousarray(wi, dtype=float), np.ascontiguousarray(wo, dtype=float),
+        np.ascontiguousarray(s_in, dtype=float), np.ascontiguousarray(e1_out, dtype=float),
+        eps, complex(np.sqrt(complex(eps))), bool(first_row_only), np.ascontiguousarray(f, dtype=float), M)
+
+
+def _rr_mueller_loop(wi, wo, s_i, e1, eps, n_idx, first_row_only, f, M):
+    """:func:`add_rayleigh_rice_mueller` row by row: :func:`rayleigh_rice_mueller_numpy`'s operations
+    (real times complex as numpy casts it: ``(x + 0j) z``)."""
+
+    def cdiv(a, b):  # a / b as numpy's complex division forms it (Smith's rule, with a reciprocal)
+        ar, ai, br, bi = a.real, a.imag, b.real, b.imag
+        if abs(br) >= abs(bi):
+            if br == 0.0 and bi == 0.0:
+                return complex(ar / abs(br), ai / abs(br))
+            rat = bi / br
+            scl = 1.0 / (br + bi * rat)
+            return complex((ar + ai * rat) * scl, (ai - ar * rat) * scl)
+        rat = br / bi
+        scl = 1.0 / (bi + br * rat)
+        return complex((ar * rat + ai) * scl, (ai * rat - ar) * scl)
+
+    def inside(k0, k1, k2, s0, s1, s2):  # inside_fields: (E_s, E_p) of the waves along k with basis s
+        cos = -k2
+        sin2 = k0 * k0 + k1 * k1
+        q = np.sqrt((eps - sin2) + 0j)
+        t_s = cdiv(complex(2.0 * cos, 0.0), cos + q)
+        t_p = cdiv((2.0 * n_idx) * cos, eps * cos + q)
+        qn = cdiv(q, n_idx)
+        kt0 = cdiv(complex(k0, 0.0), n_idx) - qn * 0.0
+        kt1 = cdiv(complex(k1, 0.0), n_idx) - qn * 0.0
+        kt2 = cdiv(0j, n_idx) - qn * 1.0
+        return (t_s * s0, t_s * s1, t_s * s2, t_p * (kt1 * s2 - kt2 * s1), t_p * (kt2 * s0 - kt0 * s2),
+                t_p * (kt0 * s1 - kt1 * s0))
+
+    em1 = eps - 1.0
+    for r in range(len(wi)):
+        wi0, wi1, wi2 = wi[r, 0], wi[r, 1], wi[r, 2]
+        wo0, wo1, wo2 = wo[r, 0], wo[r, 1], wo[r, 2]
+        a0, a1, a2 = e1[r, 0], e1[r, 1], e1[r, 2]
+        si0, si1, si2 = s_i[r, 0], s_i[r, 1], s_i[r, 2]
+        b0, b1, b2 = wo1 * a2 - wo2 * a1, wo2 * a0 - wo0 * a2, wo0 * a1 - wo1 * a0  # e2 = wo x e1
+        kr0, kr1, kr2 = -wo0, -wo1, -wo2
+        t0, t1, t2 = kr1 * 1.0 - kr2 * 0.0, kr2 * 0.0 - kr0 * 1.0, kr0 * 0.0 - kr1 * 0.0  # s_basis(k_r, e1)
+        nrm = math.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+        if nrm < 1e-12:
+            t0, t1, t2 = a0, a1, a2
+            nrm = math.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+        sr0, sr1, sr2 = t0 / nrm, t1 / nrm, t2 / nrm
+        pr0, pr1, pr2 = kr1 * sr2 - kr2 * sr1, kr2 * sr0 - kr0 * sr2, kr0 * sr1 - kr1 * sr0
+        Eas0, Eas1, Eas2, Eap0, Eap1, Eap2 = inside(-wi0, -wi1, -wi2, si0, si1, si2)  # incident s, p
+        Fs0, Fs1, Fs2, Fp0, Fp1, Fp2 = inside(kr0, kr1, kr2, sr0, sr1, sr2)  # reciprocal wave, its s, p
+        cs1, cp1 = (a0 * sr0 + a1 * sr1) + a2 * sr2, (a0 * pr0 + a1 * pr1) + a2 * pr2
+        cs2, cp2 = (b0 * sr0 + b1 * sr1) + b2 * sr2, (b0 * pr0 + b1 * pr1) + b2 * pr2
+        E10, E11, E12 = cs1 * Fs0 + cp1 * Fp0, cs1 * Fs1 + cp1 * Fp1, cs1 * Fs2 + cp1 * Fp2  # E_b, b = e1
+        E20, E21, E22 = cs2 * Fs0 + cp2 * Fp0, cs2 * Fs1 + cp2 * Fp1, cs2 * Fs2 + cp2 * Fp2  # b = e2
+        if wi2 > 0 and wo2 > 0:
+            scale = cdiv(em1, complex(4.0 * (wi2 * wo2), 0.0))
+        else:
+            scale = 0j
+        ja = scale * ((Eas0 * E10 + Eas1 * E11) + eps * (Eas2 * E12))  # J00
+        jb = scale * ((Eap0 * E10 + Eap1 * E11) + eps * (Eap2 * E12))  # J01
+        jc = scale * ((Eas0 * E20 + Eas1 * E21) + eps * (Eas2 * E22))  # J10
+        jd = scale * ((Eap0 * E20 + Eap1 * E21) + eps * (Eap2 * E22))  # J11
+        ca, cb, cc, cd = ja.conjugate(), jb.conjugate(), jc.conjugate(), jd.conjugate()
+        m00 = (0.5 * ((ja * ca + jb * cb) + (jc * cc + jd * cd))).real
+        den = m00 if m00 > 0 else 1.0
+        fr = f[r]
+        k00 = (ja * ca + jb * cb, ja * ca - jb * cb, jb * ca + ja * cb, 1j * (jb * ca - ja * cb))
+        k11 = (jc * cc + jd * cd, jc * cc - jd * cd, jd * cc + jc * cd, 1j * (jd * cc - jc * cd))
+        for j in range(4):
+            M[r, 0, j] = M[r, 0, j] + fr * ((0.5 * (k00[j] + k11[j])).real / den)
+        if not first_row_only:
+            k01 = (ja * cc + jb * cd, ja * cc - jb * cd, jb * cc + ja * cd, 1j * (jb * cc - ja * cd))
+            k10 = (jc * ca + jd * cb, jc * ca - jd * cb, jd * ca + jc * cb, 1j * (jd * ca - jc * cb))
+            for j in range(4):
+                M[r, 1, j] = M[r, 1, j] + fr * ((0.5 * (k00[j] - k11[j])).real / den)
+                M[r, 2, j] = M[r, 2, j] + fr * ((0.5 * (k01[j] + k10[j])).real / den)
+                M[r, 3, j] = M[r, 3, j] + fr * ((0.5 * (1j * (k01[j] - k10[j]))).real / den)
+
+
+def rayleigh_rice_mueller_numpy(wi, wo, n, s_in=None, e1_out=None, first_row_only: bool = False):
+    """:func:`rayleigh_rice_mueller` in vectorised numpy, from :func:`rayleigh_rice_jones` and
+    :func:`materials.mueller.jones_to_mueller` (the reference the compiled pass is tested against)."""
     J, e1 = rayleigh_rice_jones(wi, wo, n, s_in, e1_out)
     M = jones_to_mueller(J, first_row_only)
     m00 = M[:, 0, 0]
