@@ -46,6 +46,42 @@ def interface_mueller(a_s, a_p) -> np.ndarray:
     return m
 
 
+def apply_interface_mueller(a_s, a_p, stokes, transpose: bool = False) -> np.ndarray:
+    """``M S`` (n, 4) for the Mueller matrices M of :func:`interface_mueller` (``M^T S`` with
+    ``transpose``: a covector carried backward) and Stokes vectors ``stokes`` (n, 4), without forming
+    M: ``(A S0 + B S1, B S0 + A S1, C S2 + D S3, C S3 - D S2)`` (transposed: ``D -> -D``). ``|a|^2``
+    and ``a_s a_p*`` are numpy's (its complex kernels' bits, whatever the CPU), the rest one compiled
+    pass in :func:`apply_interface_mueller_numpy`'s order: the same bits."""
+    s = np.ascontiguousarray(stokes, dtype=float)
+    out = np.empty((len(s), 4))
+    if len(s):
+        a_s, a_p = (np.broadcast_to(np.asarray(a, dtype=complex), (len(s),)) for a in (a_s, a_p))
+        lazy_njit(_apply_interface_loop, "numpy")(np.abs(a_s) ** 2, np.abs(a_p) ** 2, a_s * np.conj(a_p), s,
+                                                  bool(transpose), out)
+    return out
+
+
+def _apply_interface_loop(ss, pp, c, s, transpose, out):
+    """:func:`apply_interface_mueller` row by row: einsum's sum over all four products of a row, in
+    order from +0 (zeros included: the same bits, signed zeros too)."""
+    for r in range(len(s)):
+        A = 0.5 * (ss[r] + pp[r])
+        B = 0.5 * (ss[r] - pp[r])
+        C = c[r].real
+        D = c[r].imag
+        D23, D32 = (-D, D) if transpose else (D, -D)  # M[2, 3], M[3, 2]
+        s0, s1, s2, s3 = s[r, 0], s[r, 1], s[r, 2], s[r, 3]
+        out[r, 0] = (((0.0 + A * s0) + B * s1) + 0.0 * s2) + 0.0 * s3
+        out[r, 1] = (((0.0 + B * s0) + A * s1) + 0.0 * s2) + 0.0 * s3
+        out[r, 2] = (((0.0 + 0.0 * s0) + 0.0 * s1) + C * s2) + D23 * s3
+        out[r, 3] = (((0.0 + 0.0 * s0) + 0.0 * s1) + D32 * s2) + C * s3
+
+
+def apply_interface_mueller_numpy(a_s, a_p, stokes, transpose: bool = False) -> np.ndarray:
+    """:func:`apply_interface_mueller` as numpy evaluates it (the reference it is tested against)."""
+    return np.einsum("nji,nj->ni" if transpose else "nij,nj->ni", interface_mueller(a_s, a_p), stokes)
+
+
 def rotation_mueller(cos_psi, sin_psi) -> np.ndarray:
     """Mueller matrices (n, 4, 4) that re-express S in a frame turned by psi about the ray.
 

@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.smooth import reflect, refract
 
 if TYPE_CHECKING:
@@ -231,7 +231,7 @@ def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray) -> Bundle
     S = rotate_stokes(b.S, b.e1, s, b.d)
     a_s = np.where(reflect_it, rs, ts)
     a_p = np.where(reflect_it, rp, tp)
-    So = np.einsum("nij,nj->ni", interface_mueller(a_s, a_p), S)
+    So = apply_interface_mueller(a_s, a_p, S)
     w = b.w * So[:, 0] * bulk
     d_new = np.where(reflect_it[:, None], reflect(b.d, facing), refract(b.d, facing, eta, cos_t))
     sign = np.where(reflect_it, 1.0, -1.0)

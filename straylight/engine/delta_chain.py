@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.material_groups import distinct
@@ -188,7 +188,7 @@ class DeltaChains:
         key = mix_key(b.key, code) if event.settings.record_paths else b.key
         rows, origin, d, weight, stokes, refl = [], [], [], [], [], []
         for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
-            So = np.einsum("nij,nj->ni", interface_mueller(a_s, a_p), S)
+            So = apply_interface_mueller(a_s, a_p, S)
             w = b.w * So[:, 0] * bulk
             # a reflection past the trees' R is not followed: the walk keeps those paths (share_after_chain)
             g = np.flatnonzero((w > 0) & (b.refl < self.r_max)) if sign > 0 else np.flatnonzero(w > 0)

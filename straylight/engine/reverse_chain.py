@@ -82,7 +82,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from materials.flags import ComponentFlags, flags_of
-from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
 from materials.sampling import invert_cosine_hemisphere_sample, sample_cosine_hemisphere
@@ -563,7 +563,7 @@ class EyeChains:
         eps = 2.0 * spec.eps
         out = []
         for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
-            v_in = np.einsum("nji,nj->ni", interface_mueller(a_s, a_p), v)  # M^T v
+            v_in = apply_interface_mueller(a_s, a_p, v, transpose=True)  # M^T v
             w = b.w * bulk
             g = np.flatnonzero((v_in[:, 0] > 0) & (w > 0) & ((b.refl < self.r_max) if sign > 0 else True))
             if len(g) == 0:

@@ -52,7 +52,7 @@ from functools import cached_property
 import numpy as np
 
 from geometry.analytic import Conic
-from materials.mueller import interface_mueller, rotate_stokes, s_vector
+from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.smooth import Dielectric
 from straylight.engine import specular_manifold as manifold
 from straylight.engine import specular_reach as reach
@@ -339,7 +339,7 @@ def chain_throughput(spec, seq: Sequence, p, X, N, z, S, e1) -> np.ndarray:
         s = s_vector(d, facing)
         S = rotate_stokes(S, e1, s, d)
         a_s, a_p = (rs, rp) if seq.reflect[i] else (ts, tp)
-        So = np.einsum("nij,nj->ni", interface_mueller(a_s, a_p), S)
+        So = apply_interface_mueller(a_s, a_p, S)
         T = T * So[:, 0] * bulk
         S = So / np.where(So[:, 0] > 0, So[:, 0], 1.0)[:, None]
         e1 = s

@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from materials.mueller import interface_mueller
+from materials.mueller import apply_interface_mueller
 from materials.smooth import Dielectric, reflect, refract
 from materials.sampling import lazy_njit
 from straylight.engine.material_groups import distinct
@@ -261,8 +261,7 @@ def delta_branches(br: Branches, d, facing, S, direction, throughput, S_new, sid
         b = np.flatnonzero(branch)
         if len(b) == 0:
             continue
-        Mm = interface_mueller(a_s[b], a_p[b])
-        So = np.einsum("nij,nj->ni", Mm, S[b])
+        So = apply_interface_mueller(a_s[b], a_p[b], S[b])
         P_b = P[b] if np.ndim(P) else P
         throughput[b] = So[:, 0] / P_b
         S_new[b] = So / np.where(So[:, 0] > 0, So[:, 0], 1.0)[:, None]

@@ -81,3 +81,28 @@ def test_s_vector_and_stokes_rotation_kernels_are_the_numpy_formulas():
     S, e_to = rng.normal(size=(n, 4)), s_vector_numpy(d, rng.normal(size=(n, 3)))
     got, want = rotate_stokes(S, want, e_to, d), rotate_stokes_numpy(S, want, e_to, d)
     assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+
+
+def test_interface_mueller_product_is_einsum_over_the_matrix():
+    """``apply_interface_mueller`` (no 4x4 matrix formed) gives einsum's bits over ``interface_mueller``,
+    forward and transposed, signed zeros included: real and complex (total internal reflection,
+    absorbing) amplitudes, zero amplitudes, zero and -0 Stokes components."""
+    from materials.mueller import apply_interface_mueller, apply_interface_mueller_numpy
+
+    rng = np.random.default_rng(4)
+    n = 60_000
+    a_s, a_p = rng.normal(size=n) + 1j * rng.normal(size=n), rng.normal(size=n) + 1j * rng.normal(size=n)
+    a_s[:20_000], a_p[:20_000] = a_s[:20_000].real, a_p[:20_000].real  # a dielectric below TIR
+    a_p[:300] = 0.0
+    a_s[300:400] = 0.0
+    S = rng.normal(size=(n, 4))
+    S[:30_000:3, 2:] = 0.0
+    S[1:30_000:3, 2] = -0.0
+    S[2:30_000:3, :2] = -0.0
+    S[::7, 0] = 0.0
+    for transpose in (False, True):
+        got = apply_interface_mueller(a_s, a_p, S, transpose)
+        want = apply_interface_mueller_numpy(a_s, a_p, S, transpose)
+        assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+    assert not np.array_equal(apply_interface_mueller(a_s, a_p, S, True), apply_interface_mueller(a_s, a_p, S))
+    assert apply_interface_mueller(a_s[:0], a_p[:0], S[:0]).shape == (0, 4)
