@@ -77,12 +77,21 @@ def mueller_brdf(model, wi, wo, s_in=None, first_row_only: bool = False):
     s_in = s_basis(-wi) if s_in is None else np.asarray(s_in, float)
     e1 = s_basis(wo, fallback=s_in)
     M = np.zeros((len(wi), 4, 4))
-    for c in components_of(model):
-        if _full(c):
-            add_rayleigh_rice_mueller(M, c.brdf(wi, wo, "u"), wi, wo, c._index, s_in, e1, first_row_only)
-        else:
-            fs = c.brdf(wi, wo, "s")
-            fp = c.brdf(wi, wo, "p")
-            M[:, 0, 0] += 0.5 * (fs + fp)
-            M[:, 0, 1] += 0.5 * (fs - fp)
+    comps = components_of(model)
+    k = 0
+    while k < len(comps):
+        c = comps[k]
+        if _full(c):  # a run of full components of one substrate index: its normalised matrix once
+            run = [c]
+            while k + len(run) < len(comps) and _full(comps[k + len(run)]) and comps[k + len(run)]._index == c._index:
+                run.append(comps[k + len(run)])
+            F = np.array([r.brdf(wi, wo, "u") for r in run])
+            add_rayleigh_rice_mueller(M, F, wi, wo, c._index, s_in, e1, first_row_only)  # M += f Mn, in order
+            k += len(run)
+            continue
+        fs = c.brdf(wi, wo, "s")
+        fp = c.brdf(wi, wo, "p")
+        M[:, 0, 0] += 0.5 * (fs + fp)
+        M[:, 0, 1] += 0.5 * (fs - fp)
+        k += 1
     return M, e1

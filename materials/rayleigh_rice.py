@@ -119,35 +119,36 @@ def rayleigh_rice_jones(wi, wo, n, s_in=None, e1_out=None):
 def rayleigh_rice_mueller(wi, wo, n, s_in=None, e1_out=None, first_row_only: bool = False):
     """Normalised Mueller matrices (m, 4, 4) (M00 = 1 where defined) and the scattered e1 (m, 3);
     ``first_row_only``: row 0 alone, rows 1-3 zero (:func:`materials.mueller.jones_to_mueller`).
-    One compiled pass per ray (:func:`add_rayleigh_rice_mueller`), the same bits as
-    :func:`rayleigh_rice_mueller_numpy`."""
+    :func:`rayleigh_rice_jones`, :func:`materials.mueller.jones_to_mueller` and the normalisation row
+    by row in one compiled pass, numpy's operations in numpy's order (complex quotients as numpy forms
+    them): the same bits as :func:`rayleigh_rice_mueller_numpy` for a real index; for a complex one
+    within 1e-13 (numpy's vectorised complex product fuses a multiply-add on FMA CPUs, the pass does not)."""
     wi = np.asarray(wi, float)
     wo = np.asarray(wo, float)
     s_i = s_basis(-wi) if s_in is None else np.asarray(s_in, float)
     e1 = s_basis(wo, fallback=s_i) if e1_out is None else np.asarray(e1_out, float)
     M = np.zeros((len(wi), 4, 4))
-    add_rayleigh_rice_mueller(M, np.ones(len(wi)), wi, wo, n, s_i, e1, first_row_only)
+    add_rayleigh_rice_mueller(M, np.zeros((0, len(wi))), wi, wo, n, s_i, e1, first_row_only)
     return M, e1
 
 
-def add_rayleigh_rice_mueller(M, f, wi, wo, n, s_in, e1_out, first_row_only: bool = False) -> None:
-    """``M += f Mn`` in place (M (m, 4, 4), f (m,)), Mn the normalised Rayleigh-Rice Mueller matrix of
-    :func:`rayleigh_rice_mueller` for the bases ``s_in`` and ``e1_out`` (m, 3; both given); with
-    ``first_row_only`` row 0 alone. :func:`rayleigh_rice_jones`, :func:`materials.mueller.jones_to_mueller`
-    and the normalisation row by row in one compiled pass, numpy's operations in numpy's order (complex
-    quotients as numpy forms them), so the same bits as ``M += f Mn`` with the numpy twin."""
-    if not len(wi):
-        return
-    eps = complex(n) ** 2
-    lazy_njit(_rr_mueller_loop, "numpy")(
-        np.ascontiguousarray(wi, dtype=float), np.ascontiguousarray(wo, dtype=float),
-        np.ascontiguousarray(s_in, dtype=float), np.ascontiguousarray(e1_out, dtype=float),
-        eps, complex(np.sqrt(complex(eps))), bool(first_row_only), np.ascontiguousarray(f, dtype=float), M)
+def add_rayleigh_rice_mueller(M, F, wi, wo, n, s_in, e1_out, first_row_only: bool = False) -> None:
+    """``M += F[0] Mn``, then ``M += F[1] Mn``, ... in place (M (m, 4, 4), F (k, m): the BRDFs of k
+    components with this substrate index), Mn the normalised matrix of :func:`rayleigh_rice_mueller`
+    for the bases ``s_in``, ``e1_out`` (m, 3), computed once (rows 1-3 untouched with
+    ``first_row_only``). The same bits as those numpy updates with Mn from the numpy twin (real
+    index). With k = 0, ``M = Mn``."""
+    if len(wi):
+        eps = complex(n) ** 2
+        lazy_njit(_rr_mueller_loop, "numpy")(
+            np.ascontiguousarray(wi, dtype=float), np.ascontiguousarray(wo, dtype=float),
+            np.ascontiguousarray(s_in, dtype=float), np.ascontiguousarray(e1_out, dtype=float), eps,
+            complex(np.sqrt(complex(eps))), bool(first_row_only), np.ascontiguousarray(F, dtype=float), M)
 
 
-def _rr_mueller_loop(wi, wo, s_i, e1, eps, n_idx, first_row_only, f, M):
+def _rr_mueller_loop(wi, wo, s_i, e1, eps, n_idx, first_row_only, F, M):
     """:func:`add_rayleigh_rice_mueller` row by row: :func:`rayleigh_rice_mueller_numpy`'s operations
-    (real times complex as numpy casts it: ``(x + 0j) z``)."""
+    (real times complex as numpy casts it: ``(x + 0j) z``), then the updates of M."""
 
     def cdiv(a, b):  # a / b as numpy's complex division forms it (Smith's rule, with a reciprocal)
         ar, ai, br, bi = a.real, a.imag, b.real, b.imag
@@ -175,6 +176,7 @@ def _rr_mueller_loop(wi, wo, s_i, e1, eps, n_idx, first_row_only, f, M):
                 t_p * (kt0 * s1 - kt1 * s0))
 
     em1 = eps - 1.0
+    mn = np.empty((4, 4))  # the row's normalised matrix
     for r in range(len(wi)):
         wi0, wi1, wi2 = wi[r, 0], wi[r, 1], wi[r, 2]
         wo0, wo1, wo2 = wo[r, 0], wo[r, 1], wo[r, 2]
@@ -206,18 +208,24 @@ def _rr_mueller_loop(wi, wo, s_i, e1, eps, n_idx, first_row_only, f, M):
         ca, cb, cc, cd = ja.conjugate(), jb.conjugate(), jc.conjugate(), jd.conjugate()
         m00 = (0.5 * ((ja * ca + jb * cb) + (jc * cc + jd * cd))).real
         den = m00 if m00 > 0 else 1.0
-        fr = f[r]
         k00 = (ja * ca + jb * cb, ja * ca - jb * cb, jb * ca + ja * cb, 1j * (jb * ca - ja * cb))
         k11 = (jc * cc + jd * cd, jc * cc - jd * cd, jd * cc + jc * cd, 1j * (jd * cc - jc * cd))
+        rows = 1 if first_row_only else 4
         for j in range(4):
-            M[r, 0, j] = M[r, 0, j] + fr * ((0.5 * (k00[j] + k11[j])).real / den)
+            mn[0, j] = (0.5 * (k00[j] + k11[j])).real / den
         if not first_row_only:
             k01 = (ja * cc + jb * cd, ja * cc - jb * cd, jb * cc + ja * cd, 1j * (jb * cc - ja * cd))
             k10 = (jc * ca + jd * cb, jc * ca - jd * cb, jd * ca + jc * cb, 1j * (jd * ca - jc * cb))
             for j in range(4):
-                M[r, 1, j] = M[r, 1, j] + fr * ((0.5 * (k00[j] - k11[j])).real / den)
-                M[r, 2, j] = M[r, 2, j] + fr * ((0.5 * (k01[j] + k10[j])).real / den)
-                M[r, 3, j] = M[r, 3, j] + fr * ((0.5 * (1j * (k01[j] - k10[j]))).real / den)
+                mn[1, j] = (0.5 * (k00[j] - k11[j])).real / den
+                mn[2, j] = (0.5 * (k01[j] + k10[j])).real / den
+                mn[3, j] = (0.5 * (1j * (k01[j] - k10[j]))).real / den
+        for i in range(rows):
+            for j in range(4):
+                if len(F) == 0:
+                    M[r, i, j] = mn[i, j]
+                for k in range(len(F)):
+                    M[r, i, j] = M[r, i, j] + F[k, r] * mn[i, j]
 
 
 def rayleigh_rice_mueller_numpy(wi, wo, n, s_in=None, e1_out=None, first_row_only: bool = False):
