@@ -18,6 +18,7 @@ from materials.albedo import directional_hemispherical_reflectance
 from materials.base import MaterialError, Sample, check_polarization
 from materials.kcorrelation import KCorrelation
 from materials.lambertian import Lambertian
+from materials.sampling import lazy_njit
 
 _TABLE_THETA = np.deg2rad(np.linspace(0.0, 90.0, 37))
 _FLOOR = 1e-3  # mixing floor: every component keeps >= 0.1 % / K of the draws
@@ -69,7 +70,21 @@ class Composite:
         return tables[polarization]
 
     def selection_probabilities(self, theta_i, polarization: str = "u") -> np.ndarray:
-        """p_k(theta_i), shape (n, K): proportional to each component's albedo, with a floor."""
+        """p_k(theta_i), shape (n, K): proportional to each component's albedo, with a floor. One
+        compiled pass (:func:`_selection_loop`) with :meth:`selection_probabilities_numpy`'s operations
+        in its order (the same bits); NaN angles and K >= 8 (numpy's sum turns pairwise) take numpy."""
+        table = self._table(polarization)
+        th = np.atleast_1d(np.asarray(theta_i, float))
+        k = len(self.components)
+        if k >= 8 or th.ndim != 1 or np.isnan(th).any():
+            return self.selection_probabilities_numpy(theta_i, polarization)
+        p = np.empty((len(th), k))
+        lazy_njit(_selection_loop, "numpy")(th, _TABLE_THETA, np.ascontiguousarray(table), np.pi / 2, 1.0 / k,
+                                            1.0 - _FLOOR, _FLOOR / k, p)
+        return p
+
+    def selection_probabilities_numpy(self, theta_i, polarization: str = "u") -> np.ndarray:
+        """:meth:`selection_probabilities` in vectorised numpy (the reference it is tested against)."""
         table = self._table(polarization)
         th = np.clip(np.atleast_1d(np.asarray(theta_i, float)), 0.0, np.pi / 2)
         alb = np.stack([np.interp(th, _TABLE_THETA, row) for row in table], axis=-1)
@@ -133,3 +148,43 @@ class Composite:
 
     def to_dict(self) -> dict:
         return {"components": [c.to_dict() for c in self.components]}
+
+
+def _selection_loop(theta, xp, table, top, uniform, keep, floor, out):
+    """:meth:`Composite.selection_probabilities_numpy` row by row: ``np.clip``, ``np.interp``'s
+    interval and formula (``slope (x - xp_j) + fp_j``, the other end's form where that is NaN, the
+    last node exactly at the end), the row sum left to right, the floor."""
+    n_k, last = table.shape[0], len(xp) - 1
+    step_inv = last / (xp[last] - xp[0])
+    slopes = np.empty((n_k, last))  # as np.interp forms them
+    for c in range(n_k):
+        for i in range(last):
+            slopes[c, i] = (table[c, i + 1] - table[c, i]) / (xp[i + 1] - xp[i])
+    for r in range(len(theta)):
+        x = theta[r]
+        x = 0.0 if x < 0.0 else (top if x > top else x)
+        if x >= xp[last]:
+            j = last
+        else:  # the node interval xp[j] <= x < xp[j + 1], from the guess of an even grid
+            j = min(max(int(x * step_inv), 0), last - 1)
+            while j > 0 and xp[j] > x:
+                j -= 1
+            while j < last - 1 and xp[j + 1] <= x:
+                j += 1
+        total = 0.0
+        for c in range(n_k):
+            fp = table[c]
+            if j == last:
+                a = fp[last]
+            else:
+                slope = slopes[c, j]
+                a = slope * (x - xp[j]) + fp[j]
+                if np.isnan(a):
+                    a = slope * (x - xp[j + 1]) + fp[j + 1]
+                    if np.isnan(a) and fp[j] == fp[j + 1]:
+                        a = fp[j]
+            out[r, c] = a
+            total = a if c == 0 else total + a
+        for c in range(n_k):
+            p = out[r, c] / total if total > 0 else uniform
+            out[r, c] = keep * p + floor

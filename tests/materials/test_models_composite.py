@@ -73,3 +73,23 @@ def test_zero_albedo_component_is_still_unbiased():
     se = s.weight.std() / np.sqrt(n)
     assert rho > 0
     assert abs(s.weight.mean() - rho) < 4 * se + 1e-6 * rho
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 5, 7, 9])
+def test_compiled_selection_probabilities_are_numpys_bits(k):
+    """The compiled pass (np.clip, np.interp's interval and formula, the row sum, the floor) gives the
+    numpy formulation's bits: random angles, the table's nodes and their neighbours, out of range,
+    K up to 7 (numpy's row sum is left to right there; from 8 on, and with NaN, numpy itself)."""
+    comps = tuple(KCorrelation(sigma_nm=2.0 + i, lc_um=3.0 + 7 * i, s=2.2 + 0.1 * i, n=1.5, wavelength_nm=532.0)
+                  if i % 2 else Lambertian(rd=0.01 * (i + 1)) for i in range(k))
+    comp = Composite(comps)
+    nodes = np.deg2rad(np.linspace(0.0, 90.0, 37))
+    th = np.concatenate([np.random.default_rng(k).uniform(-0.3, 1.9, 20_000), nodes, np.nextafter(nodes, -1.0),
+                         np.nextafter(nodes, 3.0), [-0.0, np.pi / 2, np.inf, -np.inf]])
+    for pol in "usp":
+        got, want = comp.selection_probabilities(th, pol), comp.selection_probabilities_numpy(th, pol)
+        assert np.array_equal(got, want)
+        np.testing.assert_allclose(got.sum(axis=1), 1.0, rtol=1e-12)
+    with_nan = np.array([0.3, np.nan, 1.0])
+    assert np.array_equal(comp.selection_probabilities(with_nan), comp.selection_probabilities_numpy(with_nan),
+                          equal_nan=True)
