@@ -132,8 +132,8 @@ class Composite:
         choice = np.minimum((u[:, :1] >= cdf).sum(axis=1), len(self.components) - 1)
         wo = np.zeros((n, 3))
         for k, c in enumerate(self.components):
-            m = choice == k
-            if np.any(m):
+            m = np.flatnonzero(choice == k)
+            if len(m):
                 # components read u[:, 1:]; sample_direction skips weights we recompute below
                 draw = getattr(c, "sample_direction", None)
                 wo[m] = draw(wi[m], u[m]) if draw is not None else c.sample(wi[m], u[m], polarization).wo

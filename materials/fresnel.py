@@ -77,8 +77,7 @@ def polarization_factor(cos_i, cos_r, cos_phi, sin_phi, n, polarization: str = "
         # real index >= 1: every factor is real; one compiled pass (the same operations in the same
         # order as the complex branch below on real numbers, so the same bits as numpy's)
         shape = np.broadcast(cos_i, cos_r, cos_phi, sin_phi).shape
-        args = [np.ascontiguousarray(np.broadcast_to(np.asarray(a, float), shape)).ravel()
-                for a in (cos_i, cos_r, cos_phi, sin_phi)]
+        args = [_flat_float(a, shape) for a in (cos_i, cos_r, cos_phi, sin_phi)]
         which = {"s": 0, "p": 1, "u": 2}[polarization]
         return lazy_njit(_real_polarization_factor, "numpy")(*args, eps.real, which).reshape(shape)
     sin2_i = np.maximum(0.0, 1.0 - cos_i * cos_i)
@@ -140,6 +139,14 @@ def _real_polarization_factor(cos_i, cos_r, cos_phi, sin_phi, eps, which):
         qp = pp * pp + sp * sp
         out[k] = qp if which == 1 else 0.5 * qs + 0.5 * qp
     return out
+
+
+def _flat_float(a, shape) -> np.ndarray:
+    """``a`` broadcast to ``shape``, contiguous float64, flattened (itself, viewed, when it is already
+    that: np.broadcast_to is slow on the walk's small arrays)."""
+    if isinstance(a, np.ndarray) and a.shape == shape and a.dtype == np.float64 and a.flags.c_contiguous:
+        return a.reshape(-1)
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(a, float), shape)).ravel()
 
 
 def scatter_azimuth(wi, wo) -> tuple[np.ndarray, np.ndarray]:

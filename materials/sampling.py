@@ -181,6 +181,12 @@ def radial_lobe_norm(l, s, r_max) -> np.ndarray:
     ``2 pi l^2 c / (s - 2)`` with ``c = 1 - (1 + r_max^2/l^2)^(1 - s/2)``;
     s = 2: ``pi l^2 ln(1 + r_max^2/l^2)``. Written with log1p/expm1 so s near 2 is stable.
     """
+    if np.ndim(l) == 0 and np.ndim(s) == 0 and np.ndim(r_max) == 1:  # one lobe: its branch alone (the same bits)
+        lf, a = float(l), _one_minus_s_half(float(s))
+        x = np.log1p((np.asarray(r_max, float) / lf) ** 2)
+        if abs(a) < 0.5 * _S_EQUALS_2:
+            return np.pi * lf**2 * x
+        return np.pi * lf**2 * np.expm1(a * x) / a
     l, s, r_max = np.broadcast_arrays(np.asarray(l, float), np.asarray(s, float), np.asarray(r_max, float))
     x = np.log1p((r_max / l) ** 2)
     a = _one_minus_s_half(s)
@@ -197,14 +203,24 @@ def sample_radial_lobe(u2: np.ndarray, l, s, r_max) -> np.ndarray:
     Radial inverse CDF (PHYSICS §3): ``r = l sqrt((1 - u c)^(1/(1-s/2)) - 1)``,
     s = 2: ``r = l sqrt((1 + r_max^2/l^2)^u - 1)``; the azimuth is uniform.
     """
-    l, s, r_max = (np.broadcast_to(np.asarray(v, float), u2[:, 0].shape) for v in (l, s, r_max))
-    x = np.log1p((r_max / l) ** 2)
-    a = _one_minus_s_half(s)
-    near2 = np.abs(a) < 0.5 * _S_EQUALS_2
-    a_safe = np.where(near2, 1.0, a)
-    # (1 - u c)^(1/a) - 1 with c = -expm1(a x): exp(log1p(u expm1(a x)) / a) - 1
-    general = np.expm1(np.log1p(u2[:, 0] * np.expm1(a_safe * x)) / a_safe)
-    t = np.where(near2, np.expm1(u2[:, 0] * x), general)
+    if np.ndim(l) == 0 and np.ndim(s) == 0 and np.shape(r_max) == u2[:, 0].shape:
+        # one lobe: the expressions below on its branch alone (the same bits, one expm1 fewer per draw)
+        l, a = float(l), _one_minus_s_half(float(s))
+        r_max = np.asarray(r_max, float)
+        x = np.log1p((r_max / l) ** 2)
+        if abs(a) < 0.5 * _S_EQUALS_2:
+            t = np.expm1(u2[:, 0] * x)
+        else:
+            t = np.expm1(np.log1p(u2[:, 0] * np.expm1(a * x)) / a)
+    else:
+        l, s, r_max = (np.broadcast_to(np.asarray(v, float), u2[:, 0].shape) for v in (l, s, r_max))
+        x = np.log1p((r_max / l) ** 2)
+        a = _one_minus_s_half(s)
+        near2 = np.abs(a) < 0.5 * _S_EQUALS_2
+        a_safe = np.where(near2, 1.0, a)
+        # (1 - u c)^(1/a) - 1 with c = -expm1(a x): exp(log1p(u expm1(a x)) / a) - 1
+        general = np.expm1(np.log1p(u2[:, 0] * np.expm1(a_safe * x)) / a_safe)
+        t = np.where(near2, np.expm1(u2[:, 0] * x), general)
     r = l * np.sqrt(np.maximum(t, 0.0))
     r = np.minimum(r, r_max)
     phi = 2.0 * np.pi * u2[:, 1]
