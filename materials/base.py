@@ -75,6 +75,39 @@ def lobe_inputs(wi, wo, polarization: str):
     return wi, wo, above, bragg_offset(wi, wo)
 
 
+class PairGeometry:
+    """Direction pairs (wi, wo) (n, 3) and what several lobes of a composite read of them (the
+    both-above mask, the Bragg offset's r^2, the scatter azimuth, a lobe shape, a Rayleigh-Rice factor,
+    ...), each made once by :meth:`get` under a key naming every input of its expression: a lobe that
+    would form the same expression from the same inputs reads the same array (the same bits)."""
+
+    __slots__ = ("wi", "wo", "_made")
+
+    def __init__(self, wi, wo):
+        self.wi = np.asarray(wi, float)
+        self.wo = np.asarray(wo, float)
+        self._made: dict = {}
+
+    def get(self, key, make):
+        """The value under ``key``, ``make()`` the first time (the arrays are shared: read them only)."""
+        made = self._made
+        if key not in made:
+            made[key] = make()
+        return made[key]
+
+    def above(self) -> np.ndarray:
+        """Both directions above the horizon."""
+        return self.get("above", lambda: (self.wi[:, 2] > 0) & (self.wo[:, 2] > 0))
+
+    def r2(self) -> np.ndarray:
+        """|beta - beta0|^2 of the Bragg offset wo_xy + wi_xy (:func:`bragg_offset`; equal to the bit to
+        wo_xy - beta0, beta0 = -wi_xy: x - (-y) is x + y in IEEE arithmetic)."""
+        def make():
+            d = bragg_offset(self.wi, self.wo)
+            return d[:, 0] ** 2 + d[:, 1] ** 2
+        return self.get("r2", make)
+
+
 @dataclass(frozen=True)
 class Sample:
     """Result of importance sampling.

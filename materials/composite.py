@@ -15,7 +15,7 @@ from functools import cached_property
 import numpy as np
 
 from materials.albedo import directional_hemispherical_reflectance
-from materials.base import MaterialError, Sample, check_polarization
+from materials.base import MaterialError, PairGeometry, Sample, check_polarization
 from materials.kcorrelation import KCorrelation
 from materials.lambertian import Lambertian
 from materials.sampling import lazy_njit
@@ -97,25 +97,34 @@ class Composite:
 
     # ------------------------------------------------------------ protocol
 
-    def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
-        """Sum of the components' BRDFs, 1/sr (no cos)."""
+    def brdf(self, wi, wo, polarization: str = "u", pair=None) -> np.ndarray:
+        """Sum of the components' BRDFs, 1/sr (no cos). ``pair``: the (wi, wo)
+        :class:`materials.base.PairGeometry` to share (made here when None)."""
         check_polarization(polarization)
-        out = self.components[0].brdf(wi, wo, polarization)
+        g = PairGeometry(wi, wo) if pair is None else pair
+        out = _brdf(self.components[0], g, polarization)
         for c in self.components[1:]:
-            out = out + c.brdf(wi, wo, polarization)
+            out = out + _brdf(c, g, polarization)
         return out
 
-    def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
-        """Mixture density sum_k p_k(theta_i) pdf_k, per sr."""
+    def pdf(self, wi, wo, polarization: str = "u", pair=None) -> np.ndarray:
+        """Mixture density sum_k p_k(theta_i) pdf_k, per sr (``pair`` as for :meth:`brdf`)."""
         check_polarization(polarization)
+        g = PairGeometry(wi, wo) if pair is None else pair
         if len(self.components) == 1:  # p_0 = 1: the component's own density
-            return self.components[0].pdf(wi, wo, polarization)
-        wi = np.asarray(wi, float)
+            return _pdf(self.components[0], g, polarization)
+        wi = g.wi
         p = self.selection_probabilities(np.arccos(np.clip(wi[:, 2], -1, 1)), polarization)
         out = np.zeros(len(wi))
         for k, c in enumerate(self.components):
-            out += p[:, k] * c.pdf(wi, wo, polarization)
+            out += p[:, k] * _pdf(c, g, polarization)
         return out
+
+    def brdf_pdf(self, wi, wo, polarization: str = "u") -> tuple[np.ndarray, np.ndarray]:
+        """``(brdf, pdf)`` of the same pairs, the lobes' shared quantities made once (the same bits as
+        the two calls)."""
+        g = PairGeometry(wi, wo)
+        return self.brdf(wi, wo, polarization, g), self.pdf(wi, wo, polarization, g)
 
     def sample(self, wi, u, polarization: str = "u") -> Sample:
         """One-sample MIS: u[:, 0] picks component k, u[:, 1:] its direction."""
@@ -138,16 +147,30 @@ class Composite:
                 draw = getattr(c, "sample_direction", None)
                 wo[m] = draw(wi[m], u[m]) if draw is not None else c.sample(wi[m], u[m], polarization).wo
         above = (wo[:, 2] > 0) & (wi[:, 2] > 0)
+        g = PairGeometry(wi, wo)
         mix = np.zeros(n)
         for k, c in enumerate(self.components):
-            mix += p[:, k] * c.pdf(wi, wo, polarization)
-        f = self.brdf(wi, wo, polarization)
+            mix += p[:, k] * _pdf(c, g, polarization)
+        f = self.brdf(wi, wo, polarization, g)
         good = above & (mix > 0)
         weight = np.where(good, f * wo[:, 2] / np.where(good, mix, 1.0), 0.0)
         return Sample(wo=wo, weight=weight, pdf_per_sr=np.where(good, mix, 0.0))
 
     def to_dict(self) -> dict:
         return {"components": [c.to_dict() for c in self.components]}
+
+
+def _brdf(c, g, polarization):
+    """Component ``c``'s BRDF on the pairs of ``g``, sharing them when ``c`` takes a PairGeometry."""
+    if getattr(c, "pair_geometry", False):
+        return c.brdf(g.wi, g.wo, polarization, pair=g)
+    return c.brdf(g.wi, g.wo, polarization)
+
+
+def _pdf(c, g, polarization):
+    if getattr(c, "pair_geometry", False):
+        return c.pdf(g.wi, g.wo, polarization, pair=g)
+    return c.pdf(g.wi, g.wo, polarization)
 
 
 def _selection_loop(theta, xp, table, top, uniform, keep, floor, out):

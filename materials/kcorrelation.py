@@ -56,7 +56,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from materials.base import MaterialError, Sample, check_polarization, lobe_inputs
+from materials.base import MaterialError, PairGeometry, Sample, check_polarization
 from materials.fresnel import complex_index, polarization_factor, scatter_azimuth
 from materials.fit_params import REFRACTIVE_INDEX, FitParam
 from materials.flags import ComponentFlags
@@ -175,18 +175,26 @@ class KCorrelation:
         cos_phi, sin_phi = scatter_azimuth(wi, wo)
         return polarization_factor(wi[:, 2], wo[:, 2], cos_phi, sin_phi, self._index, polarization)
 
-    def brdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
-        """BRDF in 1/sr (no cos), (n,). wi, wo : (n, 3) unit vectors, sample frame."""
-        wi, wo, above, d = lobe_inputs(wi, wo, polarization)
-        r2 = d[:, 0] ** 2 + d[:, 1] ** 2
-        shape = np.exp(-0.5 * self.s * np.log1p(r2 / self.width**2))
-        cos_i = np.where(above, wi[:, 2], 0.0)
-        cos_r = np.where(above, wo[:, 2], 0.0)
+    #: brdf and pdf take ``pair=`` (a :class:`materials.base.PairGeometry` shared by a composite's lobes)
+    pair_geometry = True
+
+    def brdf(self, wi, wo, polarization: str = "u", pair=None) -> np.ndarray:
+        """BRDF in 1/sr (no cos), (n,). wi, wo : (n, 3) unit vectors, sample frame; ``pair``: their
+        :class:`materials.base.PairGeometry` when a composite shares it among its lobes (the same bits)."""
+        check_polarization(polarization)
+        g = PairGeometry(wi, wo) if pair is None else pair
+        wi, wo, above, r2 = g.wi, g.wo, g.above(), g.r2()
+        w2 = self.width**2
+        shape = g.get(("shape", self.s, w2), lambda: np.exp(-0.5 * self.s * np.log1p(r2 / w2)))
+        cos_i = g.get("cos_i", lambda: np.where(above, wi[:, 2], 0.0))
+        cos_r = g.get("cos_r", lambda: np.where(above, wo[:, 2], 0.0))
         if self.r is not None:
             q = self.r
         else:
-            cos_phi, sin_phi = scatter_azimuth(wi, wo)
-            q = polarization_factor(cos_i, cos_r, cos_phi, sin_phi, self._index, polarization)
+            def factor():
+                cos_phi, sin_phi = g.get("azimuth", lambda: scatter_azimuth(wi, wo))
+                return polarization_factor(cos_i, cos_r, cos_phi, sin_phi, self._index, polarization)
+            q = g.get(("rayleigh_rice", self._index, polarization), factor)
         return self.prefactor * q * cos_i * cos_r * shape
 
     def sample(self, wi, u, polarization: str = "u") -> Sample:
@@ -198,8 +206,8 @@ class KCorrelation:
         """The directions ``sample`` would draw, without weights (used by composites)."""
         return lobe_direction(wi, u, self.width, self.s)
 
-    def pdf(self, wi, wo, polarization: str = "u") -> np.ndarray:
-        return lobe_pdf(wi, wo, self.width, self.s)
+    def pdf(self, wi, wo, polarization: str = "u", pair=None) -> np.ndarray:
+        return lobe_pdf(wi, wo, self.width, self.s, pair)
 
     def to_dict(self) -> dict:
         out = {"type": "k_correlation", "sigma_nm": self.sigma_nm, "lc_um": self.lc_um, "s": self.s}

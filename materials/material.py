@@ -191,6 +191,12 @@ class Material:
             return np.zeros(len(np.asarray(wi)))
         return self.composite.pdf(wi, wo, polarization)
 
+    def brdf_pdf(self, wi, wo, polarization: str = "u") -> tuple[np.ndarray, np.ndarray]:
+        """``(brdf(wi, wo), pdf(wi, wo))``, the scatter lobes' shared quantities made once (the same bits)."""
+        if self.composite is None:
+            return self.brdf(wi, wo, polarization), self.pdf(wi, wo, polarization)
+        return self.composite.brdf_pdf(wi, wo, polarization)
+
     def albedo(self, theta_i, polarization: str = "u") -> np.ndarray:
         """Directional-hemispherical reflectance rho of the scatter lobes at theta_i (radians);
         :meth:`reflectance` adds the specular part."""

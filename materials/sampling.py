@@ -227,8 +227,16 @@ def sample_radial_lobe(u2: np.ndarray, l, s, r_max) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
 
 
-def radial_lobe_density(d: np.ndarray, l, s, r_max) -> np.ndarray:
-    """Density over the beta plane of :func:`sample_radial_lobe` at offsets d : (n, 2)."""
+def radial_lobe_density(d: np.ndarray, l, s, r_max, pair=None) -> np.ndarray:
+    """Density over the beta plane of :func:`sample_radial_lobe` at offsets d : (n, 2); with ``pair``
+    (a :class:`materials.base.PairGeometry`, scalar l and s, r_max its own) d is its Bragg offset and
+    the shape and the aperture test are shared with the other lobes (the same bits)."""
+    if pair is not None:
+        r2 = pair.r2()
+        l2, s_ = np.asarray(l, float) ** 2, np.asarray(s, float)
+        shape = pair.get(("shape", float(s_), float(l2)), lambda: np.exp(-0.5 * s_ * np.log1p(r2 / l2)))
+        inside = pair.get("inside", lambda: r2 <= np.asarray(r_max, float) ** 2 * (1 + 1e-12))
+        return np.where(inside, shape / radial_lobe_norm(l, s, r_max), 0.0)
     r2 = d[:, 0] ** 2 + d[:, 1] ** 2
     l = np.asarray(l, float)
     shape = np.exp(-0.5 * np.asarray(s, float) * np.log1p(r2 / l**2))
@@ -295,8 +303,16 @@ def lobe_sample(model, wi, u, polarization, l, s) -> Sample:
     return Sample(wo=wo, weight=weight, pdf_per_sr=pdf)
 
 
-def lobe_pdf(wi, wo, l, s) -> np.ndarray:
-    """Density per sr of :func:`lobe_sample` producing wo (0 below the horizon)."""
+def lobe_pdf(wi, wo, l, s, pair=None) -> np.ndarray:
+    """Density per sr of :func:`lobe_sample` producing wo (0 below the horizon); ``pair``: the
+    :class:`materials.base.PairGeometry` of (wi, wo) a composite shares among its lobes (scalar l, s)."""
+    if pair is not None and np.ndim(l) == 0 and np.ndim(s) == 0:
+        def reach():
+            b0 = beta0_of(pair.wi)
+            return 1.0 + np.hypot(b0[:, 0], b0[:, 1])
+        r_max = pair.get("r_max", reach)
+        density = radial_lobe_density(None, l, s, r_max, pair)
+        return np.where(pair.above(), density * pair.get("cos_r+", lambda: np.maximum(pair.wo[:, 2], 0.0)), 0.0)
     wi = np.asarray(wi, float)
     wo = np.asarray(wo, float)
     b0 = beta0_of(wi)

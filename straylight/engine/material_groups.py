@@ -25,3 +25,12 @@ def by_material(models, material_index, call):
         sel = np.flatnonzero(material_index == m)
         out.append((sel, call(models[m], sel)))
     return out
+
+
+def brdf_and_pdf(model, wi, wo, polarization: str):
+    """``(model.brdf(wi, wo), model.pdf(wi, wo))`` in one call where the model shares their common
+    quantities (``brdf_pdf``, materials.material.Material: the same bits), else the two calls."""
+    both = getattr(model, "brdf_pdf", None)
+    if both is not None:
+        return both(wi, wo, polarization)
+    return model.brdf(wi, wo, polarization), model.pdf(wi, wo, polarization)

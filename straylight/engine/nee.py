@@ -16,7 +16,7 @@ import numpy as np
 from materials.jit_cache import njit
 
 from straylight.disk_sampling import annulus_point, annulus_points
-from straylight.engine.material_groups import by_material
+from straylight.engine.material_groups import brdf_and_pdf, by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.tally_store import tally_add
 from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows
@@ -338,8 +338,8 @@ def _estimate(event, verts, frame, w_vertex, evaluate, mix, scale=None, U=None, 
         if evaluate is not None:
             f_jk[:], pdf_jk[:] = evaluate(wi_p, wo_p, pairs.vertex[sel])
         else:
-            for rows, (fv, pv) in by_material(spec.materials, mat[pairs.vertex[sel]], lambda model, rows: (
-                    model.brdf(wi_p[rows], wo_p[rows], pol), model.pdf(wi_p[rows], wo_p[rows], pol))):
+            for rows, (fv, pv) in by_material(spec.materials, mat[pairs.vertex[sel]], lambda model, rows:
+                    brdf_and_pdf(model, wi_p[rows], wo_p[rows], pol)):
                 f_jk[rows] = fv
                 pdf_jk[rows] = pv
         if mix is not None:  # the walk's density there mixes in another strategy's (target sampling)

@@ -60,7 +60,7 @@ from straylight.engine.capabilities import Capability
 from straylight.engine.interactions.brdf_scatter import LocalFrames
 from straylight.engine.interactions.registry import parts_with
 from straylight.engine.interactions.scatter_polarization import arriving
-from straylight.engine.material_groups import by_material
+from straylight.engine.material_groups import brdf_and_pdf, by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.reverse_chain import scatter_ends
 from straylight.engine.roles import ROLE_SURFACE
@@ -526,8 +526,8 @@ def _unpolarized(spec, material):
     def evaluate(wi, wo_local, vertex):
         f = np.empty(len(vertex))
         pdf = np.empty(len(vertex))
-        for rows, (fv, pv) in by_material(spec.materials, material[vertex], lambda model, rows: (
-                model.brdf(wi[rows], wo_local[rows], "u"), model.pdf(wi[rows], wo_local[rows], "u"))):
+        for rows, (fv, pv) in by_material(spec.materials, material[vertex], lambda model, rows:
+                brdf_and_pdf(model, wi[rows], wo_local[rows], "u")):
             f[rows] = fv
             pdf[rows] = pv
         return f, pdf

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from straylight.engine.capabilities import Capability
-from straylight.engine.material_groups import by_material
+from straylight.engine.material_groups import brdf_and_pdf, by_material
 
 
 def _dot(a, b):
@@ -44,8 +44,8 @@ def target_mixture(spec, target, ut, p, nf, frame, wo_world):
     f = np.zeros(len(p))
     pdf_b = np.zeros(len(p))
     pol = spec.options.physics.polarization
-    for rows, (fv, pv) in by_material(spec.materials, frame.material, lambda model, rows: (
-            model.brdf(wi_loc[rows], wo_loc[rows], pol), model.pdf(wi_loc[rows], wo_loc[rows], pol))):
+    for rows, (fv, pv) in by_material(spec.materials, frame.material, lambda model, rows:
+            brdf_and_pdf(model, wi_loc[rows], wo_loc[rows], pol)):
         f[rows] = fv
         pdf_b[rows] = pv
     mix = (1.0 - q) * pdf_b + q * target_pdf(target, p, nf, wo_world, spec.eps)

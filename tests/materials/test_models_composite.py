@@ -93,3 +93,45 @@ def test_compiled_selection_probabilities_are_numpys_bits(k):
     with_nan = np.array([0.3, np.nan, 1.0])
     assert np.array_equal(comp.selection_probabilities(with_nan), comp.selection_probabilities_numpy(with_nan),
                           equal_nan=True)
+
+
+def test_lobes_sharing_pair_geometry_give_each_lobe_alone_bit_for_bit():
+    """A composite's K-correlation lobes share one PairGeometry (Bragg offset, azimuth, Rayleigh-Rice
+    factor per index, shapes, aperture test): its brdf, pdf, brdf_pdf and sample weights equal, to the
+    bit, the sums of each component evaluated alone (its own arrays), in component order; two lobes of one
+    index and slope read one Rayleigh-Rice factor."""
+    from materials.base import PairGeometry
+
+    comp = Composite((Lambertian(rd=0.02),
+                      KCorrelation(sigma_nm=2.0, lc_um=40.0, s=2.4, n=1.55, wavelength_nm=532.0),
+                      KCorrelation(sigma_nm=20.0, lc_um=3.0, s=3.0, n=1.55, weight=0.5, wavelength_nm=532.0),
+                      KCorrelation(sigma_nm=9.0, lc_um=0.5, s=2.0, n=(1.5, 0.3), wavelength_nm=532.0),
+                      KCorrelation(sigma_nm=9.0, lc_um=7.0, s=2.2, r=0.2, wavelength_nm=532.0)))
+    rng = np.random.default_rng(9)
+    n = 20_000
+    wi, wo = (rng.normal(size=(n, 3)) for _ in range(2))
+    wi[:, 2] = np.abs(wi[:, 2])
+    wi, wo = wi / np.linalg.norm(wi, axis=1)[:, None], wo / np.linalg.norm(wo, axis=1)[:, None]
+    wo[:50] = [0.0, 0.0, 1.0]
+    for pol in "usp":
+        alone_f = comp.components[0].brdf(wi, wo, pol)
+        for c in comp.components[1:]:
+            alone_f = alone_f + c.brdf(wi, wo, pol)
+        p = comp.selection_probabilities(np.arccos(np.clip(wi[:, 2], -1, 1)), pol)
+        alone_pdf = np.zeros(n)
+        for k, c in enumerate(comp.components):
+            alone_pdf += p[:, k] * c.pdf(wi, wo, pol)
+        f, pdf = comp.brdf_pdf(wi, wo, pol)
+        assert np.array_equal(f, alone_f) and np.array_equal(comp.brdf(wi, wo, pol), alone_f)
+        assert np.array_equal(pdf, alone_pdf) and np.array_equal(comp.pdf(wi, wo, pol), alone_pdf)
+        u = rng.random((n, 3))
+        smp = comp.sample(wi, u, pol)
+        mix = np.zeros(n)
+        for k, c in enumerate(comp.components):
+            mix += p[:, k] * c.pdf(wi, smp.wo, pol)
+        f_s = sum((c.brdf(wi, smp.wo, pol) for c in comp.components[1:]), comp.components[0].brdf(wi, smp.wo, pol))
+        good = (smp.wo[:, 2] > 0) & (wi[:, 2] > 0) & (mix > 0)
+        assert np.array_equal(smp.weight, np.where(good, f_s * smp.wo[:, 2] / np.where(good, mix, 1.0), 0.0))
+    g = PairGeometry(wi, wo)
+    comp.brdf(wi, wo, "u", g)
+    assert sum(1 for key in g._made if key[0] == "rayleigh_rice") == 2  # n = 1.55 once, (1.5, 0.3) once

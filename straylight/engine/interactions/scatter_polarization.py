@@ -19,7 +19,7 @@ import numpy as np
 from materials.mueller import s_vector
 from materials.polarized_brdf import is_polarizing, mueller_brdf
 from straylight.engine.interactions.stokes import active_state, incoming_stokes
-from straylight.engine.material_groups import by_material, distinct
+from straylight.engine.material_groups import brdf_and_pdf, by_material, distinct
 from straylight.engine.vec3 import dot_rows
 
 
@@ -48,8 +48,8 @@ class Arriving:
         def evaluate(wi, wo, vertex):
             f = np.empty(len(wi))
             p = np.empty(len(wi))
-            for rows, (fv, pv) in by_material(models, material[vertex], lambda model, rows: (
-                    model.brdf(wi[rows], wo[rows], "u"), model.pdf(wi[rows], wo[rows], "u"))):
+            for rows, (fv, pv) in by_material(models, material[vertex], lambda model, rows:
+                    brdf_and_pdf(model, wi[rows], wo[rows], "u")):
                 f[rows] = fv
                 p[rows] = pv
             use = np.flatnonzero(self.polarized[vertex] & self.polar_mat[vertex])
