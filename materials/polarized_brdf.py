@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from materials.base import directions_from_angles
+from materials.base import PairGeometry, directions_from_angles
 from materials.kcorrelation import KCorrelation
 from materials.rayleigh_rice import add_rayleigh_rice_mueller, s_basis
 
@@ -78,6 +78,7 @@ def mueller_brdf(model, wi, wo, s_in=None, first_row_only: bool = False):
     e1 = s_basis(wo, fallback=s_in)
     M = np.zeros((len(wi), 4, 4))
     comps = components_of(model)
+    pair = PairGeometry(wi, wo)
     k = 0
     while k < len(comps):
         c = comps[k]
@@ -85,7 +86,7 @@ def mueller_brdf(model, wi, wo, s_in=None, first_row_only: bool = False):
             run = [c]
             while k + len(run) < len(comps) and _full(comps[k + len(run)]) and comps[k + len(run)]._index == c._index:
                 run.append(comps[k + len(run)])
-            F = np.array([r.brdf(wi, wo, "u") for r in run])
+            F = np.array([r.brdf(wi, wo, "u", pair=pair) for r in run])  # the lobes share azimuth and factor
             add_rayleigh_rice_mueller(M, F, wi, wo, c._index, s_in, e1, first_row_only)  # M += f Mn, in order
             k += len(run)
             continue
