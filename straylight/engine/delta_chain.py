@@ -49,6 +49,7 @@ from straylight.engine.material_groups import distinct
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
+from straylight.engine.vec3 import take_rows
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
 
@@ -88,7 +89,7 @@ class Branches:
         self.tag = np.full(len(row), -1, dtype=np.int64) if tag is None else tag  # a further lobe draw's index (-1: the walk's)
 
     def take(self, sel):
-        return Branches(*(getattr(self, f)[sel] for f in self.FIELDS))
+        return Branches(*(take_rows(getattr(self, f), sel) for f in self.FIELDS))
 
 
 class DeltaChains:
@@ -194,15 +195,16 @@ class DeltaChains:
             g = np.flatnonzero((w > 0) & (b.refl < self.r_max)) if sign > 0 else np.flatnonzero(w > 0)
             if len(g) == 0:
                 continue
+            d_g, facing_g, So_g = take_rows(b.d, g), take_rows(facing, g), take_rows(So, g)
             if sign > 0:
-                d_out = reflect(b.d[g], facing[g])
+                d_out = reflect(d_g, facing_g)
             else:
-                d_out = refract(b.d[g], facing[g], eta[g], cos_t[g])
+                d_out = refract(d_g, facing_g, eta[g], cos_t[g])
             rows.append(g)
-            origin.append(np.ascontiguousarray(b.origin[g] + sign * eps * facing[g]))
+            origin.append(np.ascontiguousarray(take_rows(b.origin, g) + sign * eps * facing_g))
             d.append(np.ascontiguousarray(d_out))
             weight.append(w[g])
-            stokes.append(So[g] / So[g, :1])
+            stokes.append(So_g / So_g[:, :1])
             refl.append(b.refl[g] + (1 if sign > 0 else 0))
         if not rows:
             return None
@@ -230,21 +232,22 @@ class DeltaChains:
         sc = np.flatnonzero(counted)
         if len(sc):
             i = hit[sc]
-            self._score(event, b.take(i), part[sc], b.origin[i] + dist[sc, None] * b.d[i], scene.normals[tri[sc]])
+            taken = b.take(i)
+            self._score(event, taken, part[sc], taken.origin + dist[sc, None] * taken.d, take_rows(scene.normals, tri[sc]))
         go = np.flatnonzero(~det & event.capabilities.at(Capability.DELTA_CHAIN, part))
         if len(go) == 0:
             return None
         idx, part, dist, cos_in = hit[go], part[go], dist[go], cos_in[go]
-        front, facing, at, passing = at_interfaces(spec, scene, part, tri[go], b.origin[idx], b.d[idx], dist,
-                                                   b.last_part[idx], cos_in)
+        front, facing, at, passing = at_interfaces(spec, scene, part, tri[go], take_rows(b.origin, idx),
+                                                   take_rows(b.d, idx), dist, b.last_part[idx], cos_in)
         through = np.flatnonzero(passing)
         carried = None
         if len(through):  # the walk passes such a hit unchanged: so does the branch
             carried = b.take(idx[through])
-            carried.origin = np.ascontiguousarray(at[through] + 2.0 * event.settings.eps_mm * carried.d)
+            carried.origin = np.ascontiguousarray(take_rows(at, through) + 2.0 * event.settings.eps_mm * carried.d)
             carried.last_part = part[through]
         live = np.flatnonzero(~passing & (b.k[idx] < self.k_max))  # the walk's hits after K + 1 interfaces stay its own
-        b, part, at, facing, dist = b.take(idx[live]), part[live], at[live], facing[live], dist[live]
+        b, part, at, facing, dist = b.take(idx[live]), part[live], take_rows(at, live), take_rows(facing, live), dist[live]
         fresnel = branch_coefficients(spec, part, front[live], b.d, facing, dist)
         s = s_vector(b.d, facing)
         S = rotate_stokes(b.S, b.e1, s, b.d)

@@ -96,6 +96,7 @@ from straylight.engine.surface_geometry import at_interfaces, branch_coefficient
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.walk_shares import keep_walk_share
+from straylight.engine.vec3 import take_rows
 from straylight.paths import mix_key
 from straylight.polarization import UNPOLARIZED
 from straylight.rng import CHUNK_RAYS
@@ -414,7 +415,7 @@ class _Branches:
             setattr(self, f, kw[f])
 
     def take(self, sel):
-        return _Branches(**{f: getattr(self, f)[sel] for f in self.FIELDS})
+        return _Branches(**{f: take_rows(getattr(self, f), sel) for f in self.FIELDS})
 
     @classmethod
     def concat(cls, parts):
@@ -515,7 +516,7 @@ class EyeChains:
         end = np.flatnonzero(~det & ~self.splits[part] & (b.k[hit] >= 1) & self.end_material[mat])
         if len(end):
             e = b.take(hit[end])
-            nrm = scene.normals[tri[end]]
+            nrm = take_rows(scene.normals, tri[end])
             facing = np.where((cos_in[end] < 0)[:, None], nrm, -nrm)
             point = e.origin + dist[end, None] * e.d
             beta = e.w * e.v[:, 0]
@@ -530,19 +531,19 @@ class EyeChains:
             return None
         idx = hit[go]  # rows of b going on (taken once per branch set below: no copy of the rest)
         part, dist, cos_in, tri = part[go], dist[go], cos_in[go], tri[go]
-        origin, d = b.origin[idx], b.d[idx]
+        origin, d = take_rows(b.origin, idx), take_rows(b.d, idx)
         front, facing, at, passing = at_interfaces(spec, scene, part, tri, origin, d, dist, b.last_part[idx], cos_in)
         out = []
         through = np.flatnonzero(passing)
         if len(through):  # a pass-through: the walk goes on unchanged, and so does the chain
             c = b.take(idx[through])
-            c.origin = np.ascontiguousarray(at[through] + 2.0 * spec.eps * c.d)
+            c.origin = np.ascontiguousarray(take_rows(at, through) + 2.0 * spec.eps * c.d)
             c.last_part = part[through]
             out.append(c)
         live = np.flatnonzero(~passing & (b.k[idx] < self.k_max))
         if len(live):
-            out.extend(self._children(spec, b.take(idx[live]), part[live], at[live], facing[live], dist[live],
-                                      front[live]))
+            out.extend(self._children(spec, b.take(idx[live]), part[live], take_rows(at, live),
+                                      take_rows(facing, live), dist[live], front[live]))
         out = [o for o in out if len(o.w)]
         if not out:
             return None
@@ -568,10 +569,12 @@ class EyeChains:
             g = np.flatnonzero((v_in[:, 0] > 0) & (w > 0) & ((b.refl < self.r_max) if sign > 0 else True))
             if len(g) == 0:
                 continue
-            d_out = reflect(b.d[g], facing[g]) if sign > 0 else refract(b.d[g], facing[g], eta[g], cos_t[g])
-            out.append(_Branches(ray=b.ray[g], origin=np.ascontiguousarray(at[g] + sign * eps * facing[g]),
-                                 d=np.ascontiguousarray(d_out), w=w[g], v=v_in[g], e1=s[g], k=b.k[g] + 1,
-                                 last_part=part[g], det=b.det[g], z=b.z[g], codes=codes[g],
+            d_g, facing_g = take_rows(b.d, g), take_rows(facing, g)
+            d_out = reflect(d_g, facing_g) if sign > 0 else refract(d_g, facing_g, eta[g], cos_t[g])
+            out.append(_Branches(ray=b.ray[g], origin=np.ascontiguousarray(take_rows(at, g) + sign * eps * facing_g),
+                                 d=np.ascontiguousarray(d_out), w=w[g], v=take_rows(v_in, g), e1=take_rows(s, g),
+                                 k=b.k[g] + 1, last_part=part[g], det=b.det[g], z=take_rows(b.z, g),
+                                 codes=take_rows(codes, g),
                                  refl=b.refl[g] + (1 if sign > 0 else 0)))
         return out
 

@@ -15,6 +15,7 @@ from materials.mueller import apply_interface_mueller
 from materials.smooth import Dielectric, reflect, refract
 from materials.sampling import lazy_njit
 from straylight.engine.material_groups import distinct
+from straylight.engine.vec3 import take_rows
 from straylight.intersect._plane import plane_distance
 
 SELF_HIT_MM = 1e-6  # a refined hit this close to (or behind) the ray's origin on its own last part is spurious
@@ -39,14 +40,14 @@ def refine_on_surfaces(spec, part, origin, d, distance_mm, last_part, front, fac
         if surf is None:
             continue
         g = np.flatnonzero(part == p)
-        t, n_front, ok = surf.refine_hits(origin[g], d[g], distance_mm[g])
+        t, n_front, ok = surf.refine_hits(take_rows(origin, g), take_rows(d, g), distance_mm[g])
         bad = ~ok | ((last_part[g] == p) & (t < SELF_HIT_MM))
         passing[g[bad]] = True
         keep = ~bad
         good = g[keep]
         nf = n_front[keep]
-        d_good = d[good]
-        exact[good] = origin[good] + t[keep, None] * d_good
+        d_good = take_rows(d, good)
+        exact[good] = take_rows(origin, good) + t[keep, None] * d_good
         fr = _dot(d_good, nf) < 0
         front[good] = fr
         facing[good] = np.where(fr[:, None], nf, -nf)
@@ -130,7 +131,7 @@ def at_interfaces(spec, scene, part, tri, origin, d, distance_mm, last_part, cos
     """Branch rays' hits on interface parts refined onto their exact surfaces: (front, facing normal,
     the point, passing) as :func:`refine_on_surfaces` (the facet's point where not refined)."""
     front0 = cos_in < 0
-    n_tri = scene.normals[tri]
+    n_tri = take_rows(scene.normals, tri)
     facing0 = np.where(front0[:, None], n_tri, -n_tri)
     front, facing, exact, refined, passing = refine_on_surfaces(spec, part, origin, d, distance_mm, last_part,
                                                                 front0, facing0)

@@ -106,3 +106,19 @@ def test_interface_mueller_product_is_einsum_over_the_matrix():
         assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
     assert not np.array_equal(apply_interface_mueller(a_s, a_p, S, True), apply_interface_mueller(a_s, a_p, S))
     assert apply_interface_mueller(a_s[:0], a_p[:0], S[:0]).shape == (0, 4)
+
+
+def test_take_rows_is_fancy_indexing():
+    """``take_rows`` (np.take along the rows) copies what ``a[index]`` copies: 2-D and 1-D, float, int and
+    bool arrays, repeated, unordered and negative indices, empty; a boolean mask as numpy takes it."""
+    from straylight.engine.vec3 import take_rows
+
+    rng = np.random.default_rng(5)
+    for a in (rng.normal(size=(500, 3)), rng.integers(-5, 5, size=(500, 8)), rng.normal(size=500),
+              rng.random(500) < 0.5, rng.normal(size=(500, 4))[::2]):
+        for index in (rng.integers(0, len(a), 300), np.array([len(a) - 1, -1, 0, 0, 3]), np.zeros(0, np.int64),
+                      np.flatnonzero(rng.random(len(a)) < 0.3)):
+            got = take_rows(a, index)
+            assert got.dtype == a[index].dtype and np.array_equal(got, a[index])
+        mask = rng.random(len(a)) < 0.5
+        assert np.array_equal(take_rows(a, mask), a[mask])
