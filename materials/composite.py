@@ -196,16 +196,15 @@ def _selection_loop(theta, xp, table, top, uniform, keep, floor, out):
                 j += 1
         total = 0.0
         for c in range(n_k):
-            fp = table[c]
             if j == last:
-                a = fp[last]
+                a = table[c, last]
             else:
                 slope = slopes[c, j]
-                a = slope * (x - xp[j]) + fp[j]
-                if np.isnan(a):
-                    a = slope * (x - xp[j + 1]) + fp[j + 1]
-                    if np.isnan(a) and fp[j] == fp[j + 1]:
-                        a = fp[j]
+                a = slope * (x - xp[j]) + table[c, j]
+                if a != a:  # NaN
+                    a = slope * (x - xp[j + 1]) + table[c, j + 1]
+                    if a != a and table[c, j] == table[c, j + 1]:
+                        a = table[c, j]
             out[r, c] = a
             total = a if c == 0 else total + a
         for c in range(n_k):

@@ -55,7 +55,8 @@ def apply_interface_mueller(a_s, a_p, stokes, transpose: bool = False) -> np.nda
     s = np.ascontiguousarray(stokes, dtype=float)
     out = np.empty((len(s), 4))
     if len(s):
-        a_s, a_p = (np.broadcast_to(np.asarray(a, dtype=complex), (len(s),)) for a in (a_s, a_p))
+        a_s, a_p = (a if isinstance(a, np.ndarray) and a.shape == (len(s),) and a.dtype == np.complex128
+                    else np.broadcast_to(np.asarray(a, dtype=complex), (len(s),)) for a in (a_s, a_p))
         lazy_njit(_apply_interface_loop, "numpy")(np.abs(a_s) ** 2, np.abs(a_p) ** 2, a_s * np.conj(a_p), s,
                                                   bool(transpose), out)
     return out
