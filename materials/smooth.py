@@ -28,23 +28,73 @@ from materials.base import MaterialError
 from materials.fresnel import fresnel_amplitudes
 from materials.flags import ComponentFlags
 from materials.registry import register
-from materials.sampling import check_index, check_real, set_fields
+from materials.sampling import check_index, check_real, lazy_njit, set_fields
 from materials.thin_film import layers_to_json, parse_coating, stack_amplitudes
 
 
 def reflect(d, n) -> np.ndarray:
-    """Mirror direction ``d - 2 (d.n) n`` (n, 3) of directions ``d`` at unit normals ``n``."""
+    """Mirror direction ``d - 2 (d.n) n`` (n, 3) of directions ``d`` at unit normals ``n``. One compiled
+    pass, :func:`reflect_numpy`'s operations in its order (the same bits)."""
+    d = np.ascontiguousarray(d, dtype=float)
+    n = np.ascontiguousarray(n, dtype=float)
+    if d.ndim != 2 or d.shape != n.shape or d.shape[1] != 3:
+        return reflect_numpy(d, n)
+    out = np.empty_like(d)
+    if len(d):
+        lazy_njit(_reflect_loop, "numpy")(d, n, out)
+    return out
+
+
+def _reflect_loop(d, n, out):
+    """:func:`reflect_numpy` row by row (einsum's dot order ``(d0 n0 + d2 n2) + d1 n1``)."""
+    for r in range(len(d)):
+        two_dot = 2.0 * ((d[r, 0] * n[r, 0] + d[r, 2] * n[r, 2]) + d[r, 1] * n[r, 1])
+        for j in range(3):
+            out[r, j] = d[r, j] - two_dot * n[r, j]
+
+
+def reflect_numpy(d, n) -> np.ndarray:
+    """:func:`reflect` in vectorised numpy (the reference it is tested against)."""
     d = np.asarray(d, float)
     n = np.asarray(n, float)
     return d - 2.0 * np.einsum("ij,ij->i", d, n)[:, None] * n
 
 
 def refract(d, n, eta, cos_t) -> np.ndarray:
-    """Snell direction ``eta d + (eta cos_i - cos_t) n`` (n, 3).
+    """Snell direction ``eta d + (eta cos_i - cos_t) n`` (n, 3), normalised.
 
     ``n`` is the unit normal on the incident side (``d . n < 0``), ``eta = n1 / n2`` (real),
-    ``cos_t`` the cosine of the refraction angle (>= 0); Born & Wolf §1.5.1 in vector form.
+    ``cos_t`` the cosine of the refraction angle (>= 0); Born & Wolf §1.5.1 in vector form. One
+    compiled pass, :func:`refract_numpy`'s operations in its order (the same bits).
     """
+    d = np.ascontiguousarray(d, dtype=float)
+    n = np.ascontiguousarray(n, dtype=float)
+    if d.ndim != 2 or d.shape != n.shape or d.shape[1] != 3:
+        return refract_numpy(d, n, eta, cos_t)
+    m = len(d)
+    eta_rows = np.ascontiguousarray(np.broadcast_to(np.asarray(eta, float), (m,)))
+    cos_t_rows = np.ascontiguousarray(np.broadcast_to(np.asarray(cos_t, float), (m,)))
+    out = np.empty_like(d)
+    if m:
+        lazy_njit(_refract_loop, "numpy")(d, n, eta_rows, cos_t_rows, out)
+    return out
+
+
+def _refract_loop(d, n, eta, cos_t, out):
+    """:func:`refract_numpy` row by row (einsum's dot order; ``np.linalg.norm``'s ``(t0^2 + t1^2) + t2^2``)."""
+    for r in range(len(d)):
+        cos_i = -((d[r, 0] * n[r, 0] + d[r, 2] * n[r, 2]) + d[r, 1] * n[r, 1])
+        e = eta[r]
+        k = e * cos_i - cos_t[r]
+        t0 = e * d[r, 0] + k * n[r, 0]
+        t1 = e * d[r, 1] + k * n[r, 1]
+        t2 = e * d[r, 2] + k * n[r, 2]
+        norm = np.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+        out[r, 0], out[r, 1], out[r, 2] = t0 / norm, t1 / norm, t2 / norm
+
+
+def refract_numpy(d, n, eta, cos_t) -> np.ndarray:
+    """:func:`refract` in vectorised numpy (the reference it is tested against)."""
     d = np.asarray(d, float)
     n = np.asarray(n, float)
     cos_i = -np.einsum("ij,ij->i", d, n)

@@ -203,3 +203,29 @@ def test_material_eval_dhr_includes_the_specular_part(tmp_path):
     n, k = 0.96, 6.69
     assert d["dhr"] == pytest.approx(((n - 1) ** 2 + k**2) / ((n + 1) ** 2 + k**2), rel=1e-9)
     assert d["brdf_per_sr"] == [0.0] and d["transmittance"] == 0.0
+
+
+def test_compiled_reflect_and_refract_are_the_numpy_formulas():
+    """The compiled mirror and Snell directions give their numpy twins' bits (signed zeros included):
+    random directions and normals, normal incidence, zero and -0 components, grazing, per-row and
+    scalar eta and cos_t, and an empty batch."""
+    from materials.smooth import reflect_numpy, refract_numpy
+
+    rng = np.random.default_rng(17)
+    n = 50_000
+    d, nrm = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    d[:100], nrm[:50] = [0.0, 0.0, -1.0], [0.0, 0.0, 1.0]
+    d[100:200, 0], d[200:300, 1] = 0.0, -0.0
+    nrm = np.where((np.einsum("ij,ij->i", d, nrm) > 0)[:, None], -nrm, nrm)
+    nrm[300:310] = np.cross(d[300:310], [1.0, 0.0, 0.0])  # grazing
+    eta = rng.uniform(0.5, 1.6, n)
+    cos_i = -np.einsum("ij,ij->i", d, nrm)
+    cos_t = np.sqrt(np.maximum(0.0, 1.0 - eta**2 * (1.0 - cos_i**2)))
+    got, want = reflect(d, nrm), reflect_numpy(d, nrm)
+    assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+    for e, c in ((eta, cos_t), (1.0 / 1.5, cos_t), (eta, 0.5)):
+        got, want = refract(d, nrm, e, c), refract_numpy(d, nrm, e, c)
+        assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+    assert reflect(d[:0], nrm[:0]).shape == (0, 3) and refract(d[:0], nrm[:0], eta[:0], cos_t[:0]).shape == (0, 3)
