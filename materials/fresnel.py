@@ -207,6 +207,50 @@ def fresnel_amplitudes(cos_i, m):
     """
     c = np.asarray(cos_i, float)
     m = np.asarray(m, complex)
+    if m.ndim or c.ndim != 1:
+        return fresnel_amplitudes_numpy(c, m)
+    m2 = m * m  # numpy's products of the scalar (its bits), the rows in one compiled pass
+    out = np.empty((5, len(c)), complex)
+    if len(c):
+        lazy_njit(_fresnel_amplitudes_loop, "numpy")(np.ascontiguousarray(c), complex(m2), complex(2.0 * m), out)
+    return out[0], out[1], out[2], out[3], out[4]
+
+
+def _fresnel_amplitudes_loop(c, m2, two_m, out):
+    """:func:`fresnel_amplitudes_numpy` row by row, for a scalar m: real times complex as numpy casts it
+    (``(x + 0j) z``; one product is then exact zero, so numpy's fused multiply-add changes nothing),
+    complex quotients as numpy forms them (Smith's rule with a reciprocal)."""
+
+    def cdiv(a, b):
+        ar, ai, br, bi = a.real, a.imag, b.real, b.imag
+        if abs(br) >= abs(bi):
+            if br == 0.0 and bi == 0.0:
+                return complex(ar / abs(br), ai / abs(br))
+            rat = bi / br
+            scl = 1.0 / (br + bi * rat)
+            return complex((ar + ai * rat) * scl, (ai - ar * rat) * scl)
+        rat = br / bi
+        scl = 1.0 / (bi + br * rat)
+        return complex((ar * rat + ai) * scl, (ai * rat - ar) * scl)
+
+    for r in range(len(c)):
+        x = c[r]
+        cz = complex(x, 0.0)
+        q = np.sqrt((m2 - (1.0 - x * x)) + 0j)
+        ds = cz + q
+        m2c = m2 * cz
+        dp = m2c + q
+        out[0, r] = cdiv(cz - q, ds)
+        out[1, r] = cdiv(m2c - q, dp)
+        out[2, r] = cdiv(complex(2.0 * x, 0.0), ds)
+        out[3, r] = cdiv(two_m * cz, dp)
+        out[4, r] = q
+
+
+def fresnel_amplitudes_numpy(cos_i, m):
+    """:func:`fresnel_amplitudes` in vectorised numpy (the reference it is tested against)."""
+    c = np.asarray(cos_i, float)
+    m = np.asarray(m, complex)
     m2 = m * m
     q = np.sqrt(m2 - (1.0 - c * c) + 0j)
     ds = c + q

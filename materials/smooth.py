@@ -325,12 +325,12 @@ class Dielectric:
         else:
             m = complex(self.n_real, self.k) / self.n_outside
         rs, rp, ts, tp, q = fresnel_amplitudes(c, m)
-        Rs = np.abs(rs) ** 2
-        Rp = np.abs(rp) ** 2
         with np.errstate(divide="ignore", invalid="ignore"):
             if np.imag(m) == 0:
                 f = np.where(c > 0, q.real / np.where(c > 0, c, 1.0), 0.0)
             else:  # absorbing medium entered: the power that enters is 1 - R
+                Rs = np.abs(rs) ** 2
+                Rp = np.abs(rp) ** 2
                 f_s = np.where(np.abs(ts) > 0, (1.0 - Rs) / np.abs(ts) ** 2, 0.0)
                 f_p = np.where(np.abs(tp) > 0, (1.0 - Rp) / np.abs(tp) ** 2, 0.0)
         if np.imag(m) == 0:

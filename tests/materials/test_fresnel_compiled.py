@@ -73,3 +73,22 @@ def test_real_index_factor_is_numpys_to_the_bit(n, polarization):
     np.testing.assert_array_equal(got, want)
     # scalars broadcast as before
     assert polarization_factor(0.5, 0.7, 1.0, 0.0, n, polarization).shape == ()
+
+
+@pytest.mark.parametrize("m", [1.5, 1 / 1.5, 1.0, complex(1.5, 0.01), complex(0.96, 6.69), 2.4],
+                         ids=["glass", "glass-back", "index-matched", "absorbing", "aluminium", "high"])
+def test_fresnel_amplitudes_are_numpys_to_the_bit(m):
+    """The compiled amplitudes (scalar m) give the numpy formulation's bits, signed zeros included:
+    random cosines, normal and grazing incidence, -0, tiny cosines, total internal reflection (m < 1)."""
+    from materials.fresnel import fresnel_amplitudes, fresnel_amplitudes_numpy
+
+    c = np.random.default_rng(3).random(100_000)
+    c[:10], c[10:20], c[20], c[21:30] = 0.0, 1.0, -0.0, 1e-300
+    with np.errstate(all="ignore"):
+        got, want = fresnel_amplitudes(c, m), fresnel_amplitudes_numpy(c, m)
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w)
+        assert np.array_equal(np.signbit(g.real), np.signbit(w.real))
+        assert np.array_equal(np.signbit(g.imag), np.signbit(w.imag))
+    if np.imag(m) == 0 and np.real(m) < 1:
+        assert (np.abs(got[0][c < 0.5]) > 1 - 1e-12).all()  # total internal reflection below the critical angle
