@@ -19,7 +19,7 @@ from straylight.disk_sampling import annulus_point, annulus_points
 from straylight.engine.material_groups import brdf_and_pdf, by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.tally_store import tally_add
-from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows
+from straylight.engine.vec3 import dot3, dot_rows, power_heuristic, power_heuristic_rows, take_rows
 from straylight.paths import mix_key
 
 
@@ -142,17 +142,18 @@ def nee_pairs_numpy(verts, frame, hit, U, u_col0, scene, settings):
         y[rows] = annulus_points(scene.det_disk_centre[jd], scene.det_disk_u[jd], scene.det_disk_v[jd], r2[0], r2[1],
                                  np.ascontiguousarray(ub[rows]), np.ascontiguousarray(uc[rows]), np.empty((len(rows), 3)))
         normal_y[rows] = scene.det_disk_normal[jd]
-    v = y - hit.point_mm[i]
+    v = y - take_rows(hit.point_mm, i)
     dd2 = dot_rows(v, v)
     dist = np.sqrt(dd2)
     a = v / np.where(dist > 0, dist, 1.0)[:, None]
-    cs = dot_rows(a, hit.facing_normal[i])
+    cs = dot_rows(a, take_rows(hit.facing_normal, i))
     cd = -dot_rows(a, normal_y)
     if settings.both_sides:
         cd = np.abs(cd)
     ok = np.flatnonzero((cs > 0) & (cd > 0) & (dist > 2 * settings.eps_mm))
     a, s_ok = a[ok], s[ok]
-    wo_loc = np.stack([dot_rows(a, frame.tangent[s_ok]), dot_rows(a, frame.bitangent[s_ok]), cs[ok]], axis=-1)
+    wo_loc = np.stack([dot_rows(a, take_rows(frame.tangent, s_ok)), dot_rows(a, take_rows(frame.bitangent, s_ok)),
+                       cs[ok]], axis=-1)
     return s_ok, jk[ok], y[ok], wo_loc, dd2[ok], cs[ok], cd[ok], a
 
 
@@ -203,7 +204,7 @@ def nee_shadow_numpy(pairs, f, pdf_brdf, verts, rays, hit, scene, settings):
          * power_heuristic_rows(p_nee, pdf_brdf) / k_nee)
     keep = np.flatnonzero(c > 0)
     i = i[keep]
-    shadow_origin = hit.point_mm[i] + eps * hit.facing_normal[i]
+    shadow_origin = take_rows(hit.point_mm, i) + eps * take_rows(hit.facing_normal, i)
     v = pairs.point_mm[keep] - shadow_origin
     lo = np.sqrt(dot_rows(v, v))
     return keep, c[keep], shadow_origin, v / lo[:, None], lo - eps
@@ -374,7 +375,7 @@ def _unblocked(event, pairs, verts, w_vertex) -> NeePairs:
         can &= w_vertex[pairs.vertex] > 0
     cand = np.flatnonzero(can)
     i = i[cand]
-    origin = hit.point_mm[i] + eps * hit.facing_normal[i]
+    origin = take_rows(hit.point_mm, i) + eps * take_rows(hit.facing_normal, i)
     v = pairs.point_mm[cand] - origin
     lo = np.sqrt(dot_rows(v, v))
     blocked = event.shadow_test(origin, v / lo[:, None], lo - eps)

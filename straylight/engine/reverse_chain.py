@@ -678,7 +678,7 @@ class ReverseChains:
         if len(at):
             c = cont[at]
             passing[at] = (out.event[at] == rays.last_event[c]) & (out.throughput[at] == 1.0) \
-                & (out.direction[at] == rays.direction[c]).all(axis=1)
+                & (out.direction[at] == take_rows(rays.direction, c)).all(axis=1)
         mat = event.spec.part_material[part]
         scatter = (out.event == EVENT_SCATTER) & ~passing
         specular = (out.event == EVENT_SPECULAR) & interface & ~passing
@@ -711,9 +711,9 @@ class ReverseChains:
         pdf of omega; and cos(omega, n_P)."""
         rays, hit = event.rays, event.hits
         r = rays.ray[rows]
-        n_p = hit.facing_normal[rows]
+        n_p = take_rows(hit.facing_normal, rows)
         from_source = rays.last_event[rows] == 0  # EVENT_SOURCE: P is the ray's first vertex
-        d = rays.direction[rows]
+        d = take_rows(rays.direction, rows)
         beam = (self.w0 / np.where(rays.weight_w[rows] > 0, rays.weight_w[rows], np.inf)) \
             * np.abs(_dot(d, n_p)) / self.source_footprint
         dist = hit.distance_mm[rows]
@@ -785,8 +785,8 @@ class ReverseChains:
         u = (self.u_choice[r] + _GOLDEN * rays.depth[rows]) % 1.0
         pick = self.first[r] + np.minimum((u * self.count[r]).astype(np.int64), self.count[r] - 1)
         e = self.ends
-        a = hit.point_mm[rows]
-        n_a = hit.facing_normal[rows]
+        a = take_rows(hit.point_mm, rows)
+        n_a = take_rows(hit.facing_normal, rows)
         p = e.point[pick]
         n_p = e.normal[pick]
         vec = p - a
@@ -811,7 +811,7 @@ class ReverseChains:
         i = rows[g]
         k = pick[g]
         mat_a = spec.part_material[hit.part[i].astype(np.int64)]
-        f_a, pdf_a = _brdf(spec, mat_a, n_a[g], -rays.direction[i], w_ap[g], with_pdf=True)
+        f_a, pdf_a = _brdf(spec, mat_a, n_a[g], -take_rows(rays.direction, i), w_ap[g], with_pdf=True)
         f_p, pdf_p = _brdf(spec, e.material[k], n_p[g], -w_ap[g], e.omega[k], with_pdf=True)
         mis = self._eye_weight(k, pdf_a * cos_p[g] / d2[g] * pdf_p)
         value = (rays.weight_w[i] * f_a * cos_a[g] * cos_p[g] / d2[g] * f_p * e.beta[k] * self.count[r[g]] * mis)

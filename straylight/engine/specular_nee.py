@@ -66,6 +66,7 @@ from straylight.engine.reverse_chain import scatter_ends
 from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients, cast_branches, side_material
 from straylight.paths import mix_key
+from straylight.engine.vec3 import take_rows
 
 MAX_INTERFACES = 2
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
@@ -399,8 +400,8 @@ class SpecularNee:
             return
         r = rays.ray[rows]
         self.depth[r] = rays.depth[rows]
-        self.point[r] = event.hits.point_mm[rows]
-        self.normal[r] = event.hits.facing_normal[rows]
+        self.point[r] = take_rows(event.hits.point_mm, rows)
+        self.normal[r] = take_rows(event.hits.facing_normal, rows)
         self.chain_k[r] = chain_k
         self._connect(event, rows, chain_k, column)
 
@@ -412,7 +413,7 @@ class SpecularNee:
     def _connect(self, event, rows, chain_k, column):
         spec, scene, rays, hit = event.spec, event.scene, event.rays, event.hits
         U = event.uniforms
-        p, n_p = hit.point_mm[rows], hit.facing_normal[rows]
+        p, n_p = take_rows(hit.point_mm, rows), take_rows(hit.facing_normal, rows)
         # per detector its points z, and per sequence the rows it may connect (reaches): the rows none
         # may are left before the frames and the polarization (every step below is row by row)
         todo, need = [], np.zeros(len(rows), dtype=bool)
@@ -444,9 +445,9 @@ class SpecularNee:
                 continue
             at = pos[g]
             omega = con.omega[g]
-            wo_local = np.stack([_dot(omega, frame.tangent[at]), _dot(omega, frame.bitangent[at]),
+            wo_local = np.stack([_dot(omega, take_rows(frame.tangent, at)), _dot(omega, take_rows(frame.bitangent, at)),
                                  _dot(omega, n_p[at])], axis=1)
-            f, pdf = evaluate(frame.wi_local[at], wo_local, at)
+            f, pdf = evaluate(take_rows(frame.wi_local, at), wo_local, at)
             S = np.zeros((len(g), 4))
             S[:, 0] = 1.0
             e1 = s_vector(omega, n_p[at])

@@ -25,6 +25,7 @@ from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SOURCE
 from straylight.engine.reverse_chain import _beam_footprint, _source_linear, scatter_ends
 from straylight.paths import mix_key
 from straylight.rng import check_seed, chunk_stream_uniforms
+from straylight.engine.vec3 import take_rows
 
 TREE_STREAM = 0x5453504C  # third entropy word of the further lobe draws' streams ("TSPL")
 
@@ -70,8 +71,8 @@ class LobeSplit:
         m = len(rows)
         pos = np.repeat(np.arange(m), n_more)
         u = self.uniforms(event, rows).reshape(m * n_more, 3)
-        nf = hit.facing_normal[rows]
-        tb, bb, wi_all = local_frame(rays.direction[rows], nf)
+        nf = take_rows(hit.facing_normal, rows)
+        tb, bb, wi_all = local_frame(take_rows(rays.direction, rows), nf)
         wi = wi_all[pos]
         pol = spec.options.physics.polarization
         wo = np.empty((len(pos), 3))
@@ -92,7 +93,7 @@ class LobeSplit:
         # the walk's density of (P, omega) for each draw (reverse_chain.ReverseChains._walk_density, from the source)
         rc = event.states.get("reverse_chain")
         if rc is not None:
-            beam = (self.w0 / rays.weight_w[i]) * np.abs(np.einsum("ij,ij->i", rays.direction[i], nf[pos])) \
+            beam = (self.w0 / rays.weight_w[i]) * np.abs(np.einsum("ij,ij->i", take_rows(rays.direction, i), nf[pos])) \
                 / _beam_footprint(self.source)
             owned = rc.end_material[mat[sel][pos]] & rc.pred[rays.ray[i]] & (rc.k_tree > 0)
             self.draws = (beam * pdf, wo[:, 2], owned)
@@ -102,7 +103,7 @@ class LobeSplit:
             else np.zeros(n, np.uint64)
         S = np.zeros((n, 4))
         S[:, 0] = 1.0  # a pure scatterer's light leaves unpolarized (reverse_chain.scatter_ends)
-        b = Branches(i, np.ascontiguousarray(hit.point_mm[i] + 2.0 * event.settings.eps_mm * nf[pos]),
+        b = Branches(i, np.ascontiguousarray(take_rows(hit.point_mm, i) + 2.0 * event.settings.eps_mm * nf[pos]),
                      np.ascontiguousarray(d), rays.weight_w[i] * weight / self.k, S, tb[pos], np.zeros(n, np.int64),
                      part[sel][pos], key, np.full((n, CODE_COLUMNS), -1, dtype=np.int64), np.zeros(n, np.int64),
                      np.arange(n, dtype=np.int64))

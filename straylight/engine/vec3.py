@@ -17,7 +17,9 @@ def dot3(a0, a1, a2, b0, b1, b2):
 def take_rows(a, index):
     """``a[index]`` (a copy) for an integer index array, by ``np.take`` along the first axis: numpy's
     fancy indexing of the rows of a 2-D array is several times slower (the same elements, the same
-    order). A boolean mask is indexed as it is."""
+    order). A boolean mask or a slice is indexed as it is."""
+    if isinstance(index, slice):
+        return a[index]
     index = np.asarray(index)
     if index.dtype == np.bool_:
         return a[index]

@@ -26,7 +26,7 @@ from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER
 from straylight.engine.targets import target_mixture
-from straylight.engine.vec3 import dot3, dot_rows
+from straylight.engine.vec3 import dot3, dot_rows, take_rows
 
 
 class LocalFrames(NamedTuple):
@@ -137,7 +137,8 @@ class BrdfScatter(Handler):
         pdf = np.empty(n)
         pol = spec.options.physics.polarization
         for rows, smp in by_material(spec.materials, frame.material,
-                                     lambda model, rows: model.sample(frame.wi_local[rows], frame.u_sample[rows], pol)):
+                                     lambda model, rows: model.sample(take_rows(frame.wi_local, rows),
+                                                                      take_rows(frame.u_sample, rows), pol)):
             wo[rows] = smp.wo
             weight[rows] = smp.weight
             pdf[rows] = smp.pdf_per_sr
@@ -146,7 +147,8 @@ class BrdfScatter(Handler):
         if target is not None:
             col = event.columns.target
             wo_world, weight, pdf = target_mixture(spec, target, event.uniforms[verts, col:col + 4],
-                                                   hit.point_mm[verts], hit.facing_normal[verts], frame, wo_world)
+                                                   take_rows(hit.point_mm, verts), take_rows(hit.facing_normal, verts),
+                                                   frame, wo_world)
         if arr is not None:
             weight = weight * arr.scatter(event, verts, wo_world)
         return outgoing(wo_world, weight, pdf, EVENT_SCATTER)

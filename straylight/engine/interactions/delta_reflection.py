@@ -20,7 +20,7 @@ from straylight.engine.event import outgoing
 from straylight.engine.interactions.registry import Capability, Interaction, register_interaction
 from straylight.engine.interactions.stokes import active_state, incoming_stokes
 from straylight.engine.ray_batch import EVENT_SPECULAR
-from straylight.engine.vec3 import dot3, dot_rows
+from straylight.engine.vec3 import dot3, dot_rows, take_rows
 
 
 @njit(cache=True, nogil=True)
@@ -65,7 +65,7 @@ def carry_polarization(st, event, rows):
     """Apply :data:`IDEAL_MIRROR_MUELLER` to the arriving Stokes vectors (frame e1 = s = d x n)
     and store them for the reflected rays (same e1: s is normal to the plane of incidence)."""
     rays = event.rays
-    d = rays.direction[rows]
-    s = s_vector(d, event.hits.facing_normal[rows])
+    d = take_rows(rays.direction, rows)
+    s = s_vector(d, take_rows(event.hits.facing_normal, rows))
     S = incoming_stokes(st, rays.ray[rows], rays.depth[rows], d, s)
     st.store(rays.ray[rows], rays.depth[rows], S @ IDEAL_MIRROR_MUELLER.T, s)

@@ -48,6 +48,7 @@ from straylight.engine.interactions.stokes import batch_state, incoming_stokes
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.surface_geometry import (delta_branches, fresnel_branches, lobe_uniforms, refine_on_surfaces,
                                                 side_material)
+from straylight.engine.vec3 import take_rows
 
 
 def _dot(a, b):
@@ -66,11 +67,11 @@ class OpticalSurface(Handler):
         if m == 0:
             return Outgoing(np.empty((0, 3)), np.empty(0), np.empty(0), np.empty(0, np.int8), np.empty(0, np.int8))
         st = batch_state(event)
-        d = rays.direction[rows]
+        d = take_rows(rays.direction, rows)
         part = hit.part[rows]
         front, facing, exact, refined, passing = refine_on_surfaces(
-            spec, part, rays.origin_mm[rows], d, hit.distance_mm[rows], rays.last_part[rows],
-            hit.cos_in[rows] < 0, hit.facing_normal[rows].copy())
+            spec, part, take_rows(rays.origin_mm, rows), d, hit.distance_mm[rows], rays.last_part[rows],
+            hit.cos_in[rows] < 0, take_rows(hit.facing_normal, rows).copy())
         live = ~passing
         hit.facing_normal[rows[live]] = facing[live]
         mat = side_material(spec, part, front)
@@ -144,7 +145,7 @@ class OpticalSurface(Handler):
         frame = LocalFrames(*kern.frames(verts, event.rays.direction, hit.facing_normal, hit.part,
                                          spec.part_material, event.uniforms))
         frame = frame._replace(material=mat[sel])
-        nf = hit.facing_normal[verts]
+        nf = take_rows(hit.facing_normal, verts)
         s_local = np.stack([_dot(s[sel], frame.tangent), _dot(s[sel], frame.bitangent), _dot(s[sel], nf)], axis=-1)
         polar_mat = np.array([is_polarizing(m) for m in spec.materials], bool)[mat[sel]]
         arr = Arriving(st, S[sel], s_local, polar_mat, frame, event.rays.ray[verts], event.rays.depth[verts])
@@ -156,8 +157,8 @@ class OpticalSurface(Handler):
         if len(lb) == 0:
             return
         at = sel[lb]
-        wi = frame.wi_local[lb]
-        u3 = lobe_uniforms(frame.u_sample[lb], u[at], P_l[at])
+        wi = take_rows(frame.wi_local, lb)
+        u3 = lobe_uniforms(take_rows(frame.u_sample, lb), u[at], P_l[at])
         wo = np.empty((len(lb), 3))
         weight = np.empty(len(lb))
         pdf_l = np.empty(len(lb))
@@ -166,7 +167,7 @@ class OpticalSurface(Handler):
             g = np.flatnonzero(mv == k)
             smp = spec.materials[k].sample(wi[g], u3[g], "u")
             wo[g], weight[g], pdf_l[g] = smp.wo, smp.weight, smp.pdf_per_sr
-        sub = LocalFrames(frame.tangent[lb], frame.bitangent[lb], wi, mv, u3)
+        sub = LocalFrames(take_rows(frame.tangent, lb), take_rows(frame.bitangent, lb), wi, mv, u3)
         wo_world, weight, pdf_l = kern.to_world(wo, weight, pdf_l, sub, np.ascontiguousarray(rows[at]),
                                                 hit.facing_normal)
         ratio, use, S_out, e1 = arr.scattered(event, verts, wo_world, subset=lb)
@@ -189,7 +190,7 @@ class OpticalSurface(Handler):
         eps = event.settings.eps_mm
         arrays = event.scene.arrays
         tri = event.tri[rows]
-        ng = arrays.normals[tri]
+        ng = take_rows(arrays.normals, tri)
         cos_in = hit.cos_in[rows]
         nfg = np.where((cos_in < 0)[:, None], ng, -ng)  # facet normal toward the incoming ray
         h = (_dot(ng, p_exact) - arrays.plane_d[tri]) * np.where(cos_in < 0, 1.0, -1.0)

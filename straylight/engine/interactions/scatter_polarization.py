@@ -20,7 +20,7 @@ from materials.mueller import s_vector
 from materials.polarized_brdf import is_polarizing, mueller_brdf
 from straylight.engine.interactions.stokes import active_state, incoming_stokes
 from straylight.engine.material_groups import brdf_and_pdf, by_material, distinct
-from straylight.engine.vec3 import dot_rows
+from straylight.engine.vec3 import dot_rows, take_rows
 
 
 def _to_local(v, tangent, bitangent, nf):
@@ -85,8 +85,8 @@ class Arriving:
         at = sub[use]  # positions among this object's vertices
         nf = event.hits.facing_normal[np.asarray(verts)[at]]
         fr = self.frame
-        wo = _to_local(wo_world[use], fr.tangent[at], fr.bitangent[at], nf)
-        wi = fr.wi_local[at]
+        wo = _to_local(wo_world[use], take_rows(fr.tangent, at), take_rows(fr.bitangent, at), nf)
+        wi = take_rows(fr.wi_local, at)
         mv = fr.material[at]
         S_out = np.zeros((len(use), 4))
         e1 = np.zeros((len(use), 3))
@@ -114,8 +114,8 @@ def arriving(event, verts, frame):
         return None
     polar_mat = np.array([is_polarizing(m) for m in spec.materials], bool)[frame.material]
     rays = event.rays
-    d = rays.direction[verts]
-    nf = event.hits.facing_normal[verts]
+    d = take_rows(rays.direction, verts)
+    nf = take_rows(event.hits.facing_normal, verts)
     s = s_vector(d, nf)
     S = incoming_stokes(st, rays.ray[verts], rays.depth[verts], d, s)
     if not (polar_mat.any() or np.any(S[:, 1:] != 0.0)):
