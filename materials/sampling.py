@@ -227,7 +227,7 @@ def sample_radial_lobe(u2: np.ndarray, l, s, r_max) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi)], axis=-1)
 
 
-def radial_lobe_density(d: np.ndarray, l, s, r_max, pair=None) -> np.ndarray:
+def radial_lobe_density(d: np.ndarray | None, l, s, r_max, pair=None) -> np.ndarray:
     """Density over the beta plane of :func:`sample_radial_lobe` at offsets d : (n, 2); with ``pair``
     (a :class:`materials.base.PairGeometry`, scalar l and s, r_max its own) d is its Bragg offset and
     the shape and the aperture test are shared with the other lobes (the same bits)."""
@@ -237,6 +237,7 @@ def radial_lobe_density(d: np.ndarray, l, s, r_max, pair=None) -> np.ndarray:
         shape = pair.get(("shape", float(s_), float(l2)), lambda: np.exp(-0.5 * s_ * np.log1p(r2 / l2)))
         inside = pair.get("inside", lambda: r2 <= np.asarray(r_max, float) ** 2 * (1 + 1e-12))
         return np.where(inside, shape / radial_lobe_norm(l, s, r_max), 0.0)
+    assert d is not None  # (the offsets are given unless a PairGeometry carries them)
     r2 = d[:, 0] ** 2 + d[:, 1] ** 2
     l = np.asarray(l, float)
     shape = np.exp(-0.5 * np.asarray(s, float) * np.log1p(r2 / l**2))
