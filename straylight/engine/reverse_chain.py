@@ -386,10 +386,10 @@ class EyeEnds:
 
     def __init__(self, ray, point, normal, part, material, omega, beta, detector, z, k, codes, refl, q=None):
         order = np.argsort(ray, kind="stable")
-        self.ray, self.point, self.normal = ray[order], point[order], normal[order]
-        self.part, self.material, self.omega = part[order], material[order], omega[order]
-        self.beta, self.detector, self.z, self.k = beta[order], detector[order], z[order], k[order]
-        self.codes = codes[order]  # (m, K) interface codes in the forward order, -1 padded
+        self.ray, self.point, self.normal = ray[order], take_rows(point, order), take_rows(normal, order)
+        self.part, self.material, self.omega = part[order], material[order], take_rows(omega, order)
+        self.beta, self.detector, self.z, self.k = beta[order], detector[order], take_rows(z, order), k[order]
+        self.codes = take_rows(codes, order)  # (m, K) interface codes in the forward order, -1 padded
         self.refl = refl[order]  # reflections among the k interfaces
         # the density factor of the chain's direction draw (its pdf q cos / pi: the eye table's)
         self.q = (np.ones(len(ray)) if q is None else np.asarray(q, dtype=np.float64))[order]
