@@ -18,6 +18,10 @@
     the default with specular next-event estimation through up to two interfaces (``specular_nee=2``;
     the default joins scatter vertices to the detector through one lens surface), to measure what the
     second buys.
+``thick``
+    the default with the thick mirrors among specular next-event estimation's sequences
+    (``specular_nee=3``, ``specular_nee_sequences="mirrors"``: the single reflections and "enter a face,
+    reflect inside off another, leave through the first"), to measure what they buy.
 ``reverse``
     the default without specular next-event estimation (``specular_nee=0``): the set before it, to measure
     what it buys.
@@ -54,6 +58,7 @@ def register() -> None:
     for name, options in HISTORY_SETS.items():
         register_estimator_set(name, options)
     register_estimator_set("manifold", replace(ESTIMATOR_SETS["default"], specular_nee=2))
+    register_estimator_set("thick", replace(ESTIMATOR_SETS["default"], specular_nee=3, specular_nee_sequences="mirrors"))
     register_estimator_set("reverse", replace(ESTIMATOR_SETS["default"], specular_nee=0))
 
 

@@ -67,7 +67,10 @@ from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients, cast_branches, side_material
 from straylight.paths import mix_key
 
-MAX_INTERFACES = 2
+MAX_INTERFACES = 3
+#: the share of the vertices a thick-mirror sequence (:func:`thick_mirror`) is tried from (one uniform per
+#: vertex): its solves cost ~5x a reflection's, and its paths carry ~1 % of the light
+THICK_MIRROR_RATE = 0.1
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
 
 
@@ -87,6 +90,12 @@ class Sequence:
     @property
     def k(self) -> int:
         return len(self.parts)
+
+    @cached_property
+    def rate(self) -> float:
+        """The probability q of trying this sequence from a vertex: :data:`THICK_MIRROR_RATE` for a thick
+        mirror, else 1 (its density is q p_nee, its contribution over q)."""
+        return THICK_MIRROR_RATE if thick_mirror(self) else 1.0
 
     def codes(self) -> np.ndarray:
         return np.array([p * 4 + EVENT_SPECULAR for p in self.parts], dtype=np.int64)
@@ -166,9 +175,17 @@ def interface_parts(spec, splits) -> list:
     return [p for p in np.flatnonzero(splits) if p < len(surfaces) and isinstance(surfaces[p], Conic)]
 
 
-def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES) -> list:
+def thick_mirror(seq: Sequence) -> bool:
+    """Whether ``seq`` is a thick mirror "a (T) -> b (R) -> a (T)": light enters a face, reflects inside off
+    another and leaves through the first (a singlet's: from the back, or from the front)."""
+    return seq.k == 3 and seq.reflect == (False, True, False) and seq.parts[0] == seq.parts[2] != seq.parts[1]
+
+
+def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES, which: str = "all") -> list:
     """Every sequence of 1..max_k reflections and transmissions over :func:`interface_parts` (no part
-    twice in a row: a convex or flat surface cannot be met twice in a row, and a concave one rarely)."""
+    twice in a row: a convex or flat surface cannot be met twice in a row, and a concave one rarely);
+    ``which`` = "mirrors" (``EstimatorOptions.specular_nee_sequences``) keeps only the single reflections
+    and the :func:`thick_mirror` sequences."""
     parts = interface_parts(spec, splits)
     surf = spec.part_surfaces
     vert = {(p, r): manifold.Vertex(surf[p], r, _eta(spec, p, True), _eta(spec, p, False), -1, _medium(spec, p))
@@ -179,6 +196,8 @@ def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES) -> list:
         chains = [c + [(p, r)] for c in chains for p in parts for r in (True, False) if not c or c[-1][0] != p]
         out.extend(Sequence(tuple(int(p) for p, _ in c), tuple(r for _, r in c), tuple(vert[x] for x in c))
                    for c in chains)
+    if which == "mirrors":
+        out = [seq for seq in out if (seq.k == 1 and seq.reflect[0]) or thick_mirror(seq)]
     return [seq for seq in out if _media_allow(seq)]
 
 
@@ -353,8 +372,9 @@ class SpecularNee:
 
     def __init__(self, ctx, splits):
         spec, scene = ctx.spec, ctx.scene
-        self.max_k = int(spec.options.estimator.specular_nee)  # interfaces per connection, 1..MAX_INTERFACES
-        self.seqs = candidate_sequences(spec, splits, self.max_k)
+        est = spec.options.estimator
+        self.max_k = int(est.specular_nee)  # interfaces per connection, 1..MAX_INTERFACES
+        self.seqs = candidate_sequences(spec, splits, self.max_k, est.specular_nee_sequences)
         self.end_material = scatter_ends(spec)
         self.splits = splits
         n = ctx.n_rays
@@ -416,10 +436,14 @@ class SpecularNee:
         # per detector its points z, and per sequence the rows it may connect (reaches): the rows none
         # may are left before the frames and the polarization (every step below is row by row)
         todo, need = [], np.zeros(len(rows), dtype=bool)
+        # whether a sequence of rate q < 1 (thick mirrors: specular_nee = 3, a column of its own) is tried: u < q
+        u_try = U[rows, column + 3 * len(scene.detectors)] if self.max_k >= 3 else None
         for j, det in enumerate(scene.detectors):
             z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
             for seq in self.seqs_to[j]:
                 may = (chain_k < seq.k) & reaches(seq, p, n_p, z)
+                if seq.rate < 1.0:
+                    may &= u_try < seq.rate
                 if may.any():
                     todo.append((j, seq, may, z, nz))
                     need |= may
@@ -456,9 +480,9 @@ class SpecularNee:
                 S[use], e1[use] = S_out / S_out[:, :1], e1_out  # M S, normalised as the walk stores it
             T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
             J = con.J[g]
-            p_nee = 1.0 / (area * J)
+            p_nee = seq.rate / (area * J)
             mis = p_nee / (p_nee + pdf)
-            value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis
+            value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis / seq.rate
             keep = np.flatnonzero(value > 0)
             if len(keep):
                 self._tally(event, rows[at[keep]], j, seq, z[at[keep]], value[keep])
@@ -488,6 +512,17 @@ class SpecularNee:
 
     # ------------------------------------------------------------------ the split trees' side
 
+    def covers(self, k, codes, detector: int) -> np.ndarray:
+        """(n,) bool: the split-tree branches (``k`` interfaces, ``codes``) reaching ``detector`` whose path
+        this estimator may also make: one of its sequences for that detector has their parts (a superset
+        of the branches :meth:`branch_share` shares; the further lobe draws of straylight.engine.tree_split
+        leave these to the walk's own tree)."""
+        out = np.zeros(len(k), dtype=bool)
+        for seq in self.seqs_to[detector]:
+            parts = np.array(seq.parts, dtype=np.int64)
+            out |= (k == seq.k) & np.all(codes[:, :seq.k] // 4 == parts[None, :], axis=1)
+        return out
+
     def branch_share(self, event, rows, detector: int, z, nz, codes, k) -> np.ndarray:
         """The share split-tree branches keep (rooted at the interface hits ``rows``, reaching
         ``detector`` at ``z`` with triangle normals ``nz`` after ``k`` interfaces ``codes``): p_walk /
@@ -513,7 +548,7 @@ class SpecularNee:
                                  int(self.det_parts[detector]), self.both)
             self.shadow_rays += casts
             match = con.ok & (_dot(con.omega, rays.direction[rows[at]]) > SAME_DIRECTION_COS)
-            p_nee[at[match]] = 1.0 / (area * con.J[match])
+            p_nee[at[match]] = seq.rate / (area * con.J[match])
         walk = self.pdf[r]
         total = walk + p_nee
         share = np.where(total > 0, walk / np.where(total > 0, total, 1.0), 1.0)
