@@ -90,7 +90,7 @@ def surface_points(surface, uv):
     world = surface.to_world(local)
     with np.errstate(invalid="ignore", divide="ignore"):
         g = surface.gradient(local) * surface.front_sign()
-        g = g / np.linalg.norm(g, axis=1)[:, None]
+        g = g / np.sqrt(np.einsum("ij,ij->i", g, g))[:, None]
     return world, surface.dirs_to_world(g)
 
 
@@ -118,12 +118,9 @@ def _constraint(seq, i, X, N, p, z):
     else:
         eta = np.where(_dot(wa, n) > 0, vtx.eta_front, vtx.eta_back)
         h = eta[:, None] * wa + wb
-    rot = vtx.surface.rotation
-    out = np.empty((len(X), 2))
-    for j in range(2):
-        t = rot[j][None, :] - (n @ rot[j])[:, None] * n
-        out[:, j] = _dot(t, h)
-    return out
+    # t_j . h with t_j = r_j - (n . r_j) n, the local axis r_j projected on the tangent plane
+    rot = vtx.surface.rotation[:2]
+    return h @ rot.T - (n @ rot.T) * _dot(n, h)[:, None]
 
 
 def residual(seq, x, p, z):

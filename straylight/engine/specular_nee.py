@@ -68,9 +68,11 @@ from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients,
 from straylight.paths import mix_key
 
 MAX_INTERFACES = 3
-#: the share of the vertices a thick-mirror sequence (:func:`thick_mirror`) is tried from (one uniform per
-#: vertex): its solves cost ~5x a reflection's, and its paths carry ~1 % of the light
-THICK_MIRROR_RATE = 0.1
+#: the most probability q with which a vertex tries the thick-mirror sequences (:func:`thick_mirror`; one
+#: uniform per vertex): q = THICK_MIRROR_RATE min(1, w / w0) with w the vertex's weight and w0 the start
+#: weight (:func:`try_rate`). Their solves cost ~5x a reflection's, their paths carry ~1 % of the light
+#: and most vertices (deep in the walk) carry little of it
+THICK_MIRROR_RATE = 0.25
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
 
 
@@ -92,10 +94,11 @@ class Sequence:
         return len(self.parts)
 
     @cached_property
-    def rate(self) -> float:
-        """The probability q of trying this sequence from a vertex: :data:`THICK_MIRROR_RATE` for a thick
-        mirror, else 1 (its density is q p_nee, its contribution over q)."""
-        return THICK_MIRROR_RATE if thick_mirror(self) else 1.0
+    def sampled(self) -> bool:
+        """Whether a vertex tries this sequence only with its probability q (:func:`try_rate`; a thick
+        mirror), else always (q = 1)."""
+        return thick_mirror(self)
+
 
     def codes(self) -> np.ndarray:
         return np.array([p * 4 + EVENT_SPECULAR for p in self.parts], dtype=np.int64)
@@ -116,6 +119,14 @@ class Sequence:
         test = reach.side_test(self.vertices[0].surface)
         return None if test is None else reach.aperture_ball(test)
 
+
+def try_rate(weight_w, w0: float) -> np.ndarray:
+    """q (m,): the probability with which vertices of weight ``weight_w`` (start weight ``w0``) try the
+    sampled sequences, :data:`THICK_MIRROR_RATE` min(1, w / w0). A connection counts over q and its
+    balance weight is over the density q p_nee (one-sample MIS with an expected q samples; the split
+    trees' share uses the same q): unbiased for any q > 0 that depends on the vertex only, and with q
+    proportional to w its contributions w f cos T / (q + p_walk A J) stay bounded by ~ f cos T w0 / q_max."""
+    return THICK_MIRROR_RATE * np.minimum(1.0, np.asarray(weight_w, dtype=np.float64) / w0)
 
 def reaches(seq: Sequence, p, n_p, z) -> np.ndarray:
     """(m,) bool: the rows whose P (m, 3) can lie on the air side of the sequence's first interface, whose
@@ -383,6 +394,8 @@ class SpecularNee:
         self.normal = np.zeros((n, 3))
         self.chain_k = np.zeros(n, dtype=np.int64)  # runs up to this length are the reverse chains'
         self.pdf = np.zeros(n)  # the walk's pdf of the direction it drew at P
+        self.rate = np.zeros(n)  # q at P (try_rate)
+        self.w0 = float(ctx.start_weight_w)
         self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
         self.det_parts = np.asarray(scene.det_parts, dtype=np.int64)
         # per detector the sequences whose last interface can leave toward some point of it (reaches_ball)
@@ -422,6 +435,7 @@ class SpecularNee:
         self.point[r] = event.hits.point_mm[rows]
         self.normal[r] = event.hits.facing_normal[rows]
         self.chain_k[r] = chain_k
+        self.rate[r] = try_rate(rays.weight_w[rows], self.w0)
         self._connect(event, rows, chain_k, column)
 
     def after_interactions(self, event, cont, out) -> None:
@@ -436,14 +450,15 @@ class SpecularNee:
         # per detector its points z, and per sequence the rows it may connect (reaches): the rows none
         # may are left before the frames and the polarization (every step below is row by row)
         todo, need = [], np.zeros(len(rows), dtype=bool)
-        # whether a sequence of rate q < 1 (thick mirrors: specular_nee = 3, a column of its own) is tried: u < q
+        # whether the sampled sequences (thick mirrors: specular_nee = 3, a column of its own) are tried: u < q
+        q = self.rate[rays.ray[rows]]
         u_try = U[rows, column + 3 * len(scene.detectors)] if self.max_k >= 3 else None
         for j, det in enumerate(scene.detectors):
             z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
             for seq in self.seqs_to[j]:
                 may = (chain_k < seq.k) & reaches(seq, p, n_p, z)
-                if seq.rate < 1.0:
-                    may &= u_try < seq.rate
+                if seq.sampled:
+                    may &= u_try < q
                 if may.any():
                     todo.append((j, seq, may, z, nz))
                     need |= may
@@ -456,6 +471,7 @@ class SpecularNee:
                                                   spec.part_material, event.uniforms))  # the walk's kernel (same bits)
         arr = arriving(event, verts, frame)
         evaluate = _unpolarized(spec, frame.material)
+        q = q[sub]
         for j, seq, may, z, nz in todo:
             z, nz, may = z[sub], nz[sub], may[sub]
             area = self.det_area[j]
@@ -480,9 +496,10 @@ class SpecularNee:
                 S[use], e1[use] = S_out / S_out[:, :1], e1_out  # M S, normalised as the walk stores it
             T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
             J = con.J[g]
-            p_nee = seq.rate / (area * J)
+            rate = q[at] if seq.sampled else 1.0
+            p_nee = rate / (area * J)
             mis = p_nee / (p_nee + pdf)
-            value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis / seq.rate
+            value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis / rate
             keep = np.flatnonzero(value > 0)
             if len(keep):
                 self._tally(event, rows[at[keep]], j, seq, z[at[keep]], value[keep])
@@ -548,7 +565,8 @@ class SpecularNee:
                                  int(self.det_parts[detector]), self.both)
             self.shadow_rays += casts
             match = con.ok & (_dot(con.omega, rays.direction[rows[at]]) > SAME_DIRECTION_COS)
-            p_nee[at[match]] = seq.rate / (area * con.J[match])
+            rate = self.rate[ri[match]] if seq.sampled else 1.0
+            p_nee[at[match]] = rate / (area * con.J[match])
         walk = self.pdf[r]
         total = walk + p_nee
         share = np.where(total > 0, walk / np.where(total > 0, total, 1.0), 1.0)
