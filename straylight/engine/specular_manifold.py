@@ -1,8 +1,8 @@
-"""Specular paths through one or two analytic surfaces, solved for (specular manifold connections).
+"""Specular paths through one to three analytic surfaces, solved for (specular manifold connections).
 
-Given a point P, a point z and a sequence S of k = 1 or 2 interfaces (each a part's analytic surface,
+Given a point P, a point z and a sequence S of k = 1 to 3 interfaces (each a part's analytic surface,
 ``geometry.analytic.Conic`` / ``Asphere`` / ``Plane``, with reflection or transmission), find the
-points X_1 (, X_2) on the surfaces such that P -> X_1 (-> X_2) -> z obeys the law of reflection or
+points X_1 (.. X_k) on the surfaces such that P -> X_1 (-> .. X_k) -> z obeys the law of reflection or
 refraction at every X_i, and the generalized geometry term |d omega_P / d A_z| of that path.
 
 Unknowns: each X_i's local coordinates (u_i, v_i) in its surface's frame (X = (u, v, sag(rho)),

@@ -1,17 +1,19 @@
-"""Specular next-event estimation: from a scatter vertex to a detector through one or two interfaces.
+"""Specular next-event estimation: from a scatter vertex to a detector through one to three interfaces.
 
 Behind or around a lens a scatter point P often reaches the small sensor only through the glass: by
-one reflection off a lens face (a vane behind the lens, seen in the flat back face's mirror) or by
-two refractions (the lens cell's lip, seen through the lens). Next-event estimation cannot aim
+one reflection off a lens face (a vane behind the lens, seen in the flat back face's mirror), by
+two refractions (the lens cell's lip, seen through the lens) or by a reflection inside the glass between
+two refractions (the vane seen in the lens's thick mirror). Next-event estimation cannot aim
 through a refracting or reflecting surface, and the split trees (straylight.engine.delta_chain) hit
 the sensor only when the walk's scatter direction happens to go where the run lands on it: on the
 guide scope at 5-15 deg those paths held 86-88 % of the variance (benchmarks/variance_paths.py).
 
 At every walk vertex P on a plain scatterer (a non-delta material; straylight.engine.reverse_chain
-.scatter_ends), for each candidate sequence S of 1 to ``specular_nee`` (1 or 2) interfaces (:func:`candidate_sequences`:
+.scatter_ends), for each candidate sequence S of 1 to ``specular_nee`` (1-3) interfaces (:func:`candidate_sequences`:
 every sequence of reflections and transmissions over the parts whose kind declares
 ``Capability.DELTA_CHAIN`` and that have an analytic conic, asphere or plane surface, no part twice
-in a row) and each detector j: a point z uniform on the detector (density 1 / A_j), the interface
+in a row; with ``specular_nee_sequences = "mirrors"`` only the single reflections and the thick
+mirrors "a (T) -> b (R) -> a (T)", :func:`thick_mirror`) and each detector j: a point z uniform on the detector (density 1 / A_j), the interface
 points X_i solved for by Newton's method from a deterministic start
 (straylight.engine.specular_manifold), every segment checked by a cast (it must meet exactly the
 intended surface point, a clear aperture's pass-through refuses the path), and
@@ -39,10 +41,11 @@ Requires the split trees (``delta_chain >= specular_nee``), one polarization mod
 (its weights use the materials' own pdf). Cost per plain vertex: a side test per sequence and detector
 (:func:`reaches`, straylight.engine.specular_reach: P and z on the air sides of the first and last lens
 faces, P facing the first; it refuses only rows the checks refuse, so the numbers do not depend on it),
-one Newton solve for the rows it keeps (vectorised), casts only for converged solutions (2-3 each). A singlet has 4 sequences of one
+one Newton solve for the rows it keeps (vectorised), casts only for converged solutions (k + 1 each). A singlet has 4 sequences of one
 interface and 8 more of two (:func:`candidate_sequences`, before the media rule); the default estimator
-set uses ``specular_nee = 1`` (docs/engine.md: the single reflections carry what it buys on the guide
-scope, at a third of the cost).
+set uses ``specular_nee = 3`` with ``"mirrors"``: the single reflections (what two interfaces bought on the
+guide scope, at a third of the cost) and the two thick mirrors, which a vertex tries with probability
+q (:func:`try_rate`; docs/engine.md, "Thick mirrors").
 """
 from __future__ import annotations
 

@@ -299,7 +299,7 @@ def test_one_interface_leaves_the_two_refraction_paths_to_the_trees():
     assert abs(single.ledger["balance_residual_w"]) < 1e-9 * single.emitted_w
 
 
-def test_the_option_counts_interfaces_and_the_default_set_uses_one_with_glass():
+def test_the_option_counts_interfaces_and_the_default_set_uses_the_mirrors_with_glass():
     assert EstimatorOptions(specular_nee=True).specular_nee == 1  # the former switch
     for bad in (4, -1, 1.5, "2"):
         with pytest.raises(TraceError, match="specular_nee"):
@@ -312,7 +312,8 @@ def test_the_option_counts_interfaces_and_the_default_set_uses_one_with_glass():
     with pytest.raises(TraceError, match="delta_chain_reflections"):
         EstimatorOptions(delta_chain=4, delta_chain_reflections=2, specular_nee=3)
     _, _, lens_mats = _lens_scene()
-    assert estimator_options("default", materials=lens_mats).estimator.specular_nee == 1
+    est = estimator_options("default", materials=lens_mats).estimator
+    assert (est.specular_nee, est.specular_nee_sequences) == (3, "mirrors")
     _, _, mirror_mats = _mirror_scene()  # no refracting material: the default set leaves it off
     assert estimator_options("default", materials=mirror_mats).estimator.specular_nee == 0
 
