@@ -69,6 +69,7 @@ from straylight.engine.reverse_chain import scatter_ends
 from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients, cast_branches, side_material
 from straylight.paths import mix_key
+from straylight.rng import check_seed, chunk_stream_uniforms
 
 MAX_INTERFACES = 3
 #: the most probability q with which a vertex tries the thick-mirror sequences (:func:`thick_mirror`; one
@@ -76,6 +77,7 @@ MAX_INTERFACES = 3
 #: weight (:func:`try_rate`). Their solves cost ~5x a reflection's, their paths carry ~1 % of the light
 #: and most vertices (deep in the walk) carry little of it
 THICK_MIRROR_RATE = 0.25
+TRY_STREAM = 0x544D4952  # third entropy word of the draws that decide whether a vertex tries them ("TMIR")
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
 
 
@@ -127,9 +129,11 @@ def try_rate(weight_w, w0: float) -> np.ndarray:
     """q (m,): the probability with which vertices of weight ``weight_w`` (start weight ``w0``) try the
     sampled sequences, :data:`THICK_MIRROR_RATE` min(1, w / w0). A connection counts over q and its
     balance weight is over the density q p_nee (one-sample MIS with an expected q samples; the split
-    trees' share uses the same q): unbiased for any q > 0 that depends on the vertex only, and with q
-    proportional to w its contributions w f cos T / (q + p_walk A J) stay bounded by ~ f cos T w0 / q_max."""
+    trees' share uses the same q): unbiased for any q > 0 that depends on the vertex only. A connection's
+    value w f cos T / (q p_nee + p_walk) <= (w / q) f cos T A J: with q proportional to w (below w0) the
+    factor w / q is w0 / THICK_MIRROR_RATE whatever the vertex's weight."""
     return THICK_MIRROR_RATE * np.minimum(1.0, np.asarray(weight_w, dtype=np.float64) / w0)
+
 
 def reaches(seq: Sequence, p, n_p, z) -> np.ndarray:
     """(m,) bool: the rows whose P (m, 3) can lie on the air side of the sequence's first interface, whose
@@ -399,6 +403,11 @@ class SpecularNee:
         self.pdf = np.zeros(n)  # the walk's pdf of the direction it drew at P
         self.rate = np.zeros(n)  # q at P (try_rate)
         self.w0 = float(ctx.start_weight_w)
+        # the tries' uniforms: an own stream per chunk (the walk's random numbers stay those without them)
+        self.any_sampled = any(seq.sampled for seq in self.seqs)
+        self.seed = check_seed(spec.seed)
+        self.first_chunk = int(spec.chunk_offset) + int(ctx.first_chunk)
+        self._gens: dict = {}
         self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
         self.det_parts = np.asarray(scene.det_parts, dtype=np.int64)
         # per detector the sequences whose last interface can leave toward some point of it (reaches_ball)
@@ -439,23 +448,23 @@ class SpecularNee:
         self.normal[r] = event.hits.facing_normal[rows]
         self.chain_k[r] = chain_k
         self.rate[r] = try_rate(rays.weight_w[rows], self.w0)
-        self._connect(event, rows, chain_k, column)
+        u_try = chunk_stream_uniforms(self._gens, self.seed, self.first_chunk, TRY_STREAM, r, 1)[:, 0] \
+            if self.any_sampled else None
+        self._connect(event, rows, chain_k, column, u_try)
 
     def after_interactions(self, event, cont, out) -> None:
         r = event.rays.ray[cont]
         ours = self.depth[r] == event.rays.depth[cont]
         self.pdf[r[ours]] = out.pdf_per_sr[ours]
 
-    def _connect(self, event, rows, chain_k, column):
+    def _connect(self, event, rows, chain_k, column, u_try):
         spec, scene, rays, hit = event.spec, event.scene, event.rays, event.hits
         U = event.uniforms
         p, n_p = hit.point_mm[rows], hit.facing_normal[rows]
         # per detector its points z, and per sequence the rows it may connect (reaches): the rows none
         # may are left before the frames and the polarization (every step below is row by row)
         todo, need = [], np.zeros(len(rows), dtype=bool)
-        # whether the sampled sequences (thick mirrors: specular_nee = 3, a column of its own) are tried: u < q
-        q = self.rate[rays.ray[rows]]
-        u_try = U[rows, column + 3 * len(scene.detectors)] if self.max_k >= 3 else None
+        q = self.rate[rays.ray[rows]]  # the sampled sequences (thick mirrors) are tried where u_try < q
         for j, det in enumerate(scene.detectors):
             z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
             for seq in self.seqs_to[j]:

@@ -332,16 +332,6 @@ def test_what_rules_it_out():
     assert "analytic" in unsupported(make_spec(flat, src, 100, 0, mats, TraceOptions(estimator=MANIFOLD)))
 
 
-def test_same_numbers_for_any_batch_size():
-    """Its detector points come from the event's own uniforms and each vertex's solve is its own: the
-    batch size does not change a bit."""
-    sc, src, mats = _lens_scene()
-    runs = [trace(sc, src, 3000, seed=9, materials=mats, options=TraceOptions(estimator=MANIFOLD, batch_rays=b))
-            for b in (1000, 3000)]
-    assert runs[0].detectors["det"].power_w == runs[1].detectors["det"].power_w
-    assert runs[0].detectors["det"].stderr_w == runs[1].detectors["det"].stderr_w
-
-
 def _thick_mirror_scene(n_glass=2.0):
     """A glass singlet (n = 2: flat front face at z = 6 facing down, a sphere R = 40 mm at z = 10 whose
     centre is above it, r = 12 mm, black rim) above a disk detector (r = 3 mm at z = -5, facing up) and a
@@ -408,3 +398,14 @@ def test_the_thick_mirror_sequences():
     assert [s.sampled for s in seqs] == [s.k == 3 for s in seqs]
     assert len(candidate_sequences(spec, splits, 3, "all")) > len(candidate_sequences(spec, splits, 2, "all")) > 4
     assert candidate_sequences(spec, splits, 1, "mirrors") == candidate_sequences(spec, splits, 1, "all")
+
+
+@pytest.mark.parametrize("build,est", [(_lens_scene, MANIFOLD), (_thick_mirror_scene, THICK)])
+def test_same_numbers_for_any_batch_size(build, est):
+    """Its detector points come from the event's own uniforms, the thick mirrors' tries from an own stream
+    per chunk, and each vertex's solve is its own: the batch size does not change a bit."""
+    sc, src, mats = build()
+    runs = [trace(sc, src, 3000, seed=9, materials=mats, options=TraceOptions(estimator=est, batch_rays=b))
+            for b in (1000, 3000)]
+    assert runs[0].detectors["det"].power_w == runs[1].detectors["det"].power_w
+    assert runs[0].detectors["det"].stderr_w == runs[1].detectors["det"].stderr_w

@@ -22,8 +22,7 @@ class SpecularNeeStrategy(Strategy):
         return impl.unsupported(spec)
 
     def uniform_columns(self, spec) -> int:
-        # a detector point per detector and vertex, and (with thick mirrors among its sequences) whether to try them
-        return 3 * len(spec.detector_parts) + (1 if int(spec.options.estimator.specular_nee) >= 3 else 0)
+        return 3 * len(spec.detector_parts)  # a detector point per detector and vertex
 
     def batch_state(self, ctx: BatchContext) -> object | None:
         return impl.SpecularNee(ctx, ctx.capabilities.parts(Capability.DELTA_CHAIN))
