@@ -15,9 +15,13 @@
 ``first_lobe``
     ``lobes`` without the second-vertex lobe draw (to measure what each draw buys).
 ``manifold``
-    the default with specular next-event estimation through up to two interfaces (``specular_nee=2``;
-    the default joins scatter vertices to the detector through one lens surface), to measure what the
-    second buys.
+    the default with specular next-event estimation through every sequence of up to two interfaces
+    (``specular_nee=2``, ``specular_nee_sequences="all"``; the default joins scatter vertices to the
+    detector through a lens face's reflection or a lens's thick mirror), to measure what the two
+    refractions buy.
+``reflections``
+    the default with specular next-event estimation through one interface only (``specular_nee=1``: the
+    single reflections), the set before the thick mirrors, to measure what they buy.
 ``reverse``
     the default without specular next-event estimation (``specular_nee=0``): the set before it, to measure
     what it buys.
@@ -53,7 +57,8 @@ def register() -> None:
     """Make every history set a choice of ``estimator_options`` and of ``--estimators``."""
     for name, options in HISTORY_SETS.items():
         register_estimator_set(name, options)
-    register_estimator_set("manifold", replace(ESTIMATOR_SETS["default"], specular_nee=2))
+    register_estimator_set("manifold", replace(ESTIMATOR_SETS["default"], specular_nee=2, specular_nee_sequences="all"))
+    register_estimator_set("reflections", replace(ESTIMATOR_SETS["default"], specular_nee=1, specular_nee_sequences="all"))
     register_estimator_set("reverse", replace(ESTIMATOR_SETS["default"], specular_nee=0))
 
 

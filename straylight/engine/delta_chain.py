@@ -102,7 +102,7 @@ class DeltaChains:
     def __init__(self, n_rays_in_batch, max_interfaces, splits=None, max_reflections=0, lobe_split=None):
         self.run = np.zeros(n_rays_in_batch, dtype=np.int64)
         #: straylight.engine.tree_split.LobeSplit (``tree_split`` > 1) or None; per ray, the share the walk's
-        #: own tree keeps after a split vertex (1 / K, for branches past the split's ``k_min``)
+        #: own tree keeps after a split vertex (1 / K, for branches the split does not leave to it: LobeSplit.walk_keeps)
         self.lobe_split = lobe_split
         self.walk_scale = np.ones(n_rays_in_batch)
         self.refl = np.zeros(n_rays_in_batch, dtype=np.int64)
@@ -273,12 +273,12 @@ class DeltaChains:
             split = self.lobe_split
             drawn = split is not None and split.draws is not None  # branches of further lobe draws (tree_split)
             if drawn:
-                w = b.w[m] * split.share(event, b.tag[m], b.k[m], int(j), b.d[m])
+                w = b.w[m] * split.share(event, b.tag[m], b.k[m], b.codes[m], int(j), b.d[m])
             else:
                 w = b.w[m] * event.tree_share(i, int(j), b.d[m])  # a strategy that also counts this run keeps its share
                 w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])  # or this very path
                 if split is not None:
-                    w = np.where(b.k[m] > split.k_min, w * self.walk_scale[r], w)
+                    w = np.where(split.walk_keeps(event, b.k[m], b.codes[m], int(j)), w, w * self.walk_scale[r])
             keep = np.flatnonzero(w > 0) if split is not None else m
             if split is not None and len(keep) < len(m):
                 m, i, r, w = m[keep], i[keep], r[keep], w[keep]

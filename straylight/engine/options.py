@@ -16,6 +16,12 @@ class TraceError(ValueError):
     """A trace request that cannot run; the message names the parameter or part."""
 
 
+#: the choices of ``EstimatorOptions.specular_nee_sequences`` (straylight.engine.specular_nee.candidate_sequences):
+#: "all" every sequence of 1..``specular_nee`` interfaces; "mirrors" only the single reflections off a face
+#: and (``specular_nee = 3``) the thick mirrors: enter a face, reflect inside off another, leave through the first
+SPECULAR_NEE_SEQUENCES = ("all", "mirrors")
+
+
 @dataclass(frozen=True)
 class EstimatorOptions:
     """How the detectors' power is estimated (the variance-reduction strategies,
@@ -37,7 +43,8 @@ class EstimatorOptions:
     tree_split: int = 1  # > 1: glossy vertices lit by the source send this many lobe draws into the split trees
     entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
     reverse_chain: int = 0  # > 0: eye chains from the detectors through up to this many interfaces, joined to the walk
-    specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1 or 2) analytic interfaces
+    specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1-3) analytic interfaces
+    specular_nee_sequences: str = "all"  # which: "all" of 1..specular_nee, or "mirrors" (single reflections, thick mirrors T R T)
 
     def __post_init__(self):
         if not (0.0 <= float(self.rr_threshold) < 1.0):
@@ -60,12 +67,17 @@ class EstimatorOptions:
                              f"got {self.delta_chain_reflections}")
         if int(self.reverse_chain) < 0:
             raise TraceError(f"reverse_chain must be >= 0 (interfaces per eye chain), got {self.reverse_chain}")
-        if not isinstance(self.specular_nee, (int, np.integer)) or not 0 <= int(self.specular_nee) <= 2:
-            raise TraceError(f"specular_nee must be 0, 1 or 2 (interfaces per connection), got {self.specular_nee!r}")
+        if not isinstance(self.specular_nee, (int, np.integer)) or not 0 <= int(self.specular_nee) <= 3:
+            raise TraceError(f"specular_nee must be 0, 1, 2 or 3 (interfaces per connection), got {self.specular_nee!r}")
         object.__setattr__(self, "specular_nee", int(self.specular_nee))  # True (the former switch) is 1
-        if 0 < int(self.delta_chain_reflections) < int(self.specular_nee):
-            raise TraceError(f"specular_nee ({self.specular_nee}) shares its paths with the split trees: it needs "
-                             f"delta_chain_reflections 0 (no limit) or >= {self.specular_nee}")
+        if self.specular_nee_sequences not in SPECULAR_NEE_SEQUENCES:
+            raise TraceError(f"specular_nee_sequences must be one of {', '.join(SPECULAR_NEE_SEQUENCES)}, "
+                             f"got {self.specular_nee_sequences!r}")
+        # the most reflections one of its sequences has: "mirrors" have one
+        reflections = min(int(self.specular_nee), 1) if self.specular_nee_sequences == "mirrors" else int(self.specular_nee)
+        if 0 < int(self.delta_chain_reflections) < reflections:
+            raise TraceError(f"specular_nee ({self.specular_nee}, sequences {self.specular_nee_sequences!r}) shares its "
+                             f"paths with the split trees: it needs delta_chain_reflections 0 (no limit) or >= {reflections}")
         if int(self.delta_chain) > 0 and self.reflection_split:
             raise TraceError("delta_chain includes reflection_split (its one-reflection paths): turn one of them off")
 

@@ -1,8 +1,8 @@
-"""Specular paths through one or two analytic surfaces, solved for (specular manifold connections).
+"""Specular paths through one to three analytic surfaces, solved for (specular manifold connections).
 
-Given a point P, a point z and a sequence S of k = 1 or 2 interfaces (each a part's analytic surface,
+Given a point P, a point z and a sequence S of k = 1 to 3 interfaces (each a part's analytic surface,
 ``geometry.analytic.Conic`` / ``Asphere`` / ``Plane``, with reflection or transmission), find the
-points X_1 (, X_2) on the surfaces such that P -> X_1 (-> X_2) -> z obeys the law of reflection or
+points X_1 (.. X_k) on the surfaces such that P -> X_1 (-> .. X_k) -> z obeys the law of reflection or
 refraction at every X_i, and the generalized geometry term |d omega_P / d A_z| of that path.
 
 Unknowns: each X_i's local coordinates (u_i, v_i) in its surface's frame (X = (u, v, sag(rho)),
@@ -49,7 +49,7 @@ def _dot(a, b):
 
 
 def _unit(v):
-    n = np.linalg.norm(v, axis=1)
+    n = np.sqrt(np.einsum("ij,ij->i", v, v))
     return v / np.where(n > 0, n, 1.0)[:, None], n
 
 
@@ -90,52 +90,77 @@ def surface_points(surface, uv):
     world = surface.to_world(local)
     with np.errstate(invalid="ignore", divide="ignore"):
         g = surface.gradient(local) * surface.front_sign()
-        g = g / np.linalg.norm(g, axis=1)[:, None]
+        g = g / np.sqrt(np.einsum("ij,ij->i", g, g))[:, None]
     return world, surface.dirs_to_world(g)
+
+
+def _points(seq, x):
+    """The vertices X (m, k, 3) and their front normals (m, k, 3) at unknowns ``x`` (m, 2k)."""
+    m = len(x)
+    X = np.empty((m, len(seq), 3))
+    N = np.empty((m, len(seq), 3))
+    for i, vtx in enumerate(seq):
+        X[:, i], N[:, i] = surface_points(vtx.surface, x[:, 2 * i:2 * i + 2])
+    return X, N
+
+
+def _constraint(seq, i, X, N, p, z):
+    """F's two rows (m, 2) of vertex i: its tangents dotted with omega_a + omega_b (eta omega_a + omega_b)."""
+    k = len(seq)
+    vtx = seq[i]
+    prev = p if i == 0 else X[:, i - 1]
+    nxt = z if i == k - 1 else X[:, i + 1]
+    wa, _ = _unit(prev - X[:, i])
+    wb, _ = _unit(nxt - X[:, i])
+    n = N[:, i]
+    if vtx.reflect:
+        h = wa + wb
+    else:
+        eta = np.where(_dot(wa, n) > 0, vtx.eta_front, vtx.eta_back)
+        h = eta[:, None] * wa + wb
+    # t_j . h with t_j = r_j - (n . r_j) n, the local axis r_j projected on the tangent plane
+    rot = vtx.surface.rotation[:2]
+    return h @ rot.T - (n @ rot.T) * _dot(n, h)[:, None]
 
 
 def residual(seq, x, p, z):
     """F (m, 2k) of the sequence ``seq`` at unknowns ``x`` (m, 2k), endpoints p, z (m, 3); also the
     vertices X (m, k, 3) and their front normals (m, k, 3)."""
-    k = len(seq)
-    m = len(x)
-    X = np.empty((m, k, 3))
-    N = np.empty((m, k, 3))
-    for i, vtx in enumerate(seq):
-        X[:, i], N[:, i] = surface_points(vtx.surface, x[:, 2 * i:2 * i + 2])
-    F = np.empty((m, 2 * k))
-    for i, vtx in enumerate(seq):
-        prev = p if i == 0 else X[:, i - 1]
-        nxt = z if i == k - 1 else X[:, i + 1]
-        wa, _ = _unit(prev - X[:, i])
-        wb, _ = _unit(nxt - X[:, i])
-        n = N[:, i]
-        if vtx.reflect:
-            h = wa + wb
-        else:
-            eta = np.where(_dot(wa, n) > 0, vtx.eta_front, vtx.eta_back)
-            h = eta[:, None] * wa + wb
-        rot = vtx.surface.rotation
-        for j in range(2):
-            t = rot[j][None, :] - (n @ rot[j])[:, None] * n
-            F[:, 2 * i + j] = _dot(t, h)
+    X, N = _points(seq, x)
+    F = np.empty((len(x), 2 * len(seq)))
+    for i in range(len(seq)):
+        F[:, 2 * i:2 * i + 2] = _constraint(seq, i, X, N, p, z)
     return F, X, N
+
+
+def _moved(seq, c, x, X, N, p, z, step):
+    """The rows of F that change when unknown ``c`` moves by ``step`` (those of its vertex i and its
+    neighbours; F's other rows do not depend on it), as (first row, rows): each row is the same number
+    :func:`residual` gives there."""
+    i = c // 2
+    xs = x[:, 2 * i:2 * i + 2].copy()
+    xs[:, c % 2] += step
+    X2, N2 = X.copy(), N.copy()
+    X2[:, i], N2[:, i] = surface_points(seq[i].surface, xs)
+    lo, hi = max(i - 1, 0), min(i + 1, len(seq) - 1)
+    return 2 * lo, np.concatenate([_constraint(seq, j, X2, N2, p, z) for j in range(lo, hi + 1)], axis=1)
 
 
 def _jacobian(seq, x, p, z, F=None):
     """dF/dx (m, 2k, 2k): central differences, or forward differences from ``F`` = F(x) when given (the
-    Newton steps' Jacobian only steers; the geometry term takes the central one)."""
+    Newton steps' Jacobian only steers; the geometry term takes the central one). Moving an unknown of
+    vertex i changes only the rows of vertices i - 1 .. i + 1 (the others' differences are exactly 0)."""
     m, d = x.shape
-    J = np.empty((m, d, d))
+    J = np.zeros((m, d, d))
+    X, N = _points(seq, x)
     for c in range(d):
-        xp = x.copy()
-        xp[:, c] += DIFF_MM
+        lo, Fp = _moved(seq, c, x, X, N, p, z, DIFF_MM)
+        rows = slice(lo, lo + Fp.shape[1])
         if F is not None:
-            J[:, :, c] = (residual(seq, xp, p, z)[0] - F) / DIFF_MM
+            J[:, rows, c] = (Fp - F[:, rows]) / DIFF_MM
             continue
-        xm = x.copy()
-        xm[:, c] -= DIFF_MM
-        J[:, :, c] = (residual(seq, xp, p, z)[0] - residual(seq, xm, p, z)[0]) / (2 * DIFF_MM)
+        _lo, Fm = _moved(seq, c, x, X, N, p, z, -DIFF_MM)
+        J[:, rows, c] = (Fp - Fm) / (2 * DIFF_MM)
     return J
 
 
@@ -305,10 +330,11 @@ def implicit_geometry_term(seq, sol: Solution, p, z, nz):
     t, b = orthonormal_basis(nz)  # any orthonormal tangents: |d omega/dt x d omega/db| does not depend on them
     with np.errstate(invalid="ignore", divide="ignore"):
         Jx = _jacobian(seq, sol.x, p, z)
-        Jz = np.empty((m, 2 * k, 2))
+        Jz = np.zeros((m, 2 * k, 2))  # z enters only the last vertex's rows
+        X, N = _points(seq, sol.x)
         for c, e in enumerate((t, b)):
-            Jz[:, :, c] = (residual(seq, sol.x, p, z + DIFF_Z_MM * e)[0]
-                           - residual(seq, sol.x, p, z - DIFF_Z_MM * e)[0]) / (2 * DIFF_Z_MM)
+            Jz[:, 2 * k - 2:, c] = (_constraint(seq, k - 1, X, N, p, z + DIFF_Z_MM * e)
+                                    - _constraint(seq, k - 1, X, N, p, z - DIFF_Z_MM * e)) / (2 * DIFF_Z_MM)
         good = np.isfinite(Jx).all(axis=(1, 2)) & (np.abs(np.linalg.det(Jx)) > 1e-300)
         dx = np.zeros((m, 2 * k, 2))
         if good.any():

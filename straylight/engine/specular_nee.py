@@ -1,17 +1,19 @@
-"""Specular next-event estimation: from a scatter vertex to a detector through one or two interfaces.
+"""Specular next-event estimation: from a scatter vertex to a detector through one to three interfaces.
 
 Behind or around a lens a scatter point P often reaches the small sensor only through the glass: by
-one reflection off a lens face (a vane behind the lens, seen in the flat back face's mirror) or by
-two refractions (the lens cell's lip, seen through the lens). Next-event estimation cannot aim
+one reflection off a lens face (a vane behind the lens, seen in the flat back face's mirror), by
+two refractions (the lens cell's lip, seen through the lens) or by a reflection inside the glass between
+two refractions (the vane seen in the lens's thick mirror). Next-event estimation cannot aim
 through a refracting or reflecting surface, and the split trees (straylight.engine.delta_chain) hit
 the sensor only when the walk's scatter direction happens to go where the run lands on it: on the
 guide scope at 5-15 deg those paths held 86-88 % of the variance (benchmarks/variance_paths.py).
 
 At every walk vertex P on a plain scatterer (a non-delta material; straylight.engine.reverse_chain
-.scatter_ends), for each candidate sequence S of 1 to ``specular_nee`` (1 or 2) interfaces (:func:`candidate_sequences`:
+.scatter_ends), for each candidate sequence S of 1 to ``specular_nee`` (1-3) interfaces (:func:`candidate_sequences`:
 every sequence of reflections and transmissions over the parts whose kind declares
 ``Capability.DELTA_CHAIN`` and that have an analytic conic, asphere or plane surface, no part twice
-in a row) and each detector j: a point z uniform on the detector (density 1 / A_j), the interface
+in a row; with ``specular_nee_sequences = "mirrors"`` only the single reflections and the thick
+mirrors "a (T) -> b (R) -> a (T)", :func:`thick_mirror`) and each detector j: a point z uniform on the detector (density 1 / A_j), the interface
 points X_i solved for by Newton's method from a deterministic start
 (straylight.engine.specular_manifold), every segment checked by a cast (it must meet exactly the
 intended surface point, a clear aperture's pass-through refuses the path), and
@@ -39,10 +41,11 @@ Requires the split trees (``delta_chain >= specular_nee``), one polarization mod
 (its weights use the materials' own pdf). Cost per plain vertex: a side test per sequence and detector
 (:func:`reaches`, straylight.engine.specular_reach: P and z on the air sides of the first and last lens
 faces, P facing the first; it refuses only rows the checks refuse, so the numbers do not depend on it),
-one Newton solve for the rows it keeps (vectorised), casts only for converged solutions (2-3 each). A singlet has 4 sequences of one
+one Newton solve for the rows it keeps (vectorised), casts only for converged solutions (k + 1 each). A singlet has 4 sequences of one
 interface and 8 more of two (:func:`candidate_sequences`, before the media rule); the default estimator
-set uses ``specular_nee = 1`` (docs/engine.md: the single reflections carry what it buys on the guide
-scope, at a third of the cost).
+set uses ``specular_nee = 3`` with ``"mirrors"``: the single reflections (what two interfaces bought on the
+guide scope, at a third of the cost) and the two thick mirrors, which a vertex tries with probability
+q (:func:`try_rate`; docs/engine.md, "Thick mirrors").
 """
 from __future__ import annotations
 
@@ -67,8 +70,15 @@ from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients, cast_branches, side_material
 from straylight.paths import mix_key
 from straylight.engine.vec3 import take_rows
+from straylight.rng import check_seed, chunk_stream_uniforms
 
-MAX_INTERFACES = 2
+MAX_INTERFACES = 3
+#: the most probability q with which a vertex tries the thick-mirror sequences (:func:`thick_mirror`; one
+#: uniform per vertex): q = THICK_MIRROR_RATE min(1, w / w0) with w the vertex's weight and w0 the start
+#: weight (:func:`try_rate`). Their solves cost ~5x a reflection's, their paths carry ~1 % of the light
+#: and most vertices (deep in the walk) carry little of it
+THICK_MIRROR_RATE = 0.25
+TRY_STREAM = 0x544D4952  # third entropy word of the draws that decide whether a vertex tries them ("TMIR")
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
 
 
@@ -89,6 +99,13 @@ class Sequence:
     def k(self) -> int:
         return len(self.parts)
 
+    @cached_property
+    def sampled(self) -> bool:
+        """Whether a vertex tries this sequence only with its probability q (:func:`try_rate`; a thick
+        mirror), else always (q = 1)."""
+        return thick_mirror(self)
+
+
     def codes(self) -> np.ndarray:
         return np.array([p * 4 + EVENT_SPECULAR for p in self.parts], dtype=np.int64)
 
@@ -107,6 +124,16 @@ class Sequence:
         """(centre, radius) of a ball holding the first interface's clear aperture (None: not known)."""
         test = reach.side_test(self.vertices[0].surface)
         return None if test is None else reach.aperture_ball(test)
+
+
+def try_rate(weight_w, w0: float) -> np.ndarray:
+    """q (m,): the probability with which vertices of weight ``weight_w`` (start weight ``w0``) try the
+    sampled sequences, :data:`THICK_MIRROR_RATE` min(1, w / w0). A connection counts over q and its
+    balance weight is over the density q p_nee (one-sample MIS with an expected q samples; the split
+    trees' share uses the same q): unbiased for any q > 0 that depends on the vertex only. A connection's
+    value w f cos T / (q p_nee + p_walk) <= (w / q) f cos T A J: with q proportional to w (below w0) the
+    factor w / q is w0 / THICK_MIRROR_RATE whatever the vertex's weight."""
+    return THICK_MIRROR_RATE * np.minimum(1.0, np.asarray(weight_w, dtype=np.float64) / w0)
 
 
 def reaches(seq: Sequence, p, n_p, z) -> np.ndarray:
@@ -167,9 +194,17 @@ def interface_parts(spec, splits) -> list:
     return [p for p in np.flatnonzero(splits) if p < len(surfaces) and isinstance(surfaces[p], Conic)]
 
 
-def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES) -> list:
+def thick_mirror(seq: Sequence) -> bool:
+    """Whether ``seq`` is a thick mirror "a (T) -> b (R) -> a (T)": light enters a face, reflects inside off
+    another and leaves through the first (a singlet's: from the back, or from the front)."""
+    return seq.k == 3 and seq.reflect == (False, True, False) and seq.parts[0] == seq.parts[2] != seq.parts[1]
+
+
+def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES, which: str = "all") -> list:
     """Every sequence of 1..max_k reflections and transmissions over :func:`interface_parts` (no part
-    twice in a row: a convex or flat surface cannot be met twice in a row, and a concave one rarely)."""
+    twice in a row: a convex or flat surface cannot be met twice in a row, and a concave one rarely);
+    ``which`` = "mirrors" (``EstimatorOptions.specular_nee_sequences``) keeps only the single reflections
+    and the :func:`thick_mirror` sequences."""
     parts = interface_parts(spec, splits)
     surf = spec.part_surfaces
     vert = {(p, r): manifold.Vertex(surf[p], r, _eta(spec, p, True), _eta(spec, p, False), -1, _medium(spec, p))
@@ -180,6 +215,8 @@ def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES) -> list:
         chains = [c + [(p, r)] for c in chains for p in parts for r in (True, False) if not c or c[-1][0] != p]
         out.extend(Sequence(tuple(int(p) for p, _ in c), tuple(r for _, r in c), tuple(vert[x] for x in c))
                    for c in chains)
+    if which == "mirrors":
+        out = [seq for seq in out if (seq.k == 1 and seq.reflect[0]) or thick_mirror(seq)]
     return [seq for seq in out if _media_allow(seq)]
 
 
@@ -354,8 +391,9 @@ class SpecularNee:
 
     def __init__(self, ctx, splits):
         spec, scene = ctx.spec, ctx.scene
-        self.max_k = int(spec.options.estimator.specular_nee)  # interfaces per connection, 1..MAX_INTERFACES
-        self.seqs = candidate_sequences(spec, splits, self.max_k)
+        est = spec.options.estimator
+        self.max_k = int(est.specular_nee)  # interfaces per connection, 1..MAX_INTERFACES
+        self.seqs = candidate_sequences(spec, splits, self.max_k, est.specular_nee_sequences)
         self.end_material = scatter_ends(spec)
         self.splits = splits
         n = ctx.n_rays
@@ -364,6 +402,13 @@ class SpecularNee:
         self.normal = np.zeros((n, 3))
         self.chain_k = np.zeros(n, dtype=np.int64)  # runs up to this length are the reverse chains'
         self.pdf = np.zeros(n)  # the walk's pdf of the direction it drew at P
+        self.rate = np.zeros(n)  # q at P (try_rate)
+        self.w0 = float(ctx.start_weight_w)
+        # the tries' uniforms: an own stream per chunk (the walk's random numbers stay those without them)
+        self.any_sampled = any(seq.sampled for seq in self.seqs)
+        self.seed = check_seed(spec.seed)
+        self.first_chunk = int(spec.chunk_offset) + int(ctx.first_chunk)
+        self._gens: dict = {}
         self.det_area = np.array([g.area_mm2 for g in scene.detectors], dtype=np.float64)
         self.det_parts = np.asarray(scene.det_parts, dtype=np.int64)
         # per detector the sequences whose last interface can leave toward some point of it (reaches_ball)
@@ -403,24 +448,30 @@ class SpecularNee:
         self.point[r] = take_rows(event.hits.point_mm, rows)
         self.normal[r] = take_rows(event.hits.facing_normal, rows)
         self.chain_k[r] = chain_k
-        self._connect(event, rows, chain_k, column)
+        self.rate[r] = try_rate(rays.weight_w[rows], self.w0)
+        u_try = chunk_stream_uniforms(self._gens, self.seed, self.first_chunk, TRY_STREAM, r, 1)[:, 0] \
+            if self.any_sampled else None
+        self._connect(event, rows, chain_k, column, u_try)
 
     def after_interactions(self, event, cont, out) -> None:
         r = event.rays.ray[cont]
         ours = self.depth[r] == event.rays.depth[cont]
         self.pdf[r[ours]] = out.pdf_per_sr[ours]
 
-    def _connect(self, event, rows, chain_k, column):
+    def _connect(self, event, rows, chain_k, column, u_try):
         spec, scene, rays, hit = event.spec, event.scene, event.rays, event.hits
         U = event.uniforms
         p, n_p = take_rows(hit.point_mm, rows), take_rows(hit.facing_normal, rows)
         # per detector its points z, and per sequence the rows it may connect (reaches): the rows none
         # may are left before the frames and the polarization (every step below is row by row)
         todo, need = [], np.zeros(len(rows), dtype=bool)
+        q = self.rate[rays.ray[rows]]  # the sampled sequences (thick mirrors) are tried where u_try < q
         for j, det in enumerate(scene.detectors):
             z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
             for seq in self.seqs_to[j]:
                 may = (chain_k < seq.k) & reaches(seq, p, n_p, z)
+                if seq.sampled:
+                    may &= u_try < q
                 if may.any():
                     todo.append((j, seq, may, z, nz))
                     need |= may
@@ -433,6 +484,7 @@ class SpecularNee:
                                                   spec.part_material, event.uniforms))  # the walk's kernel (same bits)
         arr = arriving(event, verts, frame)
         evaluate = _unpolarized(spec, frame.material)
+        q = q[sub]
         for j, seq, may, z, nz in todo:
             z, nz, may = z[sub], nz[sub], may[sub]
             area = self.det_area[j]
@@ -457,9 +509,10 @@ class SpecularNee:
                 S[use], e1[use] = S_out / S_out[:, :1], e1_out  # M S, normalised as the walk stores it
             T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
             J = con.J[g]
-            p_nee = 1.0 / (area * J)
+            rate = q[at] if seq.sampled else 1.0
+            p_nee = rate / (area * J)
             mis = p_nee / (p_nee + pdf)
-            value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis
+            value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis / rate
             keep = np.flatnonzero(value > 0)
             if len(keep):
                 self._tally(event, rows[at[keep]], j, seq, z[at[keep]], value[keep])
@@ -489,6 +542,17 @@ class SpecularNee:
 
     # ------------------------------------------------------------------ the split trees' side
 
+    def covers(self, k, codes, detector: int) -> np.ndarray:
+        """(n,) bool: the split-tree branches (``k`` interfaces, ``codes``) reaching ``detector`` whose path
+        this estimator may also make: one of its sequences for that detector has their parts (a superset
+        of the branches :meth:`branch_share` shares; the further lobe draws of straylight.engine.tree_split
+        leave these to the walk's own tree)."""
+        out = np.zeros(len(k), dtype=bool)
+        for seq in self.seqs_to[detector]:
+            parts = np.array(seq.parts, dtype=np.int64)
+            out |= (k == seq.k) & np.all(codes[:, :seq.k] // 4 == parts[None, :], axis=1)
+        return out
+
     def branch_share(self, event, rows, detector: int, z, nz, codes, k) -> np.ndarray:
         """The share split-tree branches keep (rooted at the interface hits ``rows``, reaching
         ``detector`` at ``z`` with triangle normals ``nz`` after ``k`` interfaces ``codes``): p_walk /
@@ -514,7 +578,8 @@ class SpecularNee:
                                  int(self.det_parts[detector]), self.both)
             self.shadow_rays += casts
             match = con.ok & (_dot(con.omega, rays.direction[rows[at]]) > SAME_DIRECTION_COS)
-            p_nee[at[match]] = 1.0 / (area * con.J[match])
+            rate = self.rate[ri[match]] if seq.sampled else 1.0
+            p_nee[at[match]] = rate / (area * con.J[match])
         walk = self.pdf[r]
         total = walk + p_nee
         share = np.where(total > 0, walk / np.where(total > 0, total, 1.0), 1.0)

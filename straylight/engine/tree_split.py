@@ -10,9 +10,10 @@ after P keeps 1 / K of its branches (``DeltaChains.walk_scale``). For each path 
 identically distributed estimates of the same conditional expectation, so their mean is unbiased for any
 K that depends on the vertex only. The MIS weights are the one-sample ones, per draw: against the eye
 chains p_walk / (p_walk + p_eye) with the draw's own (P, omega) density (a partition of unity whatever K;
-the K-sample balance weights would move only the eye side's already small share); branches of at most
-``k_min`` = ``specular_nee`` interfaces, which specular NEE also makes, are left to the walk's own tree
-(its weight there unchanged)."""
+the K-sample balance weights would move only the eye side's already small share); branches whose path
+specular NEE may also make (:meth:`LobeSplit.walk_keeps`: its sequences' parts, or without its batch
+state at most ``k_min`` = ``specular_nee`` interfaces) are left to the walk's own tree (its weight there
+unchanged)."""
 from __future__ import annotations
 
 import numpy as np
@@ -112,12 +113,22 @@ class LobeSplit:
         finally:
             self.draws = None
 
-    def share(self, event, tag, k, detector: int, arrival) -> np.ndarray:
-        """The share further draws ``tag`` keep on ``detector`` after ``k`` interfaces: 0 for k <= ``k_min``
-        (the walk's own tree keeps those), else their balance weight against the eye chains."""
+    def walk_keeps(self, event, k, codes, detector: int) -> np.ndarray:
+        """(n,) bool: the branches (``k`` interfaces, ``codes``) reaching ``detector`` that the walk's own
+        tree keeps whole (the further draws' share 0): those specular NEE may also make
+        (straylight.engine.specular_nee.SpecularNee.covers), or without its state k <= ``k_min``."""
+        nee = event.states.get("specular_nee")
+        if nee is None:
+            return k <= self.k_min
+        return nee.covers(k, codes, detector)
+
+    def share(self, event, tag, k, codes, detector: int, arrival) -> np.ndarray:
+        """The share further draws ``tag`` keep on ``detector`` after ``k`` interfaces ``codes``: 0 where
+        :meth:`walk_keeps` (the walk's own tree keeps those), else their balance weight against the eye
+        chains."""
         assert self.draws is not None  # (called by DeltaChains while the draws' branches grow)
         p_walk, cos_out, owned = (x[tag] for x in self.draws)
-        out = np.where(k > self.k_min, 1.0, 0.0)
+        out = np.where(self.walk_keeps(event, k, codes, detector), 0.0, 1.0)
         rc = event.states.get("reverse_chain")
         if rc is not None and owned.any():
             out = out * rc.share_of(event, owned, p_walk, cos_out, detector, arrival)

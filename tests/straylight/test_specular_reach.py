@@ -84,17 +84,19 @@ def _without_reach(monkeypatch):
     monkeypatch.setattr(sn, "reaches_ball", lambda seq, centre, radius: True)
 
 
-@pytest.mark.parametrize("k", [1, 2])
+@pytest.mark.parametrize("k", [1, 2, 3])
 def test_same_bits_as_solving_every_row(monkeypatch, k):
     """The singlet scene of test_specular_nee (a plate above the lens, the detector below: every single
-    reflection off the front face is refused, most of the back face's): the detector tally, its error,
-    the casts and the path records are the same bits with every row solved."""
+    reflection off the front face is refused, most of the back face's), and for k = 3 its thick-mirror
+    scene (the plate and the detector below the lens, "mirrors": the thick mirror from the front is
+    refused): the detector tally, its error, the casts and the path records are the same bits with every
+    row solved."""
     from dataclasses import replace
 
-    from test_specular_nee import MANIFOLD, _lens_scene, _run
+    from test_specular_nee import MANIFOLD, THICK, _lens_scene, _run, _thick_mirror_scene
 
-    scene = _lens_scene()
-    est = replace(MANIFOLD, specular_nee=k)
+    scene = _lens_scene() if k < 3 else _thick_mirror_scene()
+    est = replace(MANIFOLD, specular_nee=k) if k < 3 else THICK
     a = _run(scene, 4000, 3, est, record_paths=True)
     _without_reach(monkeypatch)
     b = _run(scene, 4000, 3, est, record_paths=True)

@@ -1,5 +1,5 @@
 """Specular next-event estimation (straylight.engine.specular_nee): from the walk's plain scatter
-vertices to the detectors through one or two analytic interfaces, solved by Newton's method, combined
+vertices to the detectors through one to three analytic interfaces, solved by Newton's method, combined
 with the split trees by the balance heuristic."""
 from __future__ import annotations
 
