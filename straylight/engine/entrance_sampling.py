@@ -219,6 +219,12 @@ def _pilot_uniforms(spec, n: int) -> np.ndarray:
     return u
 
 
+def pilot_estimator(est):
+    """The pilot's estimator options from the run's ``est``: the same, without entrance sampling (the
+    pilot learns its table) and reverse chains (build_table)."""
+    return replace(est, entrance_sampling=False, reverse_chain=0)
+
+
 def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> EntranceTable | None:
     """Learn the table from a pilot trace of ``n_rays`` rays with ``spec``'s estimators (own
     streams, path records for the per-ray contributions) in two stages: uniform rays first, the rest
@@ -230,7 +236,7 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> 
     # (each ray's eye chains are drawn on their own), so in a pilot they only add noise to the cells;
     # the walk's own paths of their family (kept without them) say which entrance points light the
     # scatter points the lens carries onto the sensor
-    pilot_opts = replace(opt, estimator=replace(opt.estimator, entrance_sampling=False, reverse_chain=0),
+    pilot_opts = replace(opt, estimator=pilot_estimator(opt.estimator),
                          output=replace(opt.output, record_paths=True, path_depth=1))
     n = int(n_rays)
     # the pilot has its own plan: the walk resolves it from pilot_opts (this strategy off, its table None)
