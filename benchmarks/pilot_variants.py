@@ -1,7 +1,7 @@
 """What a cheaper entrance pilot costs the run: the pilot's CPU and the run's variance per variant.
 
     PYTHONPATH=$PWD:benchmarks .venv/bin/python benchmarks/pilot_variants.py --scene SCENE.toml
-        [--variants full no_nee_split ...] [--angles-deg 5 10 15 20 30 45 60] [--seeds 1 2 3 4 5 6]
+        [--variants as_is nee_split_64 ...] [--angles-deg 5 10 15 20 30 45 60] [--seeds 1 2 3 4 5 6]
         [--rays 100000]
 
 Each variant changes the entrance pilot only (straylight.engine.entrance_sampling: the estimator options
@@ -28,9 +28,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 #: variant -> (estimator options the pilot changes, pilot rays or None for the module's PILOT_RAYS)
 VARIANTS = {
-    "full": ({}, None),
+    "as_is": ({}, None),
+    "nee_split_64": ({"nee_split": 64}, None),  # the default set's own, the pilot before PILOT_NEE_SPLIT
     "no_nee_split": ({"nee_split": 1}, None),
-    "nee_split_8": ({"nee_split": 8}, None),
     "no_tree_split": ({"tree_split": 1}, None),
     "no_specular_nee": ({"specular_nee": 0}, None),
     "none_of_the_three": ({"nee_split": 1, "tree_split": 1, "specular_nee": 0}, None),
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", required=True)
-    ap.add_argument("--variants", nargs="+", default=["full"], choices=tuple(VARIANTS))
+    ap.add_argument("--variants", nargs="+", default=["as_is"], choices=tuple(VARIANTS))
     ap.add_argument("--angles-deg", type=float, nargs="+", default=[5, 10, 15, 20, 30, 45, 60])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6])
     ap.add_argument("--rays", type=float, default=1e5)
