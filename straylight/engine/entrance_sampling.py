@@ -21,9 +21,11 @@ nothing more, so results stay identical for any batch, thread or worker split.
 **The table** is learnt before the run by a pilot trace of :data:`PILOT_RAYS` rays with the same
 estimators except reverse chains (whose source connections do not depend on the entrance point: on the
 guide scope their cosine-drawn chains put single heavy values on random cells; without them the walk
-counts that family itself, from the entrance points that light it) (own streams: chunks from :data:`PILOT_CHUNK_OFFSET` on, so the table does not depend on the
-run's own draws, and depends only on scene, sources, options and seed, like the vertex tables): each
-pilot ray's total detector contribution x (its path records summed) goes to its cell; with
+counts that family itself, from the entrance points that light it), and with at most
+:data:`PILOT_NEE_SPLIT` NEE samples at a glint (the tables stay as good for less CPU;
+:func:`pilot_estimator`) (own streams: chunks from :data:`PILOT_CHUNK_OFFSET` on, so the table does not
+depend on the run's own draws, and depends only on scene, sources, options and seed, like the vertex
+tables): each pilot ray's total detector contribution x (its path records summed) goes to its cell; with
 m_c = mean of x^2 over the cell's pilot rays, smoothed over the 3 x 3 neighbouring cells (azimuth
 periodic), the variance-optimal choice for piecewise-constant importance sampling is P_c proportional
 to sqrt(m_c) (the density proportional to the root mean square of the contribution); a defensive
@@ -89,6 +91,9 @@ PILOT_GUIDE_HITS = 1_000
 #: effective sample size of the first stage's contributions that ends the pilot (~ half the 64 x 64 scale's
 #: cells: an average such cell seen by one ray's worth of light at least)
 PILOT_ENOUGH_ESS = 2_000.0
+#: most NEE samples at a glint in the pilot (the run's nee_split when lower): the default set's 64 cost the
+#: pilot a fifth of its CPU at 5-20 deg on the guide scope for tables no better (docs/engine.md, "The pilot's cost")
+PILOT_NEE_SPLIT = 8
 #: share of the draws left uniform over the square (defensive mixture)
 DEFENSIVE = 0.25
 #: the pilot's chunk streams start here (never reached by a trace's own ray ids)
@@ -219,6 +224,13 @@ def _pilot_uniforms(spec, n: int) -> np.ndarray:
     return u
 
 
+def pilot_estimator(est):
+    """The pilot's estimator options from the run's ``est``: the same, without entrance sampling (the
+    pilot learns its table) and reverse chains (build_table), and with at most :data:`PILOT_NEE_SPLIT`
+    NEE samples at a glint."""
+    return replace(est, entrance_sampling=False, reverse_chain=0, nee_split=min(int(est.nee_split), PILOT_NEE_SPLIT))
+
+
 def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> EntranceTable | None:
     """Learn the table from a pilot trace of ``n_rays`` rays with ``spec``'s estimators (own
     streams, path records for the per-ray contributions) in two stages: uniform rays first, the rest
@@ -230,7 +242,7 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> 
     # (each ray's eye chains are drawn on their own), so in a pilot they only add noise to the cells;
     # the walk's own paths of their family (kept without them) say which entrance points light the
     # scatter points the lens carries onto the sensor
-    pilot_opts = replace(opt, estimator=replace(opt.estimator, entrance_sampling=False, reverse_chain=0),
+    pilot_opts = replace(opt, estimator=pilot_estimator(opt.estimator),
                          output=replace(opt.output, record_paths=True, path_depth=1))
     n = int(n_rays)
     # the pilot has its own plan: the walk resolves it from pilot_opts (this strategy off, its table None)

@@ -105,11 +105,13 @@ def test_the_analyses_turn_it_on_only_with_a_refracting_material(wide_slab):
 def test_the_pilot_runs_without_the_reverse_chains(wide_slab):
     """The pilot learns which entrance points matter; the reverse chains' source connections do not
     depend on the entrance point (each ray's eye chains are drawn on their own), so the pilot runs
-    without them and with every other estimator of the trace."""
+    without them, with at most PILOT_NEE_SPLIT NEE samples at a glint (docs/engine.md, "The pilot's
+    cost"), and with every other estimator of the trace."""
     from straylight.trace import make_spec
 
     sc, src, mats = wide_slab
-    opts = TraceOptions(estimator=EstimatorOptions(entrance_sampling=True, reverse_chain=4, delta_chain=4))
+    opts = TraceOptions(estimator=EstimatorOptions(entrance_sampling=True, reverse_chain=4, delta_chain=4,
+                                                   nee_split=64, tree_split=4, specular_nee=1))
     spec = make_spec(sc, src, 1_000, 5, mats, opts)
     seen = []
 
@@ -119,8 +121,10 @@ def test_the_pilot_runs_without_the_reverse_chains(wide_slab):
 
     entrance_sampling.build_table(spec, run_batch, n_rays=2_000)
     (est,) = seen
-    assert est.reverse_chain == 0 and not est.entrance_sampling
-    assert est.delta_chain == 4 and est.nee
+    assert est.reverse_chain == 0 and not est.entrance_sampling and est.nee_split == entrance_sampling.PILOT_NEE_SPLIT < 64
+    assert est.delta_chain == 4 and est.nee and est.tree_split == 4 and est.specular_nee == 1
+    # a run with fewer NEE samples at a glint than the cap keeps its own in the pilot
+    assert entrance_sampling.pilot_estimator(EstimatorOptions(nee_split=3)).nee_split == 3
 
 
 def test_a_trace_does_not_depend_on_what_the_process_traced_before(wide_slab):

@@ -3,6 +3,7 @@ reliable, or a cap stopped it before its target, the plot, the study's table and
 say so (pst.json / pst.csv carry the ``flags`` of straylight.analyses.types.point_flags); and the
 default study traces to a target error within a time budget, not a fixed ray count."""
 import argparse
+import math
 
 import numpy as np
 
@@ -36,6 +37,34 @@ def test_plot_marks_points_whose_error_bar_is_not_reliable():
     # the marker sits on the flagged point only
     line = [h for h, lab in zip(*bad.get_legend_handles_labels()) if "NOT reliable" in lab][0]
     assert list(line.get_xdata()) == [10.0]
+
+
+def test_plot_labels_the_log_axis_in_plain_text_with_the_same_values():
+    """The PST plot's log-axis tick labels are matplotlib's own, written without mathtext: 4x10^-5
+    as 4×10⁻⁵ (the labels' values checked against the tick positions, not against the formatter)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from straylight.analyses.types import plain_log_label
+
+    assert plain_log_label(r"$\mathdefault{10^{-5}}$") == "10\u207b\u2075"
+    assert plain_log_label(r"$\mathdefault{4\times10^{-5}}$") == "4\u00d710\u207b\u2075"
+    assert plain_log_label(r"$\mathdefault{10^{12}}$") == "10\u00b9\u00b2"
+    assert plain_log_label("") == ""
+    ax = _result([0.01, 0.02], ["target"] * 2).plot()  # one decade or less: minor ticks labelled too
+    ax.figure.canvas.draw()
+    digits = str.maketrans("\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079\u207b\u2212",
+                           "0123456789--")
+    shown = 0
+    for tick in ax.yaxis.get_major_ticks() + ax.yaxis.get_minor_ticks():
+        text = tick.label1.get_text()
+        assert "$" not in text
+        if text:  # "m×10⁻ᵏ" or "10⁻ᵏ" -> m * 10**-k, the tick's own position
+            mant, _, power = text.partition("\u00d7") if "\u00d7" in text else ("1", "", text)
+            value = float(mant) * 10.0 ** int(power[2:].translate(digits))
+            assert math.isclose(value, tick.get_loc(), rel_tol=1e-9)
+            shown += 1
+    assert shown >= 2
 
 
 def test_study_table_and_warning_name_the_unreliable_points():
