@@ -1,14 +1,15 @@
 """The guide scope with its lens at every angle to 2 % (VOV <= 0.1), in reference CPU seconds.
 
     .venv/bin/python benchmarks/guide_scope_pst.py [--angles-deg 0 5 10 15 20 30 45 60] [--seeds 1 2]
-        [--before reverse] [--before-angles-deg 5 20 60] [--before-seeds 1] [--max-seconds 60] [--no-write]
+        [--before reflections] [--before-angles-deg 5 10] [--before-seeds 1] [--max-seconds 60] [--no-write]
 
 Each point is a whole ``straylight pst SCENE --angles-deg A --target-rel-error 0.02 --seed S`` command
 (benchmarks/newtonian_pst.py's ``run_point``: start-up included, one process per point, the modules
 byte-compiled as an installed package has them) on the guide scope
 of ``benchmarks/guide_scope.py``, with the default estimator set ("after") and, at ``--before-angles-deg``,
-the set ``--before`` (``reverse``: the default without specular NEE; ``entrance``: without reverse chains
-either; benchmarks/estimator_sets.py) in the same run.
+the set ``--before`` (``reflections``: the default before the thick mirrors, specular NEE through single
+reflections only; ``reverse``: without specular NEE; ``entrance``: without reverse chains either;
+benchmarks/estimator_sets.py) in the same run.
 
 **Reference CPU seconds** (/work's BENCHMARK normalisation, by raw embreex): the command's CPU seconds
 times r / 3.3e6, where r is raw embreex's first-hit rate per CPU second, 1 process, on 1e6 incoherent rays
@@ -42,8 +43,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--angles-deg", type=float, nargs="+", default=[0, 5, 10, 15, 20, 30, 45, 60])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2])
-    ap.add_argument("--before", default="reverse")
-    ap.add_argument("--before-angles-deg", type=float, nargs="*", default=[5, 20, 60])
+    ap.add_argument("--before", default="reflections")
+    ap.add_argument("--before-angles-deg", type=float, nargs="*", default=[5, 10])
     ap.add_argument("--before-seeds", type=int, nargs="+", default=[1])
     ap.add_argument("--max-seconds", type=float, default=60.0)
     ap.add_argument("--no-write", action="store_true")
@@ -72,8 +73,9 @@ def main(argv=None) -> int:
              f"point, max {args.max_seconds:g} s; raw embreex {raw0 / 1e6:.2f} / {raw1 / 1e6:.2f} M/CPU-s before / after "
              f"(reference 3.3): reference CPU s = CPU s x {scale:.2f}; load average {load0:.1f} / {load1:.1f} (shared "
              f"machine); modules byte-compiled as an installed package has them (one untimed warm-up command first; "
-             f"benchmarks/newtonian_pst.py `run_point`). `default` includes entrance sampling, reverse chains and "
-             f"one-interface specular NEE; `{args.before}` is another set (benchmarks/estimator_sets.py).", "",
+             f"benchmarks/newtonian_pst.py `run_point`). `default` includes entrance sampling, reverse chains, "
+             f"tree_split and specular NEE through single reflections and thick mirrors; `{args.before}` is another set "
+             f"(benchmarks/estimator_sets.py).", "",
              "| angle | estimators | seed | reached 2 % & VOV <= 0.1 | rays | CPU s | reference CPU s | rel. error | VOV "
              "| PST |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: (r["angle_deg"], r["estimators"] != "default", r["seed"])):
