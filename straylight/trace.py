@@ -28,7 +28,7 @@ from typing import Any
 
 from straylight.engine.backends.dask import ship_early
 from straylight.engine.compiled_scene import detector_samplers
-from straylight.engine.plan import build_tables, resolve as resolve_plan, without_missing_tables
+from straylight.engine.plan import build_tables, resolve as resolve_plan, without_declined, without_missing_tables
 from straylight.engine.strategies.base import TableTools
 from straylight.engine.strategies import registry
 from straylight.engine.options import (  # noqa: F401 - re-exported
@@ -101,7 +101,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
     slow = any(s.table_ships_early and plan.runs(s.name) for s in registry.STRATEGIES)
     early = ship_early(ex.client, spec) if ex.client is not None and slow else None
     rt = runtime()  # this process's compiled scene and kept tables
-    tools = TableTools(runtime=rt, intersector=intersector, run_batch=run_batch)
+    tools = TableTools(runtime=rt, intersector=intersector, run_batch=run_batch, measured={})
     try:  # each table sees the ones before it (the entrance pilot runs with them)
         spec = build_tables(spec, plan, tools, cache=intersector is None)
     except BaseException:
@@ -109,6 +109,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
             early.release()
         raise
     plan = without_missing_tables(plan, spec, "its table came out empty (its pilot saw no light reach a detector)")
+    plan = without_declined(plan, spec)  # a table that says its strategy does not pay here (the eye chains)
     spec = replace(spec, strategies_on=plan.on)  # the walk runs these, and no other
     results = run_batches(spec, batch_ranges(spec), early=early, **ex.trace_keywords())
     totals = BatchTotals(spec)

@@ -12,7 +12,8 @@ the plan says why in one line instead of dropping it silently. The plan asks, in
   entrance sampling with more than one source, ...).
 
 :func:`straylight.trace.trace` builds the tables of :meth:`StrategyPlan.runs` (:func:`build_tables`),
-puts the names that run on the spec (``TraceSpec.strategies_on``: the walk builds states for those
+turns off the strategies whose tables say they do not pay (:func:`without_declined`: the eye chains
+where their pilot finds their family carries too little of the light), puts the names that run on the spec (``TraceSpec.strategies_on``: the walk builds states for those
 only, :func:`running`) and returns the plan with its result (``TraceResult.strategies``;
 ``straylight trace --json`` writes it as ``strategies``). The kinds' per-part capabilities (which parts NEE or the chains act on) stay with
 the kinds (straylight.engine.interactions).
@@ -96,6 +97,17 @@ def without_missing_tables(plan: StrategyPlan, spec, why: str) -> StrategyPlan:
     return StrategyPlan(tuple(n for n in plan.on if n not in missing), plan.off + tuple((n, why) for n in missing))
 
 
+def without_declined(plan: StrategyPlan, spec) -> StrategyPlan:
+    """``plan`` with each strategy that runs but declines on ``spec`` (its table built:
+    :meth:`Strategy.declines <straylight.engine.strategies.base.Strategy.declines>`) turned off for its
+    reason."""
+    why = {name: registry.BY_NAME[name].declines(spec) for name in plan.on if name in registry.BY_NAME}
+    out = [(n, w) for n, w in why.items() if w is not None]
+    if not out:
+        return plan
+    return StrategyPlan(tuple(n for n in plan.on if why.get(n) is None), plan.off + tuple(out))
+
+
 def _table_missing(strategy: Strategy | None, spec) -> bool:
     field = None if strategy is None else strategy.needs_table
     return field is not None and getattr(spec, field) is None
@@ -119,7 +131,8 @@ def running(spec, intersector=None) -> tuple[str, ...]:
     """The names of the strategies the walk runs on ``spec`` (traced with ``intersector``): the plan's
     (``spec.strategies_on``, set by :func:`straylight.trace.trace`); for a spec without one (make_spec
     and a direct ``run_batch``) the plan resolved here from the spec's options, without the strategies
-    whose tables were not built."""
+    whose tables were not built and those that decline (:func:`without_declined`)."""
     if spec.strategies_on is not None:
         return tuple(spec.strategies_on)
-    return without_missing_tables(resolve(spec.options, spec, intersector), spec, "its table was not built").on
+    plan = without_missing_tables(resolve(spec.options, spec, intersector), spec, "its table was not built")
+    return without_declined(plan, spec).on

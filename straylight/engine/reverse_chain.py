@@ -115,6 +115,12 @@ PILOT_EYES = 200_000
 PILOT_FIRST_EYES = 50_000
 #: share of the eye chains spread evenly over the (detector, side) keys; the rest goes by the pilot's value
 KEY_DEFENSIVE = 0.1
+#: the chains run only where the eye pilot's estimate of their family's power (its source connections)
+#: is at least this share of the entrance pilot's detected power (module doc, "Where the chains pay"):
+#: guide scope, pilots of 10 seeds, 5-20 deg 1.1e-5 to 5.9e-4 (first stage up to 7.3e-4), 30-60 deg
+#: 0.28 and more (first stage 0.079 and more); a family the walk is left with at this share adds at most
+#: ~0.3 % to the relative error even with the walk's worst tail there (60 deg without chains: 94 %)
+EYE_SHARE_OFF = 3e-3
 #: the pilot's chunk streams start here (never reached by a trace's own chunks, nor the entrance pilot's)
 PILOT_CHUNK_OFFSET = 1 << 41
 _GOLDEN = 0.6180339887498949  # Weyl step of a ray's end-point choices over its depth
@@ -262,6 +268,8 @@ class EyeTable:
     pilot_hits: int
     key_prob: np.ndarray  # (2 D,): P of each (detector, side) key; the back keys 0 when one side is counted
     n_keys: int  # D x sides: the keys a cosine draw picks uniformly
+    family_w: float = float("nan")  # the pilot's estimate of the power its chains' family carries, W
+    detected_w: float | None = None  # the entrance pilot's detected power it was weighed against, W
 
     @property
     def key_cdf(self) -> np.ndarray:
@@ -315,7 +323,42 @@ class EyeTable:
         return self.density(np.full(len(eye), j), side, invert_cosine_hemisphere_sample(_local(eye, nz)))
 
 
-def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
+@dataclass(frozen=True)
+class EyesOff:
+    """The eye pilot's verdict that the chains do not pay on this trace (:func:`verdict`): their family
+    carries ``family_w`` (the pilot's source connections, W) of the ``detected_w`` the entrance pilot saw,
+    measured with ``pilot_eyes`` chains. On the spec's ``eye_table``; the plan then turns the strategy off
+    (:meth:`straylight.engine.strategies.reverse_chain.ReverseChainStrategy.declines`)."""
+
+    family_w: float
+    detected_w: float
+    pilot_eyes: int
+
+    @property
+    def share(self) -> float:
+        return self.family_w / self.detected_w
+
+    @property
+    def reason(self) -> str:
+        return (f"the eye pilot's chains carried {self.share:.2g} of the detected power ({self.pilot_eyes} chains, "
+                f"below EYE_SHARE_OFF = {EYE_SHARE_OFF:g}): the walk counts their family")
+
+
+def verdict(x, n_chains: int, detected_w: float | None, share_off: float | None = None) -> EyesOff | None:
+    """:class:`EyesOff` when the eye pilot's chains (source-connection values ``x`` of ``n_chains`` chains:
+    each an unbiased estimate of their family's power) carry less than ``share_off`` (default
+    :data:`EYE_SHARE_OFF`) of ``detected_w``, the entrance pilot's detected power; None (the chains run)
+    otherwise, and whenever that power is unknown, not positive or not finite."""
+    share_off = EYE_SHARE_OFF if share_off is None else float(share_off)
+    if detected_w is None or not np.isfinite(detected_w) or detected_w <= 0 or n_chains <= 0:
+        return None
+    family_w = float(np.sum(x)) / int(n_chains)
+    if not np.isfinite(family_w) or family_w >= share_off * float(detected_w):
+        return None
+    return EyesOff(family_w=max(family_w, 0.0), detected_w=float(detected_w), pilot_eyes=int(n_chains))
+
+
+def build_table(spec, scene, n_eyes: int = PILOT_EYES, detected_w: float | None = None) -> EyeTable | EyesOff | None:
     """Learn the eye chains' draw from a pilot of ``n_eyes`` eye chains (own streams, from
     :data:`PILOT_CHUNK_OFFSET`) joined to the source (module doc, "The eye table"): a first stage of
     :data:`PILOT_FIRST_EYES` cosine-drawn chains of uniform keys, the rest cosine-drawn too on keys drawn
@@ -324,7 +367,9 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
     :func:`straylight.engine.entrance_sampling.table_from_contributions` of them; the keys get P_key
     proportional to the root of their chains' second moment under that table, a :data:`KEY_DEFENSIVE`
     share spread evenly. None when a detector is not flat, the source is linearly polarized or the first
-    stage joined nothing."""
+    stage joined nothing (and ``detected_w`` is not known). With ``detected_w``, the entrance pilot's
+    detected power, W: :class:`EyesOff` when the first stage's chains, or all of them, carry less than
+    :data:`EYE_SHARE_OFF` of it (:func:`verdict`; module doc, "Where the chains pay")."""
     if unsupported(spec) is not None or _source_linear(spec):
         return None
     flat = [_flat_normal(d) for d in scene.detectors]
@@ -339,6 +384,7 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
     D = len(scene.detectors)
     both = spec.options.output.detector_sides == "both"
     stages = []
+    values = []  # per stage: each chain's source-connection value x (an estimate of the family's power)
     keys = None  # the first stage's key probabilities, cosine directions: the rest's draw
     for a, b in ((0, first), (first, n)):
         if b <= a:
@@ -350,12 +396,20 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES) -> EyeTable | None:
         j, side = chain_keys(u_s, D, both, keys)
         # x q: what the chain carries when its key is drawn uniformly (q = P_key n_keys here)
         stages.append((drawn_s, x_s * q, 2 * j + (side < 0)))
+        values.append(x_s)
         if a == 0:
+            off = verdict(x_s, b, detected_w)
+            if off is not None:
+                return off  # the chains would carry too little of the light: the pilot ends here
             if not np.any(x_s > 0):
                 return None  # the first stage joined nothing: no table (module doc)
             first_table = _learn(stages, normals, both, b)
             keys = replace(first_table, tables=(None,) * len(first_table.tables))
-    return _learn(stages, normals, both, n)
+    x_all = np.concatenate(values)
+    off = verdict(x_all, n, detected_w)
+    if off is not None:
+        return off
+    return replace(_learn(stages, normals, both, n), family_w=float(np.sum(x_all)) / n, detected_w=detected_w)
 
 
 def _learn(stages, normals, both: bool, n_traced: int) -> EyeTable:

@@ -4,7 +4,8 @@ the declaration with the hooks the rest of the engine calls:
 
 - :meth:`Strategy.rules_out` (straylight.engine.plan): why it cannot run on this trace, in one line;
 - :meth:`Strategy.build_table` (straylight.trace): the table it learns before the walk, stored on the
-  spec in :attr:`Strategy.table_field`;
+  spec in :attr:`Strategy.table_field`; then :meth:`Strategy.declines` (straylight.engine.plan): its
+  table built, whether it does not pay on this trace (the plan turns it off and says why);
 - :meth:`Strategy.batch_state` and the walk hooks (straylight.engine.walk): its per-batch state, handed
   to the interactions on ``Event.states`` under :attr:`Strategy.state_key`, and what it does at fixed
   points of each event (:meth:`~Strategy.share_walk_hits`, :meth:`~Strategy.after_hits`) and after the
@@ -61,11 +62,14 @@ class TableTools(NamedTuple):
     """What :meth:`Strategy.build_table` may use: this process's ``runtime``
     (straylight.engine.runtime.Runtime: ``runtime.scene(spec, intersector)``), the trace's ``intersector``
     (None: embree) and the compiled walk ``run_batch`` (for pilot traces; passed in, since the walk
-    imports the strategies)."""
+    imports the strategies), and ``measured``: a dict where a table's pilot leaves what it measured for
+    the tables after it (``"detected_w"``: the entrance pilot's estimate of the power on the detectors,
+    W, straylight.engine.strategies.entrance; None: nothing is kept)."""
 
     runtime: Any
     intersector: Any
     run_batch: Any
+    measured: Any = None
 
 
 class BatchContext(NamedTuple):
@@ -126,6 +130,12 @@ class Strategy:
     def build_table(self, spec, tools: TableTools) -> object:
         """Its table for ``spec`` (only called when :attr:`table_field` is set and the plan runs it)."""
         raise NotImplementedError(f"{self.name} declares no table")
+
+    def declines(self, spec) -> str | None:
+        """After the tables: why it does not pay on ``spec`` (its table says so), in one line; None when it
+        runs. The plan turns it off for that reason (:func:`straylight.engine.plan.without_declined`); the
+        estimate stays unbiased: the walk counts what it would have."""
+        return None
 
     # ------------------------------------------------------------------ the walk
 

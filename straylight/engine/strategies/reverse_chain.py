@@ -1,6 +1,7 @@
 """Reverse chains (straylight.engine.reverse_chain): per ray an eye chain from a detector through up to K
 interfaces to a plain scatter point P, joined to the source and to the walk's scatter vertices; the
-walk's own such paths (and split trees or reflection splits after P) are dropped."""
+walk's own such paths (and split trees or reflection splits after P) are dropped. Off where the eye
+pilot finds their family carries too little of the light (:class:`~straylight.engine.reverse_chain.EyesOff`)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -21,7 +22,14 @@ class ReverseChainStrategy(Strategy):
         return None  # without a table (a pilot that joined nothing) the eye directions stay cosine
 
     def build_table(self, spec, tools: TableTools) -> object:
-        return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector))
+        # the entrance pilot (built before, without the chains) leaves its detected power: the eye pilot
+        # weighs its chains' share of the light by it (None: the chains run)
+        detected_w = (tools.measured or {}).get("detected_w")
+        return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector), detected_w=detected_w)
+
+    def declines(self, spec) -> str | None:
+        table = spec.eye_table
+        return table.reason if isinstance(table, impl.EyesOff) else None
 
     def rules_out(self, spec, intersector) -> str | None:
         return impl.unsupported(spec)
