@@ -241,7 +241,7 @@ def test_chains_without_the_table_agree_too(slab_scene, monkeypatch):
     """The same agreement when the pilot gives no table (cosine eye directions)."""
     from straylight.engine import reverse_chain as rc
 
-    monkeypatch.setattr(rc, "build_table", lambda spec, scene, n_eyes=0: None)
+    monkeypatch.setattr(rc, "build_table", lambda spec, scene, n_eyes=0, detected_w=None: None)
     from straylight.engine.runtime import runtime
 
     runtime().forget_tables()
@@ -331,3 +331,117 @@ def test_chains_agree_with_the_analog_walk_when_one_side_sees_the_light(slab_sce
     assert c.power_w > 0 and a.power_w > 0
     assert abs(c.power_w - a.power_w) <= 4 * math.hypot(c.stderr_w, a.stderr_w), (c, a)
     assert abs(chains.ledger["balance_residual_w"]) < 1e-9 * chains.emitted_w
+
+
+# ---------------------------------------------------------------- where the chains pay (EYE_SHARE_OFF)
+
+
+def test_the_verdict_turns_the_chains_off_only_below_the_share():
+    """verdict: the chains' family power is the mean of the pilot's chain values; off (EyesOff) only when
+    it is below EYE_SHARE_OFF x the entrance pilot's detected power, and never when that power is unknown."""
+    from straylight.engine.reverse_chain import EYE_SHARE_OFF, EyesOff, verdict
+
+    x = np.zeros(1000)
+    x[:3] = [1.0, 0.5, 0.5]  # the family: 2 / 1000 = 2e-3 W
+    off = verdict(x, 1000, 1.0, share_off=3e-3)
+    assert isinstance(off, EyesOff) and off.family_w == pytest.approx(2e-3) and off.share == pytest.approx(2e-3)
+    assert "0.002 of the detected power" in off.reason and "1000 chains" in off.reason
+    assert verdict(x, 1000, 1.0, share_off=2e-3) is None  # at the share itself the chains run
+    assert verdict(x, 1000, 0.5, share_off=3e-3) is None  # 4e-3 of a dimmer detector: they run
+    assert verdict(x, 4000, 1.0, share_off=1e-3) is not None  # the same values over 4x the chains: 5e-4
+    for unknown in (None, 0.0, -1.0, float("nan"), float("inf")):  # no detected power to weigh by: they run
+        assert verdict(x, 1000, unknown) is None
+    assert verdict(np.zeros(10), 10, 1.0) is not None  # a pilot that joined nothing, with light on the detector
+    assert verdict(np.array([np.nan]), 1, 1.0) is None
+    assert EYE_SHARE_OFF < 1e-2  # a family the walk is left with stays a small part of the error
+
+
+def test_the_plan_turns_a_declining_strategy_off_with_its_reason():
+    """without_declined: a strategy whose table declines moves to the plan's ``off`` with the reason, the
+    others stay as they were (also in the plan the walk resolves for a spec without one)."""
+    from types import SimpleNamespace
+
+    from straylight.engine.plan import StrategyPlan, without_declined
+    from straylight.engine.reverse_chain import EyesOff
+
+    plan = StrategyPlan(("nee", "entrance", "reverse_chain"), (("target_mis", "no target parts"),))
+    off = EyesOff(family_w=1e-12, detected_w=1e-6, pilot_eyes=50_000)
+    turned = without_declined(plan, SimpleNamespace(eye_table=off))
+    assert turned.on == ("nee", "entrance")
+    assert dict(turned.off) == {"target_mis": "no target parts", "reverse_chain": off.reason}
+    assert "reverse_chain off: the eye pilot's chains carried 1e-06 of the detected power" in turned.notes()[1]
+    assert without_declined(plan, SimpleNamespace(eye_table=None)) == plan
+
+
+def test_the_entrance_pilot_brings_its_batches_to_the_detected_power():
+    """PilotPower: each batch's records summed and scaled by its spec's n_rays (start weight P / N), pooled by
+    rays traced: two batches of 1000 and 2000 of 3000 rays holding 1 W and 4 W of records estimate 5 W."""
+    from types import SimpleNamespace
+
+    from straylight.engine.strategies.entrance import PilotPower
+    from straylight.rng import CHUNK_RAYS
+
+    sums = iter([1.0, 4.0, 0.0])
+    counted = PilotPower(lambda spec, a, b, *rest: {"paths": {"power_w": np.array([next(sums), 0.0])}})
+    assert counted.detected_w is None
+    spec = SimpleNamespace(n_rays=3 * CHUNK_RAYS)
+    counted(spec, 0, 1)
+    assert counted.detected_w == pytest.approx(3.0)  # 1 W over a third of the rays
+    counted(spec, 1, 3)
+    assert counted.detected_w == pytest.approx(5.0)
+    counted(spec, 3, 4)  # past n_rays: nothing traced, nothing pooled
+    assert counted.detected_w == pytest.approx(5.0)
+
+
+def test_the_eye_pilot_ends_at_its_first_stage_when_its_chains_carry_little(slab_scene, monkeypatch):
+    """With the entrance pilot's detected power given: far above the chains' family, the pilot stops after
+    its first stage with EyesOff; far below, it builds the table as before and keeps both powers on it;
+    without it (None), the table as before."""
+    from straylight.engine import reverse_chain as rc
+    from straylight.engine.runtime import runtime
+
+    sc, src, mats = slab_scene
+    spec = make_spec(sc, src, 1_000, 3, mats, TraceOptions(estimator=CHAINS))
+    scene = runtime().scene(spec, None)
+    monkeypatch.setattr(rc, "PILOT_FIRST_EYES", 5_000)
+    table = rc.build_table(spec, scene, n_eyes=20_000)
+    assert isinstance(table, rc.EyeTable) and table.detected_w is None and table.family_w > 0
+    traced = []
+    joined = rc.source_connection
+
+    def counted(spec_, scene_, ends):
+        traced.append(len(ends.ray))
+        return joined(spec_, scene_, ends)
+
+    monkeypatch.setattr(rc, "source_connection", counted)
+    off = rc.build_table(spec, scene, n_eyes=20_000, detected_w=1e6 * table.family_w)
+    assert isinstance(off, rc.EyesOff) and off.pilot_eyes == 5_000 and len(traced) == 1
+    assert off.share < rc.EYE_SHARE_OFF and off.family_w > 0
+    on = rc.build_table(spec, scene, n_eyes=20_000, detected_w=table.family_w)
+    assert isinstance(on, rc.EyeTable) and on.detected_w == table.family_w and on.pilot_eyes == 20_000
+
+
+def test_chains_turned_off_by_their_pilot_leave_the_walk_agreeing(slab_scene, analog_slab, monkeypatch):
+    """Entrance sampling and the split trees with the chains asked for: on the slab their family is all
+    the light and they run; with EYE_SHARE_OFF raised past any share the plan turns them off, says why,
+    and the walk counts their family itself: the estimate agrees with the analog walk within 4 sigma and
+    the ledger stays exact."""
+    from straylight.engine import reverse_chain as rc
+    from straylight.engine.runtime import runtime
+
+    est = EstimatorOptions(nee=True, entrance_sampling=True, delta_chain=4, reverse_chain=4)
+    runtime().forget_tables()
+    kept = _run(slab_scene, 5_000, 8, est)
+    assert "reverse_chain" in kept.strategies.on
+    monkeypatch.setattr(rc, "EYE_SHARE_OFF", 1e9)
+    runtime().forget_tables()
+    try:
+        res = _run(slab_scene, 20_000, 9, est)
+    finally:
+        runtime().forget_tables()  # the kept eye table holds this verdict
+    why = dict(res.strategies.off).get("reverse_chain", "")
+    assert "eye pilot's chains carried" in why, res.strategies
+    b, a = res.detectors["det"], analog_slab.detectors["det"]
+    assert b.power_w > 0
+    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
+    assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
