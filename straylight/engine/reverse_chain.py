@@ -95,8 +95,8 @@ deg (0.45 / 0.64 / 0.90 of the variance); their vertex connections, which the pi
 carry < 1e-6 of the power at 5-20 deg and 1.5e-5 / 6.5e-6 / 2.3e-3 at 30 / 45 / 60 deg. Turning the
 chains off at 5-20 deg leaves the estimate and its error as they were (0.97 %, 1.32 %, 1.25 % at 6e4 rays,
 seed 1) and saves their cost: whole ``pst --target-rel-error 0.02`` commands (seeds 1 and 2, two rounds
-alternated with the rule's absence) 0.38-0.45 CPU s less at 5, 10 and 20 deg (8-9 % of ~4.9 CPU s), the
-eye pilot ending after its first stage (docs/engine.md, "Where the eye chains pay"). A family left to the walk at the limit share adds at most ~0.3 % to the relative error even
+alternated with the rule's absence) 0.53-0.56 CPU s less at 5, 10 and 20 deg (11 % of ~5 CPU s), 0.12 less at
+0 deg, the eye pilot ending after its first stage (docs/engine.md, "Where the eye chains pay"). A family left to the walk at the limit share adds at most ~0.3 % to the relative error even
 with the walk's worst tail there (60 deg without the chains: 94 % at 6e4 rays). What the rule cannot see:
 a family lit only by scattered light (vertex connections only) on a scene whose direct source family is
 small; the walk then counts it alone, as before the strategy.
