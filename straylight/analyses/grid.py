@@ -78,7 +78,9 @@ class TraceJob:
 class PointRun:
     """One finished point: its numbers (``values``), the rays traced, the wall time of its trace, the
     reliability of its error estimate (``diagnostics``: vov, rel_error_of_error, max_chunk_share; with a
-    precision target also stop_reason and rounds), and its TraceResult when the grid keeps traces."""
+    precision target also stop_reason and rounds; strategies_off: the strategies asked for that did not run
+    and why, e.g. the eye chains where their pilot found they carry too little of the light), and its
+    TraceResult when the grid keeps traces."""
 
     values: dict
     rays: int
@@ -159,6 +161,8 @@ def _trace_point(point: GridPoint, tj: TraceJob, execution: Execution, rays, pre
                        "rounds": len(run.rounds)}
     seconds = time.perf_counter() - t0
     values = tj.values(res.detectors[tj.detector])
+    plan = getattr(res, "strategies", None)  # the strategies asked for that did not run, and why (pst.json)
+    diagnostics["strategies_off"] = {} if plan is None else {name: why for name, why in plan.off}
     return PointRun(values, int(res.n_rays), seconds, diagnostics, res if keep_traces else None)
 
 

@@ -316,8 +316,10 @@ class PstResult(TableRepr, ResultFiles):
                 "flags": FLAGS, "points": clean}
 
     def csv_table(self) -> tuple:
-        """pst.csv: the CONTRACTS columns, the diagnostics, the flags."""
-        return CSV_COLUMNS + DIAGNOSTIC_COLUMNS + (FLAG_COLUMN,), self.flagged_rows()
+        """pst.csv: the CONTRACTS columns, the diagnostics, the flags (pst.json's other keys, such as a
+        point's ``strategies_off``, stay in pst.json)."""
+        columns = CSV_COLUMNS + DIAGNOSTIC_COLUMNS + (FLAG_COLUMN,)
+        return columns, [{k: r[k] for k in columns if k in r} for r in self.flagged_rows()]
 
     def plot(self, path=None, quantity: str = "pst", ax=None, label_prefix: str = ""):
         """Log-scale plot of ``quantity`` ("pst" or "entrance_ratio") vs off-axis angle, 1-sigma bars.

@@ -110,3 +110,26 @@ def test_checkpoint_of_an_earlier_version_is_refused_in_one_line(tmp_path, capsy
     err = capsys.readouterr().err.strip()
     assert rc != 0 and len(err.splitlines()) == 1 and "another version of straylight" in err
     assert "Traceback" not in err
+
+
+def test_each_point_says_which_strategies_did_not_run_and_why(grid, tmp_path):
+    """A point's diagnostics carry its trace's plan (the strategies asked for that did not run, with the
+    plan's reason: on the golden tube, which has no glass, the eye chains); pst.json keeps them per point,
+    pst.csv keeps its columns."""
+    import numpy as np
+
+    from straylight.analyses.types import CSV_COLUMNS, PstResult
+
+    points, job = grid
+    run = run_grid(points[:1], job, rays=1000)[0]
+    off = run.diagnostics["strategies_off"]
+    assert "no interface" in off["reverse_chain"], off
+    ones = np.ones(1)
+    res = PstResult(off_axis_deg=ones * 0.0, azimuth_deg=ones * 0.0, pst=ones * 1e-5, pst_stderr=ones * 1e-7,
+                    entrance_ratio=ones, entrance_ratio_stderr=ones * 0.01, detector_w=ones,
+                    detector_stderr_w=ones * 0.01, seconds=ones, rays=1000, seed=0, nee=True, detector="det",
+                    detector_area_mm2=1.0, beam_power_w=1.0, diagnostics=[run.diagnostics])
+    doc = json.loads(res.write_json(tmp_path / "pst.json").read_text())
+    assert doc["points"][0]["strategies_off"] == off
+    header = (res.write_csv(tmp_path / "pst.csv")).read_text().splitlines()[0].split(",")
+    assert "strategies_off" not in header and header[:len(CSV_COLUMNS)] == list(CSV_COLUMNS)
