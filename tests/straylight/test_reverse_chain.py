@@ -407,16 +407,16 @@ def test_the_eye_pilot_ends_at_its_first_stage_when_its_chains_carry_little(slab
     table = rc.build_table(spec, scene, n_eyes=20_000)
     assert isinstance(table, rc.EyeTable) and table.detected_w is None and table.family_w > 0
     traced = []
-    joined = rc.source_connection
+    trace_chains = rc.EyeChains.trace
 
-    def counted(spec_, scene_, ends):
-        traced.append(len(ends.ray))
-        return joined(spec_, scene_, ends)
+    def counted(self, spec_, scene_, u, table_):
+        traced.append(len(u))
+        return trace_chains(self, spec_, scene_, u, table_)
 
-    monkeypatch.setattr(rc, "source_connection", counted)
+    monkeypatch.setattr(rc.EyeChains, "trace", counted)
     off = rc.build_table(spec, scene, n_eyes=20_000, detected_w=1e6 * table.family_w)
-    assert isinstance(off, rc.EyesOff) and off.pilot_eyes == 5_000 and len(traced) == 1
-    assert off.share < rc.EYE_SHARE_OFF and off.family_w > 0
+    assert isinstance(off, rc.EyesOff) and off.pilot_eyes == 5_000 and traced == [5_000]
+    assert off.share < rc.EYE_SHARE_OFF and off.family_w > off.scattered_w > 0  # the slab's wall lights the plate
     on = rc.build_table(spec, scene, n_eyes=20_000, detected_w=table.family_w)
     assert isinstance(on, rc.EyeTable) and on.detected_w == table.family_w and on.pilot_eyes == 20_000
 
@@ -445,3 +445,63 @@ def test_chains_turned_off_by_their_pilot_leave_the_walk_agreeing(slab_scene, an
     assert b.power_w > 0
     assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
     assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+
+
+def test_the_once_scattered_light_agrees_with_the_walks_own_paths(slab_scene):
+    """once_scattered (the guard the verdict adds where the source connections alone say off): from the
+    eye chains' end points P on the plate and the wall, the light the beam scatters once before them
+    (source -> A -> P -> slab -> detector, A and P matte). The analog walk's records of that family (events:
+    two scatters on the matte parts, then only the slab's faces, at most 4 of them) are the independent
+    reference: within 4 sigma (measured: 2.16e-5 +- 0.04e-5 W against 2.09e-5 +- 0.27e-5 W)."""
+    from straylight.engine import reverse_chain as rc
+    from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
+    from straylight.engine.runtime import runtime
+
+    sc, src, mats = slab_scene
+    spec = make_spec(sc, src, 1_000, 3, mats, TraceOptions(estimator=CHAINS))
+    scene = runtime().scene(spec, None)
+    eyes = rc.EyeChains(4, rc.parts_with(spec, rc.Capability.DELTA_CHAIN), rc.scatter_ends(spec))
+    n = 200_000
+    ends, _, _ = eyes.trace(spec, scene, rc.eye_uniforms(spec, 0, n // 1000, n, rc.PILOT_CHUNK_OFFSET), None)
+    x = rc.once_scattered(spec, scene, ends, n, eyes.splits, eyes.end_material, 0)
+    pilot, pilot_err = x.mean(), x.std() / math.sqrt(n)
+    walk = trace(sc, src, 1_000_000, seed=4, materials=mats,
+                 options=TraceOptions(estimator=ANALOG, output=OutputOptions(record_paths=True, path_depth=8)))
+    p = walk.paths
+    names = list(p.part_names)
+    events, depth = np.asarray(p.events), np.asarray(p.depth)
+    matte = [names.index(m) * 4 + EVENT_SCATTER for m in ("plate", "wall")]
+    faces = [names.index(f) * 4 + EVENT_SPECULAR for f in ("top", "bottom")]
+    sel = np.isin(events[:, 0], matte) & np.isin(events[:, 1], matte) & (depth >= 3) & (depth <= 6)
+    for c in range(2, events.shape[1]):
+        sel &= (depth <= c) | np.isin(events[:, c], faces)
+    y = np.bincount(np.asarray(p.ray)[sel], np.asarray(p.power_w)[sel], minlength=walk.n_rays)
+    ref, ref_err = y.sum(), math.sqrt(float((y * y).sum() - y.sum() ** 2 / walk.n_rays))
+    assert np.count_nonzero(x) > 100 and np.count_nonzero(y) > 20, (np.count_nonzero(x), np.count_nonzero(y))
+    assert abs(pilot - ref) <= 4 * math.hypot(pilot_err, ref_err), (pilot, pilot_err, ref, ref_err)
+
+
+def test_the_verdict_keeps_the_chains_where_the_once_scattered_light_carries_the_share(slab_scene, monkeypatch):
+    """_judge: with a detected power between what the source connections alone and what they and the
+    once-scattered light carry would turn off, the chains stay on; with the once-scattered light taken
+    away (monkeypatched to nothing) the same power turns them off."""
+    from straylight.engine import reverse_chain as rc
+    from straylight.engine.runtime import runtime
+
+    sc, src, mats = slab_scene
+    spec = make_spec(sc, src, 1_000, 3, mats, TraceOptions(estimator=CHAINS))
+    scene = runtime().scene(spec, None)
+    eyes = rc.EyeChains(4, rc.parts_with(spec, rc.Capability.DELTA_CHAIN), rc.scatter_ends(spec))
+    n = 20_000
+    ends, _, _ = eyes.trace(spec, scene, rc.eye_uniforms(spec, 0, n // 1000, n, rc.PILOT_CHUNK_OFFSET), None)
+    g, raw, _, _ = rc.source_connection(spec, scene, ends)
+    x = np.bincount(ends.ray[g], weights=raw, minlength=n)
+    scattered = rc.once_scattered(spec, scene, ends, n, eyes.splits, eyes.end_material, 0)
+    assert scattered.sum() > 0
+    # the source connections carry 1e-3 of it (off), with the once-scattered light 1e-3 x (1 + s / x) (on)
+    detected = x.mean() / 1e-3
+    monkeypatch.setattr(rc, "EYE_SHARE_OFF", 1e-3 * (1 + 0.5 * scattered.sum() / x.sum()))
+    assert rc._judge(spec, scene, eyes, [x], [ends], detected) is None
+    monkeypatch.setattr(rc, "once_scattered", lambda spec_, scene_, e, m, *rest: np.zeros(m))
+    off = rc._judge(spec, scene, eyes, [x], [ends], detected)
+    assert isinstance(off, rc.EyesOff) and off.scattered_w == 0.0
