@@ -100,8 +100,8 @@ deg (0.45 / 0.64 / 0.90 of the variance); their vertex connections (of any order
 carry < 1e-6 of the power at 5-20 deg and 1.5e-5 / 6.5e-6 / 2.3e-3 at 30 / 45 / 60 deg. Turning the
 chains off at 5-20 deg leaves the estimate and its error as they were (0.97 %, 1.32 %, 1.25 % at 6e4 rays,
 seed 1) and saves their cost: whole ``pst --target-rel-error 0.02`` commands (seeds 1 and 2, two rounds
-alternated with the rule's absence) 0.53-0.56 CPU s less at 5, 10 and 20 deg (11 % of ~5 CPU s), 0.12 less at
-0 deg, the eye pilot ending after its first stage (docs/engine.md, "Where the eye chains pay"). A family left to the walk at the limit share adds at most ~0.3 % to the relative error even
+alternated with the rule's absence, three rounds) 0.52-0.56 CPU s less at 5, 10 and 20 deg (11-12 % of ~4.7
+CPU s), 0.08 less at 0 deg, the eye pilot ending after its first stage (docs/engine.md, "Where the eye chains pay"). A family left to the walk at the limit share adds at most ~0.3 % to the relative error even
 with the walk's worst tail there (60 deg without the chains: 94 % at 6e4 rays). The once-scattered light
 costs ~10 ms on the guide scope (~900 end points per 5e4 chains; 1e-14 to 1e-8 of the detected power at
 0-20 deg, so it changes no verdict there). What the rule still cannot see: light scattered two or more
