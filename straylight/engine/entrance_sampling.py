@@ -88,6 +88,10 @@ PILOT_RAYS = 30_000
 PILOT_FIRST_RAYS = 10_000
 #: rays of the first stage with a detector contribution that let the rest draw from its table (module doc)
 PILOT_GUIDE_HITS = 1_000
+#: rays per step of the guided rest of the pilot (module doc)
+PILOT_GUIDED_STEP_RAYS = 5_000
+#: effective sample size of the guided rays' contributions (importance-weighted) that ends the guided rest
+PILOT_GUIDED_ENOUGH_ESS = 200.0
 #: effective sample size of the first stage's contributions that ends the pilot (~ half the 64 x 64 scale's
 #: cells: an average such cell seen by one ray's worth of light at least)
 PILOT_ENOUGH_ESS = 2_000.0
@@ -263,12 +267,30 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> 
     assert first_table is not None  # it has lit rays
     guided = replace(pilot, options=replace(pilot_opts, estimator=replace(pilot_opts.estimator, entrance_sampling=True)),
                      entrance_table=first_table)
-    x += _contributions(run_batch(guided, first, n_chunks(n), intersector), n)
-    rho = np.ones(n)
-    rest = u[n1:, 1:3].copy()
+    # in steps, until the guided rays' contributions hold PILOT_GUIDED_ENOUGH_ESS rays' worth of light
+    # (module doc); the steps continue the same streams with the same table, so a pilot that never
+    # stops early is the one-call guided stage bit for bit
+    m = _guided_rest(guided, run_batch, intersector, x, first, n)
+    rho = np.ones(m)
+    rest = u[n1:m, 1:3].copy()
     rho[n1:] = warp(first_table, rest)
-    u[n1:, 1:3] = rest
-    return table_from_contributions(u[:, 1:3], x / rho, rho=rho)
+    u[n1:m, 1:3] = rest
+    return table_from_contributions(u[:m, 1:3], x[:m] / rho, rho=rho)
+
+
+def _guided_rest(guided, run_batch, intersector, x: np.ndarray, first: int, n: int) -> int:
+    """Trace the guided rest of the pilot (chunks ``first`` on, ``n`` rays in all) in steps of
+    :data:`PILOT_GUIDED_STEP_RAYS`, adding each ray's contribution to ``x`` (in place), until the
+    guided rays' effective sample size reaches :data:`PILOT_GUIDED_ENOUGH_ESS`; returns the rays
+    traced (first stage included)."""
+    n1, stop = first * CHUNK_RAYS, n_chunks(n)
+    step = max(1, n_chunks(PILOT_GUIDED_STEP_RAYS))
+    for k in range(first, stop, step):
+        x += _contributions(run_batch(guided, k, min(k + step, stop), intersector), n)
+        m = min((k + step) * CHUNK_RAYS, n)
+        if effective_sample_size(x[n1:m]) >= PILOT_GUIDED_ENOUGH_ESS:
+            return m
+    return n
 
 
 def _contributions(res, n: int) -> np.ndarray:
