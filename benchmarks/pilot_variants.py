@@ -40,13 +40,13 @@ VARIANTS = {
     "other_streams": ({}, None),  # the same pilot on other streams: how far a table's own noise moves a row
     "guided_whole": ({}, None),  # the guided rest never stops early (the pilot before PILOT_GUIDED_ENOUGH_ESS)
     "guided_ess_100": ({}, None),
-    "guided_ess_400": ({}, None),
+    "guided_ess_200": ({}, None),
 }
 #: variant -> the entrance_sampling constants it sets
 CONSTANTS = {
     "guided_whole": {"PILOT_GUIDED_ENOUGH_ESS": float("inf")},
     "guided_ess_100": {"PILOT_GUIDED_ENOUGH_ESS": 100.0},
-    "guided_ess_400": {"PILOT_GUIDED_ENOUGH_ESS": 400.0},
+    "guided_ess_200": {"PILOT_GUIDED_ENOUGH_ESS": 200.0},
 }
 OTHER_STREAMS = 1 << 36  # added to the pilot's first chunk by "other_streams" (and per --stream-set)
 

@@ -91,7 +91,7 @@ PILOT_GUIDE_HITS = 1_000
 #: rays per step of the guided rest of the pilot (module doc)
 PILOT_GUIDED_STEP_RAYS = 5_000
 #: effective sample size of the guided rays' contributions (importance-weighted) that ends the guided rest
-PILOT_GUIDED_ENOUGH_ESS = 200.0
+PILOT_GUIDED_ENOUGH_ESS = 400.0
 #: effective sample size of the first stage's contributions that ends the pilot (~ half the 64 x 64 scale's
 #: cells: an average such cell seen by one ray's worth of light at least)
 PILOT_ENOUGH_ESS = 2_000.0
