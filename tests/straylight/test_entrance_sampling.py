@@ -268,11 +268,12 @@ def _fake_guided_pilot(lit_per_step: int | None):
     return run_batch, calls
 
 
-@pytest.mark.parametrize("enough_ess, stop_rays", [(200.0, 15_000), (7_000.0, 20_000), (12_000.0, 25_000), (25_000.0, 30_000)])
+@pytest.mark.parametrize("enough_ess, stop_rays", [(400.0, 20_000), (10_000.0, 20_000), (15_000.0, 30_000),
+                                                   (25_000.0, 30_000)])
 def test_the_guided_rest_stops_in_steps_once_its_rays_have_seen_enough(wide_slab, enough_ess, stop_rays):
     """The guided rest runs in steps of PILOT_GUIDED_STEP_RAYS and ends after the first step whose guided
-    rays' contributions reach PILOT_GUIDED_ENOUGH_ESS (5000 evenly lit rays a step: the first step, the
-    second, the third, or never before the whole pilot); the table has the rays traced."""
+    rays' contributions reach PILOT_GUIDED_ENOUGH_ESS (10000 evenly lit rays a step: the first step, or
+    the second, the last, reached or not); the table has the rays traced."""
     from straylight.trace import make_spec
 
     sc, src, mats = wide_slab
@@ -282,20 +283,20 @@ def test_the_guided_rest_stops_in_steps_once_its_rays_have_seen_enough(wide_slab
         mp.setattr(entrance_sampling, "PILOT_GUIDED_ENOUGH_ESS", enough_ess)
         table = entrance_sampling.build_table(spec, run_batch)
     first, step = entrance_sampling.PILOT_FIRST_RAYS // 1000, entrance_sampling.PILOT_GUIDED_STEP_RAYS // 1000
-    assert (first, step) == (10, 5)
+    assert (first, step) == (10, 10)
     assert calls == [(0, first)] + [(k, k + step) for k in range(first, stop_rays // 1000, step)]
     assert table.pilot_rays == stop_rays
 
 
 def test_a_guided_rest_that_sees_little_runs_the_whole_pilot(wide_slab):
-    """Two lit guided rays a step (effective sample size 2, 4, 6, 8): every step runs."""
+    """Two lit guided rays a step (effective sample size 2, then 4): every step runs."""
     from straylight.trace import make_spec
 
     sc, src, mats = wide_slab
     spec = make_spec(sc, src, 1_000, 5, mats, ENTRANCE)
     run_batch, calls = _fake_guided_pilot(2)
     table = entrance_sampling.build_table(spec, run_batch)
-    assert calls == [(0, 10), (10, 15), (15, 20), (20, 25), (25, 30)]
+    assert calls == [(0, 10), (10, 20), (20, 30)]
     assert table.pilot_rays == entrance_sampling.PILOT_RAYS
 
 
