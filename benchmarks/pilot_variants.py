@@ -2,7 +2,7 @@
 
     PYTHONPATH=$PWD:benchmarks .venv/bin/python benchmarks/pilot_variants.py --scene SCENE.toml
         [--variants as_is nee_split_64 ...] [--angles-deg 5 10 15 20 30 45 60] [--seeds 1 2 3 4 5 6]
-        [--rays 100000]
+        [--rays 100000] [--stream-set 0]
 
 Each variant changes the entrance pilot only (straylight.engine.entrance_sampling: the estimator options
 of :func:`~straylight.engine.entrance_sampling.pilot_estimator`, the pilot's ray count, its scatter's
@@ -11,7 +11,9 @@ each point as ``variance_paths.py`` does (the default set, the same per-point se
 and angle: the pilot's CPU seconds, and over the seeds the median (mean) of CPU s x rel^2 (%^2) and of
 rel^2 alone (the table's quality, which does not depend on the machine's load; the table serves every
 angle, so look at all of them). The variants run in this process one after the other: CPU seconds compare
-within one run only. docs/engine.md, "The pilot's cost", has the measurements.
+within one run only. ``--stream-set K`` moves every variant's pilot to other streams (K = 0: its own): at
+angles where the table's own draw moves a row (5, 15 and 60 deg on the guide scope) compare variants over
+several stream sets. docs/engine.md, "The pilot's cost", has the measurements.
 """
 from __future__ import annotations
 
@@ -38,15 +40,11 @@ VARIANTS = {
     "rays_2e4": ({}, 20_000),
     "unpolarized_scatter": ({}, None),  # the pilot's scatter vertices ignore the arriving polarization
     "other_streams": ({}, None),  # the same pilot on other streams: how far a table's own noise moves a row
-    "guided_whole": ({}, None),  # the guided rest never stops early (the pilot before PILOT_GUIDED_ENOUGH_ESS)
-    "guided_ess_100": ({}, None),
-    "guided_ess_200": ({}, None),
+    "uniform_rest": ({}, None),  # the rest of the pilot uniform, never guided (the pilot before its guided rest)
 }
 #: variant -> the entrance_sampling constants it sets
 CONSTANTS = {
-    "guided_whole": {"PILOT_GUIDED_ENOUGH_ESS": float("inf")},
-    "guided_ess_100": {"PILOT_GUIDED_ENOUGH_ESS": 100.0},
-    "guided_ess_200": {"PILOT_GUIDED_ENOUGH_ESS": 200.0},
+    "uniform_rest": {"PILOT_GUIDE_HITS": float("inf")},
 }
 OTHER_STREAMS = 1 << 36  # added to the pilot's first chunk by "other_streams" (and per --stream-set)
 

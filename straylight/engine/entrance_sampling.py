@@ -18,7 +18,7 @@ the flattened cells) and the residual of that pick, uniform on [0, 1) and indepe
 becomes the position in the cell along u1: the ray keeps its own 5 emission uniforms and draws
 nothing more, so results stay identical for any batch, thread or worker split.
 
-**The table** is learnt before the run by a pilot trace of at most :data:`PILOT_RAYS` rays with the same
+**The table** is learnt before the run by a pilot trace of :data:`PILOT_RAYS` rays with the same
 estimators except reverse chains (whose source connections do not depend on the entrance point: on the
 guide scope their cosine-drawn chains put single heavy values on random cells; without them the walk
 counts that family itself, from the entrance points that light it), and with at most
@@ -56,19 +56,6 @@ in 6 went from 1.6 % to 5-20 % at 1e5 rays). Over 6 seeds at 1e5 rays, CPU s x r
 (mean) uniform -> guided: 5 deg 13.7 (14.3) -> 12.6 (11.8); 10 deg 30.0 (31.2) -> 28.6 (30.2); 15 deg 164
 (912) -> 48 (83); 20 deg 19.2 (20.7) -> 19.7 (22.0); 30 deg 25.3 (31.3) -> 22.6 (29.9).
 
-**The guided rest stops when it has seen enough.** It runs in steps of :data:`PILOT_GUIDED_STEP_RAYS`
-and ends after the first step at which the guided rays' contributions (each with the first table's factor
-1 / p(u): the run's estimator with that table) have an effective sample size of
-:data:`PILOT_GUIDED_ENOUGH_ESS`. For contributions with coefficient of variation cv, ESS ~ n / (1 + cv^2):
-the rule traces guided rays in proportion to how far the first table is from the light, ~400 (1 + cv^2).
-Where the first table already fits (guide scope 5, 10, 20 deg: cv 3-6 among the guided rays) 1e4-1.5e4
-guided rays do; where the guided rays still meet heavy ones (15 deg, the thin ghost met at the defensive
-floor; 30 deg, the dew shield's scatter into the ghost: ESS 14-400 after 2e4) the whole rest runs. The
-steps continue the same streams with the same first table, so a pilot that does not stop early is the
-one-call pilot bit for bit, and the table still depends only on scene, sources, options and seed.
-A rule at ESS 200 (5e3-1e4 guided rays at 5-20 deg) left more heavy-tailed runs at 15 deg (docs/engine.md,
-"The pilot's cost").
-
 **The finest grid** (:data:`GRID` = 256 cells per side, with the 64, 16 and 4 grids of :data:`SCALES`)
 resolves the ghost of the direct beam, narrower than a 64-grid cell (guide scope, 6 seeds at 1e5 rays,
 CPU s x rel^2 median with the 64 grid -> 256: 5 deg 13.9 -> 5.4, 10 deg 16.8 -> 5.2, 15 deg 67 -> 24,
@@ -101,10 +88,6 @@ PILOT_RAYS = 30_000
 PILOT_FIRST_RAYS = 10_000
 #: rays of the first stage with a detector contribution that let the rest draw from its table (module doc)
 PILOT_GUIDE_HITS = 1_000
-#: rays per step of the guided rest of the pilot (module doc)
-PILOT_GUIDED_STEP_RAYS = 10_000
-#: effective sample size of the guided rays' contributions (importance-weighted) that ends the guided rest
-PILOT_GUIDED_ENOUGH_ESS = 400.0
 #: effective sample size of the first stage's contributions that ends the pilot (~ half the 64 x 64 scale's
 #: cells: an average such cell seen by one ray's worth of light at least)
 PILOT_ENOUGH_ESS = 2_000.0
@@ -280,30 +263,12 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> 
     assert first_table is not None  # it has lit rays
     guided = replace(pilot, options=replace(pilot_opts, estimator=replace(pilot_opts.estimator, entrance_sampling=True)),
                      entrance_table=first_table)
-    # in steps, until the guided rays' contributions hold PILOT_GUIDED_ENOUGH_ESS rays' worth of light
-    # (module doc); the steps continue the same streams with the same table, so a pilot that never
-    # stops early is the one-call guided stage bit for bit
-    m = _guided_rest(guided, run_batch, intersector, x, first, n)
-    rho = np.ones(m)
-    rest = u[n1:m, 1:3].copy()
+    x += _contributions(run_batch(guided, first, n_chunks(n), intersector), n)
+    rho = np.ones(n)
+    rest = u[n1:, 1:3].copy()
     rho[n1:] = warp(first_table, rest)
-    u[n1:m, 1:3] = rest
-    return table_from_contributions(u[:m, 1:3], x[:m] / rho, rho=rho)
-
-
-def _guided_rest(guided, run_batch, intersector, x: np.ndarray, first: int, n: int) -> int:
-    """Trace the guided rest of the pilot (chunks ``first`` on, ``n`` rays in all) in steps of
-    :data:`PILOT_GUIDED_STEP_RAYS`, adding each ray's contribution to ``x`` (in place), until the
-    guided rays' effective sample size reaches :data:`PILOT_GUIDED_ENOUGH_ESS`; returns the rays
-    traced (first stage included)."""
-    n1, stop = first * CHUNK_RAYS, n_chunks(n)
-    step = max(1, n_chunks(PILOT_GUIDED_STEP_RAYS))
-    for k in range(first, stop, step):
-        x += _contributions(run_batch(guided, k, min(k + step, stop), intersector), n)
-        m = min((k + step) * CHUNK_RAYS, n)
-        if effective_sample_size(x[n1:m]) >= PILOT_GUIDED_ENOUGH_ESS:
-            return m
-    return n
+    u[n1:, 1:3] = rest
+    return table_from_contributions(u[:, 1:3], x / rho, rho=rho)
 
 
 def _contributions(res, n: int) -> np.ndarray:

@@ -240,85 +240,8 @@ def test_the_rest_of_the_pilot_draws_from_the_first_stages_table_when_enough_ray
         rays = np.arange(first * 1000, stop * 1000)
         return {"paths": {"ray": rays, "power_w": np.ones(len(rays))}}
 
-    monkeypatch.setattr(entrance_sampling, "PILOT_GUIDED_ENOUGH_ESS", math.inf)  # the whole rest
     table = entrance_sampling.build_table(spec, run_batch)
-    assert len(specs) > 1 and specs[0].entrance_table is None and not specs[0].options.estimator.entrance_sampling
-    for guided in specs[1:]:
-        assert guided.options.estimator.entrance_sampling and guided.entrance_table is specs[1].entrance_table
-        assert guided.entrance_table is not None and guided.chunk_offset == entrance_sampling.PILOT_CHUNK_OFFSET
+    assert len(specs) == 2 and specs[0].entrance_table is None and not specs[0].options.estimator.entrance_sampling
+    assert specs[1].options.estimator.entrance_sampling and specs[1].entrance_table is not None
+    assert specs[1].chunk_offset == entrance_sampling.PILOT_CHUNK_OFFSET
     assert table.pilot_rays == entrance_sampling.PILOT_RAYS
-
-
-def _fake_guided_pilot(lit_per_step: int | None):
-    """A run_batch whose first-stage rays all reach the detector with weights 1, 2, ... (many lit rays,
-    a low effective sample size: the rest is guided) and whose guided rays each reach it with weight 1
-    (``lit_per_step`` None) or only the first ``lit_per_step`` rays of each call (a guided stage that
-    has seen little)."""
-    calls = []
-
-    def run_batch(pilot, first, stop, intersector=None):
-        calls.append((first, stop))
-        rays = np.arange(first * 1000, stop * 1000)
-        if pilot.entrance_table is None:
-            return {"paths": {"ray": rays, "power_w": np.exp(rays / 500.0)}}
-        if lit_per_step is not None:
-            rays = rays[:lit_per_step]
-        return {"paths": {"ray": rays, "power_w": np.ones(len(rays))}}
-
-    return run_batch, calls
-
-
-@pytest.mark.parametrize("enough_ess, stop_rays", [(400.0, 20_000), (10_000.0, 20_000), (15_000.0, 30_000),
-                                                   (25_000.0, 30_000)])
-def test_the_guided_rest_stops_in_steps_once_its_rays_have_seen_enough(wide_slab, enough_ess, stop_rays):
-    """The guided rest runs in steps of PILOT_GUIDED_STEP_RAYS and ends after the first step whose guided
-    rays' contributions reach PILOT_GUIDED_ENOUGH_ESS (10000 evenly lit rays a step: the first step, or
-    the second, the last, reached or not); the table has the rays traced."""
-    from straylight.trace import make_spec
-
-    sc, src, mats = wide_slab
-    spec = make_spec(sc, src, 1_000, 5, mats, ENTRANCE)
-    run_batch, calls = _fake_guided_pilot(None)
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(entrance_sampling, "PILOT_GUIDED_ENOUGH_ESS", enough_ess)
-        table = entrance_sampling.build_table(spec, run_batch)
-    first, step = entrance_sampling.PILOT_FIRST_RAYS // 1000, entrance_sampling.PILOT_GUIDED_STEP_RAYS // 1000
-    assert (first, step) == (10, 10)
-    assert calls == [(0, first)] + [(k, k + step) for k in range(first, stop_rays // 1000, step)]
-    assert table.pilot_rays == stop_rays
-
-
-def test_a_guided_rest_that_sees_little_runs_the_whole_pilot(wide_slab):
-    """Two lit guided rays a step (effective sample size 2, then 4): every step runs."""
-    from straylight.trace import make_spec
-
-    sc, src, mats = wide_slab
-    spec = make_spec(sc, src, 1_000, 5, mats, ENTRANCE)
-    run_batch, calls = _fake_guided_pilot(2)
-    table = entrance_sampling.build_table(spec, run_batch)
-    assert calls == [(0, 10), (10, 20), (20, 30)]
-    assert table.pilot_rays == entrance_sampling.PILOT_RAYS
-
-
-def test_a_guided_rest_in_steps_learns_the_table_of_one_call(wide_slab, monkeypatch):
-    """The steps continue the same streams with the same first table: without the early stop, the guided
-    rest in steps gives the very table of one call over all its rays (the walk, a glass slab)."""
-    from straylight.engine.walk import run_batch
-    from straylight.trace import make_spec
-
-    sc, src, mats = wide_slab
-    spec = make_spec(sc, src, 1_000, 5, mats, ENTRANCE)
-    monkeypatch.setattr(entrance_sampling, "PILOT_ENOUGH_ESS", math.inf)
-    monkeypatch.setattr(entrance_sampling, "PILOT_GUIDE_HITS", 100)
-    monkeypatch.setattr(entrance_sampling, "PILOT_FIRST_RAYS", 3_000)
-    monkeypatch.setattr(entrance_sampling, "PILOT_GUIDED_ENOUGH_ESS", math.inf)
-    monkeypatch.setattr(entrance_sampling, "PILOT_GUIDED_STEP_RAYS", 2_000)
-    steps = entrance_sampling.build_table(spec, run_batch, n_rays=9_000)
-    monkeypatch.setattr(entrance_sampling, "PILOT_GUIDED_STEP_RAYS", 6_000)
-    one = entrance_sampling.build_table(spec, run_batch, n_rays=9_000)
-    assert steps.pilot_hits > 100 and steps.pilot_rays == one.pilot_rays == 9_000
-    np.testing.assert_array_equal(steps.prob, one.prob)
-    # and the rule, once it may stop, stops this pilot early (the slab's guided rays are evenly lit)
-    monkeypatch.setattr(entrance_sampling, "PILOT_GUIDED_ENOUGH_ESS", 50.0)
-    monkeypatch.setattr(entrance_sampling, "PILOT_GUIDED_STEP_RAYS", 2_000)
-    assert entrance_sampling.build_table(spec, run_batch, n_rays=9_000).pilot_rays < 9_000
