@@ -2,7 +2,7 @@
 
     PYTHONPATH=$PWD:benchmarks .venv/bin/python benchmarks/pilot_variants.py --scene SCENE.toml
         [--variants as_is nee_split_64 ...] [--angles-deg 5 10 15 20 30 45 60] [--seeds 1 2 3 4 5 6]
-        [--rays 100000]
+        [--rays 100000] [--stream-set 0]
 
 Each variant changes the entrance pilot only (straylight.engine.entrance_sampling: the estimator options
 of :func:`~straylight.engine.entrance_sampling.pilot_estimator`, the pilot's ray count, its scatter's
@@ -11,7 +11,9 @@ each point as ``variance_paths.py`` does (the default set, the same per-point se
 and angle: the pilot's CPU seconds, and over the seeds the median (mean) of CPU s x rel^2 (%^2) and of
 rel^2 alone (the table's quality, which does not depend on the machine's load; the table serves every
 angle, so look at all of them). The variants run in this process one after the other: CPU seconds compare
-within one run only. docs/engine.md, "The pilot's cost", has the measurements.
+within one run only. ``--stream-set K`` moves every variant's pilot to other streams (K = 0: its own): at
+angles where the table's own draw moves a row (5, 15 and 60 deg on the guide scope) compare variants over
+several stream sets. docs/engine.md, "The pilot's cost", has the measurements.
 """
 from __future__ import annotations
 
@@ -38,17 +40,26 @@ VARIANTS = {
     "rays_2e4": ({}, 20_000),
     "unpolarized_scatter": ({}, None),  # the pilot's scatter vertices ignore the arriving polarization
     "other_streams": ({}, None),  # the same pilot on other streams: how far a table's own noise moves a row
+    "uniform_rest": ({}, None),  # the rest of the pilot uniform, never guided (the pilot before its guided rest)
 }
-OTHER_STREAMS = 1 << 36  # added to the pilot's first chunk by "other_streams"
+#: variant -> the entrance_sampling constants it sets
+CONSTANTS = {
+    "uniform_rest": {"PILOT_GUIDE_HITS": float("inf")},
+}
+OTHER_STREAMS = 1 << 36  # added to the pilot's first chunk by "other_streams" (and per --stream-set)
 
 
-def _with_variant(name: str):
-    """Patch the entrance pilot to variant ``name``; returns the dict its timing goes to."""
+def _with_variant(name: str, stream_set: int = 0):
+    """Patch the entrance pilot to variant ``name`` on the pilot's stream set ``stream_set`` (0: its
+    own); returns the dict its timing goes to and the undo."""
     from straylight.engine import entrance_sampling as es
 
     changes, rays = VARIANTS[name]
     base, build = es.pilot_estimator, es.build_table
     seen: dict = {}
+    constants = {k: getattr(es, k) for k in CONSTANTS.get(name, {})}
+    for k, v in CONSTANTS.get(name, {}).items():
+        setattr(es, k, v)
 
     def estimator(est):
         return replace(base(est), **changes)
@@ -57,12 +68,12 @@ def _with_variant(name: str):
         c0 = time.process_time()
         table = build(spec, run_batch, intersector, rays or n_rays)
         seen["cpu_s"] = time.process_time() - c0
+        seen["pilot_rays"] = 0 if table is None else table.pilot_rays
         return table
 
     es.pilot_estimator, es.build_table = estimator, timed
     offset = es.PILOT_CHUNK_OFFSET
-    if name == "other_streams":
-        es.PILOT_CHUNK_OFFSET = offset + OTHER_STREAMS
+    es.PILOT_CHUNK_OFFSET = offset + OTHER_STREAMS * (int(stream_set) * 2 + (name == "other_streams"))
     patched = []
     if name == "unpolarized_scatter":  # the scatter vertices' arriving polarization, in the pilot only
         from straylight.engine import specular_nee
@@ -77,6 +88,8 @@ def _with_variant(name: str):
 
     def undo():
         es.pilot_estimator, es.build_table, es.PILOT_CHUNK_OFFSET = base, build, offset
+        for k, v in constants.items():
+            setattr(es, k, v)
         for module, own in patched:
             module.arriving = own
 
@@ -92,11 +105,13 @@ def main(argv=None) -> int:
     ap.add_argument("--angles-deg", type=float, nargs="+", default=[5, 10, 15, 20, 30, 45, 60])
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6])
     ap.add_argument("--rays", type=float, default=1e5)
+    ap.add_argument("--stream-set", type=int, default=0,
+                    help="the pilot's streams moved by 2 x this x 2^36 chunks (0: its own; a table's own noise)")
     args = ap.parse_args(argv)
     setup = variance_paths._setup(argparse.Namespace(builtin=False, newtonian=False, scene=args.scene))
     rows = []
     for name in args.variants:
-        seen, undo = _with_variant(name)
+        seen, undo = _with_variant(name, args.stream_set)
         try:
             for angle in args.angles_deg:
                 runs = []
@@ -104,7 +119,8 @@ def main(argv=None) -> int:
                     with contextlib.redirect_stdout(io.StringIO()):  # variance_paths' per-run report
                         r = variance_paths.run(setup, angle, seed, "default", int(args.rays), 1)
                     runs.append((r["cpu_s"], r["rel"] ** 2 * 1e4, seen.get("cpu_s", float("nan"))))
-                    print(f"{name} {angle:g} deg seed {seed}: {r['cpu_s']:.2f} CPU s (pilot {runs[-1][2]:.2f}), "
+                    print(f"{name} {angle:g} deg seed {seed}: {r['cpu_s']:.2f} CPU s (pilot {runs[-1][2]:.2f}, "
+                          f"{seen.get('pilot_rays', 0)} rays), "
                           f"rel. error {r['rel']:.2%}, VOV {r['vov']:.3g}", flush=True)
                 rows.append((name, angle, runs))
         finally:

@@ -54,7 +54,10 @@ guide scope at 45-60 deg: ~50-500 lit rays in 1e4, effective sample size 1-4) wo
 own few cells, and the run's other families would lose the coarse scales' mass (measured: at 60 deg 2 runs
 in 6 went from 1.6 % to 5-20 % at 1e5 rays). Over 6 seeds at 1e5 rays, CPU s x rel^2 (%^2) median
 (mean) uniform -> guided: 5 deg 13.7 (14.3) -> 12.6 (11.8); 10 deg 30.0 (31.2) -> 28.6 (30.2); 15 deg 164
-(912) -> 48 (83); 20 deg 19.2 (20.7) -> 19.7 (22.0); 30 deg 25.3 (31.3) -> 22.6 (29.9).
+(912) -> 48 (83); 20 deg 19.2 (20.7) -> 19.7 (22.0); 30 deg 25.3 (31.3) -> 22.6 (29.9). Ending the guided
+rest early, once its rays' contributions have a large enough effective sample size, was tried and not kept
+(a walk call costs ~0.1 CPU s of its own; 15 deg's thin region does not show in that statistic;
+docs/engine.md, "The pilot's cost").
 
 **The finest grid** (:data:`GRID` = 256 cells per side, with the 64, 16 and 4 grids of :data:`SCALES`)
 resolves the ghost of the direct beam, narrower than a 64-grid cell (guide scope, 6 seeds at 1e5 rays,
