@@ -1,4 +1,4 @@
-"""Start numba's CPU target once per process without importing scipy.linalg (nor cffi); here,
+"""Start numba's CPU target once per process without importing scipy.linalg; here,
 in the lowest package that compiles code, so that whichever package compiles first (a material's loop,
 the engine's kernels) starts it this way.
 
@@ -16,12 +16,6 @@ check for BLAS again when they are compiled, and then import scipy for real. Not
 scipy.linalg is already imported, when the target is already initialised, or after the first
 call; if numba ever fails with the import blocked, the target is initialised again normally.
 
-The same start also leaves out cffi: numba's typing context imports ``numba.core.typing.cffi_utils``,
-whose module body imports cffi and makes a ``cffi.FFI()`` (which loads cffi's C parser, pycparser):
-0.02-0.03 CPU s per process. With ``import cffi`` made to fail the same way, numba records that cffi
-is not there (``cffi_utils.SUPPORTED`` is False): jitted code of this process cannot call cffi
-functions (no kernel of this project does). Nothing is done for cffi when it is already imported.
-
 Cached kernels do not depend on it: numba's cache index is keyed on the signature, the target
 and the source file, and kernels loaded from it are the same machine code either way.
 """
@@ -30,17 +24,15 @@ from __future__ import annotations
 import sys
 import threading
 
-# imports made to fail while the target starts: scipy.linalg (the package: importing scipy.linalg.cython_blas runs
-# its __init__ first) and cffi (numba.core.typing.cffi_utils)
-_BLOCKED = ("scipy.linalg", "cffi")
+_BLOCKED = "scipy.linalg"  # the package: importing scipy.linalg.cython_blas runs its __init__ first
 _DONE: list = []
 _LOCK = threading.Lock()
 
 
 def start_numba() -> None:
-    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg and cffi.
+    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg.
 
-    ``sys.modules["scipy.linalg"]`` (and ``["cffi"]``) is None while the target starts: Python's import system then
+    ``sys.modules["scipy.linalg"]`` is None while the target starts: Python's import system then
     raises ModuleNotFoundError for it (the documented way to block an import; no import hook). That
     holds for the whole process for these ~0.1 s, so the engine starts numba before it starts threads:
     :meth:`straylight.engine.runtime.Runtime.start`, the first thing a command or a dask worker does."""
@@ -51,24 +43,16 @@ def start_numba() -> None:
             return
         from numba.core.registry import cpu_target
 
-        # nothing to save for a module already loaded, or when the target is up
-        blocked = [] if "numba.np.arraymath" in sys.modules else [m for m in _BLOCKED if m not in sys.modules]
-        for name in blocked:
-            sys.modules[name] = None  # type: ignore[assignment]
-        try:
-            cpu_target.target_context.refresh()
-        except Exception:  # noqa: BLE001 - an unforeseen numba: start it the normal way
-            if not blocked:
-                raise
-            _unblock(blocked)
-            cpu_target.target_context.refresh()
-        finally:
-            _unblock(blocked)
+        if _BLOCKED in sys.modules or "numba.np.arraymath" in sys.modules:
+            cpu_target.target_context.refresh()  # nothing to save: scipy is loaded, or the target is up
+        else:
+            sys.modules[_BLOCKED] = None  # type: ignore[assignment]
+            try:
+                cpu_target.target_context.refresh()
+            except Exception:  # noqa: BLE001 - an unforeseen numba: start it the normal way
+                del sys.modules[_BLOCKED]
+                cpu_target.target_context.refresh()
+            finally:
+                if _BLOCKED in sys.modules and sys.modules[_BLOCKED] is None:
+                    del sys.modules[_BLOCKED]
         _DONE.append(True)
-
-
-def _unblock(names) -> None:
-    """Let ``names`` be imported again (those :func:`start_numba` made to fail)."""
-    for name in names:
-        if name in sys.modules and sys.modules[name] is None:
-            del sys.modules[name]
