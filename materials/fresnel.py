@@ -155,8 +155,9 @@ def scatter_azimuth(wi, wo) -> tuple[np.ndarray, np.ndarray]:
     phi_r = 0 is the specular half-plane (CONTRACTS §1). At normal incidence the
     plane of incidence is taken as xz (phi_i = pi); at theta_r = 0, phi_r = 0.
     """
-    wi = np.ascontiguousarray(wi, dtype=float)
-    wo = np.ascontiguousarray(wo, dtype=float)
+    # contiguous and writable: one compiled loop (numba types a read-only array apart: a kernel more to load)
+    wi = np.require(wi, dtype=float, requirements=("C", "W"))
+    wo = np.require(wo, dtype=float, requirements=("C", "W"))
     return lazy_njit(_scatter_azimuth_loop)(wi.reshape(-1, 3), wo.reshape(-1, 3))
 
 

@@ -131,7 +131,7 @@ def sample_cosine_hemisphere(u2: np.ndarray) -> np.ndarray:
 
     ``r = sqrt(u0)``, ``phi = 2 pi u1``, ``w = (r cos phi, r sin phi, sqrt(1 - r^2))`` (PHYSICS §3).
     """
-    u2 = np.asarray(u2, dtype=np.float64)
+    u2 = np.ascontiguousarray(u2, dtype=np.float64)  # one layout, one compiled loop (direction_uniforms' view is another)
     if u2.ndim != 2 or u2.shape[1] != 2:
         raise ValueError(f"uniforms u2 must have shape (n, 2), got {u2.shape}")
     return lazy_njit(_cosine_hemisphere_loop)(u2, np.empty((len(u2), 3)))

@@ -103,7 +103,7 @@ def _probe_reaches_box(source, lo, hi, n=256) -> bool:
     g = np.random.default_rng(0)
     u = np.empty((n, 5))
     u[:, 1:] = g.random((n, 4))
-    o, d = source.emit(u[:, 1:])  # a strided view, as the engine passes them: the same compiled kernel
+    o, d = source.emit(u[:, 1:])  # a strided view, as the engine passes them
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / d
         t1 = (lo - o) * inv

@@ -155,7 +155,7 @@ class CollimatedDisk:
         object.__setattr__(self, "_basis", orthonormal_basis(self.normal))
 
     def emit(self, u):
-        u = np.asarray(u, dtype=np.float64)
+        u = np.ascontiguousarray(u, dtype=np.float64)  # one layout, one compiled loop (a strided view is another)
         if u.ndim != 2 or u.shape[1] < 2:
             raise SourceError(f"collimated_disk source: uniforms u must have shape (n, >= 2), got {u.shape}")
         o = np.empty((len(u), 3))

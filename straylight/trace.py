@@ -26,7 +26,6 @@ import warnings
 from dataclasses import replace
 from typing import Any
 
-from straylight.engine.backends.dask import ship_early
 from straylight.engine.compiled_scene import detector_samplers
 from straylight.engine.plan import build_tables, resolve as resolve_plan, without_declined, without_missing_tables
 from straylight.engine.strategies.base import TableTools
@@ -99,7 +98,11 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
     plan = resolve_plan(options or TraceOptions(), spec, intersector)  # which strategies run, and why not
     # on dask, the workers get the spec and build their scenes while this process builds the tables
     slow = any(s.table_ships_early and plan.runs(s.name) for s in registry.STRATEGIES)
-    early = ship_early(ex.client, spec) if ex.client is not None and slow else None
+    early = None
+    if ex.client is not None and slow:
+        from straylight.engine.backends.dask import ship_early  # on dask only (scheduling.run_batches says why)
+
+        early = ship_early(ex.client, spec)
     rt = runtime()  # this process's compiled scene and kept tables
     tools = TableTools(runtime=rt, intersector=intersector, run_batch=run_batch, measured={})
     try:  # each table sees the ones before it (the entrance pilot runs with them)

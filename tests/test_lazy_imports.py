@@ -157,3 +157,25 @@ def test_building_the_command_line_parser_loads_no_heavy_library():
     project = {"straylight.engine.diffraction", "straylight.engine.edge_index", "straylight.analyses.paths_report",
                "straylight.trace", "straylight.engine.backends.dask"} & set(loaded)
     assert not heavy and not project, f"building the parser imported {heavy + sorted(project)}"
+
+
+def test_an_in_process_run_loads_no_cluster_code():
+    """A trace on this process (every ``straylight pst`` or ``trace`` without ``--workers``/``--scheduler``)
+    imports the dask backend only when a cluster is asked for (straylight.cli.cluster_args.cluster_client,
+    straylight.engine.scheduling.run_batches, straylight.trace.trace): its module brings asyncio, sockets and the fork server, ~0.02 CPU s of each
+    command's start."""
+    import subprocess
+
+    code = ("import argparse, sys, straylight.cli.main, straylight.cli.pst, straylight.api, straylight.trace, "
+            "straylight.analyses.pst, straylight.engine.scheduling\n"
+            "from straylight.cli.cluster_args import execution\n"
+            "with execution(argparse.Namespace(workers=None, scheduler=None), in_process_below=2) as ex:\n"
+            "    assert ex.client is None\n"
+            "with execution(argparse.Namespace(workers=1, scheduler=None), in_process_below=2) as ex:\n"
+            "    assert ex.client is None\n"
+            "print(' '.join(sorted(sys.modules)))")
+    loaded = set(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                                cwd=ROOT).stdout.split())
+    cluster = {"straylight.engine.backends.dask", "straylight.engine.backends.fork_server", "asyncio",
+               "dask", "distributed"} & loaded
+    assert not cluster, f"an in-process run imported {sorted(cluster)}"

@@ -56,12 +56,14 @@ def cluster_client(args, in_process_below: int = 1):
     """The dask client the options ask for (``--workers K``: a loopback-only local cluster of K threads,
     or K processes with ``--processes``; ``--scheduler``: that scheduler, with TLS if given), or None to
     run in this process (also for ``--workers`` below ``in_process_below``: sweeps run one worker here)."""
-    from straylight.engine.backends.dask import dask_client, tls_security
-
     workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
     dashboard, processes = getattr(args, "dashboard", False), getattr(args, "processes", False)
-    security = tls_security(getattr(args, "tls_ca_file", None), getattr(args, "tls_cert", None),
-                            getattr(args, "tls_key", None))
+    tls_files = (getattr(args, "tls_ca_file", None), getattr(args, "tls_cert", None), getattr(args, "tls_key", None))
+    security = None
+    if any(tls_files):
+        from straylight.engine.backends.dask import tls_security
+
+        security = tls_security(*tls_files)
     if security is not None and not scheduler:
         raise ValueError("--tls-ca-file/--tls-cert/--tls-key apply to --scheduler only (a local cluster uses no network)")
     if dashboard and not workers:
@@ -72,6 +74,11 @@ def cluster_client(args, in_process_below: int = 1):
         raise ValueError(f"--workers must be >= 1, got {workers}")
     if getattr(args, "allow_insecure", False) and not scheduler:
         raise ValueError("--allow-insecure applies to --scheduler only")
+    if not scheduler and (workers is None or workers < max(1, int(in_process_below))):
+        yield None  # this process runs it (dask_client's answer too), without importing the dask backend
+        return
+    from straylight.engine.backends.dask import dask_client
+
     with dask_client(workers, scheduler, security=security, dashboard=dashboard,
                      in_process_below=in_process_below, processes=processes,
                      allow_insecure=getattr(args, "allow_insecure", False) or None) as client:

@@ -5,7 +5,6 @@ straylight.engine.backends.threads) or on dask (straylight.engine.backends.dask)
 order, so every way gives the same numbers."""
 from __future__ import annotations
 
-from straylight.engine.backends.dask import run_distributed
 from straylight.engine.backends.threads import run_local, run_threads
 from straylight.engine.spec import AUTO_BATCH_RAYS
 from straylight.rng import batches
@@ -22,6 +21,10 @@ def run_batches(spec, ranges, workers=None, client=None, scheduler=None, interse
     is given (``early``: the spec already sent to ``client``'s workers, straylight.engine.backends.dask.ship_early),
     else on ``threads`` threads, else one after another."""
     if workers is not None or client is not None or scheduler is not None:
+        # dask's backend only when a cluster is asked for: its module brings asyncio, sockets and the fork
+        # server (~0.02 CPU s) that an in-process run (every `straylight pst` without --workers) never uses
+        from straylight.engine.backends.dask import run_distributed
+
         return run_distributed(spec, ranges, workers=workers, client=client, scheduler=scheduler, security=security,
                                early=early)
     if threads is not None and int(threads) > 1:

@@ -172,7 +172,10 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             strategy.after_interactions(state, event, cont, out)
         shadow_rays += event.shadow_rays
         tallies.reserve(ADVANCE_WRITES_PER_RAY * len(cont))
-        rays, _kept = next_rays(kernels.advance(cont, out, rays, hit, U[:, columns.roulette], settings,
+        # the roulette column as its own array: one compiled advance (a column view is typed 'A', or 'C' when it
+        # has one row: each layout is a kernel of its own to load, ~8 ms)
+        roulette_u = np.ascontiguousarray(U[:, columns.roulette])
+        rays, _kept = next_rays(kernels.advance(cont, out, rays, hit, roulette_u, settings,
                                                 ev == max_events - 1, tallies.kernel_arg, rows))
         if diff is not None:
             skip = np.full((len(rays.ray), 3), -1, dtype=np.int64)

@@ -48,3 +48,15 @@ def test_lambertian_sample_albedo():
     s = Lambertian(0.3).sample(wi, u)
     assert np.all(s.weight == 0.3)
     np.testing.assert_allclose(Lambertian(0.3).pdf(wi, s.wo), s.pdf_per_sr, rtol=1e-15)
+
+
+def test_one_compiled_loop_for_any_layout_of_the_uniforms():
+    """A column view of (n, 3) uniforms (Lambertian's ``direction_uniforms``) and a contiguous (n, 2) array run
+    the same compiled loop (numba types each layout apart: another kernel to load at each start)."""
+    from materials.sampling import _COMPILED, _cosine_hemisphere_loop
+
+    u = np.random.default_rng(3).random((50, 3))
+    a = sample_cosine_hemisphere(u[:, 1:])
+    b = sample_cosine_hemisphere(np.ascontiguousarray(u[:, 1:]))
+    np.testing.assert_array_equal(a, b)
+    assert len(_COMPILED[_cosine_hemisphere_loop].signatures) == 1, _COMPILED[_cosine_hemisphere_loop].signatures

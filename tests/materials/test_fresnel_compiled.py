@@ -92,3 +92,21 @@ def test_fresnel_amplitudes_are_numpys_to_the_bit(m):
         assert np.array_equal(np.signbit(g.imag), np.signbit(w.imag))
     if np.imag(m) == 0 and np.real(m) < 1:
         assert (np.abs(got[0][c < 0.5]) > 1 - 1e-12).all()  # total internal reflection below the critical angle
+
+
+def test_read_only_directions_run_the_same_compiled_loop():
+    """Read-only inputs (numba types them apart from writable ones) are copied: one compiled azimuth loop."""
+    from materials.fresnel import _scatter_azimuth_loop
+    from materials.sampling import _COMPILED
+
+    rng = np.random.default_rng(5)
+    wi, wo = _directions(rng, 40), _directions(rng, 40)
+    expected = scatter_azimuth(wi, wo)
+    wi.flags.writeable = False
+    got = scatter_azimuth(wi, wo)
+    wo.flags.writeable = False
+    got2 = scatter_azimuth(wi, wo)
+    for e, g, g2 in zip(expected, got, got2):
+        np.testing.assert_array_equal(e, g)
+        np.testing.assert_array_equal(e, g2)
+    assert len(_COMPILED[_scatter_azimuth_loop].signatures) == 1, _COMPILED[_scatter_azimuth_loop].signatures

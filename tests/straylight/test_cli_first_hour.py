@@ -85,3 +85,36 @@ def test_view_without_a_display_says_where_the_picture_went(tmp_path, monkeypatc
     assert main(["view", str(step)]) == 0
     assert "no display: wrote the picture to scene.png" in capsys.readouterr().out
     assert (tmp_path / "scene.png").is_file()
+
+
+def _subcommands(parser) -> dict:
+    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+
+
+def _surface(parser) -> list:
+    """Every (subcommand path, option strings, dest, default, type, choices, nargs, help) of ``parser``."""
+    return [(path, tuple(a.option_strings), a.dest, repr(a.default), getattr(a.type, "__name__", repr(a.type)),
+             tuple(a.choices) if isinstance(a.choices, (list, tuple)) else None, a.nargs, a.help)
+            for path, p in _parsers(parser) for a in p._actions if not isinstance(a, argparse._SubParsersAction)]
+
+
+def test_a_command_builds_only_its_own_group_and_the_same_subparser():
+    """A run of ``straylight CMD`` builds only CMD's group (main.GROUP_OF_COMMAND): the table names the module
+    that registers each own command, and the command's parser is the full parser's, flag for flag."""
+    import importlib
+
+    from straylight.cli.main import GROUP_OF_COMMAND, OWN_GROUPS
+
+    registered = {}
+    for module in OWN_GROUPS:
+        sub = argparse.ArgumentParser().add_subparsers()
+        importlib.import_module(module).add_parser(sub)
+        registered.update(dict.fromkeys(sub.choices, module))
+    assert GROUP_OF_COMMAND == registered
+    full = _subcommands(build_parser())
+    for command in GROUP_OF_COMMAND:
+        own = _subcommands(build_parser(command))
+        assert command in own and set(own) <= set(GROUP_OF_COMMAND)
+        assert _surface(own[command]) == _surface(full[command]), command
+    assert "rig" in full and "rig" not in _subcommands(build_parser("pst"))  # entry points: only when needed
+    assert set(_subcommands(build_parser("rig"))) == set(full)  # another package's command: the full parser

@@ -287,3 +287,20 @@ def test_nee_agrees_with_the_walk_on_a_glossy_material():
     assert a.power_w > 0 and b.power_w > 0
     assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w)
     assert abs(on.emitted_w - _total(on)) <= 1e-9 * on.emitted_w
+
+
+def test_advance_gets_one_array_layout(monkeypatch):
+    """The walk passes advance a contiguous roulette column whatever the batch: numba compiles (and a start
+    loads from its cache) one advance per argument layout, and a column view is 'A' (or 'C' with one row)."""
+    from straylight.engine import walk
+
+    compiled_advance = walk.COMPILED.advance
+    seen = []
+
+    def advance(cont, out, rays, hit, roulette_u, *rest):
+        seen.append(roulette_u.flags.c_contiguous)
+        return compiled_advance(cont, out, rays, hit, roulette_u, *rest)
+
+    monkeypatch.setattr(walk, "COMPILED", walk.COMPILED._replace(advance=advance))
+    trace(_plate_scene(), PLATE_SRC, 3000, seed=5, materials=PLATE_MATS)
+    assert seen and all(seen)

@@ -33,3 +33,18 @@ def test_collimated_disk_rejects_bad_uniforms():
         src.emit(np.zeros((4, 1)))
     o, d = src.emit(np.zeros((0, 4)))
     assert o.shape == d.shape == (0, 3)
+
+
+def test_one_compiled_loop_for_strided_and_contiguous_uniforms():
+    """emit() of a column view (the tracer's) and of a contiguous array (the checks') run the same compiled loop:
+    numba types each array layout apart, and each is a kernel to load from the cache at every start (~3 ms)."""
+    from materials.sampling import _COMPILED
+    from straylight.sources import _collimated_loop
+
+    src = CollimatedDisk([0, 0, 0], [0, 0, 1], [0, 0, -1], 1.0)
+    u = np.random.default_rng(1).random((64, 5))
+    strided, _ = src.emit(u[:, 1:])
+    contiguous, _ = src.emit(np.ascontiguousarray(u[:, 1:]))
+    src.emit(u[:1, 1:])  # one row: numba would type this view 'C'
+    np.testing.assert_array_equal(strided, contiguous)
+    assert len(_COMPILED[_collimated_loop].signatures) == 1, _COMPILED[_collimated_loop].signatures
