@@ -447,6 +447,20 @@ def test_chains_turned_off_by_their_pilot_leave_the_walk_agreeing(slab_scene, an
     assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
 
 
+def _slab_pilot_chains(slab_scene, n):
+    """The slab scene's spec, compiled scene, eye chains (K = 4) and the end points of ``n`` chains drawn
+    on the eye pilot's streams, as the eye pilot traces them."""
+    from straylight.engine import reverse_chain as rc
+    from straylight.engine.runtime import runtime
+
+    sc, src, mats = slab_scene
+    spec = make_spec(sc, src, 1_000, 3, mats, TraceOptions(estimator=CHAINS))
+    scene = runtime().scene(spec, None)
+    eyes = rc.EyeChains(4, rc.parts_with(spec, rc.Capability.DELTA_CHAIN), rc.scatter_ends(spec))
+    ends, _, _ = eyes.trace(spec, scene, rc.eye_uniforms(spec, 0, n // 1000, n, rc.PILOT_CHUNK_OFFSET), None)
+    return spec, scene, eyes, ends
+
+
 def test_the_once_scattered_light_agrees_with_the_walks_own_paths(slab_scene):
     """once_scattered (the guard the verdict adds where the source connections alone say off): from the
     eye chains' end points P on the plate and the wall, the light the beam scatters once before them
@@ -455,14 +469,10 @@ def test_the_once_scattered_light_agrees_with_the_walks_own_paths(slab_scene):
     reference: within 4 sigma (measured: 2.16e-5 +- 0.04e-5 W against 2.09e-5 +- 0.27e-5 W)."""
     from straylight.engine import reverse_chain as rc
     from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
-    from straylight.engine.runtime import runtime
 
     sc, src, mats = slab_scene
-    spec = make_spec(sc, src, 1_000, 3, mats, TraceOptions(estimator=CHAINS))
-    scene = runtime().scene(spec, None)
-    eyes = rc.EyeChains(4, rc.parts_with(spec, rc.Capability.DELTA_CHAIN), rc.scatter_ends(spec))
     n = 200_000
-    ends, _, _ = eyes.trace(spec, scene, rc.eye_uniforms(spec, 0, n // 1000, n, rc.PILOT_CHUNK_OFFSET), None)
+    spec, scene, eyes, ends = _slab_pilot_chains(slab_scene, n)
     x = rc.once_scattered(spec, scene, ends, n, eyes.splits, eyes.end_material, 0)
     pilot, pilot_err = x.mean(), x.std() / math.sqrt(n)
     walk = trace(sc, src, 1_000_000, seed=4, materials=mats,
@@ -486,14 +496,9 @@ def test_the_verdict_keeps_the_chains_where_the_once_scattered_light_carries_the
     once-scattered light carry would turn off, the chains stay on; with the once-scattered light taken
     away (monkeypatched to nothing) the same power turns them off."""
     from straylight.engine import reverse_chain as rc
-    from straylight.engine.runtime import runtime
 
-    sc, src, mats = slab_scene
-    spec = make_spec(sc, src, 1_000, 3, mats, TraceOptions(estimator=CHAINS))
-    scene = runtime().scene(spec, None)
-    eyes = rc.EyeChains(4, rc.parts_with(spec, rc.Capability.DELTA_CHAIN), rc.scatter_ends(spec))
     n = 20_000
-    ends, _, _ = eyes.trace(spec, scene, rc.eye_uniforms(spec, 0, n // 1000, n, rc.PILOT_CHUNK_OFFSET), None)
+    spec, scene, eyes, ends = _slab_pilot_chains(slab_scene, n)
     g, raw, _, _ = rc.source_connection(spec, scene, ends)
     x = np.bincount(ends.ray[g], weights=raw, minlength=n)
     scattered = rc.once_scattered(spec, scene, ends, n, eyes.splits, eyes.end_material, 0)
