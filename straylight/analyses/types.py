@@ -232,37 +232,13 @@ def _plain_log_ticks(axis) -> None:
     axis.set_minor_formatter(PlainLogFormatter(labelOnlyBase=False))
 
 
-def _tight_layout(fig, pad: float = 1.08) -> None:
+def _tight_layout(fig) -> None:
     """``fig.tight_layout()``'s layout (same subplot parameters, same pixels), done once: ``Figure.tight_layout``
     leaves a placeholder layout engine on the figure, for which ``savefig`` lays the figure out again with a
-    throwaway draw before the real one (a tenth of a second for a log axis with many ticks).
-
-    For one Axes, from one measure of its decorations: each margin is how far the Axes' tight box reaches past
-    its position, plus ``pad`` font sizes (matplotlib's ``_tight_layout._auto_adjust_subplotpars``).
-    matplotlib measures twice (its second pass, for a ``rect`` inside the figure, gives the same margins for
-    the whole figure and one Axes): ~0.03 CPU s a plot. Other figures go through matplotlib's engine."""
-    import matplotlib as mpl
-    from matplotlib.font_manager import FontProperties
+    throwaway draw before the real one (a tenth of a second for a log axis with many ticks)."""
     from matplotlib.layout_engine import TightLayoutEngine
 
-    axes = fig.axes
-    if len(axes) != 1 or fig._suptitle is not None or fig._supxlabel is not None or fig._supylabel is not None:
-        TightLayoutEngine(pad=pad).execute(fig)
-        return
-    ax = axes[0]
-    renderer = fig.canvas.get_renderer()
-    tight = fig.transFigure.inverted().transform_bbox(ax.get_tightbbox(renderer, for_layout_only=True))
-    box = ax.get_position(original=True)
-    width_in, height_in = fig.get_size_inches()
-    pad_in = pad * FontProperties(size=mpl.rcParams["font.size"]).get_size_in_points() / 72
-    left = max(box.xmin - tight.xmin, 0) + pad_in / width_in
-    right = max(tight.xmax - box.xmax, 0) + pad_in / width_in
-    top = max(tight.ymax - box.ymax, 0) + pad_in / height_in
-    bottom = max(box.ymin - tight.ymin, 0) + pad_in / height_in
-    if left + right < 1 and bottom + top < 1:  # else matplotlib warns and leaves the layout: so do we
-        fig.subplots_adjust(left=left, right=1 - right, bottom=bottom, top=1 - top)
-    else:
-        TightLayoutEngine(pad=pad).execute(fig)
+    TightLayoutEngine().execute(fig)
 
 
 @dataclass(frozen=True, eq=False)
