@@ -222,7 +222,7 @@ def _fresnel_amplitudes_loop(c, m2, two_m, out):
     (``(x + 0j) z``; one product is then exact zero, so numpy's fused multiply-add changes nothing),
     complex quotients as numpy forms them (Smith's rule with a reciprocal)."""
 
-    def cdiv(a, b):
+    def cdiv(a, b):  # also in materials/rayleigh_rice.py's kernel: numba's cache does not see a change in a jitted callee
         ar, ai, br, bi = a.real, a.imag, b.real, b.imag
         if abs(br) >= abs(bi):
             if br == 0.0 and bi == 0.0:

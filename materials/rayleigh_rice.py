@@ -150,7 +150,9 @@ def _rr_mueller_loop(wi, wo, s_i, e1, eps, n_idx, first_row_only, F, M):
     """:func:`add_rayleigh_rice_mueller` row by row: :func:`rayleigh_rice_mueller_numpy`'s operations
     (real times complex as numpy casts it: ``(x + 0j) z``), then the updates of M."""
 
-    def cdiv(a, b):  # a / b as numpy's complex division forms it (Smith's rule, with a reciprocal)
+    # a / b as numpy's complex division forms it (Smith's rule, with a reciprocal); also in materials/fresnel.py's
+    # kernel: a closure in each, since numba's cache does not see a change in a jitted callee of another module
+    def cdiv(a, b):
         ar, ai, br, bi = a.real, a.imag, b.real, b.imag
         if abs(br) >= abs(bi):
             if br == 0.0 and bi == 0.0:
