@@ -29,7 +29,56 @@ def refine_on_surfaces(spec, part, origin, d, distance_mm, last_part, front, fac
     """Mesh hits (``origin + distance_mm d`` on ``part``) refined onto the parts' analytic surfaces:
     (front, facing normal, exact point, refined, passing). ``front`` and ``facing`` (the facet's)
     are updated in place where refined; a hit that refines outside the clear aperture or back onto
-    the ray's own origin on its last part passes through (``passing``)."""
+    the ray's own origin on its last part passes through (``passing``). Each part's rows are written
+    in one compiled pass (:func:`_refined_rows_loop`, :func:`refine_on_surfaces_numpy`'s operations in
+    its order: the same bits)."""
+    m = len(part)
+    exact = np.zeros((m, 3))
+    refined = np.zeros(m, bool)
+    passing = np.zeros(m, bool)
+    surfaces = spec.part_surfaces or ()
+    o64 = d64 = last64 = None
+    for p in distinct(part):
+        surf = surfaces[p] if p < len(surfaces) else None
+        if surf is None:
+            continue
+        if o64 is None:
+            o64, d64 = np.ascontiguousarray(origin, np.float64), np.ascontiguousarray(d, np.float64)
+            last64 = np.ascontiguousarray(last_part, np.int64)
+        g = np.flatnonzero(part == p)
+        t, n_front, ok = surf.refine_hits(take_rows(o64, g), take_rows(d64, g), distance_mm[g])
+        lazy_njit(_refined_rows_loop, "numpy")(g, np.ascontiguousarray(t, np.float64),
+                                               np.ascontiguousarray(n_front, np.float64),
+                                               np.ascontiguousarray(ok, np.bool_), int(p), last64, o64, d64,
+                                               SELF_HIT_MM, front, facing, exact, refined, passing)
+    return front, facing, exact, refined, passing
+
+
+def _refined_rows_loop(g, t, n_front, ok, p, last_part, origin, d, self_hit, front, facing, exact, refined,
+                       passing):
+    """One part's rows ``g`` of :func:`refine_on_surfaces_numpy` (refined distances ``t``, front normals
+    ``n_front``, ``ok``) written row by row, in its order (einsum's dot order ``(a0 b0 + a2 b2) + a1 b1``)."""
+    for r in range(len(g)):
+        i = g[r]
+        if not ok[r] or (last_part[i] == p and t[r] < self_hit):
+            passing[i] = True
+            continue
+        d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
+        exact[i, 0] = origin[i, 0] + t[r] * d0
+        exact[i, 1] = origin[i, 1] + t[r] * d1
+        exact[i, 2] = origin[i, 2] + t[r] * d2
+        n0, n1, n2 = n_front[r, 0], n_front[r, 1], n_front[r, 2]
+        fr = ((d0 * n0 + d2 * n2) + d1 * n1) < 0
+        front[i] = fr
+        if fr:
+            facing[i, 0], facing[i, 1], facing[i, 2] = n0, n1, n2
+        else:
+            facing[i, 0], facing[i, 1], facing[i, 2] = -n0, -n1, -n2
+        refined[i] = True
+
+
+def refine_on_surfaces_numpy(spec, part, origin, d, distance_mm, last_part, front, facing):
+    """:func:`refine_on_surfaces` in vectorised numpy (the reference it is tested against)."""
     m = len(part)
     exact = np.zeros((m, 3))
     refined = np.zeros(m, bool)
