@@ -178,12 +178,56 @@ def _branch_hits(spec, scene, hit, tri, o, dh, edge_distance) -> BranchHits:
 
 def at_interfaces(spec, scene, part, tri, origin, d, distance_mm, last_part, cos_in):
     """Branch rays' hits on interface parts refined onto their exact surfaces: (front, facing normal,
-    the point, passing) as :func:`refine_on_surfaces` (the facet's point where not refined)."""
+    the point, passing) as :func:`refine_on_surfaces` (the facet's point where not refined). The facet's
+    side and the points in compiled passes (:func:`_facet_sides_loop`, :func:`_hit_points_loop`),
+    :func:`at_interfaces_numpy`'s operations in its order (the same bits)."""
+    m = len(part)
+    tri = np.ascontiguousarray(tri, np.int64)
+    cos_in = np.ascontiguousarray(cos_in, np.float64)
+    front0, facing0 = np.empty(m, np.bool_), np.empty((m, 3))
+    if m:
+        lazy_njit(_facet_sides_loop, "numpy")(cos_in, tri, scene.normals, front0, facing0)
+    origin, d = np.ascontiguousarray(origin, np.float64), np.ascontiguousarray(d, np.float64)
+    front, facing, exact, refined, passing = refine_on_surfaces(spec, part, origin, d, distance_mm, last_part,
+                                                                front0, facing0)
+    at = np.empty((m, 3))
+    if m:
+        lazy_njit(_hit_points_loop, "numpy")(origin, d, np.ascontiguousarray(distance_mm, np.float64), refined,
+                                             exact, at)
+    return front, facing, at, passing
+
+
+def _facet_sides_loop(cos_in, tri, normals, front, facing):
+    """Per row: the facet met from its front (``cos_in < 0``) and its normal on the incident side."""
+    for r in range(len(tri)):
+        k = tri[r]
+        fr = cos_in[r] < 0
+        front[r] = fr
+        if fr:
+            facing[r, 0], facing[r, 1], facing[r, 2] = normals[k, 0], normals[k, 1], normals[k, 2]
+        else:
+            facing[r, 0], facing[r, 1], facing[r, 2] = -normals[k, 0], -normals[k, 1], -normals[k, 2]
+
+
+def _hit_points_loop(origin, d, distance_mm, refined, exact, at):
+    """Per row: the refined point, else ``origin + distance_mm d``."""
+    for r in range(len(at)):
+        if refined[r]:
+            at[r, 0], at[r, 1], at[r, 2] = exact[r, 0], exact[r, 1], exact[r, 2]
+        else:
+            t = distance_mm[r]
+            at[r, 0] = origin[r, 0] + t * d[r, 0]
+            at[r, 1] = origin[r, 1] + t * d[r, 1]
+            at[r, 2] = origin[r, 2] + t * d[r, 2]
+
+
+def at_interfaces_numpy(spec, scene, part, tri, origin, d, distance_mm, last_part, cos_in):
+    """:func:`at_interfaces` in vectorised numpy (the reference it is tested against)."""
     front0 = cos_in < 0
     n_tri = take_rows(scene.normals, tri)
     facing0 = np.where(front0[:, None], n_tri, -n_tri)
-    front, facing, exact, refined, passing = refine_on_surfaces(spec, part, origin, d, distance_mm, last_part,
-                                                                front0, facing0)
+    front, facing, exact, refined, passing = refine_on_surfaces_numpy(spec, part, origin, d, distance_mm, last_part,
+                                                                      front0, facing0)
     at = np.where(refined[:, None], exact, origin + distance_mm[:, None] * d)
     return front, facing, at, passing
 

@@ -65,7 +65,8 @@ def test_refined_hits_are_written_bit_for_bit_as_the_numpy_twin_writes_them():
     sphere, a plane annulus and a part without a surface: hits inside and outside the clear aperture, from
     both sides, and self-hits on the ray's own last part (passing); every output bit for bit."""
     from geometry.analytic import Conic
-    from straylight.engine.surface_geometry import refine_on_surfaces, refine_on_surfaces_numpy
+    from straylight.engine.surface_geometry import (at_interfaces, at_interfaces_numpy, refine_on_surfaces,
+                                                    refine_on_surfaces_numpy)
 
     up = np.array([0.0, 0.0, 1.0])
     surfaces = [Conic(np.zeros(3), up, -40.0, 0.0, 12.0),
@@ -87,5 +88,14 @@ def test_refined_hits_are_written_bit_for_bit_as_the_numpy_twin_writes_them():
     want = refine_on_surfaces_numpy(spec, part, origin, d, dist, last, front.copy(), facing.copy())
     passing, refined = want[4], want[3]
     assert passing.sum() > 20 and refined.sum() > 100 and (part == 2).sum() > 100
+    for a, b in zip(got, want):
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+    # and at_interfaces (the facets' sides and the points around it): triangles met from both sides
+    normals = rng.normal(size=(50, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    scene = type("Sc", (), {"normals": normals})()
+    tri, cos_in = rng.integers(0, 50, n), rng.normal(size=n)
+    got = at_interfaces(spec, scene, part, tri, origin, d, dist, last, cos_in)
+    want = at_interfaces_numpy(spec, scene, part, tri, origin, d, dist, last, cos_in)
     for a, b in zip(got, want):
         assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
