@@ -181,15 +181,18 @@ class DeltaChains:
                 break
             live = self._step(event, live)
 
-    def _children(self, event, src, sel, at, d, part, facing, s, S, fresnel):
+    def _children(self, event, src, sel, at, d, part, facing, s, S, fresnel, carry=None):
         """The reflected and transmitted branches of the interface hits ``at`` on ``part`` of the branches
         ``src`` rows ``sel`` (arriving along ``d``, facing normals ``facing``, s vectors ``s``, Stokes vectors
         ``S`` in the s/p basis, ``fresnel = (r_s, r_p, t_s, t_p, cos_t, eta, bulk)``): all reflections in
-        row order, then all transmissions. One compiled pass (:func:`_children_loop`) over
+        row order, then all transmissions, then the branches ``carry = (rows of src, hit points, parts)``
+        that pass their hit unchanged (from just past it). One compiled pass (:func:`_children_loop`) over
         :func:`children_numpy`'s operations in its order (the same bits); ``|a|^2`` and ``a_s a_p*`` are
         numpy's, as in materials.mueller.apply_interface_mueller."""
         n = len(sel)
-        if n == 0:
+        if carry is None:
+            carry = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64))
+        if n == 0 and len(carry[0]) == 0:
             return None
         rs, rp, ts, tp, cos_t, eta, bulk = (_rows(x, n, t) for x, t in zip(fresnel, (complex,) * 4 + (float,) * 3))
         code = part * 4 + EVENT_SPECULAR
@@ -200,7 +203,9 @@ class DeltaChains:
             np.ascontiguousarray(sel, dtype=np.int64), src.row, src.w, src.k, src.refl, src.tag,
             np.ascontiguousarray(src.codes), key, code, _f64(at), _f64(d), _f64(facing), _f64(S), _f64(s), part,
             np.abs(rs) ** 2, np.abs(rp) ** 2, rs * np.conj(rp), np.abs(ts) ** 2, np.abs(tp) ** 2, ts * np.conj(tp),
-            cos_t, eta, bulk, 2.0 * event.settings.eps_mm, self.r_max)
+            cos_t, eta, bulk, 2.0 * event.settings.eps_mm, self.r_max,
+            np.ascontiguousarray(carry[0], dtype=np.int64), _f64(carry[1]), np.ascontiguousarray(carry[2], np.int64),
+            _f64(src.d), _f64(src.S), _f64(src.e1), src.key)
         if len(out[0]) == 0:
             return None
         return Branches(*out)
@@ -229,12 +234,8 @@ class DeltaChains:
         idx, part, dist, cos_in = hit[go], part[go], dist[go], cos_in[go]
         front, facing, at, passing = at_interfaces(spec, scene, part, tri[go], take_rows(b.origin, idx),
                                                    take_rows(b.d, idx), dist, b.last_part[idx], cos_in)
-        through = np.flatnonzero(passing)
-        carried = None
-        if len(through):  # the walk passes such a hit unchanged: so does the branch
-            carried = b.take(idx[through])
-            carried.origin = np.ascontiguousarray(take_rows(at, through) + 2.0 * event.settings.eps_mm * carried.d)
-            carried.last_part = part[through]
+        through = np.flatnonzero(passing)  # the walk passes such a hit unchanged: so does the branch
+        carry = (idx[through], take_rows(at, through), part[through])
         live = np.flatnonzero(~passing & (b.k[idx] < self.k_max))  # the walk's hits after K + 1 interfaces stay its own
         sel = idx[live]
         part, at, facing, dist = part[live], take_rows(at, live), take_rows(facing, live), dist[live]
@@ -242,14 +243,7 @@ class DeltaChains:
         fresnel = branch_coefficients(spec, part, front[live], d, facing, dist)
         s = s_vector(d, facing)
         S = rotate_stokes(take_rows(b.S, sel), take_rows(b.e1, sel), s, d)
-        children = self._children(event, b, sel, at, d, part, facing, s, S, fresnel)
-        parts = [x for x in (children, carried) if x is not None and len(x.w)]
-        if not parts:
-            return None
-        if len(parts) == 1:
-            return parts[0]
-        return Branches(*(concat_codes([o.codes for o in parts]) if f == "codes"
-                          else np.concatenate([getattr(o, f) for o in parts]) for f in Branches.FIELDS))
+        return self._children(event, b, sel, at, d, part, facing, s, S, fresnel, carry)
 
     def _score(self, event, b, part, z, nz):
         """Count the branches ``b`` that reached detector parts ``part`` at points ``z`` (triangle normals ``nz``)."""
@@ -300,10 +294,30 @@ def _rows(a, n, dtype) -> np.ndarray:
     return np.ascontiguousarray(a if a.shape == (n,) else np.broadcast_to(a, (n,)))
 
 
-def children_numpy(src, sel, at, d, part, facing, s, S, fresnel, eps, r_max, record_paths):
+def children_numpy(src, sel, at, d, part, facing, s, S, fresnel, eps, r_max, record_paths, carry=None):
     """:meth:`DeltaChains._children` in numpy (the reference it is tested against): the fields of ``src``
     gathered on ``sel``, each branch's Mueller product, selection, direction and Stokes vector in turn
-    (``eps`` twice the scene's offset)."""
+    (``eps`` twice the scene's offset); then the branches ``carry`` gathered, moved past their hits, and
+    the two sets stacked."""
+    children = _children_numpy(src, sel, at, d, part, facing, s, S, fresnel, eps, r_max, record_paths)
+    carried = None
+    if carry is not None and len(carry[0]):
+        carried = src.take(carry[0])
+        carried.origin = np.ascontiguousarray(carry[1] + eps * carried.d)
+        carried.last_part = carry[2]
+    parts = [x for x in (children, carried) if x is not None and len(x.w)]
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return parts[0]
+    return Branches(*(concat_codes([o.codes for o in parts]) if f == "codes"
+                      else np.concatenate([getattr(o, f) for o in parts]) for f in Branches.FIELDS))
+
+
+def _children_numpy(src, sel, at, d, part, facing, s, S, fresnel, eps, r_max, record_paths):
+    """The reflected and transmitted branches of :func:`children_numpy`."""
+    if len(sel) == 0:
+        return None
     b = src.take(np.asarray(sel, dtype=np.int64))
     b.origin, b.d, b.last_part = at, d, part
     rs, rp, ts, tp, cos_t, eta, bulk = fresnel
@@ -341,10 +355,12 @@ def children_numpy(src, sel, at, d, part, facing, s, S, fresnel, eps, r_max, rec
 
 
 def _children_loop(sel, row, w, k, refl, tag, codes, key, code, at, d, facing, S, s, part, ss_r, pp_r, c_r, ss_t,
-                   pp_t, c_t, cos_t, eta, bulk, eps, r_max):
+                   pp_t, c_t, cos_t, eta, bulk, eps, r_max, carry, carry_at, carry_part, src_d, src_S, src_e1,
+                   src_key):
     """:func:`children_numpy` row by row: materials.mueller's ``_apply_interface_loop`` and materials.smooth's
     ``_reflect_loop`` / ``_refract_loop`` written out in their order; the output fields of
-    :class:`Branches`, reflections first."""
+    :class:`Branches`, reflections first, then transmissions, then the carried rows ``carry`` of the
+    source branches (``src_*`` their fields), each moved ``eps`` past its hit ``carry_at``."""
     n = len(sel)
     So = np.empty((2, n, 4))
     wo = np.empty((2, n))
@@ -369,6 +385,8 @@ def _children_loop(sel, row, w, k, refl, tag, codes, key, code, at, d, facing, S
                 m += 1
                 k_top = max(k_top, k[i])
     width = max(codes.shape[1], k_top + 1)
+    m_children = m
+    m += len(carry)
     o_row = np.empty(m, np.int64)
     o_origin = np.empty((m, 3))
     o_d = np.empty((m, 3))
@@ -419,4 +437,22 @@ def _children_loop(sel, row, w, k, refl, tag, codes, key, code, at, d, facing, S
             o_refl[j] = refl[i] + (1 if b == 0 else 0)
             o_tag[j] = tag[i]
             j += 1
+    for r in range(len(carry)):
+        i = carry[r]
+        j = m_children + r
+        o_row[j] = row[i]
+        for c in range(3):
+            o_origin[j, c] = carry_at[r, c] + eps * src_d[i, c]
+            o_d[j, c] = src_d[i, c]
+            o_e1[j, c] = src_e1[i, c]
+        o_w[j] = w[i]
+        for c in range(4):
+            o_S[j, c] = src_S[i, c]
+        o_k[j] = k[i]
+        o_part[j] = carry_part[r]
+        o_key[j] = src_key[i]
+        for c in range(codes.shape[1]):
+            o_codes[j, c] = codes[i, c]
+        o_refl[j] = refl[i]
+        o_tag[j] = tag[i]
     return o_row, o_origin, o_d, o_w, o_S, o_e1, o_k, o_part, o_key, o_codes, o_refl, o_tag

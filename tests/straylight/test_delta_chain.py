@@ -110,7 +110,8 @@ def test_the_trees_on_exact_surfaces_give_the_ghost_table_of_a_window():
 def test_the_compiled_children_are_bit_identical_to_their_numpy_twin(record_paths):
     """DeltaChains._children (one compiled pass) against delta_chain.children_numpy on random branches:
     polarized Stokes vectors, complex amplitudes, zero and negative weights, rows at the reflection cap R,
-    and codes narrower than the interface count (widened); every field bit for bit, signed zeros too."""
+    and codes narrower than the interface count (widened), with and without branches carried past their hits;
+    every field bit for bit, signed zeros too."""
     from types import SimpleNamespace
 
     from straylight.engine.delta_chain import Branches, DeltaChains, children_numpy
@@ -137,10 +138,18 @@ def test_the_compiled_children_are_bit_identical_to_their_numpy_twin(record_path
     part = rng.integers(0, 6, n)
     chains = DeltaChains(8, 12, max_reflections=2)
     event = SimpleNamespace(settings=SimpleNamespace(record_paths=record_paths, eps_mm=1e-4))
-    got = chains._children(event, src, sel, at, d, part, facing, s, S, fresnel)
-    want = children_numpy(src, sel, at, d, part, facing, s, S, fresnel, 2e-4, 2, record_paths)
-    assert want is not None and len(want.w) > n // 2 and want.codes.shape[1] > 8  # both branches, widened codes
-    for f in Branches.FIELDS:
-        a, b = np.asarray(getattr(got, f)), np.asarray(getattr(want, f))
-        assert a.dtype == b.dtype and a.shape == b.shape, f
-        assert a.tobytes() == b.tobytes(), f
+    carry = (rng.integers(0, n_src, 9), rng.normal(size=(9, 3)), rng.integers(0, 6, 9))  # passing their hits
+    no_rows = np.zeros(0, np.int64)
+    cases = [((sel, at, d, part, facing, s, S, fresnel), None), ((sel, at, d, part, facing, s, S, fresnel), carry),
+             ((no_rows, at[:0], d[:0], part[:0], facing[:0], s[:0], S[:0], tuple(x[:0] for x in fresnel)), carry)]
+    for args, c in cases:
+        got = chains._children(event, src, *args, carry=c)
+        want = children_numpy(src, *args, 2e-4, 2, record_paths, carry=c)
+        assert want is not None and len(want.w) >= 9
+        if len(args[0]):
+            assert len(want.w) > n // 2 and want.codes.shape[1] > 8  # both branches, widened codes
+        for f in Branches.FIELDS:
+            a, b = np.asarray(getattr(got, f)), np.asarray(getattr(want, f))
+            assert a.dtype == b.dtype and a.shape == b.shape, f
+            assert a.tobytes() == b.tobytes(), f
+    assert chains._children(event, src, *cases[2][0]) is None
