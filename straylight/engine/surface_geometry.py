@@ -46,7 +46,10 @@ def refine_on_surfaces(spec, part, origin, d, distance_mm, last_part, front, fac
             o64, d64 = np.ascontiguousarray(origin, np.float64), np.ascontiguousarray(d, np.float64)
             last64 = np.ascontiguousarray(last_part, np.int64)
         g = np.flatnonzero(part == p)
-        t, n_front, ok = surf.refine_hits(take_rows(o64, g), take_rows(d64, g), distance_mm[g])
+        if len(g) == m:  # one part: its rows are all the rows, in order
+            t, n_front, ok = surf.refine_hits(o64, d64, distance_mm)
+        else:
+            t, n_front, ok = surf.refine_hits(take_rows(o64, g), take_rows(d64, g), distance_mm[g])
         lazy_njit(_refined_rows_loop, "numpy")(g, np.ascontiguousarray(t, np.float64),
                                                np.ascontiguousarray(n_front, np.float64),
                                                np.ascontiguousarray(ok, np.bool_), int(p), last64, o64, d64,
