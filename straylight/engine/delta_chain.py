@@ -241,8 +241,7 @@ class DeltaChains:
         part, at, facing, dist = part[live], take_rows(at, live), take_rows(facing, live), dist[live]
         d = take_rows(b.d, sel)
         fresnel = branch_coefficients(spec, part, front[live], d, facing, dist)
-        s = s_vector(d, facing)
-        S = rotate_stokes(take_rows(b.S, sel), take_rows(b.e1, sel), s, d)
+        s, S = incidence_frames(b.S, b.e1, sel, d, facing)
         return self._children(event, b, sel, at, d, part, facing, s, S, fresnel, carry)
 
     def _score(self, event, b, part, z, nz):
@@ -456,3 +455,52 @@ def _children_loop(sel, row, w, k, refl, tag, codes, key, code, at, d, facing, S
         o_refl[j] = refl[i]
         o_tag[j] = tag[i]
     return o_row, o_origin, o_d, o_w, o_S, o_e1, o_k, o_part, o_key, o_codes, o_refl, o_tag
+
+
+def incidence_frames(S, e1, sel, d, facing):
+    """(s vectors, Stokes vectors in the s/p basis) of the branches ``sel`` (Stokes ``S[sel]`` in the frames
+    ``e1[sel]``) arriving along ``d`` at normals ``facing``: materials.mueller's ``s_vector`` and
+    ``rotate_stokes`` on the gathered rows, in one compiled pass (:func:`incidence_frames_numpy`'s
+    operations in its order: the same bits)."""
+    n = len(sel)
+    s_out, S_out = np.empty((n, 3)), np.empty((n, 4))
+    if n:
+        lazy_njit(_incidence_frames_loop, "numpy")(np.ascontiguousarray(sel, np.int64), _f64(S), _f64(e1), _f64(d),
+                                                   _f64(facing), s_out, S_out)
+    return s_out, S_out
+
+
+def incidence_frames_numpy(S, e1, sel, d, facing):
+    """:func:`incidence_frames` as separate passes (the reference it is tested against)."""
+    s = s_vector(d, facing)
+    return s, rotate_stokes(take_rows(S, sel), take_rows(e1, sel), s, d)
+
+
+def _incidence_frames_loop(sel, S, e1, d, facing, s_out, S_out):
+    """:func:`incidence_frames_numpy` row by row: materials.mueller's ``_s_vector_loop`` and
+    ``_rotate_stokes_loop`` written out."""
+    for r in range(len(sel)):
+        d0, d1, d2 = d[r, 0], d[r, 1], d[r, 2]
+        n0, n1, n2 = facing[r, 0], facing[r, 1], facing[r, 2]
+        s0, s1, s2 = d1 * n2 - d2 * n1, d2 * n0 - d0 * n2, d0 * n1 - d1 * n0
+        norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        if norm < 1e-12:  # d x (1, 0, 0), or d x (0, 1, 0) when that vanishes too
+            s0, s1, s2 = d1 * 0.0 - d2 * 0.0, d2 * 1.0 - d0 * 0.0, d0 * 0.0 - d1 * 1.0
+            norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+            if norm < 1e-6:
+                s0, s1, s2 = d1 * 0.0 - d2 * 1.0, d2 * 0.0 - d0 * 0.0, d0 * 1.0 - d1 * 0.0
+                norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        b0, b1, b2 = s0 / norm, s1 / norm, s2 / norm
+        s_out[r, 0], s_out[r, 1], s_out[r, 2] = b0, b1, b2
+        i = sel[r]
+        a0, a1, a2 = e1[i, 0], e1[i, 1], e1[i, 2]
+        cos_psi = (a0 * b0 + a2 * b2) + a1 * b1
+        c0, c1, c2 = d1 * a2 - d2 * a1, d2 * a0 - d0 * a2, d0 * a1 - d1 * a0
+        sin_psi = (c0 * b0 + c2 * b2) + c1 * b1
+        cc = cos_psi * cos_psi - sin_psi * sin_psi
+        ss = 2.0 * cos_psi * sin_psi
+        S1, S2 = S[i, 1], S[i, 2]
+        S_out[r, 0] = S[i, 0]
+        S_out[r, 1] = cc * S1 + ss * S2
+        S_out[r, 2] = -ss * S1 + cc * S2
+        S_out[r, 3] = S[i, 3]

@@ -153,3 +153,23 @@ def test_the_compiled_children_are_bit_identical_to_their_numpy_twin(record_path
             assert a.dtype == b.dtype and a.shape == b.shape, f
             assert a.tobytes() == b.tobytes(), f
     assert chains._children(event, src, *cases[2][0]) is None
+
+
+def test_the_compiled_incidence_frames_are_bit_identical_to_s_vector_and_rotate_stokes():
+    """delta_chain.incidence_frames (one compiled pass) against materials.mueller's s_vector and rotate_stokes
+    on the gathered rows, at oblique and normal incidence (the fallback s vectors d x x and d x y)."""
+    from straylight.engine.delta_chain import incidence_frames, incidence_frames_numpy
+
+    rng = np.random.default_rng(5)
+    n_src, n = 40, 60
+    unit = lambda a: a / np.linalg.norm(a, axis=1)[:, None]  # noqa: E731
+    S = np.column_stack([np.ones(n_src), rng.uniform(-0.5, 0.5, (n_src, 3))])
+    e1 = unit(rng.normal(size=(n_src, 3)))
+    sel = rng.integers(0, n_src, n)
+    facing = unit(rng.normal(size=(n, 3)))
+    d = unit(-facing + 0.4 * unit(rng.normal(size=(n, 3))))
+    d[:4] = -facing[:4]  # normal incidence
+    d[4], facing[4] = [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]  # d x x vanishes too
+    got, want = incidence_frames(S, e1, sel, d, facing), incidence_frames_numpy(S, e1, sel, d, facing)
+    for a, b in zip(got, want):
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
