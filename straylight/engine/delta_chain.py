@@ -43,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
+from materials.sampling import lazy_njit
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.material_groups import distinct
@@ -163,15 +164,15 @@ class DeltaChains:
         ``facing`` the normals on the incident side, ``d`` the arriving directions, ``s`` the s
         vectors and ``S`` the arriving Stokes vectors in the s/p basis, ``fresnel = (r_s, r_p, t_s,
         t_p, cos_t, eta, bulk)`` of each hit."""
-        rays, spec = event.rays, event.spec
+        rays = event.rays
         part = event.hits.part[rows].astype(np.int64)
         w = rays.weight_w[rows]
         key = rays.path_key[rows] if event.settings.record_paths else np.zeros(len(rows), np.uint64)
         codes = np.full((len(rows), min(self.k_max, CODE_COLUMNS)), -1, dtype=np.int64)
-        live = self._children(spec, Branches(np.asarray(rows), at, d, w, S, s, np.zeros(len(rows), np.int64),
-                                             part, key, codes, np.zeros(len(rows), np.int64)),
-                              facing, s, S, fresnel, event)
-        self.grow(event, live)
+        n = len(rows)
+        src = Branches(np.asarray(rows, dtype=np.int64), at, d, w, S, s, np.zeros(n, np.int64), part, key, codes,
+                       np.zeros(n, np.int64))
+        self.grow(event, self._children(event, src, np.arange(n), at, d, part, facing, s, S, fresnel))
 
     def grow(self, event, live):
         """Cast and split the branches ``live`` until every one has scored or ended."""
@@ -180,41 +181,34 @@ class DeltaChains:
                 break
             live = self._step(event, live)
 
-    def _children(self, spec, b, facing, s, S, fresnel, event):
-        """The reflected and transmitted branches of the interface hits of ``b`` (at ``b.origin``).
-        The fields the two branches copy from ``b`` are gathered once, on the rows of both."""
-        rs, rp, ts, tp, cos_t, eta, bulk = fresnel
-        eps = 2.0 * event.settings.eps_mm
-        code = b.last_part * 4 + EVENT_SPECULAR
-        key = mix_key(b.key, code) if event.settings.record_paths else b.key
-        rows, origin, d, weight, stokes, refl = [], [], [], [], [], []
-        for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
-            So = apply_interface_mueller(a_s, a_p, S)
-            w = b.w * So[:, 0] * bulk
-            # a reflection past the trees' R is not followed: the walk keeps those paths (share_after_chain)
-            g = np.flatnonzero((w > 0) & (b.refl < self.r_max)) if sign > 0 else np.flatnonzero(w > 0)
-            if len(g) == 0:
-                continue
-            d_g, facing_g, So_g = take_rows(b.d, g), take_rows(facing, g), take_rows(So, g)
-            if sign > 0:
-                d_out = reflect(d_g, facing_g)
-            else:
-                d_out = refract(d_g, facing_g, eta[g], cos_t[g])
-            rows.append(g)
-            origin.append(np.ascontiguousarray(take_rows(b.origin, g) + sign * eps * facing_g))
-            d.append(np.ascontiguousarray(d_out))
-            weight.append(w[g])
-            stokes.append(So_g / So_g[:, :1])
-            refl.append(b.refl[g] + (1 if sign > 0 else 0))
-        if not rows:
+    def _children(self, event, src, sel, at, d, part, facing, s, S, fresnel, carry=None):
+        """The reflected and transmitted branches of the interface hits ``at`` on ``part`` of the branches
+        ``src`` rows ``sel`` (arriving along ``d``, facing normals ``facing``, s vectors ``s``, Stokes vectors
+        ``S`` in the s/p basis, ``fresnel = (r_s, r_p, t_s, t_p, cos_t, eta, bulk)``): all reflections in
+        row order, then all transmissions, then the branches ``carry = (rows of src, hit points, parts)``
+        that pass their hit unchanged (from just past it). One compiled pass (:func:`_children_loop`) over
+        :func:`children_numpy`'s operations in its order (the same bits); ``|a|^2`` and ``a_s a_p*`` are
+        numpy's, as in materials.mueller.apply_interface_mueller."""
+        n = len(sel)
+        if carry is None:
+            carry = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0, np.int64))
+        if n == 0 and len(carry[0]) == 0:
             return None
-        g = rows[0] if len(rows) == 1 else np.concatenate(rows)
-        codes = widen_codes(b.codes[g], int(b.k[g].max()) + 1)  # the column of this interface exists
-        codes[np.arange(len(g)), b.k[g]] = code[g]
-        origin, d, weight, stokes, refl = (x[0] if len(x) == 1 else np.concatenate(x)
-                                           for x in (origin, d, weight, stokes, refl))
-        return Branches(b.row[g], origin, d, weight, stokes, s[g], b.k[g] + 1, b.last_part[g], key[g], codes, refl,
-                        b.tag[g])
+        rs, rp, ts, tp, cos_t, eta, bulk = (_rows(x, n, t) for x, t in zip(fresnel, (complex,) * 4 + (float,) * 3))
+        code = part * 4 + EVENT_SPECULAR
+        key = take_rows(src.key, sel)
+        if event.settings.record_paths:
+            key = mix_key(key, code)
+        out = lazy_njit(_children_loop, "numpy")(
+            np.ascontiguousarray(sel, dtype=np.int64), src.row, src.w, src.k, src.refl, src.tag,
+            np.ascontiguousarray(src.codes), key, code, _f64(at), _f64(d), _f64(facing), _f64(S), _f64(s), part,
+            np.abs(rs) ** 2, np.abs(rp) ** 2, rs * np.conj(rp), np.abs(ts) ** 2, np.abs(tp) ** 2, ts * np.conj(tp),
+            cos_t, eta, bulk, 2.0 * event.settings.eps_mm, self.r_max,
+            np.ascontiguousarray(carry[0], dtype=np.int64), _f64(carry[1]), np.ascontiguousarray(carry[2], np.int64),
+            _f64(src.d), _f64(src.S), _f64(src.e1), src.key)
+        if len(out[0]) == 0:
+            return None
+        return Branches(*out)
 
     def _step(self, event, b):
         """Cast the branches ``b``: score those that reach a detector, split those that meet another
@@ -240,26 +234,15 @@ class DeltaChains:
         idx, part, dist, cos_in = hit[go], part[go], dist[go], cos_in[go]
         front, facing, at, passing = at_interfaces(spec, scene, part, tri[go], take_rows(b.origin, idx),
                                                    take_rows(b.d, idx), dist, b.last_part[idx], cos_in)
-        through = np.flatnonzero(passing)
-        carried = None
-        if len(through):  # the walk passes such a hit unchanged: so does the branch
-            carried = b.take(idx[through])
-            carried.origin = np.ascontiguousarray(take_rows(at, through) + 2.0 * event.settings.eps_mm * carried.d)
-            carried.last_part = part[through]
+        through = np.flatnonzero(passing)  # the walk passes such a hit unchanged: so does the branch
+        carry = (idx[through], take_rows(at, through), part[through])
         live = np.flatnonzero(~passing & (b.k[idx] < self.k_max))  # the walk's hits after K + 1 interfaces stay its own
-        b, part, at, facing, dist = b.take(idx[live]), part[live], take_rows(at, live), take_rows(facing, live), dist[live]
-        fresnel = branch_coefficients(spec, part, front[live], b.d, facing, dist)
-        s = s_vector(b.d, facing)
-        S = rotate_stokes(b.S, b.e1, s, b.d)
-        b.origin, b.last_part = at, part
-        children = self._children(spec, b, facing, s, S, fresnel, event)
-        parts = [x for x in (children, carried) if x is not None and len(x.w)]
-        if not parts:
-            return None
-        if len(parts) == 1:
-            return parts[0]
-        return Branches(*(concat_codes([o.codes for o in parts]) if f == "codes"
-                          else np.concatenate([getattr(o, f) for o in parts]) for f in Branches.FIELDS))
+        sel = idx[live]
+        part, at, facing, dist = part[live], take_rows(at, live), take_rows(facing, live), dist[live]
+        d = take_rows(b.d, sel)
+        fresnel = branch_coefficients(spec, part, front[live], d, facing, dist)
+        s, S = incidence_frames(b.S, b.e1, sel, d, facing)
+        return self._children(event, b, sel, at, d, part, facing, s, S, fresnel, carry)
 
     def _score(self, event, b, part, z, nz):
         """Count the branches ``b`` that reached detector parts ``part`` at points ``z`` (triangle normals ``nz``)."""
@@ -298,3 +281,226 @@ class DeltaChains:
                     at = np.flatnonzero((b.codes[m, step] >= 0) & (depth + step < events.shape[1]))
                     events[at, depth[at] + step] = b.codes[m[at], step]
             event.records.add(int(j), r, z[m], w, keys, events, depth + b.k[m])
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _rows(a, n, dtype) -> np.ndarray:
+    """``a`` as a contiguous (n,) array of ``dtype`` (a scalar broadcast)."""
+    a = np.asarray(a, dtype=dtype)
+    return np.ascontiguousarray(a if a.shape == (n,) else np.broadcast_to(a, (n,)))
+
+
+def children_numpy(src, sel, at, d, part, facing, s, S, fresnel, eps, r_max, record_paths, carry=None):
+    """:meth:`DeltaChains._children` in numpy (the reference it is tested against): the fields of ``src``
+    gathered on ``sel``, each branch's Mueller product, selection, direction and Stokes vector in turn
+    (``eps`` twice the scene's offset); then the branches ``carry`` gathered, moved past their hits, and
+    the two sets stacked."""
+    children = _children_numpy(src, sel, at, d, part, facing, s, S, fresnel, eps, r_max, record_paths)
+    carried = None
+    if carry is not None and len(carry[0]):
+        carried = src.take(carry[0])
+        carried.origin = np.ascontiguousarray(carry[1] + eps * carried.d)
+        carried.last_part = carry[2]
+    parts = [x for x in (children, carried) if x is not None and len(x.w)]
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return parts[0]
+    return Branches(*(concat_codes([o.codes for o in parts]) if f == "codes"
+                      else np.concatenate([getattr(o, f) for o in parts]) for f in Branches.FIELDS))
+
+
+def _children_numpy(src, sel, at, d, part, facing, s, S, fresnel, eps, r_max, record_paths):
+    """The reflected and transmitted branches of :func:`children_numpy`."""
+    if len(sel) == 0:
+        return None
+    b = src.take(np.asarray(sel, dtype=np.int64))
+    b.origin, b.d, b.last_part = at, d, part
+    rs, rp, ts, tp, cos_t, eta, bulk = fresnel
+    code = b.last_part * 4 + EVENT_SPECULAR
+    key = mix_key(b.key, code) if record_paths else b.key
+    rows, origin, d, weight, stokes, refl = [], [], [], [], [], []
+    for a_s, a_p, sign in ((rs, rp, 1.0), (ts, tp, -1.0)):
+        So = apply_interface_mueller(a_s, a_p, S)
+        w = b.w * So[:, 0] * bulk
+        # a reflection past the trees' R is not followed: the walk keeps those paths (share_after_chain)
+        g = np.flatnonzero((w > 0) & (b.refl < r_max)) if sign > 0 else np.flatnonzero(w > 0)
+        if len(g) == 0:
+            continue
+        d_g, facing_g, So_g = take_rows(b.d, g), take_rows(facing, g), take_rows(So, g)
+        if sign > 0:
+            d_out = reflect(d_g, facing_g)
+        else:
+            d_out = refract(d_g, facing_g, np.broadcast_to(eta, (len(b.w),))[g],
+                            np.broadcast_to(cos_t, (len(b.w),))[g])
+        rows.append(g)
+        origin.append(np.ascontiguousarray(take_rows(b.origin, g) + sign * eps * facing_g))
+        d.append(np.ascontiguousarray(d_out))
+        weight.append(w[g])
+        stokes.append(So_g / So_g[:, :1])
+        refl.append(b.refl[g] + (1 if sign > 0 else 0))
+    if not rows:
+        return None
+    g = rows[0] if len(rows) == 1 else np.concatenate(rows)
+    codes = widen_codes(b.codes[g], int(b.k[g].max()) + 1)  # the column of this interface exists
+    codes[np.arange(len(g)), b.k[g]] = code[g]
+    origin, d, weight, stokes, refl = (x[0] if len(x) == 1 else np.concatenate(x)
+                                       for x in (origin, d, weight, stokes, refl))
+    return Branches(b.row[g], origin, d, weight, stokes, s[g], b.k[g] + 1, b.last_part[g], key[g], codes, refl,
+                    b.tag[g])
+
+
+def _children_loop(sel, row, w, k, refl, tag, codes, key, code, at, d, facing, S, s, part, ss_r, pp_r, c_r, ss_t,
+                   pp_t, c_t, cos_t, eta, bulk, eps, r_max, carry, carry_at, carry_part, src_d, src_S, src_e1,
+                   src_key):
+    """:func:`children_numpy` row by row: materials.mueller's ``_apply_interface_loop`` and materials.smooth's
+    ``_reflect_loop`` / ``_refract_loop`` written out in their order; the output fields of
+    :class:`Branches`, reflections first, then transmissions, then the carried rows ``carry`` of the
+    source branches (``src_*`` their fields), each moved ``eps`` past its hit ``carry_at``."""
+    n = len(sel)
+    So = np.empty((2, n, 4))
+    wo = np.empty((2, n))
+    take = np.zeros((2, n), np.bool_)
+    m = 0
+    k_top = -1
+    for b in range(2):
+        for r in range(n):
+            if b == 0:
+                A, B, C, D = 0.5 * (ss_r[r] + pp_r[r]), 0.5 * (ss_r[r] - pp_r[r]), c_r[r].real, c_r[r].imag
+            else:
+                A, B, C, D = 0.5 * (ss_t[r] + pp_t[r]), 0.5 * (ss_t[r] - pp_t[r]), c_t[r].real, c_t[r].imag
+            s0, s1, s2, s3 = S[r, 0], S[r, 1], S[r, 2], S[r, 3]
+            So[b, r, 0] = (((0.0 + A * s0) + B * s1) + 0.0 * s2) + 0.0 * s3
+            So[b, r, 1] = (((0.0 + B * s0) + A * s1) + 0.0 * s2) + 0.0 * s3
+            So[b, r, 2] = (((0.0 + 0.0 * s0) + 0.0 * s1) + C * s2) + D * s3
+            So[b, r, 3] = (((0.0 + 0.0 * s0) + 0.0 * s1) + -D * s2) + C * s3
+            i = sel[r]
+            wo[b, r] = w[i] * So[b, r, 0] * bulk[r]
+            if wo[b, r] > 0 and (b == 1 or refl[i] < r_max):
+                take[b, r] = True
+                m += 1
+                k_top = max(k_top, k[i])
+    width = max(codes.shape[1], k_top + 1)
+    m_children = m
+    m += len(carry)
+    o_row = np.empty(m, np.int64)
+    o_origin = np.empty((m, 3))
+    o_d = np.empty((m, 3))
+    o_w = np.empty(m)
+    o_S = np.empty((m, 4))
+    o_e1 = np.empty((m, 3))
+    o_k = np.empty(m, np.int64)
+    o_part = np.empty(m, np.int64)
+    o_key = np.empty(m, np.uint64)
+    o_codes = np.full((m, width), -1, np.int64)
+    o_refl = np.empty(m, np.int64)
+    o_tag = np.empty(m, np.int64)
+    j = 0
+    for b in range(2):
+        sign = 1.0 if b == 0 else -1.0
+        step = sign * eps
+        for r in range(n):
+            if not take[b, r]:
+                continue
+            i = sel[r]
+            o_row[j] = row[i]
+            f0, f1, f2 = facing[r, 0], facing[r, 1], facing[r, 2]
+            o_origin[j, 0] = at[r, 0] + step * f0
+            o_origin[j, 1] = at[r, 1] + step * f1
+            o_origin[j, 2] = at[r, 2] + step * f2
+            d0, d1, d2 = d[r, 0], d[r, 1], d[r, 2]
+            if b == 0:
+                two_dot = 2.0 * ((d0 * f0 + d2 * f2) + d1 * f1)
+                o_d[j, 0], o_d[j, 1], o_d[j, 2] = d0 - two_dot * f0, d1 - two_dot * f1, d2 - two_dot * f2
+            else:
+                cos_i = -((d0 * f0 + d2 * f2) + d1 * f1)
+                e = eta[r]
+                kk = e * cos_i - cos_t[r]
+                t0, t1, t2 = e * d0 + kk * f0, e * d1 + kk * f1, e * d2 + kk * f2
+                norm = np.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+                o_d[j, 0], o_d[j, 1], o_d[j, 2] = t0 / norm, t1 / norm, t2 / norm
+            o_w[j] = wo[b, r]
+            s0 = So[b, r, 0]
+            for c in range(4):
+                o_S[j, c] = So[b, r, c] / s0
+            o_e1[j, 0], o_e1[j, 1], o_e1[j, 2] = s[r, 0], s[r, 1], s[r, 2]
+            o_k[j] = k[i] + 1
+            o_part[j] = part[r]
+            o_key[j] = key[r]
+            for c in range(codes.shape[1]):
+                o_codes[j, c] = codes[i, c]
+            o_codes[j, k[i]] = code[r]
+            o_refl[j] = refl[i] + (1 if b == 0 else 0)
+            o_tag[j] = tag[i]
+            j += 1
+    for r in range(len(carry)):
+        i = carry[r]
+        j = m_children + r
+        o_row[j] = row[i]
+        for c in range(3):
+            o_origin[j, c] = carry_at[r, c] + eps * src_d[i, c]
+            o_d[j, c] = src_d[i, c]
+            o_e1[j, c] = src_e1[i, c]
+        o_w[j] = w[i]
+        for c in range(4):
+            o_S[j, c] = src_S[i, c]
+        o_k[j] = k[i]
+        o_part[j] = carry_part[r]
+        o_key[j] = src_key[i]
+        for c in range(codes.shape[1]):
+            o_codes[j, c] = codes[i, c]
+        o_refl[j] = refl[i]
+        o_tag[j] = tag[i]
+    return o_row, o_origin, o_d, o_w, o_S, o_e1, o_k, o_part, o_key, o_codes, o_refl, o_tag
+
+
+def incidence_frames(S, e1, sel, d, facing):
+    """(s vectors, Stokes vectors in the s/p basis) of the branches ``sel`` (Stokes ``S[sel]`` in the frames
+    ``e1[sel]``) arriving along ``d`` at normals ``facing``: materials.mueller's ``s_vector`` and
+    ``rotate_stokes`` on the gathered rows, in one compiled pass (:func:`incidence_frames_numpy`'s
+    operations in its order: the same bits)."""
+    n = len(sel)
+    s_out, S_out = np.empty((n, 3)), np.empty((n, 4))
+    if n:
+        lazy_njit(_incidence_frames_loop, "numpy")(np.ascontiguousarray(sel, np.int64), _f64(S), _f64(e1), _f64(d),
+                                                   _f64(facing), s_out, S_out)
+    return s_out, S_out
+
+
+def incidence_frames_numpy(S, e1, sel, d, facing):
+    """:func:`incidence_frames` as separate passes (the reference it is tested against)."""
+    s = s_vector(d, facing)
+    return s, rotate_stokes(take_rows(S, sel), take_rows(e1, sel), s, d)
+
+
+def _incidence_frames_loop(sel, S, e1, d, facing, s_out, S_out):
+    """:func:`incidence_frames_numpy` row by row: materials.mueller's ``_s_vector_loop`` and
+    ``_rotate_stokes_loop`` written out."""
+    for r in range(len(sel)):
+        d0, d1, d2 = d[r, 0], d[r, 1], d[r, 2]
+        n0, n1, n2 = facing[r, 0], facing[r, 1], facing[r, 2]
+        s0, s1, s2 = d1 * n2 - d2 * n1, d2 * n0 - d0 * n2, d0 * n1 - d1 * n0
+        norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        if norm < 1e-12:  # d x (1, 0, 0), or d x (0, 1, 0) when that vanishes too
+            s0, s1, s2 = d1 * 0.0 - d2 * 0.0, d2 * 1.0 - d0 * 0.0, d0 * 0.0 - d1 * 1.0
+            norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+            if norm < 1e-6:
+                s0, s1, s2 = d1 * 0.0 - d2 * 1.0, d2 * 0.0 - d0 * 0.0, d0 * 1.0 - d1 * 0.0
+                norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        b0, b1, b2 = s0 / norm, s1 / norm, s2 / norm
+        s_out[r, 0], s_out[r, 1], s_out[r, 2] = b0, b1, b2
+        i = sel[r]
+        a0, a1, a2 = e1[i, 0], e1[i, 1], e1[i, 2]
+        cos_psi = (a0 * b0 + a2 * b2) + a1 * b1
+        c0, c1, c2 = d1 * a2 - d2 * a1, d2 * a0 - d0 * a2, d0 * a1 - d1 * a0
+        sin_psi = (c0 * b0 + c2 * b2) + c1 * b1
+        cc = cos_psi * cos_psi - sin_psi * sin_psi
+        ss = 2.0 * cos_psi * sin_psi
+        S1, S2 = S[i, 1], S[i, 2]
+        S_out[r, 0] = S[i, 0]
+        S_out[r, 1] = cc * S1 + ss * S2
+        S_out[r, 2] = -ss * S1 + cc * S2
+        S_out[r, 3] = S[i, 3]

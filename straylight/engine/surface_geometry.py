@@ -29,7 +29,59 @@ def refine_on_surfaces(spec, part, origin, d, distance_mm, last_part, front, fac
     """Mesh hits (``origin + distance_mm d`` on ``part``) refined onto the parts' analytic surfaces:
     (front, facing normal, exact point, refined, passing). ``front`` and ``facing`` (the facet's)
     are updated in place where refined; a hit that refines outside the clear aperture or back onto
-    the ray's own origin on its last part passes through (``passing``)."""
+    the ray's own origin on its last part passes through (``passing``). Each part's rows are written
+    in one compiled pass (:func:`_refined_rows_loop`, :func:`refine_on_surfaces_numpy`'s operations in
+    its order: the same bits)."""
+    m = len(part)
+    exact = np.zeros((m, 3))
+    refined = np.zeros(m, bool)
+    passing = np.zeros(m, bool)
+    surfaces = spec.part_surfaces or ()
+    o64 = d64 = last64 = None
+    for p in distinct(part):
+        surf = surfaces[p] if p < len(surfaces) else None
+        if surf is None:
+            continue
+        if o64 is None:
+            o64, d64 = np.ascontiguousarray(origin, np.float64), np.ascontiguousarray(d, np.float64)
+            last64 = np.ascontiguousarray(last_part, np.int64)
+        g = np.flatnonzero(part == p)
+        if len(g) == m:  # one part: its rows are all the rows, in order
+            t, n_front, ok = surf.refine_hits(o64, d64, distance_mm)
+        else:
+            t, n_front, ok = surf.refine_hits(take_rows(o64, g), take_rows(d64, g), distance_mm[g])
+        lazy_njit(_refined_rows_loop, "numpy")(g, np.ascontiguousarray(t, np.float64),
+                                               np.ascontiguousarray(n_front, np.float64),
+                                               np.ascontiguousarray(ok, np.bool_), int(p), last64, o64, d64,
+                                               SELF_HIT_MM, front, facing, exact, refined, passing)
+    return front, facing, exact, refined, passing
+
+
+def _refined_rows_loop(g, t, n_front, ok, p, last_part, origin, d, self_hit, front, facing, exact, refined,
+                       passing):
+    """One part's rows ``g`` of :func:`refine_on_surfaces_numpy` (refined distances ``t``, front normals
+    ``n_front``, ``ok``) written row by row, in its order (einsum's dot order ``(a0 b0 + a2 b2) + a1 b1``)."""
+    for r in range(len(g)):
+        i = g[r]
+        if not ok[r] or (last_part[i] == p and t[r] < self_hit):
+            passing[i] = True
+            continue
+        d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
+        exact[i, 0] = origin[i, 0] + t[r] * d0
+        exact[i, 1] = origin[i, 1] + t[r] * d1
+        exact[i, 2] = origin[i, 2] + t[r] * d2
+        n0, n1, n2 = n_front[r, 0], n_front[r, 1], n_front[r, 2]
+        fr = ((d0 * n0 + d2 * n2) + d1 * n1) < 0
+        front[i] = fr
+        if fr:
+            facing[i, 0], facing[i, 1], facing[i, 2] = n0, n1, n2
+        else:
+            facing[i, 0], facing[i, 1], facing[i, 2] = -n0, -n1, -n2
+        refined[i] = True
+
+
+def refine_on_surfaces_numpy(spec, part, origin, d, distance_mm, last_part, front, facing):
+    """:func:`refine_on_surfaces` in vectorised numpy (the reference it is tested against)."""
     m = len(part)
     exact = np.zeros((m, 3))
     refined = np.zeros(m, bool)
@@ -129,12 +181,56 @@ def _branch_hits(spec, scene, hit, tri, o, dh, edge_distance) -> BranchHits:
 
 def at_interfaces(spec, scene, part, tri, origin, d, distance_mm, last_part, cos_in):
     """Branch rays' hits on interface parts refined onto their exact surfaces: (front, facing normal,
-    the point, passing) as :func:`refine_on_surfaces` (the facet's point where not refined)."""
+    the point, passing) as :func:`refine_on_surfaces` (the facet's point where not refined). The facet's
+    side and the points in compiled passes (:func:`_facet_sides_loop`, :func:`_hit_points_loop`),
+    :func:`at_interfaces_numpy`'s operations in its order (the same bits)."""
+    m = len(part)
+    tri = np.ascontiguousarray(tri, np.int64)
+    cos_in = np.ascontiguousarray(cos_in, np.float64)
+    front0, facing0 = np.empty(m, np.bool_), np.empty((m, 3))
+    if m:
+        lazy_njit(_facet_sides_loop, "numpy")(cos_in, tri, scene.normals, front0, facing0)
+    origin, d = np.ascontiguousarray(origin, np.float64), np.ascontiguousarray(d, np.float64)
+    front, facing, exact, refined, passing = refine_on_surfaces(spec, part, origin, d, distance_mm, last_part,
+                                                                front0, facing0)
+    at = np.empty((m, 3))
+    if m:
+        lazy_njit(_hit_points_loop, "numpy")(origin, d, np.ascontiguousarray(distance_mm, np.float64), refined,
+                                             exact, at)
+    return front, facing, at, passing
+
+
+def _facet_sides_loop(cos_in, tri, normals, front, facing):
+    """Per row: the facet met from its front (``cos_in < 0``) and its normal on the incident side."""
+    for r in range(len(tri)):
+        k = tri[r]
+        fr = cos_in[r] < 0
+        front[r] = fr
+        if fr:
+            facing[r, 0], facing[r, 1], facing[r, 2] = normals[k, 0], normals[k, 1], normals[k, 2]
+        else:
+            facing[r, 0], facing[r, 1], facing[r, 2] = -normals[k, 0], -normals[k, 1], -normals[k, 2]
+
+
+def _hit_points_loop(origin, d, distance_mm, refined, exact, at):
+    """Per row: the refined point, else ``origin + distance_mm d``."""
+    for r in range(len(at)):
+        if refined[r]:
+            at[r, 0], at[r, 1], at[r, 2] = exact[r, 0], exact[r, 1], exact[r, 2]
+        else:
+            t = distance_mm[r]
+            at[r, 0] = origin[r, 0] + t * d[r, 0]
+            at[r, 1] = origin[r, 1] + t * d[r, 1]
+            at[r, 2] = origin[r, 2] + t * d[r, 2]
+
+
+def at_interfaces_numpy(spec, scene, part, tri, origin, d, distance_mm, last_part, cos_in):
+    """:func:`at_interfaces` in vectorised numpy (the reference it is tested against)."""
     front0 = cos_in < 0
     n_tri = take_rows(scene.normals, tri)
     facing0 = np.where(front0[:, None], n_tri, -n_tri)
-    front, facing, exact, refined, passing = refine_on_surfaces(spec, part, origin, d, distance_mm, last_part,
-                                                                front0, facing0)
+    front, facing, exact, refined, passing = refine_on_surfaces_numpy(spec, part, origin, d, distance_mm, last_part,
+                                                                      front0, facing0)
     at = np.where(refined[:, None], exact, origin + distance_mm[:, None] * d)
     return front, facing, at, passing
 

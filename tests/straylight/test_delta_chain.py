@@ -104,3 +104,72 @@ def test_the_trees_on_exact_surfaces_give_the_ghost_table_of_a_window():
     assert ghost.kind == "two-bounce ghost" and ghost.surfaces == "bottom then top"
     assert ghost.power_w == pytest.approx((1 - R) ** 2 * R ** 2, rel=1e-9)
     assert abs(res.ledger["balance_residual_w"]) < 1e-9
+
+
+@pytest.mark.parametrize("record_paths", [False, True])
+def test_the_compiled_children_are_bit_identical_to_their_numpy_twin(record_paths):
+    """DeltaChains._children (one compiled pass) against delta_chain.children_numpy on random branches:
+    polarized Stokes vectors, complex amplitudes, zero and negative weights, rows at the reflection cap R,
+    and codes narrower than the interface count (widened), with and without branches carried past their hits;
+    every field bit for bit, signed zeros too."""
+    from types import SimpleNamespace
+
+    from straylight.engine.delta_chain import Branches, DeltaChains, children_numpy
+
+    rng = np.random.default_rng(3)
+    n_src, n = 50, 40
+    unit = lambda a: a / np.linalg.norm(a, axis=1)[:, None]  # noqa: E731
+    k = rng.integers(0, 10, n_src)
+    src = Branches(rng.integers(0, 1000, n_src), unit(rng.normal(size=(n_src, 3))), unit(rng.normal(size=(n_src, 3))),
+                   np.where(rng.random(n_src) < 0.2, 0.0, rng.random(n_src)), rng.normal(size=(n_src, 4)),
+                   unit(rng.normal(size=(n_src, 3))), k, rng.integers(0, 5, n_src),
+                   rng.integers(0, 2**63, n_src, dtype=np.uint64), rng.integers(-1, 30, (n_src, 8)),
+                   rng.integers(0, 3, n_src), rng.integers(-1, 9, n_src))
+    sel = rng.integers(0, n_src, n)
+    facing = unit(rng.normal(size=(n, 3)))
+    d = -facing + 0.5 * unit(rng.normal(size=(n, 3)))
+    d = unit(d)
+    at, s = rng.normal(size=(n, 3)), unit(rng.normal(size=(n, 3)))
+    S = np.column_stack([np.ones(n), rng.uniform(-1, 1, (n, 3)) / 2])
+    S[::7, 2:] = 0.0
+    amp = lambda: rng.normal(size=n) + 1j * rng.normal(size=n)  # noqa: E731
+    fresnel = (amp(), amp(), amp(), amp(), rng.random(n), rng.uniform(0.6, 1.5, n), rng.uniform(0.5, 1.0, n))
+    fresnel[0][::5] = 0.0
+    part = rng.integers(0, 6, n)
+    chains = DeltaChains(8, 12, max_reflections=2)
+    event = SimpleNamespace(settings=SimpleNamespace(record_paths=record_paths, eps_mm=1e-4))
+    carry = (rng.integers(0, n_src, 9), rng.normal(size=(9, 3)), rng.integers(0, 6, 9))  # passing their hits
+    no_rows = np.zeros(0, np.int64)
+    cases = [((sel, at, d, part, facing, s, S, fresnel), None), ((sel, at, d, part, facing, s, S, fresnel), carry),
+             ((no_rows, at[:0], d[:0], part[:0], facing[:0], s[:0], S[:0], tuple(x[:0] for x in fresnel)), carry)]
+    for args, c in cases:
+        got = chains._children(event, src, *args, carry=c)
+        want = children_numpy(src, *args, 2e-4, 2, record_paths, carry=c)
+        assert want is not None and len(want.w) >= 9
+        if len(args[0]):
+            assert len(want.w) > n // 2 and want.codes.shape[1] > 8  # both branches, widened codes
+        for f in Branches.FIELDS:
+            a, b = np.asarray(getattr(got, f)), np.asarray(getattr(want, f))
+            assert a.dtype == b.dtype and a.shape == b.shape, f
+            assert a.tobytes() == b.tobytes(), f
+    assert chains._children(event, src, *cases[2][0]) is None
+
+
+def test_the_compiled_incidence_frames_are_bit_identical_to_s_vector_and_rotate_stokes():
+    """delta_chain.incidence_frames (one compiled pass) against materials.mueller's s_vector and rotate_stokes
+    on the gathered rows, at oblique and normal incidence (the fallback s vectors d x x and d x y)."""
+    from straylight.engine.delta_chain import incidence_frames, incidence_frames_numpy
+
+    rng = np.random.default_rng(5)
+    n_src, n = 40, 60
+    unit = lambda a: a / np.linalg.norm(a, axis=1)[:, None]  # noqa: E731
+    S = np.column_stack([np.ones(n_src), rng.uniform(-0.5, 0.5, (n_src, 3))])
+    e1 = unit(rng.normal(size=(n_src, 3)))
+    sel = rng.integers(0, n_src, n)
+    facing = unit(rng.normal(size=(n, 3)))
+    d = unit(-facing + 0.4 * unit(rng.normal(size=(n, 3))))
+    d[:4] = -facing[:4]  # normal incidence
+    d[4], facing[4] = [1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]  # d x x vanishes too
+    got, want = incidence_frames(S, e1, sel, d, facing), incidence_frames_numpy(S, e1, sel, d, facing)
+    for a, b in zip(got, want):
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
