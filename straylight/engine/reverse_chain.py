@@ -112,13 +112,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import math
+
 import numpy as np
 
 from materials.flags import ComponentFlags, flags_of
 from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing
 from materials.smooth import reflect, refract
-from materials.sampling import invert_cosine_hemisphere_sample, sample_cosine_hemisphere
+from materials.sampling import invert_cosine_hemisphere_sample, lazy_njit, sample_cosine_hemisphere
 from straylight.engine.capabilities import Capability
 from straylight.engine.delta_chain import CODE_COLUMNS, concat_codes, widen_codes
 from straylight.engine.entrance_sampling import density as entrance_density
@@ -598,6 +600,8 @@ class EyeChains:
     at most ``r_max`` of them reflections (0: no limit), ending at plain scatter parts
     (``end_material``: bool per material, :func:`scatter_ends`); :attr:`shadow_rays` counts the casts."""
 
+    compiled = True  # False: the numpy twins (start_rays_numpy, _onward_numpy), the reference for the tests
+
     def __init__(self, k_max: int, splits: np.ndarray, end_material: np.ndarray, r_max: int = 0):
         self.k_max = int(k_max)
         self.r_max = int(r_max) if int(r_max) > 0 else self.k_max
@@ -633,16 +637,13 @@ class EyeChains:
         q = np.ones(n)
         if table is not None:
             q = table.warp(j, side, drawn)
-        local = sample_cosine_hemisphere(drawn)
-        t, b = orthonormal_basis(nz)
-        d = local[:, :1] * t + local[:, 1:2] * b + local[:, 2:3] * nz
-        d /= np.linalg.norm(d, axis=1)[:, None]
+        # the direction, its frame e1 (any frame: the covector (1, 0, 0, 0) is the same in all) and the origin
+        d, e1, origin = (start_rays if self.compiled else start_rays_numpy)(drawn, nz, z, 2.0 * spec.eps)
         beta = np.pi * area * D * (2.0 if both else 1.0) / q
         det_part = np.asarray(scene.det_parts, dtype=np.int64)[j]
-        e1 = s_vector(d, nz)  # any frame: the covector (1, 0, 0, 0) is the same in all
         v = np.zeros((n, 4))
         v[:, 0] = 1.0
-        live = _Branches(ray=np.arange(n), origin=np.ascontiguousarray(z + 2.0 * spec.eps * nz), d=d, w=beta, v=v,
+        live = _Branches(ray=np.arange(n), origin=origin, d=d, w=beta, v=v,
                          e1=e1, k=np.zeros(n, np.int64), last_part=det_part, det=j, z=z,
                          codes=np.full((n, max(min(self.k_max, CODE_COLUMNS), 1)), -1, dtype=np.int64),
                          refl=np.zeros(n, np.int64))
@@ -686,6 +687,28 @@ class EyeChains:
         part, dist, cos_in, tri = part[go], dist[go], cos_in[go], tri[go]
         origin, d = take_rows(b.origin, idx), take_rows(b.d, idx)
         front, facing, at, passing = at_interfaces(spec, scene, part, tri, origin, d, dist, b.last_part[idx], cos_in)
+        if not self.compiled:
+            return self._onward_numpy(spec, b, idx, part, dist, front, facing, at, passing, d)
+        through = np.flatnonzero(passing)
+        live = np.flatnonzero(~passing & (b.k[idx] < self.k_max))
+        sel = idx[live]
+        n = len(live)
+        fresnel = branch_coefficients(spec, part[live], front[live], take_rows(d, live), take_rows(facing, live),
+                                      dist[live]) if n else (np.zeros(0, complex),) * 4 + (np.zeros(0),) * 3
+        rs, rp, ts, tp, cos_t, eta, bulk = (_rows(x, n, t) for x, t in zip(fresnel, (complex,) * 4 + (float,) * 3))
+        out = lazy_njit(_onward_loop, "numpy")(
+            np.ascontiguousarray(idx[through], np.int64), _f64(take_rows(at, through)), part[through],
+            np.ascontiguousarray(sel, np.int64), _f64(take_rows(at, live)), _f64(take_rows(facing, live)), part[live],
+            np.abs(rs) ** 2, np.abs(rp) ** 2, rs * np.conj(rp), np.abs(ts) ** 2, np.abs(tp) ** 2, ts * np.conj(tp),
+            cos_t, eta, bulk, 2.0 * spec.eps, self.r_max, b.ray, _f64(b.d), b.w, _f64(b.v), _f64(b.e1), b.k, b.det,
+            _f64(b.z), np.ascontiguousarray(b.codes), b.refl)
+        if len(out[0]) == 0:
+            return None
+        return _Branches(**dict(zip(_Branches.FIELDS, out)))
+
+    def _onward_numpy(self, spec, b, idx, part, dist, front, facing, at, passing, d):
+        """The branches going on from the interface hits ``idx`` (rows of ``b``) in numpy (the reference
+        :func:`_onward_loop` is tested against): the pass-throughs, then :meth:`_children`."""
         out = []
         through = np.flatnonzero(passing)
         if len(through):  # a pass-through: the walk goes on unchanged, and so does the chain
@@ -730,6 +753,204 @@ class EyeChains:
                                  codes=take_rows(codes, g),
                                  refl=b.refl[g] + (1 if sign > 0 else 0)))
         return out
+
+
+def _f64(a) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _rows(a, n, dtype) -> np.ndarray:
+    """``a`` as a contiguous (n,) array of ``dtype`` (a scalar broadcast)."""
+    a = np.asarray(a, dtype=dtype)
+    return np.ascontiguousarray(a if a.shape == (n,) else np.broadcast_to(a, (n,)))
+
+
+def start_rays(drawn, nz, z, eps):
+    """The eye chains' first rays: directions cosine-drawn about ``nz`` (n, 3) from the cosine map's
+    uniforms ``drawn`` (n, 2), their s-frame vectors ``s_vector(d, nz)`` and origins ``z + eps nz``. One
+    compiled pass (:func:`_start_rays_loop`) over :func:`start_rays_numpy`'s operations in its order (the
+    same bits)."""
+    n = len(drawn)
+    d, e1, origin = np.empty((n, 3)), np.empty((n, 3)), np.empty((n, 3))
+    if n:
+        lazy_njit(_start_rays_loop, "numpy")(_f64(drawn), _f64(nz), _f64(z), float(eps), d, e1, origin)
+    return d, e1, origin
+
+
+def start_rays_numpy(drawn, nz, z, eps):
+    """:func:`start_rays` as separate numpy passes (the reference it is tested against)."""
+    local = sample_cosine_hemisphere(drawn)
+    t, b = orthonormal_basis(nz)
+    d = local[:, :1] * t + local[:, 1:2] * b + local[:, 2:3] * nz
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return d, s_vector(d, nz), np.ascontiguousarray(z + eps * nz)
+
+
+_TWO_PI = 2.0 * np.pi
+
+
+def _start_rays_loop(drawn, nz, z, eps, d, e1, origin):
+    """:func:`start_rays_numpy` row by row: materials.sampling's ``_cosine_hemisphere_loop``,
+    sources.orthonormal_basis, ``np.linalg.norm``'s ``(x0^2 + x1^2) + x2^2`` and materials.mueller's
+    ``_s_vector_loop`` written out in their order."""
+    for r in range(len(drawn)):
+        rad = math.sqrt(drawn[r, 0])
+        phi = _TWO_PI * drawn[r, 1]
+        l0 = rad * math.cos(phi)
+        l1 = rad * math.sin(phi)
+        l2 = math.sqrt(max(0.0, 1.0 - rad * rad))
+        x, y, zz = nz[r, 0], nz[r, 1], nz[r, 2]
+        sign = 1.0 if zz >= 0 else -1.0
+        a = -1.0 / (sign + zz)
+        bb = x * y * a
+        t0, t1, t2 = 1.0 + sign * x * x * a, sign * bb, -sign * x
+        b0, b1, b2 = bb, sign + y * y * a, -y
+        d0 = (l0 * t0 + l1 * b0) + l2 * x
+        d1 = (l0 * t1 + l1 * b1) + l2 * y
+        d2 = (l0 * t2 + l1 * b2) + l2 * zz
+        norm = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
+        d0, d1, d2 = d0 / norm, d1 / norm, d2 / norm
+        d[r, 0], d[r, 1], d[r, 2] = d0, d1, d2
+        s0, s1, s2 = d1 * zz - d2 * y, d2 * x - d0 * zz, d0 * y - d1 * x
+        sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        if sn < 1e-12:  # d x (1, 0, 0), or d x (0, 1, 0) when that vanishes too
+            s0, s1, s2 = d1 * 0.0 - d2 * 0.0, d2 * 1.0 - d0 * 0.0, d0 * 0.0 - d1 * 1.0
+            sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+            if sn < 1e-6:
+                s0, s1, s2 = d1 * 0.0 - d2 * 1.0, d2 * 0.0 - d0 * 0.0, d0 * 1.0 - d1 * 0.0
+                sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        e1[r, 0], e1[r, 1], e1[r, 2] = s0 / sn, s1 / sn, s2 / sn
+        for c in range(3):
+            origin[r, c] = z[r, c] + eps * nz[r, c]
+
+
+def _onward_loop(through, at_through, part_through, sel, at, facing, part, ss_r, pp_r, c_r, ss_t, pp_t, c_t, cos_t,
+                 eta, bulk, eps, r_max, ray, d, w, v, e1, k, det, z, codes, refl):
+    """:meth:`EyeChains._onward_numpy` row by row: the pass-throughs ``through`` (rows of the branches,
+    moved ``eps`` past their hits ``at_through``), then the reflections of the rows ``sel`` (hits ``at``,
+    facing normals ``facing``) in row order, then their transmissions; materials.mueller's
+    ``_s_vector_loop``, ``_rotate_stokes_loop`` (along -d) and ``_apply_interface_loop`` (transposed),
+    materials.smooth's ``_reflect_loop`` / ``_refract_loop`` written out in their order. Returns the
+    fields of :class:`_Branches` in :attr:`_Branches.FIELDS` order."""
+    n = len(sel)
+    vo = np.empty((2, n, 4))
+    s_out = np.empty((n, 3))
+    take = np.zeros((2, n), np.bool_)
+    m = len(through)
+    k_top = -1
+    for r in range(n):
+        i = sel[r]
+        k_top = max(k_top, k[i])
+        d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
+        n0, n1, n2 = facing[r, 0], facing[r, 1], facing[r, 2]
+        s0, s1, s2 = d1 * n2 - d2 * n1, d2 * n0 - d0 * n2, d0 * n1 - d1 * n0
+        sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        if sn < 1e-12:  # d x (1, 0, 0), or d x (0, 1, 0) when that vanishes too
+            s0, s1, s2 = d1 * 0.0 - d2 * 0.0, d2 * 1.0 - d0 * 0.0, d0 * 0.0 - d1 * 1.0
+            sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+            if sn < 1e-6:
+                s0, s1, s2 = d1 * 0.0 - d2 * 1.0, d2 * 0.0 - d0 * 0.0, d0 * 1.0 - d1 * 0.0
+                sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        c0, c1, c2 = s0 / sn, s1 / sn, s2 / sn
+        s_out[r, 0], s_out[r, 1], s_out[r, 2] = c0, c1, c2
+        # rotate_stokes(v, e1, s, -d)
+        a0, a1, a2 = e1[i, 0], e1[i, 1], e1[i, 2]
+        m0, m1, m2 = -d0, -d1, -d2
+        cos_psi = (a0 * c0 + a2 * c2) + a1 * c1
+        x0, x1, x2 = m1 * a2 - m2 * a1, m2 * a0 - m0 * a2, m0 * a1 - m1 * a0
+        sin_psi = (x0 * c0 + x2 * c2) + x1 * c1
+        cc = cos_psi * cos_psi - sin_psi * sin_psi
+        ss = 2.0 * cos_psi * sin_psi
+        v0, v3 = v[i, 0], v[i, 3]
+        v1 = cc * v[i, 1] + ss * v[i, 2]
+        v2 = -ss * v[i, 1] + cc * v[i, 2]
+        wb = w[i] * bulk[r]
+        for b in range(2):
+            if b == 0:
+                A, B, C, D = 0.5 * (ss_r[r] + pp_r[r]), 0.5 * (ss_r[r] - pp_r[r]), c_r[r].real, c_r[r].imag
+            else:
+                A, B, C, D = 0.5 * (ss_t[r] + pp_t[r]), 0.5 * (ss_t[r] - pp_t[r]), c_t[r].real, c_t[r].imag
+            D23, D32 = -D, D  # M^T: the covector carried back
+            vo[b, r, 0] = (((0.0 + A * v0) + B * v1) + 0.0 * v2) + 0.0 * v3
+            vo[b, r, 1] = (((0.0 + B * v0) + A * v1) + 0.0 * v2) + 0.0 * v3
+            vo[b, r, 2] = (((0.0 + 0.0 * v0) + 0.0 * v1) + C * v2) + D23 * v3
+            vo[b, r, 3] = (((0.0 + 0.0 * v0) + 0.0 * v1) + D32 * v2) + C * v3
+            if vo[b, r, 0] > 0 and wb > 0 and (b == 1 or refl[i] < r_max):
+                take[b, r] = True
+                m += 1
+    width = codes.shape[1]
+    if m > len(through):  # a child: the codes are widened to the live rows' deepest column (as widen_codes)
+        width = max(width, k_top + 1)
+    o_ray = np.empty(m, np.int64)
+    o_origin = np.empty((m, 3))
+    o_d = np.empty((m, 3))
+    o_w = np.empty(m)
+    o_v = np.empty((m, 4))
+    o_e1 = np.empty((m, 3))
+    o_k = np.empty(m, np.int64)
+    o_part = np.empty(m, np.int64)
+    o_det = np.empty(m, np.int64)
+    o_z = np.empty((m, 3))
+    o_codes = np.full((m, width), -1, np.int64)
+    o_refl = np.empty(m, np.int64)
+    for j in range(len(through)):
+        i = through[j]
+        o_ray[j] = ray[i]
+        for c in range(3):
+            o_origin[j, c] = at_through[j, c] + eps * d[i, c]
+            o_d[j, c] = d[i, c]
+            o_e1[j, c] = e1[i, c]
+            o_z[j, c] = z[i, c]
+        o_w[j] = w[i]
+        for c in range(4):
+            o_v[j, c] = v[i, c]
+        o_k[j] = k[i]
+        o_part[j] = part_through[j]
+        o_det[j] = det[i]
+        for c in range(codes.shape[1]):
+            o_codes[j, c] = codes[i, c]
+        o_refl[j] = refl[i]
+    j = len(through)
+    for b in range(2):
+        step = (1.0 if b == 0 else -1.0) * eps
+        for r in range(n):
+            if not take[b, r]:
+                continue
+            i = sel[r]
+            o_ray[j] = ray[i]
+            f0, f1, f2 = facing[r, 0], facing[r, 1], facing[r, 2]
+            o_origin[j, 0] = at[r, 0] + step * f0
+            o_origin[j, 1] = at[r, 1] + step * f1
+            o_origin[j, 2] = at[r, 2] + step * f2
+            d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
+            if b == 0:
+                two_dot = 2.0 * ((d0 * f0 + d2 * f2) + d1 * f1)
+                o_d[j, 0], o_d[j, 1], o_d[j, 2] = d0 - two_dot * f0, d1 - two_dot * f1, d2 - two_dot * f2
+            else:
+                cos_i = -((d0 * f0 + d2 * f2) + d1 * f1)
+                e = eta[r]
+                kk = e * cos_i - cos_t[r]
+                t0, t1, t2 = e * d0 + kk * f0, e * d1 + kk * f1, e * d2 + kk * f2
+                norm = np.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
+                o_d[j, 0], o_d[j, 1], o_d[j, 2] = t0 / norm, t1 / norm, t2 / norm
+            o_w[j] = w[i] * bulk[r]
+            for c in range(4):
+                o_v[j, c] = vo[b, r, c]
+            for c in range(3):
+                o_e1[j, c] = s_out[r, c]
+                o_z[j, c] = z[i, c]
+            o_k[j] = k[i] + 1
+            o_part[j] = part[r]
+            o_det[j] = det[i]
+            for c in range(codes.shape[1]):
+                o_codes[j, c] = codes[i, c]
+            o_codes[j, k[i]] = part[r] * 4 + EVENT_SPECULAR_CODE
+            o_refl[j] = refl[i] + (1 if b == 0 else 0)
+            j += 1
+    return o_ray, o_origin, o_d, o_w, o_v, o_e1, o_k, o_part, o_det, o_z, o_codes, o_refl
+
+
+EVENT_SPECULAR_CODE = int(EVENT_SPECULAR)
 
 
 class ReverseChains:

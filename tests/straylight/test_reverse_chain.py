@@ -510,3 +510,38 @@ def test_the_verdict_keeps_the_chains_where_the_once_scattered_light_carries_the
     monkeypatch.setattr(rc, "once_scattered", lambda spec_, scene_, e, m, *rest: np.zeros(m))
     off = rc._judge(spec, scene, eyes, [x], [ends], detected)
     assert isinstance(off, rc.EyesOff) and off.scattered_w == 0.0
+
+
+@pytest.mark.parametrize("k, r", [(4, 0), (3, 1)])
+def test_the_compiled_eye_chains_are_bit_identical_to_their_numpy_twins(slab_scene, monkeypatch, k, r):
+    """EyeChains.trace with its compiled passes (reverse_chain.start_rays, _onward_loop) against the numpy
+    twins (start_rays_numpy, EyeChains._onward_numpy): every field of every end point, the same bits; and
+    start_rays on random frames, normal incidence (the s vector's fallback) included."""
+    from straylight.engine import reverse_chain as rc
+    from straylight.engine.runtime import runtime
+
+    sc, src, mats = slab_scene
+    spec = make_spec(sc, src, 1_000, 5, mats, TraceOptions(estimator=CHAINS))
+    scene = runtime().scene(spec, None)
+    u = rc.eye_uniforms(spec, 0, 20, 20_000, rc.PILOT_CHUNK_OFFSET)
+    got = {}
+    for compiled in (True, False):
+        monkeypatch.setattr(rc.EyeChains, "compiled", compiled)
+        eyes = rc.EyeChains(k, rc.parts_with(spec, rc.Capability.DELTA_CHAIN), rc.scatter_ends(spec), r)
+        got[compiled] = eyes.trace(spec, scene, u, None), eyes.shadow_rays
+    (ends, q, drawn), shadows = got[True]
+    (ends_np, q_np, drawn_np), shadows_np = got[False]
+    assert len(ends.ray) > 100 and (ends.k > 1).any() and shadows == shadows_np
+    for f in ("ray", "point", "normal", "part", "material", "omega", "beta", "detector", "z", "k", "codes", "refl", "q"):
+        np.testing.assert_array_equal(getattr(ends, f), getattr(ends_np, f), err_msg=f)
+    np.testing.assert_array_equal(q, q_np)
+    np.testing.assert_array_equal(drawn, drawn_np)
+    rng = np.random.default_rng(4)
+    nz = rng.normal(size=(5000, 3))
+    nz /= np.linalg.norm(nz, axis=1)[:, None]
+    nz[:3] = [[0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]
+    drawn = rng.random((5000, 2))
+    drawn[:3, 0] = 0.0  # straight along nz: d x nz vanishes
+    z = rng.normal(size=(5000, 3))
+    for a, b in zip(rc.start_rays(drawn, nz, z, 2e-4), rc.start_rays_numpy(drawn, nz, z, 2e-4)):
+        np.testing.assert_array_equal(a, b)
