@@ -539,8 +539,10 @@ def _learn(stages, normals, both: bool, n_traced: int) -> EyeTable:
 class EyeEnds:
     """End points of the batch's eye chains, sorted by the ray that owns them."""
 
-    def __init__(self, ray, point, normal, part, material, omega, beta, detector, z, k, codes, refl, q=None):
-        order = np.argsort(ray, kind="stable")
+    def __init__(self, ray, point, normal, part, material, omega, beta, detector, z, k, codes, refl, q=None,
+                 presorted: bool = False):
+        # presorted: ``ray`` is already non-decreasing (the stable sort would keep every row where it is)
+        order = slice(None) if presorted else np.argsort(ray, kind="stable")
         self.ray, self.point, self.normal = ray[order], take_rows(point, order), take_rows(normal, order)
         self.part, self.material, self.omega = part[order], material[order], take_rows(omega, order)
         self.beta, self.detector, self.z, self.k = beta[order], detector[order], take_rows(z, order), k[order]
@@ -555,7 +557,7 @@ class EyeEnds:
         m = int(eyes_per_ray)
         c = self.ray
         return EyeEnds(c // m, self.point, self.normal, self.part, self.material, self.omega, self.beta / m,
-                       self.detector, self.z, self.k, self.codes, self.refl, q=q_chain[c])
+                       self.detector, self.z, self.k, self.codes, self.refl, q=q_chain[c], presorted=True)
 
 
 class _Branches:
@@ -624,7 +626,10 @@ class EyeChains:
         area = np.empty(n)
         for jj in range(D):
             g = np.flatnonzero(j == jj)
-            if len(g):
+            if len(g) == n:  # every chain on this detector: no gather, no scatter
+                z, nz = dets[jj].sample(u[:, 1:4])
+                area[:] = dets[jj].area_mm2
+            elif len(g):
                 z[g], nz[g] = dets[jj].sample(u[g, 1:4])
                 area[g] = dets[jj].area_mm2
         if table is not None:  # flat detectors: the frame the tables were drawn in
@@ -669,17 +674,20 @@ class EyeChains:
         mat = spec.part_material[part]
         end = np.flatnonzero(~det & ~self.splits[part] & (b.k[hit] >= 1) & self.end_material[mat])
         if len(end):
-            e = b.take(hit[end])
-            nrm = take_rows(scene.normals, tri[end])
-            facing = np.where((cos_in[end] < 0)[:, None], nrm, -nrm)
-            point = e.origin + dist[end, None] * e.d
-            beta = e.w * e.v[:, 0]
-            ok = beta > 0
-            if ok.any():
-                ends.append({"ray": e.ray[ok], "point": point[ok], "normal": facing[ok], "part": part[end][ok],
-                             "material": mat[end][ok], "omega": -e.d[ok], "beta": beta[ok], "detector": e.det[ok],
-                             "z": e.z[ok], "k": e.k[ok], "codes": _forward_codes(e.codes[ok], e.k[ok]),
-                             "refl": e.refl[ok]})
+            rows = hit[end]
+            beta = b.w[rows] * b.v[rows, 0]
+            ok = np.flatnonzero(beta > 0)
+            if len(ok):  # only the end points that carry something are gathered
+                end, rows, beta = end[ok], rows[ok], beta[ok]
+                nrm = take_rows(scene.normals, tri[end])
+                facing = np.where((cos_in[end] < 0)[:, None], nrm, -nrm)
+                d_end = take_rows(b.d, rows)
+                point = take_rows(b.origin, rows) + dist[end, None] * d_end
+                k_end = b.k[rows]
+                ends.append({"ray": b.ray[rows], "point": point, "normal": facing, "part": part[end],
+                             "material": mat[end], "omega": -d_end, "beta": beta, "detector": b.det[rows],
+                             "z": take_rows(b.z, rows), "k": k_end, "codes": _forward_codes(take_rows(b.codes, rows), k_end),
+                             "refl": b.refl[rows]})
         go = np.flatnonzero(~det & self.splits[part])
         if len(go) == 0:
             return None
