@@ -41,7 +41,7 @@ def pack(seq) -> np.ndarray | None:
     return out
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _surface_point(par, i, u, v, X, N, j):
     """X[j], N[j]: the world point and front unit normal of vertex i's surface at local (u, v)
     (specular_manifold.surface_points)."""
@@ -79,28 +79,30 @@ def _points(par, k, x, X, N):
         _surface_point(par, i, x[2 * i], x[2 * i + 1], X, N, i)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _constraint(par, k, i, X, N, p, z, F, off):
     """F[off], F[off + 1]: vertex i's tangents dotted with omega_a + omega_b (eta omega_a + omega_b)
     (specular_manifold._constraint)."""
-    wa = np.empty(3)
-    wb = np.empty(3)
-    for a in range(3):
-        wa[a] = (p[a] if i == 0 else X[i - 1, a]) - X[i, a]
-        wb[a] = (z[a] if i == k - 1 else X[i + 1, a]) - X[i, a]
-    na = np.sqrt(wa[0] * wa[0] + wa[1] * wa[1] + wa[2] * wa[2])
-    nb = np.sqrt(wb[0] * wb[0] + wb[1] * wb[1] + wb[2] * wb[2])
+    if i == 0:
+        ax, ay, az = p[0] - X[i, 0], p[1] - X[i, 1], p[2] - X[i, 2]
+    else:
+        ax, ay, az = X[i - 1, 0] - X[i, 0], X[i - 1, 1] - X[i, 1], X[i - 1, 2] - X[i, 2]
+    if i == k - 1:
+        bx, by, bz = z[0] - X[i, 0], z[1] - X[i, 1], z[2] - X[i, 2]
+    else:
+        bx, by, bz = X[i + 1, 0] - X[i, 0], X[i + 1, 1] - X[i, 1], X[i + 1, 2] - X[i, 2]
+    na = np.sqrt(ax * ax + ay * ay + az * az)
+    nb = np.sqrt(bx * bx + by * by + bz * bz)
     na = na if na > 0 else 1.0
     nb = nb if nb > 0 else 1.0
-    for a in range(3):
-        wa[a] = wa[a] / na
-        wb[a] = wb[a] / nb
+    ax, ay, az = ax / na, ay / na, az / na
+    bx, by, bz = bx / nb, by / nb, bz / nb
     eta = 1.0
     if par[i, REFLECT] == 0.0:
-        eta = par[i, ETA_FRONT] if wa[0] * N[i, 0] + wa[1] * N[i, 1] + wa[2] * N[i, 2] > 0 else par[i, ETA_BACK]
-    h0 = eta * wa[0] + wb[0]
-    h1 = eta * wa[1] + wb[1]
-    h2 = eta * wa[2] + wb[2]
+        eta = par[i, ETA_FRONT] if ax * N[i, 0] + ay * N[i, 1] + az * N[i, 2] > 0 else par[i, ETA_BACK]
+    h0 = eta * ax + bx
+    h1 = eta * ay + by
+    h2 = eta * az + bz
     nh = N[i, 0] * h0 + N[i, 1] * h1 + N[i, 2] * h2
     for r in range(2):
         o = ROT + 3 * r
@@ -229,7 +231,7 @@ def solve_rows(par, p, z, x, active, newton_iter, give_up_after, give_up_residua
         for it in range(newton_iter):
             if not live or done:
                 break
-            _points(par, k, xr, X, N)
+            # X, N hold the points at xr: the last residual evaluated was at the accepted step
             _jacobian(par, k, xr, pr, zr, X, N, F, False, diff, J, Fp, Fm, keep)
             finite = True
             for r in range(d):
