@@ -26,6 +26,11 @@ central differences, z moved along the two tangents of the detector at z), dX_1/
 parametrisation, d omega/dz = (I - omega omega^T) dX_1/dz / |X_1 - P| and |d omega/dA_z| = |d omega/da
 x d omega/db|. For no interface at all this is cos_z / d^2 (next-event estimation's term); for a
 plane mirror cos_z / d'^2 with d' the unfolded length (tests/straylight/test_specular_nee.py).
+
+Compiled: the Newton iteration and the geometry term's Jacobians run per row in
+straylight.engine.specular_manifold_kernel for conics, aspheres and planes (their numpy twins here,
+:func:`solve_numpy` and :func:`implicit_jacobians_numpy`, do any other surface: the same roots and ok
+flags, tests/straylight/test_specular_manifold_kernel.py).
 """
 from __future__ import annotations
 
