@@ -278,7 +278,7 @@ def eye_uniforms(spec, first_chunk: int, stop_chunk: int, n: int, chunk_offset: 
         if hi <= lo:
             break
         rng = np.random.default_rng([int(spec.seed), int(chunk_offset + c), STREAM])
-        u[lo * m:hi * m] = rng.random(((hi - lo) * m, 7))
+        rng.random(out=u[lo * m:hi * m])  # drawn in place: the same stream as rng.random(((hi - lo) * m, 7))
     return u
 
 
@@ -528,10 +528,13 @@ def _learn(stages, normals, both: bool, n_traced: int) -> EyeTable:
     moment = np.zeros(2 * n_det)  # per key: the mean of x^2 / q_dir, its chains' second moment under its table
     for kk in range(2 * n_det):
         sel = key == kk
-        table = table_from_contributions(drawn[sel], x[sel]) if np.any(sel) else None
+        n_sel = int(np.count_nonzero(sel))
+        # a key that holds every chain takes them as they are (no gather)
+        drawn_k, x_k = (drawn, x) if n_sel == len(key) else (drawn[sel], x[sel])
+        table = table_from_contributions(drawn_k, x_k) if n_sel else None
         tables.append(table)
         if table is not None:
-            moment[kk] = float(np.mean(x[sel] ** 2 / entrance_density(table, drawn[sel])))
+            moment[kk] = float(np.mean(x_k ** 2 / entrance_density(table, drawn_k)))
     counted = np.ones(2 * n_det, dtype=bool) if both else (np.arange(2 * n_det) % 2 == 0)
     root = np.sqrt(moment)
     n_keys = int(counted.sum())
@@ -1309,9 +1312,11 @@ def _path_events(history, m, n_before, prefix, e, k, width):
 
 def _forward_codes(codes, k):
     """Interface codes met by eye chains (eye order, -1 padded) in the forward light's order: row i's
-    first k_i codes reversed."""
+    first k_i codes reversed (per distinct k, a reversed slice)."""
     k = np.asarray(k, dtype=np.int64)
-    src = k[:, None] - 1 - np.arange(codes.shape[1])[None, :]  # column of codes for each output column
-    inside = src >= 0
-    picked = np.take_along_axis(codes, np.where(inside, src, 0), axis=1)
-    return np.where(inside, picked, np.asarray(-1, dtype=codes.dtype))
+    out = np.full(codes.shape, -1, dtype=codes.dtype)
+    for kk in distinct(k):
+        if kk > 0:
+            rows = np.flatnonzero(k == kk)
+            out[rows, :kk] = codes[rows, kk - 1::-1]
+    return out

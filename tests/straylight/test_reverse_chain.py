@@ -602,3 +602,12 @@ def test_the_compiled_walk_state_pass_is_bit_identical_on_random_hits(rng=np.ran
     np.testing.assert_array_equal(anchored, want[1])
     for f in ("pred", "anchor", "run", "refl"):
         np.testing.assert_array_equal(getattr(got_state, f), getattr(want_state, f), err_msg=f)
+
+
+def test_the_forward_codes_reverse_each_rows_first_k_codes():
+    """reverse_chain._forward_codes: the eye order's first k codes of each row, reversed, -1 padded."""
+    from straylight.engine.reverse_chain import _forward_codes
+
+    codes = np.array([[5, 9, 13, -1], [5, -1, -1, -1], [7, 11, 15, 19], [-1, -1, -1, -1]], dtype=np.int64)
+    want = np.array([[13, 9, 5, -1], [5, -1, -1, -1], [19, 15, 11, 7], [-1, -1, -1, -1]], dtype=np.int64)
+    np.testing.assert_array_equal(_forward_codes(codes, np.array([3, 1, 4, 0])), want)
