@@ -968,46 +968,10 @@ def _onward_loop(through, at_through, part_through, sel, at, facing, part, ss_r,
 EVENT_SPECULAR_CODE = int(EVENT_SPECULAR)
 
 
-def _walk_state_loop(r, event, interface, passing, end_kind, unpolarized, side, pred, anchor, run, refl, plain,
-                     anchored):
-    """:meth:`ReverseChains._walk_state_numpy` row by row (each ray at most once among the hits): a scatter
-    (not a pass-through) restarts the ray's run, anchored at a plain scatter part reached from the source or
-    a plain vertex; an interface's specular event extends it (a reflection counted); anything else ends it.
-    Fills the masks ``plain`` and ``anchored``."""
-    for i in range(len(r)):
-        ri = r[i]
-        plain[i] = False
-        anchored[i] = False
-        if passing[i]:
-            pred[ri] = False
-        elif event[i] == EVENT_SCATTER_CODE:
-            plain[i] = end_kind[i] and unpolarized[i]
-            anchored[i] = end_kind[i] and pred[ri]
-            anchor[ri] = anchored[i]
-            run[ri] = 0
-            refl[ri] = 0
-            pred[ri] = plain[i]
-        elif event[i] == EVENT_SPECULAR_CODE and interface[i]:
-            run[ri] += 1
-            if side[i] > 0:
-                refl[ri] += 1
-            pred[ri] = False
-        else:
-            anchor[ri] = False
-            pred[ri] = False
-            run[ri] = 0
-            refl[ri] = 0
-
-
-EVENT_SCATTER_CODE = int(EVENT_SCATTER)
-
-
 class ReverseChains:
     """Per batch: the eye chains of its rays, the source connections of their end points (counted
     at once), the walk-side state that decides which walk paths the chains own, and the vertex
     connections from the walk's scatter vertices."""
-
-    compiled = True  # False: the walk-side state in numpy (_walk_state_numpy), the reference for the tests
 
     def __init__(self, ctx, k_max: int, splits: np.ndarray):
         spec, scene = ctx.spec, ctx.scene
@@ -1104,30 +1068,18 @@ class ReverseChains:
             c = cont[at]
             passing[at] = (out.event[at] == rays.last_event[c]) & (out.throughput[at] == 1.0) \
                 & (out.direction[at] == take_rows(rays.direction, c)).all(axis=1)
-        end_kind = self.end_material[event.spec.part_material[part]] & ~interface  # a plain scatter part
-        if self.compiled:
-            plain, anchored = np.empty(len(cont), bool), np.empty(len(cont), bool)
-            lazy_njit(_walk_state_loop, "numpy")(r, np.ascontiguousarray(out.event), interface, passing, end_kind,
-                                                 np.ascontiguousarray(self._arriving_unpolarized),
-                                                 np.ascontiguousarray(out.side), self.pred, self.anchor, self.run,
-                                                 self.refl, plain, anchored)
-        else:
-            plain, anchored = self._walk_state_numpy(r, out, interface, passing, end_kind)
-        # a plain scatterer's vertex (every arrival there scatters): joined to an end point whatever
-        # the walk's own draw did next
-        self._connect_vertices(event, cont[plain])
-        if self.k_tree > 0 and anchored.any():
-            self._walk_density(event, cont[anchored], out, np.flatnonzero(anchored))
-
-    def _walk_state_numpy(self, r, out, interface, passing, end_kind):
-        """The per-ray state after the continuing hits of rays ``r`` (``end_kind``: a plain scatter part
-        there) in numpy (the reference :func:`_walk_state_loop` is tested against); returns the plain
-        scatter vertices and the anchored ones (masks over the hits)."""
+        mat = event.spec.part_material[part]
         scatter = (out.event == EVENT_SCATTER) & ~passing
         specular = (out.event == EVENT_SPECULAR) & interface & ~passing
         other = ~scatter & ~specular & ~passing
-        plain = scatter & end_kind & self._arriving_unpolarized
-        anchored = scatter & end_kind & self.pred[r]
+        # a plain scatterer's vertex (every arrival there scatters): joined to an end point whatever
+        # the walk's own draw did next
+        plain = scatter & ~interface & self.end_material[mat] & self._arriving_unpolarized
+        self._connect_vertices(event, cont[plain])
+        end_kind = scatter & ~interface & self.end_material[mat]
+        anchored = end_kind & self.pred[r]
+        if self.k_tree > 0 and anchored.any():
+            self._walk_density(event, cont[anchored], out, np.flatnonzero(anchored))
         r_scatter, r_specular, r_other = r[scatter], r[specular], r[other]
         self.anchor[r_scatter] = anchored[scatter]
         self.run[r_scatter] = 0
@@ -1140,7 +1092,6 @@ class ReverseChains:
         self.pred[r_other] = False
         self.run[r_other] = 0
         self.refl[r_other] = 0
-        return plain, anchored
 
     def _walk_density(self, event, rows, out, at):
         """The walk's density of the (P, omega) it drew at the anchored vertices ``rows`` (``out``

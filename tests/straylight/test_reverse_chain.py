@@ -551,59 +551,6 @@ def test_the_compiled_eye_chains_are_bit_identical_to_their_numpy_twins(slab_sce
         np.testing.assert_array_equal(a, b)
 
 
-def test_the_compiled_walk_state_gives_the_same_bits_as_its_numpy_twin(slab_scene, monkeypatch):
-    """A batch with the chains and the split trees, the walk-side state updated by the compiled pass
-    (reverse_chain._walk_state_loop) and by ReverseChains._walk_state_numpy (the eye chains by their numpy
-    twins too): the same tallies, bit for bit."""
-    from straylight.engine import reverse_chain as rc
-
-    sc, src, mats = slab_scene
-    spec = make_spec(sc, src, 3_000, 9, mats, TraceOptions(estimator=EstimatorOptions(reverse_chain=4, delta_chain=4)))
-    got = []
-    for compiled in (True, False):
-        monkeypatch.setattr(rc.EyeChains, "compiled", compiled)
-        monkeypatch.setattr(rc.ReverseChains, "compiled", compiled)
-        got.append(run_batch(spec, 0, 3))
-    assert np.any(got[0]["s1"] != 0)
-    np.testing.assert_array_equal(got[0]["s1"], got[1]["s1"])
-    np.testing.assert_array_equal(got[0]["s2"], got[1]["s2"])
-
-
-def test_the_compiled_walk_state_pass_is_bit_identical_on_random_hits(rng=np.random.default_rng(5)):
-    """reverse_chain._walk_state_loop against ReverseChains._walk_state_numpy on random hits (scatter,
-    specular and other events, interfaces, pass-throughs, both sides): the same masks and per-ray state."""
-    from types import SimpleNamespace
-
-    from straylight.engine import reverse_chain as rc
-    from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SPECULAR
-
-    n_rays, n = 400, 300
-    r = rng.permutation(n_rays)[:n].astype(np.int64)
-    out = SimpleNamespace(event=rng.choice(np.array([EVENT_SCATTER, EVENT_SPECULAR, 3], np.int8), n),
-                          side=rng.choice(np.array([1, -1], np.int8), n))
-    interface, passing, end_kind = (rng.random(n) < 0.5 for _ in range(3))
-    passing &= interface
-
-    def state():
-        g = np.random.default_rng(6)
-        return SimpleNamespace(pred=g.random(n_rays) < 0.5, anchor=g.random(n_rays) < 0.5,
-                               run=g.integers(0, 3, n_rays), refl=g.integers(0, 2, n_rays),
-                               _arriving_unpolarized=np.random.default_rng(7).random(n) < 0.7)
-
-    want_state = state()
-    want = rc.ReverseChains._walk_state_numpy(want_state, r, out, interface, passing, end_kind)
-    got_state = state()
-    plain, anchored = np.empty(n, bool), np.empty(n, bool)
-    rc.lazy_njit(rc._walk_state_loop, "numpy")(r, out.event, interface, passing, end_kind,
-                                               got_state._arriving_unpolarized, out.side, got_state.pred,
-                                               got_state.anchor, got_state.run, got_state.refl, plain, anchored)
-    assert want[0].any() and want[1].any()
-    np.testing.assert_array_equal(plain, want[0])
-    np.testing.assert_array_equal(anchored, want[1])
-    for f in ("pred", "anchor", "run", "refl"):
-        np.testing.assert_array_equal(getattr(got_state, f), getattr(want_state, f), err_msg=f)
-
-
 def test_the_forward_codes_reverse_each_rows_first_k_codes():
     """reverse_chain._forward_codes: the eye order's first k codes of each row, reversed, -1 padded."""
     from straylight.engine.reverse_chain import _forward_codes
