@@ -74,10 +74,12 @@ unbiased (only the split between the two strategies is no longer the balance opt
 """
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from materials.sampling import lazy_njit
 from straylight.engine.draws import EMISSION_COLUMNS
 from straylight.rng import CHUNK_RAYS, n_chunks
 
@@ -175,7 +177,24 @@ def table_from_contributions(u: np.ndarray, x: np.ndarray, grid: int = GRID, def
 def warp(table: EntranceTable, u: np.ndarray) -> np.ndarray:
     """Move the source uniforms ``u[:, 0], u[:, 1]`` (in place) to the table's density; returns each
     ray's weight factor 1 / p(u) = 1 / (G^2 P_c). u1 picks the cell by inverse CDF, its residual
-    (u1 - CDF_{c-1}) / P_c is the position in the cell along u1, u2 the position along u2."""
+    (u1 - CDF_{c-1}) / P_c is the position in the cell along u1, u2 the position along u2. One
+    compiled pass (:func:`_warp_loop`) over :func:`warp_numpy`'s operations in its order (the same
+    bits); the cell is found from a guide table of the CDF (:func:`_guide`) and a short scan, the
+    cell ``np.searchsorted(cdf, u1, side="right")`` names (the first whose CDF exceeds u1)."""
+    n = len(u)
+    factor = np.empty(n)
+    if n == 0:
+        return factor
+    uc = np.ascontiguousarray(u, dtype=np.float64)
+    lazy_njit(_warp_loop, "numpy")(table.cdf, table.prob, _guide(table), int(table.grid), float(np.nextafter(1.0, 0.0)),
+                                   uc, factor)
+    if uc is not u:
+        u[:, :2] = uc[:, :2]
+    return factor
+
+
+def warp_numpy(table: EntranceTable, u: np.ndarray) -> np.ndarray:
+    """:func:`warp` in vectorised numpy (the reference it is tested against)."""
     g = table.grid
     a = u[:, 0]
     c = np.minimum(np.searchsorted(table.cdf, a, side="right"), g * g - 1)
@@ -186,6 +205,48 @@ def warp(table: EntranceTable, u: np.ndarray) -> np.ndarray:
     u[:, 0] = (i + frac) / g
     u[:, 1] = (j + u[:, 1]) / g
     return 1.0 / (g * g * p)
+
+
+_GUIDES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _guide(table: EntranceTable) -> np.ndarray:
+    """Per bucket b of the unit interval cut in M = len(cdf) equal parts: the first cell whose CDF
+    exceeds b / M (where a uniform of that bucket starts its scan; computed once per table)."""
+    guide = _GUIDES.get(table)
+    if guide is None:
+        m = len(table.cdf)
+        guide = _GUIDES[table] = np.searchsorted(table.cdf, np.arange(m) / m, side="right").astype(np.int64)
+    return guide
+
+
+def _warp_loop(cdf, prob, guide, g, frac_max, u, factor):
+    """:func:`warp_numpy` row by row. The cell: from the guide's start, back while the CDF before it
+    exceeds u1, on while its own does not (the first cell whose CDF exceeds u1, whatever the start:
+    the guide only shortens the scan)."""
+    m = len(cdf)
+    top = g * g - 1
+    for r in range(len(u)):
+        a = u[r, 0]
+        b = min(max(int(a * m), 0), m - 1)
+        c = guide[b]
+        while c > 0 and cdf[c - 1] > a:
+            c -= 1
+        while c < m and cdf[c] <= a:
+            c += 1
+        c = min(c, top)
+        lo = cdf[c - 1] if c > 0 else 0.0
+        p = prob[c]
+        frac = (a - lo) / p  # np.clip's max then min (a NaN kept, ties to the bound)
+        if not (frac != frac or frac > 0.0):
+            frac = 0.0
+        if not (frac != frac or frac < frac_max):
+            frac = frac_max
+        i = c // g
+        j = c - i * g
+        u[r, 0] = (i + frac) / g
+        u[r, 1] = (j + u[r, 1]) / g
+        factor[r] = 1.0 / (g * g * p)
 
 
 def density(table: EntranceTable, u: np.ndarray) -> np.ndarray:

@@ -245,3 +245,29 @@ def test_the_rest_of_the_pilot_draws_from_the_first_stages_table_when_enough_ray
     assert specs[1].options.estimator.entrance_sampling and specs[1].entrance_table is not None
     assert specs[1].chunk_offset == entrance_sampling.PILOT_CHUNK_OFFSET
     assert table.pilot_rays == entrance_sampling.PILOT_RAYS
+
+
+@pytest.mark.parametrize("grid, defensive", [(256, 0.25), (16, 0.0), (12, 0.1)])
+def test_the_compiled_warp_is_bit_identical_to_its_numpy_twin(grid, defensive):
+    """entrance_sampling.warp (a guide table and one compiled pass) against warp_numpy (np.searchsorted):
+    the same cells, uniforms and weight factors, bit for bit, on a peaked table (one bright cell among
+    empty ones; without the defensive share some cells have probability 0 and equal CDF values), a grid
+    whose G^2 is not a power of two, uniforms on cell edges, 0 and just below 1, and a strided view."""
+    from straylight.engine.entrance_sampling import table_from_contributions, warp, warp_numpy
+
+    rng = np.random.default_rng(grid)
+    u = rng.random((20_000, 2))
+    x = np.where(rng.random(len(u)) < 0.01, rng.random(len(u)), 0.0)
+    x[:3] = 50.0  # the bright cell
+    table = table_from_contributions(u, x, grid=grid, defensive=defensive, scales=(grid, 4))
+    edges = np.concatenate([table.cdf[:50], table.cdf[-50:], [0.0, np.nextafter(1.0, 0.0)]])
+    draws = np.concatenate([rng.random((30_000, 2)), np.stack([edges, rng.random(len(edges))], axis=1)])
+    want = draws.copy()
+    f_want = warp_numpy(table, want)
+    got = draws.copy()
+    np.testing.assert_array_equal(warp(table, got), f_want)
+    np.testing.assert_array_equal(got, want)
+    wide = np.zeros((len(draws), 5))
+    wide[:, 1:3] = draws
+    np.testing.assert_array_equal(warp(table, wide[:, 1:3]), f_want)  # a strided view, moved in place
+    np.testing.assert_array_equal(wide[:, 1:3], want)
