@@ -653,11 +653,14 @@ class EyeChains:
         d, e1, origin = (start_rays if self.compiled else start_rays_numpy)(drawn, nz, z, 2.0 * spec.eps)
         beta = np.pi * area * D * (2.0 if both else 1.0) / q
         det_part = np.asarray(scene.det_parts, dtype=np.int64)[j]
-        v = np.zeros((n, 4))
-        v[:, 0] = 1.0
+        width = max(min(self.k_max, CODE_COLUMNS), 1)
+        if self.compiled:  # no rows: every chain starts with the covector (1, 0, 0, 0) and no codes (_onward_loop)
+            v, codes = np.zeros((0, 4)), np.full((0, width), -1, dtype=np.int64)
+        else:
+            v, codes = np.zeros((n, 4)), np.full((n, width), -1, dtype=np.int64)
+            v[:, 0] = 1.0
         live = _Branches(ray=np.arange(n), origin=origin, d=d, w=beta, v=v,
-                         e1=e1, k=np.zeros(n, np.int64), last_part=det_part, det=j, z=z,
-                         codes=np.full((n, max(min(self.k_max, CODE_COLUMNS), 1)), -1, dtype=np.int64),
+                         e1=e1, k=np.zeros(n, np.int64), last_part=det_part, det=j, z=z, codes=codes,
                          refl=np.zeros(n, np.int64))
         ends = []
         for _ in range(int(spec.options.physics.max_events)):
@@ -845,9 +848,12 @@ def _onward_loop(through, at_through, part_through, sel, at, facing, part, ss_r,
     moved ``eps`` past their hits ``at_through``), then the reflections of the rows ``sel`` (hits ``at``,
     facing normals ``facing``) in row order, then their transmissions; materials.mueller's
     ``_s_vector_loop``, ``_rotate_stokes_loop`` (along -d) and ``_apply_interface_loop`` (transposed),
-    materials.smooth's ``_reflect_loop`` / ``_refract_loop`` written out in their order. Returns the
-    fields of :class:`_Branches` in :attr:`_Branches.FIELDS` order."""
+    materials.smooth's ``_reflect_loop`` / ``_refract_loop`` written out in their order. ``v`` and
+    ``codes`` without rows: the chains' first rays, each with the covector (1, 0, 0, 0) and no codes
+    (nothing to allocate per chain). Returns the fields of :class:`_Branches` in :attr:`_Branches.FIELDS`
+    order."""
     n = len(sel)
+    fresh = len(v) == 0  # the chains' first rays: covector (1, 0, 0, 0), no codes (v and codes without rows)
     vo = np.empty((2, n, 4))
     s_out = np.empty((n, 3))
     take = np.zeros((2, n), np.bool_)
@@ -876,9 +882,11 @@ def _onward_loop(through, at_through, part_through, sel, at, facing, part, ss_r,
         sin_psi = (x0 * c0 + x2 * c2) + x1 * c1
         cc = cos_psi * cos_psi - sin_psi * sin_psi
         ss = 2.0 * cos_psi * sin_psi
-        v0, v3 = v[i, 0], v[i, 3]
-        v1 = cc * v[i, 1] + ss * v[i, 2]
-        v2 = -ss * v[i, 1] + cc * v[i, 2]
+        if fresh:
+            v0, v1, v2, v3 = 1.0, 0.0, 0.0, 0.0
+        else:
+            v0, v1, v2, v3 = v[i, 0], v[i, 1], v[i, 2], v[i, 3]
+        v1, v2 = cc * v1 + ss * v2, -ss * v1 + cc * v2
         wb = w[i] * bulk[r]
         for b in range(2):
             if b == 0:
@@ -918,12 +926,13 @@ def _onward_loop(through, at_through, part_through, sel, at, facing, part, ss_r,
             o_z[j, c] = z[i, c]
         o_w[j] = w[i]
         for c in range(4):
-            o_v[j, c] = v[i, c]
+            o_v[j, c] = (1.0 if c == 0 else 0.0) if fresh else v[i, c]
         o_k[j] = k[i]
         o_part[j] = part_through[j]
         o_det[j] = det[i]
-        for c in range(codes.shape[1]):
-            o_codes[j, c] = codes[i, c]
+        if not fresh:
+            for c in range(codes.shape[1]):
+                o_codes[j, c] = codes[i, c]
         o_refl[j] = refl[i]
     j = len(through)
     for b in range(2):
@@ -957,8 +966,9 @@ def _onward_loop(through, at_through, part_through, sel, at, facing, part, ss_r,
             o_k[j] = k[i] + 1
             o_part[j] = part[r]
             o_det[j] = det[i]
-            for c in range(codes.shape[1]):
-                o_codes[j, c] = codes[i, c]
+            if not fresh:
+                for c in range(codes.shape[1]):
+                    o_codes[j, c] = codes[i, c]
             o_codes[j, k[i]] = part[r] * 4 + EVENT_SPECULAR_CODE
             o_refl[j] = refl[i] + (1 if b == 0 else 0)
             j += 1
