@@ -320,7 +320,11 @@ class EyeTable:
         """Detector and side (+1 front, -1 back) of the chains whose first uniforms are ``u0`` (inverse CDF
         of :attr:`key_prob`: a key of probability 0 is never picked)."""
         cdf = self.key_cdf
-        key = np.minimum(np.searchsorted(cdf, np.asarray(u0, np.float64), side="right"), len(cdf) - 1)
+        u0 = np.asarray(u0, np.float64)
+        key = np.zeros(u0.shape, np.int64)
+        for c in cdf:  # the CDF values <= u0 (np.searchsorted(cdf, u0, side="right") over a few keys)
+            key += c <= u0
+        key = np.minimum(key, len(cdf) - 1)
         return key // 2, np.where(key % 2 == 1, -1.0, 1.0)
 
     def _key(self, j, side):

@@ -558,3 +558,23 @@ def test_the_forward_codes_reverse_each_rows_first_k_codes():
     codes = np.array([[5, 9, 13, -1], [5, -1, -1, -1], [7, 11, 15, 19], [-1, -1, -1, -1]], dtype=np.int64)
     want = np.array([[13, 9, 5, -1], [5, -1, -1, -1], [19, 15, 11, 7], [-1, -1, -1, -1]], dtype=np.int64)
     np.testing.assert_array_equal(_forward_codes(codes, np.array([3, 1, 4, 0])), want)
+
+
+def test_the_keys_are_np_searchsorted_of_the_key_cdf(rng=np.random.default_rng(8)):
+    """EyeTable.keys (a count of the CDF values <= u0) names the key np.searchsorted(cdf, u0, side="right")
+    names, on random key probabilities with zeros, at uniforms on the CDF's values and just below them."""
+    from straylight.engine.reverse_chain import EyeTable
+
+    for _ in range(100):
+        n_keys = 2 * int(rng.integers(1, 5))
+        prob = np.where(rng.random(n_keys) < 0.3, 0.0, rng.random(n_keys))
+        prob[0] += 0.1
+        table = EyeTable(tables=(None,) * n_keys, normals=np.zeros((n_keys // 2, 3)), pilot_eyes=1, pilot_hits=1,
+                         key_prob=prob / prob.sum(), n_keys=n_keys)
+        cdf = table.key_cdf
+        inner = cdf[cdf < 1.0]
+        u0 = np.concatenate([rng.random(2000), inner, np.nextafter(inner, 0.0), [0.0, np.nextafter(1.0, 0.0)]])
+        want = np.minimum(np.searchsorted(cdf, u0, side="right"), n_keys - 1)
+        j, side = table.keys(u0)
+        np.testing.assert_array_equal(j, want // 2)
+        np.testing.assert_array_equal(side, np.where(want % 2 == 1, -1.0, 1.0))
