@@ -200,9 +200,10 @@ def _source_linear(spec) -> bool:
     return bool(getattr(spec.sources[0], "polarization", UNPOLARIZED).is_linear)
 
 
-def _local(v, n) -> np.ndarray:
-    """World directions ``v`` (m, 3) in the frames (t, b, n) of normals ``n`` (sources.orthonormal_basis)."""
-    t, b = orthonormal_basis(n)
+def _local(v, n, frame=None) -> np.ndarray:
+    """World directions ``v`` (m, 3) in the frames (t, b, n) of normals ``n`` (sources.orthonormal_basis;
+    ``frame``: its (t, b) when already known)."""
+    t, b = orthonormal_basis(n) if frame is None else frame
     return np.stack([_dot(v, t), _dot(v, b), _dot(v, n)], axis=1)
 
 
@@ -215,7 +216,8 @@ def _brdf(spec, mat, n, wi, wo, with_pdf=False):
     """Unpolarized BRDF of materials ``mat`` at frames of normals ``n`` (world directions wi toward
     the light, wo toward the viewer, both on the normal's side); with ``with_pdf`` also the
     material's sampling pdf of wo (the walk's draw there)."""
-    li, lo = _local(wi, n), _local(wo, n)
+    frame = orthonormal_basis(n)  # one frame for both directions
+    li, lo = _local(wi, n, frame), _local(wo, n, frame)
     f = np.zeros(len(mat))
     pdf = np.zeros(len(mat))
     pol = spec.options.physics.polarization
