@@ -229,6 +229,11 @@ class Conic(_Surface):
     def c(self) -> float:
         return 0.0 if math.isinf(self.radius_mm) else 1.0 / self.radius_mm
 
+    def sag_parameters(self) -> tuple[float, float, tuple]:
+        """(c, k, asphere coefficients (A4, A6, ...)): the sag as flat numbers, for compiled kernels
+        (straylight.engine.specular_manifold_kernel)."""
+        return self.c, self.conic, tuple(float(a) for a in getattr(self, "coefficients", ()))
+
     def slope_over_rho(self, rho2):
         """q = h'(rho) / rho = c / sqrt(1 - (1 + k) c^2 rho^2) (finite on the axis)."""
         c, k = self.c, self.conic

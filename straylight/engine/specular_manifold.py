@@ -26,6 +26,11 @@ central differences, z moved along the two tangents of the detector at z), dX_1/
 parametrisation, d omega/dz = (I - omega omega^T) dX_1/dz / |X_1 - P| and |d omega/dA_z| = |d omega/da
 x d omega/db|. For no interface at all this is cos_z / d^2 (next-event estimation's term); for a
 plane mirror cos_z / d'^2 with d' the unfolded length (tests/straylight/test_specular_nee.py).
+
+Compiled: the Newton iteration and the geometry term's Jacobians run per row in
+straylight.engine.specular_manifold_kernel for conics, aspheres and planes (their numpy twins here,
+:func:`solve_numpy` and :func:`implicit_jacobians_numpy`, do any other surface: the same roots and ok
+flags, tests/straylight/test_specular_manifold_kernel.py).
 """
 from __future__ import annotations
 
@@ -33,6 +38,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from straylight.engine import specular_manifold_kernel as kernel
 from straylight.sources import orthonormal_basis
 
 NEWTON_ITER = 20
@@ -252,12 +258,31 @@ class Solution(NamedTuple):
     ok: np.ndarray  # (m,) converged to a finite solution
 
 
-def solve(seq, p, z, x0=None, ok0=None) -> Solution:
+def solve(seq, p, z, x0=None, ok0=None, compiled: bool = True) -> Solution:
     """Newton's method for the sequence ``seq`` between p and z (m, 3) from ``x0`` (default
-    :func:`start`). Rows are independent: each row's iterates do not depend on the others."""
+    :func:`start`). Rows are independent: each row's iterates do not depend on the others. Compiled
+    (straylight.engine.specular_manifold_kernel.solve_rows) when every surface is a conic, asphere or
+    plane, else (or ``compiled=False``) :func:`solve_numpy`, its twin: the same roots and ok flags."""
     if x0 is None:
         x0, ok0 = start(seq, p, z)
         ok0 = ok0 & plausible(seq, x0, p, z)
+    par = kernel.pack(seq) if compiled else None
+    if par is None:
+        return solve_numpy(seq, p, z, x0, ok0)
+    x = np.array(x0, dtype=float)
+    m, k = len(x), len(seq)
+    active = np.ones(m, bool) if ok0 is None else np.asarray(ok0, bool).copy()
+    X = np.empty((m, k, 3))
+    N = np.empty((m, k, 3))
+    ok = np.empty(m, bool)
+    kernel.solve_rows(par, np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(z, dtype=float), x, active,
+                      NEWTON_ITER, GIVE_UP_AFTER, GIVE_UP_RESIDUAL, NEWTON_TOL_MM, RESIDUAL_TOL, DIFF_MM, X, N, ok)
+    return Solution(x, X, N, ok)
+
+
+def solve_numpy(seq, p, z, x0, ok0=None) -> Solution:
+    """:func:`solve` in numpy, all rows at once (the compiled kernel's twin; any surface with sag,
+    gradient and frame)."""
     x = np.array(x0, dtype=float)
     m = len(x)
     active = np.ones(m, bool) if ok0 is None else np.asarray(ok0, bool).copy()
@@ -329,23 +354,11 @@ def implicit_geometry_term(seq, sol: Solution, p, z, nz):
     k = len(seq)
     t, b = orthonormal_basis(nz)  # any orthonormal tangents: |d omega/dt x d omega/db| does not depend on them
     with np.errstate(invalid="ignore", divide="ignore"):
-        Jx = _jacobian(seq, sol.x, p, z)
-        Jz = np.zeros((m, 2 * k, 2))  # z enters only the last vertex's rows
-        X, N = _points(seq, sol.x)
-        for c, e in enumerate((t, b)):
-            Jz[:, 2 * k - 2:, c] = (_constraint(seq, k - 1, X, N, p, z + DIFF_Z_MM * e)
-                                    - _constraint(seq, k - 1, X, N, p, z - DIFF_Z_MM * e)) / (2 * DIFF_Z_MM)
+        Jx, Jz, dX = implicit_jacobians(seq, sol.x, p, z, t, b)
         good = np.isfinite(Jx).all(axis=(1, 2)) & (np.abs(np.linalg.det(Jx)) > 1e-300)
         dx = np.zeros((m, 2 * k, 2))
         if good.any():
             dx[good] = -np.linalg.solve(Jx[good], Jz[good])
-        s1 = seq[0].surface
-        dX = np.zeros((m, 3, 2))
-        for c in range(2):
-            up, um = sol.x[:, 0:2].copy(), sol.x[:, 0:2].copy()
-            up[:, c] += DIFF_MM
-            um[:, c] -= DIFF_MM
-            dX[:, :, c] = (surface_points(s1, up)[0] - surface_points(s1, um)[0]) / (2 * DIFF_MM)
         dX1 = np.einsum("mic,mcj->mij", dX, dx[:, 0:2, :])
         omega, length = _unit(sol.X[:, 0] - p)
         proj = np.eye(3)[None, :, :] - omega[:, :, None] * omega[:, None, :]
@@ -353,6 +366,43 @@ def implicit_geometry_term(seq, sol: Solution, p, z, nz):
         J = np.linalg.norm(np.cross(dw[:, :, 0], dw[:, :, 1]), axis=1)
     J = np.where(good & np.isfinite(J), J, 0.0)
     return J, omega
+
+
+def implicit_jacobians(seq, x, p, z, t, b, compiled: bool = True):
+    """The central-difference dF/dx (m, 2k, 2k), dF/dz along the detector tangents t, b (m, 2k, 2) and
+    dX_1/d(u_1, v_1) (m, 3, 2) of :func:`implicit_geometry_term`: compiled
+    (specular_manifold_kernel.jacobians_rows) where the surfaces allow, else :func:`implicit_jacobians_numpy`."""
+    par = kernel.pack(seq) if compiled else None
+    if par is None:
+        return implicit_jacobians_numpy(seq, x, p, z, t, b)
+    m, d = x.shape
+    Jx, Jz, dX = np.empty((m, d, d)), np.empty((m, d, 2)), np.empty((m, 3, 2))
+
+    def c(a):
+        return np.ascontiguousarray(a, dtype=float)
+
+    kernel.jacobians_rows(par, c(x), c(p), c(z), c(t), c(b), DIFF_MM, DIFF_Z_MM, Jx, Jz, dX)
+    return Jx, Jz, dX
+
+
+def implicit_jacobians_numpy(seq, x, p, z, t, b):
+    """:func:`implicit_jacobians` in numpy (the compiled kernel's twin)."""
+    m, k = len(x), len(seq)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        Jx = _jacobian(seq, x, p, z)
+        Jz = np.zeros((m, 2 * k, 2))  # z enters only the last vertex's rows
+        X, N = _points(seq, x)
+        for c, e in enumerate((t, b)):
+            Jz[:, 2 * k - 2:, c] = (_constraint(seq, k - 1, X, N, p, z + DIFF_Z_MM * e)
+                                    - _constraint(seq, k - 1, X, N, p, z - DIFF_Z_MM * e)) / (2 * DIFF_Z_MM)
+        s1 = seq[0].surface
+        dX = np.zeros((m, 3, 2))
+        for c in range(2):
+            up, um = x[:, 0:2].copy(), x[:, 0:2].copy()
+            up[:, c] += DIFF_MM
+            um[:, c] -= DIFF_MM
+            dX[:, :, c] = (surface_points(s1, up)[0] - surface_points(s1, um)[0]) / (2 * DIFF_MM)
+    return Jx, Jz, dX
 
 
 def side_checks(seq, sol: Solution, p, z):
