@@ -107,6 +107,8 @@ class _Surface:
                    nrm, loc, done)
         if getattr(self, "decentred", False) or getattr(self, "aperture_half_widths_mm", ()):
             p = self.to_local(o + t[:, None] * d)  # the aperture test needs (u, v), not only rho
+        elif type(self).valid is Conic.valid:
+            return t, nrm, _conic_valid_rho_z(self, loc, done)
         else:
             p = np.column_stack([loc[:, 0], np.zeros(len(o)), loc[:, 1]])
         return t, nrm, done & self.valid(p)
@@ -524,6 +526,36 @@ def _kernel():
 
         _KERNEL = refine_kernel
     return _KERNEL
+
+
+def _conic_valid_rho_z(surface, loc, done):
+    """``done & surface.valid(p)`` of a conic with its clear aperture about the axis, from ``loc`` = (rho, z)
+    per row (the points (rho, 0, z): ``in_aperture``'s ``hypot(rho - 0, 0 - 0)`` is ``|rho|``), in one compiled
+    pass (:func:`_valid_kernel`) with :meth:`Conic.valid`'s operations (the same bits)."""
+    tol = 1e-9 * max(1.0, surface.outer_radius_mm)
+    ok = np.empty(len(loc), np.bool_)
+    _valid_kernel()(loc, done, (1.0 + surface.conic) * surface.c, surface.outer_radius_mm + tol,
+                    surface.inner_radius_mm - tol, ok)
+    return ok
+
+
+_VALID_KERNEL = None
+
+
+def _valid_kernel():
+    """The numba kernel of :func:`_conic_valid_rho_z`, compiled on first use (cache=True)."""
+    global _VALID_KERNEL
+    if _VALID_KERNEL is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def valid_kernel(loc, done, branch_coef, rho_hi, rho_lo, ok):
+            for i in range(loc.shape[0]):
+                rho = abs(loc[i, 0])  # hypot(rho, 0)
+                ok[i] = done[i] and branch_coef * loc[i, 1] < 1.0 and rho <= rho_hi and rho >= rho_lo
+
+        _VALID_KERNEL = valid_kernel
+    return _VALID_KERNEL
 
 
 _ASPHERE_KERNEL = None

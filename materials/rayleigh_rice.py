@@ -37,7 +37,44 @@ def _unit(v):
 
 def s_basis(k, fallback=None) -> np.ndarray:
     """s = k x z normalised for propagation directions k (n, 3) in the sample frame; along the
-    normal, ``fallback`` (n, 3) (unit, normal to k) or the x-based rule of materials.mueller.s_vector."""
+    normal, ``fallback`` (n, 3) (unit, normal to k) or the x-based rule of materials.mueller.s_vector.
+    One compiled pass (:func:`_s_basis_loop`), :func:`s_basis_numpy`'s operations in its order (the same bits)."""
+    k = np.ascontiguousarray(k, dtype=np.float64)
+    if k.ndim != 2 or k.shape[1] != 3:
+        return s_basis_numpy(k, fallback)
+    fb = np.ascontiguousarray(fallback if fallback is not None else np.zeros((0, 3)), dtype=np.float64)
+    if fallback is not None and fb.shape != k.shape:
+        return s_basis_numpy(k, fallback)
+    out = np.empty((len(k), 3))
+    if len(k):
+        lazy_njit(_s_basis_loop, "numpy")(k, fb, fallback is not None, out)
+    return out
+
+
+def _s_basis_loop(k, fallback, has_fallback, out):
+    """:func:`s_basis_numpy` row by row: ``np.cross(k, z)``'s products and differences, ``norm_rows``'
+    order ``(x^2 + y^2) + z^2``, the fallback (or ``np.cross(k, x)``) where the norm is below 1e-12."""
+    for i in range(len(k)):
+        k0, k1, k2 = k[i, 0], k[i, 1], k[i, 2]
+        s0 = k1 * 1.0 - k2 * 0.0
+        s1 = k2 * 0.0 - k0 * 1.0
+        s2 = k0 * 0.0 - k1 * 0.0
+        norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        if norm < 1e-12:
+            if has_fallback:
+                s0, s1, s2 = fallback[i, 0], fallback[i, 1], fallback[i, 2]
+            else:
+                s0 = k1 * 0.0 - k2 * 0.0
+                s1 = k2 * 1.0 - k0 * 0.0
+                s2 = k0 * 0.0 - k1 * 1.0
+            norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
+        out[i, 0] = s0 / norm
+        out[i, 1] = s1 / norm
+        out[i, 2] = s2 / norm
+
+
+def s_basis_numpy(k, fallback=None) -> np.ndarray:
+    """:func:`s_basis` in vectorised numpy (the reference it is tested against)."""
     z0, z1, z2 = Z  # np.cross(k, Z), its products and differences written out (the same bits)
     s = np.stack([k[:, 1] * z2 - k[:, 2] * z1, k[:, 2] * z0 - k[:, 0] * z2, k[:, 0] * z1 - k[:, 1] * z0], axis=-1)
     norm = norm_rows(s)

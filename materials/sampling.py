@@ -275,7 +275,57 @@ def direction_from_beta(beta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def lobe_direction(wi, u, l, s) -> np.ndarray:
-    """Only the directions of :func:`lobe_sample` (for composites, which weight draws themselves)."""
+    """Only the directions of :func:`lobe_sample` (for composites, which weight draws themselves). One lobe
+    (scalar l, s): numpy's logarithms and exponentials of :func:`sample_radial_lobe` (their bits), the rest
+    (the radius, the azimuth, :func:`direction_from_beta`) in one compiled pass (:func:`_lobe_direction_loop`,
+    :func:`lobe_direction_numpy`'s operations in its order: the same bits)."""
+    wi = np.asarray(wi, float)
+    if np.ndim(l) != 0 or np.ndim(s) != 0 or wi.ndim != 2 or wi.shape[1] != 3:
+        return lobe_direction_numpy(wi, u, l, s)
+    u2 = direction_uniforms(u)
+    b0 = beta0_of(wi)
+    r_max = 1.0 + np.hypot(b0[:, 0], b0[:, 1])
+    lf, a = float(l), _one_minus_s_half(float(s))
+    x = np.log1p((r_max / lf) ** 2)  # sample_radial_lobe's one-lobe branch
+    if abs(a) < 0.5 * _S_EQUALS_2:
+        t = np.expm1(u2[:, 0] * x)
+    else:
+        t = np.expm1(np.log1p(u2[:, 0] * np.expm1(a * x)) / a)
+    wo = np.empty((len(wi), 3))
+    if len(wi):
+        lazy_njit(_lobe_direction_loop, "numpy")(np.ascontiguousarray(wi), np.ascontiguousarray(t),
+                                                 np.ascontiguousarray(r_max), np.ascontiguousarray(u2[:, 1]), lf,
+                                                 2.0 * np.pi, wo)
+    return wo
+
+
+def _lobe_direction_loop(wi, t, r_max, u_phi, l, two_pi, wo):
+    """The end of :func:`sample_radial_lobe` and :func:`direction_from_beta` row by row: ``np.maximum``,
+    ``np.minimum`` (NaN kept), ``beta = -wi_xy + d``, ``|beta|^2 = bx^2 + by^2``."""
+    for i in range(len(t)):
+        ti = t[i]
+        ti = ti if (ti >= 0.0 or ti != ti) else 0.0
+        r = l * np.sqrt(ti)
+        rm = r_max[i]
+        r = r if (r <= rm or r != r) else rm
+        phi = two_pi * u_phi[i]
+        bx = -wi[i, 0] + r * np.cos(phi)
+        by = -wi[i, 1] + r * np.sin(phi)
+        b2 = bx * bx + by * by
+        if b2 < 1.0:
+            wo[i, 0] = bx / 1.0
+            wo[i, 1] = by / 1.0
+            wo[i, 2] = np.sqrt(1.0 - b2)
+        else:
+            m = b2 if (b2 >= 1e-300 or b2 != b2) else 1e-300
+            norm = np.sqrt(m)
+            wo[i, 0] = bx / norm
+            wo[i, 1] = by / norm
+            wo[i, 2] = np.sqrt(0.0)
+
+
+def lobe_direction_numpy(wi, u, l, s) -> np.ndarray:
+    """:func:`lobe_direction` in vectorised numpy (the reference it is tested against)."""
     wi = np.asarray(wi, float)
     b0 = beta0_of(wi)
     r_max = 1.0 + np.hypot(b0[:, 0], b0[:, 1])

@@ -318,7 +318,24 @@ class Dielectric:
 
     def coefficients(self, cos_i, back: bool = False) -> Coefficients:
         """Fresnel amplitudes at incidence cosines ``cos_i`` (n,), from the front (outside ->
-        medium) or, with ``back=True``, from inside the medium."""
+        medium) or, with ``back=True``, from inside the medium. A real index without a coating: one
+        compiled pass (:func:`_real_index_loop`), :meth:`coefficients_numpy`'s operations in its order
+        (the same bits)."""
+        c = np.atleast_1d(np.asarray(cos_i, float))
+        if self.k != 0.0 or self.coating is not None or c.ndim != 1:
+            return self.coefficients_numpy(c, back)
+        m = np.asarray(self.n_outside / self.n_real if back else complex(self.n_real, self.k) / self.n_outside, complex)
+        m_real = float(np.real(m))
+        out = np.empty((4, len(c)), complex)
+        cos_t = np.empty(len(c))
+        if len(c):
+            lazy_njit(_real_index_loop, "numpy")(np.ascontiguousarray(c), complex(m * m), complex(2.0 * m), m_real,
+                                                 out, cos_t)
+        return Coefficients(out[0], out[1], out[2], out[3], cos_t, np.full(c.shape, 1.0 / m_real))
+
+    def coefficients_numpy(self, cos_i, back: bool = False) -> Coefficients:
+        """:meth:`coefficients` in vectorised numpy (the reference the compiled pass is tested against;
+        every index and coating)."""
         c = np.atleast_1d(np.asarray(cos_i, float))
         if back:
             m = self.n_outside / self.n_real
@@ -365,6 +382,52 @@ class Dielectric:
             d["wavelength_nm"] = self.wavelength_nm
         _coating_to_dict(self, d)
         return d
+
+
+def _real_index_loop(c, m2, two_m, m_real, out, cos_t):
+    """:meth:`Dielectric.coefficients_numpy` row by row for a real index and no coating:
+    :func:`materials.fresnel.fresnel_amplitudes`' rows (its compiled loop's operations), the
+    transmission scaled by ``sqrt(Re q / cos_i)`` as numpy multiplies complex by real (``(x + 0j) z``),
+    Snell's ``cos_t``, zero transmission under total internal reflection."""
+
+    def cdiv(a, b):  # as in materials/fresnel.py's loop: numba's cache does not see a change in a jitted callee
+        ar, ai, br, bi = a.real, a.imag, b.real, b.imag
+        if abs(br) >= abs(bi):
+            if br == 0.0 and bi == 0.0:
+                return complex(ar / abs(br), ai / abs(br))
+            rat = bi / br
+            scl = 1.0 / (br + bi * rat)
+            return complex((ar + ai * rat) * scl, (ai - ar * rat) * scl)
+        rat = br / bi
+        scl = 1.0 / (bi + br * rat)
+        return complex((ar * rat + ai) * scl, (ai * rat - ar) * scl)
+
+    mr2 = m_real * m_real
+    for r in range(len(c)):
+        x = c[r]
+        cz = complex(x, 0.0)
+        q = np.sqrt((m2 - (1.0 - x * x)) + 0j)
+        ds = cz + q
+        m2c = m2 * cz
+        dp = m2c + q
+        out[0, r] = cdiv(cz - q, ds)
+        out[1, r] = cdiv(m2c - q, dp)
+        ts = cdiv(complex(2.0 * x, 0.0), ds)
+        tp = cdiv(two_m * cz, dp)
+        f = q.real / x if x > 0 else 0.0
+        sf = np.sqrt(f)
+        ts = complex(ts.real * sf - ts.imag * 0.0, ts.real * 0.0 + ts.imag * sf)
+        tp = complex(tp.real * sf - tp.imag * 0.0, tp.real * 0.0 + tp.imag * sf)
+        sin2_t = (1.0 - x * x) / mr2
+        if sin2_t >= 1.0:
+            cos_t[r] = 0.0
+            out[2, r] = 0j
+            out[3, r] = 0j
+        else:
+            w = 1.0 - sin2_t
+            cos_t[r] = np.sqrt(0.0 if w <= 0.0 else w)
+            out[2, r] = ts
+            out[3, r] = tp
 
 
 def _check_coating(component, owner: str) -> None:

@@ -92,3 +92,34 @@ def test_bad_surface_tables_are_one_line_errors(table, message):
     with pytest.raises(GeometryError, match=message) as exc:
         surface_from_dict(table, where="scene.toml: [[part]] 2")
     assert str(exc.value).startswith("scene.toml: [[part]] 2") and "\n" not in str(exc.value)
+
+
+@pytest.mark.parametrize("spec", [
+    {"type": "conic", "radius_mm": 40.0, "conic": -0.5, "outer_radius_mm": 12.0, "inner_radius_mm": 3.0},
+    {"type": "conic", "radius_mm": -25.0, "conic": 0.0, "outer_radius_mm": 0.5},
+    {"type": "plane", "outer_radius_mm": 30.0, "inner_radius_mm": 10.0},
+])
+def test_compiled_aperture_test_is_valid_on_the_rho_z_points(spec):
+    """refine_hits' compiled aperture and branch test of a conic about its axis gives ``done & valid(p)`` on the
+    points (rho, 0, z): random rows, the aperture's edges with their tolerance and the next floats, the branch's
+    edge, NaN and inf."""
+    from geometry.analytic import _conic_valid_rho_z
+
+    surf = surface_from_dict({"vertex_mm": [0, 0, 0], "axis": [0, 0, 1], **spec})
+    rng = np.random.default_rng(5)
+    n = 20_000
+    loc = np.column_stack([rng.uniform(0.0, 1.5 * surf.outer_radius_mm, n), rng.uniform(-60.0, 60.0, n)])
+    tol = 1e-9 * max(1.0, surf.outer_radius_mm)
+    edges = [surf.outer_radius_mm + tol, surf.inner_radius_mm - tol, surf.outer_radius_mm, surf.inner_radius_mm]
+    for i, e in enumerate(edges):
+        loc[3 * i:3 * i + 3, 0] = [e, np.nextafter(e, -np.inf), np.nextafter(e, np.inf)]
+    if surf.c:
+        z_edge = 1.0 / ((1.0 + surf.conic) * surf.c) if surf.conic != -1.0 else 1.0
+        loc[20:23, 1] = [z_edge, np.nextafter(z_edge, -np.inf), np.nextafter(z_edge, np.inf)]
+    loc[30:32], loc[32, 0], loc[33, 1], loc[34, 0] = np.nan, np.inf, -np.inf, 0.0
+    done = rng.uniform(size=n) < 0.9
+    with np.errstate(invalid="ignore"):  # the plane's 0 * inf
+        want = done & surf.valid(np.column_stack([loc[:, 0], np.zeros(n), loc[:, 1]]))
+    got = _conic_valid_rho_z(surf, loc, done)
+    np.testing.assert_array_equal(got, want)
+    assert want.any() and not want.all()

@@ -70,3 +70,26 @@ def test_one_lobe_fast_path_is_the_broadcast_formula_bit_for_bit():
                                       equal_nan=True)
                 assert np.array_equal(sample_radial_lobe(u2, l, s, r_max),
                                       sample_radial_lobe(u2, np.full(1, l), s, r_max), equal_nan=True)
+
+
+@pytest.mark.parametrize("l, s", [(0.02, 2.4), (0.3, 3.0), (0.05, 2.0), (1e-4, 1.5)])
+def test_compiled_lobe_direction_is_the_numpy_formulas(l, s):
+    """A lobe's draws (composites' sample_direction): the compiled end of the radial draw and of the beta ->
+    direction map gives :func:`lobe_direction_numpy`'s bits (signed zeros included): random incidences, normal and
+    grazing incidence, uniforms 0 and next to 1, draws below the horizon, NaN directions and an empty batch."""
+    from materials.sampling import lobe_direction, lobe_direction_numpy
+
+    rng = np.random.default_rng(31)
+    n = 100_000
+    wi = rng.normal(size=(n, 3))
+    wi[:, 2] = np.abs(wi[:, 2])
+    wi /= np.linalg.norm(wi, axis=1)[:, None]
+    wi[:10], wi[10:20] = [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]
+    wi[20:22] = np.nan
+    u = rng.uniform(size=(n, 3))
+    u[30:40, 1:], u[40:50, 1], u[50:60, 2] = 0.0, np.nextafter(1.0, 0.0), np.nextafter(1.0, 0.0)
+    got, want = lobe_direction(wi, u, l, s), lobe_direction_numpy(wi, u, l, s)
+    np.testing.assert_array_equal(got, want)
+    assert np.array_equal(np.signbit(got), np.signbit(want))
+    assert (want[:, 2] == 0).any() and (want[:, 2] > 0).any()
+    assert lobe_direction(wi[:0], u[:0], l, s).shape == (0, 3)

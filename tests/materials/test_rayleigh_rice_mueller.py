@@ -236,3 +236,25 @@ def test_material_mueller_is_the_component_sum_bit_for_bit(model, first_row_only
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(e1, e1_want)
     assert (got[:, 0, 0] > 0).sum() > 2000
+
+
+def test_compiled_s_basis_is_the_numpy_formulas():
+    """The s vectors k x z (normalised) of the compiled pass are :func:`s_basis_numpy`'s bits (signed zeros
+    included): random directions, along +-z and within 1e-12 of it (the fallback's rows, or the x-based rule
+    without one), -0 components, NaN, and an empty batch."""
+    from materials.rayleigh_rice import s_basis, s_basis_numpy
+
+    rng = np.random.default_rng(12)
+    n = 50_000
+    k = rng.normal(size=(n, 3))
+    k /= np.linalg.norm(k, axis=1)[:, None]
+    k[:10], k[10:20], k[20:30] = [0.0, 0.0, 1.0], [0.0, 0.0, -1.0], [1e-13, -2e-13, 1.0]
+    k[30:40, 0], k[40:50, 1], k[50:52] = -0.0, -0.0, np.nan
+    fallback = rng.normal(size=(n, 3))
+    fallback /= np.linalg.norm(fallback, axis=1)[:, None]
+    for fb in (None, fallback):
+        got, want = s_basis(k, fb), s_basis_numpy(k, fb)
+        np.testing.assert_array_equal(got, want)
+        assert np.array_equal(np.signbit(got), np.signbit(want))
+    np.testing.assert_allclose(s_basis(k[:30], fallback[:30])[:20], fallback[:20], rtol=0, atol=1e-15)
+    assert s_basis(k[:0]).shape == (0, 3) and s_basis(k[:0], fallback[:0]).shape == (0, 3)

@@ -229,3 +229,28 @@ def test_compiled_reflect_and_refract_are_the_numpy_formulas():
         got, want = refract(d, nrm, e, c), refract_numpy(d, nrm, e, c)
         assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
     assert reflect(d[:0], nrm[:0]).shape == (0, 3) and refract(d[:0], nrm[:0], eta[:0], cos_t[:0]).shape == (0, 3)
+
+
+def test_compiled_dielectric_coefficients_are_the_numpy_formulas():
+    """A real index without a coating: the compiled pass gives :meth:`Dielectric.coefficients_numpy`'s
+    bits (signed zeros included) from the front and the back, for random cosines, normal and grazing
+    incidence, total internal reflection and its edge, cosines outside [0, 1], NaN and an empty batch."""
+    from materials.smooth import Dielectric
+
+    rng = np.random.default_rng(23)
+    c = rng.uniform(0.0, 1.0, 100_000)
+    c[:10], c[10:20], c[20:30], c[30:35] = 1.0, 0.0, -0.0, np.nan
+    c[35:40], c[40:45] = -0.3, 1.2
+    crit = np.sqrt(1.0 - (1.0 / 1.5195) ** 2)  # the back side's critical cosine and its neighbours
+    c[45:48] = [crit, np.nextafter(crit, 0.0), np.nextafter(crit, 1.0)]
+    for model in (Dielectric(n=1.5195), Dielectric(n=1.5195, n_outside=1.33), Dielectric(n=1.0)):
+        for back in (False, True):
+            got, want = model.coefficients(c, back=back), model.coefficients_numpy(c, back=back)
+            for name in ("r_s", "r_p", "t_s", "t_p", "cos_t", "eta"):
+                g, w = getattr(got, name), getattr(want, name)
+                assert g.dtype == w.dtype and g.shape == w.shape, name
+                for part_g, part_w in ((np.real(g), np.real(w)), (np.imag(g), np.imag(w))):
+                    np.testing.assert_array_equal(part_g, part_w, err_msg=name)
+                    assert np.array_equal(np.signbit(part_g), np.signbit(part_w)), name
+    assert Dielectric(n=1.5195).coefficients(c[:0]).r_s.shape == (0,)
+    assert (Dielectric(n=1.5195).coefficients(c, back=True).t_s[c < crit * 0.99] == 0).all()  # TIR

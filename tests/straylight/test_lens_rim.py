@@ -216,3 +216,36 @@ def test_thermal_emits_from_the_surface_area_over_the_clear_aperture():
     dz_drho = np.sqrt(rho2) / 200.0  # z = rho^2 / (2 R): dz/drho = rho / R
     f = math.pi * 100.0 * np.sqrt(1.0 + dz_drho ** 2)
     assert abs(oap.clear_area_mm2() - f.mean()) < 4 * f.std() / math.sqrt(n)
+
+
+def test_rim_refusals_of_two_curved_parts_and_a_disk_are_the_numpy_paths():
+    """A disk in front of two curved parts (a sphere and an off-axis paraboloid, each with its rim band):
+    the compiled refusal query, which finds the rim rows in its disk pass, refuses what the numpy reference
+    refuses, with the same distances (misses, disk slivers and both rim bands among the rows)."""
+    from straylight.intersect.exact_boundary import plane_parts
+
+    surfaces = [SURFACES["sphere"], Plane(np.array([0.0, 0.0, 5.0]), -UP, math.inf, 0.0, 6.0, 2.0),
+                Conic(np.array([0.0, 0.0, -20.0]), -UP, -200.0, -1.0, 10.0, 0.0, (30.0, 5.0))]
+    tris, parts = [], []
+    for p, s in enumerate(surfaces):
+        vertices, faces = s.mesh(TOL_MM)
+        tris.append(vertices[faces])
+        parts.append(np.full(len(faces), p, dtype=np.int64))
+    tri_mm, part = np.concatenate(tris), np.concatenate(parts)
+    ex = ExactBoundaryIntersector(EmbreeIntersector(tri_mm), part, plane_parts(surfaces), 1e-6,
+                                  rim_parts(surfaces, tri_mm, part))
+    assert len(ex._rim_surfaces) == 2
+    rng = np.random.default_rng(6)
+    n = 30000
+    rho, phi = rng.uniform(0.0, 13.0, n), rng.uniform(0, 2 * math.pi, n)
+    centre = np.where(rng.uniform(size=n) < 0.5, 0.0, 30.0)[:, None] * [1.0, 0.0, 0.0]
+    target = centre + np.column_stack([rho * np.cos(phi), rho * np.sin(phi), rng.uniform(-20.0, 5.0, n)])
+    o = target + np.column_stack([rng.normal(size=(n, 2)), np.full(n, 30.0)])
+    d = target - o
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    tri = ex.inner.first_triangle(o, d)
+    (r1, t1), (r2, t2) = ex._refused(tri, o, d), ex._refused_numpy(tri, o, d)
+    rim = ex._rim_or_miss[tri]
+    assert (tri < 0).any() and (r1 & (ex._disk_or_miss[tri] >= 0)).any()
+    assert (r1 & (rim == 0)).any() and (r1 & (rim == 1)).any() and (~r1 & (rim >= 0)).any()
+    assert np.array_equal(r1, r2) and np.array_equal(t1, t2)

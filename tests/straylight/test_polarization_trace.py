@@ -356,3 +356,32 @@ def test_out_of_plane_scatter_reads_s2_through_the_cross_terms(sign):
     f_lobe = lobe.brdf(wi, wo, "u")[0] * np.sum(np.abs(J[0] @ E) ** 2) / (0.5 * np.sum(np.abs(J[0]) ** 2))
     want = f_lobe + lam.brdf(wi, wo, "u")[0]
     assert abs(got - want) <= 4 * err + 0.001 * want, (got, want, err)
+
+
+def test_compiled_scattered_rows_are_the_numpy_formulas():
+    """Arriving.scattered's compiled pass after the Mueller BRDFs (the states M S, the weight ratios, the frame
+    vectors) gives its numpy twin's bits: random matrices and states, polarized and unpolarized arrivals,
+    M00 zero, negative and NaN, (M S)_0 <= 0, gathered and scattered rows, a one-row and an empty batch."""
+    from straylight.engine.interactions.scatter_polarization import scattered_rows, scattered_rows_numpy
+
+    rng = np.random.default_rng(8)
+    n_all, n_out = 5000, 3000
+    S = np.column_stack([np.ones(n_all), rng.uniform(-1, 1, (n_all, 3)) / 2])
+    polarized = rng.uniform(size=n_all) < 0.7
+    tangent, bitangent, nf = (rng.normal(size=(n_all, 3)) for _ in range(3))
+    for m in (2000, 1, 0):
+        M = rng.normal(size=(m, 4, 4)) * np.exp(rng.normal(size=(m, 4, 4)))
+        M[:10, 0, 0] = [0.0, -0.0, -1.0, np.nan, 1e-300, 0.0, 2.0, -3.0, np.nan, 1.0][:min(m, 10)]
+        e1_loc = rng.normal(size=(m, 3))
+        at = rng.integers(0, n_all, m)
+        to = rng.permutation(n_out)[:m]
+        g = rng.permutation(n_all)[:m]
+        outs = []
+        for fn in (scattered_rows, scattered_rows_numpy):
+            ratio, S_out, e1 = np.full(n_out, 7.0), np.full((n_all, 4), 7.0), np.full((n_all, 3), 7.0)
+            fn(M, e1_loc, S, polarized, tangent, bitangent, nf, at, to, g, ratio, S_out, e1)
+            outs.append((ratio, S_out, e1))
+        for got, want in zip(*outs):
+            np.testing.assert_array_equal(got, want)
+            assert np.array_equal(np.signbit(got), np.signbit(want))
+    assert (outs[0][1] == 7.0).all()  # the empty batch wrote nothing

@@ -18,6 +18,7 @@ import numpy as np
 
 from materials.mueller import s_vector
 from materials.polarized_brdf import is_polarizing, mueller_brdf
+from materials.sampling import lazy_njit
 from straylight.engine.interactions.stokes import active_state, incoming_stokes
 from straylight.engine.material_groups import brdf_and_pdf, by_material, distinct
 from straylight.engine.vec3 import dot_rows, take_rows
@@ -93,14 +94,58 @@ class Arriving:
         for k in distinct(mv):
             g = np.flatnonzero(mv == k)
             M, e1_loc = mueller_brdf(models[k], wi[g], wo[g], self.s_local[at[g]])
-            So = np.einsum("nij,nj->ni", M, self.S[at[g]])
-            m00 = M[:, 0, 0]
-            pol = self.polarized[at[g]]
-            ratio[use[g]] = np.where(pol, np.where(m00 > 0, So[:, 0] / np.where(m00 > 0, m00, 1.0), 0.0), 1.0)
-            S_out[g] = np.where((So[:, 0] > 0)[:, None], So, np.array([1.0, 0, 0, 0]))
-            e1[g] = (e1_loc[:, :1] * fr.tangent[at[g]] + e1_loc[:, 1:2] * fr.bitangent[at[g]]
-                     + e1_loc[:, 2:3] * nf[g])
+            scattered_rows(M, e1_loc, self.S, self.polarized, fr.tangent, fr.bitangent, nf, at[g], use[g], g,
+                           ratio, S_out, e1)
         return ratio, use, S_out, e1
+
+
+def scattered_rows(M, e1_loc, S, polarized, tangent, bitangent, nf, at, to, g, ratio, S_out, e1):
+    """The rows ``g`` of :meth:`Arriving.scattered` after their Mueller BRDFs ``M`` (m, 4, 4) and local frame
+    vectors ``e1_loc`` (m, 3): ``So = M S`` of the arriving states ``S[at]``, the weight ratios
+    ``So_0 / M00`` (1 for an unpolarized arrival) into ``ratio[to]``, the states (``(1, 0, 0, 0)`` where
+    ``So_0 <= 0``) into ``S_out[g]`` and the frame vectors (world) into ``e1[g]``. One compiled pass
+    (:func:`_scattered_rows_loop`), :func:`scattered_rows_numpy`'s operations in its order (the same bits)."""
+    if len(g):
+        idx = (np.ascontiguousarray(i, np.int64) for i in (at, to, g))
+        lazy_njit(_scattered_rows_loop, "numpy")(np.ascontiguousarray(M), np.ascontiguousarray(e1_loc), S, polarized,
+                                                 tangent, bitangent, nf, *idx, ratio, S_out, e1)
+
+
+def scattered_rows_numpy(M, e1_loc, S, polarized, tangent, bitangent, nf, at, to, g, ratio, S_out, e1):
+    """:func:`scattered_rows` in vectorised numpy (the reference it is tested against)."""
+    So = np.einsum("nij,nj->ni", M, S[at])
+    m00 = M[:, 0, 0]
+    pol = polarized[at]
+    ratio[to] = np.where(pol, np.where(m00 > 0, So[:, 0] / np.where(m00 > 0, m00, 1.0), 0.0), 1.0)
+    S_out[g] = np.where((So[:, 0] > 0)[:, None], So, np.array([1.0, 0, 0, 0]))
+    e1[g] = (e1_loc[:, :1] * tangent[at] + e1_loc[:, 1:2] * bitangent[at]
+             + e1_loc[:, 2:3] * nf[g])
+
+
+def _scattered_rows_loop(M, e1_loc, S, polarized, tangent, bitangent, nf, at, to, g, ratio, S_out, e1):
+    """:func:`scattered_rows_numpy` row by row: einsum's order of the four products,
+    ``(M_i0 S_0 + M_i2 S_2) + (M_i1 S_1 + M_i3 S_3)``."""
+    so = np.empty(4)
+    for r in range(len(g)):
+        a = at[r]
+        for i in range(4):
+            so[i] = (M[r, i, 0] * S[a, 0] + M[r, i, 2] * S[a, 2]) + (M[r, i, 1] * S[a, 1] + M[r, i, 3] * S[a, 3])
+        m00 = M[r, 0, 0]
+        if polarized[a]:
+            ratio[to[r]] = so[0] / m00 if m00 > 0 else 0.0
+        else:
+            ratio[to[r]] = 1.0
+        row = g[r]
+        if so[0] > 0:
+            for i in range(4):
+                S_out[row, i] = so[i]
+        else:
+            S_out[row, 0] = 1.0
+            S_out[row, 1] = 0.0
+            S_out[row, 2] = 0.0
+            S_out[row, 3] = 0.0
+        for c in range(3):
+            e1[row, c] = (e1_loc[r, 0] * tangent[a, c] + e1_loc[r, 1] * bitangent[a, c]) + e1_loc[r, 2] * nf[row, c]
 
 
 def arriving(event, verts, frame):
