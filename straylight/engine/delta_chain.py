@@ -46,6 +46,7 @@ from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.sampling import lazy_njit
 from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
+from straylight.engine.interface_rows import deflected, frame_rotation, unit_s_vector
 from straylight.engine.material_groups import distinct
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
@@ -411,17 +412,7 @@ def _children_loop(sel, row, w, k, refl, tag, codes, key, code, at, d, facing, S
             o_origin[j, 0] = at[r, 0] + step * f0
             o_origin[j, 1] = at[r, 1] + step * f1
             o_origin[j, 2] = at[r, 2] + step * f2
-            d0, d1, d2 = d[r, 0], d[r, 1], d[r, 2]
-            if b == 0:
-                two_dot = 2.0 * ((d0 * f0 + d2 * f2) + d1 * f1)
-                o_d[j, 0], o_d[j, 1], o_d[j, 2] = d0 - two_dot * f0, d1 - two_dot * f1, d2 - two_dot * f2
-            else:
-                cos_i = -((d0 * f0 + d2 * f2) + d1 * f1)
-                e = eta[r]
-                kk = e * cos_i - cos_t[r]
-                t0, t1, t2 = e * d0 + kk * f0, e * d1 + kk * f1, e * d2 + kk * f2
-                norm = np.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
-                o_d[j, 0], o_d[j, 1], o_d[j, 2] = t0 / norm, t1 / norm, t2 / norm
+            o_d[j, 0], o_d[j, 1], o_d[j, 2] = deflected(d[r, 0], d[r, 1], d[r, 2], f0, f1, f2, b == 0, eta[r], cos_t[r])
             o_w[j] = wo[b, r]
             s0 = So[b, r, 0]
             for c in range(4):
@@ -482,23 +473,10 @@ def _incidence_frames_loop(sel, S, e1, d, facing, s_out, S_out):
     for r in range(len(sel)):
         d0, d1, d2 = d[r, 0], d[r, 1], d[r, 2]
         n0, n1, n2 = facing[r, 0], facing[r, 1], facing[r, 2]
-        s0, s1, s2 = d1 * n2 - d2 * n1, d2 * n0 - d0 * n2, d0 * n1 - d1 * n0
-        norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-        if norm < 1e-12:  # d x (1, 0, 0), or d x (0, 1, 0) when that vanishes too
-            s0, s1, s2 = d1 * 0.0 - d2 * 0.0, d2 * 1.0 - d0 * 0.0, d0 * 0.0 - d1 * 1.0
-            norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-            if norm < 1e-6:
-                s0, s1, s2 = d1 * 0.0 - d2 * 1.0, d2 * 0.0 - d0 * 0.0, d0 * 1.0 - d1 * 0.0
-                norm = np.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-        b0, b1, b2 = s0 / norm, s1 / norm, s2 / norm
+        b0, b1, b2 = unit_s_vector(d0, d1, d2, n0, n1, n2)
         s_out[r, 0], s_out[r, 1], s_out[r, 2] = b0, b1, b2
         i = sel[r]
-        a0, a1, a2 = e1[i, 0], e1[i, 1], e1[i, 2]
-        cos_psi = (a0 * b0 + a2 * b2) + a1 * b1
-        c0, c1, c2 = d1 * a2 - d2 * a1, d2 * a0 - d0 * a2, d0 * a1 - d1 * a0
-        sin_psi = (c0 * b0 + c2 * b2) + c1 * b1
-        cc = cos_psi * cos_psi - sin_psi * sin_psi
-        ss = 2.0 * cos_psi * sin_psi
+        cc, ss = frame_rotation(e1[i, 0], e1[i, 1], e1[i, 2], d0, d1, d2, b0, b1, b2)
         S1, S2 = S[i, 1], S[i, 2]
         S_out[r, 0] = S[i, 0]
         S_out[r, 1] = cc * S1 + ss * S2

@@ -126,6 +126,7 @@ from straylight.engine.delta_chain import CODE_COLUMNS, concat_codes, widen_code
 from straylight.engine.entrance_sampling import density as entrance_density
 from straylight.engine.entrance_sampling import table_from_contributions, warp
 from straylight.engine.interactions.registry import parts_with
+from straylight.engine.interface_rows import deflected, frame_rotation, unit_s_vector
 from straylight.engine.material_groups import by_material, distinct
 from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
@@ -835,15 +836,7 @@ def _start_rays_loop(drawn, nz, z, eps, d, e1, origin):
         norm = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
         d0, d1, d2 = d0 / norm, d1 / norm, d2 / norm
         d[r, 0], d[r, 1], d[r, 2] = d0, d1, d2
-        s0, s1, s2 = d1 * zz - d2 * y, d2 * x - d0 * zz, d0 * y - d1 * x
-        sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-        if sn < 1e-12:  # d x (1, 0, 0), or d x (0, 1, 0) when that vanishes too
-            s0, s1, s2 = d1 * 0.0 - d2 * 0.0, d2 * 1.0 - d0 * 0.0, d0 * 0.0 - d1 * 1.0
-            sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-            if sn < 1e-6:
-                s0, s1, s2 = d1 * 0.0 - d2 * 1.0, d2 * 0.0 - d0 * 0.0, d0 * 1.0 - d1 * 0.0
-                sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-        e1[r, 0], e1[r, 1], e1[r, 2] = s0 / sn, s1 / sn, s2 / sn
+        e1[r, 0], e1[r, 1], e1[r, 2] = unit_s_vector(d0, d1, d2, x, y, zz)
         for c in range(3):
             origin[r, c] = z[r, c] + eps * nz[r, c]
 
@@ -870,24 +863,9 @@ def _onward_loop(through, at_through, part_through, sel, at, facing, part, ss_r,
         k_top = max(k_top, k[i])
         d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
         n0, n1, n2 = facing[r, 0], facing[r, 1], facing[r, 2]
-        s0, s1, s2 = d1 * n2 - d2 * n1, d2 * n0 - d0 * n2, d0 * n1 - d1 * n0
-        sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-        if sn < 1e-12:  # d x (1, 0, 0), or d x (0, 1, 0) when that vanishes too
-            s0, s1, s2 = d1 * 0.0 - d2 * 0.0, d2 * 1.0 - d0 * 0.0, d0 * 0.0 - d1 * 1.0
-            sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-            if sn < 1e-6:
-                s0, s1, s2 = d1 * 0.0 - d2 * 1.0, d2 * 0.0 - d0 * 0.0, d0 * 1.0 - d1 * 0.0
-                sn = math.sqrt((s0 * s0 + s1 * s1) + s2 * s2)
-        c0, c1, c2 = s0 / sn, s1 / sn, s2 / sn
+        c0, c1, c2 = unit_s_vector(d0, d1, d2, n0, n1, n2)
         s_out[r, 0], s_out[r, 1], s_out[r, 2] = c0, c1, c2
-        # rotate_stokes(v, e1, s, -d)
-        a0, a1, a2 = e1[i, 0], e1[i, 1], e1[i, 2]
-        m0, m1, m2 = -d0, -d1, -d2
-        cos_psi = (a0 * c0 + a2 * c2) + a1 * c1
-        x0, x1, x2 = m1 * a2 - m2 * a1, m2 * a0 - m0 * a2, m0 * a1 - m1 * a0
-        sin_psi = (x0 * c0 + x2 * c2) + x1 * c1
-        cc = cos_psi * cos_psi - sin_psi * sin_psi
-        ss = 2.0 * cos_psi * sin_psi
+        cc, ss = frame_rotation(e1[i, 0], e1[i, 1], e1[i, 2], -d0, -d1, -d2, c0, c1, c2)  # rotate_stokes(v, e1, s, -d)
         if fresh:
             v0, v1, v2, v3 = 1.0, 0.0, 0.0, 0.0
         else:
@@ -952,17 +930,7 @@ def _onward_loop(through, at_through, part_through, sel, at, facing, part, ss_r,
             o_origin[j, 0] = at[r, 0] + step * f0
             o_origin[j, 1] = at[r, 1] + step * f1
             o_origin[j, 2] = at[r, 2] + step * f2
-            d0, d1, d2 = d[i, 0], d[i, 1], d[i, 2]
-            if b == 0:
-                two_dot = 2.0 * ((d0 * f0 + d2 * f2) + d1 * f1)
-                o_d[j, 0], o_d[j, 1], o_d[j, 2] = d0 - two_dot * f0, d1 - two_dot * f1, d2 - two_dot * f2
-            else:
-                cos_i = -((d0 * f0 + d2 * f2) + d1 * f1)
-                e = eta[r]
-                kk = e * cos_i - cos_t[r]
-                t0, t1, t2 = e * d0 + kk * f0, e * d1 + kk * f1, e * d2 + kk * f2
-                norm = np.sqrt((t0 * t0 + t1 * t1) + t2 * t2)
-                o_d[j, 0], o_d[j, 1], o_d[j, 2] = t0 / norm, t1 / norm, t2 / norm
+            o_d[j, 0], o_d[j, 1], o_d[j, 2] = deflected(d[i, 0], d[i, 1], d[i, 2], f0, f1, f2, b == 0, eta[r], cos_t[r])
             o_w[j] = w[i] * bulk[r]
             for c in range(4):
                 o_v[j, c] = vo[b, r, c]
