@@ -81,11 +81,8 @@ class ExactBoundaryIntersector:
             return refused, t
         origins = np.ascontiguousarray(origins, np.float64)
         dirs = np.ascontiguousarray(dirs, np.float64)
-        if not self._rim_surfaces:
-            lazy_njit(_refused_loop, "numpy")(tri, origins, dirs, self._disk_or_miss, self._v0, self._normal,
-                                              self._centroid, self._centre, self._axis, self._r2, refused, t)
-            return refused, t
-        # the rim bands' rows and facet distances found in the same pass (_refuse_outside_apertures' first steps)
+        # the rim bands' rows (none without curved parts) and facet distances found in the same pass
+        # (_refuse_outside_apertures' first steps)
         rim_rows = np.empty(len(tri), np.int64)
         rim_t = np.empty(len(tri))
         n_rim = lazy_njit(_refused_rims_loop, "numpy")(tri, origins, dirs, self._disk_or_miss, self._rim_or_miss,
@@ -229,39 +226,12 @@ class ExactBoundaryIntersector:
         return out
 
 
-def _refused_loop(tri, origins, dirs, disk_or_miss, v0, normal, centroid, centre, axis, r2, refused, t):
-    """:meth:`ExactBoundaryIntersector._refused_numpy` row by row (``tri`` -1: a miss, the last entry of
-    ``disk_or_miss``); the plane distance of straylight.intersect._plane's loop, einsum's dot order."""
-    for r in range(len(tri)):
-        k = disk_or_miss[tri[r]]
-        if k < 0:
-            continue
-        j = tri[r]
-        n0, n1, n2 = normal[j, 0], normal[j, 1], normal[j, 2]
-        o0, o1, o2 = origins[r, 0], origins[r, 1], origins[r, 2]
-        d0, d1, d2 = dirs[r, 0], dirs[r, 1], dirs[r, 2]
-        dn = (d0 * n0 + d2 * n2) + d1 * n1
-        if abs(dn) < 1e-12:
-            c0, c1, c2 = centroid[j, 0] - o0, centroid[j, 1] - o1, centroid[j, 2] - o2
-            tp = (c0 * d0 + c2 * d2) + c1 * d1
-        else:
-            a0, a1, a2 = v0[j, 0] - o0, v0[j, 1] - o1, v0[j, 2] - o2
-            tp = ((a0 * n0 + a2 * n2) + a1 * n1) / dn
-        tp = tp if (tp > 0.0 or tp != tp) else 0.0
-        x0 = (o0 + tp * d0) - centre[k, 0]
-        x1 = (o1 + tp * d1) - centre[k, 1]
-        x2 = (o2 + tp * d2) - centre[k, 2]
-        along = (x0 * axis[k, 0] + x2 * axis[k, 2]) + x1 * axis[k, 1]
-        rho2 = ((x0 * x0 + x2 * x2) + x1 * x1) - along * along
-        refused[r] = rho2 > r2[k, 1] or rho2 < r2[k, 0]
-        t[r] = tp
-
-
 def _refused_rims_loop(tri, origins, dirs, disk_or_miss, rim_or_miss, v0, normal, centroid, centre, axis, r2,
                        refused, t, rim_rows, rim_t):
-    """:func:`_refused_loop`, and the rows whose triangle is on a curved part's rim band (``rim_or_miss``) listed
-    in ``rim_rows`` in order with their facet distances in ``rim_t`` (straylight.intersect._plane's loop, then
-    ``np.where(t > 0, t, 0)``); returns how many."""
+    """:meth:`ExactBoundaryIntersector._refused_numpy` row by row (``tri`` -1: a miss, the last entry of
+    ``disk_or_miss``; the plane distance of straylight.intersect._plane's loop, einsum's dot order), and the
+    rows whose triangle is on a curved part's rim band (``rim_or_miss``) listed in ``rim_rows`` in order with
+    their facet distances in ``rim_t`` (``np.where(t > 0, t, 0)``); returns how many."""
     n_rim = 0
     for r in range(len(tri)):
         j = tri[r]
