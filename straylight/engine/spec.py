@@ -156,8 +156,10 @@ def back_material_index(scene) -> np.ndarray:
                      for p in scene.parts], dtype=np.int64)
 
 
-AUTO_BATCH_RAYS = 50_000  # rays per in-memory batch unless set (batch_rays): enough to amortise the
-# per-call overheads (50k ran ~10 % faster than 20k on the reference tube); the per-ray state and the
+AUTO_BATCH_RAYS = 60_000  # rays per in-memory batch unless set (batch_rays): enough to amortise the
+# per-call overheads (50k ran ~10 % faster than 20k on the reference tube) and to trace the precision
+# stop's minimum sample with its confirming look (6e4 rays, straylight.analyses.precision) in one batch
+# (the guide scope's 20 and 30 deg points a few hundredths of a CPU s faster than 5e4); the per-ray state and the
 # tally log (straylight.engine.tally_store: ~4 writes per ray on the 0.36M assembly) grow with the
 # rays, not with the parts. Never changes results.
 

@@ -166,3 +166,43 @@ def test_loose_execution_keywords_of_trace_still_work_with_a_warning(tube):
         trace(*args, **kw, execution=Execution(first_chunk=-1))
     with pytest.raises(TypeError, match="unexpected keyword argument 'chunk'"):
         trace(*args, **kw, chunk=2)
+
+
+def test_looking_ahead_keeps_the_looks_and_the_stop(tube):
+    """Tracing on to the earliest look that can stop (fewer walk calls) gives the same looks, the same stop
+    and the same rays as one call per look: here the first calls end inside looks that do not meet the
+    target (a small first round, a target the minimum sample does not meet), so several looks are read
+    from the first rays of a longer call."""
+    from straylight.analyses.precision import traced_before_look
+    from straylight.trace import EstimatorOptions, TraceOptions
+
+    opts = TraceOptions(estimator=EstimatorOptions(first_vertex_sampling=True))
+    target = Precision(0.012, first_rays=3000, min_chunks=8)
+    src = [tube.beam.source(math.radians(10))]
+    ahead, plain = (trace_to_precision(tube.scene, src, 3, target, materials=tube.materials, options=opts,
+                                       detectors=["detector"], look_ahead=flag) for flag in (True, False))
+    assert plain.stop_reason == ahead.stop_reason == "target" and len(plain.rounds) >= 4
+    assert [n for n, _, _ in ahead.rounds] == [n for n, _, _ in plain.rounds]
+    for (_, e1, v1), (_, e2, v2) in zip(ahead.rounds, plain.rounds):
+        assert e1 == pytest.approx(e2, rel=1e-9) and v1 == pytest.approx(v2, rel=1e-9, abs=1e-15)
+    a, b = ahead.result.detectors["detector"], plain.result.detectors["detector"]
+    assert ahead.result.n_rays == plain.result.n_rays
+    assert a.power_w == pytest.approx(b.power_w, rel=1e-12) and a.stderr_w == pytest.approx(b.stderr_w, rel=1e-9)
+    # where it traces to: a look that can stop is traced to itself, any other to the confirming look of
+    # the earliest look that can meet the target (the minimum sample at least), within the ray cap
+    rule = Precision(0.02)
+    assert traced_before_look([], 20_000, rule) == 60_000
+    assert traced_before_look([], 50_000, rule) == 75_000
+    assert traced_before_look([], 20_000, Precision(0.02, max_rays=30_000)) == 30_000
+    from straylight.stop_rule import Look
+
+    met = Look(40_000, 1.0, 0.01, 0.0, 0.01, 40)
+    assert traced_before_look([met], 60_000, rule) == 60_000
+    # under a time cap: the first call looks ahead only under a long cap; later ones as far as time allows
+    from straylight.analyses.precision import _traced_ahead
+
+    assert _traced_ahead([], 20_000, Precision(0.02, max_seconds=5.0), 0, 0.0) == 20_000
+    assert _traced_ahead([], 20_000, Precision(0.02, max_seconds=60.0), 0, 0.0) == 60_000
+    assert _traced_ahead([], 40_000, Precision(0.02, max_seconds=60.0), 20_000, 10.0) == 60_000
+    assert _traced_ahead([], 40_000, Precision(0.02, max_seconds=60.0), 20_000, 45.0) == 40_000
+    assert _traced_ahead([], 40_000, Precision(0.02, max_seconds=60.0), 20_000, 25.0) == 48_000  # 35 s at 800 rays/s
