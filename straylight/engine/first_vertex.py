@@ -45,6 +45,7 @@ from straylight.sources import CollimatedDisk, PointSource, orthonormal_basis
 
 VERTEX_STREAM = 0x56455254  # third entropy word: this strategy's streams differ from the forward's
 PROBE_STREAM = 0x50524F42
+SCREEN_STREAM = 0x5343524E  # the one-probe screen of build_table ("SCRN"), apart from the probes' own stream
 LOBE_STREAM = 0x4C4F4245  # the lobe draws of vertex_lobe_sampling (so the other columns keep their bits)
 PROBES_PER_TRIANGLE = 8
 PROBE_BUDGET = 400_000
@@ -281,8 +282,13 @@ def _probe_scores(spec, comp, src, tris, m, rng):
     return np.sqrt(g2.reshape(len(tris), m).mean(axis=1))
 
 
-def build_table(spec, comp) -> VertexTable:
+def build_table(spec, comp, screen: bool = True) -> VertexTable:
     """Learn q_t from PROBES_PER_TRIANGLE probe points per surface triangle (module doc).
+
+    ``screen``: on a scene probed in one stage, one probe per triangle on an own stream first; where
+    none of them sees single scatter (behind a lens: the beam lights no surface the detector sees
+    straight) the table is empty without the full probes (an eighth of their cost), and otherwise the
+    full probes run on their own stream as without the screen (the same table).
 
     A scene with more surface triangles than PROBE_BUDGET / PROBES_PER_TRIANGLE is probed in two
     stages: one probe per triangle that may be lit and see a detector (:func:`_may_see_detector`)
@@ -300,6 +306,10 @@ def build_table(spec, comp) -> VertexTable:
     surf = surf[area[surf] > 0]
     rng = np.random.default_rng([check_seed(spec.seed), PROBE_STREAM])
     face = None
+    if screen and 0 < len(surf) * PROBES_PER_TRIANGLE <= PROBE_BUDGET:
+        seen = _probe_scores(spec, comp, src, surf, 1, np.random.default_rng([check_seed(spec.seed), SCREEN_STREAM]))
+        if not np.any(seen > 0):
+            return VertexTable(np.zeros(0, np.int64), np.zeros(0), np.zeros(n_tri))
     if len(surf) * PROBES_PER_TRIANGLE > PROBE_BUDGET:
         surf = surf[_may_see_detector(spec, comp, src, surf)]
         first = _probe_scores(spec, comp, src, surf, 1, rng)

@@ -119,3 +119,17 @@ def test_unsupported_sources_and_reference_engine_are_clear_errors():
     spec = replace(spec, vertex_table=VertexTable(np.zeros(0, np.int64), np.zeros(0), np.zeros(1)))
     with pytest.raises(TraceError, match="reference engine"):
         run_batch_reference(spec, 0, 1)
+
+
+def test_the_one_probe_screen_keeps_the_table():
+    """Where the probes see single scatter the screen (one probe per triangle, own stream) lets the full
+    probes run as without it: the same table, bit for bit."""
+    from straylight.engine.first_vertex import build_table
+    from straylight.engine.runtime import runtime
+
+    spec = make_spec(baffled_tube_scene(), _tube_source(20.0), 1000, 5, BLACK, FV)
+    comp = runtime().scene(spec)
+    screened, full = build_table(spec, comp), build_table(spec, comp, screen=False)
+    assert len(full.tri) > 0
+    for field in ("tri", "cdf", "p_area"):
+        assert np.array_equal(getattr(screened, field), getattr(full, field))

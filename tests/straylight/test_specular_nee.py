@@ -448,3 +448,21 @@ def test_the_entrance_pilot_leaves_out_thick_mirrors_that_carry_too_little(monke
     assert abs(a.power_w - c.power_w) <= 4 * math.hypot(a.stderr_w, c.stderr_w), (a, c)
     assert abs(off.ledger["balance_residual_w"]) < 1e-9 * off.emitted_w
     assert off.shadow_rays < on.shadow_rays and b.stderr_w > a.stderr_w  # the trees alone: more noise
+
+
+def test_first_vertex_sampling_declines_behind_a_lens(monkeypatch):
+    """The plate the beam lights is seen by the detector only through the lens: first-vertex sampling's
+    probes see no single scatter straight to it, its table is empty and the plan turns it off with that
+    reason; run with the empty table instead, it changes no number (its weights are all the walk's)."""
+    from straylight.engine.strategies import first_vertex as fv
+
+    scene = _thick_mirror_scene()
+    est = replace(THICK, first_vertex_sampling=True)
+    off = _run(scene, 5_000, 3, est)
+    assert "its probes saw no surface" in dict(off.strategies.off)["first_vertex"]
+    monkeypatch.setattr(fv.FirstVertex, "declines", lambda self, spec: None)
+    forced = _run(scene, 5_000, 3, est)
+    assert "first_vertex" in forced.strategies.on
+    assert forced.detectors["det"].power_w == off.detectors["det"].power_w > 0
+    assert forced.detectors["det"].stderr_w == off.detectors["det"].stderr_w
+    assert forced.escaped.power_w == off.escaped.power_w

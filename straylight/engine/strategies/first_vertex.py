@@ -16,6 +16,15 @@ def _own_intersector(spec, intersector) -> str | None:
     return None
 
 
+def _nothing_to_draw(spec) -> str | None:
+    """Why a built table leaves the strategy nothing to do: no surface triangle to draw (its MIS weights
+    would all be the walk's, 1: turning it off changes no number)."""
+    table = spec.vertex_table
+    if table is not None and len(table.tri) == 0:
+        return "its probes saw no surface the source lights and a detector sees straight"
+    return None
+
+
 class FirstVertex(Strategy):
     estimator = Estimator("first_vertex", replace(ANALOG, first_vertex_sampling=True), Capability.FIRST_VERTEX,
                           reference=False)
@@ -29,6 +38,9 @@ class FirstVertex(Strategy):
 
     def build_table(self, spec, tools: TableTools) -> object:
         return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector))  # None: embree (rules_out)
+
+    def declines(self, spec) -> str | None:
+        return _nothing_to_draw(spec)
 
     def batch_state(self, ctx: BatchContext) -> object | None:
         return impl.FirstVertexWeights(ctx.spec, ctx.spec.vertex_table, ctx.n_rays)
@@ -55,6 +67,9 @@ class FirstVertexLobe(Strategy):
 
     def rules_out(self, spec, intersector) -> str | None:
         return _own_intersector(spec, intersector)
+
+    def declines(self, spec) -> str | None:
+        return _nothing_to_draw(spec)
 
 
 FIRST_VERTEX = FirstVertex()
