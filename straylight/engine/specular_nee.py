@@ -81,9 +81,6 @@ THICK_MIRROR_RATE = 0.25
 #: the thick mirrors are left out of a trace where the entrance pilot's thick-mirror connections carried less
 #: than this share of its detected power (:func:`thick_mirror_verdict`; docs/engine.md, "Thick mirrors")
 THICK_MIRROR_SHARE_OFF = 3e-4
-#: below this share their rate is THICK_MIRROR_RATE in proportion (ThickMirrorShare.rate): 1e-2 at 5 deg on the
-#: guide scope, where they hold the heavy tail, 2e-3 at 10 deg
-THICK_MIRROR_SHARE_FULL = 1e-2
 TRY_STREAM = 0x544D4952  # third entropy word of the draws that decide whether a vertex tries them ("TMIR")
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
 
@@ -132,22 +129,21 @@ class Sequence:
         return None if test is None else reach.aperture_ball(test)
 
 
-def try_rate(weight_w, w0: float, rate: float = THICK_MIRROR_RATE) -> np.ndarray:
+def try_rate(weight_w, w0: float) -> np.ndarray:
     """q (m,): the probability with which vertices of weight ``weight_w`` (start weight ``w0``) try the
-    sampled sequences, ``rate`` min(1, w / w0) (``rate``: :data:`THICK_MIRROR_RATE`, or less where the
-    entrance pilot found them carry little, :attr:`ThickMirrorShare.rate`). A connection counts over q and its
+    sampled sequences, :data:`THICK_MIRROR_RATE` min(1, w / w0). A connection counts over q and its
     balance weight is over the density q p_nee (one-sample MIS with an expected q samples; the split
     trees' share uses the same q): unbiased for any q > 0 that depends on the vertex only. A connection's
     value w f cos T / (q p_nee + p_walk) <= (w / q) f cos T A J: with q proportional to w (below w0) the
     factor w / q is w0 / THICK_MIRROR_RATE whatever the vertex's weight."""
-    return rate * np.minimum(1.0, np.asarray(weight_w, dtype=np.float64) / w0)
+    return THICK_MIRROR_RATE * np.minimum(1.0, np.asarray(weight_w, dtype=np.float64) / w0)
 
 
 @dataclass(frozen=True)
-class ThickMirrorShare:
-    """What the entrance pilot's thick-mirror connections carried: ``thick_w`` of the ``detected_w`` it saw
-    (W). On the spec's ``thick_mirrors`` (:func:`thick_mirror_verdict`): the batches leave those sequences
-    out where :attr:`off`, and else try them with at most :attr:`rate` (:class:`SpecularNee`)."""
+class ThickMirrorsOff:
+    """The entrance pilot's verdict that the thick mirrors do not pay on this trace: their connections
+    carried ``thick_w`` of the ``detected_w`` it saw (W); on the spec's ``thick_mirrors``, and the batches
+    leave those sequences out (:class:`SpecularNee`)."""
 
     thick_w: float
     detected_w: float
@@ -157,34 +153,26 @@ class ThickMirrorShare:
         return self.thick_w / self.detected_w
 
     @property
-    def off(self) -> bool:
-        """Below :data:`THICK_MIRROR_SHARE_OFF`: left out."""
-        return self.share < THICK_MIRROR_SHARE_OFF
-
-    @property
-    def rate(self) -> float:
-        """The most probability with which a vertex tries them: :data:`THICK_MIRROR_RATE`, in proportion to
-        the share below :data:`THICK_MIRROR_SHARE_FULL`."""
-        return THICK_MIRROR_RATE * min(1.0, self.share / THICK_MIRROR_SHARE_FULL)
-
-    @property
     def reason(self) -> str:
         return (f"the entrance pilot's thick-mirror connections carried {self.share:.2g} of the detected power "
                 f"(below THICK_MIRROR_SHARE_OFF = {THICK_MIRROR_SHARE_OFF:g}): the split trees count their family")
 
 
-def thick_mirror_verdict(thick_w: float | None, detected_w: float | None) -> ThickMirrorShare | None:
-    """The :class:`ThickMirrorShare` of the entrance pilot's thick-mirror connections, which put ``thick_w``
-    (W) on the detectors of its ``detected_w``; None (they run as asked) whenever either is unknown or not
-    finite, or nothing was detected. Unbiased whatever it says: without the connections the split trees'
-    branches count those paths whole (:meth:`SpecularNee.covers`), and with them any rate q > 0 is
-    unbiased (:func:`try_rate`); it moves only variance, within a family that a run missing it entirely
-    would be off by less than its share of the detected power."""
+def thick_mirror_verdict(thick_w: float | None, detected_w: float | None,
+                         share_off: float | None = None) -> ThickMirrorsOff | None:
+    """:class:`ThickMirrorsOff` when the entrance pilot's thick-mirror connections put ``thick_w`` (W) on
+    the detectors, less than ``share_off`` (default :data:`THICK_MIRROR_SHARE_OFF`) of its ``detected_w``;
+    None (they run) otherwise and whenever
+    either is unknown or not finite, or nothing was detected. Unbiased either way: without the
+    connections the split trees' branches count those paths whole (:meth:`SpecularNee.covers`), so the
+    verdict moves only variance, within a family that a run missing it entirely would be off by less than
+    ``share_off`` of the detected power."""
+    share_off = THICK_MIRROR_SHARE_OFF if share_off is None else float(share_off)
     if thick_w is None or detected_w is None or not (np.isfinite(thick_w) and np.isfinite(detected_w)):
         return None
-    if detected_w <= 0:
+    if detected_w <= 0 or thick_w >= share_off * detected_w:
         return None
-    return ThickMirrorShare(thick_w=max(float(thick_w), 0.0), detected_w=float(detected_w))
+    return ThickMirrorsOff(thick_w=max(float(thick_w), 0.0), detected_w=float(detected_w))
 
 
 def reaches(seq: Sequence, p, n_p, z) -> np.ndarray:
@@ -445,12 +433,8 @@ class SpecularNee:
         est = spec.options.estimator
         self.max_k = int(est.specular_nee)  # interfaces per connection, 1..MAX_INTERFACES
         self.seqs = candidate_sequences(spec, splits, self.max_k, est.specular_nee_sequences)
-        self.try_rate = THICK_MIRROR_RATE
-        share = spec.thick_mirrors  # what the entrance pilot found they carry
-        if isinstance(share, ThickMirrorShare):
-            if share.off:
-                self.seqs = [seq for seq in self.seqs if not seq.sampled]
-            self.try_rate = share.rate
+        if isinstance(spec.thick_mirrors, ThickMirrorsOff):  # the entrance pilot found they carry too little
+            self.seqs = [seq for seq in self.seqs if not seq.sampled]
         self.end_material = scatter_ends(spec)
         self.splits = splits
         n = ctx.n_rays
@@ -506,7 +490,7 @@ class SpecularNee:
         self.point[r] = take_rows(event.hits.point_mm, rows)
         self.normal[r] = take_rows(event.hits.facing_normal, rows)
         self.chain_k[r] = chain_k
-        self.rate[r] = try_rate(rays.weight_w[rows], self.w0, self.try_rate)
+        self.rate[r] = try_rate(rays.weight_w[rows], self.w0)
         u_try = chunk_stream_uniforms(self._gens, self.seed, self.first_chunk, TRY_STREAM, r, 1)[:, 0] \
             if self.any_sampled else None
         self._connect(event, rows, chain_k, column, u_try)

@@ -32,9 +32,8 @@ class SpecularNeeStrategy(Strategy):
         return impl.thick_mirror_verdict(measured.get("thick_mirror_w"), measured.get("detected_w"))
 
     def partly_declines(self, spec) -> tuple[str, str] | None:
-        share = spec.thick_mirrors
-        return ("specular_nee thick mirrors", share.reason) if isinstance(share, impl.ThickMirrorShare) and share.off \
-            else None
+        off = spec.thick_mirrors
+        return ("specular_nee thick mirrors", off.reason) if isinstance(off, impl.ThickMirrorsOff) else None
 
     def rules_out(self, spec, intersector) -> str | None:
         return impl.unsupported(spec)
