@@ -5,13 +5,11 @@ the declaration with the hooks the rest of the engine calls:
 - :meth:`Strategy.rules_out` (straylight.engine.plan): why it cannot run on this trace, in one line;
 - :meth:`Strategy.build_table` (straylight.trace): the table it learns before the walk, stored on the
   spec in :attr:`Strategy.table_field`; then :meth:`Strategy.declines` (straylight.engine.plan): its
-  table built, whether it does not pay on this trace (the plan turns it off and says why), and
-  :meth:`Strategy.partly_declines`: whether a part of its work does not (left out, listed the same way);
+  table built, whether it does not pay on this trace (the plan turns it off and says why);
 - :meth:`Strategy.batch_state` and the walk hooks (straylight.engine.walk): its per-batch state, handed
   to the interactions on ``Event.states`` under :attr:`Strategy.state_key`, and what it does at fixed
   points of each event (:meth:`~Strategy.share_walk_hits`, :meth:`~Strategy.after_hits`) and after the
-  batch's last event (:meth:`~Strategy.after_walk`, and :meth:`~Strategy.measured`: numbers a pilot reads
-  from the batch's result);
+  batch's last event (:meth:`~Strategy.after_walk`);
 - the hooks of the interaction kinds: weights of the scatter vertices (:meth:`~Strategy.vertex_weights`,
   called through ``Event.vertex_weights``) and what it does at Fresnel interfaces
   (:meth:`~Strategy.at_interfaces`, called by the interface kind where it allows the strategy's
