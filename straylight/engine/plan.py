@@ -13,8 +13,7 @@ the plan says why in one line instead of dropping it silently. The plan asks, in
 
 :func:`straylight.trace.trace` builds the tables of :meth:`StrategyPlan.runs` (:func:`build_tables`),
 turns off the strategies whose tables say they do not pay (:func:`without_declined`: the eye chains
-where their pilot finds their family carries too little of the light; and parts of one, listed the same
-way: specular NEE's thick mirrors where the entrance pilot finds they carry too little), puts the names that run on the spec (``TraceSpec.strategies_on``: the walk builds states for those
+where their pilot finds their family carries too little of the light), puts the names that run on the spec (``TraceSpec.strategies_on``: the walk builds states for those
 only, :func:`running`) and returns the plan with its result (``TraceResult.strategies``;
 ``straylight trace --json`` writes it as ``strategies``). The kinds' per-part capabilities (which parts NEE or the chains act on) stay with
 the kinds (straylight.engine.interactions).
@@ -104,9 +103,6 @@ def without_declined(plan: StrategyPlan, spec) -> StrategyPlan:
     reason."""
     why = {name: registry.BY_NAME[name].declines(spec) for name in plan.on if name in registry.BY_NAME}
     out = [(n, w) for n, w in why.items() if w is not None]
-    # a part of a strategy that runs left out (Strategy.partly_declines): listed with the strategies off
-    parts = [registry.BY_NAME[n].partly_declines(spec) for n in plan.on if n in registry.BY_NAME and why.get(n) is None]
-    out += [p for p in parts if p is not None]
     if not out:
         return plan
     return StrategyPlan(tuple(n for n in plan.on if why.get(n) is None), plan.off + tuple(out))

@@ -49,8 +49,6 @@ class TraceSpec:
     critical_table: object = None  # straylight.engine.second_vertex.CriticalTable when second_vertex_sampling is on
     entrance_table: object = None  # straylight.engine.entrance_sampling.EntranceTable when entrance_sampling is on
     eye_table: object = None  # straylight.engine.reverse_chain.EyeTable when reverse_chain is on (None: cosine eyes)
-    # straylight.engine.specular_nee.ThickMirrorsOff when the entrance pilot found the thick mirrors carry too little
-    thick_mirrors: object = None
     chunk_offset: int = 0  # local chunk k draws from the stream of chunk chunk_offset + k (Execution(first_chunk=))
     part_surfaces: tuple = ()  # analytic surface per part (geometry.analytic) or None
     part_back_material: np.ndarray = None  # index into ``materials`` of each part's back side, -1: as the front

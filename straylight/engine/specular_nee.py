@@ -78,9 +78,6 @@ MAX_INTERFACES = 3
 #: weight (:func:`try_rate`). Their solves cost ~5x a reflection's, their paths carry ~1 % of the light
 #: and most vertices (deep in the walk) carry little of it
 THICK_MIRROR_RATE = 0.25
-#: the thick mirrors are left out of a trace where the entrance pilot's thick-mirror connections carried less
-#: than this share of its detected power (:func:`thick_mirror_verdict`; docs/engine.md, "Thick mirrors")
-THICK_MIRROR_SHARE_OFF = 3e-4
 TRY_STREAM = 0x544D4952  # third entropy word of the draws that decide whether a vertex tries them ("TMIR")
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
 
@@ -137,42 +134,6 @@ def try_rate(weight_w, w0: float) -> np.ndarray:
     value w f cos T / (q p_nee + p_walk) <= (w / q) f cos T A J: with q proportional to w (below w0) the
     factor w / q is w0 / THICK_MIRROR_RATE whatever the vertex's weight."""
     return THICK_MIRROR_RATE * np.minimum(1.0, np.asarray(weight_w, dtype=np.float64) / w0)
-
-
-@dataclass(frozen=True)
-class ThickMirrorsOff:
-    """The entrance pilot's verdict that the thick mirrors do not pay on this trace: their connections
-    carried ``thick_w`` of the ``detected_w`` it saw (W); on the spec's ``thick_mirrors``, and the batches
-    leave those sequences out (:class:`SpecularNee`)."""
-
-    thick_w: float
-    detected_w: float
-
-    @property
-    def share(self) -> float:
-        return self.thick_w / self.detected_w
-
-    @property
-    def reason(self) -> str:
-        return (f"the entrance pilot's thick-mirror connections carried {self.share:.2g} of the detected power "
-                f"(below THICK_MIRROR_SHARE_OFF = {THICK_MIRROR_SHARE_OFF:g}): the split trees count their family")
-
-
-def thick_mirror_verdict(thick_w: float | None, detected_w: float | None,
-                         share_off: float | None = None) -> ThickMirrorsOff | None:
-    """:class:`ThickMirrorsOff` when the entrance pilot's thick-mirror connections put ``thick_w`` (W) on
-    the detectors, less than ``share_off`` (default :data:`THICK_MIRROR_SHARE_OFF`) of its ``detected_w``;
-    None (they run) otherwise and whenever
-    either is unknown or not finite, or nothing was detected. Unbiased either way: without the
-    connections the split trees' branches count those paths whole (:meth:`SpecularNee.covers`), so the
-    verdict moves only variance, within a family that a run missing it entirely would be off by less than
-    ``share_off`` of the detected power."""
-    share_off = THICK_MIRROR_SHARE_OFF if share_off is None else float(share_off)
-    if thick_w is None or detected_w is None or not (np.isfinite(thick_w) and np.isfinite(detected_w)):
-        return None
-    if detected_w <= 0 or thick_w >= share_off * detected_w:
-        return None
-    return ThickMirrorsOff(thick_w=max(float(thick_w), 0.0), detected_w=float(detected_w))
 
 
 def reaches(seq: Sequence, p, n_p, z) -> np.ndarray:
@@ -433,8 +394,6 @@ class SpecularNee:
         est = spec.options.estimator
         self.max_k = int(est.specular_nee)  # interfaces per connection, 1..MAX_INTERFACES
         self.seqs = candidate_sequences(spec, splits, self.max_k, est.specular_nee_sequences)
-        if isinstance(spec.thick_mirrors, ThickMirrorsOff):  # the entrance pilot found they carry too little
-            self.seqs = [seq for seq in self.seqs if not seq.sampled]
         self.end_material = scatter_ends(spec)
         self.splits = splits
         n = ctx.n_rays
@@ -457,7 +416,6 @@ class SpecularNee:
         self.both = spec.options.output.detector_sides == "both"
         self.path_depth = int(spec.options.output.path_depth)
         self.shadow_rays = 0
-        self.thick_w = 0.0  # what the thick mirrors' connections put on the detectors (the pilot's verdict)
 
     # ------------------------------------------------------------------ the walk's vertices
 
@@ -558,8 +516,6 @@ class SpecularNee:
             keep = np.flatnonzero(value > 0)
             if len(keep):
                 self._tally(event, rows[at[keep]], j, seq, z[at[keep]], value[keep])
-                if seq.sampled:
-                    self.thick_w += float(np.sum(value[keep]))
 
     def _tally(self, event, rows, j, seq, z, value):
         rays, hit = event.rays, event.hits

@@ -181,15 +181,10 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
             skip = np.full((len(rays.ray), 3), -1, dtype=np.int64)
             if bent is not None:
                 rays, skip = diffraction_step.merge(rays, skip, bent, bent_skip)
-    measured: dict = {}
     for strategy, state in running:
         shadow_rays += strategy.after_walk(state, ctx)
-        measured.update(strategy.measured(state))
-    res = batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays,
-                     None if ray_log is None else ray_log.piece())
-    if measured:
-        res["measured"] = measured
-    return res
+    return batch_sums(tallies, rows, first_chunk, records, segments, shadow_rays,
+                      None if ray_log is None else ray_log.piece())
 
 
 def run_batch(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector=None) -> dict:

@@ -411,45 +411,6 @@ def test_same_numbers_for_any_batch_size(build, est):
     assert runs[0].detectors["det"].stderr_w == runs[1].detectors["det"].stderr_w
 
 
-def test_thick_mirror_verdict():
-    """The entrance pilot's verdict: off only below the share, with both powers known and something detected."""
-    from straylight.engine.specular_nee import THICK_MIRROR_SHARE_OFF, ThickMirrorsOff, thick_mirror_verdict
-
-    off = thick_mirror_verdict(1e-9, 1e-4)
-    assert isinstance(off, ThickMirrorsOff) and off.share == pytest.approx(1e-5)
-    assert "1e-05 of the detected power" in off.reason and "THICK_MIRROR_SHARE_OFF" in off.reason
-    assert thick_mirror_verdict(THICK_MIRROR_SHARE_OFF * 1e-4, 1e-4) is None  # at the share they run
-    assert thick_mirror_verdict(0.0, 1e-4) is not None
-    for thick, det in ((None, 1e-4), (1e-9, None), (float("nan"), 1e-4), (1e-9, float("inf")), (0.0, 0.0)):
-        assert thick_mirror_verdict(thick, det) is None
-    assert thick_mirror_verdict(1e-6, 1e-4, share_off=0.1) is not None
-
-
-def test_the_entrance_pilot_leaves_out_thick_mirrors_that_carry_too_little(monkeypatch):
-    """With entrance sampling the pilot measures what the thick mirrors put on the detector. On the plate
-    seen only through the thick mirror they carry much of it and run; with the share to beat raised above
-    1 the plan leaves them out (listed with the strategies off), and the estimate, now the split trees'
-    for that family, still agrees with the analog walk within 4 sigma, with the ledger closed."""
-    from straylight.engine import specular_nee as impl
-
-    scene = _thick_mirror_scene()
-    est = replace(THICK, entrance_sampling=True)
-    n = 20_000
-    on = _run(scene, n, 3, est)
-    assert "specular_nee" in on.strategies.on and "specular_nee thick mirrors" not in dict(on.strategies.off)
-    monkeypatch.setattr(impl, "THICK_MIRROR_SHARE_OFF", 2.0)
-    off = _run(scene, n, 5, est)  # another seed: the runtime keeps the tables (and verdict) of the run before
-    why = dict(off.strategies.off)["specular_nee thick mirrors"]
-    assert "specular_nee" in off.strategies.on and "of the detected power" in why
-    analog = _run(scene, 5_000_000, 4, ANALOG)
-    a, b, c = on.detectors["det"], off.detectors["det"], analog.detectors["det"]
-    assert c.stderr_w < 0.15 * c.power_w  # ~100 analog hits
-    assert abs(b.power_w - c.power_w) <= 4 * math.hypot(b.stderr_w, c.stderr_w), (b, c)
-    assert abs(a.power_w - c.power_w) <= 4 * math.hypot(a.stderr_w, c.stderr_w), (a, c)
-    assert abs(off.ledger["balance_residual_w"]) < 1e-9 * off.emitted_w
-    assert off.shadow_rays < on.shadow_rays and b.stderr_w > a.stderr_w  # the trees alone: more noise
-
-
 def test_first_vertex_sampling_declines_behind_a_lens(monkeypatch):
     """The plate the beam lights is seen by the detector only through the lens: first-vertex sampling's
     probes see no single scatter straight to it, its table is empty and the plan turns it off with that

@@ -166,17 +166,6 @@ class Strategy:
         """Called once after the batch's last event; returns the shadow rays it cast."""
         return 0
 
-    def measured(self, state) -> dict:
-        """After the batch: what it measured that a pilot reads (names to numbers, added up over the batch's
-        result ``"measured"``; straylight.engine.strategies.entrance.PilotPower), e.g. power it put on the
-        detectors by a part of its work, W in the walk's units (a detector record's). Default: nothing."""
-        return {}
-
-    def partly_declines(self, spec) -> tuple[str, str] | None:
-        """After the tables: (what, why) when a part of its work does not pay on ``spec`` and is left out
-        while the rest runs (the plan lists it with the strategies off); None when all of it runs."""
-        return None
-
     # ------------------------------------------------------------------ the interaction kinds
 
     def vertex_weights(self, state, event, verts, w_vertex):

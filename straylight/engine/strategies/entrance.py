@@ -17,13 +17,11 @@ from straylight.rng import CHUNK_RAYS
 class PilotPower:
     """``run_batch`` that also sums what the pilot's batches put on the detectors (their path records):
     :attr:`detected_w` is the pilot's estimate of the detected power, W (each batch's sum brought to its
-    spec's n_rays, the start weight's 1 / N, and pooled by rays traced; None before any ray), and
-    :attr:`thick_mirror_w` its part through specular NEE's thick mirrors (the batches' ``measured``)."""
+    spec's n_rays, the start weight's 1 / N, and pooled by rays traced; None before any ray)."""
 
     def __init__(self, run_batch):
         self.run_batch = run_batch
         self.scaled_w = 0.0  # sum over batches of (their records' power x n_rays of their spec)
-        self.scaled_thick_w = 0.0  # the same for the power specular NEE's thick mirrors put there
         self.rays = 0
 
     def __call__(self, spec, first_chunk, stop_chunk, *args, **kw):
@@ -32,18 +30,12 @@ class PilotPower:
         paths = res.get("paths")
         if traced > 0 and paths is not None:
             self.scaled_w += float(np.sum(np.asarray(paths["power_w"], dtype=np.float64))) * int(spec.n_rays)
-            self.scaled_thick_w += float(res.get("measured", {}).get("thick_mirror_w", 0.0)) * int(spec.n_rays)
             self.rays += traced
         return res
 
     @property
     def detected_w(self) -> float | None:
         return self.scaled_w / self.rays if self.rays else None
-
-    @property
-    def thick_mirror_w(self) -> float | None:
-        """Of :attr:`detected_w`, what specular NEE's thick mirrors put on the detectors, W (None before any ray)."""
-        return self.scaled_thick_w / self.rays if self.rays else None
 
 
 class Entrance(Strategy):
@@ -64,7 +56,6 @@ class Entrance(Strategy):
         table = impl.build_table(spec, counted, tools.intersector)
         if tools.measured is not None and counted.detected_w is not None:
             tools.measured["detected_w"] = counted.detected_w
-            tools.measured["thick_mirror_w"] = counted.thick_mirror_w
         return table
 
     def batch_state(self, ctx: BatchContext) -> object | None:

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 from straylight.engine import specular_nee as impl
 from straylight.engine.capabilities import Capability
-from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy, TableTools
+from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy
 
 
 class SpecularNeeStrategy(Strategy):
@@ -17,23 +17,6 @@ class SpecularNeeStrategy(Strategy):
     estimator = Estimator("specular_nee", replace(ANALOG, delta_chain=4, specular_nee=2), Capability.NONE,
                           reference=False, requires=("delta_chain",))
     state_key = "specular_nee"
-    # its "table": the entrance pilot's verdict on the thick mirrors (impl.thick_mirror_verdict; None: they run)
-    table_field = "thick_mirrors"
-    table_key = "thick_mirrors"
-
-    @property
-    def needs_table(self) -> str | None:
-        return None  # without a verdict (no entrance pilot) every sequence runs
-
-    def build_table(self, spec, tools: TableTools) -> object:
-        # the entrance pilot (built before, with this strategy) leaves its detected power and the thick
-        # mirrors' part of it
-        measured = tools.measured or {}
-        return impl.thick_mirror_verdict(measured.get("thick_mirror_w"), measured.get("detected_w"))
-
-    def partly_declines(self, spec) -> tuple[str, str] | None:
-        off = spec.thick_mirrors
-        return ("specular_nee thick mirrors", off.reason) if isinstance(off, impl.ThickMirrorsOff) else None
 
     def rules_out(self, spec, intersector) -> str | None:
         return impl.unsupported(spec)
@@ -52,9 +35,6 @@ class SpecularNeeStrategy(Strategy):
 
     def after_walk(self, state, ctx: BatchContext) -> int:
         return state.shadow_rays
-
-    def measured(self, state) -> dict:
-        return {"thick_mirror_w": state.thick_w}
 
 
 SPECULAR_NEE = SpecularNeeStrategy()
