@@ -278,6 +278,9 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
         b.last = part
         b = interact(b, point, facing, co, refl)
     through = {k: w for k, w in power.items() if any(a == "T" for _, a in k)}
+    if not through and any(k for k in power):  # every path there reflects at each interface it meets
+        raise GhostError(f"the light reaches the detector {opt.names[opt.detector]!r} by reflections alone (a mirror "
+                         "system): no transmitting interface, so no ghost (ghosts come from lenses and windows)")
     if not through:
         raise GhostError(f"no source ray reaches the detector {opt.names[opt.detector]!r} through an interface "
                          "(a lens or window) along a specular path")

@@ -199,3 +199,15 @@ def test_the_nominal_path_crosses_every_surface_not_the_light_around_the_lenses(
     names = [opt.names[p] for p, _ in nominal]
     refracting = [f"s{i}" for i in range(2, 19) if i != 11]  # s11 is the stop (air on both sides)
     assert names == refracting and all(a == "T" for _, a in nominal)
+
+
+def test_a_mirror_system_is_refused_as_one_with_no_ghost(tmp_path, capsys):
+    """optiland's mirror.seq (one concave mirror): the light reaches the image by reflection alone, so there is
+    no transmitting interface to make a ghost; the refusal says so rather than that no light arrives."""
+    from straylight.cli.main import main
+
+    assert main(["optics", "import", str(LENSES / "optiland" / "mirror.seq"), "--out", str(tmp_path / "lens")]) == 0
+    capsys.readouterr()
+    assert main(["ghosts", str(tmp_path / "lens" / "scene.toml"), "--out", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mirror system" in err[0] and "no ghost" in err[0], err
