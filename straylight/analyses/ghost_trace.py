@@ -49,7 +49,7 @@ if TYPE_CHECKING:
 
 MAP_BINS = 64
 PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK_CELLS cells
-EPS_MM = 1e-6
+EPS_MM = 1e-6  # the smallest offset off a surface; a scene's own is scene_epsilon's (float32 ulps of its extent)
 SELF_HIT_MM = 1e-6
 MAX_NOMINAL_STEPS = 200
 NOMINAL_MIN_SHARE = 0.02  # a design path carries at least this share of the strongest sequence's power
@@ -75,6 +75,7 @@ class GhostOptics:
     tri_normals: np.ndarray
     detector: int
     source: Source
+    eps_mm: float = EPS_MM  # offset off a surface after a hit (straylight.engine.spec.scene_epsilon, as the walk's)
 
     def is_interface(self, p: int) -> bool:
         return self.models[p][0] is not None and getattr(self.models[p][0], "smooth", None) is not None
@@ -83,7 +84,7 @@ class GhostOptics:
 def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOptics:
     """The forced tracer's view of a loaded scene (``straylight.scene.load_scene``); the source turned to
     field ``field_deg`` in the meridional y-z plane (CONTRACTS 8.1: +z toward (0, sin F, cos F))."""
-    from straylight.engine.spec import back_material_index, resolve_materials
+    from straylight.engine.spec import back_material_index, resolve_materials, scene_epsilon
     from straylight.intersect import EmbreeIntersector
 
     scene = rs.scene
@@ -110,7 +111,8 @@ def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOpt
     src = _at_field(rs.sources[0], field_deg)
     return GhostOptics(tuple(p.name for p in parts), tuple(getattr(p, "surface", None) for p in parts),
                        tuple(per_part), tuple(p.role for p in parts), EmbreeIntersector(tri),
-                       np.asarray(scene.triangle_part, dtype=np.int64), nrm, dets[0], src)
+                       np.asarray(scene.triangle_part, dtype=np.int64), nrm, dets[0], src,
+                       max(EPS_MM, scene_epsilon(tri)))
 
 
 def _at_field(source, field_deg: float):
@@ -197,7 +199,9 @@ def next_hits(opt: GhostOptics, b: Bundle):
             front[r] = fr
             facing[r] = np.where(fr[:, None], n_front[accept], -n_front[accept])
             again = rows[~accept]
-            o[again] = o[again] + (t[g][~accept] + 1e-6)[:, None] * b.d[again]
+            # past the facet by the scene's offset: a ray leaving a flat surface meets its facet again at t = 0
+            # in the intersector's float32 until it has moved a few ulps of the coordinates
+            o[again] = o[again] + (t[g][~accept] + opt.eps_mm)[:, None] * b.d[again]
             last[again] = p
             retry.append(again)
         todo = np.concatenate(retry) if retry else np.zeros(0, np.int64)
@@ -223,7 +227,7 @@ def fresnel(opt: GhostOptics, part, front, cos_i, dist):
     return out
 
 
-def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray) -> Bundle:
+def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray, eps_mm: float = EPS_MM) -> Bundle:
     """The bundle after its interface hits: reflected where ``reflect_it``, else transmitted; weights times
     the branch's power for the ray's Stokes vector (the engine's Mueller matrices) and the bulk factor."""
     rs, rp, ts, tp, cos_t, eta, bulk = coeffs
@@ -236,7 +240,7 @@ def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray) -> Bundle
     d_new = np.where(reflect_it[:, None], reflect(b.d, facing), refract(b.d, facing, eta, cos_t))
     sign = np.where(reflect_it, 1.0, -1.0)
     safe = np.where(So[:, :1] > 0, So[:, :1], 1.0)
-    return Bundle(np.ascontiguousarray(point + (sign * EPS_MM)[:, None] * facing), np.ascontiguousarray(d_new), w,
+    return Bundle(np.ascontiguousarray(point + (sign * eps_mm)[:, None] * facing), np.ascontiguousarray(d_new), w,
                   So / safe, s, b.last)
 
 
@@ -276,7 +280,7 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
         for i, p, r in zip(ids, part, refl):
             seqs[i].append((int(p), "R" if r else "T"))
         b.last = part
-        b = interact(b, point, facing, co, refl)
+        b = interact(b, point, facing, co, refl, opt.eps_mm)
     through = {k: w for k, w in power.items() if any(a == "T" for _, a in k)}
     if not through and any(k for k in power):  # every path there reflects at each interface it meets
         raise GhostError(f"the light reaches the detector {opt.names[opt.detector]!r} by reflections alone (a mirror "
@@ -357,7 +361,7 @@ def trace_sequence(opt: GhostOptics, seq, n: int, rng) -> Arrivals:
         cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
         co = fresnel(opt, part, front, cos_i, dist)
         b.last = part
-        b = interact(b, point, facing, co, np.full(len(ids), act == "R"))
+        b = interact(b, point, facing, co, np.full(len(ids), act == "R"), opt.eps_mm)
         live = np.flatnonzero(b.w > 0)
         b, ids = b.take(live), ids[live]
     per_ray = np.zeros(n)
@@ -391,7 +395,7 @@ def sample_polylines(opt: GhostOptics, seq, n_paths: int = 6, rays: int = 256, s
         cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
         co = fresnel(opt, part, front, cos_i, dist)
         b.last = part
-        b = interact(b, point, facing, co, np.full(len(ids), act == "R"))
+        b = interact(b, point, facing, co, np.full(len(ids), act == "R"), opt.eps_mm)
     out = []
     for i in ids[:n_paths]:
         out.append(np.array([pts[np.flatnonzero(at == i)[0]] for pts, at in zip(trail, alive_at)]))
