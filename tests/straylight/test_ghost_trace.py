@@ -227,3 +227,23 @@ def test_light_leaves_a_flat_surface_far_from_the_origin(tmp_path):
     assert [(opt.names[p], a) for p, a in nominal] == [("s1", "T"), ("s2", "T"), ("s3", "R"), ("s4", "T"),
                                                        ("s5", "T")]
     assert len(ghost_reflections(nominal, 2)) == 6  # C(4, 2): the four refracting surfaces
+
+
+def test_the_ghosts_share_a_ray_budget_and_say_when_it_stops_them(tmp_path):
+    """A 16-surface lens has 120 ghosts; to 2 % each they take minutes, so the table has a total ray budget,
+    shared by water-filling. Under a budget large enough for every ghost the table is the one traced without
+    it, ray for ray (each ghost continues its own random stream); under a small one every ghost is still
+    listed, with the error it reached, and the table says how many the budget stopped."""
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    free = ghost_table(opt, target_rel_error=0.05, max_total_rays=10 ** 9)
+    assert not free.notes
+    need = sum(r.rays for r in free.rows)
+    shared = ghost_table(opt, target_rel_error=0.05, max_total_rays=need)  # too few for an equal share each
+    assert not shared.notes
+    assert [(r.surfaces, r.power_w, r.stderr_w, r.rays) for r in shared.rows] == \
+        [(r.surfaces, r.power_w, r.stderr_w, r.rays) for r in free.rows]
+    small = ghost_table(opt, target_rel_error=0.001, max_total_rays=15 * 4096)
+    assert len(small.rows) == 15 and small.notes and small.notes[0].startswith("15 of 15 ghosts")
+    assert all(r.rays == 2 * 4096 and 0 < r.stderr_w < r.power_w for r in small.rows)
