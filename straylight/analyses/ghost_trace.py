@@ -77,6 +77,7 @@ class GhostOptics:
     detector: int
     source: Source
     eps_mm: float = EPS_MM  # offset off a surface after a hit (straylight.engine.spec.scene_epsilon, as the walk's)
+    field_deg: float = 0.0  # the source's turn from the scene's direction (prepare)
 
     def is_interface(self, p: int) -> bool:
         return self.models[p][0] is not None and getattr(self.models[p][0], "smooth", None) is not None
@@ -113,7 +114,7 @@ def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOpt
     return GhostOptics(tuple(p.name for p in parts), tuple(getattr(p, "surface", None) for p in parts),
                        tuple(per_part), tuple(p.role for p in parts), EmbreeIntersector(tri),
                        np.asarray(scene.triangle_part, dtype=np.int64), nrm, dets[0], src,
-                       max(EPS_MM, scene_epsilon(tri)))
+                       max(EPS_MM, scene_epsilon(tri)), float(field_deg))
 
 
 def _at_field(source, field_deg: float):
@@ -287,8 +288,15 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
         raise GhostError(f"the light reaches the detector {opt.names[opt.detector]!r} by reflections alone (a mirror "
                          "system): no transmitting interface, so no ghost (ghosts come from lenses and windows)")
     if not through:
+        hint = ""
+        if opt.field_deg:  # the detector optics import sizes holds the image over the file's fields only
+            radius = getattr(opt.surfaces[opt.detector], "outer_radius_mm", None)
+            hint = (f"; at --field-deg {opt.field_deg:g} the image may miss the detector"
+                    + (f" (radius {radius:.4g} mm)" if radius else "")
+                    + f": import the lens at that field (optics import --field-deg {opt.field_deg:g}) and run "
+                    "ghosts without --field-deg")
         raise GhostError(f"no source ray reaches the detector {opt.names[opt.detector]!r} through an interface "
-                         "(a lens or window) along a specular path")
+                         "(a lens or window) along a specular path" + hint)
     strongest = max(through.values())
     kept = {k: w for k, w in through.items() if w >= NOMINAL_MIN_SHARE * strongest}
     return max(kept, key=lambda k: (len(k), kept[k]))  # light around the lenses (no barrel) is not the design path

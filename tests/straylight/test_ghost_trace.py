@@ -247,3 +247,19 @@ def test_the_ghosts_share_a_ray_budget_and_say_when_it_stops_them(tmp_path):
     small = ghost_table(opt, target_rel_error=0.001, max_total_rays=15 * 4096)
     assert len(small.rows) == 15 and small.notes and small.notes[0].startswith("15 of 15 ghosts")
     assert all(r.rays == 2 * 4096 and 0 < r.stderr_w < r.power_w for r in small.rows)
+
+
+def test_an_image_turned_off_the_detector_is_refused_with_the_way_out(tmp_path, capsys):
+    """Edmund 32-299 (OpticsDatabase), a 12.5 mm achromat imported for its on-axis field: its detector is a
+    0.375 mm disk, and at 5 deg the image lies 1.1 mm off axis. The one-line refusal says to import the lens
+    at that field; so imported, its ghost table is found."""
+    from straylight.cli.main import main
+
+    lens = LENSES / "OpticsDatabase" / "Edmund_32-299.zmx"
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path / "lens")]) == 0
+    capsys.readouterr()
+    assert main(["ghosts", str(tmp_path / "lens" / "scene.toml"), "--field-deg", "5", "--out", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "optics import --field-deg 5" in err[0] and "radius 0.375 mm" in err[0], err
+    assert main(["optics", "import", str(lens), "--field-deg", "5", "--out", str(tmp_path / "lens5")]) == 0
+    assert len(ghosts(tmp_path / "lens5" / "scene.toml", target_rel_error=0.2).rows) == 3
