@@ -256,6 +256,10 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
     :data:`NOMINAL_MIN_SHARE` of the strongest one's power, the one through the most interfaces: light that
     passes the front elements and then goes *around* the smaller ones (a lens file has no barrel) can carry
     more power than the design path, but it always skips some of the surfaces the design path crosses."""
+    from materials.smooth import Dielectric
+
+    if not any(isinstance(getattr(m, "smooth", None), Dielectric) for pair in opt.models for m in pair):
+        raise GhostError("the scene has no lens or window (no dielectric part: a mirror system), so no ghost")
     rng = np.random.default_rng(seed)
     b = emit(opt, n_rays, rng)
     seqs: list[list[tuple[int, str]]] = [[] for _ in range(n_rays)]

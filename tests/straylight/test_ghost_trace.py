@@ -201,12 +201,14 @@ def test_the_nominal_path_crosses_every_surface_not_the_light_around_the_lenses(
     assert names == refracting and all(a == "T" for _, a in nominal)
 
 
-def test_a_mirror_system_is_refused_as_one_with_no_ghost(tmp_path, capsys):
-    """optiland's mirror.seq (one concave mirror): the light reaches the image by reflection alone, so there is
-    no transmitting interface to make a ghost; the refusal says so rather than that no light arrives."""
+@pytest.mark.parametrize("lens", ["optiland/mirror.seq", "ray-optics/US08011793-1.zmx"])
+def test_a_mirror_system_is_refused_as_one_with_no_ghost(tmp_path, capsys, lens):
+    """optiland's mirror.seq (one concave mirror) and the four-mirror US08011793-1 (whose beam, off axis in the
+    design, misses the image on axis): no lens or window, so no ghost; the refusal says so rather than that no
+    light arrives."""
     from straylight.cli.main import main
 
-    assert main(["optics", "import", str(LENSES / "optiland" / "mirror.seq"), "--out", str(tmp_path / "lens")]) == 0
+    assert main(["optics", "import", str(LENSES / lens), "--out", str(tmp_path / "lens")]) == 0
     capsys.readouterr()
     assert main(["ghosts", str(tmp_path / "lens" / "scene.toml"), "--out", str(tmp_path / "g")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
