@@ -454,6 +454,7 @@ class GhostRow:
     rays: int
     sequence: list = field(default_factory=list)
     parts: tuple = field(default=(), repr=False)  # the forced sequence ((part index, action), ...)
+    map_key: str = field(default="", repr=False)  # its map in GhostTable.maps (the label, made unique)
 
 
 class _Accumulator:
@@ -519,7 +520,7 @@ def detector_frame(opt: GhostOptics):
 
 
 def _row_dict(r: GhostRow) -> dict:
-    return {k: v for k, v in r.__dict__.items() if k != "parts"}
+    return {k: v for k, v in r.__dict__.items() if k not in ("parts", "map_key")}
 
 
 @dataclass(eq=False)
@@ -620,10 +621,12 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         p, e, f, r, m, n = run.result()
         names = [opt.names[nominal[i][0]] for i in refl]
         label = " > ".join(names)
+        if label in maps:  # a part the design path crosses twice (a Mangin mirror's glass): two ghosts, one label
+            label += f" (positions {', '.join(str(i) for i in refl)})"
         maps[label] = m
         rows.append(GhostRow(names, list(refl), p, e, p / p_nom if p_nom > 0 else float("nan"), f, r,
                              peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n,
-                             [opt.names[q] for q, _ in run.seq], tuple(run.seq)))
+                             [opt.names[q] for q, _ in run.seq], tuple(run.seq), label))
     rows.sort(key=lambda r: -r.power_w)
     notes = []
     short = sum(not r.done for r in runs)
@@ -697,7 +700,7 @@ def plot_maps(table: GhostTable, path, top: int = 8):
 
     import atomicio
 
-    labels = ["nominal"] + [" > ".join(r.surfaces) for r in table.rows[:top]]
+    labels = ["nominal"] + [r.map_key or " > ".join(r.surfaces) for r in table.rows[:top]]
     n = len(labels)
     cols = min(3, n)
     rows = -(-n // cols)
@@ -711,7 +714,8 @@ def plot_maps(table: GhostTable, path, top: int = 8):
             im = ax.imshow(np.where(m > 0, m, np.nan).T, origin="lower", extent=[-h, h, -h, h], cmap="magma",
                            norm=LogNorm(vmin=max(pos.min(), pos.max() * 1e-6), vmax=pos.max()))
             fig.colorbar(im, ax=ax, shrink=0.8, label="W/mm$^2$")
-        row = table.nominal if lab == "nominal" else next(r for r in table.rows if " > ".join(r.surfaces) == lab)
+        row = table.nominal if lab == "nominal" else \
+            next(r for r in table.rows if (r.map_key or " > ".join(r.surfaces)) == lab)
         ax.set_title(f"{lab}\n{row.power_w:.2e} W", fontsize=9)
         ax.set_xlabel("u (mm)")
         ax.set_ylabel("v (mm)")

@@ -289,3 +289,23 @@ def test_the_double_gauss_design_path_carries_what_the_analog_walk_finds(tmp_pat
               if g.key is not None}
     walk = groups[tuple(opt.names[p] for p, _ in nominal)]
     assert abs(forced - walk.power_w) < 4 * math.hypot(forced_err, walk.stderr_w), (forced, walk.power_w)
+
+
+def test_two_ghosts_with_one_label_keep_their_own_maps(tmp_path):
+    """A part the design path crosses twice (a Mangin mirror's glass, met going in and coming out) gives two
+    ghosts the same surface names. Here the Cooke triplet's s2 is renamed s1 so that s3 > s1 and s3 > s2 share
+    a label: every ghost keeps its own irradiance map (ghosts.png draws each from its own), none overwritten."""
+    import dataclasses
+
+    from straylight.analyses.ghost_trace import plot_maps
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    names = list(opt.names)
+    names[names.index("s2")] = "s1"
+    table = ghost_table(dataclasses.replace(opt, names=tuple(names)), target_rel_error=0.2)
+    assert len(table.rows) == 15 and len(table.maps) == 16  # the nominal image's and one per ghost
+    keys = [r.map_key for r in table.rows]
+    assert len(set(keys)) == 15 and sum(" > ".join(r.surfaces) == "s3 > s1" for r in table.rows) == 2
+    assert all("map_key" not in d for d in table.to_json_dict()["ghosts"])
+    plot_maps(table, tmp_path / "ghosts.png", top=15)
