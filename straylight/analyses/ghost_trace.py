@@ -576,6 +576,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             self.rng = np.random.default_rng([seed, k])
             self.acc = _Accumulator(frame)
             self.done = False
+            self.capped = False  # stopped by max_rays above the target error
             self.mean = self.err = 0.0
 
         def advance(self, limit: float = math.inf):
@@ -586,8 +587,11 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
                 mean = self.mean = acc.s1 / acc.n * batch_rays
                 err = self.err = math.sqrt(max(acc.s2 / acc.n - (acc.s1 / acc.n) ** 2, 0.0) / max(acc.n - 1, 1)) \
                     * batch_rays
-                if acc.n >= max_rays or (mean > 0 and err <= target_rel_error * mean and acc.n >= 2 * batch_rays):
+                reached = mean > 0 and err <= target_rel_error * mean and acc.n >= 2 * batch_rays
+                if acc.n >= max_rays or reached:
                     self.done = True
+                    self.capped = not reached and not (self.floor_w is not None and mean + 4 * err < self.floor_w) \
+                        and mean > 0
                 elif self.floor_w is not None and acc.n >= 4 * batch_rays and mean + 4 * err < self.floor_w:
                     self.done = True  # below the fraction of the nominal power asked for, with confidence
                 elif mean == 0 and acc.n >= 4 * batch_rays:
@@ -633,6 +637,10 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     if short:
         notes.append(f"{short} of {len(runs)} ghosts reached the table's ray budget ({max_total_rays} rays, "
                      f"--max-total-rays) before {target_rel_error:g} relative error; their errors are as listed")
+    capped = sum(r.capped for r in runs)
+    if capped:
+        notes.append(f"{capped} of {len(runs)} ghosts reached --max-rays ({max_rays} rays each) before "
+                     f"{target_rel_error:g} relative error; their errors are as listed")
     return GhostTable(opt.names[opt.detector], order, 0.0, nom_row, rows, maps, half, time.perf_counter() - t0,
                       notes=notes, nominal_parts=tuple(nominal))
 

@@ -309,3 +309,14 @@ def test_two_ghosts_with_one_label_keep_their_own_maps(tmp_path):
     assert len(set(keys)) == 15 and sum(" > ".join(r.surfaces) == "s3 > s1" for r in table.rows) == 2
     assert all("map_key" not in d for d in table.to_json_dict()["ghosts"])
     plot_maps(table, tmp_path / "ghosts.png", top=15)
+
+
+def test_ghosts_stopped_by_the_per_ghost_cap_are_counted_in_the_notes(tmp_path):
+    """A ghost that reaches --max-rays above the target error (a thin bundle few rays find, as in ACL3026U.zmx)
+    keeps its error, and the table says how many did; without a cap that bites, no such note."""
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    capped = ghost_table(opt, target_rel_error=0.001, max_rays=8192)
+    assert any(n.startswith("15 of 15 ghosts reached --max-rays (8192 rays each)") for n in capped.notes), capped.notes
+    assert not ghost_table(opt, target_rel_error=0.2, max_rays=8192).notes
