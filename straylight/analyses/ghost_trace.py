@@ -49,9 +49,10 @@ if TYPE_CHECKING:
 
 MAP_BINS = 64
 PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK_CELLS cells
-EPS_MM = 1e-6
+EPS_MM = 1e-6  # the smallest offset off a surface; a scene's own is scene_epsilon's (float32 ulps of its extent)
 SELF_HIT_MM = 1e-6
 MAX_NOMINAL_STEPS = 200
+MAX_TOTAL_RAYS = 4_000_000  # rays all the ghosts of a table share (ghost_table; 1.8e6 for a double Gauss's 45)
 NOMINAL_MIN_SHARE = 0.02  # a design path carries at least this share of the strongest sequence's power
 
 
@@ -75,6 +76,8 @@ class GhostOptics:
     tri_normals: np.ndarray
     detector: int
     source: Source
+    eps_mm: float = EPS_MM  # offset off a surface after a hit (straylight.engine.spec.scene_epsilon, as the walk's)
+    field_deg: float = 0.0  # the source's turn from the scene's direction (prepare)
 
     def is_interface(self, p: int) -> bool:
         return self.models[p][0] is not None and getattr(self.models[p][0], "smooth", None) is not None
@@ -83,7 +86,7 @@ class GhostOptics:
 def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOptics:
     """The forced tracer's view of a loaded scene (``straylight.scene.load_scene``); the source turned to
     field ``field_deg`` in the meridional y-z plane (CONTRACTS 8.1: +z toward (0, sin F, cos F))."""
-    from straylight.engine.spec import back_material_index, resolve_materials
+    from straylight.engine.spec import back_material_index, resolve_materials, scene_epsilon
     from straylight.intersect import EmbreeIntersector
 
     scene = rs.scene
@@ -110,7 +113,8 @@ def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOpt
     src = _at_field(rs.sources[0], field_deg)
     return GhostOptics(tuple(p.name for p in parts), tuple(getattr(p, "surface", None) for p in parts),
                        tuple(per_part), tuple(p.role for p in parts), EmbreeIntersector(tri),
-                       np.asarray(scene.triangle_part, dtype=np.int64), nrm, dets[0], src)
+                       np.asarray(scene.triangle_part, dtype=np.int64), nrm, dets[0], src,
+                       max(EPS_MM, scene_epsilon(tri)), float(field_deg))
 
 
 def _at_field(source, field_deg: float):
@@ -197,7 +201,9 @@ def next_hits(opt: GhostOptics, b: Bundle):
             front[r] = fr
             facing[r] = np.where(fr[:, None], n_front[accept], -n_front[accept])
             again = rows[~accept]
-            o[again] = o[again] + (t[g][~accept] + 1e-6)[:, None] * b.d[again]
+            # past the facet by the scene's offset: a ray leaving a flat surface meets its facet again at t = 0
+            # in the intersector's float32 until it has moved a few ulps of the coordinates
+            o[again] = o[again] + (t[g][~accept] + opt.eps_mm)[:, None] * b.d[again]
             last[again] = p
             retry.append(again)
         todo = np.concatenate(retry) if retry else np.zeros(0, np.int64)
@@ -223,7 +229,7 @@ def fresnel(opt: GhostOptics, part, front, cos_i, dist):
     return out
 
 
-def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray) -> Bundle:
+def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray, eps_mm: float = EPS_MM) -> Bundle:
     """The bundle after its interface hits: reflected where ``reflect_it``, else transmitted; weights times
     the branch's power for the ray's Stokes vector (the engine's Mueller matrices) and the bulk factor."""
     rs, rp, ts, tp, cos_t, eta, bulk = coeffs
@@ -236,7 +242,7 @@ def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray) -> Bundle
     d_new = np.where(reflect_it[:, None], reflect(b.d, facing), refract(b.d, facing, eta, cos_t))
     sign = np.where(reflect_it, 1.0, -1.0)
     safe = np.where(So[:, :1] > 0, So[:, :1], 1.0)
-    return Bundle(np.ascontiguousarray(point + (sign * EPS_MM)[:, None] * facing), np.ascontiguousarray(d_new), w,
+    return Bundle(np.ascontiguousarray(point + (sign * eps_mm)[:, None] * facing), np.ascontiguousarray(d_new), w,
                   So / safe, s, b.last)
 
 
@@ -250,6 +256,10 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
     :data:`NOMINAL_MIN_SHARE` of the strongest one's power, the one through the most interfaces: light that
     passes the front elements and then goes *around* the smaller ones (a lens file has no barrel) can carry
     more power than the design path, but it always skips some of the surfaces the design path crosses."""
+    from materials.smooth import Dielectric
+
+    if not any(isinstance(getattr(m, "smooth", None), Dielectric) for pair in opt.models for m in pair):
+        raise GhostError("the scene has no lens or window (no dielectric part: a mirror system), so no ghost")
     rng = np.random.default_rng(seed)
     b = emit(opt, n_rays, rng)
     seqs: list[list[tuple[int, str]]] = [[] for _ in range(n_rays)]
@@ -276,11 +286,21 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
         for i, p, r in zip(ids, part, refl):
             seqs[i].append((int(p), "R" if r else "T"))
         b.last = part
-        b = interact(b, point, facing, co, refl)
+        b = interact(b, point, facing, co, refl, opt.eps_mm)
     through = {k: w for k, w in power.items() if any(a == "T" for _, a in k)}
+    if not through and any(k for k in power):  # every path there reflects at each interface it meets
+        raise GhostError(f"the light reaches the detector {opt.names[opt.detector]!r} by reflections alone (a mirror "
+                         "system): no transmitting interface, so no ghost (ghosts come from lenses and windows)")
     if not through:
+        hint = ""
+        if opt.field_deg:  # the detector optics import sizes holds the image over the file's fields only
+            radius = getattr(opt.surfaces[opt.detector], "outer_radius_mm", None)
+            hint = (f"; at --field-deg {opt.field_deg:g} the image may miss the detector"
+                    + (f" (radius {radius:.4g} mm)" if radius else "")
+                    + f": import the lens at that field (optics import --field-deg {opt.field_deg:g}) and run "
+                    "ghosts without --field-deg")
         raise GhostError(f"no source ray reaches the detector {opt.names[opt.detector]!r} through an interface "
-                         "(a lens or window) along a specular path")
+                         "(a lens or window) along a specular path" + hint)
     strongest = max(through.values())
     kept = {k: w for k, w in through.items() if w >= NOMINAL_MIN_SHARE * strongest}
     return max(kept, key=lambda k: (len(k), kept[k]))  # light around the lenses (no barrel) is not the design path
@@ -354,7 +374,7 @@ def trace_sequence(opt: GhostOptics, seq, n: int, rng) -> Arrivals:
         cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
         co = fresnel(opt, part, front, cos_i, dist)
         b.last = part
-        b = interact(b, point, facing, co, np.full(len(ids), act == "R"))
+        b = interact(b, point, facing, co, np.full(len(ids), act == "R"), opt.eps_mm)
         live = np.flatnonzero(b.w > 0)
         b, ids = b.take(live), ids[live]
     per_ray = np.zeros(n)
@@ -388,7 +408,7 @@ def sample_polylines(opt: GhostOptics, seq, n_paths: int = 6, rays: int = 256, s
         cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
         co = fresnel(opt, part, front, cos_i, dist)
         b.last = part
-        b = interact(b, point, facing, co, np.full(len(ids), act == "R"))
+        b = interact(b, point, facing, co, np.full(len(ids), act == "R"), opt.eps_mm)
     out = []
     for i in ids[:n_paths]:
         out.append(np.array([pts[np.flatnonzero(at == i)[0]] for pts, at in zip(trail, alive_at)]))
@@ -434,6 +454,7 @@ class GhostRow:
     rays: int
     sequence: list = field(default_factory=list)
     parts: tuple = field(default=(), repr=False)  # the forced sequence ((part index, action), ...)
+    map_key: str = field(default="", repr=False)  # its map in GhostTable.maps (the label, made unique)
 
 
 class _Accumulator:
@@ -499,7 +520,7 @@ def detector_frame(opt: GhostOptics):
 
 
 def _row_dict(r: GhostRow) -> dict:
-    return {k: v for k, v in r.__dict__.items() if k != "parts"}
+    return {k: v for k, v in r.__dict__.items() if k not in ("parts", "map_key")}
 
 
 @dataclass(eq=False)
@@ -525,8 +546,15 @@ class GhostTable:
 
 
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
-                batch_rays: int = 4096, max_rays: int = 400_000, seed: int = 0, on_ghost=None) -> GhostTable:
-    """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio."""
+                batch_rays: int = 4096, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
+                max_total_rays: int = MAX_TOTAL_RAYS) -> GhostTable:
+    """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio.
+
+    The ghosts share ``max_total_rays`` (the nominal image's rays aside) by water-filling: each round gives
+    every unfinished ghost an equal share of what is left, and a ghost continues its own random stream where
+    it stopped, so a table whose ghosts need fewer rays in all is the one traced without the budget, ray for
+    ray. Ghosts the budget stops above ``target_rel_error`` keep the error they reached (``notes`` says how
+    many): a 16-surface lens's 120 ghosts would otherwise take minutes."""
     import time
 
     if order < 2 or order % 2:
@@ -540,43 +568,81 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     if not refls:
         raise GhostError("the nominal path crosses no transmitting interface: no ghost to list")
 
-    def run(seq, k, floor_w=None):
-        rng = np.random.default_rng([seed, k])
-        acc = _Accumulator(frame)
-        while True:
-            acc.add(trace_sequence(opt, seq, batch_rays, rng))
-            # each ray carries power_w / batch_rays: the power is batch_rays times the per-ray mean
-            mean = acc.s1 / acc.n * batch_rays
-            err = math.sqrt(max(acc.s2 / acc.n - (acc.s1 / acc.n) ** 2, 0.0) / max(acc.n - 1, 1)) * batch_rays
-            if acc.n >= max_rays or (mean > 0 and err <= target_rel_error * mean and acc.n >= 2 * batch_rays):
-                break
-            if floor_w is not None and acc.n >= 4 * batch_rays and mean + 4 * err < floor_w:
-                break  # below the fraction of the nominal power asked for, with confidence
-            if mean == 0 and acc.n >= 4 * batch_rays:
-                break
-        focus, radius = acc.geometry()
-        return mean, err, focus, radius, acc.map * (batch_rays / acc.n) / cell_mm2, acc.n
+    class Run:
+        """One sequence's estimate, traced in batches up to a ray limit at a time (its own random stream)."""
 
-    p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = run(nominal, 0)
+        def __init__(self, seq, k, floor_w=None):
+            self.seq, self.floor_w = seq, floor_w
+            self.rng = np.random.default_rng([seed, k])
+            self.acc = _Accumulator(frame)
+            self.done = False
+            self.capped = False  # stopped by max_rays above the target error
+            self.mean = self.err = 0.0
+
+        def advance(self, limit: float = math.inf):
+            acc = self.acc
+            while not self.done and acc.n < limit:
+                acc.add(trace_sequence(opt, self.seq, batch_rays, self.rng))
+                # each ray carries power_w / batch_rays: the power is batch_rays times the per-ray mean
+                mean = self.mean = acc.s1 / acc.n * batch_rays
+                err = self.err = math.sqrt(max(acc.s2 / acc.n - (acc.s1 / acc.n) ** 2, 0.0) / max(acc.n - 1, 1)) \
+                    * batch_rays
+                reached = mean > 0 and err <= target_rel_error * mean and acc.n >= 2 * batch_rays
+                if acc.n >= max_rays or reached:
+                    self.done = True
+                    self.capped = not reached and not (self.floor_w is not None and mean + 4 * err < self.floor_w) \
+                        and mean > 0
+                elif self.floor_w is not None and acc.n >= 4 * batch_rays and mean + 4 * err < self.floor_w:
+                    self.done = True  # below the fraction of the nominal power asked for, with confidence
+                elif mean == 0 and acc.n >= 4 * batch_rays:
+                    self.done = True
+            return self
+
+        def result(self):
+            focus, radius = self.acc.geometry()
+            return self.mean, self.err, focus, radius, self.acc.map * (batch_rays / self.acc.n) / cell_mm2, self.acc.n
+
+    p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0).advance().result()
     peak_nom = peak_irradiance(map_nom)
     nom_row = GhostRow([], [], p_nom, e_nom, 1.0, f_nom, r_nom, 1.0 if peak_nom > 0 else None, n_nom,
                        [opt.names[p] for p, _ in nominal])
+    runs = [Run(ghost_sequence(nominal, refl), k, floor_w=min_fraction * p_nom) for k, refl in enumerate(refls, 1)]
+    first = max(2 * batch_rays, max_total_rays // len(runs))
+    for k, run in enumerate(runs, start=1):
+        run.advance(first)
+        if on_ghost is not None:  # a callable(k, n) told after each ghost's first share (a progress bar)
+            on_ghost(k, len(refls))
+    while True:  # the rest of the budget, shared equally among the ghosts not yet at their target
+        open_ = [r for r in runs if not r.done]
+        share = (max_total_rays - sum(r.acc.n for r in runs)) // max(len(open_), 1)
+        if not open_ or share < batch_rays:
+            break
+        for run in open_:
+            run.advance(run.acc.n + share)
     rows = []
     maps = {"nominal": map_nom}
-    for k, refl in enumerate(refls, start=1):
-        seq = ghost_sequence(nominal, refl)
-        p, e, f, r, m, n = run(seq, k, floor_w=min_fraction * p_nom)
+    for refl, run in zip(refls, runs):
+        p, e, f, r, m, n = run.result()
         names = [opt.names[nominal[i][0]] for i in refl]
         label = " > ".join(names)
+        if label in maps:  # a part the design path crosses twice (a Mangin mirror's glass): two ghosts, one label
+            label += f" (positions {', '.join(str(i) for i in refl)})"
         maps[label] = m
         rows.append(GhostRow(names, list(refl), p, e, p / p_nom if p_nom > 0 else float("nan"), f, r,
                              peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n,
-                             [opt.names[q] for q, _ in seq], tuple(seq)))
-        if on_ghost is not None:  # a callable(k, n) told after each ghost (a progress bar)
-            on_ghost(k, len(refls))
+                             [opt.names[q] for q, _ in run.seq], tuple(run.seq), label))
     rows.sort(key=lambda r: -r.power_w)
+    notes = []
+    short = sum(not r.done for r in runs)
+    if short:
+        notes.append(f"{short} of {len(runs)} ghosts reached the table's ray budget ({max_total_rays} rays, "
+                     f"--max-total-rays) before {target_rel_error:g} relative error; their errors are as listed")
+    capped = sum(r.capped for r in runs)
+    if capped:
+        notes.append(f"{capped} of {len(runs)} ghosts reached --max-rays ({max_rays} rays each) before "
+                     f"{target_rel_error:g} relative error; their errors are as listed")
     return GhostTable(opt.names[opt.detector], order, 0.0, nom_row, rows, maps, half, time.perf_counter() - t0,
-                      nominal_parts=tuple(nominal))
+                      notes=notes, nominal_parts=tuple(nominal))
 
 
 # ---------------------------------------------------------------- files and the picture
@@ -618,6 +684,7 @@ def markdown(table: GhostTable, top: int = 50) -> str:
     lines = [f"# Ghosts at {table.detector} (order {table.order}, field {table.field_deg:g} deg)", "",
              f"Nominal image: {n.power_w:.4e} W +- {n.stderr_w:.1e}, RMS radius "
              f"{_cell(n.radius_mm)} mm; {len(table.rows)} ghosts, {table.seconds:.1f} s.", "",
+             *[f"Note: {note}." for note in table.notes], *([""] if table.notes else []),
              "| rank | surfaces | power (W) | stderr (W) | of nominal | focus (mm) | radius (mm) | peak ratio |",
              "|---|---|---|---|---|---|---|---|"]
     for rank, r in enumerate(table.rows[:top], start=1):
@@ -641,7 +708,7 @@ def plot_maps(table: GhostTable, path, top: int = 8):
 
     import atomicio
 
-    labels = ["nominal"] + [" > ".join(r.surfaces) for r in table.rows[:top]]
+    labels = ["nominal"] + [r.map_key or " > ".join(r.surfaces) for r in table.rows[:top]]
     n = len(labels)
     cols = min(3, n)
     rows = -(-n // cols)
@@ -655,7 +722,8 @@ def plot_maps(table: GhostTable, path, top: int = 8):
             im = ax.imshow(np.where(m > 0, m, np.nan).T, origin="lower", extent=[-h, h, -h, h], cmap="magma",
                            norm=LogNorm(vmin=max(pos.min(), pos.max() * 1e-6), vmax=pos.max()))
             fig.colorbar(im, ax=ax, shrink=0.8, label="W/mm$^2$")
-        row = table.nominal if lab == "nominal" else next(r for r in table.rows if " > ".join(r.surfaces) == lab)
+        row = table.nominal if lab == "nominal" else \
+            next(r for r in table.rows if (r.map_key or " > ".join(r.surfaces)) == lab)
         ax.set_title(f"{lab}\n{row.power_w:.2e} W", fontsize=9)
         ax.set_xlabel("u (mm)")
         ax.set_ylabel("v (mm)")

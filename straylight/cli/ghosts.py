@@ -1,6 +1,6 @@
 """``straylight ghosts``: the ghost table of the lenses in a scene (CONTRACTS 8.4; docs/ghosts.md).
 
-    straylight ghosts SCENE.toml [--order 2] [--field-deg F] --out DIR
+    straylight ghosts SCENE.toml [--order 2] [--field-deg F] [--max-total-rays N] --out DIR
 
 Writes DIR/ghosts.csv, ghosts.json, ghosts.md and ghosts.png (straylight.analyses.ghost_trace).
 """
@@ -21,6 +21,9 @@ def add_parser(subparsers):
     p.add_argument("--min-fraction", type=float, default=1e-6,
                    help="ghosts below this fraction of the nominal image's power stop early (default 1e-6)")
     p.add_argument("--max-rays", type=int, default=400_000, help="ray budget per ghost (default 400000)")
+    p.add_argument("--max-total-rays", type=int, default=None,
+                   help="rays all the ghosts share, the nominal image's aside (default 4000000; a ghost the budget "
+                        "stops keeps the error it reached, and the table says how many)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-view3d", action="store_true",
                    help="skip DIR/view3d.html (the lens with the nominal path and the strongest ghosts, each selectable)")
@@ -41,6 +44,9 @@ def run(args) -> int:
         raise GhostError(f"--target-rel-error must be in (0, 1), got {args.target_rel_error:g}")
     if not 0 <= args.min_fraction < 1:
         raise GhostError(f"--min-fraction must be in [0, 1), got {args.min_fraction:g}")
+    for flag, value in (("--max-rays", args.max_rays), ("--max-total-rays", args.max_total_rays)):
+        if value is not None and value < 1:
+            raise GhostError(f"{flag} must be >= 1, got {value}")
     bar = progress_bar(total=None, desc="ghosts", unit="ghost", enabled=sys.stderr.isatty())
 
     def tick(k, n):
@@ -50,9 +56,12 @@ def run(args) -> int:
     try:
         table = ghosts(args.scene, order=args.order, field_deg=args.field_deg, detector=args.detector,
                        target_rel_error=args.target_rel_error, min_fraction=args.min_fraction,
-                       max_rays=args.max_rays, seed=args.seed, on_ghost=tick)
+                       max_rays=args.max_rays, seed=args.seed, on_ghost=tick,
+                       **({} if args.max_total_rays is None else {"max_total_rays": args.max_total_rays}))
     finally:
         bar.close()
+    for note in table.notes:
+        print(f"straylight: warning: {note}", file=sys.stderr)
     write_table(table, args.out)
     written = "ghosts.csv, ghosts.json, ghosts.md, ghosts.png"
     if not args.no_view3d and table.optics is not None:

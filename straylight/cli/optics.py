@@ -41,7 +41,11 @@ def run_import(args) -> int:
     for w in p.warnings:
         print(f"warning: {w}", file=sys.stderr)
     n_opt = sum(1 for s in p.surfaces if not s.dummy)
-    print(f"{p.file}: {n_opt} optical surfaces, efl {p.efl_mm:.6g} mm, f/# {p.fno:.3g}, at {p.wavelength_nm:g} nm -> "
+    import math
+
+    first_order = (f"efl {p.efl_mm:.6g} mm, f/# {p.fno:.3g}" if math.isfinite(p.efl_mm) and math.isfinite(p.fno)
+                   else "afocal (no efl, f/#)")
+    print(f"{p.file}: {n_opt} optical surfaces, {first_order}, at {p.wavelength_nm:g} nm -> "
           f"{args.out}/scene.toml, {args.out}/prescription.json")
     return 0
 

@@ -480,7 +480,8 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
              for i, ifc in enumerate(sm.ifcs)}
     given_sd = {i: float(sm.ifcs[i].surface_od()) for i in given if given[i]}
     try:
-        sm.set_clear_apertures()
+        with np.errstate(all="ignore"):  # rayoptics' boundary rays that miss a surface come back NaN, not as warnings
+            sm.set_clear_apertures()
         traced_sd = {i: float(ifc.max_aperture) for i, ifc in enumerate(sm.ifcs)}
     except Exception:  # noqa: BLE001 - fall back to the paraxial marginal + chief ray heights
         try:

@@ -101,32 +101,35 @@ def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: 
     if stop is not None and not stop.semi_diameter_from_file:  # the black stop's hole (scene_build)
         stop_hole = stop.semi_diameter_mm / 1.05
     out = []
-    for x, y in pupil_grid(source_radius_mm, n) + np.asarray(source_centre_xy, float):
-        start = np.array([x, y, source_z_mm]) / s
-        t = (start[2] - t0[2]) / d[2]
-        p0 = rot0.T @ (start - t * d - t0)
-        try:
-            ray, _, _ = rt.trace(sm, p0, rot0.T @ d, p.wavelength_nm)
-        except Exception:  # noqa: BLE001 - missed surface, TIR: the ray does not reach the image
-            continue
-        ok = True
-        for i, seg in enumerate(ray):
-            if i in limits:
-                q, lo = limits[i]
-                x_mm, y_mm = seg[0][0] * s, seg[0][1] * s
-                if q is stop and stop_hole is not None:
-                    passes = lo <= math.hypot(x_mm, y_mm) <= stop_hole
-                else:
-                    passes = aperture.inside(q, x_mm, y_mm, hole_mm=lo)
-                if not passes:
-                    ok = False
-                    break
-        if ok:
-            pts = [start * s] + [(np.asarray(sm.gbl_tfrms[i][0], float) @ np.asarray(seg[0], float)
-                                  + np.asarray(sm.gbl_tfrms[i][1], float)) * s for i, seg in enumerate(ray) if i >= 1]
-            path = np.array(pts)
-            if not (block and _blocked(p, path)):
-                out.append(path)
+    # a ray that misses a surface comes back from rayoptics as NaN (numpy's divide and invalid warnings on the
+    # way): it fails the aperture test below, or is dropped by sequential_spot; no warning for it
+    with np.errstate(all="ignore"):
+        for x, y in pupil_grid(source_radius_mm, n) + np.asarray(source_centre_xy, float):
+            start = np.array([x, y, source_z_mm]) / s
+            t = (start[2] - t0[2]) / d[2]
+            p0 = rot0.T @ (start - t * d - t0)
+            try:
+                ray, _, _ = rt.trace(sm, p0, rot0.T @ d, p.wavelength_nm)
+            except Exception:  # noqa: BLE001 - missed surface, TIR: the ray does not reach the image
+                continue
+            ok = True
+            for i, seg in enumerate(ray):
+                if i in limits:
+                    q, lo = limits[i]
+                    x_mm, y_mm = seg[0][0] * s, seg[0][1] * s
+                    if q is stop and stop_hole is not None:
+                        passes = lo <= math.hypot(x_mm, y_mm) <= stop_hole
+                    else:
+                        passes = aperture.inside(q, x_mm, y_mm, hole_mm=lo)
+                    if not passes:
+                        ok = False
+                        break
+            if ok:
+                pts = [start * s] + [(np.asarray(sm.gbl_tfrms[i][0], float) @ np.asarray(seg[0], float)
+                                      + np.asarray(sm.gbl_tfrms[i][1], float)) * s for i, seg in enumerate(ray) if i >= 1]
+                path = np.array(pts)
+                if not (block and _blocked(p, path)):
+                    out.append(path)
     return out
 
 

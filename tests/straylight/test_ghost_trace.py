@@ -199,3 +199,124 @@ def test_the_nominal_path_crosses_every_surface_not_the_light_around_the_lenses(
     names = [opt.names[p] for p, _ in nominal]
     refracting = [f"s{i}" for i in range(2, 19) if i != 11]  # s11 is the stop (air on both sides)
     assert names == refracting and all(a == "T" for _, a in nominal)
+
+
+@pytest.mark.parametrize("lens", ["optiland/mirror.seq", "ray-optics/US08011793-1.zmx"])
+def test_a_mirror_system_is_refused_as_one_with_no_ghost(tmp_path, capsys, lens):
+    """optiland's mirror.seq (one concave mirror) and the four-mirror US08011793-1 (whose beam, off axis in the
+    design, misses the image on axis): no lens or window, so no ghost; the refusal says so rather than that no
+    light arrives."""
+    from straylight.cli.main import main
+
+    assert main(["optics", "import", str(LENSES / lens), "--out", str(tmp_path / "lens")]) == 0
+    capsys.readouterr()
+    assert main(["ghosts", str(tmp_path / "lens" / "scene.toml"), "--out", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mirror system" in err[0] and "no ghost" in err[0], err
+
+
+def test_light_leaves_a_flat_surface_far_from_the_origin(tmp_path):
+    """ray-optics' schmidt.seq: corrector, mirror, then a field flattener whose last face is flat, 75 mm from
+    the origin, 1.7 mm before the image. There a float32 ulp is 7.6e-6 mm: a ray offset off the flat face by
+    less meets its facet again at t = 0 and never reaches the image. The design path crosses all five surfaces."""
+    from straylight.analyses.ghost_trace import nominal_sequence
+    from straylight.cli.main import main
+    from straylight.scene import load_scene
+
+    assert main(["optics", "import", str(LENSES / "ray-optics" / "schmidt.seq"), "--out", str(tmp_path)]) == 0
+    opt = prepare(load_scene(tmp_path / "scene.toml"))
+    nominal = nominal_sequence(opt)
+    assert [(opt.names[p], a) for p, a in nominal] == [("s1", "T"), ("s2", "T"), ("s3", "R"), ("s4", "T"),
+                                                       ("s5", "T")]
+    assert len(ghost_reflections(nominal, 2)) == 6  # C(4, 2): the four refracting surfaces
+
+
+def test_the_ghosts_share_a_ray_budget_and_say_when_it_stops_them(tmp_path):
+    """A 16-surface lens has 120 ghosts; to 2 % each they take minutes, so the table has a total ray budget,
+    shared by water-filling. Under a budget large enough for every ghost the table is the one traced without
+    it, ray for ray (each ghost continues its own random stream); under a small one every ghost is still
+    listed, with the error it reached, and the table says how many the budget stopped."""
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    free = ghost_table(opt, target_rel_error=0.05, max_total_rays=10 ** 9)
+    assert not free.notes
+    need = sum(r.rays for r in free.rows)
+    shared = ghost_table(opt, target_rel_error=0.05, max_total_rays=need)  # too few for an equal share each
+    assert not shared.notes
+    assert [(r.surfaces, r.power_w, r.stderr_w, r.rays) for r in shared.rows] == \
+        [(r.surfaces, r.power_w, r.stderr_w, r.rays) for r in free.rows]
+    small = ghost_table(opt, target_rel_error=0.001, max_total_rays=15 * 4096)
+    assert len(small.rows) == 15 and small.notes and small.notes[0].startswith("15 of 15 ghosts")
+    assert all(r.rays == 2 * 4096 and 0 < r.stderr_w < r.power_w for r in small.rows)
+
+
+def test_an_image_turned_off_the_detector_is_refused_with_the_way_out(tmp_path, capsys):
+    """Edmund 32-299 (OpticsDatabase), a 12.5 mm achromat imported for its on-axis field: its detector is a
+    0.375 mm disk, and at 5 deg the image lies 1.1 mm off axis. The one-line refusal says to import the lens
+    at that field; so imported, its ghost table is found."""
+    from straylight.cli.main import main
+
+    lens = LENSES / "OpticsDatabase" / "Edmund_32-299.zmx"
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path / "lens")]) == 0
+    capsys.readouterr()
+    assert main(["ghosts", str(tmp_path / "lens" / "scene.toml"), "--field-deg", "5", "--out", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "optics import --field-deg 5" in err[0] and "radius 0.375 mm" in err[0], err
+    assert main(["optics", "import", str(lens), "--field-deg", "5", "--out", str(tmp_path / "lens5")]) == 0
+    assert len(ghosts(tmp_path / "lens5" / "scene.toml", target_rel_error=0.2).rows) == 3
+
+
+def test_the_double_gauss_design_path_carries_what_the_analog_walk_finds(tmp_path):
+    """The design path's power through the double Gauss ag_dblgauss.seq, forced-sequence against the engine's
+    analog walk (path records grouped by sequence): rays offset off a surface by less than the intersector's
+    float32 resolution were lost on its flat-ish faces 40-90 mm from the origin (0.272 W against 0.377)."""
+    from straylight.analyses.ghost_trace import nominal_sequence, trace_sequence
+    from straylight.analyses.ghosts import specular_sequence
+    from straylight.cli.main import main
+    from straylight.scene import load_scene
+    from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions
+
+    assert main(["optics", "import", str(LENSES / "ray-optics" / "ag_dblgauss.seq"), "--out", str(tmp_path)]) == 0
+    rs = load_scene(tmp_path / "scene.toml")
+    opt = prepare(rs)
+    nominal = nominal_sequence(opt)
+    per_ray = trace_sequence(opt, nominal, 20_000, np.random.default_rng(5)).per_ray_w * 20_000
+    forced, forced_err = per_ray.mean(), per_ray.std(ddof=1) / math.sqrt(len(per_ray))
+    res = rs.trace(40_000, seed=7, options=TraceOptions(estimator=EstimatorOptions(nee=False),
+                                                        output=OutputOptions(record_paths=True, path_depth=40)))
+    groups = {g.key: g for g in res.paths.group(by=lambda ev, det: specular_sequence(ev) if det == "image" else None)
+              if g.key is not None}
+    walk = groups[tuple(opt.names[p] for p, _ in nominal)]
+    assert abs(forced - walk.power_w) < 4 * math.hypot(forced_err, walk.stderr_w), (forced, walk.power_w)
+
+
+def test_two_ghosts_with_one_label_keep_their_own_maps(tmp_path):
+    """A part the design path crosses twice (a Mangin mirror's glass, met going in and coming out) gives two
+    ghosts the same surface names. Here the Cooke triplet's s2 is renamed s1 so that s3 > s1 and s3 > s2 share
+    a label: every ghost keeps its own irradiance map (ghosts.png draws each from its own), none overwritten."""
+    import dataclasses
+
+    from straylight.analyses.ghost_trace import plot_maps
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    names = list(opt.names)
+    names[names.index("s2")] = "s1"
+    table = ghost_table(dataclasses.replace(opt, names=tuple(names)), target_rel_error=0.2)
+    assert len(table.rows) == 15 and len(table.maps) == 16  # the nominal image's and one per ghost
+    keys = [r.map_key for r in table.rows]
+    assert len(set(keys)) == 15 and sum(" > ".join(r.surfaces) == "s3 > s1" for r in table.rows) == 2
+    assert all("map_key" not in d for d in table.to_json_dict()["ghosts"])
+    plot_maps(table, tmp_path / "ghosts.png", top=15)
+
+
+def test_ghosts_stopped_by_the_per_ghost_cap_are_counted_in_the_notes(tmp_path):
+    """A ghost that reaches --max-rays above the target error (a thin bundle few rays find, as in ACL3026U.zmx)
+    keeps its error, and the table says how many did; without a cap that bites, no such note."""
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    capped = ghost_table(opt, target_rel_error=0.001, max_rays=8192)
+    assert any(n.startswith("15 of 15 ghosts reached --max-rays (8192 rays each)") for n in capped.notes), capped.notes
+    assert not ghost_table(opt, target_rel_error=0.2, max_rays=8192).notes
