@@ -469,22 +469,26 @@ def _quiet_after_interrupt():
     "rescheduling ...") is not printed: the run says "interrupted" in one line. Used as
     ``with _quiet_after_interrupt() as quiet, <cluster and client>, quiet:``: the inner ``quiet``
     raises distributed's loggers to CRITICAL when a KeyboardInterrupt passes, before the client and
-    cluster close; the outer one restores their level after they closed."""
-    log = logging.getLogger("distributed")
-    level = log.level
+    cluster close; the outer one restores their level after they closed. Tornado's event-loop logger too:
+    a future of the client's that the closing cluster leaves with CommClosedError is logged there as
+    "Exception in callback ..." with its traceback (seen once in CI, timing-dependent)."""
+    logs = [logging.getLogger("distributed"), logging.getLogger("tornado.application")]
+    levels = [log.level for log in logs]
 
     @contextmanager
     def quiet():
         try:
             yield
         except KeyboardInterrupt:
-            log.setLevel(logging.CRITICAL)
+            for log in logs:
+                log.setLevel(logging.CRITICAL)
             raise
 
     try:
         yield quiet()
     finally:
-        log.setLevel(level)
+        for log, level in zip(logs, levels):
+            log.setLevel(level)
 
 
 class _NoForeignHandshakes:
