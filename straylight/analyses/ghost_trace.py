@@ -455,6 +455,10 @@ class GhostRow:
     sequence: list = field(default_factory=list)
     parts: tuple = field(default=(), repr=False)  # the forced sequence ((part index, action), ...)
     map_key: str = field(default="", repr=False)  # its map in GhostTable.maps (the label, made unique)
+    # where none of its rays reached the detector: its power is below this at 95 % (3 x the source's power /
+    # rays: each ray carries at most the source's power / rays, and 0 arrivals in n rays puts the arrival
+    # probability below 3 / n at 95 %); None where rays arrived
+    upper_w: float | None = None
 
 
 class _Accumulator:
@@ -630,13 +634,18 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         maps[label] = m
         rows.append(GhostRow(names, list(refl), p, e, p / p_nom if p_nom > 0 else float("nan"), f, r,
                              peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n,
-                             [opt.names[q] for q, _ in run.seq], tuple(run.seq), label))
+                             [opt.names[q] for q, _ in run.seq], tuple(run.seq), label,
+                             upper_w=3.0 * float(opt.source.power_w) / n if p <= 0.0 and n > 0 else None))
     rows.sort(key=lambda r: -r.power_w)
     notes = []
     short = sum(not r.done for r in runs)
     if short:
         notes.append(f"{short} of {len(runs)} ghosts reached the table's ray budget ({max_total_rays} rays, "
                      f"--max-total-rays) before {target_rel_error:g} relative error; their errors are as listed")
+    bounds = [r.upper_w for r in rows if r.upper_w is not None]
+    if bounds:
+        notes.append(f"{len(bounds)} of {len(runs)} ghosts had no ray reach the detector (listed as 0 +- 0): each is "
+                     f"below 3 x the source's power / its rays at 95 % (upper_w; at most {max(bounds):.1e} W)")
     capped = sum(r.capped for r in runs)
     if capped:
         notes.append(f"{capped} of {len(runs)} ghosts reached --max-rays ({max_rays} rays each) before "
@@ -688,7 +697,8 @@ def markdown(table: GhostTable, top: int = 50) -> str:
              "| rank | surfaces | power (W) | stderr (W) | of nominal | focus (mm) | radius (mm) | peak ratio |",
              "|---|---|---|---|---|---|---|---|"]
     for rank, r in enumerate(table.rows[:top], start=1):
-        lines.append(f"| {rank} | {' > '.join(r.surfaces)} | {r.power_w:.4e} | {r.stderr_w:.1e} | "
+        power = f"{r.power_w:.4e}" if r.upper_w is None else f"0 (< {r.upper_w:.1e} at 95 %: no ray arrived)"
+        lines.append(f"| {rank} | {' > '.join(r.surfaces)} | {power} | {r.stderr_w:.1e} | "
                      f"{r.fraction_of_nominal:.3e} | {_cell(r.focus_mm)} | {_cell(r.radius_mm)} | "
                      f"{_cell(r.peak_ratio)} |")
     lines += ["", "focus: where the ghost's bundle is narrowest, mm along the light's direction from the detector "

@@ -320,3 +320,28 @@ def test_ghosts_stopped_by_the_per_ghost_cap_are_counted_in_the_notes(tmp_path):
     capped = ghost_table(opt, target_rel_error=0.001, max_rays=8192)
     assert any(n.startswith("15 of 15 ghosts reached --max-rays (8192 rays each)") for n in capped.notes), capped.notes
     assert not ghost_table(opt, target_rel_error=0.2, max_rays=8192).notes
+
+
+def test_a_ghost_no_ray_reaches_says_how_small_it_is(tmp_path):
+    """ray-optics' questar35.seq: its one ghost's beam lands on the stop annulus after the secondary, so no ray
+    of it reaches the image. Listed as 0 +- 0, it also carries the 95 % bound that many empty rays give
+    (3 x the source's power / its rays: each ray carries at most the source's power / rays), and the notes
+    and ghosts.md say so; ghosts.json stays strict JSON (upper_w is null where rays arrived)."""
+    from straylight.analyses.ghost_trace import write_table
+    from straylight.cli.main import main
+    from straylight.scene import load_scene
+
+    assert main(["optics", "import", str(LENSES / "ray-optics" / "questar35.seq"), "--out", str(tmp_path)]) == 0
+    rs = load_scene(tmp_path / "scene.toml")
+    table = ghosts(rs, order=2)
+    dark = [r for r in table.rows if r.power_w == 0.0]
+    assert dark and all(r.stderr_w == 0.0 for r in dark)
+    for r in dark:
+        assert r.upper_w == pytest.approx(3.0 * rs.sources[0].power_w / r.rays)
+    assert table.nominal.upper_w is None and all(r.upper_w is None for r in table.rows if r.power_w > 0)
+    assert any("had no ray reach the detector" in note for note in table.notes)
+    write_table(table, tmp_path / "g")
+    doc = json.loads((tmp_path / "g" / "ghosts.json").read_text(),
+                     parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
+    assert doc["ghosts"][-1]["upper_w"] == pytest.approx(dark[-1].upper_w)
+    assert "at 95 %: no ray arrived" in (tmp_path / "g" / "ghosts.md").read_text()
