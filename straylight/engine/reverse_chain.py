@@ -132,7 +132,7 @@ from straylight.engine.surface_geometry import at_interfaces, branch_coefficient
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.walk_shares import keep_walk_share
-from straylight.engine.vec3 import take_rows
+from straylight.engine.vec3 import take_rows, tangent_frame
 from straylight.paths import mix_key
 from straylight.polarization import UNPOLARIZED
 from straylight.rng import CHUNK_RAYS
@@ -825,11 +825,7 @@ def _start_rays_loop(drawn, nz, z, eps, d, e1, origin):
         l1 = rad * math.sin(phi)
         l2 = math.sqrt(max(0.0, 1.0 - rad * rad))
         x, y, zz = nz[r, 0], nz[r, 1], nz[r, 2]
-        sign = 1.0 if zz >= 0 else -1.0
-        a = -1.0 / (sign + zz)
-        bb = x * y * a
-        t0, t1, t2 = 1.0 + sign * x * x * a, sign * bb, -sign * x
-        b0, b1, b2 = bb, sign + y * y * a, -y
+        t0, t1, t2, b0, b1, b2 = tangent_frame(x, y, zz)
         d0 = (l0 * t0 + l1 * b0) + l2 * x
         d1 = (l0 * t1 + l1 * b1) + l2 * y
         d2 = (l0 * t2 + l1 * b2) + l2 * zz

@@ -14,6 +14,16 @@ def dot3(a0, a1, a2, b0, b1, b2):
     return (a0 * b0 + a2 * b2) + a1 * b1
 
 
+@njit(cache=True, nogil=True, inline="always")
+def tangent_frame(x, y, z):
+    """(t0, t1, t2, b0, b1, b2): the tangent and bitangent of the unit normal (x, y, z), Duff et al. 2017's
+    branchless basis, in the arithmetic order of straylight.sources.orthonormal_basis (the same bits)."""
+    sign = 1.0 if z >= 0 else -1.0
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    return 1.0 + sign * x * x * a, sign * b, -sign * x, b, sign + y * y * a, -y
+
+
 def take_rows(a, index):
     """``a[index]`` (a copy) for an integer index array, by ``np.take`` along the first axis: numpy's
     fancy indexing of the rows of a 2-D array is several times slower (the same elements, the same

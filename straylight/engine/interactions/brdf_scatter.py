@@ -26,7 +26,7 @@ from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER
 from straylight.engine.targets import target_mixture
-from straylight.engine.vec3 import dot3, dot_rows, take_rows
+from straylight.engine.vec3 import dot3, dot_rows, take_rows, tangent_frame
 
 
 class LocalFrames(NamedTuple):
@@ -54,11 +54,7 @@ def frames(verts, d, nf, part, part_material, U):
         mat[s] = part_material[part[i]]
         u_s[s, 0], u_s[s, 1], u_s[s, 2] = U[i, 0], U[i, 1], U[i, 2]
         x, y, z = nf[i, 0], nf[i, 1], nf[i, 2]
-        sign = 1.0 if z >= 0 else -1.0
-        a = -1.0 / (sign + z)
-        b = x * y * a
-        t0, t1, t2 = 1.0 + sign * x * x * a, sign * b, -sign * x
-        b0, b1, b2 = b, sign + y * y * a, -y
+        t0, t1, t2, b0, b1, b2 = tangent_frame(x, y, z)
         tb[s, 0], tb[s, 1], tb[s, 2] = t0, t1, t2
         bb[s, 0], bb[s, 1], bb[s, 2] = b0, b1, b2
         w0, w1, w2 = -d[i, 0], -d[i, 1], -d[i, 2]
