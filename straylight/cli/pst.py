@@ -6,7 +6,8 @@
 With a scene file, the beam is the file's ``collimated_disk`` source, tilted away from its own
 direction; the file's optional [analysis] table names the detector and the entrance
 (docs/study.md, "Your own instrument").
-Writes DIR/pst.csv, pst.json, pst.png (and entrance_ratio.png with an entrance).
+Writes DIR/pst.csv, pst.json, and with two off-axis angles or more (or ``--plot``) the curve pst.png (and
+entrance_ratio.png with an entrance): one angle is one point, which the printed line and the files carry.
 """
 from __future__ import annotations
 
@@ -109,6 +110,9 @@ def add_parser(subparsers):
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted sweep: points already finished (OUT/pst.points/) are not traced again")
+    p.add_argument("--plot", action="store_true",
+                   help="draw pst.png (and entrance_ratio.png) for a single off-axis angle too (a curve needs two: "
+                        "without it, one angle writes no plot)")
     from straylight.cli.cluster_args import add_cluster_args
 
     add_cluster_args(p)
@@ -168,9 +172,16 @@ def run(args) -> int:
                        estimators=args.estimators)
     res.write_csv(out / "pst.csv")
     res.write_json(out / "pst.json")
-    res.plot(out / "pst.png")
-    if setup.entrance is not None:
-        res.plot(out / "entrance_ratio.png", quantity="entrance_ratio")
+    written = ["pst.csv", "pst.json"]
+    if args.plot or len(set(float(a) for a in res.off_axis_deg)) >= 2:  # one angle is one point, not a curve
+        res.plot(out / "pst.png")
+        written.append("pst.png")
+        if setup.entrance is not None:
+            res.plot(out / "entrance_ratio.png", quantity="entrance_ratio")
+            written.append("entrance_ratio.png")
+    else:  # a curve left from an earlier sweep into DIR would no longer match pst.json: it goes, as a plot would overwrite it
+        for name in ("pst.png", "entrance_ratio.png"):
+            (out / name).unlink(missing_ok=True)
     for row in res.flagged_rows():
         rel = row["pst_stderr"] / row["pst"] if row["pst"] > 0 else math.nan
         stop = f", {row['rays']:.3g} rays, stopped by {row['stop_reason']}" if "stop_reason" in row else ""
@@ -190,5 +201,6 @@ def run(args) -> int:
     from straylight.checkpoints import PointStore
 
     PointStore.remove_folder(out / "pst.points")  # the sweep's results are written
-    print(f"written {out}/pst.csv, pst.json, pst.png")
+    print(f"written {out}/{', '.join(written)}"
+          + ("" if "pst.png" in written else " (one off-axis angle: no curve to plot; --plot draws its point)"))
     return 0

@@ -39,3 +39,17 @@ def test_bad_input_is_one_line_exit_2(argv, message, capsys, tmp_path, monkeypat
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
+
+
+def test_pst_cli_one_angle_writes_no_curve_unless_asked(tmp_path, capsys):
+    """One off-axis angle is one point: no pst.png (a stale one from an earlier sweep into DIR goes), unless --plot."""
+    out = tmp_path / "pst"
+    out.mkdir()
+    (out / "pst.png").write_bytes(b"an earlier sweep's curve")
+    argv = ["pst", "--builtin", "tube", "--vanes", "0", "--angles-deg", "20", "--rays", "1000", "--out", str(out)]
+    assert main(argv) == 0
+    assert not (out / "pst.png").exists() and not (out / "entrance_ratio.png").exists()
+    assert "no curve to plot" in capsys.readouterr().out
+    assert json.loads((out / "pst.json").read_text())["points"][0]["off_axis_deg"] == 20.0
+    assert main(argv + ["--plot"]) == 0
+    assert (out / "pst.png").stat().st_size > 0 and (out / "entrance_ratio.png").stat().st_size > 0
