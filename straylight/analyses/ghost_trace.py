@@ -54,6 +54,13 @@ SELF_HIT_MM = 1e-6
 MAX_NOMINAL_STEPS = 200
 MAX_TOTAL_RAYS = 4_000_000  # rays all the ghosts of a table share (ghost_table; 1.8e6 for a double Gauss's 45)
 NOMINAL_MIN_SHARE = 0.02  # a design path carries at least this share of the strongest sequence's power
+# a ghost's first LEARN_BATCHES batches are uniform over the source; when fewer than GUIDE_BELOW of their rays
+# arrive (at least GUIDE_MIN_HITS do) and the target is more than GUIDE_AFTER times their rays away, the rest
+# is drawn from the entrance table they learn (ghost_table's Run)
+LEARN_BATCHES = 2
+GUIDE_BELOW = 0.5
+GUIDE_MIN_HITS = 20
+GUIDE_AFTER = 3.0
 
 
 class GhostError(ValueError):
@@ -154,13 +161,22 @@ class Bundle:
 
 def emit(opt: GhostOptics, n: int, rng) -> Bundle:
     """``n`` rays of the source, each carrying power_w / n, unpolarized."""
+    return emit_uniforms(opt, rng.random((n, 4)))
+
+
+def emit_uniforms(opt: GhostOptics, u: np.ndarray, factor: np.ndarray | None = None) -> Bundle:
+    """The source's rays for the uniforms ``u`` (n, 4), each carrying power_w / n (times ``factor``, the
+    ray's 1 / p(u) when its uniforms were drawn with density p), unpolarized."""
     src = opt.source
-    o, d = src.emit(rng.random((n, 4)))
+    n = len(u)
+    o, d = src.emit(u)
     S = np.zeros((n, 4))
     S[:, 0] = 1.0
     e1 = s_vector(d, np.tile([0.0, 0.0, 1.0], (n, 1)))
-    return Bundle(np.ascontiguousarray(o), np.ascontiguousarray(d), np.full(n, float(src.power_w) / n), S, e1,
-                  np.full(n, -1, np.int64))
+    w = np.full(n, float(src.power_w) / n)
+    if factor is not None:
+        w = w * factor
+    return Bundle(np.ascontiguousarray(o), np.ascontiguousarray(d), w, S, e1, np.full(n, -1, np.int64))
 
 
 def next_hits(opt: GhostOptics, b: Bundle):
@@ -358,11 +374,21 @@ class Arrivals:
     points: np.ndarray
     dirs: np.ndarray
     weights: np.ndarray
+    uniforms: np.ndarray | None = None  # (n, 2): each ray's first two source uniforms, as traced
 
 
-def trace_sequence(opt: GhostOptics, seq, n: int, rng) -> Arrivals:
-    """``n`` source rays forced through ``seq`` and into the detector."""
-    b = emit(opt, n, rng)
+def trace_sequence(opt: GhostOptics, seq, n: int, rng, table=None) -> Arrivals:
+    """``n`` source rays forced through ``seq`` and into the detector; with ``table`` (an
+    :class:`straylight.engine.entrance_sampling.EntranceTable` over the source's first two uniforms) the
+    rays are drawn from its density p and carry 1 / p (the same expectation, by importance sampling)."""
+    u = rng.random((n, 4))
+    factor = None
+    if table is not None:
+        from straylight.engine.entrance_sampling import warp
+
+        factor = warp(table, u)
+    b = emit_uniforms(opt, u, factor)
+    drawn = u[:, :2].copy()
     ids = np.arange(n)
     for p, act in seq:
         if len(ids) == 0:
@@ -379,11 +405,11 @@ def trace_sequence(opt: GhostOptics, seq, n: int, rng) -> Arrivals:
         b, ids = b.take(live), ids[live]
     per_ray = np.zeros(n)
     if len(ids) == 0:
-        return Arrivals(per_ray, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
+        return Arrivals(per_ray, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), drawn)
     part, dist, point, facing, front = next_hits(opt, b)
     at = np.flatnonzero((part == opt.detector) & front)
     per_ray[ids[at]] = b.w[at]
-    return Arrivals(per_ray, point[at], b.d[at], b.w[at])
+    return Arrivals(per_ray, point[at], b.d[at], b.w[at], drawn)
 
 
 def sample_polylines(opt: GhostOptics, seq, n_paths: int = 6, rays: int = 256, seed: int = 0) -> list:
@@ -551,7 +577,7 @@ class GhostTable:
 
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
                 batch_rays: int = 4096, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
-                max_total_rays: int = MAX_TOTAL_RAYS) -> GhostTable:
+                max_total_rays: int = MAX_TOTAL_RAYS, guide_below: float = GUIDE_BELOW) -> GhostTable:
     """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio.
 
     The ghosts share ``max_total_rays`` (the nominal image's rays aside) by water-filling: each round gives
@@ -573,7 +599,14 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         raise GhostError("the nominal path crosses no transmitting interface: no ghost to list")
 
     class Run:
-        """One sequence's estimate, traced in batches up to a ray limit at a time (its own random stream)."""
+        """One sequence's estimate, traced in batches up to a ray limit at a time (its own random stream).
+
+        Its first :data:`LEARN_BATCHES` batches are uniform over the source. When few of their rays arrive
+        (under ``guide_below``) and the target is further than :data:`GUIDE_AFTER` times their rays away, they
+        only learn where the sequence's rays start (an entrance table of their per-ray powers, as the pilot of
+        straylight.engine.entrance_sampling learns one) and the estimate starts again from rays drawn from it,
+        each carrying 1 / p: unbiased (the table is fixed before those rays), and a lens whose stop passes a
+        few per cent of the source's disk traces those few per cent."""
 
         def __init__(self, seq, k, floor_w=None):
             self.seq, self.floor_w = seq, floor_w
@@ -582,29 +615,55 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             self.done = False
             self.capped = False  # stopped by max_rays above the target error
             self.mean = self.err = 0.0
+            self.traced = 0  # rays traced, the learning batches' too (the budget's count)
+            self.table = None
+            self.uniform_acc = self.acc
+            self.learning: list | None = []  # the uniform batches' (uniforms, per-ray power) while they may teach
 
         def advance(self, limit: float = math.inf):
-            acc = self.acc
-            while not self.done and acc.n < limit:
-                acc.add(trace_sequence(opt, self.seq, batch_rays, self.rng))
+            while not self.done and self.traced < limit:
+                arr = trace_sequence(opt, self.seq, batch_rays, self.rng, self.table)
+                self.traced += batch_rays
+                self.acc.add(arr)
+                if self.learning is not None:
+                    self.learning.append((arr.uniforms, arr.per_ray_w))
+                acc = self.acc
                 # each ray carries power_w / batch_rays: the power is batch_rays times the per-ray mean
                 mean = self.mean = acc.s1 / acc.n * batch_rays
                 err = self.err = math.sqrt(max(acc.s2 / acc.n - (acc.s1 / acc.n) ** 2, 0.0) / max(acc.n - 1, 1)) \
                     * batch_rays
                 reached = mean > 0 and err <= target_rel_error * mean and acc.n >= 2 * batch_rays
-                if acc.n >= max_rays or reached:
+                if self.traced >= max_rays or reached:
                     self.done = True
                     self.capped = not reached and not (self.floor_w is not None and mean + 4 * err < self.floor_w) \
                         and mean > 0
+                elif self.learning is not None and len(self.learning) >= LEARN_BATCHES and self._guide(mean, err):
+                    continue  # the estimate starts again from the table's rays
                 elif self.floor_w is not None and acc.n >= 4 * batch_rays and mean + 4 * err < self.floor_w:
                     self.done = True  # below the fraction of the nominal power asked for, with confidence
                 elif mean == 0 and acc.n >= 4 * batch_rays:
                     self.done = True
             return self
 
+        def _guide(self, mean: float, err: float) -> bool:
+            """After the learning batches: draw the rest from their table when that pays (class doc)."""
+            from straylight.engine.entrance_sampling import table_from_contributions
+
+            u = np.concatenate([a for a, _ in self.learning])
+            x = np.concatenate([w for _, w in self.learning])
+            self.learning = None
+            hits = int(np.count_nonzero(x))
+            far = mean <= 0 or (err / (target_rel_error * mean)) ** 2 > GUIDE_AFTER
+            if not far or hits < GUIDE_MIN_HITS or hits >= guide_below * len(x):
+                return False
+            self.table = table_from_contributions(u, x)
+            self.uniform_acc, self.acc = self.acc, _Accumulator(frame)
+            return True
+
         def result(self):
-            focus, radius = self.acc.geometry()
-            return self.mean, self.err, focus, radius, self.acc.map * (batch_rays / self.acc.n) / cell_mm2, self.acc.n
+            acc = self.acc if self.acc.n else self.uniform_acc  # stopped right after learning: the uniform rays' own
+            focus, radius = acc.geometry()
+            return self.mean, self.err, focus, radius, acc.map * (batch_rays / acc.n) / cell_mm2, self.traced
 
     p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0).advance().result()
     peak_nom = peak_irradiance(map_nom)
@@ -618,11 +677,11 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             on_ghost(k, len(refls))
     while True:  # the rest of the budget, shared equally among the ghosts not yet at their target
         open_ = [r for r in runs if not r.done]
-        share = (max_total_rays - sum(r.acc.n for r in runs)) // max(len(open_), 1)
+        share = (max_total_rays - sum(r.traced for r in runs)) // max(len(open_), 1)
         if not open_ or share < batch_rays:
             break
         for run in open_:
-            run.advance(run.acc.n + share)
+            run.advance(run.traced + share)
     rows = []
     maps = {"nominal": map_nom}
     for refl, run in zip(refls, runs):
@@ -646,6 +705,11 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     if bounds:
         notes.append(f"{len(bounds)} of {len(runs)} ghosts had no ray reach the detector (listed as 0 +- 0): each is "
                      f"below 3 x the source's power / its rays at 95 % (upper_w; at most {max(bounds):.1e} W)")
+    guided = sum(r.table is not None for r in runs)
+    if guided:
+        notes.append(f"{guided} of {len(runs)} ghosts drew their rays from where their first {LEARN_BATCHES * batch_rays} "
+                     f"rays (uniform over the source, counted in their rays, not in their power) reached the detector: "
+                     f"fewer than {guide_below:.0%} of those did")
     capped = sum(r.capped for r in runs)
     if capped:
         notes.append(f"{capped} of {len(runs)} ghosts reached --max-rays ({max_rays} rays each) before "

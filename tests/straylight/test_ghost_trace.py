@@ -345,3 +345,25 @@ def test_a_ghost_no_ray_reaches_says_how_small_it_is(tmp_path):
                      parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
     assert doc["ghosts"][-1]["upper_w"] == pytest.approx(dark[-1].upper_w)
     assert "at 95 %: no ray arrived" in (tmp_path / "g" / "ghosts.md").read_text()
+
+
+def test_ghosts_drawn_where_their_rays_arrive_agree_with_uniform_rays_and_need_fewer(tmp_path):
+    """A ghost whose first rays mostly miss the stop draws the rest from where those arrived, each carrying 1 / p:
+    the same powers as uniform rays (each of the Cooke triplet's ghosts within 4 sigma), for fewer rays."""
+    from straylight.analyses.ghost_trace import prepare
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    guided = ghost_table(opt, order=2, target_rel_error=0.02)
+    uniform = ghost_table(opt, order=2, target_rel_error=0.02, guide_below=0.0)
+    assert not any("drew their rays" in n for n in uniform.notes)
+    drawn = [int(n.split()[0]) for n in guided.notes if "drew their rays" in n]
+    assert drawn and drawn[0] >= 5, guided.notes  # the triplet's stop passes 2-4 % of the disk to several ghosts
+    by_label = {r.map_key: r for r in uniform.rows}
+    z = [(r.power_w - by_label[r.map_key].power_w) / math.hypot(r.stderr_w, by_label[r.map_key].stderr_w)
+         for r in guided.rows]
+    assert max(abs(x) for x in z) < 4, z
+    assert 0.3 < math.sqrt(np.mean(np.square(z))) < 2.0
+    assert sum(r.rays for r in guided.rows) < 0.8 * sum(r.rays for r in uniform.rows)
+    rel = [sorted(r.stderr_w / r.power_w for r in t.rows) for t in (guided, uniform)]
+    assert rel[0][len(rel[0]) // 2] <= rel[1][len(rel[1]) // 2]
