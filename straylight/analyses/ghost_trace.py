@@ -58,6 +58,8 @@ NOMINAL_MIN_SHARE = 0.02  # a design path carries at least this share of the str
 # arrive (at least GUIDE_MIN_HITS do) and the target is more than GUIDE_AFTER times their rays away, the rest
 # is drawn from the entrance table they learn (ghost_table's Run)
 LEARN_BATCHES = 2
+BATCH_RAYS = 4096  # rays per batch of a ghost, fewer (not below MIN_BATCH_RAYS) when two a ghost exceed the budget
+MIN_BATCH_RAYS = 256
 GUIDE_BELOW = 0.5
 GUIDE_MIN_HITS = 20
 GUIDE_AFTER = 3.0
@@ -576,7 +578,7 @@ class GhostTable:
 
 
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
-                batch_rays: int = 4096, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
+                batch_rays: int | None = None, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
                 max_total_rays: int = MAX_TOTAL_RAYS, guide_below: float = GUIDE_BELOW) -> GhostTable:
     """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio.
 
@@ -584,7 +586,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     every unfinished ghost an equal share of what is left, and a ghost continues its own random stream where
     it stopped, so a table whose ghosts need fewer rays in all is the one traced without the budget, ray for
     ray. Ghosts the budget stops above ``target_rel_error`` keep the error they reached (``notes`` says how
-    many): a 16-surface lens's 120 ghosts would otherwise take minutes."""
+    many): a 16-surface lens's 120 ghosts would otherwise take minutes. ``batch_rays`` None: 4096, or fewer
+    (not below 256) where two batches for every ghost would exceed the budget (order 4: thousands of ghosts)."""
     import time
 
     if order < 2 or order % 2:
@@ -597,6 +600,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     refls = ghost_reflections(nominal, order)
     if not refls:
         raise GhostError("the nominal path crosses no transmitting interface: no ghost to list")
+    if batch_rays is None:  # two batches a ghost within the budget (an order-4 table has thousands of ghosts)
+        batch_rays = int(np.clip(max_total_rays // (2 * len(refls)), MIN_BATCH_RAYS, BATCH_RAYS))
 
     class Run:
         """One sequence's estimate, traced in batches up to a ray limit at a time (its own random stream).
