@@ -54,14 +54,15 @@ SELF_HIT_MM = 1e-6
 MAX_NOMINAL_STEPS = 200
 MAX_TOTAL_RAYS = 4_000_000  # rays all the ghosts of a table share (ghost_table; 1.8e6 for a double Gauss's 45)
 NOMINAL_MIN_SHARE = 0.02  # a design path carries at least this share of the strongest sequence's power
-# a ghost's first LEARN_BATCHES batches are uniform over the source; when fewer than GUIDE_BELOW of their rays
-# arrive (at least GUIDE_MIN_HITS do) and the target is more than GUIDE_AFTER times their rays away, the rest
-# is drawn from the entrance table they learn (ghost_table's Run)
+# a ghost's first LEARN_BATCHES batches are uniform over the source (more, up to LEARN_MAX_BATCHES, until
+# GUIDE_MIN_HITS of their rays arrive); when fewer than GUIDE_BELOW of their rays arrive and the target is more
+# than GUIDE_AFTER times their rays away, the rest is drawn from the entrance table they learn (ghost_table's Run)
 LEARN_BATCHES = 2
+LEARN_MAX_BATCHES = 32  # ... or more, up to this many, until GUIDE_MIN_HITS of their rays arrive
 BATCH_RAYS = 4096  # rays per batch of a ghost, fewer (not below MIN_BATCH_RAYS) when two a ghost exceed the budget
 MIN_BATCH_RAYS = 256
 GUIDE_BELOW = 0.5
-GUIDE_MIN_HITS = 20
+GUIDE_MIN_HITS = 16
 GUIDE_AFTER = 3.0
 
 
@@ -606,7 +607,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     class Run:
         """One sequence's estimate, traced in batches up to a ray limit at a time (its own random stream).
 
-        Its first :data:`LEARN_BATCHES` batches are uniform over the source. When few of their rays arrive
+        Its first :data:`LEARN_BATCHES` batches are uniform over the source (more, up to
+        :data:`LEARN_MAX_BATCHES`, until :data:`GUIDE_MIN_HITS` of their rays arrive). When few of their rays arrive
         (under ``guide_below``) and the target is further than :data:`GUIDE_AFTER` times their rays away, they
         only learn where the sequence's rays start (an entrance table of their per-ray powers, as the pilot of
         straylight.engine.entrance_sampling learns one) and the estimate starts again from rays drawn from it,
@@ -656,8 +658,10 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
 
             u = np.concatenate([a for a, _ in self.learning])
             x = np.concatenate([w for _, w in self.learning])
-            self.learning = None
             hits = int(np.count_nonzero(x))
+            if hits < GUIDE_MIN_HITS and len(self.learning) < LEARN_MAX_BATCHES:
+                return False  # too few arrivals to learn from yet: the uniform rays go on, and on teaching
+            self.learning = None
             far = mean <= 0 or (err / (target_rel_error * mean)) ** 2 > GUIDE_AFTER
             if not far or hits < GUIDE_MIN_HITS or hits >= guide_below * len(x):
                 return False
@@ -712,9 +716,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
                      f"below 3 x the source's power / its rays at 95 % (upper_w; at most {max(bounds):.1e} W)")
     guided = sum(r.table is not None for r in runs)
     if guided:
-        notes.append(f"{guided} of {len(runs)} ghosts drew their rays from where their first {LEARN_BATCHES * batch_rays} "
-                     f"rays (uniform over the source, counted in their rays, not in their power) reached the detector: "
-                     f"fewer than {guide_below:.0%} of those did")
+        notes.append(f"{guided} of {len(runs)} ghosts drew their rays from where their first rays (uniform over the "
+                     f"source, {LEARN_BATCHES * batch_rays} or more until {GUIDE_MIN_HITS} arrived; counted in their "
+                     f"rays, not in their power) reached the detector: fewer than {guide_below:.0%} of those did")
     capped = sum(r.capped for r in runs)
     if capped:
         notes.append(f"{capped} of {len(runs)} ghosts reached --max-rays ({max_rays} rays each) before "
