@@ -587,8 +587,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     every unfinished ghost an equal share of what is left, and a ghost continues its own random stream where
     it stopped, so a table whose ghosts need fewer rays in all is the one traced without the budget, ray for
     ray. Ghosts the budget stops above ``target_rel_error`` keep the error they reached (``notes`` says how
-    many): a 16-surface lens's 120 ghosts would otherwise take minutes. ``batch_rays`` None: 4096, or fewer
-    (not below 256) where two batches for every ghost would exceed the budget (order 4: thousands of ghosts)."""
+    many): a 16-surface lens's 120 ghosts would otherwise take minutes. ``batch_rays`` None: 4096, or for the
+    ghosts fewer (not below 256) where two batches for every ghost would exceed the budget (order 4: thousands of
+    ghosts; the nominal image keeps 4096)."""
     import time
 
     if order < 2 or order % 2:
@@ -601,6 +602,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     refls = ghost_reflections(nominal, order)
     if not refls:
         raise GhostError("the nominal path crosses no transmitting interface: no ghost to list")
+    nominal_batch = int(batch_rays or BATCH_RAYS)
     if batch_rays is None:  # two batches a ghost within the budget (an order-4 table has thousands of ghosts)
         batch_rays = int(np.clip(max_total_rays // (2 * len(refls)), MIN_BATCH_RAYS, BATCH_RAYS))
 
@@ -615,8 +617,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         each carrying 1 / p: unbiased (the table is fixed before those rays), and a lens whose stop passes a
         few per cent of the source's disk traces those few per cent."""
 
-        def __init__(self, seq, k, floor_w=None):
-            self.seq, self.floor_w = seq, floor_w
+        def __init__(self, seq, k, floor_w=None, batch=None):
+            self.seq, self.floor_w, self.batch = seq, floor_w, int(batch or batch_rays)
             self.rng = np.random.default_rng([seed, k])
             self.acc = _Accumulator(frame)
             self.done = False
@@ -628,6 +630,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             self.learning: list | None = []  # the uniform batches' (uniforms, per-ray power) while they may teach
 
         def advance(self, limit: float = math.inf):
+            batch_rays = self.batch
             while not self.done and self.traced < limit:
                 arr = trace_sequence(opt, self.seq, batch_rays, self.rng, self.table)
                 self.traced += batch_rays
@@ -670,11 +673,12 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             return True
 
         def result(self):
+            batch_rays = self.batch
             acc = self.acc if self.acc.n else self.uniform_acc  # stopped right after learning: the uniform rays' own
             focus, radius = acc.geometry()
             return self.mean, self.err, focus, radius, acc.map * (batch_rays / acc.n) / cell_mm2, self.traced
 
-    p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0).advance().result()
+    p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0, batch=nominal_batch).advance().result()
     peak_nom = peak_irradiance(map_nom)
     nom_row = GhostRow([], [], p_nom, e_nom, 1.0, f_nom, r_nom, 1.0 if peak_nom > 0 else None, n_nom,
                        [opt.names[p] for p, _ in nominal])
