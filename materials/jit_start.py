@@ -1,4 +1,4 @@
-"""Start numba's CPU target once per process without importing scipy.linalg; here,
+"""Start numba's CPU target once per process without importing scipy.linalg or cffi; here,
 in the lowest package that compiles code, so that whichever package compiles first (a material's loop,
 the engine's kernels) starts it this way.
 
@@ -16,6 +16,12 @@ check for BLAS again when they are compiled, and then import scipy for real. Not
 scipy.linalg is already imported, when the target is already initialised, or after the first
 call; if numba ever fails with the import blocked, the target is initialised again normally.
 
+The typing registries import ``numba.core.typing.cffi_utils``, which imports cffi and builds a
+``cffi.FFI()`` (pycparser's lexer and parser: ~0.02 CPU s) so that jitted code may call cffi functions;
+no kernel here does. It is blocked the same way, unless cffi is imported already: numba then records
+``cffi_utils.SUPPORTED = False``, and jitted code started this way cannot call cffi functions (a typing
+error); ctypes functions are unaffected.
+
 Cached kernels do not depend on it: numba's cache index is keyed on the signature, the target
 and the source file, and kernels loaded from it are the same machine code either way.
 """
@@ -24,15 +30,15 @@ from __future__ import annotations
 import sys
 import threading
 
-_BLOCKED = "scipy.linalg"  # the package: importing scipy.linalg.cython_blas runs its __init__ first
+_BLOCKED = ("scipy.linalg", "cffi")  # scipy.linalg: importing scipy.linalg.cython_blas runs its __init__ first
 _DONE: list = []
 _LOCK = threading.Lock()
 
 
 def start_numba() -> None:
-    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg.
+    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg or cffi.
 
-    ``sys.modules["scipy.linalg"]`` is None while the target starts: Python's import system then
+    ``sys.modules[name]`` is None for each of them while the target starts: Python's import system then
     raises ModuleNotFoundError for it (the documented way to block an import; no import hook). That
     holds for the whole process for these ~0.1 s, so the engine starts numba before it starts threads:
     :meth:`straylight.engine.runtime.Runtime.start`, the first thing a command or a dask worker does."""
@@ -43,16 +49,24 @@ def start_numba() -> None:
             return
         from numba.core.registry import cpu_target
 
-        if _BLOCKED in sys.modules or "numba.np.arraymath" in sys.modules:
-            cpu_target.target_context.refresh()  # nothing to save: scipy is loaded, or the target is up
+        if "numba.np.arraymath" in sys.modules:
+            cpu_target.target_context.refresh()  # nothing to save: the target is up
         else:
-            sys.modules[_BLOCKED] = None  # type: ignore[assignment]
+            blocked = [name for name in _BLOCKED if name not in sys.modules]  # one already loaded: nothing to save
+            for name in blocked:
+                sys.modules[name] = None  # type: ignore[assignment]
             try:
                 cpu_target.target_context.refresh()
             except Exception:  # noqa: BLE001 - an unforeseen numba: start it the normal way
-                del sys.modules[_BLOCKED]
+                _unblock(blocked)
                 cpu_target.target_context.refresh()
             finally:
-                if _BLOCKED in sys.modules and sys.modules[_BLOCKED] is None:
-                    del sys.modules[_BLOCKED]
+                _unblock(blocked)
         _DONE.append(True)
+
+
+def _unblock(names) -> None:
+    """Let ``names`` be imported again (drop the None entries :func:`start_numba` put in sys.modules)."""
+    for name in names:
+        if name in sys.modules and sys.modules[name] is None:
+            del sys.modules[name]
