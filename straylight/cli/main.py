@@ -17,6 +17,8 @@ import sys
 from contextlib import contextmanager
 from importlib.metadata import entry_points
 
+from straylight.cli.long_lived import long_lived_objects
+
 OWN_GROUPS = (
     "straylight.cli.material",
     "straylight.cli.geometry",
@@ -488,8 +490,9 @@ def _main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv  # anywhere: `straylight pst ... --debug` as well as `straylight --debug pst ...`
     argv = [a for a in argv if a != "--debug"]
-    parser = build_parser(_command_word(argv))
-    args = parser.parse_args(argv)
+    with long_lived_objects("parser"):  # the parser and the modules its groups import
+        parser = build_parser(_command_word(argv))
+        args = parser.parse_args(argv)
     args.debug = debug
     if not getattr(args, "func", None):
         parser.print_help()

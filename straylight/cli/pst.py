@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from straylight.cli.long_lived import long_lived_objects
+
 
 def add_common_scene_args(parser):
     """SCENE.toml or --builtin tube (+ tube overrides), used by pst, paths and view."""
@@ -154,7 +156,8 @@ def run(args) -> int:
 
     start_early(args, in_process_below=2)  # worker processes: their fork server loads while the scene loads
     precision_from_args(args)  # flag errors first, named as flags
-    inst = load_instrument(args)
+    with long_lived_objects("scene"):  # numba's start, the scene and its tables live as long as the command
+        inst = load_instrument(args)
     setup = inst.setup
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
