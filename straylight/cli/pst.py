@@ -127,7 +127,14 @@ def load_instrument(args):
 
     SCENE.toml goes through :func:`straylight.analyses.scene_setup.scene_setup` (its [analysis]
     table; ``--detector`` and pst's ``--entrance-*`` override it); ``--builtin tube`` builds the tube.
+    Without garbage collections (:func:`straylight.cli.long_lived.long_lived_objects`): numba's start and
+    the scene live as long as the command.
     """
+    with long_lived_objects("scene"):
+        return _load_instrument(args)
+
+
+def _load_instrument(args):
     from straylight import api
 
     if (args.scene is None) == (args.builtin is None):
@@ -156,8 +163,7 @@ def run(args) -> int:
 
     start_early(args, in_process_below=2)  # worker processes: their fork server loads while the scene loads
     precision_from_args(args)  # flag errors first, named as flags
-    with long_lived_objects("scene"):  # numba's start, the scene and its tables live as long as the command
-        inst = load_instrument(args)
+    inst = load_instrument(args)
     setup = inst.setup
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
