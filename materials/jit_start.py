@@ -1,4 +1,4 @@
-"""Start numba's CPU target once per process without importing scipy.linalg or cffi; here,
+"""Start numba's CPU target once per process without importing scipy.linalg; here,
 in the lowest package that compiles code, so that whichever package compiles first (a material's loop,
 the engine's kernels) starts it this way.
 
@@ -16,11 +16,13 @@ check for BLAS again when they are compiled, and then import scipy for real. Not
 scipy.linalg is already imported, when the target is already initialised, or after the first
 call; if numba ever fails with the import blocked, the target is initialised again normally.
 
-The typing registries import ``numba.core.typing.cffi_utils``, which imports cffi and builds a
+The typing registries also import ``numba.core.typing.cffi_utils``, which imports cffi and builds a
 ``cffi.FFI()`` (pycparser's lexer and parser: ~0.02 CPU s) so that jitted code may call cffi functions;
-no kernel here does. It is blocked the same way, unless cffi is imported already: numba then records
-``cffi_utils.SUPPORTED = False``, and jitted code started this way cannot call cffi functions (a typing
-error); ctypes functions are unaffected.
+no kernel here does. After :func:`skip_cffi` (the ``straylight`` command calls it) cffi is blocked the
+same way, unless it is imported already: numba then records ``cffi_utils.SUPPORTED = False`` for the
+whole process, and jitted code there cannot call cffi functions (a typing error; ctypes functions are
+unaffected). Not by default: in a notebook or a library user's process their own jitted cffi calls
+would fail.
 
 Cached kernels do not depend on it: numba's cache index is keyed on the signature, the target
 and the source file, and kernels loaded from it are the same machine code either way.
@@ -30,13 +32,22 @@ from __future__ import annotations
 import sys
 import threading
 
-_BLOCKED = ("scipy.linalg", "cffi")  # scipy.linalg: importing scipy.linalg.cython_blas runs its __init__ first
+_BLOCKED = ("scipy.linalg",)  # the package: importing scipy.linalg.cython_blas runs its __init__ first
+_SKIPPED: list = []  # "cffi" after skip_cffi()
 _DONE: list = []
 _LOCK = threading.Lock()
 
 
+def skip_cffi() -> None:
+    """Start numba without cffi as well in this process (module doc; ~0.02 CPU s): for processes that run
+    only this project's kernels (the ``straylight`` command). No effect once numba's target has started."""
+    if "cffi" not in _SKIPPED:
+        _SKIPPED.append("cffi")
+
+
 def start_numba() -> None:
-    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg or cffi.
+    """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg
+    (and cffi after :func:`skip_cffi`).
 
     ``sys.modules[name]`` is None for each of them while the target starts: Python's import system then
     raises ModuleNotFoundError for it (the documented way to block an import; no import hook). That
@@ -52,7 +63,7 @@ def start_numba() -> None:
         if "numba.np.arraymath" in sys.modules:
             cpu_target.target_context.refresh()  # nothing to save: the target is up
         else:
-            blocked = [name for name in _BLOCKED if name not in sys.modules]  # one already loaded: nothing to save
+            blocked = [name for name in (*_BLOCKED, *_SKIPPED) if name not in sys.modules]  # loaded: nothing to save
             for name in blocked:
                 sys.modules[name] = None  # type: ignore[assignment]
             try:

@@ -312,6 +312,17 @@ def _input_files(args) -> list:
     return found
 
 
+def _numba_without_cffi(args) -> None:
+    """A command that traces starts numba without its cffi support (materials.jit_start.skip_cffi: ~0.02 CPU s;
+    nothing in a straylight command calls cffi from jitted code)."""
+    from straylight.compile_notice import TRACING_COMMANDS
+
+    if args.command in TRACING_COMMANDS:
+        from materials.jit_start import skip_cffi
+
+        skip_cffi()
+
+
 def _announce_first_compile(args) -> None:
     """Say so when this run compiles the tracer's kernels (straylight.compile_notice)."""
     from straylight.compile_notice import TRACING_COMMANDS, first_compile_notice
@@ -514,6 +525,7 @@ def _main(argv=None) -> int:
         return 0 if args.command is None else 2
     try:
         _check_requests(args)
+        _numba_without_cffi(args)
         _announce_first_compile(args)
         from atomicio.output_rule import outputs_held
 

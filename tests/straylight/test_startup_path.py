@@ -1,11 +1,14 @@
 """The cached start-up path: a repeat ``straylight trace`` on a STEP assembly reads the tessellation
 cache, imports none of the heavy packages (CAD kernel, plotting, scipy.linalg, dask), and traces the same
-numbers as the cold run; numba starts without scipy.linalg or cffi and jitted linear algebra still works."""
+numbers as the cold run; numba starts without scipy.linalg (and cffi, for the straylight command) and jitted
+linear algebra still works."""
 import json
 import os
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "cad"
 HEAVY = ("OCP", "cadquery", "trimesh", "matplotlib", "pyvista", "dask", "distributed", "pandas", "scipy.linalg")
@@ -42,7 +45,8 @@ def test_cached_trace_imports_no_heavy_module_and_traces_the_same(tmp_path, cad_
 def test_numba_starts_without_scipy_linalg_or_cffi_and_blas_kernels_still_work():
     code = r"""
 import sys
-from materials.jit_start import start_numba
+from materials.jit_start import skip_cffi, start_numba
+skip_cffi()  # as the straylight command does
 start_numba()
 assert "scipy.linalg" not in sys.modules, "scipy.linalg imported"
 assert "cffi" not in sys.modules, "cffi imported"
@@ -59,3 +63,31 @@ print("ok")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
                           cwd=Path(__file__).resolve().parents[2])
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
+
+
+def test_numba_keeps_its_cffi_support_unless_a_command_skips_it():
+    """A library user's process (a notebook) starts numba with cffi, so that their own jitted cffi calls
+    work; the straylight command skips it (materials.jit_start.skip_cffi)."""
+    pytest.importorskip("cffi")
+    root = Path(__file__).resolve().parents[2]
+    code = r"""
+import sys
+from materials.jit_start import start_numba
+start_numba()
+from numba.core.typing import cffi_utils
+assert cffi_utils.SUPPORTED and "cffi" in sys.modules
+print("ok")
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=root)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
+    cli = r"""
+import sys
+from straylight.cli.main import _numba_without_cffi
+from materials.jit_start import start_numba
+_numba_without_cffi(type("Args", (), {"command": "pst"})())
+start_numba()
+from numba.core.typing import cffi_utils
+print(cffi_utils.SUPPORTED)
+"""
+    done = subprocess.run([sys.executable, "-c", cli], capture_output=True, text=True, timeout=600, cwd=root)
+    assert done.returncode == 0 and done.stdout.strip() == "False", done.stderr[-2000:]
