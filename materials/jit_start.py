@@ -18,11 +18,19 @@ call; if numba ever fails with the import blocked, the target is initialised aga
 
 The typing registries also import ``numba.core.typing.cffi_utils``, which imports cffi and builds a
 ``cffi.FFI()`` (pycparser's lexer and parser: ~0.02 CPU s) so that jitted code may call cffi functions;
-no kernel here does. After :func:`skip_cffi` (the ``straylight`` command calls it) cffi is blocked the
-same way, unless it is imported already: numba then records ``cffi_utils.SUPPORTED = False`` for the
+no kernel here does. After :func:`for_command_line` (the ``straylight`` command calls it) cffi is blocked
+the same way, unless it is imported already: numba then records ``cffi_utils.SUPPORTED = False`` for the
 whole process, and jitted code there cannot call cffi functions (a typing error; ctypes functions are
 unaffected). Not by default: in a notebook or a library user's process their own jitted cffi calls
 would fail.
+
+numba also registers callbacks on llvmlite's LLVM lock (``numba.core.base._initialize_llvm_lock_event``):
+every call into LLVM's C API broadcasts a ``numba:llvm_lock`` start and end event, which the dispatcher
+times into a compile's metadata (``dispatcher.get_metadata()["timers"]["llvm_lock"]``). Loading a cached
+kernel makes thousands of such calls (its module's symbols, one call each): the events were ~0.03 of the
+~0.18 CPU s a ``straylight pst`` command spends loading its 43 kernels. After :func:`for_command_line`,
+:func:`start_numba` unregisters them (llvmlite's ``ffi.unregister_lock_callback``); what is lost is that
+timer, a diagnostic no code here reads. Not by default either: a notebook may time its own compiles.
 
 Cached kernels do not depend on it: numba's cache index is keyed on the signature, the target
 and the source file, and kernels loaded from it are the same machine code either way.
@@ -33,21 +41,36 @@ import sys
 import threading
 
 _BLOCKED = ("scipy.linalg",)  # the package: importing scipy.linalg.cython_blas runs its __init__ first
-_SKIPPED: list = []  # "cffi" after skip_cffi()
+_SKIPPED: list = []  # "cffi" after for_command_line()
+_QUIET: list = []  # True after for_command_line(): numba's LLVM-lock events off
 _DONE: list = []
 _LOCK = threading.Lock()
 
 
-def skip_cffi() -> None:
-    """Start numba without cffi as well in this process (module doc; ~0.02 CPU s): for processes that run
-    only this project's kernels (the ``straylight`` command). No effect once numba's target has started."""
+def for_command_line() -> None:
+    """This process runs only this project's kernels (the ``straylight`` command): :func:`start_numba`
+    starts numba without cffi and without its LLVM-lock events (module doc; ~0.02 + ~0.03 CPU s). No effect
+    once numba's target has started."""
     if "cffi" not in _SKIPPED:
         _SKIPPED.append("cffi")
+    if not _QUIET:
+        _QUIET.append(True)
+
+
+def _lock_events_off() -> None:
+    """Unregister numba's callbacks on llvmlite's LLVM lock (module doc); nothing if llvmlite keeps them
+    elsewhere than it does today (``ffi.lib._lock``)."""
+    from llvmlite.binding import ffi
+
+    lock = getattr(getattr(ffi, "lib", None), "_lock", None)
+    for acquire, release in list(getattr(lock, "_cblist", ())):
+        if getattr(acquire, "__module__", None) == "numba.core.base":
+            ffi.unregister_lock_callback(acquire, release)
 
 
 def start_numba() -> None:
     """Initialise numba's CPU target now (it would be on the first kernel anyway), without scipy.linalg
-    (and cffi after :func:`skip_cffi`).
+    (and, after :func:`for_command_line`, without cffi and numba's LLVM-lock events).
 
     ``sys.modules[name]`` is None for each of them while the target starts: Python's import system then
     raises ModuleNotFoundError for it (the documented way to block an import; no import hook). That
@@ -60,6 +83,8 @@ def start_numba() -> None:
             return
         from numba.core.registry import cpu_target
 
+        if _QUIET:
+            _lock_events_off()  # numba.core.base, which registers them, is imported by now
         if "numba.np.arraymath" in sys.modules:
             cpu_target.target_context.refresh()  # nothing to save: the target is up
         else:

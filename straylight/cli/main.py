@@ -312,15 +312,16 @@ def _input_files(args) -> list:
     return found
 
 
-def _numba_without_cffi(args) -> None:
-    """A command that traces starts numba without its cffi support (materials.jit_start.skip_cffi: ~0.02 CPU s;
-    nothing in a straylight command calls cffi from jitted code)."""
+def _numba_for_command_line(args) -> None:
+    """A command that traces starts numba without its cffi support and its LLVM-lock events
+    (materials.jit_start.for_command_line: ~0.05 CPU s; nothing in a straylight command calls cffi from
+    jitted code or reads numba's compile timers)."""
     from straylight.compile_notice import TRACING_COMMANDS
 
     if args.command in TRACING_COMMANDS:
-        from materials.jit_start import skip_cffi
+        from materials.jit_start import for_command_line
 
-        skip_cffi()
+        for_command_line()
 
 
 def _announce_first_compile(args) -> None:
@@ -525,7 +526,7 @@ def _main(argv=None) -> int:
         return 0 if args.command is None else 2
     try:
         _check_requests(args)
-        _numba_without_cffi(args)
+        _numba_for_command_line(args)
         _announce_first_compile(args)
         from atomicio.output_rule import outputs_held
 

@@ -45,8 +45,8 @@ def test_cached_trace_imports_no_heavy_module_and_traces_the_same(tmp_path, cad_
 def test_numba_starts_without_scipy_linalg_or_cffi_and_blas_kernels_still_work():
     code = r"""
 import sys
-from materials.jit_start import skip_cffi, start_numba
-skip_cffi()  # as the straylight command does
+from materials.jit_start import for_command_line, start_numba
+for_command_line()  # as the straylight command does
 start_numba()
 assert "scipy.linalg" not in sys.modules, "scipy.linalg imported"
 assert "cffi" not in sys.modules, "cffi imported"
@@ -65,29 +65,30 @@ print("ok")
     assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
 
 
-def test_numba_keeps_its_cffi_support_unless_a_command_skips_it():
-    """A library user's process (a notebook) starts numba with cffi, so that their own jitted cffi calls
-    work; the straylight command skips it (materials.jit_start.skip_cffi)."""
+def test_numba_keeps_cffi_and_its_lock_events_unless_the_command_line_drops_them():
+    """A library user's process (a notebook) starts numba with cffi and its LLVM-lock events (their own jitted
+    cffi calls work, their compiles are timed); a straylight command that traces drops both
+    (materials.jit_start.for_command_line), and a cached kernel still loads and runs."""
     pytest.importorskip("cffi")
     root = Path(__file__).resolve().parents[2]
     code = r"""
 import sys
+import numpy as np
+from straylight.cli.main import _numba_for_command_line
 from materials.jit_start import start_numba
+if sys.argv[1] == "cli":
+    _numba_for_command_line(type("Args", (), {"command": "pst"})())
 start_numba()
+from llvmlite.binding import ffi
+from numba import njit
 from numba.core.typing import cffi_utils
-assert cffi_utils.SUPPORTED and "cffi" in sys.modules
-print("ok")
+lock_events = any(a.__module__ == "numba.core.base" for a, _ in ffi.lib._lock._cblist)
+f = njit(lambda x: 2.0 * x)
+assert f(np.arange(3.0)).tolist() == [0.0, 2.0, 4.0]
+timer = f.get_metadata(f.signatures[0])["timers"].get("llvm_lock", 0.0)  # absent: never timed
+print(cffi_utils.SUPPORTED, "cffi" in sys.modules, lock_events, timer > 0)
 """
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=root)
-    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]
-    cli = r"""
-import sys
-from straylight.cli.main import _numba_without_cffi
-from materials.jit_start import start_numba
-_numba_without_cffi(type("Args", (), {"command": "pst"})())
-start_numba()
-from numba.core.typing import cffi_utils
-print(cffi_utils.SUPPORTED)
-"""
-    done = subprocess.run([sys.executable, "-c", cli], capture_output=True, text=True, timeout=600, cwd=root)
-    assert done.returncode == 0 and done.stdout.strip() == "False", done.stderr[-2000:]
+    for mode, expected in (("library", "True True True True"), ("cli", "False False False False")):
+        done = subprocess.run([sys.executable, "-c", code, mode], capture_output=True, text=True, timeout=600,
+                              cwd=root)
+        assert done.returncode == 0 and done.stdout.strip() == expected, (mode, done.stdout, done.stderr[-2000:])
