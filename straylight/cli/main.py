@@ -15,7 +15,8 @@ import argparse
 import importlib
 import sys
 from contextlib import contextmanager
-from importlib.metadata import entry_points
+
+from straylight.cli.long_lived import long_lived_objects
 
 OWN_GROUPS = (
     "straylight.cli.material",
@@ -44,7 +45,10 @@ modules."""
 
 
 def command_entry_points() -> list:
-    """The installed ``straylight.commands`` entry points, by name."""
+    """The installed ``straylight.commands`` entry points, by name (importlib.metadata, ~0.02 CPU s to import,
+    only when a command other than straylight's own is asked for)."""
+    from importlib.metadata import entry_points
+
     return sorted(entry_points(group=COMMAND_GROUP), key=lambda ep: ep.name)
 
 
@@ -77,6 +81,19 @@ def _option_strings(parser) -> list:
             for sub in action.choices.values():
                 out += _option_strings(sub)
     return out
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: print ``straylight VERSION`` and exit, as argparse's ``version`` action, the version read
+    (importlib.metadata, ~3 ms) only when asked for, not each time the parser is built."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
+                 help="show program's version number and exit"):
+        super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        parser._print_message(f"straylight {_version()}\n", sys.stdout)
+        parser.exit()
 
 
 def _version() -> str:
@@ -158,7 +175,7 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         description="Stray-light analysis: materials, tracing, baffle studies, reflectometer. "
                     "Formats and commands: docs/reference/ in the project.",
     )
-    parser.add_argument("--version", action="version", version=f"straylight {_version()}")
+    parser.add_argument("--version", action=_VersionAction)
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors (also after the command)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     own = GROUP_OF_COMMAND.get(command) if command is not None else None
@@ -293,6 +310,18 @@ def _input_files(args) -> list:
                 except (OSError, ValueError):
                     continue
     return found
+
+
+def _numba_for_command_line(args) -> None:
+    """A command that traces starts numba without its cffi support and its LLVM-lock events
+    (materials.jit_start.for_command_line: ~0.05 CPU s; nothing in a straylight command calls cffi from
+    jitted code or reads numba's compile timers)."""
+    from straylight.compile_notice import TRACING_COMMANDS
+
+    if args.command in TRACING_COMMANDS:
+        from materials.jit_start import for_command_line
+
+        for_command_line()
 
 
 def _announce_first_compile(args) -> None:
@@ -488,14 +517,16 @@ def _main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv  # anywhere: `straylight pst ... --debug` as well as `straylight --debug pst ...`
     argv = [a for a in argv if a != "--debug"]
-    parser = build_parser(_command_word(argv))
-    args = parser.parse_args(argv)
+    with long_lived_objects("parser"):  # the parser and the modules its groups import
+        parser = build_parser(_command_word(argv))
+        args = parser.parse_args(argv)
     args.debug = debug
     if not getattr(args, "func", None):
         parser.print_help()
         return 0 if args.command is None else 2
     try:
         _check_requests(args)
+        _numba_for_command_line(args)
         _announce_first_compile(args)
         from atomicio.output_rule import outputs_held
 

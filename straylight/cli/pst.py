@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from straylight.cli.long_lived import long_lived_objects
+
 
 def add_common_scene_args(parser):
     """SCENE.toml or --builtin tube (+ tube overrides), used by pst, paths and view."""
@@ -129,7 +131,14 @@ def load_instrument(args):
 
     SCENE.toml goes through :func:`straylight.analyses.scene_setup.scene_setup` (its [analysis]
     table; ``--detector`` and pst's ``--entrance-*`` override it); ``--builtin tube`` builds the tube.
+    Without garbage collections (:func:`straylight.cli.long_lived.long_lived_objects`): numba's start and
+    the scene live as long as the command.
     """
+    with long_lived_objects("scene"):
+        return _load_instrument(args)
+
+
+def _load_instrument(args):
     from straylight import api
 
     if (args.scene is None) == (args.builtin is None):

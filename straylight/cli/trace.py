@@ -8,6 +8,8 @@ from __future__ import annotations
 import sys
 import warnings
 
+from straylight.cli.long_lived import long_lived_objects
+
 
 def add_parser(subparsers) -> None:
     from straylight.engine.hurb import METHOD  # not .diffraction: the parser stays light (no numba)
@@ -65,7 +67,8 @@ def run(args) -> int:
         raise ValueError(f"--threads must be >= 1, got {args.threads}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", SceneWarning)
-        rs = load_scene(args.scene)
+        with long_lived_objects("scene"):  # numba's start and the scene live as long as the command
+            rs = load_scene(args.scene)
     for w in caught:
         print(f"straylight: warning: {w.message}", file=sys.stderr)
     from straylight.engine.first_vertex import unsupported
