@@ -12,7 +12,6 @@ CORPUS = sorted(p for p in LENSES.rglob("*") if p.suffix.lower() in (".seq", ".z
 
 # files refused, and the words their one-line refusal must carry
 REFUSED = {
-    "asphere.seq": "could not parse",            # rayoptics' CODE V reader fails on its ASP line
     "curved_reflective_grating.zmx": "diffractive",
     "ASL5040-UV.zmx": "surface type QED_TYPE",   # a Forbes Q asphere: rayoptics keeps only its base conic
     "CODV_65988.seq": "diffractive",
@@ -341,3 +340,17 @@ def test_real_image_height_fields_rayoptics_cannot_aim_are_read_as_paraxial_heig
     assert "fields read as paraxial image heights" in r.stderr
     doc = json.loads((tmp_path / "prescription.json").read_text())
     assert abs(doc["fno"] / 4.0 - 1) < 0.05 and abs(doc["efl_mm"] / 20.0 - 1) < 0.05
+
+
+def test_codev_asphere_terms_without_a_profile_type_are_an_even_asphere(tmp_path):
+    """optiland's asphere.seq gives surface 1 ``K -0.5``, ``A 1.5E-6``, ``B -2.3E-9`` and no ``ASP`` (rayoptics
+    failed on it): read as that even asphere, warned. Its EFL is the thick lens's (R 50 / -80 mm, 5 mm, the
+    model glass nd 1.5168): 1/f = (n - 1) (1/R1 - 1/R2 + (n - 1) t / (n R1 R2))."""
+    r = _run("optics", "import", LENSES / "optiland" / "asphere.seq", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "conic or asphere terms without a profile type" in r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    s1 = doc["surfaces"][0]
+    assert (s1["type"], s1["conic"], s1["coefficients"]) == ("asphere", -0.5, [1.5e-6, -2.3e-9])
+    n, R1, R2, t = s1["n"], 50.0, -80.0, 5.0
+    assert math.isclose(doc["efl_mm"], 1 / ((n - 1) * (1 / R1 - 1 / R2 + (n - 1) * t / (n * R1 * R2))), rel_tol=1e-6)

@@ -363,6 +363,40 @@ def _apply_extended_asphere(ifc, ext, where: str, problems: list, notes: list) -
                      + (f" (normalising radius {norm:g})" if norm != 1.0 else ""))
 
 
+CODEV_PROFILE_TYPES = {"SPH", "CON", "ASP", "XTO", "YTO", "SPS", "UDS", "AAC", "ZRN", "QCN", "QBF"}
+CODEV_ASPHERE_TERMS = {"A", "B", "C", "D", "E", "F", "G", "H", "J"}
+
+
+def _codev_profile_types(text: str) -> tuple[str, list]:
+    """The CODE V text with the profile type made explicit where a surface gives conic or asphere terms (``K``,
+    ``A``... ``J``) but no type command (optiland's ``asphere.seq``: rayoptics keeps such a surface spherical
+    and fails on its first coefficient): ``ASP`` (an even asphere; ``CON`` for ``K`` alone) after the surface's
+    ``S`` line. Returns (text, the surfaces so read)."""
+    lines = text.splitlines()
+    blocks: list = []  # [line index of the S command, surface number, {command heads}]
+    idx = None
+    for k, line in enumerate(lines):
+        for cmd in line.split(";"):
+            words = cmd.strip().split()
+            if not words:
+                continue
+            head = words[0].upper()
+            if head in ("SO", "SI") or head == "S" or re.fullmatch(r"S\d+", head):
+                idx = None if head == "SI" else (0 if head == "SO" else (idx or 0) + 1 if head == "S" else int(head[1:]))
+                if idx is not None:
+                    blocks.append([k, idx, set()])
+                continue
+            if blocks and idx is not None:
+                blocks[-1][2].add(head)
+    fixed = []
+    for k, idx, heads in reversed(blocks):
+        if heads & CODEV_PROFILE_TYPES or not heads & (CODEV_ASPHERE_TERMS | {"K"}):
+            continue
+        lines.insert(k + 1, "ASP" if heads & CODEV_ASPHERE_TERMS else "CON")
+        fixed.append(idx)
+    return "\n".join(lines) + "\n", sorted(fixed)
+
+
 def _open_rayoptics(path: Path, fmt: str, raw: bytes):
     """rayoptics' model of the file, read from a private copy (rayoptics may write a glass template
     beside the file it reads; ``optics info`` writes nothing where the user's file is)."""
@@ -566,6 +600,12 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         text = "RDM\n" + text
         notes.append("no RDM/CUM in the file and its S values as curvatures would give radii smaller than the "
                      "entrance pupil: read as radii (RDM)")
+    if fmt == "seq":
+        typed, fixed = _codev_profile_types(text)
+        if fixed:
+            raw, text = typed.encode("utf-8"), typed
+            notes.append(f"surface(s) {', '.join(map(str, fixed))}: conic or asphere terms without a profile type: read "
+                         "as an even asphere (ASP; CON for K alone)")
     opm, info = _open_rayoptics(path, fmt, _zmx_for_rayoptics(text) if fmt == "zmx" else raw)
     glass = dict(glass or {})
     sm = opm["seq_model"]
