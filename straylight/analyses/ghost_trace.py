@@ -52,6 +52,7 @@ PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK
 EPS_MM = 1e-6  # the smallest offset off a surface; a scene's own is scene_epsilon's (float32 ulps of its extent)
 SELF_HIT_MM = 1e-6
 MAX_NOMINAL_STEPS = 200
+MIN_BATCH_RAYS = 256  # the smallest batch of a ghost's rays (ghost_table: a budget shared by many ghosts)
 MAX_TOTAL_RAYS = 4_000_000  # rays all the ghosts of a table share (ghost_table; 1.8e6 for a double Gauss's 45)
 NOMINAL_MIN_SHARE = 0.02  # a design path carries at least this share of the strongest sequence's power
 
@@ -575,8 +576,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     class Run:
         """One sequence's estimate, traced in batches up to a ray limit at a time (its own random stream)."""
 
-        def __init__(self, seq, k, floor_w=None):
-            self.seq, self.floor_w = seq, floor_w
+        def __init__(self, seq, k, floor_w=None, batch=batch_rays):
+            self.seq, self.floor_w, self.batch = seq, floor_w, batch
             self.rng = np.random.default_rng([seed, k])
             self.acc = _Accumulator(frame)
             self.done = False
@@ -584,7 +585,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             self.mean = self.err = 0.0
 
         def advance(self, limit: float = math.inf):
-            acc = self.acc
+            acc, batch_rays = self.acc, self.batch
             while not self.done and acc.n < limit:
                 acc.add(trace_sequence(opt, self.seq, batch_rays, self.rng))
                 # each ray carries power_w / batch_rays: the power is batch_rays times the per-ray mean
@@ -604,14 +605,19 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
 
         def result(self):
             focus, radius = self.acc.geometry()
-            return self.mean, self.err, focus, radius, self.acc.map * (batch_rays / self.acc.n) / cell_mm2, self.acc.n
+            return self.mean, self.err, focus, radius, self.acc.map * (self.batch / self.acc.n) / cell_mm2, self.acc.n
 
     p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0).advance().result()
     peak_nom = peak_irradiance(map_nom)
     nom_row = GhostRow([], [], p_nom, e_nom, 1.0, f_nom, r_nom, 1.0 if peak_nom > 0 else None, n_nom,
                        [opt.names[p] for p, _ in nominal])
-    runs = [Run(ghost_sequence(nominal, refl), k, floor_w=min_fraction * p_nom) for k, refl in enumerate(refls, 1)]
-    first = max(2 * batch_rays, max_total_rays // len(runs))
+    # every ghost's first share is at least two batches (its error needs two); where the ghosts are so many that
+    # two batches each would pass the budget (a 37-surface zoom: 666 ghosts, 5.5e6 rays of 4096-ray batches),
+    # their batches are smaller so that the first round fits it
+    batch = int(min(batch_rays, max(MIN_BATCH_RAYS, max_total_rays // (2 * len(refls)))))
+    runs = [Run(ghost_sequence(nominal, refl), k, floor_w=min_fraction * p_nom, batch=batch)
+            for k, refl in enumerate(refls, 1)]
+    first = max(2 * batch, max_total_rays // len(runs))
     for k, run in enumerate(runs, start=1):
         run.advance(first)
         if on_ghost is not None:  # a callable(k, n) told after each ghost's first share (a progress bar)
@@ -619,7 +625,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     while True:  # the rest of the budget, shared equally among the ghosts not yet at their target
         open_ = [r for r in runs if not r.done]
         share = (max_total_rays - sum(r.acc.n for r in runs)) // max(len(open_), 1)
-        if not open_ or share < batch_rays:
+        if not open_ or share < batch:
             break
         for run in open_:
             run.advance(run.acc.n + share)
