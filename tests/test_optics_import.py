@@ -293,12 +293,17 @@ def test_a_pupil_floating_by_stop_size_fills_the_stop(tmp_path):
     assert json.loads((tmp_path / "b" / "prescription.json").read_text())["epd_mm"] == doc["epd_mm"]
 
 
-@pytest.mark.parametrize("name, fno", [("Nikon_Nikkor_20mm_f4.zmx", 4.0), ("Canon_EF16-35mm_f2.8L_III_USM.zmx", 2.8)])
-def test_a_camera_lens_floating_by_stop_size_has_its_marked_f_number(name, fno, tmp_path):
-    """Bill Claff's conversions of patents set the aperture by the stop's size (FLOA): the paraxial f/# is the
-    lens's marked one within 5 % (before, rayoptics' default 1 mm pupil gave f/# = efl in mm)."""
+@pytest.mark.parametrize("name, fno, words", [
+    ("Nikon_Nikkor_20mm_f4.zmx", 4.0, "aperture floats by stop size (FLOA)"),
+    ("Canon_EF16-35mm_f2.8L_III_USM.zmx", 2.8, "aperture floats by stop size (FLOA)"),
+    ("Samsung_18-55mm_F3.5-5.6_OIS_III.zmx", 3.5, "the file gives no aperture (ENPD, FNUM, OBNA or FLOA)")])
+def test_a_camera_lens_floating_by_stop_size_has_its_marked_f_number(name, fno, words, tmp_path):
+    """Bill Claff's conversions of patents set the aperture by the stop's size (FLOA), or give no aperture
+    command at all: the paraxial f/# is the lens's marked one within 5 % (before, rayoptics' default 1 mm pupil
+    gave f/# = efl in mm)."""
     r = _run("optics", "import", LENSES / "OpticsDatabase" / name, "--out", tmp_path)
     assert r.returncode == 0, r.stderr
+    assert words in r.stderr
     doc = json.loads((tmp_path / "prescription.json").read_text())
     assert abs(doc["fno"] / fno - 1) < 0.05, doc["fno"]
 

@@ -673,8 +673,16 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
     for i, ext in _extended_aspheres(fmt, text).items():
         if 0 < i < len(sm.ifcs) - 1:
             _apply_extended_asphere(sm.ifcs[i], ext, f"surface {i}", problems, notes)
+    pupil = opm["optical_spec"]["pupil"]
     if fmt == "zmx" and re.search(r"^\s*FLOA\b", text, re.M):
         notes.append(_float_by_stop_size(opm, path))
+    elif (fmt == "zmx" and not re.search(r"^\s*(ENPD|FNUM|OBNA)\b", text, re.M)
+          and tuple(pupil.key) == ("object", "epd") and float(pupil.value) == 1.0):
+        # no aperture command at all (hand-edited files): rayoptics' 1-unit pupil is no aperture of the lens's;
+        # the stop's semi-diameter sets it, as FLOA (7 OpticsDatabase camera lenses: their marked f-numbers)
+        note = _float_by_stop_size(opm, path)
+        notes.append("the file gives no aperture (ENPD, FNUM, OBNA or FLOA): " + note.replace(
+            "aperture floats by stop size (FLOA)", "the stop's size sets it, as FLOA"))
     else:
         _rayoptics_update(opm, path)
     obj_dist = float(sm.gaps[0].thi) * scale
