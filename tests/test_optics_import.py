@@ -337,6 +337,12 @@ def test_a_glass_the_catalogues_lack_is_read_from_the_zemax_glass_line(tmp_path)
     assert "glass NOSUCHGLASS is not in the catalogues: read from the file's own nd 1.5168, vd 64.17" in r.stderr
     doc = json.loads((tmp_path / "out" / "prescription.json").read_text())
     assert abs(doc["surfaces"][0]["n"] - 1.5168) < 1e-4  # 587.6 nm: the d line of the model glass
+    # a model glass given by nd alone (rayoptics failed on it: IndexError): a constant index, as Zemax reads vd 0
+    lens.write_text((LENSES / "optiland" / "lens_floa.zmx").read_text().replace("GLAS N-BK7 1 0 1.5168 64.17",
+                                                                                 "GLAS ___BLANK 1 0 1.6"))
+    r = _run("optics", "import", lens, "--out", tmp_path / "nd")
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "nd" / "prescription.json").read_text())["surfaces"][0]["n"] == 1.6
 
 
 def test_real_image_height_fields_rayoptics_cannot_aim_are_read_as_paraxial_heights(tmp_path):

@@ -288,7 +288,8 @@ def _zmx_for_rayoptics(text: str) -> bytes:
 
     rayoptics tries UTF-16 first, which decodes an even-length ASCII file without error as nonsense: it
     gets the text as decoded here (:func:`sniff_format`), in UTF-8. A ``DIAM`` line with the semi-diameter
-    alone (hand-written files: rayoptics expects its type after it) gets type 1, a fixed semi-diameter; a file
+    alone (hand-written files: rayoptics expects its type after it) gets type 1, a fixed semi-diameter, and a
+    model glass ``GLAS ___BLANK a b nd`` without vd gets vd 0 (a constant index, as Zemax reads vd 0); a file
     without wavelengths (``WAVM`` / ``WAVL``) gets OpticStudio's default, 0.55 um."""
     lines = []
     if not re.search(r"^\s*(WAVM|WAVL)\b", text, re.M):
@@ -297,6 +298,8 @@ def _zmx_for_rayoptics(text: str) -> bytes:
         words = line.split()
         if len(words) == 2 and words[0].upper() == "DIAM":
             line = line.rstrip() + " 1"
+        elif len(words) == 5 and words[0].upper() == "GLAS" and words[1] == "___BLANK":
+            line = line.rstrip() + " 0"  # a model glass given by nd alone: vd 0, a constant index (as Zemax reads it)
         lines.append(line)
     return ("\n".join(lines) + "\n").encode("utf-8")
 
