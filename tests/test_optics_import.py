@@ -365,3 +365,17 @@ def test_codev_asphere_terms_without_a_profile_type_are_an_even_asphere(tmp_path
     assert (s1["type"], s1["conic"], s1["coefficients"]) == ("asphere", -0.5, [1.5e-6, -2.3e-9])
     n, R1, R2, t = s1["n"], 50.0, -80.0, 5.0
     assert math.isclose(doc["efl_mm"], 1 / ((n - 1) * (1 / R1 - 1 / R2 + (n - 1) * t / (n * R1 * R2))), rel_tol=1e-6)
+
+
+def test_a_semi_diameter_past_the_spheres_rim_ends_inside_it(tmp_path):
+    """The Canon EF 15 mm fisheye file gives its front meniscus's back (R 15.9 mm) a semi-diameter of 16.21 mm,
+    past the hemisphere's rim, where the sphere has no sag (the scene refused the part). The clear aperture
+    ends at 0.999 R, warned, and the scene loads."""
+    from straylight.scene import load_scene
+
+    r = _run("optics", "import", LENSES / "OpticsDatabase" / "Canon_EF15mm_f2.8_Fisheye.zmx", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "s2: semi-diameter 16.21 mm reaches past the surface's rim (radius 15.9 mm" in r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    assert doc["surfaces"][1]["semi_diameter_mm"] == pytest.approx(0.999 * 15.9)
+    load_scene(tmp_path / "scene.toml")

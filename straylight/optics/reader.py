@@ -764,6 +764,14 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         if label:
             names.setdefault(label, []).append(s)
         surfaces.append(s)
+    for s in surfaces:  # a semi-diameter past where the conic has a sag (a fisheye's front meniscus: DIAM 16.21
+        # on R 15.9) has no surface there: the aperture ends just inside the rim of the hemisphere
+        if s.radius_mm is not None and 1.0 + s.conic > 0:
+            rim = abs(s.radius_mm) / math.sqrt(1.0 + s.conic)
+            if s.semi_diameter_mm > 0.999 * rim:
+                notes.append(f"s{s.index}: semi-diameter {s.semi_diameter_mm:g} mm reaches past the surface's rim "
+                             f"(radius {s.radius_mm:g} mm, conic {s.conic:g}): clear aperture {0.999 * rim:.6g} mm")
+                s.semi_diameter_mm = 0.999 * rim
     for label, group in names.items():
         if len(group) == 1 and re.fullmatch(r"[A-Za-z0-9_.\-]+", label) and label.lower() not in ("obj", "img"):
             group[0].name = label

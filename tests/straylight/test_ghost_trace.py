@@ -347,3 +347,19 @@ def test_a_ghost_no_ray_reaches_says_how_small_it_is(tmp_path):
                      parse_constant=lambda c: (_ for _ in ()).throw(ValueError(c)))
     assert doc["ghosts"][-1]["upper_w"] == pytest.approx(dark[-1].upper_w)
     assert "at 95 %: no ray arrived" in (tmp_path / "g" / "ghosts.md").read_text()
+
+
+def test_the_design_path_of_a_fisheye_with_a_tiny_pupil_is_found(tmp_path):
+    """The Kinoptik Super-Tegea 1.9 mm fisheye: a 1 mm entrance pupil behind a 93 mm front element, so 1e-4 of
+    the source's rays take the design path; 4000 rays showed none ("no source ray reaches the detector"). The
+    search looks again with more rays until 20 arrive: the path crosses every lens surface, in order."""
+    from straylight.analyses.ghost_trace import nominal_sequence
+    from straylight.cli.main import main
+    from straylight.scene import load_scene
+
+    lens = LENSES / "OpticsDatabase" / "Kinoptik_Super-Tegea_1.9mm_f1.9_Fisheye.zmx"
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path)]) == 0
+    opt = prepare(load_scene(tmp_path / "scene.toml"))
+    nominal = nominal_sequence(opt)
+    assert [opt.names[p] for p, _ in nominal] == [f"s{i}" for i in range(1, 16) if i != 7]  # s7: the stop, air/air
+    assert all(act == "T" for _, act in nominal)
