@@ -26,6 +26,8 @@ REFUSED = {
     "Telecentric_USP4929066.zmx": "finite distance",
     "CODV_35571.seq": "could not parse",                 # rayoptics' CODE V reader: an HMY aperture it cannot read
     "telescope_objective.seq": "could not parse",        # a glass catalogue (DAIMON) opticalglass lacks
+    # its XASPHERE terms as Zemax defines them (even powers) give 1e22 mm of sag at the rim: not a surface
+    "Sigma_14-24mm_F2.8_DG_DN_A.zmx": "surface 5: the asphere's terms give a sag of -2.12e+22 mm",
 }
 
 

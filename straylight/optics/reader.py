@@ -22,6 +22,7 @@ import numpy as np
 
 import atomicio
 from straylight.optics.other_materials import medium as other_medium
+from straylight.optics.sag import sag_mm
 
 
 class OpticsFileError(ValueError):
@@ -772,6 +773,15 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
                 notes.append(f"s{s.index}: semi-diameter {s.semi_diameter_mm:g} mm reaches past the surface's rim "
                              f"(radius {s.radius_mm:g} mm, conic {s.conic:g}): clear aperture {0.999 * rim:.6g} mm")
                 s.semi_diameter_mm = 0.999 * rim
+        if s.coefficients:  # terms that give no lens surface over the aperture (the Sigma 14-24 mm files' extended
+            # aspheres, read as Zemax defines XASPHERE: 1e22 mm of sag at 19 mm; real aspheres stay under 1 x it)
+            h = sag_mm(s, s.semi_diameter_mm)
+            if not (math.isfinite(h) and abs(h) <= 2.0 * s.semi_diameter_mm):
+                problems.append(f"surface {s.index}: the asphere's terms give a sag of {h:.3g} mm at its semi-diameter "
+                                f"{s.semi_diameter_mm:g} mm: not a lens surface (the file's coefficients are not those "
+                                "of its surface type?)")
+                s.coefficients = []
+                s.type = "plane" if s.radius_mm is None else ("conic" if s.conic else "sphere")
     for label, group in names.items():
         if len(group) == 1 and re.fullmatch(r"[A-Za-z0-9_.\-]+", label) and label.lower() not in ("obj", "img"):
             group[0].name = label
