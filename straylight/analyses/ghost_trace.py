@@ -52,6 +52,8 @@ PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK
 EPS_MM = 1e-6  # the smallest offset off a surface; a scene's own is scene_epsilon's (float32 ulps of its extent)
 SELF_HIT_MM = 1e-6
 MAX_NOMINAL_STEPS = 200
+NOMINAL_MIN_ARRIVALS = 20  # rays through an interface onto the detector the design-path search wants to see
+NOMINAL_MAX_RAYS = 300_000  # ... looking with up to this many source rays
 MAX_TOTAL_RAYS = 4_000_000  # rays all the ghosts of a table share (ghost_table; 1.8e6 for a double Gauss's 45)
 NOMINAL_MIN_SHARE = 0.02  # a design path carries at least this share of the strongest sequence's power
 # a ghost's first LEARN_BATCHES batches are uniform over the source (more, up to LEARN_MAX_BATCHES, until
@@ -284,6 +286,7 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
     seqs: list[list[tuple[int, str]]] = [[] for _ in range(n_rays)]
     ids = np.arange(n_rays)
     power: dict = {}
+    arrivals = 0  # rays that reach the detector through an interface
     for _ in range(MAX_NOMINAL_STEPS):
         if len(ids) == 0:
             break
@@ -292,6 +295,7 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
         for i, w in zip(ids[at_det], b.w[at_det]):
             key = tuple(seqs[i])
             power[key] = power.get(key, 0.0) + float(w)
+            arrivals += any(a == "T" for _, a in key)
         go = np.flatnonzero((part >= 0) & ~at_det & np.array([p >= 0 and opt.is_interface(p) for p in part], bool))
         if len(go) == 0:
             break
@@ -307,6 +311,10 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
         b.last = part
         b = interact(b, point, facing, co, refl, opt.eps_mm)
     through = {k: w for k, w in power.items() if any(a == "T" for _, a in k)}
+    if arrivals < NOMINAL_MIN_ARRIVALS and n_rays < NOMINAL_MAX_RAYS and not (not through and any(k for k in power)):
+        # a pupil far smaller than the source (a fisheye: 1 mm of entrance pupil in a 100 mm front element, 1e-4 of
+        # the source's rays) leaves the design path unseen in a few thousand rays: look again with more
+        return nominal_sequence(opt, n_rays * 8, seed)
     if not through and any(k for k in power):  # every path there reflects at each interface it meets
         raise GhostError(f"the light reaches the detector {opt.names[opt.detector]!r} by reflections alone (a mirror "
                          "system): no transmitting interface, so no ghost (ghosts come from lenses and windows)")
@@ -682,6 +690,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     peak_nom = peak_irradiance(map_nom)
     nom_row = GhostRow([], [], p_nom, e_nom, 1.0, f_nom, r_nom, 1.0 if peak_nom > 0 else None, n_nom,
                        [opt.names[p] for p, _ in nominal])
+    # every ghost's first share is at least two batches (its error needs two); where the ghosts are so many that
+    # two batches each would pass the budget (a 37-surface zoom: 666 ghosts, 5.5e6 rays of 4096-ray batches),
+    # their batches are smaller (batch_rays above) so that the first round fits it
     runs = [Run(ghost_sequence(nominal, refl), k, floor_w=min_fraction * p_nom) for k, refl in enumerate(refls, 1)]
     first = max(2 * batch_rays, max_total_rays // len(runs))
     for k, run in enumerate(runs, start=1):

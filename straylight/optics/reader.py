@@ -22,10 +22,26 @@ import numpy as np
 
 import atomicio
 from straylight.optics.other_materials import medium as other_medium
+from straylight.optics.sag import sag_mm
 
 
 class OpticsFileError(ValueError):
     """A lens file that cannot be imported (one line: what and where)."""
+
+
+class _ReaderFailure(OpticsFileError):
+    """rayoptics failed on the file (parsing it or tracing its fields), as opposed to a refusal of ours."""
+
+
+def _rayoptics_update(opm, path: Path) -> None:
+    """``opm.update_model()``, a failure of rayoptics' field aiming one line naming the file."""
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            opm.update_model()
+    except Exception as exc:  # noqa: BLE001 - any rayoptics failure is one line naming the file
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise _ReaderFailure(f"{path}: rayoptics could not trace the file's fields ({type(exc).__name__}: {msg})") from None
 
 
 UNIT_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "inches": 25.4, "in": 25.4, "meters": 1000.0}
@@ -215,6 +231,24 @@ def _set_aperture(s, shape: dict, scale: float, rot) -> None:
             s.semi_diameter_from_file = True
 
 
+def _zemax_glass_numbers(fmt: str, text: str) -> dict:
+    """{surface index: (nd, vd)} from Zemax ``GLAS NAME a b nd vd ...`` lines, which carry the glass's nd and vd
+    whatever its name (vd 0: a constant index)."""
+    if fmt != "zmx":
+        return {}
+    out = {}
+    for idx, head, words in _surface_commands(fmt, text):
+        if idx is None or head != "GLAS" or len(words) < 6:
+            continue
+        try:
+            nd, vd = float(words[4]), float(words[5])
+        except ValueError:
+            continue
+        if 1.0 < nd < 4.0 and 0.0 <= vd <= 150.0:
+            out[idx] = (nd, vd)
+    return out
+
+
 def _coatings(fmt: str, text: str) -> dict:
     """{surface index: coating name} where the file names one (Zemax ``COAT NAME``)."""
     if fmt != "zmx":
@@ -250,6 +284,123 @@ def _radii_without_rdm(text: str) -> bool:
     return any(v * half > 1.0 for v in values)
 
 
+def _zmx_for_rayoptics(text: str) -> bytes:
+    """The Zemax text as UTF-8 for rayoptics' reader, with what it cannot read made explicit.
+
+    rayoptics tries UTF-16 first, which decodes an even-length ASCII file without error as nonsense: it
+    gets the text as decoded here (:func:`sniff_format`), in UTF-8. A ``DIAM`` line with the semi-diameter
+    alone (hand-written files: rayoptics expects its type after it) gets type 1, a fixed semi-diameter, and a
+    model glass ``GLAS ___BLANK a b nd`` without vd gets vd 0 (a constant index, as Zemax reads vd 0); a file
+    without wavelengths (``WAVM`` / ``WAVL``) gets OpticStudio's default, 0.55 um."""
+    lines = []
+    if not re.search(r"^\s*(WAVM|WAVL)\b", text, re.M):
+        lines.append("WAVM 1 0.55 1")
+    for line in text.splitlines():
+        words = line.split()
+        if len(words) == 2 and words[0].upper() == "DIAM":
+            line = line.rstrip() + " 1"
+        elif len(words) == 5 and words[0].upper() == "GLAS" and words[1] == "___BLANK":
+            line = line.rstrip() + " 0"  # a model glass given by nd alone: vd 0, a constant index (as Zemax reads it)
+        lines.append(line)
+    return ("\n".join(lines) + "\n").encode("utf-8")
+
+
+def _extended_aspheres(fmt: str, text: str) -> dict:
+    """{surface index: (type, normalising radius, {power: coefficient})} of the Zemax extended aspheres:
+    ``XASPHERE`` (sum A_i rho^(2i), extra data ``XDAT 3`` = rho^2, ``XDAT 4`` = rho^4...) and ``XOSPHERE``
+    (sum B_i rho^i, ``XDAT 3`` = rho^1...), rho = r / the normalising radius (``XDAT 2``). An ``XASPHERE``
+    with ``PARM`` lines and no extra data (files converted from patents write them so) has the EVENASPH
+    layout: ``PARM k`` the r^(2k) term."""
+    if fmt != "zmx":
+        return {}
+    kinds: dict = {}
+    xdat: dict = {}
+    parm: dict = {}
+    for idx, head, words in _surface_commands(fmt, text):
+        if idx is None:
+            continue
+        if head == "TYPE" and len(words) >= 2 and words[1].upper() in ("XASPHERE", "XOSPHERE"):
+            kinds[idx] = words[1].upper()
+        elif head in ("XDAT", "PARM") and len(words) >= 3:
+            try:
+                k, v = int(words[1]), float(words[2])
+            except ValueError:
+                continue
+            (xdat if head == "XDAT" else parm).setdefault(idx, {})[k] = v
+    out = {}
+    for idx, kind in kinds.items():
+        x = xdat.get(idx, {})
+        norm = x.get(2, 1.0) or 1.0
+        if x:
+            n_terms = int(x.get(1, 0))
+            step = 2 if kind == "XASPHERE" else 1
+            terms = {step * (k - 2): v for k, v in x.items() if k >= 3 and (n_terms <= 0 or k - 2 <= n_terms)}
+        elif kind == "XASPHERE":
+            terms = {2 * k: v for k, v in parm.get(idx, {}).items() if k >= 1}
+        else:
+            terms = {}
+        out[idx] = (kind, norm, {p: v for p, v in terms.items() if v != 0.0})
+    return out
+
+
+def _apply_extended_asphere(ifc, ext, where: str, problems: list, notes: list) -> None:
+    """Turn an extended asphere whose terms are all even powers from r^4 on into rayoptics' even asphere
+    (exact: A_p = coefficient / normalising radius^p); one with odd or r^2 terms is a problem (not representable
+    by the scene's ``asphere``)."""
+    from rayoptics.elem import profiles
+
+    kind, norm, terms = ext
+    bad = sorted(p for p in terms if p % 2 or p < 4)
+    if bad:
+        problems.append(f"{where}: {'extended odd asphere' if kind == 'XOSPHERE' else 'extended asphere'} ({kind}) "
+                        f"with r^{bad[0]} term(s) (odd or quadratic), not representable (even asphere from r^4)")
+        ifc.z_type = "EXTENDED-UNREAD"
+        return
+    prof = ifc.profile
+    cv, cc = float(getattr(prof, "cv", 0.0) or 0.0), float(getattr(prof, "cc", 0.0) or 0.0)
+    top = max(terms, default=2)
+    coefs = [terms.get(p, 0.0) / norm ** p for p in range(2, top + 1, 2)]
+    ifc.profile = profiles.EvenPolynomial(c=cv, cc=cc, coefs=coefs or [0.0])
+    ifc.z_type = "EVENASPH"
+    if kind == "XOSPHERE" or norm != 1.0:
+        notes.append(f"{where}: {kind} with even terms only read as an even asphere"
+                     + (f" (normalising radius {norm:g})" if norm != 1.0 else ""))
+
+
+CODEV_PROFILE_TYPES = {"SPH", "CON", "ASP", "XTO", "YTO", "SPS", "UDS", "AAC", "ZRN", "QCN", "QBF"}
+CODEV_ASPHERE_TERMS = {"A", "B", "C", "D", "E", "F", "G", "H", "J"}
+
+
+def _codev_profile_types(text: str) -> tuple[str, list]:
+    """The CODE V text with the profile type made explicit where a surface gives conic or asphere terms (``K``,
+    ``A``... ``J``) but no type command (optiland's ``asphere.seq``: rayoptics keeps such a surface spherical
+    and fails on its first coefficient): ``ASP`` (an even asphere; ``CON`` for ``K`` alone) after the surface's
+    ``S`` line. Returns (text, the surfaces so read)."""
+    lines = text.splitlines()
+    blocks: list = []  # [line index of the S command, surface number, {command heads}]
+    idx = None
+    for k, line in enumerate(lines):
+        for cmd in line.split(";"):
+            words = cmd.strip().split()
+            if not words:
+                continue
+            head = words[0].upper()
+            if head in ("SO", "SI") or head == "S" or re.fullmatch(r"S\d+", head):
+                idx = None if head == "SI" else (0 if head == "SO" else (idx or 0) + 1 if head == "S" else int(head[1:]))
+                if idx is not None:
+                    blocks.append([k, idx, set()])
+                continue
+            if blocks and idx is not None:
+                blocks[-1][2].add(head)
+    fixed = []
+    for k, idx, heads in reversed(blocks):
+        if heads & CODEV_PROFILE_TYPES or not heads & (CODEV_ASPHERE_TERMS | {"K"}):
+            continue
+        lines.insert(k + 1, "ASP" if heads & CODEV_ASPHERE_TERMS else "CON")
+        fixed.append(idx)
+    return "\n".join(lines) + "\n", sorted(fixed)
+
+
 def _open_rayoptics(path: Path, fmt: str, raw: bytes):
     """rayoptics' model of the file, read from a private copy (rayoptics may write a glass template
     beside the file it reads; ``optics info`` writes nothing where the user's file is)."""
@@ -271,10 +422,10 @@ def _open_rayoptics(path: Path, fmt: str, raw: bytes):
                 if fmt == "seq":
                     opm, info = cmdproc.read_lens(copy)
                 else:
-                    opm, info = zmxread.read_lens_file(copy)
+                    opm, info = zmxread.read_lens_file(copy, encoding="utf-8")
             except Exception as exc:  # noqa: BLE001 - any reader failure is one line naming the file
                 msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-                raise OpticsFileError(f"{path}: the {'CODE V' if fmt == 'seq' else 'Zemax'} reader could not "
+                raise _ReaderFailure(f"{path}: the {'CODE V' if fmt == 'seq' else 'Zemax'} reader could not "
                                       f"parse it ({type(exc).__name__}: {msg})") from None
     return opm, info
 
@@ -291,6 +442,8 @@ def _profile(ifc, where: str, problems: list):
     cv = float(getattr(prof, "cv", 0.0) or 0.0)
     radius = None if cv == 0.0 else 1.0 / cv
     z_type = getattr(ifc, "z_type", None)
+    if z_type == "EXTENDED-UNREAD":  # an extended asphere with odd terms: its problem is already recorded
+        return ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), []
     if z_type is not None and z_type not in ZEMAX_TYPES_READ:
         # rayoptics keeps the base sphere/conic of a Zemax type it does not know (QED_TYPE, ODDASPHE, SZERNSAG...)
         # and drops the rest of its shape without a word
@@ -300,7 +453,9 @@ def _profile(ifc, where: str, problems: list):
         return ("plane" if radius is None else "sphere"), radius, 0.0, []
     if kind == "Conic":
         cc = float(getattr(prof, "cc"))
-        return ("plane" if radius is None and cc == 0 else "conic" if cc != 0 else "sphere"), radius, cc, []
+        if radius is None:  # a flat surface is a plane whatever its conic constant (c = 0: no sag)
+            return "plane", None, 0.0, []
+        return ("conic" if cc != 0 else "sphere"), radius, cc, []
     if kind == "EvenPolynomial":
         coefs = [float(c) for c in (getattr(prof, "coefs", None) or [])]
         if coefs and coefs[0] != 0.0:
@@ -310,7 +465,9 @@ def _profile(ifc, where: str, problems: list):
             coefs.pop()
         cc = float(getattr(prof, "cc", 0.0))
         if not coefs:
-            return ("conic" if cc else ("sphere" if radius is not None else "plane")), radius, cc, []
+            if radius is None:  # flat, no terms: a plane whatever its conic constant
+                return "plane", None, 0.0, []
+            return ("conic" if cc else "sphere"), radius, cc, []
         return "asphere", radius, cc, coefs
     problems.append(f"{where}: surface type {getattr(ifc, 'z_type', kind)} ({kind}) is not supported "
                     "(sphere, conic, even asphere)")
@@ -378,11 +535,33 @@ def _glass_name(medium) -> str | None:
     return name
 
 
-def _set_wavelength(opm, wavelength_nm: float) -> None:
+def _float_by_stop_size(opm, path: Path) -> str:
+    """Zemax ``FLOA`` (aperture "float by stop size"): the entrance pupil is whatever the stop's semi-diameter
+    lets through. rayoptics ignores the command and keeps its default 1-unit pupil: the pupil diameter is
+    scaled so that the paraxial marginal ray fills the stop (its height is linear in the pupil's). Returns the
+    note to warn with."""
+    sm = opm["seq_model"]
+    stop = sm.stop_surface
+    ifc = sm.ifcs[stop] if stop is not None and 0 < stop < len(sm.ifcs) - 1 else None
+    if ifc is None or not getattr(ifc, "clear_apertures", None):
+        return "aperture floats by stop size (FLOA) but the file gives the stop no semi-diameter: pupil as read"
+    sd = float(ifc.surface_od())
+    pupil = opm["optical_spec"]["pupil"]
+    y = abs(float(opm["analysis_results"]["parax_data"].ax_ray[stop][0]))
+    epd = 2.0 * float(opm["analysis_results"]["parax_data"].fod.enp_radius)
+    if not (sd > 0 and y > 0 and math.isfinite(y) and epd > 0):
+        return "aperture floats by stop size (FLOA) but no paraxial ray reaches the stop: pupil as read"
+    pupil.key = ("object", "epd")
+    pupil.value = epd * sd / y
+    _rayoptics_update(opm, path)
+    return f"aperture floats by stop size (FLOA): entrance pupil {pupil.value:.6g} file units, the stop's semi-diameter {sd:g}"
+
+
+def _set_wavelength(opm, wavelength_nm: float, path: Path) -> None:
     osp = opm["optical_spec"]
     osp["wvls"].set_from_list([[float(wavelength_nm), 1.0]])
     osp["wvls"].reference_wvl = 0
-    opm.update_model()
+    _rayoptics_update(opm, path)
 
 
 def read_prescription(path, wavelength_nm: float | None = None, glass: dict | None = None,
@@ -399,19 +578,46 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     except OSError as exc:
         raise OpticsFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     fmt, text = sniff_format(raw, path)
-    notes = []
+    try:
+        return _read_prescription(path, raw, fmt, text, [], wavelength_nm, glass, force)
+    except _ReaderFailure:
+        # rayoptics finds the object-side angles of real-image-height fields (Zemax FTYP 3) by a wide-angle
+        # search of the real entrance pupil, which fails on some wide-angle lenses: read them again as
+        # paraxial image heights (FTYP 2), which only sizes the detector and the field angles
+        if fmt != "zmx" or not re.search(r"^\s*FTYP\s+3\b", text, re.M):
+            raise
+        paraxial = re.sub(r"^(\s*FTYP\s+)3\b", r"\g<1>2", text, count=1, flags=re.M)
+        try:
+            return _read_prescription(path, raw, fmt, paraxial, [
+                "rayoptics could not aim real rays at the file's real-image-height fields (FTYP 3): fields read as "
+                "paraxial image heights"], wavelength_nm, glass, force)
+        except _ReaderFailure:
+            pass
+        raise
+
+
+def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list, wavelength_nm, glass,
+                       force: bool) -> Prescription:
+    """:func:`read_prescription` of the file's decoded ``text`` (``raw`` its bytes, for CODE V)."""
     if fmt == "seq" and _radii_without_rdm(text):
         raw = b"RDM\n" + raw
         text = "RDM\n" + text
         notes.append("no RDM/CUM in the file and its S values as curvatures would give radii smaller than the "
                      "entrance pupil: read as radii (RDM)")
-    opm, info = _open_rayoptics(path, fmt, raw)
+    if fmt == "seq":
+        typed, fixed = _codev_profile_types(text)
+        if fixed:
+            raw, text = typed.encode("utf-8"), typed
+            notes.append(f"surface(s) {', '.join(map(str, fixed))}: conic or asphere terms without a profile type: read "
+                         "as an even asphere (ASP; CON for K alone)")
+    opm, info = _open_rayoptics(path, fmt, _zmx_for_rayoptics(text) if fmt == "zmx" else raw)
     glass = dict(glass or {})
     sm = opm["seq_model"]
     # glasses the catalogues lack: --glass NAME=N, or refused naming them
     from opticalglass.opticalmedium import ConstantIndex
 
     missing = []
+    file_numbers = _zemax_glass_numbers(fmt, text)
     for gi, gap in enumerate(sm.gaps):
         nm = gap.medium.name() if hasattr(gap.medium, "name") else ""
         if isinstance(gap.medium, ConstantIndex) and nm.startswith("not "):
@@ -436,6 +642,15 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
                 note = f"glass {gname} read as {found.name()} ({found.catalog_name()})"
                 if note not in notes:
                     notes.append(note)
+            elif match is None and gi in file_numbers:
+                from opticalglass.modelglass import ModelGlass
+
+                nd, vd = file_numbers[gi]
+                gap.medium = ModelGlass(nd, vd, gname) if vd > 0 else ConstantIndex(nd, gname)
+                note = (f"glass {gname} is not in the catalogues: read from the file's own nd {nd:g}, vd {vd:g}"
+                        + (" (opticalglass' ModelGlass)" if vd > 0 else " (a constant index)"))
+                if note not in notes:
+                    notes.append(note)
             elif match is None:
                 missing.append(gname)
             else:
@@ -456,8 +671,24 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     osp = opm["optical_spec"]
     ref_wvl = float(osp["wvls"].central_wvl)
     wvl = float(wavelength_nm) if wavelength_nm else ref_wvl
-    _set_wavelength(opm, wvl)
+    _set_wavelength(opm, wvl, path)
     sm = opm["seq_model"]
+    problems: list = []
+    for i, ext in _extended_aspheres(fmt, text).items():
+        if 0 < i < len(sm.ifcs) - 1:
+            _apply_extended_asphere(sm.ifcs[i], ext, f"surface {i}", problems, notes)
+    pupil = opm["optical_spec"]["pupil"]
+    if fmt == "zmx" and re.search(r"^\s*FLOA\b", text, re.M):
+        notes.append(_float_by_stop_size(opm, path))
+    elif (fmt == "zmx" and not re.search(r"^\s*(ENPD|FNUM|OBNA)\b", text, re.M)
+          and tuple(pupil.key) == ("object", "epd") and float(pupil.value) == 1.0):
+        # no aperture command at all (hand-edited files): rayoptics' 1-unit pupil is no aperture of the lens's;
+        # the stop's semi-diameter sets it, as FLOA (7 OpticsDatabase camera lenses: their marked f-numbers)
+        note = _float_by_stop_size(opm, path)
+        notes.append("the file gives no aperture (ENPD, FNUM, OBNA or FLOA): " + note.replace(
+            "aperture floats by stop size (FLOA)", "the stop's size sets it, as FLOA"))
+    else:
+        _rayoptics_update(opm, path)
     obj_dist = float(sm.gaps[0].thi) * scale
     if abs(obj_dist) < 1e8 and not math.isinf(obj_dist):
         raise OpticsFileError(f"{path}: object at a finite distance ({obj_dist:g} mm); optics import models an "
@@ -469,7 +700,6 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     coats = _coatings(fmt, text)
     apertures = _aperture_shapes(fmt, text)
 
-    problems: list = []
     n_ifc = len(sm.ifcs)
     tfrms = sm.gbl_tfrms
     rndx = [float(r[0]) for r in sm.rndx]
@@ -535,6 +765,23 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         if label:
             names.setdefault(label, []).append(s)
         surfaces.append(s)
+    for s in surfaces:  # a semi-diameter past where the conic has a sag (a fisheye's front meniscus: DIAM 16.21
+        # on R 15.9) has no surface there: the aperture ends just inside the rim of the hemisphere
+        if s.radius_mm is not None and 1.0 + s.conic > 0:
+            rim = abs(s.radius_mm) / math.sqrt(1.0 + s.conic)
+            if s.semi_diameter_mm > 0.999 * rim:
+                notes.append(f"s{s.index}: semi-diameter {s.semi_diameter_mm:g} mm reaches past the surface's rim "
+                             f"(radius {s.radius_mm:g} mm, conic {s.conic:g}): clear aperture {0.999 * rim:.6g} mm")
+                s.semi_diameter_mm = 0.999 * rim
+        if s.coefficients:  # terms that give no lens surface over the aperture (the Sigma 14-24 mm files' extended
+            # aspheres, read as Zemax defines XASPHERE: 1e22 mm of sag at 19 mm; real aspheres stay under 1 x it)
+            h = sag_mm(s, s.semi_diameter_mm)
+            if not (math.isfinite(h) and abs(h) <= 2.0 * s.semi_diameter_mm):
+                problems.append(f"surface {s.index}: the asphere's terms give a sag of {h:.3g} mm at its semi-diameter "
+                                f"{s.semi_diameter_mm:g} mm: not a lens surface (the file's coefficients are not those "
+                                "of its surface type?)")
+                s.coefficients = []
+                s.type = "plane" if s.radius_mm is None else ("conic" if s.conic else "sphere")
     for label, group in names.items():
         if len(group) == 1 and re.fullmatch(r"[A-Za-z0-9_.\-]+", label) and label.lower() not in ("obj", "img"):
             group[0].name = label

@@ -203,9 +203,15 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
             "type": "plane", "vertex_mm": _v(centre), "axis": _v(toward),
             "outer_radius_mm": max(1.5 * hole, hole + 1.0), "inner_radius_mm": hole},
             "material": edge_material, "role": "surface"})
-    # the detector: an exact disk at the image surface, facing the light, 1.2 x the largest image height
+    # the detector: an exact disk at the image surface, facing the light, 1.2 x the largest image height; an
+    # afocal system (a window, a beam expander) has a beam there, not an image: 1.2 x the largest clear aperture
+    # plus the beam's walk over the system's length at the largest field
     f_max = max(p.fields_deg + [abs(field_deg)])
-    h_img = abs(p.efl_mm) * math.tan(math.radians(f_max)) if math.isfinite(p.efl_mm) else 0.0
+    if math.isfinite(p.efl_mm):
+        h_img = abs(p.efl_mm) * math.tan(math.radians(f_max))
+    else:
+        length = max(float(np.linalg.norm(p.image_vertex_mm - s.vertex_mm)) for s in p.surfaces)
+        h_img = largest + length * math.tan(math.radians(min(f_max, 80.0)))
     r_det = 1.2 * max(h_img, 0.05 * p.epd_mm, 0.1)
     parts.append({"name": unique("image"), "surface": {
         "type": "plane", "vertex_mm": _v(p.image_vertex_mm), "axis": _v(-p.image_travel_in),

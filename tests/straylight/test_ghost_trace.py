@@ -246,10 +246,11 @@ def test_the_ghosts_share_a_ray_budget_and_say_when_it_stops_them(tmp_path):
     assert not shared.notes
     assert [(r.surfaces, r.power_w, r.stderr_w, r.rays) for r in shared.rows] == \
         [(r.surfaces, r.power_w, r.stderr_w, r.rays) for r in free.rows]
-    # two batches of 4096 for each of the 15 would be twice the budget: the batches halve to fit it
     small = ghost_table(opt, target_rel_error=0.001, max_total_rays=15 * 4096)
     assert len(small.rows) == 15 and small.notes and small.notes[0].startswith("15 of 15 ghosts")
+    # two batches each would be twice the budget: the batches are halved, and the table keeps to its budget
     assert all(r.rays == 2 * 2048 and 0 < r.stderr_w < r.power_w for r in small.rows)
+    assert sum(r.rays for r in small.rows) == 15 * 4096
 
 
 def test_an_image_turned_off_the_detector_is_refused_with_the_way_out(tmp_path, capsys):
@@ -368,3 +369,19 @@ def test_ghosts_drawn_where_their_rays_arrive_agree_with_uniform_rays_and_need_f
     assert sum(r.rays for r in guided.rows) < 0.8 * sum(r.rays for r in uniform.rows)
     rel = [sorted(r.stderr_w / r.power_w for r in t.rows) for t in (guided, uniform)]
     assert rel[0][len(rel[0]) // 2] <= rel[1][len(rel[1]) // 2]
+
+
+def test_the_design_path_of_a_fisheye_with_a_tiny_pupil_is_found(tmp_path):
+    """The Kinoptik Super-Tegea 1.9 mm fisheye: a 1 mm entrance pupil behind a 93 mm front element, so 1e-4 of
+    the source's rays take the design path; 4000 rays showed none ("no source ray reaches the detector"). The
+    search looks again with more rays until 20 arrive: the path crosses every lens surface, in order."""
+    from straylight.analyses.ghost_trace import nominal_sequence
+    from straylight.cli.main import main
+    from straylight.scene import load_scene
+
+    lens = LENSES / "OpticsDatabase" / "Kinoptik_Super-Tegea_1.9mm_f1.9_Fisheye.zmx"
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path)]) == 0
+    opt = prepare(load_scene(tmp_path / "scene.toml"))
+    nominal = nominal_sequence(opt)
+    assert [opt.names[p] for p, _ in nominal] == [f"s{i}" for i in range(1, 16) if i != 7]  # s7: the stop, air/air
+    assert all(act == "T" for _, act in nominal)
