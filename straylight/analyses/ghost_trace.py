@@ -667,10 +667,12 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             """After the learning batches: draw the rest from their table when that pays (class doc)."""
             from straylight.engine.entrance_sampling import table_from_contributions
 
-            u = np.concatenate([a for a, _ in self.learning])
-            x = np.concatenate([w for _, w in self.learning])
+            learning = self.learning
+            assert learning is not None  # (called while the uniform batches teach)
+            u = np.concatenate([a for a, _ in learning])
+            x = np.concatenate([w for _, w in learning])
             hits = int(np.count_nonzero(x))
-            if hits < GUIDE_MIN_HITS and len(self.learning) < LEARN_MAX_BATCHES:
+            if hits < GUIDE_MIN_HITS and len(learning) < LEARN_MAX_BATCHES:
                 return False  # too few arrivals to learn from yet: the uniform rays go on, and on teaching
             self.learning = None
             far = mean <= 0 or (err / (target_rel_error * mean)) ** 2 > GUIDE_AFTER
