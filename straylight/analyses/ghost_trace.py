@@ -731,7 +731,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     if bounds:
         notes.append(f"{len(bounds)} of {len(runs)} ghosts had no ray reach the detector (listed as 0 +- 0): each is "
                      f"below 3 x the source's power / its rays at 95 % (upper_w; at most {max(bounds):.1e} W)")
-    guided = sum(r.table is not None for r in runs)
+    guided = sum(r.table is not None and r.acc.n > 0 for r in runs)  # a table learnt as the budget ran out: unused
     if guided:
         notes.append(f"{guided} of {len(runs)} ghosts drew their rays from where their first rays (uniform over the "
                      f"source, {LEARN_BATCHES * batch_rays} or more until {GUIDE_MIN_HITS} arrived; counted in their "

@@ -385,3 +385,16 @@ def test_the_design_path_of_a_fisheye_with_a_tiny_pupil_is_found(tmp_path):
     nominal = nominal_sequence(opt)
     assert [opt.names[p] for p, _ in nominal] == [f"s{i}" for i in range(1, 16) if i != 7]  # s7: the stop, air/air
     assert all(act == "T" for _, act in nominal)
+
+
+def test_a_ghost_whose_budget_ends_as_it_learns_keeps_its_uniform_rays(tmp_path):
+    """Under a budget of two batches a ghost, a ghost that learns its table after them has no rays left to draw from
+    it: its row is its uniform rays' estimate (rays as traced, positive power with an error), and the notes do not
+    count it among the ghosts drawn from a table."""
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    table = ghost_table(opt, target_rel_error=0.001, max_total_rays=15 * 2 * 1024)
+    assert not any("drew their rays" in n for n in table.notes), table.notes
+    assert all(r.rays == 2 * 1024 and 0 < r.stderr_w < r.power_w for r in table.rows)
+    assert sum(r.rays for r in table.rows) == 15 * 2048
