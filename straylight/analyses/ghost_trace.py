@@ -638,7 +638,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             self.learning: list | None = []  # the uniform batches' (uniforms, per-ray power) while they may teach
 
         def advance(self, limit: float = math.inf):
-            batch_rays = self.batch
+            batch_rays = self.batch  # this run's batch (the nominal image's may differ from the ghosts')
             while not self.done and self.traced < limit:
                 arr = trace_sequence(opt, self.seq, batch_rays, self.rng, self.table)
                 self.traced += batch_rays
@@ -683,10 +683,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             return True
 
         def result(self):
-            batch_rays = self.batch
             acc = self.acc if self.acc.n else self.uniform_acc  # stopped right after learning: the uniform rays' own
             focus, radius = acc.geometry()
-            return self.mean, self.err, focus, radius, acc.map * (batch_rays / acc.n) / cell_mm2, self.traced
+            return self.mean, self.err, focus, radius, acc.map * (self.batch / acc.n) / cell_mm2, self.traced
 
     p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0, batch=nominal_batch).advance().result()
     peak_nom = peak_irradiance(map_nom)

@@ -33,6 +33,12 @@ class _ReaderFailure(OpticsFileError):
     """rayoptics failed on the file (parsing it or tracing its fields), as opposed to a refusal of ours."""
 
 
+def _first_line(exc: BaseException) -> str:
+    """An exception's message's first line (its type's name when it has none): rayoptics' failures, in one line."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
 def _rayoptics_update(opm, path: Path) -> None:
     """``opm.update_model()``, a failure of rayoptics' field aiming one line naming the file."""
     try:
@@ -40,8 +46,8 @@ def _rayoptics_update(opm, path: Path) -> None:
             warnings.simplefilter("ignore")
             opm.update_model()
     except Exception as exc:  # noqa: BLE001 - any rayoptics failure is one line naming the file
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise _ReaderFailure(f"{path}: rayoptics could not trace the file's fields ({type(exc).__name__}: {msg})") from None
+        raise _ReaderFailure(f"{path}: rayoptics could not trace the file's fields "
+                             f"({type(exc).__name__}: {_first_line(exc)})") from None
 
 
 UNIT_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "inches": 25.4, "in": 25.4, "meters": 1000.0}
@@ -424,9 +430,8 @@ def _open_rayoptics(path: Path, fmt: str, raw: bytes):
                 else:
                     opm, info = zmxread.read_lens_file(copy, encoding="utf-8")
             except Exception as exc:  # noqa: BLE001 - any reader failure is one line naming the file
-                msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
                 raise _ReaderFailure(f"{path}: the {'CODE V' if fmt == 'seq' else 'Zemax'} reader could not "
-                                      f"parse it ({type(exc).__name__}: {msg})") from None
+                                      f"parse it ({type(exc).__name__}: {_first_line(exc)})") from None
     return opm, info
 
 
@@ -535,7 +540,7 @@ def _glass_name(medium) -> str | None:
     return name
 
 
-def _float_by_stop_size(opm, path: Path) -> str:
+def _float_by_stop_size(opm, path: Path, why: str = "aperture floats by stop size (FLOA)") -> str:
     """Zemax ``FLOA`` (aperture "float by stop size"): the entrance pupil is whatever the stop's semi-diameter
     lets through. rayoptics ignores the command and keeps its default 1-unit pupil: the pupil diameter is
     scaled so that the paraxial marginal ray fills the stop (its height is linear in the pupil's). Returns the
@@ -544,17 +549,17 @@ def _float_by_stop_size(opm, path: Path) -> str:
     stop = sm.stop_surface
     ifc = sm.ifcs[stop] if stop is not None and 0 < stop < len(sm.ifcs) - 1 else None
     if ifc is None or not getattr(ifc, "clear_apertures", None):
-        return "aperture floats by stop size (FLOA) but the file gives the stop no semi-diameter: pupil as read"
+        return f"{why} but the file gives the stop no semi-diameter: pupil as read"
     sd = float(ifc.surface_od())
     pupil = opm["optical_spec"]["pupil"]
     y = abs(float(opm["analysis_results"]["parax_data"].ax_ray[stop][0]))
     epd = 2.0 * float(opm["analysis_results"]["parax_data"].fod.enp_radius)
     if not (sd > 0 and y > 0 and math.isfinite(y) and epd > 0):
-        return "aperture floats by stop size (FLOA) but no paraxial ray reaches the stop: pupil as read"
+        return f"{why} but no paraxial ray reaches the stop: pupil as read"
     pupil.key = ("object", "epd")
     pupil.value = epd * sd / y
     _rayoptics_update(opm, path)
-    return f"aperture floats by stop size (FLOA): entrance pupil {pupil.value:.6g} file units, the stop's semi-diameter {sd:g}"
+    return f"{why}: entrance pupil {pupil.value:.6g} file units, the stop's semi-diameter {sd:g}"
 
 
 def _set_wavelength(opm, wavelength_nm: float, path: Path) -> None:
@@ -684,9 +689,8 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
           and tuple(pupil.key) == ("object", "epd") and float(pupil.value) == 1.0):
         # no aperture command at all (hand-edited files): rayoptics' 1-unit pupil is no aperture of the lens's;
         # the stop's semi-diameter sets it, as FLOA (7 OpticsDatabase camera lenses: their marked f-numbers)
-        note = _float_by_stop_size(opm, path)
-        notes.append("the file gives no aperture (ENPD, FNUM, OBNA or FLOA): " + note.replace(
-            "aperture floats by stop size (FLOA)", "the stop's size sets it, as FLOA"))
+        notes.append("the file gives no aperture (ENPD, FNUM, OBNA or FLOA): "
+                     + _float_by_stop_size(opm, path, "the stop's size sets it, as FLOA"))
     else:
         _rayoptics_update(opm, path)
     obj_dist = float(sm.gaps[0].thi) * scale
