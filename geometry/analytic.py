@@ -12,6 +12,9 @@ the exact normal is taken there. Local frame: ``w = axis``, origin at ``vertex_m
 - asphere: ``G = h(rho) + sum_i A_(2i+4) rho^(2i+4) - z`` (the conic sag plus an even polynomial,
   ``coefficients = [A4, A6, ...]``); Newton along the ray on this G from the mesh hit, with
   ``dG/dt = q(rho^2) (x dx + y dy) - dz`` where ``q = h'(rho) / rho`` stays finite on the axis.
+  ``power_terms = [[p, a_p], ...]`` adds ``sum a_p rho^p`` for any powers p >= 1 (a Zemax extended odd
+  asphere's r^3, r^5... terms, or an r^2 term): ``q`` gains ``p a_p rho^(p - 2)``, infinite on the axis for
+  p = 1 (a cone's tip; taken as 0 there, where no ray lands but by chance).
 - plane: ``G = -2 z``, a disk or annulus.
 - cylinder: ``G = rho^2 - R^2`` for ``0 <= z <= length_mm``; the front is the outside.
 
@@ -229,9 +232,9 @@ class Conic(_Surface):
     def c(self) -> float:
         return 0.0 if math.isinf(self.radius_mm) else 1.0 / self.radius_mm
 
-    def sag_parameters(self) -> tuple[float, float, tuple]:
+    def sag_parameters(self) -> tuple[float, float, tuple] | None:
         """(c, k, asphere coefficients (A4, A6, ...)): the sag as flat numbers, for compiled kernels
-        (straylight.engine.specular_manifold_kernel)."""
+        (straylight.engine.specular_manifold_kernel); None where those kernels do not know the sag."""
         return self.c, self.conic, tuple(float(a) for a in getattr(self, "coefficients", ()))
 
     def slope_over_rho(self, rho2):
@@ -316,18 +319,43 @@ class Asphere(Conic):
     front normal ``-grad G`` is +axis at the vertex, as for the conic)."""
 
     coefficients: tuple = ()
+    #: ((p, a_p), ...): further terms a_p rho^p of any power p >= 1 (odd aspheres, r^2), beside ``coefficients``
+    power_terms: tuple = ()
 
     kind = "asphere"
 
     def _poly(self, rho2):
-        """(sum A rho^n, q_poly = (d/drho sum A rho^n) / rho, d/drho q_poly... ) for rho^2 (n = 4, 6, ...)."""
+        """(sum A rho^n, q_poly = (d/drho sum A rho^n) / rho) for rho^2 (n = 4, 6, ..., then the power terms)."""
         s = np.zeros_like(rho2)
         q = np.zeros_like(rho2)
         for i, a in enumerate(self.coefficients):
             n = 2 * i + 4
             s = s + a * rho2 ** (n // 2)
             q = q + n * a * rho2 ** (n // 2 - 1)
+        if self.power_terms:
+            rho = np.sqrt(rho2)
+            on_axis = rho == 0.0
+            safe = np.where(on_axis, 1.0, rho)
+            for p, a in self.power_terms:
+                s = s + a * rho ** p
+                q = q + np.where(on_axis, 2.0 * a if p == 2 else 0.0, p * a * safe ** (p - 2))
         return s, q
+
+    def dense_terms(self) -> np.ndarray:
+        """All the polynomial's terms by power: ``out[p] = a_p`` (the even coefficients and the power terms)."""
+        top = max([2 * len(self.coefficients) + 2] + [int(p) for p, _ in self.power_terms])
+        out = np.zeros(top + 1)
+        for i, a in enumerate(self.coefficients):
+            out[2 * i + 4] += a
+        for p, a in self.power_terms:
+            out[int(p)] += a
+        return out
+
+    def sag_parameters(self) -> tuple[float, float, tuple] | None:
+        """(c, k, (A4, A6, ...)) for compiled kernels that know the even asphere; None with power terms."""
+        if self.power_terms:
+            return None
+        return Conic.sag_parameters(self)
 
     def sag(self, rho):
         """h(rho) + sum A_(2i+4) rho^(2i+4)."""
@@ -364,12 +392,20 @@ class Asphere(Conic):
         t = np.ascontiguousarray(t0, dtype=np.float64).copy()
         nrm = np.empty_like(o)
         done = np.empty(len(o), np.bool_)
-        coef = np.ascontiguousarray(self.coefficients, dtype=np.float64)
-        _asphere_kernel()(o, d, t, self.c, self.conic, coef, NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm, done)
+        if self.power_terms:
+            _power_asphere_kernel()(o, d, t, self.c, self.conic, self.dense_terms(), NEWTON_TOL_REL, NEWTON_MAX_ITER,
+                                    nrm, done)
+        else:
+            coef = np.ascontiguousarray(self.coefficients, dtype=np.float64)
+            _asphere_kernel()(o, d, t, self.c, self.conic, coef, NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm, done)
         return t, self.dirs_to_world(nrm), done & self.valid(o + t[:, None] * d)
 
     def _max_curvature(self, rr) -> float:
-        """Largest normal curvature of the asphere's profile at radii ``rr`` (h'' by finite differences)."""
+        """Largest normal curvature of the asphere's profile at radii ``rr`` (h'' by finite differences). An r^1
+        term's cone tip has an azimuthal curvature ~ a_1 / rho without bound on the axis, over a region whose
+        sag stays within a_1 rho of a plane: radii below 1e-3 of the largest are left out for it."""
+        if any(p == 1 for p, _ in self.power_terms):
+            rr = rr[rr >= 1e-3 * float(np.max(rr))]
         q = self.slope_over_rho(rr * rr)  # h'(rho) / rho, exact (finite on the axis)
         h1 = rr * q
         h2 = np.gradient(h1, rr)
@@ -384,6 +420,8 @@ class Asphere(Conic):
         d = Conic.to_dict(self)
         d["type"] = "asphere"
         d["coefficients"] = [float(a) for a in self.coefficients]
+        if self.power_terms:
+            d["power_terms"] = [[int(p), float(a)] for p, a in self.power_terms]
         return d
 
 
@@ -629,6 +667,85 @@ def _asphere_kernel():
     return _ASPHERE_KERNEL
 
 
+_POWER_ASPHERE_KERNEL = None
+
+
+def _power_asphere_kernel():
+    """The numba kernel of :meth:`Asphere.refine_hits` with power terms: the sag's polynomial given densely by
+    power (``a[p]`` the rho^p term, :meth:`Asphere.dense_terms`); otherwise :func:`_asphere_kernel`'s Newton."""
+    global _POWER_ASPHERE_KERNEL
+    if _POWER_ASPHERE_KERNEL is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def power_asphere_kernel(o, d, t, c, k, a, tol, max_iter, nrm, done):
+            """Local frame: origins ``o``, directions ``d``; writes local unit normals (front side) and ``done``."""
+            ck = (1.0 + k) * c * c
+            for i in range(o.shape[0]):
+                ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
+                dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
+                ti = t[i]
+                ok = False
+                q = 0.0
+                x = y = z = 0.0
+                if ti == ti and abs(ti) < 1e300:
+                    for _ in range(max_iter):
+                        x = ox + ti * dx
+                        y = oy + ti * dy
+                        z = oz + ti * dz
+                        r2 = x * x + y * y
+                        arg = 1.0 - ck * r2
+                        if arg <= 0.0:
+                            break
+                        root = arg ** 0.5
+                        rho = r2 ** 0.5
+                        h = c * r2 / (1.0 + root)
+                        q = c / root
+                        if a.shape[0] > 1:  # the rho^1 term: slope a_1 / rho (0 on the axis, a cone's tip)
+                            h += a[1] * rho
+                            if rho > 0.0:
+                                q += a[1] / rho
+                        pw = 1.0  # rho^(p - 2) as p runs from 2
+                        for p in range(2, a.shape[0]):
+                            h += a[p] * pw * r2
+                            q += p * a[p] * pw
+                            pw *= rho
+                        g = h - z
+                        dg = q * (x * dx + y * dy) - dz
+                        if dg == 0.0:
+                            break
+                        step = g / dg
+                        ti -= step
+                        if abs(step) <= tol * (1.0 + abs(ti)):
+                            ok = True
+                            break
+                x = ox + ti * dx
+                y = oy + ti * dy
+                z = oz + ti * dz
+                r2 = x * x + y * y
+                arg = 1.0 - ck * r2
+                if arg > 0.0:
+                    rho = r2 ** 0.5
+                    q = c / arg ** 0.5
+                    if a.shape[0] > 1 and rho > 0.0:
+                        q += a[1] / rho
+                    pw = 1.0
+                    for p in range(2, a.shape[0]):
+                        q += p * a[p] * pw
+                        pw *= rho
+                else:
+                    ok = False
+                norm = (q * q * r2 + 1.0) ** 0.5  # |(-q x, -q y, 1)|
+                nrm[i, 0] = -q * x / norm
+                nrm[i, 1] = -q * y / norm
+                nrm[i, 2] = 1.0 / norm
+                t[i] = ti
+                done[i] = ok
+
+        _POWER_ASPHERE_KERNEL = power_asphere_kernel
+    return _POWER_ASPHERE_KERNEL
+
+
 def covering_rim_radii_mm(inner_mm: float, outer_mm: float, n_phi: int, tolerance_mm: float,
                           largest_mm: float = math.inf) -> tuple[float, float]:
     """(inner, outer) ring radii of a curved surface's mesh that *cover* its clear aperture
@@ -686,7 +803,7 @@ _APERTURE = {"aperture_center_mm", "aperture_half_widths_mm", "aperture_x_axis"}
 _KEYS = {
     "conic": {"type", "vertex_mm", "axis", "radius_mm", "conic", "outer_radius_mm", "inner_radius_mm"} | _PLACEMENT
     | _APERTURE,
-    "asphere": {"type", "vertex_mm", "axis", "radius_mm", "conic", "coefficients", "outer_radius_mm",
+    "asphere": {"type", "vertex_mm", "axis", "radius_mm", "conic", "coefficients", "power_terms", "outer_radius_mm",
                 "inner_radius_mm"} | _PLACEMENT | _APERTURE,
     "plane": {"type", "vertex_mm", "axis", "outer_radius_mm", "inner_radius_mm"} | _PLACEMENT,
     "cylinder": {"type", "vertex_mm", "axis", "radius_mm", "length_mm"} | _PLACEMENT,
@@ -787,7 +904,8 @@ def surface_from_dict(d, where: str = "surface"):
                                                   and math.isfinite(a) for a in coefs):
             raise GeometryError(f"{where}: surface 'coefficients' must be a list of numbers [A4, A6, ...], "
                                 f"got {coefs!r}")
-        surf: Conic = Asphere(v, axis, radius, k, outer, inner, coefficients=tuple(float(a) for a in coefs))
+        surf: Conic = Asphere(v, axis, radius, k, outer, inner, coefficients=tuple(float(a) for a in coefs),
+                              power_terms=_power_terms(d.get("power_terms", []), where))
     else:
         surf = Conic(v, axis, radius, k, outer, inner)
     surf = _with_aperture(surf, d, v0, tilt, where)
@@ -799,6 +917,20 @@ def surface_from_dict(d, where: str = "surface"):
     if kind == "asphere" and not np.all(np.isfinite(surf.sag(np.linspace(lo, hi, 513)))):
         raise GeometryError(f"{where}: the asphere's sag is not finite over its clear aperture")
     return surf
+
+
+def _power_terms(terms, where: str) -> tuple:
+    """The asphere's ``power_terms = [[p, a_p], ...]`` (p an integer >= 1, a_p a finite number, each p once)."""
+    ok = isinstance(terms, list) and all(
+        isinstance(t, list) and len(t) == 2 and isinstance(t[0], int) and not isinstance(t[0], bool) and t[0] >= 1
+        and isinstance(t[1], (int, float)) and not isinstance(t[1], bool) and math.isfinite(t[1]) for t in terms)
+    if not ok:
+        raise GeometryError(f"{where}: surface 'power_terms' must be a list of [power, coefficient] pairs (power an "
+                            f"integer >= 1, e.g. [[3, 1.2e-5], [5, -3e-8]]), got {terms!r}")
+    powers = [t[0] for t in terms]
+    if len(set(powers)) < len(powers):
+        raise GeometryError(f"{where}: surface 'power_terms' gives a power more than once: {sorted(powers)}")
+    return tuple((int(p), float(a)) for p, a in terms if a != 0.0)
 
 
 def _with_aperture(surf, d, v0, tilt, where):

@@ -12,14 +12,17 @@ import numpy as np
 import pytest
 
 LENSES = Path(__file__).resolve().parent / "data" / "lenses"
-FAST = ["ray-optics/ag_dblgauss.seq", "ray-optics/rc_f16.seq", "optiland/lens1.zmx"]
+FAST = ["ray-optics/ag_dblgauss.seq", "ray-optics/rc_f16.seq", "optiland/lens1.zmx",
+        "OpticsDatabase/Fujifilm_Fujinon_XF27mm_F2.8.zmx"]  # two extended odd aspheres (r^3 ... r^19 terms)
 SLOW = ["optiland/cooke_triplet.seq", "ray-optics/CODV_32327.seq", "ray-optics/HoO-V2C18Ex03.zmx", "ray-optics/US08011793-1.zmx",
         "OpticsDatabase/Edmund_32-299.zmx", "OpticsDatabase/Edmund_45-206.zmx", "ray-optics/landscape_lens.seq",
         "ray-optics/paraboloid.seq", "ray-optics/questar35.seq", "ray-optics/threemir.seq",
         "ray-optics/schmidt.seq", "ray-optics/mangin.seq", "ray-optics/354710-C.zmx", "ray-optics/dec_tilt_test.seq",
         "optiland/lens_thorlabs_iso_8859_1.zmx", "ray-optics/zmax_37992.zmx", "optiland/mirror.seq",
         "optiland/one_mirror_up_45deg.zmx", "ray-optics/HoO-V2C18Ex27.zmx", "ray-optics/asp46.seq",
-        "ray-optics/ACL3026U.zmx", "optiland/fno_fields.seq"]
+        "ray-optics/ACL3026U.zmx", "optiland/fno_fields.seq",
+        "OpticsDatabase/Canon_EF50mm_f1.0L_USM.zmx",  # r^2 terms on flat bases: paraboloids
+        "OpticsDatabase/Fujifilm_Fujinon_XF23mm_F1.4_R.zmx"]
 
 
 def focus_check(lens, field_deg, tmp_path, rays=6000, bins=121):
@@ -84,7 +87,12 @@ def test_imported_scene_focuses_like_the_sequential_trace(name, tmp_path):
     _check(name, tmp_path)
 
 
-KNOWN: dict = {}  # files that import but whose focus check does not pass yet (reported, not hidden)
+KNOWN: dict = {  # files that import but whose focus check does not pass yet (reported, not hidden)
+    # on axis 0.949 of the power within 1.2 r_geo: the sequential reference drops the rays beyond pupil radius
+    # 7.42 mm as blocked (their s8 -> s9 segment meets s10's clear aperture at rho 8.01 mm, sd 8.37: the air gap
+    # closes inside the semi-diameters), the scene passes them; unblocked, the sequential spot is 7.35 um, not 5.60
+    "OpticsDatabase/Fujifilm_Fujinon_XF23mm_F1.4_R.zmx": "the lens file's s9/s10 air gap closes inside its apertures",
+}
 
 
 @pytest.mark.slow

@@ -18,8 +18,6 @@ REFUSED = {
     "US05831776-1.zmx": "finite distance",       # its SILICA is fused silica (other_materials)
     "singlet.seq": "finite distance",
     "tilt_test.seq": "no optical surface",
-    "Fujifilm_Fujinon_XF23mm_F1.4_R.zmx": "extended odd asphere (XOSPHERE) with r^3",  # odd terms: no exact part
-    "Canon_EF50mm_f1.0L_USM.zmx": "quadratic (r^2) term",
     "Canon_EF24mm_f1.4L_II_USM.zmx": "could not parse",  # a '??' in a number of the file
     "Plossl_USP4482217.zmx": "finite distance",          # an eyepiece traced from its eye side
     "Microscope_USP3893752.zmx": "finite distance",
@@ -99,7 +97,9 @@ def _paraxial_efl(surfaces):
 
 
 @pytest.mark.parametrize("name", ["ray-optics/ag_dblgauss.seq", "optiland/lens1.zmx", "ray-optics/CODV_32327.seq",
-                                  "OpticsDatabase/Edmund_32-299.zmx", "ray-optics/ACL3026U.zmx"])
+                                  "OpticsDatabase/Edmund_32-299.zmx", "ray-optics/ACL3026U.zmx",
+                                  "OpticsDatabase/Fujifilm_Fujinon_XF27mm_F2.8.zmx",  # odd terms: no paraxial power
+                                  "OpticsDatabase/Canon_EF50mm_f1.0L_USM.zmx"])  # r^2 terms: paraboloids
 def test_efl_matches_an_independent_paraxial_trace(name, tmp_path):
     r = _run("optics", "import", LENSES / name, "--out", tmp_path)
     assert r.returncode == 0, r.stderr
@@ -381,3 +381,68 @@ def test_a_semi_diameter_past_the_spheres_rim_ends_inside_it(tmp_path):
     doc = json.loads((tmp_path / "prescription.json").read_text())
     assert doc["surfaces"][1]["semi_diameter_mm"] == pytest.approx(0.999 * 15.9)
     load_scene(tmp_path / "scene.toml")
+
+
+def test_extended_odd_aspheres_are_read_with_their_power_terms(tmp_path):
+    """Zemax XOSPHERE (extended odd asphere: XDAT 1 the number of terms, XDAT 2 the normalising radius, XDAT 3 +
+    k the rho^(k + 1) term) as the scene's ``asphere`` with ``power_terms``: the Fujinon XF27mm F2.8's surface 13,
+    whose r^3 and r^5 terms are read from the file here, and its sag matches the file's formula term by term."""
+    import re
+
+    lens = LENSES / "OpticsDatabase" / "Fujifilm_Fujinon_XF27mm_F2.8.zmx"
+    r = _run("optics", "import", lens, "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    text = lens.read_text()
+    blocks = {int(b.split()[0]): b for b in text.split("SURF ")[1:]}
+    idx = min(i for i, b in blocks.items() if "XOSPHERE" in b)
+    xdat = {int(k): float(v) for k, v in re.findall(r"XDAT (\d+) (\S+)", blocks[idx])}
+    assert xdat[2] == 1.0  # normalising radius 1: the coefficients are the terms
+    surf = next(s for s in json.loads((tmp_path / "prescription.json").read_text())["surfaces"] if s["name"] == f"s{idx}")
+    terms = dict((p, a) for p, a in surf["power_terms"])
+    assert terms[3] == pytest.approx(xdat[5]) and terms[5] == pytest.approx(xdat[7])
+    assert surf["coefficients"][0] == pytest.approx(xdat[6])  # the r^4 term stays an even coefficient
+    import math as m
+
+    from straylight.optics.sag import sag_mm
+
+    class S:  # the file's own formula, term by term
+        radius_mm = surf["radius_mm"]
+        conic = surf["conic"]
+        coefficients: list = []
+        power_terms = [(k - 2, v) for k, v in xdat.items() if k >= 3 and k - 2 <= int(xdat[1])]
+    rho = 0.9 * surf["semi_diameter_mm"]
+    c = 1.0 / surf["radius_mm"]
+    ref = c * rho * rho / (1 + m.sqrt(1 - (1 + surf["conic"]) * c * c * rho * rho)) + sum(
+        v * rho ** p for p, v in S.power_terms)
+    assert sag_mm(S, rho) == pytest.approx(ref, rel=1e-12)
+    scene = (tmp_path / "scene.toml").read_text()
+    assert "power_terms = [[3, " in scene
+
+
+def test_zemax_odd_asphere_type_is_read(tmp_path):
+    """Zemax ODDASPHE (``PARM k`` the r^k term): a corpus lens's first surface turned into one, written here."""
+    src = (LENSES / "optiland" / "lens1.zmx").read_text(encoding="utf-8", errors="replace")
+    import re
+
+    m = re.search(r"(SURF 1\s*\n)(\s*)TYPE STANDARD", src)
+    assert m, "lens1.zmx's surface 1 is a STANDARD surface"
+    odd = src[:m.start()] + m.group(1) + m.group(2) + "TYPE ODDASPHE\n" + m.group(2) + "PARM 1 0\n" + m.group(2) \
+        + "PARM 2 0\n" + m.group(2) + "PARM 3 2.5E-05\n" + m.group(2) + "PARM 5 -1.0E-08" + src[m.end():]
+    (tmp_path / "odd.zmx").write_text(odd, encoding="utf-8")
+    r = _run("optics", "import", tmp_path / "odd.zmx", "--out", tmp_path / "o")
+    assert r.returncode == 0, r.stderr
+    s1 = json.loads((tmp_path / "o" / "prescription.json").read_text())["surfaces"][0]
+    assert s1["type"] == "asphere" and s1["power_terms"] == [[3, pytest.approx(2.5e-05)], [5, pytest.approx(-1.0e-08)]]
+
+
+def test_an_r2_term_on_a_flat_base_is_the_paraboloid_it_is(tmp_path):
+    """The Canon EF 50mm f/1.0's surfaces 5 and 15: flat, with EVENASPH r^2 terms (PARM 1 = 7.358E-03 and
+    -7.396E-03): z = a2 rho^2 is the paraboloid c = 2 a2, k = -1, so the paraxial data see its power (EFL
+    ~52 mm for the 50 mm lens; 93.7 mm when the term was left to the polynomial)."""
+    r = _run("optics", "import", LENSES / "OpticsDatabase" / "Canon_EF50mm_f1.0L_USM.zmx", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    s5 = next(s for s in doc["surfaces"] if s["name"] == "s5")
+    assert s5["conic"] == -1.0 and s5["radius_mm"] == pytest.approx(1.0 / (2 * 7.358e-03), rel=1e-9)
+    assert "power_terms" not in s5
+    assert 50.0 < doc["efl_mm"] < 54.0

@@ -23,13 +23,14 @@ KIND, C, CONIC, SIGN, REFLECT, ETA_FRONT, ETA_BACK, ROT, VERTEX, NCOEF, COEF = 0
 
 def pack(seq) -> np.ndarray | None:
     """The parameters (k, 20 + n_coef) of a sequence of ``specular_manifold.Vertex``, or None when a
-    surface is not one the kernel knows (a cylinder: the numpy code solves it)."""
+    surface is not one the kernel knows (a cylinder, an asphere with power terms: the numpy code solves it)."""
     rows = []
     for vtx in seq:
         params = getattr(vtx.surface, "sag_parameters", None)
-        if params is None:
+        got = None if params is None else params()
+        if got is None:  # an asphere with power terms (odd or r^2): the numpy code solves it
             return None
-        c, k, coef = params()
+        c, k, coef = got
         head = [1.0 if coef else 0.0, c, k, vtx.surface.front_sign(), 1.0 if vtx.reflect else 0.0,
                 vtx.eta_front, vtx.eta_back, *np.asarray(vtx.surface.rotation, float).ravel(),
                 *np.asarray(vtx.surface.vertex_mm, float), float(len(coef))]

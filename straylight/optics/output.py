@@ -22,7 +22,9 @@ def prescription_dict(p) -> dict:
         "fields_deg": [_num(f) for f in p.fields_deg],
         "surfaces": [{
             "name": s.name, "type": s.type, "radius_mm": _num(s.radius_mm), "conic": _num(s.conic),
-            "coefficients": [_num(a) for a in s.coefficients], "thickness_mm": _num(s.thickness_mm),
+            "coefficients": [_num(a) for a in s.coefficients],
+            **({"power_terms": [[int(p), _num(a)] for p, a in s.power_terms]} if s.power_terms else {}),
+            "thickness_mm": _num(s.thickness_mm),
             "glass": s.glass, "n": _num(s.n), "semi_diameter_mm": _num(s.semi_diameter_mm), "mirror": bool(s.mirror),
             **({"aperture_offset_mm": [_num(v) for v in s.aperture_offset_mm]} if s.aperture_offset_mm != (0.0, 0.0) else {}),
             **({"aperture_half_widths_mm": [_num(v) for v in s.aperture_half_widths_mm]} if s.aperture_half_widths_mm else {}),
@@ -62,6 +64,8 @@ def info_text(p) -> str:
             notes.append(f"{s.inner_kind} r={s.inner_radius_mm:.4g} mm")
         if s.coefficients:
             notes.append("A4.. = " + ", ".join(f"{a:.4g}" for a in s.coefficients))
+        if s.power_terms:
+            notes.append(", ".join(f"r^{p}: {a:.4g}" for p, a in s.power_terms))
         if not s.semi_diameter_from_file:
             notes.append("aperture from marginal ray +5%")
         if s.aperture_offset_mm != (0.0, 0.0):

@@ -78,6 +78,7 @@ class OpticalSurface:
     inner_kind: str = ""            # "hole" | "obscuration" | ""
     coating: str | None = None
     dummy: bool = False             # same medium both sides, not a mirror: no part
+    power_terms: list = field(default_factory=list)  # [(p, a_p)]: further sag terms a_p rho^p (odd, r^2), mm^(1-p)
     aperture_offset_mm: tuple = (0.0, 0.0)  # clear aperture's centre in the surface's own x, y (off-axis segment)
     aperture_half_widths_mm: tuple = ()     # (hx, hy): a rectangular clear aperture about that centre
     local_x: np.ndarray | None = None       # the surface's own +x axis in the scene frame (for the two above)
@@ -316,7 +317,7 @@ def _extended_aspheres(fmt: str, text: str) -> dict:
     ``XASPHERE`` (sum A_i rho^(2i), extra data ``XDAT 3`` = rho^2, ``XDAT 4`` = rho^4...) and ``XOSPHERE``
     (sum B_i rho^i, ``XDAT 3`` = rho^1...), rho = r / the normalising radius (``XDAT 2``). An ``XASPHERE``
     with ``PARM`` lines and no extra data (files converted from patents write them so) has the EVENASPH
-    layout: ``PARM k`` the r^(2k) term."""
+    layout: ``PARM k`` the r^(2k) term. An ``ODDASPHE`` (Zemax's odd asphere) has ``PARM k`` the r^k term."""
     if fmt != "zmx":
         return {}
     kinds: dict = {}
@@ -325,7 +326,7 @@ def _extended_aspheres(fmt: str, text: str) -> dict:
     for idx, head, words in _surface_commands(fmt, text):
         if idx is None:
             continue
-        if head == "TYPE" and len(words) >= 2 and words[1].upper() in ("XASPHERE", "XOSPHERE"):
+        if head == "TYPE" and len(words) >= 2 and words[1].upper() in ("XASPHERE", "XOSPHERE", "ODDASPHE"):
             kinds[idx] = words[1].upper()
         elif head in ("XDAT", "PARM") and len(words) >= 3:
             try:
@@ -335,9 +336,11 @@ def _extended_aspheres(fmt: str, text: str) -> dict:
             (xdat if head == "XDAT" else parm).setdefault(idx, {})[k] = v
     out = {}
     for idx, kind in kinds.items():
-        x = xdat.get(idx, {})
+        x = xdat.get(idx, {}) if kind != "ODDASPHE" else {}
         norm = x.get(2, 1.0) or 1.0
-        if x:
+        if kind == "ODDASPHE":
+            terms = {k: v for k, v in parm.get(idx, {}).items() if k >= 1}
+        elif x:
             n_terms = int(x.get(1, 0))
             step = 2 if kind == "XASPHERE" else 1
             terms = {step * (k - 2): v for k, v in x.items() if k >= 3 and (n_terms <= 0 or k - 2 <= n_terms)}
@@ -350,20 +353,21 @@ def _extended_aspheres(fmt: str, text: str) -> dict:
 
 
 def _apply_extended_asphere(ifc, ext, where: str, problems: list, notes: list) -> None:
-    """Turn an extended asphere whose terms are all even powers from r^4 on into rayoptics' even asphere
-    (exact: A_p = coefficient / normalising radius^p); one with odd or r^2 terms is a problem (not representable
-    by the scene's ``asphere``)."""
+    """Turn an extended asphere into rayoptics' even asphere when its terms are all even powers from r^4 on,
+    else into its radial polynomial (odd or r^2 terms: the scene's ``asphere`` with ``power_terms``); exact
+    either way: a_p = coefficient / normalising radius^p."""
     from rayoptics.elem import profiles
 
     kind, norm, terms = ext
-    bad = sorted(p for p in terms if p % 2 or p < 4)
-    if bad:
-        problems.append(f"{where}: {'extended odd asphere' if kind == 'XOSPHERE' else 'extended asphere'} ({kind}) "
-                        f"with r^{bad[0]} term(s) (odd or quadratic), not representable (even asphere from r^4)")
-        ifc.z_type = "EXTENDED-UNREAD"
-        return
     prof = ifc.profile
     cv, cc = float(getattr(prof, "cv", 0.0) or 0.0), float(getattr(prof, "cc", 0.0) or 0.0)
+    if any(p % 2 or p < 4 for p in terms):
+        ifc.profile = profiles.RadialPolynomial(c=cv, cc=cc, coefs=[terms.get(p, 0.0) / norm ** p
+                                                                    for p in range(1, max(terms) + 1)])
+        ifc.z_type = kind
+        if norm != 1.0:
+            notes.append(f"{where}: {kind} read with its normalising radius {norm:g}")
+        return
     top = max(terms, default=2)
     coefs = [terms.get(p, 0.0) / norm ** p for p in range(2, top + 1, 2)]
     ifc.profile = profiles.EvenPolynomial(c=cv, cc=cc, coefs=coefs or [0.0])
@@ -371,6 +375,31 @@ def _apply_extended_asphere(ifc, ext, where: str, problems: list, notes: list) -
     if kind == "XOSPHERE" or norm != 1.0:
         notes.append(f"{where}: {kind} with even terms only read as an even asphere"
                      + (f" (normalising radius {norm:g})" if norm != 1.0 else ""))
+
+
+def _fold_quadratic_term(ifc, where: str, problems: list, notes: list) -> None:
+    """An r^2 polynomial term a_2 on a flat base is the paraboloid c = 2 a_2, k = -1, exactly: so rewritten, the
+    paraxial data (rayoptics' come from the base curvature alone) see its power. On a curved base no conic is
+    the same surface: a problem (the lens's first-order data would be wrong)."""
+    from rayoptics.elem import profiles
+
+    prof = getattr(ifc, "profile", None)
+    kind = type(prof).__name__
+    if kind not in ("EvenPolynomial", "RadialPolynomial"):
+        return
+    coefs = [float(c) for c in (getattr(prof, "coefs", None) or [])]
+    at = 0 if kind == "EvenPolynomial" else 1  # the r^2 term's index (EvenPolynomial: r^2, r^4...; radial: r, r^2...)
+    a2 = coefs[at] if len(coefs) > at else 0.0
+    if a2 == 0.0:
+        return
+    cv = float(getattr(prof, "cv", 0.0) or 0.0)
+    if cv != 0.0:
+        problems.append(f"{where}: an r^2 term ({a2:g}) on a curved base (radius {1.0 / cv:g}): its paraxial power "
+                        "is not representable, so the first-order data would be wrong")
+        return
+    coefs[at] = 0.0
+    ifc.profile = getattr(profiles, kind)(c=2.0 * a2, cc=-1.0, coefs=coefs)
+    notes.append(f"{where}: its r^2 term {a2:g} on a flat base read as the paraboloid it is (radius {0.5 / a2:g})")
 
 
 CODEV_PROFILE_TYPES = {"SPH", "CON", "ASP", "XTO", "YTO", "SPS", "UDS", "AAC", "ZRN", "QCN", "QBF"}
@@ -437,46 +466,47 @@ def _open_rayoptics(path: Path, fmt: str, raw: bytes):
 
 #: Zemax surface types whose whole shape rayoptics reads (or that are handled by kind: coordinate breaks,
 #: paraxial lenses, gratings, toroids and extended polynomials get their own message)
-ZEMAX_TYPES_READ = ("STANDARD", "EVENASPH", "COORDBRK", "PARAXIAL", "DGRATING", "TOROIDAL", "XOSPHERE")
+ZEMAX_TYPES_READ = ("STANDARD", "EVENASPH", "COORDBRK", "PARAXIAL", "DGRATING", "TOROIDAL", "XOSPHERE", "XASPHERE",
+                    "ODDASPHE")
 
 
 def _profile(ifc, where: str, problems: list):
-    """(type, radius in file units or None, conic, [A4, A6...] in file units) of a surface profile."""
+    """(type, radius in file units or None, conic, [A4, A6...] in file units, [(p, a_p)] further terms in file
+    units: odd powers and r^2) of a surface profile."""
     prof = getattr(ifc, "profile", None)
     kind = type(prof).__name__ if prof is not None else type(ifc).__name__
     cv = float(getattr(prof, "cv", 0.0) or 0.0)
     radius = None if cv == 0.0 else 1.0 / cv
     z_type = getattr(ifc, "z_type", None)
-    if z_type == "EXTENDED-UNREAD":  # an extended asphere with odd terms: its problem is already recorded
-        return ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), []
+    base: tuple = ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), [], []
     if z_type is not None and z_type not in ZEMAX_TYPES_READ:
         # rayoptics keeps the base sphere/conic of a Zemax type it does not know (QED_TYPE, ODDASPHE, SZERNSAG...)
         # and drops the rest of its shape without a word
-        problems.append(f"{where}: surface type {z_type} is not supported (sphere, conic, even asphere)")
-        return ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), []
+        problems.append(f"{where}: surface type {z_type} is not supported (sphere, conic, even or odd asphere)")
+        return base
     if kind == "Spherical":
-        return ("plane" if radius is None else "sphere"), radius, 0.0, []
+        return ("plane" if radius is None else "sphere"), radius, 0.0, [], []
     if kind == "Conic":
         cc = float(getattr(prof, "cc"))
         if radius is None:  # a flat surface is a plane whatever its conic constant (c = 0: no sag)
-            return "plane", None, 0.0, []
-        return ("conic" if cc != 0 else "sphere"), radius, cc, []
-    if kind == "EvenPolynomial":
-        coefs = [float(c) for c in (getattr(prof, "coefs", None) or [])]
-        if coefs and coefs[0] != 0.0:
-            problems.append(f"{where}: even asphere with a quadratic (r^2) term {coefs[0]:g}, not representable")
-        coefs = coefs[1:]
-        while coefs and coefs[-1] == 0.0:
-            coefs.pop()
+            return "plane", None, 0.0, [], []
+        return ("conic" if cc != 0 else "sphere"), radius, cc, [], []
+    if kind in ("EvenPolynomial", "RadialPolynomial"):
+        raw = [float(c) for c in (getattr(prof, "coefs", None) or [])]
+        # by power: EvenPolynomial's coefs are r^2, r^4...; RadialPolynomial's r^1, r^2, r^3...
+        by_power = {(2 * (k + 1) if kind == "EvenPolynomial" else k + 1): c for k, c in enumerate(raw) if c != 0.0}
+        top = max((p for p in by_power if p >= 4 and p % 2 == 0), default=2)
+        coefs = [by_power.get(p, 0.0) for p in range(4, top + 1, 2)]
+        terms = sorted((p, c) for p, c in by_power.items() if p % 2 or p < 4)
         cc = float(getattr(prof, "cc", 0.0))
-        if not coefs:
+        if not coefs and not terms:
             if radius is None:  # flat, no terms: a plane whatever its conic constant
-                return "plane", None, 0.0, []
-            return ("conic" if cc else "sphere"), radius, cc, []
-        return "asphere", radius, cc, coefs
+                return "plane", None, 0.0, [], []
+            return ("conic" if cc else "sphere"), radius, cc, [], []
+        return "asphere", radius, cc, coefs, terms
     problems.append(f"{where}: surface type {getattr(ifc, 'z_type', kind)} ({kind}) is not supported "
-                    "(sphere, conic, even asphere)")
-    return ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), []
+                    "(sphere, conic, even or odd asphere)")
+    return base
 
 
 CATALOGUES = ("Schott", "Ohara", "Hoya", "CDGM", "Sumita")
@@ -682,6 +712,8 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
     for i, ext in _extended_aspheres(fmt, text).items():
         if 0 < i < len(sm.ifcs) - 1:
             _apply_extended_asphere(sm.ifcs[i], ext, f"surface {i}", problems, notes)
+    for i in range(1, len(sm.ifcs) - 1):
+        _fold_quadratic_term(sm.ifcs[i], f"surface {i}", problems, notes)
     pupil = opm["optical_spec"]["pupil"]
     if fmt == "zmx" and re.search(r"^\s*FLOA\b", text, re.M):
         notes.append(_float_by_stop_size(opm, path))
@@ -730,7 +762,7 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
     for i in range(1, n_ifc - 1):
         ifc = sm.ifcs[i]
         where = f"surface {i}"
-        kind, radius, cc, coefs = _profile(ifc, where, problems)
+        kind, radius, cc, coefs, terms = _profile(ifc, where, problems)
         rot, trans = tfrms[i]
         rot = np.asarray(rot, float)
         mirror = getattr(ifc, "interact_mode", "") == "reflect"
@@ -760,6 +792,7 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
             vertex_mm=np.asarray(trans, float) * scale, local_z=rot[:, 2].copy(), travel_in=travel,
             stop=(i == stop_idx), coating=coats.get(i),
             dummy=(not mirror and abs(n_after - n_before) < 1e-12),
+            power_terms=[(p, c / scale ** (p - 1)) for p, c in terms],  # a_p in mm^(1-p)
         )
         if i in obstr:
             s.inner_kind, r_in = obstr[i]
@@ -777,14 +810,14 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
                 notes.append(f"s{s.index}: semi-diameter {s.semi_diameter_mm:g} mm reaches past the surface's rim "
                              f"(radius {s.radius_mm:g} mm, conic {s.conic:g}): clear aperture {0.999 * rim:.6g} mm")
                 s.semi_diameter_mm = 0.999 * rim
-        if s.coefficients:  # terms that give no lens surface over the aperture (the Sigma 14-24 mm files' extended
+        if s.coefficients or s.power_terms:  # terms that give no lens surface over the aperture (the Sigma 14-24 mm files' extended
             # aspheres, read as Zemax defines XASPHERE: 1e22 mm of sag at 19 mm; real aspheres stay under 1 x it)
             h = sag_mm(s, s.semi_diameter_mm)
             if not (math.isfinite(h) and abs(h) <= 2.0 * s.semi_diameter_mm):
                 problems.append(f"surface {s.index}: the asphere's terms give a sag of {h:.3g} mm at its semi-diameter "
                                 f"{s.semi_diameter_mm:g} mm: not a lens surface (the file's coefficients are not those "
                                 "of its surface type?)")
-                s.coefficients = []
+                s.coefficients, s.power_terms = [], []
                 s.type = "plane" if s.radius_mm is None else ("conic" if s.conic else "sphere")
     for label, group in names.items():
         if len(group) == 1 and re.fullmatch(r"[A-Za-z0-9_.\-]+", label) and label.lower() not in ("obj", "img"):

@@ -13,4 +13,6 @@ def sag_mm(s, rho: float) -> float:
         h = c * rho * rho / (1.0 + math.sqrt(max(arg, 0.0)))
     for i, a in enumerate(s.coefficients):
         h += a * rho ** (2 * i + 4)
+    for p, a in getattr(s, "power_terms", ()):
+        h += a * abs(rho) ** p
     return h

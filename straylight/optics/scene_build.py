@@ -2,8 +2,8 @@
 optical surface, black lens edges and stop, the ``image`` detector and the ``pupil`` source.
 
 Sag convention (docs/reference/scene.md, analytic surfaces): h(rho) = c rho^2 / (1 + sqrt(1 - (1 + k) c^2
-rho^2)) + sum A_(2i+4) rho^(2i+4) along the part's ``axis``; the lens file's sag is along the surface's own
-+z, so a part whose ``axis`` is the opposite direction gets -R and -A.
+rho^2)) + sum A_(2i+4) rho^(2i+4) (+ sum a_p rho^p, ``power_terms``) along the part's ``axis``; the lens
+file's sag is along the surface's own +z, so a part whose ``axis`` is the opposite direction gets -R, -A and -a.
 """
 from __future__ import annotations
 
@@ -35,6 +35,8 @@ def _surface_table(s, axis, outer, inner=0.0) -> dict:
     elif s.type == "asphere":  # a flat base: c = 1e-18 /mm, the plane to 1e-12 mm over a metre
         d = {"type": "asphere", **d, "radius_mm": sign * (s.radius_mm if s.radius_mm else 1e18), "conic": s.conic,
              "coefficients": [sign * a for a in s.coefficients]}
+        if s.power_terms:  # odd or r^2 terms: the scene's power_terms, flipped with the rest
+            d["power_terms"] = [[int(p), sign * a] for p, a in s.power_terms]
     else:
         d = {"type": "conic", **d, "radius_mm": sign * s.radius_mm, "conic": s.conic}
     d["outer_radius_mm"] = float(outer)
@@ -50,6 +52,8 @@ def _same_geometry(a, b) -> bool:
     if (a.radius_mm is None) != (b.radius_mm is None) or a.type != b.type:
         return False
     if a.radius_mm is not None and abs(a.radius_mm - b.radius_mm) > 1e-9 * abs(a.radius_mm):
+        return False
+    if len(a.coefficients) != len(b.coefficients) or dict(a.power_terms) != dict(b.power_terms):
         return False
     return abs(a.conic - b.conic) < 1e-12 and np.allclose(a.coefficients, b.coefficients)
 
