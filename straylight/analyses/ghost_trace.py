@@ -653,9 +653,10 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     ``max_seconds``: a wall-clock cap the ghosts share (the nominal image's trace aside; ``monotonic``).
     Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
     ghost's second, so the cap stops the ghosts where the budget would (each keeps the estimate it reached)
-    and leaves each with one; the ghosts' batches shrink (not below 256) where the nominal image's rate says
-    one each would take more than :data:`FIRST_ROUND_SHARE` of the cap. A ghost the cap left untraced has
-    no estimate: power, error and fraction None (null in ghosts.json, empty in ghosts.csv), listed last."""
+    and leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
+    measured so far says that one each would take more than :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
+    cap left untraced has no estimate: power, error and fraction None (null in ghosts.json, empty in
+    ghosts.csv), listed last."""
     import time
 
     if order < 2 or order % 2:
@@ -748,38 +749,48 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             focus, radius = acc.geometry()
             return self.mean, self.err, focus, radius, acc.map * (self.batch / acc.n) / cell_mm2, self.traced
 
-    t_nom = monotonic()
     p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0, batch=nominal_batch).advance().result()
-    nominal_s = monotonic() - t_nom
     peak_nom = peak_irradiance(map_nom)
     nom_row = GhostRow([], [], p_nom, e_nom, 1.0, f_nom, r_nom, 1.0 if peak_nom > 0 else None, n_nom,
                        [opt.names[p] for p, _ in nominal])
-    seqs = [ghost_sequence(nominal, refl) for refl in refls]
-    deadline = None if max_seconds is None else monotonic() + max_seconds
-    if max_seconds is not None and auto_batch:  # one batch each within FIRST_ROUND_SHARE of the cap at the nominal's rate
-        s_per_step = nominal_s / max(n_nom * len(nominal), 1)  # seconds per ray and part crossed
-        first_round_s = s_per_step * batch_rays * sum(len(q) for q in seqs)
-        if first_round_s > FIRST_ROUND_SHARE * max_seconds:
-            batch_rays = max(MIN_BATCH_RAYS, int(batch_rays * FIRST_ROUND_SHARE * max_seconds / first_round_s))
     # every ghost's first share is at least two batches (its error needs two); where the ghosts are so many that
     # two batches each would pass the budget (a 37-surface zoom: 666 ghosts, 5.5e6 rays of 4096-ray batches),
     # their batches are smaller (batch_rays above) so that the first round fits it
-    runs = [Run(q, k, floor_w=min_fraction * p_nom) for k, q in enumerate(seqs, 1)]
+    runs = [Run(ghost_sequence(nominal, refl), k, floor_w=min_fraction * p_nom) for k, refl in enumerate(refls, 1)]
+    t_ghosts = monotonic()
+    deadline = None if max_seconds is None else t_ghosts + max_seconds
     timed_out = False
+    fit = {"batch": batch_rays, "ray_parts": 0, "parts_left": sum(len(r.seq) for r in runs)}
+
+    def fit_batch(run):
+        """Under the cap, before a ghost's first batch: its size, so that the ghosts still without one take what is
+        left of FIRST_ROUND_SHARE of the cap at the seconds per ray and part crossed measured so far (shrinking
+        only, to MIN_BATCH_RAYS at least: a batch's fixed cost is measured as it grows, so this goes on shrinking)."""
+        now = monotonic()
+        if fit["ray_parts"]:
+            left = t_ghosts + FIRST_ROUND_SHARE * max_seconds - now
+            need = (now - t_ghosts) / fit["ray_parts"] * fit["batch"] * fit["parts_left"]
+            if need > left:
+                fit["batch"] = max(MIN_BATCH_RAYS, int(fit["batch"] * max(left, 0.0) / need))
+        run.batch = fit["batch"]
+        fit["ray_parts"] += run.batch * len(run.seq)
+        fit["parts_left"] -= len(run.seq)
 
     def reach(limits, tick=None):
         """Trace each (k, run, limit) up to its limit, each run on its own stream (the same rays in any order).
         Under ``max_seconds``, one batch a run per round, every run's before any run's next, until the deadline;
         ``tick(k)`` after run k's first round."""
         nonlocal timed_out
-        step = math.inf if deadline is None else batch_rays
         first_round = True
         while todo := [(k, run, lim) for k, run, lim in limits if not run.done and run.traced < lim]:
             for k, run, lim in todo:
-                if deadline is not None and monotonic() >= deadline:
-                    timed_out = True
-                    return
-                run.advance(min(lim, run.traced + step))
+                if deadline is not None:
+                    if monotonic() >= deadline:
+                        timed_out = True
+                        return
+                    if not run.traced and auto_batch:
+                        fit_batch(run)
+                run.advance(lim if deadline is None else min(lim, run.traced + run.batch))
                 if tick is not None and first_round:
                     tick(k)
             first_round = False

@@ -429,20 +429,29 @@ def _first_round_s(opt, batch, s_per_ray_part=1e-6):
 
 def test_a_time_cap_leaves_every_ghost_its_estimate_and_says_how_far_it_got(tmp_path, monkeypatch):
     """--max-seconds: every ghost gets its first batch before any ghost its next, so the cap stops all of them
-    alike, each keeping the estimate it reached (the budget's way). A cap that one 4096-ray batch each would fill
-    twice over (at the nominal image's seconds per ray and part) shrinks the batches to 1024 so that the first
-    round takes half of it; the warnings say how many ghosts the cap stopped, and at what worst error."""
+    alike, each keeping the estimate it reached (the budget's way). Here one 4096-ray batch each would take the
+    whole cap: the first ghost's batch, timed, shows it, and the 14 after it get the largest common batch that
+    ends the first round within half the cap; the second round fills the other half. The warnings say how many
+    ghosts the cap stopped, and at what worst error."""
+    from straylight.analyses.ghost_trace import nominal_sequence
     from straylight.scene import load_scene
 
     opt = prepare(load_scene(_cooke(tmp_path)))
+    refls = ghost_reflections(nominal_sequence(opt), 2)  # the order the ghosts are traced in
     _fake_clock(monkeypatch)
-    cap_s = 0.5 * _first_round_s(opt, 4096)
+    cap_s = _first_round_s(opt, 4096)
     table = ghost_table(opt, target_rel_error=0.001, max_seconds=cap_s)
-    rays = [r.rays for r in table.rows]
-    batch = math.gcd(*rays)
-    assert min(rays) > 0 and 1020 <= batch <= 1024, rays  # every ghost traced, in batches of 1024 (float rounding)
-    assert max(rays) - min(rays) <= batch, rays  # one round apart at most
-    assert sum(rays) <= 3 * 15 * batch  # the first round took half the cap: about two rounds in all, not the budget
+    rows = sorted(table.rows, key=lambda r: refls.index(tuple(r.reflections)))
+    first, rest = rows[0], rows[1:]
+    parts_rest = sum(len(r.parts) for r in rest)
+    half_s = 0.5 * cap_s / 1e-6  # in rays x parts on the fake clock
+    b = int((half_s - 4096 * len(first.parts)) / parts_rest)
+    assert (4096 * len(first.parts) + b * parts_rest) <= half_s < (4096 * len(first.parts) + (b + 1) * parts_rest)
+    assert 256 <= b < 4096
+    assert first.rays % 4096 == 0 and all(r.rays % b == 0 for r in rest), ([r.rays for r in rows], b)
+    rounds = [first.rays // 4096] + [r.rays // b for r in rest]
+    assert min(rounds) >= 1 and max(rounds) - min(rounds) <= 1, rounds  # each ghost one batch a round
+    assert sorted(rounds)[1] == 2, rounds  # the second half of the cap: a second round (less a batch's rounding)
     assert all(r.power_w > 0 and 0 < r.stderr_w < r.power_w for r in table.rows)
     worst = max(r.stderr_w / r.power_w for r in table.rows)
     assert len(table.warnings) == 1 and table.warnings[0] in table.notes, table.warnings
