@@ -652,8 +652,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
 
     ``max_seconds``: a wall-clock cap the ghosts share (the nominal image's trace aside; ``monotonic``).
     Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
-    ghost's second, so the cap stops the ghosts where the budget would (each keeps the estimate it reached)
-    and leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
+    ghost's second, so the cap stops the ghosts as the budget does (each keeps the estimate it reached) and
+    leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
     measured so far says that one each would take more than :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
     cap left untraced has no estimate: power, error and fraction None (null in ghosts.json, empty in
     ghosts.csv), listed last."""
@@ -765,7 +765,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     def fit_batch(run):
         """Under the cap, before a ghost's first batch: its size, so that the ghosts still without one take what is
         left of FIRST_ROUND_SHARE of the cap at the seconds per ray and part crossed measured so far (shrinking
-        only, to MIN_BATCH_RAYS at least: a batch's fixed cost is measured as it grows, so this goes on shrinking)."""
+        only, to MIN_BATCH_RAYS at least; a batch's fixed cost makes a smaller batch's rays dearer, which the next
+        ghosts' time shows, and the batch shrinks again)."""
         now = monotonic()
         if fit["ray_parts"]:
             left = t_ghosts + FIRST_ROUND_SHARE * max_seconds - now
