@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from time import monotonic
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -66,6 +67,7 @@ MIN_BATCH_RAYS = 256
 GUIDE_BELOW = 0.5
 GUIDE_MIN_HITS = 16
 GUIDE_AFTER = 3.0
+FIRST_ROUND_SHARE = 0.5  # under --max-seconds, the part of it every ghost's first batch may take (ghost_table)
 
 
 class GhostError(ValueError):
@@ -460,14 +462,17 @@ def write_view3d(table: "GhostTable", opt: GhostOptics, setup, path, top: int = 
     import atomicio
 
     samples = []
+    p_nom = table.nominal.power_w or 0.0
     nominal_seq = table.nominal_parts
     samples.append(PathSample(0, "nominal image", 1.0, 0.0,
                               [p.tolist() for p in sample_polylines(opt, nominal_seq, seed=seed)]))
     for rank, r in enumerate(table.rows[:top], start=1):
+        if r.power_w is None or r.stderr_w is None or r.fraction_of_nominal is None:
+            break  # the untraced, listed last (the time cap)
         poly = sample_polylines(opt, r.parts, seed=seed + rank)
         if poly:
             samples.append(PathSample(rank, "ghost " + " > ".join(r.surfaces), r.fraction_of_nominal,
-                                      r.stderr_w / table.nominal.power_w if table.nominal.power_w > 0 else 0.0,
+                                      r.stderr_w / p_nom if p_nom > 0 else 0.0,
                                       [p.tolist() for p in poly]))
     page = view_page(view_data(setup, {}, {}, samples, f"Ghosts at {table.detector} (field {table.field_deg:g} deg)"))
     return atomicio.write_text(path, page)
@@ -482,9 +487,9 @@ class GhostRow:
 
     surfaces: list
     reflections: list
-    power_w: float
-    stderr_w: float
-    fraction_of_nominal: float
+    power_w: float | None  # None (with stderr_w and fraction_of_nominal): never traced, the time cap came first
+    stderr_w: float | None
+    fraction_of_nominal: float | None
     focus_mm: float | None
     radius_mm: float | None
     peak_ratio: float | None
@@ -579,6 +584,9 @@ class GhostTable:
     notes: list = field(default_factory=list)
     nominal_parts: tuple = ()
     optics: "GhostOptics | None" = None  # the GhostOptics it was traced on (the 3-D view draws its rays)
+    # the notes a user acts on (ghosts stopped short of the target or not measured), each also in ``notes``: the
+    # command prints these as warnings, the rest only in ghosts.md; ghosts.json keeps every note in "notes"
+    warnings: list = field(default_factory=list)
 
     def to_json_dict(self) -> dict:
         return {"detector": self.detector, "order": self.order, "field_deg": self.field_deg,
@@ -586,22 +594,75 @@ class GhostTable:
                 "ghosts": [_row_dict(r) for r in self.rows], "seconds": self.seconds, "notes": list(self.notes)}
 
 
+def _notes(runs, rows, timed_out: bool, *, target_rel_error, max_rays, max_total_rays, max_seconds,
+           guide_below) -> tuple:
+    """The table's notes and, among them, its warnings (what stopped ghosts short of ``target_rel_error`` or left
+    them unmeasured: a user acts on those); the rest says how the table was traced."""
+    n = len(runs)
+    notes, warnings = [], []
+
+    def warn(text):
+        notes.append(text)
+        warnings.append(text)
+
+    short = [r for r in runs if not r.done and r.traced]
+    untraced = sum(not r.traced for r in runs)
+    if timed_out:
+        rel = sorted(r.err / r.mean for r in short if r.mean > 0)
+        reached = f", at up to {rel[-1]:.1%} relative error (median {rel[len(rel) // 2]:.1%})" if rel else ""
+        if short:
+            warn(f"{len(short)} of {n} ghosts were stopped by the time cap (--max-seconds {max_seconds:g}) before "
+                 f"{target_rel_error:g} relative error{reached}; their errors are as listed")
+        if untraced:
+            warn(f"{untraced} of {n} ghosts were not traced before the time cap (--max-seconds {max_seconds:g}): "
+                 "they have no estimate (power and error empty, null in ghosts.json) and are listed last")
+    elif short:
+        warn(f"{len(short)} of {n} ghosts reached the table's ray budget ({max_total_rays} rays, "
+             f"--max-total-rays) before {target_rel_error:g} relative error; their errors are as listed")
+    bounds = [r.upper_w for r in rows if r.upper_w is not None]
+    if bounds:
+        warn(f"{len(bounds)} of {n} ghosts had no ray reach the detector (listed as 0 +- 0): each is "
+             f"below 3 x the source's power / its rays at 95 % (upper_w; at most {max(bounds):.1e} W)")
+    guided = sum(r.table is not None and r.acc.n > 0 for r in runs)  # a table learnt as the budget ran out: unused
+    if guided:
+        notes.append(f"{guided} of {n} ghosts get through from only a small part of the incoming beam (fewer than "
+                     f"{guide_below:.0%} of their first, evenly spread rays reached the detector), so the rest of their "
+                     "rays were aimed at that part, weighted to keep their power unbiased; their ray counts include "
+                     "the first rays")
+    capped = sum(r.capped for r in runs)
+    if capped:
+        warn(f"{capped} of {n} ghosts reached --max-rays ({max_rays} rays each) before "
+             f"{target_rel_error:g} relative error; their errors are as listed")
+    return notes, warnings
+
+
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
                 batch_rays: int | None = None, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
-                max_total_rays: int = MAX_TOTAL_RAYS, guide_below: float = GUIDE_BELOW) -> GhostTable:
+                max_total_rays: int = MAX_TOTAL_RAYS, guide_below: float = GUIDE_BELOW,
+                max_seconds: float | None = None) -> GhostTable:
     """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio.
 
     The ghosts share ``max_total_rays`` (the nominal image's rays aside) by water-filling: each round gives
     every unfinished ghost an equal share of what is left, and a ghost continues its own random stream where
     it stopped, so a table whose ghosts need fewer rays in all is the one traced without the budget, ray for
-    ray. Ghosts the budget stops above ``target_rel_error`` keep the error they reached (``notes`` says how
-    many): a 16-surface lens's 120 ghosts would otherwise take minutes. ``batch_rays`` None: 4096, or for the
-    ghosts fewer (not below 256) where two batches for every ghost would exceed the budget (order 4: thousands of
-    ghosts; the nominal image keeps 4096)."""
+    ray. Ghosts the budget stops above ``target_rel_error`` keep the error they reached (``notes`` and
+    ``warnings`` say how many): a 16-surface lens's 120 ghosts would otherwise take minutes. ``batch_rays``
+    None: 4096, or for the ghosts fewer (not below 256) where two batches for every ghost would exceed the
+    budget (order 4: thousands of ghosts; the nominal image keeps 4096).
+
+    ``max_seconds``: a wall-clock cap the ghosts share (the nominal image's trace aside; ``monotonic``).
+    Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
+    ghost's second, so the cap stops the ghosts as the budget does (each keeps the estimate it reached) and
+    leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
+    measured so far says that one each would take more than :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
+    cap left untraced has no estimate: power, error and fraction None (null in ghosts.json, empty in
+    ghosts.csv), listed last."""
     import time
 
     if order < 2 or order % 2:
         raise GhostError(f"--order must be an even number >= 2, got {order}")
+    if max_seconds is not None and not max_seconds > 0:
+        raise GhostError(f"--max-seconds must be > 0, got {max_seconds:g}")
     t0 = time.perf_counter()
     nominal = nominal_sequence(opt, seed=seed)
     frame = detector_frame(opt)
@@ -611,6 +672,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     if not refls:
         raise GhostError("the nominal path crosses no transmitting interface: no ghost to list")
     nominal_batch = int(batch_rays or BATCH_RAYS)
+    auto_batch = batch_rays is None
     if batch_rays is None:  # two batches a ghost within the budget (an order-4 table has thousands of ghosts)
         batch_rays = int(np.clip(max_total_rays // (2 * len(refls)), MIN_BATCH_RAYS, BATCH_RAYS))
 
@@ -695,52 +757,78 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     # two batches each would pass the budget (a 37-surface zoom: 666 ghosts, 5.5e6 rays of 4096-ray batches),
     # their batches are smaller (batch_rays above) so that the first round fits it
     runs = [Run(ghost_sequence(nominal, refl), k, floor_w=min_fraction * p_nom) for k, refl in enumerate(refls, 1)]
+    t_ghosts = monotonic()
+    deadline = None if max_seconds is None else t_ghosts + max_seconds
+    timed_out = False
+    fit = {"batch": batch_rays, "ray_parts": 0, "parts_left": sum(len(r.seq) for r in runs)}
+
+    def fit_batch(run):
+        """Under the cap, before a ghost's first batch: its size, so that the ghosts still without one take what is
+        left of FIRST_ROUND_SHARE of the cap at the seconds per ray and part crossed measured so far (shrinking
+        only, to MIN_BATCH_RAYS at least; a batch's fixed cost makes a smaller batch's rays dearer, which the next
+        ghosts' time shows, and the batch shrinks again)."""
+        now = monotonic()
+        if fit["ray_parts"]:
+            left = t_ghosts + FIRST_ROUND_SHARE * max_seconds - now
+            need = (now - t_ghosts) / fit["ray_parts"] * fit["batch"] * fit["parts_left"]
+            if need > left:
+                fit["batch"] = max(MIN_BATCH_RAYS, int(fit["batch"] * max(left, 0.0) / need))
+        run.batch = fit["batch"]
+        fit["ray_parts"] += run.batch * len(run.seq)
+        fit["parts_left"] -= len(run.seq)
+
+    def reach(limits, tick=None):
+        """Trace each (k, run, limit) up to its limit, each run on its own stream (the same rays in any order).
+        Under ``max_seconds``, one batch a run per round, every run's before any run's next, until the deadline;
+        ``tick(k)`` after run k's first round."""
+        nonlocal timed_out
+        first_round = True
+        while todo := [(k, run, lim) for k, run, lim in limits if not run.done and run.traced < lim]:
+            for k, run, lim in todo:
+                if deadline is not None:
+                    if monotonic() >= deadline:
+                        timed_out = True
+                        return
+                    if not run.traced and auto_batch:
+                        fit_batch(run)
+                run.advance(lim if deadline is None else min(lim, run.traced + run.batch))
+                if tick is not None and first_round:
+                    tick(k)
+            first_round = False
+
     first = max(2 * batch_rays, max_total_rays // len(runs))
-    for k, run in enumerate(runs, start=1):
-        run.advance(first)
-        if on_ghost is not None:  # a callable(k, n) told after each ghost's first share (a progress bar)
-            on_ghost(k, len(refls))
-    while True:  # the rest of the budget, shared equally among the ghosts not yet at their target
+    # on_ghost: a callable(k, n) told after each ghost's first share (a progress bar; under the cap, its first batch)
+    reach([(k, run, first) for k, run in enumerate(runs, start=1)],
+          None if on_ghost is None else lambda k: on_ghost(k, len(runs)))
+    while not timed_out:  # the rest of the budget, shared equally among the ghosts not yet at their target
         open_ = [r for r in runs if not r.done]
         share = (max_total_rays - sum(r.traced for r in runs)) // max(len(open_), 1)
         if not open_ or share < batch_rays:
             break
-        for run in open_:
-            run.advance(run.traced + share)
+        reach([(0, run, run.traced + share) for run in open_])
     rows = []
     maps = {"nominal": map_nom}
     for refl, run in zip(refls, runs):
-        p, e, f, r, m, n = run.result()
         names = [opt.names[nominal[i][0]] for i in refl]
         label = " > ".join(names)
         if label in maps:  # a part the design path crosses twice (a Mangin mirror's glass): two ghosts, one label
             label += f" (positions {', '.join(str(i) for i in refl)})"
+        sequence = [opt.names[q] for q, _ in run.seq]
+        if not run.traced:  # the time cap came first: no estimate, not a measured 0
+            maps[label] = np.zeros((MAP_BINS, MAP_BINS))
+            rows.append(GhostRow(names, list(refl), None, None, None, None, None, None, 0, sequence, tuple(run.seq),
+                                 label))
+            continue
+        p, e, f, r, m, n = run.result()
         maps[label] = m
         rows.append(GhostRow(names, list(refl), p, e, p / p_nom if p_nom > 0 else float("nan"), f, r,
-                             peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n,
-                             [opt.names[q] for q, _ in run.seq], tuple(run.seq), label,
-                             upper_w=3.0 * float(opt.source.power_w) / n if p <= 0.0 and n > 0 else None))
-    rows.sort(key=lambda r: -r.power_w)
-    notes = []
-    short = sum(not r.done for r in runs)
-    if short:
-        notes.append(f"{short} of {len(runs)} ghosts reached the table's ray budget ({max_total_rays} rays, "
-                     f"--max-total-rays) before {target_rel_error:g} relative error; their errors are as listed")
-    bounds = [r.upper_w for r in rows if r.upper_w is not None]
-    if bounds:
-        notes.append(f"{len(bounds)} of {len(runs)} ghosts had no ray reach the detector (listed as 0 +- 0): each is "
-                     f"below 3 x the source's power / its rays at 95 % (upper_w; at most {max(bounds):.1e} W)")
-    guided = sum(r.table is not None and r.acc.n > 0 for r in runs)  # a table learnt as the budget ran out: unused
-    if guided:
-        notes.append(f"{guided} of {len(runs)} ghosts drew their rays from where their first rays (uniform over the "
-                     f"source, {LEARN_BATCHES * batch_rays} or more until {GUIDE_MIN_HITS} arrived; counted in their "
-                     f"rays, not in their power) reached the detector: fewer than {guide_below:.0%} of those did")
-    capped = sum(r.capped for r in runs)
-    if capped:
-        notes.append(f"{capped} of {len(runs)} ghosts reached --max-rays ({max_rays} rays each) before "
-                     f"{target_rel_error:g} relative error; their errors are as listed")
+                             peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n, sequence, tuple(run.seq),
+                             label, upper_w=3.0 * float(opt.source.power_w) / n if p <= 0.0 and n > 0 else None))
+    rows.sort(key=lambda r: (r.power_w is None, -(r.power_w or 0.0)))  # the untraced last
+    notes, warnings = _notes(runs, rows, timed_out, target_rel_error=target_rel_error, max_rays=max_rays,
+                             max_total_rays=max_total_rays, max_seconds=max_seconds, guide_below=guide_below)
     return GhostTable(opt.names[opt.detector], order, 0.0, nom_row, rows, maps, half, time.perf_counter() - t0,
-                      notes=notes, nominal_parts=tuple(nominal))
+                      notes=notes, nominal_parts=tuple(nominal), warnings=warnings)
 
 
 # ---------------------------------------------------------------- files and the picture
@@ -777,15 +865,22 @@ def write_table(table: GhostTable, directory) -> list:
     return out
 
 
-def markdown(table: GhostTable, top: int = 50) -> str:
+def markdown(table: GhostTable, top: int = 50, warnings: bool = True) -> str:
+    """ghosts.md: the nominal image, the notes (and the warnings, unless ``warnings`` is False: the command prints
+    those on stderr), the ``top`` strongest ghosts."""
     n = table.nominal
+    said = [f"Warning: {note}." if note in table.warnings else f"Note: {note}." for note in table.notes
+            if warnings or note not in table.warnings]
     lines = [f"# Ghosts at {table.detector} (order {table.order}, field {table.field_deg:g} deg)", "",
              f"Nominal image: {n.power_w:.4e} W +- {n.stderr_w:.1e}, RMS radius "
              f"{_cell(n.radius_mm)} mm; {len(table.rows)} ghosts, {table.seconds:.1f} s.", "",
-             *[f"Note: {note}." for note in table.notes], *([""] if table.notes else []),
+             *said, *([""] if said else []),
              "| rank | surfaces | power (W) | stderr (W) | of nominal | focus (mm) | radius (mm) | peak ratio |",
              "|---|---|---|---|---|---|---|---|"]
     for rank, r in enumerate(table.rows[:top], start=1):
+        if r.power_w is None or r.stderr_w is None or r.fraction_of_nominal is None:
+            lines.append(f"| {rank} | {' > '.join(r.surfaces)} | not traced (time cap) | | | | | |")
+            continue
         power = f"{r.power_w:.4e}" if r.upper_w is None else f"0 (< {r.upper_w:.1e} at 95 %: no ray arrived)"
         lines.append(f"| {rank} | {' > '.join(r.surfaces)} | {power} | {r.stderr_w:.1e} | "
                      f"{r.fraction_of_nominal:.3e} | {_cell(r.focus_mm)} | {_cell(r.radius_mm)} | "
@@ -807,7 +902,7 @@ def plot_maps(table: GhostTable, path, top: int = 8):
 
     import atomicio
 
-    labels = ["nominal"] + [r.map_key or " > ".join(r.surfaces) for r in table.rows[:top]]
+    labels = ["nominal"] + [r.map_key or " > ".join(r.surfaces) for r in table.rows[:top] if r.power_w is not None]
     n = len(labels)
     cols = min(3, n)
     rows = -(-n // cols)
@@ -835,13 +930,15 @@ def plot_maps(table: GhostTable, path, top: int = 8):
     return out
 
 
-def ghosts(scene, order: int = 2, field_deg: float = 0.0, detector: str | None = None, **kwargs) -> GhostTable:
-    """Notebook API: the ghost table of a scene file (or a loaded scene) at ``field_deg``."""
+def ghosts(scene, order: int = 2, field_deg: float = 0.0, detector: str | None = None,
+           max_seconds: float | None = None, **kwargs) -> GhostTable:
+    """Notebook API: the ghost table of a scene file (or a loaded scene) at ``field_deg``; ``max_seconds``
+    caps the ghosts' wall-clock time and ``kwargs`` go to :func:`ghost_table` (``target_rel_error``, ...)."""
     from straylight.scene import load_scene
 
     rs = load_scene(scene) if not hasattr(scene, "scene") else scene
     opt = prepare(rs, field_deg, detector)
-    table = ghost_table(opt, order=order, **kwargs)
+    table = ghost_table(opt, order=order, max_seconds=max_seconds, **kwargs)
     table.field_deg = float(field_deg)
     table.optics = opt
     return table

@@ -1,6 +1,6 @@
 """``straylight ghosts``: the ghost table of the lenses in a scene (CONTRACTS 8.4; docs/ghosts.md).
 
-    straylight ghosts SCENE.toml [--order 2] [--field-deg F] [--max-total-rays N] --out DIR
+    straylight ghosts SCENE.toml [--order 2] [--field-deg F] [--max-total-rays N] [--max-seconds S] --out DIR
 
 Writes DIR/ghosts.csv, ghosts.json, ghosts.md and ghosts.png (straylight.analyses.ghost_trace).
 """
@@ -24,6 +24,10 @@ def add_parser(subparsers):
     p.add_argument("--max-total-rays", type=int, default=None,
                    help="rays all the ghosts share, the nominal image's aside (default 4000000; a ghost the budget "
                         "stops keeps the error it reached, and the table says how many)")
+    p.add_argument("--max-seconds", type=float, default=None,
+                   help="wall-clock cap the ghosts share, the nominal image's trace aside (default: none); every "
+                        "ghost gets its first rays before any gets more, a ghost the cap stops keeps the error it "
+                        "reached, and the table says how many and at what error")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-view3d", action="store_true",
                    help="skip DIR/view3d.html (the lens with the nominal path and the strongest ghosts, each selectable)")
@@ -47,6 +51,8 @@ def run(args) -> int:
     for flag, value in (("--max-rays", args.max_rays), ("--max-total-rays", args.max_total_rays)):
         if value is not None and value < 1:
             raise GhostError(f"{flag} must be >= 1, got {value}")
+    if args.max_seconds is not None and not args.max_seconds > 0:  # (NaN too)
+        raise GhostError(f"--max-seconds must be > 0, got {args.max_seconds:g}")
     bar = progress_bar(total=None, desc="ghosts", unit="ghost", enabled=sys.stderr.isatty())
 
     def tick(k, n):
@@ -56,12 +62,12 @@ def run(args) -> int:
     try:
         table = ghosts(args.scene, order=args.order, field_deg=args.field_deg, detector=args.detector,
                        target_rel_error=args.target_rel_error, min_fraction=args.min_fraction,
-                       max_rays=args.max_rays, seed=args.seed, on_ghost=tick,
+                       max_rays=args.max_rays, seed=args.seed, on_ghost=tick, max_seconds=args.max_seconds,
                        **({} if args.max_total_rays is None else {"max_total_rays": args.max_total_rays}))
     finally:
         bar.close()
-    for note in table.notes:
-        print(f"straylight: warning: {note}", file=sys.stderr)
+    for warning in table.warnings:  # the rest of the notes (how the table was traced) are in ghosts.md
+        print(f"straylight: warning: {warning}", file=sys.stderr)
     write_table(table, args.out)
     written = "ghosts.csv, ghosts.json, ghosts.md, ghosts.png"
     if not args.no_view3d and table.optics is not None:
@@ -73,6 +79,6 @@ def run(args) -> int:
         write_view3d(table, table.optics, scene_setup(args.scene, detector=args.detector), Path(args.out) / "view3d.html",
                      seed=args.seed)
         written += ", view3d.html"
-    print(markdown(table, top=15))
+    print(markdown(table, top=15, warnings=False))  # (printed above)
     print(f"written {args.out}/{written}")
     return 0

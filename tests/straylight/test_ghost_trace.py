@@ -164,7 +164,8 @@ def test_the_view_draws_each_ghost_along_its_own_sequence(tmp_path):
         assert (dz < 0).sum() >= 1 and dz[-1] > 0
 
 
-@pytest.mark.parametrize("args, words", [(["--order", "3"], "even"), (["--field-deg", "95"], "field")])
+@pytest.mark.parametrize("args, words", [(["--order", "3"], "even"), (["--field-deg", "95"], "field"),
+                                         (["--max-seconds", "0"], "--max-seconds")])
 def test_bad_requests_are_one_line_errors(tmp_path, capsys, args, words):
     from straylight.cli.main import main
 
@@ -358,8 +359,8 @@ def test_ghosts_drawn_where_their_rays_arrive_agree_with_uniform_rays_and_need_f
     opt = prepare(load_scene(_cooke(tmp_path)))
     guided = ghost_table(opt, order=2, target_rel_error=0.02)
     uniform = ghost_table(opt, order=2, target_rel_error=0.02, guide_below=0.0)
-    assert not any("drew their rays" in n for n in uniform.notes)
-    drawn = [int(n.split()[0]) for n in guided.notes if "drew their rays" in n]
+    assert not any("were aimed at that part" in n for n in uniform.notes)
+    drawn = [int(n.split()[0]) for n in guided.notes if "were aimed at that part" in n]
     assert drawn and drawn[0] >= 5, guided.notes  # the triplet's stop passes 2-4 % of the disk to several ghosts
     by_label = {r.map_key: r for r in uniform.rows}
     z = [(r.power_w - by_label[r.map_key].power_w) / math.hypot(r.stderr_w, by_label[r.map_key].stderr_w)
@@ -395,6 +396,142 @@ def test_a_ghost_whose_budget_ends_as_it_learns_keeps_its_uniform_rays(tmp_path)
 
     opt = prepare(load_scene(_cooke(tmp_path)))
     table = ghost_table(opt, target_rel_error=0.001, max_total_rays=15 * 2 * 1024)
-    assert not any("drew their rays" in n for n in table.notes), table.notes
+    assert not any("were aimed at that part" in n for n in table.notes), table.notes
     assert all(r.rays == 2 * 1024 and 0 < r.stderr_w < r.power_w for r in table.rows)
     assert sum(r.rays for r in table.rows) == 15 * 2048
+
+
+def _fake_clock(monkeypatch, s_per_ray_part=1e-6):
+    """A monotonic clock that moves only as rays are traced: each forced batch of n rays through a k-part sequence
+    takes n k ``s_per_ray_part`` seconds, the nominal image's too (the cap's estimate of a ghost's cost). No test
+    here waits on the machine's clock."""
+    from straylight.analyses import ghost_trace
+
+    now = [0.0]
+    real = ghost_trace.trace_sequence
+
+    def timed(opt, seq, n, rng, table=None):
+        now[0] += n * len(seq) * s_per_ray_part
+        return real(opt, seq, n, rng, table)
+
+    monkeypatch.setattr(ghost_trace, "trace_sequence", timed)
+    monkeypatch.setattr(ghost_trace, "monotonic", lambda: now[0])
+    return now
+
+
+def _first_round_s(opt, batch, s_per_ray_part=1e-6):
+    """Seconds one batch of every order-2 ghost takes on the fake clock."""
+    from straylight.analyses.ghost_trace import nominal_sequence
+
+    nominal = nominal_sequence(opt)
+    return sum(len(ghost_sequence(nominal, r)) for r in ghost_reflections(nominal, 2)) * batch * s_per_ray_part
+
+
+def test_a_time_cap_leaves_every_ghost_its_estimate_and_says_how_far_it_got(tmp_path, monkeypatch):
+    """--max-seconds: every ghost gets its first batch before any ghost its next, so the cap stops all of them
+    alike, each keeping the estimate it reached (the budget's way). Here one 4096-ray batch each would take the
+    whole cap: the first ghost's batch, timed, shows it, and the 14 after it get the largest common batch that
+    ends the first round within half the cap; the second round fills the other half. The warnings say how many
+    ghosts the cap stopped, and at what worst error."""
+    from straylight.analyses.ghost_trace import nominal_sequence
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    refls = ghost_reflections(nominal_sequence(opt), 2)  # the order the ghosts are traced in
+    _fake_clock(monkeypatch)
+    cap_s = _first_round_s(opt, 4096)
+    table = ghost_table(opt, target_rel_error=0.001, max_seconds=cap_s)
+    rows = sorted(table.rows, key=lambda r: refls.index(tuple(r.reflections)))
+    first, rest = rows[0], rows[1:]
+    parts_rest = sum(len(r.parts) for r in rest)
+    half_s = 0.5 * cap_s / 1e-6  # in rays x parts on the fake clock
+    b = int((half_s - 4096 * len(first.parts)) / parts_rest)
+    assert (4096 * len(first.parts) + b * parts_rest) <= half_s < (4096 * len(first.parts) + (b + 1) * parts_rest)
+    assert 256 <= b < 4096
+    assert first.rays % 4096 == 0 and all(r.rays % b == 0 for r in rest), ([r.rays for r in rows], b)
+    rounds = [first.rays // 4096] + [r.rays // b for r in rest]
+    assert min(rounds) >= 1 and max(rounds) - min(rounds) <= 1, rounds  # each ghost one batch a round
+    assert sorted(rounds)[1] == 2, rounds  # the second half of the cap: a second round (less a batch's rounding)
+    assert all(r.power_w > 0 and 0 < r.stderr_w < r.power_w for r in table.rows)
+    worst = max(r.stderr_w / r.power_w for r in table.rows)
+    assert len(table.warnings) == 1 and table.warnings[0] in table.notes, table.warnings
+    assert table.warnings[0].startswith(f"15 of 15 ghosts were stopped by the time cap (--max-seconds {cap_s:g})")
+    assert f"at up to {worst:.1%} relative error" in table.warnings[0]
+    assert "ray budget" not in " ".join(table.notes)
+
+
+def test_a_cap_generous_enough_changes_nothing(tmp_path, monkeypatch):
+    """Traced one batch a ghost per round under the cap, each ghost on its own random stream: a cap that does not
+    bite gives the table traced without it, ray for ray, and no warning."""
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    free = ghost_table(opt, target_rel_error=0.05)
+    _fake_clock(monkeypatch)
+    capped = ghost_table(opt, target_rel_error=0.05, max_seconds=10 * _first_round_s(opt, 4096))
+    assert [(r.surfaces, r.power_w, r.stderr_w, r.rays) for r in capped.rows] == \
+        [(r.surfaces, r.power_w, r.stderr_w, r.rays) for r in free.rows]
+    assert not capped.warnings and capped.notes == free.notes
+
+
+def test_ghosts_the_cap_left_untraced_have_no_estimate(tmp_path, monkeypatch):
+    """With its batches fixed (batch_rays given: no shrink), a cap shorter than one batch each leaves ghosts
+    untraced: those are listed last with no power, error or fraction (None; null in ghosts.json, empty in
+    ghosts.csv, "not traced" in ghosts.md), never as a measured 0, and a warning says how many."""
+    from straylight.analyses.ghost_trace import write_table
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    _fake_clock(monkeypatch)
+    table = ghost_table(opt, target_rel_error=0.001, batch_rays=4096, max_seconds=0.3 * _first_round_s(opt, 4096))
+    traced = [r for r in table.rows if r.rays]
+    untraced = [r for r in table.rows if not r.rays]
+    assert traced and untraced and table.rows == traced + untraced
+    assert all(r.rays == 4096 and r.power_w > 0 for r in traced)
+    assert all(r.power_w is None and r.stderr_w is None and r.fraction_of_nominal is None and r.upper_w is None
+               for r in untraced)
+    assert any(w.startswith(f"{len(untraced)} of 15 ghosts were not traced before the time cap") for w in table.warnings)
+    assert any(w.startswith(f"{len(traced)} of 15 ghosts were stopped by the time cap") for w in table.warnings)
+    write_table(table, tmp_path / "g")
+    doc = json.loads((tmp_path / "g" / "ghosts.json").read_text(),
+                     parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    last = doc["ghosts"][-1]
+    assert last["power_w"] is None and last["stderr_w"] is None and last["fraction_of_nominal"] is None
+    assert last["rays"] == 0
+    rows = (tmp_path / "g" / "ghosts.csv").read_text().splitlines()
+    cells = rows[-1].split(",")
+    assert cells[2:5] == ["", "", ""] and cells[8] == "0"
+    assert "| not traced (time cap) |" in (tmp_path / "g" / "ghosts.md").read_text()
+
+
+def test_the_command_warns_of_what_to_act_on_and_notes_the_rest(tmp_path, monkeypatch, capsys):
+    """`ghosts --max-seconds S`: a cap that stops ghosts is a warning, one `straylight: warning:` line each; how
+    the table was traced (ghosts aimed at the part of the beam that gets through) is a note in ghosts.md and the
+    printed table, never on stderr."""
+    from straylight.cli.main import main
+
+    scene = _cooke(tmp_path / "lens")
+    capsys.readouterr()
+    out = tmp_path / "g"
+    assert main(["ghosts", str(scene), "--out", str(out), "--no-view3d"]) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err, captured.err  # the Cooke triplet to 2 %: nothing to act on
+    md = (out / "ghosts.md").read_text()
+    assert "Note: " in md and "were aimed at that part" in md and "Warning:" not in md
+    assert "were aimed at that part" in captured.out
+    notes = json.loads((out / "ghosts.json").read_text())["notes"]
+    assert len(notes) == 1 and "were aimed at that part" in notes[0]
+
+    _fake_clock(monkeypatch)
+    assert main(["ghosts", str(scene), "--out", str(out), "--no-view3d", "--target-rel-error", "0.001",
+                 "--max-seconds", "0.5"]) == 0
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert err and all(line.startswith("straylight: warning: ") for line in err), err
+    assert any("were stopped by the time cap (--max-seconds 0.5)" in line for line in err), err
+    assert not any("aimed" in line for line in err), err
+    md = (out / "ghosts.md").read_text()
+    assert "Warning: " in md and "time cap" in md
+    assert "Warning:" not in captured.out  # printed once, on stderr
+    doc = json.loads((out / "ghosts.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
+    assert any("time cap" in n for n in doc["notes"])
