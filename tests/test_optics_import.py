@@ -266,6 +266,62 @@ def test_a_truncated_lens_file_is_refused_in_one_line_naming_it(tmp_path):
     assert str(cut) in lines[0] and "no ray passes the system" in lines[0], lines[0]
 
 
+def _cut_nikkor_20mm(how: str) -> bytes:
+    """Nikon_Nikkor_20mm_f4.zmx (21 surfaces, ASCII, CRLF) cut inside its surface list as a download that stopped
+    would leave it: after surface 8's DISZ line (``line``), inside its DIAM line (``mid-line``), or after its whole
+    block (``block``: surface 8, a glass's front, read as the image)."""
+    raw = (LENSES / "OpticsDatabase" / "Nikon_Nikkor_20mm_f4.zmx").read_bytes()
+    lines = raw.decode("latin-1").splitlines(keepends=True)
+    surf = [k for k, ln in enumerate(lines) if ln.startswith("SURF")]
+    assert len(surf) == 21
+    block = lines[surf[8]:surf[9]]
+    disz = surf[8] + next(k for k, ln in enumerate(block) if ln.split()[:1] == ["DISZ"])
+    diam = surf[8] + next(k for k, ln in enumerate(block) if ln.split()[:1] == ["DIAM"])
+    cut = {"line": "".join(lines[:disz + 1]), "mid-line": "".join(lines[:diam]) + lines[diam][:9],
+           "block": "".join(lines[:surf[9]])}[how]
+    return cut.encode("latin-1")
+
+
+@pytest.mark.parametrize("how, words", [
+    ("line", "line 126: the file ends inside surface 8, which has no DIAM line"),
+    ("mid-line", "line 128: the file ends inside surface 8, which has no POPS line"),
+    ("block", "line 127: the last surface (8) has glass ___BLANK after it, as a lens surface has: no image surface"),
+])
+def test_a_zemax_file_cut_inside_its_surface_list_is_refused_naming_the_line(how, words, tmp_path):
+    """A Zemax file cut short inside its surfaces (a download that stopped) was read as a shorter lens, without a
+    word (the cut Nikkor: 7 optical surfaces, EFL -32 mm): now one line naming the file, the line and the surface."""
+    cut = tmp_path / "cut.zmx"
+    cut.write_bytes(_cut_nikkor_20mm(how))
+    r = _run("optics", "import", cut, "--out", tmp_path / "out")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert str(cut) in lines[0] and words in lines[0], lines[0]
+    assert not (tmp_path / "out" / "scene.toml").exists()
+
+
+def test_a_utf16_zemax_file_cut_inside_a_character_is_refused(tmp_path):
+    raw = (LENSES / "OpticsDatabase" / "Triplet_GB22607_Taylor1893.zmx").read_bytes()
+    cut = tmp_path / "cut.zmx"
+    cut.write_bytes(raw[:(2 * len(raw) // 3) | 1])  # an odd byte count: half a UTF-16 character at the end
+    r = _run("optics", "import", cut, "--out", tmp_path / "out")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert str(cut) in lines[0] and "the file ends inside a character" in lines[0], lines[0]
+
+
+def test_short_lens_files_and_a_whole_file_ending_inside_its_image_block_import(tmp_path):
+    """The truncation signs never fire on a whole file: a doublet of three surfaces, and DeepLens-style files whose
+    image block is the file's last line (the Nikkor with its trailing TOL/MNUM lines removed)."""
+    for name in ("Edmund_32-299.zmx", "Apochromat_Doublet.zmx"):
+        r = _run("optics", "import", LENSES / "OpticsDatabase" / name, "--out", tmp_path / name)
+        assert r.returncode == 0, r.stderr
+    raw = (LENSES / "OpticsDatabase" / "Nikon_Nikkor_20mm_f4.zmx").read_bytes().decode("latin-1")
+    whole = tmp_path / "no_trailer.zmx"
+    whole.write_bytes(raw[:raw.index("\nTOL ") + 1].rstrip("\r\n").encode("latin-1"))  # ends in the image's POPS line
+    r = _run("optics", "import", whole, "--out", tmp_path / "whole")
+    assert r.returncode == 0, r.stderr
+
+
 def _y_at(surfaces, k):
     """Paraxial marginal ray height at the table's surface after its first ``k`` for a unit ray height on the first
     (y-nu: n'u' = nu - y (n' - n) c, y' = y + t u)."""

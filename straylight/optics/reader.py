@@ -129,6 +129,78 @@ def sniff_format(raw: bytes, path: Path) -> tuple[str, str]:
                           "no SURF or S/SO/SI commands found")
 
 
+def _zemax_blocks(text: str) -> list:
+    """The Zemax file's surface blocks: ``[(surface number, line number of its SURF line, [(line number, words)])]``
+    (lines numbered from 1). OpticStudio indents a surface's lines; a block ends at the next ``SURF`` or at an
+    unindented command after indented ones (``TOL``, ``MNUM``, ``CONF``... the file's trailing sections)."""
+    blocks: list = []
+    for n, line in enumerate(text.splitlines(), start=1):
+        words = line.split()
+        if not words:
+            continue
+        if words[0].upper() == "SURF":
+            blocks.append([words[1] if len(words) > 1 else "?", n, [], True])
+        elif blocks and blocks[-1][3]:
+            body = blocks[-1][2]
+            if body and body[0][2] and not line[:1].isspace():
+                blocks[-1][3] = False
+            else:
+                body.append((n, [w.upper() if k == 0 else w for k, w in enumerate(words)], line[:1].isspace()))
+    return [(k, n, [(m, w) for m, w, _ in body]) for k, n, body, _ in blocks]
+
+
+def _zemax_truncation(text: str) -> str | None:
+    """Where a Zemax file stops inside its surface list (a download cut short, a converter that stopped), as
+    ``"line N: ..."``; None for a whole file. Signs, each absent from every whole file of the corpus (1218
+    OpticsDatabase files, docs/optics.md): the text ends inside a character (UTF-16 cut at an odd byte); the file
+    ends inside its last surface's block and that block lacks a command every other surface has, or its last line
+    has fewer fields than that command has on every other surface, or is a lone fragment of a command name; the
+    last surface (the image) has a glass or a thickness after it, as a lens surface has."""
+    lines = text.splitlines()
+    last = max((n for n, ln in enumerate(lines, start=1) if ln.strip()), default=0)
+    if text.rstrip().endswith("\ufffd"):
+        return f"line {last}: the file ends inside a character (cut short?)"
+    blocks = _zemax_blocks(text)
+    if len(blocks) < 2:
+        return f"line {last}: the file has no surface after surface {blocks[0][0]} (cut short?)" if blocks else None
+    k, at, body = blocks[-1]
+    heads = {w[0] for _, w in body}
+    mid_line = not text.endswith(("\n", "\r"))  # a cut inside a line leaves no line end (whole files may end so)
+    if (body[-1][0] if body else at) == last:  # the file ends inside the last surface's block
+        common = set.intersection(*({w[0] for _, w in b} for _, _, b in blocks[:-1]))
+        missing = [h for h in ("TYPE", "CURV", "DISZ", "DIAM") if h in common - heads] or sorted(common - heads)
+        if missing:
+            return (f"line {last}: the file ends inside surface {k}, which has no {', '.join(missing[:3])} line"
+                    + ("s (every other surface has them)" if len(missing) > 1 else " (every other surface has one)")
+                    + ": cut short?")
+        words = body[-1][1] if body else []
+        counts = [len(w) for _, _, b in blocks[:-1] for _, w in b if words and w[0] == words[0]]
+        if mid_line and counts and len(words) < min(counts):
+            return (f"line {last}: the file ends inside surface {k}'s {words[0]} line ({len(words)} fields, "
+                    f"{min(counts)} on every other surface): cut short?")
+        others = {w[0] for _, _, b in blocks for m, w in b if m != last} | {"SURF"}
+        if mid_line and len(words) == 1 and words[0] not in others and any(h.startswith(words[0]) for h in others):
+            return f"line {last}: the file ends inside a command ({words[0]!r}): cut short?"
+    for n, words in body:
+        if words[0] == "GLAS" and len(words) > 1 and words[1].upper() not in ("AIR", "MIRROR"):
+            return (f"line {n}: the last surface ({k}) has glass {words[1]} after it, as a lens surface has: no "
+                    "image surface (cut short, or written without one?)")
+    for n, words in body:
+        if words[0] == "DISZ" and len(words) > 1 and _number(words[1]) not in (None, 0.0):
+            return (f"line {n}: the last surface ({k}) has a thickness ({words[1]}) after it, as a lens surface has: "
+                    "no image surface (cut short, or written without one?)")
+    return None
+
+
+def _number(word: str) -> float | None:
+    """A file's finite number, or None."""
+    try:
+        value = float(word)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
+
+
 def _surface_commands(fmt: str, text: str):
     """Each command of a lens file with the index of the surface it belongs to: ``(index or None, HEAD, words)``.
 
@@ -583,6 +655,9 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     except OSError as exc:
         raise OpticsFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     fmt, text = sniff_format(raw, path)
+    cut = _zemax_truncation(text) if fmt == "zmx" else None
+    if cut:
+        raise OpticsFileError(f"{path}: {cut}")
     try:
         return _read_prescription(path, raw, fmt, text, [], wavelength_nm, glass, force)
     except _ReaderFailure:
