@@ -355,6 +355,21 @@ def test_mirrors_written_as_a_medium_of_index_minus_one_are_mirrors(tmp_path):
     assert abs(y_image) < 1e-4
 
 
+@pytest.mark.parametrize("edit, words", [
+    (("-1  0 0 0", "-1.5  0 0 0"), "surface 6 (line 109): a medium of negative index (nd -1.5, thickness 0)"),
+    (("DISZ  -8.8", "DISZ  0"), "surface 6 (line 109): a mirror written as index -1 whose neighbours of no thickness "
+                                "(surface 8) differ from it in shape or medium"),
+])
+def test_a_negative_index_that_is_not_such_a_mirror_is_refused(edit, words, tmp_path):
+    text = (LENSES / "OpticsDatabase" / "Nikon_Reflex-Nikkor-C_500mm_F8.zmx").read_bytes().decode("latin-1")
+    assert text.count(edit[0]) >= 1
+    lens = tmp_path / "edited.zmx"
+    lens.write_bytes(text.replace(edit[0], edit[1], 1).encode("latin-1"))
+    r = _run("optics", "import", lens, "--out", tmp_path / "out")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and str(lens) in lines[0] and words in lines[0], r.stderr
+
+
 def test_a_solid_catadioptric_whose_file_ends_inside_the_lens_is_refused(tmp_path):
     """The Vivitar Series 1 450 mm f/4.5 "Solid Mirror" read as EFL 2256 mm: its two mirrors (index -1) were air,
     leaving its front lens alone (f = 1107.79 / 0.491). With them read, the file as written has EFL 352.5 mm, and

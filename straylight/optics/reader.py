@@ -229,7 +229,7 @@ def _zemax_index_mirrors(text: str, problems: list) -> tuple[str, list]:
         return _number(words[1]) if words and len(words) > 1 else 0.0
 
     mirrors = []
-    for j, (k, at, body) in enumerate(blocks):
+    for j, (k, _, body) in enumerate(blocks):
         n_glas, glas = find(body, "GLAS")
         if not glas or glas[1:2] != ["___BLANK"] or len(glas) < 5 or (_number(glas[4]) or 0.0) >= 0.0:
             continue
