@@ -149,6 +149,11 @@ def _zemax_blocks(text: str) -> list:
     return [(k, n, [(m, w) for m, w, _ in body]) for k, n, body, _ in blocks]
 
 
+#: commands a whole surface may lack (hand-written files: a stop without TYPE or CURV, a surface in air without
+#: GLAS), not signs of a cut whatever the file's other surfaces have
+OPTIONAL_SURFACE_COMMANDS = frozenset({"TYPE", "CURV", "GLAS", "STOP"})
+
+
 def _zemax_truncation(text: str) -> str | None:
     """Where a Zemax file stops inside its surface list (a download cut short, a converter that stopped), as
     ``"line N: ..."``; None for a whole file. Signs, each absent from every whole file of the corpus (1218
@@ -167,8 +172,8 @@ def _zemax_truncation(text: str) -> str | None:
     heads = {w[0] for _, w in body}
     mid_line = not text.endswith(("\n", "\r"))  # a cut inside a line leaves no line end (whole files may end so)
     if (body[-1][0] if body else at) == last:  # the file ends inside the last surface's block
-        common = set.intersection(*({w[0] for _, w in b} for _, _, b in blocks[:-1]))
-        missing = [h for h in ("TYPE", "CURV", "DISZ", "DIAM") if h in common - heads] or sorted(common - heads)
+        common = set.intersection(*({w[0] for _, w in b} for _, _, b in blocks[:-1])) - OPTIONAL_SURFACE_COMMANDS
+        missing = [h for h in ("DISZ", "DIAM") if h in common - heads] or sorted(common - heads)
         if missing:
             return (f"line {last}: the file ends inside surface {k}, which has no {', '.join(missing[:3])} line"
                     + ("s (every other surface has them)" if len(missing) > 1 else " (every other surface has one)")
