@@ -26,6 +26,8 @@ REFUSED = {
     "telescope_objective.seq": "could not parse",        # a glass catalogue (DAIMON) opticalglass lacks
     # its XASPHERE terms as Zemax defines them (even powers) give 1e22 mm of sag at the rim: not a surface
     "Sigma_14-24mm_F2.8_DG_DN_A.zmx": "surface 5: the asphere's terms give a sag of -2.12e+22 mm",
+    # its mirrors read, the file ends on a lone surface with the image on it: the patent's rear groups are missing
+    "Vivitar_Series_1_450mm_F4.5_Solid_Mirror.zmx": "the image surface is on surface 9",
 }
 
 
@@ -264,6 +266,123 @@ def test_a_truncated_lens_file_is_refused_in_one_line_naming_it(tmp_path):
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
     assert str(cut) in lines[0] and "no ray passes the system" in lines[0], lines[0]
+
+
+def _cut_nikkor_20mm(how: str) -> bytes:
+    """Nikon_Nikkor_20mm_f4.zmx (21 surfaces, ASCII, CRLF) cut inside its surface list as a download that stopped
+    would leave it: after surface 8's DISZ line (``line``), inside its DIAM line (``mid-line``), or after its whole
+    block (``block``: surface 8, a glass's front, read as the image)."""
+    raw = (LENSES / "OpticsDatabase" / "Nikon_Nikkor_20mm_f4.zmx").read_bytes()
+    lines = raw.decode("latin-1").splitlines(keepends=True)
+    surf = [k for k, ln in enumerate(lines) if ln.startswith("SURF")]
+    assert len(surf) == 21
+    block = lines[surf[8]:surf[9]]
+    disz = surf[8] + next(k for k, ln in enumerate(block) if ln.split()[:1] == ["DISZ"])
+    diam = surf[8] + next(k for k, ln in enumerate(block) if ln.split()[:1] == ["DIAM"])
+    cut = {"line": "".join(lines[:disz + 1]), "mid-line": "".join(lines[:diam]) + lines[diam][:9],
+           "block": "".join(lines[:surf[9]])}[how]
+    return cut.encode("latin-1")
+
+
+@pytest.mark.parametrize("how, words", [
+    ("line", "line 126: the file ends inside surface 8, which has no DIAM line"),
+    ("mid-line", "line 128: the file ends inside surface 8, which has no POPS line"),
+    ("block", "line 127: the last surface (8) has glass ___BLANK after it, as a lens surface has: no image surface"),
+])
+def test_a_zemax_file_cut_inside_its_surface_list_is_refused_naming_the_line(how, words, tmp_path):
+    """A Zemax file cut short inside its surfaces (a download that stopped) was read as a shorter lens, without a
+    word (the cut Nikkor: 7 optical surfaces, EFL -32 mm): now one line naming the file, the line and the surface."""
+    cut = tmp_path / "cut.zmx"
+    cut.write_bytes(_cut_nikkor_20mm(how))
+    r = _run("optics", "import", cut, "--out", tmp_path / "out")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert str(cut) in lines[0] and words in lines[0], lines[0]
+    assert not (tmp_path / "out" / "scene.toml").exists()
+
+
+def test_a_utf16_zemax_file_cut_inside_a_character_is_refused(tmp_path):
+    raw = (LENSES / "OpticsDatabase" / "Triplet_GB22607_Taylor1893.zmx").read_bytes()
+    cut = tmp_path / "cut.zmx"
+    cut.write_bytes(raw[:(2 * len(raw) // 3) | 1])  # an odd byte count: half a UTF-16 character at the end
+    r = _run("optics", "import", cut, "--out", tmp_path / "out")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert str(cut) in lines[0] and "the file ends inside a character" in lines[0], lines[0]
+
+
+def test_short_lens_files_and_a_whole_file_ending_inside_its_image_block_import(tmp_path):
+    """The truncation signs never fire on a whole file: a doublet of three surfaces, and DeepLens-style files whose
+    image block is the file's last line (the Nikkor with its trailing TOL/MNUM lines removed)."""
+    for name in ("Edmund_32-299.zmx", "Apochromat_Doublet.zmx"):
+        r = _run("optics", "import", LENSES / "OpticsDatabase" / name, "--out", tmp_path / name)
+        assert r.returncode == 0, r.stderr
+    raw = (LENSES / "OpticsDatabase" / "Nikon_Nikkor_20mm_f4.zmx").read_bytes().decode("latin-1")
+    whole = tmp_path / "no_trailer.zmx"
+    whole.write_bytes(raw[:raw.index("\nTOL ") + 1].rstrip("\r\n").encode("latin-1"))  # ends in the image's POPS line
+    r = _run("optics", "import", whole, "--out", tmp_path / "whole")
+    assert r.returncode == 0, r.stderr
+
+
+def _signed_index_trace(surfaces):
+    """(EFL, ray height at the image) of a unit-height paraxial ray through the written surface table, mirrors
+    included, in the signed-index convention (a mirror: n' = -n; the media after it carry the sign; thicknesses as
+    written, negative after one reflection: Welford, Aberrations of Optical Systems, sec. 2.4), independent of
+    rayoptics' own paraxial model."""
+    y, nu, n = 1.0, 0.0, 1.0
+    for s in surfaces:
+        c = 0.0 if s["radius_mm"] is None else 1.0 / s["radius_mm"]
+        n_after = -n if s["mirror"] else math.copysign(s["n"], n)
+        nu = nu - y * (n_after - n) * c
+        n = n_after
+        y = y + s["thickness_mm"] * nu / n
+    return -1.0 / nu, y
+
+
+def test_mirrors_written_as_a_medium_of_index_minus_one_are_mirrors(tmp_path):
+    """OpticsDatabase's catadioptric lenses write each mirror as refraction into a medium of index -1 of no thickness
+    (``GLAS ___BLANK 1 0 -1``). It was read as air: the Reflex-Nikkor-C 500 mm f/8's two Mangin mirrors vanished
+    (EFL -224 mm). Read as mirrors inside their glass, its EFL is the signed-index paraxial trace's and its name's,
+    500 mm, and the paraxial focus is on the file's image surface."""
+    r = _run("optics", "import", LENSES / "OpticsDatabase" / "Nikon_Reflex-Nikkor-C_500mm_F8.zmx", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "surface(s) 6, 12: a medium of index -1 with no thickness" in r.stderr, r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    assert [s["name"] for s in doc["surfaces"] if s["mirror"]] == ["s6", "s12"]
+    assert {s["glass"] for s in doc["surfaces"] if s["mirror"]} == {"541.472", "548.459"}  # each inside its glass
+    efl, y_image = _signed_index_trace(doc["surfaces"])
+    assert math.isclose(doc["efl_mm"], efl, rel_tol=1e-6) and abs(doc["efl_mm"] - 500.0) < 0.5, doc["efl_mm"]
+    assert abs(y_image) < 1e-4
+
+
+@pytest.mark.parametrize("edit, words", [
+    (("-1  0 0 0", "-1.5  0 0 0"), "surface 6 (line 109): a medium of negative index (nd -1.5, thickness 0)"),
+    (("DISZ  -8.8", "DISZ  0"), "surface 6 (line 109): a mirror written as index -1 whose neighbours of no thickness "
+                                "(surface 8) differ from it in shape or medium"),
+])
+def test_a_negative_index_that_is_not_such_a_mirror_is_refused(edit, words, tmp_path):
+    text = (LENSES / "OpticsDatabase" / "Nikon_Reflex-Nikkor-C_500mm_F8.zmx").read_bytes().decode("latin-1")
+    assert text.count(edit[0]) >= 1
+    lens = tmp_path / "edited.zmx"
+    lens.write_bytes(text.replace(edit[0], edit[1], 1).encode("latin-1"))
+    r = _run("optics", "import", lens, "--out", tmp_path / "out")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and str(lens) in lines[0] and words in lines[0], r.stderr
+
+
+def test_a_solid_catadioptric_whose_file_ends_inside_the_lens_is_refused(tmp_path):
+    """The Vivitar Series 1 450 mm f/4.5 "Solid Mirror" read as EFL 2256 mm: its two mirrors (index -1) were air,
+    leaving its front lens alone (f = 1107.79 / 0.491). With them read, the file as written has EFL 352.5 mm, and
+    it ends on a lone surface (R 634.3 mm, air on both sides) with the image surface on it, 77.9 mm short of the
+    focus: the rear positive and negative groups of its patent (US 4,523,816, claim 1) are not in the file. That
+    is refused in one line, not imported as a 352 mm lens under a 450 mm name."""
+    lens = LENSES / "OpticsDatabase" / "Vivitar_Series_1_450mm_F4.5_Solid_Mirror.zmx"
+    r = _run("optics", "import", lens, "--out", tmp_path / "out")
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith("warning:")]
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert str(lens) in lines[0], lines[0]
+    assert ("the image surface is on surface 9 (R 634.3 mm, no distance between) but the lens as written focuses "
+            "77.88 mm from it (EFL 352.5 mm): the file ends before the lens does") in lines[0], lines[0]
 
 
 def _y_at(surfaces, k):

@@ -130,6 +130,153 @@ def sniff_format(raw: bytes, path: Path) -> tuple[str, str]:
                           "no SURF or S/SO/SI commands found")
 
 
+def _zemax_blocks(text: str) -> list:
+    """The Zemax file's surface blocks: ``[(surface number, line number of its SURF line, [(line number, words)])]``
+    (lines numbered from 1). OpticStudio indents a surface's lines; a block ends at the next ``SURF`` or at an
+    unindented command after indented ones (``TOL``, ``MNUM``, ``CONF``... the file's trailing sections)."""
+    blocks: list = []
+    for n, line in enumerate(text.splitlines(), start=1):
+        words = line.split()
+        if not words:
+            continue
+        if words[0].upper() == "SURF":
+            blocks.append([words[1] if len(words) > 1 else "?", n, [], True])
+        elif blocks and blocks[-1][3]:
+            body = blocks[-1][2]
+            if body and body[0][2] and not line[:1].isspace():
+                blocks[-1][3] = False
+            else:
+                body.append((n, [w.upper() if k == 0 else w for k, w in enumerate(words)], line[:1].isspace()))
+    return [(k, n, [(m, w) for m, w, _ in body]) for k, n, body, _ in blocks]
+
+
+#: commands a whole surface may lack (hand-written files: a stop without TYPE or CURV, a surface in air without
+#: GLAS), not signs of a cut whatever the file's other surfaces have
+OPTIONAL_SURFACE_COMMANDS = frozenset({"TYPE", "CURV", "GLAS", "STOP"})
+
+
+def _zemax_truncation(text: str) -> str | None:
+    """Where a Zemax file stops inside its surface list (a download cut short, a converter that stopped), as
+    ``"line N: ..."``; None for a whole file. Signs, each absent from every whole file of the corpus (1218
+    OpticsDatabase files, docs/optics.md): the text ends inside a character (UTF-16 cut at an odd byte); the file
+    ends inside its last surface's block and that block lacks a command every other surface has, or its last line
+    has fewer fields than that command has on every other surface, or is a lone fragment of a command name; the
+    last surface (the image) has a glass or a thickness after it, as a lens surface has."""
+    lines = text.splitlines()
+    last = max((n for n, ln in enumerate(lines, start=1) if ln.strip()), default=0)
+    if text.rstrip().endswith("\ufffd"):
+        return f"line {last}: the file ends inside a character (cut short?)"
+    blocks = _zemax_blocks(text)
+    if len(blocks) < 2:
+        return f"line {last}: the file has no surface after surface {blocks[0][0]} (cut short?)" if blocks else None
+    k, at, body = blocks[-1]
+    heads = {w[0] for _, w in body}
+    mid_line = not text.endswith(("\n", "\r"))  # a cut inside a line leaves no line end (whole files may end so)
+    if (body[-1][0] if body else at) == last:  # the file ends inside the last surface's block
+        common = set.intersection(*({w[0] for _, w in b} for _, _, b in blocks[:-1])) - OPTIONAL_SURFACE_COMMANDS
+        missing = [h for h in ("DISZ", "DIAM") if h in common - heads] or sorted(common - heads)
+        if missing:
+            return (f"line {last}: the file ends inside surface {k}, which has no {', '.join(missing[:3])} line"
+                    + ("s (every other surface has them)" if len(missing) > 1 else " (every other surface has one)")
+                    + ": cut short?")
+        words = body[-1][1] if body else []
+        counts = [len(w) for _, _, b in blocks[:-1] for _, w in b if words and w[0] == words[0]]
+        if mid_line and counts and len(words) < min(counts):
+            return (f"line {last}: the file ends inside surface {k}'s {words[0]} line ({len(words)} fields, "
+                    f"{min(counts)} on every other surface): cut short?")
+        others = {w[0] for _, _, b in blocks for m, w in b if m != last} | {"SURF"}
+        if mid_line and len(words) == 1 and words[0] not in others and any(h.startswith(words[0]) for h in others):
+            return f"line {last}: the file ends inside a command ({words[0]!r}): cut short?"
+    for n, words in body:
+        if words[0] == "GLAS" and len(words) > 1 and words[1].upper() not in ("AIR", "MIRROR"):
+            return (f"line {n}: the last surface ({k}) has glass {words[1]} after it, as a lens surface has: no "
+                    "image surface (cut short, or written without one?)")
+    for n, words in body:
+        if words[0] == "DISZ" and len(words) > 1 and _number(words[1]) not in (None, 0.0):
+            return (f"line {n}: the last surface ({k}) has a thickness ({words[1]}) after it, as a lens surface has: "
+                    "no image surface (cut short, or written without one?)")
+    return None
+
+
+def _zemax_medium(words) -> tuple:
+    """A Zemax ``GLAS`` line's medium, comparable: ("air",) for none (or a model glass of nd 1), ("n", nd, vd) for
+    a model glass ``GLAS ___BLANK a b nd vd``, (NAME,) for a catalogue glass."""
+    if not words or len(words) < 2 or words[1].upper() == "AIR":
+        return ("air",)
+    if words[1] == "___BLANK" and len(words) >= 5:
+        nd, vd = _number(words[4]), _number(words[5]) if len(words) > 5 else 0.0
+        return ("air",) if nd == 1.0 else ("n", nd, vd)
+    return (words[1].upper(),)
+
+
+def _zemax_index_mirrors(text: str, problems: list) -> tuple[str, list]:
+    """The Zemax text with each mirror written as a medium of index -1 made a Zemax mirror, and those surfaces.
+
+    Files converted from patents (Bill Claff's, OpticsDatabase's catadioptric lenses) write a mirror as refraction
+    into n' = -1 (the paraxial sign convention of a reflection: n' = -n, Welford, Aberrations of Optical Systems,
+    sec. 2.4) with no thickness after it, between surfaces of the same shape and no thickness that carry the medium
+    in and out (``GLAS ___BLANK 1 0 -1``). rayoptics reads it as a medium of index -1 and the reader as air, so the
+    mirror vanished (the Reflex-Nikkor 500 mm had EFL -224 mm; it is 500 mm with its mirrors). Here that surface
+    is ``GLAS MIRROR`` (its medium after is the one before, as Zemax and rayoptics read a mirror), the surfaces of
+    no thickness before it carry the medium the mirror sits in (the last one with a thickness), and those after
+    it, at its place, must return to that medium: a Mangin's mirror inside its glass is one surface, the others
+    dummies. Anything else of negative index is a problem (refused)."""
+    blocks = _zemax_blocks(text)
+    lines = text.splitlines()
+
+    def find(body, head):
+        return next(((n, w) for n, w in body if w[0] == head), (None, None))
+
+    def thickness(j):
+        return _number(find(blocks[j][2], "DISZ")[1][1]) if find(blocks[j][2], "DISZ")[1] else 0.0
+
+    def curvature(j):
+        words = find(blocks[j][2], "CURV")[1]
+        return _number(words[1]) if words and len(words) > 1 else 0.0
+
+    mirrors = []
+    for j, (k, _, body) in enumerate(blocks):
+        n_glas, glas = find(body, "GLAS")
+        if not glas or glas[1:2] != ["___BLANK"] or len(glas) < 5 or (_number(glas[4]) or 0.0) >= 0.0:
+            continue
+        if _number(glas[4]) != -1.0 or thickness(j) != 0.0 or j in (0, len(blocks) - 1):
+            problems.append(f"surface {k} (line {n_glas}): a medium of negative index (nd {glas[4]}, thickness "
+                            f"{thickness(j):g}) that is not a mirror written as index -1 with no thickness after it")
+            continue
+        i = j - 1
+        while i > 0 and thickness(i) == 0.0:
+            i -= 1
+        medium = find(blocks[i][2], "GLAS")[1]
+        coincident = list(range(i + 1, j)) + [q for q in range(j + 1, len(blocks) - 1)
+                                              if all(thickness(m) == 0.0 for m in range(j, q))]
+        odd = [blocks[q][0] for q in coincident if curvature(q) != curvature(j)
+               or (q > j and _zemax_medium(find(blocks[q][2], "GLAS")[1]) != _zemax_medium(medium))]
+        if odd:
+            problems.append(f"surface {k} (line {n_glas}): a mirror written as index -1 whose neighbours of no "
+                            f"thickness (surface {odd[0]}) differ from it in shape or medium: not one mirror")
+            continue
+        indent = lines[n_glas - 1][:len(lines[n_glas - 1]) - len(lines[n_glas - 1].lstrip())]
+        lines[n_glas - 1] = f"{indent}GLAS MIRROR 0 0 0 0"
+        for p in range(i + 1, j):  # the surfaces before it, of no thickness: the medium it sits in
+            n_p, _ = find(blocks[p][2], "GLAS")
+            carried = f"{indent}{' '.join(medium)}" if _zemax_medium(medium) != ("air",) else ""
+            if n_p is not None:
+                lines[n_p - 1] = carried
+            elif carried:
+                lines[blocks[p][1] - 1] += "\n" + carried
+        mirrors.append(k)
+    return "\n".join(lines) + "\n", mirrors
+
+
+def _number(word: str) -> float | None:
+    """A file's finite number, or None."""
+    try:
+        value = float(word)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
+
+
 def _surface_commands(fmt: str, text: str):
     """Each command of a lens file with the index of the surface it belongs to: ``(index or None, HEAD, words)``.
 
@@ -592,6 +739,28 @@ def _float_by_stop_size(opm, path: Path, why: str = "aperture floats by stop siz
     return f"{why}: entrance pupil {pupil.value:.6g} file units, the stop's semi-diameter {sd:g}"
 
 
+def _ends_inside_the_lens(surfaces: list, image_gap_mm: float, efl_mm: float, bfl_mm: float,
+                          afocal: bool) -> str | None:
+    """Why the file's image surface cannot be the lens's image (the file stops inside the lens: five of
+    OpticsDatabase's catadioptric lenses end so), or None: the image lies inside glass; or the image surface sits
+    on a curved last surface, no distance between, while the lens as written focuses elsewhere (by more than 1 %
+    of its focal length). Neither is so on any lens of the corpus or the sweep that images (docs/optics.md): a
+    sensor's cover glass puts the image on a flat surface, and teleconverters focus nowhere near theirs."""
+    last = surfaces[-1] if surfaces else None
+    if last is None:
+        return None
+    if abs(last.n - 1.0) > 1e-6 and not last.mirror:
+        return (f"the image lies inside glass (n {last.n:.5g} after surface {last.index}): the file "
+                "ends inside the lens (incomplete?)")
+    curved = last.radius_mm is not None or last.mirror
+    if image_gap_mm == 0.0 and curved and not afocal and abs(bfl_mm) > 0.01 * abs(efl_mm):
+        what = "mirror" if last.mirror else f"R {last.radius_mm:.6g} mm"
+        return (f"the image surface is on surface {last.index} ({what}, no distance between) but the lens as written "
+                f"focuses {bfl_mm:.4g} mm from it (EFL {efl_mm:.4g} mm): the file ends before the lens does "
+                "(incomplete?)")
+    return None
+
+
 def _set_wavelength(opm, wavelength_nm: float, path: Path) -> None:
     osp = opm["optical_spec"]
     osp["wvls"].set_from_list([[float(wavelength_nm), 1.0]])
@@ -613,6 +782,9 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     except OSError as exc:
         raise OpticsFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     fmt, text = sniff_format(raw, path)
+    cut = _zemax_truncation(text) if fmt == "zmx" else None
+    if cut:
+        raise OpticsFileError(f"{path}: {cut}")
     try:
         return _read_prescription(path, raw, fmt, text, [], wavelength_nm, glass, force)
     except _ReaderFailure:
@@ -645,6 +817,14 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
             raw, text = typed.encode("utf-8"), typed
             notes.append(f"surface(s) {', '.join(map(str, fixed))}: conic or asphere terms without a profile type: read "
                          "as an even asphere (ASP; CON for K alone)")
+    if fmt == "zmx":
+        bad: list = []
+        text, mirrors = _zemax_index_mirrors(text, bad)
+        if bad:
+            raise OpticsFileError(f"{path}: {bad[0]}")
+        if mirrors:
+            notes.append(f"surface(s) {', '.join(map(str, mirrors))}: a medium of index -1 with no thickness, the sign "
+                         "convention of a reflection, read as a mirror (Zemax MIRROR) in the medium it sits in")
     opm, info = _open_rayoptics(path, fmt, _zmx_for_rayoptics(text) if fmt == "zmx" else raw)
     glass = dict(glass or {})
     sm = opm["seq_model"]
@@ -834,6 +1014,10 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
     fields = [float(f.y) for f in fov.fields]
     efl = float(fod.efl) * scale
     afocal = not (math.isfinite(efl) and 1e-9 < abs(efl) < 1e12)
+    incomplete = _ends_inside_the_lens(surfaces, float(sm.gaps[n_ifc - 2].thi) * scale, efl,
+                                       float(fod.bfl) * scale, afocal)
+    if incomplete:
+        raise OpticsFileError(f"{path}: {incomplete}")
     if afocal:
         notes.append("afocal as read (no finite focal length): efl, bfl and f/# are null")
     if fov.key[1] == "angle":

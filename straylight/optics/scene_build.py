@@ -58,6 +58,22 @@ def _same_geometry(a, b) -> bool:
     return abs(a.conic - b.conic) < 1e-12 and np.allclose(a.coefficients, b.coefficients)
 
 
+def _same_media(a, b) -> bool:
+    """Surfaces between the same two media, in either direction."""
+    return abs(min(a.n, a.n_before) - min(b.n, b.n_before)) < 1e-9 and abs(max(a.n, a.n_before)
+                                                                         - max(b.n, b.n_before)) < 1e-9
+
+
+def _leave_centre(placed_surface, radius_mm: float, optical: list) -> None:
+    """A surface met again between other media, within a smaller aperture (a catadioptric's rear group cemented in
+    its primary's centre: the Reflex-Nikkor 500 mm's last element against the Mangin's front) is its own part over
+    that centre: the part placed first keeps the annulus outside it (a hole, as the sequential check sees it)."""
+    part = next(pt for q, pt in optical if q is placed_surface)
+    inner = max(float(part["surface"].get("inner_radius_mm", 0.0)), radius_mm)
+    part["surface"]["inner_radius_mm"] = inner
+    placed_surface.inner_kind, placed_surface.inner_radius_mm = placed_surface.inner_kind or "hole", inner
+
+
 def _glass_label(name, n) -> str:
     return name if name else f"n{n:.5f}"
 
@@ -100,8 +116,11 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         return name
 
     for s in surfaces:
-        if any(_same_geometry(s, q) and s.mirror == q.mirror for q in placed):
+        twin = next((q for q in placed if _same_geometry(s, q) and s.mirror == q.mirror), None)
+        if twin is not None and (s.mirror or _same_media(s, twin) or s.semi_diameter_mm >= twin.semi_diameter_mm):
             continue  # the same physical surface met again (a Mangin's or a double pass)
+        if twin is not None:
+            _leave_centre(twin, s.semi_diameter_mm, optical)
         placed.append(s)
         inner = s.inner_radius_mm if s.inner_kind else 0.0
         outer = s.semi_diameter_mm
@@ -145,8 +164,12 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
             comp["coating"] = coat
             key += f"_{coat}" if isinstance(coat, str) else f"_mgf2_{round(coat[0]['thickness_nm'] * 4 * MGF2_N)}nm"
         materials.setdefault(key, {"name": key, "wavelength_nm": wl, "components": [comp]})
-        # a mirror on the same surface (a Mangin's or a Maksutov's aluminised spot) fills the centre
-        spot = max((m.semi_diameter_mm for m in mirrors if _same_geometry(m, s)), default=0.0)
+        # a mirror on the same surface: a Maksutov's aluminised spot fills the centre; a mirror with a hole (a Mangin
+        # primary's back, light leaving through its centre) leaves the glass its hole
+        same = [m for m in mirrors if _same_geometry(m, s)]
+        spot = max((m.semi_diameter_mm for m in same if not (m.inner_kind == "hole" and m.inner_radius_mm > 0)),
+                   default=0.0)
+        outer = min([outer] + [m.inner_radius_mm for m in same if m.inner_kind == "hole" and m.inner_radius_mm > 0])
         if spot > 0:
             inner = max(inner, spot)
             s.inner_kind, s.inner_radius_mm = (s.inner_kind or "obscuration"), inner  # as the trace sees it
