@@ -213,6 +213,10 @@ def parse_zemax(text: str, path="file", notes=None) -> dict:
                                                               endpoint=plane))
     if any(a < 0 or a >= 90 for a in aoi):
         raise BsdfFileError(f"{path}: AngleOfIncidence values must lie in [0, 90), got {aoi}")
+    for key, vals in (("AngleOfIncidence", aoi), ("SampleRotation", rot)):
+        twice = sorted({v for v in vals if list(vals).count(v) > 1})
+        if twice:
+            raise BsdfFileError(f"{path}: {key} lists {twice[0]:g} deg more than once")
     # data: numbers in order, with 'TIS v' markers
     per_block = n_az * len(rad)
     n_blocks = len(rot) * len(aoi)
@@ -268,11 +272,11 @@ def parse_zemax(text: str, path="file", notes=None) -> dict:
         notes.append(f"{n_nan} nodes above the horizon hold NaN (no measurement) and are left out: the table "
                      "interpolates over the measured nodes and holds the nearest one beyond them")
     _note_closing_rotation(rot, az, data, notes)
-    order = np.argsort(rot)
-    if len(rot) > 1:
-        blocks = [blocks[o * len(aoi) + j] for o in order for j in range(len(aoi))]
-        rot = [rot[o] for o in order]
-        tis = [tis[o * len(aoi) + j] for o in order for j in range(len(aoi))] if len(tis) == n_blocks else tis
+    # the format does not order its lists: rotations and incidences are sorted with their blocks
+    r_order, a_order = np.argsort(rot, kind="stable"), np.argsort(aoi, kind="stable")
+    blocks = [blocks[o * len(aoi) + j] for o in r_order for j in a_order]
+    tis = [tis[o * len(aoi) + j] for o in r_order for j in a_order] if len(tis) == n_blocks else tis
+    rot, aoi = [rot[o] for o in r_order], [aoi[j] for j in a_order]
     comp = {"type": "bsdf_table", "scatter": stype.lower(), "symmetry": "plane" if plane else "none",
             "rotation_deg": [float(v) for v in rot], "theta_i_deg": [float(v) for v in aoi], "blocks": blocks}
     if tis:

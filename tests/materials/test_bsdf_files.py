@@ -573,3 +573,20 @@ def test_a_real_file_above_the_energy_rule_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not physical" in err[0] and "incidence 12 deg" in err[0]
     assert not (tmp_path / "x.json").exists()
+
+
+def test_incidences_in_descending_order_read_as_ascending(tmp_path):
+    """The format does not order its lists: the same blocks listed 70, 50, 30, 10 give the same table;
+    an incidence listed twice is refused in one line."""
+    lines = (DATA / "AnoBlackEC1onAlum.bsdf").read_text().splitlines()
+    begin, end = lines.index("DataBegin"), lines.index("DataEnd")
+    tis = [k for k in range(begin, end) if lines[k].startswith("TIS")] + [end]
+    blocks = [lines[tis[k]:tis[k + 1]] for k in range(4)]
+    head = list(lines[:begin + 1])
+    k = head.index("AngleOfIncidence\t4") + 1
+    head[k] = "70\t50\t30\t10"
+    reversed_text = "\n".join(head + sum(blocks[::-1], []) + ["DataEnd"]) + "\n"
+    assert parse_zemax(reversed_text) == parse_zemax("\n".join(lines) + "\n")
+    head[k] = "10\t30\t30\t70"
+    with pytest.raises(BsdfFileError, match="AngleOfIncidence lists 30 deg more than once"):
+        parse_zemax("\n".join(head + sum(blocks, []) + ["DataEnd"]) + "\n")
