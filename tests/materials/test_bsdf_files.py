@@ -590,3 +590,22 @@ def test_incidences_in_descending_order_read_as_ascending(tmp_path):
     head[k] = "10\t30\t30\t70"
     with pytest.raises(BsdfFileError, match="AngleOfIncidence lists 30 deg more than once"):
         parse_zemax("\n".join(head + sum(blocks, []) + ["DataEnd"]) + "\n")
+
+
+@pytest.mark.parametrize("name", ["AnoBlackEC1onAlum.bsdf", "ValidationTest_of_TIS_via_BrownVinyl.bsdf", "test_nan.bsdf"])
+def test_every_zemax_node_above_the_horizon_comes_back(name):
+    """Out of plane too: each node's direction from the format's definition (cos R s + sin R (cos A e1
+    + sin A e2), e1 toward the normal, e2 = s x e1), its value within 1e-3 (a node whose value is 0
+    within 1e-6 of the block's largest: its position goes through degrees and back)."""
+    aoi, az, rad, data = _zemax_grid(DATA / name)
+    table = import_file(DATA / name)[0].components[0]
+    a, r = np.meshgrid(np.radians(az), np.radians(rad), indexing="ij")
+    for j, ti in enumerate(aoi):
+        t = math.radians(ti)
+        s, e1, e2 = np.array([math.sin(t), 0, math.cos(t)]), np.array([-math.cos(t), 0, math.sin(t)]), np.array([0, -1.0, 0])
+        wo = (np.cos(r)[..., None] * s + np.sin(r)[..., None] * (np.cos(a)[..., None] * e1 + np.sin(a)[..., None] * e2))
+        keep = (wo[..., 2] > 1e-3) & ~np.isnan(data[0, j]) & ((r > 0) | (a == 0))  # R = 0: one direction
+        want = data[0, j][keep]
+        wi = np.tile([-math.sin(t), 0.0, math.cos(t)], (len(want), 1))
+        got = table.brdf(wi, wo[keep])
+        np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-6 * want.max(), err_msg=f"{name} incidence {ti}")
