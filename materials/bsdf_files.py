@@ -12,7 +12,9 @@ Formats (docs/bsdf-files.md has the coordinate figure):
   direction; azimuth A = 0 points from it toward the sample normal, A = 90 toward -y of the
   incidence frame (y = z x specular azimuth). Files seen in the wild omit value lines
   (``SampleRotation 1`` alone means rotation 0; ``ScatterAzimuth 2`` alone in a
-  PlaneSymmetrical file means 0 and 180) and use tabs or runs of spaces: both are read.
+  PlaneSymmetrical file means 0 and 180) and use tabs or runs of spaces: both are read, as are
+  UTF-16 text, comment lines anywhere, lists in any order and ``NaN`` at unmeasured nodes (left
+  out; :func:`import_file` reports them among its ``notes``).
 * FRED tabulated BSDF: ``type bsdf_data``, ``format angles=deg|sin bsdf=value|log scale=S``
   (``exclude=``, ``num=`` are FRED interpolation hints: read and ignored), then blocks: a
   two-number line (specular theta0, azimuth f0; or a0, b0 with angles=sin) and rows
