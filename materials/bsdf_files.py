@@ -12,7 +12,9 @@ Formats (docs/bsdf-files.md has the coordinate figure):
   direction; azimuth A = 0 points from it toward the sample normal, A = 90 toward -y of the
   incidence frame (y = z x specular azimuth). Files seen in the wild omit value lines
   (``SampleRotation 1`` alone means rotation 0; ``ScatterAzimuth 2`` alone in a
-  PlaneSymmetrical file means 0 and 180) and use tabs or runs of spaces: both are read.
+  PlaneSymmetrical file means 0 and 180) and use tabs or runs of spaces: both are read, as are
+  UTF-16 text, comment lines anywhere, lists in any order and ``NaN`` at unmeasured nodes (left
+  out; :func:`import_file` reports them among its ``notes``).
 * FRED tabulated BSDF: ``type bsdf_data``, ``format angles=deg|sin bsdf=value|log scale=S``
   (``exclude=``, ``num=`` are FRED interpolation hints: read and ignored), then blocks: a
   two-number line (specular theta0, azimuth f0; or a0, b0 with angles=sin) and rows
@@ -57,8 +59,31 @@ def _num(tok: str, where: str) -> float:
     return float(tok.replace("d", "e").replace("D", "e"))
 
 
+_NAN = re.compile(r"^[+-]?nan$", re.I)
+
+
+def _value(tok: str, where: str) -> float:
+    """A BSDF value: a number, or NaN (a node the writer had no measurement for)."""
+    return math.nan if _NAN.match(tok) else _num(tok, where)
+
+
 def _tokens(line: str) -> list[str]:
     return [t for t in re.split(r"[\s,;]+", line.strip()) if t]
+
+
+def _utf16(raw: bytes):
+    """'utf-16' (a byte-order mark), 'utf-16-le' / 'utf-16-be' (ASCII text without one: every other
+    byte NUL, as Windows programs write "Unicode" text), or None."""
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        return "utf-16"
+    head = raw[:4096]
+    if len(head) >= 16 and len(head) % 2 == 0:
+        even, odd = head[0::2], head[1::2]
+        if odd.count(0) == len(odd) and even.count(0) == 0:
+            return "utf-16-le"
+        if even.count(0) == len(even) and odd.count(0) == 0:
+            return "utf-16-be"
+    return None
 
 
 def read_text(path) -> str:
@@ -67,6 +92,12 @@ def read_text(path) -> str:
         raw = path.read_bytes()
     except OSError as exc:
         raise BsdfFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    utf16 = _utf16(raw)
+    if utf16 is not None:
+        try:
+            return raw.decode(utf16)
+        except UnicodeDecodeError:
+            raise BsdfFileError(f"{path}: starts as UTF-16 text but does not decode as {utf16}") from None
     if b"\x00" in raw[:4096]:
         raise BsdfFileError(f"{path}: a binary file, not a Zemax tabular BSDF or a FRED tabulated BSDF text")
     for enc in ("utf-8-sig", "latin-1"):
@@ -106,8 +137,11 @@ def _zemax_direction(theta_spec, az, rad):
     return np.arccos(np.clip(w[..., 2], -1, 1)), np.arctan2(w[..., 1], w[..., 0]), w[..., 2]
 
 
-def parse_zemax(text: str, path="file") -> dict:
-    """The component dict (materials.bsdf_table) of a Zemax/Radiant tabular BSDF text."""
+def parse_zemax(text: str, path="file", notes=None) -> dict:
+    """The component dict (materials.bsdf_table) of a Zemax/Radiant tabular BSDF text; ``notes``
+    (a list) receives one line per thing the file does that the import reports (NaN nodes, a
+    closing rotation that disagrees with the first)."""
+    notes = [] if notes is None else notes
     lines = text.splitlines()
     head: dict = {}
     counts: dict = {}
@@ -137,7 +171,7 @@ def parse_zemax(text: str, path="file") -> dict:
             j = i + 1
             while len(vals) < cnt and j < n:
                 nt = _tokens(lines[j])
-                if not nt:
+                if not nt or nt[0].startswith("#"):  # blank and comment lines may sit anywhere
                     j += 1
                     continue
                 if not _is_num(nt[0]):
@@ -181,11 +215,17 @@ def parse_zemax(text: str, path="file") -> dict:
                                                               endpoint=plane))
     if any(a < 0 or a >= 90 for a in aoi):
         raise BsdfFileError(f"{path}: AngleOfIncidence values must lie in [0, 90), got {aoi}")
+    for key, vals in (("AngleOfIncidence", aoi), ("SampleRotation", rot)):
+        twice = sorted({v for v in vals if list(vals).count(v) > 1})
+        if twice:
+            raise BsdfFileError(f"{path}: {key} lists {twice[0]:g} deg more than once")
     # data: numbers in order, with 'TIS v' markers
     per_block = n_az * len(rad)
     n_blocks = len(rot) * len(aoi)
     nums: list[float] = []
     tis: list[float] = []
+    tis_at: list[tuple] = []  # (index into nums, line) of each TIS line: where a block starts
+    rows: list[tuple] = []  # (line, values on it)
     ended = False
     for k in range(data_start, n):
         toks = _tokens(lines[k])
@@ -195,33 +235,50 @@ def parse_zemax(text: str, path="file") -> dict:
             ended = True
             break
         if toks[0].lower() == "tis":
+            tis_at.append((len(nums), k + 1))
             if len(toks) > 1:
                 tis.append(_num(toks[1], f"{path}:{k + 1}"))
             continue
         if toks[0].lower() in ("monochrome", "databegin"):
             continue
-        nums += [_num(t, f"{path}:{k + 1}") for t in toks]
+        nums += [_value(t, f"{path}:{k + 1}") for t in toks]
+        rows.append((k + 1, len(toks)))
     if len(nums) != per_block * n_blocks:
+        where = _count_mismatch(tis_at, rows, len(nums), per_block, n_blocks, len(rad), rot, aoi)
+        body = "\n".join(lines[line - 1] for line, _ in rows[:50])
+        if re.search(r"\d,\d", body) and "." not in body:
+            where += "; the numbers use decimal commas (3,5E-02): the format needs decimal points"
         raise BsdfFileError(
             f"{path}: the data hold {len(nums)} values, expected {n_blocks} blocks x {n_az} azimuths x "
-            f"{len(rad)} radial angles = {per_block * n_blocks}" + ("" if ended else " (no DataEnd line)"))
+            f"{len(rad)} radial angles = {per_block * n_blocks}" + ("" if ended else " (no DataEnd line)") + where)
     data = np.asarray(nums).reshape(len(rot), len(aoi), n_az, len(rad))
-    if np.any(~np.isfinite(data)) or np.any(data < 0):
-        bad = np.argwhere(~(data >= 0))[0]
+    nan = np.isnan(data)
+    if np.any(np.isinf(data)) or np.any(data < 0):
+        bad = np.argwhere(np.isinf(data) | (data < 0))[0]
         raise BsdfFileError(f"{path}: negative or non-finite BSDF value at rotation {rot[bad[0]]:g} deg, "
                             f"incidence {aoi[bad[1]]:g} deg, azimuth {az[bad[2]]:g}, radial {rad[bad[3]]:g}")
     blocks = []
+    n_nan = 0
     for r in range(len(rot)):
         for j, a in enumerate(aoi):
             th, ph, cz = _zemax_direction(math.radians(a), np.radians(az), np.radians(rad))
-            keep = cz > 1e-6
+            above = cz > 1e-6
+            keep = above & ~nan[r, j]
+            n_nan += int(np.count_nonzero(above & nan[r, j]))
+            if not np.any(keep):
+                raise BsdfFileError(f"{path}: no value above the horizon at rotation {rot[r]:g} deg, incidence "
+                                    f"{a:g} deg (every node there is NaN)")
             blocks.append({"theta_r_deg": np.degrees(th[keep]).tolist(), "phi_r_deg": np.degrees(ph[keep]).tolist(),
                            "bsdf_per_sr": data[r, j][keep].tolist()})
-    order = np.argsort(rot)
-    if len(rot) > 1:
-        blocks = [blocks[o * len(aoi) + j] for o in order for j in range(len(aoi))]
-        rot = [rot[o] for o in order]
-        tis = [tis[o * len(aoi) + j] for o in order for j in range(len(aoi))] if len(tis) == n_blocks else tis
+    if n_nan:
+        notes.append(f"{n_nan} nodes above the horizon hold NaN (no measurement) and are left out: the table "
+                     "interpolates over the measured nodes and holds the nearest one beyond them")
+    _note_closing_rotation(rot, az, data, notes)
+    # the format does not order its lists: rotations and incidences are sorted with their blocks
+    r_order, a_order = np.argsort(rot, kind="stable"), np.argsort(aoi, kind="stable")
+    blocks = [blocks[o * len(aoi) + j] for o in r_order for j in a_order]
+    tis = [tis[o * len(aoi) + j] for o in r_order for j in a_order] if len(tis) == n_blocks else tis
+    rot, aoi = [rot[o] for o in r_order], [aoi[j] for j in a_order]
     comp = {"type": "bsdf_table", "scatter": stype.lower(), "symmetry": "plane" if plane else "none",
             "rotation_deg": [float(v) for v in rot], "theta_i_deg": [float(v) for v in aoi], "blocks": blocks}
     if tis:
@@ -229,11 +286,52 @@ def parse_zemax(text: str, path="file") -> dict:
     return comp
 
 
+def _count_mismatch(tis_at, rows, n_values, per_block, n_blocks, n_rad, rot, aoi) -> str:
+    """Where a Zemax data section's count goes wrong, for the one-line refusal: the first block
+    (between TIS lines) of the wrong size, else the first row that is not one radial scan."""
+    if len(tis_at) == n_blocks:
+        ends = [start for start, _ in tis_at[1:]] + [n_values]
+        for b, ((start, line), end) in enumerate(zip(tis_at, ends)):
+            if end - start != per_block:
+                r, j = divmod(b, len(aoi))
+                return (f"; the block from line {line} (rotation {rot[r]:g} deg, incidence {aoi[j]:g} deg) "
+                        f"holds {end - start}")
+    odd = [(line, c) for line, c in rows if c != n_rad]
+    if odd and len(odd) <= len(rows) // 2:
+        return f"; line {odd[0][0]} holds {odd[0][1]} values, not one per radial angle ({n_rad})"
+    return ""
+
+
+def _note_closing_rotation(rot, az, data, notes) -> None:
+    """A closing duplicate rotation (first + 360) is not a node of its own (rotations are periodic):
+    say so when its values differ from the first rotation's, and whether they are its azimuth mirror."""
+    order = np.argsort(rot)
+    first, last = int(order[0]), int(order[-1])
+    if len(rot) < 2 or rot[last] < rot[first] + 360.0 - 1e-9:
+        return
+    a, b = data[first], data[last]
+    both = ~np.isnan(a) & ~np.isnan(b)
+    differ = both & (np.abs(a - b) > 1e-3 * np.maximum(np.abs(a), np.abs(b)) + 1e-30)
+    if not np.any(differ):
+        return
+    line = (f"sample rotation {rot[last]:g} deg repeats rotation {rot[first]:g} deg but {int(differ.sum())} of "
+            f"{int(both.sum())} values differ; the table uses rotation {rot[first]:g} deg's")
+    mirror = [list(az).index((360.0 - x) % 360.0) if (360.0 - x) % 360.0 in az else -1 for x in az]
+    if -1 not in mirror:
+        m = a[:, mirror, :]
+        ok = ~np.isnan(m) & ~np.isnan(b)
+        if np.all(np.abs(m[ok] - b[ok]) <= 1e-3 * np.maximum(np.abs(m[ok]), np.abs(b[ok])) + 1e-30):
+            line += " (the file's last rotation is its first mirrored in azimuth, A -> 360 - A)"
+    notes.append(line)
+
+
 # ---------------------------------------------------------------------------------------- FRED
 
 
-def parse_fred(text: str, path="file") -> dict:
-    """The component dict of a FRED tabulated BSDF text (isotropic: symmetry 'plane')."""
+def parse_fred(text: str, path="file", notes=None) -> dict:
+    """The component dict of a FRED tabulated BSDF text (isotropic: symmetry 'plane'); ``notes`` as
+    for :func:`parse_zemax` (rows whose BSDF is NaN)."""
+    notes = [] if notes is None else notes
     lines = text.splitlines()
     fmt = {"angles": "deg", "bsdf": "value", "scale": "1"}
     blocks: list = []
@@ -255,7 +353,7 @@ def parse_fred(text: str, path="file") -> dict:
                     fmt[key.lower()] = val
             continue
         toks = _tokens(s)
-        nums = [_num(t, f"{path}:{k + 1}") for t in toks]
+        nums = [(_value if j == 2 else _num)(t, f"{path}:{k + 1}") for j, t in enumerate(toks)]
         if len(nums) == 2:
             blocks.append((nums, [], k + 1))
         elif len(nums) == 3:
@@ -277,10 +375,16 @@ def parse_fred(text: str, path="file") -> dict:
     if not blocks:
         raise BsdfFileError(f"{path}: no data blocks")
     merged: dict = {}
+    n_nan = 0
     for (h0, h1), rows, line_no in blocks:
         if not rows:
             raise BsdfFileError(f"{path}:{line_no}: specular direction with no data rows")
         r = np.asarray(rows, float)
+        measured = ~np.isnan(r[:, 2])
+        n_nan += int(np.count_nonzero(~measured))
+        if not np.any(measured):
+            raise BsdfFileError(f"{path}:{line_no}: every BSDF value of this block is NaN")
+        r = r[measured]
         if angles == "deg":
             th0, f0 = math.radians(h0), math.radians(h1)
             th, f = np.radians(r[:, 0]), np.radians(r[:, 1])
@@ -310,6 +414,8 @@ def parse_fred(text: str, path="file") -> dict:
         ent[0].extend(np.degrees(np.arcsin(rho)).tolist())
         ent[1].extend(np.degrees(np.arctan2(y, x)).tolist())
         ent[2].extend(vals.tolist())
+    if n_nan:
+        notes.append(f"{n_nan} rows hold NaN (no measurement) and are left out")
     tis = sorted(merged)
     return {"type": "bsdf_table", "scatter": "brdf", "symmetry": "plane", "rotation_deg": [0.0],
             "theta_i_deg": tis,
@@ -333,7 +439,8 @@ def import_file(path, name=None):
     if kind == "unknown":
         raise BsdfFileError(f"{path}: not a Zemax tabular BSDF (Symmetry/ScatterType/AngleOfIncidence/DataBegin) "
                             "nor a FRED tabulated BSDF ('type bsdf_data')")
-    comp = parse_zemax(text, path) if kind == "zemax" else parse_fred(text, path)
+    notes: list = []
+    comp = parse_zemax(text, path, notes) if kind == "zemax" else parse_fred(text, path, notes)
     table = build_component(comp, where=str(path))
     table.check_energy_table(str(path))
     material = Material(name=name or path.stem, wavelength_nm=None, components=(table,),
@@ -341,7 +448,7 @@ def import_file(path, name=None):
     report = {"format": kind, "scatter": table.scatter, "symmetry": table.symmetry,
               "rotation_deg": list(table.rotation_deg), "theta_i_deg": list(table.theta_i_deg),
               "tis_in_file": list(table.tis) if table.tis else None,
-              "dhr": [table.dhr(list(table.theta_i_deg), r).tolist() for r in table._rotations]}
+              "dhr": [table.dhr(list(table.theta_i_deg), r).tolist() for r in table._rotations], "notes": notes}
     return material, report
 
 

@@ -108,6 +108,8 @@ def cmd_import(args) -> int:
     print(f"{args.file}: {report['format']} tabulated {what}, symmetry {report['symmetry']}, "
           f"{len(report['theta_i_deg'])} incidences ({', '.join(f'{t:g}' for t in report['theta_i_deg'])} deg)"
           + (f", {len(rot)} sample rotations" if len(rot) > 1 else ""))
+    for note in report["notes"]:
+        print(f"note: {note}")
     label = "DHT" if report["scatter"] == "btdf" else "DHR"
     tis = report["tis_in_file"]
     nt = len(report["theta_i_deg"])

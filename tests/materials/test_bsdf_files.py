@@ -12,6 +12,7 @@ from __future__ import annotations
 import gzip
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,8 @@ from straylight.cli.main import main
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "bsdf"
 ZEMAX = ["AnoBlackEC1onAlum.bsdf", "ValidationTest_of_TIS_via_BrownVinyl.bsdf", "aeroglaze.bsdf"]
-FRED = ["AnoBlackEC1onAlum.txt", "AnoBlackEC1onAlum_fullAz.txt", "aeroglaze_bsdf_final.txt"]
+FRED = ["AnoBlackEC1onAlum.txt", "AnoBlackEC1onAlum_fullAz.txt", "aeroglaze_bsdf_final.txt",
+        "aeroglaze_20260608_vnir_validation_test_630o79nm.txt"]
 
 
 @pytest.fixture(scope="module")
@@ -112,8 +114,10 @@ def test_truncated_zemax_file_names_the_count(tmp_path):
 # ------------------------------------------------------------------------------------ nodes
 
 
-def test_zemax_in_plane_nodes_come_back_from_eval(tmp_path):
-    path = DATA / "AnoBlackEC1onAlum.bsdf"
+@pytest.mark.parametrize("name", ["AnoBlackEC1onAlum.bsdf", "test_nan.bsdf"])
+def test_zemax_in_plane_nodes_come_back_from_eval(name, tmp_path):
+    """Every in-plane node with a value (test_nan.bsdf: NaN nodes have none) within 1e-3."""
+    path = DATA / name
     out = tmp_path / "m.json"
     assert _run("material", "import", path, "-o", out) == 0
     aoi, az, rad, data = _zemax_grid(path)
@@ -123,14 +127,15 @@ def test_zemax_in_plane_nodes_come_back_from_eval(tmp_path):
         for a_idx, sign in ((az.index(0.0), -1.0), (az.index(180.0), 1.0)):
             for k, r in enumerate(rad):
                 t = ti + sign * r
-                if -89.0 <= t <= 89.0:
+                if -89.0 <= t <= 89.0 and not np.isnan(data[0, j, a_idx, k]):
                     thr.append(t)
                     want.append(data[0, j, a_idx, k])
         got = _eval(tmp_path, out, ti, thr)["brdf_per_sr"]
         np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-9, err_msg=f"incidence {ti}")
 
 
-@pytest.mark.parametrize("name", ["AnoBlackEC1onAlum_fullAz.txt", "aeroglaze_bsdf_final.txt"])
+@pytest.mark.parametrize("name", ["AnoBlackEC1onAlum_fullAz.txt", "aeroglaze_bsdf_final.txt",
+                                  "aeroglaze_20260608_vnir_validation_test_630o79nm.txt"])
 def test_fred_in_plane_nodes_come_back_from_eval(name, tmp_path):
     path = DATA / name
     out = tmp_path / "m.json"
@@ -489,3 +494,118 @@ def test_fred_rows_on_the_horizon_are_dropped(tmp_path):
     material, report = import_file(path)
     assert report["theta_i_deg"] == [20.0]
     assert len(material.components[0].blocks[0]["bsdf_per_sr"]) == 4
+
+
+# ------------------------------------------------------------------------------------ as other writers write them
+
+
+@pytest.mark.parametrize("encoding", ["utf-16", "utf-16-le", "utf-16-be"])
+def test_utf16_crlf_files_read_as_the_utf8_file(encoding, tmp_path):
+    """Windows programs save "Unicode" text: UTF-16 with a byte-order mark or without one, CRLF.
+    The same numbers come out as from the UTF-8 original (Zemax and FRED)."""
+    from materials.bsdf_files import parse_fred
+
+    for name, parse in (("AnoBlackEC1onAlum.bsdf", parse_zemax), ("aeroglaze_bsdf_final.txt", parse_fred)):
+        path = tmp_path / name
+        path.write_bytes((DATA / name).read_text().replace("\n", "\r\n").encode(encoding))
+        assert parse(read_text(path)) == parse(read_text(DATA / name))
+    assert _run("material", "import", tmp_path / "AnoBlackEC1onAlum.bsdf", "-o", tmp_path / "m.json") == 0
+
+
+def test_comment_and_blank_lines_between_a_count_and_its_values():
+    """'Any line that starts with # is ignored' (the format's own rule), blank lines likewise,
+    wherever they sit: between a count line and its value line too."""
+    text = (DATA / "AnoBlackEC1onAlum.bsdf").read_text()
+    spaced = re.sub(r"^(SampleRotation|AngleOfIncidence|ScatterAzimuth|ScatterRadial)(\t\d+)$",
+                    r"\1\2\n# values follow\n\n", text, flags=re.M)
+    assert spaced.count("# values follow") == 4
+    assert parse_zemax(spaced) == parse_zemax(text)
+
+
+def test_nan_nodes_are_left_out_and_reported(tmp_path, capsys):
+    """ua-loft's test.bsdf marks unmeasured nodes NaN (699 below the horizon, 59 above): imported,
+    the 59 reported; a block with no value at all is refused naming its incidence."""
+    assert _run("material", "import", DATA / "test_nan.bsdf", "-o", tmp_path / "m.json") == 0
+    assert "note: 59 nodes above the horizon hold NaN" in capsys.readouterr().out
+    empty = tmp_path / "empty.bsdf"
+    empty.write_text(_zemax_text([10, 40], [0.05, float("nan")]))
+    assert _run("material", "import", empty, "-o", tmp_path / "e.json") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no value above the horizon" in err[0] and "incidence 40 deg" in err[0]
+    fred = tmp_path / "nan.txt"
+    fred.write_text("type bsdf_data\nformat angles=deg bsdf=value scale=1\n20\t0\n-40\t0\t0.02\n0\t0\tNaN\n"
+                    "20\t0\t0.05\n60\t0\t0.01\n")
+    material, report = import_file(fred)
+    assert report["notes"] == ["1 rows hold NaN (no measurement) and are left out"]
+    assert len(material.components[0].blocks[0]["bsdf_per_sr"]) == 3
+
+
+def test_closing_rotation_that_disagrees_is_reported(imx455):
+    """IMX455's rotation 360 is not its rotation 0 but that block mirrored in azimuth: the import says so."""
+    _, _, report = imx455
+    (note,) = report["notes"]
+    assert "rotation 360 deg repeats rotation 0 deg" in note and "mirrored in azimuth" in note
+
+
+def test_count_mismatch_names_the_block_or_the_line(tmp_path):
+    lines = (DATA / "AnoBlackEC1onAlum.bsdf").read_text().splitlines()
+    second = [k for k, line in enumerate(lines) if line.startswith("TIS")][1]
+    short = list(lines)
+    short[second + 3] = "\t".join(short[second + 3].split("\t")[:-1])
+    bad = tmp_path / "short.bsdf"
+    bad.write_text("\n".join(short) + "\n")
+    with pytest.raises(BsdfFileError, match=rf"block from line {second + 1} \(rotation 0 deg, incidence 30 deg\) holds 227"):
+        import_file(bad)
+    no_tis = [line for line in short if not line.startswith("TIS")]
+    bad.write_text("\n".join(no_tis) + "\n")
+    with pytest.raises(BsdfFileError, match=r"line \d+ holds 11 values, not one per radial angle \(12\)"):
+        import_file(bad)
+    begin = lines.index("DataBegin")
+    commas = lines[:begin + 1] + [line.replace(".", ",") for line in lines[begin + 1:]]
+    bad.write_text("\n".join(commas) + "\n")
+    with pytest.raises(BsdfFileError, match="decimal commas"):
+        import_file(bad)
+
+
+def test_a_real_file_above_the_energy_rule_is_refused(tmp_path, capsys):
+    """A reflectance standard written as BRDF 0.34 /sr (DHR 1.07): refused in one line naming the incidence."""
+    assert _run("material", "import", DATA / "test_blacklab_dev_1243o53nm.txt", "-o", tmp_path / "x.json") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not physical" in err[0] and "incidence 12 deg" in err[0]
+    assert not (tmp_path / "x.json").exists()
+
+
+def test_incidences_in_descending_order_read_as_ascending(tmp_path):
+    """The format does not order its lists: the same blocks listed 70, 50, 30, 10 give the same table;
+    an incidence listed twice is refused in one line."""
+    lines = (DATA / "AnoBlackEC1onAlum.bsdf").read_text().splitlines()
+    begin, end = lines.index("DataBegin"), lines.index("DataEnd")
+    tis = [k for k in range(begin, end) if lines[k].startswith("TIS")] + [end]
+    blocks = [lines[tis[k]:tis[k + 1]] for k in range(4)]
+    head = list(lines[:begin + 1])
+    k = head.index("AngleOfIncidence\t4") + 1
+    head[k] = "70\t50\t30\t10"
+    reversed_text = "\n".join(head + sum(blocks[::-1], []) + ["DataEnd"]) + "\n"
+    assert parse_zemax(reversed_text) == parse_zemax("\n".join(lines) + "\n")
+    head[k] = "10\t30\t30\t70"
+    with pytest.raises(BsdfFileError, match="AngleOfIncidence lists 30 deg more than once"):
+        parse_zemax("\n".join(head + sum(blocks, []) + ["DataEnd"]) + "\n")
+
+
+@pytest.mark.parametrize("name", ["AnoBlackEC1onAlum.bsdf", "ValidationTest_of_TIS_via_BrownVinyl.bsdf", "test_nan.bsdf"])
+def test_every_zemax_node_above_the_horizon_comes_back(name):
+    """Out of plane too: each node's direction from the format's definition (cos R s + sin R (cos A e1
+    + sin A e2), e1 toward the normal, e2 = s x e1), its value within 1e-3 (a node whose value is 0
+    within 1e-6 of the block's largest: its position goes through degrees and back)."""
+    aoi, az, rad, data = _zemax_grid(DATA / name)
+    table = import_file(DATA / name)[0].components[0]
+    a, r = np.meshgrid(np.radians(az), np.radians(rad), indexing="ij")
+    for j, ti in enumerate(aoi):
+        t = math.radians(ti)
+        s, e1, e2 = np.array([math.sin(t), 0, math.cos(t)]), np.array([-math.cos(t), 0, math.sin(t)]), np.array([0, -1.0, 0])
+        wo = (np.cos(r)[..., None] * s + np.sin(r)[..., None] * (np.cos(a)[..., None] * e1 + np.sin(a)[..., None] * e2))
+        keep = (wo[..., 2] > 1e-3) & ~np.isnan(data[0, j]) & ((r > 0) | (a == 0))  # R = 0: one direction
+        want = data[0, j][keep]
+        wi = np.tile([-math.sin(t), 0.0, math.cos(t)], (len(want), 1))
+        got = table.brdf(wi, wo[keep])
+        np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-6 * want.max(), err_msg=f"{name} incidence {ti}")
