@@ -342,11 +342,10 @@ class Asphere(Conic):
         return s, q
 
     def dense_terms(self) -> np.ndarray:
-        """All the polynomial's terms by power: ``out[p] = a_p`` (the even coefficients and the power terms)."""
-        top = max([2 * len(self.coefficients) + 2] + [int(p) for p, _ in self.power_terms])
-        out = np.zeros(top + 1)
-        for i, a in enumerate(self.coefficients):
-            out[2 * i + 4] += a
+        """The power terms by power, ``out[p] = a_p`` (empty without them: the even asphere's kernel, unchanged)."""
+        if not self.power_terms:
+            return np.zeros(0)
+        out = np.zeros(max(int(p) for p, _ in self.power_terms) + 1)
         for p, a in self.power_terms:
             out[int(p)] += a
         return out
@@ -392,12 +391,9 @@ class Asphere(Conic):
         t = np.ascontiguousarray(t0, dtype=np.float64).copy()
         nrm = np.empty_like(o)
         done = np.empty(len(o), np.bool_)
-        if self.power_terms:
-            _power_asphere_kernel()(o, d, t, self.c, self.conic, self.dense_terms(), NEWTON_TOL_REL, NEWTON_MAX_ITER,
-                                    nrm, done)
-        else:
-            coef = np.ascontiguousarray(self.coefficients, dtype=np.float64)
-            _asphere_kernel()(o, d, t, self.c, self.conic, coef, NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm, done)
+        coef = np.ascontiguousarray(self.coefficients, dtype=np.float64)
+        _asphere_kernel()(o, d, t, self.c, self.conic, coef, self.dense_terms(), NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm,
+                          done)
         return t, self.dirs_to_world(nrm), done & self.valid(o + t[:, None] * d)
 
     def _max_curvature(self, rr) -> float:
@@ -606,8 +602,9 @@ def _asphere_kernel():
         import numba
 
         @numba.njit(cache=True, nogil=True)
-        def asphere_kernel(o, d, t, c, k, coef, tol, max_iter, nrm, done):
-            """Local frame: origins ``o``, directions ``d``; writes local unit normals (front side) and ``done``."""
+        def asphere_kernel(o, d, t, c, k, coef, a, tol, max_iter, nrm, done):
+            """Local frame: origins ``o``, directions ``d``; writes local unit normals (front side) and ``done``.
+            ``coef``: A4, A6...; ``a``: the power terms by power (a[p] the rho^p term; empty for an even asphere)."""
             ck = (1.0 + k) * c * c
             for i in range(o.shape[0]):
                 ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
@@ -634,6 +631,17 @@ def _asphere_kernel():
                             h += coef[m] * p * r2
                             q += n * coef[m] * p
                             p *= r2
+                        if a.shape[0] > 0:
+                            rho = r2 ** 0.5
+                            if a.shape[0] > 1:  # the rho^1 term: slope a_1 / rho (0 on the axis, a cone's tip)
+                                h += a[1] * rho
+                                if rho > 0.0:
+                                    q += a[1] / rho
+                            pw = 1.0  # rho^(p - 2) as p runs from 2
+                            for pp in range(2, a.shape[0]):
+                                h += a[pp] * pw * r2
+                                q += pp * a[pp] * pw
+                                pw *= rho
                         g = h - z
                         dg = q * (x * dx + y * dy) - dz
                         if dg == 0.0:
@@ -654,6 +662,14 @@ def _asphere_kernel():
                     for m in range(coef.shape[0]):
                         q += (2 * m + 4) * coef[m] * p
                         p *= r2
+                    if a.shape[0] > 0:
+                        rho = r2 ** 0.5
+                        if a.shape[0] > 1 and rho > 0.0:
+                            q += a[1] / rho
+                        pw = 1.0
+                        for pp in range(2, a.shape[0]):
+                            q += pp * a[pp] * pw
+                            pw *= rho
                 else:
                     ok = False
                 norm = (q * q * r2 + 1.0) ** 0.5  # |(-q x, -q y, 1)|
@@ -665,85 +681,6 @@ def _asphere_kernel():
 
         _ASPHERE_KERNEL = asphere_kernel
     return _ASPHERE_KERNEL
-
-
-_POWER_ASPHERE_KERNEL = None
-
-
-def _power_asphere_kernel():
-    """The numba kernel of :meth:`Asphere.refine_hits` with power terms: the sag's polynomial given densely by
-    power (``a[p]`` the rho^p term, :meth:`Asphere.dense_terms`); otherwise :func:`_asphere_kernel`'s Newton."""
-    global _POWER_ASPHERE_KERNEL
-    if _POWER_ASPHERE_KERNEL is None:
-        import numba
-
-        @numba.njit(cache=True, nogil=True)
-        def power_asphere_kernel(o, d, t, c, k, a, tol, max_iter, nrm, done):
-            """Local frame: origins ``o``, directions ``d``; writes local unit normals (front side) and ``done``."""
-            ck = (1.0 + k) * c * c
-            for i in range(o.shape[0]):
-                ox, oy, oz = o[i, 0], o[i, 1], o[i, 2]
-                dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
-                ti = t[i]
-                ok = False
-                q = 0.0
-                x = y = z = 0.0
-                if ti == ti and abs(ti) < 1e300:
-                    for _ in range(max_iter):
-                        x = ox + ti * dx
-                        y = oy + ti * dy
-                        z = oz + ti * dz
-                        r2 = x * x + y * y
-                        arg = 1.0 - ck * r2
-                        if arg <= 0.0:
-                            break
-                        root = arg ** 0.5
-                        rho = r2 ** 0.5
-                        h = c * r2 / (1.0 + root)
-                        q = c / root
-                        if a.shape[0] > 1:  # the rho^1 term: slope a_1 / rho (0 on the axis, a cone's tip)
-                            h += a[1] * rho
-                            if rho > 0.0:
-                                q += a[1] / rho
-                        pw = 1.0  # rho^(p - 2) as p runs from 2
-                        for p in range(2, a.shape[0]):
-                            h += a[p] * pw * r2
-                            q += p * a[p] * pw
-                            pw *= rho
-                        g = h - z
-                        dg = q * (x * dx + y * dy) - dz
-                        if dg == 0.0:
-                            break
-                        step = g / dg
-                        ti -= step
-                        if abs(step) <= tol * (1.0 + abs(ti)):
-                            ok = True
-                            break
-                x = ox + ti * dx
-                y = oy + ti * dy
-                z = oz + ti * dz
-                r2 = x * x + y * y
-                arg = 1.0 - ck * r2
-                if arg > 0.0:
-                    rho = r2 ** 0.5
-                    q = c / arg ** 0.5
-                    if a.shape[0] > 1 and rho > 0.0:
-                        q += a[1] / rho
-                    pw = 1.0
-                    for p in range(2, a.shape[0]):
-                        q += p * a[p] * pw
-                        pw *= rho
-                else:
-                    ok = False
-                norm = (q * q * r2 + 1.0) ** 0.5  # |(-q x, -q y, 1)|
-                nrm[i, 0] = -q * x / norm
-                nrm[i, 1] = -q * y / norm
-                nrm[i, 2] = 1.0 / norm
-                t[i] = ti
-                done[i] = ok
-
-        _POWER_ASPHERE_KERNEL = power_asphere_kernel
-    return _POWER_ASPHERE_KERNEL
 
 
 def covering_rim_radii_mm(inner_mm: float, outer_mm: float, n_phi: int, tolerance_mm: float,

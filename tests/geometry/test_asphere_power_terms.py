@@ -7,9 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from geometry.analytic import analytic_part, surface_from_dict
+from geometry.analytic import surface_from_dict
 from geometry.mesh import GeometryError
-from straylight.intersect import EmbreeIntersector
+
+from test_asphere_and_placement import check_hits_and_normals
 
 # a Fujinon-like odd asphere: r^3 and r^5 terms of the size real files carry (XF27mm F2.8: -7e-3, -2.2e-2 on a
 # 4.45 mm aperture), scaled to this 20 mm one, and an r^1 term (a shallow cone's tip)
@@ -36,55 +37,9 @@ def test_power_terms_sag_is_the_printed_formula():
     assert abs(s.sag(np.array([19.9]))[0] - _sag_reference(19.9, terms=[])) > 1e-2
 
 
-def _bisect(o, d):
-    t_out = np.empty(len(o))
-    for i in range(len(o)):
-        def g(t):
-            p = o[i] + t * d[i]
-            return _sag_reference(math.hypot(p[0], p[1])) - p[2]
-        lo, hi = (o[i, 2] - 15.0) / -d[i, 2], (o[i, 2] + 5.0) / -d[i, 2]
-        glo = g(lo)
-        for _ in range(200):
-            mid = 0.5 * (lo + hi)
-            gm = g(mid)
-            if (gm > 0) == (glo > 0):
-                lo, glo = mid, gm
-            else:
-                hi = mid
-        t_out[i] = 0.5 * (lo + hi)
-    return t_out
-
-
 def test_power_terms_hits_and_normals_against_bisection_and_finite_differences():
-    s = surface_from_dict(ODD)
-    part = analytic_part("odd", s, "al", tolerance_mm=0.01)
-    isect = EmbreeIntersector(part.vertices_mm[part.faces])
-    rng = np.random.default_rng(5)
-    n = 300
-    r = 0.2 + 18.8 * np.sqrt(rng.uniform(0, 1, n))  # off the cone's tip, where the normal is not defined
-    phi = rng.uniform(0, 2 * np.pi, n)
-    o = np.column_stack([r * np.cos(phi), r * np.sin(phi), np.full(n, 30.0)])
-    d = np.column_stack([rng.normal(0, 0.05, n), rng.normal(0, 0.05, n), -np.ones(n)])
-    d /= np.linalg.norm(d, axis=1)[:, None]
-    tri, t0 = isect.intersect(o, d)
-    keep = tri >= 0
-    assert keep.mean() > 0.95
-    o, d, t0 = o[keep], d[keep], t0[keep]
-    t, nrm, ok = s.refine_hits(o, d, t0)
-    assert np.all(ok)
-    np.testing.assert_allclose(t, _bisect(o, d), atol=1e-9)
-    p = o + t[:, None] * d
-    rho = np.hypot(p[:, 0], p[:, 1])
-    eps = 1e-6
-    slope = np.array([(_sag_reference(x + eps) - _sag_reference(x - eps)) / (2 * eps) for x in rho])
-    ref = np.column_stack([-slope * p[:, 0] / rho, -slope * p[:, 1] / rho, np.ones(len(p))])
-    ref /= np.linalg.norm(ref, axis=1)[:, None]
-    np.testing.assert_allclose(nrm, ref, atol=1e-8)
-    # the numpy path (implicit / gradient) agrees with the compiled kernel
-    np.testing.assert_allclose(s.normals(p), nrm, atol=1e-12)
-    t_np, ok_np = s.refine(o, d, t0)
-    assert np.all(ok_np)
-    np.testing.assert_allclose(t_np, t, atol=1e-9)
+    # off the cone's tip (r >= 0.2 mm), where the normal is not defined
+    check_hits_and_normals(ODD, _sag_reference, tolerance_mm=0.01, seed=5, r_min=0.2, eps=1e-6)
 
 
 def test_even_power_terms_are_the_even_coefficients():
