@@ -102,6 +102,9 @@ KNOWN: dict = {  # files that import but whose focus check does not pass yet (re
     # 7.42 mm as blocked (their s8 -> s9 segment meets s10's clear aperture at rho 8.01 mm, sd 8.37: the air gap
     # closes inside the semi-diameters), the scene passes them; unblocked, the sequential spot is 7.35 um, not 5.60
     "OpticsDatabase/Fujifilm_Fujinon_XF23mm_F1.4_R.zmx": "the lens file's s9/s10 air gap closes inside its apertures",
+    # on axis the encircled power at half the sequential r90 differs by 0.0525 (limit 0.05), r_geo 12.6 um; the same
+    # at c31546d, before this check's last changes: open
+    "optiland/mirror.seq": "encircled power at r90/2 off by 0.0525 (limit 0.05); not investigated",
 }
 
 
