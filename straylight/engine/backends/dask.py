@@ -127,6 +127,9 @@ def task_plan(ranges, n_slots: int) -> list:
     return tasks
 
 
+#: times a task cancelled under the run (its scattered spec lost with a killed worker) is submitted again
+LOST_TASK_RETRIES = 3
+
 LOOPBACK = "127.0.0.1"
 
 
@@ -646,13 +649,28 @@ def _run_on(client, spec, ranges, early=None):
         groups = task_plan(ranges, n_slots)
         futures = client.map(_group_task, [spec_future] * len(groups), groups, [changed] * len(groups), pure=False)
     order = {fut.key: k for k, fut in enumerate(futures)}
+    retries = [0] * len(groups)
     done = {}
     nxt = 0
-    # results as they finish (one event-loop round trip for each), yielded in chunk order
-    for fut, result in as_completed(futures, with_results=True):
+    # results as they finish (one event-loop round trip for each), yielded in chunk order; raise_errors=False:
+    # a task cancelled because a killed worker took the last copy of the scattered spec with it is resubmitted
+    # (its chunks' own streams give the same numbers wherever it runs)
+    results = as_completed(futures, with_results=True, raise_errors=False)
+    for fut, result in results:
+        k = order.pop(fut.key)
+        if fut.status == "cancelled" and retries[k] < LOST_TASK_RETRIES:
+            retries[k] += 1
+            if spec_future.status != "finished":  # the spec is gone from every worker: scatter it again, whole
+                spec_future = client.scatter(spec, broadcast=True, hash=False)
+                changed = None
+            fn, extra = (_pooled_task, (pool,)) if pool > 1 else (_group_task, ())
+            again = client.submit(fn, spec_future, groups[k], *extra, changed, pure=False)
+            order[again.key] = k
+            results.add(again)
+            continue
         if fut.status != "finished":
             fut.result()  # raises the task's error (or the cancellation)
-        done[order[fut.key]] = result
+        done[k] = result
         fut.release()
         while nxt in done:
             yield from (_unpacked(res) for res in done.pop(nxt))
