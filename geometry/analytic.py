@@ -341,8 +341,10 @@ class Asphere(Conic):
                 q = q + np.where(on_axis, 2.0 * a if p == 2 else 0.0, p * a * safe ** (p - 2))
         return s, q
 
+    @cached_property
     def dense_terms(self) -> np.ndarray:
-        """The power terms by power, ``out[p] = a_p`` (empty without them: the even asphere's kernel, unchanged)."""
+        """The power terms by power, ``out[p] = a_p`` (empty without them: the even asphere's kernel, unchanged);
+        made once per surface, not at every refinement call."""
         if not self.power_terms:
             return np.zeros(0)
         out = np.zeros(max(int(p) for p, _ in self.power_terms) + 1)
@@ -392,7 +394,7 @@ class Asphere(Conic):
         nrm = np.empty_like(o)
         done = np.empty(len(o), np.bool_)
         coef = np.ascontiguousarray(self.coefficients, dtype=np.float64)
-        _asphere_kernel()(o, d, t, self.c, self.conic, coef, self.dense_terms(), NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm,
+        _asphere_kernel()(o, d, t, self.c, self.conic, coef, self.dense_terms, NEWTON_TOL_REL, NEWTON_MAX_ITER, nrm,
                           done)
         return t, self.dirs_to_world(nrm), done & self.valid(o + t[:, None] * d)
 
