@@ -50,9 +50,11 @@ measures its cell's mean: with x its contribution and p(u) the first table's den
 would have carried from a uniform start, and each ray enters its cells' means with the weight
 rho = 1 / p(u) (self-normalised: m_c = sum rho (x p)^2 / sum rho, the coarse scales' means stay means over
 the uniform measure). Below that many lit rays the rest stays uniform: a table from a handful of rays (the
-guide scope at 45-60 deg: ~50-500 lit rays in 1e4, effective sample size 1-4) would draw the rest onto its
+guide scope at 60 deg: 44-48 lit rays in 1e4, effective sample size 1.1-1.6) would draw the rest onto its
 own few cells, and the run's other families would lose the coarse scales' mass (measured: at 60 deg 2 runs
-in 6 went from 1.6 % to 5-20 % at 1e5 rays). Over 6 seeds at 1e5 rays, CPU s x rel^2 (%^2) median
+in 6 went from 1.6 % to 5-20 % at 1e5 rays). At 45 deg (528-573 lit rays, effective sample size 4-7), guided
+with 300 instead of 1000, whole ``pst`` commands to 2 % over seeds 1-8 needed 1.11e5 rays on average
+(at most 1.40e5) against 1.71e5 (at most 3.05e5) uniform (docs/engine.md, "Entrance points by importance"). Over 6 seeds at 1e5 rays, CPU s x rel^2 (%^2) median
 (mean) uniform -> guided: 5 deg 13.7 (14.3) -> 12.6 (11.8); 10 deg 30.0 (31.2) -> 28.6 (30.2); 15 deg 164
 (912) -> 48 (83); 20 deg 19.2 (20.7) -> 19.7 (22.0); 30 deg 25.3 (31.3) -> 22.6 (29.9). Ending the guided
 rest early, once its rays' contributions have a large enough effective sample size, was tried and not kept
@@ -92,7 +94,7 @@ PILOT_RAYS = 30_000
 #: rays of the pilot's first stage; the rest of PILOT_RAYS only below PILOT_ENOUGH_ESS (module doc)
 PILOT_FIRST_RAYS = 10_000
 #: rays of the first stage with a detector contribution that let the rest draw from its table (module doc)
-PILOT_GUIDE_HITS = 1_000
+PILOT_GUIDE_HITS = 300
 #: effective sample size of the first stage's contributions that ends the pilot (~ half the 64 x 64 scale's
 #: cells: an average such cell seen by one ray's worth of light at least)
 PILOT_ENOUGH_ESS = 2_000.0
