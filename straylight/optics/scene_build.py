@@ -74,6 +74,21 @@ def _leave_centre(placed_surface, radius_mm: float, optical: list) -> None:
     placed_surface.inner_kind, placed_surface.inner_radius_mm = placed_surface.inner_kind or "hole", inner
 
 
+def _in_contact(p) -> dict:
+    """{index of the second surface: index of the first} for two glasses in contact: a surface from glass into air
+    with no thickness after it, then a surface of the same shape from air into glass (OpticsDatabase's Samyang 50 mm
+    F1.4 and some 25 of its lenses write elements that touch so). The air between has no thickness: rays refract
+    as at one interface between the two glasses (Snell's law through a layer of zero thickness), and a layer of
+    zero thickness reflects nothing, so the scene has that one interface; as two, the second had been dropped as
+    the first met again, and the lens's second element was air."""
+    out = {}
+    for a, b in zip(p.surfaces, p.surfaces[1:]):
+        if (not a.mirror and not b.mirror and not a.dummy and not b.dummy and a.thickness_mm == 0.0
+                and abs(a.n - 1.0) < 1e-12 and a.n_before > 1.0 + 1e-9 and b.n > 1.0 + 1e-9 and _same_geometry(a, b)):
+            out[b.index] = a.index
+    return out
+
+
 def _glass_label(name, n) -> str:
     return name if name else f"n{n:.5f}"
 
@@ -115,7 +130,10 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         used.add(name)
         return name
 
+    in_contact = _in_contact(p)
     for s in surfaces:
+        if s.index in in_contact.values():
+            continue  # the first of two glasses in contact: the interface is placed at the second (below)
         twin = next((q for q in placed if _same_geometry(s, q) and s.mirror == q.mirror), None)
         if twin is not None and (s.mirror or _same_media(s, twin) or s.semi_diameter_mm >= twin.semi_diameter_mm):
             continue  # the same physical surface met again (a Mangin's or a double pass)
@@ -140,10 +158,16 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
                               "material": edge_material, "role": "surface"})
             continue
         # refracting: axis out of the denser medium, whose index is the material's n (docs/optics.md)
-        glass_after = s.n > s.n_before
+        first = next((q for q in p.surfaces if q.index == in_contact[s.index]), None) if s.index in in_contact else None
+        n_before = first.n_before if first is not None else s.n_before
+        if first is not None:
+            outer = min(outer, first.semi_diameter_mm)
+            p.warnings.append(f"{first.name}-{s.name}: two glasses in contact (an air gap of no thickness between "
+                              "surfaces of one shape): one interface between the two glasses")
+        glass_after = s.n > n_before
         axis = -s.travel_in if glass_after else s.travel_in
-        n_in, n_out = (s.n, s.n_before) if glass_after else (s.n_before, s.n)
-        gname = s.glass if glass_after else _glass_before(p, s)
+        n_in, n_out = (s.n, n_before) if glass_after else (n_before, s.n)
+        gname = s.glass if glass_after else _glass_before(p, first if first is not None else s)
         key = _glass_label(gname, n_in) + ("" if n_out == 1.0 else f"_in_{n_out:.5f}")
         comp = {"type": "dielectric", "n": round(n_in, 7)}
         if n_out != 1.0:
