@@ -89,6 +89,25 @@ def _in_contact(p) -> dict:
     return out
 
 
+def _cemented_centres(p, optical: list) -> None:
+    """A surface met again inside one glass (no part: the same medium both sides), within a smaller aperture than
+    the part placed for it, is where an element of that same glass is cemented in the part's centre (the Canon New
+    FD 500 mm f/8 mirror lens: its rear element against the Mangin primary's front, one glass): there the light
+    crosses no interface, so the part leaves that centre open (:func:`_leave_centre`). Not where the light meets it
+    straight after the part itself (a glass split in two by a surface of no thickness)."""
+    for k, s in enumerate(p.surfaces):
+        if not s.dummy or s.n <= 1.0 + 1e-9 or k == 0:
+            continue
+        before = p.surfaces[k - 1]
+        twin = next((q for q, _ in optical if not q.mirror and q is not before and _same_geometry(s, q)
+                     and s.semi_diameter_mm < q.semi_diameter_mm), None)
+        if twin is not None:
+            _leave_centre(twin, s.semi_diameter_mm, optical)
+            for q in p.surfaces:  # the same part met again (the light's way back through it): the same hole
+                if q is not twin and not q.mirror and _same_geometry(q, twin) and _same_media(q, twin):
+                    q.inner_kind, q.inner_radius_mm = twin.inner_kind, twin.inner_radius_mm
+
+
 def _glass_label(name, n) -> str:
     return name if name else f"n{n:.5f}"
 
@@ -203,6 +222,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         if s.inner_kind == "obscuration" and inner > 0 and spot == 0:
             parts.append({"name": unique(s.name + "_obscuration"), "surface": _surface_table(s, axis, inner),
                           "material": edge_material, "role": "surface"})
+    _cemented_centres(p, optical)
     _tighten_mesh_tolerance(optical)
     # lens edges: cylinder between consecutive refracting surfaces with glass between, and flat rings
     for a, b in zip(p.surfaces, p.surfaces[1:]):
