@@ -124,13 +124,30 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     if p.model is not None:
         from straylight.optics.sequential import holes_for_passing_light
 
-        for idx, r in holes_for_passing_light(p, z00, 1.1 * largest0, source_centre_xy(p)).items():
+        holes = holes_for_passing_light(p, z00, 1.1 * largest0, source_centre_xy(p))
+        for idx in [i for i in holes if not next(s for s in p.surfaces if s.index == i).mirror]:
+            # a hole through a Mangin's glass: its front and its mirror back open alike (no glass left without
+            # its other face)
+            q = next(s for s in p.surfaces if s.index == idx)
+            after = [s for s in p.surfaces if s.index > idx]
+            m = next((s for s in after if s.mirror), None)
+            if m is not None and q.n > 1.0 + 1e-9 and all(abs(s.n - q.n) < 1e-12 for s in after if s.index < m.index):
+                holes[idx] = holes[m.index] = max(holes[idx], holes.get(m.index, 0.0))
+        for idx, r in holes.items():
             m = next(s for s in p.surfaces if s.index == idx)
             if m.inner_kind == "hole" and m.inner_radius_mm >= r:
                 continue
             m.inner_kind, m.inner_radius_mm = "hole", min(1.05 * r, 0.999 * m.semi_diameter_mm)
-            p.warnings.append(f"{m.name}: the file gives this mirror no hole, but the beam passes through it to a "
-                              f"later surface; given a central hole of radius {m.inner_radius_mm:.4g} mm")
+            if m.mirror:
+                p.warnings.append(f"{m.name}: the file gives this mirror no hole, but the beam passes through it to "
+                                  f"a later surface; given a central hole of radius {m.inner_radius_mm:.4g} mm")
+                continue
+            for q in p.surfaces:  # the same glass surface met again: the same hole
+                if q is not m and not q.mirror and _same_geometry(q, m) and _same_media(q, m):
+                    q.inner_kind, q.inner_radius_mm = m.inner_kind, m.inner_radius_mm
+            p.warnings.append(f"{m.name}: the beam after a mirror crosses this lens surface in air on its way to a "
+                              f"later surface (an element inside a hole through this glass); given a central hole "
+                              f"of radius {m.inner_radius_mm:.4g} mm")
     materials: dict = {}
     parts: list = []
     used = set()
