@@ -77,7 +77,7 @@ def _leave_centre(placed_surface, radius_mm: float, optical: list) -> None:
 def _in_contact(p) -> dict:
     """{index of the second surface: index of the first} for two glasses in contact: a surface from glass into air
     with no thickness after it, then a surface of the same shape from air into glass (OpticsDatabase's Samyang 50 mm
-    F1.4 and some 25 of its lenses write elements that touch so). The air between has no thickness: rays refract
+    F1.4 and 20 more of its lenses write elements that touch so). The air between has no thickness: rays refract
     as at one interface between the two glasses (Snell's law through a layer of zero thickness), and a layer of
     zero thickness reflects nothing, so the scene has that one interface; as two, the second had been dropped as
     the first met again, and the lens's second element was air."""
