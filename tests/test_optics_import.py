@@ -565,3 +565,32 @@ def test_an_r2_term_on_a_flat_base_is_the_paraboloid_it_is(tmp_path):
     assert s5["conic"] == -1.0 and s5["radius_mm"] == pytest.approx(1.0 / (2 * 7.358e-03), rel=1e-9)
     assert "power_terms" not in s5
     assert 50.0 < doc["efl_mm"] < 54.0
+
+
+def _scene_parts_at_z(scene_toml: Path, z_mm: float) -> list:
+    import tomllib
+
+    doc = tomllib.loads(scene_toml.read_text(encoding="utf-8"))
+    return doc, [pt for pt in doc["part"] if pt["surface"]["type"] not in ("cylinder",)
+                 and abs(pt["surface"]["vertex_mm"][2] - z_mm) < 1e-6]
+
+
+def test_two_glasses_in_contact_are_one_interface_between_them(tmp_path):
+    """OpticsDatabase's Samyang 50mm F1.4 AS UMC: s4 (from glass nd 1.846663 into air, no thickness after it) and
+    s5 (from air into glass nd 1.717360) have one shape (CURV 0.0296357763091604): two elements that touch. The
+    second was dropped as the first met again, so the second element was air and the imported lens focused
+    nowhere near the file's image (ghosts' nominal image 2.6 mm RMS). Now one part between the two glasses, with
+    the file's nd (the reference wavelength, 587.6 nm, is the d line to 1e-4 in n), and the rest of the air gap
+    nowhere."""
+    r = _run("optics", "import", LENSES / "OpticsDatabase" / "Samyang_50mm_F1.4_AS_UMC.zmx", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    s4 = next(s for s in doc["surfaces"] if s["name"] == "s4")
+    z4 = sum(s["thickness_mm"] for s in doc["surfaces"][:3])  # s1's vertex at the origin
+    scene, parts = _scene_parts_at_z(tmp_path / "scene.toml", z4)
+    assert s4["thickness_mm"] == 0.0
+    assert len(parts) == 1, [pt["name"] for pt in parts]
+    comp = scene["material"][parts[0]["material"]]["components"][0]
+    assert comp["type"] == "dielectric"
+    assert sorted([comp["n"], comp["n_outside"]]) == [pytest.approx(1.717360, abs=1e-4), pytest.approx(1.846663, abs=1e-4)]
+    assert "two glasses in contact" in r.stderr

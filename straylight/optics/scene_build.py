@@ -74,6 +74,40 @@ def _leave_centre(placed_surface, radius_mm: float, optical: list) -> None:
     placed_surface.inner_kind, placed_surface.inner_radius_mm = placed_surface.inner_kind or "hole", inner
 
 
+def _in_contact(p) -> dict:
+    """{index of the second surface: index of the first} for two glasses in contact: a surface from glass into air
+    with no thickness after it, then a surface of the same shape from air into glass (OpticsDatabase's Samyang 50 mm
+    F1.4 and 20 more of its lenses write elements that touch so). The air between has no thickness: rays refract
+    as at one interface between the two glasses (Snell's law through a layer of zero thickness), and a layer of
+    zero thickness reflects nothing, so the scene has that one interface; as two, the second had been dropped as
+    the first met again, and the lens's second element was air."""
+    out = {}
+    for a, b in zip(p.surfaces, p.surfaces[1:]):
+        if (not a.mirror and not b.mirror and not a.dummy and not b.dummy and a.thickness_mm == 0.0
+                and abs(a.n - 1.0) < 1e-12 and a.n_before > 1.0 + 1e-9 and b.n > 1.0 + 1e-9 and _same_geometry(a, b)):
+            out[b.index] = a.index
+    return out
+
+
+def _cemented_centres(p, optical: list) -> None:
+    """A surface met again inside one glass (no part: the same medium both sides), within a smaller aperture than
+    the part placed for it, is where an element of that same glass is cemented in the part's centre (the Canon New
+    FD 500 mm f/8 mirror lens: its rear element against the Mangin primary's front, one glass): there the light
+    crosses no interface, so the part leaves that centre open (:func:`_leave_centre`). Not where the light meets it
+    straight after the part itself (a glass split in two by a surface of no thickness)."""
+    for k, s in enumerate(p.surfaces):
+        if not s.dummy or s.n <= 1.0 + 1e-9 or k == 0:
+            continue
+        before = p.surfaces[k - 1]
+        twin = next((q for q, _ in optical if not q.mirror and q is not before and _same_geometry(s, q)
+                     and s.semi_diameter_mm < q.semi_diameter_mm), None)
+        if twin is not None:
+            _leave_centre(twin, s.semi_diameter_mm, optical)
+            for q in p.surfaces:  # the same part met again (the light's way back through it): the same hole
+                if q is not twin and not q.mirror and _same_geometry(q, twin) and _same_media(q, twin):
+                    q.inner_kind, q.inner_radius_mm = twin.inner_kind, twin.inner_radius_mm
+
+
 def _glass_label(name, n) -> str:
     return name if name else f"n{n:.5f}"
 
@@ -90,13 +124,30 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     if p.model is not None:
         from straylight.optics.sequential import holes_for_passing_light
 
-        for idx, r in holes_for_passing_light(p, z00, 1.1 * largest0, source_centre_xy(p)).items():
+        holes = holes_for_passing_light(p, z00, 1.1 * largest0, source_centre_xy(p))
+        for idx in [i for i in holes if not next(s for s in p.surfaces if s.index == i).mirror]:
+            # a hole through a Mangin's glass: its front and its mirror back open alike (no glass left without
+            # its other face)
+            q = next(s for s in p.surfaces if s.index == idx)
+            after = [s for s in p.surfaces if s.index > idx]
+            m = next((s for s in after if s.mirror), None)
+            if m is not None and q.n > 1.0 + 1e-9 and all(abs(s.n - q.n) < 1e-12 for s in after if s.index < m.index):
+                holes[idx] = holes[m.index] = max(holes[idx], holes.get(m.index, 0.0))
+        for idx, r in holes.items():
             m = next(s for s in p.surfaces if s.index == idx)
             if m.inner_kind == "hole" and m.inner_radius_mm >= r:
                 continue
             m.inner_kind, m.inner_radius_mm = "hole", min(1.05 * r, 0.999 * m.semi_diameter_mm)
-            p.warnings.append(f"{m.name}: the file gives this mirror no hole, but the beam passes through it to a "
-                              f"later surface; given a central hole of radius {m.inner_radius_mm:.4g} mm")
+            if m.mirror:
+                p.warnings.append(f"{m.name}: the file gives this mirror no hole, but the beam passes through it to "
+                                  f"a later surface; given a central hole of radius {m.inner_radius_mm:.4g} mm")
+                continue
+            for q in p.surfaces:  # the same glass surface met again: the same hole
+                if q is not m and not q.mirror and _same_geometry(q, m) and _same_media(q, m):
+                    q.inner_kind, q.inner_radius_mm = m.inner_kind, m.inner_radius_mm
+            p.warnings.append(f"{m.name}: the beam after a mirror crosses this lens surface in air on its way to a "
+                              f"later surface (an element inside a hole through this glass); given a central hole "
+                              f"of radius {m.inner_radius_mm:.4g} mm")
     materials: dict = {}
     parts: list = []
     used = set()
@@ -115,7 +166,10 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         used.add(name)
         return name
 
+    in_contact = _in_contact(p)
     for s in surfaces:
+        if s.index in in_contact.values():
+            continue  # the first of two glasses in contact: the interface is placed at the second (below)
         twin = next((q for q in placed if _same_geometry(s, q) and s.mirror == q.mirror), None)
         if twin is not None and (s.mirror or _same_media(s, twin) or s.semi_diameter_mm >= twin.semi_diameter_mm):
             continue  # the same physical surface met again (a Mangin's or a double pass)
@@ -140,10 +194,16 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
                               "material": edge_material, "role": "surface"})
             continue
         # refracting: axis out of the denser medium, whose index is the material's n (docs/optics.md)
-        glass_after = s.n > s.n_before
+        first = next((q for q in p.surfaces if q.index == in_contact[s.index]), None) if s.index in in_contact else None
+        n_before = first.n_before if first is not None else s.n_before
+        if first is not None:
+            outer = min(outer, first.semi_diameter_mm)
+            p.warnings.append(f"{first.name}-{s.name}: two glasses in contact (an air gap of no thickness between "
+                              "surfaces of one shape): one interface between the two glasses")
+        glass_after = s.n > n_before
         axis = -s.travel_in if glass_after else s.travel_in
-        n_in, n_out = (s.n, s.n_before) if glass_after else (s.n_before, s.n)
-        gname = s.glass if glass_after else _glass_before(p, s)
+        n_in, n_out = (s.n, n_before) if glass_after else (n_before, s.n)
+        gname = s.glass if glass_after else _glass_before(p, first if first is not None else s)
         key = _glass_label(gname, n_in) + ("" if n_out == 1.0 else f"_in_{n_out:.5f}")
         comp = {"type": "dielectric", "n": round(n_in, 7)}
         if n_out != 1.0:
@@ -179,6 +239,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         if s.inner_kind == "obscuration" and inner > 0 and spot == 0:
             parts.append({"name": unique(s.name + "_obscuration"), "surface": _surface_table(s, axis, inner),
                           "material": edge_material, "role": "surface"})
+    _cemented_centres(p, optical)
     _tighten_mesh_tolerance(optical)
     # lens edges: cylinder between consecutive refracting surfaces with glass between, and flat rings
     for a, b in zip(p.surfaces, p.surfaces[1:]):

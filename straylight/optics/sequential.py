@@ -136,19 +136,30 @@ def sequential_paths(p, field_deg: float, source_z_mm: float, source_radius_mm: 
 def holes_for_passing_light(p, source_z_mm: float, source_radius_mm: float, source_centre_xy=(0.0, 0.0),
                             n: int = 600) -> dict:
     """{surface index: radius_mm} of the central hole a mirror needs where the sequential beam, on its way to a
-    later surface, crosses the mirror's clear aperture (a Cassegrain primary that the file gives no hole)."""
+    later surface, crosses the mirror's clear aperture (a Cassegrain primary that the file gives no hole); and a
+    lens surface met before a mirror, where the beam after the mirror crosses it in air (no glass can be there)."""
     mirrors = [q for q in p.surfaces if q.mirror]
     if not mirrors:
         return {}
+    by_index = {q.index: q for q in p.surfaces}
+    lenses = [q for q in p.surfaces if not q.mirror and not q.dummy]
     need: dict = {}
     for field in {0.0, max(p.fields_deg or [0.0])}:
         for path in sequential_paths(p, field, source_z_mm, source_radius_mm, n, block=False,
                                      source_centre_xy=source_centre_xy):
             for i_from, i_to, a_pt, b_pt in _real_segments(p, path)[1:]:  # the incoming beam makes no hole
-                for m in mirrors:
+                # a lens surface met before, crossed by the beam in air after a mirror (the Nikon Reflex-Nikkor
+                # 1000 mm's rear group inside its Mangin primary's hole): the glass has a hole there too
+                start = by_index.get(i_from)
+                in_air = start is not None and abs(start.n - 1.0) < 1e-12
+                ends = [by_index[i] for i in (i_from, i_to) if i in by_index]
+                for m in mirrors + (lenses if in_air else []):
                     # before the mirror is met, the beam crossing its aperture is obscured by its back (a
                     # secondary's central obscuration, :func:`_blocked`), not passed through a hole
                     if m.index in (i_from, i_to) or i_from < m.index:
+                        continue
+                    if not m.mirror and (i_from < min(q.index for q in mirrors)
+                                         or any(_coincide(m, e) for e in ends)):
                         continue
                     hit = _crossing(m, a_pt, b_pt)
                     if hit and aperture.inside(m, hit[2][0], hit[2][1]):
