@@ -636,10 +636,87 @@ def _notes(runs, rows, timed_out: bool, *, target_rel_error, max_rays, max_total
     return notes, warnings
 
 
+def default_workers() -> int:
+    """The cores this process may run on (its CPU affinity where the platform tells it, else ``os.cpu_count``)."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _can_fork() -> bool:
+    import multiprocessing
+
+    return "fork" in multiprocessing.get_all_start_methods()
+
+
+_WORKER: dict = {}  # in a forked worker of ghost_table's pool: the table's Run class (_Pool)
+
+
+def _worker_start(run_class) -> None:
+    _WORKER["Run"] = run_class
+
+
+def _advance_in_worker(state: dict, limit) -> dict:
+    """A forked worker's task: the run whose state (its ``__dict__``: random stream, sums, batches) is ``state``,
+    advanced to ``limit``; its new state back."""
+    run = object.__new__(_WORKER["Run"])
+    run.__dict__.update(state)
+    run.advance(limit)
+    return run.__dict__
+
+
+class _Pool:
+    """``workers`` processes forked from this one (each inherits the optics, the intersector's built BVH and the
+    compiled kernels as they are: nothing rebuilt, nothing pickled but the runs' states), tracing the runs of a
+    round (ghost_table's ``reach``) at most one a worker at a time. A run's state goes to a worker and comes back
+    whole, so a run continues its own random stream wherever it is traced: the table is the serial one."""
+
+    def __init__(self, workers: int, run_class, dispatch, limit_of):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.workers, self.dispatch, self.limit_of = workers, dispatch, limit_of
+        # forked at the first task, from this thread (the class goes to the workers in the fork, not pickled)
+        self.executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
+                                            initializer=_worker_start, initargs=(run_class,))
+
+    def round(self, todo, first_round: bool, tick) -> None:
+        """Trace the round ``todo`` ((k, run, limit), ...): each run dispatched in order as a worker frees (none
+        once ``dispatch`` says the deadline is past); returns when every dispatched run is back."""
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        pending: dict = {}
+        queue = iter(todo)
+        open_ = True
+        while True:
+            while open_ and len(pending) < self.workers:
+                item = next(queue, None)
+                if item is None or not self.dispatch(item[1]):
+                    open_ = False
+                    break
+                k, run, lim = item
+                future = self.executor.submit(_advance_in_worker, run.__dict__, self.limit_of(run, lim))
+                pending[future] = (k, run)
+            if not pending:
+                return
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                k, run = pending.pop(future)
+                run.__dict__.update(future.result())
+                if tick is not None and first_round:
+                    tick(k)
+
+    def close(self) -> None:
+        self.executor.shutdown(wait=True, cancel_futures=True)
+
+
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
                 batch_rays: int | None = None, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
                 max_total_rays: int = MAX_TOTAL_RAYS, guide_below: float = GUIDE_BELOW,
-                max_seconds: float | None = None) -> GhostTable:
+                max_seconds: float | None = None, workers: int | None = 1) -> GhostTable:
     """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio.
 
     The ghosts share ``max_total_rays`` (the nominal image's rays aside) by water-filling: each round gives
@@ -656,11 +733,22 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
     measured so far says that one each would take more than :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
     cap left untraced has no estimate: power, error and fraction None (null in ghosts.json, empty in
-    ghosts.csv), listed last."""
+    ghosts.csv), listed last.
+
+    ``workers``: processes the ghosts are traced on (None: :func:`default_workers`; 1, or a platform that cannot
+    fork: this process alone). Each round's ghosts go to the workers in order, one at a time a worker, and a
+    ghost's state comes back whole, so without the cap the table is the same for any ``workers``, number for
+    number. Under the cap each ghost still gets one batch before any its second (a round ends when its last
+    ghost is back), the deadline is checked as each ghost's batch is handed out, and the batch fit measures the
+    wall time: K workers trace about K times the rays by the deadline, which ghosts a cap stops may differ."""
     import time
 
     if order < 2 or order % 2:
         raise GhostError(f"--order must be an even number >= 2, got {order}")
+    if workers is None:
+        workers = default_workers()
+    if not int(workers) >= 1:
+        raise GhostError(f"--workers must be >= 1, got {workers}")
     if max_seconds is not None and not max_seconds > 0:
         raise GhostError(f"--max-seconds must be > 0, got {max_seconds:g}")
     t0 = time.perf_counter()
@@ -780,32 +868,57 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     def reach(limits, tick=None):
         """Trace each (k, run, limit) up to its limit, each run on its own stream (the same rays in any order).
         Under ``max_seconds``, one batch a run per round, every run's before any run's next, until the deadline;
-        ``tick(k)`` after run k's first round."""
+        ``tick(k)`` after run k's first round. With a pool, the round's runs are traced by its workers, at most
+        one run a worker at a time, dispatched in the round's order (the deadline and the batch fit checked at
+        each dispatch, as here before each batch); the round ends when its last run is back."""
         nonlocal timed_out
         first_round = True
         while todo := [(k, run, lim) for k, run, lim in limits if not run.done and run.traced < lim]:
-            for k, run, lim in todo:
-                if deadline is not None:
-                    if monotonic() >= deadline:
-                        timed_out = True
+            if pool is not None:
+                pool.round(todo, first_round, tick)
+                if timed_out:
+                    return
+            else:
+                for k, run, lim in todo:
+                    if not dispatch(run):
                         return
-                    if not run.traced and auto_batch:
-                        fit_batch(run)
-                run.advance(lim if deadline is None else min(lim, run.traced + run.batch))
-                if tick is not None and first_round:
-                    tick(k)
+                    run.advance(limit_of(run, lim))
+                    if tick is not None and first_round:
+                        tick(k)
             first_round = False
 
+    def dispatch(run) -> bool:
+        """Before a run's batch under the cap: False (and timed out) once the deadline is past; else its batch
+        fitted, before its first."""
+        nonlocal timed_out
+        if deadline is not None:
+            if monotonic() >= deadline:
+                timed_out = True
+                return False
+            if not run.traced and auto_batch:
+                fit_batch(run)
+        return True
+
+    def limit_of(run, lim):
+        return lim if deadline is None else min(lim, run.traced + run.batch)
+
+    n_workers = 1 if workers is None or len(runs) < 2 or not _can_fork() else min(int(workers), len(runs))
+    pool = _Pool(n_workers, Run, dispatch, limit_of) if n_workers > 1 else None
     first = max(2 * batch_rays, max_total_rays // len(runs))
-    # on_ghost: a callable(k, n) told after each ghost's first share (a progress bar; under the cap, its first batch)
-    reach([(k, run, first) for k, run in enumerate(runs, start=1)],
-          None if on_ghost is None else lambda k: on_ghost(k, len(runs)))
-    while not timed_out:  # the rest of the budget, shared equally among the ghosts not yet at their target
-        open_ = [r for r in runs if not r.done]
-        share = (max_total_rays - sum(r.traced for r in runs)) // max(len(open_), 1)
-        if not open_ or share < batch_rays:
-            break
-        reach([(0, run, run.traced + share) for run in open_])
+    try:
+        # on_ghost: a callable(k, n) told after each ghost's first share (a progress bar; under the cap, its first
+        # batch)
+        reach([(k, run, first) for k, run in enumerate(runs, start=1)],
+              None if on_ghost is None else lambda k: on_ghost(k, len(runs)))
+        while not timed_out:  # the rest of the budget, shared equally among the ghosts not yet at their target
+            open_ = [r for r in runs if not r.done]
+            share = (max_total_rays - sum(r.traced for r in runs)) // max(len(open_), 1)
+            if not open_ or share < batch_rays:
+                break
+            reach([(0, run, run.traced + share) for run in open_])
+    finally:
+        if pool is not None:
+            pool.close()
     rows = []
     maps = {"nominal": map_nom}
     for refl, run in zip(refls, runs):
@@ -931,14 +1044,15 @@ def plot_maps(table: GhostTable, path, top: int = 8):
 
 
 def ghosts(scene, order: int = 2, field_deg: float = 0.0, detector: str | None = None,
-           max_seconds: float | None = None, **kwargs) -> GhostTable:
+           max_seconds: float | None = None, workers: int | None = None, **kwargs) -> GhostTable:
     """Notebook API: the ghost table of a scene file (or a loaded scene) at ``field_deg``; ``max_seconds``
-    caps the ghosts' wall-clock time and ``kwargs`` go to :func:`ghost_table` (``target_rel_error``, ...)."""
+    caps the ghosts' wall-clock time, ``workers`` processes trace them (default: one a core this process may
+    use; 1: this process) and ``kwargs`` go to :func:`ghost_table` (``target_rel_error``, ...)."""
     from straylight.scene import load_scene
 
     rs = load_scene(scene) if not hasattr(scene, "scene") else scene
     opt = prepare(rs, field_deg, detector)
-    table = ghost_table(opt, order=order, max_seconds=max_seconds, **kwargs)
+    table = ghost_table(opt, order=order, max_seconds=max_seconds, workers=workers, **kwargs)
     table.field_deg = float(field_deg)
     table.optics = opt
     return table

@@ -522,9 +522,9 @@ def test_the_command_warns_of_what_to_act_on_and_notes_the_rest(tmp_path, monkey
     notes = json.loads((out / "ghosts.json").read_text())["notes"]
     assert len(notes) == 1 and "were aimed at that part" in notes[0]
 
-    _fake_clock(monkeypatch)
+    _fake_clock(monkeypatch)  # moved by the rays this process traces: one worker, this one
     assert main(["ghosts", str(scene), "--out", str(out), "--no-view3d", "--target-rel-error", "0.001",
-                 "--max-seconds", "0.5"]) == 0
+                 "--max-seconds", "0.5", "--workers", "1"]) == 0
     captured = capsys.readouterr()
     err = captured.err.strip().splitlines()
     assert err and all(line.startswith("straylight: warning: ") for line in err), err
@@ -535,3 +535,52 @@ def test_the_command_warns_of_what_to_act_on_and_notes_the_rest(tmp_path, monkey
     assert "Warning:" not in captured.out  # printed once, on stderr
     doc = json.loads((out / "ghosts.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
     assert any("time cap" in n for n in doc["notes"])
+
+
+def _row_numbers(table):
+    return [(r.surfaces, r.reflections, r.power_w, r.stderr_w, r.fraction_of_nominal, r.focus_mm, r.radius_mm,
+             r.peak_ratio, r.rays, r.upper_w) for r in table.rows]
+
+
+def test_the_table_is_the_same_on_any_number_of_workers(tmp_path, monkeypatch):
+    """workers=K: each round's ghosts are traced in K forked processes, a ghost's state (random stream, sums,
+    learnt table) going out and coming back whole; without a time cap the table is the one process's, number for
+    number, maps included, also over a water-filling round (a budget whose equal first shares stop some ghosts)."""
+    from straylight.analyses import ghost_trace
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    rounds = []
+    real_round = ghost_trace._Pool.round
+    monkeypatch.setattr(ghost_trace._Pool, "round", lambda self, todo, *a: (rounds.append(len(todo)),
+                                                                            real_round(self, todo, *a))[1])
+    kwargs = dict(target_rel_error=0.03, max_total_rays=15 * 4 * 4096)  # first shares: 4 batches
+    one = ghost_table(opt, workers=1, **kwargs)
+    assert not rounds  # one process: no pool
+    two = ghost_table(opt, workers=2, **kwargs)
+    assert len(rounds) >= 2 and rounds[0] == 15, rounds  # the pool traced the first round and water-filling ones
+    assert _row_numbers(two) == _row_numbers(one)
+    assert two.notes == one.notes and two.nominal.power_w == one.nominal.power_w
+    assert two.maps.keys() == one.maps.keys() and all(np.array_equal(two.maps[k], one.maps[k]) for k in one.maps)
+    assert max(r.rays for r in one.rows) > 4 * 4096 > min(r.rays for r in one.rows)  # (a second round)
+
+
+def test_a_time_cap_on_workers_gives_every_ghost_one_batch_before_any_its_second(tmp_path):
+    """Under --max-seconds with workers, a round ends when its last ghost is back and the next starts after it:
+    whatever the cap, the ghosts' batch counts differ by at most one, and ghosts are left untraced only where none
+    has a second batch. (The machine's own clock: the counts vary from run to run, the rule does not.)"""
+    import time
+
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    t = time.perf_counter()
+    ghost_table(opt, target_rel_error=0.5, batch_rays=1024, workers=1)
+    one_round_s = time.perf_counter() - t  # the nominal image's trace and about two rounds of ghosts
+    for cap_s in (0.5 * one_round_s, 2.5 * one_round_s):
+        table = ghost_table(opt, target_rel_error=0.0001, min_fraction=0.0, batch_rays=1024, workers=2,
+                            max_seconds=cap_s)
+        assert all(r.rays % 1024 == 0 for r in table.rows)
+        batches = [r.rays // 1024 for r in table.rows]
+        assert max(batches) - min(batches) <= 1, (cap_s, batches)
+        assert max(batches) >= 1 and table.warnings, (cap_s, batches)
