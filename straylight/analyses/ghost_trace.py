@@ -376,6 +376,34 @@ def ghost_sequence(nominal, refl) -> tuple:
     return tuple(seq)
 
 
+def normal_incidence_powers(opt: GhostOptics, p: int) -> tuple:
+    """(R, T) of part ``p`` at normal incidence, unpolarized, each the mean over its two sides (its own coating
+    and film stack; ``Material.smooth_coefficients``); (0, 1) for a part with no specular interface."""
+    f_model, b_model = opt.models[p]
+    powers = []
+    for back, model in ((False, f_model), (True, b_model if b_model is not None else f_model)):
+        c = None if model is None else model.smooth_coefficients(np.ones(1), back=back)
+        if c is not None:
+            powers.append((float(c.reflectance("u")[0]), float(c.transmittance("u")[0])))
+    if not powers:
+        return 0.0, 1.0
+    return sum(r for r, _ in powers) / len(powers), sum(t for _, t in powers) / len(powers)
+
+
+def ghost_priors(opt: GhostOptics, nominal, refls) -> list:
+    """A cheap guess of each ghost's share of the source, to trace the likely-brightest first under a time cap:
+    the product along its sequence of the normal-incidence reflectance where it reflects and transmittance where
+    it transmits (:func:`normal_incidence_powers`; no vignetting, angles or absorption in the glass)."""
+    powers = {p: normal_incidence_powers(opt, p) for p, _ in nominal}
+    out = []
+    for refl in refls:
+        prior = 1.0
+        for p, act in ghost_sequence(nominal, refl):
+            prior *= powers[p][0] if act == "R" else powers[p][1]
+        out.append(prior)
+    return out
+
+
 # ---------------------------------------------------------------- tracing one sequence
 
 
@@ -729,8 +757,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
 
     ``max_seconds``: a wall-clock cap the ghosts share (the nominal image's trace aside; ``monotonic``).
     Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
-    ghost's second, so the cap stops the ghosts as the budget does (each keeps the estimate it reached) and
-    leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
+    ghost's second (the first batches going out by :func:`ghost_priors`, the likely-brightest first; later
+    rounds by the estimates so far, the largest first), so the cap stops the ghosts as the budget does (each
+    keeps the estimate it reached) and leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
     measured so far says that one each would take more than :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
     cap left untraced has no estimate: power, error and fraction None (null in ghosts.json, empty in
     ghosts.csv), listed last.
@@ -777,6 +806,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
 
         def __init__(self, seq, k, floor_w=None, batch=None):
             self.seq, self.floor_w, self.batch = seq, floor_w, int(batch or batch_rays)
+            self.k, self.prior = k, 1.0  # its place in the table's list; its guessed power (ghost_priors)
             self.rng = np.random.default_rng([seed, k])
             self.acc = _Accumulator(frame)
             self.done = False
@@ -845,6 +875,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     # two batches each would pass the budget (a 37-surface zoom: 666 ghosts, 5.5e6 rays of 4096-ray batches),
     # their batches are smaller (batch_rays above) so that the first round fits it
     runs = [Run(ghost_sequence(nominal, refl), k, floor_w=min_fraction * p_nom) for k, refl in enumerate(refls, 1)]
+    priors = ghost_priors(opt, nominal, refls)
+    for run, prior in zip(runs, priors):
+        run.prior = prior
     t_ghosts = monotonic()
     deadline = None if max_seconds is None else t_ghosts + max_seconds
     timed_out = False
@@ -874,6 +907,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         nonlocal timed_out
         first_round = True
         while todo := [(k, run, lim) for k, run, lim in limits if not run.done and run.traced < lim]:
+            todo.sort(key=lambda item: queue_key(item[1]))
             if pool is not None:
                 pool.round(todo, first_round, tick)
                 if timed_out:
@@ -886,6 +920,12 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
                     if tick is not None and first_round:
                         tick(k)
             first_round = False
+
+    def queue_key(run):
+        """The order a round's ghosts go out in (under the cap, the ones the deadline reaches last go without): a
+        ghost with an estimate by it (largest first), before one without, by its prior (largest first; ghost_priors),
+        then as listed. Each ghost on its own stream: without the cap the order changes no number."""
+        return (0, -run.mean, -run.prior, run.k) if run.traced else (1, 0.0, -run.prior, run.k)
 
     def dispatch(run) -> bool:
         """Before a run's batch under the cap: False (and timed out) once the deadline is past; else its batch

@@ -433,15 +433,17 @@ def test_a_time_cap_leaves_every_ghost_its_estimate_and_says_how_far_it_got(tmp_
     whole cap: the first ghost's batch, timed, shows it, and the 14 after it get the largest common batch that
     ends the first round within half the cap; the second round fills the other half. The warnings say how many
     ghosts the cap stopped, and at what worst error."""
-    from straylight.analyses.ghost_trace import nominal_sequence
+    from straylight.analyses.ghost_trace import ghost_priors, nominal_sequence
     from straylight.scene import load_scene
 
     opt = prepare(load_scene(_cooke(tmp_path)))
-    refls = ghost_reflections(nominal_sequence(opt), 2)  # the order the ghosts are traced in
+    nominal = nominal_sequence(opt)
+    refls = ghost_reflections(nominal, 2)
+    priors = dict(zip(refls, ghost_priors(opt, nominal, refls)))  # the order the first batches go out in
     _fake_clock(monkeypatch)
     cap_s = _first_round_s(opt, 4096)
     table = ghost_table(opt, target_rel_error=0.001, max_seconds=cap_s)
-    rows = sorted(table.rows, key=lambda r: refls.index(tuple(r.reflections)))
+    rows = sorted(table.rows, key=lambda r: (-priors[tuple(r.reflections)], refls.index(tuple(r.reflections))))
     first, rest = rows[0], rows[1:]
     parts_rest = sum(len(r.parts) for r in rest)
     half_s = 0.5 * cap_s / 1e-6  # in rays x parts on the fake clock
@@ -584,3 +586,62 @@ def test_a_time_cap_on_workers_gives_every_ghost_one_batch_before_any_its_second
         batches = [r.rays // 1024 for r in table.rows]
         assert max(batches) - min(batches) <= 1, (cap_s, batches)
         assert max(batches) >= 1 and table.warnings, (cap_s, batches)
+
+
+def _two_windows():
+    """Two windows in one collimated beam (n = 1.5, normal incidence, light toward -z): "a" first, its faces with a
+    quarter-wave layer of n = 1.25 (R = ((1.5 - 1.25^2) / (1.5 + 1.25^2))^2 = 4.2e-4, Macleod 3.2), "b" after it
+    bare (R = 0.04). In surface order the ghost between a's faces comes first and b's (a hundred times R squared
+    brighter: 1e4 times) last."""
+    from geometry.analytic import Plane, analytic_part
+    from geometry.mesh import Scene
+    from materials import load_material
+    from straylight.sources import CollimatedDisk
+
+    up = np.array([0.0, 0.0, 1.0])
+    coat = [{"n": 1.25, "thickness_nm": 550.0 / (4 * 1.25)}]
+    mats = {"coated": load_material({"name": "coated", "components": [{"type": "dielectric", "n": 1.5,
+                                                                       "coating": coat, "wavelength_nm": 550.0}]}),
+            "bare": load_material({"name": "bare", "components": [{"type": "dielectric", "n": 1.5}]})}
+    parts = [analytic_part(name, Plane(np.array([0, 0, z]), sign * up, math.inf, 0.0, 100.0, 0.0), mat)
+             for name, z, sign, mat in (("a_top", 40.0, 1, "coated"), ("a_bottom", 30.0, -1, "coated"),
+                                        ("b_top", 10.0, 1, "bare"), ("b_bottom", 0.0, -1, "bare"))]
+    parts.append(analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None,
+                               "detector"))
+    src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
+    return ResolvedScene(None, Scene(tuple(parts)), mats, (src,), ())
+
+
+def test_a_capped_run_traces_the_likely_brightest_ghost_first(tmp_path, monkeypatch):
+    """Under --max-seconds the first batches go out by a prior (each ghost's normal-incidence reflectances and
+    transmittances along its sequence, coatings included), not in surface order: a cap that lets one ghost's batch
+    out traces the bare window's ghost, which surface order lists last, and leaves the coated one's untraced. The
+    order of the first batches is the priors' (bare pair, then the mixed ones, coated pair last)."""
+    from straylight.analyses import ghost_trace
+
+    opt = prepare(_two_windows())
+    nominal = ghost_trace.nominal_sequence(opt)
+    assert [opt.names[p] for p, _ in nominal] == ["a_top", "a_bottom", "b_top", "b_bottom"]
+    R_c = ((1.5 - 1.25 ** 2) / (1.5 + 1.25 ** 2)) ** 2
+    assert ghost_trace.normal_incidence_powers(opt, nominal[0][0])[0] == pytest.approx(R_c, rel=1e-9)
+    assert ghost_trace.normal_incidence_powers(opt, nominal[2][0])[0] == pytest.approx(0.04, rel=1e-9)
+    traced = []
+    now = _fake_clock(monkeypatch)
+    real = ghost_trace.trace_sequence  # (the fake clock's)
+
+    def seen(opt_, seq, n, rng, table=None):
+        traced.append(tuple(opt.names[p] for p, act in seq if act == "R"))
+        return real(opt_, seq, n, rng, table)
+
+    monkeypatch.setattr(ghost_trace, "trace_sequence", seen)
+    generous = ghost_table(opt, target_rel_error=0.001, batch_rays=1024, max_seconds=1e9, max_total_rays=6 * 1024)
+    firsts = list(dict.fromkeys(t for t in traced if t))  # the ghosts (reflecting somewhere) as first traced
+    assert firsts[0] == ("b_bottom", "b_top") and firsts[-1] == ("a_bottom", "a_top"), firsts
+    assert [r.surfaces for r in generous.rows][0] == ["b_bottom", "b_top"]  # (the table: by power, as always)
+    now[0] = 0.0
+    traced.clear()
+    one_batch_s = 1024 * len(ghost_trace.ghost_sequence(nominal, (3, 2))) * 1e-6  # the fake clock's
+    table = ghost_table(opt, target_rel_error=0.001, batch_rays=1024, max_seconds=0.5 * one_batch_s)
+    done = [r for r in table.rows if r.rays]
+    assert [r.surfaces for r in done] == [["b_bottom", "b_top"]], [(r.surfaces, r.rays) for r in table.rows]
+    assert table.rows[-1].power_w is None and len(table.rows) == 6
