@@ -191,47 +191,70 @@ def next_hits(opt: GhostOptics, b: Bundle):
 
     As in the walk (``optical_surface``): a mesh hit is refined onto the part's exact surface; one that
     refines outside the clear aperture, or back onto the ray's own origin on its last part, is passed
-    through and the ray cast again from just beyond it."""
+    through and the ray cast again from just beyond it. (While every ray is cast, and where every ray of a
+    cast hits one part and is accepted there, the rays are taken whole, not through index arrays: the same
+    numbers, without a forced sequence's per-step copies of every ray.)"""
     n = len(b.w)
     part = np.full(n, -1, np.int64)
     point = np.zeros((n, 3))
     facing = np.zeros((n, 3))
     front = np.zeros(n, bool)
-    todo = np.arange(n)
-    o = b.o.copy()
-    last = b.last.copy()
+    todo = _ALL  # the rays still to cast: every one, then the index array of those passed through
+    o = b.o  # copied before a ray passed through moves its origin
+    last = b.last
+    copied = False
     for _ in range(4):
-        if len(todo) == 0:
+        if todo is not _ALL and len(todo) == 0:
             break
-        tri, t = opt.isect.intersect(o[todo], b.d[todo])
+        o_todo, d_todo = o[todo], b.d[todo]
+        tri, t = opt.isect.intersect(o_todo, d_todo)
         tri = np.asarray(tri, np.int64)
         t = np.asarray(t, float)
         hit_part = np.where(tri >= 0, opt.tri_part[np.maximum(tri, 0)], -1)
         retry = []
-        for p in np.unique(hit_part[hit_part >= 0]):
-            g = np.flatnonzero(hit_part == p)
-            rows = todo[g]
+        lo = int(hit_part.min()) if len(hit_part) else -1
+        one = lo >= 0 and lo == int(hit_part.max())  # every ray cast hits part lo
+        for p in ((lo,) if one else np.unique(hit_part[hit_part >= 0])):
+            if one:
+                g, rows, o_g, d_g, t_g = _ALL, todo, o_todo, d_todo, t
+            else:
+                g = np.flatnonzero(hit_part == p)
+                rows = g if todo is _ALL else todo[g]
+                o_g, d_g, t_g = o_todo[g], d_todo[g], t[g]
             surf = opt.surfaces[p]
             if surf is not None:
-                tr, n_front, ok = surf.refine_hits(o[rows], b.d[rows], t[g])
+                tr, n_front, ok = surf.refine_hits(o_g, d_g, t_g)
                 accept = ok & ~((last[rows] == p) & (tr < SELF_HIT_MM))
             else:
-                tr, n_front, accept = t[g], opt.tri_normals[tri[g]], np.ones(len(g), bool)
-            r = rows[accept]
+                tr, n_front, accept = t_g, opt.tri_normals[tri[g]], np.ones(len(t_g), bool)
+            whole = bool(accept.all())
+            if whole:
+                r, o_r, d_r, t_r, n_r = rows, o_g, d_g, tr, n_front
+            else:
+                r = np.flatnonzero(accept) if rows is _ALL else rows[accept]
+                o_r, d_r, t_r, n_r = o_g[accept], d_g[accept], tr[accept], n_front[accept]
             part[r] = p
-            point[r] = o[r] + tr[accept, None] * b.d[r]
-            fr = _dot(b.d[r], n_front[accept]) < 0
+            point[r] = o_r + t_r[:, None] * d_r
+            fr = _dot(d_r, n_r) < 0
             front[r] = fr
-            facing[r] = np.where(fr[:, None], n_front[accept], -n_front[accept])
-            again = rows[~accept]
+            facing[r] = np.where(fr[:, None], n_r, -n_r)
+            if whole:
+                continue
+            pass_ = ~accept
+            again = np.flatnonzero(pass_) if rows is _ALL else rows[pass_]
+            if not copied:
+                o, last, copied = o.copy(), last.copy(), True
             # past the facet by the scene's offset: a ray leaving a flat surface meets its facet again at t = 0
             # in the intersector's float32 until it has moved a few ulps of the coordinates
-            o[again] = o[again] + (t[g][~accept] + opt.eps_mm)[:, None] * b.d[again]
+            o[again] = o_g[pass_] + (t_g[pass_] + opt.eps_mm)[:, None] * d_g[pass_]
             last[again] = p
             retry.append(again)
         todo = np.concatenate(retry) if retry else np.zeros(0, np.int64)
     dist = _dot(point - b.o, b.d)
     return part, dist, point, facing, front
+
+
+_ALL = slice(None)  # next_hits: every ray (a view, not a copy)
 
 
 def fresnel(opt: GhostOptics, part, front, cos_i, dist):
@@ -252,21 +275,26 @@ def fresnel(opt: GhostOptics, part, front, cos_i, dist):
     return out
 
 
-def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray, eps_mm: float = EPS_MM) -> Bundle:
-    """The bundle after its interface hits: reflected where ``reflect_it``, else transmitted; weights times
-    the branch's power for the ray's Stokes vector (the engine's Mueller matrices) and the bulk factor."""
+def interact(b: Bundle, point, facing, coeffs, reflect_it, eps_mm: float = EPS_MM) -> Bundle:
+    """The bundle after its interface hits: reflected where ``reflect_it`` (per ray, or one bool for every ray:
+    a forced sequence's step), else transmitted; weights times the branch's power for the ray's Stokes vector
+    (the engine's Mueller matrices) and the bulk factor."""
     rs, rp, ts, tp, cos_t, eta, bulk = coeffs
     s = s_vector(b.d, facing)
     S = rotate_stokes(b.S, b.e1, s, b.d)
-    a_s = np.where(reflect_it, rs, ts)
-    a_p = np.where(reflect_it, rp, tp)
+    if isinstance(reflect_it, (bool, np.bool_)):  # one branch for all: only its direction computed
+        a_s, a_p = (rs, rp) if reflect_it else (ts, tp)
+        d_new = reflect(b.d, facing) if reflect_it else refract(b.d, facing, eta, cos_t)
+        offset = (eps_mm if reflect_it else -eps_mm) * facing
+    else:
+        a_s = np.where(reflect_it, rs, ts)
+        a_p = np.where(reflect_it, rp, tp)
+        d_new = np.where(reflect_it[:, None], reflect(b.d, facing), refract(b.d, facing, eta, cos_t))
+        offset = (np.where(reflect_it, 1.0, -1.0) * eps_mm)[:, None] * facing
     So = apply_interface_mueller(a_s, a_p, S)
     w = b.w * So[:, 0] * bulk
-    d_new = np.where(reflect_it[:, None], reflect(b.d, facing), refract(b.d, facing, eta, cos_t))
-    sign = np.where(reflect_it, 1.0, -1.0)
     safe = np.where(So[:, :1] > 0, So[:, :1], 1.0)
-    return Bundle(np.ascontiguousarray(point + (sign * eps_mm)[:, None] * facing), np.ascontiguousarray(d_new), w,
-                  So / safe, s, b.last)
+    return Bundle(np.ascontiguousarray(point + offset), np.ascontiguousarray(d_new), w, So / safe, s, b.last)
 
 
 # ---------------------------------------------------------------- the nominal sequence and the ghosts
@@ -435,15 +463,19 @@ def trace_sequence(opt: GhostOptics, seq, n: int, rng, table=None) -> Arrivals:
         if len(ids) == 0:
             break
         part, dist, point, facing, front = next_hits(opt, b)
-        ok = np.flatnonzero(part == p)
-        b, ids = b.take(ok), ids[ok]
-        part, dist, point, facing, front = part[ok], dist[ok], point[ok], facing[ok], front[ok]
+        on = part == p
+        if not on.all():  # (where every ray goes on, no copy)
+            ok = np.flatnonzero(on)
+            b, ids = b.take(ok), ids[ok]
+            part, dist, point, facing, front = part[ok], dist[ok], point[ok], facing[ok], front[ok]
         cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
         co = fresnel(opt, part, front, cos_i, dist)
         b.last = part
-        b = interact(b, point, facing, co, np.full(len(ids), act == "R"), opt.eps_mm)
-        live = np.flatnonzero(b.w > 0)
-        b, ids = b.take(live), ids[live]
+        b = interact(b, point, facing, co, act == "R", opt.eps_mm)
+        alive = b.w > 0
+        if not alive.all():
+            live = np.flatnonzero(alive)
+            b, ids = b.take(live), ids[live]
     per_ray = np.zeros(n)
     if len(ids) == 0:
         return Arrivals(per_ray, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), drawn)

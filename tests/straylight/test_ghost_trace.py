@@ -645,3 +645,75 @@ def test_a_capped_run_traces_the_likely_brightest_ghost_first(tmp_path, monkeypa
     done = [r for r in table.rows if r.rays]
     assert [r.surfaces for r in done] == [["b_bottom", "b_top"]], [(r.surfaces, r.rays) for r in table.rows]
     assert table.rows[-1].power_w is None and len(table.rows) == 6
+
+
+def _plain_next_hits(opt, b, casts=None):
+    """next_hits as first written (index arrays for every group of rays, every ray copied): the reference its
+    shortcuts must match bit for bit; ``casts`` gets the number of casts (> 1: some ray was passed through)."""
+    from straylight.analyses.ghost_trace import SELF_HIT_MM
+
+    def dot(a, c):
+        return np.einsum("ij,ij->i", a, c)
+
+    n = len(b.w)
+    part, point, facing, front = np.full(n, -1, np.int64), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, bool)
+    todo, o, last = np.arange(n), b.o.copy(), b.last.copy()
+    for cast in range(4):
+        if len(todo) == 0:
+            break
+        if casts is not None:
+            casts.append(cast + 1)
+        tri, t = opt.isect.intersect(o[todo], b.d[todo])
+        tri, t = np.asarray(tri, np.int64), np.asarray(t, float)
+        hit_part = np.where(tri >= 0, opt.tri_part[np.maximum(tri, 0)], -1)
+        retry = []
+        for p in np.unique(hit_part[hit_part >= 0]):
+            g = np.flatnonzero(hit_part == p)
+            rows = todo[g]
+            tr, n_front, ok = opt.surfaces[p].refine_hits(o[rows], b.d[rows], t[g])
+            accept = ok & ~((last[rows] == p) & (tr < SELF_HIT_MM))
+            r = rows[accept]
+            part[r] = p
+            point[r] = o[r] + tr[accept, None] * b.d[r]
+            fr = dot(b.d[r], n_front[accept]) < 0
+            front[r] = fr
+            facing[r] = np.where(fr[:, None], n_front[accept], -n_front[accept])
+            again = rows[~accept]
+            o[again] = o[again] + (t[g][~accept] + opt.eps_mm)[:, None] * b.d[again]
+            last[again] = p
+            retry.append(again)
+        todo = np.concatenate(retry) if retry else np.zeros(0, np.int64)
+    return part, dot(point - b.o, b.d), point, facing, front
+
+
+def test_the_whole_bundle_shortcuts_give_the_plain_numbers(tmp_path):
+    """A forced step takes the bundle whole where it can (every ray cast hits one part, or every ray of a part is
+    accepted: no index arrays; one branch for all: only its direction computed). Bit for bit the numbers of the
+    plain way (:func:`_plain_next_hits`, the per-ray branch mask), along every ghost of the Cooke triplet, whose
+    steps take each way (all rays on one part and accepted, some passed through, some elsewhere)."""
+    from straylight.analyses.ghost_trace import emit, fresnel, interact, next_hits, nominal_sequence
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    nominal = nominal_sequence(opt)
+    kinds = set()
+    for k, refl in enumerate(ghost_reflections(nominal, 2)):
+        b = emit(opt, 1000, np.random.default_rng(k))
+        for p, act in ghost_sequence(nominal, refl):
+            hits = next_hits(opt, b)
+            casts: list = []
+            for fast, plain in zip(hits, _plain_next_hits(opt, b, casts)):
+                assert np.array_equal(fast, plain), (refl, p)
+            part, dist, point, facing, front = hits
+            kinds.add((bool((part == part[0]).all()), max(casts) > 1))
+            ok = np.flatnonzero(part == p)
+            b = b.take(ok)
+            part, dist, point, facing, front = part[ok], dist[ok], point[ok], facing[ok], front[ok]
+            co = fresnel(opt, part, front, np.clip(-np.einsum("ij,ij->i", b.d, facing), 0.0, 1.0), dist)
+            b.last = part
+            one = interact(b, point, facing, co, act == "R", opt.eps_mm)
+            each = interact(b, point, facing, co, np.full(len(ok), act == "R"), opt.eps_mm)
+            for f in ("o", "d", "w", "S", "e1", "last"):
+                assert np.array_equal(getattr(one, f), getattr(each, f)), (refl, p, act, f)
+            b = one
+    assert kinds == {(True, False), (False, False), (True, True), (False, True)}, kinds
