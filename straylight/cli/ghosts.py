@@ -35,7 +35,7 @@ def add_parser(subparsers):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-view3d", action="store_true",
                    help="skip DIR/view3d.html (the lens with the nominal path and the strongest ghosts, each selectable)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, processes=True)  # --workers forks processes (the command line's memory check)
 
 
 def run(args) -> int:

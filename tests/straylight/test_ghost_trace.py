@@ -165,7 +165,8 @@ def test_the_view_draws_each_ghost_along_its_own_sequence(tmp_path):
 
 
 @pytest.mark.parametrize("args, words", [(["--order", "3"], "even"), (["--field-deg", "95"], "field"),
-                                         (["--max-seconds", "0"], "--max-seconds")])
+                                         (["--max-seconds", "0"], "--max-seconds"), (["--workers", "0"], "--workers"),
+                                         (["--workers", "100000"], "--workers")])
 def test_bad_requests_are_one_line_errors(tmp_path, capsys, args, words):
     from straylight.cli.main import main
 
