@@ -707,9 +707,11 @@ def default_workers() -> int:
 
 
 def _can_fork() -> bool:
+    """Can this process fork workers? Not where the platform has no fork, nor in a daemonic process (a pool's own
+    worker: it may have no children)."""
     import multiprocessing
 
-    return "fork" in multiprocessing.get_all_start_methods()
+    return "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon
 
 
 _WORKER: dict = {}  # in a forked worker of ghost_table's pool: the table's Run class (_Pool)
