@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from time import monotonic
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -199,12 +199,12 @@ def next_hits(opt: GhostOptics, b: Bundle):
     point = np.zeros((n, 3))
     facing = np.zeros((n, 3))
     front = np.zeros(n, bool)
-    todo = _ALL  # the rays still to cast: every one, then the index array of those passed through
+    todo: Any = _ALL  # the rays still to cast: every one (_ALL), then the index array of those passed through
     o = b.o  # copied before a ray passed through moves its origin
     last = b.last
     copied = False
     for _ in range(4):
-        if todo is not _ALL and len(todo) == 0:
+        if isinstance(todo, np.ndarray) and len(todo) == 0:
             break
         o_todo, d_todo = o[todo], b.d[todo]
         tri, t = opt.isect.intersect(o_todo, d_todo)
@@ -215,6 +215,8 @@ def next_hits(opt: GhostOptics, b: Bundle):
         lo = int(hit_part.min()) if len(hit_part) else -1
         one = lo >= 0 and lo == int(hit_part.max())  # every ray cast hits part lo
         for p in ((lo,) if one else np.unique(hit_part[hit_part >= 0])):
+            g: Any
+            rows: Any  # _ALL or an index array, as todo
             if one:
                 g, rows, o_g, d_g, t_g = _ALL, todo, o_todo, d_todo, t
             else:
