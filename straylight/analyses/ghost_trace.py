@@ -795,8 +795,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
     ghost's second (the first batches going out by :func:`ghost_priors`, the likely-brightest first; later
     rounds by the estimates so far, the largest first), so the cap stops the ghosts as the budget does (each
-    keeps the estimate it reached) and leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
-    measured so far says that one each would take more than :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
+    keeps the estimate it reached) and leaves each with one: the batches of the ghosts still without one
+    shrink (not below 256) where the time measured so far says that one each would take more than
+    :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
     cap left untraced has no estimate: power, error and fraction None (null in ghosts.json, empty in
     ghosts.csv), listed last.
 
@@ -805,7 +806,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     ghost's state comes back whole, so without the cap the table is the same for any ``workers``, number for
     number. Under the cap each ghost still gets one batch before any its second (a round ends when its last
     ghost is back), the deadline is checked as each ghost's batch is handed out, and the batch fit measures the
-    wall time: K workers trace about K times the rays by the deadline, which ghosts a cap stops may differ."""
+    wall time: K workers trace up to K times the rays by the deadline, so which ghosts a cap stops, and where,
+    depends on K as it depends on the machine."""
     import time
 
     if order < 2 or order % 2:
