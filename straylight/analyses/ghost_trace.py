@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from time import monotonic
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -191,47 +191,72 @@ def next_hits(opt: GhostOptics, b: Bundle):
 
     As in the walk (``optical_surface``): a mesh hit is refined onto the part's exact surface; one that
     refines outside the clear aperture, or back onto the ray's own origin on its last part, is passed
-    through and the ray cast again from just beyond it."""
+    through and the ray cast again from just beyond it. (While every ray is cast, and where every ray of a
+    cast hits one part and is accepted there, the rays are taken whole, not through index arrays: the same
+    numbers, without a forced sequence's per-step copies of every ray.)"""
     n = len(b.w)
     part = np.full(n, -1, np.int64)
     point = np.zeros((n, 3))
     facing = np.zeros((n, 3))
     front = np.zeros(n, bool)
-    todo = np.arange(n)
-    o = b.o.copy()
-    last = b.last.copy()
+    todo: Any = _ALL  # the rays still to cast: every one (_ALL), then the index array of those passed through
+    o = b.o  # copied before a ray passed through moves its origin
+    last = b.last
+    copied = False
     for _ in range(4):
-        if len(todo) == 0:
+        if isinstance(todo, np.ndarray) and len(todo) == 0:
             break
-        tri, t = opt.isect.intersect(o[todo], b.d[todo])
+        o_todo, d_todo = o[todo], b.d[todo]
+        tri, t = opt.isect.intersect(o_todo, d_todo)
         tri = np.asarray(tri, np.int64)
         t = np.asarray(t, float)
         hit_part = np.where(tri >= 0, opt.tri_part[np.maximum(tri, 0)], -1)
         retry = []
-        for p in np.unique(hit_part[hit_part >= 0]):
-            g = np.flatnonzero(hit_part == p)
-            rows = todo[g]
+        lo = int(hit_part.min()) if len(hit_part) else -1
+        one = lo >= 0 and lo == int(hit_part.max())  # every ray cast hits part lo
+        for p in ((lo,) if one else np.unique(hit_part[hit_part >= 0])):
+            g: Any
+            rows: Any  # _ALL or an index array, as todo
+            if one:
+                g, rows, o_g, d_g, t_g = _ALL, todo, o_todo, d_todo, t
+            else:
+                g = np.flatnonzero(hit_part == p)
+                rows = g if todo is _ALL else todo[g]
+                o_g, d_g, t_g = o_todo[g], d_todo[g], t[g]
             surf = opt.surfaces[p]
             if surf is not None:
-                tr, n_front, ok = surf.refine_hits(o[rows], b.d[rows], t[g])
+                tr, n_front, ok = surf.refine_hits(o_g, d_g, t_g)
                 accept = ok & ~((last[rows] == p) & (tr < SELF_HIT_MM))
             else:
-                tr, n_front, accept = t[g], opt.tri_normals[tri[g]], np.ones(len(g), bool)
-            r = rows[accept]
+                tr, n_front, accept = t_g, opt.tri_normals[tri[g]], np.ones(len(t_g), bool)
+            whole = bool(accept.all())
+            if whole:
+                r, o_r, d_r, t_r, n_r = rows, o_g, d_g, tr, n_front
+            else:
+                r = np.flatnonzero(accept) if rows is _ALL else rows[accept]
+                o_r, d_r, t_r, n_r = o_g[accept], d_g[accept], tr[accept], n_front[accept]
             part[r] = p
-            point[r] = o[r] + tr[accept, None] * b.d[r]
-            fr = _dot(b.d[r], n_front[accept]) < 0
+            point[r] = o_r + t_r[:, None] * d_r
+            fr = _dot(d_r, n_r) < 0
             front[r] = fr
-            facing[r] = np.where(fr[:, None], n_front[accept], -n_front[accept])
-            again = rows[~accept]
+            facing[r] = np.where(fr[:, None], n_r, -n_r)
+            if whole:
+                continue
+            pass_ = ~accept
+            again = np.flatnonzero(pass_) if rows is _ALL else rows[pass_]
+            if not copied:
+                o, last, copied = o.copy(), last.copy(), True
             # past the facet by the scene's offset: a ray leaving a flat surface meets its facet again at t = 0
             # in the intersector's float32 until it has moved a few ulps of the coordinates
-            o[again] = o[again] + (t[g][~accept] + opt.eps_mm)[:, None] * b.d[again]
+            o[again] = o_g[pass_] + (t_g[pass_] + opt.eps_mm)[:, None] * d_g[pass_]
             last[again] = p
             retry.append(again)
         todo = np.concatenate(retry) if retry else np.zeros(0, np.int64)
     dist = _dot(point - b.o, b.d)
     return part, dist, point, facing, front
+
+
+_ALL = slice(None)  # next_hits: every ray (a view, not a copy)
 
 
 def fresnel(opt: GhostOptics, part, front, cos_i, dist):
@@ -252,21 +277,26 @@ def fresnel(opt: GhostOptics, part, front, cos_i, dist):
     return out
 
 
-def interact(b: Bundle, point, facing, coeffs, reflect_it: np.ndarray, eps_mm: float = EPS_MM) -> Bundle:
-    """The bundle after its interface hits: reflected where ``reflect_it``, else transmitted; weights times
-    the branch's power for the ray's Stokes vector (the engine's Mueller matrices) and the bulk factor."""
+def interact(b: Bundle, point, facing, coeffs, reflect_it, eps_mm: float = EPS_MM) -> Bundle:
+    """The bundle after its interface hits: reflected where ``reflect_it`` (per ray, or one bool for every ray:
+    a forced sequence's step), else transmitted; weights times the branch's power for the ray's Stokes vector
+    (the engine's Mueller matrices) and the bulk factor."""
     rs, rp, ts, tp, cos_t, eta, bulk = coeffs
     s = s_vector(b.d, facing)
     S = rotate_stokes(b.S, b.e1, s, b.d)
-    a_s = np.where(reflect_it, rs, ts)
-    a_p = np.where(reflect_it, rp, tp)
+    if isinstance(reflect_it, (bool, np.bool_)):  # one branch for all: only its direction computed
+        a_s, a_p = (rs, rp) if reflect_it else (ts, tp)
+        d_new = reflect(b.d, facing) if reflect_it else refract(b.d, facing, eta, cos_t)
+        offset = (eps_mm if reflect_it else -eps_mm) * facing
+    else:
+        a_s = np.where(reflect_it, rs, ts)
+        a_p = np.where(reflect_it, rp, tp)
+        d_new = np.where(reflect_it[:, None], reflect(b.d, facing), refract(b.d, facing, eta, cos_t))
+        offset = (np.where(reflect_it, 1.0, -1.0) * eps_mm)[:, None] * facing
     So = apply_interface_mueller(a_s, a_p, S)
     w = b.w * So[:, 0] * bulk
-    d_new = np.where(reflect_it[:, None], reflect(b.d, facing), refract(b.d, facing, eta, cos_t))
-    sign = np.where(reflect_it, 1.0, -1.0)
     safe = np.where(So[:, :1] > 0, So[:, :1], 1.0)
-    return Bundle(np.ascontiguousarray(point + (sign * eps_mm)[:, None] * facing), np.ascontiguousarray(d_new), w,
-                  So / safe, s, b.last)
+    return Bundle(np.ascontiguousarray(point + offset), np.ascontiguousarray(d_new), w, So / safe, s, b.last)
 
 
 # ---------------------------------------------------------------- the nominal sequence and the ghosts
@@ -376,6 +406,34 @@ def ghost_sequence(nominal, refl) -> tuple:
     return tuple(seq)
 
 
+def normal_incidence_powers(opt: GhostOptics, p: int) -> tuple:
+    """(R, T) of part ``p`` at normal incidence, unpolarized, each the mean over its two sides (its own coating
+    and film stack; ``Material.smooth_coefficients``); (0, 1) for a part with no specular interface."""
+    f_model, b_model = opt.models[p]
+    powers = []
+    for back, model in ((False, f_model), (True, b_model if b_model is not None else f_model)):
+        c = None if model is None else model.smooth_coefficients(np.ones(1), back=back)
+        if c is not None:
+            powers.append((float(c.reflectance("u")[0]), float(c.transmittance("u")[0])))
+    if not powers:
+        return 0.0, 1.0
+    return sum(r for r, _ in powers) / len(powers), sum(t for _, t in powers) / len(powers)
+
+
+def ghost_priors(opt: GhostOptics, nominal, refls) -> list:
+    """A cheap guess of each ghost's share of the source, to trace the likely-brightest first under a time cap:
+    the product along its sequence of the normal-incidence reflectance where it reflects and transmittance where
+    it transmits (:func:`normal_incidence_powers`; no vignetting, angles or absorption in the glass)."""
+    powers = {p: normal_incidence_powers(opt, p) for p, _ in nominal}
+    out = []
+    for refl in refls:
+        prior = 1.0
+        for p, act in ghost_sequence(nominal, refl):
+            prior *= powers[p][0] if act == "R" else powers[p][1]
+        out.append(prior)
+    return out
+
+
 # ---------------------------------------------------------------- tracing one sequence
 
 
@@ -407,15 +465,19 @@ def trace_sequence(opt: GhostOptics, seq, n: int, rng, table=None) -> Arrivals:
         if len(ids) == 0:
             break
         part, dist, point, facing, front = next_hits(opt, b)
-        ok = np.flatnonzero(part == p)
-        b, ids = b.take(ok), ids[ok]
-        part, dist, point, facing, front = part[ok], dist[ok], point[ok], facing[ok], front[ok]
+        on = part == p
+        if not on.all():  # (where every ray goes on, no copy)
+            ok = np.flatnonzero(on)
+            b, ids = b.take(ok), ids[ok]
+            part, dist, point, facing, front = part[ok], dist[ok], point[ok], facing[ok], front[ok]
         cos_i = np.clip(-_dot(b.d, facing), 0.0, 1.0)
         co = fresnel(opt, part, front, cos_i, dist)
         b.last = part
-        b = interact(b, point, facing, co, np.full(len(ids), act == "R"), opt.eps_mm)
-        live = np.flatnonzero(b.w > 0)
-        b, ids = b.take(live), ids[live]
+        b = interact(b, point, facing, co, act == "R", opt.eps_mm)
+        alive = b.w > 0
+        if not alive.all():
+            live = np.flatnonzero(alive)
+            b, ids = b.take(live), ids[live]
     per_ray = np.zeros(n)
     if len(ids) == 0:
         return Arrivals(per_ray, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), drawn)
@@ -636,10 +698,89 @@ def _notes(runs, rows, timed_out: bool, *, target_rel_error, max_rays, max_total
     return notes, warnings
 
 
+def default_workers() -> int:
+    """The cores this process may run on (its CPU affinity where the platform tells it, else ``os.cpu_count``)."""
+    import os
+
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _can_fork() -> bool:
+    """Can this process fork workers? Not where the platform has no fork, nor in a daemonic process (a pool's own
+    worker: it may have no children)."""
+    import multiprocessing
+
+    return "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon
+
+
+_WORKER: dict = {}  # in a forked worker of ghost_table's pool: the table's Run class (_Pool)
+
+
+def _worker_start(run_class) -> None:
+    _WORKER["Run"] = run_class
+
+
+def _advance_in_worker(state: dict, limit) -> dict:
+    """A forked worker's task: the run whose state (its ``__dict__``: random stream, sums, batches) is ``state``,
+    advanced to ``limit``; its new state back."""
+    run = object.__new__(_WORKER["Run"])
+    run.__dict__.update(state)
+    run.advance(limit)
+    return run.__dict__
+
+
+class _Pool:
+    """``workers`` processes forked from this one (each inherits the optics, the intersector's built BVH and the
+    compiled kernels as they are: nothing rebuilt, nothing pickled but the runs' states), tracing the runs of a
+    round (ghost_table's ``reach``) at most one a worker at a time. A run's state goes to a worker and comes back
+    whole, so a run continues its own random stream wherever it is traced: the table is the serial one."""
+
+    def __init__(self, workers: int, run_class, dispatch, limit_of):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.workers, self.dispatch, self.limit_of = workers, dispatch, limit_of
+        # forked at the first task, from this thread (the class goes to the workers in the fork, not pickled)
+        self.executor = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"),
+                                            initializer=_worker_start, initargs=(run_class,))
+
+    def round(self, todo, first_round: bool, tick) -> None:
+        """Trace the round ``todo`` ((k, run, limit), ...): each run dispatched in order as a worker frees (none
+        once ``dispatch`` says the deadline is past); returns when every dispatched run is back."""
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        pending: dict = {}
+        queue = iter(todo)
+        open_ = True
+        while True:
+            while open_ and len(pending) < self.workers:
+                item = next(queue, None)
+                if item is None or not self.dispatch(item[1]):
+                    open_ = False
+                    break
+                k, run, lim = item
+                future = self.executor.submit(_advance_in_worker, run.__dict__, self.limit_of(run, lim))
+                pending[future] = (k, run)
+            if not pending:
+                return
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                k, run = pending.pop(future)
+                run.__dict__.update(future.result())
+                if tick is not None and first_round:
+                    tick(k)
+
+    def close(self) -> None:
+        self.executor.shutdown(wait=True, cancel_futures=True)
+
+
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
                 batch_rays: int | None = None, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
                 max_total_rays: int = MAX_TOTAL_RAYS, guide_below: float = GUIDE_BELOW,
-                max_seconds: float | None = None) -> GhostTable:
+                max_seconds: float | None = None, workers: int | None = 1) -> GhostTable:
     """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio.
 
     The ghosts share ``max_total_rays`` (the nominal image's rays aside) by water-filling: each round gives
@@ -652,15 +793,29 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
 
     ``max_seconds``: a wall-clock cap the ghosts share (the nominal image's trace aside; ``monotonic``).
     Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
-    ghost's second, so the cap stops the ghosts as the budget does (each keeps the estimate it reached) and
-    leaves each with one: the batches of the ghosts still without one shrink (not below 256) where the time
-    measured so far says that one each would take more than :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
+    ghost's second (the first batches going out by :func:`ghost_priors`, the likely-brightest first; later
+    rounds by the estimates so far, the largest first), so the cap stops the ghosts as the budget does (each
+    keeps the estimate it reached) and leaves each with one: the batches of the ghosts still without one
+    shrink (not below 256) where the time measured so far says that one each would take more than
+    :data:`FIRST_ROUND_SHARE` of the cap. A ghost the
     cap left untraced has no estimate: power, error and fraction None (null in ghosts.json, empty in
-    ghosts.csv), listed last."""
+    ghosts.csv), listed last.
+
+    ``workers``: processes the ghosts are traced on (None: :func:`default_workers`; 1, or a platform that cannot
+    fork: this process alone). Each round's ghosts go to the workers in order, one at a time a worker, and a
+    ghost's state comes back whole, so without the cap the table is the same for any ``workers``, number for
+    number. Under the cap each ghost still gets one batch before any its second (a round ends when its last
+    ghost is back), the deadline is checked as each ghost's batch is handed out, and the batch fit measures the
+    wall time: K workers trace up to K times the rays by the deadline, so which ghosts a cap stops, and where,
+    depends on K as it depends on the machine."""
     import time
 
     if order < 2 or order % 2:
         raise GhostError(f"--order must be an even number >= 2, got {order}")
+    if workers is None:
+        workers = default_workers()
+    if not int(workers) >= 1:
+        raise GhostError(f"--workers must be >= 1, got {workers}")
     if max_seconds is not None and not max_seconds > 0:
         raise GhostError(f"--max-seconds must be > 0, got {max_seconds:g}")
     t0 = time.perf_counter()
@@ -689,6 +844,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
 
         def __init__(self, seq, k, floor_w=None, batch=None):
             self.seq, self.floor_w, self.batch = seq, floor_w, int(batch or batch_rays)
+            self.k, self.prior = k, 1.0  # its place in the table's list; its guessed power (ghost_priors)
             self.rng = np.random.default_rng([seed, k])
             self.acc = _Accumulator(frame)
             self.done = False
@@ -757,6 +913,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     # two batches each would pass the budget (a 37-surface zoom: 666 ghosts, 5.5e6 rays of 4096-ray batches),
     # their batches are smaller (batch_rays above) so that the first round fits it
     runs = [Run(ghost_sequence(nominal, refl), k, floor_w=min_fraction * p_nom) for k, refl in enumerate(refls, 1)]
+    priors = ghost_priors(opt, nominal, refls)
+    for run, prior in zip(runs, priors):
+        run.prior = prior
     t_ghosts = monotonic()
     deadline = None if max_seconds is None else t_ghosts + max_seconds
     timed_out = False
@@ -780,32 +939,64 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     def reach(limits, tick=None):
         """Trace each (k, run, limit) up to its limit, each run on its own stream (the same rays in any order).
         Under ``max_seconds``, one batch a run per round, every run's before any run's next, until the deadline;
-        ``tick(k)`` after run k's first round."""
+        ``tick(k)`` after run k's first round. With a pool, the round's runs are traced by its workers, at most
+        one run a worker at a time, dispatched in the round's order (the deadline and the batch fit checked at
+        each dispatch, as here before each batch); the round ends when its last run is back."""
         nonlocal timed_out
         first_round = True
         while todo := [(k, run, lim) for k, run, lim in limits if not run.done and run.traced < lim]:
-            for k, run, lim in todo:
-                if deadline is not None:
-                    if monotonic() >= deadline:
-                        timed_out = True
+            todo.sort(key=lambda item: queue_key(item[1]))
+            if pool is not None:
+                pool.round(todo, first_round, tick)
+                if timed_out:
+                    return
+            else:
+                for k, run, lim in todo:
+                    if not dispatch(run):
                         return
-                    if not run.traced and auto_batch:
-                        fit_batch(run)
-                run.advance(lim if deadline is None else min(lim, run.traced + run.batch))
-                if tick is not None and first_round:
-                    tick(k)
+                    run.advance(limit_of(run, lim))
+                    if tick is not None and first_round:
+                        tick(k)
             first_round = False
 
+    def queue_key(run):
+        """The order a round's ghosts go out in (under the cap, the ones the deadline reaches last go without): a
+        ghost with an estimate by it (largest first), before one without, by its prior (largest first; ghost_priors),
+        then as listed. Each ghost on its own stream: without the cap the order changes no number."""
+        return (0, -run.mean, -run.prior, run.k) if run.traced else (1, 0.0, -run.prior, run.k)
+
+    def dispatch(run) -> bool:
+        """Before a run's batch under the cap: False (and timed out) once the deadline is past; else its batch
+        fitted, before its first."""
+        nonlocal timed_out
+        if deadline is not None:
+            if monotonic() >= deadline:
+                timed_out = True
+                return False
+            if not run.traced and auto_batch:
+                fit_batch(run)
+        return True
+
+    def limit_of(run, lim):
+        return lim if deadline is None else min(lim, run.traced + run.batch)
+
+    n_workers = 1 if workers is None or len(runs) < 2 or not _can_fork() else min(int(workers), len(runs))
+    pool = _Pool(n_workers, Run, dispatch, limit_of) if n_workers > 1 else None
     first = max(2 * batch_rays, max_total_rays // len(runs))
-    # on_ghost: a callable(k, n) told after each ghost's first share (a progress bar; under the cap, its first batch)
-    reach([(k, run, first) for k, run in enumerate(runs, start=1)],
-          None if on_ghost is None else lambda k: on_ghost(k, len(runs)))
-    while not timed_out:  # the rest of the budget, shared equally among the ghosts not yet at their target
-        open_ = [r for r in runs if not r.done]
-        share = (max_total_rays - sum(r.traced for r in runs)) // max(len(open_), 1)
-        if not open_ or share < batch_rays:
-            break
-        reach([(0, run, run.traced + share) for run in open_])
+    try:
+        # on_ghost: a callable(k, n) told after each ghost's first share (a progress bar; under the cap, its first
+        # batch)
+        reach([(k, run, first) for k, run in enumerate(runs, start=1)],
+              None if on_ghost is None else lambda k: on_ghost(k, len(runs)))
+        while not timed_out:  # the rest of the budget, shared equally among the ghosts not yet at their target
+            open_ = [r for r in runs if not r.done]
+            share = (max_total_rays - sum(r.traced for r in runs)) // max(len(open_), 1)
+            if not open_ or share < batch_rays:
+                break
+            reach([(0, run, run.traced + share) for run in open_])
+    finally:
+        if pool is not None:
+            pool.close()
     rows = []
     maps = {"nominal": map_nom}
     for refl, run in zip(refls, runs):
@@ -931,14 +1122,15 @@ def plot_maps(table: GhostTable, path, top: int = 8):
 
 
 def ghosts(scene, order: int = 2, field_deg: float = 0.0, detector: str | None = None,
-           max_seconds: float | None = None, **kwargs) -> GhostTable:
+           max_seconds: float | None = None, workers: int | None = None, **kwargs) -> GhostTable:
     """Notebook API: the ghost table of a scene file (or a loaded scene) at ``field_deg``; ``max_seconds``
-    caps the ghosts' wall-clock time and ``kwargs`` go to :func:`ghost_table` (``target_rel_error``, ...)."""
+    caps the ghosts' wall-clock time, ``workers`` processes trace them (default: one a core this process may
+    use; 1: this process) and ``kwargs`` go to :func:`ghost_table` (``target_rel_error``, ...)."""
     from straylight.scene import load_scene
 
     rs = load_scene(scene) if not hasattr(scene, "scene") else scene
     opt = prepare(rs, field_deg, detector)
-    table = ghost_table(opt, order=order, max_seconds=max_seconds, **kwargs)
+    table = ghost_table(opt, order=order, max_seconds=max_seconds, workers=workers, **kwargs)
     table.field_deg = float(field_deg)
     table.optics = opt
     return table

@@ -1,6 +1,7 @@
 """``straylight ghosts``: the ghost table of the lenses in a scene (CONTRACTS 8.4; docs/ghosts.md).
 
-    straylight ghosts SCENE.toml [--order 2] [--field-deg F] [--max-total-rays N] [--max-seconds S] --out DIR
+    straylight ghosts SCENE.toml [--order 2] [--field-deg F] [--max-total-rays N] [--max-seconds S]
+        [--workers K] --out DIR
 
 Writes DIR/ghosts.csv, ghosts.json, ghosts.md and ghosts.png (straylight.analyses.ghost_trace).
 """
@@ -28,10 +29,13 @@ def add_parser(subparsers):
                    help="wall-clock cap the ghosts share, the nominal image's trace aside (default: none); every "
                         "ghost gets its first rays before any gets more, a ghost the cap stops keeps the error it "
                         "reached, and the table says how many and at what error")
+    p.add_argument("--workers", type=int, default=None,
+                   help="processes the ghosts are traced on (default: one a core this process may use; 1: this "
+                        "process alone); without --max-seconds the table is the same for any number")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-view3d", action="store_true",
                    help="skip DIR/view3d.html (the lens with the nominal path and the strongest ghosts, each selectable)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, processes=True)  # --workers forks processes (the command line's memory check)
 
 
 def run(args) -> int:
@@ -53,6 +57,8 @@ def run(args) -> int:
             raise GhostError(f"{flag} must be >= 1, got {value}")
     if args.max_seconds is not None and not args.max_seconds > 0:  # (NaN too)
         raise GhostError(f"--max-seconds must be > 0, got {args.max_seconds:g}")
+    if args.workers is not None and args.workers < 1:
+        raise GhostError(f"--workers must be >= 1, got {args.workers}")
     bar = progress_bar(total=None, desc="ghosts", unit="ghost", enabled=sys.stderr.isatty())
 
     def tick(k, n):
@@ -63,6 +69,7 @@ def run(args) -> int:
         table = ghosts(args.scene, order=args.order, field_deg=args.field_deg, detector=args.detector,
                        target_rel_error=args.target_rel_error, min_fraction=args.min_fraction,
                        max_rays=args.max_rays, seed=args.seed, on_ghost=tick, max_seconds=args.max_seconds,
+                       workers=args.workers,
                        **({} if args.max_total_rays is None else {"max_total_rays": args.max_total_rays}))
     finally:
         bar.close()

@@ -165,7 +165,8 @@ def test_the_view_draws_each_ghost_along_its_own_sequence(tmp_path):
 
 
 @pytest.mark.parametrize("args, words", [(["--order", "3"], "even"), (["--field-deg", "95"], "field"),
-                                         (["--max-seconds", "0"], "--max-seconds")])
+                                         (["--max-seconds", "0"], "--max-seconds"), (["--workers", "0"], "--workers"),
+                                         (["--workers", "100000"], "--workers")])
 def test_bad_requests_are_one_line_errors(tmp_path, capsys, args, words):
     from straylight.cli.main import main
 
@@ -433,15 +434,17 @@ def test_a_time_cap_leaves_every_ghost_its_estimate_and_says_how_far_it_got(tmp_
     whole cap: the first ghost's batch, timed, shows it, and the 14 after it get the largest common batch that
     ends the first round within half the cap; the second round fills the other half. The warnings say how many
     ghosts the cap stopped, and at what worst error."""
-    from straylight.analyses.ghost_trace import nominal_sequence
+    from straylight.analyses.ghost_trace import ghost_priors, nominal_sequence
     from straylight.scene import load_scene
 
     opt = prepare(load_scene(_cooke(tmp_path)))
-    refls = ghost_reflections(nominal_sequence(opt), 2)  # the order the ghosts are traced in
+    nominal = nominal_sequence(opt)
+    refls = ghost_reflections(nominal, 2)
+    priors = dict(zip(refls, ghost_priors(opt, nominal, refls)))  # the order the first batches go out in
     _fake_clock(monkeypatch)
     cap_s = _first_round_s(opt, 4096)
     table = ghost_table(opt, target_rel_error=0.001, max_seconds=cap_s)
-    rows = sorted(table.rows, key=lambda r: refls.index(tuple(r.reflections)))
+    rows = sorted(table.rows, key=lambda r: (-priors[tuple(r.reflections)], refls.index(tuple(r.reflections))))
     first, rest = rows[0], rows[1:]
     parts_rest = sum(len(r.parts) for r in rest)
     half_s = 0.5 * cap_s / 1e-6  # in rays x parts on the fake clock
@@ -522,9 +525,9 @@ def test_the_command_warns_of_what_to_act_on_and_notes_the_rest(tmp_path, monkey
     notes = json.loads((out / "ghosts.json").read_text())["notes"]
     assert len(notes) == 1 and "were aimed at that part" in notes[0]
 
-    _fake_clock(monkeypatch)
+    _fake_clock(monkeypatch)  # moved by the rays this process traces: one worker, this one
     assert main(["ghosts", str(scene), "--out", str(out), "--no-view3d", "--target-rel-error", "0.001",
-                 "--max-seconds", "0.5"]) == 0
+                 "--max-seconds", "0.5", "--workers", "1"]) == 0
     captured = capsys.readouterr()
     err = captured.err.strip().splitlines()
     assert err and all(line.startswith("straylight: warning: ") for line in err), err
@@ -535,3 +538,183 @@ def test_the_command_warns_of_what_to_act_on_and_notes_the_rest(tmp_path, monkey
     assert "Warning:" not in captured.out  # printed once, on stderr
     doc = json.loads((out / "ghosts.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-strict JSON {c}"))
     assert any("time cap" in n for n in doc["notes"])
+
+
+def _row_numbers(table):
+    return [(r.surfaces, r.reflections, r.power_w, r.stderr_w, r.fraction_of_nominal, r.focus_mm, r.radius_mm,
+             r.peak_ratio, r.rays, r.upper_w) for r in table.rows]
+
+
+def test_the_table_is_the_same_on_any_number_of_workers(tmp_path, monkeypatch):
+    """workers=K: each round's ghosts are traced in K forked processes, a ghost's state (random stream, sums,
+    learnt table) going out and coming back whole; without a time cap the table is the one process's, number for
+    number, maps included, also over a water-filling round (a budget whose equal first shares stop some ghosts)."""
+    from straylight.analyses import ghost_trace
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    rounds = []
+    real_round = ghost_trace._Pool.round
+    monkeypatch.setattr(ghost_trace._Pool, "round", lambda self, todo, *a: (rounds.append(len(todo)),
+                                                                            real_round(self, todo, *a))[1])
+    kwargs = dict(target_rel_error=0.03, max_total_rays=15 * 4 * 4096)  # first shares: 4 batches
+    one = ghost_table(opt, workers=1, **kwargs)
+    assert not rounds  # one process: no pool
+    two = ghost_table(opt, workers=2, **kwargs)
+    assert len(rounds) >= 2 and rounds[0] == 15, rounds  # the pool traced the first round and water-filling ones
+    assert _row_numbers(two) == _row_numbers(one)
+    assert two.notes == one.notes and two.nominal.power_w == one.nominal.power_w
+    assert two.maps.keys() == one.maps.keys() and all(np.array_equal(two.maps[k], one.maps[k]) for k in one.maps)
+    assert max(r.rays for r in one.rows) > 4 * 4096 > min(r.rays for r in one.rows)  # (a second round)
+
+
+def test_a_time_cap_on_workers_gives_every_ghost_one_batch_before_any_its_second(tmp_path):
+    """Under --max-seconds with workers, a round ends when its last ghost is back and the next starts after it:
+    whatever the cap, the ghosts' batch counts differ by at most one, and ghosts are left untraced only where none
+    has a second batch. (The machine's own clock: the counts vary from run to run, the rule does not.)"""
+    import time
+
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    t = time.perf_counter()
+    ghost_table(opt, target_rel_error=0.5, batch_rays=1024, workers=1)
+    one_round_s = time.perf_counter() - t  # the nominal image's trace and about two rounds of ghosts
+    for cap_s in (0.5 * one_round_s, 2.5 * one_round_s):
+        table = ghost_table(opt, target_rel_error=0.0001, min_fraction=0.0, batch_rays=1024, workers=2,
+                            max_seconds=cap_s)
+        assert all(r.rays % 1024 == 0 for r in table.rows)
+        batches = [r.rays // 1024 for r in table.rows]
+        assert max(batches) - min(batches) <= 1, (cap_s, batches)
+        assert max(batches) >= 1 and table.warnings, (cap_s, batches)
+
+
+def _two_windows():
+    """Two windows in one collimated beam (n = 1.5, normal incidence, light toward -z): "a" first, its faces with a
+    quarter-wave layer of n = 1.25 (R = ((1.5 - 1.25^2) / (1.5 + 1.25^2))^2 = 4.2e-4, Macleod 3.2), "b" after it
+    bare (R = 0.04). In surface order the ghost between a's faces comes first and b's (a hundred times R squared
+    brighter: 1e4 times) last."""
+    from geometry.analytic import Plane, analytic_part
+    from geometry.mesh import Scene
+    from materials import load_material
+    from straylight.sources import CollimatedDisk
+
+    up = np.array([0.0, 0.0, 1.0])
+    coat = [{"n": 1.25, "thickness_nm": 550.0 / (4 * 1.25)}]
+    mats = {"coated": load_material({"name": "coated", "components": [{"type": "dielectric", "n": 1.5,
+                                                                       "coating": coat, "wavelength_nm": 550.0}]}),
+            "bare": load_material({"name": "bare", "components": [{"type": "dielectric", "n": 1.5}]})}
+    parts = [analytic_part(name, Plane(np.array([0, 0, z]), sign * up, math.inf, 0.0, 100.0, 0.0), mat)
+             for name, z, sign, mat in (("a_top", 40.0, 1, "coated"), ("a_bottom", 30.0, -1, "coated"),
+                                        ("b_top", 10.0, 1, "bare"), ("b_bottom", 0.0, -1, "bare"))]
+    parts.append(analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None,
+                               "detector"))
+    src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
+    return ResolvedScene(None, Scene(tuple(parts)), mats, (src,), ())
+
+
+def test_a_capped_run_traces_the_likely_brightest_ghost_first(tmp_path, monkeypatch):
+    """Under --max-seconds the first batches go out by a prior (each ghost's normal-incidence reflectances and
+    transmittances along its sequence, coatings included), not in surface order: a cap that lets one ghost's batch
+    out traces the bare window's ghost, which surface order lists last, and leaves the coated one's untraced. The
+    order of the first batches is the priors' (bare pair, then the mixed ones, coated pair last)."""
+    from straylight.analyses import ghost_trace
+
+    opt = prepare(_two_windows())
+    nominal = ghost_trace.nominal_sequence(opt)
+    assert [opt.names[p] for p, _ in nominal] == ["a_top", "a_bottom", "b_top", "b_bottom"]
+    R_c = ((1.5 - 1.25 ** 2) / (1.5 + 1.25 ** 2)) ** 2
+    assert ghost_trace.normal_incidence_powers(opt, nominal[0][0])[0] == pytest.approx(R_c, rel=1e-9)
+    assert ghost_trace.normal_incidence_powers(opt, nominal[2][0])[0] == pytest.approx(0.04, rel=1e-9)
+    traced = []
+    now = _fake_clock(monkeypatch)
+    real = ghost_trace.trace_sequence  # (the fake clock's)
+
+    def seen(opt_, seq, n, rng, table=None):
+        traced.append(tuple(opt.names[p] for p, act in seq if act == "R"))
+        return real(opt_, seq, n, rng, table)
+
+    monkeypatch.setattr(ghost_trace, "trace_sequence", seen)
+    generous = ghost_table(opt, target_rel_error=0.001, batch_rays=1024, max_seconds=1e9, max_total_rays=6 * 1024)
+    firsts = list(dict.fromkeys(t for t in traced if t))  # the ghosts (reflecting somewhere) as first traced
+    assert firsts[0] == ("b_bottom", "b_top") and firsts[-1] == ("a_bottom", "a_top"), firsts
+    assert [r.surfaces for r in generous.rows][0] == ["b_bottom", "b_top"]  # (the table: by power, as always)
+    now[0] = 0.0
+    traced.clear()
+    one_batch_s = 1024 * len(ghost_trace.ghost_sequence(nominal, (3, 2))) * 1e-6  # the fake clock's
+    table = ghost_table(opt, target_rel_error=0.001, batch_rays=1024, max_seconds=0.5 * one_batch_s)
+    done = [r for r in table.rows if r.rays]
+    assert [r.surfaces for r in done] == [["b_bottom", "b_top"]], [(r.surfaces, r.rays) for r in table.rows]
+    assert table.rows[-1].power_w is None and len(table.rows) == 6
+
+
+def _plain_next_hits(opt, b, casts=None):
+    """next_hits as first written (index arrays for every group of rays, every ray copied): the reference its
+    shortcuts must match bit for bit; ``casts`` gets the number of casts (> 1: some ray was passed through)."""
+    from straylight.analyses.ghost_trace import SELF_HIT_MM
+
+    def dot(a, c):
+        return np.einsum("ij,ij->i", a, c)
+
+    n = len(b.w)
+    part, point, facing, front = np.full(n, -1, np.int64), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros(n, bool)
+    todo, o, last = np.arange(n), b.o.copy(), b.last.copy()
+    for cast in range(4):
+        if len(todo) == 0:
+            break
+        if casts is not None:
+            casts.append(cast + 1)
+        tri, t = opt.isect.intersect(o[todo], b.d[todo])
+        tri, t = np.asarray(tri, np.int64), np.asarray(t, float)
+        hit_part = np.where(tri >= 0, opt.tri_part[np.maximum(tri, 0)], -1)
+        retry = []
+        for p in np.unique(hit_part[hit_part >= 0]):
+            g = np.flatnonzero(hit_part == p)
+            rows = todo[g]
+            tr, n_front, ok = opt.surfaces[p].refine_hits(o[rows], b.d[rows], t[g])
+            accept = ok & ~((last[rows] == p) & (tr < SELF_HIT_MM))
+            r = rows[accept]
+            part[r] = p
+            point[r] = o[r] + tr[accept, None] * b.d[r]
+            fr = dot(b.d[r], n_front[accept]) < 0
+            front[r] = fr
+            facing[r] = np.where(fr[:, None], n_front[accept], -n_front[accept])
+            again = rows[~accept]
+            o[again] = o[again] + (t[g][~accept] + opt.eps_mm)[:, None] * b.d[again]
+            last[again] = p
+            retry.append(again)
+        todo = np.concatenate(retry) if retry else np.zeros(0, np.int64)
+    return part, dot(point - b.o, b.d), point, facing, front
+
+
+def test_the_whole_bundle_shortcuts_give_the_plain_numbers(tmp_path):
+    """A forced step takes the bundle whole where it can (every ray cast hits one part, or every ray of a part is
+    accepted: no index arrays; one branch for all: only its direction computed). Bit for bit the numbers of the
+    plain way (:func:`_plain_next_hits`, the per-ray branch mask), along every ghost of the Cooke triplet, whose
+    steps take each way (all rays on one part and accepted, some passed through, some elsewhere)."""
+    from straylight.analyses.ghost_trace import emit, fresnel, interact, next_hits, nominal_sequence
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    nominal = nominal_sequence(opt)
+    kinds = set()
+    for k, refl in enumerate(ghost_reflections(nominal, 2)):
+        b = emit(opt, 1000, np.random.default_rng(k))
+        for p, act in ghost_sequence(nominal, refl):
+            hits = next_hits(opt, b)
+            casts: list = []
+            for fast, plain in zip(hits, _plain_next_hits(opt, b, casts)):
+                assert np.array_equal(fast, plain), (refl, p)
+            part, dist, point, facing, front = hits
+            kinds.add((bool((part == part[0]).all()), max(casts) > 1))
+            ok = np.flatnonzero(part == p)
+            b = b.take(ok)
+            part, dist, point, facing, front = part[ok], dist[ok], point[ok], facing[ok], front[ok]
+            co = fresnel(opt, part, front, np.clip(-np.einsum("ij,ij->i", b.d, facing), 0.0, 1.0), dist)
+            b.last = part
+            one = interact(b, point, facing, co, act == "R", opt.eps_mm)
+            each = interact(b, point, facing, co, np.full(len(ok), act == "R"), opt.eps_mm)
+            for f in ("o", "d", "w", "S", "e1", "last"):
+                assert np.array_equal(getattr(one, f), getattr(each, f)), (refl, p, act, f)
+            b = one
+    assert kinds == {(True, False), (False, False), (True, True), (False, True)}, kinds
