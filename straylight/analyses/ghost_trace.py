@@ -906,6 +906,10 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             return self.mean, self.err, focus, radius, acc.map * (self.batch / acc.n) / cell_mm2, self.traced
 
     p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0, batch=nominal_batch).advance().result()
+    if not p_nom > 0:  # every ghost's fraction and peak ratio would be undefined: nothing to rank them against
+        raise GhostError(f"no light reaches the detector {opt.names[opt.detector]!r} along the nominal path "
+                         f"({' > '.join(opt.names[q] for q, _ in nominal)}) in {n_nom} rays: the image surface may "
+                         "sit in the incoming beam, or the path met by chance is not the lens's design path")
     peak_nom = peak_irradiance(map_nom)
     nom_row = GhostRow([], [], p_nom, e_nom, 1.0, f_nom, r_nom, 1.0 if peak_nom > 0 else None, n_nom,
                        [opt.names[p] for p, _ in nominal])

@@ -271,6 +271,22 @@ def test_an_image_turned_off_the_detector_is_refused_with_the_way_out(tmp_path, 
     assert len(ghosts(tmp_path / "lens5" / "scene.toml", target_rel_error=0.2).rows) == 3
 
 
+def test_a_nominal_path_with_no_light_is_refused_in_one_line(tmp_path, capsys):
+    """ray-optics' lens_reflection_test.seq, whose image surface sits in the incoming beam: the design path
+    found by the likelier branch carries no light when traced as a forced sequence. The table had every
+    ghost's fraction of the nominal image and peak ratio null (exit 0); now one line and exit 2."""
+    from straylight.cli.main import main
+
+    assert main(["optics", "import", str(LENSES / "ray-optics" / "lens_reflection_test.seq"),
+                 "--out", str(tmp_path / "lens")]) == 0
+    capsys.readouterr()
+    assert main(["ghosts", str(tmp_path / "lens" / "scene.toml"), "--max-seconds", "5",
+                 "--out", str(tmp_path / "g")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no light reaches the detector" in err[0] and "nominal path" in err[0], err
+    assert not (tmp_path / "g" / "ghosts.json").exists()
+
+
 def test_the_double_gauss_design_path_carries_what_the_analog_walk_finds(tmp_path):
     """The design path's power through the double Gauss ag_dblgauss.seq, forced-sequence against the engine's
     analog walk (path records grouped by sequence): rays offset off a surface by less than the intersector's
