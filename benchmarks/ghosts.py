@@ -29,6 +29,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from straylight.analyses.ghost_trace import ghosts
     from straylight.analyses.ghosts import specular_sequence
+    from straylight.execution import Execution
     from straylight.cli.main import main as cli
     from straylight.scene import load_scene
     from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions
@@ -39,7 +40,7 @@ def main(argv=None) -> int:
         t_import = time.perf_counter() - t0
         rs = load_scene(Path(tmp) / "scene.toml")
         t0 = time.perf_counter()
-        table = ghosts(rs, order=2, workers=1)  # one process, as the walk below: the ratio is per core
+        table = ghosts(rs, order=2, execution=Execution(workers=1))  # one process, as the walk below: the ratio is per core
         t_table = time.perf_counter() - t0
         wanted = [r for r in table.rows if r.fraction_of_nominal >= 1e-6]
         worst = max(r.stderr_w / r.power_w for r in wanted)

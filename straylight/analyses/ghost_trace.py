@@ -780,7 +780,7 @@ class _Pool:
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
                 batch_rays: int | None = None, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
                 max_total_rays: int = MAX_TOTAL_RAYS, guide_below: float = GUIDE_BELOW,
-                max_seconds: float | None = None, workers: int | None = 1) -> GhostTable:
+                max_seconds: float | None = None, execution=None) -> GhostTable:
     """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio.
 
     The ghosts share ``max_total_rays`` (the nominal image's rays aside) by water-filling: each round gives
@@ -801,8 +801,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     cap left untraced has no estimate: power, error and fraction None (null in ghosts.json, empty in
     ghosts.csv), listed last.
 
-    ``workers``: processes the ghosts are traced on (None: :func:`default_workers`; 1, or a platform that cannot
-    fork: this process alone). Each round's ghosts go to the workers in order, one at a time a worker, and a
+    ``execution``: a :class:`straylight.execution.Execution` whose ``workers`` is the number of processes the
+    ghosts are traced on (None, or its ``workers`` None: this process alone, as a platform that cannot fork;
+    the command line and :func:`ghosts` pass :func:`default_workers`). Each round's ghosts go to the workers in order, one at a time a worker, and a
     ghost's state comes back whole, so without the cap the table is the same for any ``workers``, number for
     number. Under the cap each ghost still gets one batch before any its second (a round ends when its last
     ghost is back), the deadline is checked as each ghost's batch is handed out, and the batch fit measures the
@@ -812,10 +813,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
 
     if order < 2 or order % 2:
         raise GhostError(f"--order must be an even number >= 2, got {order}")
-    if workers is None:
-        workers = default_workers()
-    if not int(workers) >= 1:
-        raise GhostError(f"--workers must be >= 1, got {workers}")
+    workers = getattr(execution, "workers", None) or 1
     if max_seconds is not None and not max_seconds > 0:
         raise GhostError(f"--max-seconds must be > 0, got {max_seconds:g}")
     t0 = time.perf_counter()
@@ -984,7 +982,7 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     def limit_of(run, lim):
         return lim if deadline is None else min(lim, run.traced + run.batch)
 
-    n_workers = 1 if workers is None or len(runs) < 2 or not _can_fork() else min(int(workers), len(runs))
+    n_workers = 1 if len(runs) < 2 or not _can_fork() else min(int(workers), len(runs))
     pool = _Pool(n_workers, Run, dispatch, limit_of) if n_workers > 1 else None
     first = max(2 * batch_rays, max_total_rays // len(runs))
     try:
@@ -1126,15 +1124,20 @@ def plot_maps(table: GhostTable, path, top: int = 8):
 
 
 def ghosts(scene, order: int = 2, field_deg: float = 0.0, detector: str | None = None,
-           max_seconds: float | None = None, workers: int | None = None, **kwargs) -> GhostTable:
+           max_seconds: float | None = None, execution=None, **kwargs) -> GhostTable:
     """Notebook API: the ghost table of a scene file (or a loaded scene) at ``field_deg``; ``max_seconds``
-    caps the ghosts' wall-clock time, ``workers`` processes trace them (default: one a core this process may
-    use; 1: this process) and ``kwargs`` go to :func:`ghost_table` (``target_rel_error``, ...)."""
+    caps the ghosts' wall-clock time, ``execution=Execution(workers=K)`` traces them in K processes (default,
+    None: one a core this process may use; ``Execution(workers=1)``: this process) and ``kwargs`` go to
+    :func:`ghost_table` (``target_rel_error``, ...)."""
+    from straylight.execution import Execution
     from straylight.scene import load_scene
+
+    if execution is None or execution.workers is None:
+        execution = Execution(workers=default_workers())
 
     rs = load_scene(scene) if not hasattr(scene, "scene") else scene
     opt = prepare(rs, field_deg, detector)
-    table = ghost_table(opt, order=order, max_seconds=max_seconds, workers=workers, **kwargs)
+    table = ghost_table(opt, order=order, max_seconds=max_seconds, execution=execution, **kwargs)
     table.field_deg = float(field_deg)
     table.optics = opt
     return table

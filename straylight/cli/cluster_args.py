@@ -85,6 +85,16 @@ def cluster_client(args, in_process_below: int = 1):
         yield client
 
 
+def forked_execution(args):
+    """The :class:`straylight.execution.Execution` of a command whose ``--workers K`` forks K processes of its
+    own (``straylight ghosts``: no dask): ``Execution(workers=K)``, or None without the flag (the command's
+    own default)."""
+    workers = getattr(args, "workers", None)
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
+    return None if workers is None else Execution(workers=workers)
+
+
 @contextmanager
 def execution(args, in_process_below: int = 1, in_process: bool = False):
     """The :class:`straylight.execution.Execution` of a command, from its flags: ``--threads K``,

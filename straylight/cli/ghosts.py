@@ -42,6 +42,7 @@ def run(args) -> int:
     import sys
 
     from straylight.analyses.ghost_trace import GhostError, ghosts, markdown, write_table
+    from straylight.cli.cluster_args import forked_execution
     from straylight.progress import progress_bar
 
     if args.order < 2 or args.order % 2:
@@ -69,7 +70,7 @@ def run(args) -> int:
         table = ghosts(args.scene, order=args.order, field_deg=args.field_deg, detector=args.detector,
                        target_rel_error=args.target_rel_error, min_fraction=args.min_fraction,
                        max_rays=args.max_rays, seed=args.seed, on_ghost=tick, max_seconds=args.max_seconds,
-                       workers=args.workers,
+                       execution=forked_execution(args),
                        **({} if args.max_total_rays is None else {"max_total_rays": args.max_total_rays}))
     finally:
         bar.close()

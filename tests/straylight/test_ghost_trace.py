@@ -21,6 +21,7 @@ from engine_helpers import window_scene
 from straylight.analyses.ghost_trace import (
     Arrivals, GhostError, _Accumulator, ghost_reflections, ghost_sequence, ghost_table, ghosts, prepare,
 )
+from straylight.execution import Execution
 from straylight.scene import ResolvedScene
 
 LENSES = Path(__file__).resolve().parents[1] / "data" / "lenses"
@@ -574,9 +575,9 @@ def test_the_table_is_the_same_on_any_number_of_workers(tmp_path, monkeypatch):
     monkeypatch.setattr(ghost_trace._Pool, "round", lambda self, todo, *a: (rounds.append(len(todo)),
                                                                             real_round(self, todo, *a))[1])
     kwargs = dict(target_rel_error=0.03, max_total_rays=15 * 4 * 4096)  # first shares: 4 batches
-    one = ghost_table(opt, workers=1, **kwargs)
+    one = ghost_table(opt, execution=Execution(workers=1), **kwargs)
     assert not rounds  # one process: no pool
-    two = ghost_table(opt, workers=2, **kwargs)
+    two = ghost_table(opt, execution=Execution(workers=2), **kwargs)
     assert len(rounds) >= 2 and rounds[0] == 15, rounds  # the pool traced the first round and water-filling ones
     assert _row_numbers(two) == _row_numbers(one)
     assert two.notes == one.notes and two.nominal.power_w == one.nominal.power_w
@@ -594,10 +595,10 @@ def test_a_time_cap_on_workers_gives_every_ghost_one_batch_before_any_its_second
 
     opt = prepare(load_scene(_cooke(tmp_path)))
     t = time.perf_counter()
-    ghost_table(opt, target_rel_error=0.5, batch_rays=1024, workers=1)
+    ghost_table(opt, target_rel_error=0.5, batch_rays=1024, execution=Execution(workers=1))
     one_round_s = time.perf_counter() - t  # the nominal image's trace and about two rounds of ghosts
     for cap_s in (0.5 * one_round_s, 2.5 * one_round_s):
-        table = ghost_table(opt, target_rel_error=0.0001, min_fraction=0.0, batch_rays=1024, workers=2,
+        table = ghost_table(opt, target_rel_error=0.0001, min_fraction=0.0, batch_rays=1024, execution=Execution(workers=2),
                             max_seconds=cap_s)
         assert all(r.rays % 1024 == 0 for r in table.rows)
         batches = [r.rays // 1024 for r in table.rows]
