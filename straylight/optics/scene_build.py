@@ -74,6 +74,13 @@ def _leave_centre(placed_surface, radius_mm: float, optical: list) -> None:
     placed_surface.inner_kind, placed_surface.inner_radius_mm = placed_surface.inner_kind or "hole", inner
 
 
+def _share_hole(p, surface) -> None:
+    """The same glass surface met again (the light's way back through it) gets ``surface``'s hole."""
+    for q in p.surfaces:
+        if q is not surface and not q.mirror and _same_geometry(q, surface) and _same_media(q, surface):
+            q.inner_kind, q.inner_radius_mm = surface.inner_kind, surface.inner_radius_mm
+
+
 def _in_contact(p) -> dict:
     """{index of the second surface: index of the first} for two glasses in contact: a surface from glass into air
     with no thickness after it, then a surface of the same shape from air into glass (OpticsDatabase's Samyang 50 mm
@@ -103,9 +110,7 @@ def _cemented_centres(p, optical: list) -> None:
                      and s.semi_diameter_mm < q.semi_diameter_mm), None)
         if twin is not None:
             _leave_centre(twin, s.semi_diameter_mm, optical)
-            for q in p.surfaces:  # the same part met again (the light's way back through it): the same hole
-                if q is not twin and not q.mirror and _same_geometry(q, twin) and _same_media(q, twin):
-                    q.inner_kind, q.inner_radius_mm = twin.inner_kind, twin.inner_radius_mm
+            _share_hole(p, twin)
 
 
 def _glass_label(name, n) -> str:
@@ -125,16 +130,17 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         from straylight.optics.sequential import holes_for_passing_light
 
         holes = holes_for_passing_light(p, z00, 1.1 * largest0, source_centre_xy(p))
-        for idx in [i for i in holes if not next(s for s in p.surfaces if s.index == i).mirror]:
+        by_index = {s.index: s for s in p.surfaces}
+        for idx in [i for i in holes if not by_index[i].mirror]:
             # a hole through a Mangin's glass: its front and its mirror back open alike (no glass left without
             # its other face)
-            q = next(s for s in p.surfaces if s.index == idx)
+            q = by_index[idx]
             after = [s for s in p.surfaces if s.index > idx]
             m = next((s for s in after if s.mirror), None)
             if m is not None and q.n > 1.0 + 1e-9 and all(abs(s.n - q.n) < 1e-12 for s in after if s.index < m.index):
                 holes[idx] = holes[m.index] = max(holes[idx], holes.get(m.index, 0.0))
         for idx, r in holes.items():
-            m = next(s for s in p.surfaces if s.index == idx)
+            m = by_index[idx]
             if m.inner_kind == "hole" and m.inner_radius_mm >= r:
                 continue
             m.inner_kind, m.inner_radius_mm = "hole", min(1.05 * r, 0.999 * m.semi_diameter_mm)
@@ -142,9 +148,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
                 p.warnings.append(f"{m.name}: the file gives this mirror no hole, but the beam passes through it to "
                                   f"a later surface; given a central hole of radius {m.inner_radius_mm:.4g} mm")
                 continue
-            for q in p.surfaces:  # the same glass surface met again: the same hole
-                if q is not m and not q.mirror and _same_geometry(q, m) and _same_media(q, m):
-                    q.inner_kind, q.inner_radius_mm = m.inner_kind, m.inner_radius_mm
+            _share_hole(p, m)
             p.warnings.append(f"{m.name}: the beam after a mirror crosses this lens surface in air on its way to a "
                               f"later surface (an element inside a hole through this glass); given a central hole "
                               f"of radius {m.inner_radius_mm:.4g} mm")
