@@ -68,6 +68,12 @@ GUIDE_BELOW = 0.5
 GUIDE_MIN_HITS = 16
 GUIDE_AFTER = 3.0
 FIRST_ROUND_SHARE = 0.5  # under --max-seconds, the part of it every ghost's first batch may take (ghost_table)
+#: under ``straylight ghosts --max-seconds S``, the seconds kept back for writing the table, the maps' PNG and the
+#: 3-D view (at most 0.3 S): ~1.5-3 s measured on a 19-surface lens (matplotlib's layout of nine maps)
+WRITE_RESERVE_S = 3.0
+#: under a cap counted from before the nominal image's trace (``started``), the part of it the ghosts get whatever
+#: that trace took: a cap the nominal image alone overruns still gives every ghost its first rays where it can
+MIN_GHOST_SHARE = 0.25
 
 
 class GhostError(ValueError):
@@ -780,7 +786,8 @@ class _Pool:
 def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02, min_fraction: float = 1e-6,
                 batch_rays: int | None = None, max_rays: int = 400_000, seed: int = 0, on_ghost=None,
                 max_total_rays: int = MAX_TOTAL_RAYS, guide_below: float = GUIDE_BELOW,
-                max_seconds: float | None = None, execution=None) -> GhostTable:
+                max_seconds: float | None = None, execution=None, started: float | None = None,
+                reserve_s: float = 0.0) -> GhostTable:
     """Every ghost up to ``order`` reflections: power +- error, focus, radius, peak irradiance ratio.
 
     The ghosts share ``max_total_rays`` (the nominal image's rays aside) by water-filling: each round gives
@@ -791,8 +798,10 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     None: 4096, or for the ghosts fewer (not below 256) where two batches for every ghost would exceed the
     budget (order 4: thousands of ghosts; the nominal image keeps 4096).
 
-    ``max_seconds``: a wall-clock cap the ghosts share (the nominal image's trace aside; ``monotonic``).
-    Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
+    ``max_seconds``: a wall-clock cap (``monotonic``) counted from ``started`` (a ``monotonic()`` reading: the
+    notebook's :func:`ghosts` passes its call's, the command line its own start, so the cap bounds the whole call,
+    the nominal image's trace included), or, ``started`` None, from the end of the nominal image's trace (the cap
+    the ghosts share); the ghosts stop ``reserve_s`` before it (the command line's time to write its files). Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
     ghost's second (the first batches going out by :func:`ghost_priors`, the likely-brightest first; later
     rounds by the estimates so far, the largest first), so the cap stops the ghosts as the budget does (each
     keeps the estimate it reached) and leaves each with one: the batches of the ghosts still without one
@@ -919,7 +928,9 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     for run, prior in zip(runs, priors):
         run.prior = prior
     t_ghosts = monotonic()
-    deadline = None if max_seconds is None else t_ghosts + max_seconds
+    deadline = None if max_seconds is None else max(
+        (t_ghosts if started is None else started) + max_seconds - reserve_s,
+        t_ghosts + MIN_GHOST_SHARE * max_seconds)  # a slow nominal trace leaves the ghosts a part of the cap still
     timed_out = False
     fit = {"batch": batch_rays, "ray_parts": 0, "parts_left": sum(len(r.seq) for r in runs)}
 
@@ -930,7 +941,8 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         ghosts' time shows, and the batch shrinks again)."""
         now = monotonic()
         if fit["ray_parts"]:
-            left = t_ghosts + FIRST_ROUND_SHARE * max_seconds - now
+            assert deadline is not None  # (fitted under the cap only)
+            left = t_ghosts + FIRST_ROUND_SHARE * (deadline - t_ghosts) - now
             need = (now - t_ghosts) / fit["ray_parts"] * fit["batch"] * fit["parts_left"]
             if need > left:
                 fit["batch"] = max(MIN_BATCH_RAYS, int(fit["batch"] * max(left, 0.0) / need))
@@ -1124,20 +1136,22 @@ def plot_maps(table: GhostTable, path, top: int = 8):
 
 
 def ghosts(scene, order: int = 2, field_deg: float = 0.0, detector: str | None = None,
-           max_seconds: float | None = None, execution=None, **kwargs) -> GhostTable:
+           max_seconds: float | None = None, execution=None, started: float | None = None, **kwargs) -> GhostTable:
     """Notebook API: the ghost table of a scene file (or a loaded scene) at ``field_deg``; ``max_seconds``
-    caps the ghosts' wall-clock time, ``execution=Execution(workers=K)`` traces them in K processes (default,
+    caps the call's wall-clock time (loading the scene and the nominal image's trace included; counted from
+    ``started``, a ``monotonic()`` reading, default this call's start), ``execution=Execution(workers=K)`` traces them in K processes (default,
     None: one a core this process may use; ``Execution(workers=1)``: this process) and ``kwargs`` go to
     :func:`ghost_table` (``target_rel_error``, ...)."""
     from straylight.execution import Execution
     from straylight.scene import load_scene
 
+    started = monotonic() if started is None else started
     if execution is None or execution.workers is None:
         execution = Execution(workers=default_workers())
 
     rs = load_scene(scene) if not hasattr(scene, "scene") else scene
     opt = prepare(rs, field_deg, detector)
-    table = ghost_table(opt, order=order, max_seconds=max_seconds, execution=execution, **kwargs)
+    table = ghost_table(opt, order=order, max_seconds=max_seconds, execution=execution, started=started, **kwargs)
     table.field_deg = float(field_deg)
     table.optics = opt
     return table

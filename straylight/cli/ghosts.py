@@ -26,7 +26,7 @@ def add_parser(subparsers):
                    help="rays all the ghosts share, the nominal image's aside (default 4000000; a ghost the budget "
                         "stops keeps the error it reached, and the table says how many)")
     p.add_argument("--max-seconds", type=float, default=None,
-                   help="wall-clock cap the ghosts share, the nominal image's trace aside (default: none); every "
+                   help="wall-clock cap on the whole command, writing its files included (default: none); every "
                         "ghost gets its first rays before any gets more, a ghost the cap stops keeps the error it "
                         "reached, and the table says how many and at what error")
     p.add_argument("--workers", type=int, default=None,
@@ -40,8 +40,10 @@ def add_parser(subparsers):
 
 def run(args) -> int:
     import sys
+    from time import monotonic
 
-    from straylight.analyses.ghost_trace import GhostError, ghosts, markdown, write_table
+    started = monotonic()
+    from straylight.analyses.ghost_trace import WRITE_RESERVE_S, GhostError, ghosts, markdown, write_table
     from straylight.cli.cluster_args import forked_execution
     from straylight.progress import progress_bar
 
@@ -70,7 +72,9 @@ def run(args) -> int:
         table = ghosts(args.scene, order=args.order, field_deg=args.field_deg, detector=args.detector,
                        target_rel_error=args.target_rel_error, min_fraction=args.min_fraction,
                        max_rays=args.max_rays, seed=args.seed, on_ghost=tick, max_seconds=args.max_seconds,
-                       execution=forked_execution(args),
+                       execution=forked_execution(args), started=started,
+                       # the cap bounds the command: the ghosts leave time to write the table, maps and 3-D view
+                       reserve_s=0.0 if args.max_seconds is None else min(WRITE_RESERVE_S, 0.3 * args.max_seconds),
                        **({} if args.max_total_rays is None else {"max_total_rays": args.max_total_rays}))
     finally:
         bar.close()

@@ -735,3 +735,36 @@ def test_the_whole_bundle_shortcuts_give_the_plain_numbers(tmp_path):
                 assert np.array_equal(getattr(one, f), getattr(each, f)), (refl, p, act, f)
             b = one
     assert kinds == {(True, False), (False, False), (True, True), (False, True)}, kinds
+
+
+def test_a_cap_counted_from_the_start_bounds_the_nominal_trace_and_the_writing_too(tmp_path, monkeypatch):
+    """``started`` (the command line's start, the notebook call's): the cap bounds the whole call, the nominal
+    image's trace included, and the ghosts stop ``reserve_s`` early (the command's time to write its files). On the
+    fake clock the last batch is dispatched before ``started + cap - reserve`` and ends within one batch of it,
+    where the same cap counted after the nominal trace (``started`` None) runs a nominal trace's time longer. A
+    start so long ago that the deadline is past before the first ghost still leaves the ghosts
+    ``MIN_GHOST_SHARE`` of the cap: every ghost gets its first rays."""
+    from straylight.analyses.ghost_trace import MIN_GHOST_SHARE, nominal_sequence
+    from straylight.scene import load_scene
+
+    opt = prepare(load_scene(_cooke(tmp_path)))
+    now = _fake_clock(monkeypatch)
+    nominal_rays = ghost_table(opt, target_rel_error=1e-3, max_seconds=1e-9).nominal.rays  # (the same each call)
+    nominal_s = nominal_rays * len(nominal_sequence(opt)) * 1e-6
+    cap_s, reserve_s = nominal_s + 3 * _first_round_s(opt, 4096), 0.5 * _first_round_s(opt, 4096)
+    longest_batch_s = 4096 * max(len(ghost_sequence(nominal_sequence(opt), r))
+                                 for r in ghost_reflections(nominal_sequence(opt), 2)) * 1e-6
+    now[0] = 0.0
+    after_nominal = ghost_table(opt, target_rel_error=1e-3, max_seconds=cap_s)
+    end_after_nominal = now[0]
+    now[0] = 0.0
+    whole = ghost_table(opt, target_rel_error=1e-3, max_seconds=cap_s, started=0.0, reserve_s=reserve_s)
+    end_whole = now[0]
+    assert whole.nominal.rays == after_nominal.nominal.rays == nominal_rays >= 2 * 4096
+    assert cap_s - reserve_s <= end_whole <= cap_s - reserve_s + longest_batch_s, (end_whole, cap_s, reserve_s)
+    assert cap_s + nominal_s <= end_after_nominal <= cap_s + nominal_s + longest_batch_s
+    assert sum(r.rays for r in whole.rows) < sum(r.rays for r in after_nominal.rows)
+    now[0] = 0.0
+    late = ghost_table(opt, target_rel_error=1e-3, max_seconds=cap_s, started=-1e6)
+    assert all(r.rays > 0 for r in late.rows)  # the ghosts still had MIN_GHOST_SHARE of the cap
+    assert nominal_s + MIN_GHOST_SHARE * cap_s <= now[0] <= nominal_s + MIN_GHOST_SHARE * cap_s + longest_batch_s
