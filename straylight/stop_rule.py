@@ -21,6 +21,13 @@ DEFAULT_MAX_JUMP = 2.0
 DEFAULT_MAX_CHUNK_SHARE = 0.25
 MAX_GROWTH = 4.0  # a round adds at most 4x the rays traced so far
 SAFETY = 1.15  # aim 15 % beyond the rays the 1/sqrt(N) law predicts
+#: the per-ray spread sum (x - mean)^2, as a share of sum x^2, below which the chunk sums do not resolve it (their
+#: differences lose ~16 digits): :func:`reliability` then reports the bound as the error and no tail
+ROUND_OFF_SPREAD = 1e-12
+#: two looks this close (relative) are steady whatever their error bars: the round-off of sums over 1e5-1e7 rays
+#: (an estimate that is nearly all a computed part, e.g. the direct light of straylight.engine.direct_area on
+#: axis, has error bars of 1e-10 and below, under the sums' own round-off)
+STEADY_ROUND_OFF = 1e-9
 
 
 @dataclass(frozen=True)
@@ -63,12 +70,14 @@ class Precision:
 
     def stops(self, looks: list) -> bool:
         """The target holds on the last two looks, the later with ``confirm_growth`` more rays, and the
-        estimate moved by at most ``max_jump`` of the later standard error between them."""
+        estimate moved by at most ``max_jump`` of the later standard error between them (or by at most
+        :data:`STEADY_ROUND_OFF` of it: round-off)."""
         if len(looks) < 2 or not (self.meets(looks[-1]) and self.meets(looks[-2])):
             return False
         a, b = looks[-2], looks[-1]
         grown = b.n_rays >= (1.0 + self.confirm_growth) * a.n_rays - 0.5
-        steady = abs(b.estimate - a.estimate) <= self.max_jump * tail_aware(b.rel_error, b.vov) * abs(b.estimate)
+        steady = abs(b.estimate - a.estimate) <= max(self.max_jump * tail_aware(b.rel_error, b.vov),
+                                                     STEADY_ROUND_OFF) * abs(b.estimate)
         return grown and steady
 
 
@@ -117,8 +126,13 @@ def reliability(chunk_s1, chunk_s2, n_rays: int, chunk_rays=None) -> Reliability
     mean = total / n  # mean contribution per ray
     c = s2 - 2.0 * mean * s1 + c_n * mean * mean  # sum over chunk of (x - mean)^2
     sum_c = float(c.sum())
-    if n < 2 or sum_c <= 0 or total == 0:
+    if n < 2 or total == 0:
         return Reliability(math.nan, math.nan, math.nan, math.nan, k)
+    floor = ROUND_OFF_SPREAD * float(np.abs(s2).sum())
+    if sum_c <= floor:
+        # the rays' values are alike to ~1e-6 of their size (a computed part carries the estimate): their spread
+        # is below what these sums resolve, so the error bar is that bound, and no ray can be a heavy tail
+        return Reliability(abs(math.sqrt(floor * n / (n - 1)) / total), 0.0, 0.0, 1.0 / max(k, 1), k)
     stderr = math.sqrt(max(sum_c, 0.0) * n / (n - 1))
     expected = c_n * sum_c / n
     var_sum = float(np.sum((c - expected) ** 2)) * k / max(k - 1, 1)

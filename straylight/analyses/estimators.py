@@ -84,7 +84,7 @@ ESTIMATOR_SETS = {
                                 entrance_sampling=True,
                                 reverse_chain=DELTA_CHAIN_INTERFACES, specular_nee=3,
                                 specular_nee_sequences="mirrors", nee_split=NEE_SPLIT,
-                                tree_split=TREE_SPLIT),
+                                tree_split=TREE_SPLIT, direct_area=True),
 }
 
 

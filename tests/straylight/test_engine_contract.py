@@ -245,6 +245,8 @@ ENGAGEMENT = {
     "reverse_chain": _chains_cross_the_subject,
     # it connects through analytic surfaces only (none in the contract scenes): it must not engage there
     "specular_nee": _casts_connections,
+    # the light the beam puts straight on the detector, booked against the escaped row: never a kind's exchange
+    "direct_area": _moves_the_exchange,
 }
 
 

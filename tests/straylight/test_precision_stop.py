@@ -14,6 +14,7 @@ the old rule stops failing (the model would no longer show the problem) or the n
 import math
 
 import numpy as np
+import pytest
 
 from straylight.analyses.precision import Look, Precision, next_round_rays, reliability, tail_aware
 from straylight.rng import CHUNK_RAYS
@@ -79,3 +80,30 @@ def test_a_confirming_look_needs_more_rays_and_a_steady_estimate():
     assert not p.stops([good, Look(15_000, 1.2, 0.019, 0.01, 0.1, 15)])  # a jump: a heavy path arrived
     assert not p.meets(Look(10_000, 1.0, 0.015, 0.01, 0.4, 10))  # one chunk holds 40 % of the variance
     assert not p.meets(Look(3_000, 1.0, 0.015, 0.01, 0.1, 3))  # below the minimum sample
+
+
+def test_looks_that_differ_by_round_off_are_steady_whatever_their_error_bars():
+    """An estimate that is nearly all computed light (the tube on axis, direct_area) has error bars of ~1e-10,
+    below the round-off of its sums over 1e5+ rays: a move of 1e-12 between looks is steady (STEADY_ROUND_OFF),
+    one of 1e-6 is not (two such looks traced 3e7 rays on axis before the floor)."""
+    p = Precision(0.02, min_chunks=4)
+    a = Look(10_000, 1.0, 1e-12, 0.001, 0.01, 10)
+    assert p.stops([a, Look(15_000, 1.0 + 1e-12, 1e-13, 0.001, 0.01, 15)])
+    assert not p.stops([a, Look(15_000, 1.0 + 1e-6, 1e-13, 0.001, 0.01, 15)])
+
+
+def test_rays_of_one_value_have_a_round_off_error_bar_not_none():
+    """Every ray carrying the same computed share (the tube on axis: all of its light is direct_area's): the
+    spread is below what the chunk sums resolve, so the error is that bound (tiny, finite), the VOV 0; before,
+    a spread that cancelled to <= 0 read NaN and the point traced to its ray cap."""
+    from straylight.stop_rule import ROUND_OFF_SPREAD, reliability
+
+    n, k = 60_000, 60
+    x = 0.47 / n
+    s1, s2 = np.full(k, 1000 * x), np.full(k, 1000 * x * x)
+    r = reliability(s1, s2, n)
+    assert r.rel_error == pytest.approx(math.sqrt(ROUND_OFF_SPREAD * n * x * x * n / (n - 1)) / (n * x))
+    assert 0 < r.rel_error < 1e-8 and r.vov == 0.0
+    xc = x * (1 + 1e-2 * np.sin(np.arange(k)))  # a real spread between chunks: measured as before
+    wide = reliability(1000 * xc, 1000 * xc * xc, n)
+    assert wide.rel_error > 1e3 * r.rel_error and wide.vov > 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from straylight.engine.strategies.base import Strategy
 from straylight.engine.strategies.delta_chain import DELTA_CHAIN
+from straylight.engine.strategies.direct_area import DIRECT_AREA
 from straylight.engine.strategies.entrance import ENTRANCE
 from straylight.engine.strategies.first_vertex import FIRST_VERTEX, FIRST_VERTEX_LOBE
 from straylight.engine.strategies.nee import NEE
@@ -30,6 +31,7 @@ STRATEGIES: tuple[Strategy, ...] = (
     TARGET_MIS,
     REVERSE_CHAIN,
     SPECULAR_NEE,
+    DIRECT_AREA,
 )
 
 BY_NAME: dict[str, Strategy] = {s.name: s for s in STRATEGIES}
