@@ -25,6 +25,9 @@
 ``reverse``
     the default without specular next-event estimation (``specular_nee=0``): the set before it, to measure
     what it buys.
+``walk_direct``
+    the default without ``direct_area`` (the walk alone finds the light that reaches the detector straight):
+    the set before it, to measure what it buys at a baffle's cut-off.
 ``baseline``
     the first estimator set (first-vertex sampling joined to the detector by a uniform point only,
     roulette at 1e-3), so a benchmark can time before and after in one run.
@@ -60,6 +63,7 @@ def register() -> None:
     register_estimator_set("manifold", replace(ESTIMATOR_SETS["default"], specular_nee=2, specular_nee_sequences="all"))
     register_estimator_set("reflections", replace(ESTIMATOR_SETS["default"], specular_nee=1, specular_nee_sequences="all"))
     register_estimator_set("reverse", replace(ESTIMATOR_SETS["default"], specular_nee=0))
+    register_estimator_set("walk_direct", replace(ESTIMATOR_SETS["default"], direct_area=False))
 
 
 register()

@@ -54,6 +54,10 @@ STREAM = 0x44524354
 #: sides of the polygon that stands for the source's disk (area short of the circle's by ~2 pi^2 / (3 n^2),
 #: 4e-7 of it: only where the lit region reaches the disk's rim)
 DISK_SIDES = 4096
+#: cells per side of the raster of the lit region that culls the occluding triangles
+RASTER_CELLS = 256
+#: occluding triangles united and cut from the lit region at a time (nearest the detector first: build)
+OCCLUDER_BATCH = 2_000
 #: coplanarity of the detector's triangles: normals within this of each other, vertices within this of the
 #: plane (relative to the detector's size)
 FLAT_TOLERANCE = 1e-9
@@ -104,6 +108,52 @@ def _signed_areas(tri2: np.ndarray) -> np.ndarray:
     """Twice the signed areas of 2-D triangles (m, 3, 2): > 0 counter-clockwise."""
     a, b = tri2[:, 1] - tri2[:, 0], tri2[:, 2] - tri2[:, 0]
     return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+
+
+def _raster(contours, lo, hi, g: int) -> np.ndarray:
+    """(g, g) bool: the cells (x index first) of the box ``lo``..``hi`` whose centre lies inside the polygons
+    ``contours`` (even-odd: a centre is inside when an odd number of edges cross its row to its left), grown by
+    one cell all round (so a cell that the polygons only touch still counts)."""
+    a = np.concatenate([np.asarray(c, dtype=np.float64) for c in contours])
+    b = np.concatenate([np.roll(np.asarray(c, dtype=np.float64), -1, axis=0) for c in contours])
+    step = (hi - lo) / g
+    ys = lo[1] + (np.arange(g) + 0.5) * step[1]
+    e, r = np.nonzero((a[:, 1, None] > ys[None, :]) != (b[:, 1, None] > ys[None, :]))
+    x = a[e, 0] + (ys[r] - a[e, 1]) * (b[e, 0] - a[e, 0]) / (b[e, 1] - a[e, 1])
+    first = np.clip(np.ceil((x - lo[0]) / step[0] - 0.5), 0, g).astype(np.int64)  # first centre right of x
+    counts = np.zeros((g + 1, g), dtype=np.int64)
+    np.add.at(counts, (first, r), 1)
+    mask = (np.cumsum(counts, axis=0)[:g] % 2) == 1
+    grown = mask.copy()
+    grown[1:] |= mask[:-1]
+    grown[:-1] |= mask[1:]
+    grown2 = grown.copy()
+    grown2[:, 1:] |= grown[:, :-1]
+    grown2[:, :-1] |= grown[:, 1:]
+    return grown2
+
+
+class _Cells:
+    """A raster of a region (:func:`_raster` over the box ``lo``..``hi``) with its summed-area table: which
+    boxes cover one of its cells (:meth:`touching`)."""
+
+    def __init__(self, contours, lo, hi, g: int):
+        self.lo, self.hi, self.g = lo, hi, g
+        mask = _raster(contours, lo, hi, g)
+        self.cells = int(np.count_nonzero(mask))
+        self.table = np.zeros((g + 1, g + 1), dtype=np.int64)
+        self.table[1:, 1:] = np.cumsum(np.cumsum(mask, axis=0), axis=1)
+
+    def touching(self, box_lo: np.ndarray, box_hi: np.ndarray) -> np.ndarray:
+        """Bool per box (rows of ``box_lo``, ``box_hi``): whether it covers a cell of the raster."""
+        g, lo, hi = self.g, self.lo, self.hi
+        step = (hi - lo) / g
+        i0 = np.clip(np.floor((box_lo - lo) / step).astype(np.int64), 0, g - 1)
+        i1 = np.clip(np.floor((box_hi - lo) / step).astype(np.int64), 0, g - 1)
+        outside = (box_hi[:, 0] < lo[0]) | (box_lo[:, 0] > hi[0]) | (box_hi[:, 1] < lo[1]) | (box_lo[:, 1] > hi[1])
+        t = self.table
+        count = t[i1[:, 0] + 1, i1[:, 1] + 1] - t[i0[:, 0], i1[:, 1] + 1] - t[i1[:, 0] + 1, i0[:, 1]] + t[i0[:, 0], i0[:, 1]]
+        return (count > 0) & ~outside
 
 
 def _clip(poly: np.ndarray, n: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -178,27 +228,50 @@ def build(spec) -> DirectArea | Declined:
     region = region ^ CrossSection(ccw([project(rim)]), FillRule.Positive)
     if region.is_empty():
         return Declined("the detector lies outside the beam")
-    lo_x, lo_y, hi_x, hi_y = region.bounds()
     others = tri[part != det_part]
-    flat = project(others.reshape(-1, 3)).reshape(-1, 3, 2)
-    near = (flat[:, :, 0].max(1) >= lo_x) & (flat[:, :, 0].min(1) <= hi_x) & \
-        (flat[:, :, 1].max(1) >= lo_y) & (flat[:, :, 1].min(1) <= hi_y)
-    cand = others[near]
     # the slab between the detector's plane and the source's: a triangle behind the one or beyond the other
     # blocks nothing; one across a plane blocks with the part inside
-    s_det = (cand - c0) @ toward_source  # (m, 3): > 0 on the source's side of the detector
-    s_src = (cand - center) @ beam_side  # > 0 on the beam's side of the source's plane
+    s_det = (others - c0) @ toward_source  # (m, 3): > 0 on the source's side of the detector
+    s_src = (others - center) @ beam_side  # > 0 on the beam's side of the source's plane
     inside = (s_det > 0).all(1) & (s_src > 0).all(1)
     across = ~inside & (s_det > 0).any(1) & (s_src > 0).any(1)
-    flat_in = project(cand[inside].reshape(-1, 3)).reshape(-1, 3, 2)
-    signed = _signed_areas(flat_in)
-    flat_in[signed < 0] = flat_in[signed < 0][:, ::-1]  # every triangle counter-clockwise
-    polys = list(flat_in[signed != 0])
-    for t in cand[across]:
-        p = _clip(_clip(t, toward_source, c0), beam_side, center)
-        if len(p) >= 3:
-            polys += ccw([project(p)])
-    lit = region - CrossSection(polys, FillRule.Positive) if polys else region
+    keep = np.flatnonzero(inside | across)
+    flat = project(others[keep].reshape(-1, 3)).reshape(-1, 3, 2)
+    lo, hi = flat.min(axis=1), flat.max(axis=1)
+    # nearest the detector first, in batches: what a batch takes from the lit region, the triangles behind it
+    # cannot take again, so each batch is culled to the current lit region (a raster of it grown by a cell:
+    # a triangle whose box covers none of its cells cannot overlap it). Beyond a cut-off the first batches leave
+    # nothing; on axis the vane rings around the detector's disk are culled before any union.
+    depth = s_det[keep].min(axis=1)
+    order = np.argsort(depth, kind="stable")
+    lit = region
+    cells = None  # a raster of the lit region (it only shrinks: an older raster still covers it, so it is made
+    raster_area = math.inf  # again only once the region has lost a fifth of the area it had then)
+    for first in range(0, len(order), OCCLUDER_BATCH):
+        if lit.is_empty():
+            break
+        if cells is None or lit.area() < 0.8 * raster_area:
+            raster_area = lit.area()
+            l_lo, l_hi = np.array(lit.bounds()[:2]), np.array(lit.bounds()[2:])
+            pad = 1e-6 * max(float(np.max(l_hi - l_lo)), 1.0)
+            cells = _Cells(lit.to_polygons(), l_lo - pad, l_hi + pad, RASTER_CELLS)
+        b = order[first:first + OCCLUDER_BATCH]
+        b = b[(hi[b, 0] >= cells.lo[0]) & (lo[b, 0] <= cells.hi[0]) & (hi[b, 1] >= cells.lo[1]) & (lo[b, 1] <= cells.hi[1])]
+        if len(b) and cells.cells >= 64:  # (a region thinner than a cell: every box in its box is kept)
+            b = b[cells.touching(lo[b], hi[b])]
+        if len(b) == 0:
+            continue
+        whole = inside[keep[b]]
+        flat_in = flat[b[whole]].copy()
+        signed = _signed_areas(flat_in)
+        flat_in[signed < 0] = flat_in[signed < 0][:, ::-1]  # every triangle counter-clockwise
+        polys = list(flat_in[signed != 0])
+        for t in others[keep[b[~whole]]]:
+            p = _clip(_clip(t, toward_source, c0), beam_side, center)
+            if len(p) >= 3:
+                polys += ccw([project(p)])
+        if polys:
+            lit = lit - CrossSection(polys, FillRule.Positive)
     area = float(lit.area())
     if not area > 0.0:
         return Declined("no point of the detector sees the beam straight (0 mm^2 lit)")

@@ -292,9 +292,11 @@ def _pilot_uniforms(spec, n: int) -> np.ndarray:
 
 def pilot_estimator(est):
     """The pilot's estimator options from the run's ``est``: the same, without entrance sampling (the
-    pilot learns its table) and reverse chains (build_table), and with at most :data:`PILOT_NEE_SPLIT`
-    NEE samples at a glint."""
-    return replace(est, entrance_sampling=False, reverse_chain=0, nee_split=min(int(est.nee_split), PILOT_NEE_SPLIT))
+    pilot learns its table), reverse chains (build_table) and the computed direct light (``direct_area``: a
+    share every ray carries alike, whatever its entrance point, would flatten the table; the pilot's walk
+    counts that light where it enters), and with at most :data:`PILOT_NEE_SPLIT` NEE samples at a glint."""
+    return replace(est, entrance_sampling=False, reverse_chain=0, direct_area=False,
+                   nee_split=min(int(est.nee_split), PILOT_NEE_SPLIT))
 
 
 def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS) -> EntranceTable | None:
