@@ -40,9 +40,7 @@ def add_parser(subparsers):
 
 def run(args) -> int:
     import sys
-    from time import monotonic
 
-    started = monotonic()
     from straylight.analyses.ghost_trace import WRITE_RESERVE_S, GhostError, ghosts, markdown, write_table
     from straylight.cli.cluster_args import forked_execution
     from straylight.progress import progress_bar
@@ -72,8 +70,9 @@ def run(args) -> int:
         table = ghosts(args.scene, order=args.order, field_deg=args.field_deg, detector=args.detector,
                        target_rel_error=args.target_rel_error, min_fraction=args.min_fraction,
                        max_rays=args.max_rays, seed=args.seed, on_ghost=tick, max_seconds=args.max_seconds,
-                       execution=forked_execution(args), started=started,
-                       # the cap bounds the command: the ghosts leave time to write the table, maps and 3-D view
+                       execution=forked_execution(args),
+                       # the cap bounds the command (ghosts() counts from its call, the scene's loading included):
+                       # the ghosts leave time to write the table, maps and 3-D view
                        reserve_s=0.0 if args.max_seconds is None else min(WRITE_RESERVE_S, 0.3 * args.max_seconds),
                        **({} if args.max_total_rays is None else {"max_total_rays": args.max_total_rays}))
     finally:

@@ -19,7 +19,10 @@ from pathlib import Path
 import pytest
 
 GOLDEN = Path(__file__).resolve().parents[1] / "data" / "engine_golden"
-REL = 1e-15
+# the ledger's sums over parts and rays are numpy reductions, whose order of additions numpy's versions change:
+# numpy 2.4.6 (a fresh install, 2026-12-07) reads tube_mixed_seed3's roulette_w and nee_exchange_w 2e-15 apart
+# from the recorded values; an engine change moves them by far more than this
+REL = 1e-13
 
 # straylight trace SCENE ARGS -> golden JSON
 CLI_CASES = {

@@ -67,7 +67,7 @@ def test_model_sweep_matches_the_geometric_pst(model, tmp_path):
             det_area = math.pi * RD_MM**2  # the mesh is within 0.005 mm of the circle: < 0.1 % off
             expected = math.cos(a) * lens / det_area
             got, err = sweep.pst[i, j], sweep.pst_stderr[i, j]
-            assert err > 0
+            assert err >= 0  # the straight light is computed (direct_area): an error of round-off only
             assert abs(got - expected) < 4 * err + 2e-3 * expected, (radius, math.degrees(a), got, expected, err)
     assert sweep.pst[1, 1] < 0.95 * math.cos(angles[1]) * 0.64  # 8 mm at 20 deg: clipped by the detector edge
 
