@@ -18,6 +18,7 @@ REFUSED = {
     "US05831776-1.zmx": "finite distance",       # its SILICA is fused silica (other_materials)
     "singlet.seq": "finite distance",
     "tilt_test.seq": "no optical surface",
+    "dec_rev_tilt_test.seq": "no optical surface",
     "Canon_EF24mm_f1.4L_II_USM.zmx": "could not parse",  # a '??' in a number of the file
     "Plossl_USP4482217.zmx": "finite distance",          # an eyepiece traced from its eye side
     "Microscope_USP3893752.zmx": "finite distance",
@@ -117,6 +118,22 @@ def test_info_prints_first_order_data_and_writes_nothing(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "efl         100.0" in r.stdout and "mm" in r.stdout and "N-SSK2" in r.stdout and "stop" in r.stdout
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dg.seq"]
+
+
+@pytest.mark.parametrize("name", ["tilt_test.seq", "dec_rev_tilt_test.seq"])
+def test_info_refuses_what_import_refuses_in_the_same_line(name, tmp_path):
+    """rayoptics' tilt test files (dummy surfaces with air on both sides, tilted and decentred): ``optics import``
+    refuses them in one line, and ``info`` (which prints the surface table of an importable file) must too,
+    with the same line and exit 2 (before: ``info`` printed a table of dummies and exited 0)."""
+    lens = LENSES / "ray-optics" / name
+    lines = []
+    for args in (("optics", "info", lens), ("optics", "import", lens, "--out", tmp_path / "out")):
+        r = _run(*args, cwd=tmp_path)
+        assert r.returncode == 2, (args, r.stdout, r.stderr)
+        err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert len(err) == 1 and f"{name}: no optical surface" in err[0], r.stderr
+        lines.append(err[0])
+    assert lines[0] == lines[1]
 
 
 def test_glass_option_supplies_a_missing_glass(tmp_path):

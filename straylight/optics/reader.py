@@ -353,6 +353,13 @@ def _float_by_stop_size(opm, path: Path, why: str = "aperture floats by stop siz
     return f"{why}: entrance pupil {pupil.value:.6g} file units, the stop's semi-diameter {sd:g}"
 
 
+def require_optical_surface(file: str, surfaces: list) -> None:
+    """Refuse, in one line naming the file, a lens with no optical surface (air on both sides of every one: a
+    test file of tilted dummies): ``optics info`` and ``optics import`` alike."""
+    if not any(not s.dummy for s in surfaces):
+        raise OpticsFileError(f"{file}: no optical surface (every surface has air on both sides)")
+
+
 def _ends_inside_the_lens(surfaces: list, image_gap_mm: float, efl_mm: float, bfl_mm: float,
                           afocal: bool) -> str | None:
     """Why the file's image surface cannot be the lens's image (the file stops inside the lens: five of
@@ -621,6 +628,7 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
                                                           else "") + "; --force imports it approximated")
     notes += [p + ": imported as its base sphere/conic (--force)" for p in problems]
 
+    require_optical_surface(path.name, surfaces)
     img_rot, img_t = tfrms[n_ifc - 1]
     img_rot = np.asarray(img_rot, float)
     fod = opm["analysis_results"]["parax_data"].fod

@@ -15,6 +15,7 @@ import numpy as np
 
 from straylight.optics import aperture
 from straylight.optics.aluminium import aluminium_nk
+from straylight.optics.reader import require_optical_surface
 from straylight.optics.sag import sag_mm
 
 EDGE_MATERIAL = "z302_sample_b"
@@ -120,10 +121,7 @@ def _glass_label(name, n) -> str:
 def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, coating=None) -> dict:
     """The scene dict (TOML tables) of prescription ``p``; warnings are appended to ``p.warnings``."""
     wl = p.wavelength_nm
-    if not any(not s.dummy for s in p.surfaces):
-        from straylight.optics.reader import OpticsFileError
-
-        raise OpticsFileError(f"{p.file}: no optical surface (every surface has air on both sides)")
+    require_optical_surface(p.file, p.surfaces)
     largest0 = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
     z00 = min(float(s.vertex_mm[2]) for s in p.surfaces if not s.dummy or s.stop) - 1.0
     if p.model is not None:
