@@ -356,6 +356,55 @@ def _signed_index_trace(surfaces):
     return -1.0 / nu, y
 
 
+def _signed_heights(surfaces):
+    """The paraxial marginal ray's height on each surface of the written table for a unit height in the entrance
+    pupil (the signed-index trace of :func:`_signed_index_trace`, mirrors included)."""
+    y, nu, n, heights = 1.0, 0.0, 1.0, []
+    for s in surfaces:
+        heights.append(y)
+        c = 0.0 if s["radius_mm"] is None else 1.0 / s["radius_mm"]
+        n_after = -n if s["mirror"] else math.copysign(s["n"], n)
+        nu = nu - y * (n_after - n) * c
+        n = n_after
+        y = y + s["thickness_mm"] * nu / n
+    return heights
+
+
+@pytest.mark.parametrize("name, limit, obscuration, marked", [
+    ("Nikon_AI_Reflex-Nikkor_1000mm_f11.zmx", "s6", "s3", 11.0),
+    ("Canon_New_FD_500mm_f8_Mirror.zmx", "s5", "s8", 8.0)])
+def test_a_file_with_no_aperture_and_no_stop_gets_the_aperture_its_clear_apertures_allow(name, limit, obscuration,
+                                                                                         marked, tmp_path):
+    """Two reflex lenses whose files give no aperture command and mark no stop imported with rayoptics' 1 mm pupil
+    (f/# 1001 and 500). The pupil is now the paraxial limiting aperture: the primary mirror's semi-diameter is the
+    first the marginal ray fills (checked against a signed-index y-nu trace of the written table, independent of
+    rayoptics; every lens and mirror passes the pupil paraxially). The plane dummy in the incoming beam (air both
+    sides, the secondary's outline) is not the limit: the marginal ray passes outside it. Against the names: the
+    f-number of a disk of the annular pupil's area (the obscuration's outline mapped into the pupil) is the marked
+    f/11 and f/8 within 6 %; the unobscured paraxial f/# is 9.96 and 6.64."""
+    r = _run("optics", "import", LENSES / "OpticsDatabase" / name, "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert ("the file gives no aperture (ENPD, FNUM, OBNA or FLOA) and marks no stop: the clear apertures limit the "
+            "pupil to") in r.stderr and f"(surface {limit}, " in r.stderr, r.stderr
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    surfaces = doc["surfaces"]
+    heights = _signed_heights(surfaces)
+    by_name = {s["name"]: (s, abs(h)) for s, h in zip(surfaces, heights)}
+    s_lim, y_lim = by_name[limit]
+    assert math.isclose(doc["epd_mm"], 2 * s_lim["semi_diameter_mm"] / y_lim, rel_tol=1e-6), doc["epd_mm"]
+    assert math.isclose(doc["fno"], doc["efl_mm"] / doc["epd_mm"], rel_tol=1e-6), doc["fno"]
+    before = 1.0
+    for s, h in zip(surfaces, heights):
+        if s["mirror"] or s["n"] != before:  # a lens or mirror surface (a dummy keeps the medium)
+            assert abs(h) * doc["epd_mm"] / 2 <= s["semi_diameter_mm"] * (1 + 1e-6), s["name"]
+        before = s["n"]
+    s_obs, y_obs = by_name[obscuration]
+    assert s_obs["radius_mm"] is None and abs(y_obs) * doc["epd_mm"] / 2 > s_obs["semi_diameter_mm"]
+    d_obs = 2 * s_obs["semi_diameter_mm"] / y_obs
+    annulus_fno = doc["efl_mm"] / math.sqrt(doc["epd_mm"] ** 2 - d_obs ** 2)
+    assert abs(annulus_fno / marked - 1) < 0.06, annulus_fno
+
+
 def test_mirrors_written_as_a_medium_of_index_minus_one_are_mirrors(tmp_path):
     """OpticsDatabase's catadioptric lenses write each mirror as refraction into a medium of index -1 of no thickness
     (``GLAS ___BLANK 1 0 -1``). It was read as air: the Reflex-Nikkor-C 500 mm f/8's two Mangin mirrors vanished

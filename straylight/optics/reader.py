@@ -331,7 +331,7 @@ def _glass_name(medium) -> str | None:
     return name
 
 
-def _float_by_stop_size(opm, path: Path, why: str = "aperture floats by stop size (FLOA)") -> str:
+def _float_by_stop_size(opm, path: Path, why: str = "aperture floats by stop size (FLOA)", how: str = "") -> str:
     """Zemax ``FLOA`` (aperture "float by stop size"): the entrance pupil is whatever the stop's semi-diameter
     lets through. rayoptics ignores the command and keeps its default 1-unit pupil: the pupil diameter is
     scaled so that the paraxial marginal ray fills the stop (its height is linear in the pupil's). Returns the
@@ -340,17 +340,60 @@ def _float_by_stop_size(opm, path: Path, why: str = "aperture floats by stop siz
     stop = sm.stop_surface
     ifc = sm.ifcs[stop] if stop is not None and 0 < stop < len(sm.ifcs) - 1 else None
     if ifc is None or not getattr(ifc, "clear_apertures", None):
-        return f"{why} but the file gives the stop no semi-diameter: pupil as read"
+        return _limit_by_clear_apertures(opm, path, why + (" and marks no stop" if ifc is None else
+                                                           " and gives the stop no semi-diameter"))
     sd = float(ifc.surface_od())
     pupil = opm["optical_spec"]["pupil"]
     y = abs(float(opm["analysis_results"]["parax_data"].ax_ray[stop][0]))
     epd = 2.0 * float(opm["analysis_results"]["parax_data"].fod.enp_radius)
     if not (sd > 0 and y > 0 and math.isfinite(y) and epd > 0):
-        return f"{why} but no paraxial ray reaches the stop: pupil as read"
+        return f"{why}{how} but no paraxial ray reaches the stop: pupil as read"
     pupil.key = ("object", "epd")
     pupil.value = epd * sd / y
     _rayoptics_update(opm, path)
-    return f"{why}: entrance pupil {pupil.value:.6g} file units, the stop's semi-diameter {sd:g}"
+    return f"{why}{how}: entrance pupil {pupil.value:.6g} file units, the stop's semi-diameter {sd:g}"
+
+
+def _limit_by_clear_apertures(opm, path: Path, why: str) -> str:
+    """The paraxial limiting aperture, for a file whose stop cannot size the pupil: the entrance pupil scaled by
+    the least, over the surfaces whose semi-diameter the file gives, of semi-diameter / |the read pupil's paraxial
+    marginal ray height| (linear in the pupil's). A dummy (the same medium both sides: a mount's throat, a field
+    stop) counts in a lens, but not in a system with mirrors: the reflex lenses' files draw their central
+    obscuration (the secondary's outline, its baffle) so, and the marginal ray passes outside it. Returns the note
+    to warn with."""
+    sm = opm["seq_model"]
+    pupil = opm["optical_spec"]["pupil"]
+    pdata = opm["analysis_results"]["parax_data"]
+    epd = 2.0 * float(pdata.fod.enp_radius)
+    rndx = [abs(float(r[0])) for r in sm.rndx]
+    best, dummy = None, None  # (ratio, surface, semi-diameter) of the limiting surface; of the tightest obscuration
+    mirrors = any(getattr(ifc, "interact_mode", "") == "reflect" for ifc in sm.ifcs)
+    for i in range(1, len(sm.ifcs) - 1):
+        ifc = sm.ifcs[i]
+        if not (getattr(ifc, "clear_apertures", None) or getattr(ifc, "edge_apertures", None)):
+            continue
+        sd, y = float(ifc.surface_od()), abs(float(pdata.ax_ray[i][0]))
+        if not (sd > 0 and y > 0 and math.isfinite(sd) and math.isfinite(y)):
+            continue
+        bends = getattr(ifc, "interact_mode", "") == "reflect" or abs(rndx[i] - rndx[i - 1]) > 1e-12
+        if not bends and mirrors:
+            if dummy is None or sd / y < dummy[0]:
+                dummy = (sd / y, i, sd)
+        elif best is None or sd / y < best[0]:
+            best = (sd / y, i, sd)
+    if best is None or not (epd > 0 and math.isfinite(epd)):
+        return f"{why}, and no lens or mirror semi-diameter limits the paraxial marginal ray: pupil as read"
+    ratio, i, sd = best
+    pupil.key = ("object", "epd")
+    pupil.value = epd * ratio
+    _rayoptics_update(opm, path)
+    fno = float(opm["analysis_results"]["parax_data"].fod.fno)
+    skipped = ""
+    if dummy is not None and dummy[0] < ratio:
+        skipped = (f"; not counted: s{dummy[1]}, a dummy among mirrors (semi-diameter {dummy[2]:g}: a central "
+                   f"obscuration's outline, which the marginal ray passes outside), {epd * dummy[0]:.4g} by it")
+    return (f"{why}: the clear apertures limit the pupil to {pupil.value:.6g} file units (surface s{i}, "
+            f"semi-diameter {sd:g}; paraxial f/{fno:.3g}){skipped}")
 
 
 def require_optical_surface(file: str, surfaces: list) -> None:
@@ -522,8 +565,8 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
           and tuple(pupil.key) == ("object", "epd") and float(pupil.value) == 1.0):
         # no aperture command at all (hand-edited files): rayoptics' 1-unit pupil is no aperture of the lens's;
         # the stop's semi-diameter sets it, as FLOA (7 OpticsDatabase camera lenses: their marked f-numbers)
-        notes.append("the file gives no aperture (ENPD, FNUM, OBNA or FLOA): "
-                     + _float_by_stop_size(opm, path, "the stop's size sets it, as FLOA"))
+        notes.append(_float_by_stop_size(opm, path, "the file gives no aperture (ENPD, FNUM, OBNA or FLOA)",
+                                         ": the stop's size sets it, as FLOA"))
     else:
         _rayoptics_update(opm, path)
     obj_dist = float(sm.gaps[0].thi) * scale
