@@ -356,6 +356,53 @@ def _signed_index_trace(surfaces):
     return -1.0 / nu, y
 
 
+def _detector_radius_mm(out):
+    import tomllib
+
+    scene = tomllib.loads((out / "scene.toml").read_text())
+    return next(q for q in scene["part"] if q["name"] == "image")["surface"]["outer_radius_mm"]
+
+
+def test_a_lens_with_only_an_on_axis_field_gets_a_sensor_sized_detector(tmp_path):
+    """CODE V 32327 (a cemented doublet, EFL 100 mm, EPD 25 mm) gives one field, 0 deg: 1.2 x the largest image
+    height is 0, and the detector was 1.5 mm across the spot's floor (0.05 x EPD), so ``ghosts`` counted only the
+    ghost light within 1.5 mm of the axis (the s3 > s1 ghost, focused 89 mm before the detector: 7.2e-7 W of its
+    6.6e-5 W on a sensor of the lens's size). X = the last lens surface's clear aperture (s3, 12 mm in the file):
+    the nominal beam and every ghost leave the lens through it, so a sensor that takes them covers at least that;
+    the detector is 1.2 x it. A lens with an off-axis field keeps 1.2 x the largest image height (CONTRACTS 8.1)."""
+    r = _run("optics", "import", LENSES / "ray-optics" / "CODV_32327.seq", "--out", tmp_path / "a")
+    assert r.returncode == 0, r.stderr
+    assert ("the file's fields are all on axis (no image height): detector image of radius 14.4 mm, 1.2 x the last "
+            "lens surface's clear aperture (s3, 12 mm)") in r.stderr, r.stderr
+    doc = json.loads((tmp_path / "a" / "prescription.json").read_text())
+    assert doc["fields_deg"] == [0.0]
+    last = doc["surfaces"][-1]
+    assert last["name"] == "s3" and last["semi_diameter_mm"] == 12.0 and last["glass"] is None
+    assert _detector_radius_mm(tmp_path / "a") >= last["semi_diameter_mm"]
+    r = _run("optics", "import", LENSES / "ray-optics" / "ag_dblgauss.seq", "--out", tmp_path / "b")
+    doc = json.loads((tmp_path / "b" / "prescription.json").read_text())
+    assert "all on axis" not in r.stderr and max(doc["fields_deg"]) > 0
+    assert math.isclose(_detector_radius_mm(tmp_path / "b"),
+                        1.2 * doc["efl_mm"] * math.tan(math.radians(max(doc["fields_deg"]))), rel_tol=1e-6)
+
+
+def test_an_on_axis_lens_whose_file_sizes_its_image_surface_gets_that_detector(tmp_path):
+    """Thorlabs' ACL3026U (one on-axis field) with its image surface's DIAM set to 6 mm (fixed), larger than the
+    spot: the detector is 1.2 x that semi-diameter, the file's own sensor. As shipped (DIAM 0.032 mm, OpticStudio's
+    automatic spot size) the last lens surface's clear aperture sets it (15 mm: radius 18 mm)."""
+    raw = (LENSES / "ray-optics" / "ACL3026U.zmx").read_bytes().decode("utf-16")
+    assert raw.count("DIAM 3.245816035765E-2 0 0 0 1") == 1
+    lens = tmp_path / "sized.zmx"
+    lens.write_text(raw.replace("DIAM 3.245816035765E-2 0 0 0 1", "DIAM 6.0E+0 1 0 0 1"), encoding="utf-16")
+    r = _run("optics", "import", lens, "--out", tmp_path / "a")
+    assert r.returncode == 0, r.stderr
+    assert "1.2 x the image surface's semi-diameter in the file (6 mm)" in r.stderr, r.stderr
+    assert math.isclose(_detector_radius_mm(tmp_path / "a"), 7.2, rel_tol=1e-9)
+    r = _run("optics", "import", LENSES / "ray-optics" / "ACL3026U.zmx", "--out", tmp_path / "b")
+    assert r.returncode == 0, r.stderr
+    assert math.isclose(_detector_radius_mm(tmp_path / "b"), 18.0, rel_tol=1e-9)
+
+
 def _signed_heights(surfaces):
     """The paraxial marginal ray's height on each surface of the written table for a unit height in the entrance
     pupil (the signed-index trace of :func:`_signed_index_trace`, mirrors included)."""

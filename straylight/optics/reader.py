@@ -105,6 +105,7 @@ class Prescription:
     image_local_z: np.ndarray
     stop_semi_diameter_mm: float | None
     warnings: list = field(default_factory=list)
+    image_semi_diameter_mm: float | None = None  # the image surface's semi-diameter as the file gives it
     model: object = None            # the rayoptics OpticalModel (wavelength set to wavelength_nm)
     scale: float = 1.0              # mm per file unit
 
@@ -699,4 +700,5 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         fields_deg=[abs(f) for f in fields_deg], surfaces=surfaces,
         image_vertex_mm=np.asarray(img_t, float) * scale, image_local_z=img_rot[:, 2].copy(),
         image_travel_in=sm.z_dir[n_ifc - 2] * img_rot[:, 2], stop_semi_diameter_mm=stop_sd, warnings=notes,
+        image_semi_diameter_mm=given_sd[n_ifc - 1] * scale if n_ifc - 1 in given_sd else None,
         model=opm, scale=scale)
