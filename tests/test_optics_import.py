@@ -431,7 +431,7 @@ def test_a_file_with_no_aperture_and_no_stop_gets_the_aperture_its_clear_apertur
     f/11 and f/8 within 6 %; the unobscured paraxial f/# is 9.96 and 6.64."""
     r = _run("optics", "import", LENSES / "OpticsDatabase" / name, "--out", tmp_path)
     assert r.returncode == 0, r.stderr
-    assert ("the file gives no aperture (ENPD, FNUM, OBNA or FLOA) and marks no stop: the clear apertures limit the "
+    assert ("the file gives no aperture (ENPD, FNUM, OBNA or FLOA) and no stop is marked: the clear apertures limit the "
             "pupil to") in r.stderr and f"(surface {limit}, " in r.stderr, r.stderr
     doc = json.loads((tmp_path / "prescription.json").read_text())
     surfaces = doc["surfaces"]

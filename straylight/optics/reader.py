@@ -341,8 +341,8 @@ def _float_by_stop_size(opm, path: Path, why: str = "aperture floats by stop siz
     stop = sm.stop_surface
     ifc = sm.ifcs[stop] if stop is not None and 0 < stop < len(sm.ifcs) - 1 else None
     if ifc is None or not getattr(ifc, "clear_apertures", None):
-        return _limit_by_clear_apertures(opm, path, why + (" and marks no stop" if ifc is None else
-                                                           " and gives the stop no semi-diameter"))
+        return _limit_by_clear_apertures(opm, path, why + (" and no stop is marked" if ifc is None else
+                                                           " and the stop has no semi-diameter"))
     sd = float(ifc.surface_od())
     pupil = opm["optical_spec"]["pupil"]
     y = abs(float(opm["analysis_results"]["parax_data"].ax_ray[stop][0]))

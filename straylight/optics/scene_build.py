@@ -303,7 +303,11 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         length = max(float(np.linalg.norm(p.image_vertex_mm - s.vertex_mm)) for s in p.surfaces)
         h_img = largest + length * math.tan(math.radians(min(f_max, 80.0)))
     spot = max(0.05 * p.epd_mm, 0.1)
-    h_img = max(h_img, _on_axis_image_height_mm(p, spot))
+    sensor, why = _on_axis_sensor_mm(p, spot)
+    if sensor > h_img:
+        h_img = sensor
+        p.warnings.append(f"the file's fields are all on axis (no image height): detector image of radius "
+                          f"{1.2 * sensor:.4g} mm, 1.2 x {why}")
     r_det = 1.2 * max(h_img, spot)
     parts.append({"name": unique("image"), "surface": {
         "type": "plane", "vertex_mm": _v(p.image_vertex_mm), "axis": _v(-p.image_travel_in),
@@ -323,24 +327,20 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     return {"material": materials, "part": parts, "source": [source], "analysis": analysis}
 
 
-def _on_axis_image_height_mm(p, spot_mm: float) -> float:
-    """The half-size of a sensor for a lens whose file gives only an on-axis field (no image height: 1.2 x 0 would
-    leave a detector the size of the spot, which the defocused ghosts miss): the image surface's semi-diameter as
-    the file gives it where larger than the spot, else the last lens surface's clear aperture, through which every
-    ghost leaves the lens. 0 for a file with an off-axis field, an afocal system and a system with mirrors (whose
-    image may lie in the incoming beam: a larger disk there would obscure it). Warned."""
+def _on_axis_sensor_mm(p, spot_mm: float) -> tuple[float, str]:
+    """(half-size, what it is) of a sensor for a lens whose file gives only an on-axis field (no image height: 1.2 x
+    0 would leave a detector the size of the spot, which the defocused ghosts miss): the image surface's
+    semi-diameter as the file gives it where larger than the spot, else the last lens surface's clear aperture,
+    through which every ghost leaves the lens. (0, "") for a file with an off-axis field, an afocal system and a
+    system with mirrors (whose image may lie in the incoming beam: a larger disk there would obscure it)."""
     if any(f != 0.0 for f in p.fields_deg) or not math.isfinite(p.efl_mm) or any(s.mirror for s in p.surfaces):
-        return 0.0
+        return 0.0, ""
     given = p.image_semi_diameter_mm
     if given is not None and math.isfinite(given) and given > spot_mm:
-        p.warnings.append(f"the file's fields are all on axis (no image height): detector image of radius "
-                          f"{1.2 * given:.4g} mm, 1.2 x the image surface's semi-diameter in the file ({given:.4g} mm)")
-        return float(given)
+        return float(given), f"the image surface's semi-diameter in the file ({given:.4g} mm)"
     last = [s for s in p.surfaces if not s.dummy][-1]
-    p.warnings.append(f"the file's fields are all on axis (no image height): detector image of radius "
-                      f"{1.2 * last.semi_diameter_mm:.4g} mm, 1.2 x the last lens surface's clear aperture "
-                      f"({last.name}, {last.semi_diameter_mm:.4g} mm), through which the ghosts leave the lens")
-    return float(last.semi_diameter_mm)
+    return float(last.semi_diameter_mm), (f"the last lens surface's clear aperture ({last.name}, "
+                                         f"{last.semi_diameter_mm:.4g} mm), through which the ghosts leave the lens")
 
 
 MESH_TOLERANCE_MM = 0.05  # the scene's default chord tolerance (docs/reference/scene.md, tolerance_mm)
