@@ -672,7 +672,7 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
                                                           else "") + "; --force imports it approximated")
     notes += [p + ": imported as its base sphere/conic (--force)" for p in problems]
 
-    require_optical_surface(path.name, surfaces)
+    require_optical_surface(str(path), surfaces)
     img_rot, img_t = tfrms[n_ifc - 1]
     img_rot = np.asarray(img_rot, float)
     fod = opm["analysis_results"]["parax_data"].fod
