@@ -14,37 +14,10 @@ their error bars or run to the cap; with the sliver computed they agree. Written
 from __future__ import annotations
 
 import argparse
-import json
-import subprocess
 import sys
-import tempfile
-import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-
-
-def run(angle, seed, estimators, max_seconds, warm: set) -> dict:
-    from newtonian_pst import _command_env, _cpu_children
-
-    exe = [sys.executable, str(HERE / "estimator_sets.py"), "pst", "--builtin", "tube"]
-    env = _command_env()
-    if estimators not in warm:
-        with tempfile.TemporaryDirectory(prefix="cutoff_warm_") as out:
-            subprocess.run([*exe, "--angles-deg", str(angle), "--target-rel-error", "0.5", "--max-rays", "20000",
-                            "--out", out, "--estimators", estimators], capture_output=True, text=True, env=env)
-        warm.add(estimators)
-    with tempfile.TemporaryDirectory(prefix="cutoff_") as out:
-        cmd = [*exe, "--angles-deg", str(angle), "--target-rel-error", "0.02", "--seed", str(seed),
-               "--max-seconds", str(max_seconds), "--out", out, "--estimators", estimators]
-        c0, t0 = _cpu_children(), time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
-        wall, cpu = time.perf_counter() - t0, _cpu_children() - c0
-        if proc.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed: {proc.stderr.strip()[-400:]}")
-        p = json.loads((Path(out) / "pst.json").read_text())["points"][0]
-    return {"angle": angle, "seed": seed, "set": estimators, "rays": p["rays"], "pst": p["pst"],
-            "err": p["pst_stderr"], "vov": p["vov"], "stop": p["stop_reason"], "cpu": cpu, "wall": wall}
 
 
 def main(argv=None) -> int:
@@ -55,17 +28,19 @@ def main(argv=None) -> int:
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
-    warm: set = set()
+    from newtonian_pst import run_point
+
     rows = []
     lines = ["| angle | estimators | seed | rays | PST | rel. error | VOV | stopped by | CPU s | wall s |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for angle in args.angles_deg:
         for seed in args.seeds:
             for est in ("walk_direct", "default"):
-                r = run(angle, seed, est, args.max_seconds, warm)
+                r = run_point(("--builtin", "tube"), angle, seed, est, args.max_seconds, None)
                 rows.append(r)
                 line = (f"| {angle:g} | {est} | {seed} | {r['rays']:.3g} | {r['pst']:.4e} | "
-                        f"{r['err'] / r['pst']:.2%} | {r['vov']:.2g} | {r['stop']} | {r['cpu']:.1f} | {r['wall']:.1f} |")
+                        f"{r['rel_error']:.2%} | {r['vov']:.2g} | {r['stop_reason']} | {r['cpu_s']:.1f} | "
+                        f"{r['wall_s']:.1f} |")
                 lines.append(line)
                 print(line, flush=True)
     text = "\n".join(lines)

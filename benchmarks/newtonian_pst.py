@@ -56,20 +56,22 @@ def _command_env() -> dict:
 
 
 def run_point(scene, angle, seed, estimators, max_seconds, workers, target=0.02) -> dict:
-    """One whole ``straylight pst`` command for one angle; its times and what pst.json says. The first
+    """One whole ``straylight pst`` command for one angle (``scene``: a scene file, or the command's arguments that
+    name one, e.g. ``("--builtin", "tube")``); its times and what pst.json says. The first
     point of a process (per scene and estimator set) is preceded by the same command capped at 2e4 rays,
     untimed: the modules compiled and the kernels' caches written once, as on a machine where straylight
     has run before."""
     exe = [sys.executable, str(HERE / "estimator_sets.py")]  # ``straylight`` with the history sets registered
     env = _command_env()
+    scene_args = [str(a) for a in scene] if isinstance(scene, (list, tuple)) else [str(scene)]  # or ("--builtin", "tube")
     if (str(scene), estimators) not in _warm:
         with tempfile.TemporaryDirectory(prefix="newtonian_pst_warm_") as out:
-            subprocess.run([*exe, "pst", str(scene), "--angles-deg", str(angle), "--target-rel-error", "0.5",
+            subprocess.run([*exe, "pst", *scene_args, "--angles-deg", str(angle), "--target-rel-error", "0.5",
                             "--max-rays", "20000", "--out", out, "--estimators", estimators],
                            capture_output=True, text=True, env=env)
         _warm.add((str(scene), estimators))
     with tempfile.TemporaryDirectory(prefix="newtonian_pst_") as out:
-        cmd = [*exe, "pst", str(scene), "--angles-deg", str(angle), "--target-rel-error", str(target),
+        cmd = [*exe, "pst", *scene_args, "--angles-deg", str(angle), "--target-rel-error", str(target),
                "--seed", str(seed), "--max-seconds", str(max_seconds), "--out", out, "--estimators", estimators]
         if workers:
             cmd += ["--workers", str(workers)]
