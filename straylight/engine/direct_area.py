@@ -30,8 +30,8 @@ its own keyed by seed and chunk, so the irradiance map and the path records ("so
 their meaning and no other strategy's random numbers move.
 
 **When it runs** (:func:`unsupported`, :func:`build`): one ``collimated_disk`` source, one detector part
-whose triangles lie in one plane, no analytic surface in the scene (an exact surface is not its triangles),
-no diffraction (the plan's rule for a strategy that does not see the edges); and only where A is not empty
+whose triangles lie in one plane, analytic surfaces that are planes only (an exact plane, detector or aperture,
+counts with its exact disk or annulus, as the walk does; a curved one is not its triangles), no diffraction (the plan's rule for a strategy that does not see the edges); and only where A is not empty
 (:class:`Declined` otherwise: every number as without it). A side the trace does not count
 (``detector_sides = "front"`` with the beam on the back) is not lit.
 """
@@ -91,8 +91,11 @@ def unsupported(spec) -> str | None:
         return "it computes the light of exactly one collimated_disk source"
     if int(np.count_nonzero(np.asarray(spec.part_roles) == ROLE_DETECTOR)) != 1:
         return "it needs exactly one detector part"
-    if any(s is not None for s in (spec.part_surfaces or ())):
-        return "the scene has analytic surfaces, which the 2-D clip of the mesh's triangles would not follow"
+    curved = [name for name, srf in zip(spec.part_names, spec.part_surfaces or ()) if srf is not None
+              and getattr(srf, "kind", "") != "plane"]
+    if curved:
+        return (f"the scene has curved analytic surfaces ({', '.join(curved[:3])}{', ...' if len(curved) > 3 else ''}), "
+                "which the 2-D clip of the parts' outlines does not follow")
     return None
 
 
@@ -102,6 +105,23 @@ def _basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     e1 = np.cross(d, a)
     e1 /= np.linalg.norm(e1)
     return e1, np.cross(d, e1)
+
+
+def _plane_rings(srf) -> list[np.ndarray]:
+    """The exact disk or annulus of an analytic plane (geometry.analytic.Plane: the walk counts hits inside it
+    only) as 3-D rings of :data:`DISK_SIDES` points, outer first: polygons of the circles' own areas (radius
+    scaled by sqrt(theta / sin theta), theta = 2 pi / n)."""
+    axis = np.asarray(srf.axis, dtype=np.float64)
+    t, b = _basis(axis)
+    phi = np.linspace(0.0, 2.0 * math.pi, DISK_SIDES, endpoint=False)
+    theta = 2.0 * math.pi / DISK_SIDES
+    scale = math.sqrt(theta / math.sin(theta))
+    rings = []
+    for r in (float(srf.outer_radius_mm), float(srf.inner_radius_mm)):
+        if r > 0.0:
+            rings.append(np.asarray(srf.vertex_mm, dtype=np.float64)
+                         + scale * r * (np.cos(phi)[:, None] * t + np.sin(phi)[:, None] * b))
+    return rings
 
 
 def _signed_areas(tri2: np.ndarray) -> np.ndarray:
@@ -181,6 +201,9 @@ def build(spec) -> DirectArea | Declined:
     det_part = int(np.flatnonzero(roles == ROLE_DETECTOR)[0])
     tri = np.asarray(spec.triangles_mm, dtype=np.float64)
     part = np.asarray(spec.triangle_part)
+    surfaces = tuple(spec.part_surfaces or ()) + (None,) * (len(spec.part_names) - len(spec.part_surfaces or ()))
+    planes = [i for i, srf in enumerate(surfaces) if srf is not None]  # exact planes (unsupported: no other kind)
+    det_plane = surfaces[det_part]
     dt = tri[part == det_part]
     normal = np.cross(dt[:, 1] - dt[:, 0], dt[:, 2] - dt[:, 0])
     size = np.linalg.norm(normal, axis=1)
@@ -220,15 +243,40 @@ def build(spec) -> DirectArea | Declined:
 
     # only the detector's part on the beam's side of the source's plane can be lit (the source is a disk
     # the rays leave; behind it nothing arrives)
-    ahead = [c if (((c - center) @ beam_side) > 0).all() else _clip(c, beam_side, center) for c in dt]
-    region = CrossSection(ccw(project(c) for c in ahead if len(c) >= 3), FillRule.Positive)
+    if det_plane is not None:  # an exact plane: its disk or annulus, not the mesh that finds its hits
+        rings = _plane_rings(det_plane)
+        if not all((((r - center) @ beam_side) > 0).all() for r in rings):
+            return Declined("the detector's exact plane reaches behind the source's plane")
+        outer = CrossSection(ccw([project(rings[0])]), FillRule.Positive)
+        region = outer - CrossSection(ccw([project(rings[1])]), FillRule.Positive) if len(rings) > 1 else outer
+    else:
+        ahead = [c if (((c - center) @ beam_side) > 0).all() else _clip(c, beam_side, center) for c in dt]
+        region = CrossSection(ccw(project(c) for c in ahead if len(c) >= 3), FillRule.Positive)
     t_, b_ = _basis(src_normal)
     phi = np.linspace(0.0, 2.0 * math.pi, DISK_SIDES, endpoint=False)
     rim = center + float(src.radius_mm) * (np.cos(phi)[:, None] * t_ + np.sin(phi)[:, None] * b_)
     region = region ^ CrossSection(ccw([project(rim)]), FillRule.Positive)
     if region.is_empty():
         return Declined("the detector lies outside the beam")
-    others = tri[part != det_part]
+    # an exact plane blocks with its disk or annulus (its mesh covers more: the walk passes the rest), so its
+    # triangles are left out and its outline cut first
+    exact_occluders = []
+    for i in planes:
+        if i == det_part:
+            continue
+        rings = _plane_rings(surfaces[i])
+        sd = [(r - c0) @ toward_source for r in rings]
+        ss = [(r - center) @ beam_side for r in rings]
+        if all((a > 0).all() for a in sd) and all((a > 0).all() for a in ss):
+            ring_cs = CrossSection(ccw([project(rings[0])]), FillRule.Positive)
+            if len(rings) > 1:
+                ring_cs = ring_cs - CrossSection(ccw([project(rings[1])]), FillRule.Positive)
+            exact_occluders.append(ring_cs)
+        elif any((a > 0).any() for a in sd) and any((a > 0).any() for a in ss):
+            return Declined(f"the exact plane {spec.part_names[i]!r} crosses the detector's or the source's plane")
+    for ring_cs in exact_occluders:
+        region = region - ring_cs
+    others = tri[(part != det_part) & ~np.isin(part, planes)]
     # the slab between the detector's plane and the source's: a triangle behind the one or beyond the other
     # blocks nothing; one across a plane blocks with the part inside
     s_det = (others - c0) @ toward_source  # (m, 3): > 0 on the source's side of the detector

@@ -48,6 +48,18 @@ def _plate_scene(n_seg=2048, facing=+1):
     return Scene(parts), {"black": black}
 
 
+def _exact_plate_scene():
+    """The same as exact planes (CONTRACTS 6.4: a detector without a solid): the walk counts hits inside the
+    exact disk and annulus only, and so does the strategy."""
+    from geometry.analytic import Plane, analytic_part
+
+    up = np.array([0.0, 0.0, 1.0])
+    black = load_material({"components": [{"type": "lambertian", "rd": 0.05}]}, "black")
+    plate = analytic_part("plate", Plane(np.array([0.0, 0.0, H]), up, math.inf, 0.0, 40.0, RH), "black")
+    det = analytic_part("detector", Plane(np.zeros(3), up, math.inf, 0.0, RD, 0.0), None, "detector")
+    return Scene((plate, det)), {"black": black}
+
+
 def _source(a_deg: float) -> CollimatedDisk:
     a = math.radians(a_deg)
     return CollimatedDisk(center_mm=np.array([0.0, 0.0, H + 10.0]), normal=np.array([0.0, 0.0, -1.0]),
@@ -70,6 +82,28 @@ def test_the_lit_area_is_the_overlap_of_the_hole_carried_along_the_beam_and_the_
     assert np.allclose(z[:, 2], 0.0, atol=1e-9)
     assert (np.hypot(z[:, 0], z[:, 1]) <= RD + 1e-9).all()
     assert (np.hypot(z[:, 0] - H * math.tan(a), z[:, 1]) <= RH + 1e-9).all()  # up the beam to the hole
+
+
+@pytest.mark.parametrize("a_deg", [0.0, 2.5, 4.0])
+def test_exact_planes_are_their_circles(a_deg):
+    """An exact plate and an exact detector (analytic planes): the lens area of the circles themselves, to the
+    equal-area 4096-gons (1e-5), not to the meshes that find their hits."""
+    scene, mats = _exact_plate_scene()
+    table = direct_area.build(make_spec(scene, [_source(a_deg)], 1000, 0, mats, DIRECT))
+    a = math.radians(a_deg)
+    expected = 1.0 / (math.pi * SRC_R ** 2) * _lens_area(RH, RD, H * math.tan(a))
+    assert isinstance(table, direct_area.DirectArea)
+    assert table.power_w == pytest.approx(expected, rel=1e-5)
+
+
+def test_with_exact_planes_it_agrees_with_the_analog_walk():
+    scene, mats = _exact_plate_scene()
+    src = _source(3.0)
+    analog = trace(scene, [src], 200_000, seed=7, materials=mats, options=TraceOptions(estimator=ANALOG))
+    on = trace(scene, [src], 20_000, seed=8, materials=mats, options=DIRECT)
+    a, b = on.detectors["detector"], analog.detectors["detector"]
+    assert on.strategies.runs("direct_area")
+    assert abs(a.power_w - b.power_w) < 4 * math.hypot(a.stderr_w, b.stderr_w), (a, b)
 
 
 def test_direct_area_agrees_with_the_analog_walk_keeps_the_ledger_and_records_the_direct_family():
@@ -147,15 +181,17 @@ def test_it_declines_where_nothing_is_lit_or_counted_and_then_changes_no_number(
     assert isinstance(out, direct_area.Declined) and "back" in out.reason
 
 
-def test_it_is_ruled_out_for_analytic_surfaces_and_other_sources():
-    from geometry.analytic import Plane, analytic_part
+def test_it_is_ruled_out_for_curved_analytic_surfaces_and_other_sources():
+    from geometry.analytic import Conic, Plane, analytic_part
     from straylight.sources import PointSource
 
     scene, mats = _plate_scene(n_seg=256)
     assert direct_area.unsupported(make_spec(scene, [_source(1.0)], 10, 0, mats, DIRECT)) is None
     point = PointSource(position_mm=np.array([0.0, 0.0, 60.0]), power_w=1.0)
     assert "collimated_disk" in direct_area.unsupported(make_spec(scene, [point], 10, 0, mats, DIRECT))
-    exact = analytic_part("window", Plane(np.array([0, 0, 30.0]), np.array([0, 0, 1.0]), math.inf, 0.0, 5.0, 0.0),
-                          "black")
-    spec = make_spec(Scene((*scene.parts, exact)), [_source(1.0)], 10, 0, mats, DIRECT)
-    assert "analytic" in direct_area.unsupported(spec)
+    flat = analytic_part("window", Plane(np.array([0, 0, 30.0]), np.array([0, 0, 1.0]), math.inf, 0.0, 5.0, 0.0),
+                         "black")
+    assert direct_area.unsupported(make_spec(Scene((*scene.parts, flat)), [_source(1.0)], 10, 0, mats, DIRECT)) is None
+    curved = analytic_part("lens", Conic(np.array([0, 0, 30.0]), np.array([0, 0, 1.0]), 50.0, 0.0, 5.0, 0.0), "black")
+    spec = make_spec(Scene((*scene.parts, curved)), [_source(1.0)], 10, 0, mats, DIRECT)
+    assert "curved analytic surfaces (lens)" in direct_area.unsupported(spec)
