@@ -121,7 +121,7 @@ def trace(scene, sources, n_rays, seed=0, materials=None, options=None, executio
             bar.update(totals.add(res))
     here = rt.cached_scene(spec)  # this process's scene, if it traced here; else the detectors alone
     result = replace(totals.result(spec, here.detectors if here is not None else detector_samplers(spec)),
-                     strategies=plan)
+                     strategies=plan, unscattered_w=_unscattered(spec, plan))
     from straylight.run_checks import check_truncation
 
     check_truncation(result, opt.physics.max_events)  # power cut by max_events is not round-off: say so
@@ -149,3 +149,14 @@ def _answering_to_aliases(result: TraceResult, scene) -> TraceResult:
     tables: dict[str, Any] = {f: AliasDict(getattr(result, f), aliases) for f in ("detectors", "absorbed", "incident", "first_hit", "maps")
               if isinstance(getattr(result, f, None), dict)}
     return replace(result, **tables)
+
+
+def _unscattered(spec, plan) -> dict | None:
+    """Detector name -> the straight light direct_area computed (the result's ``unscattered_w``), None where it
+    did not run."""
+    from straylight.engine.direct_area import DirectArea
+
+    table = spec.direct_table
+    if not plan.runs("direct_area") or not isinstance(table, DirectArea):
+        return None
+    return {spec.part_names[table.part]: float(table.power_w)}

@@ -163,6 +163,9 @@ def _trace_point(point: GridPoint, tj: TraceJob, execution: Execution, rays, pre
     values = tj.values(res.detectors[tj.detector])
     plan = getattr(res, "strategies", None)  # the strategies asked for that did not run, and why (pst.json)
     diagnostics["strategies_off"] = {} if plan is None else {name: why for name, why in plan.off}
+    unscattered = getattr(res, "unscattered_w", None) or {}
+    if tj.detector in unscattered:  # the straight light, computed exactly (direct_area): part of the point's power
+        diagnostics["unscattered_w"] = unscattered[tj.detector]
     return PointRun(values, int(res.n_rays), seconds, diagnostics, res if keep_traces else None)
 
 

@@ -108,6 +108,18 @@ def benchmark_direct_ratio(off_axis, params: dict) -> np.ndarray:
     return geometric_direct_ratio(off_axis, r_v, r_d, z_top) * (r_v / r_e) ** 2
 
 
+def unscattered_ratio(pst, formula) -> np.ndarray:
+    """Per point, the unscattered light / entrance power: as computed exactly by the tracer where it was
+    (direct_area: pst.json's ``unscattered_w``, brought to the entrance by the point's own detector / entrance
+    ratio), else ``formula`` (:func:`benchmark_direct_ratio`'s, NaN for a scene file)."""
+    out = np.array(formula, dtype=np.float64, copy=True)
+    for i, row in enumerate(pst.rows()):
+        w = row.get("unscattered_w")
+        if w is not None and i < len(out) and pst.detector_w[i] > 0 and np.isfinite(pst.entrance_ratio[i]):
+            out[i] = w * pst.entrance_ratio[i] / pst.detector_w[i]
+    return out
+
+
 POINTS_DIR = "study.points"  # finished sweep points of an unfinished study (straylight.checkpoints)
 
 
@@ -311,7 +323,7 @@ def _study_steps(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Exec
     done.append("views")
     result.timings_s["total"] = time.perf_counter() - t_all
 
-    direct = benchmark_direct_ratio(np.radians(cfg.angles_deg), setup.params)
+    direct = unscattered_ratio(pst, benchmark_direct_ratio(np.radians(cfg.angles_deg), setup.params))
     result.summary = {
         "description": setup.description,
         "instrument": instrument_summary(setup, pst.detector_area_mm2),

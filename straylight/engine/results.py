@@ -49,6 +49,9 @@ class TraceResult:
     detector_chunks: dict | None = None  # name -> (s1 (K,), s2 (K,)): per-chunk sums of the detector total
     strategies: StrategyPlan | None = None  # straylight.engine.plan.StrategyPlan: the requested strategies that ran, and why not the rest
     ray_log: RayLog | None = None  # the segments of the first OutputOptions.ray_log rays (None when off)
+    #: detector name -> the power the beam puts on it straight, W, computed exactly by direct_area
+    #: (straylight.engine.direct_area; inside ``detectors``' totals); None where that strategy did not run
+    unscattered_w: dict | None = None
 
     def chunks_of(self, detector: str) -> tuple[np.ndarray, np.ndarray]:
         """(s1 (K,), s2 (K,)): the per-chunk sums of ``detector``'s total (every trace keeps them)."""
@@ -81,6 +84,7 @@ class TraceResult:
             "segments": self.segments,
             "shadow_rays": self.shadow_rays,
             **({"strategies": self.strategies.to_dict()} if self.strategies is not None else {}),
+            **({"unscattered_w": dict(self.unscattered_w)} if self.unscattered_w is not None else {}),
         }
 
 

@@ -195,3 +195,25 @@ def test_it_is_ruled_out_for_curved_analytic_surfaces_and_other_sources():
     curved = analytic_part("lens", Conic(np.array([0, 0, 30.0]), np.array([0, 0, 1.0]), 50.0, 0.0, 5.0, 0.0), "black")
     spec = make_spec(Scene((*scene.parts, curved)), [_source(1.0)], 10, 0, mats, DIRECT)
     assert "curved analytic surfaces (lens)" in direct_area.unsupported(spec)
+
+
+def test_the_computed_straight_light_reaches_trace_json_pst_json_and_the_report():
+    """``TraceResult.unscattered_w`` (trace --json), each PST point's ``unscattered_w`` (pst.json) and the
+    report's "unscattered" column (its entrance ratio) carry the computed power, where the tube's formula (the
+    two end circles, ignoring the tessellation that matters at the cut-off) stood before."""
+    from straylight.analyses.builtin import tube_setup
+    from straylight.analyses.pst import pst_sweep
+    from straylight.analyses.report import unscattered_ratio
+
+    setup = tube_setup()
+    a = math.radians(13.0)
+    pst = pst_sweep(setup, [a], n_rays=2_000, seed=1)
+    src = setup.beam.source(a)
+    spec = make_spec(setup.scene, [src], 1000, 0, setup.materials,
+                     TraceOptions(estimator=replace(ANALOG, direct_area=True)))
+    power = direct_area.build(spec).power_w
+    assert pst.rows()[0]["unscattered_w"] == pytest.approx(power, rel=1e-12)
+    p_ent = setup.entrance.power_w(setup.beam, a, 0.0)
+    assert unscattered_ratio(pst, [math.nan])[0] == pytest.approx(power / p_ent, rel=1e-9)
+    doc = trace(setup.scene, [src], 2_000, seed=1, materials=setup.materials, options=DIRECT).to_json_dict()
+    assert doc["unscattered_w"] == {"detector": pytest.approx(power, rel=1e-12)}
