@@ -28,12 +28,16 @@ FLAG_COLUMN = "flags"  # last column of pst.csv, key of each pst.json point (doc
 FLAGS = {
     "zero": "no power reached the detector: the PST is below what these rays resolve (0 is not a measurement)",
     "unreliable_error": "the variance of the variance (VOV) is above 0.1 (MCNP's check): rare heavy paths, the "
-                        "error bar itself is uncertain",
+                        "error bar itself is uncertain (not flagged where the error is under 1e-5 of the point)",
     "target_not_reached": "traced to a target relative error, but a ray or time cap stopped the point first",
 }
 
 
 UNTRUSTED_FLAGS = {"unreliable_error", "target_not_reached"}  # marked on the plot and in the study's table
+
+
+#: a relative error below this is not flagged unreliable for its VOV (point_flags)
+NEGLIGIBLE_REL_ERROR = 1e-5
 
 
 def point_flags(row: dict) -> str:
@@ -42,7 +46,12 @@ def point_flags(row: dict) -> str:
     if not row["pst"] > 0:
         out.append("zero")
     vov = row.get("vov")
-    if vov is not None and math.isfinite(vov) and vov > DEFAULT_VOV_LIMIT:
+    pst, err = row.get("pst"), row.get("pst_stderr")
+    # an error bar under NEGLIGIBLE_REL_ERROR of the point (a computed part carries it: direct_area) would stay
+    # under 1 % even a thousand times larger: its VOV says nothing a user acts on
+    negligible = pst is not None and err is not None and pst > 0 and math.isfinite(err) \
+        and err <= NEGLIGIBLE_REL_ERROR * pst
+    if vov is not None and math.isfinite(vov) and vov > DEFAULT_VOV_LIMIT and not negligible:
         out.append("unreliable_error")
     if row.get("stop_reason") not in (None, "", "target"):
         out.append("target_not_reached")

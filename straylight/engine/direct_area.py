@@ -30,8 +30,9 @@ its own keyed by seed and chunk, so the irradiance map and the path records ("so
 their meaning and no other strategy's random numbers move.
 
 **When it runs** (:func:`unsupported`, :func:`build`): one ``collimated_disk`` source, one detector part
-whose triangles lie in one plane, analytic surfaces that are planes only (an exact plane, detector or aperture,
-counts with its exact disk or annulus, as the walk does; a curved one is not its triangles), no diffraction (the plan's rule for a strategy that does not see the edges); and only where A is not empty
+whose triangles lie in one plane, analytic surfaces that are planes or cylinders only (an exact plane, detector
+or aperture, counts with its exact disk or annulus, as the walk does; a cylinder, a tube's wall, with a prism of
+4096 sides of the circle's area; a lens or mirror surface is not its triangles), no diffraction (the plan's rule for a strategy that does not see the edges); and only where A is not empty
 (:class:`Declined` otherwise: every number as without it). A side the trace does not count
 (``detector_sides = "front"`` with the beam on the back) is not lit.
 """
@@ -56,6 +57,9 @@ STREAM = 0x44524354
 DISK_SIDES = 4096
 #: cells per side of the raster of the lit region that culls the occluding triangles
 RASTER_CELLS = 256
+#: the analytic surfaces it follows: a plane by its exact disk or annulus, a cylinder (a tube's wall) by a prism of
+#: DISK_SIDES sides whose cross-section has the circle's area (its silhouette within ~1e-7 of the radius)
+EXACT_KINDS = ("plane", "cylinder")
 #: occluding triangles united and cut from the lit region at a time (nearest the detector first: build)
 OCCLUDER_BATCH = 2_000
 #: coplanarity of the detector's triangles: normals within this of each other, vertices within this of the
@@ -92,7 +96,7 @@ def unsupported(spec) -> str | None:
     if int(np.count_nonzero(np.asarray(spec.part_roles) == ROLE_DETECTOR)) != 1:
         return "it needs exactly one detector part"
     curved = [name for name, srf in zip(spec.part_names, spec.part_surfaces or ()) if srf is not None
-              and getattr(srf, "kind", "") != "plane"]
+              and getattr(srf, "kind", "") not in EXACT_KINDS]
     if curved:
         return (f"the scene has curved analytic surfaces ({', '.join(curved[:3])}{', ...' if len(curved) > 3 else ''}), "
                 "which the 2-D clip of the parts' outlines does not follow")
@@ -124,6 +128,20 @@ def _plane_rings(srf) -> list[np.ndarray]:
     return rings
 
 
+def _cylinder_triangles(srf) -> np.ndarray:
+    """(2 n, 3, 3) world triangles of an analytic cylinder's side (geometry.analytic.Cylinder, 0 <= z <= length)
+    as a prism of n = :data:`DISK_SIDES` sides, its polygon of the circle's area (radius x sqrt(theta / sin
+    theta)): the walk meets the exact cylinder, which its own coarser mesh only finds."""
+    theta = 2.0 * math.pi / DISK_SIDES
+    r = float(srf.radius_mm) * math.sqrt(theta / math.sin(theta))
+    phi = np.linspace(0.0, 2.0 * math.pi, DISK_SIDES, endpoint=False)
+    ring = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+    lo = srf.to_world(np.column_stack([ring, np.zeros(DISK_SIDES)]))
+    hi = srf.to_world(np.column_stack([ring, np.full(DISK_SIDES, float(srf.length_mm))]))
+    lo_next, hi_next = np.roll(lo, -1, axis=0), np.roll(hi, -1, axis=0)
+    return np.concatenate([np.stack([lo, lo_next, hi_next], axis=1), np.stack([lo, hi_next, hi], axis=1)])
+
+
 def _signed_areas(tri2: np.ndarray) -> np.ndarray:
     """Twice the signed areas of 2-D triangles (m, 3, 2): > 0 counter-clockwise."""
     a, b = tri2[:, 1] - tri2[:, 0], tri2[:, 2] - tri2[:, 0]
@@ -132,8 +150,9 @@ def _signed_areas(tri2: np.ndarray) -> np.ndarray:
 
 def _raster(contours, lo, hi, g: int) -> np.ndarray:
     """(g, g) bool: the cells (x index first) of the box ``lo``..``hi`` whose centre lies inside the polygons
-    ``contours`` (even-odd: a centre is inside when an odd number of edges cross its row to its left), grown by
-    one cell all round (so a cell that the polygons only touch still counts)."""
+    ``contours`` (even-odd: a centre is inside when an odd number of edges cross its row to its left) or that an
+    edge crosses, grown by one cell all round: every cell the polygons reach is marked (a box that covers none
+    cannot overlap them)."""
     a = np.concatenate([np.asarray(c, dtype=np.float64) for c in contours])
     b = np.concatenate([np.roll(np.asarray(c, dtype=np.float64), -1, axis=0) for c in contours])
     step = (hi - lo) / g
@@ -144,6 +163,15 @@ def _raster(contours, lo, hi, g: int) -> np.ndarray:
     counts = np.zeros((g + 1, g), dtype=np.int64)
     np.add.at(counts, (first, r), 1)
     mask = (np.cumsum(counts, axis=0)[:g] % 2) == 1
+    # and every cell an edge passes through: a part of the polygons thinner than a cell (the tip of a lens-shaped
+    # region) holds no cell's centre, and a triangle over it alone must not be culled (points along each edge
+    # every quarter cell, their cells marked, then grown by one)
+    length = np.linalg.norm(b - a, axis=1)
+    k = np.ceil(length / (0.25 * float(step.min()))).astype(np.int64) + 1
+    t = np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k)
+    pts = np.repeat(a, k, axis=0) + (np.repeat(b - a, k, axis=0) * (t / np.repeat(np.maximum(k - 1, 1), k))[:, None])
+    cell = np.clip(np.floor((pts - lo) / step).astype(np.int64), 0, g - 1)
+    mask[cell[:, 0], cell[:, 1]] = True
     grown = mask.copy()
     grown[1:] |= mask[:-1]
     grown[:-1] |= mask[1:]
@@ -202,7 +230,8 @@ def build(spec) -> DirectArea | Declined:
     tri = np.asarray(spec.triangles_mm, dtype=np.float64)
     part = np.asarray(spec.triangle_part)
     surfaces = tuple(spec.part_surfaces or ()) + (None,) * (len(spec.part_names) - len(spec.part_surfaces or ()))
-    planes = [i for i, srf in enumerate(surfaces) if srf is not None]  # exact planes (unsupported: no other kind)
+    planes = [i for i, srf in enumerate(surfaces) if getattr(srf, "kind", "") == "plane"]
+    cylinders = [i for i, srf in enumerate(surfaces) if getattr(srf, "kind", "") == "cylinder"]
     det_plane = surfaces[det_part]
     dt = tri[part == det_part]
     normal = np.cross(dt[:, 1] - dt[:, 0], dt[:, 2] - dt[:, 0])
@@ -276,7 +305,9 @@ def build(spec) -> DirectArea | Declined:
             return Declined(f"the exact plane {spec.part_names[i]!r} crosses the detector's or the source's plane")
     for ring_cs in exact_occluders:
         region = region - ring_cs
-    others = tri[(part != det_part) & ~np.isin(part, planes)]
+    others = tri[(part != det_part) & ~np.isin(part, planes + cylinders)]
+    if cylinders:  # an exact cylinder by its fine prism, not by the mesh that finds its hits
+        others = np.concatenate([others, *(_cylinder_triangles(surfaces[i]) for i in cylinders)])
     # the slab between the detector's plane and the source's: a triangle behind the one or beyond the other
     # blocks nothing; one across a plane blocks with the part inside
     s_det = (others - c0) @ toward_source  # (m, 3): > 0 on the source's side of the detector

@@ -107,3 +107,13 @@ def test_rays_of_one_value_have_a_round_off_error_bar_not_none():
     xc = x * (1 + 1e-2 * np.sin(np.arange(k)))  # a real spread between chunks: measured as before
     wide = reliability(1000 * xc, 1000 * xc * xc, n)
     assert wide.rel_error > 1e3 * r.rel_error and wide.vov > 0
+
+
+def test_an_error_far_below_the_target_meets_it_whatever_its_vov():
+    """A point whose estimate is nearly all computed (direct_area on an exact-walled tube on axis: 1e-9
+    relative error, the rare scatter around it heavy-tailed, VOV 0.5): the error bar could be a thousand times
+    too small and still meet the target, so it does; the same VOV with an error near the target does not."""
+    p = Precision(0.05, min_chunks=4)
+    assert p.meets(Look(60_000, 1.0, 1e-9, 0.5, 0.9, 60))
+    assert not p.meets(Look(60_000, 1.0, 0.01, 0.5, 0.1, 60))
+    assert not p.meets(Look(60_000, 1.0, 0.04, 0.05, 0.6, 60))  # a chunk holds 60 % of the variance
