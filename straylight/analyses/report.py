@@ -433,6 +433,11 @@ def _pst_plot(pst, setup, path, material: str = "") -> bool:
         ok = direct > 0
         ax.plot(a[ok], (direct * conv)[ok], "k--", lw=1, label="unscattered (geometric) transmission")
         drawn = True
+    computed = [(pst.off_axis_deg[i], pst.pst[i] * r["unscattered_w"] / pst.detector_w[i])
+                for i, r in enumerate(pst.rows()) if r.get("unscattered_w") and pst.detector_w[i] > 0]
+    if computed:  # the straight light the tracer computed (direct_area), in PST units
+        ax.plot(*zip(*computed), "k+", ms=9, label="unscattered light (computed exactly)")
+        drawn = True
     ax.legend(fontsize=8)
     ax.set_xlabel("")
     pos = pst.pst > 0
