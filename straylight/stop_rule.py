@@ -140,7 +140,7 @@ def reliability(chunk_s1, chunk_s2, n_rays: int, chunk_rays=None) -> Reliability
         # the rays' values are alike to ~1e-6 of their size (a computed part carries the estimate): their spread
         # is below what these sums resolve, so the error bar is that bound, and no ray can be a heavy tail
         return Reliability(abs(math.sqrt(floor * n / (n - 1)) / total), 0.0, 0.0, 1.0 / max(k, 1), k)
-    stderr = math.sqrt(max(sum_c, 0.0) * n / (n - 1))
+    stderr = math.sqrt(sum_c * n / (n - 1))
     expected = c_n * sum_c / n
     var_sum = float(np.sum((c - expected) ** 2)) * k / max(k - 1, 1)
     vov = var_sum / sum_c**2

@@ -47,7 +47,7 @@
     NEE point and one lobe draw saw its peak on the sensor by chance (docs/engine.md, "NEE splitting at
     glints").
 
-    For one collimated beam on a flat mesh detector (no analytic surface in the scene) it also computes
+    For one collimated beam on a flat detector (analytic surfaces: planes and cylinders only) it also computes
     the light that reaches the detector straight, exactly, by 2-D clipping along the beam (``direct_area``,
     straylight.engine.direct_area): near a baffle's cut-off that light passes a sliver the walk meets once in
     ~1e5 rays (the built-in tube at 14 deg: 17 % of the power), which made the point's error bar wrong or

@@ -798,10 +798,11 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
     None: 4096, or for the ghosts fewer (not below 256) where two batches for every ghost would exceed the
     budget (order 4: thousands of ghosts; the nominal image keeps 4096).
 
-    ``max_seconds``: a wall-clock cap (``monotonic``) counted from ``started`` (a ``monotonic()`` reading: the
-    notebook's :func:`ghosts` passes its call's, the command line its own start, so the cap bounds the whole call,
-    the nominal image's trace included), or, ``started`` None, from the end of the nominal image's trace (the cap
-    the ghosts share); the ghosts stop ``reserve_s`` before it (the command line's time to write its files). Under it the same schedule is traced one batch a ghost per round, every ghost's first batch before any
+    ``max_seconds``: a wall-clock cap (``monotonic``) counted from ``started`` (a ``monotonic()`` reading:
+    :func:`ghosts`, which the command line calls, passes its call's, so the cap bounds the whole call, the nominal
+    image's trace included), or, ``started`` None, from the end of the nominal image's trace (the cap the ghosts
+    share); the ghosts stop ``reserve_s`` before it (the command line's time to write its files). Under it the
+    same schedule is traced one batch a ghost per round, every ghost's first batch before any
     ghost's second (the first batches going out by :func:`ghost_priors`, the likely-brightest first; later
     rounds by the estimates so far, the largest first), so the cap stops the ghosts as the budget does (each
     keeps the estimate it reached) and leaves each with one: the batches of the ghosts still without one

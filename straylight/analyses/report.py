@@ -108,16 +108,23 @@ def benchmark_direct_ratio(off_axis, params: dict) -> np.ndarray:
     return geometric_direct_ratio(off_axis, r_v, r_d, z_top) * (r_v / r_e) ** 2
 
 
-def unscattered_ratio(pst, formula) -> np.ndarray:
-    """Per point, the unscattered light / entrance power: as computed exactly by the tracer where it was
-    (direct_area: pst.json's ``unscattered_w``, brought to the entrance by the point's own detector / entrance
-    ratio), else ``formula`` (:func:`benchmark_direct_ratio`'s, NaN for a scene file)."""
-    out = np.array(formula, dtype=np.float64, copy=True)
+def unscattered_share(pst) -> np.ndarray:
+    """Per point, the share of its detector power that the tracer computed as straight light (direct_area:
+    pst.json's ``unscattered_w`` over ``detector_w``); NaN where it did not."""
+    out = np.full(len(pst.pst), np.nan)
     for i, row in enumerate(pst.rows()):
         w = row.get("unscattered_w")
-        if w is not None and i < len(out) and pst.detector_w[i] > 0 and np.isfinite(pst.entrance_ratio[i]):
-            out[i] = w * pst.entrance_ratio[i] / pst.detector_w[i]
+        if w is not None and pst.detector_w[i] > 0:
+            out[i] = w / pst.detector_w[i]
     return out
+
+
+def unscattered_ratio(pst, formula) -> np.ndarray:
+    """Per point, the unscattered light / entrance power: as computed exactly by the tracer where it was
+    (:func:`unscattered_share` times the point's detector / entrance ratio), else ``formula``
+    (:func:`benchmark_direct_ratio`'s, NaN for a scene file)."""
+    computed = unscattered_share(pst)[:len(formula)] * pst.entrance_ratio[:len(formula)]
+    return np.where(np.isfinite(computed), computed, np.asarray(formula, dtype=np.float64))
 
 
 POINTS_DIR = "study.points"  # finished sweep points of an unfinished study (straylight.checkpoints)
@@ -433,10 +440,11 @@ def _pst_plot(pst, setup, path, material: str = "") -> bool:
         ok = direct > 0
         ax.plot(a[ok], (direct * conv)[ok], "k--", lw=1, label="unscattered (geometric) transmission")
         drawn = True
-    computed = [(pst.off_axis_deg[i], pst.pst[i] * r["unscattered_w"] / pst.detector_w[i])
-                for i, r in enumerate(pst.rows()) if r.get("unscattered_w") and pst.detector_w[i] > 0]
-    if computed:  # the straight light the tracer computed (direct_area), in PST units
-        ax.plot(*zip(*computed), "k+", ms=9, label="unscattered light (computed exactly)")
+    share = unscattered_share(pst)
+    computed = np.isfinite(share) & (share > 0)
+    if computed.any():  # the straight light the tracer computed (direct_area), in PST units
+        ax.plot(pst.off_axis_deg[computed], (pst.pst * share)[computed], "k+", ms=9,
+                label="unscattered light (computed exactly)")
         drawn = True
     ax.legend(fontsize=8)
     ax.set_xlabel("")

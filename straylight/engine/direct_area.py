@@ -52,8 +52,8 @@ from straylight.sources import CollimatedDisk
 
 #: entropy word of the streams that place each ray's share in the lit region ("DRCT")
 STREAM = 0x44524354
-#: sides of the polygon that stands for the source's disk (area short of the circle's by ~2 pi^2 / (3 n^2),
-#: 4e-7 of it: only where the lit region reaches the disk's rim)
+#: sides of the polygons that stand for circles (the source's disk, an exact plane's disk or annulus, an exact
+#: cylinder's cross-section), each of the circle's own area (:func:`_ring`)
 DISK_SIDES = 4096
 #: cells per side of the raster of the lit region that culls the occluding triangles
 RASTER_CELLS = 256
@@ -62,9 +62,10 @@ RASTER_CELLS = 256
 EXACT_KINDS = ("plane", "cylinder")
 #: occluding triangles united and cut from the lit region at a time (nearest the detector first: build)
 OCCLUDER_BATCH = 2_000
-#: coplanarity of the detector's triangles: normals within this of each other, vertices within this of the
-#: plane (relative to the detector's size)
+#: coplanarity of the detector's triangles: normals parallel to within this (1 - |cos|), vertices within
+#: FLAT_OFFSET of the detector's size off its plane
 FLAT_TOLERANCE = 1e-9
+FLAT_OFFSET = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,7 +75,6 @@ class DirectArea:
     (``triangles_mm``, (m, 3, 3)) with their cumulative area fractions ``cdf`` for placing the records."""
 
     power_w: float
-    area_mm2: float  # projected along the beam
     detector: int
     part: int
     triangles_mm: np.ndarray
@@ -111,33 +111,29 @@ def _basis(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(d, e1)
 
 
-def _plane_rings(srf) -> list[np.ndarray]:
-    """The exact disk or annulus of an analytic plane (geometry.analytic.Plane: the walk counts hits inside it
-    only) as 3-D rings of :data:`DISK_SIDES` points, outer first: polygons of the circles' own areas (radius
-    scaled by sqrt(theta / sin theta), theta = 2 pi / n)."""
-    axis = np.asarray(srf.axis, dtype=np.float64)
-    t, b = _basis(axis)
+def _ring(center, axis, radius_mm: float) -> np.ndarray:
+    """(:data:`DISK_SIDES`, 3) points of the circle of ``radius_mm`` about ``center`` in the plane normal to
+    ``axis``: a polygon of the circle's own area (radius scaled by sqrt(theta / sin theta), theta = 2 pi / n)."""
+    t, b = _basis(np.asarray(axis, dtype=np.float64))
     phi = np.linspace(0.0, 2.0 * math.pi, DISK_SIDES, endpoint=False)
     theta = 2.0 * math.pi / DISK_SIDES
-    scale = math.sqrt(theta / math.sin(theta))
-    rings = []
-    for r in (float(srf.outer_radius_mm), float(srf.inner_radius_mm)):
-        if r > 0.0:
-            rings.append(np.asarray(srf.vertex_mm, dtype=np.float64)
-                         + scale * r * (np.cos(phi)[:, None] * t + np.sin(phi)[:, None] * b))
-    return rings
+    r = float(radius_mm) * math.sqrt(theta / math.sin(theta))
+    return np.asarray(center, dtype=np.float64) + r * (np.cos(phi)[:, None] * t + np.sin(phi)[:, None] * b)
+
+
+def _plane_rings(srf) -> list[np.ndarray]:
+    """The exact disk or annulus of an analytic plane (geometry.analytic.Plane: the walk counts hits inside it
+    only) as rings (:func:`_ring`), outer first."""
+    return [_ring(srf.vertex_mm, srf.axis, r) for r in (srf.outer_radius_mm, srf.inner_radius_mm) if r > 0.0]
 
 
 def _cylinder_triangles(srf) -> np.ndarray:
-    """(2 n, 3, 3) world triangles of an analytic cylinder's side (geometry.analytic.Cylinder, 0 <= z <= length)
-    as a prism of n = :data:`DISK_SIDES` sides, its polygon of the circle's area (radius x sqrt(theta / sin
-    theta)): the walk meets the exact cylinder, which its own coarser mesh only finds."""
-    theta = 2.0 * math.pi / DISK_SIDES
-    r = float(srf.radius_mm) * math.sqrt(theta / math.sin(theta))
-    phi = np.linspace(0.0, 2.0 * math.pi, DISK_SIDES, endpoint=False)
-    ring = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
-    lo = srf.to_world(np.column_stack([ring, np.zeros(DISK_SIDES)]))
-    hi = srf.to_world(np.column_stack([ring, np.full(DISK_SIDES, float(srf.length_mm))]))
+    """(2 n, 3, 3) world triangles of an analytic cylinder's side (geometry.analytic.Cylinder, 0 <= z <= length
+    along its axis) as a prism on two rings (:func:`_ring`): the walk meets the exact cylinder, which its own
+    coarser mesh only finds."""
+    axis = np.asarray(srf.axis, dtype=np.float64)
+    lo = _ring(srf.vertex_mm, axis, srf.radius_mm)
+    hi = lo + float(srf.length_mm) * axis
     lo_next, hi_next = np.roll(lo, -1, axis=0), np.roll(hi, -1, axis=0)
     return np.concatenate([np.stack([lo, lo_next, hi_next], axis=1), np.stack([lo, hi_next, hi], axis=1)])
 
@@ -242,7 +238,7 @@ def build(spec) -> DirectArea | Declined:
     n0, c0 = normal[0], dt[0, 0]
     extent = float(np.ptp(dt.reshape(-1, 3), axis=0).max()) or 1.0
     if np.min(np.abs(normal @ n0)) < 1.0 - FLAT_TOLERANCE or \
-            np.max(np.abs((dt.reshape(-1, 3) - c0) @ n0)) > FLAT_TOLERANCE * extent * 1e3:
+            np.max(np.abs((dt.reshape(-1, 3) - c0) @ n0)) > FLAT_OFFSET * extent:
         return Declined("the detector is not one flat face")
     cos_det = float(n0 @ d)
     if abs(cos_det) < 1e-12:
@@ -281,10 +277,7 @@ def build(spec) -> DirectArea | Declined:
     else:
         ahead = [c if (((c - center) @ beam_side) > 0).all() else _clip(c, beam_side, center) for c in dt]
         region = CrossSection(ccw(project(c) for c in ahead if len(c) >= 3), FillRule.Positive)
-    t_, b_ = _basis(src_normal)
-    phi = np.linspace(0.0, 2.0 * math.pi, DISK_SIDES, endpoint=False)
-    rim = center + float(src.radius_mm) * (np.cos(phi)[:, None] * t_ + np.sin(phi)[:, None] * b_)
-    region = region ^ CrossSection(ccw([project(rim)]), FillRule.Positive)
+    region = region ^ CrossSection(ccw([project(_ring(center, src_normal, src.radius_mm))]), FillRule.Positive)
     if region.is_empty():
         return Declined("the detector lies outside the beam")
     # an exact plane blocks with its disk or annulus (its mesh covers more: the walk passes the rest), so its
@@ -369,7 +362,7 @@ def build(spec) -> DirectArea | Declined:
     cdf = np.cumsum(areas)
     cdf /= cdf[-1]
     detector = int(np.flatnonzero(np.asarray(spec.detector_parts) == det_part)[0])
-    return DirectArea(power_w=power, area_mm2=area, detector=detector, part=det_part,
+    return DirectArea(power_w=power, detector=detector, part=det_part,
                       triangles_mm=np.ascontiguousarray(on_plane), cdf=cdf)
 
 
@@ -420,13 +413,9 @@ class DirectShares:
         ``escaped`` row (the light is counted above, and taken from that row there)."""
         if self.events > 0:
             return rec, rec_w
-        r = event.rays.ray[rec]
-        tallies, rows = event.tallies, event.rows
-        j = event.scene.arrays.detector_of_part[event.hits.part[rec]]
-        for jj in np.unique(j):
-            m = j == jj
-            tallies.subtract(rows.detector_direct + int(jj), r[m], rec_w[m])
-            tallies.add(rows.escaped, r[m], rec_w[m])
+        r = event.rays.ray[rec]  # (the scene's one detector: unsupported() asks for exactly one)
+        event.tallies.subtract(event.rows.detector_direct + self.table.detector, r, rec_w)
+        event.tallies.add(event.rows.escaped, r, rec_w)
         return rec[:0], rec_w[:0]
 
     def after_hits(self, event, continuing) -> None:
