@@ -295,7 +295,7 @@ def pilot_estimator(est):
     pilot learns its table), reverse chains (build_table) and the computed direct light (``direct_area``: a
     share every ray carries alike, whatever its entrance point, would flatten the table; the pilot's walk
     counts that light where it enters), and with at most :data:`PILOT_NEE_SPLIT` NEE samples at a glint."""
-    return replace(est, entrance_sampling=False, reverse_chain=0, direct_area=False,
+    return replace(est, entrance_sampling=False, reverse_chain=0, direct_area=False, lens_vertex=False,
                    nee_split=min(int(est.nee_split), PILOT_NEE_SPLIT))
 
 

@@ -46,6 +46,7 @@ class EstimatorOptions:
     specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1-3) analytic interfaces
     specular_nee_sequences: str = "all"  # which: "all" of 1..specular_nee, or "mirrors" (single reflections, thick mirrors T R T)
     direct_area: bool = False  # the light one collimated beam puts straight on a flat mesh detector, by 2-D clipping
+    lens_vertex: bool = False  # scatter points lit through a lens area-sampled and joined to the beam through it
 
     def __post_init__(self):
         if not (0.0 <= float(self.rr_threshold) < 1.0):

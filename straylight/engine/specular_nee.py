@@ -313,8 +313,8 @@ def _solve(seq: Sequence, p, z, rows) -> manifold.Solution:
     return manifold.Solution(x, X, N, ok)
 
 
-def _meets(spec, scene, origin, target, last_part, want: int, surface) -> tuple[np.ndarray, int]:
-    """Whether the segments origin -> target first meet part ``want`` at the target (on ``surface``
+def _meets(spec, scene, origin, target, last_part, want, surface) -> tuple[np.ndarray, int]:
+    """Whether the segments origin -> target first meet part ``want`` (one, or one per row) at the target (on ``surface``
     refined, or on the facet for a detector), past hits on their own last part that refine back onto
     the origin (the facets of a concave surface lie in front of it: as the walk passes them,
     straylight.engine.surface_geometry.refine_on_surfaces)."""
@@ -342,7 +342,7 @@ def _meets(spec, scene, origin, target, last_part, want: int, surface) -> tuple[
             if surf is not None:
                 t, _n, fine = surf.refine_hits(o[h.hit[k]], d[rows[k]], h.distance_mm[k])
                 again[k] = ~fine | (t + start[rows[k]] < SELF_HIT_MM + 4.0 * spec.eps)
-        hit_want = (h.part == want) & ~again
+        hit_want = (h.part == (want if np.ndim(want) == 0 else want[rows])) & ~again
         sel = np.flatnonzero(hit_want)
         if len(sel):
             rr = rows[sel]

@@ -247,6 +247,8 @@ ENGAGEMENT = {
     "specular_nee": _casts_connections,
     # the light the beam puts straight on the detector, booked against the escaped row: never a kind's exchange
     "direct_area": _moves_the_exchange,
+    # it joins scatter points to the beam through analytic refracting surfaces (none in the contract scenes)
+    "lens_vertex": _moves_the_exchange,
 }
 
 

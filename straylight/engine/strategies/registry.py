@@ -12,6 +12,7 @@ from straylight.engine.strategies.delta_chain import DELTA_CHAIN
 from straylight.engine.strategies.direct_area import DIRECT_AREA
 from straylight.engine.strategies.entrance import ENTRANCE
 from straylight.engine.strategies.first_vertex import FIRST_VERTEX, FIRST_VERTEX_LOBE
+from straylight.engine.strategies.lens_vertex import LENS_VERTEX
 from straylight.engine.strategies.nee import NEE
 from straylight.engine.strategies.reflection_split import REFLECTION_SPLIT
 from straylight.engine.strategies.reverse_chain import REVERSE_CHAIN
@@ -32,6 +33,7 @@ STRATEGIES: tuple[Strategy, ...] = (
     REVERSE_CHAIN,
     SPECULAR_NEE,
     DIRECT_AREA,
+    LENS_VERTEX,
 )
 
 BY_NAME: dict[str, Strategy] = {s.name: s for s in STRATEGIES}

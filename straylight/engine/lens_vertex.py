@@ -1,0 +1,698 @@
+"""First scatter vertices lit through a lens, area-sampled and joined to the beam by solving the lens
+(``EstimatorOptions.lens_vertex``; docs/engine.md, "Scatter points lit through a lens").
+
+Behind a lens the beam lights a scatter point x only through the glass: "source -> lens faces (T ... T)
+-> x -> detector". The walk reaches x through the entrance point u whose refracted ray lands there; where
+x is a small face the detector sees at a glint (the guide scope at 15 deg: the lens cell's bore, 0.9 mm
+tall, lit through a crescent of the beam a fraction of a millimetre wide, ~10 % of the power and most of
+the variance) it finds that u rarely and first-vertex sampling (straylight.engine.first_vertex) cannot
+join x to the source: the shadow ray stops at the glass. Here x is drawn on the surface triangles
+directly (a table learnt from probes, as first-vertex sampling's) and joined to the beam through the
+*run*, the sequence of refracting analytic surfaces the beam crosses before it (found by tracing the beam
+with every interface transmitting, :func:`find_runs`):
+
+- the entrance point u (coordinates (a, b) on the source disk) is solved for by Gauss-Newton on the
+  offset of u's refracted ray from x, perpendicular to that ray (a forward-difference Jacobian J, 3 x 2);
+- the irradiance at x is E = Phi S_0 / (pi r^2 |J_a x J_b|) |cos_x|: the source's power per disk area
+  Phi / (pi r^2), spread by the run over |J_a x J_b| of area across the ray (the beam's compression),
+  S_0 the run's Fresnel throughput for the unpolarized beam (the Stokes vector carried through each
+  interface's Mueller matrix, frames turned between them; bulk absorption included);
+- the arriving Stokes vector S enters the BRDF as the walk's does (``M[0] . S`` on a polarizing material);
+- every segment is cast (source -> X_1 -> ... -> X_L -> x -> z): each must meet exactly its intended point.
+
+The walk's density of the same vertex (area measure, per ray) is p_F = |cos_x| / (pi r^2 |J_a x J_b|)
+(uniform entrance; the run's branch probabilities left out: any function of the path that both sides
+compute alike keeps the weights a partition of unity), recomputed on the walk's side from its own path:
+its entrance point is recovered by tracing its ray back through the run (the same surfaces, refraction
+reversed), which also tells whether the walk's path *is* the run (its direction at the source equals the
+beam's). Both sides take the balance heuristic, w = p / (p_F + p_A) (Veach 1997, ch. 9): the walk's NEE
+from x and its hits on a detector straight after x keep p_F / (p_F + p_A). Each ray id draws
+``lens_vertex`` samples here (an own stream per chunk), so the rays stay independent. Contributions go to
+the detector and, negated, to x's part's NEE-exchange row (the ledger stays exact)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
+from materials.polarized_brdf import is_polarizing, mueller_brdf
+from materials.smooth import Dielectric, refract
+from straylight.engine.capabilities import Capability
+from straylight.engine.first_vertex import _local, _points
+from straylight.engine.interactions.registry import parts_with
+from straylight.engine.material_groups import by_material
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
+from straylight.engine.reverse_chain import scatter_ends
+from straylight.engine.specular_nee import _meets
+from straylight.engine.surface_geometry import branch_coefficients
+from straylight.engine.walk_shares import keep_walk_share
+from straylight.paths import mix_key
+from straylight.rng import CHUNK_RAYS, check_seed, chunk_bounds
+from straylight.sources import CollimatedDisk, orthonormal_basis
+
+STREAM = 0x4C4E5356  # third entropy word of this strategy's streams ("LNSV")
+PROBE_STREAM = 0x4C4E5350  # its probes' ("LNSP")
+MAX_RUN = 6  # interfaces in a run
+FIND_RAYS = 64  # the beam traced for the runs: FIND_RAYS^2 rays on a grid over the source disk
+MIN_RUN_RAYS = 4  # a run is kept when at least this many of those rays follow it to a scatter part
+PROBES_PER_TRIANGLE = 8
+#: one ray id in this many draws a vertex (its density counted at 1 / SAMPLE_EVERY of the table's on both sides):
+#: where the walk already does well (the vanes at 5-10 deg) a sample per ray costs more than it saves
+SAMPLE_EVERY = 1
+NEWTON_ITER = 20
+SOLVE_TOL_MM = 1e-9  # an accepted solution's offset from x
+STEP_MM = 1e-5  # forward-difference step on the source disk
+SAME_POINT_MM = 1e-6  # the walk's entrance point and the solve's agree within this on the disk
+SAME_PATH = 1e-9  # 1 - cos of the angle between the walk's direction at the source and the beam's
+
+
+def _dot(a, b):
+    return np.einsum("ij,ij->i", a, b)
+
+
+@dataclass(frozen=True)
+class Run:
+    """Interface parts the beam crosses in order (each by refraction), and the refractive-index ratio
+    eta = n_incident / n_transmitted for light arriving on each part's front and back."""
+
+    parts: tuple
+    eta_front: tuple
+    eta_back: tuple
+
+
+@dataclass(frozen=True, eq=False)
+class LensTable:
+    """The runs, and the sampling table over (run, triangle) pairs: ``run``, ``tri``, ``cdf`` (m,) and
+    ``p_area`` (n_runs, n_triangles): the area density q / A of each pair (0 where not in the table)."""
+
+    runs: tuple
+    run: np.ndarray
+    tri: np.ndarray
+    cdf: np.ndarray
+    p_area: np.ndarray
+
+    @property
+    def empty(self) -> bool:
+        return len(self.tri) == 0
+
+
+def unsupported(spec) -> str | None:
+    """Why the strategy cannot run with these sources (None when it can)."""
+    if len(spec.sources) != 1 or not isinstance(spec.sources[0], CollimatedDisk):
+        return "lens_vertex joins scatter points to one collimated_disk source"
+    if spec.options.physics.polarization != "u":
+        return "it carries the beam's polarization through the lens; this trace fixes s or p"
+    if spec.options.estimator.target_parts:
+        return "its balance weights use the walk's own densities; target sampling draws from a mixture"
+    return None
+
+
+# ---------------------------------------------------------------------------------------------- runs
+
+
+def _interface_parts(spec) -> np.ndarray:
+    """Bool per part: a dielectric interface with an analytic surface (what a run crosses)."""
+    from geometry.analytic import Conic
+
+    ok = parts_with(spec, Capability.DELTA_CHAIN).copy()
+    surfaces = spec.part_surfaces or ()
+    for p in np.flatnonzero(ok):
+        mat = int(spec.part_material[p])
+        model = spec.materials[mat] if mat >= 0 else None
+        ok[p] = (p < len(surfaces) and isinstance(surfaces[p], Conic)
+                 and isinstance(getattr(model, "smooth", None), Dielectric))
+    return ok
+
+
+def _eta(spec, part: int, front: bool) -> float:
+    from straylight.engine.specular_nee import _eta as eta
+
+    return eta(spec, part, front)
+
+
+def _run(spec, parts) -> Run:
+    return Run(tuple(int(p) for p in parts), tuple(_eta(spec, p, True) for p in parts),
+               tuple(_eta(spec, p, False) for p in parts))
+
+
+def _disk_frame(src):
+    e1, e2 = orthonormal_basis(np.asarray(src.normal, float)[None])
+    return e1[0], e2[0]
+
+
+def _on_disk(src, ab):
+    e1, e2 = _disk_frame(src)
+    return src.center_mm + ab[:, :1] * e1 + ab[:, 1:2] * e2
+
+
+def find_runs(spec, comp) -> tuple:
+    """The runs of the beam: FIND_RAYS^2 rays on a grid over the source disk traced with every interface
+    transmitting (exact surfaces), each run's parts recorded until the ray meets a scatter part from the air;
+    the runs at least MIN_RUN_RAYS of them follow, most followed first."""
+    src = spec.sources[0]
+    iface = _interface_parts(spec)
+    if not iface.any():
+        return ()
+    g = (np.arange(FIND_RAYS) + 0.5) / FIND_RAYS * 2.0 - 1.0
+    a, b = np.meshgrid(g, g, indexing="ij")
+    keep = a * a + b * b < 1.0
+    ab = np.column_stack([a[keep], b[keep]]) * src.radius_mm
+    o = _on_disk(src, ab)
+    d = np.ascontiguousarray(np.broadcast_to(src.direction, o.shape), dtype=float)
+    seqs: list[list[int]] = [[] for _ in range(len(o))]
+    inside = np.full(len(o), -1)  # the medium the ray is in (a dielectric's material index, -1 air)
+    last = np.full(len(o), -1)  # the part each ray crossed last
+    live = np.arange(len(o))
+    found: dict = {}
+    surfaces = spec.part_surfaces
+    for _ in range(MAX_RUN + 1):
+        if len(live) == 0:
+            break
+        tri, dist = comp.isect.intersect(np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]))
+        tri = np.asarray(tri)
+        hit = tri >= 0
+        part = np.where(hit, spec.triangle_part[np.where(hit, tri, 0)], -1)
+        # a facet of the part just crossed, met again (a convex face's facets lie inside it): passed
+        again = hit & (part == last[live])
+        o[live[again]] += (np.asarray(dist)[again] + 2.0 * spec.eps)[:, None] * d[live[again]]
+        hit &= ~again
+        ends = hit & ~iface[np.maximum(part, 0)] & (inside[live] < 0)
+        for r in np.flatnonzero(ends):
+            if seqs[live[r]]:
+                key = tuple(seqs[live[r]])
+                found[key] = found.get(key, 0) + 1
+        go = np.flatnonzero(hit & iface[np.maximum(part, 0)])
+        nxt = []
+        for p in np.unique(part[go]):
+            rows = go[part[go] == p]
+            i = live[rows]
+            t, nrm, fine = surfaces[p].refine_hits(o[i], d[i], np.asarray(dist)[rows])
+            d_old = d[i]
+            front = _dot(d[i], nrm) < 0
+            nf = np.where(front[:, None], nrm, -nrm)
+            eta = np.where(front, _eta(spec, p, True), _eta(spec, p, False))
+            cos_i = np.clip(-_dot(d[i], nf), 0.0, 1.0)
+            sin2 = eta * eta * (1.0 - cos_i * cos_i)
+            fine &= sin2 < 1.0
+            i, t, nf, eta, cos_i, sin2, front = (x[fine] for x in (i, t, nf, eta, cos_i, sin2, front))
+            if len(i) == 0:
+                continue
+            d[i] = refract(d[i], nf, eta, np.sqrt(1.0 - sin2))
+            o[i] = o[i] + t[:, None] * d_old[fine] + 2.0 * spec.eps * d[i]
+            inside[i] = np.where(front, int(spec.part_material[p]), -1)
+            last[i] = p
+            for k in i:
+                seqs[k].append(int(p))
+            nxt.append(i)
+        nxt.append(live[again])
+        live = np.concatenate(nxt)
+        live = live[[len(seqs[k]) <= MAX_RUN for k in live]] if len(live) else live
+    runs = sorted(((n, key) for key, n in found.items() if n >= MIN_RUN_RAYS), reverse=True)
+    return tuple(_run(spec, key) for _, key in runs)
+
+
+# ---------------------------------------------------------------------------------------------- tracing
+
+
+def _start_distance(surf, o, d):
+    """Distance from o along d to the surface's vertex plane (a start for the exact hit)."""
+    ol = surf.to_local(o)
+    dl = surf.dirs_to_local(d)
+    dz = np.where(np.abs(dl[:, 2]) > 1e-12, dl[:, 2], 1e-12)
+    return -ol[:, 2] / dz
+
+
+def _cross(spec, run: Run, i: int, o, d):
+    """Refract rays (o, d) at the run's i-th surface: (X, facing normal, arrived on front, new d, ok)."""
+    surf = spec.part_surfaces[run.parts[i]]
+    t, nrm, ok = surf.refine_hits(o, d, _start_distance(surf, o, d))
+    ok = ok & (t > 0) & np.isfinite(t)
+    X = o + np.where(ok, t, 0.0)[:, None] * d
+    front = _dot(d, nrm) < 0
+    nf = np.where(front[:, None], nrm, -nrm)
+    eta = np.where(front, run.eta_front[i], run.eta_back[i])
+    cos_i = np.clip(-_dot(d, nf), 0.0, 1.0)
+    sin2 = eta * eta * (1.0 - cos_i * cos_i)
+    ok &= sin2 < 1.0
+    d_new = refract(d, nf, eta, np.sqrt(np.clip(1.0 - sin2, 0.0, 1.0)))
+    return X, nf, front, d_new, ok
+
+
+def trace_run(spec, run: Run, ab):
+    """The beam's rays from disk coordinates ``ab`` through the run: (points (L, m, 3), exit direction, ok)."""
+    src = spec.sources[0]
+    o = _on_disk(src, ab)
+    d = np.ascontiguousarray(np.broadcast_to(src.direction, o.shape), dtype=float)
+    ok = np.einsum("ij,ij->i", ab, ab) < src.radius_mm ** 2
+    pts = []
+    for i in range(len(run.parts)):
+        o, _, _, d, ok_i = _cross(spec, run, i, o, d)
+        ok &= ok_i
+        pts.append(o)
+    return np.stack(pts), d, ok
+
+
+def _offset(x, X_last, d_out):
+    """x's offset from the exit ray (X_last, d_out), perpendicular to it (m, 3)."""
+    v = x - X_last
+    return v - _dot(v, d_out)[:, None] * d_out
+
+
+def jacobian(spec, run: Run, ab, x):
+    """(offset of the ray from x, J (m, 3, 2): its derivatives in a and b, exit ray (X, d), ok)."""
+    X, d, ok = trace_run(spec, run, ab)
+    r0 = _offset(x, X[-1], d)
+    J = np.empty((len(ab), 3, 2))
+    for k in range(2):
+        step = np.zeros_like(ab)
+        step[:, k] = STEP_MM
+        Xk, dk, okk = trace_run(spec, run, ab + step)
+        ok &= okk
+        J[:, :, k] = (_offset(x, Xk[-1], dk) - r0) / STEP_MM
+    return r0, J, X, d, ok
+
+
+def _area_ratio(J):
+    """|J_a x J_b|: the area across the ray at x per area of the source disk."""
+    return np.linalg.norm(np.cross(J[:, :, 0], J[:, :, 1]), axis=1)
+
+
+def _start(spec, run: Run, x):
+    """Start points on the disk: x's line through the run's focus (the beam's exit rays' nearest point)
+    met with the first surface's vertex plane, carried back along the beam; x carried straight back where
+    the run has no focus (a window)."""
+    src = spec.sources[0]
+    e1, e2 = _disk_frame(src)
+    d = np.asarray(src.direction, float)
+
+    def back(p):  # p carried back along the beam onto the disk, in (a, b)
+        t = ((p - src.center_mm) @ src.normal) / float(np.dot(d, src.normal))
+        q = p - t[:, None] * d - src.center_mm
+        return np.column_stack([q @ e1, q @ e2])
+
+    ab = back(x)
+    fan = np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3], [-0.3, 0.0], [0.0, -0.3]]) * src.radius_mm
+    X, dout, ok = trace_run(spec, run, fan)
+    if ok.sum() < 3:
+        return ab
+    P, D = X[-1][ok], dout[ok]
+    A = np.zeros((3, 3))
+    rhs = np.zeros(3)
+    for p, u in zip(P, D):
+        M = np.eye(3) - np.outer(u, u)
+        A += M
+        rhs += M @ p
+    if np.linalg.cond(A) > 1e8:
+        return ab
+    focus = np.linalg.solve(A, rhs)
+    surf = spec.part_surfaces[run.parts[0]]
+    axis = surf.dirs_to_world(np.array([[0.0, 0.0, 1.0]]))[0]
+    v = x - focus
+    den = v @ axis
+    t = ((surf.vertex_mm - focus) @ axis) / np.where(np.abs(den) > 1e-12, den, 1e-12)
+    q = focus + t[:, None] * v
+    far = ~np.isfinite(t) | (np.abs(den) <= 1e-12)
+    return np.where(far[:, None], ab, back(q))
+
+
+def solve(spec, run: Run, x):
+    """Entrance points (a, b) whose rays reach x through the run: (ab, J, exit points, exit d, ok)."""
+    ab = _start(spec, run, x)
+    m = len(x)
+    ok = np.ones(m, dtype=bool)
+    done = np.zeros(m, dtype=bool)
+    J = np.zeros((m, 3, 2))
+    X = np.zeros((len(run.parts), m, 3))
+    d = np.zeros((m, 3))
+    cap = 0.25 * spec.sources[0].radius_mm  # a step is clipped to a quarter of the disk's radius
+    for _ in range(NEWTON_ITER + 1):
+        act = np.flatnonzero(ok & ~done)
+        if len(act) == 0:
+            break
+        r0, Ja, Xa, da, okj = jacobian(spec, run, ab[act], x[act])
+        J[act], X[:, act], d[act] = Ja, Xa, da
+        ok[act] &= okj
+        met = okj & (np.linalg.norm(r0, axis=1) <= SOLVE_TOL_MM)
+        done[act] = met
+        JT = np.transpose(Ja, (0, 2, 1))
+        A = JT @ Ja
+        g = np.einsum("nij,nj->ni", JT, r0)
+        det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+        good = np.abs(det) > 1e-30
+        ok[act[~good & ~met]] = False
+        sd = np.where(good, det, 1.0)
+        step = -np.column_stack([(A[:, 1, 1] * g[:, 0] - A[:, 0, 1] * g[:, 1]) / sd,
+                                 (A[:, 0, 0] * g[:, 1] - A[:, 1, 0] * g[:, 0]) / sd])
+        size = np.linalg.norm(step, axis=1)
+        step *= np.minimum(1.0, cap / np.maximum(size, 1e-300))[:, None]
+        move = good & ~met
+        ab[act[move]] += step[move]
+    ok &= done & (_dot(x - X[-1], d) > 0)
+    return ab, J, X, d, ok
+
+
+def recover(spec, run: Run, x, d_arrive):
+    """The walk's side: its rays arriving at x along ``d_arrive``, traced back through the run. Returns (ab, is the run): ``is the run`` where the ray, reversed, crosses
+    every surface of the run and leaves the first along the beam from a point of the disk."""
+    src = spec.sources[0]
+    m = len(x)
+    o = np.ascontiguousarray(x, dtype=float)
+    d = np.ascontiguousarray(d_arrive, dtype=float)
+    ok = np.ones(m, dtype=bool)
+    L = len(run.parts)
+    for i in range(L - 1, -1, -1):
+        surf = spec.part_surfaces[run.parts[i]]
+        # the surface met backward from here (from x first: the walk's origin sits eps off the surface)
+        t, _, fine = surf.refine_hits(o, -d, _start_distance(surf, o, -d))
+        ok &= fine & (t > 0)
+        o = o + np.where(ok, t, 0.0)[:, None] * (-d)
+        nrm = surf.normals(o)
+        # reversed light (-d) arrives on the side the forward light left by
+        back_front = _dot(-d, nrm) < 0
+        nf = np.where(back_front[:, None], nrm, -nrm)
+        eta = np.where(back_front, run.eta_front[i], run.eta_back[i])
+        cos_i = np.clip(-_dot(-d, nf), 0.0, 1.0)
+        sin2 = eta * eta * (1.0 - cos_i * cos_i)
+        ok &= sin2 < 1.0
+        d = -refract(-d, nf, eta, np.sqrt(np.clip(1.0 - sin2, 0.0, 1.0)))
+    ok &= 1.0 - _dot(d, np.broadcast_to(src.direction, d.shape)) <= SAME_PATH
+    e1, e2 = _disk_frame(src)
+    t = ((o - src.center_mm) @ src.normal) / float(np.dot(src.direction, src.normal))
+    q = o - t[:, None] * np.asarray(src.direction, float) - src.center_mm
+    ab = np.column_stack([q @ e1, q @ e2])
+    ok &= (t > 0) & (np.einsum("ij,ij->i", ab, ab) < src.radius_mm ** 2)
+    return ab, ok
+
+
+def walk_density(spec, run: Run, x, normals):
+    """p_F (area density at x per ray, uniform entrance) of the run's ray that :func:`solve` finds for x, and
+    that ray's entrance point: (p_F, ab, ok). Both sides take it from the same solve (a function of x)."""
+    src = spec.sources[0]
+    ab, J, _, d, ok = solve(spec, run, x)
+    area = _area_ratio(J)
+    ok &= area > 0
+    cos_x = np.abs(_dot(normals, d))
+    p_f = np.where(ok, cos_x / (math.pi * src.radius_mm ** 2 * np.where(area > 0, area, 1.0)), 0.0)
+    return p_f, ab, ok
+
+
+def stokes_through(spec, run: Run, ab):
+    """The Stokes vector (m, 4; S_0 the power of a unit unpolarized ray) leaving the run, in the frame e1
+    (the last interface's s vector), with e1 and the exit points and direction."""
+    src = spec.sources[0]
+    o = _on_disk(src, ab)
+    d = np.ascontiguousarray(np.broadcast_to(src.direction, o.shape), dtype=float)
+    S = np.zeros((len(ab), 4))
+    S[:, 0] = 1.0
+    e1 = None
+    prev = o
+    for i, p in enumerate(run.parts):
+        X, nf, front, d_new, _ = _cross(spec, run, i, o, d)
+        dist = np.linalg.norm(X - prev, axis=1)
+        _, _, ts, tp, _, _, bulk = branch_coefficients(spec, np.full(len(ab), p, dtype=np.int64), front, d, nf, dist)
+        e_new = s_vector(d, nf)
+        if e1 is not None:
+            S = rotate_stokes(S, e1, e_new, d)
+        S = apply_interface_mueller(ts, tp, S) * bulk[:, None]
+        e1, prev, o, d = e_new, X, X, d_new
+    return S, e1, o, d
+
+
+# ---------------------------------------------------------------------------------------------- contributions
+
+
+def _brdf(spec, mat, wi_loc, wo_loc, S, s_loc):
+    """f for the arriving Stokes vectors S (frame s_loc, local): ``M[0] . S`` on polarizing materials."""
+    f = np.empty(len(mat))
+    for rows, fv in by_material(spec.materials, mat, lambda model, rows: model.brdf(wi_loc[rows], wo_loc[rows], "u")):
+        f[rows] = fv
+    for k in np.unique(mat):
+        model = spec.materials[k]
+        if not is_polarizing(model):
+            continue
+        g = np.flatnonzero(mat == k)
+        M, _ = mueller_brdf(model, wi_loc[g], wo_loc[g], s_loc[g], first_row_only=True)
+        f[g] = np.einsum("nj,nj->n", M[:, 0, :], S[g])
+    return f
+
+
+def connect(spec, comp, run: Run, t, x, u_det, j):
+    """Single-scatter contributions E f cos_x cos_z / d^2 (per area of x and z) of points x on triangles t,
+    lit through the run, toward a uniform point of detector j: (value, z, p_F, casts, arriving Stokes 0)."""
+    src = spec.sources[0]
+    eps = spec.eps
+    m = len(x)
+    value = np.zeros(m)
+    p_f = np.zeros(m)
+    z, n_det = comp.detectors[j].sample(u_det)
+    ab, J, X, d, ok = solve(spec, run, x)
+    n_geo = comp.normals[t]
+    cos_g = -_dot(d, n_geo)
+    ok &= np.abs(cos_g) > 0
+    casts = 0
+    g = np.flatnonzero(ok)
+    if len(g) == 0:
+        return value, z, p_f, casts
+    area = _area_ratio(J[g])
+    ok[g] &= area > 0
+    g = g[area > 0]
+    area = area[area > 0]
+    nf = np.where((cos_g[g] >= 0)[:, None], n_geo[g], -n_geo[g])
+    v = z[g] - x[g]
+    d2 = _dot(v, v)
+    dist = np.sqrt(d2)
+    wo = v / np.where(dist > 0, dist, 1.0)[:, None]
+    cos_o = _dot(wo, nf)
+    cos_z = -_dot(wo, n_det[g])
+    if spec.options.output.detector_sides == "both":
+        cos_z = np.abs(cos_z)
+    good = (cos_o > 0) & (cos_z > 0) & (dist > 2 * eps)
+    g, area, nf, wo, d2, cos_o, cos_z = (a[good] for a in (g, area, nf, wo, d2, cos_o, cos_z))
+    if len(g) == 0:
+        return value, z, p_f, casts
+    # every segment, cast: the disk -> X_1 -> ... -> X_L (each meeting its surface), X_L -> x, x -> z
+    here = _on_disk(src, ab[g])
+    last = np.full(len(g), -1, dtype=np.int64)
+    alive = np.ones(len(g), dtype=bool)
+    for i, p in enumerate(run.parts):
+        sub = np.flatnonzero(alive)
+        met, n = _meets(spec, comp, here[sub], X[i][g[sub]], last[sub], p, spec.part_surfaces[p])
+        casts += n
+        alive[sub[~met]] = False
+        here = X[i][g]
+        last = np.full(len(g), p, dtype=np.int64)
+    sub = np.flatnonzero(alive)
+    tpart = spec.triangle_part[t[g[sub]]].astype(np.int64)
+    met, n = _meets(spec, comp, here[sub], x[g[sub]], last[sub], tpart, None)
+    casts += n
+    alive[sub[~met]] = False
+    sub = np.flatnonzero(alive)
+    origin = x[g[sub]] + eps * nf[sub]
+    to_det = z[g[sub]] - origin
+    ld = np.linalg.norm(to_det, axis=1)
+    blocked = np.asarray(comp.isect.occluded(np.ascontiguousarray(origin), np.ascontiguousarray(to_det / ld[:, None]),
+                                             ld - eps), dtype=bool)
+    casts += len(sub)
+    alive[sub[blocked]] = False
+    keep = np.flatnonzero(alive)
+    g, area, nf, wo, d2, cos_o, cos_z = (a[keep] for a in (g, area, nf, wo, d2, cos_o, cos_z))
+    if len(g) == 0:
+        return value, z, p_f, casts
+    S, e1, _, d_out = stokes_through(spec, run, ab[g])
+    tb, bb = orthonormal_basis(nf)
+    wi_loc = _local(-d_out, tb, bb, nf)
+    wo_loc = _local(wo, tb, bb, nf)
+    s_loc = _local(e1, tb, bb, nf)
+    mat = spec.part_material[spec.triangle_part[t[g]]]
+    f = _brdf(spec, mat, wi_loc, wo_loc, S / S[:, :1], s_loc)
+    cos_x = np.abs(_dot(d_out, nf))
+    e_x = src.power_w * S[:, 0] / (math.pi * src.radius_mm ** 2 * area) * cos_x
+    value[g] = e_x * f * cos_o * cos_z / d2
+    p_f[g] = cos_x / (math.pi * src.radius_mm ** 2 * area)
+    return value, z, p_f, casts
+
+
+# ---------------------------------------------------------------------------------------------- the table
+
+
+def _candidates(spec):
+    """Surface triangles that may be x: parts area-sampled by first-vertex sampling whose material is a
+    scatter end (straylight.engine.reverse_chain.scatter_ends), of positive area."""
+    tri_mm = spec.triangles_mm
+    ends = scatter_ends(spec)
+    part_ok = parts_with(spec, Capability.FIRST_VERTEX) & ends[spec.part_material]
+    surf = np.flatnonzero(part_ok[spec.triangle_part])
+    area = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
+    return surf[area[surf] > 0], area
+
+
+def _probe(spec, comp, run, tris, m, rng):
+    """sqrt(mean g^2) over m probes per triangle of ``tris``, summed over the detectors."""
+    t = np.repeat(tris, m)
+    u = rng.random((len(t), 5))
+    u[:, 0] = (np.tile(np.arange(m), len(tris)) + u[:, 0]) / m
+    x = _points(spec.triangles_mm, t, u[:, 0], u[:, 1])
+    g2 = np.zeros(len(t))
+    for j in range(len(comp.det_parts)):
+        g, _, _, _ = connect(spec, comp, run, t, x, u[:, 2:5], j)
+        g2 += g * g
+    return np.sqrt(g2.reshape(len(tris), m).mean(axis=1))
+
+
+def build_table(spec, comp) -> LensTable:
+    """The runs (:func:`find_runs`) and, per run, q over its triangles: one probe per candidate triangle
+    finds the parts lit through the run and seen by a detector, then PROBES_PER_TRIANGLE probes per
+    triangle of those parts give q_t proportional to A_t sqrt(mean g^2) (first_vertex's table)."""
+    n_tri = len(spec.triangles_mm)
+    runs = find_runs(spec, comp)
+    empty = LensTable(runs, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((len(runs), n_tri)))
+    if not runs:
+        return empty
+    surf, area = _candidates(spec)
+    if len(surf) == 0:
+        return empty
+    rng = np.random.default_rng([check_seed(spec.seed), PROBE_STREAM])
+    pairs_run, pairs_tri, scores = [], [], []
+    for k, run in enumerate(runs):
+        first = _probe(spec, comp, run, surf, 1, rng)
+        parts = np.unique(spec.triangle_part[surf[first > 0]])
+        tris = surf[np.isin(spec.triangle_part[surf], parts)]
+        if len(tris) == 0:
+            continue
+        score = area[tris] * _probe(spec, comp, run, tris, PROBES_PER_TRIANGLE, rng)
+        keep = score > 0
+        pairs_run.append(np.full(int(keep.sum()), k, dtype=np.int64))
+        pairs_tri.append(tris[keep].astype(np.int64))
+        scores.append(score[keep])
+    if not scores or sum(len(s) for s in scores) == 0:
+        return empty
+    run_of, tri, score = np.concatenate(pairs_run), np.concatenate(pairs_tri), np.concatenate(scores)
+    q = score / score.sum()
+    p_area = np.zeros((len(runs), n_tri))
+    p_area[run_of, tri] = q / area[tri] / SAMPLE_EVERY  # per ray: one ray in SAMPLE_EVERY draws
+
+    return LensTable(runs, run_of, tri, np.cumsum(q), p_area)
+
+
+# ---------------------------------------------------------------------------------------------- the pass
+
+
+def run_pass(spec, comp, table: LensTable, first_chunk, stop_chunk, tallies, rows, records, record_paths,
+             path_depth) -> int:
+    """This strategy's MIS-weighted estimates for chunks ``first_chunk .. stop_chunk-1`` (one sample per ray
+    id and detector) added to ``tallies``. Returns the casts."""
+    if table.empty:
+        return 0
+    C = CHUNK_RAYS
+    n_total = spec.n_rays
+    sizes = [chunk_bounds(k, n_total)[1] - k * C for k in range(first_chunk, stop_chunk)]
+    D = len(comp.det_parts)
+    u_all = np.concatenate([np.random.default_rng([check_seed(spec.seed), spec.chunk_offset + first_chunk + c, STREAM])
+                            .random((sizes[c], 6 * D)) for c in range(len(sizes))])
+    drawing = np.flatnonzero(((spec.chunk_offset + first_chunk) * C + np.arange(len(u_all))) % SAMPLE_EVERY == 0)
+    casts = 0
+    for j in range(D):
+        u = u_all[drawing, 6 * j:6 * j + 6]
+        k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
+        t, which = table.tri[k], table.run[k]
+        x = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
+        for r_i, run in enumerate(table.runs):
+            sel = np.flatnonzero(which == r_i)
+            if len(sel) == 0:
+                continue
+            value, z, p_f, n = connect(spec, comp, run, t[sel], x[sel], u[sel, 3:6], j)
+            casts += n
+            good = np.flatnonzero(value > 0)
+            if len(good) == 0:
+                continue
+            r = sel[good]
+            p_a = table.p_area[r_i, t[r]]
+            c = value[good] * comp.detectors[j].area_mm2 / (p_a + p_f[good]) / n_total
+            _add_terms(spec, comp, j, run, tallies, rows, records, record_paths, path_depth, drawing[r], t[r], z[good], c)
+    return casts
+
+
+def _add_terms(spec, comp, j, run, tallies, rows, records, record_paths, path_depth, r, tg, z, c):
+    """Contributions ``c`` of rays ``r`` (vertices on triangles ``tg``) to detector j and their path records
+    (the run's refractions, the scatter, the detector); the same leaves the part's NEE-exchange row."""
+    pt = spec.triangle_part[tg].astype(np.int64)
+    tallies.add(rows.detector_nee + j, r, c)
+    tallies.subtract(rows.nee_exchange + pt, r, c)
+    keys = events = None
+    if record_paths:
+        codes = [p * 4 + EVENT_SPECULAR for p in run.parts]
+        key = np.zeros(len(r), dtype=np.uint64)
+        for code in codes:
+            key = mix_key(key, code)
+        key = mix_key(key, pt * 4 + EVENT_SCATTER)
+        keys = mix_key(key, comp.det_parts[j] * 4 + EVENT_DETECTOR)
+        events = np.full((len(r), path_depth), -1, dtype=np.int16)
+        for i, code in enumerate(codes[:path_depth]):
+            events[:, i] = code
+        if len(codes) < path_depth:
+            events[:, len(codes)] = pt * 4 + EVENT_SCATTER
+    records.add(j, r, z, c, keys, events, np.full(len(r), len(run.parts) + 1, dtype=np.int64))
+
+
+# ---------------------------------------------------------------------------------------------- the walk's side
+
+
+class LensVertexWeights:
+    """The walk's side: the balance weight p_F / (p_F + p_A) of its first scatter vertices reached through a
+    run, applied to their NEE (:meth:`vertex_weights`) and kept per ray for its hit on a detector straight
+    after that vertex (:meth:`share_walk_hits`)."""
+
+    def __init__(self, spec, table: LensTable, n_rays_in_batch):
+        self.spec = spec
+        self.table = table
+        self.w_ray = np.ones(n_rays_in_batch)
+        self.at_depth = np.full(n_rays_in_batch, -1, dtype=np.int64)
+        self.lengths = {len(run.parts) for run in table.runs}
+
+    def vertex_weights(self, event, verts, w_vertex):
+        rays = event.rays
+        depth = rays.depth[verts]
+        cand = np.flatnonzero((rays.last_event[verts] == EVENT_SPECULAR) & np.isin(depth, list(self.lengths)))
+        if len(cand) == 0:
+            return w_vertex
+        w = None
+        for r_i, run in enumerate(self.table.runs):
+            at = cand[(depth[cand] == len(run.parts)) & (rays.last_part[verts[cand]] == run.parts[-1])]
+            if len(at) == 0:
+                continue
+            i = verts[at]
+            p_a = self.table.p_area[r_i, event.tri[i]]
+            at, i, p_a = at[p_a > 0], i[p_a > 0], p_a[p_a > 0]
+            if len(at) == 0:
+                continue
+            x = event.hits.point_mm[i]
+            ab, same = recover(self.spec, run, x, rays.direction[i])
+            at, i, p_a, x, ab = at[same], i[same], p_a[same], x[same], ab[same]
+            if len(at) == 0:
+                continue
+            p_f, ab_s, ok = walk_density(self.spec, run, x, event.scene.normals[event.tri[i]])
+            # the strategy draws this path only where its solve finds the walk's own entrance point (a point
+            # reached by two rays of the run keeps the walk's whole weight for the one the solve does not find)
+            ok &= np.linalg.norm(ab_s - ab, axis=1) <= SAME_POINT_MM
+            at, i, p_a, p_f = at[ok], i[ok], p_a[ok], p_f[ok]
+            if len(at) == 0:
+                continue
+            share = p_f / (p_f + p_a)
+            if w is None:
+                w = np.ones(len(verts)) if w_vertex is None else np.array(w_vertex, dtype=float)
+            w[at] *= share
+            self.w_ray[rays.ray[i]] = share
+            self.at_depth[rays.ray[i]] = depth[at] + 1
+        return w_vertex if w is None else w
+
+    def share_walk_hits(self, event, rec, rec_w):
+        """Walk hits on a detector straight after such a vertex keep their share (the rest to the NEE
+        exchange: the ledger stays exact)."""
+        rays = event.rays
+        ray = rays.ray[rec]
+        sel = np.flatnonzero((rays.last_event[rec] == EVENT_SCATTER) & (rays.depth[rec] == self.at_depth[ray]))
+        if len(sel) == 0:
+            return rec, rec_w
+        return keep_walk_share(event, rec, rec_w, sel, self.w_ray[ray[sel]])
