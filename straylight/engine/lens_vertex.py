@@ -20,14 +20,15 @@ with every interface transmitting, :func:`find_runs`):
 - the arriving Stokes vector S enters the BRDF as the walk's does (``M[0] . S`` on a polarizing material);
 - every segment is cast (source -> X_1 -> ... -> X_L -> x -> z): each must meet exactly its intended point.
 
-The walk's density of the same vertex (area measure, per ray) is p_F = |cos_x| / (pi r^2 |J_a x J_b|)
-(uniform entrance; the run's branch probabilities left out: any function of the path that both sides
-compute alike keeps the weights a partition of unity), recomputed on the walk's side from its own path:
-its entrance point is recovered by tracing its ray back through the run (the same surfaces, refraction
-reversed), which also tells whether the walk's path *is* the run (its direction at the source equals the
-beam's). Both sides take the balance heuristic, w = p / (p_F + p_A) (Veach 1997, ch. 9): the walk's NEE
-from x and its hits on a detector straight after x keep p_F / (p_F + p_A). Each ray id draws
-``lens_vertex`` samples here (an own stream per chunk), so the rays stay independent. Contributions go to
+The walk's density of the same vertex (area measure, per ray) is p_F = |cos_x| G^2 P_c / (pi r^2 |J_a x J_b|)
+(G^2 P_c the entrance table's density of u relative to the uniform disk, 1 without one; the run's branch
+probabilities left out: any function of x that both sides compute alike keeps the weights a partition of
+unity), computed on the walk's side from the same solve at its own hit point. The walk's path *is* the run
+where its ray, traced back through the run's surfaces (refraction reversed), leaves the first along the beam
+from a point of the disk that the solve also finds (a point two rays of a run reach keeps the walk's whole
+weight for the one the solve does not find). Both sides take the balance heuristic, w = p / (p_F + p_A) (Veach 1997, ch. 9): the walk's NEE
+from x and its hits on a detector straight after x keep p_F / (p_F + p_A). Each ray id draws one vertex per
+detector here (an own stream per chunk), so the rays stay independent. Contributions go to
 the detector and, negated, to x's part's NEE-exchange row (the ledger stays exact)."""
 from __future__ import annotations
 
@@ -58,13 +59,10 @@ MAX_RUN = 6  # interfaces in a run
 FIND_RAYS = 64  # the beam traced for the runs: FIND_RAYS^2 rays on a grid over the source disk
 MIN_RUN_RAYS = 4  # a run is kept when at least this many of those rays follow it to a scatter part
 PROBES_PER_TRIANGLE = 8
-#: one ray id in this many draws a vertex (its density counted at 1 / SAMPLE_EVERY of the table's on both sides):
-#: where the walk already does well (the vanes at 5-10 deg) a sample per ray costs more than it saves
-SAMPLE_EVERY = 1
 NEWTON_ITER = 20
-SOLVE_TOL_MM = 1e-9  # an accepted solution's offset from x
+SOLVE_TOL_MM = 1e-6  # an accepted solution's offset from x (from a start ~1 mm off: three Jacobians)
 STEP_MM = 1e-5  # forward-difference step on the source disk
-SAME_POINT_MM = 1e-6  # the walk's entrance point and the solve's agree within this on the disk
+SAME_POINT_MM = 1e-4  # the walk's entrance point and the solve's agree within this on the disk
 SAME_PATH = 1e-9  # 1 - cos of the angle between the walk's direction at the source and the beam's
 
 
@@ -386,6 +384,19 @@ def recover(spec, run: Run, x, d_arrive):
     return ab, ok
 
 
+def entrance_factor(spec, ab):
+    """The walk's density of entrance points ab relative to the uniform disk: G^2 P_c of the entrance table's
+    cell (straylight.engine.entrance_sampling.warp), 1 without a table."""
+    table = spec.entrance_table
+    if table is None or len(ab) == 0:
+        return np.ones(len(ab))
+    u = spec.sources[0].uniforms_at(_on_disk(spec.sources[0], ab))
+    g = int(table.grid)
+    i = np.minimum((u[:, 0] * g).astype(np.int64), g - 1)
+    j = np.minimum((u[:, 1] * g).astype(np.int64), g - 1)
+    return g * g * table.prob[i * g + j]
+
+
 def walk_density(spec, run: Run, x, normals):
     """p_F (area density at x per ray, uniform entrance) of the run's ray that :func:`solve` finds for x, and
     that ray's entrance point: (p_F, ab, ok). Both sides take it from the same solve (a function of x)."""
@@ -394,7 +405,8 @@ def walk_density(spec, run: Run, x, normals):
     area = _area_ratio(J)
     ok &= area > 0
     cos_x = np.abs(_dot(normals, d))
-    p_f = np.where(ok, cos_x / (math.pi * src.radius_mm ** 2 * np.where(area > 0, area, 1.0)), 0.0)
+    p_f = np.where(ok, cos_x * entrance_factor(spec, ab) / (math.pi * src.radius_mm ** 2 * np.where(area > 0, area, 1.0)),
+                   0.0)
     return p_f, ab, ok
 
 
@@ -510,7 +522,7 @@ def connect(spec, comp, run: Run, t, x, u_det, j):
     cos_x = np.abs(_dot(d_out, nf))
     e_x = src.power_w * S[:, 0] / (math.pi * src.radius_mm ** 2 * area) * cos_x
     value[g] = e_x * f * cos_o * cos_z / d2
-    p_f[g] = cos_x / (math.pi * src.radius_mm ** 2 * area)
+    p_f[g] = cos_x * entrance_factor(spec, ab[g]) / (math.pi * src.radius_mm ** 2 * area)
     return value, z, p_f, casts
 
 
@@ -529,7 +541,8 @@ def _candidates(spec):
 
 
 def _probe(spec, comp, run, tris, m, rng):
-    """sqrt(mean g^2) over m probes per triangle of ``tris``, summed over the detectors."""
+    """sqrt(mean g^2) over m probes per triangle of ``tris`` (stratified along the first barycentric
+    coordinate), summed over the detectors."""
     t = np.repeat(tris, m)
     u = rng.random((len(t), 5))
     u[:, 0] = (np.tile(np.arange(m), len(tris)) + u[:, 0]) / m
@@ -571,8 +584,7 @@ def build_table(spec, comp) -> LensTable:
     run_of, tri, score = np.concatenate(pairs_run), np.concatenate(pairs_tri), np.concatenate(scores)
     q = score / score.sum()
     p_area = np.zeros((len(runs), n_tri))
-    p_area[run_of, tri] = q / area[tri] / SAMPLE_EVERY  # per ray: one ray in SAMPLE_EVERY draws
-
+    p_area[run_of, tri] = q / area[tri]
     return LensTable(runs, run_of, tri, np.cumsum(q), p_area)
 
 
@@ -591,10 +603,9 @@ def run_pass(spec, comp, table: LensTable, first_chunk, stop_chunk, tallies, row
     D = len(comp.det_parts)
     u_all = np.concatenate([np.random.default_rng([check_seed(spec.seed), spec.chunk_offset + first_chunk + c, STREAM])
                             .random((sizes[c], 6 * D)) for c in range(len(sizes))])
-    drawing = np.flatnonzero(((spec.chunk_offset + first_chunk) * C + np.arange(len(u_all))) % SAMPLE_EVERY == 0)
     casts = 0
     for j in range(D):
-        u = u_all[drawing, 6 * j:6 * j + 6]
+        u = u_all[:, 6 * j:6 * j + 6]
         k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
         t, which = table.tri[k], table.run[k]
         x = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
@@ -610,7 +621,7 @@ def run_pass(spec, comp, table: LensTable, first_chunk, stop_chunk, tallies, row
             r = sel[good]
             p_a = table.p_area[r_i, t[r]]
             c = value[good] * comp.detectors[j].area_mm2 / (p_a + p_f[good]) / n_total
-            _add_terms(spec, comp, j, run, tallies, rows, records, record_paths, path_depth, drawing[r], t[r], z[good], c)
+            _add_terms(spec, comp, j, run, tallies, rows, records, record_paths, path_depth, r, t[r], z[good], c)
     return casts
 
 

@@ -130,13 +130,13 @@ def test_singlet_solution_passes_x_and_the_walk_recovers_it():
     x = X0[-1] + ((-20.0 - X0[-1][:, 2]) / d0[:, 2])[:, None] * d0
     ab, J, X, d, ok = lv.solve(spec, run, x)
     assert ok.all()
-    np.testing.assert_allclose(ab, ab0, atol=1e-7)  # one ray reaches each point before the focus
+    np.testing.assert_allclose(ab, ab0, atol=1e-5)  # one ray reaches each point before the focus (solve: 1e-6 mm)
     X2, d2, ok2 = lv.trace_run(spec, run, ab[ok])
     assert ok2.all()
-    np.testing.assert_allclose(np.linalg.norm(lv._offset(x[ok], X2[-1], d2), axis=1), 0.0, atol=1e-8)
+    np.testing.assert_allclose(np.linalg.norm(lv._offset(x[ok], X2[-1], d2), axis=1), 0.0, atol=lv.SOLVE_TOL_MM)
     back, same = lv.recover(spec, run, x[ok], d2)
     assert same.all()
-    np.testing.assert_allclose(back, ab[ok], atol=1e-9)
+    np.testing.assert_allclose(back, ab[ok], atol=1e-5)
 
 
 def _run(scene, n, seed, est, record_paths=False):
