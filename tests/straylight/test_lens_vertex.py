@@ -171,3 +171,31 @@ def test_declines_without_a_lens_in_the_beam():
     far = CollimatedDisk(center_mm=[40.0, 0.0, 30.0], normal=src.normal, direction=src.direction, radius_mm=3.0)
     res = trace(sc, far, 2000, seed=1, materials=mats, options=TraceOptions(estimator=EstimatorOptions(lens_vertex=True)))
     assert "lens_vertex" not in res.strategies.on
+
+
+def test_two_singlets_a_run_of_four():
+    """Two singlets one above the other (the lower one 2 mm smaller in radius of curvature): the run is
+    four refractions; the solve returns the entry points of rays traced forward to the plate, and the walk's
+    back-trace recovers them."""
+    sc, src, mats = _lens_scene()
+    front2 = Conic(vertex_mm=np.array([0.0, 0.0, 2.0]), axis=np.array([0.0, 0.0, 1.0]), radius_mm=-60.0,
+                   outer_radius_mm=12.0)
+    back2 = _plane(-1.0, -1.0, 12.0)
+    parts = sc.parts[:3] + (_surface_part("lens2_front", front2, "glass"), _surface_part("lens2_back", back2, "glass")) \
+        + sc.parts[3:]
+    spec = _spec((Scene(parts), src, mats))
+    runs = lv.find_runs(spec, runtime().scene(spec))
+    assert len(runs[0].parts) == 4
+    run = runs[0]
+    rng = np.random.default_rng(3)
+    r, phi = 6.0 * np.sqrt(rng.random(40)), 2 * np.pi * rng.random(40)
+    ab0 = np.column_stack([r * np.cos(phi), r * np.sin(phi)])
+    X0, d0, ok0 = lv.trace_run(spec, run, ab0)
+    assert ok0.all()
+    x = X0[-1] + ((-20.0 - X0[-1][:, 2]) / d0[:, 2])[:, None] * d0
+    ab, J, X, d, ok = lv.solve(spec, run, x)
+    assert ok.all()
+    np.testing.assert_allclose(ab, ab0, atol=1e-5)
+    back, same = lv.recover(spec, run, x, d)
+    assert same.all()
+    np.testing.assert_allclose(back, ab, atol=1e-5)
