@@ -107,7 +107,7 @@ def test_package_data_declares_every_data_file():
 
 
 def test_runtime_data_directories_present():
-    from materials.material import LIBRARY_DIR, list_presets
+    from materials.material import list_presets
     from rig.drivers.visa import SIM_DIR
 
     assert list_presets()

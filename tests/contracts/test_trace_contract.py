@@ -8,7 +8,6 @@ Golden values are geometric and analytic:
 """
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np

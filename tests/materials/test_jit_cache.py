@@ -11,10 +11,8 @@ import json
 import os
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
-import pytest
 
 from materials import jit_cache
 

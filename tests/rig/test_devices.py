@@ -7,7 +7,6 @@ Expected signals come from the calibration equation V = g P Omega cos(theta_r) f
 """
 import math
 
-import numpy as np
 import pytest
 from bluesky import protocols
 

@@ -2,7 +2,6 @@
 and by one run on the simulated rig for the documents."""
 import json
 
-import numpy as np
 import pytest
 
 from materials.lambertian import Lambertian

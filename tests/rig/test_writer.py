@@ -4,15 +4,13 @@ import math
 
 import numpy as np
 import pytest
-from bluesky import RunEngine
 
 from materials.lambertian import Lambertian
 from materials.scan import read_scan
 from rig.devices import sim_devices
-from rig.plans import Point, brdf_scan
 from rig.run import run_scan
 from rig.sim import SimRig
-from rig.writer import CsvScanWriter, DocumentLog, ResumeError, brdf_from_reading, read_log
+from rig.writer import DocumentLog, ResumeError, brdf_from_reading, read_log
 from test_faults_support import SPEC, assert_same_scan, instrument, rows, run
 
 

@@ -7,7 +7,6 @@ The expected numbers are the in-process trace's, an independent way of running t
 from __future__ import annotations
 
 import ipaddress
-import json
 import os
 import signal
 import subprocess

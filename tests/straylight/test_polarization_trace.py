@@ -25,7 +25,6 @@ import pytest
 from geometry import Scene
 from geometry.analytic import Plane, analytic_part
 from materials import load_material
-from materials.fresnel import fresnel_amplitudes
 from materials.mueller import interface_mueller
 from materials.smooth import Specular
 from straylight.polarization import SourcePolarization, attach
