@@ -43,11 +43,13 @@ from materials.smooth import Dielectric, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.first_vertex import _local, _points
 from straylight.engine.interactions.registry import parts_with
+from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.reverse_chain import scatter_ends
 from straylight.engine.specular_nee import _meets
 from straylight.engine.surface_geometry import branch_coefficients
+from straylight.engine.vec3 import power_heuristic_rows
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
 from straylight.rng import CHUNK_RAYS, check_seed, chunk_bounds
@@ -450,9 +452,10 @@ def _brdf(spec, mat, wi_loc, wo_loc, S, s_loc):
     return f
 
 
-def connect(spec, comp, run: Run, t, x, u_det, j):
+def connect(spec, comp, run: Run, t, x, u_det, j, u_lobe=None):
     """Single-scatter contributions E f cos_x cos_z / d^2 (per area of x and z) of points x on triangles t,
-    lit through the run, toward a uniform point of detector j: (value, z, p_F, casts, arriving Stokes 0)."""
+    lit through the run, toward a uniform point of detector j (with ``u_lobe``, 3 uniforms per point: combined
+    with a draw from a glossy material's lobe, :func:`_with_lobe_draws`): (value, z, p_F, casts)."""
     src = spec.sources[0]
     eps = spec.eps
     m = len(x)
@@ -523,7 +526,63 @@ def connect(spec, comp, run: Run, t, x, u_det, j):
     e_x = src.power_w * S[:, 0] / (math.pi * src.radius_mm ** 2 * area) * cos_x
     value[g] = e_x * f * cos_o * cos_z / d2
     p_f[g] = cos_x * entrance_factor(spec, ab[g]) / (math.pi * src.radius_mm ** 2 * area)
+    if u_lobe is not None:
+        casts += _with_lobe_draws(spec, comp, j, value, g, x[g], nf, tb, bb, mat, wi_loc, wo_loc, S / S[:, :1], s_loc,
+                                  e_x, d2, cos_z, u_lobe[g])
     return value, z, p_f, casts
+
+
+def _with_lobe_draws(spec, comp, j, value, g, x, nf, tb, bb, mat, wi_loc, wo_loc, S, s_loc, e_x, d2, cos_z, u3) -> int:
+    """On glossy materials, ``value[g]`` (the uniform detector point's estimate, per area of x and z) becomes
+    the power-heuristic combination with a direction drawn from the material's own lobe (``model.sample``),
+    kept when its ray reaches detector j first (straylight.engine.first_vertex.lobe_connection: a narrow glint
+    is found by the draw, not by a uniform point). Returns the casts."""
+    glossy = np.flatnonzero(lobe_materials(spec)[mat])
+    if len(glossy) == 0:
+        return 0
+    area_det = comp.detectors[j].area_mm2
+    mg = mat[glossy]
+    pdf = np.empty(len(glossy))
+    for rows, pv in by_material(spec.materials, mg, lambda model, rows: model.pdf(wi_loc[glossy][rows], wo_loc[glossy][rows], "u")):
+        pdf[rows] = pv
+    p_nee = d2[glossy] / (area_det * cos_z[glossy])  # the uniform detector point, per sr
+    value[g[glossy]] *= power_heuristic_rows(p_nee, pdf)
+    wo = np.empty((len(glossy), 3))
+    weight = np.empty(len(glossy))
+    pdf = np.empty(len(glossy))
+    wi_g = wi_loc[glossy]
+    for rows, smp in by_material(spec.materials, mg, lambda model, rows: model.sample(wi_g[rows], u3[glossy][rows], "u")):
+        wo[rows], weight[rows], pdf[rows] = smp.wo, smp.weight, smp.pdf_per_sr
+    ok = np.flatnonzero((wo[:, 2] > 0) & (weight > 0) & (pdf > 0))
+    if len(ok) == 0:
+        return 0
+    k = glossy[ok]
+    wo, weight, pdf = wo[ok], weight[ok], pdf[ok]
+    # the arriving polarization: the draw's weight carries f for the Stokes vector, not the unpolarized f
+    f_pol = _brdf(spec, mat[k], wi_loc[k], wo, S[k], s_loc[k])
+    f_u = np.empty(len(k))
+    for rows, fv in by_material(spec.materials, mat[k], lambda model, rows: model.brdf(wi_loc[k][rows], wo[rows], "u")):
+        f_u[rows] = fv
+    weight = weight * np.where(f_u > 0, f_pol / np.where(f_u > 0, f_u, 1.0), 0.0)
+    d = wo[:, :1] * tb[k] + wo[:, 1:2] * bb[k] + wo[:, 2:3] * nf[k]
+    d = np.ascontiguousarray(d / np.linalg.norm(d, axis=1)[:, None])
+    origin = np.ascontiguousarray(x[k] + spec.eps * nf[k])
+    tri, dist = comp.isect.intersect(origin, d)
+    tri = np.asarray(tri)
+    dist = np.asarray(dist)
+    on = tri >= 0
+    on[on] = spec.triangle_part[tri[on]] == comp.det_parts[j]
+    h = np.flatnonzero(on)
+    if len(h) == 0:
+        return len(k)
+    cos_in = _dot(d[h], comp.normals[tri[h]])
+    front = np.ones(len(h), dtype=bool) if spec.options.output.detector_sides == "both" else cos_in < 0
+    ac = np.abs(cos_in)
+    h, ac = h[front & (ac > 0)], ac[front & (ac > 0)]
+    p_nee = dist[h] ** 2 / (area_det * ac)
+    # per area of x and z, as the uniform point's (run_pass multiplies by the detector's area)
+    value[g[k[h]]] += e_x[k[h]] * weight[h] * power_heuristic_rows(pdf[h], p_nee) / area_det
+    return len(k)
 
 
 # ---------------------------------------------------------------------------------------------- the table
@@ -602,10 +661,10 @@ def run_pass(spec, comp, table: LensTable, first_chunk, stop_chunk, tallies, row
     sizes = [chunk_bounds(k, n_total)[1] - k * C for k in range(first_chunk, stop_chunk)]
     D = len(comp.det_parts)
     u_all = np.concatenate([np.random.default_rng([check_seed(spec.seed), spec.chunk_offset + first_chunk + c, STREAM])
-                            .random((sizes[c], 6 * D)) for c in range(len(sizes))])
+                            .random((sizes[c], 9 * D)) for c in range(len(sizes))])
     casts = 0
     for j in range(D):
-        u = u_all[:, 6 * j:6 * j + 6]
+        u = u_all[:, 9 * j:9 * j + 9]
         k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
         t, which = table.tri[k], table.run[k]
         x = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
@@ -613,7 +672,7 @@ def run_pass(spec, comp, table: LensTable, first_chunk, stop_chunk, tallies, row
             sel = np.flatnonzero(which == r_i)
             if len(sel) == 0:
                 continue
-            value, z, p_f, n = connect(spec, comp, run, t[sel], x[sel], u[sel, 3:6], j)
+            value, z, p_f, n = connect(spec, comp, run, t[sel], x[sel], u[sel, 3:6], j, u[sel, 6:9])
             casts += n
             good = np.flatnonzero(value > 0)
             if len(good) == 0:

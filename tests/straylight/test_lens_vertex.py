@@ -15,6 +15,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from engine_helpers import quad_part
 from geometry.analytic import Conic, Cylinder, Plane
@@ -44,9 +45,10 @@ def _detector(centre, facing):
                          role="detector")
 
 
-def _materials():
+def _materials(plate="matte"):
+    """The glass and the plate's material: matte (Lambertian) or glossy (z302_sample_b: its lobe drawn)."""
     return {"glass": load_material({"components": [{"type": "dielectric", "n": N_GLASS}]}, "glass"),
-            "matte": load_material(MATTE, "matte")}
+            "matte": load_material(MATTE, "matte") if plate == "matte" else load_material("z302_sample_b")}
 
 
 def _beam(tilt_deg, radius_mm=10.0, z=30.0):
@@ -54,7 +56,7 @@ def _beam(tilt_deg, radius_mm=10.0, z=30.0):
     return CollimatedDisk(center_mm=[0.0, 0.0, z], normal=d, direction=d, radius_mm=radius_mm)
 
 
-def _lens_scene(tilt_deg=10.0):
+def _lens_scene(tilt_deg=10.0, plate="matte"):
     """A singlet (sphere R = 40 mm convex to the sky at z = 10, flat back at z = 6, r = 12 mm, black rim), a
     beam of radius 10 mm tilted tilt_deg; a matte plate (z = -20, facing up) in the converging beam; a
     detector (r = 3 mm) at x = -20, z = -5, facing the plate: it sees the plate straight, lit only through
@@ -68,7 +70,7 @@ def _lens_scene(tilt_deg=10.0):
     det = _detector((-20.0, 0.0, -5.0), (35.0, 0.0, -15.0))
     parts = (_surface_part("lens_front", front, "glass"), _surface_part("lens_back", back, "glass"),
              _surface_part("rim", rim, None, role="absorber"), plate, det)
-    return Scene(parts), _beam(tilt_deg), _materials()
+    return Scene(parts), _beam(tilt_deg), _materials(plate)
 
 
 def _window_scene(tilt_deg):
@@ -145,8 +147,11 @@ def _run(scene, n, seed, est, record_paths=False):
                  options=TraceOptions(estimator=est, output=OutputOptions(record_paths=record_paths)))
 
 
-def test_agrees_with_the_analog_walk_and_beats_the_walk():
-    scene = _lens_scene()
+@pytest.mark.parametrize("plate", ["matte", "glossy"])
+def test_agrees_with_the_analog_walk_and_the_walk_alone(plate):
+    """The glossy plate also takes the lobe's own draw at each vertex (power heuristic with the uniform
+    detector point)."""
+    scene = _lens_scene(plate=plate)
     n = 20_000
     walk = EstimatorOptions(delta_chain=4)
     on = _run(scene, n, 3, replace(walk, lens_vertex=True), record_paths=True)
