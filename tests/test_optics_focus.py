@@ -135,3 +135,20 @@ def test_a_rear_group_inside_a_hole_through_a_mangin_primary_focuses(tmp_path):
     lens = LENSES / "OpticsDatabase" / "Nikon_AI_Reflex-Nikkor_1000mm_f11.zmx"
     inside, ee_scene, ee_seq, r_geo = focus_check(lens, 0.0, tmp_path)
     assert inside >= 0.95 and abs(ee_scene - ee_seq) <= 0.05, (inside, ee_scene, ee_seq, r_geo)
+
+
+@pytest.mark.parametrize("name", ["OpticsDatabase/Canon_Extender_EF2X.zmx",
+                                  "OpticsDatabase/Nikon_AF-I_Teleconverter_TC-20E.zmx"])
+def test_a_teleconverter_keeps_no_light_around_its_smaller_middle_group(name, tmp_path):
+    """Teleconverters whose middle group is smaller than the front one: without the barrel's spacer rings
+    (scene_build._spacer_rings) light passed around that group through the air, 0.87 and 0.94 of the power
+    within 1.2 x the sequential spot on axis (CONTRACTS 8.1 asks 0.95); with them 0.99. (Their encircled power at
+    half r90 is not compared: the sequential trace is limited by a dummy surface the scene does not have,
+    docs/optics.md.)"""
+    from straylight.optics.reader import read_prescription
+    from straylight.optics.scene_build import build_scene
+
+    lens = LENSES / name
+    assert any(part["name"].startswith("spacer_") for part in build_scene(read_prescription(lens))["part"])
+    inside, _, _, r_geo = focus_check(lens, 0.0, tmp_path)
+    assert inside >= 0.95, f"{name}: {inside:.3f} of the power within 1.2 x r_geo = {1.2 * r_geo:.3g} mm"
