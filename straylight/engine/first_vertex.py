@@ -268,18 +268,24 @@ def _may_see_detector(spec, comp, src, surf):
     return ok
 
 
-def _probe_scores(spec, comp, src, tris, m, rng):
+def probe_scores(spec, comp, tris, m, rng, contribution):
     """sqrt(mean g^2) over ``m`` probes per triangle of ``tris`` (stratified along the first
-    barycentric coordinate), summed over the detectors."""
+    barycentric coordinate), summed over the detectors; ``contribution(t, x, u_det, j)`` is g at points x
+    of triangles t toward a uniform point of detector j (3 uniforms ``u_det`` per point)."""
     t = np.repeat(tris, m)
     u = rng.random((len(t), 5))
     u[:, 0] = (np.tile(np.arange(m), len(tris)) + u[:, 0]) / m
     x = _points(spec.triangles_mm, t, u[:, 0], u[:, 1])
     g2 = np.zeros(len(t))
     for j in range(len(comp.det_parts)):
-        g, _, _ = _single_scatter(spec, comp, src, t, x, u[:, 2:5], j)
+        g = contribution(t, x, u[:, 2:5], j)
         g2 += g * g
     return np.sqrt(g2.reshape(len(tris), m).mean(axis=1))
+
+
+def _probe_scores(spec, comp, src, tris, m, rng):
+    """:func:`probe_scores` of the single-scatter contribution lit straight by ``src``."""
+    return probe_scores(spec, comp, tris, m, rng, lambda t, x, u, j: _single_scatter(spec, comp, src, t, x, u, j)[0])
 
 
 def build_table(spec, comp, screen: bool = True) -> VertexTable:

@@ -37,17 +37,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geometry.analytic import Conic
 from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing, mueller_brdf
 from materials.smooth import Dielectric, refract
 from straylight.engine.capabilities import Capability
-from straylight.engine.first_vertex import _local, _points
+from straylight.engine.first_vertex import _local, _points, probe_scores
 from straylight.engine.interactions.registry import parts_with
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
 from straylight.engine.reverse_chain import scatter_ends
-from straylight.engine.specular_nee import _meets
+from straylight.engine.specular_nee import _eta, _meets
 from straylight.engine.surface_geometry import branch_coefficients
 from straylight.engine.vec3 import power_heuristic_rows
 from straylight.engine.walk_shares import keep_walk_share
@@ -114,8 +115,6 @@ def unsupported(spec) -> str | None:
 
 def _interface_parts(spec) -> np.ndarray:
     """Bool per part: a dielectric interface with an analytic surface (what a run crosses)."""
-    from geometry.analytic import Conic
-
     ok = parts_with(spec, Capability.DELTA_CHAIN).copy()
     surfaces = spec.part_surfaces or ()
     for p in np.flatnonzero(ok):
@@ -124,12 +123,6 @@ def _interface_parts(spec) -> np.ndarray:
         ok[p] = (p < len(surfaces) and isinstance(surfaces[p], Conic)
                  and isinstance(getattr(model, "smooth", None), Dielectric))
     return ok
-
-
-def _eta(spec, part: int, front: bool) -> float:
-    from straylight.engine.specular_nee import _eta as eta
-
-    return eta(spec, part, front)
 
 
 def _run(spec, parts) -> Run:
@@ -600,17 +593,8 @@ def _candidates(spec):
 
 
 def _probe(spec, comp, run, tris, m, rng):
-    """sqrt(mean g^2) over m probes per triangle of ``tris`` (stratified along the first barycentric
-    coordinate), summed over the detectors."""
-    t = np.repeat(tris, m)
-    u = rng.random((len(t), 5))
-    u[:, 0] = (np.tile(np.arange(m), len(tris)) + u[:, 0]) / m
-    x = _points(spec.triangles_mm, t, u[:, 0], u[:, 1])
-    g2 = np.zeros(len(t))
-    for j in range(len(comp.det_parts)):
-        g, _, _, _ = connect(spec, comp, run, t, x, u[:, 2:5], j)
-        g2 += g * g
-    return np.sqrt(g2.reshape(len(tris), m).mean(axis=1))
+    """sqrt(mean g^2) over m probes per triangle of ``tris``, lit through the run (first_vertex.probe_scores)."""
+    return probe_scores(spec, comp, tris, m, rng, lambda t, x, u, j: connect(spec, comp, run, t, x, u, j)[0])
 
 
 def build_table(spec, comp) -> LensTable:
