@@ -56,7 +56,7 @@ def _beam(tilt_deg, radius_mm=10.0, z=30.0):
     return CollimatedDisk(center_mm=[0.0, 0.0, z], normal=d, direction=d, radius_mm=radius_mm)
 
 
-def _lens_scene(tilt_deg=10.0, plate="matte"):
+def _lens_scene(tilt_deg=10.0, plate_material="matte"):
     """A singlet (sphere R = 40 mm convex to the sky at z = 10, flat back at z = 6, r = 12 mm, black rim), a
     beam of radius 10 mm tilted tilt_deg; a matte plate (z = -20, facing up) in the converging beam; a
     detector (r = 3 mm) at x = -20, z = -5, facing the plate: it sees the plate straight, lit only through
@@ -70,7 +70,7 @@ def _lens_scene(tilt_deg=10.0, plate="matte"):
     det = _detector((-20.0, 0.0, -5.0), (35.0, 0.0, -15.0))
     parts = (_surface_part("lens_front", front, "glass"), _surface_part("lens_back", back, "glass"),
              _surface_part("rim", rim, None, role="absorber"), plate, det)
-    return Scene(parts), _beam(tilt_deg), _materials(plate)
+    return Scene(parts), _beam(tilt_deg), _materials(plate_material)
 
 
 def _window_scene(tilt_deg):
@@ -151,7 +151,7 @@ def _run(scene, n, seed, est, record_paths=False):
 def test_agrees_with_the_analog_walk_and_the_walk_alone(plate):
     """The glossy plate also takes the lobe's own draw at each vertex (power heuristic with the uniform
     detector point)."""
-    scene = _lens_scene(plate=plate)
+    scene = _lens_scene(plate_material=plate)
     n = 20_000
     walk = EstimatorOptions(delta_chain=4)
     on = _run(scene, n, 3, replace(walk, lens_vertex=True), record_paths=True)
