@@ -25,11 +25,20 @@ def pupil_grid(radius_mm: float, n: int) -> np.ndarray:
 
 
 def sequential_spot(p, field_deg: float, source_z_mm: float, source_radius_mm: float, n: int = 2000,
-                    source_centre_xy=(0.0, 0.0)):
-    """Global points (mm) where the kept rays cross the image surface, shape (m, 3)."""
-    paths = sequential_paths(p, field_deg, source_z_mm, source_radius_mm, n, source_centre_xy=source_centre_xy)
-    pts = np.array([path[-1] for path in paths]).reshape(-1, 3)
-    return pts[np.all(np.isfinite(pts), axis=1)]  # a ray along the image plane (a 90 deg off-axis mirror) meets it nowhere
+                    source_centre_xy=(0.0, 0.0), min_kept: int = 0, max_n: int = 60_000):
+    """Global points (mm) where the kept rays cross the image surface, shape (m, 3). ``min_kept``: when fewer
+    rays than that pass (a small stop behind a wide source disk), the disk is sampled again with
+    proportionally more rays (at most ``max_n``), so the edge of the pupil, where the spot is widest, is
+    sampled finely enough (the Nikon 1 Nikkor 10 mm: 69 of 3000 rays pass, r_geo 2.9 um; with 4.4e4 rays, 5.1)."""
+    def spot(n_rays):
+        paths = sequential_paths(p, field_deg, source_z_mm, source_radius_mm, n_rays, source_centre_xy=source_centre_xy)
+        pts = np.array([path[-1] for path in paths]).reshape(-1, 3)
+        return pts[np.all(np.isfinite(pts), axis=1)]  # a ray along the image plane (a 90 deg off-axis mirror) meets it nowhere
+
+    pts = spot(n)
+    if 0 < len(pts) < min_kept and n < max_n:
+        pts = spot(int(min(max_n, n * 1.2 * min_kept / len(pts))))
+    return pts
 
 
 def _crossing(q, a_pt, b_pt):
