@@ -81,6 +81,7 @@ class Run:
     parts: tuple
     eta_front: tuple
     eta_back: tuple
+    focus: tuple | None = None  # where the beam's rays after the run come nearest (the solve's start); None: a window
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,8 +127,9 @@ def _interface_parts(spec) -> np.ndarray:
 
 
 def _run(spec, parts) -> Run:
-    return Run(tuple(int(p) for p in parts), tuple(_eta(spec, p, True) for p in parts),
-               tuple(_eta(spec, p, False) for p in parts))
+    parts = tuple(int(p) for p in parts)
+    eta_front, eta_back = tuple(_eta(spec, p, True) for p in parts), tuple(_eta(spec, p, False) for p in parts)
+    return Run(parts, eta_front, eta_back, _focus(spec, parts, eta_front, eta_back))
 
 
 def _disk_frame(src):
@@ -138,6 +140,15 @@ def _disk_frame(src):
 def _on_disk(src, ab):
     e1, e2 = _disk_frame(src)
     return src.center_mm + ab[:, :1] * e1 + ab[:, 1:2] * e2
+
+
+def _to_disk(src, p):
+    """Points p carried back along the beam onto the disk's plane: (their (a, b) there, the distance t back)."""
+    e1, e2 = _disk_frame(src)
+    d = np.asarray(src.direction, float)
+    t = ((p - src.center_mm) @ src.normal) / float(np.dot(d, src.normal))
+    q = p - t[:, None] * d - src.center_mm
+    return np.column_stack([q @ e1, q @ e2]), t
 
 
 def find_runs(spec, comp) -> tuple:
@@ -181,19 +192,13 @@ def find_runs(spec, comp) -> tuple:
         for p in np.unique(part[go]):
             rows = go[part[go] == p]
             i = live[rows]
-            t, nrm, fine = surfaces[p].refine_hits(o[i], d[i], np.asarray(dist)[rows])
-            d_old = d[i]
-            front = _dot(d[i], nrm) < 0
-            nf = np.where(front[:, None], nrm, -nrm)
-            eta = np.where(front, _eta(spec, p, True), _eta(spec, p, False))
-            cos_i = np.clip(-_dot(d[i], nf), 0.0, 1.0)
-            sin2 = eta * eta * (1.0 - cos_i * cos_i)
-            fine &= sin2 < 1.0
-            i, t, nf, eta, cos_i, sin2, front = (x[fine] for x in (i, t, nf, eta, cos_i, sin2, front))
+            X, _, front, d_new, fine = _refract_at(surfaces[p], _eta(spec, p, True), _eta(spec, p, False), o[i], d[i],
+                                                   np.asarray(dist)[rows])
+            i, X, front, d_new = i[fine], X[fine], front[fine], d_new[fine]
             if len(i) == 0:
                 continue
-            d[i] = refract(d[i], nf, eta, np.sqrt(1.0 - sin2))
-            o[i] = o[i] + t[:, None] * d_old[fine] + 2.0 * spec.eps * d[i]
+            d[i] = d_new
+            o[i] = X + 2.0 * spec.eps * d_new
             inside[i] = np.where(front, int(spec.part_material[p]), -1)
             last[i] = p
             for k in i:
@@ -217,20 +222,27 @@ def _start_distance(surf, o, d):
     return -ol[:, 2] / dz
 
 
-def _cross(spec, run: Run, i: int, o, d):
-    """Refract rays (o, d) at the run's i-th surface: (X, facing normal, arrived on front, new d, ok)."""
-    surf = spec.part_surfaces[run.parts[i]]
-    t, nrm, ok = surf.refine_hits(o, d, _start_distance(surf, o, d))
+def _refract_at(surf, eta_front, eta_back, o, d, t0):
+    """Refract rays (o, d) at the exact surface ``surf`` met near distance t0 (eta: n_incident / n_transmitted for
+    light arriving on its front or back): (X, facing normal, arrived on front, new d, ok: met, no total
+    reflection)."""
+    t, nrm, ok = surf.refine_hits(o, d, t0)
     ok = ok & (t > 0) & np.isfinite(t)
     X = o + np.where(ok, t, 0.0)[:, None] * d
     front = _dot(d, nrm) < 0
     nf = np.where(front[:, None], nrm, -nrm)
-    eta = np.where(front, run.eta_front[i], run.eta_back[i])
+    eta = np.where(front, eta_front, eta_back)
     cos_i = np.clip(-_dot(d, nf), 0.0, 1.0)
     sin2 = eta * eta * (1.0 - cos_i * cos_i)
     ok &= sin2 < 1.0
     d_new = refract(d, nf, eta, np.sqrt(np.clip(1.0 - sin2, 0.0, 1.0)))
     return X, nf, front, d_new, ok
+
+
+def _cross(spec, run: Run, i: int, o, d):
+    """Refract rays (o, d) at the run's i-th surface (:func:`_refract_at`, started at its vertex plane)."""
+    surf = spec.part_surfaces[run.parts[i]]
+    return _refract_at(surf, run.eta_front[i], run.eta_back[i], o, d, _start_distance(surf, o, d))
 
 
 def trace_run(spec, run: Run, ab):
@@ -272,34 +284,32 @@ def _area_ratio(J):
     return np.linalg.norm(np.cross(J[:, :, 0], J[:, :, 1]), axis=1)
 
 
-def _start(spec, run: Run, x):
-    """Start points on the disk: x's line through the run's focus (the beam's exit rays' nearest point)
-    met with the first surface's vertex plane, carried back along the beam; x carried straight back where
-    the run has no focus (a window)."""
+def _focus(spec, parts, eta_front, eta_back):
+    """The nearest point of five of the beam's rays after the surfaces (a run's focus), or None (a window)."""
     src = spec.sources[0]
-    e1, e2 = _disk_frame(src)
-    d = np.asarray(src.direction, float)
-
-    def back(p):  # p carried back along the beam onto the disk, in (a, b)
-        t = ((p - src.center_mm) @ src.normal) / float(np.dot(d, src.normal))
-        q = p - t[:, None] * d - src.center_mm
-        return np.column_stack([q @ e1, q @ e2])
-
-    ab = back(x)
     fan = np.array([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3], [-0.3, 0.0], [0.0, -0.3]]) * src.radius_mm
-    X, dout, ok = trace_run(spec, run, fan)
+    X, dout, ok = trace_run(spec, Run(parts, eta_front, eta_back), fan)
     if ok.sum() < 3:
-        return ab
-    P, D = X[-1][ok], dout[ok]
+        return None
     A = np.zeros((3, 3))
     rhs = np.zeros(3)
-    for p, u in zip(P, D):
+    for p, u in zip(X[-1][ok], dout[ok]):
         M = np.eye(3) - np.outer(u, u)
         A += M
         rhs += M @ p
     if np.linalg.cond(A) > 1e8:
+        return None
+    return tuple(np.linalg.solve(A, rhs))
+
+
+def _start(spec, run: Run, x):
+    """Start points on the disk: x's line through the run's focus met with the first surface's vertex plane,
+    carried back along the beam; x carried straight back where the run has no focus (a window)."""
+    src = spec.sources[0]
+    ab = _to_disk(src, x)[0]
+    if run.focus is None:
         return ab
-    focus = np.linalg.solve(A, rhs)
+    focus = np.asarray(run.focus)
     surf = spec.part_surfaces[run.parts[0]]
     axis = surf.dirs_to_world(np.array([[0.0, 0.0, 1.0]]))[0]
     v = x - focus
@@ -307,7 +317,7 @@ def _start(spec, run: Run, x):
     t = ((surf.vertex_mm - focus) @ axis) / np.where(np.abs(den) > 1e-12, den, 1e-12)
     q = focus + t[:, None] * v
     far = ~np.isfinite(t) | (np.abs(den) <= 1e-12)
-    return np.where(far[:, None], ab, back(q))
+    return np.where(far[:, None], ab, _to_disk(src, q)[0])
 
 
 def solve(spec, run: Run, x):
@@ -371,10 +381,7 @@ def recover(spec, run: Run, x, d_arrive):
         ok &= sin2 < 1.0
         d = -refract(-d, nf, eta, np.sqrt(np.clip(1.0 - sin2, 0.0, 1.0)))
     ok &= 1.0 - _dot(d, np.broadcast_to(src.direction, d.shape)) <= SAME_PATH
-    e1, e2 = _disk_frame(src)
-    t = ((o - src.center_mm) @ src.normal) / float(np.dot(src.direction, src.normal))
-    q = o - t[:, None] * np.asarray(src.direction, float) - src.center_mm
-    ab = np.column_stack([q @ e1, q @ e2])
+    ab, t = _to_disk(src, o)
     ok &= (t > 0) & (np.einsum("ij,ij->i", ab, ab) < src.radius_mm ** 2)
     return ab, ok
 
@@ -392,16 +399,18 @@ def entrance_factor(spec, ab):
     return g * g * table.prob[i * g + j]
 
 
+def _forward_density(spec, ab, area, cos_x):
+    """p_F = |cos_x| G^2 P_c / (pi r^2 |J_a x J_b|): the walk's area density at x per ray (module doc)."""
+    return cos_x * entrance_factor(spec, ab) / (math.pi * spec.sources[0].radius_mm ** 2 * area)
+
+
 def walk_density(spec, run: Run, x, normals):
     """p_F (area density at x per ray, uniform entrance) of the run's ray that :func:`solve` finds for x, and
     that ray's entrance point: (p_F, ab, ok). Both sides take it from the same solve (a function of x)."""
-    src = spec.sources[0]
     ab, J, _, d, ok = solve(spec, run, x)
     area = _area_ratio(J)
     ok &= area > 0
-    cos_x = np.abs(_dot(normals, d))
-    p_f = np.where(ok, cos_x * entrance_factor(spec, ab) / (math.pi * src.radius_mm ** 2 * np.where(area > 0, area, 1.0)),
-                   0.0)
+    p_f = np.where(ok, _forward_density(spec, ab, np.where(ok, area, 1.0), np.abs(_dot(normals, d))), 0.0)
     return p_f, ab, ok
 
 
@@ -518,7 +527,7 @@ def connect(spec, comp, run: Run, t, x, u_det, j, u_lobe=None):
     cos_x = np.abs(_dot(d_out, nf))
     e_x = src.power_w * S[:, 0] / (math.pi * src.radius_mm ** 2 * area) * cos_x
     value[g] = e_x * f * cos_o * cos_z / d2
-    p_f[g] = cos_x * entrance_factor(spec, ab[g]) / (math.pi * src.radius_mm ** 2 * area)
+    p_f[g] = _forward_density(spec, ab[g], area, cos_x)
     if u_lobe is not None:
         casts += _with_lobe_draws(spec, comp, j, value, g, x[g], nf, tb, bb, mat, wi_loc, wo_loc, S / S[:, :1], s_loc,
                                   e_x, d2, cos_z, u_lobe[g])
