@@ -43,10 +43,10 @@ def _setup(args):
 
 
 def _family_label(paths, row):
-    from straylight.analyses.paths_report import _family
+    from straylight.paths import part_family
 
     events = paths.describe(row)
-    return " -> ".join(_family(p) for p, _ in events) or "(direct)"
+    return " -> ".join(part_family(p) for p, _ in events) or "(direct)"
 
 
 def run(setup, angle_deg, seed, estimators, n_rays, top, rr_threshold=None):

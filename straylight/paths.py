@@ -12,6 +12,7 @@ N traced rays (rays without a record have x_r = 0).
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -185,6 +186,16 @@ class PathRecords:
             for g in range(n_groups)
         ]
         return sorted(groups, key=lambda grp: -grp.power_w)
+
+
+def part_family(part: str) -> str:
+    """A part's family: its name without a trailing ``_<number>`` (``vane_12`` -> ``vane``)."""
+    return re.sub(r"_\d+$", "", part)
+
+
+def family_events(events) -> tuple:
+    """An event sequence ((part, kind), ...) with each part named by its family (``paths --group-by family``)."""
+    return tuple((part_family(part), kind) for part, kind in events)
 
 
 def sequence_label(events, detector: str, truncated: bool = False) -> str:

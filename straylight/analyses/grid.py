@@ -24,11 +24,13 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
+from straylight.analyses.heaviest import heaviest_path, untrusted
 from straylight.analyses.precision import Precision, reliability, trace_to_precision
 from straylight.checkpoints import PointStore
 from straylight.execution import Execution, as_execution
@@ -160,13 +162,27 @@ def _trace_point(point: GridPoint, tj: TraceJob, execution: Execution, rays, pre
         diagnostics = {**_diagnostics(run.reliability[tj.detector]), "stop_reason": run.stop_reason,
                        "rounds": len(run.rounds)}
     seconds = time.perf_counter() - t0
-    values = tj.values(res.detectors[tj.detector])
+    tally = res.detectors[tj.detector]
+    values = tj.values(tally)
+    rel_error = tally.stderr_w / tally.power_w if tally.power_w > 0 else math.nan
+    if untrusted(diagnostics, rel_error):  # name the path that holds the variance (straylight.analyses.heaviest)
+        diagnostics["heaviest_path"] = _heaviest(tj, point.seed, res)
     plan = getattr(res, "strategies", None)  # the strategies asked for that did not run, and why (pst.json)
     diagnostics["strategies_off"] = {} if plan is None else {name: why for name, why in plan.off}
     unscattered = getattr(res, "unscattered_w", None) or {}
     if tj.detector in unscattered:  # the straight light, computed exactly (direct_area): part of the point's power
         diagnostics["unscattered_w"] = unscattered[tj.detector]
     return PointRun(values, int(res.n_rays), seconds, diagnostics, res if keep_traces else None)
+
+
+def _heaviest(tj: TraceJob, seed: int, res) -> dict | None:
+    """:func:`straylight.analyses.heaviest.heaviest_path`; a failure of this diagnostic warns and keeps the
+    point (its numbers are traced: nothing is lost for want of a label)."""
+    try:
+        return heaviest_path(tj, seed, res)
+    except Exception as exc:  # noqa: BLE001 - a diagnostic must not cost the point
+        warnings.warn(f"the heaviest path of {tj.detector!r} could not be named: {exc}", RuntimeWarning, stacklevel=2)
+        return None
 
 
 def precision_summary(precision: Precision | None) -> dict | None:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import csv
 import math
-import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -33,7 +32,7 @@ from straylight.analyses.estimators import estimator_options
 from straylight.analyses.pst import detector_name
 from straylight.analyses.tables import TableRepr
 from straylight.execution import Execution, as_execution
-from straylight.paths import ANCESTRY, GROUP_BY, sequence_label
+from straylight.paths import ANCESTRY, GROUP_BY, family_events, sequence_label
 from straylight.trace import EstimatorOptions, OutputOptions, TraceOptions, trace
 
 
@@ -173,11 +172,6 @@ class PathReport(TableRepr):
         return ax
 
 
-def _family(part: str) -> str:
-    """A part's family: its name without a trailing ``_<number>`` (``vane_12`` -> ``vane``)."""
-    return re.sub(r"_\d+$", "", part)
-
-
 def _short(label: str, width: int = 70) -> str:
     label = label.removeprefix("source -> ")
     return label if len(label) <= width else label[: width - 3] + "..."
@@ -229,7 +223,7 @@ def path_report(paths, detector: str | None = None, total=None, group_by: str = 
             part = events[0][0] if group_by == "first_part" else events[-1][0]
             return (f"{group_by.split('_')[0]}: {part}", "mixed")
         if group_by == "family":  # vane_1 .. vane_33 -> vane: where a repeated part's light comes from
-            events = tuple((_family(part), kind) for part, kind in events)
+            events = family_events(events)
         return (sequence_label(events, det, truncated(events)), anc)
 
     def kept_key(events, det):

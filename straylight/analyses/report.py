@@ -22,6 +22,7 @@ import html
 import json
 import math
 import platform
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -488,9 +489,13 @@ def _pst_reliability_note(pst) -> str:
     bad = [f"{r['off_axis_deg']:g}" for r in pst.flagged_rows() if _reliability_word(r) != "yes"]
     if not bad:
         return ""
+    held = [f"at {r['off_axis_deg']:g} deg one ray holds {r['heaviest_path']['variance_share']:.0%} of the variance: "
+            f"{r['heaviest_path']['family']}" + (f" ({r['heaviest_path']['hint']})" if r["heaviest_path"].get("hint") else "")
+            for r in pst.flagged_rows() if _reliability_word(r) != "yes" and r.get("heaviest_path")]
     return (f"**Warning: the error bars at {', '.join(bad)} deg are not reliable** (rare heavy paths: VOV > 0.1, "
             "or a cap stopped the point before its target). Trace those angles longer "
-            "(`straylight pst --target-rel-error E --max-seconds S`) before quoting them.")
+            "(`straylight pst --target-rel-error E --max-seconds S`) before quoting them."
+            + ("".join(f" {h[0].upper()}{h[1:]}." for h in held)))
 
 
 def _html_warning(note: str) -> str:
@@ -498,7 +503,7 @@ def _html_warning(note: str) -> str:
     if not note:
         return ""
     text = html.escape(note)
-    text = text.replace("**", "<strong>", 1).replace("**", "</strong>", 1).replace("`", "<code>", 1).replace("`", "</code>", 1)
+    text = re.sub(r"`([^`]*)`", r"<code>\1</code>", re.sub(r"\*\*(.*?)\*\*", r"<strong>\1</strong>", text))
     return f'<p class="warning" style="color:#a00">{text}</p>\n'
 
 

@@ -202,6 +202,11 @@ def run(args) -> int:
               f"+- {row['pst_stderr']:.2e} ({rel:.1%}; VOV {vov if vov is not None else float('nan'):.2g}){stop}"
               + (f"  [{row['flags'].replace(';', ', ')}: the error bar is not reliable]"
                  if {"unreliable_error", "target_not_reached"} & set(row["flags"].split(";")) else ""))
+        heavy = row.get("heaviest_path")
+        if heavy:
+            print(f"         one ray holds {heavy['variance_share']:.0%} of its variance: {heavy['family']}")
+            if heavy.get("hint"):
+                print(f"         {heavy['hint']}")
     if len(res.pst) and not any(float(v) > 0 for v in res.pst):  # nothing reached the detector: say what blocks it
         from straylight.analyses.blockers import zero_light_hints
 
