@@ -223,7 +223,7 @@ def parse_zemax(text: str, path="file", notes=None) -> dict:
     per_block = n_az * len(rad)
     n_blocks = len(rot) * len(aoi)
     nums: list[float] = []
-    tis: list[float] = []
+    tis: list[float | None] = []
     tis_at: list[tuple] = []  # (index into nums, line) of each TIS line: where a block starts
     rows: list[tuple] = []  # (line, values on it)
     ended = False
@@ -236,8 +236,8 @@ def parse_zemax(text: str, path="file", notes=None) -> dict:
             break
         if toks[0].lower() == "tis":
             tis_at.append((len(nums), k + 1))
-            if len(toks) > 1:
-                tis.append(_num(toks[1], f"{path}:{k + 1}"))
+            # a TIS line without its value keeps its block's place (None: the later blocks keep theirs)
+            tis.append(_num(toks[1], f"{path}:{k + 1}") if len(toks) > 1 else None)
             continue
         if toks[0].lower() in ("monochrome", "databegin"):
             continue
@@ -281,7 +281,7 @@ def parse_zemax(text: str, path="file", notes=None) -> dict:
     rot, aoi = [rot[o] for o in r_order], [aoi[j] for j in a_order]
     comp = {"type": "bsdf_table", "scatter": stype.lower(), "symmetry": "plane" if plane else "none",
             "rotation_deg": [float(v) for v in rot], "theta_i_deg": [float(v) for v in aoi], "blocks": blocks}
-    if tis:
+    if any(v is not None for v in tis):
         comp["tis"] = tis
     return comp
 

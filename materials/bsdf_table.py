@@ -248,9 +248,9 @@ class BsdfTable:
         object.__setattr__(self, "blocks", tuple(blocks))
         if self.tis is not None:
             try:
-                tis = tuple(float(v) for v in self.tis)
+                tis = tuple(None if v is None else float(v) for v in self.tis)
             except (TypeError, ValueError):
-                raise MaterialError(f"{_OWNER}: 'tis' must be a list of numbers") from None
+                raise MaterialError(f"{_OWNER}: 'tis' must be a list of numbers (null for a block without one)") from None
             object.__setattr__(self, "tis", tis)
 
     # ------------------------------------------------------------ interpolation
@@ -366,7 +366,7 @@ class BsdfTable:
                 tis = ""
                 if self.tis and grid[k] in self.theta_i_deg and len(self.tis) == len(self.blocks):
                     j = list(self._rotations).index(r) * len(self.theta_i_deg) + self.theta_i_deg.index(grid[k])
-                    tis = f"; the file's TIS line says {self.tis[j]:g}"
+                    tis = f"; the file's TIS line says {self.tis[j]:g}" if self.tis[j] is not None else ""
                 raise MaterialError(
                     f"{where}: not physical: directional-hemispherical {kind} {rho[k]:.4f} > 1 at incidence "
                     f"{grid[k]:g} deg{node}{rot}{tis}; refused (values are never rescaled)")

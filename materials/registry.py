@@ -13,6 +13,9 @@ from materials.base import MaterialError
 from materials.flags import ComponentFlags
 
 _REGISTRY: dict[str, type] = {}
+#: component types whose module is imported on first use (a measured BSDF table: only files that name it
+#: pay for its module); importing ``materials`` registers the others
+_ON_FIRST_USE = {"bsdf_table": "materials.bsdf_table"}
 
 
 def register(type_name: str):
@@ -34,7 +37,20 @@ def register(type_name: str):
 
 
 def component_types() -> dict[str, type]:
+    for type_name in _ON_FIRST_USE:
+        _imported(type_name)
     return dict(_REGISTRY)
+
+
+def _imported(type_name: str) -> type | None:
+    """The registered class of ``type_name``, importing its module first when it is one of :data:`_ON_FIRST_USE`."""
+    cls = _REGISTRY.get(type_name)
+    if cls is None and type_name in _ON_FIRST_USE:
+        import importlib
+
+        importlib.import_module(_ON_FIRST_USE[type_name])
+        cls = _REGISTRY.get(type_name)
+    return cls
 
 
 def build_component(entry: dict, where: str = "component"):
@@ -42,10 +58,10 @@ def build_component(entry: dict, where: str = "component"):
     if not isinstance(entry, dict) or "type" not in entry:
         raise MaterialError(f"{where}: a component needs a 'type' key")
     type_name = entry["type"]
-    cls = _REGISTRY.get(type_name)
+    cls = _imported(type_name) if isinstance(type_name, str) else None
     if cls is None:
         raise MaterialError(
-            f"{where}: unknown component type {type_name!r}; known: {', '.join(sorted(_REGISTRY))}"
+            f"{where}: unknown component type {type_name!r}; known: {', '.join(sorted({*_REGISTRY, *_ON_FIRST_USE}))}"
         )
     known = {f.name for f in dataclasses.fields(cls)}
     kwargs = {k: v for k, v in entry.items() if k != "type"}

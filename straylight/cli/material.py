@@ -116,7 +116,7 @@ def cmd_import(args) -> int:
     for r, row in enumerate(report["dhr"][:1] if len(report["dhr"]) > 4 else report["dhr"]):
         for j, (t, v) in enumerate(zip(report["theta_i_deg"], row)):
             line = f"  theta_i = {t:5.1f} deg: {label} {v:.5f}"
-            if tis and len(tis) > r * nt + j:
+            if tis and len(tis) > r * nt + j and tis[r * nt + j] is not None:
                 line += f"   (file's TIS line: {tis[r * nt + j]:g}, kept as reported, not used)"
             print(line + (f"  [rotation {rot[r]:g} deg]" if len(rot) > 1 else ""))
     print(f"wrote {args.output}")

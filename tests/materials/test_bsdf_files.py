@@ -220,6 +220,21 @@ def test_tis_lines_reported_not_used(tmp_path):
     assert abs(report["dhr"][0][0] - 0.038655) > 0.005  # a different definition; values not rescaled to it
 
 
+def test_a_tis_line_without_its_value_keeps_the_later_ones_in_place(tmp_path):
+    """Three blocks whose middle TIS line has no value: the third block's TIS stays the third's (null for the
+    second, in strict JSON), not moved to the second incidence."""
+    text = _zemax_text([0, 20, 50], [0.01, 0.01, 0.01]).split("\n")
+    tis_lines = [i for i, line in enumerate(text) if line.startswith("TIS")]
+    text[tis_lines[0]], text[tis_lines[1]], text[tis_lines[2]] = "TIS\t0.123", "TIS", "TIS\t0.456"
+    f = tmp_path / "gap.bsdf"
+    f.write_text("\n".join(text))
+    _, report = import_file(f)
+    assert report["tis_in_file"] == [0.123, None, 0.456]
+    out = tmp_path / "gap.json"
+    assert _run("material", "import", f, "-o", out) == 0
+    assert json.loads(out.read_text())["components"][0]["tis"] == [0.123, None, 0.456]
+
+
 # ------------------------------------------------------------------------------------ refusals
 
 
@@ -609,3 +624,38 @@ def test_every_zemax_node_above_the_horizon_comes_back(name):
         wi = np.tile([-math.sin(t), 0.0, math.cos(t)], (len(want), 1))
         got = table.brdf(wi, wo[keep])
         np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-6 * want.max(), err_msg=f"{name} incidence {ti}")
+
+
+def test_an_imported_table_is_a_material_a_fresh_process_traces(tmp_path):
+    """A scene names the imported material's file; a new process (which has not imported the file
+    reader) loads its ``bsdf_table`` component and traces it (CONTRACTS 5.2: sampled like any other)."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "aeroglaze.json"
+    assert _run("material", "import", DATA / "aeroglaze.bsdf", "-o", out) == 0
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f"""[[part]]
+name = "plate"
+surface = {{type = "plane", vertex_mm = [0.0, 0.0, 0.0], axis = [0.0, 0.0, 1.0], outer_radius_mm = 30.0}}
+material = "{out.as_posix()}"
+[[part]]
+name = "det"
+surface = {{type = "plane", vertex_mm = [-15.0, 0.0, 15.0], axis = [1.0, 0.0, -1.0], outer_radius_mm = 5.0}}
+role = "detector"
+[[source]]
+type = "collimated_disk"
+center_mm = [0.0, 0.0, 40.0]
+normal = [0.0, 0.0, -1.0]
+direction = [0.0, 0.0, -1.0]
+radius_mm = 5.0
+power_w = 1.0
+""")
+    code = "from materials.material import load_material; import sys; print(load_material(sys.argv[1]).components[0].type_name)"
+    got = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True, text=True)
+    assert got.returncode == 0 and got.stdout.strip() == "bsdf_table", got.stderr
+    js = tmp_path / "trace.json"
+    run = subprocess.run([sys.executable, "-m", "straylight.cli.main", "trace", str(scene), "--rays", "2000", "--json", str(js)],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert json.loads(js.read_text())["detectors"]["det"]["power_w"] > 0
