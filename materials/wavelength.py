@@ -78,6 +78,31 @@ def at_wavelength(material, wavelength_nm: float):
                     description=material.description, provenance=material.provenance)
 
 
+#: (id(material), wavelength) -> (material, its coatings at that wavelength): the same object for the same
+#: input, so the tracer's tables, kept by the materials' identity, stay valid across calls
+_COATINGS_AT: dict = {}
+
+
+def coatings_at(material, wavelength_nm: float):
+    """``material`` with every coated ``specular`` / ``dielectric`` component evaluated at ``wavelength_nm``
+    (the traced wavelength, CONTRACTS 5.1: a coating keeps its physical thicknesses, its phase thicknesses
+    scale with 1 / lambda); the material itself when it has no coating or its coatings are already there.
+    Scatter lobes keep the material's wavelength (``trace`` and ``pst``; ``thermal`` evaluates them too:
+    :func:`at_wavelength`)."""
+    comps = getattr(material, "components", None)
+    lam = float(wavelength_nm)
+    if not comps or not any(_coated(c) and getattr(c, "wavelength_nm", None) != lam for c in comps):
+        return material
+    key = (id(material), lam)
+    hit = _COATINGS_AT.get(key)
+    if hit is not None and hit[0] is material:
+        return hit[1]
+    out = dataclasses.replace(material, components=tuple(
+        dataclasses.replace(c, wavelength_nm=lam) if _coated(c) else c for c in comps))
+    _COATINGS_AT[key] = (material, out)
+    return out
+
+
 def emissivity(material, theta_rad) -> np.ndarray:
     """epsilon(theta) = 1 - rho(theta) - T(theta) on the front side, unpolarized (Kirchhoff), clipped to [0, 1].
 

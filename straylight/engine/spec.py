@@ -102,6 +102,25 @@ def resolve_materials(scene, materials):
     return orient_materials(scene, part_material, models)
 
 
+def _coatings_at_source_wavelength(models, sources):
+    """The materials with their coatings at the sources' ``wavelength_nm`` (the traced wavelength, CONTRACTS
+    5.1; materials.wavelength.coatings_at); as they are when no source states one. Sources of different
+    wavelengths with a coated material in the scene are refused (one trace is one wavelength)."""
+    from materials.wavelength import coatings_at
+
+    waves = sorted({float(w) for w in (getattr(s, "wavelength_nm", None) for s in sources) if w is not None})
+    if not waves:
+        return models
+    coated = [m for m in models if any(getattr(c, "coating", None) is not None for c in getattr(m, "components", ()))]
+    if len(waves) > 1:
+        if coated:
+            raise TraceError(f"sources at {', '.join(f'{w:g}' for w in waves)} nm and a coated material "
+                             f"({coated[0].name}): a trace is one wavelength; trace each source on its own")
+        return models
+    out = [coatings_at(m, waves[0]) for m in models]
+    return type(models)(out) if isinstance(models, tuple) else out
+
+
 def _anisotropic(model) -> bool:
     return any(getattr(c, "anisotropic", False) or getattr(c, "symmetry", "plane") == "none"
                for c in getattr(model, "components", ()))
@@ -198,6 +217,7 @@ def make_spec(scene, sources, n_rays, seed=0, materials=None, options=None) -> T
     except ValueError as exc:
         raise TraceError(str(exc)) from None
     part_material, models = resolve_materials(scene, materials)
+    models = _coatings_at_source_wavelength(models, sources)
     _check_targets(scene, options)
     from straylight.engine.diffraction import scene_diffraction
     from straylight.engine.estimators import without_diffraction_blind

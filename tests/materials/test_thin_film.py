@@ -107,10 +107,8 @@ def test_bad_coatings_are_refused_by_name(bad, words):
         load_material({"name": "x", "wavelength_nm": 550.0, "components": [bad]})
 
 
-@pytest.mark.parametrize("coating, R", [(None, 0.04), ("mgf2_quarter_wave", ((1.5 - 1.38**2) / (1.5 + 1.38**2)) ** 2)])
-def test_traced_window_transmits_one_minus_r_over_one_plus_r(coating, R):
-    """A non-absorbing window with equal faces transmits (1 - R) / (1 + R) of the incoherent series;
-    R is 4 % bare (n = 1.5) and the quarter-wave closed form coated (at normal incidence)."""
+def _traced_window(coating, source_wavelength_nm=None, extra_source_nm=None):
+    """The detector power of a window (n = 1.5, both faces alike, material at 550 nm) lit at normal incidence."""
     import math
 
     from geometry.analytic import Plane, analytic_part
@@ -126,9 +124,40 @@ def test_traced_window_transmits_one_minus_r_over_one_plus_r(coating, R):
     top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, 100.0, 0.0), "glass")
     bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, 100.0, 0.0), "glass")
     det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
-    src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
-    res = trace(Scene((top, bottom, det)), [src], 100_000, seed=5, materials={"glass": glass},
+    waves = [source_wavelength_nm] + ([extra_source_nm] if extra_source_nm is not None else [])
+    src = [CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0,
+                          wavelength_nm=w) for w in waves]
+    res = trace(Scene((top, bottom, det)), src, 100_000, seed=5, materials={"glass": glass},
                 options=TraceOptions(estimator=EstimatorOptions(nee=False)))
-    d = res.detectors["det"]
+    return res.detectors["det"]
+
+
+@pytest.mark.parametrize("coating, R", [(None, 0.04), ("mgf2_quarter_wave", ((1.5 - 1.38**2) / (1.5 + 1.38**2)) ** 2)])
+def test_traced_window_transmits_one_minus_r_over_one_plus_r(coating, R):
+    """A non-absorbing window with equal faces transmits (1 - R) / (1 + R) of the incoherent series;
+    R is 4 % bare (n = 1.5) and the quarter-wave closed form coated (at normal incidence)."""
+    d = _traced_window(coating)
     expected = (1 - R) / (1 + R)
     assert abs(d.power_w - expected) < 4 * d.stderr_w + 1e-9, (d.power_w, d.stderr_w, expected)
+
+
+@pytest.mark.parametrize("lam_nm", [450.0, 1100.0])
+def test_a_coating_is_traced_at_the_source_wavelength(lam_nm):
+    """The material is given at 550 nm (the layer a quarter wave there); the source at lam_nm traces the same
+    physical layer at lam_nm: R from the Airy summation of one layer (independent of the characteristic
+    matrices) at lam_nm, the window (1 - R) / (1 + R), 4 sigma; and clearly not the 550 nm value."""
+    (r, _), _ = _airy_single_layer(1.0, 1.0, 1.38, 1.5, 550.0 / (4 * 1.38), lam_nm)
+    R = abs(r) ** 2
+    d = _traced_window("mgf2_quarter_wave", lam_nm)
+    expected = (1 - R) / (1 + R)
+    assert abs(d.power_w - expected) < 4 * d.stderr_w, (d.power_w, d.stderr_w, expected)
+    R550 = ((1.5 - 1.38**2) / (1.5 + 1.38**2)) ** 2
+    assert abs(d.power_w - (1 - R550) / (1 + R550)) > 10 * d.stderr_w
+
+
+def test_sources_of_two_wavelengths_with_a_coating_are_refused():
+    from straylight.trace import TraceError
+
+    with pytest.raises(TraceError, match="one wavelength"):
+        _traced_window("mgf2_quarter_wave", 450.0, 650.0)
+    assert _traced_window(None, 450.0, 650.0).power_w > 0  # no coating: nothing depends on the wavelength
