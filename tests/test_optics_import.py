@@ -707,3 +707,70 @@ def test_two_glasses_in_contact_are_one_interface_between_them(tmp_path):
     assert comp["type"] == "dielectric"
     assert sorted([comp["n"], comp["n_outside"]]) == [pytest.approx(1.717360, abs=1e-4), pytest.approx(1.846663, abs=1e-4)]
     assert "two glasses in contact" in r.stderr
+
+
+_STOP_FIRST_ZMX = """VERS 190513 80 123457 L123457
+MODE SEQ
+NAME stop in front
+UNIT MM X W X CM MR CPMM
+ENPD 20
+WAVM 1 0.55 1
+PWAV 1
+XFLN 0 0
+YFLN 0 5
+FTYP 0 0 2 1 0 0 0
+GCAT SCHOTT
+SURF 0
+  TYPE STANDARD
+  CURV 0.0
+  DISZ INFINITY
+SURF 1
+  STOP
+  COMM {c1}
+  TYPE STANDARD
+  CURV 0.0
+  DISZ 5
+  DIAM 10 1 0 0 1 ""
+SURF 2
+  COMM {c2}
+  TYPE STANDARD
+  CURV 0.01
+  DISZ 6
+  GLAS N-BK7 0 0 1.5168 64.17 0 0 0 0 0 0
+  DIAM 14 1 0 0 1 ""
+SURF 3
+  COMM {c3}
+  TYPE STANDARD
+  CURV -0.004
+  DISZ 90
+  DIAM 14 1 0 0 1 ""
+SURF 4
+  TYPE STANDARD
+  CURV 0.0
+  DISZ 0
+"""
+
+
+def test_a_zemax_stop_on_surface_1_and_its_comments_name_the_parts(tmp_path):
+    """A STOP on the first surface (rayoptics' reader drops it: it sets a stop only from the third surface on)
+    gives the black `stop` part, its hole the stop's semi-diameter; unique comments name their surfaces'
+    parts (CONTRACTS 8.1), but never a name the builder uses or another surface's default name."""
+    import tomllib
+
+    lens = tmp_path / "stop_first.zmx"
+    lens.write_text(_STOP_FIRST_ZMX.format(c1="aperture", c2="front", c3="back"))
+    r = _run("optics", "import", lens, "--out", tmp_path / "a")
+    assert r.returncode == 0, r.stderr
+    parts = {p["name"]: p for p in tomllib.loads((tmp_path / "a" / "scene.toml").read_text())["part"]}
+    assert {"front", "back", "stop"} <= set(parts)
+    assert parts["stop"]["surface"]["inner_radius_mm"] == pytest.approx(10.0)
+    info = _run("optics", "info", lens)
+    assert info.returncode == 0 and " stop" in info.stdout
+    lens.write_text(_STOP_FIRST_ZMX.format(c1="image", c2="s3", c3="back side"))
+    r = _run("optics", "import", lens, "--out", tmp_path / "b")
+    assert r.returncode == 0, r.stderr
+    doc = tomllib.loads((tmp_path / "b" / "scene.toml").read_text())
+    names = [p["name"] for p in doc["part"]]
+    assert "s2" in names and "s3" in names and names.count("image") == 1
+    assert doc["analysis"]["detector"] == "image"
+    assert next(p for p in doc["part"] if p["name"] == "image")["role"] == "detector"

@@ -190,6 +190,27 @@ def _surface_commands(fmt: str, text: str):
             yield idx, head, words
 
 
+def zemax_stop(fmt: str, text: str) -> int | None:
+    """The Zemax surface whose block marks ``STOP`` (None: none, or a CODE V file). rayoptics' reader drops a
+    stop on surface 1 (it sets a stop only once three surfaces are read): the common layout of a stop in
+    front of the lens."""
+    if fmt != "zmx":
+        return None
+    return next((idx for idx, head, _ in _surface_commands(fmt, text) if head == "STOP" and idx is not None), None)
+
+
+def zemax_comments(fmt: str, text: str) -> dict:
+    """Zemax ``COMM`` per surface index (a part is named after its surface's comment where unique: CONTRACTS 8.1;
+    CODE V's ``SLB`` labels come through rayoptics)."""
+    out: dict = {}
+    if fmt != "zmx":
+        return out
+    for idx, head, words in _surface_commands(fmt, text):
+        if head == "COMM" and idx is not None and len(words) > 1:
+            out[idx] = " ".join(words[1:]).strip().strip('"').strip()
+    return out
+
+
 def obstructions(fmt: str, text: str) -> dict:
     """{surface index: (kind, radius in file units)} for holes and obscurations rayoptics drops."""
     out = {}

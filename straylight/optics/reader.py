@@ -23,7 +23,8 @@ import numpy as np
 import atomicio
 from straylight.optics.file_text import (
     aperture_shapes, coatings, codev_profile_types, extended_aspheres, multiconfig,
-    obstructions, radii_without_rdm, zemax_glass_numbers, zemax_index_mirrors, zemax_truncation, zmx_for_rayoptics,
+    obstructions, radii_without_rdm, zemax_comments, zemax_glass_numbers, zemax_index_mirrors, zemax_stop,
+    zemax_truncation, zmx_for_rayoptics,
 )
 from straylight.optics.other_materials import medium as other_medium
 from straylight.optics.sag import sag_mm
@@ -468,6 +469,14 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         raise
 
 
+def _reserved(label: str) -> bool:
+    """A label that cannot name a surface's part: the object and image, the parts the scene builder makes
+    (``stop``, ``image``, ``pupil``, ``edge_...``, ``spacer_...``) and another surface's default name (``s7``)."""
+    low = label.lower()
+    return low in ("obj", "img", "object", "image", "stop", "pupil") or low.startswith(("edge_", "spacer_")) \
+        or re.fullmatch(r"s\d+", low) is not None
+
+
 def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list, wavelength_nm, glass,
                        force: bool) -> Prescription:
     """:func:`read_prescription` of the file's decoded ``text`` (``raw`` its bytes, for CODE V)."""
@@ -493,6 +502,10 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
     opm, info = _open_rayoptics(path, fmt, zmx_for_rayoptics(text) if fmt == "zmx" else raw)
     glass = dict(glass or {})
     sm = opm["seq_model"]
+    stop = zemax_stop(fmt, text)
+    if stop is not None and 0 < stop < len(sm.ifcs) - 1 and sm.stop_surface != stop:
+        sm.stop_surface = stop  # rayoptics drops a STOP on surface 1 (zemax_stop): the pupil follows the file's stop
+        opm.update_model()
     # glasses the catalogues lack: --glass NAME=N, or refused naming them
     from opticalglass.opticalmedium import ConstantIndex
 
@@ -604,6 +617,7 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
     for i, sd in given_sd.items():
         sm.ifcs[i].set_max_aperture(sd)
     names: dict[str, list] = {}  # label -> its surfaces
+    comments = zemax_comments(fmt, text)
     for i in range(1, n_ifc - 1):
         ifc = sm.ifcs[i]
         where = f"surface {i}"
@@ -619,7 +633,7 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         gname = _glass_name(medium_after) if medium_after is not None else None
         if getattr(ifc, "phase_element", None) is not None:
             problems.append(f"{where}: diffractive surface (grating or DOE) is not supported")
-        label = (getattr(ifc, "label", "") or "").strip()
+        label = (getattr(ifc, "label", "") or "").strip() or comments.get(i, "")
         if given.get(i):
             sd, from_file = given_sd[i], True
         else:
@@ -665,7 +679,7 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
                 s.coefficients, s.power_terms = [], []
                 s.type = "plane" if s.radius_mm is None else ("conic" if s.conic else "sphere")
     for label, group in names.items():
-        if len(group) == 1 and re.fullmatch(r"[A-Za-z0-9_.\-]+", label) and label.lower() not in ("obj", "img"):
+        if len(group) == 1 and re.fullmatch(r"[A-Za-z0-9_.\-]+", label) and not _reserved(label):
             group[0].name = label
     if problems and not force:
         raise OpticsFileError(f"{path}: {problems[0]}" + (f" (and {len(problems) - 1} more)" if len(problems) > 1
