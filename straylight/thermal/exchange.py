@@ -2,23 +2,27 @@
 2002, ch. 5-6): D_ij is the fraction of the band power emitted by part i that part j absorbs
 after any number of reflections and transmissions (CONTRACTS §7.2).
 
-Each part with a front emissivity > 0 emits at its ``temperature_k`` (300 K where it has none):
-uniform points of its front, directions with density eps(theta) cos(theta) / (pi eps_h) (exact,
-so all rays weigh the same), traced at each sub-band's wavelength with rays in proportion to the
-part's band power there. At every hit the walk books the power it removes (weight x (1 -
+Every side of a part that absorbs emits (Kirchhoff, CONTRACTS §7), at the part's ``temperature_k``
+(300 K where it has none): its front, and the back of a one-sided part (an analytic surface or an
+open mesh: model.ThermalScene.one_sided) with the back material's emissivity; a closed solid's back
+is inside it. Each side emits from uniform points, directions with density eps(theta) cos(theta) /
+(pi eps_h) of that side (exact, so all rays of a side weigh the same), traced at each sub-band's
+wavelength with rays in proportion to the side's band power there. At every hit the walk books the power it removes (weight x (1 -
 throughput) and what Russian roulette removes or adds) to the part hit; absorbers and detectors take
 everything. What a path still carries at the event cap (``walk.MAX_EVENTS``, reached only in closed
 mirror cavities) is booked to no part: it is reported as ``truncated`` (exchange_details.json) and
 warned above 1 % of a part's emission, as ``trace`` warns for its max_events (a perfect mirror was
 booked 4.3 % absorbed). So each row plus ``escaped`` plus ``truncated`` is exactly 1 and
 the estimate of D_ij is unbiased (roulette is). The band value is the emitted-power-weighted mean
-over sub-bands; ``emissivity`` is the hemispherical band emissivity, so that
-eps_i A_i D_ij = eps_j A_j D_ji at equal temperatures (reciprocity).
+over sub-bands and sides; ``area_mm2`` is the emitting area (both sides of a one-sided part) and
+``emissivity`` the hemispherical band emissivity averaged over it, so that eps_i A_i D_ij =
+eps_j A_j D_ji at equal temperatures (reciprocity).
 """
 from __future__ import annotations
 
 import csv
 import io
+import itertools
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,15 +109,20 @@ class ExchangeResult:
 
 
 def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
-    """D_ij of every part of ``ts`` (straylight.thermal.model.ThermalScene) in the band."""
+    """D_ij of every part of ``ts`` (straylight.thermal.model.ThermalScene) in the band.
+
+    Every absorbing side emits (CONTRACTS §7): a part's front, and the back of a one-sided part
+    (``ts.one_sided``: an analytic surface or an open mesh) with its back material's emissivity. Each
+    (sub-band, side) of part i is a stratum with rays in proportion to its emitted power, so row i is
+    the fraction of the power both sides emit; ``area_mm2`` counts both sides of a one-sided part and
+    ``emissivity`` is their mean (:func:`side_emission`), so that eps_i A_i D_ij = eps_j A_j D_ji."""
     lo, hi = check_band(*band_um)
     P = ts.n_parts
     temps = np.where(ts.temperature_k > 0, ts.temperature_k, DEFAULT_TEMPERATURE_K)
     bands = sub_bands(lo, hi, ts.wavelength_dependent())
-    rad = np.array([[band_radiance_w_m2_sr(a, b, t) for t in temps] for a, b, _ in bands])  # (K, P)
-    eps_h = np.array([[ts.sides_at(c).hemispherical(p, 0) for p in range(P)] for _, _, c in bands])  # (K, P)
-    emitted = rad * eps_h
-    band_eps = emitted.sum(axis=0) / rad.sum(axis=0)
+    emitted, band_eps, area_mm2 = side_emission(ts, bands, temps)
+    K = len(bands)
+    n_sides = 2 if np.any(ts.one_sided) else 1  # streams of the backs after the fronts'
     emitters = [p for p in range(P) if band_eps[p] > 0]
     per_part = max(2, int(n_rays) // max(1, len(emitters)))
     d = np.zeros((P, P))
@@ -122,33 +131,62 @@ def exchange(ts, band_um, n_rays: int, seed: int = 0) -> ExchangeResult:
     esc_var = np.zeros(P)
     cut = np.zeros(P)
     for i in emitters:
-        share = emitted[:, i] / emitted[:, i].sum()
+        share = emitted[:, i, :] / emitted[:, i, :].sum()  # (K, 2): the strata of part i
         sampler = AreaSampler.of_part(ts, i)
         esc[i] = 0.0
-        for k, (_, _, lam) in enumerate(bands):
-            n_k = round(per_part * share[k])
-            if share[k] <= 0 or n_k < 2:
-                n_k = 2 if share[k] > 0 else 0
-            if n_k == 0:
+        for (k, (_, _, lam)), side in itertools.product(enumerate(bands), range(2)):
+            n_ks = _stratum_rays(per_part, share[k, side])
+            if n_ks == 0:
                 continue
             s1, s2 = np.zeros(P + 2), np.zeros(P + 2)
-            counts = chunk_counts(n_k)
-            ids = [stream_chunk(c, i * len(bands) + k, P * len(bands)) for c in range(len(counts))]
+            counts = chunk_counts(n_ks)
+            stream = side * P * K + i * K + k
+            ids = [stream_chunk(c, stream, n_sides * P * K) for c in range(len(counts))]
             for batch_ids, batch_counts in batches_of(ids, counts):
-                a, b = _emit_batch(ts, ts.sides_at(lam), i, sampler, BatchDraws(seed, batch_ids, batch_counts))
+                a, b = _emit_batch(ts, ts.sides_at(lam), i, sampler, BatchDraws(seed, batch_ids, batch_counts),
+                                   side)
                 s1 += a
                 s2 += b
-            mean = s1 / n_k
-            v = np.maximum(s2 - s1 * s1 / n_k, 0.0) / (n_k * (n_k - 1.0))
-            d[i] += share[k] * mean[:P]
-            var[i] += share[k] ** 2 * v[:P]
-            esc[i] += share[k] * mean[P]
-            esc_var[i] += share[k] ** 2 * v[P]
-            cut[i] += share[k] * mean[P + 1]
+            mean = s1 / n_ks
+            v = np.maximum(s2 - s1 * s1 / n_ks, 0.0) / (n_ks * (n_ks - 1.0))
+            w = share[k, side]
+            d[i] += w * mean[:P]
+            var[i] += w ** 2 * v[:P]
+            esc[i] += w * mean[P]
+            esc_var[i] += w ** 2 * v[P]
+            cut[i] += w * mean[P + 1]
     _warn_truncated(cut, ts.part_names)
-    return ExchangeResult((lo, hi), list(ts.part_names), np.array([ts.part_area_mm2(p) for p in range(P)]),
-                          band_eps, d, np.sqrt(var), esc, np.sqrt(esc_var), int(n_rays), int(seed), temps,
-                          truncated=cut)
+    return ExchangeResult((lo, hi), list(ts.part_names), area_mm2, band_eps, d, np.sqrt(var), esc, np.sqrt(esc_var),
+                          int(n_rays), int(seed), temps, truncated=cut)
+
+
+def side_emission(ts, bands, temps):
+    """What each part's sides emit: (per unit area, W m^-2 (K, P, 2): pi B_band(T) eps_h of each
+    sub-band, part and side, 0 for the back of a closed solid), the band emissivity (P,) and the
+    emitting area (P,) mm^2 of each part. The emitting sides are the front, and the back of a one-sided
+    part (``ts.one_sided``); the area counts them (twice the part's area for a one-sided part) and the
+    band emissivity is their mean, eps = sum_k,s B_k eps_h,k,s / (n_sides sum_k B_k), so that
+    eps A is the sum over the sides of eps_s A (Kirchhoff per side, CONTRACTS §7)."""
+    P = ts.n_parts
+    rad = np.array([[band_radiance_w_m2_sr(a, b, t) for t in temps] for a, b, _ in bands])  # (K, P)
+    eps_h = np.zeros((len(bands), P, 2))
+    for k, (_, _, lam) in enumerate(bands):
+        sides = ts.sides_at(lam)
+        for p in range(P):
+            for side in (0, 1) if ts.one_sided[p] else (0,):
+                eps_h[k, p, side] = sides.hemispherical(p, side)
+    n_sides = np.where(ts.one_sided, 2, 1)
+    emitted = np.pi * rad[:, :, None] * eps_h
+    band_eps = emitted.sum(axis=(0, 2)) / (np.pi * rad.sum(axis=0) * n_sides)
+    area_mm2 = np.array([ts.part_area_mm2(p) for p in range(P)]) * n_sides
+    return emitted, band_eps, area_mm2
+
+
+def _stratum_rays(per_part: int, share: float) -> int:
+    """Rays of a stratum with ``share`` of its part's emitted power: in proportion, at least 2 (0 without a share)."""
+    if not share > 0:
+        return 0
+    return max(2, round(per_part * share))
 
 
 def _warn_truncated(cut, names) -> None:
@@ -164,13 +202,13 @@ def _warn_truncated(cut, names) -> None:
                       TruncationWarning, stacklevel=3)
 
 
-def _emit_batch(ts, sides, i, sampler, draws):
-    """Per-ray absorbed fractions of a batch of whole chunks from part i (``draws``:
-    straylight.rng.BatchDraws): sums (P + 2,) and sums of squares (entry P is the escaped
+def _emit_batch(ts, sides, i, sampler, draws, side: int = 0):
+    """Per-ray absorbed fractions of a batch of whole chunks from part i's ``side`` (0 front, 1 back;
+    ``draws``: straylight.rng.BatchDraws): sums (P + 2,) and sums of squares (entry P is the escaped
     fraction, P + 1 what the event cap cut)."""
     P = ts.n_parts
     n = draws.n_rays
-    o, nrm, d = emission_rays(sampler, sides.eps[i, 0], draws.all(3), draws, np.arange(n))
+    o, nrm, d = emission_rays(sampler, sides.eps[i, side], draws.all(3), draws, np.arange(n), back=side == 1)
     book = np.zeros((P + 2) * n)  # (part, escaped or cut at the event cap, ray)
 
     def ended(ev):  # escaped (booked to P), or all of it to the absorber or detector hit

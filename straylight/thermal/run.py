@@ -7,6 +7,11 @@ hottest part there. ``target_rel_error`` adds rounds of chunks until the relativ
 the detector power is at most the target (or ``max_rays`` / ``max_seconds`` stop it: reported in
 ``stopped``).
 
+The reverse method (the default) needs emitters that its detector's rays can meet: when the emitting
+sides are small against the detector's front (:func:`reverse_suits`), or when it finds no emission at
+all, the detector is traced with the forward method instead, and the result says so (``notes``,
+thermal_details.json, and a :class:`MethodSwitchWarning`).
+
 The rays are the engine's chunks (straylight.rng: CHUNK_RAYS rays, each chunk its own stream), traced
 in batches of whole chunks (straylight.rng.BatchDraws); ``execution`` (straylight.execution.Execution)
 runs a round's batches in this process, one after another or on the engine's shared thread pool
@@ -16,6 +21,7 @@ either way.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,6 +45,16 @@ DEFAULT_MAX_SECONDS = 600.0
 ZERO_POWER_RAYS = 100_000  # --target-rel-error gives up on a detector that nothing reaches after this
 MIN_ROUND_RAYS = 512  # first round of --target-rel-error, and the smallest later round (per sub-band)
 THERMAL_MIN_CHUNKS = 16  # no precision stop before this many chunks of rays (the VOV needs batches)
+# The reverse method needs emitters its detector's rays can meet: with the emitting area A_e (at the
+# brightest side's radiance, :func:`emitting_area_mm2`) below this fraction of the detector's front A_d,
+# at most about A_e / A_d of its rays pick up emission directly (etendue: a side of area A takes at
+# most pi A of it) and its relative variance per ray grows as A_d / A_e, while the forward method's falls
+# as A_e / A_d (reciprocity). Below 0.1 forward is the better by more than ten times in variance.
+REVERSE_MIN_AREA_RATIO = 0.1
+
+
+class MethodSwitchWarning(UserWarning):
+    """The reverse method cannot serve a detector: it was traced with the forward method."""
 
 
 @dataclass
@@ -55,6 +71,7 @@ class DetectorThermal:
     stderr_w: float
     by_part: dict  # part name -> Tally
     rays: int  # per detector (the most any detector used; --rays N: N)
+    method: str = ""  # the method that traced it ("reverse" or "forward": the reverse one may hand over)
 
     @property
     def irradiance_w_m2(self) -> float:
@@ -78,6 +95,7 @@ class ThermalResult:
     seconds: float
     stopped: str | None = None
     sweep: dict = field(default_factory=dict)  # detector -> [(power_w, stderr_w)] per extra temperature set
+    notes: list = field(default_factory=list)  # why a detector was traced with another method than asked
 
     def to_json_dict(self) -> dict:
         """thermal.json (CONTRACTS §7.1), exactly its keys; the rest is in :meth:`details`."""
@@ -96,11 +114,13 @@ class ThermalResult:
         """thermal_details.json: how the numbers were made (method, traced wavelengths, areas, time)."""
         out = {"method": self.method, "temperatures_k": self.temperatures_k,
                "sub_bands_um": [[a, b, c] for a, b, c in self.sub_bands], "seconds": self.seconds,
-               "detectors": {k: {"area_mm2": v.area_mm2, "rays": v.rays,
+               "detectors": {k: {"area_mm2": v.area_mm2, "rays": v.rays, "method": v.method or self.method,
                                  "irradiance_stderr_w_m2": v.stderr_w / (v.area_mm2 * 1e-6)}
                              for k, v in self.detectors.items()}}
         if self.stopped:
             out["stopped"] = self.stopped
+        if self.notes:
+            out["notes"] = list(self.notes)
         return out
 
 
@@ -196,61 +216,156 @@ def thermal(ts, band_um, n_rays: int | None = None, target_rel_error: float | No
     radiance = rad_sets[:, 0, :]  # (K, P): the scene's own temperatures
     emitting = [n for n, t in zip(ts.part_names, ts.temperature_k) if t > 0]
     t0 = time.perf_counter()
-    out, stopped, max_rays_one, swept = {}, None, 0, {}
+    out, stopped, max_rays_one, swept, notes = {}, None, 0, {}, []
     share = rad_sets.max(axis=(1, 2)) if rad_sets.max() > 0 else np.ones(len(bands))
     share = share / share.sum()
     chunk_counter = [0]  # the next free engine chunk id of the forward run's traces
+    area_e = emitting_area_mm2(ts, bands, radiance) if method == "reverse" and radiance.max() > 0 else 0.0
     for j, name in enumerate(names):
         p = ts.part_index(name)
         sampler, _ = detector_sampler(ts, p, toward_mm)
         min_rays = MIN_ROUND_RAYS if target_rel_error is not None else 2
-        run: EngineForwardRun | _DetectorRun
-        if method == "forward":  # the main engine's trace of the parts' emission (straylight.thermal.engine_forward)
-            run = EngineForwardRun(ts, bands, rad_sets, share, ts.part_names[p], seed, min_rays, runner.threads,
-                                   chunk_counter)
-        else:
-            run = _DetectorRun(ts, bands, rad_sets, share, _estimator(method, ts, p, sampler), seed,
-                               (j * len(bands), len(names) * len(bands)), min_rays, runner)
+
+        def new_run(how, p=p, j=j, sampler=sampler, min_rays=min_rays):
+            if how == "forward":  # the main engine's trace of the parts' emission (straylight.thermal.engine_forward)
+                return EngineForwardRun(ts, bands, rad_sets, share, ts.part_names[p], seed, min_rays, runner.threads,
+                                        chunk_counter)
+            return _DetectorRun(ts, bands, rad_sets, share, _estimator(how, ts, p, sampler), seed,
+                                (j * len(bands), len(names) * len(bands)), min_rays, runner)
+
+        use = method
+        if method == "reverse" and radiance.max() > 0 and not reverse_suits(area_e, sampler.area_mm2):
+            notes.append(_note(_too_small_note(name, sampler.area_mm2, area_e, sweep=len(sets) > 1)))
+            use = "forward" if len(sets) == 1 else "reverse"  # a sweep needs the reverse paths
         if rad_sets.max() <= 0:
+            run = new_run(use)
             tot, err, per, per_err = 0.0, 0.0, np.zeros(ts.n_parts), np.zeros(ts.n_parts)
-        elif n_rays is not None:
-            run.round(int(n_rays))
-            tot, err, per, per_err = run.combined()
         else:
-            target = float(target_rel_error)  # type: ignore[arg-type]  # set when n_rays is None
-            # the same rule as trace's and the PST's rounds (straylight.analyses.precision): the stop (the
-            # error AND its reliability: VOV, no chunk dominating, a minimum sample of chunks, a confirming
-            # look) and the size of the next round (straylight.stop_rule.next_round_rays)
-            t_det = time.perf_counter()
-            rule = Precision(target, max_rays=max(int(max_rays), CHUNK_RAYS), min_chunks=THERMAL_MIN_CHUNKS,
-                             max_seconds=max(max_seconds - (t_det - t0), 1e-3))
-            looks: list = []
-            rays_now = MIN_ROUND_RAYS * len(bands)
-            while True:
-                run.round(rays_now)
-                tot, err, per, per_err = run.combined()
-                done = run.rays
-                looks.append(run.look())
-                if rule.stops(looks) or (radiance.max() <= 0 and done > 0):
-                    break
-                if tot <= 0 and done >= ZERO_POWER_RAYS:
-                    stopped = f"no emission reached the detector in {done} rays: power 0"
-                    break
-                if done >= max_rays or time.perf_counter() - t0 > max_seconds:
-                    stopped = (f"stopped at {done} rays / {time.perf_counter() - t0:.0f} s with relative error "
-                               f"{err / tot if tot > 0 else float('inf'):.3g} (target {target_rel_error})")
-                    break
-                rays_now = min(next_round_rays(looks, rule, time.perf_counter() - t_det), max(int(max_rays) - done, 2))
+            rounds = _Rounds(n_rays, target_rel_error, max_rays, max_seconds, t0, len(bands), radiance.max() > 0)
+            use, run, (tot, err, per, per_err), stopped_j = _measure(new_run, use, name, rounds,
+                                                                     may_switch=len(sets) == 1, notes=notes)
+            stopped = stopped_j or stopped
         max_rays_one = max(max_rays_one, run.rays)
         by_part = {ts.part_names[q]: Tally(float(per[q]), float(per_err[q])) for q in range(ts.n_parts)
                    if ts.part_names[q] in emitting}
-        out[name] = DetectorThermal(name, sampler.area_mm2, float(tot), float(err), by_part, run.rays)
+        out[name] = DetectorThermal(name, sampler.area_mm2, float(tot), float(err), by_part, run.rays, use)
         swept[name] = [run.combined(c)[:2] if rad_sets.max() > 0 and run.rays else (0.0, 0.0)
                        for c in range(1, len(sets))]
     runner.close()
     temps = {n: float(t) for n, t in zip(ts.part_names, ts.temperature_k) if t > 0}
-    return ThermalResult((lo, hi), max_rays_one, int(seed), method, out, bands, temps,
-                         time.perf_counter() - t0, stopped, sweep=swept)
+    used = {d.method for d in out.values()}
+    return ThermalResult((lo, hi), max_rays_one, int(seed), used.pop() if len(used) == 1 else method, out, bands,
+                         temps, time.perf_counter() - t0, stopped, sweep=swept, notes=notes)
+
+
+_ZERO = "zero"  # _Rounds' stop when no emission reached the detector in ZERO_POWER_RAYS rays
+
+
+def _measure(new_run, use, name, rounds, may_switch, notes):
+    """One detector's estimate with the method ``use`` (``new_run(method)`` makes its run). A reverse
+    run that finds no emission at all is traced again forward when ``may_switch`` (a true zero, or
+    emitters its rays missed; a note in ``notes``). Returns (the method used, its run, ``run.combined()``,
+    why it stopped early: None or a sentence)."""
+    run = new_run(use)
+    stop, combined = rounds.run(run)
+    if combined[0] <= 0 and use == "reverse" and may_switch:
+        notes.append(_note(_zero_note(name, run.rays)))
+        use, run = "forward", new_run("forward")
+        stop, combined = rounds.run(run)
+    if stop is _ZERO:
+        stop = f"no emission reached the detector in {run.rays} rays: power 0"
+    return use, run, combined, stop
+
+
+@dataclass
+class _Rounds:
+    """How a detector's run is traced: ``n_rays`` rays at once, or rounds to ``target`` (relative error)."""
+
+    n_rays: int | None
+    target: float | None
+    max_rays: int
+    max_seconds: float
+    t0: float  # the start of the whole run (max_seconds counts from it)
+    n_bands: int
+    emits: bool  # some part has band radiance (else one round of nothing)
+
+    def run(self, run):
+        """(why it stopped early: None, :data:`_ZERO` or a sentence; ``run.combined()``)."""
+        if self.n_rays is not None:
+            run.round(int(self.n_rays))
+            return None, run.combined()
+        return _to_target(run, float(self.target), self.max_rays, self.max_seconds, self.t0,
+                          self.n_bands, self.emits)
+
+
+def _to_target(run, target, max_rays, max_seconds, t0, n_bands, emits):
+    """Rounds of ``run`` until the precision rule stops (straylight.stop_rule, the same rule as trace's and
+    the PST's rounds: the error AND its reliability: VOV, no chunk dominating, a minimum sample of
+    chunks, a confirming look; the size of the next round by ``next_round_rays``), or a cap does.
+    Returns (why it stopped early: None, :data:`_ZERO` or a sentence; ``run.combined()``)."""
+    t_det = time.perf_counter()
+    rule = Precision(target, max_rays=max(int(max_rays), CHUNK_RAYS), min_chunks=THERMAL_MIN_CHUNKS,
+                     max_seconds=max(max_seconds - (t_det - t0), 1e-3))
+    looks: list = []
+    rays_now = MIN_ROUND_RAYS * n_bands
+    while True:
+        run.round(rays_now)
+        tot, err, per, per_err = combined = run.combined()
+        done = run.rays
+        looks.append(run.look())
+        if rule.stops(looks) or (not emits and done > 0):
+            return None, combined
+        if tot <= 0 and done >= ZERO_POWER_RAYS:
+            return _ZERO, combined
+        if done >= max_rays or time.perf_counter() - t0 > max_seconds:
+            return (f"stopped at {done} rays / {time.perf_counter() - t0:.0f} s with relative error "
+                    f"{err / tot if tot > 0 else float('inf'):.3g} (target {target})"), combined
+        rays_now = min(next_round_rays(looks, rule, time.perf_counter() - t_det), max(int(max_rays) - done, 2))
+
+
+def emitting_area_mm2(ts, bands, radiance) -> float:
+    """A_e = sum_s A_s L_s / max_s L_s over the emitting sides s (every part's front, and the back of a
+    one-sided part: model.ThermalScene.one_sided), with L_s = sum_k eps_h,k(s) B_band,k(T) the side's
+    band radiance over the sub-bands k (``radiance`` (K, P), W m^-2 sr^-1): the area that, at the
+    brightest side's radiance, would emit what all of them emit (mm^2)."""
+    area, lum = [], []
+    for p in np.flatnonzero(np.asarray(radiance).max(axis=0) > 0):
+        for side in (0, 1) if ts.one_sided[p] else (0,):
+            L = sum(float(radiance[k, p]) * ts.sides_at(lam).hemispherical(int(p), side)
+                    for k, (_, _, lam) in enumerate(bands))
+            if L > 0:
+                area.append(ts.part_area_mm2(int(p)))
+                lum.append(L)
+    if not lum:
+        return 0.0
+    return float(np.dot(area, lum) / max(lum))
+
+
+def reverse_suits(area_e_mm2: float, detector_area_mm2: float) -> bool:
+    """Whether the reverse method can serve a detector of front ``detector_area_mm2`` in a scene of
+    emitting area ``area_e_mm2`` (:func:`emitting_area_mm2`): A_e >= REVERSE_MIN_AREA_RATIO A_d."""
+    return area_e_mm2 >= REVERSE_MIN_AREA_RATIO * detector_area_mm2
+
+
+def _too_small_note(name, detector_area_mm2, area_e_mm2, sweep: bool) -> str:
+    what = ("kept for the temperature sweep (it needs the reverse paths): its estimate and error may be "
+            "unreliable; check with --method forward without the sweep") if sweep else \
+        "traced with the forward method instead"
+    return (f"detector {name!r}: the reverse method cannot serve it: the emitting area ({area_e_mm2:.4g} mm^2 at "
+            f"the brightest side's radiance) is {area_e_mm2 / detector_area_mm2:.3g} of its front "
+            f"({detector_area_mm2:.4g} mm^2), below {REVERSE_MIN_AREA_RATIO:g}, so its rays would rarely meet "
+            f"an emitter; {what}")
+
+
+def _zero_note(name, rays) -> str:
+    return (f"detector {name!r}: the reverse method found no emission in {rays} rays; traced with the forward "
+            f"method, which tells a true zero from emitters the reverse rays missed")
+
+
+def _note(text: str) -> str:
+    """``text``, also given as a :class:`MethodSwitchWarning` (one line on the command line)."""
+    warnings.warn(text, MethodSwitchWarning, stacklevel=3)
+    return text
 
 
 class _DetectorRun:
