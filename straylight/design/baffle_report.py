@@ -53,6 +53,10 @@ def write_report(out, design, setup_after, tel) -> None:
                                 ", ".join(f"{k} {v:.4g}" for k, v in p.items() if k.endswith("_mm") and
                                           isinstance(v, float))]) for p in design["baffles"])
     thr = dc["on_axis_throughput_ratio"]
+    field_rows = "".join(_row([f"throughput after / before at {f['off_axis_deg']:.3g} deg (trace, perfect mirrors)",
+                               "n/a (nothing on the image before)" if f["throughput_ratio"] is None
+                               else f"{f['throughput_ratio']:.4f}"]) for f in dc.get("field", []))
+    warn_note = "".join(f"<p><b>Warning:</b> {html.escape(w)}.</p>" for w in design.get("warnings", []))
     sh = design.get("sunshade")
     shade_note = "" if not sh else (
         f"<p>No skirt within the allowed obscuration closes every direct path: the widest that fits leaves lines "
@@ -64,12 +68,14 @@ def write_report(out, design, setup_after, tel) -> None:
 <p>Primary <b>{html.escape(tel.primary)}</b>, secondary <b>{html.escape(tel.secondary)}</b>, image
 <b>{html.escape(tel.image)}</b>; half-field {design['field_deg']:g} deg. <a href="view.html">3-D view</a>.
 STEP: {html.escape(str(design['step']))}.</p>
+{warn_note}
 <h2>Obscuration budget (fraction of the on-axis aperture area)</h2>
 <table border=1 cellpadding=3>
 {_row(['without shields (secondary, hole)', f"{design['obscuration_before']:.4f}"])}
 {_row(['with shields', f"{design['obscuration_after']:.4f}"])}
 {_row(['added by the shields', f"{design['obscuration_added']:.4f} (allowed {design['max_added_obscuration']:g})"])}
 {_row(['on-axis throughput after / before (trace, perfect mirrors)', 'n/a' if thr is None else f'{thr:.4f}'])}
+{field_rows}
 </table>
 <h2>Shields</h2><table border=1 cellpadding=3><tr><th>part</th><th>type</th><th>shape</th><th>dimensions (mm)</th></tr>
 {baffle_rows}</table>

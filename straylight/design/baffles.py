@@ -11,8 +11,8 @@
    :mod:`straylight.design.sunshade` adds a sunshade in front that stops the steep lines it leaves open.
 4. The designed scene is checked by the project's Monte Carlo tracer: with perfect mirrors and every
    other part an absorber (glass keeps refracting), the detector power from 2F to 10 deg must be 0
-   (the *direct-path check*; before the shields it is usually not), and the on-axis throughput is
-   compared with the unshielded telescope's.
+   (the *direct-path check*; before the shields it is usually not), and the throughput on axis and at
+   F/3, 2F/3 and F is compared with the unshielded telescope's (:func:`field_check`).
 5. The PST before and after with the scene's own materials, DIR/scene.toml, DIR/design.json,
    DIR/baffles.step (CadQuery solids, one per baffle, knife-edged tube), DIR/index.html + view.html.
 """
@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import time
 import tomllib
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -144,6 +145,25 @@ def direct_check(setup, tel, angles_deg, rays, seed) -> list[dict]:
                     direct, err = float(g.power_w), float(g.stderr_w)
         out.append({"off_axis_deg": float(a), "direct_w": direct, "direct_stderr_w": err,
                     "detector_w": float(det.power_w), "detector_stderr_w": float(det.stderr_w), "rays": int(rays)})
+    return out
+
+
+def field_check(before, after, field_deg: float, rays, seed) -> list[dict]:
+    """Per angle F/3, 2F/3 and F: the image's power without and with the shields (``direct_check``'s
+    materials and the same rays for both) and their ratio (None where the bare telescope puts nothing on
+    the image): the shields must not vignette the field, so it stays close to the on-axis one."""
+    from straylight.analyses.grid import point_seed
+    from straylight.trace import EstimatorOptions, TraceOptions, trace
+
+    if field_deg <= 0:
+        return []
+    opts = TraceOptions(estimator=EstimatorOptions(nee=False))
+    out = []
+    for i, angle in enumerate(field_deg * k / 3.0 for k in (1, 2, 3)):
+        w = [trace(s.scene, [s.beam.source(math.radians(angle))], int(rays), seed=point_seed(seed, i),
+                   materials=s.materials, options=opts).detectors[s.detector].power_w for s in (before, after)]
+        out.append({"off_axis_deg": float(angle), "detector_w_before": float(w[0]), "detector_w_after": float(w[1]),
+                    "throughput_ratio": float(w[1] / w[0]) if w[0] > 0 else None})
     return out
 
 
@@ -277,6 +297,12 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
     log(f"primary {tel.primary!r}, secondary {tel.secondary!r}, image {tel.image!r} "
         f"(aperture radius {tel.aperture_radius_mm:.4g} mm)")
     bundle = telescope_model.nominal_bundle(given, tel, field_deg)
+    notes = []
+    if bundle.off_detector:  # the shields are sized for the field's beam all the same (nominal_bundle)
+        notes.append(f"the detector {tel.image!r} (radius {tel.image_radius_mm:.4g} mm) does not cover the field: "
+                     f"the image of {field_deg:g} deg reaches {bundle.field_image_radius_mm:.4g} mm; the shields "
+                     "pass the whole field's beam")
+        warnings.warn(notes[-1], stacklevel=2)
     # the secondary's rim must be downstream of the source too, or rays would start behind the secondary
     rim = [tel.point(tel.secondary_rim_u, sgn * tel.secondary_outer_mm) for sgn in (-1.0, 1.0)]
     try:
@@ -310,6 +336,7 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
     direct_after = direct_check(ideal_a, tel, [0.0] + angles, rays, seed)
     on_b, on_a = direct_before[0]["detector_w"], direct_after[0]["detector_w"]
     throughput = on_a / on_b if on_b > 0 else None
+    field_throughput = field_check(ideal_b, ideal_a, field_deg, rays, seed)
     # 5. PST with the scene's own materials
     pst_angles = sorted({0.0, float(field_deg), *angles})
     pst_before = _sweep(before, pst_angles, rays, seed)
@@ -340,7 +367,8 @@ def design_baffles(scene_path, field_deg: float, out, *, max_added_obscuration: 
             "blocked": all(p["direct_w"] == 0.0 for p in direct_after[1:]),
             "critical_angles_deg": critical,
             "on_axis_before": direct_before[0], "on_axis_after": direct_after[0],
-            "on_axis_throughput_ratio": throughput},
+            "on_axis_throughput_ratio": throughput, "field": field_throughput},
+        "field_image_radius_mm": bundle.field_image_radius_mm, "warnings": notes,
         "pst_before": pst_before, "pst_after": pst_after, "refinement": refinement,
         "material": material, "rays": int(rays), "seed": int(seed), "sources_moved": moved,
         "step": step_file.name if step_file else None,

@@ -294,11 +294,47 @@ class Bundle:
     on_axis_segments: list     # per on-axis ray: list of (family, u0, y0, u1, y1)
     keys: dict = field(default_factory=dict)  # per family segment: the ray's |y| where it crosses the
     #                                           secondary's rim plane going in (inf: does not cross it)
+    field_image_radius_mm: float = 0.0  # the largest |y| of the field's image-forming rays on the image plane
+    off_detector: int = 0  # how many of them cross the image plane outside the detector disk
+
+
+def _to_image_plane(pts, direction, stopped, after, tel, kinds, parts):
+    """A ray's vertices up to where it crosses the image plane (u = ``tel.image_u``) after the vertex
+    ``after`` (the secondary's), passing only glass on the way; None when it does not get there (a stop or
+    another mirror first: the telescope itself vignettes it). The walk stops rays only on the detector
+    disk; this is for the ones that miss it, whose image falls outside a detector smaller than the field's."""
+    u = (pts - tel.origin) @ tel.axis
+    side = u[after] - tel.image_u
+    if side == 0.0:
+        return None
+    for j in range(after, len(pts)):
+        if j > after and kinds[parts[j]] != "glass":
+            return None  # the ray met a stop or a mirror before the plane
+        if j + 1 < len(pts):
+            d, length = pts[j + 1] - pts[j], 1.0
+        elif not stopped:
+            d, length = direction, math.inf  # the free ray after the last surface
+        else:
+            return None
+        du = float(d @ tel.axis)
+        if du == 0.0:
+            continue
+        t = (tel.image_u - u[j]) / du
+        if 0.0 <= t <= length:
+            return np.concatenate([pts[:j + 1], (pts[j] + t * d)[None, :]])
+    return None
 
 
 def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n_fields: int = 9) -> Bundle:
-    """The image-forming rays of fields -F..F (meridional fans over the whole source disk)."""
+    """The image-forming rays of fields -F..F (meridional fans over the whole source disk): those that
+    reflect from the primary and then the secondary and reach the image plane, on the detector disk or
+    off it (a detector smaller than the field's image must not make the shields narrower than the field's
+    beam: they would vignette the field inside F). A ray off the detector counts only when it met the
+    same surfaces, in the same order, as a ray that lands on it: a ray that skips a corrector (outside a
+    Maksutov's meniscus, onto the primary and the spot) is no part of the image."""
     ip, isec, idet = tel.extra["indices"]
+    kinds = [_kind(p, setup.materials) for p in setup.scene.parts]
+    image_radius, off_detector = 0.0, 0
     fams: dict[str, list] = {"in": [], "ps": [], "si": []}
     keys: dict[str, list] = {"in": [], "ps": [], "si": []}
     cap_u = tel.secondary_rim_u
@@ -307,21 +343,32 @@ def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n
     on_segs = []
     fields = np.linspace(-field_deg, field_deg, n_fields) if field_deg > 0 else np.array([0.0])
     fields = np.unique(np.concatenate([fields, [0.0]]))
+    walks = []
     for f in fields:
         n = 2001 if f == 0.0 else n_rays
         o, d, y = fan((tel.beam_axis, tel.beam_center, tel.e1, tel.beam_radius_mm), math.radians(f), n,
                       back_mm=_extent(setup.scene))
-        w = walk(setup.scene, setup.materials, tel.image, o, d)
+        walks.append((f, n, y, walk(setup.scene, setup.materials, tel.image, o, d)))
+    # the sequences of surfaces (detector left out) of the rays that form the image on the detector
+    imaging = {tuple(w.parts[i, 1:w.n_hits[i]]) for _, _, _, w in walks for i in np.flatnonzero(w.detected)}
+    for f, n, y, w in walks:
+        assert w.directions is not None and w.stopped is not None
         nominal = np.zeros(n, bool)
         for i in range(n):
             seq = list(w.parts[i, 1:w.n_hits[i] + 1])
-            if not w.detected[i] or ip not in seq or isec not in seq:
+            if ip not in seq or isec not in seq:
                 continue
             kp, ks = seq.index(ip), seq.index(isec)
             if ks < kp:
                 continue
-            nominal[i] = True
             pts = w.vertices[i, :w.n_hits[i] + 1]
+            if not w.detected[i]:
+                pts = _to_image_plane(pts, w.directions[i], w.stopped[i], ks + 1, tel, kinds, w.parts[i])
+                if pts is None or tuple(w.parts[i, 1:len(pts) - 1]) not in imaging:
+                    continue
+                off_detector += 1
+            nominal[i] = True
+            image_radius = max(image_radius, abs(float((pts[-1] - tel.origin) @ tel.e1)))
             u = (pts - tel.origin) @ tel.axis
             yy = (pts - tel.origin) @ tel.e1
             segs = []
@@ -340,4 +387,5 @@ def nominal_bundle(setup, tel: Telescope, field_deg: float, n_rays: int = 601, n
             on_y, on_nom = y, nominal
     arr = {k: np.asarray(v, float).reshape(-1, 4) for k, v in fams.items()}
     assert on_y is not None and on_nom is not None  # the field list always holds 0
-    return Bundle(arr, on_y, on_nom, on_segs, {k: np.asarray(v, float) for k, v in keys.items()})
+    return Bundle(arr, on_y, on_nom, on_segs, {k: np.asarray(v, float) for k, v in keys.items()},
+                  field_image_radius_mm=image_radius, off_detector=off_detector)

@@ -210,3 +210,89 @@ def test_imported_ritchey_chretien(tmp_path):
     dc = d["direct_check"]
     assert dc["blocked"] and dc["on_axis_throughput_ratio"] >= 0.95
     assert d["obscuration_after"] - d["obscuration_before"] <= 0.05
+
+
+# A classical Cassegrain written by hand: primary f/2 paraboloid (R 800 mm, 22 mm hole), hyperboloidal
+# secondary (R -266.67 mm, k = -((m + 1)/(m - 1))^2 for m = 4) 300 mm in front, EFL 1600 mm, so the image
+# of 0.3 deg reaches 1600 tan(0.3 deg) = 8.38 mm; the detector disk at the focus is only 6 mm.
+SMALL_DETECTOR_CASSEGRAIN = """
+[material.alu]
+wavelength_nm = 550.0
+components = [{type = "specular", n = [0.96, 6.69]}]
+
+[material.blk]
+components = [{type = "lambertian", rd = 0.04}]
+
+[[part]]
+name = "primary"
+surface = {type = "conic", vertex_mm = [0.0, 0.0, 0.0], axis = [0.0, 0.0, 1.0], radius_mm = 800.0, conic = -1.0, outer_radius_mm = 100.0, inner_radius_mm = 22.0}
+material = "alu"
+back_material = "blk"
+
+[[part]]
+name = "secondary"
+surface = {type = "conic", vertex_mm = [0.0, 0.0, 300.0], axis = [0.0, 0.0, -1.0], radius_mm = -266.6666667, conic = -2.7777778, outer_radius_mm = 27.0}
+material = "alu"
+back_material = "blk"
+
+[[part]]
+name = "image"
+surface = {type = "plane", vertex_mm = [0.0, 0.0, -100.0], axis = [0.0, 0.0, 1.0], outer_radius_mm = 6.0}
+role = "detector"
+
+[[source]]
+type = "collimated_disk"
+name = "pupil"
+center_mm = [0.0, 0.0, 320.0]
+normal = [0.0, 0.0, -1.0]
+direction = [0.0, 0.0, -1.0]
+radius_mm = 105.0
+power_w = 1.0
+
+[analysis]
+detector = "image"
+"""
+
+
+def test_a_detector_smaller_than_the_field_does_not_narrow_the_shields(tmp_path, capsys):
+    """The shields pass the whole field's beam even where the detector is smaller than the field's image.
+    The field stop used to be sized from the rays that land on the detector disk, so with a 6 mm detector
+    and a 0.3 deg field (image 8.4 mm) it got a 4.41 mm hole and cut the 0.2 deg image (5.6 mm, still on
+    the detector) to 1e-5 of the bare telescope's power. Now the command warns in one line, and at 2/3 F
+    the shielded telescope keeps >= 95 % of the bare one's power on the image."""
+    from dataclasses import replace
+
+    from straylight.analyses.scene_setup import scene_setup
+    from straylight.design import telescope_model
+    from straylight.design.baffles import direct_check, ideal_materials
+
+    scene = tmp_path / "cass.toml"
+    scene.write_text(SMALL_DETECTOR_CASSEGRAIN)
+    out = tmp_path / "out"
+    field_deg = 0.3
+    assert main(["design", "baffles", str(scene), "--field-deg", str(field_deg), "--rays", "3000", "--no-refine",
+                 "--no-step", "--out", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len([x for x in err if "does not cover the field" in x]) == 1
+    d = json.loads((out / "design.json").read_text())
+    assert d["direct_check"]["blocked"]
+    assert d["field_image_radius_mm"] > 1600.0 * math.tan(math.radians(0.29))  # the edge of the field is in
+    stop = [b for b in d["baffles"] if b["type"] == "field_stop"]
+    assert all(b["inner_radius_mm"] >= d["field_image_radius_mm"] for b in stop)
+    # the tracer, independent of the construction: perfect mirrors, absorbers elsewhere, the same rays
+    # through both scenes (common random numbers), so the shielded rays on the image are a subset of the
+    # bare telescope's and the ratio is a binomial fraction with its own standard error
+    angle, rays = 2.0 * field_deg / 3.0, 40000
+    power = []
+    for name in ("scene_unshielded.toml", "scene.toml"):
+        setup = scene_setup(out / name)
+        tel = telescope_model.identify(setup)
+        power.append(direct_check(replace(setup, materials=ideal_materials(setup)), tel, [angle], rays, 5)[0])
+    before, after = power[0]["detector_w"], power[1]["detector_w"]
+    assert before > 0.5  # sanity: the 0.2 deg image (5.6 mm) lies on the 6 mm detector of the bare telescope
+    ratio = after / before
+    assert ratio >= 0.95, f"the shields keep {ratio:.4f} of the light at {angle:.2f} deg"
+    # and it is the construction's own count (the on-axis aperture they leave), within 4 standard errors
+    kept = (1 - d["obscuration_after"]) / (1 - d["obscuration_before"])
+    se = math.sqrt(ratio * (1 - ratio) / (rays * before))
+    assert abs(ratio - kept) < 4 * se + 1e-3
