@@ -12,7 +12,8 @@ negative ``theta_r_deg`` is read as the mirror direction: ``(|theta_r|, phi_r + 
 
 A NaN, infinite, zero or negative ``brdf_per_sr`` is kept (lock-ins read below zero at the
 noise floor; an overloaded one may write inf) and marked in :attr:`Scan.flagged`; fits skip those points.
-A NaN ``brdf_std_per_sr`` means "unknown" (e.g. a single reading).
+A NaN ``brdf_std_per_sr`` means "unknown" (e.g. a single reading); an infinite one, or a file with no data
+rows, is refused naming the file (and the line and column).
 """
 from __future__ import annotations
 
@@ -252,7 +253,7 @@ def _check_repeat(columns: dict, seen: dict, path, lineno: int) -> None:
                         f"keep one row per point (mean, brdf_std_per_sr, n_repeats)", path, lineno, "brdf_per_sr")
 
 
-def read_scan(path) -> Scan:
+def read_scan(path, allow_empty: bool = False) -> Scan:
     """Read and validate a scan CSV (CONTRACTS §2).
 
     Raises
@@ -260,7 +261,9 @@ def read_scan(path) -> Scan:
     ScanError
         naming file, line and column for: a missing required column, a non-numeric
         value, a negative ``brdf_std_per_sr``, ``theta_*`` outside [-90, 90], an
-        unknown polarization, a non-integer ``n_repeats``, a short row.
+        unknown polarization, a non-integer ``n_repeats``, a short row, an infinite
+        ``brdf_std_per_sr``; and a file with no data rows unless ``allow_empty`` (a scan being
+        resumed may have stopped after its header).
     """
     path = Path(path)
     try:
@@ -314,6 +317,8 @@ def read_scan(path) -> Scan:
                 raise ScanError(f"{name} = {cell} is outside [-90, 90]", *where)
             if name == "brdf_std_per_sr" and value < 0:
                 raise ScanError(f"negative brdf_std_per_sr {cell}", *where)
+            if name == "brdf_std_per_sr" and math.isinf(value):  # NaN is "unknown"; an infinite spread is no reading
+                raise ScanError(f"brdf_std_per_sr = {cell} is not finite (nan for an unknown spread)", *where)
             if name in ("wavelength_nm", "phi_r_deg") and not math.isfinite(value):
                 raise ScanError(f"{name} = {cell} is not finite", *where)
             if name == "wavelength_nm" and value <= 0:
@@ -324,6 +329,8 @@ def read_scan(path) -> Scan:
         _check_repeat(columns, seen, path, lineno)
     if header is None:
         raise ScanError("no header row (expected columns: " + ", ".join(CSV_COLUMNS) + ")", path, 1)
+    if not columns[CSV_COLUMNS[0]] and not allow_empty:
+        raise ScanError("no data rows after the header", path)
     return Scan(**columns, metadata=metadata, path=path)
 
 

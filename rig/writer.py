@@ -150,7 +150,7 @@ class CsvScanWriter:
         if self.path.exists() and self.path.stat().st_size > 0:
             if not resume:
                 raise ResumeError(f"{self.path}: already exists; use --resume to continue it or choose another file")
-            self._existing = read_scan(self.path)
+            self._existing = read_scan(self.path, allow_empty=True)  # a scan stopped after its header resumes
             self._text = self.path.read_text(encoding="utf-8")
             if not self._text.endswith("\n"):
                 self._text += "\n"

@@ -774,3 +774,17 @@ def test_a_zemax_stop_on_surface_1_and_its_comments_name_the_parts(tmp_path):
     assert "s2" in names and "s3" in names and names.count("image") == 1
     assert doc["analysis"]["detector"] == "image"
     assert next(p for p in doc["part"] if p["name"] == "image")["role"] == "detector"
+
+
+def test_a_word_for_a_number_in_a_zemax_file_is_refused_naming_its_line(tmp_path):
+    text = _STOP_FIRST_ZMX.format(c1="a", c2="b", c3="c")
+    lines = text.splitlines()
+    k = next(i for i, line in enumerate(lines) if line.strip() == "DISZ 6")
+    lines[k] = "  DISZ abc"
+    lens = tmp_path / "word.zmx"
+    lens.write_text("\n".join(lines) + "\n")
+    for cmd in (("optics", "import", lens, "--out", tmp_path / "o"), ("optics", "info", lens)):
+        r = _run(*cmd)
+        err = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert r.returncode == 2 and len(err) == 1, r.stderr
+        assert str(lens) in err[0] and f"line {k + 1}: DISZ 'abc' is not a number" in err[0], err[0]

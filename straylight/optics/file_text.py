@@ -161,6 +161,28 @@ def _number(word: str) -> float | None:
     return value if math.isfinite(value) else None
 
 
+#: Zemax commands whose first argument is a number (``DISZ INFINITY`` is the one word allowed)
+ZEMAX_NUMERIC = frozenset({"CURV", "DISZ", "DIAM", "CONI", "PARM", "XDAT", "ENPD", "FNUM", "OBNA", "FLOA", "MEMA",
+                           "SQAP", "CLAP", "OBSC", "FLAP", "DECX", "DECY", "TILT", "THIC"})
+
+
+def zemax_bad_number(text: str) -> str | None:
+    """Where a Zemax file has a word for a number (for the reader's one-line refusal: ``line 19: DISZ 'abc' is not
+    a number``), or None."""
+    for n, line in enumerate(text.splitlines(), start=1):
+        words = line.split()
+        if len(words) < 2 or words[0].upper() not in ZEMAX_NUMERIC:
+            continue
+        head, first = words[0].upper(), words[1]
+        if head == "DISZ" and first.upper() in ("INFINITY", "INF"):
+            continue
+        try:
+            float(first)
+        except ValueError:
+            return f"line {n}: {head} {first!r} is not a number"
+    return None
+
+
 def _surface_commands(fmt: str, text: str):
     """Each command of a lens file with the index of the surface it belongs to: ``(index or None, HEAD, words)``.
 

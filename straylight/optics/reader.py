@@ -23,7 +23,7 @@ import numpy as np
 import atomicio
 from straylight.optics.file_text import (
     aperture_shapes, coatings, codev_profile_types, extended_aspheres, multiconfig,
-    obstructions, radii_without_rdm, zemax_comments, zemax_glass_numbers, zemax_index_mirrors, zemax_stop,
+    obstructions, radii_without_rdm, zemax_bad_number, zemax_comments, zemax_glass_numbers, zemax_index_mirrors, zemax_stop,
     zemax_truncation, zmx_for_rayoptics,
 )
 from straylight.optics.other_materials import medium as other_medium
@@ -480,6 +480,7 @@ def _reserved(label: str) -> bool:
 def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list, wavelength_nm, glass,
                        force: bool) -> Prescription:
     """:func:`read_prescription` of the file's decoded ``text`` (``raw`` its bytes, for CODE V)."""
+    as_written = text  # the file's own lines, for a refusal naming one
     if fmt == "seq" and radii_without_rdm(text):
         raw = b"RDM\n" + raw
         text = "RDM\n" + text
@@ -499,7 +500,13 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         if mirrors:
             notes.append(f"surface(s) {', '.join(map(str, mirrors))}: a medium of index -1 with no thickness, the sign "
                          "convention of a reflection, read as a mirror (Zemax MIRROR) in the medium it sits in")
-    opm, info = _open_rayoptics(path, fmt, zmx_for_rayoptics(text) if fmt == "zmx" else raw)
+    try:
+        opm, info = _open_rayoptics(path, fmt, zmx_for_rayoptics(text) if fmt == "zmx" else raw)
+    except _ReaderFailure:
+        where = zemax_bad_number(as_written) if fmt == "zmx" else None
+        if where is None:
+            raise
+        raise _ReaderFailure(f"{path}: the Zemax reader could not parse it ({where})") from None
     glass = dict(glass or {})
     sm = opm["seq_model"]
     stop = zemax_stop(fmt, text)

@@ -87,8 +87,10 @@ def test_reader_accepts_missing_metadata_and_other_column_order(tmp_path):
         (HEADER, GOOD_ROW.replace(",30,30.5,", ",30,95,"), 4, "4 (theta_r_deg)"),
         (HEADER, GOOD_ROW.replace(",30,30.5,", ",-91,30.5,"), 4, "3 (theta_i_deg)"),
         (HEADER, GOOD_ROW.replace(",s,", ",x,"), 4, "2 (polarization)"),
+        (HEADER, GOOD_ROW.replace("0.004", "inf"), 4, "7 (brdf_std_per_sr)"),
     ],
-    ids=["missing-column", "non-numeric", "negative-std", "theta-r-range", "theta-i-range", "polarization"],
+    ids=["missing-column", "non-numeric", "negative-std", "theta-r-range", "theta-i-range", "polarization",
+         "infinite-std"],
 )
 def test_malformed_csv_error_names_file_line_column(tmp_path, header, row, line, column):
     path = tmp_path / "bad.csv"
@@ -102,6 +104,15 @@ def test_malformed_csv_error_names_file_line_column(tmp_path, header, row, line,
     assert str(path) in msg and f"line {line}" in msg and f"column {column}" in msg
     assert isinstance(info.value, ValueError)
     assert info.value.line == line
+
+
+def test_a_file_with_no_data_rows_is_refused_naming_it_unless_resuming(tmp_path):
+    path = tmp_path / "empty.csv"
+    path.write_text(header_text({"sample": "s"}))
+    with pytest.raises(ScanError, match="no data rows") as info:
+        read_scan(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)
+    assert len(read_scan(path, allow_empty=True).brdf_per_sr) == 0  # a scan stopped after its header resumes
 
 
 def test_nan_and_negative_brdf_are_kept_not_rejected(tmp_path):
