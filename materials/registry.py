@@ -8,6 +8,7 @@ component, ``coefficients``) and which declares what it is: ``flags``, a
 from __future__ import annotations
 
 import dataclasses
+import importlib
 
 from materials.base import MaterialError
 from materials.flags import ComponentFlags
@@ -46,8 +47,6 @@ def _imported(type_name: str) -> type | None:
     """The registered class of ``type_name``, importing its module first when it is one of :data:`_ON_FIRST_USE`."""
     cls = _REGISTRY.get(type_name)
     if cls is None and type_name in _ON_FIRST_USE:
-        import importlib
-
         importlib.import_module(_ON_FIRST_USE[type_name])
         cls = _REGISTRY.get(type_name)
     return cls

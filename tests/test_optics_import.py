@@ -788,3 +788,45 @@ def test_a_word_for_a_number_in_a_zemax_file_is_refused_naming_its_line(tmp_path
         err = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert r.returncode == 2 and len(err) == 1, r.stderr
         assert str(lens) in err[0] and f"line {k + 1}: DISZ 'abc' is not a number" in err[0], err[0]
+
+
+@pytest.mark.parametrize("object_mm, refused", [("49.85", True), ("1.00E+10", False)])
+def test_a_macro_lens_whose_configuration_1_sets_a_near_object_is_refused(object_mm, refused, tmp_path):
+    """A multi-configuration file whose surface data keep the object at infinity while configuration 1's
+    THIC 0 operand sets it near (OpticsDatabase's macro lenses: the import was a defocused lens, 0.85 of
+    the focus check) is refused as a finite object is; an operand at 1e10 is infinity."""
+    lens = tmp_path / "macro.zmx"
+    lens.write_text(_STOP_FIRST_ZMX.format(c1="a", c2="b", c3="c")
+                    + f"MNUM 2 1\nTHIC   0   1 {object_mm} 0 0 0 1 1 1 0 0\nTHIC   0   2 80.0 0 0 0 1 1 1 0 0\n")
+    r = _run("optics", "import", lens, "--out", tmp_path / "o")
+    if refused:
+        assert r.returncode == 2 and "object at a finite distance (49.85 mm, configuration 1" in r.stderr, r.stderr
+    else:
+        assert r.returncode == 0, r.stderr
+
+
+def test_fold_mirrors_rayoptics_cannot_group_into_elements_still_import(tmp_path):
+    """rayoptics' part-tree grammar refuses some fold-mirror layouts ("ParseError: Rule 'image' didn't match"),
+    after the sequential data are read: the import does not need the element grouping. Here the grouping is
+    made to refuse a singlet, as it refuses optiland's simple_fold_mirror_up.zmx (MIT; not in tests/data: it
+    imports now, and focuses at 1.00 in benchmarks/ghost_sweep.py's check)."""
+    from rayoptics.elem import parttree
+
+    calls = []
+    grouping = parttree.sequence_to_elements
+
+    def refusing(*args, **kwargs):
+        calls.append(1)
+        from parsimonious.exceptions import ParseError
+
+        raise ParseError("paparapapad", 12)
+
+    lens = tmp_path / "s.zmx"
+    lens.write_text(_STOP_FIRST_ZMX.format(c1="a", c2="b", c3="c"))
+    parttree.sequence_to_elements = refusing
+    try:
+        r = _run("optics", "import", lens, "--out", tmp_path / "o")
+    finally:
+        parttree.sequence_to_elements = grouping
+    assert calls and r.returncode == 0, r.stderr
+    assert parttree.sequence_to_elements is grouping

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from materials import load_material
+from materials.wavelength import coatings_at
 from straylight.budget import check_ray_budget
 from straylight.detectors import DetectorGeometry
 from straylight.engine.options import TraceError, TraceOptions
@@ -106,8 +107,6 @@ def _coatings_at_source_wavelength(models, sources):
     """The materials with their coatings at the sources' ``wavelength_nm`` (the traced wavelength, CONTRACTS
     5.1; materials.wavelength.coatings_at); as they are when no source states one. Sources of different
     wavelengths with a coated material in the scene are refused (one trace is one wavelength)."""
-    from materials.wavelength import coatings_at
-
     waves = sorted({float(w) for w in (getattr(s, "wavelength_nm", None) for s in sources) if w is not None})
     if not waves:
         return models

@@ -332,6 +332,20 @@ def multiconfig(fmt: str, text: str) -> int:
     return 2 if re.search(r"^\s*ZOO\b", text, re.M | re.I) else 1
 
 
+def zemax_config_object_distance(fmt: str, text: str, config: int = 1) -> float | None:
+    """The object distance a Zemax multi-configuration file gives configuration ``config`` (its ``THIC 0 <config>
+    <value>`` operand: a macro lens's magnifications), None where it gives none or it is infinite. The surface
+    data hold one state; a macro lens's may keep the object at infinity while every configuration sets it near."""
+    if fmt != "zmx":
+        return None
+    for line in text.splitlines():
+        words = line.split()
+        if len(words) >= 4 and words[0].upper() == "THIC" and words[1] == "0" and words[2] == str(int(config)):
+            value = _number(words[3])
+            return value if value is not None and abs(value) < 1e10 else None
+    return None
+
+
 SMALLEST_RADIUS = 0.5  # file units: no lens file's surface has a radius this small (a curvature of 2 per unit)
 
 

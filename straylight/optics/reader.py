@@ -10,6 +10,7 @@ is read from the file's text (straylight.optics.file_text).
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import re
@@ -23,7 +24,7 @@ import numpy as np
 import atomicio
 from straylight.optics.file_text import (
     aperture_shapes, coatings, codev_profile_types, extended_aspheres, multiconfig,
-    obstructions, radii_without_rdm, zemax_bad_number, zemax_comments, zemax_glass_numbers, zemax_index_mirrors, zemax_stop,
+    obstructions, radii_without_rdm, zemax_bad_number, zemax_comments, zemax_config_object_distance, zemax_glass_numbers, zemax_index_mirrors, zemax_stop,
     zemax_truncation, zmx_for_rayoptics,
 )
 from straylight.optics.other_materials import medium as other_medium
@@ -434,6 +435,31 @@ def _set_wavelength(opm, wavelength_nm: float, path: Path) -> None:
     _rayoptics_update(opm, path)
 
 
+@contextlib.contextmanager
+def _elements_optional():
+    """rayoptics groups a model's surfaces into lens elements (its part tree) at every update, after the
+    sequential and paraxial data this import reads; its grammar refuses some fold-mirror layouts with
+    coordinate breaks (optiland's simple_fold_mirror_up.zmx: "ParseError: Rule 'image' didn't match"), which
+    failed the whole read. Meanwhile a grouping that fails leaves the element model empty: nothing here
+    uses it."""
+    from parsimonious.exceptions import ParseError
+    from rayoptics.elem import parttree
+
+    grouping = parttree.sequence_to_elements
+
+    def tolerant(*args, **kwargs):
+        try:
+            return grouping(*args, **kwargs)
+        except ParseError:
+            return None
+
+    parttree.sequence_to_elements = tolerant
+    try:
+        yield
+    finally:
+        parttree.sequence_to_elements = grouping
+
+
 def read_prescription(path, wavelength_nm: float | None = None, glass: dict | None = None,
                       force: bool = False) -> Prescription:
     """The lens file at ``path`` as a :class:`Prescription` in the scene frame.
@@ -452,7 +478,8 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     if cut:
         raise OpticsFileError(f"{path}: {cut}")
     try:
-        return _read_prescription(path, raw, fmt, text, [], wavelength_nm, glass, force)
+        with _elements_optional():
+            return _read_prescription(path, raw, fmt, text, [], wavelength_nm, glass, force)
     except _ReaderFailure:
         # rayoptics finds the object-side angles of real-image-height fields (Zemax FTYP 3) by a wide-angle
         # search of the real entrance pupil, which fails on some wide-angle lenses: read them again as
@@ -461,9 +488,10 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
             raise
         paraxial = re.sub(r"^(\s*FTYP\s+)3\b", r"\g<1>2", text, count=1, flags=re.M)
         try:
-            return _read_prescription(path, raw, fmt, paraxial, [
+            with _elements_optional():
+                return _read_prescription(path, raw, fmt, paraxial, [
                 "rayoptics could not aim real rays at the file's real-image-height fields (FTYP 3): fields read as "
-                "paraxial image heights"], wavelength_nm, glass, force)
+                    "paraxial image heights"], wavelength_nm, glass, force)
         except _ReaderFailure:
             pass
         raise
@@ -595,6 +623,11 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         raise OpticsFileError(f"{path}: object at a finite distance ({obj_dist:g} mm); optics import models an "
                               "object at infinity (a collimated source)")
     nconf = multiconfig(fmt, text)
+    near = zemax_config_object_distance(fmt, text) if nconf > 1 else None
+    if near is not None:  # the surface data's infinite object is not configuration 1's (a macro lens): refused alike
+        raise OpticsFileError(f"{path}: object at a finite distance ({near * scale:g} mm, configuration 1's THIC 0 "
+                              "operand; the surface data's object at infinity is no configuration of the file); "
+                              "optics import models an object at infinity (a collimated source)")
     if nconf > 1:
         notes.append(f"multi-configuration file ({nconf} configurations): configuration 1 imported")
     obstr = obstructions(fmt, text)
