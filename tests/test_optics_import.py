@@ -24,7 +24,6 @@ REFUSED = {
     "Microscope_USP3893752.zmx": "finite distance",
     "Telecentric_USP4929066.zmx": "finite distance",
     "CODV_35571.seq": "could not parse",                 # rayoptics' CODE V reader: an HMY aperture it cannot read
-    "telescope_objective.seq": "could not parse",        # a glass catalogue (DAIMON) opticalglass lacks
     # its XASPHERE terms as Zemax defines them (even powers) give 1e22 mm of sag at the rim: not a surface
     "Sigma_14-24mm_F2.8_DG_DN_A.zmx": "surface 5: the asphere's terms give a sag of -2.12e+22 mm",
     # its mirrors read, the file ends on a lone surface with the image on it: the patent's rear groups are missing
@@ -830,3 +829,19 @@ def test_fold_mirrors_rayoptics_cannot_group_into_elements_still_import(tmp_path
         parttree.sequence_to_elements = grouping
     assert calls and r.returncode == 0, r.stderr
     assert parttree.sequence_to_elements is grouping
+
+
+def test_a_codev_glass_of_a_catalogue_the_reader_lacks_is_looked_up_by_name_or_given(tmp_path):
+    """``CAF2_DAIMON-20`` (optiland's telescope_objective.seq, MIT): rayoptics' CODE V reader stopped at the
+    unknown catalogue ("could not parse it (GlassCatalogNotFoundError: DAIMON-20)"); it is looked up as CAF2
+    (a note says so) and --glass with the name as written gives its index."""
+    lens = tmp_path / "daimon.seq"
+    lens.write_text("RDM\nLEN \"catalogue test\"\nEPD 10\nDIM M\nWL 587.56\nYAN 0 1\nSO 0 1e10\n"
+                    "S 60 4 CAF2_DAIMON-20\nSTO\nS -60 55\nSI 0 0\nGO\n")
+    r = _run("optics", "import", lens, "--out", tmp_path / "a")
+    assert r.returncode == 0, r.stderr
+    assert "catalogue DAIMON-20 is not one the reader knows; looked up as CAF2" in r.stderr
+    r = _run("optics", "import", lens, "--out", tmp_path / "b", "--glass", "CAF2_DAIMON-20=1.6")
+    assert r.returncode == 0, r.stderr
+    surfaces = json.loads((tmp_path / "b" / "prescription.json").read_text())["surfaces"]
+    assert surfaces[0]["n"] == pytest.approx(1.6)

@@ -346,6 +346,25 @@ def zemax_config_object_distance(fmt: str, text: str, config: int = 1) -> float 
     return None
 
 
+def codev_unknown_catalogs(text: str, known: set) -> tuple[str, dict]:
+    """A CODE V file with each surface's glass ``NAME_CATALOG`` whose catalogue is not in ``known`` (upper case)
+    written as ``NAME`` (rayoptics' reader stops at an unknown catalogue: optiland's telescope_objective.seq,
+    ``CAF2_DAIMON-20``), and {NAME: NAME_CATALOG} of those renamed."""
+    renamed: dict = {}
+    out = []
+    for line in text.splitlines():
+        cmds = line.split(";")
+        for k, cmd in enumerate(cmds):
+            words = cmd.split()
+            if len(words) >= 4 and re.fullmatch(r"S\d*|SO|SI", words[0].upper()) and "_" in words[3]:
+                name, _, catalog = words[3].rpartition("_")
+                if name and catalog.upper() not in known:
+                    renamed[name] = words[3]
+                    cmds[k] = re.sub(rf"(?<!\S){re.escape(words[3])}(?!\S)", name, cmd, count=1)
+        out.append(";".join(cmds))
+    return "\n".join(out) + ("\n" if text.endswith("\n") else ""), renamed
+
+
 SMALLEST_RADIUS = 0.5  # file units: no lens file's surface has a radius this small (a curvature of 2 per unit)
 
 

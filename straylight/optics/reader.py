@@ -23,7 +23,7 @@ import numpy as np
 
 import atomicio
 from straylight.optics.file_text import (
-    aperture_shapes, coatings, codev_profile_types, extended_aspheres, multiconfig,
+    aperture_shapes, coatings, codev_profile_types, codev_unknown_catalogs, extended_aspheres, multiconfig,
     obstructions, radii_without_rdm, zemax_bad_number, zemax_comments, zemax_config_object_distance, zemax_glass_numbers, zemax_index_mirrors, zemax_stop,
     zemax_truncation, zmx_for_rayoptics,
 )
@@ -515,6 +515,17 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         notes.append("no RDM/CUM in the file and its S values as curvatures would give radii smaller than the "
                      "entrance pupil: read as radii (RDM)")
     if fmt == "seq":
+        from opticalglass import glassfactory
+
+        recatalogued, renamed = codev_unknown_catalogs(text, set(glassfactory._cat_names_uc))
+        if renamed:
+            raw, text = recatalogued.encode("utf-8"), recatalogued
+            for name, full in renamed.items():
+                catalogue = full.rpartition("_")[2]
+                notes.append(f"glass {full}: catalogue {catalogue} is not one the reader knows; looked up as {name}"
+                             f" (--glass {full}=N gives its index)")
+                if glass and full in glass and name not in glass:
+                    glass = {**glass, name: glass[full]}
         typed, fixed = codev_profile_types(text)
         if fixed:
             raw, text = typed.encode("utf-8"), typed
