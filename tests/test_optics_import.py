@@ -775,18 +775,24 @@ def test_a_zemax_stop_on_surface_1_and_its_comments_name_the_parts(tmp_path):
     assert next(p for p in doc["part"] if p["name"] == "image")["role"] == "detector"
 
 
-def test_a_word_for_a_number_in_a_zemax_file_is_refused_naming_its_line(tmp_path):
+@pytest.mark.parametrize("line, bad, says", [
+    ("DISZ 6", "  DISZ abc", "DISZ 'abc' is not a number"),
+    # OpticsDatabase's Ricoh smc Pentax Reflex 400-600mm, line 161: the reader's "could not convert string to float"
+    ("GLAS N-BK7 0 0 1.5168 64.17 0 0 0 0 0 0", "  GLAS ___BLANK 1 0 1.00000 hack 0 0 0 0 0 0",
+     "GLAS ___BLANK has 'hack' for a number"),
+])
+def test_a_word_for_a_number_in_a_zemax_file_is_refused_naming_its_line(line, bad, says, tmp_path):
     text = _STOP_FIRST_ZMX.format(c1="a", c2="b", c3="c")
     lines = text.splitlines()
-    k = next(i for i, line in enumerate(lines) if line.strip() == "DISZ 6")
-    lines[k] = "  DISZ abc"
+    k = next(i for i, x in enumerate(lines) if x.strip() == line)
+    lines[k] = bad
     lens = tmp_path / "word.zmx"
     lens.write_text("\n".join(lines) + "\n")
     for cmd in (("optics", "import", lens, "--out", tmp_path / "o"), ("optics", "info", lens)):
         r = _run(*cmd)
         err = [ln for ln in r.stderr.splitlines() if ln.strip()]
         assert r.returncode == 2 and len(err) == 1, r.stderr
-        assert str(lens) in err[0] and f"line {k + 1}: DISZ 'abc' is not a number" in err[0], err[0]
+        assert str(lens) in err[0] and f"line {k + 1}: {says}" in err[0], err[0]
 
 
 @pytest.mark.parametrize("object_mm, refused", [("49.85", True), ("1.00E+10", False)])

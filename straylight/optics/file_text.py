@@ -171,6 +171,11 @@ def zemax_bad_number(text: str) -> str | None:
     a number``), or None."""
     for n, line in enumerate(text.splitlines(), start=1):
         words = line.split()
+        if len(words) > 2 and words[0].upper() == "GLAS":  # the name, then numbers (nd, vd...)
+            word = next((w for w in words[2:] if _number(w) is None and w.upper() not in ("NAN", "INF")), None)
+            if word is not None:
+                return f"line {n}: GLAS {words[1]} has {word!r} for a number"
+            continue
         if len(words) < 2 or words[0].upper() not in ZEMAX_NUMERIC:
             continue
         head, first = words[0].upper(), words[1]
