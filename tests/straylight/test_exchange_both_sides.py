@@ -18,6 +18,7 @@ import pytest
 from straylight.scene import load_scene
 from straylight.thermal.exchange import exchange
 from straylight.thermal.model import thermal_scene
+from tests.validation.thermal_scenes import view_factor_coaxial_disks  # Howell C-40 (PHYSICS 5)
 
 PLATE_BETWEEN_ABSORBERS = """
 [material.f]
@@ -53,13 +54,6 @@ name = "b"
 surface = {type = "plane", vertex_mm = [0.0, 0.0, 50.0], axis = [0.0, 0.0, -1.0], outer_radius_mm = 20.0}
 role = "absorber"
 """
-
-
-def view_factor_disk_to_disk(r1_mm, r2_mm, h_mm):
-    """Howell's catalogue C-40: disk r1 to a parallel coaxial disk r2 at distance h."""
-    R1, R2 = r1_mm / h_mm, r2_mm / h_mm
-    X = 1.0 + (1.0 + R2 ** 2) / R1 ** 2
-    return (X - np.sqrt(X ** 2 - 4.0 * (R2 / R1) ** 2)) / 2.0
 
 
 def _ts(tmp_path, text):
@@ -105,7 +99,7 @@ def test_emitting_area_and_band_emissivity_count_both_sides(plate_run):
 
 def test_black_one_sided_disks_d_is_half_the_view_factor(tmp_path):
     res = exchange(_ts(tmp_path, TWO_BLACK_DISKS), (8.0, 12.0), n_rays=60_000, seed=4)
-    f_ab = view_factor_disk_to_disk(10.0, 20.0, 50.0)
+    f_ab = view_factor_coaxial_disks(10.0, 20.0, 50.0)
     f_ba = f_ab * 100.0 / 400.0
     assert res.d[0, 1] > 0
     assert abs(res.d[0, 1] - f_ab / 2) <= 4 * res.stderr[0, 1], (res.d[0, 1], f_ab / 2, res.stderr[0, 1])

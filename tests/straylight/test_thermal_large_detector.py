@@ -22,6 +22,7 @@ from straylight.scene import load_scene
 from straylight.thermal.model import thermal_scene
 from straylight.thermal.planck import band_radiance_w_m2_sr
 from straylight.thermal.run import MethodSwitchWarning, thermal
+from tests.validation.thermal_scenes import view_factor_coaxial_disks  # Howell C-40 (PHYSICS 5)
 
 SCENE = """
 [material.front]
@@ -43,17 +44,10 @@ role = "detector"
 """
 
 
-def view_factor_disk_to_disk(r1_mm, r2_mm, h_mm):
-    """Howell's catalogue C-40: disk r1 to a parallel coaxial disk r2 at distance h."""
-    R1, R2 = r1_mm / h_mm, r2_mm / h_mm
-    X = 1.0 + (1.0 + R2 ** 2) / R1 ** 2
-    return (X - np.sqrt(X ** 2 - 4.0 * (R2 / R1) ** 2)) / 2.0
-
-
 def expected_power_w(r2_mm, h_mm):
     """eps B_band(400 K, 9.9-10.1 um) pi A1 F12 for the r1 = 1 mm plate (eps = 1 - 0.3)."""
     area_m2 = np.pi * 1.0 ** 2 * 1e-6
-    return 0.7 * band_radiance_w_m2_sr(9.9, 10.1, 400.0) * np.pi * area_m2 * view_factor_disk_to_disk(1.0, r2_mm, h_mm)
+    return 0.7 * band_radiance_w_m2_sr(9.9, 10.1, 400.0) * np.pi * area_m2 * view_factor_coaxial_disks(1.0, r2_mm, h_mm)
 
 
 GREY = '{type = "lambertian", rd = 0.9}'
@@ -83,7 +77,7 @@ def _ts(path):
 def test_reference_value_of_the_audit_geometry():
     """The closed form itself: 4.6376e-5 W for the 2000-mm detector at 1 mm (the value the audit expected)."""
     assert expected_power_w(2000.0, 1.0) == pytest.approx(4.6376e-5, rel=1e-4)
-    assert view_factor_disk_to_disk(1.0, 1e6, 1.0) == pytest.approx(1.0, abs=1e-9)
+    assert view_factor_coaxial_disks(1.0, 1e6, 1.0) == pytest.approx(1.0, abs=1e-9)
 
 
 @pytest.mark.parametrize("r_mm", [50.0, 500.0])
