@@ -501,7 +501,8 @@ def _reserved(label: str) -> bool:
     """A label that cannot name a surface's part: the object and image, the parts the scene builder makes
     (``stop``, ``image``, ``pupil``, ``edge_...``, ``spacer_...``) and another surface's default name (``s7``)."""
     low = label.lower()
-    return low in ("obj", "img", "object", "image", "stop", "pupil") or low.startswith(("edge_", "spacer_")) \
+    return low in ("obj", "img", "object", "image", "stop", "pupil", "barrel", "barrel_front") \
+        or low.startswith(("edge_", "spacer_", "ring_")) \
         or re.fullmatch(r"s\d+", low) is not None
 
 

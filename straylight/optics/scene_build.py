@@ -281,9 +281,10 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
                     "outer_radius_mm": r_mech, "inner_radius_mm": s.semi_diameter_mm},
                     "material": edge_material, "role": "surface"})
         elements.append((a, b, origin, ax, za_m, r_mech))
+    largest = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
     if not mirrors:
         parts += _spacer_rings(p, elements, edge_material, unique)
-    largest = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
+        parts += _barrel_front(elements, 1.1 * largest, edge_material, unique)
     # the aperture stop: a black annulus whose hole is the stop's semi-diameter
     stop = next((s for s in p.surfaces if s.stop), None)
     if stop is not None:
@@ -336,6 +337,36 @@ def _surface_z(s, ax, r) -> np.ndarray:
     return float(np.dot(s.vertex_mm, ax)) + np.array([sag_mm(s, float(x)) for x in r]) * float(np.dot(s.local_z, ax))
 
 
+def _barrel_front(elements, r_source_mm: float, edge_material, unique) -> list:
+    """The barrel of a coaxial lens (no mirror), black: its front face, a ring at the front element's rim from the
+    largest element's mechanical radius out past the source's disk (1.1 x the largest clear aperture), facing the
+    light, so the source's outer ring does not pass around the lens; and its tube, a cylinder just outside the
+    largest element from the front rim to the last element's back rim. Behind a wide-angle lens the image (and its
+    detector) is larger than the lens: the Fujinon-SW 65 mm's detector took 48 % of its power straight from the
+    source around the lens and 37 % through its front element alone, whose diverging light passed outside every
+    other element."""
+    if not elements:
+        return []
+    ax0, o0 = elements[0][3], elements[0][2]
+    if any(abs(float(np.dot(ax, ax0)) - 1.0) > 1e-9 or np.linalg.norm(o - o0) > 1e-6 for _, _, o, ax, _, _ in elements):
+        return []  # not one axis: left to a CAD housing (CONTRACTS 6.2-6.4)
+    r_out = max(e[5] for e in elements)
+    z_front = min(e[4] for e in elements)
+    z_back = max(float(_surface_z(b, ax0, [min(b.semi_diameter_mm, r)])[0]) for _, b, _, _, _, r in elements)
+    r_tube = r_out + max(0.01, 1e-3 * r_out)  # just outside the largest element's edge (no coincident faces)
+    out = []
+    if r_out < r_source_mm:
+        out.append({"name": unique("barrel_front"), "surface": {
+            "type": "plane", "vertex_mm": _v(o0 + z_front * ax0), "axis": _v(-ax0),
+            "outer_radius_mm": float(1.1 * r_source_mm + 1.0), "inner_radius_mm": float(r_out)},
+            "material": edge_material, "role": "surface"})
+    if z_back > z_front + 1e-6:  # the tube: a diverging front group's light spread past every element to the image
+        out.append({"name": unique("barrel"), "surface": {
+            "type": "cylinder", "vertex_mm": _v(o0 + z_front * ax0), "axis": _v(ax0), "radius_mm": float(r_tube),
+            "length_mm": float(z_back - z_front)}, "material": edge_material, "role": "surface"})
+    return out
+
+
 def _spacer_rings(p, elements, edge_material, unique) -> list:
     """The barrel's spacers of a coaxial lens (no mirror): each element smaller than the largest gets a black
     ring at its front rim from its own mechanical radius out to the largest's, facing the incoming light, so no
@@ -355,27 +386,37 @@ def _spacer_rings(p, elements, edge_material, unique) -> list:
         if r_mech >= r_out - 1e-9 or id(a) in backs:  # the largest, or cemented behind another (that one's ring)
             continue
         r = np.linspace(r_mech, r_out, 17)
+        # at the element's front rim; where a ring there would cut a neighbour (a deep concave face in front: the
+        # Fujinon-SW 65 mm's s2, whose light then went around s3-s4, 0.92 at focus), at its back rim
+        z_back = float(_surface_z(b, ax, [min(b.semi_diameter_mm, r_mech)])[0])
         clash = None
-        for a2, b2, _, _, _, r2 in elements:
-            if a2 is a:
-                continue
-            rr = r[r <= r2 + 1e-12]
-            if len(rr) == 0:
-                continue
-            z1, z2 = _surface_z(a2, ax, rr) - z_front, _surface_z(b2, ax, rr) - z_front
-            # the plane met by either face of that element, or inside its glass between them
-            if (np.any(z1 * z1[0] <= 0) or np.any(z2 * z2[0] <= 0) or np.any(z1 * z2 <= 0)):
-                clash = f"{a2.name}-{b2.name}"
+        for z_plane in (z_front, z_back):
+            clash = _ring_clash(elements, a, ax, r, z_plane)
+            if clash is None:
+                out.append({"name": unique(f"spacer_{a.name}"), "surface": {
+                    "type": "plane", "vertex_mm": _v(origin + z_plane * ax), "axis": _v(-ax),
+                    "outer_radius_mm": float(r_out), "inner_radius_mm": float(r_mech)},
+                    "material": edge_material, "role": "surface"})
                 break
         if clash is not None:
             p.warnings.append(f"{a.name}-{b.name}: its spacer ring would cut the element {clash}; left out (light may "
                               f"pass around this element)")
-            continue
-        out.append({"name": unique(f"spacer_{a.name}"), "surface": {
-            "type": "plane", "vertex_mm": _v(origin + z_front * ax), "axis": _v(-ax),
-            "outer_radius_mm": float(r_out), "inner_radius_mm": float(r_mech)},
-            "material": edge_material, "role": "surface"})
     return out
+
+
+def _ring_clash(elements, own, ax, r, z_plane: float) -> str | None:
+    """The element (``"a-b"``) a plane ring at axial position ``z_plane`` over radii ``r`` would cut (met by either
+    of its faces, or inside its glass), other than ``own``'s; None when it cuts none."""
+    for a2, b2, _, _, _, r2 in elements:
+        if a2 is own:
+            continue
+        rr = r[r <= r2 + 1e-12]
+        if len(rr) == 0:
+            continue
+        z1, z2 = _surface_z(a2, ax, rr) - z_plane, _surface_z(b2, ax, rr) - z_plane
+        if np.any(z1 * z1[0] <= 0) or np.any(z2 * z2[0] <= 0) or np.any(z1 * z2 <= 0):
+            return f"{a2.name}-{b2.name}"
+    return None
 
 
 def _on_axis_sensor_mm(p, spot_mm: float) -> tuple[float, str]:
