@@ -69,6 +69,10 @@ def build_component(entry: dict, where: str = "component"):
         raise MaterialError(
             f"{where}: unknown key(s) {', '.join(unknown)} for type {type_name!r}; allowed: {', '.join(sorted(known))}"
         )
+    required = sorted(f.name for f in dataclasses.fields(cls) if f.init and f.default is dataclasses.MISSING
+                      and f.default_factory is dataclasses.MISSING and f.name not in kwargs)
+    if required:
+        raise MaterialError(f"{where}: missing key(s) {', '.join(required)} for type {type_name!r}")
     try:
         return cls(**kwargs)
     except TypeError as exc:

@@ -125,7 +125,7 @@ def render_scene(scene, path=None, *, color_by: str = "part", absorbed_w: dict |
     """
     if color_by not in ("part", "absorbed"):
         raise ValueError(f"color_by must be 'part' or 'absorbed', got {color_by!r}")
-    if color_by == "absorbed" and not absorbed_w:
+    if color_by == "absorbed" and absorbed_w is None:  # {} is a scene where nothing absorbs
         raise ValueError("color_by='absorbed' needs absorbed_w {part: watts}")
     absorbed = absorbed_w or {}
     off_screen = path is not None or not has_display()

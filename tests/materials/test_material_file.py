@@ -88,6 +88,7 @@ def _error(source, **kw):
         (lambda d: d["components"][0].update(rd=1.0), ["components[0]", "rd"]),
         (lambda d: d["components"][2].update(type="phong"), ["components[2]", "unknown component type", "phong"]),
         (lambda d: d["components"][3].pop("g"), ["components[3]", "g"]),
+        (lambda d: d["components"][1].pop("lc_um"), ["components[1]", "missing key(s) lc_um", "k_correlation"]),
         (lambda d: d["components"][4].update(l="wide"), ["components[4]", "'l'"]),
         (lambda d: d.update(components=[]), ["components", "non-empty"]),
         (lambda d: d.update(wavelength_nm=-1), ["wavelength_nm"]),

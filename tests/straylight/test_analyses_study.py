@@ -65,3 +65,18 @@ def test_report_tables_as_csv(study):
     assert [float(r["vane_count"]) for r in sweep] == doc["sweep"]["values"]
     assert [float(r["pst_at_20_deg"]) for r in sweep] == [p["pst"] for p in doc["sweep"]["points"]
                                                           if p["off_axis_deg"] == 20.0]
+
+
+def test_study_of_a_scene_where_nothing_absorbs(tmp_path):
+    """A bare detector disk in the beam: no part absorbs, and the study still writes its report (CONTRACTS 4.5:
+    index.html and results.json for any scene); the absorbed-power view was refused without an absorbed part."""
+    from straylight.cli.main import main
+
+    scene = tmp_path / "bare.toml"
+    scene.write_text('[[part]]\nname = "det"\nsurface = {type = "plane", vertex_mm = [0.0, 0.0, 0.0], '
+                     'axis = [0.0, 0.0, 1.0], outer_radius_mm = 5.0}\nrole = "detector"\n\n[[source]]\n'
+                     'type = "collimated_disk"\ncenter_mm = [0.0, 0.0, 100.0]\nnormal = [0.0, 0.0, -1.0]\n'
+                     'direction = [0.0, 0.0, -1.0]\nradius_mm = 50.0\npower_w = 2.0\n')
+    assert main(["study", str(scene), "--out", str(tmp_path / "r")]) == 0
+    assert (tmp_path / "r" / "index.html").exists() and (tmp_path / "r" / "view_absorbed.png").exists()
+    assert json.loads((tmp_path / "r" / "results.json").read_text())
