@@ -462,6 +462,10 @@ class Plane(Conic):
         return d
 
 
+#: a cylinder's mesh chord sagitta at most this fraction of its radius (Cylinder.mesh): ~222 facets around
+CYLINDER_SAGITTA_REL = 2e-4
+
+
 @dataclass(frozen=True, eq=False)
 class Cylinder(_Surface):
     """Circular cylinder about the axis line through vertex_mm, 0 <= z <= length_mm; front = outside."""
@@ -488,8 +492,13 @@ class Cylinder(_Surface):
         return (p[:, 2] >= -tol) & (p[:, 2] <= self.length_mm + tol)
 
     def mesh(self, tolerance_mm: float = 0.01):
+        """The inscribed polygon prism, its chord sagitta at most ``tolerance_mm`` and :data:`CYLINDER_SAGITTA_REL` of
+        the radius: its chords stand inside the exact wall, so a ray leaving by an open end within a sagitta of the
+        wall meets a chord first (a tube's wall at the scene's 0.05 mm took 0.72 % of a disk-to-disk exchange
+        through a 10 mm tube, 8 sigma; at 2e-4 of the radius, ~0.03 %)."""
         r = self.radius_mm
-        n_phi = max(24, int(math.ceil(math.pi / math.acos(max(-1.0, 1.0 - tolerance_mm / r)))))
+        tol = min(float(tolerance_mm), CYLINDER_SAGITTA_REL * r)
+        n_phi = max(24, int(math.ceil(math.pi / math.acos(max(-1.0, 1.0 - tol / r)))))
         phi = np.linspace(0.0, 2 * math.pi, n_phi, endpoint=False)
         z = np.array([0.0, self.length_mm])
         ring = np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
