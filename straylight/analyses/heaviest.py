@@ -94,13 +94,15 @@ def heaviest_path(job, seed: int, result) -> dict | None:
     x = np.bincount(inv, weights=power)
     mean = float(np.sum(s1)) / n
     top = int(np.argmax((x - mean) ** 2))
-    families: dict = {}
+    power_of: dict = {}  # family label -> the ray's power along it, W
+    events_of: dict = {}  # family label -> one record's events
     for row in sel[inv == top]:
         events = paths.describe(int(row))
         label = _family_label(events, job.detector, len(events) >= paths.events.shape[1])
-        families[label] = families.get(label, (0.0, events))
-        families[label] = (families[label][0] + float(paths.power_w[row]) * scale, events)
-    label, (_, events) = max(families.items(), key=lambda kv: abs(kv[1][0]))
+        power_of[label] = power_of.get(label, 0.0) + float(paths.power_w[row]) * scale
+        events_of.setdefault(label, events)
+    label = max(power_of, key=lambda k: abs(power_of[k]))
+    events = events_of[label]
     share = (float(x[top]) - mean) ** 2 / total
     hint = LENS_HINT if _lit_through_glass(job, events) and not job.options.estimator.lens_vertex else None
     return {"family": label, "variance_share": float(min(share, 1.0)), "ray": int(c * CHUNK_RAYS + ids[top]),
