@@ -61,6 +61,8 @@ def run_scan_command(args) -> int:
 
     from atomicio.guard import check_output_file
 
+    if args.seed is not None and args.seed < 0:  # before any file is made (a bad seed left an empty scan to resume)
+        raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
     check_output_file(args.output, "-o scan")  # before any device moves
     if args.log:
         check_output_file(args.log, "--log")

@@ -150,6 +150,8 @@ def pst_sweep(setup: Setup, off_axis, azimuth=(0.0,), n_rays: int = 100_000, see
     azimuth = np.atleast_1d(np.asarray(azimuth, dtype=np.float64))
     if np.any(~np.isfinite(off_axis)) or np.any(np.abs(off_axis) >= np.pi / 2):
         raise ValueError("off-axis angles must be finite and below 90 deg")
+    if np.any(~np.isfinite(azimuth)):
+        raise ValueError(f"azimuths must be finite, got {', '.join(f'{math.degrees(a):g}' for a in azimuth)} deg")
     if int(n_rays) < 1:
         raise ValueError(f"rays must be >= 1, got {n_rays!r}")
     det = detector_name(setup.scene, setup.detector)

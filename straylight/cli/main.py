@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import sys
 from contextlib import contextmanager
 
@@ -253,6 +254,9 @@ def _check_requests(args) -> None:
             if not -90 < value < 90:
                 raise ValueError(f"--{flag.replace('_', '-')} must be in (-90, 90) deg (off-axis angles of the beam), "
                                  f"got {value:g}")
+    for value in getattr(args, "azimuths_deg", None) or []:  # turns of the tilt about the axis
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"--azimuths-deg must be finite numbers, got {value:g}")
     tolerance = getattr(args, "tolerance_mm", None)
     if isinstance(tolerance, float):
         from geometry.limits import check_tolerance_mm

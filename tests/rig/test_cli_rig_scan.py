@@ -164,3 +164,12 @@ def test_sim_effect_injection_moves_the_peak(tmp_path, capsys):
     assert main(["rig", "scan", "--sim", "--sample", str(model), "--plan", str(plan), "-o", str(tmp_path / "x.csv"),
                  "--effect", "no_such_effect"]) == 2
     assert "unknown effect 'no_such_effect'" in capsys.readouterr().err
+
+
+def test_a_negative_seed_is_refused_before_any_file_is_made(tmp_path):
+    """It was refused after the scan's CSV and log were made, leaving an empty scan and a --resume hint."""
+    out = tmp_path / "x.csv"
+    res = cli("rig", "scan", "--sim", "--sample", "z302_sample_b", "-o", out, "--seed", -1)
+    err = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert res.returncode == 2 and len(err) == 1 and "--seed must be a non-negative integer" in err[0], res.stderr
+    assert not out.exists() and not list(tmp_path.iterdir())

@@ -128,3 +128,15 @@ def test_azimuth_does_not_matter_for_an_axisymmetric_tube(empty_tube):
     d0, d90 = setup.beam.direction(math.radians(25), 0.0), setup.beam.direction(math.radians(25), math.pi / 2)
     np.testing.assert_allclose(d0, [math.sin(math.radians(25)), 0, -math.cos(math.radians(25))], atol=1e-15)
     np.testing.assert_allclose(d90, [0, math.sin(math.radians(25)), -math.cos(math.radians(25))], atol=1e-15)
+
+
+@pytest.mark.parametrize("flag, value, words", [("--azimuths-deg", "nan", "--azimuths-deg must be finite numbers"),
+                                                ("--angles-deg", "95", "--angles-deg must be in (-90, 90) deg")])
+def test_a_bad_angle_is_refused_in_one_line_naming_it(flag, value, words, tmp_path, capsys):
+    from straylight.cli.main import main
+
+    args = ["pst", "--builtin", "tube", "--rays", "1000", "--out", str(tmp_path / "o")]
+    args += ["--angles-deg", "5", flag, value] if flag == "--azimuths-deg" else [flag, value]
+    assert main(args) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and words in err[0], err
