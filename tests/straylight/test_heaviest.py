@@ -127,3 +127,19 @@ def test_the_study_warning_renders_every_code_span():
 
     out = _html_warning("**Warning: x** (`a`). At 15 deg one ray: b (`--estimators lens` c).")
     assert out.count("<code>") == 2 and "`" not in out and out.count("<strong>") == 1
+
+
+def test_the_study_warning_names_the_heaviest_path_per_flagged_angle():
+    from straylight.analyses.report import _pst_reliability_note
+
+    class _Pst:
+        def flagged_rows(self):
+            heavy = {"family": "source -> lens_front (specular) -> lens_cell -> det", "variance_share": 0.97,
+                     "ray": 12, "contribution_w": 1e-8, "hint": LENS_HINT}
+            return [{"off_axis_deg": 15.0, "flags": "unreliable_error", "vov": 0.9, "heaviest_path": heavy},
+                    {"off_axis_deg": 20.0, "flags": "", "vov": 0.01}]
+
+    note = _pst_reliability_note(_Pst())
+    assert "at 15 deg" in note.split("**")[1] and "20" not in note.split("**")[1]
+    assert "At 15 deg one ray holds 97% of the variance: source -> lens_front (specular) -> lens_cell -> det" in note
+    assert "`--estimators lens`" in note
