@@ -168,7 +168,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         used.add(name)
         return name
 
-    elements: list = []  # (front, back, axis origin, axis, front rim z, mechanical radius) of each lens
+    elements: list = []  # (front, back, axis origin, axis, front rim z, back rim z, mechanical radius) of each lens
     in_contact = _in_contact(p)
     for s in surfaces:
         if s.index in in_contact.values():
@@ -280,7 +280,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
                     "type": "plane", "vertex_mm": _v(origin + z_rim * ax), "axis": _v(sign * ax),
                     "outer_radius_mm": r_mech, "inner_radius_mm": s.semi_diameter_mm},
                     "material": edge_material, "role": "surface"})
-        elements.append((a, b, origin, ax, za_m, r_mech))
+        elements.append((a, b, origin, ax, za_m, zb_m, r_mech))
     largest = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
     if not mirrors:
         parts += _spacer_rings(p, elements, edge_material, unique)
@@ -345,14 +345,12 @@ def _barrel_front(elements, r_source_mm: float, edge_material, unique) -> list:
     detector) is larger than the lens: the Fujinon-SW 65 mm's detector took 48 % of its power straight from the
     source around the lens and 37 % through its front element alone, whose diverging light passed outside every
     other element."""
-    if not elements:
-        return []
+    if not _on_one_axis(elements):
+        return []  # left to a CAD housing (CONTRACTS 6.2-6.4)
     ax0, o0 = elements[0][3], elements[0][2]
-    if any(abs(float(np.dot(ax, ax0)) - 1.0) > 1e-9 or np.linalg.norm(o - o0) > 1e-6 for _, _, o, ax, _, _ in elements):
-        return []  # not one axis: left to a CAD housing (CONTRACTS 6.2-6.4)
-    r_out = max(e[5] for e in elements)
+    r_out = max(e[6] for e in elements)
     z_front = min(e[4] for e in elements)
-    z_back = max(float(_surface_z(b, ax0, [min(b.semi_diameter_mm, r)])[0]) for _, b, _, _, _, r in elements)
+    z_back = max(e[5] for e in elements)
     r_tube = r_out + max(0.01, 1e-3 * r_out)  # just outside the largest element's edge (no coincident faces)
     out = []
     if r_out < r_source_mm:
@@ -373,22 +371,19 @@ def _spacer_rings(p, elements, edge_material, unique) -> list:
     light passes around it through the air, as a barrel and its spacers stop it (a sequential trace stops it at
     the element's aperture: without the rings two teleconverters, whose middle group is smaller than the front
     one, put 0.87 and 0.94 of the power at focus where the sequential trace puts all of it). A ring that would
-    cut another surface or lie in another element's glass is left out, with a warning."""
-    if len(elements) < 2:
-        return []
-    ax0, o0 = elements[0][3], elements[0][2]
-    if any(abs(float(np.dot(ax, ax0)) - 1.0) > 1e-9 or np.linalg.norm(o - o0) > 1e-6 for _, _, o, ax, _, _ in elements):
+    cut another surface or lie in another element's glass there goes to the element's back rim instead; one
+    that would cut another element there too is left out, with a warning."""
+    if len(elements) < 2 or not _on_one_axis(elements):
         return []  # not one axis: left to a CAD housing (CONTRACTS 6.2-6.4)
-    r_out = max(e[5] for e in elements)
+    r_out = max(e[6] for e in elements)
     backs = {id(e[1]) for e in elements}
     out = []
-    for a, b, origin, ax, z_front, r_mech in elements:
+    for a, b, origin, ax, z_front, z_back, r_mech in elements:
         if r_mech >= r_out - 1e-9 or id(a) in backs:  # the largest, or cemented behind another (that one's ring)
             continue
         r = np.linspace(r_mech, r_out, 17)
         # at the element's front rim; where a ring there would cut a neighbour (a deep concave face in front: the
-        # Fujinon-SW 65 mm's s2, whose light then went around s3-s4, 0.92 at focus), at its back rim
-        z_back = float(_surface_z(b, ax, [min(b.semi_diameter_mm, r_mech)])[0])
+        # Fujinon-SW 65 mm's s2, whose light then went around s3-s4), at its back rim
         clash = None
         for z_plane in (z_front, z_back):
             clash = _ring_clash(elements, a, ax, r, z_plane)
@@ -404,10 +399,16 @@ def _spacer_rings(p, elements, edge_material, unique) -> list:
     return out
 
 
+def _on_one_axis(elements) -> bool:
+    """Every lens element on the first one's axis line (a coaxial lens)."""
+    ax0, o0 = elements[0][3], elements[0][2]
+    return all(abs(float(np.dot(e[3], ax0)) - 1.0) <= 1e-9 and np.linalg.norm(e[2] - o0) <= 1e-6 for e in elements)
+
+
 def _ring_clash(elements, own, ax, r, z_plane: float) -> str | None:
     """The element (``"a-b"``) a plane ring at axial position ``z_plane`` over radii ``r`` would cut (met by either
     of its faces, or inside its glass), other than ``own``'s; None when it cuts none."""
-    for a2, b2, _, _, _, r2 in elements:
+    for a2, b2, _, _, _, _, r2 in elements:
         if a2 is own:
             continue
         rr = r[r <= r2 + 1e-12]
