@@ -261,7 +261,8 @@ def read_scan(path, allow_empty: bool = False) -> Scan:
     ScanError
         naming file, line and column for: a missing required column, a non-numeric
         value, a negative ``brdf_std_per_sr``, ``theta_*`` outside [-90, 90], an
-        unknown polarization, a non-integer ``n_repeats``, a short row, an infinite
+        unknown polarization, a non-integer ``n_repeats``, a short row or one with more values than
+        the header has columns, an infinite
         ``brdf_std_per_sr``; and a file with no data rows unless ``allow_empty`` (a scan being
         resumed may have stopped after its header).
     """
@@ -301,6 +302,9 @@ def read_scan(path, allow_empty: bool = False) -> Scan:
         if len(cells) < len(header):
             raise ScanError(f"row has {len(cells)} values, header has {len(header)}", path, lineno,
                             f"{len(cells) + 1} ({header[len(cells)]})")
+        if len(cells) > len(header) and any(c.strip() for c in cells[len(header):]):
+            raise ScanError(f"row has {len(cells)} values, header has {len(header)}", path, lineno,
+                            f"{len(header) + 1} (no column)")
         for name in CSV_COLUMNS:
             col = index[name] + 1
             cell = cells[index[name]].strip()

@@ -75,6 +75,7 @@ BAD = [
     ("theta_i > 90", lambda L: L[:9] + [L[9].replace(",47.0,", ",91.0,", 1)] + L[10:], 10, "theta_i_deg"),
     ("theta_r < -90", lambda L: L[:1] + [L[1].replace(",-60.0,", ",-90.5,", 1)] + L[2:], 2, "theta_r_deg"),
     ("unknown polarization", lambda L: L[:4] + [L[4].replace(",s,", ",x,", 1)] + L[5:], 5, "polarization"),
+    ("a row with a value past the header", lambda L: L[:7] + [L[7] + ",3"] + L[8:], 8, "9 (no column)"),
 ]
 
 
