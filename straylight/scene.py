@@ -134,6 +134,25 @@ def _mark_diffraction(doc: dict, scene, path: Path) -> None:
                 part.meta["diffraction"] = kind
 
 
+def _check_analysis_detector(doc, scene, path) -> None:
+    """``[analysis] detector`` names a detector part of the scene (a CAD solid by its product or instance
+    name, CONTRACTS 6.2): every command refuses a name that does not, not only those that tilt a beam."""
+    from geometry.mesh import GeometryError
+
+    table = doc.get("analysis")
+    name = table.get("detector") if isinstance(table, dict) else None
+    if not isinstance(name, str):
+        return  # absent, or wrongly typed: the analyses' own check (scene_setup.parse_analysis_table) says so
+    detectors = [p.name for p in scene.parts if p.role == "detector"]
+    try:
+        resolved = scene.resolve(name) if hasattr(scene, "resolve") else name
+    except GeometryError:
+        resolved = None
+    if resolved not in detectors:
+        raise SceneFileError(f"{path}: [analysis] detector {name!r} is not a detector part of the scene; "
+                             f"detectors: {', '.join(detectors) or 'none'}")
+
+
 def load_scene(path, check_watertight: bool = True, sources: bool = True) -> ResolvedScene:
     """Read and resolve a scene TOML (CONTRACTS §6).
 
@@ -164,6 +183,7 @@ def load_scene(path, check_watertight: bool = True, sources: bool = True) -> Res
     except GeometryError as exc:
         raise SceneFileError(str(exc)) from None
     _mark_diffraction(doc, scene, path)
+    _check_analysis_detector(doc, scene, path)
     notes = []
     materials = {}
     for i, part in enumerate(scene.parts, start=1):

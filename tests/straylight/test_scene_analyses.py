@@ -150,6 +150,25 @@ def test_bad_scene_is_one_line(tmp_path, tube_scene, capsys, edit, message):
     assert message in err and len(err.splitlines()) == 1 and str(path) in err
 
 
+def _no_such_detector(doc):
+    doc["analysis"]["detector"] = "sensr"
+
+
+@pytest.mark.parametrize("command", [["trace", "--rays", "100", "--json", "{out}/t.json"],
+                                     ["pst", "--angles-deg", "20", "--rays", "100", "--out", "{out}"]])
+def test_analysis_detector_that_is_no_part_is_refused_by_every_command(tmp_path, tube_scene, capsys, command):
+    """A misspelt [analysis] detector is a scene error: `trace`, which does not tilt a beam, refuses it too."""
+    path = _scene_with(tmp_path, tube_scene, _no_such_detector)
+    out = tmp_path / "o"
+    out.mkdir()
+    args = [command[0], str(path)] + [a.format(out=out) for a in command[1:]]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "[analysis] detector 'sensr' is not a detector part" in err and "detectors: detector" in err
+    assert len(err.splitlines()) == 1 and str(path) in err
+    assert not list(out.iterdir())
+
+
 def test_default_entrance_is_the_source_disk(tmp_path, tube_scene):
     """Without [analysis] entrance, the disk stays put (BENCHMARK.md) and entrance_ratio = P_det / P."""
     from straylight.analyses.scene_setup import scene_setup
