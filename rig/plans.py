@@ -88,6 +88,9 @@ def _num(value, where, lo=None, hi=None):
 
 
 def _pols(value, where):
+    if isinstance(value, list) and "u" in value:  # the scan CSV has 'u'; the rig's beam leaves the PBS polarized
+        raise PlanError(f"{where}: 'u' cannot be set on the rig (its PBS passes s or p only); scan s and p: "
+                        f"their mean is the unpolarized BRDF")
     if not isinstance(value, list) or not value or any(p not in ("s", "p") for p in value):
         raise PlanError(f"{where}: expected a non-empty list of 's'/'p', got {value!r}")
     return tuple(value)

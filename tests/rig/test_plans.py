@@ -106,6 +106,7 @@ def test_custom_plan_file(tmp_path):
     ({"incidence": [], "name": "x"}, "'incidence' must be a non-empty list"),
     ({"incidence": [{"theta_i_deg": 20, "theta_r_deg": [1]}], "n_readings": 0}, "n_readings"),
     ({"incidence": [{"theta_i_deg": 20, "theta_r_deg": [1]}], "speed": 1}, r"unknown key\(s\) speed"),
+    ({"incidence": [{"theta_i_deg": 20, "theta_r_deg": [1]}], "polarizations": ["u"]}, r"PBS passes s or p only"),
 ])
 def test_plan_file_errors_name_the_entry(data, match):
     with pytest.raises(PlanError, match=match):
