@@ -134,20 +134,6 @@ def _mark_diffraction(doc: dict, scene, path: Path) -> None:
                 part.meta["diffraction"] = kind
 
 
-def _check_diffraction_wavelength(scene, sources, materials, path) -> None:
-    """A scene whose parts diffract (CONTRACTS 6.5) gives one wavelength, on its sources or its materials:
-    refused here, naming the file, rather than when a trace starts."""
-    from straylight.engine.diffraction import TraceError, diffracting_parts, trace_wavelength_nm
-
-    marked = diffracting_parts(scene)
-    if not marked or not sources:
-        return
-    try:
-        trace_wavelength_nm(sources, list(materials.values()), tuple(repr(scene.parts[i].name) for i in marked))
-    except TraceError as exc:
-        raise SceneFileError(f"{path}: {exc}") from None
-
-
 def _check_analysis_detector(doc, scene, path) -> None:
     """``[analysis] detector`` names a detector part of the scene (a CAD solid by its product or instance
     name, CONTRACTS 6.2): every command refuses a name that does not, not only those that tilt a beam."""
@@ -230,7 +216,6 @@ def load_scene(path, check_watertight: bool = True, sources: bool = True) -> Res
         if not _probe_reaches_box(src, lo, hi):
             notes.append(f"{where}: no ray of this source reaches the scene's bounding box")
         resolved.append(src)
-    _check_diffraction_wavelength(scene, resolved, materials, path)
     for note in notes:
         warnings.warn(note, SceneWarning, stacklevel=2)
     return ResolvedScene(path, scene, materials, tuple(resolved), tuple(notes))
