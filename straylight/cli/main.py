@@ -517,6 +517,17 @@ def _command_word(argv) -> str | None:
     return argv[0] if argv and not argv[0].startswith("-") else None
 
 
+def _with_scene_file(exc, args, message: str) -> str:
+    """A trace's refusal of the scene it was given (a TraceError: diffraction without a wavelength, coatings
+    under two wavelengths...) names the scene file it came from when the message does not already."""
+    from straylight.engine.options import TraceError
+
+    scene = getattr(args, "scene", None)
+    if isinstance(exc, TraceError) and isinstance(scene, str) and scene and scene not in message:
+        return f"{scene}: {message}"
+    return message
+
+
 def _main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv  # anywhere: `straylight pst ... --debug` as well as `straylight --debug pst ...`
@@ -553,6 +564,7 @@ def _main(argv=None) -> int:
             raise
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         message = _disk_full_message(exc) or message
+        message = _with_scene_file(exc, args, message)
         print(f"straylight: error: {message}", file=sys.stderr)
         return 2
 

@@ -53,8 +53,9 @@ def diffracting_parts(scene) -> list:
     return [i for i, p in enumerate(scene.parts) if (p.meta or {}).get("diffraction") == "edges"]
 
 
-def trace_wavelength_nm(sources, materials) -> float:
-    """The sources' ``wavelength_nm`` (all the same), else the materials' common ``wavelength_nm``."""
+def trace_wavelength_nm(sources, materials, parts=("a part",)) -> float:
+    """The sources' ``wavelength_nm`` (all the same), else the materials' common ``wavelength_nm``;
+    ``parts``: the diffracting parts' names, for the message when neither gives one."""
     given = {float(w) for w in (getattr(s, "wavelength_nm", None) for s in sources) if w is not None}
     if len(given) > 1:
         raise TraceError(f"diffraction needs one wavelength; the sources give {sorted(given)} nm")
@@ -63,7 +64,9 @@ def trace_wavelength_nm(sources, materials) -> float:
     known = {float(w) for w in (getattr(m, "wavelength_nm", None) for m in materials) if w is not None}
     if len(known) == 1:
         return known.pop()
-    raise TraceError("a part diffracts (diffraction = \"edges\"): give wavelength_nm on the [[source]]")
+    who = ", ".join(parts)
+    raise TraceError(f"{who} diffract{'s' if len(parts) == 1 else ''} (diffraction = \"edges\") and neither the "
+                     "[[source]] nor the materials give one wavelength: give wavelength_nm on the [[source]]")
 
 
 def _rims(part):
@@ -87,7 +90,7 @@ def scene_diffraction(scene, sources, materials, options) -> Diffraction | None:
     for i in marked:
         if scene.parts[i].role == "detector":
             raise TraceError(f"part {scene.parts[i].name!r}: a detector cannot diffract (diffraction = \"edges\")")
-    wavelength_nm = trace_wavelength_nm(sources, materials)
+    wavelength_nm = trace_wavelength_nm(sources, materials, tuple(repr(scene.parts[i].name) for i in marked))
     band_mm = float(options.physics.diffraction_band_wavelengths) * wavelength_nm * 1e-6
     segments, rims = [], []
     for i in marked:

@@ -81,8 +81,23 @@ def test_bad_keys_are_one_line_errors(tmp_path, diffraction, wavelength, message
 
 def test_missing_wavelength_is_refused(tmp_path):
     rs = load_scene(write_scene(tmp_path, wavelength=""))
-    with pytest.raises(ValueError, match="give wavelength_nm on the \\[\\[source\\]\\]"):
+    with pytest.raises(ValueError, match="'stop' diffracts .* give wavelength_nm on the \\[\\[source\\]\\]"):
         rs.trace(100, seed=1)
+
+
+@pytest.mark.parametrize("command", [["trace", "--rays", "100", "--json", "{d}/t.json"],
+                                     ["pst", "--angles-deg", "1", "--rays", "100", "--out", "{d}/o"]])
+def test_missing_wavelength_names_the_scene_file_on_the_command_line(tmp_path, capsys, command):
+    from straylight.cli.main import main
+
+    path = write_scene(tmp_path, wavelength="")
+    assert main([command[0], str(path), *(a.format(d=tmp_path) for a in command[1:])]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{path}: 'stop' diffracts" in err
+    # the beam's wavelength given on the command line is enough (docs/diffraction.md)
+    if command[0] == "pst":
+        assert main(["pst", str(path), "--angles-deg", "1", "--rays", "100", "--wavelength-nm", "500",
+                     "--out", str(tmp_path / "o500")]) == 0
 
 
 def test_diffraction_off_is_the_geometric_trace(tmp_path):
