@@ -13,7 +13,8 @@ import pytest
 
 LENSES = Path(__file__).resolve().parent / "data" / "lenses"
 FAST = ["ray-optics/ag_dblgauss.seq", "ray-optics/rc_f16.seq", "optiland/lens1.zmx",
-        "OpticsDatabase/Fujifilm_Fujinon_XF27mm_F2.8.zmx"]  # two extended odd aspheres (r^3 ... r^19 terms)
+        "OpticsDatabase/Fujifilm_Fujinon_XF27mm_F2.8.zmx",  # two extended odd aspheres (r^3 ... r^19 terms)
+        "OpticsDatabase/Fujifilm_Fujinon-SW_65mm_F5.6.zmx"]  # two glasses of one nd.vd label, 1.69359 and 1.69350
 SLOW = ["optiland/cooke_triplet.seq", "ray-optics/CODV_32327.seq", "ray-optics/HoO-V2C18Ex03.zmx", "ray-optics/US08011793-1.zmx",
         "OpticsDatabase/Edmund_32-299.zmx", "OpticsDatabase/Edmund_45-206.zmx", "ray-optics/landscape_lens.seq",
         "ray-optics/paraboloid.seq", "ray-optics/questar35.seq", "ray-optics/threemir.seq",

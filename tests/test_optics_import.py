@@ -197,6 +197,25 @@ def test_imported_scene_loads_and_traces(tmp_path):
     assert out["detectors"]["image"]["power_w"] > 0.2
 
 
+def test_two_glasses_of_one_label_keep_their_own_indices():
+    """The Fujinon-SW 65 mm's 1.69359 / 53.4 and 1.69350 / 53.4 both round to the label 694.534: each interface
+    still traces with its own surface's index as the file gives it (the second element took the first's)."""
+    from straylight.optics.reader import read_prescription
+    from straylight.optics.scene_build import build_scene
+
+    p = read_prescription(LENSES / "OpticsDatabase" / "Fujifilm_Fujinon-SW_65mm_F5.6.zmx")
+    scene = build_scene(p)
+    parts = {part["name"]: part for part in scene["part"]}
+    second = [surf.name for surf in p.surfaces if 1.6935 in (round(surf.n, 5), round(surf.n_before, 5))]
+    assert second, "the file's second glass"
+    for name in second:  # into it from the glass in contact (one interface), and out of it into air
+        comp = scene["material"][parts[name]["material"]]["components"][0]
+        assert comp["n"] == pytest.approx(1.6935, abs=1e-7), name
+    glasses = {round(comp["n"], 5) for m in scene["material"].values() for comp in m["components"]
+               if comp["type"] == "dielectric"}
+    assert {1.69359, 1.6935} <= glasses
+
+
 def test_readers_write_no_log_files_in_the_working_folder(tmp_path):
     for name in ("ray-optics/ag_dblgauss.seq", "optiland/lens1.zmx"):
         r = _run("optics", "info", LENSES / name, cwd=tmp_path)

@@ -226,6 +226,11 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         if coat:
             comp["coating"] = coat
             key += f"_{coat}" if isinstance(coat, str) else f"_mgf2_{round(coat[0]['thickness_nm'] * 4 * MGF2_N)}nm"
+        # a label names a glass by its rounded nd.vd ("694.534"): two glasses of one label but not one index (the
+        # Fujinon-SW 65 mm's 1.69359 and 1.69350) are two materials, not the first one twice
+        base, k = key, 2
+        while key in materials and materials[key]["components"] != [comp]:
+            key, k = f"{base}_{k}", k + 1
         materials.setdefault(key, {"name": key, "wavelength_nm": wl, "components": [comp]})
         # a mirror on the same surface: a Maksutov's aluminised spot fills the centre; a mirror with a hole (a Mangin
         # primary's back, light leaving through its centre) leaves the glass its hole
