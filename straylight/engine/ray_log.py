@@ -31,7 +31,8 @@ class RayLog:
     event: np.ndarray  # (m,) int64 event index of the segment (0: it leaves the source)
     origin_mm: np.ndarray  # (m, 3) start of the segment
     direction: np.ndarray  # (m, 3) unit direction
-    end_mm: np.ndarray  # (m, 3) hit point; the bend for SEGMENT_BEND; the origin for SEGMENT_ESCAPE
+    end_mm: np.ndarray  # (m, 3) hit point (on an exact surface where the part has one); the bend for
+    # SEGMENT_BEND; the origin for SEGMENT_ESCAPE
     tri: np.ndarray  # (m,) int64 triangle hit, SEGMENT_ESCAPE or SEGMENT_BEND
     kind: np.ndarray  # (m,) int8 the event the segment leaves (straylight.engine.ray_batch EVENT_*: 0 source,
     # 1 scatter, 2 specular: a mirror, an interface's reflection or refraction, 3 a bend at an edge)
@@ -61,6 +62,21 @@ class RayLog:
         return cls(**{f: cols[f][order] for f in FIELDS})
 
 
+def _on_exact_surfaces(spec, rays, hit, sel, on, end) -> None:
+    """``end[on]`` (rows ``sel[on]`` of the event, which met a part) moved onto the parts' exact surfaces
+    where the hit refines there (straylight.engine.surface_geometry.refine_on_surfaces, as the interaction)."""
+    from straylight.engine.surface_geometry import refine_on_surfaces
+
+    if len(on) == 0:
+        return
+    rows = sel[on]
+    _, _, exact, refined, passing = refine_on_surfaces(
+        spec, hit.part[rows].astype(np.int64), rays.origin_mm[rows], rays.direction[rows], hit.distance_mm[rows],
+        rays.last_part[rows], hit.cos_in[rows] < 0, hit.facing_normal[rows].copy())
+    ok = refined & ~passing
+    end[on[ok]] = exact[ok]
+
+
 class RayLogger:
     """Collects the segments of one batch's rays with a batch index below ``limit`` (ray ids
     ``first_ray + index`` in the trace)."""
@@ -76,9 +92,12 @@ class RayLogger:
                           rays.origin_mm[rows], rays.direction[rows], end, tri.astype(np.int64),
                           rays.last_event[rows].astype(np.int8), rays.weight_w[rows], detector))
 
-    def segments(self, ev: int, rays, tri, hit, triangle_part) -> None:
+    def segments(self, ev: int, rays, tri, hit, triangle_part, spec=None) -> None:
         """Event ``ev``'s segments of the logged rays among ``rays`` (``tri``: triangle hit, -1: escape;
-        ``hit``: straylight.engine.hits.Hits)."""
+        ``hit``: straylight.engine.hits.Hits). A hit on a part with an exact surface (``spec``'s
+        ``part_surfaces``: lenses, mirrors) ends on that surface, where the interaction takes it, not on
+        the facet (up to the mesh's sagitta away); a hit that passes outside the clear aperture keeps the
+        facet's point."""
         sel = np.flatnonzero(rays.ray < self.limit)
         if len(sel) == 0:
             return
@@ -86,6 +105,8 @@ class RayLogger:
         escaped = t < 0
         origin = rays.origin_mm[sel]
         end = np.where(escaped[:, None], origin, hit.point_mm[sel])
+        if spec is not None and spec.part_surfaces:
+            _on_exact_surfaces(spec, rays, hit, sel, np.flatnonzero(~escaped), end)
         part = triangle_part[np.maximum(t, 0)]
         detector = ~escaped & (self.part_roles[part] == ROLE_DETECTOR)
         self._add(ev, rays, sel, end, np.where(escaped, SEGMENT_ESCAPE, t), detector)

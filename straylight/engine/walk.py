@@ -144,7 +144,7 @@ def walk(spec: TraceSpec, first_chunk: int, stop_chunk: int, intersector, kernel
         tallies.reserve(HITS_WRITES_PER_RAY * len(tri))
         hit = Hits(*kernels.hits(tri, rays, scene.arrays, rows, settings, tallies.kernel_arg))
         if ray_log is not None:
-            ray_log.segments(ev, rays, tri, hit, scene.arrays.triangle_part)
+            ray_log.segments(ev, rays, tri, hit, scene.arrays.triangle_part, spec)
         event = Event(spec=spec, scene=scene, kernels=kernels, settings=settings, rows=rows, tallies=tallies,
                       records=records, rays=rays, tri=tri, hits=hit, uniforms=U, columns=columns,
                       capabilities=capabilities, states=states, nee_hooks=nee_hooks,

@@ -203,3 +203,26 @@ def test_a_drawing_cut_at_max_events_warns_nothing(recwarn):
     paths = viz.trace_ray_paths(setup, math.radians(30.0), n_rays=100, seed=1, max_events=1)
     assert all(len(p[0]) == 2 for p in paths)  # one event each: most power still in flight
     assert not [w for w in recwarn if "max_events" in str(w.message)]
+
+
+def test_logged_hits_on_an_exact_surface_end_on_it_not_on_its_facets():
+    """A concave spherical mirror (R = 200 mm) meshed coarsely (0.5 mm sagitta): the segments that end on it
+    end on the sphere |P - C| = R (C the centre of curvature), to round-off, as the walk reflects there; the
+    facets alone lie up to the sagitta inside it."""
+    from geometry.analytic import Conic
+
+    radius = 200.0
+    mirror = analytic_part("mirror", Conic(np.zeros(3), UP, radius, 0.0, 40.0, 0.0), None, "mirror",
+                           tolerance_mm=0.5)
+    scene = Scene((mirror,))
+    beam = Beam(center_mm=(0, 0, 60), axis=(0, 0, -1), radius_mm=35.0)
+    res = trace(scene, [beam.source(0.0)], 400, seed=3, materials={}, options=_analog(ray_log=400))
+    log = res.ray_log
+    on = np.flatnonzero(log.tri >= 0)
+    assert len(on) > 300
+    centre = np.array([0.0, 0.0, radius])
+    off = np.abs(np.linalg.norm(log.end_mm[on] - centre, axis=1) - radius)
+    assert off.max() < 1e-9
+    # the facets' own points (the hit before the walk refines it) are not on the sphere: the check can fail
+    v = mirror.vertices_mm
+    assert np.abs(np.linalg.norm(v[mirror.faces].mean(axis=1) - centre, axis=1) - radius).max() > 1e-3
