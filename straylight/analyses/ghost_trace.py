@@ -30,7 +30,10 @@ At the detector each ghost also gives
 - ``radius_mm``: the power-weighted RMS radius of its spot on the detector about its centroid;
 - ``peak_ratio``: its peak irradiance over the nominal image's, both binned on the same grid of
   ``MAP_BINS`` x ``MAP_BINS`` cells over the detector's disk and averaged over ``PEAK_CELLS`` x
-  ``PEAK_CELLS`` cells (a sparse map's single-cell maximum would measure the sampling noise).
+  ``PEAK_CELLS`` cells, or more where a block of that size holds too few rays to know its mean to
+  ``PEAK_REL_ERROR`` (:func:`peak_estimate`): the largest of many noisy block means measures the noise
+  (a singlet's defocused ghost, 9 rays a cell: 3.7x its paraxial peak), so the block is found with one
+  half of the batches and its irradiance read from the other half.
 """
 from __future__ import annotations
 
@@ -49,7 +52,11 @@ if TYPE_CHECKING:
     from straylight.sources import Source
 
 MAP_BINS = 64
-PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK_CELLS cells
+PEAK_CELLS = 3  # the peak irradiance is the largest mean over PEAK_CELLS x PEAK_CELLS cells (or more: peak_estimate)
+#: the relative standard error a peak's block must reach before a larger block is tried (peak_estimate)
+PEAK_REL_ERROR = 0.05
+#: the block sizes peak_estimate tries, in cells across, smallest first
+PEAK_BLOCKS = (PEAK_CELLS, 5, 9, 17, 33)
 EPS_MM = 1e-6  # the smallest offset off a surface; a scene's own is scene_epsilon's (float32 ulps of its extent)
 SELF_HIT_MM = 1e-6
 MAX_NOMINAL_STEPS = 200
@@ -580,6 +587,9 @@ class _Accumulator:
         self.s1 = 0.0
         self.s2 = 0.0
         self.map = np.zeros((MAP_BINS, MAP_BINS))
+        self.halves = np.zeros((2, MAP_BINS, MAP_BINS))  # the map of the even batches and of the odd ones
+        self.batches = np.zeros(2, dtype=np.int64)  # how many batches each half holds
+        self.squares = np.zeros((MAP_BINS, MAP_BINS))  # per cell, the sum of the squared weights
         self.m = np.zeros(12)  # weighted moments for centroid, RMS and focus
 
     def add(self, arr: Arrivals):
@@ -587,6 +597,8 @@ class _Accumulator:
         self.n += n_new
         self.s1 += float(arr.per_ray_w.sum())
         self.s2 += float((arr.per_ray_w ** 2).sum())
+        half_k = int(self.batches.sum() % 2)
+        self.batches[half_k] += 1
         if len(arr.weights) == 0:
             return
         origin, u, v, a, half = self.frame
@@ -595,7 +607,11 @@ class _Accumulator:
         along = arr.dirs @ a
         slope = np.column_stack([arr.dirs @ u, arr.dirs @ v]) / np.where(np.abs(along) > 1e-12, along, 1e-12)[:, None]
         w = arr.weights
-        self.map += np.histogram2d(q[:, 0], q[:, 1], bins=MAP_BINS, range=[[-half, half], [-half, half]], weights=w)[0]
+        cells = [[-half, half], [-half, half]]
+        binned = np.histogram2d(q[:, 0], q[:, 1], bins=MAP_BINS, range=cells, weights=w)[0]
+        self.map += binned
+        self.halves[half_k] += binned
+        self.squares += np.histogram2d(q[:, 0], q[:, 1], bins=MAP_BINS, range=cells, weights=w * w)[0]
         self.m += np.array([w.sum(), (w * q[:, 0]).sum(), (w * q[:, 1]).sum(), (w * (q ** 2).sum(1)).sum(),
                             (w * slope[:, 0]).sum(), (w * slope[:, 1]).sum(), (w * (slope ** 2).sum(1)).sum(),
                             (w * (q * slope).sum(1)).sum(), 0, 0, 0, 0])
@@ -619,6 +635,33 @@ def peak_irradiance(m: np.ndarray) -> float:
     from scipy.ndimage import uniform_filter
 
     return float(uniform_filter(m, size=PEAK_CELLS, mode="constant").max())
+
+
+def peak_estimate(acc: "_Accumulator") -> float:
+    """The peak of ``acc``'s map (its units: the summed weights per cell), as the mean over a block of cells.
+
+    The largest of many block means is biased up by their noise, so each half of the batches chooses a block
+    (its largest mean) and the other half's mean there is read: the two readings, each scaled to all the
+    batches, are averaged (an unbiased reading of blocks chosen without it). The block is the smallest of
+    :data:`PEAK_BLOCKS` whose chosen block's sum is known to :data:`PEAK_REL_ERROR` (from the summed
+    squared weights); the largest when none is. A map of one half only (a single batch) gives the plain
+    largest :data:`PEAK_CELLS` block mean."""
+    from scipy.ndimage import uniform_filter
+
+    n_a, n_b = (int(k) for k in acc.batches)
+    if n_a == 0 or n_b == 0 or not (acc.halves[0].any() and acc.halves[1].any()):
+        return float(uniform_filter(acc.map, size=PEAK_CELLS, mode="constant").max())
+    total = n_a + n_b
+    peak = 0.0
+    for size in PEAK_BLOCKS:
+        a, b, sq = (uniform_filter(x, size=size, mode="constant") for x in (acc.halves[0], acc.halves[1], acc.squares))
+        at_a, at_b = np.unravel_index(np.argmax(a), a.shape), np.unravel_index(np.argmax(b), b.shape)
+        peak = 0.5 * (b[at_a] * total / n_b + a[at_b] * total / n_a)
+        whole = a + b
+        worst = max(math.sqrt(sq[at]) / (whole[at] * size) if whole[at] > 0 else math.inf for at in (at_a, at_b))
+        if worst <= PEAK_REL_ERROR:
+            break
+    return float(max(peak, 0.0))
 
 
 def detector_frame(opt: GhostOptics):
@@ -911,14 +954,14 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
         def result(self):
             acc = self.acc if self.acc.n else self.uniform_acc  # stopped right after learning: the uniform rays' own
             focus, radius = acc.geometry()
-            return self.mean, self.err, focus, radius, acc.map * (self.batch / acc.n) / cell_mm2, self.traced
+            scale = (self.batch / acc.n) / cell_mm2  # summed weights per cell -> W/mm^2
+            return self.mean, self.err, focus, radius, acc.map * scale, self.traced, peak_estimate(acc) * scale
 
-    p_nom, e_nom, f_nom, r_nom, map_nom, n_nom = Run(nominal, 0, batch=nominal_batch).advance().result()
+    p_nom, e_nom, f_nom, r_nom, map_nom, n_nom, peak_nom = Run(nominal, 0, batch=nominal_batch).advance().result()
     if not p_nom > 0:  # every ghost's fraction and peak ratio would be undefined: nothing to rank them against
         raise GhostError(f"no light reaches the detector {opt.names[opt.detector]!r} along the nominal path "
                          f"({' > '.join(opt.names[q] for q, _ in nominal)}) in {n_nom} rays: the image surface may "
                          "sit in the incoming beam, or the path met by chance is not the lens's design path")
-    peak_nom = peak_irradiance(map_nom)
     nom_row = GhostRow([], [], p_nom, e_nom, 1.0, f_nom, r_nom, 1.0 if peak_nom > 0 else None, n_nom,
                        [opt.names[p] for p, _ in nominal])
     # every ghost's first share is at least two batches (its error needs two); where the ghosts are so many that
@@ -1025,10 +1068,10 @@ def ghost_table(opt: GhostOptics, order: int = 2, target_rel_error: float = 0.02
             rows.append(GhostRow(names, list(refl), None, None, None, None, None, None, 0, sequence, tuple(run.seq),
                                  label))
             continue
-        p, e, f, r, m, n = run.result()
+        p, e, f, r, m, n, peak = run.result()
         maps[label] = m
         rows.append(GhostRow(names, list(refl), p, e, p / p_nom if p_nom > 0 else float("nan"), f, r,
-                             peak_irradiance(m) / peak_nom if peak_nom > 0 else None, n, sequence, tuple(run.seq),
+                             peak / peak_nom if peak_nom > 0 else None, n, sequence, tuple(run.seq),
                              label, upper_w=3.0 * float(opt.source.power_w) / n if p <= 0.0 and n > 0 else None))
     rows.sort(key=lambda r: (r.power_w is None, -(r.power_w or 0.0)))  # the untraced last
     notes, warnings = _notes(runs, rows, timed_out, target_rel_error=target_rel_error, max_rays=max_rays,
@@ -1094,7 +1137,8 @@ def markdown(table: GhostTable, top: int = 50, warnings: bool = True) -> str:
     lines += ["", "focus: where the ghost's bundle is narrowest, mm along the light's direction from the detector "
               "(< 0: before it); radius: RMS radius of its spot on the detector; peak ratio: its peak irradiance "
               f"over the nominal image's, both on a {MAP_BINS} x {MAP_BINS} grid over the detector, "
-              f"averaged over {PEAK_CELLS} x {PEAK_CELLS} cells."]
+              f"averaged over {PEAK_CELLS} x {PEAK_CELLS} cells (more where so few rays arrive that the block's mean "
+              f"is not known to {PEAK_REL_ERROR:.0%}), the block chosen with half the rays and read with the other half."]
     return "\n".join(lines) + "\n"
 
 
