@@ -783,19 +783,31 @@ SI 0.0 0.0
 """
 
 
-def _paraxial_singlet_ghost(n, c1, c2, t, h):
-    """The back-then-front ghost of a singlet by a paraxial y-nu trace (Welford, Aberrations of Optical Systems,
-    2.4: refraction nu' = nu - y (n' - n) c, transfer y' = y + (d / n) nu; a reflection is a refraction into
-    -n with the distance counted back, d / n keeping its sign): (y, u) leaving the back face."""
+def _paraxial_ghost(surfaces, j, i, h=1e-4):
+    """A two-reflection ghost (reflected at surface ``j``, then at ``i`` < ``j``) of a prescription.json surface
+    list by a paraxial y-nu trace (Welford, Aberrations of Optical Systems, 2.4: refraction nu' = nu - y (n' - n) c,
+    transfer y' = y + (d / n) nu; a reflection is a refraction into -n, the path back counted with -d in -n, so
+    d / n keeps its sign), from a ray parallel to the axis at height ``h``: (y, u) leaving the last surface."""
+    c = [0.0 if s["radius_mm"] in (None, 0) else 1.0 / s["radius_mm"] for s in surfaces]
+    t = [s["thickness_mm"] for s in surfaces]
+    n_after = [s["n"] for s in surfaces]
+    n_before = [1.0] + n_after[:-1]
     y, nu = h, 0.0
-    nu -= y * (n - 1.0) * c1       # into the glass at the front face
-    y += t / n * nu
-    nu -= y * (-n - n) * c2        # reflected at the back face
-    y += -t / -n * nu
-    nu -= y * (n + n) * c1         # reflected at the front face
-    y += t / n * nu
-    nu -= y * (1.0 - n) * c2       # out of the back face
-    return y, nu
+    for k in range(j):                              # forward to surface j
+        nu -= y * (n_after[k] - n_before[k]) * c[k]
+        y += t[k] / n_after[k] * nu
+    nu += 2.0 * n_before[j] * y * c[j]              # reflected at j
+    for m in range(j - 1, i, -1):                   # back through the surfaces between
+        y += t[m] / n_after[m] * nu
+        nu += y * (n_before[m] - n_after[m]) * c[m]
+    y += t[i] / n_after[i] * nu
+    nu -= 2.0 * n_after[i] * y * c[i]               # reflected at i
+    y += t[i] / n_after[i] * nu
+    for k in range(i + 1, len(surfaces)):           # forward out of the lens
+        nu -= y * (n_after[k] - n_before[k]) * c[k]
+        if k < len(surfaces) - 1:
+            y += t[k] / n_after[k] * nu
+    return y, nu / n_after[-1]
 
 
 def test_a_singlets_ghost_focus_spot_and_peak_agree_with_a_paraxial_trace(tmp_path):
@@ -816,11 +828,13 @@ def test_a_singlets_ghost_focus_spot_and_peak_agree_with_a_paraxial_trace(tmp_pa
     lens.write_text(SINGLET_SEQ)
     assert main(["optics", "import", str(lens), "--out", str(tmp_path / "lens")]) == 0
     assert main(["ghosts", str(tmp_path / "lens" / "scene.toml"), "--seed", "3", "--out", str(tmp_path / "g")]) == 0
-    n = json.loads((tmp_path / "lens" / "prescription.json").read_text())["surfaces"][0]["n"]
+    surfaces = json.loads((tmp_path / "lens" / "prescription.json").read_text())["surfaces"]
+    assert [(s["radius_mm"], s["thickness_mm"]) for s in surfaces] == [(60.0, 6.0), (-60.0, 57.0436)]
+    n = surfaces[0]["n"]
     scene = tomllib.loads((tmp_path / "lens" / "scene.toml").read_text())
     r_det = next(p for p in scene["part"] if p["name"] == "image")["surface"]["outer_radius_mm"]
-    c1, c2, t, image_mm, h = 1 / 60.0, -1 / 60.0, 6.0, 57.0436, 2.0
-    y, u = _paraxial_singlet_ghost(n, c1, c2, t, h)
+    image_mm, h = 57.0436, 2.0
+    y, u = _paraxial_ghost(surfaces, 1, 0, h)
     focus = -y / u - image_mm                        # from the detector, along the light
     spread = abs(y + image_mm * u)                   # the ghost's radius on the detector's plane
     R = ((n - 1) / (n + 1)) ** 2                     # Fresnel at normal incidence (the paraxial rays)
@@ -834,3 +848,27 @@ def test_a_singlets_ghost_focus_spot_and_peak_agree_with_a_paraxial_trace(tmp_pa
     assert g["fraction_of_nominal"] == pytest.approx(fraction, rel=0.05)
     assert g["radius_mm"] == pytest.approx(r_det / math.sqrt(2), rel=0.03)
     assert g["peak_ratio"] == pytest.approx(peak, rel=0.12)
+
+
+def test_every_ghost_of_a_stopped_down_cooke_triplet_focuses_where_a_paraxial_trace_puts_it(tmp_path):
+    """The Cooke triplet of the corpus stopped down to f/25 (its EPD 10 -> 2 mm, so the ghosts' waists are their
+    paraxial foci): each of its 15 two-reflection ghosts' focus against the paraxial y-nu trace of the same
+    reflections (:func:`_paraxial_ghost`, from prescription.json's radii, thicknesses and indices): within 1 % of
+    the distance (measured: 0.02-0.6 mm of 30-92 mm, the residual aberrations of the real rays)."""
+    from straylight.cli.main import main
+
+    lens = tmp_path / "cooke_f25.seq"
+    text = (LENSES / "optiland" / "cooke_triplet.seq").read_text()
+    assert "EPD 10.0" in text
+    lens.write_text(text.replace("EPD 10.0", "EPD 2.0"))
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path / "lens")]) == 0
+    assert main(["ghosts", str(tmp_path / "lens" / "scene.toml"), "--field-deg", "0", "--out", str(tmp_path / "g")]) == 0
+    surfaces = json.loads((tmp_path / "lens" / "prescription.json").read_text())["surfaces"]
+    index = {s["name"]: k for k, s in enumerate(surfaces)}
+    rows = json.loads((tmp_path / "g" / "ghosts.json").read_text())["ghosts"]
+    assert len(rows) == 15
+    for row in rows:
+        j, i = (index[name] for name in row["surfaces"])
+        y, u = _paraxial_ghost(surfaces, j, i)
+        focus = -y / u - surfaces[-1]["thickness_mm"]
+        assert row["focus_mm"] == pytest.approx(focus, rel=0.01), row["surfaces"]
