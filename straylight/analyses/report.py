@@ -225,12 +225,14 @@ def _study_steps(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Exec
         from straylight.analyses.scene_setup import scene_setup
 
         _step(f"building {cfg.model} with its default parameters", progress)
-        setup = scene_setup(design_scene(cfg.model, {}, out / "model_scene"), detector=cfg.detector)
+        scene_file: Path | str = design_scene(cfg.model, {}, out / "model_scene")
+        setup = scene_setup(scene_file, detector=cfg.detector)
     elif cfg.scene is not None:
         from straylight.analyses.scene_setup import scene_setup
 
         _step(f"loading {cfg.scene}", progress)
-        setup = scene_setup(cfg.scene, detector=cfg.detector)
+        scene_file = cfg.scene
+        setup = scene_setup(scene_file, detector=cfg.detector)
     else:
         _step("building the tube (CadQuery, tessellation)", progress)
         setup = tube_setup(material=cfg.material)
@@ -284,6 +286,17 @@ def _study_steps(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Exec
         thermal_step(setup, out, cfg.thermal_band_um, seed=point_seed(cfg.seed, 7))
         result.timings_s["thermal"] = time.perf_counter() - t0
         done.append("thermal")
+
+    ghosts_doc = None
+    if cfg.scene is not None or cfg.model is not None:  # a lens or window: its ghost table (the built-ins have none)
+        from straylight.analyses.ghost_study import ghost_step, has_lenses
+
+        if has_lenses(setup.materials):
+            _step("ghost table on axis (order 2)", progress)
+            t0 = time.perf_counter()
+            ghosts_doc = ghost_step(scene_file, setup, out, seed=point_seed(cfg.seed, 8))
+            result.timings_s["ghosts"] = time.perf_counter() - t0
+            done.append("ghosts")
 
     sweep = None
     if cfg.sweep and cfg.model is not None and cfg.sweep_values:
@@ -346,6 +359,7 @@ def _study_steps(out: Path, cfg: StudyConfig, resume: bool, done: list, ex: Exec
                                         "absorbed_w": sum(t.power_w for t in trace_res.absorbed.values()),
                                         "escaped_w": trace_res.escaped.power_w},
         "thermal": json.loads((out / "thermal.json").read_text()) if "thermal" in done else None,
+        "ghosts": ghosts_doc,
         "timings_s": result.timings_s,
         "config": _config_dict(cfg),
         "execution": ex.describe(),
@@ -581,6 +595,8 @@ def _findings(pst, report, crit, sweep, builtin: bool = True) -> list[str]:
 
 
 def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
+    from straylight.analyses.ghost_study import markdown_lines as ghost_markdown
+
     lines = [f"# {_title(result)}", "", result.summary["description"], "", "## Findings", ""]
     lines += [f"- {f}" for f in _findings(pst, report, crit, sweep, _builtin(result))]
     note = _pst_reliability_note(pst)
@@ -588,6 +604,7 @@ def write_markdown(result: StudyResult, pst, report, crit, sweep, direct) -> Pat
               _md_table(*_without_empty_columns(PST_HEADER, _pst_table_rows(pst, direct))), "",
               "## Stray-light paths", "", "![paths](paths.png)", "", report.markdown(15), "",
               "## Critical and illuminated objects", "", "![critical](critical.png)", "", crit.markdown(), "",
+              *ghost_markdown(result.summary.get("ghosts")),
               *(["## Design sweep", "", "![sweep](sweep.png)", ""] if sweep is not None else []),
               "## 3-D views and detector map", "", "![rays](view_rays.png)", "", "![absorbed](view_absorbed.png)",
               "", "![map](detector_map.png)", "", "## Method", "", *_method_lines(result)]
@@ -646,6 +663,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
         sweep_html = f"""<h2>Design sweep: {html.escape(sweep.parameter.replace('_', ' '))}</h2>
 {img('sweep.png', 'PST vs design parameter at the stray-light angles')}
 {_html_table((sweep.parameter,) + tuple(f'PST at {a:g} deg' for a in sweep.off_axis_deg), sweep_rows)}{csv('sweep')}"""
+    from straylight.analyses.ghost_study import report_section as ghost_section
     from straylight.thermal.report import report_section as thermal_section
     from straylight.view3d import report_section
 
@@ -670,6 +688,7 @@ def write_html(result: StudyResult, pst, report, crit, sweep, direct) -> Path:
 <h2>Critical and illuminated objects at {crit.off_axis_deg:g} deg</h2>
 {img('critical.png', 'View factor from the detector vs fraction of the beam first hitting each part', '70%')}
 {_html_table(('rank', 'part', 'illuminated fraction', 'view factor det -> part', 'score'), crit_rows)}{csv('critical')}
+{ghost_section(result.summary.get("ghosts"))}
 {sweep_html}
 {thermal_section(result.out_dir)}{csv('thermal')}
 {view3d_html}

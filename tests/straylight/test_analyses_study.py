@@ -1,5 +1,6 @@
 """The study runs end to end on a tiny ray count and writes a report a person can open."""
 import json
+from pathlib import Path
 
 import pytest
 
@@ -80,3 +81,37 @@ def test_study_of_a_scene_where_nothing_absorbs(tmp_path):
     assert main(["study", str(scene), "--out", str(tmp_path / "r")]) == 0
     assert (tmp_path / "r" / "index.html").exists() and (tmp_path / "r" / "view_absorbed.png").exists()
     assert json.loads((tmp_path / "r" / "results.json").read_text())
+    assert json.loads((tmp_path / "r" / "results.json").read_text())["ghosts"] is None  # no lens: no ghost step
+    assert not (tmp_path / "r" / "ghosts.csv").exists() and "Ghosts" not in (tmp_path / "r" / "index.html").read_text()
+
+
+def test_study_of_an_imported_lens_has_its_ghost_table(tmp_path):
+    """A study of a lens file's scene (the Cooke triplet through `optics import`) carries the ghost table on axis,
+    the `ghosts` command's files and numbers (same seed: the same table), and a section of the report."""
+    from straylight.analyses.ghost_trace import ghosts
+    from straylight.analyses.grid import point_seed
+    from straylight.cli.main import main
+
+    lens = Path(__file__).resolve().parents[1] / "data" / "lenses" / "optiland" / "cooke_triplet.seq"
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path / "lens")]) == 0
+    scene = tmp_path / "lens" / "scene.toml"
+    assert main(["study", str(scene), "--rays", "2000", "--angles-deg", "0", "10", "--seed", "4",
+                 "--out", str(tmp_path / "r")]) == 0
+    doc = json.loads((tmp_path / "r" / "results.json").read_text())["ghosts"]
+    assert len(doc["ghosts"]) == 15 and doc["order"] == 2 and doc["field_deg"] == 0.0
+    alone = ghosts(scene, seed=point_seed(4, 8)).to_json_dict()
+    assert [g["power_w"] for g in doc["ghosts"]] == [g["power_w"] for g in alone["ghosts"]]
+    for name in ("ghosts.csv", "ghosts.json", "ghosts.md", "ghosts.png"):
+        assert (tmp_path / "r" / name).stat().st_size > 0
+    page = (tmp_path / "r" / "index.html").read_text()
+    first = " &gt; ".join(doc["ghosts"][0]["surfaces"])
+    assert "Ghosts (order 2, on axis)" in page and first in page and "5 more in" in page
+    assert "## Ghosts" in (tmp_path / "r" / "report.md").read_text()
+
+
+def test_a_ghost_table_the_analysis_refuses_is_said_in_the_report():
+    from straylight.analyses.ghost_study import markdown_lines, report_section
+
+    doc = {"skipped": "the nominal path crosses no transmitting interface: no ghost to list"}
+    assert "No ghost table: the nominal path crosses no transmitting interface" in report_section(doc)
+    assert markdown_lines(doc)[0] == "## Ghosts" and report_section(None) == "" and markdown_lines(None) == []
