@@ -630,13 +630,6 @@ class _Accumulator:
         return focus, math.sqrt(max(rms2, 0.0))
 
 
-def peak_irradiance(m: np.ndarray) -> float:
-    """The largest mean irradiance over PEAK_CELLS x PEAK_CELLS cells of a map (W/mm^2)."""
-    from scipy.ndimage import uniform_filter
-
-    return float(uniform_filter(m, size=PEAK_CELLS, mode="constant").max())
-
-
 def peak_estimate(acc: "_Accumulator") -> float:
     """The peak of ``acc``'s map (its units: the summed weights per cell), as the mean over a block of cells.
 
