@@ -25,7 +25,8 @@ SLOW = ["optiland/cooke_triplet.seq", "ray-optics/CODV_32327.seq", "ray-optics/H
         "OpticsDatabase/Canon_EF50mm_f1.0L_USM.zmx",  # r^2 terms on flat bases: paraboloids
         "OpticsDatabase/Fujifilm_Fujinon_XF23mm_F1.4_R.zmx",
         "OpticsDatabase/Samyang_50mm_F1.4_AS_UMC.zmx",  # two elements in contact: one interface between the glasses
-        "OpticsDatabase/Nikon_1_Nikkor_10mm_f2.8.zmx"]  # 69 of 3000 sequential rays pass: sampled again, finer
+        "OpticsDatabase/Nikon_1_Nikkor_10mm_f2.8.zmx",  # 69 of 3000 sequential rays pass: sampled again, finer
+        "OpticsDatabase/Wray_64mm_F0.7.zmx"]  # real image height fields (FTYP 3): the edge angle is the aimed chief ray's
 
 
 def focus_check(lens, field_deg, tmp_path, rays=6000, bins=121):

@@ -4,6 +4,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -214,6 +215,29 @@ def test_two_glasses_of_one_label_keep_their_own_indices():
     glasses = {round(comp["n"], 5) for m in scene["material"].values() for comp in m["components"]
                if comp["type"] == "dielectric"}
     assert {1.69359, 1.6935} <= glasses
+
+
+def test_real_image_height_fields_are_the_angles_whose_rays_land_there():
+    """Zemax fields given as real image heights (FTYP 3, most of OpticsDatabase): the Wray 64 mm f/0.7's edge field
+    is 13.5 mm on the image. atan(13.5 / efl) = 11.89 deg was read, where no ray passes the lens (its distortion);
+    the field is the angle of the chief ray rayoptics aims at 13.5 mm, 8.69 deg: the sequential trace passes rays
+    there, their spot lies near that height (at f/0.74 the vignetted beam's centroid sits 1.8 mm inside the chief
+    ray), and the detector is 1.2 x the file's 13.5 mm."""
+    from straylight.optics.reader import read_prescription
+    from straylight.optics.scene_build import build_scene
+    from straylight.optics.sequential import sequential_spot
+
+    p = read_prescription(LENSES / "OpticsDatabase" / "Wray_64mm_F0.7.zmx")
+    edge = max(p.fields_deg)
+    assert edge < 10.0 and math.degrees(math.atan2(13.5, abs(p.efl_mm))) > 11.0
+    scene = build_scene(p, field_deg=edge)
+    src = scene["source"][0]
+    spot = sequential_spot(p, edge, src["center_mm"][2], src["radius_mm"], n=3000,
+                           source_centre_xy=src["center_mm"][:2], min_kept=300)
+    assert len(spot) > 50
+    assert 0.8 * 13.5 < np.hypot(*spot.mean(axis=0)[:2]) < 1.05 * 13.5
+    det = next(part for part in scene["part"] if part["name"] == "image")
+    assert det["surface"]["outer_radius_mm"] == pytest.approx(1.2 * 13.5, rel=1e-6)
 
 
 def test_readers_write_no_log_files_in_the_working_folder(tmp_path):

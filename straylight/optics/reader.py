@@ -110,6 +110,7 @@ class Prescription:
     image_semi_diameter_mm: float | None = None  # the image surface's semi-diameter as the file gives it
     model: object = None            # the rayoptics OpticalModel (wavelength set to wavelength_nm)
     scale: float = 1.0              # mm per file unit
+    image_heights_mm: list | None = None  # the file's fields as image heights (real or paraxial), when so given
 
 
 def sniff_format(raw: bytes, path: Path) -> tuple[str, str]:
@@ -497,6 +498,21 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
         raise
 
 
+def _real_height_angle_deg(fov, fld, height_mm: float, efl_mm: float) -> float:
+    """The object-side field angle (deg) of a real-image-height field ``fld`` (rayoptics aims its chief ray at
+    the height); the paraxial angle atan(height / efl) where rayoptics cannot aim it."""
+    try:
+        with np.errstate(all="ignore"):
+            _, d = fov.obj_coords(fld)
+        d = np.asarray(d, float)
+        angle = math.degrees(math.atan2(math.hypot(d[0], d[1]), d[2]))
+        if math.isfinite(angle) and (height_mm == 0.0 or angle > 0.0):
+            return angle
+    except Exception:  # noqa: BLE001 - rayoptics' aiming failed: the paraxial angle
+        pass
+    return math.degrees(math.atan2(height_mm, abs(efl_mm)))
+
+
 def _reserved(label: str) -> bool:
     """A label that cannot name a surface's part: the object and image, the parts the scene builder makes
     (``stop``, ``image``, ``pupil``, ``edge_...``, ``spacer_...``) and another surface's default name (``s7``)."""
@@ -754,6 +770,10 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         notes.append("afocal as read (no finite focal length): efl, bfl and f/# are null")
     if fov.key[1] == "angle":
         fields_deg = fields
+    elif tuple(fov.key) == ("image", "real height") and not afocal:
+        # real image heights (Zemax FTYP 3): the object-side angle of the chief ray rayoptics aims at each height
+        # (the Wray 64 mm f/0.7's 13.5 mm is 8.69 deg, not atan(13.5 / efl) = 11.89 deg, where no ray passes)
+        fields_deg = [_real_height_angle_deg(fov, f, y * scale, efl) for f, y in zip(fov.fields, fields)]
     else:
         fields_deg = [0.0 if afocal else math.degrees(math.atan2(y * scale, abs(efl))) for y in fields]
     stop_sd = None
@@ -767,4 +787,5 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         image_vertex_mm=np.asarray(img_t, float) * scale, image_local_z=img_rot[:, 2].copy(),
         image_travel_in=sm.z_dir[n_ifc - 2] * img_rot[:, 2], stop_semi_diameter_mm=stop_sd, warnings=notes,
         image_semi_diameter_mm=given_sd[n_ifc - 1] * scale if n_ifc - 1 in given_sd else None,
-        model=opm, scale=scale)
+        model=opm, scale=scale,
+        image_heights_mm=[abs(y) * scale for y in fields] if fov.key[0] == "image" and not afocal else None)

@@ -289,7 +289,9 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     largest = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
     if not mirrors:
         parts += _spacer_rings(p, elements, edge_material, unique)
-        parts += _barrel_front(elements, 1.1 * largest, edge_material, unique)
+        z_src = min(_object_side_z(s) for s in p.surfaces if not s.dummy or s.stop) - 1.0
+        parts += _barrel_front(elements, 1.1 * largest + abs(_field_shift_mm(p, field_deg, z_src)), edge_material,
+                               unique)
     # the aperture stop: a black annulus whose hole is the stop's semi-diameter
     stop = next((s for s in p.surfaces if s.stop), None)
     if stop is not None:
@@ -307,8 +309,14 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     # afocal system (a window, a beam expander) has a beam there, not an image: 1.2 x the largest clear aperture
     # plus the beam's walk over the system's length at the largest field
     f_max = max(p.fields_deg + [abs(field_deg)])
-    if math.isfinite(p.efl_mm):
-        h_img = abs(p.efl_mm) * math.tan(math.radians(f_max))
+    if math.isfinite(p.efl_mm) and p.image_heights_mm and abs(field_deg) <= max(p.fields_deg):
+        # the file's own image heights: a fisheye's field reaches 90 deg and past (the Canon EF 15 mm's 90.015:
+        # efl x tan(f) was negative, and the detector the spot's size)
+        h_img = max(p.image_heights_mm)
+    elif math.isfinite(p.efl_mm) and f_max >= 89.0 and p.image_semi_diameter_mm:
+        h_img = p.image_semi_diameter_mm  # an angle past 89 deg has no paraxial image height: the file's image size
+    elif math.isfinite(p.efl_mm):
+        h_img = abs(p.efl_mm) * math.tan(math.radians(min(f_max, 89.0)))
     else:
         length = max(float(np.linalg.norm(p.image_vertex_mm - s.vertex_mm)) for s in p.surfaces)
         h_img = largest + length * math.tan(math.radians(min(f_max, 80.0)))
@@ -328,6 +336,7 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     z0 = min(_object_side_z(s) for s in p.surfaces if not s.dummy or s.stop) - 1.0  # the stop is a part too
     f = math.radians(field_deg)
     cx, cy = source_centre_xy(p)
+    cy = round(cy + _field_shift_mm(p, field_deg, z0), 10) + 0.0
     source = {"type": "collimated_disk", "name": "pupil", "center_mm": [cx, cy, z0], "normal": [0.0, 0.0, 1.0],
               "direction": _v([0.0, math.sin(f), math.cos(f)]), "radius_mm": round(1.1 * largest, 9),
               "power_w": 1.0, "wavelength_nm": wl}
@@ -494,6 +503,26 @@ def _object_side_z(s) -> float:
     rho = np.linspace(*aperture.rho_range_mm(s), 33)
     axial = float(np.asarray(s.local_z, float)[2])
     return float(min(float(s.vertex_mm[2]) + sag_mm(s, r) * axial for r in rho))
+
+
+def _field_shift_mm(p, field_deg: float, z0: float) -> float:
+    """The y offset of the ``pupil`` source's centre at an off-axis field: where the field's chief ray, through the
+    paraxial entrance pupil's centre, crosses the source plane ``z0``. A wide-angle lens's pupil lies deep inside
+    it: at the TH Swiss Irix 11 mm's 62.9 deg edge field the beam crosses the source plane ~50 mm off axis, past
+    the disk (1.1 x the largest clear aperture) centred on the axis, and no ray passed. 0 on axis, for a system
+    with mirrors (a folded or off-axis pupil) and where the paraxial data give no pupil."""
+    if field_deg == 0.0 or p.model is None or abs(field_deg) >= 89.0 or any(s.mirror for s in p.surfaces):
+        return 0.0
+    first = p.surfaces[0]
+    if abs(float(first.local_z[2]) - 1.0) > 1e-12 or np.linalg.norm(first.vertex_mm[:2]) > 1e-9:
+        return 0.0
+    try:
+        z_enp = float(first.vertex_mm[2]) + float(p.model["analysis_results"]["parax_data"].fod.enp_dist) * p.scale
+    except Exception:  # noqa: BLE001 - no paraxial pupil
+        return 0.0
+    if not math.isfinite(z_enp):
+        return 0.0
+    return -math.tan(math.radians(field_deg)) * (z_enp - z0)
 
 
 def source_centre_xy(p) -> tuple[float, float]:
