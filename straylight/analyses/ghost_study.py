@@ -22,14 +22,12 @@ def has_lenses(materials) -> bool:
     return any(isinstance(getattr(m, "smooth", None), Dielectric) for m in materials.values())
 
 
-def ghost_step(scene_path, setup, out_dir, seed: int = 0) -> dict | None:
-    """The ghost table of ``scene_path`` at its detector on axis, written into ``out_dir``; its JSON (the
-    ``ghosts.json`` document), ``{"skipped": reason}`` when the analysis refuses the scene, None when the
-    scene has no lens."""
+def ghost_step(scene_path, setup, out_dir, seed: int = 0) -> dict:
+    """The ghost table of ``scene_path`` (a scene :func:`has_lenses`) at its detector on axis, written into
+    ``out_dir``; its JSON (the ``ghosts.json`` document), or ``{"skipped": reason}`` when the analysis refuses
+    the scene."""
     from straylight.analyses.ghost_trace import GhostError, ghosts, write_table
 
-    if not has_lenses(setup.materials):
-        return None
     try:
         table = ghosts(scene_path, order=2, field_deg=0.0, detector=setup.detector, seed=seed)
     except GhostError as exc:

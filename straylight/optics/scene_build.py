@@ -287,11 +287,13 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
                     "material": edge_material, "role": "surface"})
         elements.append((a, b, origin, ax, za_m, zb_m, r_mech))
     largest = max((s.semi_diameter_mm for s in p.surfaces if not s.dummy), default=1.0)
+    # the source's plane, 1 mm before the surface point nearest the object (the stop is a part too), and its centre's
+    # shift at an off-axis field (the barrel's front reaches past it)
+    z0 = min(_object_side_z(s) for s in p.surfaces if not s.dummy or s.stop) - 1.0
+    shift_mm = _field_shift_mm(p, field_deg, z0)
     if not mirrors:
         parts += _spacer_rings(p, elements, edge_material, unique)
-        z_src = min(_object_side_z(s) for s in p.surfaces if not s.dummy or s.stop) - 1.0
-        parts += _barrel_front(elements, 1.1 * largest + abs(_field_shift_mm(p, field_deg, z_src)), edge_material,
-                               unique)
+        parts += _barrel_front(elements, 1.1 * largest + abs(shift_mm), edge_material, unique)
     # the aperture stop: a black annulus whose hole is the stop's semi-diameter
     stop = next((s for s in p.surfaces if s.stop), None)
     if stop is not None:
@@ -333,10 +335,9 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     # the source: 1 mm on the object side of the surface point nearest the object (its vertex, or the edge of
     # a surface that curves toward the object: a Cassegrain's convex secondary reaches ~90 mm past its
     # vertex; a source at the vertex would start inside it and lose its obscuration)
-    z0 = min(_object_side_z(s) for s in p.surfaces if not s.dummy or s.stop) - 1.0  # the stop is a part too
     f = math.radians(field_deg)
     cx, cy = source_centre_xy(p)
-    cy = round(cy + _field_shift_mm(p, field_deg, z0), 10) + 0.0
+    cy = round(cy + shift_mm, 10) + 0.0
     source = {"type": "collimated_disk", "name": "pupil", "center_mm": [cx, cy, z0], "normal": [0.0, 0.0, 1.0],
               "direction": _v([0.0, math.sin(f), math.cos(f)]), "radius_mm": round(1.1 * largest, 9),
               "power_w": 1.0, "wavelength_nm": wl}
