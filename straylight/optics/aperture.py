@@ -14,7 +14,7 @@ def is_off_axis(s) -> bool:
     return bool(s.aperture_offset_mm != (0.0, 0.0) or s.aperture_half_widths_mm)
 
 
-def _axes(s):
+def axes(s):
     """(x, y) unit axes of the surface's own frame in the scene frame."""
     z = np.asarray(s.local_z, float)
     x = np.asarray(s.local_x, float) if s.local_x is not None else None
@@ -30,20 +30,28 @@ def centre_mm(s) -> np.ndarray:
     dx, dy = s.aperture_offset_mm
     if not (dx or dy):
         return np.asarray(s.vertex_mm, float)
-    x, y = _axes(s)
+    x, y = axes(s)
     return np.asarray(s.vertex_mm, float) + dx * x + dy * y
 
 
 def local_xy(s, rel) -> tuple[float, float]:
     """(x, y) in the surface's own frame of ``rel`` (a point minus the vertex, scene frame)."""
-    x, y = _axes(s)
+    x, y = axes(s)
     return float(np.dot(rel, x)), float(np.dot(rel, y))
 
 
-def inside(s, x_mm: float, y_mm: float, hole_mm: float = 0.0) -> bool:
+def inside(s, x_mm, y_mm, hole_mm: float = 0.0):
     """Whether the point (x, y) of the surface's own frame is in the clear aperture (outside a hole of
-    ``hole_mm`` about the aperture's centre)."""
+    ``hole_mm`` about the aperture's centre); ``x_mm``, ``y_mm`` floats (a bool back) or arrays (a bool array)."""
     dx, dy = s.aperture_offset_mm
+    if isinstance(x_mm, np.ndarray) or isinstance(y_mm, np.ndarray):
+        u, v = np.asarray(x_mm, dtype=np.float64) - dx, np.asarray(y_mm, dtype=np.float64) - dy
+        r = np.hypot(u, v)
+        ok = (r <= s.semi_diameter_mm) & (r >= hole_mm)
+        if s.aperture_half_widths_mm:
+            hx, hy = s.aperture_half_widths_mm
+            ok &= (np.abs(u) <= hx) & (np.abs(v) <= hy)
+        return ok
     u, v = x_mm - dx, y_mm - dy
     r = math.hypot(u, v)
     if r > s.semi_diameter_mm or r < hole_mm:
@@ -68,5 +76,5 @@ def scene_keys(s) -> dict:
         d["aperture_center_mm"] = [round(float(v), 10) + 0.0 for v in centre_mm(s)]
     if s.aperture_half_widths_mm:
         d["aperture_half_widths_mm"] = [float(h) for h in s.aperture_half_widths_mm]
-        d["aperture_x_axis"] = [round(float(v), 12) + 0.0 for v in _axes(s)[0]]
+        d["aperture_x_axis"] = [round(float(v), 12) + 0.0 for v in axes(s)[0]]
     return d
