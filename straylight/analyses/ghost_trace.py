@@ -138,10 +138,13 @@ def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOpt
     nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
     src = _at_field(rs.sources[0], field_deg)
-    return GhostOptics(tuple(p.name for p in parts), tuple(getattr(p, "surface", None) for p in parts),
-                       tuple(per_part), tuple(p.role for p in parts), EmbreeIntersector(tri),
-                       np.asarray(scene.triangle_part, dtype=np.int64), nrm, dets[0], src,
-                       max(EPS_MM, scene_epsilon(tri)), float(field_deg))
+    opt = GhostOptics(tuple(p.name for p in parts), tuple(getattr(p, "surface", None) for p in parts),
+                      tuple(per_part), tuple(p.role for p in parts), EmbreeIntersector(tri),
+                      np.asarray(scene.triangle_part, dtype=np.int64), nrm, dets[0], src,
+                      max(EPS_MM, scene_epsilon(tri)), float(field_deg))
+    if field_deg and hasattr(src, "radius_mm"):
+        opt.source = _covering_entrance(opt, tri)
+    return opt
 
 
 def _at_field(source, field_deg: float):
@@ -155,6 +158,53 @@ def _at_field(source, field_deg: float):
     f = math.radians(field_deg)
     rx = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(f), math.sin(f)], [0.0, -math.sin(f), math.cos(f)]])
     return dataclasses.replace(source, direction=rx @ np.asarray(source.direction, float))
+
+
+#: rays of the pilot that finds where light enters the lenses at a turned field (:func:`_covering_entrance`)
+ENTRANCE_PILOT_RAYS = 20000
+ENTRANCE_MARGIN = 1.05  # the disk's radius over the farthest entering ray's
+
+
+def _covering_entrance(opt: "GhostOptics", tri: np.ndarray):
+    """The turned collimated disk moved and resized to cover every ray that enters the lenses at the field, at the
+    scene source's irradiance (power_w x the area ratio).
+
+    Turning the source alone leaves it where the scene had it for its own field: a wide-angle lens's beam at its
+    63 deg edge crosses the source plane ~50 mm off axis, past a disk 1.1 x the largest clear aperture centred on the
+    axis, so the ghosts of most of the light were never traced. Here a pilot of :data:`ENTRANCE_PILOT_RAYS` rays
+    from a disk widened by tan(F) x the depth of the lens parts behind the source plane finds the rays whose first
+    hit is a lens or window part (an interface met from the air); the new disk is the smallest about their centroid
+    holding them all (x :data:`ENTRANCE_MARGIN`), never smaller than the scene's own. Light that first meets a
+    barrel, a mount or nothing never reaches a ghost."""
+    import dataclasses
+
+    src: Any = opt.source  # a CollimatedDisk (prepare calls this for a source with a radius)
+    lens_parts = [p for p in range(len(opt.names)) if opt.is_interface(p)]
+    if not lens_parts:
+        return src
+    c = np.asarray(src.center_mm, float)
+    n = np.asarray(src.normal, float) / np.linalg.norm(src.normal)
+    d = np.asarray(src.direction, float)
+    pts = tri[np.isin(opt.tri_part, lens_parts)].reshape(-1, 3)
+    depth = float(np.max(np.abs((pts - c) @ n))) if len(pts) else 0.0
+    cos_f = abs(float(d @ n))
+    wide = float(src.radius_mm) + depth * math.sqrt(max(1.0 - cos_f * cos_f, 0.0)) / max(cos_f, 1e-6)
+    trial = dataclasses.replace(src, radius_mm=wide)
+    pilot = GhostOptics(**{**{f.name: getattr(opt, f.name) for f in dataclasses.fields(opt)}, "source": trial})
+    b = emit(pilot, ENTRANCE_PILOT_RAYS, np.random.default_rng(0))
+    part, _, _, _, front = next_hits(pilot, b)
+    enters = (part >= 0) & front & np.isin(part, lens_parts)
+    if not enters.any():
+        return src
+    # start points on the source plane (the rays start there), about the centroid of the entering ones
+    start = b.o[enters]
+    centre = start.mean(axis=0)
+    radius = ENTRANCE_MARGIN * float(np.max(np.linalg.norm(start - centre, axis=1)))
+    radius = max(radius, float(src.radius_mm))
+    if radius >= wide:  # the entering rays fill the trial disk: keep it whole, centred as it was
+        centre, radius = c, wide
+    return dataclasses.replace(src, center_mm=centre, radius_mm=radius,
+                               power_w=float(src.power_w) * (radius / float(src.radius_mm)) ** 2)
 
 
 # ---------------------------------------------------------------- one step: the next hit and its interface

@@ -902,3 +902,42 @@ def test_every_ghost_of_a_stopped_down_cooke_triplet_focuses_where_a_paraxial_tr
         share = fresnel[i] * fresnel[j] * between * apertures * min(1.0, (r_det / abs(y_det)) ** 2)
         assert row["fraction_of_nominal"] == pytest.approx(share, rel=0.08), row["surfaces"]
     assert clipped >= 3  # the check sees the clear apertures, not only the Fresnel products
+
+
+def _far_window():
+    """A window (n = 1.5, faces of radius 10 mm at z = 10 and 0) 100 mm below its source (radius 10 mm)."""
+    from geometry.analytic import Plane, analytic_part
+    from geometry.mesh import Scene
+    from materials import load_material
+    from straylight.sources import CollimatedDisk
+
+    up = np.array([0.0, 0.0, 1.0])
+    glass = load_material({"name": "glass", "components": [{"type": "dielectric", "n": 1.5}]})
+    top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, 10.0, 0.0), "glass")
+    bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, 10.0, 0.0), "glass")
+    det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
+    src = CollimatedDisk(center_mm=np.array([0, 0, 110.0]), normal=-up, direction=-up, radius_mm=10.0)
+    return ResolvedScene(None, Scene((top, bottom, det)), {"glass": glass}, (src,), ())
+
+
+def test_a_turned_field_moves_the_source_over_the_lens():
+    """``--field-deg`` turns the source; a source far in front of its lens must also move, or the turned beam
+    misses the lens (a wide-angle lens's 63 deg edge crosses the source plane ~50 mm off axis). At 30 deg the beam
+    from 100 mm above the window lands 58 mm off axis: before, no ray reached the detector. Now the source covers
+    the light that enters the window at the scene source's irradiance E = 1 W / (pi 10^2): the design path carries
+    E x the overlap of the two faces' disks as the refracted beam sees them (shifted by t tan(theta_t) inside the
+    glass) x (T_s^2 + T_p^2) / 2 (Fresnel, Born & Wolf 1.5.3; the exit's T equals the entry's)."""
+    f = math.radians(30.0)
+    opt = prepare(_far_window(), field_deg=30.0)
+    table = ghost_table(opt, target_rel_error=0.01)
+    n, r, t = 1.5, 10.0, 10.0
+    ft = math.asin(math.sin(f) / n)
+    rs = (math.sin(f - ft) / math.sin(f + ft)) ** 2
+    rp = (math.tan(f - ft) / math.tan(f + ft)) ** 2
+    shift = t * math.tan(ft)
+    overlap = 2 * r * r * math.acos(shift / (2 * r)) - 0.5 * shift * math.sqrt(4 * r * r - shift * shift)
+    want = overlap / (math.pi * 10.0 ** 2) * ((1 - rs) ** 2 + (1 - rp) ** 2) / 2
+    nominal = table.nominal
+    assert abs(nominal.power_w - want) < 4 * nominal.stderr_w + 1e-3 * want, (nominal.power_w, nominal.stderr_w, want)
+    assert opt.source.power_w > 1.0  # the same irradiance over a larger disk
+    assert len(table.rows) == 1 and table.rows[0].surfaces == ["bottom", "top"]
