@@ -144,14 +144,16 @@ def icosphere_ports_scene(radius_mm, port_fractions, subdivisions=5, material="w
     return Scene(tuple(parts)), fractions
 
 
-def window_scene():
-    """An uncoated glass window (n = 1.5, analytic faces "top" at z = 10 and "bottom" at z = 0) over a
-    detector disk "det" at z = -20, lit at normal incidence by a 5 mm collimated beam: (scene, source,
-    materials). Nominal image (1 - R)^2, two-bounce ghost (1 - R)^2 R^2 with R = 0.04."""
+def window_scene(face_radius_mm: float = 100.0, source_z_mm: float = 60.0, source_radius_mm: float = 5.0):
+    """An uncoated glass window (n = 1.5, analytic faces "top" at z = 10 and "bottom" at z = 0, radius
+    ``face_radius_mm``) over a detector disk "det" at z = -20, lit at normal incidence by a collimated beam from
+    z = ``source_z_mm``: (scene, source, materials). By default (a 5 mm beam on 100 mm faces): nominal image
+    (1 - R)^2, two-bounce ghost (1 - R)^2 R^2 with R = 0.04."""
     up = np.array([0.0, 0.0, 1.0])
     glass = load_material({"name": "glass", "components": [{"type": "dielectric", "n": 1.5}]})
-    top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, 100.0, 0.0), "glass")
-    bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, 100.0, 0.0), "glass")
+    top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, face_radius_mm, 0.0), "glass")
+    bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, face_radius_mm, 0.0), "glass")
     det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
-    src = CollimatedDisk(center_mm=np.array([0, 0, 60.0]), normal=-up, direction=-up, radius_mm=5.0)
+    src = CollimatedDisk(center_mm=np.array([0, 0, source_z_mm]), normal=-up, direction=-up,
+                         radius_mm=source_radius_mm)
     return Scene((top, bottom, det)), src, {"glass": glass}

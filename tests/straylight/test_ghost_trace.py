@@ -906,18 +906,8 @@ def test_every_ghost_of_a_stopped_down_cooke_triplet_focuses_where_a_paraxial_tr
 
 def _far_window():
     """A window (n = 1.5, faces of radius 10 mm at z = 10 and 0) 100 mm below its source (radius 10 mm)."""
-    from geometry.analytic import Plane, analytic_part
-    from geometry.mesh import Scene
-    from materials import load_material
-    from straylight.sources import CollimatedDisk
-
-    up = np.array([0.0, 0.0, 1.0])
-    glass = load_material({"name": "glass", "components": [{"type": "dielectric", "n": 1.5}]})
-    top = analytic_part("top", Plane(np.array([0, 0, 10.0]), up, math.inf, 0.0, 10.0, 0.0), "glass")
-    bottom = analytic_part("bottom", Plane(np.zeros(3), -up, math.inf, 0.0, 10.0, 0.0), "glass")
-    det = analytic_part("det", Plane(np.array([0, 0, -20.0]), up, math.inf, 0.0, 300.0, 0.0), None, "detector")
-    src = CollimatedDisk(center_mm=np.array([0, 0, 110.0]), normal=-up, direction=-up, radius_mm=10.0)
-    return ResolvedScene(None, Scene((top, bottom, det)), {"glass": glass}, (src,), ())
+    scene, src, mats = window_scene(face_radius_mm=10.0, source_z_mm=110.0, source_radius_mm=10.0)
+    return ResolvedScene(None, scene, mats, (src,), ())
 
 
 def test_a_turned_field_moves_the_source_over_the_lens():
