@@ -163,6 +163,8 @@ def _at_field(source, field_deg: float):
 #: rays of the pilot that finds where light enters the lenses at a turned field (:func:`_covering_entrance`)
 ENTRANCE_PILOT_RAYS = 20000
 ENTRANCE_MARGIN = 1.05  # the disk's radius over the farthest entering ray's
+ENTRANCE_PILOTS = 3  # looks at most, each over the disk the last one found
+ENTRANCE_PILOT_FILL = 0.25  # a look in which this share of the pilot enters needs no next one
 
 
 def _covering_entrance(opt: "GhostOptics", tri: np.ndarray):
@@ -173,8 +175,10 @@ def _covering_entrance(opt: "GhostOptics", tri: np.ndarray):
     63 deg edge crosses the source plane ~50 mm off axis, past a disk 1.1 x the largest clear aperture centred on the
     axis, so the ghosts of most of the light were never traced. Here a pilot of :data:`ENTRANCE_PILOT_RAYS` rays
     from a disk widened by tan(F) x the depth of the lens parts behind the source plane finds the rays whose first
-    hit is a lens or window part (an interface met from the air); the new disk is the smallest about their centroid
-    holding them all (x :data:`ENTRANCE_MARGIN`), never smaller than the scene's own. Light that first meets a
+    hit is a lens or window part (an interface met from the air); the new disk is the one about their centroid
+    holding them all (out to the farthest plus the pilot's spacing, x :data:`ENTRANCE_MARGIN`), never smaller than
+    the scene's own; where few entered (a small lens far behind the source), a second and third look over the disk
+    the last one found. Light that first meets a
     barrel, a mount or nothing never reaches a ghost."""
     import dataclasses
 
@@ -189,20 +193,27 @@ def _covering_entrance(opt: "GhostOptics", tri: np.ndarray):
     depth = float(np.max(np.abs((pts - c) @ n))) if len(pts) else 0.0
     cos_f = abs(float(d @ n))
     wide = float(src.radius_mm) + depth * math.sqrt(max(1.0 - cos_f * cos_f, 0.0)) / max(cos_f, 1e-6)
-    trial = dataclasses.replace(src, radius_mm=wide)
-    pilot = GhostOptics(**{**{f.name: getattr(opt, f.name) for f in dataclasses.fields(opt)}, "source": trial})
-    b = emit(pilot, ENTRANCE_PILOT_RAYS, np.random.default_rng(0))
-    part, _, _, _, front = next_hits(pilot, b)
-    enters = (part >= 0) & front & np.isin(part, lens_parts)
-    if not enters.any():
-        return src
-    # start points on the source plane (the rays start there), about the centroid of the entering ones
-    start = b.o[enters]
-    centre = start.mean(axis=0)
-    radius = ENTRANCE_MARGIN * float(np.max(np.linalg.norm(start - centre, axis=1)))
-    radius = max(radius, float(src.radius_mm))
-    if radius >= wide:  # the entering rays fill the trial disk: keep it whole, centred as it was
-        centre, radius = c, wide
+    centre, radius = c, wide
+    for _ in range(ENTRANCE_PILOTS):
+        trial = dataclasses.replace(src, center_mm=centre, radius_mm=radius)
+        pilot = GhostOptics(**{**{f.name: getattr(opt, f.name) for f in dataclasses.fields(opt)}, "source": trial})
+        b = emit(pilot, ENTRANCE_PILOT_RAYS, np.random.default_rng(0))
+        part, _, _, _, front = next_hits(pilot, b)
+        enters = (part >= 0) & front & np.isin(part, lens_parts)
+        if not enters.any():
+            return src
+        # start points on the source plane (the rays start there), about the centroid of the entering ones, out to
+        # the farthest plus the pilot's spacing (a sparse pilot's farthest ray lies up to a spacing inside the edge)
+        start = b.o[enters]
+        spacing = radius * math.sqrt(math.pi / ENTRANCE_PILOT_RAYS)
+        new_centre = start.mean(axis=0)
+        new_radius = float(np.max(np.linalg.norm(start - new_centre, axis=1))) + spacing
+        if new_radius >= radius:  # the entering rays fill the pilot's disk: keep it whole
+            break
+        centre, radius = new_centre, new_radius
+        if enters.sum() >= ENTRANCE_PILOT_FILL * ENTRANCE_PILOT_RAYS:  # dense enough: no second look
+            break
+    radius = max(ENTRANCE_MARGIN * radius if radius < wide else radius, float(src.radius_mm))
     return dataclasses.replace(src, center_mm=centre, radius_mm=radius,
                                power_w=float(src.power_w) * (radius / float(src.radius_mm)) ** 2)
 
