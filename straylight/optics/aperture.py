@@ -34,12 +34,6 @@ def centre_mm(s) -> np.ndarray:
     return np.asarray(s.vertex_mm, float) + dx * x + dy * y
 
 
-def local_xy(s, rel) -> tuple[float, float]:
-    """(x, y) in the surface's own frame of ``rel`` (a point minus the vertex, scene frame)."""
-    x, y = axes(s)
-    return float(np.dot(rel, x)), float(np.dot(rel, y))
-
-
 def inside(s, x_mm, y_mm, hole_mm: float = 0.0):
     """Whether the point (x, y) of the surface's own frame is in the clear aperture (outside a hole of
     ``hole_mm`` about the aperture's centre); ``x_mm``, ``y_mm`` floats (a bool back) or arrays (a bool array)."""
