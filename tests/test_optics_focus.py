@@ -157,9 +157,6 @@ def test_a_catadioptric_with_mangin_mirrors_focuses_like_the_sequential_trace(tm
 
 
 KNOWN: dict = {  # files that import but whose focus check does not pass yet (reported, not hidden)
-    # on axis the encircled power at half the sequential r90 differs by 0.0525 (limit 0.05), r_geo 12.6 um; the same
-    # at c31546d, before this check's last changes: open
-    "optiland/mirror.seq": "encircled power at r90/2 off by 0.0525 (limit 0.05); not investigated",
 }
 
 
