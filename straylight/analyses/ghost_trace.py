@@ -134,6 +134,7 @@ def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOpt
     for i, p in enumerate(parts):
         front = models[part_material[i]] if part_material[i] >= 0 else None
         per_part.append((front, models[back[i]] if back[i] >= 0 else None))
+    _has_dielectric(per_part)  # before the intersector is built (a refusal leaves no embree scene to tear down)
     tri = np.ascontiguousarray(scene.triangles_mm, dtype=np.float64)
     nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-300)[:, None]
@@ -145,6 +146,14 @@ def prepare(rs, field_deg: float = 0.0, detector: str | None = None) -> GhostOpt
     if field_deg and hasattr(src, "radius_mm"):
         opt.source = _covering_entrance(opt, tri)
     return opt
+
+
+def _has_dielectric(models) -> None:
+    """Refuse a scene with no lens or window: ``models`` per part (front, back) material models."""
+    from materials.smooth import Dielectric
+
+    if not any(isinstance(getattr(m, "smooth", None), Dielectric) for pair in models for m in pair):
+        raise GhostError("the scene has no lens or window (no dielectric part: a mirror system), so no ghost")
 
 
 def _at_field(source, field_deg: float):
@@ -383,10 +392,7 @@ def nominal_sequence(opt: GhostOptics, n_rays: int = 4000, seed: int = 0) -> tup
     :data:`NOMINAL_MIN_SHARE` of the strongest one's power, the one through the most interfaces: light that
     passes the front elements and then goes *around* the smaller ones (a lens file has no barrel) can carry
     more power than the design path, but it always skips some of the surfaces the design path crosses."""
-    from materials.smooth import Dielectric
-
-    if not any(isinstance(getattr(m, "smooth", None), Dielectric) for pair in opt.models for m in pair):
-        raise GhostError("the scene has no lens or window (no dielectric part: a mirror system), so no ghost")
+    _has_dielectric(opt.models)
     rng = np.random.default_rng(seed)
     b = emit(opt, n_rays, rng)
     seqs: list[list[tuple[int, str]]] = [[] for _ in range(n_rays)]

@@ -566,6 +566,14 @@ def _main(argv=None) -> int:
         message = _disk_full_message(exc) or message
         message = _with_scene_file(exc, args, message)
         print(f"straylight: error: {message}", file=sys.stderr)
+        del exc
+        # what the failed command built, left in reference cycles through the traceback's frames, is freed now,
+        # while the libraries it holds are alive: an embree scene freed at the interpreter's teardown aborted the
+        # process ("pure virtual method called", exit 134) after a one-line refusal of `ghosts` (poke's PLOS
+        # Cassegrain)
+        import gc
+
+        gc.collect()
         return 2
 
 

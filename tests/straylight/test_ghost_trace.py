@@ -931,3 +931,22 @@ def test_a_turned_field_moves_the_source_over_the_lens():
     assert abs(nominal.power_w - want) < 4 * nominal.stderr_w + 1e-3 * want, (nominal.power_w, nominal.stderr_w, want)
     assert opt.source.power_w > 1.0  # the same irradiance over a larger disk
     assert len(table.rows) == 1 and table.rows[0].surfaces == ["bottom", "top"]
+
+
+def test_a_mirror_system_is_refused_in_one_line_and_the_process_exits_2(tmp_path):
+    """poke's PLOS Cassegrain (two mirrors, CODE V): `ghosts` printed its one-line refusal, then the process
+    aborted at exit ("pure virtual method called", exit 134): the embree scene built for the refused scene was
+    freed at the interpreter's teardown. Now the refusal comes before the scene is built, and a failed command's
+    leftovers are collected before it returns. A separate process: the abort was at its exit."""
+    import subprocess
+    import sys
+
+    from straylight.cli.main import main
+
+    assert main(["optics", "import", str(LENSES / "poke" / "PLOS_CassegrainJonesPupil.seq"), "--out",
+                 str(tmp_path / "lens")]) == 0
+    run = subprocess.run([sys.executable, "-m", "straylight.cli.main", "ghosts", str(tmp_path / "lens" / "scene.toml"),
+                          "--out", str(tmp_path / "g")], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 2, (run.returncode, run.stderr[-500:])
+    assert run.stderr.strip().splitlines() == [
+        "straylight: error: the scene has no lens or window (no dielectric part: a mirror system), so no ghost"]
