@@ -314,9 +314,12 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
             sags = np.asarray(sag_mm(stop, rim))
             z_rim = float(sags[int(np.argmax(sags * float(np.dot(stop.local_z, toward))))])
         centre = stop.vertex_mm + z_rim * stop.local_z + (0.0 if stop.dummy else STOP_CLEARANCE_MM) * toward
+        outer = max(1.5 * hole, hole + 1.0)
+        if not mirrors and elements:
+            outer = max(outer, _stop_ring_reach(p, elements, stop, hole, centre, 1.1 * largest + abs(shift_mm)))
         parts.append({"name": unique("stop"), "surface": {
             "type": "plane", "vertex_mm": _v(centre), "axis": _v(toward),
-            "outer_radius_mm": max(1.5 * hole, hole + 1.0), "inner_radius_mm": hole},
+            "outer_radius_mm": outer, "inner_radius_mm": hole},
             "material": edge_material, "role": "surface"})
     # the detector: an exact disk at the image surface, facing the light, 1.2 x the largest image height; an
     # afocal system (a window, a beam expander) has a beam there, not an image: 1.2 x the largest clear aperture
@@ -429,6 +432,53 @@ def _on_one_axis(elements) -> bool:
     """Every lens element on the first one's axis line (a coaxial lens)."""
     ax0, o0 = elements[0][3], elements[0][2]
     return all(abs(float(np.dot(e[3], ax0)) - 1.0) <= 1e-9 and np.linalg.norm(e[2] - o0) <= 1e-6 for e in elements)
+
+
+def _stop_ring_reach(p, elements, stop, hole: float, centre, r_source_mm: float) -> float:
+    """How far out the stop's ring of a coaxial lens (no mirror) reaches, so that no light passes beside the stop:
+    inside the barrel (between the front and the back element) to its tube, outside it past the source's disk (as
+    the barrel's front). Before, it reached 1.5 x its hole, and between a double Gauss's elements, wider than that,
+    43 % of the image's power went around it (US 2532751, DiffOptics' example). A ring that would cut an element
+    there keeps 1.5 x its hole, warned. 0 where the lens is not on one axis (left to a CAD housing)."""
+    if not _on_one_axis(elements):
+        return 0.0
+    ax0, o0 = elements[0][3], elements[0][2]
+    z_stop = float(np.dot(np.asarray(centre, float) - o0, ax0))
+    r_out = max(e[6] for e in elements)
+    inside = min(e[4] for e in elements) <= z_stop <= max(e[5] for e in elements)
+    reach = r_out + max(0.01, 1e-3 * r_out) if inside else 1.1 * r_source_mm + 1.0
+    clash = _stop_ring_clash(elements, stop, ax0, np.linspace(hole, reach, 33), z_stop)
+    if clash is not None:
+        p.warnings.append(f"the stop's ring out to {reach:.4g} mm would cut the element {clash}; it reaches "
+                          f"{max(1.5 * hole, hole + 1.0):.4g} mm (light may pass beside the stop)")
+        return 0.0
+    return float(reach)
+
+
+def _stop_ring_clash(elements, stop, ax, r, z_plane: float) -> str | None:
+    """The element (``"a-b"``) the stop's plane ring at ``z_plane`` over radii ``r`` would cut, other than the one
+    whose face is the stop: a face crossing the plane within its clear aperture, the plane between the two faces
+    there (in the glass), or the plane between the element's two rims with the ring reaching past a face's clear
+    aperture (into its mechanical rim). Beyond a face's clear aperture the element is its flat ring and edge, not
+    the surface continued (a double Gauss's deep meniscus, continued, crossed the stop's plane)."""
+    for a2, b2, _, _, z_a, z_b, _ in elements:
+        if stop in (a2, b2):
+            continue
+        z1 = z2 = None
+        for face in (a2, b2):
+            rr = r[r <= face.semi_diameter_mm + 1e-12]
+            if len(rr):
+                z = _surface_z(face, ax, rr) - z_plane
+                if np.any(z * z[0] <= 0):
+                    return f"{a2.name}-{b2.name}"
+                z1, z2 = (z, z2) if face is a2 else (z1, z)
+        if z1 is not None and z2 is not None:
+            k = min(len(z1), len(z2))
+            if np.any(z1[:k] * z2[:k] <= 0):
+                return f"{a2.name}-{b2.name}"
+        if min(z_a, z_b) <= z_plane <= max(z_a, z_b) and r.max() > min(a2.semi_diameter_mm, b2.semi_diameter_mm):
+            return f"{a2.name}-{b2.name}"
+    return None
 
 
 def _ring_clash(elements, own, ax, r, z_plane: float) -> str | None:
