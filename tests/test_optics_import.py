@@ -953,3 +953,19 @@ def test_no_light_passes_beside_the_stop_of_a_double_gauss(tmp_path):
     (tmp_path / "closed.toml").write_text(closed)
     assert load_scene(tmp_path / "closed.toml").trace(20000, seed=2).detectors["image"].power_w == 0.0
     assert load_scene(tmp_path / "scene.toml").trace(20000, seed=2).detectors["image"].power_w > 0.05
+
+
+def test_a_non_sequential_zemax_file_is_refused_in_one_line(tmp_path, capsys):
+    """A MODE NSC file (ZOSPy's eye models, skZemax's e02) reached rayoptics, whose parser failed with a
+    ZeroDivisionError: the user read "could not parse it". It is refused as what it is."""
+    from straylight.cli.main import main
+
+    lens = tmp_path / "nsc.zmx"
+    lens.write_text("VERS 190513 80 123457\nMODE NSC\nNAME eye\nUNIT MM X W X CM MR CPMM\nSURF 0\n  TYPE STANDARD\n"
+                    "  CURV 0.0\n  DISZ INFINITY\nSURF 1\n  TYPE NONSEQCO\n  DISZ 0\nSURF 2\n  TYPE STANDARD\n")
+    for command in (["optics", "import", str(lens), "--out", str(tmp_path / "out")], ["optics", "info", str(lens)]):
+        capsys.readouterr()
+        assert main(command) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "non-sequential Zemax file (MODE NSC)" in err[0], err
+    assert not (tmp_path / "out" / "scene.toml").exists()

@@ -475,6 +475,9 @@ def read_prescription(path, wavelength_nm: float | None = None, glass: dict | No
     except OSError as exc:
         raise OpticsFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     fmt, text = sniff_format(raw, path)
+    if fmt == "zmx" and any(line.split()[:2] == ["MODE", "NSC"] for line in text.splitlines()[:200]):
+        raise OpticsFileError(f"{path}: a non-sequential Zemax file (MODE NSC); optics import reads sequential lens "
+                              "files (MODE SEQ): export the lens's sequential prescription")
     cut = zemax_truncation(text) if fmt == "zmx" else None
     if cut:
         raise OpticsFileError(f"{path}: {cut}")
