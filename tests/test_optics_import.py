@@ -969,3 +969,17 @@ def test_a_non_sequential_zemax_file_is_refused_in_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "non-sequential Zemax file (MODE NSC)" in err[0], err
     assert not (tmp_path / "out" / "scene.toml").exists()
+
+
+def test_a_surface_covered_whole_by_another_met_again_gets_no_part(tmp_path):
+    """ZOSPy's TIR prism: its 1 mm exit face lies inside the 86.6 mm centre the mirror face, met again there, leaves
+    to it. The face got that centre as its hole, and `optics import` exited 0 with a scene that refused to load
+    (inner_radius_mm 86.59 must be < outer_radius_mm 1). The face gets no part, warned, and the scene traces."""
+    from straylight.cli.main import main
+    from straylight.scene import load_scene
+
+    assert main(["optics", "import", str(LENSES / "ZOSPy" / "Prism_using_total_internal_reflection.zmx"), "--out",
+                 str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / "prescription.json").read_text())
+    assert any("no part of its own" in w for w in doc["warnings"]), doc["warnings"]
+    assert load_scene(tmp_path / "scene.toml").trace(2000, seed=1).n_rays == 2000

@@ -358,7 +358,23 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     first = next(s for s in p.surfaces if not s.dummy)
     analysis = {"detector": "image", "entrance": {"center_mm": _v(aperture.centre_mm(first)), "normal": [0.0, 0.0, -1.0],
                                                    "radius_mm": first.semi_diameter_mm}}
-    return {"material": materials, "part": parts, "source": [source], "analysis": analysis}
+    return {"material": materials, "part": _without_empty_annuli(p, parts), "source": [source], "analysis": analysis}
+
+
+def _without_empty_annuli(p, parts: list) -> list:
+    """The parts, less any whose hole is as wide as the part (a surface that another one met again covers whole:
+    ZOSPy's TIR prism, its 1 mm exit face inside the 86.6 mm centre the mirror face leaves to it), warned. Such a
+    part covers nothing, and the scene refused to load (inner_radius_mm must be < outer_radius_mm)."""
+    out = []
+    for part in parts:
+        surf = part.get("surface", {})
+        inner, outer = surf.get("inner_radius_mm"), surf.get("outer_radius_mm")
+        if inner is not None and outer is not None and inner >= outer:
+            p.warnings.append(f"{part['name']}: its whole aperture ({outer:.4g} mm) lies inside the centre another "
+                              f"surface met there takes ({inner:.4g} mm); no part of its own")
+            continue
+        out.append(part)
+    return out
 
 
 def _surface_z(s, ax, r) -> np.ndarray:
