@@ -983,3 +983,59 @@ def test_a_surface_covered_whole_by_another_met_again_gets_no_part(tmp_path):
     doc = json.loads((tmp_path / "prescription.json").read_text())
     assert any("no part of its own" in w for w in doc["warnings"]), doc["warnings"]
     assert load_scene(tmp_path / "scene.toml").trace(2000, seed=1).n_rays == 2000
+
+
+NEGATIVE_SINGLET_ZMX = """VERS 190513 80 123457
+MODE SEQ
+NAME biconcave
+UNIT MM X W X CM MR CPMM
+ENPD 20
+FTYP 0 0 1 1 0 0 0
+XFLN 0
+YFLN 0
+WAVM 1 0.55 1
+SURF 0
+  TYPE STANDARD
+  CURV 0.0
+  DISZ INFINITY
+SURF 1
+  STOP
+  TYPE STANDARD
+  CURV -0.02
+  DISZ 3
+  GLAS N-BK7 1 0 1.5168 64.17
+  DIAM 12 1 0 0 1 ""
+SURF 2
+  TYPE STANDARD
+  CURV 0.02
+  DISZ -47.5
+  DIAM 12 1 0 0 1 ""
+SURF 3
+  TYPE STANDARD
+  CURV 0.0
+  DISZ 0
+"""
+
+
+def test_a_diverging_lens_gets_its_detector_behind_it(tmp_path):
+    """A biconcave singlet (EFL ~ -48 mm) whose file puts the image surface at its virtual image, in front of the
+    lens (Thorlabs' ACN254-100-A and LD2568-A so): the detector stood there, behind the source, and `ghosts` found
+    no ray reaching it. Now it is a plane |EFL| behind the last surface, wide enough for the diverging beam
+    (1.2 x (2 x the largest clear aperture + 0)), warned; the beam and the lens's one ghost reach it."""
+    import tomllib
+
+    from straylight.analyses.ghost_trace import ghosts
+    from straylight.cli.main import main
+
+    lens = tmp_path / "biconcave.zmx"
+    lens.write_text(NEGATIVE_SINGLET_ZMX)
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path / "out")]) == 0
+    doc = json.loads((tmp_path / "out" / "prescription.json").read_text())
+    assert doc["efl_mm"] < 0 and any("diverging lens" in w for w in doc["warnings"]), doc["warnings"]
+    scene = tomllib.loads((tmp_path / "out" / "scene.toml").read_text())
+    det = next(part for part in scene["part"] if part["name"] == "image")["surface"]
+    last_z = max(part["surface"]["vertex_mm"][2] for part in scene["part"] if part["name"] in ("s1", "s2"))
+    assert det["vertex_mm"][2] == pytest.approx(last_z + abs(doc["efl_mm"]), abs=1e-6)
+    assert det["outer_radius_mm"] >= 1.2 * 2 * 12.0
+    table = ghosts(tmp_path / "out" / "scene.toml", order=2, seed=1, target_rel_error=0.05)
+    assert table.nominal.power_w > 0.5 and len(table.rows) == 1 and table.rows[0].power_w > 0

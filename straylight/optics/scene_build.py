@@ -343,8 +343,12 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
         p.warnings.append(f"the file's fields are all on axis (no image height): detector image of radius "
                           f"{1.2 * sensor:.4g} mm, 1.2 x {why}")
     r_det = 1.2 * max(h_img, spot)
+    det_vertex = p.image_vertex_mm
+    virtual = _virtual_image_detector(p, mirrors, largest, f_max)
+    if virtual is not None:
+        det_vertex, r_det = virtual
     parts.append({"name": unique("image"), "surface": {
-        "type": "plane", "vertex_mm": _v(p.image_vertex_mm), "axis": _v(-p.image_travel_in),
+        "type": "plane", "vertex_mm": _v(det_vertex), "axis": _v(-p.image_travel_in),
         "outer_radius_mm": r_det}, "role": "detector"})
     # the source: 1 mm on the object side of the surface point nearest the object (its vertex, or the edge of
     # a surface that curves toward the object: a Cassegrain's convex secondary reaches ~90 mm past its
@@ -359,6 +363,28 @@ def build_scene(p, field_deg: float = 0.0, edge_material: str = EDGE_MATERIAL, c
     analysis = {"detector": "image", "entrance": {"center_mm": _v(aperture.centre_mm(first)), "normal": [0.0, 0.0, -1.0],
                                                    "radius_mm": first.semi_diameter_mm}}
     return {"material": materials, "part": _without_empty_annuli(p, parts), "source": [source], "analysis": analysis}
+
+
+def _virtual_image_detector(p, mirrors, largest_mm: float, field_deg: float):
+    """(vertex, radius) mm of the detector of a diverging lens (negative EFL, no mirror), whose image surface the
+    file puts at the virtual image, before the lens (Thorlabs' ACN254-100-A: 97.6 mm in front of it, behind the
+    source: ghosts found no ray there and the focus check no sequential ray): a plane |EFL| behind the last
+    surface, wide enough for the diverging beam (1.2 x (the largest clear aperture x 2 + |EFL| tan F)), warned.
+    None for a lens with a real image."""
+    if mirrors or not math.isfinite(p.efl_mm) or p.efl_mm >= 0:
+        return None
+    last = [s for s in p.surfaces if not s.dummy][-1]
+    travel = np.asarray(p.image_travel_in, float)
+    gap = float(np.dot(p.image_vertex_mm - last.vertex_mm, travel))
+    if gap >= 0:
+        return None
+    d = abs(p.efl_mm)
+    vertex = np.asarray(last.vertex_mm, float) + d * travel
+    radius = 1.2 * (2.0 * largest_mm + d * math.tan(math.radians(min(field_deg, 80.0))))
+    p.warnings.append(f"a diverging lens (EFL {p.efl_mm:.4g} mm): its image is virtual, {-gap:.4g} mm before its "
+                      f"last surface; the detector image is a plane {d:.4g} mm behind that surface, of radius "
+                      f"{radius:.4g} mm, where the diverging beam lands")
+    return vertex, radius
 
 
 def _without_empty_annuli(p, parts: list) -> list:
