@@ -1039,3 +1039,20 @@ def test_a_diverging_lens_gets_its_detector_behind_it(tmp_path):
     assert det["outer_radius_mm"] >= 1.2 * 2 * 12.0
     table = ghosts(tmp_path / "out" / "scene.toml", order=2, seed=1, target_rel_error=0.05)
     assert table.nominal.power_w > 0.5 and len(table.rows) == 1 and table.rows[0].power_w > 0
+
+
+def test_an_immersed_image_is_refused_as_such_not_as_a_file_cut_short(tmp_path, capsys):
+    """A microscope objective imaging into water behind a cover glass (m-d-young's COTS objectives): the image
+    surface carries the medium before it. The file is whole, but it was refused as cut short ("no image surface").
+    Now it is refused as what it is: an immersed image, which the import does not model."""
+    from straylight.cli.main import main
+
+    text = NEGATIVE_SINGLET_ZMX.replace("CURV 0.02\n  DISZ -47.5\n", "CURV 0.0\n  DISZ 20\n  GLAS F2 1 0 1.62004 36.37\n")
+    text = text.replace("SURF 3\n  TYPE STANDARD\n  CURV 0.0\n  DISZ 0\n",
+                        "SURF 3\n  TYPE STANDARD\n  CURV 0.0\n  DISZ 0\n  GLAS F2 1 0 1.62004 36.37\n")
+    lens = tmp_path / "immersed.zmx"
+    lens.write_text(text)
+    capsys.readouterr()
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "an immersed image" in err[0] and "cut short" not in err[0], err

@@ -45,7 +45,8 @@ def zemax_truncation(text: str) -> str | None:
     OpticsDatabase files, docs/optics.md): the text ends inside a character (UTF-16 cut at an odd byte); the file
     ends inside its last surface's block and that block lacks a command every other surface has, or its last line
     has fewer fields than that command has on every other surface, or is a lone fragment of a command name; the
-    last surface (the image) has a glass or a thickness after it, as a lens surface has."""
+    last surface (the image) has a glass or a thickness after it, as a lens surface has (a glass that is the one
+    before it is an immersed image, not a lens surface: a microscope objective's into water)."""
     lines = text.splitlines()
     last = max((n for n, ln in enumerate(lines, start=1) if ln.strip()), default=0)
     if text.rstrip().endswith("\ufffd"):
@@ -71,8 +72,11 @@ def zemax_truncation(text: str) -> str | None:
         others = {w[0] for _, _, b in blocks for m, w in b if m != last} | {"SURF"}
         if mid_line and len(words) == 1 and words[0] not in others and any(h.startswith(words[0]) for h in others):
             return f"line {last}: the file ends inside a command ({words[0]!r}): cut short?"
+    before = next((w for _, w in blocks[-2][2] if w[0] == "GLAS"), None)
     for n, words in body:
         if words[0] == "GLAS" and len(words) > 1 and words[1].upper() not in ("AIR", "MIRROR"):
+            if before is not None and _zemax_medium(words) == _zemax_medium(before):
+                break  # the medium before it goes on to the image (an immersed image): no lens surface
             return (f"line {n}: the last surface ({k}) has glass {words[1]} after it, as a lens surface has: no "
                     "image surface (cut short, or written without one?)")
     for n, words in body:

@@ -418,8 +418,9 @@ def _ends_inside_the_lens(surfaces: list, image_gap_mm: float, efl_mm: float, bf
     if last is None:
         return None
     if abs(last.n - 1.0) > 1e-6 and not last.mirror:
-        return (f"the image lies inside glass (n {last.n:.5g} after surface {last.index}): the file "
-                "ends inside the lens (incomplete?)")
+        return (f"the image lies inside a medium of index {last.n:.5g} (after surface {last.index}): an immersed "
+                "image (a microscope objective's, in water or oil) is not supported, or the file ends inside the "
+                "lens (incomplete?)")
     curved = last.radius_mm is not None or last.mirror
     if image_gap_mm == 0.0 and curved and not afocal and abs(bfl_mm) > 0.01 * abs(efl_mm):
         what = "mirror" if last.mirror else f"R {last.radius_mm:.6g} mm"
