@@ -1056,3 +1056,20 @@ def test_an_immersed_image_is_refused_as_such_not_as_a_file_cut_short(tmp_path, 
     assert main(["optics", "import", str(lens), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "an immersed image" in err[0] and "cut short" not in err[0], err
+
+
+def test_a_codev_title_naming_a_zoom_position_is_no_zoom_qualifier(tmp_path):
+    """opticspy's XF_HW3_PB2.seq: rayoptics read ``TITLE 'Z1 decenter 0'`` (and a zoom's ``TIT Z1 "..."`` lines) as
+    zoom qualifiers and failed (IndexError: "could not parse it"). Titles are not read now; the zoom's first
+    position is imported, warned with the file's number of positions."""
+    from straylight.cli.main import main
+
+    body = (LENSES / "ray-optics" / "landscape_lens.seq").read_text().replace("tit 'Landscape lens'",
+                                                                              "TITLE 'Z1   decenter 0'")
+    zoomed = body.replace("dim m", "dim m\nZOO 3\nZOO TIT\nTIT Z1 \"Z1 a\"\nTIT Z2 \"Z2 b\"\nTIT Z3 \"Z3 c\"", 1)
+    for name, text in (("titled.seq", body), ("zoomed.seq", zoomed)):
+        lens = tmp_path / name
+        lens.write_text(text)
+        assert main(["optics", "import", str(lens), "--out", str(tmp_path / name[:-4])]) == 0, name
+    doc = json.loads((tmp_path / "zoomed" / "prescription.json").read_text())
+    assert any("3 configurations" in w for w in doc["warnings"]), doc["warnings"]

@@ -338,7 +338,8 @@ def multiconfig(fmt: str, text: str) -> int:
     if fmt == "zmx":
         m = re.search(r"^\s*MNUM\s+(\d+)", text, re.M)
         return int(m.group(1)) if m else 1
-    return 2 if re.search(r"^\s*ZOO\b", text, re.M | re.I) else 1
+    m = re.search(r"^\s*ZOO\s+(\d+)", text, re.M | re.I)  # CODE V "ZOO 5": five zoom positions
+    return int(m.group(1)) if m else 2 if re.search(r"^\s*ZOO\b", text, re.M | re.I) else 1
 
 
 def zemax_config_object_distance(fmt: str, text: str, config: int = 1) -> float | None:
@@ -353,6 +354,21 @@ def zemax_config_object_distance(fmt: str, text: str, config: int = 1) -> float 
             value = _number(words[3])
             return value if value is not None and abs(value) < 1e10 else None
     return None
+
+
+def codev_without_titles(text: str) -> tuple[str, int]:
+    """The CODE V text without its title lines (``TIT``/``TITLE``, and a zoom's ``ZOO TIT``), and how many went.
+    rayoptics reads a title that starts with a zoom position's name (opticspy's XF_HW3_PB2.seq: ``TITLE 'Z1
+    decenter 0'``, ``TIT Z1 "..."``) as a zoom qualifier and fails (IndexError); the import needs no title."""
+    kept, dropped = [], 0
+    for line in text.splitlines(keepends=True):
+        words = line.replace(";", " ").split()
+        head = words[0].upper() if words else ""
+        if head in ("TIT", "TITLE") or (head == "ZOO" and len(words) > 1 and words[1].upper() in ("TIT", "TITLE")):
+            dropped += 1
+            continue
+        kept.append(line)
+    return "".join(kept), dropped
 
 
 def codev_unknown_catalogs(text: str, known: set) -> tuple[str, dict]:

@@ -23,9 +23,9 @@ import numpy as np
 
 import atomicio
 from straylight.optics.file_text import (
-    aperture_shapes, coatings, codev_profile_types, codev_unknown_catalogs, extended_aspheres, multiconfig,
-    obstructions, radii_without_rdm, zemax_bad_number, zemax_comments, zemax_config_object_distance, zemax_glass_numbers, zemax_index_mirrors, zemax_stop,
-    zemax_truncation, zmx_for_rayoptics,
+    aperture_shapes, coatings, codev_profile_types, codev_unknown_catalogs, codev_without_titles, extended_aspheres,
+    multiconfig, obstructions, radii_without_rdm, zemax_bad_number, zemax_comments, zemax_config_object_distance,
+    zemax_glass_numbers, zemax_index_mirrors, zemax_stop, zemax_truncation, zmx_for_rayoptics,
 )
 from straylight.optics.other_materials import medium as other_medium
 from straylight.optics.sag import sag_mm
@@ -537,6 +537,10 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
                      "entrance pupil: read as radii (RDM)")
     if fmt == "seq":
         from opticalglass import glassfactory
+
+        untitled, dropped = codev_without_titles(text)
+        if dropped:
+            raw, text = untitled.encode("utf-8"), untitled
 
         recatalogued, renamed = codev_unknown_catalogs(text, set(glassfactory._cat_names_uc))
         if renamed:
