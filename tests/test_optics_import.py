@@ -971,18 +971,42 @@ def test_a_non_sequential_zemax_file_is_refused_in_one_line(tmp_path, capsys):
     assert not (tmp_path / "out" / "scene.toml").exists()
 
 
-def test_a_surface_covered_whole_by_another_met_again_gets_no_part(tmp_path):
-    """ZOSPy's TIR prism: its 1 mm exit face lies inside the 86.6 mm centre the mirror face, met again there, leaves
-    to it. The face got that centre as its hole, and `optics import` exited 0 with a scene that refused to load
-    (inner_radius_mm 86.59 must be < outer_radius_mm 1). The face gets no part, warned, and the scene traces."""
+def test_a_coordinate_break_inside_a_prism_keeps_its_glass(tmp_path):
+    """ZOSPy's TIR prism: a coordinate break (s9) inside the BK7 tilts the reflecting face (s10, MIRROR), another
+    (s11) turns the axis after it. A break has no material: Zemax keeps the medium across it, and rayoptics read
+    air after it, so the prism's glass ended at s9, which became a glass-air face, the reflection happened in air,
+    and `optics import` wrote a scene that refused to load (s9's 1 mm face inside the 86.6 mm centre the mirror,
+    met again there, leaves: inner_radius_mm 86.59 must be < outer_radius_mm 1). Now the breaks are dummies in
+    the glass, the face reflects inside it, and the scene traces."""
     from straylight.cli.main import main
+    from straylight.optics.reader import read_prescription
     from straylight.scene import load_scene
 
-    assert main(["optics", "import", str(LENSES / "ZOSPy" / "Prism_using_total_internal_reflection.zmx"), "--out",
-                 str(tmp_path)]) == 0
-    doc = json.loads((tmp_path / "prescription.json").read_text())
-    assert any("no part of its own" in w for w in doc["warnings"]), doc["warnings"]
-    assert load_scene(tmp_path / "scene.toml").trace(2000, seed=1).n_rays == 2000
+    lens = LENSES / "ZOSPy" / "Prism_using_total_internal_reflection.zmx"
+    p = read_prescription(lens)
+    by_name = {s.name: s for s in p.surfaces}
+    n_bk7 = by_name["s8"].n
+    assert n_bk7 > 1.5
+    assert by_name["s9"].dummy and by_name["s9"].n_before == by_name["s9"].n == n_bk7
+    assert by_name["s10"].mirror and by_name["s10"].n_before == n_bk7 and by_name["s12"].n == 1.0
+    assert any("coordinate break(s) 9, 11 inside a medium" in w for w in p.warnings), p.warnings
+    assert main(["optics", "import", str(lens), "--out", str(tmp_path)]) == 0
+    assert load_scene(tmp_path / "scene.toml").trace(4000, seed=1).detectors["image"].power_w > 0
+
+
+def test_a_part_covered_whole_by_another_surface_s_centre_is_left_out():
+    """A surface whose whole aperture lies inside the centre another surface met again leaves to it covers
+    nothing: it gets no part (warned), never a part whose hole is wider than itself (a scene that cannot load)."""
+    from types import SimpleNamespace
+
+    from straylight.optics.scene_build import _without_empty_annuli
+
+    p = SimpleNamespace(warnings=[])
+    parts = [{"name": "s9", "surface": {"type": "plane", "outer_radius_mm": 1.0, "inner_radius_mm": 86.59}},
+             {"name": "s10", "surface": {"type": "plane", "outer_radius_mm": 100.0, "inner_radius_mm": 1.0}},
+             {"name": "edge", "surface": {"type": "cylinder", "radius_mm": 5.0, "length_mm": 1.0}}]
+    assert [part["name"] for part in _without_empty_annuli(p, parts)] == ["s10", "edge"]
+    assert len(p.warnings) == 1 and p.warnings[0].startswith("s9: its whole aperture (1 mm)")
 
 
 NEGATIVE_SINGLET_ZMX = """VERS 190513 80 123457

@@ -97,6 +97,42 @@ def _zemax_medium(words) -> tuple:
     return (words[1].upper(),)
 
 
+def zemax_coordinate_break_media(text: str) -> tuple[str, list]:
+    """The Zemax text with each coordinate break that has no ``GLAS`` line given the medium it sits in, and those
+    surfaces. A coordinate break bends no ray and has no material of its own: Zemax keeps the medium in effect
+    before it (the ray inside a prism stays in its glass across the break that tilts the next face); rayoptics
+    read the space after one as air (ZOSPy's TIR prism: its BK7 ended at the break before the reflecting face,
+    which became a glass-air surface, and the import gave the prism EFL -159 mm). The medium in effect after a
+    surface is its glass, the one before it for a mirror or a coordinate break, else air."""
+    blocks = _zemax_blocks(text)
+    lines = text.splitlines(keepends=True)
+    eol = next((ln[len(ln.rstrip("\r\n")):] for ln in lines if ln.rstrip("\r\n") != ln), "\n")
+    inserts: dict = {}  # line number after which to insert -> the GLAS line
+    changed = []
+    medium = None  # words of the GLAS line in effect (None: air)
+    for k, at, body in blocks:
+        kind = next((w[1].upper() for _, w in body if w[0] == "TYPE" and len(w) > 1), "STANDARD")
+        glas = next((w for _, w in body if w[0] == "GLAS" and len(w) > 1), None)
+        if kind == "COORDBRK" and glas is None:
+            if medium is not None:
+                row = next((m for m, w in body if w[0] == "TYPE"), at)
+                indent = lines[row - 1][:len(lines[row - 1]) - len(lines[row - 1].lstrip())] or "  "
+                inserts[row] = indent + " ".join(medium) + eol
+                changed.append(k)
+            continue
+        if glas is not None and glas[1].upper() == "MIRROR":
+            continue
+        medium = None if glas is None or glas[1].upper() == "AIR" else glas
+    if not inserts:
+        return text, []
+    out = []
+    for n, line in enumerate(lines, start=1):
+        out.append(line)
+        if n in inserts:
+            out.append(inserts[n])
+    return "".join(out), changed
+
+
 def zemax_index_mirrors(text: str, problems: list) -> tuple[str, list]:
     """The Zemax text with each mirror written as a medium of index -1 made a Zemax mirror, and those surfaces.
 

@@ -25,7 +25,7 @@ import atomicio
 from straylight.optics.file_text import (
     aperture_shapes, coatings, codev_profile_types, codev_unknown_catalogs, codev_without_titles, extended_aspheres,
     multiconfig, obstructions, radii_without_rdm, zemax_bad_number, zemax_comments, zemax_config_object_distance,
-    zemax_glass_numbers, zemax_index_mirrors, zemax_stop, zemax_truncation, zmx_for_rayoptics,
+    zemax_coordinate_break_media, zemax_glass_numbers, zemax_index_mirrors, zemax_stop, zemax_truncation, zmx_for_rayoptics,
 )
 from straylight.optics.other_materials import medium as other_medium
 from straylight.optics.sag import sag_mm
@@ -557,6 +557,10 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
             notes.append(f"surface(s) {', '.join(map(str, fixed))}: conic or asphere terms without a profile type: read "
                          "as an even asphere (ASP; CON for K alone)")
     if fmt == "zmx":
+        text, breaks = zemax_coordinate_break_media(text)
+        if breaks:
+            notes.append(f"coordinate break(s) {', '.join(map(str, breaks))} inside a medium: the medium goes on across "
+                         "them (as Zemax traces it)")
         bad: list = []
         text, mirrors = zemax_index_mirrors(text, bad)
         if bad:
