@@ -1009,36 +1009,15 @@ def test_a_part_covered_whole_by_another_surface_s_centre_is_left_out():
     assert len(p.warnings) == 1 and p.warnings[0].startswith("s9: its whole aperture (1 mm)")
 
 
-NEGATIVE_SINGLET_ZMX = """VERS 190513 80 123457
-MODE SEQ
-NAME biconcave
-UNIT MM X W X CM MR CPMM
-ENPD 20
-FTYP 0 0 1 1 0 0 0
-XFLN 0
-YFLN 0
-WAVM 1 0.55 1
-SURF 0
-  TYPE STANDARD
-  CURV 0.0
-  DISZ INFINITY
-SURF 1
-  STOP
-  TYPE STANDARD
-  CURV -0.02
-  DISZ 3
-  GLAS N-BK7 1 0 1.5168 64.17
-  DIAM 12 1 0 0 1 ""
-SURF 2
-  TYPE STANDARD
-  CURV 0.02
-  DISZ -47.5
-  DIAM 12 1 0 0 1 ""
-SURF 3
-  TYPE STANDARD
-  CURV 0.0
-  DISZ 0
-"""
+def _negative_singlet_zmx() -> str:
+    """A biconcave N-BK7 singlet (R -50 / +50 mm, 3 mm thick, EFL ~ -48 mm), its image surface at its virtual
+    image 47.5 mm before its back: the window of test_optics_window_ghosts with curved faces."""
+    from test_optics_window_ghosts import ZMX as WINDOW_ZMX
+
+    text = WINDOW_ZMX.replace("  CURV 0.0\n  DISZ 5\n", "  CURV -0.02\n  DISZ 3\n")
+    text = text.replace("  CURV 0.0\n  DISZ 10\n", "  CURV 0.02\n  DISZ -47.5\n")
+    assert text.count("CURV -0.02") == 1 and text.count("DISZ -47.5") == 1
+    return text
 
 
 def test_a_diverging_lens_gets_its_detector_behind_it(tmp_path):
@@ -1052,7 +1031,7 @@ def test_a_diverging_lens_gets_its_detector_behind_it(tmp_path):
     from straylight.cli.main import main
 
     lens = tmp_path / "biconcave.zmx"
-    lens.write_text(NEGATIVE_SINGLET_ZMX)
+    lens.write_text(_negative_singlet_zmx())
     assert main(["optics", "import", str(lens), "--out", str(tmp_path / "out")]) == 0
     doc = json.loads((tmp_path / "out" / "prescription.json").read_text())
     assert doc["efl_mm"] < 0 and any("diverging lens" in w for w in doc["warnings"]), doc["warnings"]
@@ -1071,7 +1050,7 @@ def test_an_immersed_image_is_refused_as_such_not_as_a_file_cut_short(tmp_path, 
     Now it is refused as what it is: an immersed image, which the import does not model."""
     from straylight.cli.main import main
 
-    text = NEGATIVE_SINGLET_ZMX.replace("CURV 0.02\n  DISZ -47.5\n", "CURV 0.0\n  DISZ 20\n  GLAS F2 1 0 1.62004 36.37\n")
+    text = _negative_singlet_zmx().replace("CURV 0.02\n  DISZ -47.5\n", "CURV 0.0\n  DISZ 20\n  GLAS F2 1 0 1.62004 36.37\n")
     text = text.replace("SURF 3\n  TYPE STANDARD\n  CURV 0.0\n  DISZ 0\n",
                         "SURF 3\n  TYPE STANDARD\n  CURV 0.0\n  DISZ 0\n  GLAS F2 1 0 1.62004 36.37\n")
     lens = tmp_path / "immersed.zmx"
