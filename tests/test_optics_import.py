@@ -174,7 +174,9 @@ def test_crystals_and_fused_silica_lens_files_name(tmp_path):
     from Schott's nd 1.5230."""
     from straylight.optics import other_materials as om
 
-    for name, nd in (("SILICA", 1.45846), ("C79-80", 1.45846), ("CAF2", 1.43385), ("SAPPHIRE", 1.7682)):
+    # LITHOTEC-CAF2: Schott's CaF2, gone from its catalogue (a 60x microscope objective of tangericm/optical-design)
+    for name, nd in (("SILICA", 1.45846), ("C79-80", 1.45846), ("CAF2", 1.43385), ("LITHOTEC-CAF2", 1.43385),
+                     ("SAPPHIRE", 1.7682)):
         medium = om.medium(name)
         assert abs(medium.rindex(587.56) - nd) < 5e-5, name  # the papers tabulate 4-5 decimals
     assert abs(om.medium("B270").rindex(587.56) - 1.5230) < 1e-4
@@ -1076,3 +1078,13 @@ def test_a_codev_title_naming_a_zoom_position_is_no_zoom_qualifier(tmp_path):
         assert main(["optics", "import", str(lens), "--out", str(tmp_path / name[:-4])]) == 0, name
     doc = json.loads((tmp_path / "zoomed" / "prescription.json").read_text())
     assert any("3 configurations" in w for w in doc["warnings"]), doc["warnings"]
+
+
+def test_a_glass_rayoptics_found_nothing_for_is_no_substitution():
+    """rayoptics' substitution map also counts the glass names it found nothing for ({"LITHOTEC-CAF2": 2}); the
+    import warned "rayoptics substituted 2" for a glass it then read as CaF2 itself. Only real substitutions are
+    warned."""
+    from straylight.optics.reader import _substitutions
+
+    notes = _substitutions((None, {"N-FK51": ("N-FK51A", "Schott"), "LITHOTEC-CAF2": 2}))
+    assert notes == ["glass N-FK51 is not in the catalogues as written; rayoptics substituted N-FK51A (Schott)"]

@@ -37,6 +37,7 @@ ALIASES = {
     "SUPRASIL2": "fused silica", "SUPRASIL3001": "fused silica", "HPFS": "fused silica", "UVFS": "fused silica",
     "QUARTZ_FUSED": "fused silica",
     "CAF2": "calcium fluoride", "CALCIUM_FLUORIDE": "calcium fluoride",
+    "LITHOTEC-CAF2": "calcium fluoride",  # Schott's CaF2 (Lithotec), gone from its current catalogue
     "SAPPHIRE": "sapphire", "AL2O3": "sapphire",
     "B270": "schott b 270", "B_270": "schott b 270", "B-270": "schott b 270",
 }

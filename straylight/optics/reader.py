@@ -322,7 +322,9 @@ def _substitutions(info) -> list[str]:
     subs = info[1] if isinstance(info, tuple) and len(info) > 1 and isinstance(info[1], dict) else {}
     notes = []
     for name, used in subs.items():
-        glass, cat = (tuple(used) + ("", ""))[:2] if isinstance(used, (tuple, list)) else (str(used), "")
+        if not isinstance(used, (tuple, list)):  # the map also counts the names it found nothing for: no substitute
+            continue
+        glass, cat = (tuple(used) + ("", ""))[:2]
         notes.append(f"glass {name} is not in the catalogues as written; rayoptics substituted {glass}"
                      + (f" ({cat})" if cat else ""))
     return notes
