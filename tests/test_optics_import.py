@@ -1088,3 +1088,22 @@ def test_a_glass_rayoptics_found_nothing_for_is_no_substitution():
 
     notes = _substitutions((None, {"N-FK51": ("N-FK51A", "Schott"), "LITHOTEC-CAF2": 2}))
     assert notes == ["glass N-FK51 is not in the catalogues as written; rayoptics substituted N-FK51A (Schott)"]
+
+
+def test_an_unknown_glass_is_named_with_the_surfaces_that_give_no_index(tmp_path):
+    """YuryStrelkov's F07g04 Cassegrain: glass LZ_K8 on four surfaces, three of whose GLAS lines carry its nd, one
+    (surface 57) nd 1. The refusal named the glass only, not where the file gives no index. (--glass NAME=N, as
+    CONTRACTS 8.1 has it, then gives every surface of that glass N.)"""
+    from test_optics_window_ghosts import ZMX as WINDOW_ZMX
+
+    text = WINDOW_ZMX.replace("  GLAS N-BK7 1 0 1.5168 64.17\n", "  GLAS MYGLASS 1 0 1.6 40\n")
+    text = text.replace("  DISZ 10\n", "  DISZ 10\n  GLAS MYGLASS 1 0 1 0\n", 1)
+    text = text.replace("SURF 3\n", "SURF 3\n  TYPE STANDARD\n  CURV 0.0\n  DISZ 5\nSURF 4\n", 1)
+    lens = tmp_path / "lens.zmx"
+    lens.write_text(text)
+    r = _run("optics", "import", lens, "--out", tmp_path / "a")
+    assert r.returncode == 2 and "unknown glass MYGLASS after surface(s) 2 " in r.stderr, r.stderr
+    r = _run("optics", "import", lens, "--glass", "MYGLASS=1.7", "--out", tmp_path / "b")
+    assert r.returncode == 0, r.stderr
+    n = [s["n"] for s in json.loads((tmp_path / "b" / "prescription.json").read_text())["surfaces"]]
+    assert n[:2] == [1.7, 1.7], n

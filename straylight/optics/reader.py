@@ -622,13 +622,15 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
                 if note not in notes:
                     notes.append(note)
             elif match is None:
-                missing.append(gname)
+                missing.append((gname, gi))
             else:
                 gap.medium = ConstantIndex(float(glass[match]), gname)
     if missing:
-        raise OpticsFileError(f"{path}: unknown glass {', '.join(sorted(set(missing)))} (not in the Schott, Ohara, "
-                              f"Hoya, CDGM, Sumita catalogues nor docs/optics.md's other materials); give its index "
-                              f"with --glass {missing[0]}=N")
+        unknown = sorted({g for g, _ in missing})
+        where = ", ".join(str(i) for _, i in missing[:6]) + (" ..." if len(missing) > 6 else "")
+        raise OpticsFileError(f"{path}: unknown glass {', '.join(unknown)} after surface(s) {where} (not in the "
+                              f"Schott, Ohara, Hoya, CDGM, Sumita catalogues nor docs/optics.md's other materials, and "
+                              f"the file gives no index there); give its index with --glass {unknown[0]}=N")
     subs = (info[0] if isinstance(info, tuple) else {}).get("glass substituted", 0) if isinstance(info, tuple) else 0
     if subs:
         named = _substitutions(info)
