@@ -1107,3 +1107,17 @@ def test_an_unknown_glass_is_named_with_the_surfaces_that_give_no_index(tmp_path
     assert r.returncode == 0, r.stderr
     n = [s["n"] for s in json.loads((tmp_path / "b" / "prescription.json").read_text())["surfaces"]]
     assert n[:2] == [1.7, 1.7], n
+
+
+def test_an_unsupported_surface_type_is_said_before_an_unknown_glass(tmp_path):
+    """YuryStrelkov's F07g04: an unknown glass was refused first, and a user who gave it with --glass then met the
+    file's real blocker, its 9 FZERNSAG surfaces. The surface type is said first."""
+    from test_optics_window_ghosts import ZMX as WINDOW_ZMX
+
+    text = WINDOW_ZMX.replace("  GLAS N-BK7 1 0 1.5168 64.17\n", "  GLAS MYGLASS\n")
+    text = text.replace("SURF 2\n  TYPE STANDARD\n", "SURF 2\n  TYPE SZERNSAG\n", 1)
+    assert "TYPE SZERNSAG" in text and "GLAS MYGLASS\n" in text
+    lens = tmp_path / "lens.zmx"
+    lens.write_text(text)
+    r = _run("optics", "import", lens, "--out", tmp_path / "a")
+    assert r.returncode == 2 and "surface 2: surface type SZERNSAG is not supported" in r.stderr, r.stderr

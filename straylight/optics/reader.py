@@ -583,6 +583,13 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
     if stop is not None and 0 < stop < len(sm.ifcs) - 1 and sm.stop_surface != stop:
         sm.stop_surface = stop  # rayoptics drops a STOP on surface 1 (zemax_stop): the pupil follows the file's stop
         opm.update_model()
+    # a surface type with no exact part is the file's blocker: said before any glass the file may also lack (a
+    # glass refusal first sent YuryStrelkov's F07g04 user to --glass, and then to its 9 FZERNSAG surfaces)
+    types = [f"surface {i}: surface type {ifc.z_type} is not supported (sphere, conic, even or odd asphere)"
+             for i, ifc in enumerate(sm.ifcs[1:-1], start=1)
+             if getattr(ifc, "z_type", None) is not None and ifc.z_type not in ZEMAX_TYPES_READ]
+    if types and not force:
+        raise OpticsFileError(f"{path}: {types[0]}" + (f" (and {len(types) - 1} more)" if len(types) > 1 else ""))
     # glasses the catalogues lack: --glass NAME=N, or refused naming them
     from opticalglass.opticalmedium import ConstantIndex
 
