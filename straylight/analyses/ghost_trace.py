@@ -187,8 +187,7 @@ def _covering_entrance(opt: "GhostOptics", tri: np.ndarray):
     hit is a lens or window part (an interface met from the air); the new disk is the one about their centroid
     holding them all (out to the farthest plus the pilot's spacing, x :data:`ENTRANCE_MARGIN`), never smaller than
     the scene's own; where few entered (a small lens far behind the source), a second and third look over the disk
-    the last one found. Light that first meets a
-    barrel, a mount or nothing never reaches a ghost."""
+    the last one found. Light that first meets a barrel, a mount or nothing never reaches a ghost."""
     import dataclasses
 
     src: Any = opt.source  # a CollimatedDisk (prepare calls this for a source with a radius)
@@ -205,7 +204,7 @@ def _covering_entrance(opt: "GhostOptics", tri: np.ndarray):
     centre, radius = c, wide
     for _ in range(ENTRANCE_PILOTS):
         trial = dataclasses.replace(src, center_mm=centre, radius_mm=radius)
-        pilot = GhostOptics(**{**{f.name: getattr(opt, f.name) for f in dataclasses.fields(opt)}, "source": trial})
+        pilot = dataclasses.replace(opt, source=trial)
         b = emit(pilot, ENTRANCE_PILOT_RAYS, np.random.default_rng(0))
         part, _, _, _, front = next_hits(pilot, b)
         enters = (part >= 0) & front & np.isin(part, lens_parts)

@@ -235,6 +235,15 @@ ZEMAX_TYPES_READ = ("STANDARD", "EVENASPH", "COORDBRK", "PARAXIAL", "DGRATING", 
                     "ODDASPHE")
 
 
+def _unread_type(ifc, where: str) -> str | None:
+    """Why a surface's Zemax type has no exact part, or None: rayoptics keeps the base sphere/conic of a type it
+    does not know (QED_TYPE, SZERNSAG...) and drops the rest of its shape without a word."""
+    z_type = getattr(ifc, "z_type", None)
+    if z_type is None or z_type in ZEMAX_TYPES_READ:
+        return None
+    return f"{where}: surface type {z_type} is not supported (sphere, conic, even or odd asphere)"
+
+
 def _profile(ifc, where: str, problems: list):
     """(type, radius in file units or None, conic, [A4, A6...] in file units, [(p, a_p)] further terms in file
     units: odd powers and r^2) of a surface profile."""
@@ -242,12 +251,10 @@ def _profile(ifc, where: str, problems: list):
     kind = type(prof).__name__ if prof is not None else type(ifc).__name__
     cv = float(getattr(prof, "cv", 0.0) or 0.0)
     radius = None if cv == 0.0 else 1.0 / cv
-    z_type = getattr(ifc, "z_type", None)
     base: tuple = ("plane" if radius is None else "sphere"), radius, float(getattr(prof, "cc", 0.0) or 0.0), [], []
-    if z_type is not None and z_type not in ZEMAX_TYPES_READ:
-        # rayoptics keeps the base sphere/conic of a Zemax type it does not know (QED_TYPE, ODDASPHE, SZERNSAG...)
-        # and drops the rest of its shape without a word
-        problems.append(f"{where}: surface type {z_type} is not supported (sphere, conic, even or odd asphere)")
+    unread = _unread_type(ifc, where)
+    if unread:
+        problems.append(unread)
         return base
     if kind == "Spherical":
         return ("plane" if radius is None else "sphere"), radius, 0.0, [], []
@@ -585,9 +592,7 @@ def _read_prescription(path: Path, raw: bytes, fmt: str, text: str, notes: list,
         opm.update_model()
     # a surface type with no exact part is the file's blocker: said before any glass the file may also lack (a
     # glass refusal first sent YuryStrelkov's F07g04 user to --glass, and then to its 9 FZERNSAG surfaces)
-    types = [f"surface {i}: surface type {ifc.z_type} is not supported (sphere, conic, even or odd asphere)"
-             for i, ifc in enumerate(sm.ifcs[1:-1], start=1)
-             if getattr(ifc, "z_type", None) is not None and ifc.z_type not in ZEMAX_TYPES_READ]
+    types = [why for i, ifc in enumerate(sm.ifcs[1:-1], start=1) if (why := _unread_type(ifc, f"surface {i}"))]
     if types and not force:
         raise OpticsFileError(f"{path}: {types[0]}" + (f" (and {len(types) - 1} more)" if len(types) > 1 else ""))
     # glasses the catalogues lack: --glass NAME=N, or refused naming them
