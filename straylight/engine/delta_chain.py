@@ -48,7 +48,7 @@ from materials.smooth import reflect, refract
 from straylight.engine.capabilities import Capability
 from straylight.engine.interface_rows import deflected, frame_rotation, unit_s_vector
 from straylight.engine.material_groups import distinct
-from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE, EVENT_SPECULAR
 from straylight.engine.roles import ROLE_DETECTOR
 from straylight.engine.surface_geometry import at_interfaces, branch_coefficients, cast_branches
 from straylight.engine.vec3 import take_rows
@@ -101,11 +101,16 @@ class DeltaChains:
     run). ``max_reflections`` R > 0: the trees follow only branches with at most R reflections (any
     transmissions, up to K interfaces in all), and the walk keeps its hits after more."""
 
-    def __init__(self, n_rays_in_batch, max_interfaces, splits=None, max_reflections=0, lobe_split=None):
+    def __init__(self, n_rays_in_batch, max_interfaces, splits=None, max_reflections=0, lobe_split=None, ends=None):
         self.run = np.zeros(n_rays_in_batch, dtype=np.int64)
         #: straylight.engine.tree_split.LobeSplit (``tree_split`` > 1) or None; per ray, the share the walk's
-        #: own tree keeps after a split vertex (1 / K, for branches the split does not leave to it: LobeSplit.walk_keeps)
+        #: own tree keeps after a split vertex (1 / K, for branches the split does not leave to it: LobeSplit.walk_keeps;
+        #: 0 after a vertex the end draws cover)
         self.lobe_split = lobe_split
+        #: straylight.engine.tree_ends.TreeEnds (``tree_ends``) or None; per ray, whether its run started straight
+        #: after the source (the end draws' trees are rooted only there)
+        self.ends = ends
+        self.from_source = np.zeros(n_rays_in_batch, dtype=bool)
         self.walk_scale = np.ones(n_rays_in_batch)
         self.refl = np.zeros(n_rays_in_batch, dtype=np.int64)
         self.k_max = int(max_interfaces)
@@ -122,7 +127,7 @@ class DeltaChains:
             at = np.where(h.refined[root, None], h.exact[root], event.hits.point_mm[h.rows[root]])
             self.split(event, h.rows[root], at, h.facing[root], h.d[root], h.s[root], h.S[root],
                        tuple(x[root] for x in h.fresnel))
-        if self.lobe_split is not None:  # the run after a split vertex has started (or the ray scattered again)
+        if self.lobe_split is not None or self.ends is not None:  # the run after a split vertex has started
             self.walk_scale[event.rays.ray[h.rows[~h.passing]]] = 1.0
         self.advance(event, h.rows, h.reflected | h.transmitted, h.passing, h.reflected)
 
@@ -135,15 +140,27 @@ class DeltaChains:
         reflection also its reflection count), a lobe (or an absorbed ray) ends it, a pass-through
         leaves it as it is."""
         r = event.rays.ray[rows]
+        if self.ends is not None:
+            start = (self.run[r] == 0) & ~passing
+            self.from_source[r[start]] = event.rays.last_event[rows[start]] == EVENT_SOURCE
         self.run[r] = np.where(passing, self.run[r], np.where(specular, self.run[r] + 1, 0))
         self.refl[r] = np.where(passing, self.refl[r], np.where(specular, self.refl[r] + reflected, 0))
 
     def leave_run(self, event, rows):
-        """Continuing hits ``rows`` on parts whose kind does not split end their run."""
+        """Continuing hits ``rows`` on parts whose kind does not split end their run; after a vertex the end
+        draws cover (straylight.engine.tree_ends: reached along a run the root's tree follows) the walk's own
+        tree keeps nothing."""
         if len(rows):
-            self.run[event.rays.ray[rows]] = 0
-            self.refl[event.rays.ray[rows]] = 0
-            self.walk_scale[event.rays.ray[rows]] = 1.0
+            r = event.rays.ray[rows]
+            scale = 1.0
+            if self.ends is not None:
+                part = event.hits.part[rows].astype(np.int64)
+                covered = self.from_source[r] & self.covers(self.run[r], self.refl[r]) \
+                    & self.ends.qualifies(event.spec, part, self.refl[r])
+                scale = np.where(covered, 0.0, 1.0)
+            self.walk_scale[r] = scale
+            self.run[r] = 0
+            self.refl[r] = 0
 
     def covers(self, k, refl) -> np.ndarray:
         """Runs of ``k`` interfaces with ``refl`` reflections that the trees count (1 <= k <= K, refl <= R)."""
@@ -174,6 +191,8 @@ class DeltaChains:
         src = Branches(np.asarray(rows, dtype=np.int64), at, d, w, S, s, np.zeros(n, np.int64), part, key, codes,
                        np.zeros(n, np.int64))
         self.grow(event, self._children(event, src, np.arange(n), at, d, part, facing, s, S, fresnel))
+        if self.ends is not None:
+            self.ends.draw(event, self)
 
     def grow(self, event, live):
         """Cast and split the branches ``live`` until every one has scored or ended."""
@@ -229,7 +248,12 @@ class DeltaChains:
             i = hit[sc]
             taken = b.take(i)
             self._score(event, taken, part[sc], taken.origin + dist[sc, None] * taken.d, take_rows(scene.normals, tri[sc]))
-        go = np.flatnonzero(~det & event.capabilities.at(Capability.DELTA_CHAIN, part))
+        interface = event.capabilities.at(Capability.DELTA_CHAIN, part)
+        if self.ends is not None:
+            stop = np.flatnonzero(~det & ~interface)
+            if len(stop):
+                self.ends.collect(event, b, hit[stop], part[stop], tri[stop], dist[stop])
+        go = np.flatnonzero(~det & interface)
         if len(go) == 0:
             return None
         idx, part, dist, cos_in = hit[go], part[go], dist[go], cos_in[go]
@@ -254,17 +278,22 @@ class DeltaChains:
             m = np.flatnonzero(j_of == j)
             i = b.row[m]
             r = rays.ray[i]
-            split = self.lobe_split
+            split, ends = self.lobe_split, self.ends
             drawn = split is not None and split.draws is not None  # branches of further lobe draws (tree_split)
-            if drawn:
+            at_end = ends is not None and ends.table is not None  # branches of end draws (tree_ends)
+            if at_end:
+                w = np.where(ends.walk_keeps(event, b.k[m], b.codes[m], int(j)), 0.0, b.w[m])
+            elif drawn:
                 w = b.w[m] * split.share(event, b.tag[m], b.k[m], b.codes[m], int(j), b.d[m])
             else:
                 w = b.w[m] * event.tree_share(i, int(j), b.d[m])  # a strategy that also counts this run keeps its share
                 w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])  # or this very path
-                if split is not None:
-                    w = np.where(split.walk_keeps(event, b.k[m], b.codes[m], int(j)), w, w * self.walk_scale[r])
-            keep = np.flatnonzero(w > 0) if split is not None else m
-            if split is not None and len(keep) < len(m):
+                keeper = split if split is not None else ends
+                if keeper is not None:
+                    w = np.where(keeper.walk_keeps(event, b.k[m], b.codes[m], int(j)), w, w * self.walk_scale[r])
+            shared = split is not None or ends is not None
+            keep = np.flatnonzero(w > 0) if shared else m
+            if shared and len(keep) < len(m):
                 m, i, r, w = m[keep], i[keep], r[keep], w[keep]
                 if len(m) == 0:
                     continue
@@ -272,6 +301,9 @@ class DeltaChains:
             event.tallies.subtract(event.rows.nee_exchange + start_part[m], r, w)
             keys = events = None
             depth = rays.depth[i] + (1 if drawn else 0)  # a further draw's tree starts at its vertex, not past it
+            if at_end:
+                ends.record(event, b, m, r, i, z[m], w, j, depth)
+                continue
             if event.settings.record_paths:
                 keys = mix_key(b.key[m], event.scene.det_parts[int(j)] * 4 + EVENT_DETECTOR)
                 events = rays.history[i]

@@ -41,6 +41,7 @@ class EstimatorOptions:
     delta_chain: int = 0  # > 0: runs of up to this many interfaces into a detector followed by splitting
     delta_chain_reflections: int = 0  # > 0: of those, the runs with at most this many reflections (a ghost's order)
     tree_split: int = 1  # > 1: glossy vertices lit by the source send this many lobe draws into the split trees
+    tree_ends: bool = False  # the beam's split trees' branch ends on glossy parts (after a reflection) take a lobe draw
     entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
     reverse_chain: int = 0  # > 0: eye chains from the detectors through up to this many interfaces, joined to the walk
     specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1-3) analytic interfaces
@@ -64,6 +65,9 @@ class EstimatorOptions:
             raise TraceError(f"delta_chain must be >= 0 (interfaces per split tree), got {self.delta_chain}")
         if not isinstance(self.tree_split, (int, np.integer)) or int(self.tree_split) < 1:
             raise TraceError(f"tree_split must be an integer >= 1 (lobe draws into the split trees), got {self.tree_split!r}")
+        if not isinstance(self.tree_ends, (bool, np.bool_)):
+            raise TraceError(f"tree_ends must be True or False (lobe draws at the split trees' branch ends), "
+                             f"got {self.tree_ends!r}")
         if int(self.delta_chain_reflections) < 0:
             raise TraceError(f"delta_chain_reflections must be >= 0 (reflections per split-tree branch; 0: no limit), "
                              f"got {self.delta_chain_reflections}")

@@ -1,0 +1,99 @@
+"""Lobe draws at the split trees' branch ends (straylight.engine.tree_ends, ``EstimatorOptions.tree_ends``).
+
+Scene: a 10 mm n = 1.5 glass slab, a collimated beam onto its top face at 35 deg, a glossy plate (z302_sample_b)
+above it facing down where the top face's reflection lands, and a detector disk below the slab where the
+plate's lobe peak comes down through it (the specular ray: plate at x = 21 mm, slab top at 42, bottom at 46.1,
+z = -20 at 53.1). What reaches the detector is "top (R) -> plate -> slab (T, T) -> detector" and "top (T) ->
+bottom (R) -> top (T) -> plate -> slab -> detector": the plate is lit only by reflections, which the walk takes
+~4 % of the time; the trees follow both branches by expected weight and stop at the plate, where the end draws
+go on. The analog walk (another seed, every estimator off) is the independent reference.
+"""
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from engine_helpers import disk_part, quad_part
+from geometry.mesh import Part, Scene
+from materials import load_material
+from straylight.sources import CollimatedDisk
+from straylight.trace import EstimatorOptions, TraceError, TraceOptions, trace
+
+ANALOG = EstimatorOptions(nee=False)
+TREES = EstimatorOptions(nee=False, delta_chain=4, tree_split=2)
+
+
+@pytest.fixture(scope="module")
+def reflected_glint():
+    top = quad_part("top", (-60, -60, 0), (120, 0, 0), (0, 120, 0), "glass", "surface", 6)
+    bottom = quad_part("bottom", (-60, -60, -10), (0, 120, 0), (120, 0, 0), "glass", "surface", 6)
+    plate = quad_part("plate", (0, -40, 30), (0, 80, 0), (80, 0, 0), "glossy", "surface", 6)  # normal -z
+    disk = disk_part("det", -20.0, 15.0, 64, role="detector")
+    det = Part("det", disk.vertices_mm + np.array([53.0, 0.0, 0.0]), disk.faces, role="detector")
+    th = math.radians(35.0)
+    d = np.array([math.sin(th), 0.0, -math.cos(th)])
+    src = CollimatedDisk(center_mm=(-24.4 * d).tolist(), normal=d, direction=d, radius_mm=6.0)
+    mats = {"glass": load_material({"components": [{"type": "dielectric", "n": 1.5}]}, "glass"),
+            "glossy": load_material("z302_sample_b")}
+    return Scene((top, bottom, plate, det)), src, mats
+
+
+def _run(scene, n, seed, est, **kw):
+    sc, src, mats = scene
+    return trace(sc, src, n, seed=seed, materials=mats, options=TraceOptions(estimator=est, **kw))
+
+
+@pytest.fixture(scope="module")
+def analog(reflected_glint):
+    return _run(reflected_glint, 400_000, 4, ANALOG)
+
+
+@pytest.mark.parametrize("est", [replace(TREES, tree_ends=True),
+                                 EstimatorOptions(delta_chain=4, reverse_chain=4, tree_split=4, tree_ends=True,
+                                                  entrance_sampling=True)])
+def test_end_draws_agree_with_the_analog_walk(reflected_glint, analog, est):
+    res = _run(reflected_glint, 20_000, 5, est)
+    b, a = res.detectors["det"], analog.detectors["det"]
+    assert b.power_w > 0 and a.power_w > 0
+    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
+    assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+
+
+def test_end_draws_cut_the_variance_of_light_that_reached_a_glossy_part_by_reflection(reflected_glint):
+    """Without them the walk reaches the plate by its ~4 % reflection choice (2.5 % at 2e4 rays); with them every
+    ray whose reflection lights the plate does (measured 0.18 %)."""
+    plain = _run(reflected_glint, 20_000, 5, TREES).detectors["det"]
+    ends = _run(reflected_glint, 20_000, 5, replace(TREES, tree_ends=True)).detectors["det"]
+    assert ends.stderr_w / ends.power_w < 0.25 * plain.stderr_w / plain.power_w, (plain, ends)
+
+
+def test_the_same_numbers_for_any_batch_size_and_thread_count(reflected_glint):
+    from straylight.execution import Execution
+
+    est = replace(TREES, tree_ends=True)
+    ref = _run(reflected_glint, 5_432, 9, est, batch_rays=1000)
+    got = trace(reflected_glint[0], reflected_glint[1], 5_432, seed=9, materials=reflected_glint[2],
+                options=TraceOptions(estimator=est, batch_rays=3000), execution=Execution(threads=2))
+    assert got.detectors["det"] == ref.detectors["det"]
+
+
+def test_the_records_carry_the_root_run_the_end_and_the_draw_run(reflected_glint):
+    """Path records of an end draw's branch: top (R) -> plate -> top (T) -> bottom (T) -> det, its power that
+    family's."""
+    from straylight.analyses.paths_report import path_report
+    from straylight.trace import OutputOptions
+
+    res = _run(reflected_glint, 4_000, 3, replace(TREES, tree_ends=True),
+               output=OutputOptions(record_paths=True, path_depth=8))
+    tally = res.detectors["det"]
+    rep = path_report(res.paths, "det", tally, group_by="family")
+    labels = {r.label: r.fraction for r in rep.rows}
+    family = "source -> top (specular) -> plate -> top (specular) -> bottom (specular) -> det"
+    assert labels.get(family, 0.0) > 0.3, labels
+    assert abs(sum(r.fraction for r in rep.rows) - 1.0) < 1e-9
+
+
+def test_tree_ends_must_be_a_switch():
+    with pytest.raises(TraceError, match="tree_ends"):
+        EstimatorOptions(tree_ends=2)
