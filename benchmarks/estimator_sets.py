@@ -25,6 +25,9 @@
 ``reverse``
     the default without specular next-event estimation (``specular_nee=0``): the set before it, to measure
     what it buys.
+``no_ends``
+    the default without ``tree_ends`` (the trees' branch ends take no lobe draw): the set before them, to
+    measure what they cost and buy.
 ``walk_direct``
     the default without ``direct_area`` (the walk alone finds the light that reaches the detector straight):
     the set before it, to measure what it buys at a baffle's cut-off.
@@ -64,6 +67,7 @@ def register() -> None:
     register_estimator_set("reflections", replace(ESTIMATOR_SETS["default"], specular_nee=1, specular_nee_sequences="all"))
     register_estimator_set("reverse", replace(ESTIMATOR_SETS["default"], specular_nee=0))
     register_estimator_set("walk_direct", replace(ESTIMATOR_SETS["default"], direct_area=False))
+    register_estimator_set("no_ends", replace(ESTIMATOR_SETS["default"], tree_ends=False))
 
 
 register()

@@ -74,7 +74,8 @@ def main(argv=None) -> int:
              f"(reference 3.3): reference CPU s = CPU s x {scale:.2f}; load average {load0:.1f} / {load1:.1f} (shared "
              f"machine); modules byte-compiled as an installed package has them (one untimed warm-up command first; "
              f"benchmarks/newtonian_pst.py `run_point`). `default` includes entrance sampling, reverse chains, "
-             f"tree_split and specular NEE through single reflections and thick mirrors; `{args.before}` is another set "
+             f"tree_split, the trees' end draws (tree_ends) and specular NEE through single reflections and thick "
+             f"mirrors; `{args.before}` is another set "
              f"(benchmarks/estimator_sets.py).", "",
              "| angle | estimators | seed | reached 2 % & VOV <= 0.1 | rays | CPU s | reference CPU s | rel. error | VOV "
              "| PST |", "|---|---|---|---|---|---|---|---|---|---|"]

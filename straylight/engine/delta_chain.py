@@ -111,6 +111,7 @@ class DeltaChains:
         #: after the source (the end draws' trees are rooted only there)
         self.ends = ends
         self.from_source = np.zeros(n_rays_in_batch, dtype=bool)
+        self.end_covered = np.zeros(n_rays_in_batch, dtype=bool)  # the ray's last vertex is one the end draws cover
         self.walk_scale = np.ones(n_rays_in_batch)
         self.refl = np.zeros(n_rays_in_batch, dtype=np.int64)
         self.k_max = int(max_interfaces)
@@ -129,6 +130,7 @@ class DeltaChains:
                        tuple(x[root] for x in h.fresnel))
         if self.lobe_split is not None or self.ends is not None:  # the run after a split vertex has started
             self.walk_scale[event.rays.ray[h.rows[~h.passing]]] = 1.0
+            self.end_covered[event.rays.ray[h.rows[~h.passing]]] = False
         self.advance(event, h.rows, h.reflected | h.transmitted, h.passing, h.reflected)
 
     def starts(self, event, rows):
@@ -158,6 +160,7 @@ class DeltaChains:
                 covered = self.from_source[r] & self.covers(self.run[r], self.refl[r]) \
                     & self.ends.qualifies(event.spec, part, self.refl[r])
                 scale = np.where(covered, 0.0, 1.0)
+                self.end_covered[r] = covered
             self.walk_scale[r] = scale
             self.run[r] = 0
             self.refl[r] = 0
@@ -223,12 +226,19 @@ class DeltaChains:
             np.ascontiguousarray(sel, dtype=np.int64), src.row, src.w, src.k, src.refl, src.tag,
             np.ascontiguousarray(src.codes), key, code, _f64(at), _f64(d), _f64(facing), _f64(S), _f64(s), part,
             np.abs(rs) ** 2, np.abs(rp) ** 2, rs * np.conj(rp), np.abs(ts) ** 2, np.abs(tp) ** 2, ts * np.conj(tp),
-            cos_t, eta, bulk, 2.0 * event.settings.eps_mm, self.r_max,
+            cos_t, eta, bulk, 2.0 * event.settings.eps_mm, self._reflections_followed(),
             np.ascontiguousarray(carry[0], dtype=np.int64), _f64(carry[1]), np.ascontiguousarray(carry[2], np.int64),
             _f64(src.d), _f64(src.S), _f64(src.e1), src.key)
         if len(out[0]) == 0:
             return None
         return Branches(*out)
+
+    def _reflections_followed(self) -> int:
+        """R of the branches growing now: the end draws' trees follow transmissions only
+        (``TreeEnds.reflections``)."""
+        if self.ends is not None and self.ends.table is not None:
+            return self.ends.reflections
+        return self.r_max
 
     def _step(self, event, b):
         """Cast the branches ``b``: score those that reach a detector, split those that meet another
@@ -290,7 +300,10 @@ class DeltaChains:
                 w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])  # or this very path
                 keeper = split if split is not None else ends
                 if keeper is not None:
-                    w = np.where(keeper.walk_keeps(event, b.k[m], b.codes[m], int(j)), w, w * self.walk_scale[r])
+                    kept = keeper.walk_keeps(event, b.k[m], b.codes[m], int(j))
+                    if ends is not None:  # after an end the draws cover, the walk keeps the runs they do not follow
+                        kept |= self.end_covered[r] & (b.refl[m] > ends.reflections)
+                    w = np.where(kept, w, w * self.walk_scale[r])
             shared = split is not None or ends is not None
             keep = np.flatnonzero(w > 0) if shared else m
             if shared and len(keep) < len(m):

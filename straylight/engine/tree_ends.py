@@ -15,11 +15,12 @@ after at least one reflection takes one draw from the material's lobe at P, kept
 min(1, w_P / (:data:`END_TAU` w_root)) (w_P the branch's expected weight, w_root the walk's at the root:
 Russian roulette, unbiased, so that the weak ends of two reflections cost little). The draw's ray, of weight
 w_P f cos / pdf / q (the polarized f = M[0] . S for the branch's Stokes vector on a polarizing material, as
-the walk scatters), is followed by a split tree of its own; its branches that reach a detector through one
-interface or more score there. Those paths, "root run -> P -> lobe -> run of k >= 1 interfaces -> detector"
-with both runs within the trees' limits, are dropped from the walk: after such a P (reached by its own
-choices along a run the root's tree covers) the walk's own tree keeps nothing (``DeltaChains.walk_scale`` 0),
-as with ``tree_split``. Each end's draw is an unbiased estimate of what the walk's lobe draw at P and its tree
+the walk scatters), is followed by a split tree of its own that follows transmissions only
+(:data:`END_REFLECTIONS`); its branches that reach a detector through one interface or more score there. Those
+paths, "root run -> P -> lobe -> k >= 1 transmissions -> detector" with the root run within the trees' limits,
+are dropped from the walk: after such a P (reached by its own choices along a run the root's tree covers) the
+walk's own tree keeps only its branches with a reflection (``DeltaChains.walk_scale`` 0 for the others, as
+``tree_split`` keeps 1 / K). Each end's draw is an unbiased estimate of what the walk's lobe draw at P and its tree
 would count, weighted by the expectation over the root run's branch choices: the sum is unbiased, and the
 family is found by every ray whose beam lights P, not by 4 % of them.
 
@@ -51,6 +52,10 @@ END_STREAM = 0x54454E44  # third entropy word of the end draws' streams ("TEND")
 #: an end is drawn with probability min(1, w_P / (END_TAU w_root)): a single reflection (R ~ 4 % on glass, 1 %
 #: coated) always, a two-reflection end ~R^2 / END_TAU of the time
 END_TAU = 0.02
+#: reflections an end draw's tree follows: none (a glint seen through a lens is "P -> T ... T -> detector"; a tree
+#: of a double Gauss with two reflections has ~50 branches, with none ~1 per surface); the walk's own tree after
+#: an end keeps the runs with reflections
+END_REFLECTIONS = 0
 
 
 def _dot(a, b):
@@ -69,6 +74,8 @@ def unsupported(spec) -> str | None:
 class TreeEnds:
     """Per batch: which materials take end draws, the draws' streams, the ends collected while a root's trees
     grow (:meth:`collect`), and while an end's tree grows, what its records need of the root run (:attr:`table`)."""
+
+    reflections = END_REFLECTIONS
 
     def __init__(self, ctx):
         spec = ctx.spec
