@@ -3,7 +3,8 @@
 Scene: a 10 mm n = 1.5 glass slab, a collimated beam onto its top face at 35 deg, a glossy plate (z302_sample_b)
 above it facing down where the top face's reflection lands, and a detector disk below the slab where the
 plate's lobe peak comes down through it (the specular ray: plate at x = 21 mm, slab top at 42, bottom at 46.1,
-z = -20 at 53.1). What reaches the detector is "top (R) -> plate -> slab (T, T) -> detector" and "top (T) ->
+z = -20 at 53.1), and a second detector above the slab where the plate's lobe comes back up off the top face.
+What reaches the lower one is "top (R) -> plate -> slab (T, T) -> detector" and "top (T) ->
 bottom (R) -> top (T) -> plate -> slab -> detector": the plate is lit only by reflections, which the walk takes
 ~4 % of the time; the trees follow both branches by expected weight and stop at the plate, where the end draws
 go on. The analog walk (another seed, every estimator off) is the independent reference.
@@ -24,19 +25,26 @@ ANALOG = EstimatorOptions(nee=False)
 TREES = EstimatorOptions(nee=False, delta_chain=4, tree_split=2)
 
 
-@pytest.fixture(scope="module")
-def reflected_glint():
+def _scene(n_glass):
     top = quad_part("top", (-60, -60, 0), (120, 0, 0), (0, 120, 0), "glass", "surface", 6)
     bottom = quad_part("bottom", (-60, -60, -10), (0, 120, 0), (120, 0, 0), "glass", "surface", 6)
     plate = quad_part("plate", (0, -40, 30), (0, 80, 0), (80, 0, 0), "glossy", "surface", 6)  # normal -z
     disk = disk_part("det", -20.0, 15.0, 64, role="detector")
     det = Part("det", disk.vertices_mm + np.array([53.0, 0.0, 0.0]), disk.faces, role="detector")
+    # above the slab, facing down, where the plate's lobe comes back up off the top face ("plate -> top (R) -> up")
+    upper = disk_part("up", 15.0, 6.0, 64, role="detector", facing=-1)
+    up = Part("up", upper.vertices_mm + np.array([52.5, 0.0, 0.0]), upper.faces, role="detector")
     th = math.radians(35.0)
     d = np.array([math.sin(th), 0.0, -math.cos(th)])
     src = CollimatedDisk(center_mm=(-24.4 * d).tolist(), normal=d, direction=d, radius_mm=6.0)
-    mats = {"glass": load_material({"components": [{"type": "dielectric", "n": 1.5}]}, "glass"),
+    mats = {"glass": load_material({"components": [{"type": "dielectric", "n": n_glass}]}, "glass"),
             "glossy": load_material("z302_sample_b")}
-    return Scene((top, bottom, plate, det)), src, mats
+    return Scene((top, bottom, plate, det, up)), src, mats
+
+
+@pytest.fixture(scope="module")
+def reflected_glint():
+    return _scene(1.5)
 
 
 def _run(scene, n, seed, est, **kw):
@@ -56,6 +64,39 @@ def test_end_draws_agree_with_the_analog_walk(reflected_glint, analog, est):
     res = _run(reflected_glint, 20_000, 5, est)
     b, a = res.detectors["det"], analog.detectors["det"]
     assert b.power_w > 0 and a.power_w > 0
+    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
+    assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+
+
+def test_after_an_end_the_walk_keeps_the_runs_with_a_reflection(reflected_glint, analog):
+    """The end draws' trees follow transmissions only: "plate -> top (R) -> up" (the detector above the slab) is
+    the walk's own tree's after the plate, at its full weight."""
+    res = _run(reflected_glint, 20_000, 5, replace(TREES, tree_ends=True))
+    b, a = res.detectors["up"], analog.detectors["up"]
+    assert b.power_w > 0 and a.power_w > 0
+    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
+
+
+def test_ends_weaker_than_the_draw_threshold_are_drawn_by_roulette_and_stay_unbiased():
+    """n = 1.2: the top face reflects ~1 % at 35 deg, so an end is drawn with probability w_P / (0.02 w_root) ~ 0.4
+    and weighs 1 / q (tree_ends.END_TAU); against the analog walk of the same scene."""
+    import straylight.engine.tree_ends as tree_ends
+
+    scene = _scene(1.2)
+    q = []
+    original = tree_ends.TreeEnds._draws
+
+    def recording(self, event, e, p, nf, part):
+        w_root = event.rays.weight_w[e.row]
+        q.extend(np.minimum(1.0, e.w / (tree_ends.END_TAU * w_root)))
+        return original(self, event, e, p, nf, part)
+
+    a = _run(scene, 400_000, 4, ANALOG).detectors["det"]
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(tree_ends.TreeEnds, "_draws", recording)
+        res = _run(scene, 20_000, 5, replace(TREES, tree_ends=True))
+    b = res.detectors["det"]
+    assert 0.2 < np.median(q) < 0.8, np.median(q)  # the roulette engaged on the single reflections
     assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
     assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
 
