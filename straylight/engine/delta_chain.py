@@ -151,7 +151,7 @@ class DeltaChains:
     def leave_run(self, event, rows):
         """Continuing hits ``rows`` on parts whose kind does not split end their run; after a vertex the end
         draws cover (straylight.engine.tree_ends: reached along a run the root's tree follows) the walk's own
-        tree keeps nothing."""
+        tree keeps only its branches with a reflection (``end_covered``)."""
         if len(rows):
             r = event.rays.ray[rows]
             scale = 1.0

@@ -13,6 +13,16 @@ from materials.base import Sample
 from straylight.sources import CollimatedDisk
 
 
+def assert_agrees_with_analog(res, analog, detector: str = "det", ledger: bool = True) -> None:
+    """``res`` (a TraceResult) puts on ``detector`` the power the analog walk ``analog`` does, within 4 combined
+    standard errors, both positive; with ``ledger`` its power ledger closes to 1e-9 of the emitted power."""
+    b, a = res.detectors[detector], analog.detectors[detector]
+    assert b.power_w > 0 and a.power_w > 0, (b, a)
+    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
+    if ledger:
+        assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+
+
 @dataclass(frozen=True)
 class StandInLambertian:
     """f = rd / pi, cosine sampling with weight rd (test-only stand-in for materials.lambertian)."""

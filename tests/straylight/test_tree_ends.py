@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from engine_helpers import disk_part, quad_part
+from engine_helpers import assert_agrees_with_analog, disk_part, quad_part
 from geometry.mesh import Part, Scene
 from materials import load_material
 from straylight.sources import CollimatedDisk
@@ -61,20 +61,13 @@ def analog(reflected_glint):
                                  EstimatorOptions(delta_chain=4, reverse_chain=4, tree_split=4, tree_ends=True,
                                                   entrance_sampling=True)])
 def test_end_draws_agree_with_the_analog_walk(reflected_glint, analog, est):
-    res = _run(reflected_glint, 20_000, 5, est)
-    b, a = res.detectors["det"], analog.detectors["det"]
-    assert b.power_w > 0 and a.power_w > 0
-    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
-    assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+    assert_agrees_with_analog(_run(reflected_glint, 20_000, 5, est), analog)
 
 
 def test_after_an_end_the_walk_keeps_the_runs_with_a_reflection(reflected_glint, analog):
     """The end draws' trees follow transmissions only: "plate -> top (R) -> up" (the detector above the slab) is
     the walk's own tree's after the plate, at its full weight."""
-    res = _run(reflected_glint, 20_000, 5, replace(TREES, tree_ends=True))
-    b, a = res.detectors["up"], analog.detectors["up"]
-    assert b.power_w > 0 and a.power_w > 0
-    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
+    assert_agrees_with_analog(_run(reflected_glint, 20_000, 5, replace(TREES, tree_ends=True)), analog, "up")
 
 
 def test_ends_weaker_than_the_draw_threshold_are_drawn_by_roulette_and_stay_unbiased():
@@ -91,14 +84,12 @@ def test_ends_weaker_than_the_draw_threshold_are_drawn_by_roulette_and_stay_unbi
         q.extend(np.minimum(1.0, e.w / (tree_ends.END_TAU * w_root)))
         return original(self, event, e, p, nf, part)
 
-    a = _run(scene, 400_000, 4, ANALOG).detectors["det"]
+    analog = _run(scene, 400_000, 4, ANALOG)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(tree_ends.TreeEnds, "_draws", recording)
         res = _run(scene, 20_000, 5, replace(TREES, tree_ends=True))
-    b = res.detectors["det"]
     assert 0.2 < np.median(q) < 0.8, np.median(q)  # the roulette engaged on the single reflections
-    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
-    assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+    assert_agrees_with_analog(res, analog)
 
 
 def test_end_draws_cut_the_variance_of_light_that_reached_a_glossy_part_by_reflection(reflected_glint):

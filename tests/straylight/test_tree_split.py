@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from engine_helpers import disk_part, quad_part
+from engine_helpers import assert_agrees_with_analog, disk_part, quad_part
 from geometry.mesh import Scene
 from materials import load_material
 from straylight.sources import CollimatedDisk
@@ -47,11 +47,7 @@ def analog(glossy_slab):
 @pytest.mark.parametrize("est", [EstimatorOptions(nee=False, delta_chain=4, tree_split=8),
                                  EstimatorOptions(delta_chain=4, reverse_chain=4, tree_split=8)])
 def test_lobe_draws_into_the_trees_agree_with_the_analog_walk(glossy_slab, analog, est):
-    res = _run(glossy_slab, 20_000, 5, est)
-    b, a = res.detectors["det"], analog.detectors["det"]
-    assert b.power_w > 0 and a.power_w > 0
-    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
-    assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+    assert_agrees_with_analog(_run(glossy_slab, 20_000, 5, est), analog)
 
 
 def test_the_draws_cut_the_variance_and_give_the_same_numbers_for_any_batch_size_and_thread_count(glossy_slab):
@@ -101,6 +97,4 @@ def test_the_shipped_default_set_agrees_with_the_analog_walk_where_its_lobe_draw
     assert est.tree_split > 1
     res = _run(glossy_slab, 20_000, 6, est)
     assert sum(drawn) > 0  # the default set's lobe draws engaged
-    b, a = res.detectors["det"], analog.detectors["det"]
-    assert abs(b.power_w - a.power_w) <= 4 * math.hypot(b.stderr_w, a.stderr_w), (b, a)
-    assert abs(res.ledger["balance_residual_w"]) < 1e-9 * res.emitted_w
+    assert_agrees_with_analog(res, analog)
