@@ -129,3 +129,18 @@ def test_the_records_carry_the_root_run_the_end_and_the_draw_run(reflected_glint
 def test_tree_ends_must_be_a_switch():
     with pytest.raises(TraceError, match="tree_ends"):
         EstimatorOptions(tree_ends=2)
+
+
+def test_no_end_draws_where_the_walk_fixes_the_polarization(reflected_glint, monkeypatch):
+    """Under ``polarization = "s"`` every vertex is evaluated for s light, not the trees' Stokes vectors: the end
+    draws stay off (tree_ends.unsupported), and the trace runs with the trees alone."""
+    import straylight.engine.tree_ends as tree_ends
+    from straylight.trace import PhysicsOptions
+
+    drawn = []
+    monkeypatch.setattr(tree_ends.TreeEnds, "draw", lambda self, event, chains: drawn.append(1))
+    res = _run(reflected_glint, 2_000, 5, replace(TREES, tree_ends=True), physics=PhysicsOptions(polarization="s"))
+    assert res.detectors["det"].power_w > 0
+    assert not drawn
+    res = _run(reflected_glint, 2_000, 5, replace(TREES, tree_ends=True))
+    assert drawn  # (the same scene draws them with unpolarized light)
