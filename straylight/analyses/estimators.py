@@ -22,6 +22,9 @@
     window) it also draws the source's entrance points from a density learnt by a pilot of 1e4-3e4 rays
     (``entrance_sampling``, straylight.engine.entrance_sampling): behind a lens only a few entrance
     points reach a small sensor (the ghost of the direct beam), and a uniform beam finds them by chance.
+    A tenth of that density is drawn from the entrance points that light, through the lens, the scatter
+    points the detector sees (the lens cell's glints: straylight.engine.strategies.entrance, LENS_COMPONENT),
+    which a pilot of 3e4 rays leaves with little mass.
 
     With a refracting material it also traces, per ray, an eye chain from the detector back through
     up to 32 interfaces, at most 2 of them reflections (``reverse_chain``, straylight.engine.reverse_chain):

@@ -176,6 +176,23 @@ def table_from_contributions(u: np.ndarray, x: np.ndarray, grid: int = GRID, def
     return EntranceTable(grid=g, prob=prob, cdf=cdf, pilot_rays=len(x), pilot_hits=hits)
 
 
+def with_component(table: EntranceTable, u: np.ndarray, share: float) -> EntranceTable:
+    """``table`` mixed with the histogram of the source uniforms ``u`` (m, 2) on its grid, at ``share``: P_c =
+    (1 - share) P_c + share n_c / m (a mixture keeps every cell the table had; unbiased for any share, as any
+    table is). ``table`` itself where ``u`` is empty."""
+    if len(u) == 0 or share <= 0:
+        return table
+    g = int(table.grid)
+    i = np.minimum((u[:, 0] * g).astype(np.int64), g - 1)
+    j = np.minimum((u[:, 1] * g).astype(np.int64), g - 1)
+    counts = np.bincount(i * g + j, minlength=g * g).astype(np.float64)
+    prob = (1.0 - share) * table.prob + share * counts / counts.sum()
+    prob = prob / prob.sum()
+    cdf = np.cumsum(prob)
+    cdf[-1] = 1.0
+    return replace(table, prob=prob, cdf=cdf)
+
+
 def warp(table: EntranceTable, u: np.ndarray) -> np.ndarray:
     """Move the source uniforms ``u[:, 0], u[:, 1]`` (in place) to the table's density; returns each
     ray's weight factor 1 / p(u) = 1 / (G^2 P_c). u1 picks the cell by inverse CDF, its residual

@@ -640,6 +640,32 @@ def build_table(spec, comp) -> LensTable:
     return LensTable(runs, run_of, tri, np.cumsum(q), p_area)
 
 
+def glint_entrances(spec, table: LensTable, n_points: int, seed_words) -> np.ndarray:
+    """Entrance points of the beam that light the table's scatter points: ``n_points`` points x drawn from the
+    table (q over (run, triangle), uniform on the triangle), each solved for through its run; returns their
+    source uniforms (m, 2) (:meth:`CollimatedDisk.uniforms_at`; the points the solve does not find are left out).
+    The entrance table's lens component (straylight.engine.entrance_sampling.with_component): on the guide
+    scope at 15 deg these are the crescent of the beam whose rays graze the lens cell's bore and whose back-face
+    reflection lights its lip, both seen at a glint."""
+    if table.empty or n_points <= 0:
+        return np.zeros((0, 2))
+    rng = np.random.default_rng(list(seed_words))
+    pick = np.minimum(np.searchsorted(table.cdf, rng.random(n_points), side="right"), len(table.tri) - 1)
+    tri_mm = spec.triangles_mm[table.tri[pick]]
+    a, b = rng.random(n_points), rng.random(n_points)
+    fold = a + b > 1.0
+    a[fold], b[fold] = 1.0 - a[fold], 1.0 - b[fold]
+    x = tri_mm[:, 0] + a[:, None] * (tri_mm[:, 1] - tri_mm[:, 0]) + b[:, None] * (tri_mm[:, 2] - tri_mm[:, 0])
+    src = spec.sources[0]
+    found = []
+    for k, run in enumerate(table.runs):
+        sel = np.flatnonzero(table.run[pick] == k)
+        if len(sel):
+            ab, _, _, _, ok = solve(spec, run, x[sel])
+            found.append(src.uniforms_at(_on_disk(src, ab[ok])))
+    return np.concatenate(found) if found else np.zeros((0, 2))
+
+
 # ---------------------------------------------------------------------------------------------- the pass
 
 

@@ -1,7 +1,9 @@
 """Entrance sampling (straylight.engine.entrance_sampling): the source's entrance points drawn from a
 density learnt by a pilot trace before the walk. It acts before the first hit, on any kind. Its pilot's
 estimate of the detected power is left in ``TableTools.measured["detected_w"]`` for the tables after it
-(the eye pilot weighs its chains' share of the light by it: straylight.engine.reverse_chain)."""
+(the eye pilot weighs its chains' share of the light by it: straylight.engine.reverse_chain). For one collimated
+beam into a lens, a share of the table is drawn from the entrance points that light the scatter points behind the
+glass a detector sees (straylight.engine.lens_vertex's table, solved for their entrance points)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -9,9 +11,11 @@ from dataclasses import replace
 import numpy as np
 
 from straylight.engine import entrance_sampling as impl
+from straylight.engine import lens_vertex
 from straylight.engine.capabilities import Capability
 from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy, TableTools
-from straylight.rng import CHUNK_RAYS
+from straylight.engine.strategies.lens_vertex import LENS_VERTEX
+from straylight.rng import CHUNK_RAYS, check_seed
 
 
 class PilotPower:
@@ -38,6 +42,16 @@ class PilotPower:
         return self.scaled_w / self.rays if self.rays else None
 
 
+#: share of the entrance table drawn from the entrance points that light lens_vertex's scatter points (the glints
+#: of a lens's cell or mount behind the glass; straylight.engine.lens_vertex.glint_entrances): on the guide scope at
+#: 15 deg a crescent of the beam lights both the cell's bore and, by the back face's reflection, its lip, and the
+#: pilot's table gave it little mass (docs/engine.md, "Entrance points of the glints")
+LENS_COMPONENT = 0.1
+#: scatter points drawn from the lens table and solved for their entrance points
+LENS_COMPONENT_POINTS = 8192
+LENS_COMPONENT_STREAM = 0x454E5443  # the second entropy word of their draws ("ENTC")
+
+
 class Entrance(Strategy):
     estimator = Estimator("entrance", replace(ANALOG, entrance_sampling=True), Capability.NONE, diffraction=True)
     needs_detector = False  # its own rule below says what it needs
@@ -56,7 +70,12 @@ class Entrance(Strategy):
         table = impl.build_table(spec, counted, tools.intersector)
         if tools.measured is not None and counted.detected_w is not None:
             tools.measured["detected_w"] = counted.detected_w
-        return table
+        if table is None or tools.intersector is not None or lens_vertex.unsupported(spec) is not None:
+            return table  # (the lens table is built on embree, for one collimated beam)
+        lens = tools.runtime.table(LENS_VERTEX.table_key, spec,
+                                   lambda: lens_vertex.build_table(spec, tools.runtime.scene(spec, None)))
+        glints = lens_vertex.glint_entrances(spec, lens, LENS_COMPONENT_POINTS, (check_seed(spec.seed), LENS_COMPONENT_STREAM))
+        return impl.with_component(table, glints, LENS_COMPONENT)
 
     def batch_state(self, ctx: BatchContext) -> object | None:
         return impl.EntranceWeights(ctx.spec, ctx.start_weight_w, ctx.tallies, ctx.rows)
