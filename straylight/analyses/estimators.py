@@ -105,9 +105,8 @@ ESTIMATOR_SETS = {
 }
 #: the default set with the scatter points lit through a lens area-sampled and joined to the beam through it
 #: (straylight.engine.lens_vertex): for a lens whose cell or mount the beam lights behind the glass, seen by the
-#: detector at a glint (the guide scope at 15 deg: the bore's family, 3.5 % -> 0.8 % at 1e5 rays for seed 1; whole
-#: commands to 2 % in 8.4-11.6 CPU s, seeds 1-3, against the default's 12.6-13.6: the lip lit by the lens's own
-#: reflection is left, tree_ends' family); it costs 0.7-0.9 CPU s per 6e4 rays where the beam lights the tube behind
+#: detector at a glint (the guide scope at 15 deg, before the entrance table's lens component: the bore's family,
+#: 3.5 % -> 0.8 % at 1e5 rays for seed 1); it costs 0.7-0.9 CPU s per 6e4 rays where the beam lights the tube behind
 #: the lens at all, which is why it is not in the default set
 ESTIMATOR_SETS["lens"] = replace(ESTIMATOR_SETS["default"], lens_vertex=True)
 
