@@ -111,7 +111,6 @@ class DeltaChains:
         #: after the source (the end draws' trees are rooted only there)
         self.ends = ends
         self.from_source = np.zeros(n_rays_in_batch, dtype=bool)
-        self.end_covered = np.zeros(n_rays_in_batch, dtype=bool)  # the ray's last vertex is one the end draws cover
         self.walk_scale = np.ones(n_rays_in_batch)
         self.refl = np.zeros(n_rays_in_batch, dtype=np.int64)
         self.k_max = int(max_interfaces)
@@ -130,7 +129,6 @@ class DeltaChains:
                        tuple(x[root] for x in h.fresnel))
         if self.lobe_split is not None or self.ends is not None:  # the run after a split vertex has started
             self.walk_scale[event.rays.ray[h.rows[~h.passing]]] = 1.0
-            self.end_covered[event.rays.ray[h.rows[~h.passing]]] = False
         self.advance(event, h.rows, h.reflected | h.transmitted, h.passing, h.reflected)
 
     def starts(self, event, rows):
@@ -151,7 +149,7 @@ class DeltaChains:
     def leave_run(self, event, rows):
         """Continuing hits ``rows`` on parts whose kind does not split end their run; after a vertex the end
         draws cover (straylight.engine.tree_ends: reached along a run the root's tree follows) the walk's own
-        tree keeps only its branches with a reflection (``end_covered``)."""
+        tree keeps only its branches with a reflection (``walk_scale`` 0: only the end draws set it so)."""
         if len(rows):
             r = event.rays.ray[rows]
             scale = 1.0
@@ -160,7 +158,6 @@ class DeltaChains:
                 covered = self.from_source[r] & self.covers(self.run[r], self.refl[r]) \
                     & self.ends.qualifies(event.spec, part, self.refl[r])
                 scale = np.where(covered, 0.0, 1.0)
-                self.end_covered[r] = covered
             self.walk_scale[r] = scale
             self.run[r] = 0
             self.refl[r] = 0
@@ -302,7 +299,7 @@ class DeltaChains:
                 if keeper is not None:
                     kept = keeper.walk_keeps(event, b.k[m], b.codes[m], int(j))
                     if ends is not None:  # after an end the draws cover, the walk keeps the runs they do not follow
-                        kept |= self.end_covered[r] & (b.refl[m] > ends.reflections)
+                        kept |= (self.walk_scale[r] == 0.0) & (b.refl[m] > ends.reflections)
                     w = np.where(kept, w, w * self.walk_scale[r])
             shared = split is not None or ends is not None
             keep = np.flatnonzero(w > 0) if shared else m

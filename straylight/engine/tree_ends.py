@@ -39,11 +39,13 @@ import numpy as np
 from materials.mueller import rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing, mueller_brdf
 from straylight.engine.interactions.brdf_scatter import local_frame
+from straylight.engine.interactions.scatter_polarization import scattered_rows
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material, distinct
 from straylight.engine.delta_chain import CODE_COLUMNS, Branches
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE
 from straylight.engine.reverse_chain import _source_linear, scatter_ends
+from straylight.engine.tree_split import walk_keeps
 from straylight.engine.vec3 import take_rows
 from straylight.paths import mix_key
 from straylight.rng import check_seed, chunk_stream_uniforms
@@ -165,27 +167,22 @@ class TreeEnds:
         s = s_vector(e.d, nf)
         S_in = rotate_stokes(e.S, e.e1, s, e.d)
         s_loc = np.stack([_dot(s, tb), _dot(s, bb), _dot(s, nf)], axis=1)
+        polarized = np.any(S_in[:, 1:] != 0.0, axis=1)
         for k in polar:
             g = np.flatnonzero((mat == k) & (wo[:, 2] > 0))
             if len(g) == 0:
                 continue
             M, e1_loc = mueller_brdf(spec.materials[k], wi[g], wo[g], s_loc[g])
-            So = np.einsum("nij,nj->ni", M, S_in[g])
-            m00 = M[:, 0, 0]
-            ratio[g] = np.where(m00 > 0, So[:, 0] / np.where(m00 > 0, m00, 1.0), 0.0)
-            lit = So[:, 0] > 0
-            S_out[g[lit]] = So[lit] / So[lit, :1]
-            e1_out[g] = e1_loc[:, :1] * tb[g] + e1_loc[:, 1:2] * bb[g] + e1_loc[:, 2:3] * nf[g]
+            scattered_rows(M, e1_loc, S_in, polarized, tb, bb, nf, g, g, g, ratio, S_out, e1_out)
+            S_out[g] /= S_out[g, :1]  # M S as the walk stores it, normalised (1, 0, 0, 0 where nothing is scattered)
         return ratio
 
     def walk_keeps(self, event, k, codes, detector: int) -> np.ndarray:
         """(n,) bool: the end draws' branches (``k`` interfaces, ``codes``) the walk's own tree keeps whole (their
         share 0 here): those specular NEE may also make, or without its state at most ``specular_nee`` interfaces
-        (straylight.engine.tree_split.LobeSplit.walk_keeps, the same rule); and a draw straight onto the detector
-        (k = 0), which the walk's NEE and lobe hits at P count."""
-        nee = event.states.get("specular_nee")
-        kept = k <= self.k_min if nee is None else nee.covers(k, codes, detector)
-        return kept | (k == 0)
+        (straylight.engine.tree_split.walk_keeps, the same rule); and a draw straight onto the detector (k = 0),
+        which the walk's NEE and lobe hits at P count."""
+        return walk_keeps(event, k, codes, detector, self.k_min) | (k == 0)
 
     def record(self, event, b, m, r, i, z, w, j, depth):
         """Path records of the end draws' branches ``b`` rows ``m`` (rays ``r``, event rows ``i``) scoring ``w`` at

@@ -31,6 +31,16 @@ from straylight.engine.vec3 import take_rows
 TREE_STREAM = 0x5453504C  # third entropy word of the further lobe draws' streams ("TSPL")
 
 
+def walk_keeps(event, k, codes, detector: int, k_min: int) -> np.ndarray:
+    """(n,) bool: split-tree branches (``k`` interfaces, ``codes``) reaching ``detector`` that the walk's own tree
+    keeps whole, whose drawn copies score nothing: those specular NEE may also make
+    (straylight.engine.specular_nee.SpecularNee.covers), or without its state k <= ``k_min`` (its ``specular_nee``)."""
+    nee = event.states.get("specular_nee")
+    if nee is None:
+        return k <= k_min
+    return nee.covers(k, codes, detector)
+
+
 class LobeSplit:
     """Per batch: which materials split, K, the further draws' streams, and while their branches grow,
     each draw's (p_walk, cos(omega, n_P), owned by the eye chains) (:attr:`draws`)."""
@@ -115,12 +125,8 @@ class LobeSplit:
 
     def walk_keeps(self, event, k, codes, detector: int) -> np.ndarray:
         """(n,) bool: the branches (``k`` interfaces, ``codes``) reaching ``detector`` that the walk's own
-        tree keeps whole (the further draws' share 0): those specular NEE may also make
-        (straylight.engine.specular_nee.SpecularNee.covers), or without its state k <= ``k_min``."""
-        nee = event.states.get("specular_nee")
-        if nee is None:
-            return k <= self.k_min
-        return nee.covers(k, codes, detector)
+        tree keeps whole (the further draws' share 0): :func:`walk_keeps`."""
+        return walk_keeps(event, k, codes, detector, self.k_min)
 
     def share(self, event, tag, k, codes, detector: int, arrival) -> np.ndarray:
         """The share further draws ``tag`` keep on ``detector`` after ``k`` interfaces ``codes``: 0 where

@@ -72,8 +72,7 @@ class Entrance(Strategy):
             tools.measured["detected_w"] = counted.detected_w
         if table is None or tools.intersector is not None or lens_vertex.unsupported(spec) is not None:
             return table  # (the lens table is built on embree, for one collimated beam)
-        lens = tools.runtime.table(LENS_VERTEX.table_key, spec,
-                                   lambda: lens_vertex.build_table(spec, tools.runtime.scene(spec, None)))
+        lens = tools.runtime.table(LENS_VERTEX.table_key, spec, lambda: LENS_VERTEX.build_table(spec, tools))
         glints = lens_vertex.glint_entrances(spec, lens, LENS_COMPONENT_POINTS, (check_seed(spec.seed), LENS_COMPONENT_STREAM))
         return impl.with_component(table, glints, LENS_COMPONENT)
 
