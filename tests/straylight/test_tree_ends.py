@@ -144,3 +144,26 @@ def test_no_end_draws_where_the_walk_fixes_the_polarization(reflected_glint, mon
     assert not drawn
     res = _run(reflected_glint, 2_000, 5, replace(TREES, tree_ends=True))
     assert drawn  # (the same scene draws them with unpolarized light)
+
+
+def test_the_shipped_default_set_agrees_with_the_analog_walk_where_its_end_draws_engage(reflected_glint, analog,
+                                                                                          monkeypatch):
+    """The contract row of the analyses' ``default`` set on a scene where the end draws act (the contract scenes of
+    test_engine_contract.py have no glossy part lit through glass): every strategy at once, the end draws counted
+    as they engage, against the analog walk within 4 sigma with the ledger exact."""
+    import straylight.engine.tree_ends as tree_ends
+    from straylight.analyses.estimators import estimator_options
+
+    drawn = []
+    original = tree_ends.TreeEnds._draws
+
+    def counting(self, event, e, p, nf, part):
+        drawn.append(len(e.w))
+        return original(self, event, e, p, nf, part)
+
+    monkeypatch.setattr(tree_ends.TreeEnds, "_draws", counting)
+    est = estimator_options("default", materials=reflected_glint[2]).estimator
+    assert est.tree_ends
+    res = _run(reflected_glint, 20_000, 6, est)
+    assert sum(drawn) > 0
+    assert_agrees_with_analog(res, analog)
