@@ -108,3 +108,41 @@ def test_dask_says_nothing_of_the_tasks_it_drops_after_ctrl_c():
     finally:
         logging.getLogger("distributed").removeHandler(handler)
         logging.getLogger("tornado.application").removeHandler(handler)
+
+
+def test_dask_is_silenced_by_the_signal_itself_before_the_interrupt_unwinds():
+    """The race CI-like load showed once: the scheduler's thread logs the keys it drops while the
+    KeyboardInterrupt is still on its way to ``quiet``. The SIGINT now silences dask's loggers before the
+    KeyboardInterrupt is raised; after the block the levels and Python's handler are back."""
+    import logging
+
+    from straylight.engine.backends.dask import _quiet_after_interrupt
+
+    shown = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            shown.append(record.getMessage())
+
+    handler = Keep()
+    log = logging.getLogger("distributed")
+    log.addHandler(handler)
+    before_level = log.level
+    before_handler = signal.signal(signal.SIGINT, signal.default_int_handler)  # as a terminal gives it
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with _quiet_after_interrupt() as quiet, quiet:
+                try:
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(5)  # the signal arrives here
+                finally:  # the scheduler's thread, before the interrupt reached quiet
+                    logging.getLogger("distributed.scheduler").error("Couldn't gather keys")
+        assert shown == []
+        assert log.level == before_level
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        with _quiet_after_interrupt() as quiet, quiet:  # no interrupt: dask's errors are shown
+            logging.getLogger("distributed.scheduler").error("a real failure")
+        assert shown == ["a real failure"]
+    finally:
+        signal.signal(signal.SIGINT, before_handler)
+        log.removeHandler(handler)
