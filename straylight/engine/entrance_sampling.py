@@ -66,6 +66,16 @@ resolves the ghost of the direct beam, narrower than a 64-grid cell (guide scope
 CPU s x rel^2 median with the 64 grid -> 256: 5 deg 13.9 -> 5.4, 10 deg 16.8 -> 5.2, 15 deg 67 -> 24,
 20 deg 19.7 -> 4.3, 30 deg 21.7 -> 9.4, 45 deg 28.9 -> 22.0, 60 deg 5.4 -> 3.1; docs/engine.md).
 
+**The scales' weights** (:data:`SCALE_WEIGHTS`: 1, 1, 0.2, 0.1 for the 256, 64, 16 and 4 grids, normalised;
+equal weights before): at equal weights the two coarse grids held half of the non-defensive draws, spread over
+cells 16-4096x the fine ones around what the pilot saw. At 45 deg on the guide scope the light is the dew
+shield's glossy patch that the lens's ghost carries to the sensor (~1 % of the beam); 60 % of the rays' glossy first
+vertices fell near it and a few per cent of the rays carried half the light. Whole ``pst`` commands to 2 %, seeds
+1-8, median CPU s equal -> these weights: 45 deg 3.64 -> 3.04, 30 deg 3.53 -> 3.30, 60 deg 3.00 -> 2.25, 5-20 deg
+the same or less; the imported Cooke triplet at 20 deg reached 2 % in 15-17 s where both seeds had stopped at a
+30 s cap. The defensive share stays: with it at 0.1, 30 deg had 6 heavy runs in 8 (docs/engine.md, "The
+table's scale weights").
+
 **The ledger.** The start weights no longer add up to the emitted power exactly: each ray's
 w0 - w (expectation zero) is booked to the ``escaped`` row, which keeps escaped an unbiased estimate
 of the escaped power and the ledger exact (emitted = detected + absorbed + escaped to round-off).
@@ -87,8 +97,12 @@ from straylight.rng import CHUNK_RAYS, n_chunks
 
 #: cells per side of the table over the source's first two uniforms
 GRID = 256
-#: the grids (cells per side, dividing GRID) whose tables are averaged
+#: the grids (cells per side, dividing GRID) whose tables are mixed
 SCALES = (256, 64, 16, 4)
+#: the mixture's weights of the SCALES' tables (normalised): the coarse grids are a fallback for paths the pilot
+#: saw a few times, and at equal weights they put half of the non-defensive draws over cells 16-4096x the fine
+#: ones (guide scope, 8 seeds, whole ``pst`` commands to 2 %: 45 deg median 3.64 -> 3.04 CPU s; module doc)
+SCALE_WEIGHTS = (1.0, 1.0, 0.2, 0.1)
 #: rays of the pilot trace that learns the table
 PILOT_RAYS = 30_000
 #: rays of the pilot's first stage; the rest of PILOT_RAYS only below PILOT_ENOUGH_ESS (module doc)
@@ -152,23 +166,31 @@ def _scale_tables(u: np.ndarray, x: np.ndarray, g: int, scales, rho: np.ndarray 
 
 
 def table_from_contributions(u: np.ndarray, x: np.ndarray, grid: int = GRID, defensive: float = DEFENSIVE,
-                             scales: tuple = SCALES, rho: np.ndarray | None = None) -> EntranceTable | None:
+                             scales: tuple = SCALES, rho: np.ndarray | None = None,
+                             scale_weights: tuple | None = None) -> EntranceTable | None:
     """The table from pilot rays' first two source uniforms ``u`` (n, 2) and contributions ``x`` (n,):
-    P_c = defensive / G^2 + (1 - defensive) mean_s q_s(c), where q_s is the normalised sqrt of the
+    P_c = defensive / G^2 + (1 - defensive) sum_s a_s q_s(c), where q_s is the normalised sqrt of the
     smoothed mean x^2 on a grid of s x s cells (s in ``scales``, spread evenly over the G x G cells
-    each covers). The fine grid resolves a small deterministic region (the ghost of the direct beam);
-    the coarse ones keep mass over the whole region where a rare path happens when the pilot saw it
-    only a few times (dew-shield scatter into the ghost). As a mixture, the table's variance is at
-    most len(scales) times that of its best scale alone. ``rho`` (n,): each ray's 1 / p(u) when the
-    pilot drew it from a density p (a table of its earlier stage; the means per cell are then
-    self-normalised, sum rho x^2 / sum rho, estimates of the same uniform-measure means)."""
+    each covers) and a_s the normalised ``scale_weights`` (default :data:`SCALE_WEIGHTS` for
+    :data:`SCALES`, equal for other scales). The fine grids resolve a small deterministic region (the ghost
+    of the direct beam) and the glossy patch whose scatter a ghost carries to the sensor; the coarse ones keep
+    mass over the whole region where a rare path happens when the pilot saw it only a few times. As a
+    mixture, the table's variance is at most 1 / a_s times that of scale s alone. ``rho`` (n,): each ray's
+    1 / p(u) when the pilot drew it from a density p (a table of its earlier stage; the means per cell are
+    then self-normalised, sum rho x^2 / sum rho, estimates of the same uniform-measure means)."""
     g = int(grid)
     u = np.asarray(u, dtype=np.float64)
     x = np.asarray(x, dtype=np.float64)
     hits = int(np.count_nonzero(x))
     if hits == 0:
         return None
-    q = _scale_tables(u, x, g, scales, None if rho is None else np.asarray(rho, dtype=np.float64)).mean(axis=0)
+    if scale_weights is None:
+        scale_weights = SCALE_WEIGHTS if tuple(scales) == SCALES else (1.0,) * len(scales)
+    a = np.asarray(scale_weights, dtype=np.float64)
+    if a.shape != (len(scales),) or np.any(a < 0) or a.sum() <= 0:
+        raise ValueError(f"scale_weights must be {len(scales)} non-negative numbers, not all 0; got {scale_weights}")
+    tables = _scale_tables(u, x, g, scales, None if rho is None else np.asarray(rho, dtype=np.float64))
+    q = (a / a.sum()) @ tables
     prob = defensive / (g * g) + (1.0 - defensive) * q
     prob = prob / prob.sum()
     cdf = np.cumsum(prob)

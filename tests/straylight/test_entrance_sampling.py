@@ -89,6 +89,31 @@ def test_the_warp_has_the_table_density_and_unit_mean_weight():
     assert abs(w.mean() - 1.0) < 4 * w.std() / math.sqrt(len(u))
 
 
+def test_the_scales_mix_at_their_weights():
+    """P_c = d / G^2 + (1 - d) sum_s a_s q_s(c) with the weights normalised: weight 0 drops a scale, equal weights
+    average them, and the default set of scales takes SCALE_WEIGHTS (the coarse grids a small share)."""
+    rng = np.random.default_rng(11)
+    u = rng.random((20_000, 2))
+    x = np.where((u[:, 0] > 0.3) & (u[:, 0] < 0.35) & (u[:, 1] < 0.1), 1.0, 0.0)
+    d = entrance_sampling.DEFENSIVE
+
+    def mixed(scales, weights=None):
+        t = table_from_contributions(u, x, scales=scales, scale_weights=weights)
+        return (t.prob - d / t.grid ** 2) / (1.0 - d)
+
+    fine, coarse = mixed((256,)), mixed((4,))
+    np.testing.assert_allclose(mixed((256, 4), (1.0, 0.0)), fine, atol=1e-15)
+    np.testing.assert_allclose(mixed((256, 4)), 0.5 * fine + 0.5 * coarse, atol=1e-15)
+    np.testing.assert_allclose(mixed((256, 4), (3.0, 1.0)), 0.75 * fine + 0.25 * coarse, atol=1e-15)
+    a = np.asarray(entrance_sampling.SCALE_WEIGHTS) / sum(entrance_sampling.SCALE_WEIGHTS)
+    parts = [mixed((s,)) for s in entrance_sampling.SCALES]
+    np.testing.assert_allclose(mixed(entrance_sampling.SCALES), sum(w * q for w, q in zip(a, parts)), atol=1e-15)
+    with pytest.raises(ValueError, match="scale_weights must be 2 non-negative numbers"):
+        table_from_contributions(u, x, scales=(256, 4), scale_weights=(1.0,))
+    with pytest.raises(ValueError, match="scale_weights"):
+        table_from_contributions(u, x, scales=(256, 4), scale_weights=(0.0, 0.0))
+
+
 def test_no_table_without_a_pilot_hit():
     assert table_from_contributions(np.random.default_rng(0).random((100, 2)), np.zeros(100)) is None
 
