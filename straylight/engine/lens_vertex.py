@@ -42,7 +42,7 @@ from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing, mueller_brdf
 from materials.smooth import Dielectric, refract
 from straylight.engine.capabilities import Capability
-from straylight.engine.first_vertex import _local, _points, probe_scores
+from straylight.engine.first_vertex import PROBE_BUDGET, _local, _points, probe_scores
 from straylight.engine.interactions.registry import parts_with
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
@@ -606,9 +606,16 @@ def _probe(spec, comp, run, tris, m, rng):
     return probe_scores(spec, comp, tris, m, rng, lambda t, x, u, j: connect(spec, comp, run, t, x, u, j)[0])
 
 
+def probes_per_triangle(n_triangles: int) -> int:
+    """Probes per triangle of the parts lit through a run: PROBES_PER_TRIANGLE, fewer when that would pass
+    first-vertex sampling's PROBE_BUDGET (at least one: a 0.5M-triangle housing behind a lens gets one per triangle,
+    as first_vertex's table does, instead of 4M probes, seconds per angle)."""
+    return int(min(PROBES_PER_TRIANGLE, max(1, PROBE_BUDGET // max(int(n_triangles), 1))))
+
+
 def build_table(spec, comp) -> LensTable:
     """The runs (:func:`find_runs`) and, per run, q over its triangles: one probe per candidate triangle
-    finds the parts lit through the run and seen by a detector, then PROBES_PER_TRIANGLE probes per
+    finds the parts lit through the run and seen by a detector, then :func:`probes_per_triangle` probes per
     triangle of those parts give q_t proportional to A_t sqrt(mean g^2) (first_vertex's table)."""
     n_tri = len(spec.triangles_mm)
     runs = find_runs(spec, comp)
@@ -626,7 +633,7 @@ def build_table(spec, comp) -> LensTable:
         tris = surf[np.isin(spec.triangle_part[surf], parts)]
         if len(tris) == 0:
             continue
-        score = area[tris] * _probe(spec, comp, run, tris, PROBES_PER_TRIANGLE, rng)
+        score = area[tris] * _probe(spec, comp, run, tris, probes_per_triangle(len(tris)), rng)
         keep = score > 0
         pairs_run.append(np.full(int(keep.sum()), k, dtype=np.int64))
         pairs_tri.append(tris[keep].astype(np.int64))

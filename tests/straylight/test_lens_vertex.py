@@ -204,3 +204,31 @@ def test_two_singlets_a_run_of_four():
     back, same = lv.recover(spec, run, x, d)
     assert same.all()
     np.testing.assert_allclose(back, ab, atol=1e-5)
+
+
+def test_the_table_keeps_to_first_vertex_sampling_probe_budget(monkeypatch):
+    """Eight probes per triangle of the lit parts while that stays within first_vertex.PROBE_BUDGET, fewer
+    beyond (at least one): a large housing behind a lens costs one probe per triangle, not eight. With a budget
+    that allows 2 per triangle of the plate the table still holds the plate's lit triangles, q summing to 1."""
+    assert lv.probes_per_triangle(1000) == lv.PROBES_PER_TRIANGLE
+    assert lv.probes_per_triangle(lv.PROBE_BUDGET // 2) == 2
+    assert lv.probes_per_triangle(10 * lv.PROBE_BUDGET) == 1
+    spec = _spec(_lens_scene())
+    comp = runtime().scene(spec)
+    asked = []
+    real = lv._probe
+
+    def counting(spec_, comp_, run, tris, m, rng):
+        asked.append((len(tris), m))
+        return real(spec_, comp_, run, tris, m, rng)
+
+    monkeypatch.setattr(lv, "_probe", counting)
+    full = lv.build_table(spec, comp)
+    n_plate = asked[-1][0]
+    assert asked[-1][1] == lv.PROBES_PER_TRIANGLE and not full.empty
+    asked.clear()
+    monkeypatch.setattr(lv, "PROBE_BUDGET", 2 * n_plate)
+    small = lv.build_table(spec, comp)
+    assert asked[-1] == (n_plate, 2)
+    assert not small.empty and abs(small.cdf[-1] - 1.0) < 1e-12
+    assert set(small.tri) <= set(full.tri) and len(small.tri) > 0.5 * len(full.tri)
