@@ -29,8 +29,8 @@ chains at 60 deg, 1 in 900 at 30 deg, where the tube's glossy highlight seen thr
 70 % of the value in 5 of them). A pilot of :data:`PILOT_EYES` cosine-drawn chains (own streams) joined
 to the source gives each chain's value x; per detector and side (a *key*), the direction's two
 cosine-map uniforms (radius sqrt(u1), azimuth 2 pi u2) get the entrance table's density
-(straylight.engine.entrance_sampling: proportional to the smoothed RMS of x at four scales, a quarter
-left cosine), and the chains draw their directions from it. The keys themselves are drawn by the
+(straylight.engine.entrance_sampling: proportional to the smoothed RMS of x at four scales, mixed at its
+SCALE_WEIGHTS, a quarter left cosine), and the chains draw their directions from it. The keys themselves are drawn by the
 pilot's value: P_key proportional to the root of the key's second moment E[x^2 / q_dir] under its
 table (the variance-optimal split of the chains among strata), a share :data:`KEY_DEFENSIVE` spread
 evenly over the keys (a key the pilot saw nothing on keeps it); the first uniform picks the key by
