@@ -72,8 +72,8 @@ cells 16-4096x the fine ones around what the pilot saw. At 45 deg on the guide s
 shield's glossy patch that the lens's ghost carries to the sensor (~1 % of the beam); 60 % of the rays' glossy first
 vertices fell near it and a few per cent of the rays carried half the light. Whole ``pst`` commands to 2 %, seeds
 1-8, median CPU s equal -> these weights: 45 deg 3.64 -> 3.04, 30 deg 3.53 -> 3.30, 60 deg 3.00 -> 2.25, 5-20 deg
-the same or less; the imported Cooke triplet at 20 deg reached 2 % in 15-17 s where both seeds had stopped at a
-30 s cap. The defensive share stays: with it at 0.1, 30 deg had 6 heavy runs in 8 (docs/engine.md, "The
+the same or less; the imported Cooke triplet's 20 deg point (a heavy-tailed TIR ghost) no better or worse over
+seeds 0-6. The defensive share stays: with it at 0.1, 30 deg had 6 heavy runs in 8 (docs/engine.md, "The
 table's scale weights").
 
 **The ledger.** The start weights no longer add up to the emitted power exactly: each ray's
