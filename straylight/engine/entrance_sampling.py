@@ -191,11 +191,16 @@ def table_from_contributions(u: np.ndarray, x: np.ndarray, grid: int = GRID, def
         raise ValueError(f"scale_weights must be {len(scales)} non-negative numbers, not all 0; got {scale_weights}")
     tables = _scale_tables(u, x, g, scales, None if rho is None else np.asarray(rho, dtype=np.float64))
     q = (a / a.sum()) @ tables
-    prob = defensive / (g * g) + (1.0 - defensive) * q
+    prob, cdf = _normalised(defensive / (g * g) + (1.0 - defensive) * q)
+    return EntranceTable(grid=g, prob=prob, cdf=cdf, pilot_rays=len(x), pilot_hits=hits)
+
+
+def _normalised(prob: np.ndarray) -> tuple:
+    """The cell probabilities ``prob`` scaled to sum 1 and their cumulative sums (the last exactly 1)."""
     prob = prob / prob.sum()
     cdf = np.cumsum(prob)
     cdf[-1] = 1.0
-    return EntranceTable(grid=g, prob=prob, cdf=cdf, pilot_rays=len(x), pilot_hits=hits)
+    return prob, cdf
 
 
 def with_component(table: EntranceTable, u: np.ndarray, share: float) -> EntranceTable:
@@ -208,10 +213,7 @@ def with_component(table: EntranceTable, u: np.ndarray, share: float) -> Entranc
     i = np.minimum((u[:, 0] * g).astype(np.int64), g - 1)
     j = np.minimum((u[:, 1] * g).astype(np.int64), g - 1)
     counts = np.bincount(i * g + j, minlength=g * g).astype(np.float64)
-    prob = (1.0 - share) * table.prob + share * counts / counts.sum()
-    prob = prob / prob.sum()
-    cdf = np.cumsum(prob)
-    cdf[-1] = 1.0
+    prob, cdf = _normalised((1.0 - share) * table.prob + share * counts / counts.sum())
     return replace(table, prob=prob, cdf=cdf)
 
 

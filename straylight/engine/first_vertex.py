@@ -52,6 +52,12 @@ PROBE_BUDGET = 400_000
 FACE_SHARE = 0.25  # large scenes: share of each face's mean density every triangle of the face keeps
 
 
+def probes_per_triangle(n_triangles: int, budget: int = PROBE_BUDGET, most: int = PROBES_PER_TRIANGLE) -> int:
+    """Probes per triangle for a table over ``n_triangles``: ``most``, fewer when that would pass ``budget`` probes
+    in all, at least one (a million-triangle scene gets one per triangle)."""
+    return int(min(most, max(1, budget // max(int(n_triangles), 1))))
+
+
 @dataclass(frozen=True, eq=False)
 class VertexTable:
     """Triangle sampling table: ``tri`` (m,) triangle ids, ``cdf`` (m,) cumulative q, and
@@ -323,7 +329,7 @@ def build_table(spec, comp, screen: bool = True) -> VertexTable:
         surf = surf[np.isin(spec.triangle_part[surf], parts)]
         face = face_groups(spec, comp, surf)
     # at most PROBE_BUDGET probes in all (a million-triangle scene gets one per triangle)
-    m = int(min(PROBES_PER_TRIANGLE, max(1, PROBE_BUDGET // max(len(surf), 1))))
+    m = probes_per_triangle(len(surf))
     score = area[surf] * _probe_scores(spec, comp, src, surf, m, rng)
     if face is not None and len(surf):
         # defensive share: every triangle of a face where a probe saw single scatter keeps a part of

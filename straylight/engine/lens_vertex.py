@@ -41,6 +41,7 @@ from geometry.analytic import Conic
 from materials.mueller import apply_interface_mueller, rotate_stokes, s_vector
 from materials.polarized_brdf import is_polarizing, mueller_brdf
 from materials.smooth import Dielectric, refract
+from straylight.engine import first_vertex
 from straylight.engine.capabilities import Capability
 from straylight.engine.first_vertex import PROBE_BUDGET, _local, _points, probe_scores
 from straylight.engine.interactions.registry import parts_with
@@ -610,7 +611,7 @@ def probes_per_triangle(n_triangles: int) -> int:
     """Probes per triangle of the parts lit through a run: PROBES_PER_TRIANGLE, fewer when that would pass
     first-vertex sampling's PROBE_BUDGET (at least one: a 0.5M-triangle housing behind a lens gets one per triangle,
     as first_vertex's table does, instead of 4M probes, seconds per angle)."""
-    return int(min(PROBES_PER_TRIANGLE, max(1, PROBE_BUDGET // max(int(n_triangles), 1))))
+    return first_vertex.probes_per_triangle(n_triangles, PROBE_BUDGET, PROBES_PER_TRIANGLE)
 
 
 def build_table(spec, comp) -> LensTable:
