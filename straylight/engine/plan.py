@@ -118,6 +118,7 @@ def build_tables(spec, plan: StrategyPlan, tools, cache: bool = True):
     :meth:`~straylight.engine.strategies.base.Strategy.build_table` with ``tools`` (TableTools) in registry
     order (each sees the ones before it: the entrance pilot runs with them); kept in the runtime's table
     cache (``tools.runtime.table``) when ``cache``."""
+    tools = tools._replace(plan=plan)
     for strategy in registry.STRATEGIES:
         if strategy.table_field is None or not plan.runs(strategy.name):
             continue

@@ -312,6 +312,10 @@ class EyeTable:
     n_keys: int  # D x sides: the keys a cosine draw picks uniformly
     family_w: float = float("nan")  # the pilot's estimate of the power its chains' family carries, W
     detected_w: float | None = None  # the entrance pilot's detected power it was weighed against, W
+    #: False on the entrance pilot's copy (straylight.engine.entrance_sampling.build_table): its chains are traced
+    #: and weigh the walk's trees as in the run, but their source connections, which do not depend on the ray's
+    #: entrance point, are not counted
+    source_connections: bool = True
 
     @property
     def key_cdf(self) -> np.ndarray:
@@ -464,6 +468,31 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES, detected_w: float | None 
     if off is not None:
         return off
     return replace(_learn(stages, normals, both, n), family_w=float(np.sum(x_all)) / n, detected_w=detected_w)
+
+
+def chain_family(spec, events: np.ndarray) -> np.ndarray:
+    """Of path records with event codes ``events`` (n, width: part x 4 + kind per event after the source, -1
+    after the last; the detector not included): those of the family the eye chains count, "source -> P ->
+    interfaces -> detector" or "source -> A -> P -> interfaces -> detector" with A and P plain scatterers (an
+    end-point kind, :func:`scatter_ends`) and at least one interface (every event after P specular at a
+    :attr:`Capability.DELTA_CHAIN` part, as far as the codes go). A record's own history only, not the chains'
+    reach (K, R) or whether P received unpolarized light: the entrance pilot uses it to leave that family out of
+    the contributions its first stage measured without the chains (straylight.engine.entrance_sampling)."""
+    ev = np.asarray(events, dtype=np.int64)
+    if ev.ndim != 2 or ev.shape[1] == 0 or len(ev) == 0:
+        return np.zeros(len(ev), dtype=bool)
+    part = np.where(ev >= 0, ev // 4, 0)
+    kind = np.where(ev >= 0, ev % 4, -1)
+    end = scatter_ends(spec)[np.asarray(spec.part_material)[part]] & (kind == EVENT_SCATTER)
+    splits = np.asarray(parts_with(spec, Capability.DELTA_CHAIN), dtype=bool)[part] & (kind == EVENT_SPECULAR)
+    width = ev.shape[1]
+    p_at = np.where(end[:, 0] & (width > 1) & end[:, min(1, width - 1)], 1, 0)  # A -> P, or P first
+    col = np.arange(width)[None, :]
+    after = col > p_at[:, None]
+    recorded = ev >= 0
+    n_interfaces = np.sum(after & recorded & splits, axis=1)
+    others = np.sum(after & recorded & ~splits, axis=1)
+    return end[:, 0] & end[np.arange(len(ev)), p_at] & (n_interfaces >= 1) & (others == 0)
 
 
 def once_scattered(spec, scene, ends, n_chains: int, splits, end_material, stream: int) -> np.ndarray:
@@ -1008,6 +1037,9 @@ class ReverseChains:
     def _connect_source(self, ctx):
         e = self.ends
         if len(e.ray) == 0 or self.linear_source:  # P must receive unpolarized light (module doc)
+            return
+        table = ctx.spec.eye_table
+        if table is not None and not table.source_connections:  # the entrance pilot's view (EyeTable)
             return
         g, raw, p_walk, shadows = source_connection(ctx.spec, ctx.scene, e)
         self.shadow_rays += shadows

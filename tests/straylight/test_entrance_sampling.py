@@ -296,3 +296,61 @@ def test_the_compiled_warp_is_bit_identical_to_its_numpy_twin(grid, defensive):
     wide[:, 1:3] = draws
     np.testing.assert_array_equal(warp(table, wide[:, 1:3]), f_want)  # a strided view, moved in place
     np.testing.assert_array_equal(wide[:, 1:3], want)
+
+
+def test_the_rest_runs_the_eye_chains_and_the_first_stage_leaves_their_family_out(wide_slab, monkeypatch):
+    """Given the run's eye table (asked for once, after the first stage, when the rest is guided), the rest runs
+    the chains with it, their source connections not counted, and the table is learnt from the rest and the first
+    stage's records outside the chains' family (``chain_family``; the first stage's table, which guides the rest,
+    from all of them). The first stage runs without the chains, its records carrying the events chain_family
+    reads. Without an eye table the rest is the pilot's own and every record counts."""
+    from straylight.engine.reverse_chain import EyeTable
+    from straylight.trace import make_spec
+
+    sc, src, mats = wide_slab
+    spec = make_spec(sc, src, 1_000, 5, mats, TraceOptions(estimator=EstimatorOptions(entrance_sampling=True,
+                                                                                      reverse_chain=4)))
+    monkeypatch.setattr(entrance_sampling, "PILOT_ENOUGH_ESS", math.inf)
+    eye = EyeTable(tables=(None,), normals=np.zeros((1, 3)), pilot_eyes=1, pilot_hits=1, key_prob=np.ones(1), n_keys=1)
+    learnt = []
+    table_from = entrance_sampling.table_from_contributions
+
+    def spied(u, x, *args, **kw):
+        learnt.append(np.array(x))
+        return table_from(u, x, *args, **kw)
+
+    monkeypatch.setattr(entrance_sampling, "table_from_contributions", spied)
+    n1 = entrance_sampling.PILOT_FIRST_RAYS
+
+    def pilot(with_eyes):
+        specs, asked = [], []
+        learnt.clear()
+
+        def run_batch(s, first, stop, intersector=None):
+            specs.append(s)
+            rays = np.arange(first * 1000, stop * 1000)
+            family = rays % 3 == 0  # a third of the records are the chains' family (event code 1)
+            return {"paths": {"ray": rays, "power_w": np.where(family, 50.0, 1.0),
+                              "events": np.where(family, 1, 2)[:, None]}}
+
+        def eye_table():
+            asked.append(len(specs))
+            return eye if with_eyes else None
+
+        entrance_sampling.build_table(spec, run_batch, eye_table=eye_table, chain_family=lambda ev: ev[:, 0] == 1)
+        return specs, asked
+
+    specs, asked = pilot(True)
+    assert asked == [1] and len(specs) == 2
+    first, rest = specs
+    assert first.options.estimator.reverse_chain == 0 and first.eye_table is None
+    assert first.options.output.path_depth == entrance_sampling.PILOT_PATH_DEPTH
+    assert rest.options.estimator.reverse_chain == 4 and not rest.eye_table.source_connections
+    assert rest.eye_table.tables == eye.tables and rest.chunk_offset == entrance_sampling.PILOT_CHUNK_OFFSET
+    guide, final = learnt
+    family = np.arange(n1) % 3 == 0
+    assert np.all(guide[family] == 50.0) and np.all(guide[~family] == 1.0)
+    assert np.all(final[:n1][family] == 0.0) and np.all(final[:n1][~family] == 1.0)
+    specs, asked = pilot(False)
+    assert asked == [1] and specs[1].options.estimator.reverse_chain == 0 and specs[1].eye_table is None
+    assert np.all(learnt[-1][:n1][family] == 50.0)

@@ -64,12 +64,14 @@ class TableTools(NamedTuple):
     (None: embree) and the compiled walk ``run_batch`` (for pilot traces; passed in, since the walk
     imports the strategies), and ``measured``: a dict where a table's pilot leaves what it measured for
     the tables after it (``"detected_w"``: the entrance pilot's estimate of the power on the detectors,
-    W, straylight.engine.strategies.entrance; None: nothing is kept)."""
+    W, straylight.engine.strategies.entrance; None: nothing is kept), and ``plan``: the StrategyPlan the tables
+    are built for (set by straylight.engine.plan.build_tables; None: not known)."""
 
     runtime: Any
     intersector: Any
     run_batch: Any
     measured: Any = None
+    plan: Any = None
 
 
 class BatchContext(NamedTuple):

@@ -1,7 +1,10 @@
 """Entrance sampling (straylight.engine.entrance_sampling): the source's entrance points drawn from a
 density learnt by a pilot trace before the walk. It acts before the first hit, on any kind. Its pilot's
 estimate of the detected power is left in ``TableTools.measured["detected_w"]`` for the tables after it
-(the eye pilot weighs its chains' share of the light by it: straylight.engine.reverse_chain). For one collimated
+(the eye pilot weighs its chains' share of the light by it: straylight.engine.reverse_chain). Where the run
+traces eye chains, the eye pilot runs after the pilot's first stage (with that stage's detected power) and the rest
+of the pilot runs the chains with its table; the eye table is left in ``measured[EYE_TABLE]`` for the reverse
+chains' own build_table. For one collimated
 beam into a lens, a share of the table is drawn from the entrance points that light the scatter points behind the
 glass a detector sees (straylight.engine.lens_vertex's table, solved for their entrance points)."""
 from __future__ import annotations
@@ -14,7 +17,10 @@ from straylight.engine import entrance_sampling as impl
 from straylight.engine import lens_vertex
 from straylight.engine.capabilities import Capability
 from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy, TableTools
+from straylight.engine import reverse_chain
+from straylight.engine.reverse_chain import EyeTable
 from straylight.engine.strategies.lens_vertex import LENS_VERTEX
+from straylight.engine.strategies.reverse_chain import EYE_TABLE, REVERSE_CHAIN
 from straylight.rng import CHUNK_RAYS, check_seed
 
 
@@ -67,8 +73,18 @@ class Entrance(Strategy):
 
     def build_table(self, spec, tools: TableTools) -> object:
         counted = PilotPower(tools.run_batch)
-        table = impl.build_table(spec, counted, tools.intersector)
-        if tools.measured is not None and counted.detected_w is not None:
+        eyes = None
+        if tools.measured is not None and tools.plan is not None and tools.plan.runs(REVERSE_CHAIN.name):
+            def eyes():
+                # the eye pilot weighs its chains against what the first stage detected; its table is the run's
+                # (left in measured for the reverse chains' own build_table), and the rest of this pilot runs the
+                # chains with it (entrance_sampling.build_table)
+                tools.measured["detected_w"] = counted.detected_w
+                eye_table = tools.measured[EYE_TABLE] = REVERSE_CHAIN.build_table(spec, tools)
+                return eye_table if isinstance(eye_table, EyeTable) else None
+        table = impl.build_table(spec, counted, tools.intersector, eye_table=eyes,
+                                 chain_family=lambda events: reverse_chain.chain_family(spec, events))
+        if tools.measured is not None and counted.detected_w is not None and EYE_TABLE not in tools.measured:
             tools.measured["detected_w"] = counted.detected_w
         if table is None or tools.intersector is not None or lens_vertex.unsupported(spec) is not None:
             return table  # (the lens table is built on embree, for one collimated beam)

@@ -10,6 +10,10 @@ from straylight.engine import reverse_chain as impl
 from straylight.engine.capabilities import Capability
 from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy, TableTools
 
+#: the key of ``TableTools.measured`` where the entrance pilot leaves the eye table it had built (straylight.engine.
+#: strategies.entrance: mid-pilot, for the rest of its pilot)
+EYE_TABLE = "eye_table"
+
 
 class ReverseChainStrategy(Strategy):
     estimator = Estimator("reverse_chain", replace(ANALOG, reverse_chain=4), Capability.DELTA_CHAIN, reference=False)
@@ -24,8 +28,10 @@ class ReverseChainStrategy(Strategy):
     def build_table(self, spec, tools: TableTools) -> object:
         # the entrance pilot (built before, without the chains) leaves its detected power: the eye pilot
         # weighs its chains' share of the light by it (None: the chains run)
-        detected_w = (tools.measured or {}).get("detected_w")
-        return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector), detected_w=detected_w)
+        measured = tools.measured or {}
+        if EYE_TABLE in measured:  # built by the entrance pilot, after its first stage
+            return measured[EYE_TABLE]
+        return impl.build_table(spec, tools.runtime.scene(spec, tools.intersector), detected_w=measured.get("detected_w"))
 
     def declines(self, spec) -> str | None:
         table = spec.eye_table
