@@ -375,10 +375,10 @@ def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS, eye
     outside the chains' family (``chain_family(events)``: a mask of path records by their event codes,
     straylight.engine.reverse_chain.chain_family; module doc, "The walk's share")."""
     opt = spec.options
-    # without the reverse chains: their source connections do not depend on the ray's entrance point
-    # (each ray's eye chains are drawn on their own), so in a pilot they only add noise to the cells;
-    # the walk's own paths of their family (kept without them) say which entrance points light the
-    # scatter points the lens carries onto the sensor
+    # the first stage without the reverse chains: their source connections do not depend on the ray's entrance
+    # point (each ray's eye chains are drawn on their own), so in a pilot they only add noise to the cells; the
+    # walk's own paths of their family (kept without them) say which entrance points light the scatter points the
+    # lens carries onto the sensor (the rest may run them without their source connections: _rest_of_pilot)
     depth = PILOT_PATH_DEPTH if eye_table is not None else 1  # the events chain_family reads
     pilot_opts = replace(opt, estimator=pilot_estimator(opt.estimator),
                          output=replace(opt.output, record_paths=True, path_depth=depth))
