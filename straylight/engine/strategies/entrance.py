@@ -18,7 +18,6 @@ from straylight.engine import lens_vertex
 from straylight.engine.capabilities import Capability
 from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy, TableTools
 from straylight.engine import reverse_chain
-from straylight.engine.reverse_chain import EyeTable
 from straylight.engine.strategies.lens_vertex import LENS_VERTEX
 from straylight.engine.strategies.reverse_chain import EYE_TABLE, REVERSE_CHAIN
 from straylight.rng import CHUNK_RAYS, check_seed
@@ -81,7 +80,7 @@ class Entrance(Strategy):
                 # chains with it (entrance_sampling.build_table)
                 tools.measured["detected_w"] = counted.detected_w
                 eye_table = tools.measured[EYE_TABLE] = REVERSE_CHAIN.build_table(spec, tools)
-                return eye_table if isinstance(eye_table, EyeTable) else None
+                return eye_table if isinstance(eye_table, reverse_chain.EyeTable) else None
         table = impl.build_table(spec, counted, tools.intersector, eye_table=eyes,
                                  chain_family=lambda events: reverse_chain.chain_family(spec, events))
         if tools.measured is not None and counted.detected_w is not None and EYE_TABLE not in tools.measured:

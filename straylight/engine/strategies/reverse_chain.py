@@ -26,8 +26,8 @@ class ReverseChainStrategy(Strategy):
         return None  # without a table (a pilot that joined nothing) the eye directions stay cosine
 
     def build_table(self, spec, tools: TableTools) -> object:
-        # the entrance pilot (built before, without the chains) leaves its detected power: the eye pilot
-        # weighs its chains' share of the light by it (None: the chains run)
+        # the entrance pilot (built before) leaves its detected power: the eye pilot weighs its chains' share of
+        # the light by it (None: the chains run); where its rest ran the chains, it built this table itself
         measured = tools.measured or {}
         if EYE_TABLE in measured:  # built by the entrance pilot, after its first stage
             return measured[EYE_TABLE]
