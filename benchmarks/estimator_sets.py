@@ -43,8 +43,13 @@ from __future__ import annotations
 import sys
 from dataclasses import replace
 
-from straylight.analyses.estimators import ANALYSIS_RR_THRESHOLD, ESTIMATOR_SETS, register_estimator_set
-from straylight.engine.options import EstimatorOptions
+if __name__ == "__main__":  # the command as ``straylight`` runs it: one BLAS thread, set before numpy loads
+    from straylight.cli.main import single_threaded_blas
+
+    single_threaded_blas()
+
+from straylight.analyses.estimators import ANALYSIS_RR_THRESHOLD, ESTIMATOR_SETS, register_estimator_set  # noqa: E402
+from straylight.engine.options import EstimatorOptions  # noqa: E402
 
 _LOBES = EstimatorOptions(first_vertex_sampling=True, second_vertex_sampling=True, vertex_lobe_sampling=True,
                           second_vertex_lobe_sampling=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import math
+import os
 import sys
 from contextlib import contextmanager
 
@@ -419,9 +420,26 @@ def _disk_full_message(exc: BaseException | None) -> str | None:
     return f"no space left on the disk holding {name} ({exc.strerror}): free space there or write elsewhere"
 
 
+#: the BLAS libraries' own thread pools, kept to one thread in the command (:func:`single_threaded_blas`)
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS", "VECLIB_MAXIMUM_THREADS")
+
+
+def single_threaded_blas() -> None:
+    """One BLAS thread for the command, unless the environment names a count (read when numpy loads its BLAS,
+    so only before numpy's import; worker processes inherit it). The command's parallelism is its batches
+    (``--workers``); its BLAS calls are products of (n, 3) arrays, and OpenBLAS's idle worker spins after each
+    of them: 0.2 of a 4.2 CPU s ``pst`` point on the guide scope (benchmarks/RESULTS.md), more beside other
+    workers on a busy machine."""
+    if "numpy" in sys.modules:
+        return
+    for name in BLAS_THREAD_VARIABLES:
+        os.environ.setdefault(name, "1")
+
+
 def main(argv=None) -> int:
     """The ``straylight`` command. Ctrl-C (SIGINT) is honoured from the first instant, while the
     parser imports its groups as well as during the command: one line, exit 130."""
+    single_threaded_blas()
     _no_collection_at_exit()
     with _sigint_kept():
         try:
