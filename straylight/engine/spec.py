@@ -52,6 +52,7 @@ class TraceSpec:
     eye_table: object = None  # straylight.engine.reverse_chain.EyeTable when reverse_chain is on (None: cosine eyes)
     direct_table: object = None  # straylight.engine.direct_area.DirectArea (or Declined) when direct_area is on
     lens_table: object = None  # straylight.engine.lens_vertex.LensTable when lens_vertex is on
+    end_field: object = None  # straylight.engine.field_cone.FieldTable when delta_chain runs (the end draws' field)
     chunk_offset: int = 0  # local chunk k draws from the stream of chunk chunk_offset + k (Execution(first_chunk=))
     part_surfaces: tuple = ()  # analytic surface per part (geometry.analytic) or None
     part_back_material: np.ndarray = None  # index into ``materials`` of each part's back side, -1: as the front

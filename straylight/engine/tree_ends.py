@@ -31,7 +31,14 @@ draws' trees keep their whole weight. The ends of a further draw's tree (``tree_
 tree take no draw (one level). Each draw takes 4 uniforms (the roulette, 3 for the lobe) from an own stream per
 chunk (:data:`END_STREAM`, in ray order): results do not depend on batch size or threads. Off with a fixed
 polarization (the walk then evaluates every vertex for "s" or "p") and with a linear source (P's light is
-polarized by the source too)."""
+polarized by the source too).
+
+**Draws into the field.** Where the delta-chain strategy's table holds the detectors' field through the lens
+(straylight.engine.field_cone: a cone of directions, ~atan(r_sensor / f) about the axis), a share
+:data:`END_FIELD_SHARE` of the draws takes a direction uniform in that cone instead of the lobe's (3 uniforms
+more per end from an own stream, :data:`END_FIELD_STREAM`), and every draw weighs f cos / ((1 - a) pdf_lobe +
+a pdf_cone): the one-sample estimate of the mixture, unbiased for any cone. A glint seen through the lens is
+reached from P only within the field, which the lobe alone finds ~2e-5 of the time on the guide scope."""
 from __future__ import annotations
 
 import numpy as np
@@ -41,7 +48,7 @@ from materials.polarized_brdf import is_polarizing, mueller_brdf
 from straylight.engine.interactions.brdf_scatter import local_frame
 from straylight.engine.interactions.scatter_polarization import scattered_rows
 from straylight.engine.lobes import lobe_materials
-from straylight.engine.material_groups import by_material, distinct
+from straylight.engine.material_groups import brdf_and_pdf, by_material, distinct
 from straylight.engine.delta_chain import CODE_COLUMNS, Branches
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE
 from straylight.engine.reverse_chain import _source_linear, scatter_ends
@@ -58,6 +65,9 @@ END_TAU = 0.02
 #: of a double Gauss with two reflections has ~50 branches, with none ~1 per surface); the walk's own tree after
 #: an end keeps the runs with reflections
 END_REFLECTIONS = 0
+#: the share of the end draws aimed into the detectors' field through the lens, where it is known (module doc)
+END_FIELD_SHARE = 0.2
+END_FIELD_STREAM = 0x54464C44  # third entropy word of the draws into the field's streams ("TFLD")
 
 
 def _dot(a, b):
@@ -88,6 +98,9 @@ class TreeEnds:
         self._gens: dict = {}
         self.pending: list = []
         self.table: tuple | None = None  # (root-run codes, their count k, P's part) per end draw, while they grow
+        field = spec.end_field  # straylight.engine.field_cone.FieldTable (None: a spec made without the tables)
+        self.cone = None if field is None else field.cone
+        self._field_gens: dict = {}
 
     def qualifies(self, spec, part, refl) -> np.ndarray:
         """Ends on ``part`` after ``refl`` reflections that take a draw (given a root after the source)."""
@@ -127,6 +140,8 @@ class TreeEnds:
         u = chunk_stream_uniforms(self._gens, self.seed, self.first_chunk, END_STREAM, rays.ray[e.row], 4)
         w_root = rays.weight_w[e.row]
         q = np.minimum(1.0, e.w / (END_TAU * np.where(w_root > 0, w_root, np.inf)))
+        u_field = None if self.cone is None else chunk_stream_uniforms(
+            self._field_gens, self.seed, self.first_chunk, END_FIELD_STREAM, rays.ray[e.row], 3)
         keep = np.flatnonzero(u[:, 0] < q)
         if len(keep) == 0:
             return None, None
@@ -138,6 +153,8 @@ class TreeEnds:
         wo, weight, pdf = np.empty((m, 3)), np.empty(m), np.empty(m)
         for g, smp in by_material(spec.materials, mat, lambda model, g: model.sample(wi[g], u[g], "u")):
             wo[g], weight[g], pdf[g] = smp.wo, smp.weight, smp.pdf_per_sr
+        if u_field is not None:
+            wo, weight, pdf = self._into_field(spec, mat, wi, tb, bb, nf, wo, weight, pdf, u_field[keep])
         S_out = np.zeros((m, 4))
         S_out[:, 0] = 1.0
         e1_out = tb.copy()
@@ -154,6 +171,30 @@ class TreeEnds:
                             np.zeros(n, np.int64), part[ok], key, np.full((n, CODE_COLUMNS), -1, dtype=np.int64),
                             np.zeros(n, np.int64), np.arange(n, dtype=np.int64))
         return branches, (e.codes[ok], e.k[ok], part[ok])
+
+    def _into_field(self, spec, mat, wi, tb, bb, nf, wo, weight, pdf, u):
+        """The lobe draws ``wo`` (local frames ``tb``, ``bb``, ``nf``; weights f cos / pdf) as draws of the mixture
+        (module doc, "Draws into the field"): those with ``u[:, 0]`` < :data:`END_FIELD_SHARE` take a direction
+        uniform in the field cone from ``u[:, 1:]`` instead; every draw's weight is f cos / p_mix and its pdf p_mix."""
+        cone, a = self.cone, END_FIELD_SHARE
+        wo = wo.copy()
+        drawn = pdf > 0
+        f_cos = np.where(drawn, weight * np.where(drawn, pdf, 0.0), 0.0)  # a lobe draw's weight is f cos / pdf
+        p_lobe = np.where(drawn, pdf, 0.0)
+        aim = np.flatnonzero(u[:, 0] < a)
+        if len(aim):
+            d = cone.sample(u[aim, 1:])
+            wo_a = np.stack([_dot(d, tb[aim]), _dot(d, bb[aim]), _dot(d, nf[aim])], axis=1)
+            wo[aim] = wo_a
+            wi_a = wi[aim]
+            for g, (f, p_a) in by_material(spec.materials, mat[aim],
+                                           lambda model, g: brdf_and_pdf(model, wi_a[g], wo_a[g], "u")):
+                f_cos[aim[g]] = f * np.maximum(wo_a[g, 2], 0.0)
+                p_lobe[aim[g]] = p_a
+        world = wo[:, :1] * tb + wo[:, 1:2] * bb + wo[:, 2:3] * nf
+        p_mix = (1.0 - a) * p_lobe + a * cone.density_per_sr * cone.contains(world)
+        good = (wo[:, 2] > 0) & (p_mix > 0)
+        return wo, np.where(good, f_cos / np.where(good, p_mix, 1.0), 0.0), p_mix
 
     @staticmethod
     def _polarized(spec, e, nf, tb, bb, wi, wo, mat, S_out, e1_out) -> np.ndarray:

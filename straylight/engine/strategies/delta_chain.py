@@ -4,21 +4,30 @@
 (``Event.states["delta_chain"]``); the walk's hits after 1..K interfaces of a run are dropped, and a
 continuing hit on a part that does not split ends its run. With ``tree_split`` the glossy vertices lit by
 the source send further lobe draws into the trees (straylight.engine.tree_split), with ``tree_ends`` the trees'
-branch ends on glossy parts take a lobe draw of their own (straylight.engine.tree_ends)."""
+branch ends on glossy parts take a lobe draw of their own (straylight.engine.tree_ends), a share of them aimed
+into the detectors' field through the lens, its table (straylight.engine.field_cone)."""
 from __future__ import annotations
 
 from dataclasses import replace
 
 from straylight.engine import delta_chain as impl
-from straylight.engine import tree_ends
+from straylight.engine import field_cone, tree_ends
 from straylight.engine.capabilities import Capability
 from straylight.engine.tree_split import LobeSplit
-from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy
+from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy, TableTools
 
 
 class DeltaChainStrategy(Strategy):
     estimator = Estimator("delta_chain", replace(ANALOG, delta_chain=4), Capability.DELTA_CHAIN)
     state_key = "delta_chain"
+    table_field = "end_field"
+    table_key = "end_field"
+
+    def build_table(self, spec, tools: TableTools) -> object:
+        est = spec.options.estimator
+        if not est.tree_ends or tree_ends.unsupported(spec) is not None:
+            return field_cone.FieldTable(None, "no end draws")
+        return field_cone.build(spec, tools.runtime.scene(spec, tools.intersector))
 
     def batch_state(self, ctx: BatchContext) -> object | None:
         est = ctx.spec.options.estimator
