@@ -5,11 +5,11 @@ A scatter point P seen through a lens ("P -> front (T) -> back (T) -> sensor": t
 lit by the back face's reflection) reaches a sensor at the lens's focus only along the directions the lens
 images onto it: the object-side field, a cone of half-angle ~ atan(r_sensor / f) about the axis whatever P's
 place (0.86 deg on the guide scope). A draw from P's glossy lobe lands there rarely (30 deg, seed 6: 6 of 2.6e5
-end draws at the lens cell scored). The cone is measured, not assumed: :data:`FIELD_CHAINS` rays from uniform points on the
+end draws at the lens cell scored). The cone is measured, not assumed: :data:`FIELD_RAYS` rays from uniform points on the
 detectors toward uniform points on the analytic interfaces (an own stream), refracted through them (:func:`exit_directions`);
 the directions back along those that leave the glass into the air (P's outgoing direction toward the detector)
 give the axis (their mean) and the half-angle (the largest angle from it, times :data:`FIELD_MARGIN`). No cone
-(None) with fewer than :data:`FIELD_MIN_ENDS` such rays or a half-angle above :data:`FIELD_MAX_DEG` (a wide
+(None) with fewer than :data:`FIELD_MIN_RAYS` such rays or a half-angle above :data:`FIELD_MAX_DEG` (a wide
 field: the lobe covers it itself), or without an analytic interface."""
 from __future__ import annotations
 
@@ -20,9 +20,9 @@ import numpy as np
 
 
 #: rays traced from the detectors to measure the field (a few ms on the guide scope)
-FIELD_CHAINS = 8192
+FIELD_RAYS = 8192
 #: rays out of the lens needed for a cone
-FIELD_MIN_ENDS = 64
+FIELD_MIN_RAYS = 64
 #: a field wider than this is left to the lobe draw alone
 FIELD_MAX_DEG = 10.0
 #: the half-angle: the rays' largest angle from the axis times this (they are a sample of the field)
@@ -76,7 +76,7 @@ class FieldTable:
 def cone_of(omega: np.ndarray) -> FieldCone | None:
     """The cone of the unit directions ``omega`` (n, 3) (module doc), or None."""
     omega = np.asarray(omega, dtype=np.float64)
-    if len(omega) < FIELD_MIN_ENDS:
+    if len(omega) < FIELD_MIN_RAYS:
         return None
     mean = omega.sum(axis=0)
     norm = float(np.linalg.norm(mean))
@@ -96,13 +96,13 @@ def build(spec, scene) -> FieldTable:
     omega = exit_directions(spec, scene)
     cone = cone_of(omega)
     if cone is None:
-        return FieldTable(None, f"{len(omega)} of {FIELD_CHAINS} rays from the detectors left the lens, not in a "
+        return FieldTable(None, f"{len(omega)} of {FIELD_RAYS} rays from the detectors left the lens, not in a "
                                 f"cone of <= {FIELD_MAX_DEG:g} deg")
     return FieldTable(cone)
 
 
 def exit_directions(spec, scene) -> np.ndarray:
-    """(m, 3): for :data:`FIELD_CHAINS` rays from uniform points on the detectors toward uniform points on the
+    """(m, 3): for :data:`FIELD_RAYS` rays from uniform points on the detectors toward uniform points on the
     analytic interfaces (own stream), refracted at every interface they meet (exact surfaces, as
     straylight.engine.lens_vertex.find_runs traces the beam), the direction back along each that left the glass
     after one interface or more into the air (met a part that is not an interface, or nothing): P's outgoing
@@ -116,7 +116,7 @@ def exit_directions(spec, scene) -> np.ndarray:
     if len(tri_ids) == 0 or not dets:
         return np.zeros((0, 3))
     rng = np.random.default_rng([int(spec.seed), FIELD_STREAM])
-    n = FIELD_CHAINS
+    n = FIELD_RAYS
     tri = np.asarray(spec.triangles_mm, dtype=np.float64)[tri_ids]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     k = rng.choice(len(tri_ids), n, p=area / area.sum())

@@ -39,7 +39,7 @@ def test_a_sample_of_a_cone_gives_its_axis_and_its_half_angle_widened_by_the_mar
 
 
 def test_no_cone_from_too_few_directions_or_a_wide_field():
-    assert cone_of(_directions_in_cone((0, 0, 1), 2.0, field_cone.FIELD_MIN_ENDS - 1)) is None
+    assert cone_of(_directions_in_cone((0, 0, 1), 2.0, field_cone.FIELD_MIN_RAYS - 1)) is None
     assert cone_of(_directions_in_cone((0, 0, 1), field_cone.FIELD_MAX_DEG, 5000)) is None  # x margin: too wide
 
 
