@@ -103,14 +103,13 @@ def build(spec, scene) -> FieldTable:
 
 def exit_directions(spec, scene) -> np.ndarray:
     """(m, 3): for :data:`FIELD_RAYS` rays from uniform points on the detectors toward uniform points on the
-    analytic interfaces (own stream), refracted at every interface they meet (exact surfaces, as
-    straylight.engine.lens_vertex.find_runs traces the beam), the direction back along each that left the glass
+    analytic interfaces (own stream), refracted at every interface they meet (exact surfaces:
+    straylight.engine.lens_vertex.transmit_step, as its find_runs traces the beam), the direction back along each that left the glass
     after one interface or more into the air (met a part that is not an interface, or nothing): P's outgoing
     direction toward the detector."""
-    from straylight.engine.lens_vertex import _interface_parts, _refract_at
-    from straylight.engine.specular_nee import _eta
+    from straylight.engine.lens_vertex import interface_parts, transmit_step
 
-    iface = _interface_parts(spec)
+    iface = interface_parts(spec)
     tri_ids = np.flatnonzero(iface[spec.triangle_part]) if iface.any() else np.zeros(0, np.int64)
     dets = scene.detectors
     if len(tri_ids) == 0 or not dets:
@@ -135,31 +134,16 @@ def exit_directions(spec, scene) -> np.ndarray:
     last = np.full(n, -1)
     live = np.arange(n)
     out = []
-    surfaces = spec.part_surfaces
     for _ in range(2 * max(int(spec.options.estimator.delta_chain), 1) + 2):
         if len(live) == 0:
             break
-        t, dist = scene.isect.intersect(np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]))
-        t, dist = np.asarray(t), np.asarray(dist)
-        hit = t >= 0
-        part = np.where(hit, spec.triangle_part[np.where(hit, t, 0)], -1)
-        again = hit & (part == last[live])  # a facet of the face just crossed (it lies inside the exact face)
-        o[live[again]] += (dist[again] + 2.0 * spec.eps)[:, None] * d[live[again]]
-        at_iface = hit & ~again & iface[np.maximum(part, 0)]
+        part, again, through = transmit_step(spec, scene, iface, o, d, last, live)
+        at_iface = (part >= 0) & ~again & iface[np.maximum(part, 0)]
         left = ~again & ~at_iface & (crossed[live] >= 1) & ~inside[live]  # out of the lens into the air
         out.append(-d[live[left]])
         nxt = [live[again]]
-        go = np.flatnonzero(at_iface)
-        for p in np.unique(part[go]):
-            rows = go[part[go] == p]
-            i = live[rows]
-            X, _nf, front, d_new, fine = _refract_at(surfaces[p], _eta(spec, p, True), _eta(spec, p, False), o[i], d[i],
-                                                     dist[rows])
-            i, X, front, d_new = i[fine], X[fine], front[fine], d_new[fine]
-            d[i] = d_new
-            o[i] = X + 2.0 * spec.eps * d_new
+        for _p, i, front in through:
             inside[i] = front
-            last[i] = p
             crossed[i] += 1
             nxt.append(i)
         live = np.concatenate(nxt)

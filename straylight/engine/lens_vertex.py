@@ -115,7 +115,7 @@ def unsupported(spec) -> str | None:
 # ---------------------------------------------------------------------------------------------- runs
 
 
-def _interface_parts(spec) -> np.ndarray:
+def interface_parts(spec) -> np.ndarray:
     """Bool per part: a dielectric interface with an analytic surface (what a run crosses)."""
     ok = parts_with(spec, Capability.DELTA_CHAIN).copy()
     surfaces = spec.part_surfaces or ()
@@ -157,7 +157,7 @@ def find_runs(spec, comp) -> tuple:
     transmitting (exact surfaces), each run's parts recorded until the ray meets a scatter part from the air;
     the runs at least MIN_RUN_RAYS of them follow, most followed first."""
     src = spec.sources[0]
-    iface = _interface_parts(spec)
+    iface = interface_parts(spec)
     if not iface.any():
         return ()
     g = (np.arange(FIND_RAYS) + 0.5) / FIND_RAYS * 2.0 - 1.0
@@ -171,37 +171,18 @@ def find_runs(spec, comp) -> tuple:
     last = np.full(len(o), -1)  # the part each ray crossed last
     live = np.arange(len(o))
     found: dict = {}
-    surfaces = spec.part_surfaces
     for _ in range(MAX_RUN + 1):
         if len(live) == 0:
             break
-        tri, dist = comp.isect.intersect(np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]))
-        tri = np.asarray(tri)
-        hit = tri >= 0
-        part = np.where(hit, spec.triangle_part[np.where(hit, tri, 0)], -1)
-        # a facet of the part just crossed, met again (a convex face's facets lie inside it): passed
-        again = hit & (part == last[live])
-        o[live[again]] += (np.asarray(dist)[again] + 2.0 * spec.eps)[:, None] * d[live[again]]
-        hit &= ~again
-        ends = hit & ~iface[np.maximum(part, 0)] & (inside[live] < 0)
+        part, again, crossed = transmit_step(spec, comp, iface, o, d, last, live)
+        ends = (part >= 0) & ~again & ~iface[np.maximum(part, 0)] & (inside[live] < 0)
         for r in np.flatnonzero(ends):
             if seqs[live[r]]:
                 key = tuple(seqs[live[r]])
                 found[key] = found.get(key, 0) + 1
-        go = np.flatnonzero(hit & iface[np.maximum(part, 0)])
         nxt = []
-        for p in np.unique(part[go]):
-            rows = go[part[go] == p]
-            i = live[rows]
-            X, _, front, d_new, fine = _refract_at(surfaces[p], _eta(spec, p, True), _eta(spec, p, False), o[i], d[i],
-                                                   np.asarray(dist)[rows])
-            i, X, front, d_new = i[fine], X[fine], front[fine], d_new[fine]
-            if len(i) == 0:
-                continue
-            d[i] = d_new
-            o[i] = X + 2.0 * spec.eps * d_new
+        for p, i, front in crossed:
             inside[i] = np.where(front, int(spec.part_material[p]), -1)
-            last[i] = p
             for k in i:
                 seqs[k].append(int(p))
             nxt.append(i)
@@ -210,6 +191,38 @@ def find_runs(spec, comp) -> tuple:
         live = live[[len(seqs[k]) <= MAX_RUN for k in live]] if len(live) else live
     runs = sorted(((n, key) for key, n in found.items() if n >= MIN_RUN_RAYS), reverse=True)
     return tuple(_run(spec, key) for _, key in runs)
+
+
+def transmit_step(spec, comp, iface, o, d, last, live) -> tuple:
+    """One cast of the rays ``live`` (origins ``o``, unit directions ``d``: updated in place) with every analytic
+    interface (``iface``: bool per part, :func:`interface_parts`) transmitting, on the exact surfaces: a ray that
+    meets a facet of the part it crossed last (``last``, updated) again is moved past it (a convex face's facets
+    lie inside it); one that meets an interface is refracted there (total reflection drops it). Returns, per row of
+    ``live``, the part met (-1: nothing) and whether it was such a facet, and per interface part crossed
+    ``(part, its rays, arrived on its front)`` in part order."""
+    tri, dist = comp.isect.intersect(np.ascontiguousarray(o[live]), np.ascontiguousarray(d[live]))
+    tri = np.asarray(tri)
+    dist = np.asarray(dist)
+    hit = tri >= 0
+    part = np.where(hit, spec.triangle_part[np.where(hit, tri, 0)], -1)
+    again = hit & (part == last[live])
+    o[live[again]] += (dist[again] + 2.0 * spec.eps)[:, None] * d[live[again]]
+    go = np.flatnonzero(hit & ~again & iface[np.maximum(part, 0)])
+    crossed = []
+    surfaces = spec.part_surfaces
+    for p in np.unique(part[go]):
+        rows = go[part[go] == p]
+        i = live[rows]
+        X, _, front, d_new, fine = _refract_at(surfaces[p], _eta(spec, p, True), _eta(spec, p, False), o[i], d[i],
+                                               dist[rows])
+        i, X, front, d_new = i[fine], X[fine], front[fine], d_new[fine]
+        if len(i) == 0:
+            continue
+        d[i] = d_new
+        o[i] = X + 2.0 * spec.eps * d_new
+        last[i] = p
+        crossed.append((int(p), i, front))
+    return part, again, crossed
 
 
 # ---------------------------------------------------------------------------------------------- tracing

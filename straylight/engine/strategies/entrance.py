@@ -14,10 +14,9 @@ from dataclasses import replace
 import numpy as np
 
 from straylight.engine import entrance_sampling as impl
-from straylight.engine import lens_vertex
+from straylight.engine import lens_vertex, reverse_chain
 from straylight.engine.capabilities import Capability
 from straylight.engine.strategies.base import ANALOG, BatchContext, Estimator, Strategy, TableTools
-from straylight.engine import reverse_chain
 from straylight.engine.strategies.lens_vertex import LENS_VERTEX
 from straylight.engine.strategies.reverse_chain import EYE_TABLE, REVERSE_CHAIN
 from straylight.rng import CHUNK_RAYS, check_seed
