@@ -293,14 +293,18 @@ class DeltaChains:
             elif drawn:
                 w = b.w[m] * split.share(event, b.tag[m], b.k[m], b.codes[m], int(j), b.d[m])
             else:
-                w = b.w[m] * event.tree_share(i, int(j), b.d[m])  # a strategy that also counts this run keeps its share
-                w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])  # or this very path
                 keeper = split if split is not None else ends
+                scale = np.ones(len(m))
                 if keeper is not None:
                     kept = keeper.walk_keeps(event, b.k[m], b.codes[m], int(j))
                     if ends is not None:  # after an end the draws cover, the walk keeps the runs they do not follow
                         kept |= (self.walk_scale[r] == 0.0) & (b.refl[m] > ends.reflections)
-                    w = np.where(kept, w, w * self.walk_scale[r])
+                    scale = np.where(kept, 1.0, self.walk_scale[r])
+                # a strategy that also counts this run keeps its share (against the walk's draws at a split vertex:
+                # 1 / scale of them, straylight.engine.tree_split), or one that makes this very path
+                draws = np.where((scale > 0.0) & (scale < 1.0), 1.0 / np.where(scale > 0.0, scale, 1.0), 1.0)
+                w = b.w[m] * event.tree_share(i, int(j), b.d[m], draws) * scale
+                w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])
             shared = split is not None or ends is not None
             keep = np.flatnonzero(w > 0) if shared else m
             if shared and len(keep) < len(m):

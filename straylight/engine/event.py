@@ -109,15 +109,16 @@ class Event:
                 out |= claims(self, rows)
         return out
 
-    def tree_share(self, rows, detector: int, arrival) -> np.ndarray:
+    def tree_share(self, rows, detector: int, arrival, walk_draws=None) -> np.ndarray:
         """The share a split tree rooted at the interface hits ``rows`` keeps of its score on
         ``detector``, its branches arriving along ``arrival`` (n, 3) (1 unless a strategy also counts
-        that run: straylight.engine.reverse_chain)."""
+        that run: straylight.engine.reverse_chain); ``walk_draws`` (n,): the walk's draws of the tree's
+        direction at its vertex, each of its density (straylight.engine.tree_split; None: one)."""
         out = np.ones(len(rows))
         for state in self.states.values():
             share = getattr(state, "tree_share", None)
             if share is not None:
-                out *= share(self, rows, detector, arrival)
+                out *= share(self, rows, detector, arrival, walk_draws)
         return out
 
     def branch_share(self, rows, detector: int, z, nz, codes, k) -> np.ndarray:

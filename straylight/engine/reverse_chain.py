@@ -1018,7 +1018,9 @@ class ReverseChains:
         # the ends are sorted by ray: ray r's are first[r] .. first[r] + count[r] - 1
         self.count = np.bincount(self.ends.ray, minlength=n).astype(np.int64)
         self.first = np.cumsum(self.count) - self.count
-        self._connect_source(ctx)
+        # the source connections are joined at the batch's first event, when every strategy's state is there:
+        # their balance weight counts the walk's draws at P (straylight.engine.tree_split)
+        self._ctx = ctx
 
     # ------------------------------------------------------------------ eye chains
 
@@ -1034,7 +1036,19 @@ class ReverseChains:
 
     # ------------------------------------------------------------------ source connection
 
-    def _connect_source(self, ctx):
+    def connect_source(self, states) -> None:
+        """Join the end points to the source, once per batch (the batch's first event; ``states``: the
+        batch's strategy states, whose split trees say how many draws the walk makes at P)."""
+        ctx, self._ctx = self._ctx, None
+        if ctx is not None:
+            self._connect_source(ctx, states)
+
+    def check_joined(self) -> None:
+        """After the walk: the source connections were joined (a batch with rays has a first event)."""
+        if self._ctx is not None and len(self.ends.ray):
+            raise RuntimeError("reverse chains: the batch ended before its first event; its source connections were not joined")
+
+    def _connect_source(self, ctx, states):
         e = self.ends
         if len(e.ray) == 0 or self.linear_source:  # P must receive unpolarized light (module doc)
             return
@@ -1045,6 +1059,15 @@ class ReverseChains:
         self.shadow_rays += shadows
         if len(g) == 0:
             return
+        trees = states.get("delta_chain")
+        split = getattr(trees, "lobe_split", None)
+        if split is not None:  # P lit straight by the source: the walk's K draws there (tree_split)
+            draws = np.ones(len(g))
+            for j in distinct(e.detector[g]):
+                m = np.flatnonzero(e.detector[g] == j)
+                draws[m] = split.draws_at_source_points(states, e.material[g[m]], e.part[g[m]], e.k[g[m]],
+                                                        e.codes[g[m]], int(j))
+            p_walk = p_walk * draws
         value = raw * self.scale * self._eye_weight(g, p_walk)
         keep = value > 0
         g, value = g[keep], value[keep]
@@ -1054,7 +1077,10 @@ class ReverseChains:
 
     def after_hits(self, event, cont):
         """Before the interactions: does each continuing hit receive unpolarized light, in the walk's
-        model (no valid Stokes state for the ray at this depth, and not a linear source's first hit)?"""
+        model (no valid Stokes state for the ray at this depth, and not a linear source's first hit)?
+        At the batch's first event, the source connections (:meth:`connect_source`)."""
+        if self._ctx is not None:
+            self.connect_source(event.states)
         rays = event.rays
         depth = rays.depth[cont]
         polarized = np.zeros(len(cont), dtype=bool)
@@ -1135,12 +1161,14 @@ class ReverseChains:
         w = np.where(total > 0, p_eye / np.where(total > 0, total, 1.0), 1.0)
         return np.where((e.k[k] <= self.k_tree) & (e.refl[k] <= self.r_tree), w, 1.0)
 
-    def tree_share(self, event, rows, detector: int, arrival) -> np.ndarray:
+    def tree_share(self, event, rows, detector: int, arrival, walk_draws=None) -> np.ndarray:
         """The share a split tree rooted at ``rows`` keeps on ``detector``, its branches arriving along
         ``arrival`` (n, 3) (its balance weight against the eye side, whose direction density there
-        the eye table gives; 1 for runs the chains do not own)."""
+        the eye table gives; 1 for runs the chains do not own); ``walk_draws``: the walk's draws of such
+        directions at the vertex (straylight.engine.tree_split; None: one)."""
         r = event.rays.ray[rows]
-        return self.share_of(event, self.owns(event, rows, extra=1), self.p_walk[r], self.cos_out[r], detector, arrival)
+        p_walk = self.p_walk[r] if walk_draws is None else self.p_walk[r] * walk_draws
+        return self.share_of(event, self.owns(event, rows, extra=1), p_walk, self.cos_out[r], detector, arrival)
 
     def share_of(self, event, owned, p_walk, cos_out, detector: int, arrival) -> np.ndarray:
         """The balance weight p_walk / (p_walk + p_eye) of walk-side paths (P, omega) of density ``p_walk``

@@ -223,7 +223,7 @@ class TreeEnds:
         share 0 here): those specular NEE may also make, or without its state at most ``specular_nee`` interfaces
         (straylight.engine.tree_split.walk_keeps, the same rule); and a draw straight onto the detector (k = 0),
         which the walk's NEE and lobe hits at P count."""
-        return walk_keeps(event, k, codes, detector, self.k_min) | (k == 0)
+        return walk_keeps(event.states, k, codes, detector, self.k_min) | (k == 0)
 
     def record(self, event, b, m, r, i, z, w, j, depth):
         """Path records of the end draws' branches ``b`` rows ``m`` (rays ``r``, event rows ``i``) scoring ``w`` at

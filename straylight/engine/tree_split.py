@@ -8,12 +8,13 @@ Each starts a branch at P with weight w f cos / pdf / K (the walk's throughput o
 straylight.engine.delta_chain follows like a tree rooted at its first interface hit; the walk's own tree
 after P keeps 1 / K of its branches (``DeltaChains.walk_scale``). For each path the K draws are K
 identically distributed estimates of the same conditional expectation, so their mean is unbiased for any
-K that depends on the vertex only. The MIS weights are the one-sample ones, per draw: against the eye
-chains p_walk / (p_walk + p_eye) with the draw's own (P, omega) density (a partition of unity whatever K;
-the K-sample balance weights would move only the eye side's already small share); branches whose path
-specular NEE may also make (:meth:`LobeSplit.walk_keeps`: its sequences' parts, or without its batch
-state at most ``k_min`` = ``specular_nee`` interfaces) are left to the walk's own tree (its weight there
-unchanged)."""
+K that depends on the vertex only. The MIS weights against the eye chains are the multi-sample balance
+heuristic (Veach 1997, eq. 9.13): the walk makes K samples of (P, omega), each of density p_walk, so a draw
+keeps K p_walk / (K p_walk + p_eye) of its 1 / K and the eye chains' source connection p_eye / (K p_walk +
+p_eye) (:func:`walk_draws`); the weights still add to one for each path. Branches whose path specular NEE
+may also make (:meth:`LobeSplit.walk_keeps`: its sequences' parts, or without its batch state at most
+``k_min`` = ``specular_nee`` interfaces) are left to the walk's own tree (its weight there unchanged, its
+density one draw's)."""
 from __future__ import annotations
 
 import numpy as np
@@ -31,11 +32,12 @@ from straylight.engine.vec3 import take_rows
 TREE_STREAM = 0x5453504C  # third entropy word of the further lobe draws' streams ("TSPL")
 
 
-def walk_keeps(event, k, codes, detector: int, k_min: int) -> np.ndarray:
+def walk_keeps(states, k, codes, detector: int, k_min: int) -> np.ndarray:
     """(n,) bool: split-tree branches (``k`` interfaces, ``codes``) reaching ``detector`` that the walk's own tree
     keeps whole, whose drawn copies score nothing: those specular NEE may also make
-    (straylight.engine.specular_nee.SpecularNee.covers), or without its state k <= ``k_min`` (its ``specular_nee``)."""
-    nee = event.states.get("specular_nee")
+    (straylight.engine.specular_nee.SpecularNee.covers), or without its state k <= ``k_min`` (its ``specular_nee``).
+    ``states``: the batch's strategy states (``Event.states``)."""
+    nee = states.get("specular_nee")
     if nee is None:
         return k <= k_min
     return nee.covers(k, codes, detector)
@@ -107,7 +109,7 @@ class LobeSplit:
             beam = (self.w0 / rays.weight_w[i]) * np.abs(np.einsum("ij,ij->i", take_rows(rays.direction, i), nf[pos])) \
                 / _beam_footprint(self.source)
             owned = rc.end_material[mat[sel][pos]] & rc.pred[rays.ray[i]] & (rc.k_tree > 0)
-            self.draws = (beam * pdf, wo[:, 2], owned)
+            self.draws = (beam * pdf * self.k, wo[:, 2], owned)  # K draws of this density (module doc)
         else:
             self.draws = (np.zeros(n), wo[:, 2], np.zeros(n, dtype=bool))
         key = mix_key(rays.path_key[i], part[sel][pos] * 4 + EVENT_SCATTER) if event.settings.record_paths \
@@ -123,10 +125,18 @@ class LobeSplit:
         finally:
             self.draws = None
 
+    def draws_at_source_points(self, states, material, part, k, codes, detector: int) -> np.ndarray:
+        """(n,) the walk's draws (K or 1) at points P lit straight by the source, of ``material`` on ``part``,
+        along runs of ``k`` interfaces ``codes`` into ``detector``: K where P splits (the walk's draw and K - 1
+        more) and the drawn copies score the run (not :meth:`walk_keeps`), else 1. The density the eye chains
+        weigh their source connection against is this times one draw's (module doc)."""
+        split = self.material[material] & ~self.splits[part]
+        return np.where(split & ~walk_keeps(states, k, codes, detector, self.k_min), float(self.k), 1.0)
+
     def walk_keeps(self, event, k, codes, detector: int) -> np.ndarray:
         """(n,) bool: the branches (``k`` interfaces, ``codes``) reaching ``detector`` that the walk's own
         tree keeps whole (the further draws' share 0): :func:`walk_keeps`."""
-        return walk_keeps(event, k, codes, detector, self.k_min)
+        return walk_keeps(event.states, k, codes, detector, self.k_min)
 
     def share(self, event, tag, k, codes, detector: int, arrival) -> np.ndarray:
         """The share further draws ``tag`` keep on ``detector`` after ``k`` interfaces ``codes``: 0 where

@@ -56,6 +56,7 @@ class ReverseChainStrategy(Strategy):
         state.after_interactions(event, continuing, outgoing)
 
     def after_walk(self, state, ctx: BatchContext) -> int:
+        state.check_joined()
         return state.shadow_rays
 
 
