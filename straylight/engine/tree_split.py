@@ -11,10 +11,10 @@ identically distributed estimates of the same conditional expectation, so their 
 K that depends on the vertex only. The MIS weights against the eye chains are the multi-sample balance
 heuristic (Veach 1997, eq. 9.13): the walk makes K samples of (P, omega), each of density p_walk, so a draw
 keeps K p_walk / (K p_walk + p_eye) of its 1 / K and the eye chains' source connection p_eye / (K p_walk +
-p_eye) (:func:`walk_draws`); the weights still add to one for each path. Branches whose path specular NEE
-may also make (:meth:`LobeSplit.walk_keeps`: its sequences' parts, or without its batch state at most
-``k_min`` = ``specular_nee`` interfaces) are left to the walk's own tree (its weight there unchanged, its
-density one draw's)."""
+p_eye) (:meth:`LobeSplit.draws_at_source_points`); the weights still add to one for each path. Branches whose
+path specular NEE may also make (:meth:`LobeSplit.walk_keeps`: its sequences' parts, or without its batch
+state at most ``k_min`` = ``specular_nee`` interfaces) are left to the walk's own tree (its weight there
+unchanged, its density one draw's)."""
 from __future__ import annotations
 
 import numpy as np
