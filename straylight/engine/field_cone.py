@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from straylight.engine.triangle_sampling import triangle_areas, triangle_points
 
 #: rays traced from the detectors to measure the field (a few ms on the guide scope)
 FIELD_RAYS = 8192
@@ -117,10 +118,10 @@ def exit_directions(spec, scene) -> np.ndarray:
     rng = np.random.default_rng([int(spec.seed), FIELD_STREAM])
     n = FIELD_RAYS
     tri = np.asarray(spec.triangles_mm, dtype=np.float64)[tri_ids]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = triangle_areas(tri)
     k = rng.choice(len(tri_ids), n, p=area / area.sum())
-    su, v = np.sqrt(rng.random(n)), rng.random(n)
-    target = tri[k, 0] + (su * (1 - v))[:, None] * (tri[k, 1] - tri[k, 0]) + (su * v)[:, None] * (tri[k, 2] - tri[k, 0])
+    u1, u2 = rng.random(n), rng.random(n)
+    target = triangle_points(tri, k, u1, u2)
     j = rng.integers(0, len(dets), n)
     z = np.empty((n, 3))
     for jj in range(len(dets)):

@@ -37,6 +37,7 @@ from straylight.engine.interactions.registry import Capability, parts_with
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE
+from straylight.engine.triangle_sampling import triangle_points
 from straylight.engine.vec3 import power_heuristic_rows
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
@@ -129,13 +130,6 @@ def forward_density(src, x, normals):
     r2 = np.einsum("ij,ij->i", v, v)
     cos_x = np.einsum("ij,ij->i", normals, v) / np.sqrt(r2)
     return np.abs(cos_x) / (2.0 * math.pi * (1.0 - cos_max) * r2)
-
-
-def _points(tri_mm, t, u1, u2):
-    su = np.sqrt(u1)
-    b1, b2 = su * (1.0 - u2), su * u2
-    v0 = tri_mm[t, 0]
-    return v0 + b1[:, None] * (tri_mm[t, 1] - v0) + b2[:, None] * (tri_mm[t, 2] - v0)
 
 
 def _single_scatter(spec, comp, src, t, x, u_det, j, lobe_mis=False):
@@ -281,7 +275,7 @@ def probe_scores(spec, comp, tris, m, rng, contribution):
     t = np.repeat(tris, m)
     u = rng.random((len(t), 5))
     u[:, 0] = (np.tile(np.arange(m), len(tris)) + u[:, 0]) / m
-    x = _points(spec.triangles_mm, t, u[:, 0], u[:, 1])
+    x = triangle_points(spec.triangles_mm, t, u[:, 0], u[:, 1])
     g2 = np.zeros(len(t))
     for j in range(len(comp.det_parts)):
         g = contribution(t, x, u[:, 2:5], j)
@@ -367,7 +361,7 @@ def run_vertex_pass(spec, comp, table, first_chunk, stop_chunk, tallies, rows, r
         u = u_all[:, 6 * j:6 * j + 6]
         k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
         t = table.tri[k]
-        x = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
+        x = triangle_points(spec.triangles_mm, t, u[:, 1], u[:, 2])
         g, z, s = _single_scatter(spec, comp, src, t, x, u[:, 3:6], j, lobe_mis=lobe)
         shadows += s
         good = np.flatnonzero(g > 0)

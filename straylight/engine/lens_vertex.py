@@ -43,7 +43,7 @@ from materials.polarized_brdf import is_polarizing, mueller_brdf
 from materials.smooth import Dielectric, refract
 from straylight.engine import first_vertex
 from straylight.engine.capabilities import Capability
-from straylight.engine.first_vertex import PROBE_BUDGET, _local, _points, probe_scores
+from straylight.engine.first_vertex import PROBE_BUDGET, _local, probe_scores
 from straylight.engine.interactions.registry import parts_with
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
@@ -51,6 +51,7 @@ from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPE
 from straylight.engine.reverse_chain import scatter_ends
 from straylight.engine.specular_nee import _eta, _meets
 from straylight.engine.surface_geometry import branch_coefficients
+from straylight.engine.triangle_sampling import triangle_areas, triangle_points
 from straylight.engine.vec3 import power_heuristic_rows
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
@@ -611,7 +612,7 @@ def _candidates(spec):
     ends = scatter_ends(spec)
     part_ok = parts_with(spec, Capability.FIRST_VERTEX) & ends[spec.part_material]
     surf = np.flatnonzero(part_ok[spec.triangle_part])
-    area = 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
+    area = triangle_areas(tri_mm)
     return surf[area[surf] > 0], area
 
 
@@ -707,7 +708,7 @@ def run_pass(spec, comp, table: LensTable, first_chunk, stop_chunk, tallies, row
         u = u_all[:, 9 * j:9 * j + 9]
         k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
         t, which = table.tri[k], table.run[k]
-        x = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
+        x = triangle_points(spec.triangles_mm, t, u[:, 1], u[:, 2])
         for r_i, run in enumerate(table.runs):
             sel = np.flatnonzero(which == r_i)
             if len(sel) == 0:

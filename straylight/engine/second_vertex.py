@@ -57,6 +57,7 @@ from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER
 from straylight.engine.targets import target_pdf
+from straylight.engine.triangle_sampling import triangle_areas, triangle_points
 from straylight.engine.vec3 import power_heuristic_rows
 from straylight.engine.walk_shares import keep_walk_share
 from straylight.paths import mix_key
@@ -130,18 +131,6 @@ def _local(v, tb, bb, nf):
     return np.stack([_dot(v, tb), _dot(v, bb), _dot(v, nf)], axis=1)
 
 
-def _points(tri_mm, t, u1, u2):
-    """Uniform points on triangles ``t`` (Turk 1990)."""
-    su = np.sqrt(u1)
-    b1, b2 = su * (1.0 - u2), su * u2
-    v0 = tri_mm[t, 0]
-    return v0 + b1[:, None] * (tri_mm[t, 1] - v0) + b2[:, None] * (tri_mm[t, 2] - v0)
-
-
-def _triangle_areas(tri_mm):
-    return 0.5 * np.linalg.norm(np.cross(tri_mm[:, 1] - tri_mm[:, 0], tri_mm[:, 2] - tri_mm[:, 0]), axis=1)
-
-
 def part_illumination(spec, comp, parts, rng) -> np.ndarray:
     """Mean direct irradiance E (lit side, unblocked) over ``PART_PROBES`` area-uniform probes on each
     of ``parts`` (straylight.engine.first_vertex.source_connection); ones when the sources are not a
@@ -154,14 +143,14 @@ def part_illumination(spec, comp, parts, rng) -> np.ndarray:
     if first_vertex_unsupported(spec.sources) is not None:
         return out
     src = spec.sources[0]
-    tri_mm, area = spec.triangles_mm, _triangle_areas(spec.triangles_mm)
+    tri_mm, area = spec.triangles_mm, triangle_areas(spec.triangles_mm)
     for k, p in enumerate(parts):
         tris = np.flatnonzero(spec.triangle_part == p)
         cdf = np.cumsum(area[tris])
         u = rng.random((PART_PROBES, 3))
         u[:, 0] = (np.arange(PART_PROBES) + u[:, 0]) / PART_PROBES  # stratified over the part's area
         t = tris[np.minimum(np.searchsorted(cdf, u[:, 0] * cdf[-1], side="right"), len(tris) - 1)]
-        x = _points(tri_mm, t, u[:, 1], u[:, 2])
+        x = triangle_points(tri_mm, t, u[:, 1], u[:, 2])
         wi, nf, e, tmax = source_connection(src, x, comp.normals[t])
         lit = np.flatnonzero(e > 0)
         if len(lit):
@@ -179,7 +168,7 @@ def _seen_scores(spec, comp, tris, m, rng) -> np.ndarray:
     t = np.repeat(tris, m)
     u = rng.random((len(t), 5))
     u[:, 0] = (np.tile(np.arange(m), len(tris)) + u[:, 0]) / m
-    x = _points(spec.triangles_mm, t, u[:, 0], u[:, 1])
+    x = triangle_points(spec.triangles_mm, t, u[:, 0], u[:, 1])
     n = comp.normals[t]
     g2 = np.zeros(len(t))
     both = spec.options.output.detector_sides == "both"
@@ -206,7 +195,7 @@ def build_table(spec, comp) -> CriticalTable:
     only): the table is the same for any batch size, thread or worker count."""
     from_part = scatter_parts(spec)
     n_tri = len(spec.triangles_mm)
-    area = _triangle_areas(spec.triangles_mm)
+    area = triangle_areas(spec.triangles_mm)
     rng = np.random.default_rng([check_seed(spec.seed), TABLE_STREAM])
     parts = np.flatnonzero(from_part)
     light = np.zeros(len(spec.part_roles))
@@ -335,7 +324,7 @@ def estimate(event, verts, frame):
     u = event.uniforms[i, col:col + 3]
     k = np.minimum(np.searchsorted(table.cdf, u[:, 0] * table.cdf[-1], side="right"), len(table.tri) - 1)
     t = table.tri[k]
-    y = _points(spec.triangles_mm, t, u[:, 1], u[:, 2])
+    y = triangle_points(spec.triangles_mm, t, u[:, 1], u[:, 2])
     p_a, n_a = hit.point_mm[i], hit.facing_normal[i]
     v = y - p_a
     d1sq = _dot(v, v)
