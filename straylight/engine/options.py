@@ -19,6 +19,7 @@ class TraceError(ValueError):
 #: the choices of ``EstimatorOptions.specular_nee_sequences`` (straylight.engine.specular_nee.candidate_sequences):
 #: "all" every sequence of 1..``specular_nee`` interfaces; "mirrors" only the single reflections off a face
 #: and (``specular_nee = 3``) the thick mirrors: enter a face, reflect inside off another, leave through the first
+#: (``specular_nee = 4``, also the ghosts: enter a face, reflect inside off the other and back, leave through the other)
 SPECULAR_NEE_SEQUENCES = ("all", "mirrors")
 
 
@@ -44,7 +45,7 @@ class EstimatorOptions:
     tree_ends: bool = False  # the beam's split trees' branch ends on glossy parts (after a reflection) take a lobe draw
     entrance_sampling: bool = False  # source rays start where a pilot saw light reach the detectors (by importance)
     reverse_chain: int = 0  # > 0: eye chains from the detectors through up to this many interfaces, joined to the walk
-    specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1-3) analytic interfaces
+    specular_nee: int = 0  # > 0: scatter vertices joined to the detectors through up to this many (1-4) analytic interfaces
     specular_nee_sequences: str = "all"  # which: "all" of 1..specular_nee, or "mirrors" (single reflections, thick mirrors T R T)
     direct_area: bool = False  # the light one collimated beam puts straight on a flat mesh detector, by 2-D clipping
     lens_vertex: bool = False  # scatter points lit through a lens area-sampled and joined to the beam through it
@@ -73,14 +74,15 @@ class EstimatorOptions:
                              f"got {self.delta_chain_reflections}")
         if int(self.reverse_chain) < 0:
             raise TraceError(f"reverse_chain must be >= 0 (interfaces per eye chain), got {self.reverse_chain}")
-        if not isinstance(self.specular_nee, (int, np.integer)) or not 0 <= int(self.specular_nee) <= 3:
-            raise TraceError(f"specular_nee must be 0, 1, 2 or 3 (interfaces per connection), got {self.specular_nee!r}")
+        if not isinstance(self.specular_nee, (int, np.integer)) or not 0 <= int(self.specular_nee) <= 4:
+            raise TraceError(f"specular_nee must be 0, 1, 2, 3 or 4 (interfaces per connection), got {self.specular_nee!r}")
         object.__setattr__(self, "specular_nee", int(self.specular_nee))  # True (the former switch) is 1
         if self.specular_nee_sequences not in SPECULAR_NEE_SEQUENCES:
             raise TraceError(f"specular_nee_sequences must be one of {', '.join(SPECULAR_NEE_SEQUENCES)}, "
                              f"got {self.specular_nee_sequences!r}")
-        # the most reflections one of its sequences has: "mirrors" have one
-        reflections = min(int(self.specular_nee), 1) if self.specular_nee_sequences == "mirrors" else int(self.specular_nee)
+        # the most reflections one of its sequences has: "mirrors" have one, and with 4 interfaces the ghosts two
+        k = int(self.specular_nee)
+        reflections = (2 if k >= 4 else min(k, 1)) if self.specular_nee_sequences == "mirrors" else k
         if 0 < int(self.delta_chain_reflections) < reflections:
             raise TraceError(f"specular_nee ({self.specular_nee}, sequences {self.specular_nee_sequences!r}) shares its "
                              f"paths with the split trees: it needs delta_chain_reflections 0 (no limit) or >= {reflections}")

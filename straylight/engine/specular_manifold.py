@@ -1,6 +1,6 @@
-"""Specular paths through one to three analytic surfaces, solved for (specular manifold connections).
+"""Specular paths through one to four analytic surfaces, solved for (specular manifold connections).
 
-Given a point P, a point z and a sequence S of k = 1 to 3 interfaces (each a part's analytic surface,
+Given a point P, a point z and a sequence S of k = 1 to 4 interfaces (each a part's analytic surface,
 ``geometry.analytic.Conic`` / ``Asphere`` / ``Plane``, with reflection or transmission), find the
 points X_1 (.. X_k) on the surfaces such that P -> X_1 (-> .. X_k) -> z obeys the law of reflection or
 refraction at every X_i, and the generalized geometry term |d omega_P / d A_z| of that path.
@@ -43,7 +43,7 @@ from straylight.sources import orthonormal_basis
 
 NEWTON_ITER = 20
 GIVE_UP_AFTER = 5  # iterations after which a row still far from a root stops
-GIVE_UP_RESIDUAL = 1e-4
+GIVE_UP_RESIDUAL = 1e-4  # (specular_nee's ghosts give up only above 1e-2: GHOST_GIVE_UP_RESIDUAL there)
 NEWTON_TOL_MM = 1e-10  # a converged step, mm
 RESIDUAL_TOL = 1e-9  # |F| of an accepted solution (dimensionless: sines)
 DIFF_MM = 1e-5  # central-difference step in (u, v), mm
@@ -258,17 +258,18 @@ class Solution(NamedTuple):
     ok: np.ndarray  # (m,) converged to a finite solution
 
 
-def solve(seq, p, z, x0=None, ok0=None, compiled: bool = True) -> Solution:
+def solve(seq, p, z, x0=None, ok0=None, compiled: bool = True, give_up_residual: float = GIVE_UP_RESIDUAL) -> Solution:
     """Newton's method for the sequence ``seq`` between p and z (m, 3) from ``x0`` (default
     :func:`start`). Rows are independent: each row's iterates do not depend on the others. Compiled
     (straylight.engine.specular_manifold_kernel.solve_rows) when every surface is a conic, asphere or
-    plane, else (or ``compiled=False``) :func:`solve_numpy`, its twin: the same roots and ok flags."""
+    plane, else (or ``compiled=False``) :func:`solve_numpy`, its twin: the same roots and ok flags.
+    ``give_up_residual``: the residual above which a row stops after :data:`GIVE_UP_AFTER` iterations."""
     if x0 is None:
         x0, ok0 = start(seq, p, z)
         ok0 = ok0 & plausible(seq, x0, p, z)
     par = kernel.pack(seq) if compiled else None
     if par is None:
-        return solve_numpy(seq, p, z, x0, ok0)
+        return solve_numpy(seq, p, z, x0, ok0, give_up_residual)
     x = np.array(x0, dtype=float)
     m, k = len(x), len(seq)
     active = np.ones(m, bool) if ok0 is None else np.asarray(ok0, bool).copy()
@@ -276,11 +277,11 @@ def solve(seq, p, z, x0=None, ok0=None, compiled: bool = True) -> Solution:
     N = np.empty((m, k, 3))
     ok = np.empty(m, bool)
     kernel.solve_rows(par, np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(z, dtype=float), x, active,
-                      NEWTON_ITER, GIVE_UP_AFTER, GIVE_UP_RESIDUAL, NEWTON_TOL_MM, RESIDUAL_TOL, DIFF_MM, X, N, ok)
+                      NEWTON_ITER, GIVE_UP_AFTER, float(give_up_residual), NEWTON_TOL_MM, RESIDUAL_TOL, DIFF_MM, X, N, ok)
     return Solution(x, X, N, ok)
 
 
-def solve_numpy(seq, p, z, x0, ok0=None) -> Solution:
+def solve_numpy(seq, p, z, x0, ok0=None, give_up_residual: float = GIVE_UP_RESIDUAL) -> Solution:
     """:func:`solve` in numpy, all rows at once (the compiled kernel's twin; any surface with sag,
     gradient and frame)."""
     x = np.array(x0, dtype=float)
@@ -325,7 +326,7 @@ def solve_numpy(seq, p, z, x0, ok0=None) -> Solution:
             done[a] = (moved <= NEWTON_TOL_MM) | (new_norm <= 1e-14)
             active[a] &= np.isfinite(new_norm)
             if it >= GIVE_UP_AFTER:  # not near a root by now: no solution from this start
-                active[a] &= new_norm <= GIVE_UP_RESIDUAL
+                active[a] &= new_norm <= give_up_residual
         ok = active & np.isfinite(norm) & (norm <= RESIDUAL_TOL)
         X = np.full((m, len(seq), 3), np.nan)
         N = np.full((m, len(seq), 3), np.nan)

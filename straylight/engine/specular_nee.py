@@ -1,4 +1,4 @@
-"""Specular next-event estimation: from a scatter vertex to a detector through one to three interfaces.
+"""Specular next-event estimation: from a scatter vertex to a detector through one to four interfaces.
 
 Behind or around a lens a scatter point P often reaches the small sensor only through the glass: by
 one reflection off a lens face (a vane behind the lens, seen in the flat back face's mirror), by
@@ -9,7 +9,7 @@ the sensor only when the walk's scatter direction happens to go where the run la
 guide scope at 5-15 deg those paths held 86-88 % of the variance (benchmarks/variance_paths.py).
 
 At every walk vertex P on a plain scatterer (a non-delta material; straylight.engine.reverse_chain
-.scatter_ends), for each candidate sequence S of 1 to ``specular_nee`` (1-3) interfaces (:func:`candidate_sequences`:
+.scatter_ends), for each candidate sequence S of 1 to ``specular_nee`` (1-4) interfaces (:func:`candidate_sequences`:
 every sequence of reflections and transmissions over the parts whose kind declares
 ``Capability.DELTA_CHAIN`` and that have an analytic conic, asphere or plane surface, no part twice
 in a row; with ``specular_nee_sequences = "mirrors"`` only the single reflections and the thick
@@ -46,6 +46,14 @@ interface and 8 more of two (:func:`candidate_sequences`, before the media rule)
 set uses ``specular_nee = 3`` with ``"mirrors"``: the single reflections (what two interfaces bought on the
 guide scope, at a third of the cost) and the two thick mirrors, which a vertex tries with probability
 q (:func:`try_rate`; docs/engine.md, "Thick mirrors").
+
+**Ghosts** (``specular_nee = 4`` with ``"mirrors"``, opt-in): also a singlet's two-reflection ghosts "a (T) -> b (R) ->
+a (R) -> b (T)" (:func:`ghost`), tried at the rays' first vertices only (P lit straight by the source; a tree
+from any other vertex keeps the whole path, :meth:`SpecularNee.branch_share`), always (q = 1), with a looser
+give-up rule in the solve (:data:`GHOST_GIVE_UP_RESIDUAL`). Where the reverse chains run they own those vertices,
+so the ghosts connect only where the chains do not (and the lobe draws keep their share of the ghost paths:
+:meth:`SpecularNee.covers`). Not in the default set: a ghost's solve costs ~27 us a vertex (docs/engine.md,
+"Ghost connections: measured, not in the default set").
 """
 from __future__ import annotations
 
@@ -64,7 +72,7 @@ from straylight.engine.interactions.brdf_scatter import LocalFrames
 from straylight.engine.interactions.registry import parts_with
 from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import brdf_and_pdf, by_material
-from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SPECULAR
+from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE, EVENT_SPECULAR
 from straylight.engine.reverse_chain import scatter_ends
 from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients, cast_branches, side_material
@@ -72,7 +80,7 @@ from straylight.paths import mix_key
 from straylight.engine.vec3 import take_rows
 from straylight.rng import check_seed, chunk_stream_uniforms
 
-MAX_INTERFACES = 3
+MAX_INTERFACES = 4
 #: the most probability q with which a vertex tries the thick-mirror sequences (:func:`thick_mirror`; one
 #: uniform per vertex): q = THICK_MIRROR_RATE min(1, w / w0) with w the vertex's weight and w0 the start
 #: weight (:func:`try_rate`). Their solves cost ~5x a reflection's, their paths carry ~1 % of the light
@@ -80,6 +88,11 @@ MAX_INTERFACES = 3
 THICK_MIRROR_RATE = 0.25
 TRY_STREAM = 0x544D4952  # third entropy word of the draws that decide whether a vertex tries them ("TMIR")
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
+#: a ghost's solve (four vertices from the unfolded straight line: a far start) stops after
+#: manifold.GIVE_UP_AFTER iterations only while its residual is above this (the solver's own 1e-4 gave up on 6 of
+#: 2705 ghost paths the split trees had found from beam-lit tube points, guide scope at 45 deg; with 1e-2 all
+#: 6 converge within the 20 iterations, to the tree's own path)
+GHOST_GIVE_UP_RESIDUAL = 1e-2
 
 
 def _dot(a, b):
@@ -104,6 +117,12 @@ class Sequence:
         """Whether a vertex tries this sequence only with its probability q (:func:`try_rate`; a thick
         mirror), else always (q = 1)."""
         return thick_mirror(self)
+
+    @cached_property
+    def ghost(self) -> bool:
+        """Whether this sequence is a two-reflection ghost (:func:`ghost`): tried only at the rays' first
+        vertices, with :data:`GHOST_GIVE_UP_RESIDUAL`."""
+        return ghost(self)
 
 
     def codes(self) -> np.ndarray:
@@ -200,11 +219,18 @@ def thick_mirror(seq: Sequence) -> bool:
     return seq.k == 3 and seq.reflect == (False, True, False) and seq.parts[0] == seq.parts[2] != seq.parts[1]
 
 
+def ghost(seq: Sequence) -> bool:
+    """Whether ``seq`` is a two-reflection ghost "a (T) -> b (R) -> a (R) -> b (T)": light enters a face, reflects
+    inside off the other, back off the first, and leaves through the other (a singlet's ghost)."""
+    return seq.k == 4 and seq.reflect == (False, True, True, False) and seq.parts[0] == seq.parts[2] \
+        and seq.parts[1] == seq.parts[3] and seq.parts[0] != seq.parts[1]
+
+
 def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES, which: str = "all") -> list:
     """Every sequence of 1..max_k reflections and transmissions over :func:`interface_parts` (no part
     twice in a row: a convex or flat surface cannot be met twice in a row, and a concave one rarely);
-    ``which`` = "mirrors" (``EstimatorOptions.specular_nee_sequences``) keeps only the single reflections
-    and the :func:`thick_mirror` sequences."""
+    ``which`` = "mirrors" (``EstimatorOptions.specular_nee_sequences``) keeps only the single reflections,
+    the :func:`thick_mirror` sequences and (``max_k`` 4) the :func:`ghost` sequences."""
     parts = interface_parts(spec, splits)
     surf = spec.part_surfaces
     vert = {(p, r): manifold.Vertex(surf[p], r, _eta(spec, p, True), _eta(spec, p, False), -1, _medium(spec, p))
@@ -216,7 +242,7 @@ def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES, which: str = 
         out.extend(Sequence(tuple(int(p) for p, _ in c), tuple(r for _, r in c), tuple(vert[x] for x in c))
                    for c in chains)
     if which == "mirrors":
-        out = [seq for seq in out if (seq.k == 1 and seq.reflect[0]) or thick_mirror(seq)]
+        out = [seq for seq in out if (seq.k == 1 and seq.reflect[0]) or thick_mirror(seq) or ghost(seq)]
     return [seq for seq in out if _media_allow(seq)]
 
 
@@ -298,9 +324,10 @@ def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides
 
 def _solve(seq: Sequence, p, z, rows) -> manifold.Solution:
     """manifold.solve on the rows ``rows`` (bool), the others not converged (its rows are independent:
-    the same numbers as solving them all)."""
+    the same numbers as solving them all); a ghost's with :data:`GHOST_GIVE_UP_RESIDUAL`."""
+    give_up = GHOST_GIVE_UP_RESIDUAL if seq.ghost else manifold.GIVE_UP_RESIDUAL
     if rows.all():
-        return manifold.solve(seq.vertices, p, z)
+        return manifold.solve(seq.vertices, p, z, give_up_residual=give_up)
     m = len(p)
     x = np.zeros((m, 2 * seq.k))
     X = np.full((m, seq.k, 3), np.nan)
@@ -308,7 +335,7 @@ def _solve(seq: Sequence, p, z, rows) -> manifold.Solution:
     ok = np.zeros(m, dtype=bool)
     g = np.flatnonzero(rows)
     if len(g):
-        sub = manifold.solve(seq.vertices, p[g], z[g])
+        sub = manifold.solve(seq.vertices, p[g], z[g], give_up_residual=give_up)
         x[g], X[g], N[g], ok[g] = sub
     return manifold.Solution(x, X, N, ok)
 
@@ -403,6 +430,7 @@ class SpecularNee:
         self.chain_k = np.zeros(n, dtype=np.int64)  # runs up to this length are the reverse chains'
         self.pdf = np.zeros(n)  # the walk's pdf of the direction it drew at P
         self.rate = np.zeros(n)  # q at P (try_rate)
+        self.first = np.zeros(n, dtype=bool)  # P is the ray's first vertex (lit by the source)
         self.w0 = float(ctx.start_weight_w)
         # the tries' uniforms: an own stream per chunk (the walk's random numbers stay those without them)
         self.any_sampled = any(seq.sampled for seq in self.seqs)
@@ -449,6 +477,7 @@ class SpecularNee:
         self.normal[r] = take_rows(event.hits.facing_normal, rows)
         self.chain_k[r] = chain_k
         self.rate[r] = try_rate(rays.weight_w[rows], self.w0)
+        self.first[r] = rays.last_event[rows] == EVENT_SOURCE
         u_try = chunk_stream_uniforms(self._gens, self.seed, self.first_chunk, TRY_STREAM, r, 1)[:, 0] \
             if self.any_sampled else None
         self._connect(event, rows, chain_k, column, u_try)
@@ -466,12 +495,15 @@ class SpecularNee:
         # may are left before the frames and the polarization (every step below is row by row)
         todo, need = [], np.zeros(len(rows), dtype=bool)
         q = self.rate[rays.ray[rows]]  # the sampled sequences (thick mirrors) are tried where u_try < q
+        first = self.first[rays.ray[rows]]  # the ghosts are tried at the rays' first vertices only
         for j, det in enumerate(scene.detectors):
             z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
             for seq in self.seqs_to[j]:
                 may = (chain_k < seq.k) & reaches(seq, p, n_p, z)
                 if seq.sampled:
                     may &= u_try < q
+                if seq.ghost:
+                    may &= first
                 if may.any():
                     todo.append((j, seq, may, z, nz))
                     need |= may
@@ -542,13 +574,16 @@ class SpecularNee:
 
     # ------------------------------------------------------------------ the split trees' side
 
-    def covers(self, k, codes, detector: int) -> np.ndarray:
+    def covers(self, k, codes, detector: int, chains: bool = False) -> np.ndarray:
         """(n,) bool: the split-tree branches (``k`` interfaces, ``codes``) reaching ``detector`` whose path
         this estimator may also make: one of its sequences for that detector has their parts (a superset
         of the branches :meth:`branch_share` shares; the further lobe draws of straylight.engine.tree_split
-        leave these to the walk's own tree)."""
+        leave these to the walk's own tree). With the reverse chains running (``chains``) not the ghosts: they
+        are tried at the first vertices only, which the chains own wherever the lobe draws are made."""
         out = np.zeros(len(k), dtype=bool)
         for seq in self.seqs_to[detector]:
+            if chains and seq.ghost:
+                continue
             parts = np.array(seq.parts, dtype=np.int64)
             out |= (k == seq.k) & np.all(codes[:, :seq.k] // 4 == parts[None, :], axis=1)
         return out
@@ -578,6 +613,8 @@ class SpecularNee:
                                  int(self.det_parts[detector]), self.both)
             self.shadow_rays += casts
             match = con.ok & (_dot(con.omega, rays.direction[rows[at]]) > SAME_DIRECTION_COS)
+            if seq.ghost:  # (made at the first vertices only: elsewhere the tree keeps the whole path)
+                match &= self.first[ri]
             rate = self.rate[ri[match]] if seq.sampled else 1.0
             p_nee[at[match]] = rate / (area * con.J[match])
         walk = self.pdf[r]

@@ -40,7 +40,7 @@ def walk_keeps(states, k, codes, detector: int, k_min: int) -> np.ndarray:
     nee = states.get("specular_nee")
     if nee is None:
         return k <= k_min
-    return nee.covers(k, codes, detector)
+    return nee.covers(k, codes, detector, chains="reverse_chain" in states)
 
 
 class LobeSplit:
