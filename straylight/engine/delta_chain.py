@@ -291,7 +291,8 @@ class DeltaChains:
             if at_end:
                 w = np.where(ends.walk_keeps(event, b.k[m], b.codes[m], int(j)), 0.0, b.w[m])
             elif drawn:
-                w = b.w[m] * split.share(event, b.tag[m], b.k[m], b.codes[m], int(j), b.d[m])
+                w = b.w[m] * split.share(event, b.tag[m], b.k[m], b.codes[m], int(j), b.d[m]) \
+                    * split.ghost_share(event, i, b.tag[m], int(j), z[m], nz[m], b.codes[m], b.k[m], b.d[m])
             else:
                 keeper = split if split is not None else ends
                 scale = np.ones(len(m))
@@ -305,6 +306,7 @@ class DeltaChains:
                 draws = np.where((scale > 0.0) & (scale < 1.0), 1.0 / np.where(scale > 0.0, scale, 1.0), 1.0)
                 w = b.w[m] * event.tree_share(i, int(j), b.d[m], draws) * scale
                 w = w * event.branch_share(i, int(j), z[m], nz[m], b.codes[m], b.k[m])
+                w = w * _own_tree_ghost_share(event, i, int(j), z[m], nz[m], b.codes[m], b.k[m], b.d[m], draws)
             shared = split is not None or ends is not None
             keep = np.flatnonzero(w > 0) if shared else m
             if shared and len(keep) < len(m):
@@ -328,6 +330,22 @@ class DeltaChains:
                     at = np.flatnonzero((b.codes[m, step] >= 0) & (depth + step < events.shape[1]))
                     events[at, depth[at] + step] = b.codes[m[at], step]
             event.records.add(int(j), r, z[m], w, keys, events, depth + b.k[m])
+
+
+def _own_tree_ghost_share(event, rows, detector: int, z, nz, codes, k, arrival, draws) -> np.ndarray:
+    """The factor the walk's own tree (rooted at the interface hits ``rows``, ``draws`` of its direction at P)
+    keeps against specular NEE's ghost connections at the eye chains' vertices (1 without them):
+    straylight.engine.specular_nee.SpecularNee.ghost_share, with the walk's density of its own draw."""
+    nee, rc = event.states.get("specular_nee"), event.states.get("reverse_chain")
+    if nee is None or not nee.ghosts_shared(event.states):
+        return np.ones(len(rows))
+    rays = event.rays
+    r = rays.ray[rows]
+    owned = rc.owns(event, rows, extra=1) & (rays.depth[rows] == nee.depth[r] + 1)
+    p_walk = rc.p_walk[r] * draws
+    beam = rc.p_walk[r] / np.where(nee.pdf[r] > 0, nee.pdf[r], np.inf)
+    return nee.ghost_share(event, r, owned, detector, z, nz, codes, k, take_rows(rays.direction, rows), arrival,
+                           p_walk, beam)
 
 
 def _f64(a) -> np.ndarray:

@@ -240,12 +240,12 @@ def source_connection(spec, scene, e):
     """The source connections of end points ``e`` (:class:`EyeEnds`): the indices ``g`` of the end
     points lit straight by the beam (unblocked), their value ``beta f_P(-d, omega_P) E cos_P`` (per
     eye chain, before the 1/N share and the balance weight), the walk's density of (P, omega_P) there
-    (for the balance weight) and the number of shadow rays cast."""
+    (for the balance weight), the number of shadow rays cast and the walk's area density of P alone."""
     src = spec.sources[0]
     d = np.asarray(src.direction, float)
     cos_p = -(e.normal @ d)
     denom = float(d @ src.normal)
-    none = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), 0
+    none = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), 0, np.zeros(0)
     if abs(denom) < 1e-12 or len(e.ray) == 0:
         return none
     t = ((e.point - src.center_mm) @ src.normal) / denom
@@ -260,13 +260,13 @@ def source_connection(spec, scene, e):
     shadows = len(g)
     g = g[~blocked]
     if len(g) == 0:
-        return none[:3] + (shadows,)
+        return none[:3] + (shadows, none[4])
     footprint = _beam_footprint(src)
     wi = np.ascontiguousarray(np.broadcast_to(-d, (len(g), 3)))
     f, pdf = _brdf(spec, e.material[g], e.normal[g], wi, e.omega[g], with_pdf=True)
     p_area = _entrance_density(spec, src, q[g]) * cos_p[g] / footprint
     raw = e.beta[g] * f * (src.power_w / footprint) * cos_p[g]
-    return g, raw, p_area * pdf, shadows
+    return g, raw, p_area * pdf, shadows, p_area
 
 
 def eye_uniforms(spec, first_chunk: int, stop_chunk: int, n: int, chunk_offset: int, per_ray: int = 1) -> np.ndarray:
@@ -448,7 +448,7 @@ def build_table(spec, scene, n_eyes: int = PILOT_EYES, detected_w: float | None 
             continue
         u_s = eye_uniforms(spec, a // CHUNK_RAYS, -(-b // CHUNK_RAYS), b - a, PILOT_CHUNK_OFFSET)
         ends, q, drawn_s = eyes.trace(spec, scene, u_s, keys)
-        g, raw, _, _ = source_connection(spec, scene, ends)
+        g, raw = source_connection(spec, scene, ends)[:2]
         x_s = np.bincount(ends.ray[g], weights=raw, minlength=b - a) if len(g) else np.zeros(b - a)
         j, side = chain_keys(u_s, D, both, keys)
         # x q: what the chain carries when its key is drawn uniformly (q = P_key n_keys here)
@@ -533,7 +533,7 @@ def once_scattered(spec, scene, ends, n_chains: int, splits, end_material, strea
     lit = EyeEnds(ends.ray[p], origin[rows] + h.distance_mm[plain][ok, None] * w[rows], facing[ok],
                   h.part[plain][ok], mat[plain][ok], -w[rows], beta[ok], z0, np.zeros((len(rows), 3)), z0,
                   np.zeros((len(rows), 1), np.int64), z0)
-    g, raw, _, _ = source_connection(spec, scene, lit)
+    g, raw = source_connection(spec, scene, lit)[:2]
     if len(g):
         np.add.at(out, lit.ray[g], raw)
     return out
@@ -1055,7 +1055,7 @@ class ReverseChains:
         table = ctx.spec.eye_table
         if table is not None and not table.source_connections:  # the entrance pilot's view (EyeTable)
             return
-        g, raw, p_walk, shadows = source_connection(ctx.spec, ctx.scene, e)
+        g, raw, p_walk, shadows, p_area = source_connection(ctx.spec, ctx.scene, e)
         self.shadow_rays += shadows
         if len(g) == 0:
             return
@@ -1068,6 +1068,9 @@ class ReverseChains:
                 draws[m] = split.draws_at_source_points(states, e.material[g[m]], e.part[g[m]], e.k[g[m]],
                                                         e.codes[g[m]], int(j))
             p_walk = p_walk * draws
+        nee = states.get("specular_nee")
+        if nee is not None and nee.ghosts_shared(states):  # the ghost connections make some of these paths too
+            p_walk = p_walk + nee.ghost_density_at_ends(ctx.spec, ctx.scene, e, g, p_area)
         value = raw * self.scale * self._eye_weight(g, p_walk)
         keep = value > 0
         g, value = g[keep], value[keep]
@@ -1170,14 +1173,21 @@ class ReverseChains:
         p_walk = self.p_walk[r] if walk_draws is None else self.p_walk[r] * walk_draws
         return self.share_of(event, self.owns(event, rows, extra=1), p_walk, self.cos_out[r], detector, arrival)
 
-    def share_of(self, event, owned, p_walk, cos_out, detector: int, arrival) -> np.ndarray:
-        """The balance weight p_walk / (p_walk + p_eye) of walk-side paths (P, omega) of density ``p_walk``
-        (cos(omega, n_P) ``cos_out``) reaching ``detector`` along ``arrival``; 1 where not ``owned``."""
+    def eye_density(self, event, owned, cos_out, detector: int, arrival) -> np.ndarray:
+        """The eye chains' density of walk-side paths (P, omega) (cos(omega, n_P) ``cos_out``) reaching
+        ``detector`` along ``arrival``, on the (P, omega) measure the walk's densities use (``owned``: the rows
+        the eye table's direction density applies to)."""
         p_eye = EYES_PER_RAY * np.maximum(cos_out, 0.0) \
             / (np.pi * self.det_area[detector] * len(self.det_area) * self.sides)
         table = event.spec.eye_table
         if table is not None and owned.any():
             p_eye = p_eye * np.where(owned, table.density_of_arrival(detector, arrival), 1.0)
+        return p_eye
+
+    def share_of(self, event, owned, p_walk, cos_out, detector: int, arrival) -> np.ndarray:
+        """The balance weight p_walk / (p_walk + p_eye) of walk-side paths (P, omega) of density ``p_walk``
+        (cos(omega, n_P) ``cos_out``) reaching ``detector`` along ``arrival``; 1 where not ``owned``."""
+        p_eye = self.eye_density(event, owned, cos_out, detector, arrival)
         total = p_walk + p_eye
         share = np.where(total > 0, p_walk / np.where(total > 0, total, 1.0), 0.0)
         return np.where(owned, share, 1.0)

@@ -73,7 +73,7 @@ from straylight.engine.interactions.registry import parts_with
 from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import brdf_and_pdf, by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE, EVENT_SPECULAR
-from straylight.engine.reverse_chain import scatter_ends
+from straylight.engine.reverse_chain import _beam_footprint, _flat_normal, scatter_ends
 from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients, cast_branches, side_material
 from straylight.paths import mix_key
@@ -93,6 +93,8 @@ SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega
 #: 2705 ghost paths the split trees had found from beam-lit tube points, guide scope at 45 deg; with 1e-2 all
 #: 6 converge within the 20 iterations, to the tree's own path)
 GHOST_GIVE_UP_RESIDUAL = 1e-2
+#: the probability with which a first vertex tries the ghosts (one uniform per vertex, the thick mirrors' stream)
+GHOST_RATE = 1.0
 
 
 def _dot(a, b):
@@ -143,6 +145,14 @@ class Sequence:
         """(centre, radius) of a ball holding the first interface's clear aperture (None: not known)."""
         test = reach.side_test(self.vertices[0].surface)
         return None if test is None else reach.aperture_ball(test)
+
+
+def chains_own_ghosts(states) -> bool:
+    """Whether the batch's reverse chains (``states``: the strategy states) count runs of a ghost's four
+    interfaces and two reflections from the points they own: the ghosts then join them there (three-way
+    balance), and the lobe draws keep their share of those paths."""
+    rc = states.get("reverse_chain")
+    return rc is not None and rc.k_max >= 4 and rc.r_max >= 2
 
 
 def try_rate(weight_w, w0: float) -> np.ndarray:
@@ -433,7 +443,7 @@ class SpecularNee:
         self.first = np.zeros(n, dtype=bool)  # P is the ray's first vertex (lit by the source)
         self.w0 = float(ctx.start_weight_w)
         # the tries' uniforms: an own stream per chunk (the walk's random numbers stay those without them)
-        self.any_sampled = any(seq.sampled for seq in self.seqs)
+        self.any_sampled = any(seq.sampled or seq.ghost for seq in self.seqs)
         self.seed = check_seed(spec.seed)
         self.first_chunk = int(spec.chunk_offset) + int(ctx.first_chunk)
         self._gens: dict = {}
@@ -444,6 +454,11 @@ class SpecularNee:
         self.both = spec.options.output.detector_sides == "both"
         self.path_depth = int(spec.options.output.path_depth)
         self.shadow_rays = 0
+        self.has_ghosts = any(seq.ghost for seq in self.seqs)
+        # per detector its one normal (flat) or None: the ghosts join the eye chains' points on flat detectors only
+        # (the chains' end points keep z, not its normal)
+        self.flat = [_flat_normal(det) for det in scene.detectors]
+        self.footprint = _beam_footprint(spec.sources[0]) if self.has_ghosts and len(spec.sources) == 1 else None
 
     # ------------------------------------------------------------------ the walk's vertices
 
@@ -468,6 +483,8 @@ class SpecularNee:
         rays = event.rays
         rows, chain_k = self.vertices(event, cont)
         mine = chain_k < self.max_k
+        if self.has_ghosts and self.footprint is not None:  # the ghosts also at the chains' first vertices
+            mine |= rays.last_event[rows] == EVENT_SOURCE
         rows, chain_k = rows[mine], chain_k[mine]
         if len(rows) == 0:
             return
@@ -496,14 +513,17 @@ class SpecularNee:
         todo, need = [], np.zeros(len(rows), dtype=bool)
         q = self.rate[rays.ray[rows]]  # the sampled sequences (thick mirrors) are tried where u_try < q
         first = self.first[rays.ray[rows]]  # the ghosts are tried at the rays' first vertices only
+        shared = chains_own_ghosts(event.states)
         for j, det in enumerate(scene.detectors):
             z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
             for seq in self.seqs_to[j]:
-                may = (chain_k < seq.k) & reaches(seq, p, n_p, z)
+                if seq.ghost:  # at first vertices, the chains' too (three-way balance) where the detector is flat
+                    may = first & ((chain_k == 0) | (shared & (self.flat[j] is not None))) & reaches(seq, p, n_p, z) \
+                        & (u_try < GHOST_RATE)
+                else:
+                    may = (chain_k < seq.k) & reaches(seq, p, n_p, z)
                 if seq.sampled:
                     may &= u_try < q
-                if seq.ghost:
-                    may &= first
                 if may.any():
                     todo.append((j, seq, may, z, nz))
                     need |= may
@@ -541,9 +561,17 @@ class SpecularNee:
                 S[use], e1[use] = S_out / S_out[:, :1], e1_out  # M S, normalised as the walk stores it
             T = chain_throughput(spec, seq, p[at], con.X[g], con.N[g], z[at], S, e1)
             J = con.J[g]
-            rate = q[at] if seq.sampled else 1.0
+            rate = q[at] if seq.sampled else (GHOST_RATE if seq.ghost else 1.0)
             p_nee = rate / (area * J)
             mis = p_nee / (p_nee + pdf)
+            if seq.ghost:
+                owned = chain_k[sub][at] > 0
+                if owned.any():  # against the walk's K draws and the eye chains (module doc, "Ghosts")
+                    o = np.flatnonzero(owned)
+                    arrival = z[at[o]] - con.X[g[o], -1]
+                    arrival /= np.linalg.norm(arrival, axis=1)[:, None]
+                    mis[o] = self._three_way(event, rows[at[o]], j, seq, omega[o], n_p[at[o]], arrival, pdf[o],
+                                             p_nee[o])
             value = rays.weight_w[rows[at]] * f * _dot(omega, n_p[at]) * T * J * area * mis / rate
             keep = np.flatnonzero(value > 0)
             if len(keep):
@@ -571,6 +599,100 @@ class SpecularNee:
                 at = depth + step < width
                 events[idx[at], (depth + step)[at]] = code_p[at] if step == 0 else c
         event.records.add(int(j), r, z, value, keys, events, depth + 1 + seq.k)
+
+    def ghosts_shared(self, states) -> bool:
+        """Whether its ghosts join the reverse chains at the points they own in this batch (:func:`chains_own_ghosts`)."""
+        return self.has_ghosts and chains_own_ghosts(states)
+
+    def _beam(self, event, rows, n_p) -> np.ndarray:
+        """The walk's area density of its first vertices ``rows`` (normals ``n_p``): the beam's footprint over
+        the entrance density the start weight carries (straylight.engine.reverse_chain, ``_walk_density``)."""
+        rays = event.rays
+        w = rays.weight_w[rows]
+        return (self.w0 / np.where(w > 0, w, np.inf)) * np.abs(_dot(take_rows(rays.direction, rows), n_p)) \
+            / self.footprint
+
+    def _three_way(self, event, rows, j, seq, omega, n_p, arrival, pdf, p_nee) -> np.ndarray:
+        """The ghost connection's balance weight at the eye chains' first vertices ``rows``: p_nee / (p_nee +
+        K p_walk + p_eye) on the (P, omega) measure (the beam's area density times each side's direction
+        density; K the walk's lobe draws there, straylight.engine.tree_split)."""
+        rc = event.states["reverse_chain"]
+        beam = self._beam(event, rows, n_p)
+        draws = np.ones(len(rows))
+        split = getattr(event.states.get("delta_chain"), "lobe_split", None)
+        if split is not None:
+            part = event.hits.part[rows].astype(np.int64)
+            codes = np.tile(seq.codes(), (len(rows), 1))
+            draws = split.draws_at_source_points(event.states, event.spec.part_material[part], part,
+                                                 np.full(len(rows), seq.k), codes, int(j))
+        p_eye = rc.eye_density(event, np.ones(len(rows), dtype=bool), _dot(omega, n_p), int(j), arrival)
+        full = beam * p_nee
+        total = full + beam * pdf * draws + p_eye
+        return np.where(total > 0, full / np.where(total > 0, total, 1.0), 0.0)
+
+    def ghost_density_at_ends(self, spec, scene, e, g, p_area) -> np.ndarray:
+        """(len(g),) the ghost connections' density of the eye chains' source-connected end points ``e`` rows
+        ``g`` (P lit straight by the beam, walk area density ``p_area``): p_area q / (A |d omega / dA_z|) where
+        the chain is one of this estimator's ghosts and the re-solved path (P, the chain's z) is the chain's
+        own, else 0 (the eye side's balance weight adds it to the walk's)."""
+        out = np.zeros(len(g))
+        for j, det in enumerate(scene.detectors):
+            if self.flat[j] is None:
+                continue
+            for seq in self.seqs_to[j]:
+                if not seq.ghost:
+                    continue
+                parts = np.array(seq.parts, dtype=np.int64)
+                same = (e.detector[g] == j) & (e.k[g] == seq.k) \
+                    & np.all(e.codes[g][:, :seq.k] // 4 == parts[None, :], axis=1)
+                at = np.flatnonzero(same)
+                if len(at) == 0:
+                    continue
+                rows = g[at]
+                nz = np.tile(self.flat[j], (len(at), 1))
+                con, casts = connect(spec, scene, seq, e.point[rows], e.normal[rows], e.z[rows], nz,
+                                     int(self.det_parts[j]), self.both)
+                self.shadow_rays += casts
+                match = con.ok & (_dot(con.omega, e.omega[rows]) > SAME_DIRECTION_COS)
+                out[at[match]] = p_area[at[match]] * GHOST_RATE / (self.det_area[j] * con.J[match])
+        return out
+
+    def ghost_share(self, event, r, owned, detector: int, z, nz, codes, k, omega, arrival, p_walk, beam) -> np.ndarray:
+        """The factor (p_walk + p_eye) / (p_walk + p_eye + p_nee) split-tree branches of rays ``r`` keep where
+        their path (``k`` interfaces ``codes`` into ``detector`` at ``z``, leaving P along ``omega``, arriving
+        along ``arrival``, walk density ``p_walk`` with its draws, ``beam`` the area density of P) is a ghost
+        this estimator makes from P at the eye chains' vertex (``owned``: the caller's rows whose P is the vertex
+        this estimator recorded, owned by the chains): the two-way weights against the eye chains times it are
+        the three-way balance heuristic; 1 elsewhere."""
+        out = np.ones(len(r))
+        if not self.has_ghosts or self.flat[detector] is None:
+            return out
+        g = np.flatnonzero(owned & self.first[r] & (k == 4))
+        if len(g) == 0:
+            return out
+        p_nee = np.zeros(len(r))
+        for seq in self.seqs_to[detector]:
+            if not seq.ghost:
+                continue
+            parts = np.array(seq.parts, dtype=np.int64)
+            at = g[np.all(codes[g][:, :seq.k] // 4 == parts[None, :], axis=1)]
+            if len(at) == 0:
+                continue
+            ri = r[at]
+            con, casts = connect(event.spec, event.scene, seq, self.point[ri], self.normal[ri], z[at], nz[at],
+                                 int(self.det_parts[detector]), self.both)
+            self.shadow_rays += casts
+            match = con.ok & (_dot(con.omega, omega[at]) > SAME_DIRECTION_COS)
+            p_nee[at[match]] = beam[at[match]] * GHOST_RATE / (self.det_area[detector] * con.J[match])
+        h = np.flatnonzero(p_nee > 0)
+        if len(h) == 0:
+            return out
+        rc = event.states["reverse_chain"]
+        p_eye = rc.eye_density(event, np.ones(len(h), dtype=bool), _dot(omega[h], self.normal[r[h]]), detector,
+                               arrival[h])
+        rest = p_walk[h] + p_eye
+        out[h] = rest / (rest + p_nee[h])
+        return out
 
     # ------------------------------------------------------------------ the split trees' side
 

@@ -25,6 +25,7 @@ from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SOURCE
 from straylight.engine.reverse_chain import _beam_footprint, _source_linear, scatter_ends
+from straylight.engine.specular_nee import chains_own_ghosts
 from straylight.paths import mix_key
 from straylight.rng import check_seed, chunk_stream_uniforms
 from straylight.engine.vec3 import take_rows
@@ -40,7 +41,7 @@ def walk_keeps(states, k, codes, detector: int, k_min: int) -> np.ndarray:
     nee = states.get("specular_nee")
     if nee is None:
         return k <= k_min
-    return nee.covers(k, codes, detector, chains="reverse_chain" in states)
+    return nee.covers(k, codes, detector, chains=chains_own_ghosts(states))
 
 
 class LobeSplit:
@@ -109,9 +110,9 @@ class LobeSplit:
             beam = (self.w0 / rays.weight_w[i]) * np.abs(np.einsum("ij,ij->i", take_rows(rays.direction, i), nf[pos])) \
                 / _beam_footprint(self.source)
             owned = rc.end_material[mat[sel][pos]] & rc.pred[rays.ray[i]] & (rc.k_tree > 0)
-            self.draws = (beam * pdf * self.k, wo[:, 2], owned)  # K draws of this density (module doc)
+            self.draws = (beam * pdf * self.k, wo[:, 2], owned, d, beam)  # K draws of this density (module doc)
         else:
-            self.draws = (np.zeros(n), wo[:, 2], np.zeros(n, dtype=bool))
+            self.draws = (np.zeros(n), wo[:, 2], np.zeros(n, dtype=bool), d, np.zeros(n))
         key = mix_key(rays.path_key[i], part[sel][pos] * 4 + EVENT_SCATTER) if event.settings.record_paths \
             else np.zeros(n, np.uint64)
         S = np.zeros((n, 4))
@@ -124,6 +125,18 @@ class LobeSplit:
             chains.grow(event, b)
         finally:
             self.draws = None
+
+    def ghost_share(self, event, rows, tag, detector: int, z, nz, codes, k, arrival) -> np.ndarray:
+        """The factor the draws ``tag`` (at the vertices ``rows``) keep against specular NEE's ghost connections
+        at the eye chains' vertices (straylight.engine.specular_nee.SpecularNee.ghost_share; 1 without them)."""
+        nee = event.states.get("specular_nee")
+        if nee is None or not nee.ghosts_shared(event.states):
+            return np.ones(len(rows))
+        assert self.draws is not None
+        p_walk, _cos, owned, d, beam = (x[tag] for x in self.draws)
+        r = event.rays.ray[rows]
+        owned = owned & (nee.depth[r] == event.rays.depth[rows])
+        return nee.ghost_share(event, r, owned, detector, z, nz, codes, k, d, arrival, p_walk, beam)
 
     def draws_at_source_points(self, states, material, part, k, codes, detector: int) -> np.ndarray:
         """(n,) the walk's draws (K or 1) at points P lit straight by the source, of ``material`` on ``part``,
@@ -143,7 +156,7 @@ class LobeSplit:
         :meth:`walk_keeps` (the walk's own tree keeps those), else their balance weight against the eye
         chains."""
         assert self.draws is not None  # (called by DeltaChains while the draws' branches grow)
-        p_walk, cos_out, owned = (x[tag] for x in self.draws)
+        p_walk, cos_out, owned = (x[tag] for x in self.draws[:3])
         out = np.where(self.walk_keeps(event, k, codes, detector), 0.0, 1.0)
         rc = event.states.get("reverse_chain")
         if rc is not None and owned.any():

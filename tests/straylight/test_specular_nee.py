@@ -532,3 +532,50 @@ def test_ghost_agrees_with_the_split_trees():
     assert abs(a - b) <= 4 * math.hypot(sa, sb), (a, sa, b, sb)
     assert sa / a < 0.1 * sb / b, (sa / a, sb / b)
     assert abs(on.ledger["balance_residual_w"]) < 1e-9 * on.emitted_w
+
+
+def _slab(plate_material="glossy"):
+    """The glossy slab of tests/straylight/test_tree_split.py with analytic faces (n = 1.5 glass, 10 mm, planes
+    of r = 60 mm): a plate lit by a beam (glossy: z302_sample_b, its lobe's peak sent through the slab; or
+    "matte") seen by a r = 4 mm detector through the slab, by two refractions and by the slab's ghost "top (T)
+    -> bottom (R) -> top (R) -> bottom (T)"; the plate's points are the eye chains' end points (and, glossy,
+    the lobe draws' vertices)."""
+    top = _surface_part("top", _plane(0.0, 1.0, 60.0), "glass")
+    bottom = _surface_part("bottom", _plane(-10.0, -1.0, 60.0), "glass")
+    plate = _quad("plate", (-40, -40, 30), (0, 80, 0), (80, 0, 0), plate_material, n=6)  # normal -z
+    det = disk_part("det", -20.0, 4.0, 64, role="detector")
+    d = np.array([math.sin(math.radians(35.0)), 0.0, math.cos(math.radians(35.0))])
+    src = CollimatedDisk(center_mm=[-49.5, 0.0, 5.0], normal=d, direction=d, radius_mm=6.0)
+    mats = {"glass": load_material({"components": [{"type": "dielectric", "n": 1.5}]}, "glass"),
+            "glossy": load_material("z302_sample_b"), "matte": load_material(MATTE, "matte")}
+    return Scene((top, bottom, plate, det)), src, mats
+
+
+THREE_WAY = EstimatorOptions(delta_chain=4, reverse_chain=4, tree_split=8, specular_nee=4,
+                             specular_nee_sequences="mirrors")
+
+
+@pytest.mark.parametrize("plate", ["glossy", "matte"])
+def test_ghosts_join_the_eye_chains_and_the_lobe_draws(plate):
+    """At the plate's points the eye chains own, the ghost connections, the eye chains' source connections
+    and the walk's K = 8 lobe draws share the ghost family by the three-way balance heuristic: the family's
+    power agrees within 4 sigma with the split trees alone (another seed, 10x the rays), the whole with the
+    analog walk, the ledger closes, and with the matte plate the family's error is a fraction of what the
+    chains give without the ghosts."""
+    scene = _slab(plate)
+    family = ("plate", "top", "bottom", "top", "bottom")
+    n = 20_000
+    on = _run(scene, n, 3, THREE_WAY, record_paths=True)
+    without = _run(scene, n, 3, replace(THREE_WAY, specular_nee=3), record_paths=True)
+    trees = _run(scene, 10 * n, 4, EstimatorOptions(delta_chain=4, tree_split=8), record_paths=True)
+    analog = _run(scene, 400_000, 5, ANALOG)
+    assert {"specular_nee", "reverse_chain", "delta_chain"} <= set(on.strategies.on)
+    a, sa = _family_power(on, n, family)
+    c, sc = _family_power(without, n, family)
+    b, sb = _family_power(trees, 10 * n, family)
+    assert abs(a - b) <= 4 * math.hypot(sa, sb), (a, sa, b, sb)
+    if plate == "matte":  # (the glossy plate's K lobe draws find the ghost at its peak themselves)
+        assert sa / a < 0.5 * sc / c, (sa / a, sc / c)
+    t, r = on.detectors["det"], analog.detectors["det"]
+    assert abs(t.power_w - r.power_w) <= 4 * math.hypot(t.stderr_w, r.stderr_w), (t, r)
+    assert abs(on.ledger["balance_residual_w"]) < 1e-9 * on.emitted_w
