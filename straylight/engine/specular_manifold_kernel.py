@@ -321,3 +321,245 @@ def jacobians_rows(par, x, p, z, t, b, diff, diff_z, Jx, Jz, dX):
             _surface_point(par, 0, u0 - (diff if c == 0 else 0.0), v0 - (diff if c == 1 else 0.0), X1, N1, 1)
             for a in range(3):
                 dX[row, a, c] = (X1[0, a] - X1[1, a]) / (2 * diff)
+
+
+# ---------------------------------------------------------------------- shooting (the ghosts' solve)
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _sag_slope(par, i, u, v):
+    """(h, dh/du, dh/dv) of vertex i's surface at local (u, v) (the sag of :func:`_surface_point`)."""
+    c = par[i, C]
+    kc = par[i, CONIC]
+    q2 = u * u + v * v
+    root = np.sqrt(1.0 - (1.0 + kc) * c * c * q2)
+    h = c * q2 / (1.0 + root)
+    q = c / root
+    if par[i, KIND] == 1.0:
+        for m in range(int(par[i, NCOEF])):
+            h = h + par[i, COEF + m] * q2 ** float(m + 2)
+            q = q + (2 * m + 4) * par[i, COEF + m] * q2 ** float(m + 1)
+    return h, q * u, q * v
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _meet(par, i, o, d, uv, max_iter, tol):
+    """The local (u, v) (into ``uv``) where the ray o + t d (world) meets vertex i's surface, by Newton's method
+    on w(t) - h(u(t), v(t)) from the vertex plane's crossing; False where it does not converge ahead of o."""
+    ou = ov = ow = du = dv = dw = 0.0
+    for a in range(3):
+        rel = o[a] - par[i, VERTEX + a]
+        ou += par[i, ROT + a] * rel
+        ov += par[i, ROT + 3 + a] * rel
+        ow += par[i, ROT + 6 + a] * rel
+        du += par[i, ROT + a] * d[a]
+        dv += par[i, ROT + 3 + a] * d[a]
+        dw += par[i, ROT + 6 + a] * d[a]
+    if dw == 0.0:
+        return False
+    t = -ow / dw
+    for _ in range(max_iter):
+        u = ou + t * du
+        v = ov + t * dv
+        h, hu, hv = _sag_slope(par, i, u, v)
+        f = ow + t * dw - h
+        df = dw - hu * du - hv * dv
+        if not (df != 0.0 and np.isfinite(f)):
+            return False
+        step = f / df
+        t -= step
+        if abs(step) <= tol:
+            uv[0] = ou + t * du
+            uv[1] = ov + t * dv
+            return t > 0.0 and np.isfinite(t)
+    return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _shoot(par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land):
+    """Trace P -> vertex 0 at local (s0, s1) -> .. -> the plane through z of normal nz along the sequence
+    (reflection or refraction by each vertex's law): x (2k) the vertices' local coordinates, X, N their points
+    and front normals, land (2) the landing point's offset from z along e1, e2. False where a ray misses a
+    surface or is totally reflected."""
+    d = np.empty(3)
+    o = np.empty(3)
+    uv = np.empty(2)
+    x[0] = s0
+    x[1] = s1
+    _surface_point(par, 0, s0, s1, X, N, 0)
+    norm = 0.0
+    for a in range(3):
+        d[a] = X[0, a] - p[a]
+        norm += d[a] * d[a]
+    norm = np.sqrt(norm)
+    if not norm > 0.0:
+        return False
+    for a in range(3):
+        d[a] /= norm
+    for i in range(k):
+        dn = d[0] * N[i, 0] + d[1] * N[i, 1] + d[2] * N[i, 2]
+        if par[i, REFLECT] == 1.0:
+            for a in range(3):
+                d[a] = d[a] - 2.0 * dn * N[i, a]
+        else:
+            eta = par[i, ETA_FRONT] if dn < 0.0 else par[i, ETA_BACK]
+            sgn = 1.0 if dn < 0.0 else -1.0  # n_in = sgn N faces the arriving light
+            cos_i = -dn * sgn
+            sin2 = eta * eta * (1.0 - cos_i * cos_i)
+            if sin2 >= 1.0:
+                return False
+            cos_t = np.sqrt(1.0 - sin2)
+            for a in range(3):
+                d[a] = eta * d[a] + (eta * cos_i - cos_t) * sgn * N[i, a]
+        norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        for a in range(3):
+            d[a] /= norm
+        if i == k - 1:
+            break
+        for a in range(3):
+            o[a] = X[i, a]
+        if not _meet(par, i + 1, o, d, uv, 30, 1e-12):
+            return False
+        x[2 * i + 2] = uv[0]
+        x[2 * i + 3] = uv[1]
+        _surface_point(par, i + 1, uv[0], uv[1], X, N, i + 1)
+    dnz = d[0] * nz[0] + d[1] * nz[1] + d[2] * nz[2]
+    if dnz == 0.0:
+        return False
+    t = ((z[0] - X[k - 1, 0]) * nz[0] + (z[1] - X[k - 1, 1]) * nz[1] + (z[2] - X[k - 1, 2]) * nz[2]) / dnz
+    if not t > 0.0:
+        return False
+    l0 = l1 = 0.0
+    for a in range(3):
+        off = X[k - 1, a] + t * d[a] - z[a]
+        l0 += off * e1[a]
+        l1 += off * e2[a]
+    land[0] = l0
+    land[1] = l1
+    return np.isfinite(l0) and np.isfinite(l1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, broyden, X_out, N_out, J_out, ok_out):
+    """Per row: Newton's method on the local (u, v) of the first vertex so that the traced path lands on z
+    (:func:`_shoot`; a 2 x 2 forward-difference Jacobian of the landing point, step halving while it moves
+    away), from x[row, :2]; x (m, 2k) gets the vertices' local coordinates. J_out: |d omega / dA_z| from the
+    same Jacobian at the root (the solid angle of the directions at P over the area they land on)."""
+    m = x.shape[0]
+    k = par.shape[0]
+    X = np.empty((k, 3))
+    N = np.empty((k, 3))
+    Xd = np.empty((k, 3))
+    Nd = np.empty((k, 3))
+    xr = np.empty(2 * k)
+    xd = np.empty(2 * k)
+    land = np.empty(2)
+    ld = np.empty(2)
+    jac = np.empty((2, 2))
+    om = np.empty((3, 3))
+    for row in range(m):
+        ok_out[row] = False
+        J_out[row] = 0.0
+        for a in range(k):
+            for b in range(3):
+                X_out[row, a, b] = np.nan
+                N_out[row, a, b] = np.nan
+        if not active[row]:
+            continue
+        pr, zr, nr, ar, br = p[row], z[row], nz[row], e1[row], e2[row]
+        s0, s1 = x[row, 0], x[row, 1]
+        started = False
+        for pull in (1.0, 0.5, 0.25, 0.0):  # a start whose shot misses a surface: pulled toward the first one's axis
+            if _shoot(par, k, pr, pull * s0, pull * s1, ar, br, nr, zr, xr, X, N, land):
+                s0, s1 = pull * s0, pull * s1
+                started = True
+                break
+        if not started:
+            continue
+        err = np.hypot(land[0], land[1])
+        good = False
+        fresh = True  # the Jacobian is re-made by differences after a rejected secant step, else updated (Broyden)
+        for _it in range(newton_iter):
+            if err <= land_tol:
+                good = True
+                break
+            fine = True
+            if fresh:
+                for c in range(2):
+                    if not _shoot(par, k, pr, s0 + (diff if c == 0 else 0.0), s1 + (diff if c == 1 else 0.0), ar, br,
+                                  nr, zr, xd, Xd, Nd, ld):
+                        fine = False
+                        break
+                    jac[0, c] = (ld[0] - land[0]) / diff
+                    jac[1, c] = (ld[1] - land[1]) / diff
+            det = jac[0, 0] * jac[1, 1] - jac[0, 1] * jac[1, 0]
+            if not (fine and det != 0.0 and np.isfinite(det)):
+                break
+            st0 = (jac[1, 1] * land[0] - jac[0, 1] * land[1]) / det
+            st1 = (-jac[1, 0] * land[0] + jac[0, 0] * land[1]) / det
+            scale = 1.0
+            moved = False
+            for _h in range(8):
+                n0, n1 = s0 - scale * st0, s1 - scale * st1
+                if _shoot(par, k, pr, n0, n1, ar, br, nr, zr, xd, Xd, Nd, ld) and np.hypot(ld[0], ld[1]) < err:
+                    if broyden:  # the secant update: jac += (d_land - jac d_s) d_s^T / |d_s|^2
+                        ds0, ds1 = n0 - s0, n1 - s1
+                        dd = ds0 * ds0 + ds1 * ds1
+                        r0 = ld[0] - land[0] - (jac[0, 0] * ds0 + jac[0, 1] * ds1)
+                        r1 = ld[1] - land[1] - (jac[1, 0] * ds0 + jac[1, 1] * ds1)
+                        jac[0, 0] += r0 * ds0 / dd
+                        jac[0, 1] += r0 * ds1 / dd
+                        jac[1, 0] += r1 * ds0 / dd
+                        jac[1, 1] += r1 * ds1 / dd
+                    fresh = not broyden or scale < 1.0
+                    s0, s1 = n0, n1
+                    err = np.hypot(ld[0], ld[1])
+                    for r in range(2 * k):
+                        xr[r] = xd[r]
+                    for a in range(k):
+                        for b in range(3):
+                            X[a, b] = Xd[a, b]
+                            N[a, b] = Nd[a, b]
+                    land[0], land[1] = ld[0], ld[1]
+                    moved = True
+                    break
+                scale *= 0.5
+            if not moved:
+                if fresh:
+                    break
+                fresh = True  # a secant Jacobian that found no descent: differences again from here
+        if not good and err <= land_tol:
+            good = True
+        if not good:
+            continue
+        # |d omega / dA_z| at the root: the directions at P and the landing points of two nearby shots
+        fine = True
+        for c in range(3):
+            a0 = s0 + (diff if c == 1 else 0.0)
+            a1 = s1 + (diff if c == 2 else 0.0)
+            if not _shoot(par, k, pr, a0, a1, ar, br, nr, zr, xd, Xd, Nd, ld):
+                fine = False
+                break
+            if c > 0:
+                jac[0, c - 1] = (ld[0] - land[0]) / diff
+                jac[1, c - 1] = (ld[1] - land[1]) / diff
+            norm = 0.0
+            for b in range(3):
+                om[c, b] = Xd[0, b] - pr[b]
+                norm += om[c, b] * om[c, b]
+            norm = np.sqrt(norm)
+            for b in range(3):
+                om[c, b] /= norm
+        det = jac[0, 0] * jac[1, 1] - jac[0, 1] * jac[1, 0]
+        if not (fine and det != 0.0):
+            continue
+        ax, ay, az = om[1, 0] - om[0, 0], om[1, 1] - om[0, 1], om[1, 2] - om[0, 2]
+        bx, by, bz = om[2, 0] - om[0, 0], om[2, 1] - om[0, 1], om[2, 2] - om[0, 2]
+        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        J_out[row] = np.sqrt(cx * cx + cy * cy + cz * cz) / (diff * diff) / abs(det)
+        ok_out[row] = np.isfinite(J_out[row]) and J_out[row] > 0.0
+        for r in range(2 * k):
+            x[row, r] = xr[r]
+        for a in range(k):
+            for b in range(3):
+                X_out[row, a, b] = X[a, b]
+                N_out[row, a, b] = N[a, b]

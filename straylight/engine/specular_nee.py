@@ -294,7 +294,8 @@ def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides
     when the caller has it). Returns the :class:`Connection` and the casts made."""
     m = len(p)
     may = reaches(seq, p, n_p, z) if may is None else may
-    sol = _solve(seq, p, z, may)
+    shot = _shoot(seq, p, z, nz, may) if seq.ghost else None
+    sol = _solve(seq, p, z, may) if shot is None else shot.solution
     ok = sol.ok.copy()
     J, omega = np.zeros(m), np.zeros((m, 3))
     g = np.flatnonzero(ok)
@@ -302,7 +303,9 @@ def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides
         sub = manifold.Solution(sol.x[g], sol.X[g], sol.N[g], ok[g])
         ok[g] = manifold.side_checks(seq.vertices, sub, p[g], z[g])
         g = g[ok[g]]
-    if len(g):
+    if len(g) and shot is not None:  # the shots' own geometry term
+        J[g], omega[g] = shot.J[g], shot.omega[g]
+    elif len(g):
         sub = manifold.Solution(sol.x[g], sol.X[g], sol.N[g], ok[g])
         J[g], omega[g] = manifold.geometry_term(seq.vertices, sub, p[g], z[g], nz[g])
     ok &= (_dot(omega, n_p) > 0) & (J > 0) & np.isfinite(J)
@@ -348,6 +351,27 @@ def _solve(seq: Sequence, p, z, rows) -> manifold.Solution:
         sub = manifold.solve(seq.vertices, p[g], z[g], give_up_residual=give_up)
         x[g], X[g], N[g], ok[g] = sub
     return manifold.Solution(x, X, N, ok)
+
+
+def _shoot(seq: Sequence, p, z, nz, rows) -> manifold.Shot | None:
+    """manifold.shoot on the rows ``rows`` (bool), the others not converged (None: a surface the compiled shots
+    do not know; the Newton solve then)."""
+    if not rows.all():
+        m = len(p)
+        g = np.flatnonzero(rows)
+        sub = manifold.shoot(seq.vertices, p[g], z[g], nz[g]) if len(g) else manifold.shoot(seq.vertices, p[:0], z[:0],
+                                                                                           nz[:0])
+        if sub is None:
+            return None
+        x = np.zeros((m, 2 * seq.k))
+        X = np.full((m, seq.k, 3), np.nan)
+        N = np.full((m, seq.k, 3), np.nan)
+        ok = np.zeros(m, dtype=bool)
+        J, omega = np.zeros(m), np.zeros((m, 3))
+        x[g], X[g], N[g], ok[g] = sub.solution
+        J[g], omega[g] = sub.J, sub.omega
+        return manifold.Shot(manifold.Solution(x, X, N, ok), J, omega)
+    return manifold.shoot(seq.vertices, p, z, nz)
 
 
 def _meets(spec, scene, origin, target, last_part, want, surface) -> tuple[np.ndarray, int]:

@@ -481,6 +481,11 @@ def test_geometry_term_of_a_ghost_matches_resolved_paths(radius_mm):
             corners.append((w[0] - w[1]) / (2 * h))
         brute = np.linalg.norm(np.cross(*corners))
         assert math.isclose(J[r], brute, rel_tol=1e-4), (radius_mm, J[r], brute)
+    # the estimator's own solve for the ghosts, by shooting on the first vertex: the same paths and geometry term
+    shot = sm.shoot(seq, p, z, nz)
+    assert shot.solution.ok.all()
+    assert np.abs(shot.solution.X - sol.X).max() < 1e-8
+    assert np.allclose(shot.J, J, rtol=1e-5) and np.allclose(shot.omega, omega, atol=1e-9)
 
 
 def _ghost_scene():
