@@ -357,9 +357,11 @@ def pilot_estimator(est):
     """The pilot's estimator options from the run's ``est``: the same, without entrance sampling (the
     pilot learns its table), reverse chains (build_table) and the computed direct light (``direct_area``: a
     share every ray carries alike, whatever its entrance point, would flatten the table; the pilot's walk
-    counts that light where it enters), and with at most :data:`PILOT_NEE_SPLIT` NEE samples at a glint."""
+    counts that light where it enters), specular NEE's ghosts (they join the eye chains, which the run may turn off,
+    straylight.engine.specular_nee ``ghosts_on``: the table is learnt as without them) and with at most
+    :data:`PILOT_NEE_SPLIT` NEE samples at a glint."""
     return replace(est, entrance_sampling=False, reverse_chain=0, direct_area=False, lens_vertex=False,
-                   nee_split=min(int(est.nee_split), PILOT_NEE_SPLIT))
+                   specular_nee=min(int(est.specular_nee), 3), nee_split=min(int(est.nee_split), PILOT_NEE_SPLIT))
 
 
 def build_table(spec, run_batch, intersector=None, n_rays: int = PILOT_RAYS, eye_table=None,

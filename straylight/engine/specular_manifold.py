@@ -291,6 +291,7 @@ class Shot(NamedTuple):
     solution: Solution
     J: np.ndarray  # (m,) |d omega_P / dA_z|, sr / mm^2
     omega: np.ndarray  # (m, 3) unit direction from p to X_1
+    shots: np.ndarray  # (m,) the traces each row took
 
 
 def shoot(seq, p, z, nz) -> Shot | None:
@@ -312,11 +313,12 @@ def shoot(seq, p, z, nz) -> Shot | None:
     N = np.empty((m, k, 3))
     J = np.empty(m)
     ok = np.empty(m, bool)
+    shots = np.zeros(m, np.int64)
     kernel.shoot_rows(par, np.ascontiguousarray(p, dtype=float), np.ascontiguousarray(z, dtype=float),
                       np.ascontiguousarray(nz, dtype=float), np.ascontiguousarray(e1), np.ascontiguousarray(e2), x,
-                      ok0, SHOOT_ITER, SHOOT_DIFF_MM, LAND_TOL_MM, BROYDEN, X, N, J, ok)
+                      ok0, SHOOT_ITER, SHOOT_DIFF_MM, LAND_TOL_MM, BROYDEN, X, N, J, ok, shots)
     omega, _ = _unit(np.where(ok[:, None], X[:, 0] - p, 1.0))
-    return Shot(Solution(x, X, N, ok), J, omega)
+    return Shot(Solution(x, X, N, ok), J, omega, shots)
 
 
 def solve_numpy(seq, p, z, x0, ok0=None, give_up_residual: float = GIVE_UP_RESIDUAL) -> Solution:

@@ -438,12 +438,21 @@ def _shoot(par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land):
     return np.isfinite(l0) and np.isfinite(l1)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _counted(shots, row, par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land):
+    """:func:`_shoot`, counted in shots[row]."""
+    shots[row] += 1
+    return _shoot(par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, broyden, X_out, N_out, J_out, ok_out):
+def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, broyden, X_out, N_out, J_out, ok_out,
+               shots_out):
     """Per row: Newton's method on the local (u, v) of the first vertex so that the traced path lands on z
     (:func:`_shoot`; a 2 x 2 forward-difference Jacobian of the landing point, step halving while it moves
     away), from x[row, :2]; x (m, 2k) gets the vertices' local coordinates. J_out: |d omega / dA_z| from the
-    same Jacobian at the root (the solid angle of the directions at P over the area they land on)."""
+    same Jacobian at the root (the solid angle of the directions at P over the area they land on); shots_out (m,)
+    the traces each row took."""
     m = x.shape[0]
     k = par.shape[0]
     X = np.empty((k, 3))
@@ -459,6 +468,7 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
     for row in range(m):
         ok_out[row] = False
         J_out[row] = 0.0
+        shots_out[row] = 0
         for a in range(k):
             for b in range(3):
                 X_out[row, a, b] = np.nan
@@ -469,7 +479,7 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
         s0, s1 = x[row, 0], x[row, 1]
         started = False
         for pull in (1.0, 0.5, 0.25, 0.0):  # a start whose shot misses a surface: pulled toward the first one's axis
-            if _shoot(par, k, pr, pull * s0, pull * s1, ar, br, nr, zr, xr, X, N, land):
+            if _counted(shots_out, row, par, k, pr, pull * s0, pull * s1, ar, br, nr, zr, xr, X, N, land):
                 s0, s1 = pull * s0, pull * s1
                 started = True
                 break
@@ -485,7 +495,7 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
             fine = True
             if fresh:
                 for c in range(2):
-                    if not _shoot(par, k, pr, s0 + (diff if c == 0 else 0.0), s1 + (diff if c == 1 else 0.0), ar, br,
+                    if not _counted(shots_out, row, par, k, pr, s0 + (diff if c == 0 else 0.0), s1 + (diff if c == 1 else 0.0), ar, br,
                                   nr, zr, xd, Xd, Nd, ld):
                         fine = False
                         break
@@ -500,7 +510,7 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
             moved = False
             for _h in range(8):
                 n0, n1 = s0 - scale * st0, s1 - scale * st1
-                if _shoot(par, k, pr, n0, n1, ar, br, nr, zr, xd, Xd, Nd, ld) and np.hypot(ld[0], ld[1]) < err:
+                if _counted(shots_out, row, par, k, pr, n0, n1, ar, br, nr, zr, xd, Xd, Nd, ld) and np.hypot(ld[0], ld[1]) < err:
                     if broyden:  # the secant update: jac += (d_land - jac d_s) d_s^T / |d_s|^2
                         ds0, ds1 = n0 - s0, n1 - s1
                         dd = ds0 * ds0 + ds1 * ds1
@@ -534,17 +544,16 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
         # |d omega / dA_z| at the root: the directions at P and the landing points of two nearby shots
         fine = True
         for c in range(3):
-            a0 = s0 + (diff if c == 1 else 0.0)
-            a1 = s1 + (diff if c == 2 else 0.0)
-            if not _shoot(par, k, pr, a0, a1, ar, br, nr, zr, xd, Xd, Nd, ld):
-                fine = False
-                break
             if c > 0:
+                if not _counted(shots_out, row, par, k, pr, s0 + (diff if c == 1 else 0.0), s1 + (diff if c == 2 else 0.0),
+                                ar, br, nr, zr, xd, Xd, Nd, ld):
+                    fine = False
+                    break
                 jac[0, c - 1] = (ld[0] - land[0]) / diff
                 jac[1, c - 1] = (ld[1] - land[1]) / diff
             norm = 0.0
             for b in range(3):
-                om[c, b] = Xd[0, b] - pr[b]
+                om[c, b] = (X[0, b] if c == 0 else Xd[0, b]) - pr[b]
                 norm += om[c, b] * om[c, b]
             norm = np.sqrt(norm)
             for b in range(3):

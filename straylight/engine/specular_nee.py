@@ -367,10 +367,10 @@ def _shoot(seq: Sequence, p, z, nz, rows) -> manifold.Shot | None:
         X = np.full((m, seq.k, 3), np.nan)
         N = np.full((m, seq.k, 3), np.nan)
         ok = np.zeros(m, dtype=bool)
-        J, omega = np.zeros(m), np.zeros((m, 3))
+        J, omega, shots = np.zeros(m), np.zeros((m, 3)), np.zeros(m, np.int64)
         x[g], X[g], N[g], ok[g] = sub.solution
-        J[g], omega[g] = sub.J, sub.omega
-        return manifold.Shot(manifold.Solution(x, X, N, ok), J, omega)
+        J[g], omega[g], shots[g] = sub.J, sub.omega, sub.shots
+        return manifold.Shot(manifold.Solution(x, X, N, ok), J, omega, shots)
     return manifold.shoot(seq.vertices, p, z, nz)
 
 
@@ -479,6 +479,7 @@ class SpecularNee:
         self.path_depth = int(spec.options.output.path_depth)
         self.shadow_rays = 0
         self.has_ghosts = any(seq.ghost for seq in self.seqs)
+        self.no_chains = int(est.reverse_chain) <= 0  # (the set has no eye chains: not turned off by their verdict)
         # per detector its one normal (flat) or None: the ghosts join the eye chains' points on flat detectors only
         # (the chains' end points keep z, not its normal)
         self.flat = [_flat_normal(det) for det in scene.detectors]
@@ -507,7 +508,7 @@ class SpecularNee:
         rays = event.rays
         rows, chain_k = self.vertices(event, cont)
         mine = chain_k < self.max_k
-        if self.has_ghosts and self.footprint is not None:  # the ghosts also at the chains' first vertices
+        if self.ghosts_on(event.states) and self.footprint is not None:  # the ghosts also at the chains' first vertices
             mine |= rays.last_event[rows] == EVENT_SOURCE
         rows, chain_k = rows[mine], chain_k[mine]
         if len(rows) == 0:
@@ -537,12 +538,14 @@ class SpecularNee:
         todo, need = [], np.zeros(len(rows), dtype=bool)
         q = self.rate[rays.ray[rows]]  # the sampled sequences (thick mirrors) are tried where u_try < q
         first = self.first[rays.ray[rows]]  # the ghosts are tried at the rays' first vertices only
-        shared = chains_own_ghosts(event.states)
+        ghosts = self.ghosts_on(event.states)
         for j, det in enumerate(scene.detectors):
             z, nz = det.sample(np.ascontiguousarray(U[rows, column + 3 * j:column + 3 * j + 3]))
             for seq in self.seqs_to[j]:
                 if seq.ghost:  # at first vertices, the chains' too (three-way balance) where the detector is flat
-                    may = first & ((chain_k == 0) | (shared & (self.flat[j] is not None))) & reaches(seq, p, n_p, z) \
+                    if not ghosts:
+                        continue
+                    may = first & ((chain_k == 0) | (self.flat[j] is not None)) & reaches(seq, p, n_p, z) \
                         & (u_try < GHOST_RATE)
                 else:
                     may = (chain_k < seq.k) & reaches(seq, p, n_p, z)
@@ -623,6 +626,13 @@ class SpecularNee:
                 at = depth + step < width
                 events[idx[at], (depth + step)[at]] = code_p[at] if step == 0 else c
         event.records.add(int(j), r, z, value, keys, events, depth + 1 + seq.k)
+
+    def ghosts_on(self, states) -> bool:
+        """Whether it tries its ghosts in this batch (``states``: the strategy states): where the reverse chains
+        own ghost runs (:func:`chains_own_ghosts`; joined to them by the three-way balance), or in a set without
+        eye chains; not where the chains' verdict turned them off (the ghosts' family carries nothing there,
+        straylight.engine.reverse_chain, "Where the chains pay") or they stop short of a ghost's runs."""
+        return self.has_ghosts and (self.no_chains or chains_own_ghosts(states))
 
     def ghosts_shared(self, states) -> bool:
         """Whether its ghosts join the reverse chains at the points they own in this batch (:func:`chains_own_ghosts`)."""
@@ -720,15 +730,17 @@ class SpecularNee:
 
     # ------------------------------------------------------------------ the split trees' side
 
-    def covers(self, k, codes, detector: int, chains: bool = False) -> np.ndarray:
+    def covers(self, k, codes, detector: int, states) -> np.ndarray:
         """(n,) bool: the split-tree branches (``k`` interfaces, ``codes``) reaching ``detector`` whose path
         this estimator may also make: one of its sequences for that detector has their parts (a superset
         of the branches :meth:`branch_share` shares; the further lobe draws of straylight.engine.tree_split
-        leave these to the walk's own tree). With the reverse chains running (``chains``) not the ghosts: they
-        are tried at the first vertices only, which the chains own wherever the lobe draws are made."""
+        leave these to the walk's own tree). The ghosts only where it tries them (:meth:`ghosts_on`) and the
+        chains do not own them (``states``: the batch's strategy states): where they do, the ghosts join the
+        chains and the draws by the three-way balance (:meth:`ghost_share`)."""
         out = np.zeros(len(k), dtype=bool)
+        own_ghosts = not self.ghosts_on(states) or chains_own_ghosts(states)
         for seq in self.seqs_to[detector]:
-            if chains and seq.ghost:
+            if own_ghosts and seq.ghost:
                 continue
             parts = np.array(seq.parts, dtype=np.int64)
             out |= (k == seq.k) & np.all(codes[:, :seq.k] // 4 == parts[None, :], axis=1)
@@ -748,7 +760,10 @@ class SpecularNee:
             return out
         area = self.det_area[detector]
         p_nee = np.zeros(len(rows))
+        ghosts = self.ghosts_on(event.states)
         for seq in self.seqs_to[detector]:  # the others reach no point of it (the same rule as connect's)
+            if seq.ghost and not ghosts:
+                continue
             parts = np.array(seq.parts, dtype=np.int64)
             same = (k[g] == seq.k) & np.all(codes[g][:, :seq.k] // 4 == parts[None, :], axis=1)
             at = g[same]
@@ -761,7 +776,7 @@ class SpecularNee:
             match = con.ok & (_dot(con.omega, rays.direction[rows[at]]) > SAME_DIRECTION_COS)
             if seq.ghost:  # (made at the first vertices only: elsewhere the tree keeps the whole path)
                 match &= self.first[ri]
-            rate = self.rate[ri[match]] if seq.sampled else 1.0
+            rate = self.rate[ri[match]] if seq.sampled else (GHOST_RATE if seq.ghost else 1.0)
             p_nee[at[match]] = rate / (area * con.J[match])
         walk = self.pdf[r]
         total = walk + p_nee

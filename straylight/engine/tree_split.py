@@ -25,7 +25,6 @@ from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SOURCE
 from straylight.engine.reverse_chain import _beam_footprint, _source_linear, scatter_ends
-from straylight.engine.specular_nee import chains_own_ghosts
 from straylight.paths import mix_key
 from straylight.rng import check_seed, chunk_stream_uniforms
 from straylight.engine.vec3 import take_rows
@@ -41,7 +40,7 @@ def walk_keeps(states, k, codes, detector: int, k_min: int) -> np.ndarray:
     nee = states.get("specular_nee")
     if nee is None:
         return k <= k_min
-    return nee.covers(k, codes, detector, chains=chains_own_ghosts(states))
+    return nee.covers(k, codes, detector, states)
 
 
 class LobeSplit:
