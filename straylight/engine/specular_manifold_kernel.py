@@ -357,6 +357,21 @@ def _meet(par, i, o, d, uv, max_iter, tol):
     if dw == 0.0:
         return False
     t = -ow / dw
+    c = par[i, C]
+    if c != 0.0:  # the conic's quadric c (u^2 + v^2 + (1 + k) w^2) - 2 w = 0: its root on the vertex's branch
+        kk = 1.0 + par[i, CONIC]
+        qa = c * (du * du + dv * dv + kk * dw * dw)
+        qb = 2.0 * c * (ou * du + ov * dv + kk * ow * dw) - 2.0 * dw
+        qc = c * (ou * ou + ov * ov + kk * ow * ow) - 2.0 * ow
+        disc = qb * qb - 4.0 * qa * qc
+        if disc < 0.0:
+            return False
+        qq = -0.5 * (qb + math.copysign(np.sqrt(disc), qb))
+        if qq == 0.0:
+            return False
+        t = qc / qq  # (the root that tends to the vertex plane's crossing as the curvature vanishes)
+        if par[i, KIND] != 1.0:
+            max_iter = 2  # exact: Newton below only confirms it
     for _ in range(max_iter):
         u = ou + t * du
         v = ov + t * dv
@@ -367,7 +382,7 @@ def _meet(par, i, o, d, uv, max_iter, tol):
             return False
         step = f / df
         t -= step
-        if abs(step) <= tol:
+        if abs(step) <= tol * (1.0 + abs(t)):
             uv[0] = ou + t * du
             uv[1] = ov + t * dv
             return t > 0.0 and np.isfinite(t)
@@ -375,14 +390,14 @@ def _meet(par, i, o, d, uv, max_iter, tol):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _shoot(par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land):
+def _shoot(par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land, scratch):
     """Trace P -> vertex 0 at local (s0, s1) -> .. -> the plane through z of normal nz along the sequence
     (reflection or refraction by each vertex's law): x (2k) the vertices' local coordinates, X, N their points
     and front normals, land (2) the landing point's offset from z along e1, e2. False where a ray misses a
-    surface or is totally reflected."""
-    d = np.empty(3)
-    o = np.empty(3)
-    uv = np.empty(2)
+    surface or is totally reflected. ``scratch`` (3, 3): work space."""
+    d = scratch[0]
+    o = scratch[1]
+    uv = scratch[2]
     x[0] = s0
     x[1] = s1
     _surface_point(par, 0, s0, s1, X, N, 0)
@@ -439,10 +454,10 @@ def _shoot(par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _counted(shots, row, par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land):
+def _counted(shots, row, par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land, scratch):
     """:func:`_shoot`, counted in shots[row]."""
     shots[row] += 1
-    return _shoot(par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land)
+    return _shoot(par, k, p, s0, s1, e1, e2, nz, z, x, X, N, land, scratch)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -465,6 +480,7 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
     ld = np.empty(2)
     jac = np.empty((2, 2))
     om = np.empty((3, 3))
+    scratch = np.empty((3, 3))
     for row in range(m):
         ok_out[row] = False
         J_out[row] = 0.0
@@ -478,8 +494,10 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
         pr, zr, nr, ar, br = p[row], z[row], nz[row], e1[row], e2[row]
         s0, s1 = x[row, 0], x[row, 1]
         started = False
-        for pull in (1.0, 0.5, 0.25, 0.0):  # a start whose shot misses a surface: pulled toward the first one's axis
-            if _counted(shots_out, row, par, k, pr, pull * s0, pull * s1, ar, br, nr, zr, xr, X, N, land):
+        # from the first surface's vertex (a ghost's two inner reflections fold its path: the straight line's
+        # crossing is far from its root), else from x's start pulled toward the axis
+        for pull in (0.0, 1.0, 0.5, 0.25):
+            if _counted(shots_out, row, par, k, pr, pull * s0, pull * s1, ar, br, nr, zr, xr, X, N, land, scratch):
                 s0, s1 = pull * s0, pull * s1
                 started = True
                 break
@@ -496,7 +514,7 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
             if fresh:
                 for c in range(2):
                     if not _counted(shots_out, row, par, k, pr, s0 + (diff if c == 0 else 0.0), s1 + (diff if c == 1 else 0.0), ar, br,
-                                  nr, zr, xd, Xd, Nd, ld):
+                                  nr, zr, xd, Xd, Nd, ld, scratch):
                         fine = False
                         break
                     jac[0, c] = (ld[0] - land[0]) / diff
@@ -510,7 +528,7 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
             moved = False
             for _h in range(8):
                 n0, n1 = s0 - scale * st0, s1 - scale * st1
-                if _counted(shots_out, row, par, k, pr, n0, n1, ar, br, nr, zr, xd, Xd, Nd, ld) and np.hypot(ld[0], ld[1]) < err:
+                if _counted(shots_out, row, par, k, pr, n0, n1, ar, br, nr, zr, xd, Xd, Nd, ld, scratch) and np.hypot(ld[0], ld[1]) < err:
                     if broyden:  # the secant update: jac += (d_land - jac d_s) d_s^T / |d_s|^2
                         ds0, ds1 = n0 - s0, n1 - s1
                         dd = ds0 * ds0 + ds1 * ds1
@@ -546,7 +564,7 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
         for c in range(3):
             if c > 0:
                 if not _counted(shots_out, row, par, k, pr, s0 + (diff if c == 1 else 0.0), s1 + (diff if c == 2 else 0.0),
-                                ar, br, nr, zr, xd, Xd, Nd, ld):
+                                ar, br, nr, zr, xd, Xd, Nd, ld, scratch):
                     fine = False
                     break
                 jac[0, c - 1] = (ld[0] - land[0]) / diff

@@ -48,12 +48,18 @@ guide scope, at a third of the cost) and the two thick mirrors, which a vertex t
 q (:func:`try_rate`; docs/engine.md, "Thick mirrors").
 
 **Ghosts** (``specular_nee = 4`` with ``"mirrors"``, opt-in): also a singlet's two-reflection ghosts "a (T) -> b (R) ->
-a (R) -> b (T)" (:func:`ghost`), tried at the rays' first vertices only (P lit straight by the source; a tree
-from any other vertex keeps the whole path, :meth:`SpecularNee.branch_share`), always (q = 1), with a looser
-give-up rule in the solve (:data:`GHOST_GIVE_UP_RESIDUAL`). Where the reverse chains run they own those vertices,
-so the ghosts connect only where the chains do not (and the lobe draws keep their share of the ghost paths:
-:meth:`SpecularNee.covers`). Not in the default set: a ghost's solve costs ~27 us a vertex (docs/engine.md,
-"Ghost connections: measured, not in the default set").
+a (R) -> b (T)" (:func:`ghost`), tried at the rays' first vertices only (P lit straight by the source; a tree from
+any other vertex keeps the whole path), with probability :data:`GHOST_RATE`, solved by shooting on the first
+vertex (straylight.engine.specular_manifold.shoot: two unknowns; the path's geometry term from the same shots).
+They are tried where the reverse chains own ghost runs (:func:`chains_own_ghosts`) or the set has no chains
+(:meth:`SpecularNee.ghosts_on`); where the chains' verdict turned them off, not. At the chains' points the
+ghost connection, the eye chains' source connection and the walk's K lobe draws share each path by the
+three-way balance heuristic: the connection keeps p_nee / (p_nee + K p_walk + p_eye) (:meth:`SpecularNee._three_way`;
+p_nee = beam density x q / (A J) on the (P, omega) measure the other two use), and each of the other two keeps
+its two-way weight times (K p_walk + p_eye) / (K p_walk + p_eye + p_nee) (:meth:`SpecularNee.ghost_share` for the
+trees, :meth:`SpecularNee.ghost_density_at_ends` for the eye side), p_nee re-solved for the path and taken where
+the solution is the path's own. Flat detectors only there (the chains' end points keep z, not its normal).
+Measured and why not in the default set: docs/engine.md, "Ghost connections (`specular_nee = 4`)".
 """
 from __future__ import annotations
 
@@ -88,10 +94,11 @@ MAX_INTERFACES = 4
 THICK_MIRROR_RATE = 0.25
 TRY_STREAM = 0x544D4952  # third entropy word of the draws that decide whether a vertex tries them ("TMIR")
 SAME_DIRECTION_COS = 1.0 - 1e-9  # a re-solved path is the tree's own when omega agrees this well
-#: a ghost's solve (four vertices from the unfolded straight line: a far start) stops after
-#: manifold.GIVE_UP_AFTER iterations only while its residual is above this (the solver's own 1e-4 gave up on 6 of
-#: 2705 ghost paths the split trees had found from beam-lit tube points, guide scope at 45 deg; with 1e-2 all
-#: 6 converge within the 20 iterations, to the tree's own path)
+#: a ghost solved by Newton's method (where the compiled shots do not know a surface, :func:`_shoot`: four vertices
+#: from the unfolded straight line, a far start) stops after manifold.GIVE_UP_AFTER iterations only while its
+#: residual is above this (the solver's own 1e-4 gave up on 6 of 2705 ghost paths the split trees had found from
+#: beam-lit tube points, guide scope at 45 deg; with 1e-2 all 6 converge within the 20 iterations, to the tree's
+#: own path)
 GHOST_GIVE_UP_RESIDUAL = 1e-2
 #: the probability with which a first vertex tries the ghosts (one uniform per vertex, the thick mirrors' stream)
 GHOST_RATE = 1.0
