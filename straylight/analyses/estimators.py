@@ -109,6 +109,12 @@ ESTIMATOR_SETS = {
 #: 3.5 % -> 0.8 % at 1e5 rays for seed 1); it costs 0.7-0.9 CPU s per 6e4 rays where the beam lights the tube behind
 #: the lens at all, which is why it is not in the default set
 ESTIMATOR_SETS["lens"] = replace(ESTIMATOR_SETS["default"], lens_vertex=True)
+#: the default set with specular NEE also through a singlet's two-reflection ghosts, joined to the eye chains and the
+#: lobe draws by the three-way balance (straylight.engine.specular_nee, "Ghosts"): for points the beam lights in front
+#: of a lens whose ghost carries their light onto the sensor (the guide scope at 45 deg: 0.48-0.60 % at 1e5 rays
+#: against 0.85-1.49 %, CPU s x rel^2 2-4x lower); ~1 CPU s more per 6e4 rays where the eye chains run, which is why
+#: it is not in the default set (docs/engine.md, "Ghost connections (`specular_nee = 4`)")
+ESTIMATOR_SETS["ghosts"] = replace(ESTIMATOR_SETS["default"], specular_nee=4)
 
 
 def register_estimator_set(name: str, options: EstimatorOptions) -> None:

@@ -4,7 +4,8 @@ A point flagged ``unreliable_error`` (VOV > 0.1) or stopped by a cap before its 
 few rare, heavy rays: one ray of "source -> lens_front -> lens_back -> lens_cell -> sensor" held 97 % of
 the variance of the guide scope's 15 deg point. The flag says *that*; a user also needs *what*, to know
 which part to blacken or which estimator set draws that path (``--estimators lens`` draws scatter points
-lit through a lens: docs/engine.md, "Scatter points lit through a lens").
+lit through a lens: docs/engine.md, "Scatter points lit through a lens"; ``--estimators ghosts`` joins points the
+beam lights to the sensor through a lens's two-reflection ghost: "Ghost connections").
 
 Chunks are reproducible: chunk c of a trace draws from the streams of (seed, c) whatever else was
 traced (CONTRACTS 1: the same numbers for any batch split). So the chunk with the largest share of the
@@ -32,6 +33,8 @@ PATH_DEPTH = 16
 MATCH_TOL = 1e-6
 LENS_HINT = ("its first scatter point is lit through a lens: `--estimators lens` draws such points directly "
              "(docs/engine.md, \"Scatter points lit through a lens\")")
+GHOST_HINT = ("its first scatter point is lit straight and seen through a lens's two-reflection ghost: `--estimators "
+              "ghosts` joins such points to the sensor through the ghost (docs/engine.md, \"Ghost connections\")")
 
 
 def chunk_spread(s1: np.ndarray, s2: np.ndarray, n_rays: int) -> np.ndarray:
@@ -104,7 +107,9 @@ def heaviest_path(job, seed: int, result) -> dict | None:
     label = max(power_of, key=lambda k: abs(power_of[k]))
     events = events_of[label]
     share = (float(x[top]) - mean) ** 2 / total
-    hint = LENS_HINT if _lit_through_glass(job, events) and not job.options.estimator.lens_vertex else None
+    est = job.options.estimator
+    hint = LENS_HINT if _lit_through_glass(job, events) and not est.lens_vertex else \
+        GHOST_HINT if _seen_through_a_ghost(job, events) and int(est.specular_nee) < 4 else None
     return {"family": label, "variance_share": float(min(share, 1.0)), "ray": int(c * CHUNK_RAYS + ids[top]),
             "contribution_w": float(x[top]), "hint": hint}
 
@@ -140,3 +145,20 @@ def _lit_through_glass(job, events) -> bool:
         if kind != "specular" or material is None or not flags_of(material) & ComponentFlags.DELTA_TRANSMISSION:
             return False
     return True
+
+
+def _transmits(job, part: str) -> bool:
+    """Whether the part's material refracts (a lens face, a window)."""
+    from materials.flags import ComponentFlags, flags_of
+
+    material = _material(job, job.scene.part(part).material)
+    return material is not None and bool(flags_of(material) & ComponentFlags.DELTA_TRANSMISSION)
+
+
+def _seen_through_a_ghost(job, events) -> bool:
+    """The path is "P (scatter, lit straight) -> a -> b -> a -> b -> detector" through two refracting faces a and b:
+    the two-reflection ghost of a singlet the ghost connections make (straylight.engine.specular_nee)."""
+    if len(events) != 5 or events[0][1] != "scatter" or any(kind != "specular" for _, kind in events[1:]):
+        return False
+    a, b = events[1][0], events[2][0]
+    return a != b and (events[3][0], events[4][0]) == (a, b) and _transmits(job, a) and _transmits(job, b)

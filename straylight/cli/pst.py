@@ -105,7 +105,9 @@ def add_parser(subparsers):
                    help="estimator set (straylight.analyses.estimators): 'default'; 'lens' also draws the scatter "
                         "points a lens lights behind its glass and joins them to the beam through it (a lens cell "
                         "seen at a glint; 0.7-0.9 CPU s more per 6e4 rays where the beam lights anything behind "
-                        "the lens); others when registered (benchmarks/estimator_sets.py registers the history "
+                        "the lens); 'ghosts' also joins the points the beam lights to the sensor through a lens's "
+                        "two-reflection ghost (~1 CPU s more per 6e4 rays where the eye chains run); others when "
+                        "registered (benchmarks/estimator_sets.py registers the history "
                         "sets the benchmarks time against)")
     p.add_argument("--entrance-center-mm", type=float, nargs=3, default=None)
     p.add_argument("--entrance-radius-mm", type=float, default=None)

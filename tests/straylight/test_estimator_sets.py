@@ -12,15 +12,16 @@ from straylight.engine.options import EstimatorOptions
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_only_the_default_and_lens_sets_are_public():
-    """In a fresh interpreter (another test of this process may have registered the benchmarks' sets): the default
-    and the lens set (the default with scatter points lit through a lens, straylight.engine.lens_vertex: a choice
-    for users, documented in ``pst --help``); the benchmarks' history sets only when registered."""
+def test_only_the_default_lens_and_ghosts_sets_are_public():
+    """In a fresh interpreter (another test of this process may have registered the benchmarks' sets): the default,
+    the lens set (the default with scatter points lit through a lens, straylight.engine.lens_vertex) and the ghosts
+    set (the default with specular NEE through a singlet's two-reflection ghosts): choices for users, documented in
+    ``pst --help``; the benchmarks' history sets only when registered."""
     out = subprocess.run([sys.executable, "-c", "from straylight.analyses.estimators import ESTIMATOR_SETS, "
                           "estimator_options\nprint(list(ESTIMATOR_SETS))\n"
                           "try:\n    estimator_options('baseline')\nexcept ValueError as e:\n    print(e)"],
                          capture_output=True, text=True, cwd=ROOT, check=True).stdout.splitlines()
-    assert out[0] == "['default', 'lens']"
+    assert out[0] == "['default', 'lens', 'ghosts']"
     assert "unknown estimator set 'baseline'" in out[1]
 
 

@@ -143,3 +143,20 @@ def test_the_study_warning_names_the_heaviest_path_per_flagged_angle():
     assert "at 15 deg" in note.split("**")[1] and "20" not in note.split("**")[1]
     assert "At 15 deg one ray holds 97% of the variance: source -> lens_front (specular) -> lens_cell -> det" in note
     assert "`--estimators lens`" in note
+
+
+def test_a_lit_point_seen_through_a_ghost_names_the_ghosts_set():
+    """The heaviest path "P (lit straight) -> lens_front -> lens_back -> lens_front -> lens_back" (a singlet's
+    two-reflection ghost) names ``--estimators ghosts``; a path through the glass in another order, a path whose P is
+    lit through the lens, or a set with the ghosts on does not."""
+    from straylight.analyses.heaviest import GHOST_HINT, _seen_through_a_ghost
+
+    sc, src, mats = _lens_scene()
+    job = TraceJob(sc, src, mats, TraceOptions(estimator=EstimatorOptions(delta_chain=4)), "det")
+    ghost = [("plate", "scatter"), ("lens_front", "specular"), ("lens_back", "specular"), ("lens_front", "specular"),
+             ("lens_back", "specular")]
+    assert _seen_through_a_ghost(job, ghost)
+    assert not _seen_through_a_ghost(job, ghost[:3])  # two refractions
+    assert not _seen_through_a_ghost(job, [ghost[0], ghost[1], ghost[2], ghost[2], ghost[1]])
+    assert not _seen_through_a_ghost(job, [("lens_front", "specular")] + ghost[1:])
+    assert "--estimators ghosts" in GHOST_HINT.replace("`", "").replace("\n", " ")
