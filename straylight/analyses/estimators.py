@@ -113,7 +113,7 @@ ESTIMATOR_SETS["lens"] = replace(ESTIMATOR_SETS["default"], lens_vertex=True)
 #: lobe draws by the three-way balance (straylight.engine.specular_nee, "Ghosts"): for points the beam lights in front
 #: of a lens whose ghost carries their light onto the sensor (the guide scope at 45 deg: 0.48-0.60 % at 1e5 rays
 #: against 0.85-1.49 %, CPU s x rel^2 2-4x lower); ~1 CPU s more per 6e4 rays where the eye chains run, which is why
-#: it is not in the default set (docs/engine.md, "Ghost connections (`specular_nee = 4`)")
+#: it is not in the default set (docs/engine.md, "Ghost connections")
 ESTIMATOR_SETS["ghosts"] = replace(ESTIMATOR_SETS["default"], specular_nee=4)
 
 

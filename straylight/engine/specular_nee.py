@@ -59,7 +59,7 @@ p_nee = beam density x q / (A J) on the (P, omega) measure the other two use), a
 its two-way weight times (K p_walk + p_eye) / (K p_walk + p_eye + p_nee) (:meth:`SpecularNee.ghost_share` for the
 trees, :meth:`SpecularNee.ghost_density_at_ends` for the eye side), p_nee re-solved for the path and taken where
 the solution is the path's own. Flat detectors only there (the chains' end points keep z, not its normal).
-Measured and why not in the default set: docs/engine.md, "Ghost connections (`specular_nee = 4`)".
+Measured and why not in the default set: docs/engine.md, "Ghost connections".
 """
 from __future__ import annotations
 
