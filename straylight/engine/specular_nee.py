@@ -342,6 +342,12 @@ def connect(spec, scene, seq: Sequence, p, n_p, z, nz, det_part: int, both_sides
     return Connection(ok, sol.X, sol.N, omega, J), casts
 
 
+def _runs_through(seq: Sequence, codes) -> np.ndarray:
+    """(n,) bool: the runs whose first ``seq.k`` interface codes (part * 4 + event) are the sequence's parts."""
+    parts = np.array(seq.parts, dtype=np.int64)
+    return np.all(codes[:, :seq.k] // 4 == parts[None, :], axis=1)
+
+
 def _solve(seq: Sequence, p, z, rows) -> manifold.Solution:
     """manifold.solve on the rows ``rows`` (bool), the others not converged (its rows are independent:
     the same numbers as solving them all); a ghost's with :data:`GHOST_GIVE_UP_RESIDUAL`."""
@@ -634,6 +640,14 @@ class SpecularNee:
                 events[idx[at], (depth + step)[at]] = code_p[at] if step == 0 else c
         event.records.add(int(j), r, z, value, keys, events, depth + 1 + seq.k)
 
+    def _same_path(self, spec, scene, seq, p, n_p, z, nz, omega, detector: int) -> tuple:
+        """Re-solve (p, z) through ``seq`` as :meth:`_connect` does: the rows whose solution is the path that leaves
+        p along ``omega`` (bool), and their geometry terms |d omega / dA_z|."""
+        con, casts = connect(spec, scene, seq, p, n_p, z, nz, int(self.det_parts[detector]), self.both)
+        self.shadow_rays += casts
+        match = con.ok & (_dot(con.omega, omega) > SAME_DIRECTION_COS)
+        return match, con.J[match]
+
     def ghosts_on(self, states) -> bool:
         """Whether it tries its ghosts in this batch (``states``: the strategy states): where the reverse chains
         own ghost runs (:func:`chains_own_ghosts`; joined to them by the three-way balance), or in a set without
@@ -683,19 +697,13 @@ class SpecularNee:
             for seq in self.seqs_to[j]:
                 if not seq.ghost:
                     continue
-                parts = np.array(seq.parts, dtype=np.int64)
-                same = (e.detector[g] == j) & (e.k[g] == seq.k) \
-                    & np.all(e.codes[g][:, :seq.k] // 4 == parts[None, :], axis=1)
-                at = np.flatnonzero(same)
+                at = np.flatnonzero((e.detector[g] == j) & (e.k[g] == seq.k) & _runs_through(seq, e.codes[g]))
                 if len(at) == 0:
                     continue
                 rows = g[at]
-                nz = np.tile(self.flat[j], (len(at), 1))
-                con, casts = connect(spec, scene, seq, e.point[rows], e.normal[rows], e.z[rows], nz,
-                                     int(self.det_parts[j]), self.both)
-                self.shadow_rays += casts
-                match = con.ok & (_dot(con.omega, e.omega[rows]) > SAME_DIRECTION_COS)
-                out[at[match]] = p_area[at[match]] * GHOST_RATE / (self.det_area[j] * con.J[match])
+                match, J = self._same_path(spec, scene, seq, e.point[rows], e.normal[rows], e.z[rows],
+                                           np.tile(self.flat[j], (len(at), 1)), e.omega[rows], j)
+                out[at[match]] = p_area[at[match]] * GHOST_RATE / (self.det_area[j] * J)
         return out
 
     def ghost_share(self, event, r, owned, detector: int, z, nz, codes, k, omega, arrival, p_walk, beam) -> np.ndarray:
@@ -715,16 +723,13 @@ class SpecularNee:
         for seq in self.seqs_to[detector]:
             if not seq.ghost:
                 continue
-            parts = np.array(seq.parts, dtype=np.int64)
-            at = g[np.all(codes[g][:, :seq.k] // 4 == parts[None, :], axis=1)]
+            at = g[_runs_through(seq, codes[g])]
             if len(at) == 0:
                 continue
             ri = r[at]
-            con, casts = connect(event.spec, event.scene, seq, self.point[ri], self.normal[ri], z[at], nz[at],
-                                 int(self.det_parts[detector]), self.both)
-            self.shadow_rays += casts
-            match = con.ok & (_dot(con.omega, omega[at]) > SAME_DIRECTION_COS)
-            p_nee[at[match]] = beam[at[match]] * GHOST_RATE / (self.det_area[detector] * con.J[match])
+            match, J = self._same_path(event.spec, event.scene, seq, self.point[ri], self.normal[ri], z[at], nz[at],
+                                       omega[at], detector)
+            p_nee[at[match]] = beam[at[match]] * GHOST_RATE / (self.det_area[detector] * J)
         h = np.flatnonzero(p_nee > 0)
         if len(h) == 0:
             return out
@@ -749,8 +754,7 @@ class SpecularNee:
         for seq in self.seqs_to[detector]:
             if own_ghosts and seq.ghost:
                 continue
-            parts = np.array(seq.parts, dtype=np.int64)
-            out |= (k == seq.k) & np.all(codes[:, :seq.k] // 4 == parts[None, :], axis=1)
+            out |= (k == seq.k) & _runs_through(seq, codes)
         return out
 
     def branch_share(self, event, rows, detector: int, z, nz, codes, k) -> np.ndarray:
@@ -771,20 +775,17 @@ class SpecularNee:
         for seq in self.seqs_to[detector]:  # the others reach no point of it (the same rule as connect's)
             if seq.ghost and not ghosts:
                 continue
-            parts = np.array(seq.parts, dtype=np.int64)
-            same = (k[g] == seq.k) & np.all(codes[g][:, :seq.k] // 4 == parts[None, :], axis=1)
-            at = g[same]
+            at = g[(k[g] == seq.k) & _runs_through(seq, codes[g])]
             if len(at) == 0:
                 continue
             ri = r[at]
-            con, casts = connect(event.spec, event.scene, seq, self.point[ri], self.normal[ri], z[at], nz[at],
-                                 int(self.det_parts[detector]), self.both)
-            self.shadow_rays += casts
-            match = con.ok & (_dot(con.omega, rays.direction[rows[at]]) > SAME_DIRECTION_COS)
+            match, J = self._same_path(event.spec, event.scene, seq, self.point[ri], self.normal[ri], z[at], nz[at],
+                                       rays.direction[rows[at]], detector)
             if seq.ghost:  # (made at the first vertices only: elsewhere the tree keeps the whole path)
+                J = J[self.first[ri[match]]]
                 match &= self.first[ri]
             rate = self.rate[ri[match]] if seq.sampled else (GHOST_RATE if seq.ghost else 1.0)
-            p_nee[at[match]] = rate / (area * con.J[match])
+            p_nee[at[match]] = rate / (area * J)
         walk = self.pdf[r]
         total = walk + p_nee
         share = np.where(total > 0, walk / np.where(total > 0, total, 1.0), 1.0)
