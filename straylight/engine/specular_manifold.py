@@ -305,9 +305,9 @@ def shoot(seq, p, z, nz) -> Shot | None:
     if par is None:
         return None
     m, k = len(p), len(seq)
-    x0, ok0 = start(seq, p, z)
-    ok0 = ok0 & plausible(seq, x0, p, z)
-    x = np.array(x0, dtype=float)
+    x0, ok0 = start(seq, p, z)  # (the kernel's fallback after the vertex; no plausibility gate: a shot that
+    x = np.array(x0, dtype=float)  # misses a surface fails by itself)
+    ok0 = np.ones(m, bool)
     e1, e2 = orthonormal_basis(np.asarray(nz, dtype=float))
     X = np.empty((m, k, 3))
     N = np.empty((m, k, 3))

@@ -497,8 +497,9 @@ def shoot_rows(par, p, z, nz, e1, e2, x, active, newton_iter, diff, land_tol, br
         # from the first surface's vertex (a ghost's two inner reflections fold its path: the straight line's
         # crossing is far from its root), else from x's start pulled toward the axis
         for pull in (0.0, 1.0, 0.5, 0.25):
-            if _counted(shots_out, row, par, k, pr, pull * s0, pull * s1, ar, br, nr, zr, xr, X, N, land, scratch):
-                s0, s1 = pull * s0, pull * s1
+            a0, a1 = (pull * s0, pull * s1) if pull > 0.0 else (0.0, 0.0)
+            if _counted(shots_out, row, par, k, pr, a0, a1, ar, br, nr, zr, xr, X, N, land, scratch):
+                s0, s1 = a0, a1
                 started = True
                 break
         if not started:
