@@ -48,7 +48,7 @@ guide scope, at a third of the cost) and the two thick mirrors, which a vertex t
 q (:func:`try_rate`; docs/engine.md, "Thick mirrors").
 
 **Ghosts** (``specular_nee = 4`` with ``"mirrors"``, opt-in): also a singlet's two-reflection ghosts "a (T) -> b (R) ->
-a (R) -> b (T)" (:func:`ghost`), tried at the rays' first vertices only (P lit straight by the source; a tree from
+a (R) -> b (T)" (:func:`ghost`; a and b the two faces of one element, :func:`_one_element`), tried at the rays' first vertices only (P lit straight by the source; a tree from
 any other vertex keeps the whole path), with probability :data:`GHOST_RATE`, solved by shooting on the first
 vertex (straylight.engine.specular_manifold.shoot: two unknowns; the path's geometry term from the same shots).
 They are tried where the reverse chains own ghost runs (:func:`chains_own_ghosts`) or the set has no chains
@@ -259,8 +259,35 @@ def candidate_sequences(spec, splits, max_k: int = MAX_INTERFACES, which: str = 
         out.extend(Sequence(tuple(int(p) for p, _ in c), tuple(r for _, r in c), tuple(vert[x] for x in c))
                    for c in chains)
     if which == "mirrors":
-        out = [seq for seq in out if (seq.k == 1 and seq.reflect[0]) or thick_mirror(seq) or ghost(seq)]
+        out = [seq for seq in out if (seq.k == 1 and seq.reflect[0]) or thick_mirror(seq)
+               or (ghost(seq) and _one_element(surf, parts, seq.parts[0], seq.parts[1]))]
     return [seq for seq in out if _media_allow(seq)]
+
+
+def _one_element(surfaces, parts, a: int, b: int) -> bool:
+    """Whether faces ``a`` and ``b`` bound one element: the midpoint of their vertices lies behind both (on the
+    glass side, opposite each front normal) and no other interface of ``parts`` meets the segment between the
+    vertices inside its clear aperture. A ghost "a T, b R, a R, b T" through faces of two elements would cross air
+    or other faces (a Cooke triplet keeps its 6 single-element ghosts of the 14 the media allow)."""
+    va, vb = np.asarray(surfaces[a].vertex_mm, float), np.asarray(surfaces[b].vertex_mm, float)
+    mid = 0.5 * (va + vb)
+    for f, v in ((a, va), (b, vb)):
+        front = -float(surfaces[f].front_sign()) * np.asarray(surfaces[f].axis, float)  # the front normal at the vertex
+        if float((mid - v) @ front) >= 0.0:
+            return False
+    for c in parts:
+        if c in (a, b):
+            continue
+        vc, axis = np.asarray(surfaces[c].vertex_mm, float), np.asarray(surfaces[c].axis, float)
+        denom = float((vb - va) @ axis)
+        if abs(denom) < 1e-12:
+            continue
+        t = float((vc - va) @ axis) / denom
+        if 0.0 < t < 1.0:
+            cross = va + t * (vb - va)
+            if np.linalg.norm(cross - vc) <= float(getattr(surfaces[c], "outer_radius_mm", np.inf)):
+                return False
+    return True
 
 
 def _media_allow(seq: Sequence) -> bool:

@@ -566,3 +566,21 @@ def test_ghosts_join_the_eye_chains_and_the_lobe_draws(plate):
     t, r = on.detectors["det"], analog.detectors["det"]
     assert abs(t.power_w - r.power_w) <= 4 * math.hypot(t.stderr_w, r.stderr_w), (t, r)
     assert abs(on.ledger["balance_residual_w"]) < 1e-9 * on.emitted_w
+
+
+def test_the_ghosts_are_those_of_one_element():
+    """Two singlets on one axis: the ghosts are each singlet's own two (faces with no other interface between them);
+    "a T, b R, a R, b T" through faces of different singlets would cross the faces between and is not tried."""
+    sc, src, mats = _thick_mirror_scene()
+    lens_parts = [p for p in sc.parts if p.name in ("lens_front", "lens_back")]
+    front2 = Conic(vertex_mm=np.array([0.0, 0.0, 30.0]), axis=np.array([0.0, 0.0, 1.0]), radius_mm=40.0,
+                   outer_radius_mm=12.0)
+    second = (_surface_part("lens2_front", front2, "glass"), _surface_part("lens2_back", _plane(26.0, -1.0, 12.0),
+                                                                           "glass"))
+    scene = Scene(tuple(lens_parts) + second + tuple(p for p in sc.parts if p.name not in ("lens_front", "lens_back")))
+    spec = make_spec(scene, src, 100, 0, mats, TraceOptions(estimator=GHOSTS))
+    names = [p.name for p in scene.parts]
+    seqs = candidate_sequences(spec, parts_with(spec, Capability.DELTA_CHAIN), 4, "mirrors")
+    pairs = sorted(tuple(names[p] for p in s.parts[:2]) for s in seqs if s.ghost)
+    assert pairs == [("lens2_back", "lens2_front"), ("lens2_front", "lens2_back"), ("lens_back", "lens_front"),
+                     ("lens_front", "lens_back")]
