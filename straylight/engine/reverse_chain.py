@@ -208,6 +208,14 @@ def _local(v, n, frame=None) -> np.ndarray:
     return np.stack([_dot(v, t), _dot(v, b), _dot(v, n)], axis=1)
 
 
+def beam_density(w0: float, weight_w, direction, normal, footprint: float) -> np.ndarray:
+    """The walk's area density of its first vertices (P lit straight by the beam): the beam's footprint over the
+    entrance density the start weight carries, w0 / w x |d . n_P| / footprint (rays of weight ``weight_w``
+    arriving along ``direction`` at facing normals ``normal``; 0 where the weight is 0)."""
+    w = np.asarray(weight_w, dtype=np.float64)
+    return (w0 / np.where(w > 0, w, np.inf)) * np.abs(_dot(direction, normal)) / footprint
+
+
 def _beam_footprint(src) -> float:
     """Area (mm^2) the collimated disk ``src`` covers across its beam: pi r^2 |d . n_src|."""
     return float(np.pi * src.radius_mm ** 2 * abs(float(np.dot(src.direction, src.normal))))
@@ -1144,8 +1152,7 @@ class ReverseChains:
         n_p = take_rows(hit.facing_normal, rows)
         from_source = rays.last_event[rows] == 0  # EVENT_SOURCE: P is the ray's first vertex
         d = take_rows(rays.direction, rows)
-        beam = (self.w0 / np.where(rays.weight_w[rows] > 0, rays.weight_w[rows], np.inf)) \
-            * np.abs(_dot(d, n_p)) / self.source_footprint
+        beam = beam_density(self.w0, rays.weight_w[rows], d, n_p, self.source_footprint)
         dist = hit.distance_mm[rows]
         vertex = rays.last_pdf_per_sr[rows] * np.abs(hit.cos_in[rows]) / (dist * dist)
         self.p_walk[r] = np.where(from_source, beam, vertex) * out.pdf_per_sr[at]

@@ -79,7 +79,7 @@ from straylight.engine.interactions.registry import parts_with
 from straylight.engine.interactions.scatter_polarization import arriving
 from straylight.engine.material_groups import brdf_and_pdf, by_material
 from straylight.engine.ray_batch import EVENT_DETECTOR, EVENT_SCATTER, EVENT_SOURCE, EVENT_SPECULAR
-from straylight.engine.reverse_chain import _beam_footprint, _flat_normal, scatter_ends
+from straylight.engine.reverse_chain import _beam_footprint, _flat_normal, beam_density, scatter_ends
 from straylight.engine.roles import ROLE_SURFACE
 from straylight.engine.surface_geometry import SELF_HIT_MM, branch_coefficients, cast_branches, side_material
 from straylight.paths import mix_key
@@ -396,22 +396,21 @@ def _solve(seq: Sequence, p, z, rows) -> manifold.Solution:
 def _shoot(seq: Sequence, p, z, nz, rows) -> manifold.Shot | None:
     """manifold.shoot on the rows ``rows`` (bool), the others not converged (None: a surface the compiled shots
     do not know; the Newton solve then)."""
-    if not rows.all():
-        m = len(p)
-        g = np.flatnonzero(rows)
-        sub = manifold.shoot(seq.vertices, p[g], z[g], nz[g]) if len(g) else manifold.shoot(seq.vertices, p[:0], z[:0],
-                                                                                           nz[:0])
-        if sub is None:
-            return None
-        x = np.zeros((m, 2 * seq.k))
-        X = np.full((m, seq.k, 3), np.nan)
-        N = np.full((m, seq.k, 3), np.nan)
-        ok = np.zeros(m, dtype=bool)
-        J, omega, shots = np.zeros(m), np.zeros((m, 3)), np.zeros(m, np.int64)
-        x[g], X[g], N[g], ok[g] = sub.solution
-        J[g], omega[g], shots[g] = sub.J, sub.omega, sub.shots
-        return manifold.Shot(manifold.Solution(x, X, N, ok), J, omega, shots)
-    return manifold.shoot(seq.vertices, p, z, nz)
+    if rows.all():
+        return manifold.shoot(seq.vertices, p, z, nz)
+    m = len(p)
+    g = np.flatnonzero(rows)
+    sub = manifold.shoot(seq.vertices, p[g], z[g], nz[g])
+    if sub is None:
+        return None
+    x = np.zeros((m, 2 * seq.k))
+    X = np.full((m, seq.k, 3), np.nan)
+    N = np.full((m, seq.k, 3), np.nan)
+    ok = np.zeros(m, dtype=bool)
+    J, omega, shots = np.zeros(m), np.zeros((m, 3)), np.zeros(m, np.int64)
+    x[g], X[g], N[g], ok[g] = sub.solution
+    J[g], omega[g], shots[g] = sub.J, sub.omega, sub.shots
+    return manifold.Shot(manifold.Solution(x, X, N, ok), J, omega, shots)
 
 
 def _meets(spec, scene, origin, target, last_part, want, surface) -> tuple[np.ndarray, int]:
@@ -686,20 +685,13 @@ class SpecularNee:
         """Whether its ghosts join the reverse chains at the points they own in this batch (:func:`chains_own_ghosts`)."""
         return self.has_ghosts and chains_own_ghosts(states)
 
-    def _beam(self, event, rows, n_p) -> np.ndarray:
-        """The walk's area density of its first vertices ``rows`` (normals ``n_p``): the beam's footprint over
-        the entrance density the start weight carries (straylight.engine.reverse_chain, ``_walk_density``)."""
-        rays = event.rays
-        w = rays.weight_w[rows]
-        return (self.w0 / np.where(w > 0, w, np.inf)) * np.abs(_dot(take_rows(rays.direction, rows), n_p)) \
-            / self.footprint
-
     def _three_way(self, event, rows, j, seq, omega, n_p, arrival, pdf, p_nee) -> np.ndarray:
         """The ghost connection's balance weight at the eye chains' first vertices ``rows``: p_nee / (p_nee +
         K p_walk + p_eye) on the (P, omega) measure (the beam's area density times each side's direction
         density; K the walk's lobe draws there, straylight.engine.tree_split)."""
         rc = event.states["reverse_chain"]
-        beam = self._beam(event, rows, n_p)
+        beam = beam_density(self.w0, event.rays.weight_w[rows], take_rows(event.rays.direction, rows), n_p,
+                            self.footprint)
         draws = np.ones(len(rows))
         split = getattr(event.states.get("delta_chain"), "lobe_split", None)
         if split is not None:

@@ -24,7 +24,7 @@ from straylight.engine.interactions.brdf_scatter import local_frame
 from straylight.engine.lobes import lobe_materials
 from straylight.engine.material_groups import by_material
 from straylight.engine.ray_batch import EVENT_SCATTER, EVENT_SOURCE
-from straylight.engine.reverse_chain import _beam_footprint, _source_linear, scatter_ends
+from straylight.engine.reverse_chain import _beam_footprint, _source_linear, beam_density, scatter_ends
 from straylight.paths import mix_key
 from straylight.rng import check_seed, chunk_stream_uniforms
 from straylight.engine.vec3 import take_rows
@@ -106,8 +106,8 @@ class LobeSplit:
         # the walk's density of (P, omega) for each draw (reverse_chain.ReverseChains._walk_density, from the source)
         rc = event.states.get("reverse_chain")
         if rc is not None:
-            beam = (self.w0 / rays.weight_w[i]) * np.abs(np.einsum("ij,ij->i", take_rows(rays.direction, i), nf[pos])) \
-                / _beam_footprint(self.source)
+            beam = beam_density(self.w0, rays.weight_w[i], take_rows(rays.direction, i), nf[pos],
+                                _beam_footprint(self.source))
             owned = rc.end_material[mat[sel][pos]] & rc.pred[rays.ray[i]] & (rc.k_tree > 0)
             self.draws = (beam * pdf * self.k, wo[:, 2], owned, d, beam)  # K draws of this density (module doc)
         else:

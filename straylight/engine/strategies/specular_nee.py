@@ -1,6 +1,6 @@
 """Specular next-event estimation (straylight.engine.specular_nee): from the walk's plain scatter
-vertices to the detectors through one to three analytic interfaces, solved by Newton's method, combined
-with the split trees by the balance heuristic."""
+vertices to the detectors through one to four analytic interfaces (Newton's method; a singlet's ghosts by
+shooting), combined with the split trees (and, for the ghosts, the eye chains) by the balance heuristic."""
 from __future__ import annotations
 
 from dataclasses import replace
